@@ -1,0 +1,252 @@
+"""A calibration: the AN4399 form ``G = W G_f + V + Gamma G_f^3`` (AN4399 Eqns 35, 67).
+
+``G_f`` is the uncalibrated reading in g (input divided by ``input_per_g``); ``G`` is
+the calibrated specific force in g.  Every model (6, 9, 12, 15 parameters) reports its
+result in this one form so any calibration can be applied, stored and compared alike.
+A calibration may carry a temperature table (AN4399 section 9): then W, V and Gamma
+are interpolated to the temperature of the data.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .conventions import check_units, units_per_g
+from .errors import DataError, TemperatureRangeError, UnitsError
+
+SCHEMA = "accelcal.calibration"
+SCHEMA_VERSION = 1
+MODELS = ("6", "9", "12", "15")
+
+
+@dataclass
+class TemperatureTable:
+    """Per-temperature AN4399 coefficients and how to interpolate them (AN4399 Eqns 83-92).
+
+    ``method`` is ``linear`` (piecewise linear between calibration temperatures) or
+    ``quadratic`` (exact through three temperatures, least squares through more).
+    """
+
+    temps_c: np.ndarray  # (K,)
+    W: np.ndarray  # (K, 3, 3)
+    V: np.ndarray  # (K, 3)
+    Gamma: np.ndarray  # (K, 3)
+    method: str = "linear"
+
+    def __post_init__(self) -> None:
+        self.temps_c = np.asarray(self.temps_c, dtype=float)
+        order = np.argsort(self.temps_c)
+        self.temps_c = self.temps_c[order]
+        self.W = np.asarray(self.W, dtype=float)[order]
+        self.V = np.asarray(self.V, dtype=float)[order]
+        self.Gamma = np.asarray(self.Gamma, dtype=float)[order]
+        if self.method not in ("linear", "quadratic"):
+            raise DataError(f"temperature method {self.method!r}; allowed: linear, quadratic")
+        k = len(self.temps_c)
+        if k < 2:
+            raise DataError("a temperature table needs calibrations at two or more temperatures")
+        if np.any(np.diff(self.temps_c) <= 0):
+            raise DataError(f"temperatures {self.temps_c.tolist()} repeat; each must be distinct")
+        if self.method == "quadratic" and k < 3:
+            raise DataError("quadratic temperature interpolation needs three or more temperatures")
+
+    @property
+    def range_c(self) -> tuple[float, float]:
+        return float(self.temps_c[0]), float(self.temps_c[-1])
+
+    def _params(self) -> np.ndarray:
+        return np.concatenate([self.W.reshape(len(self.temps_c), 9), self.V, self.Gamma], axis=1)
+
+    def interpolate(self, temp_c, extrapolate: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """W, V, Gamma at each temperature; shapes (..., 3, 3), (..., 3), (..., 3)."""
+        t = np.asarray(temp_c, dtype=float)
+        if not np.all(np.isfinite(t)):
+            raise DataError("temperature is NaN or infinite")
+        lo, hi = self.range_c
+        if not extrapolate and (np.any(t < lo - 1e-9) or np.any(t > hi + 1e-9)):
+            bad = t[(t < lo) | (t > hi)].ravel()[0]
+            raise TemperatureRangeError(
+                f"temperature {bad:g} C is outside the calibrated range {lo:g} to {hi:g} C; "
+                "pass extrapolate=True (--extrapolate) to extrapolate deliberately"
+            )
+        params = self._params()  # (K, 15)
+        if self.method == "quadratic":
+            coef = quadratic_coefficients(self.temps_c, params)  # (3, 15)
+            out = coef[0] + coef[1] * t[..., None] + coef[2] * t[..., None] ** 2
+        else:
+            flat = t.ravel()
+            out = np.empty((flat.size, params.shape[1]))
+            for j in range(params.shape[1]):
+                # np.interp clamps; linear extrapolation is done by hand when asked
+                out[:, j] = np.interp(flat, self.temps_c, params[:, j])
+                if extrapolate:
+                    lo_s = (params[1, j] - params[0, j]) / (self.temps_c[1] - self.temps_c[0])
+                    hi_s = (params[-1, j] - params[-2, j]) / (self.temps_c[-1] - self.temps_c[-2])
+                    out[:, j] += np.where(flat < lo, (flat - lo) * lo_s, 0.0)
+                    out[:, j] += np.where(flat > hi, (flat - hi) * hi_s, 0.0)
+            out = out.reshape(t.shape + (params.shape[1],))
+        W = out[..., :9].reshape(t.shape + (3, 3))
+        return W, out[..., 9:12], out[..., 12:15]
+
+    def to_dict(self) -> dict:
+        return {
+            "method": self.method,
+            "temps_c": self.temps_c.tolist(),
+            "W": self.W.tolist(),
+            "V": self.V.tolist(),
+            "Gamma": self.Gamma.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TemperatureTable":
+        return cls(d["temps_c"], d["W"], d["V"], d["Gamma"], d.get("method", "linear"))
+
+
+def quadratic_coefficients(temps_c, values) -> np.ndarray:
+    """alpha, beta, gamma with ``value(T) = alpha + beta T + gamma T^2`` (AN4399 Eqns 83-92).
+
+    Exact through three temperatures; least squares through more.  ``values`` has
+    shape (K,) or (K, m); the result has shape (3,) or (3, m).
+    """
+    t = np.asarray(temps_c, dtype=float)
+    y = np.asarray(values, dtype=float)
+    A = np.stack([np.ones_like(t), t, t**2], axis=1)
+    if len(t) == 3:
+        return np.linalg.solve(A, y)
+    return np.linalg.lstsq(A, y, rcond=None)[0]
+
+
+@dataclass
+class Calibration:
+    """A calibration in AN4399 form that applies itself to data in known units.
+
+    ``input_units`` and ``input_per_g`` say what the coefficients were fitted on:
+    ``G_f = input / input_per_g``.  For counts that is ``counts_per_g``.
+    """
+
+    model: str
+    W: np.ndarray
+    V: np.ndarray
+    Gamma: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    input_units: str = "g"
+    input_per_g: float = 1.0
+    temperature: TemperatureTable | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.model = str(self.model)
+        if self.model not in MODELS:
+            raise DataError(f"model {self.model!r}; allowed: {', '.join(MODELS)}")
+        self.W = np.asarray(self.W, dtype=float).reshape(3, 3)
+        self.V = np.asarray(self.V, dtype=float).reshape(3)
+        self.Gamma = np.asarray(self.Gamma, dtype=float).reshape(3)
+        check_units(self.input_units)
+        if not (np.all(np.isfinite(self.W)) and np.all(np.isfinite(self.V)) and np.all(np.isfinite(self.Gamma))):
+            raise DataError("calibration coefficients contain NaN or infinity")
+        if not (np.isfinite(self.input_per_g) and self.input_per_g > 0):
+            raise DataError(f"input_per_g {self.input_per_g} must be positive")
+
+    @classmethod
+    def identity(cls, input_units: str = "g", input_per_g: float = 1.0) -> "Calibration":
+        return cls("12", np.eye(3), np.zeros(3), np.zeros(3), input_units, input_per_g)
+
+    @property
+    def counts_per_g(self) -> float | None:
+        return self.input_per_g if self.input_units == "counts" else None
+
+    def coefficients(self, temp_c=None, extrapolate: bool = False):
+        """W, V, Gamma (at ``temp_c`` when the calibration has a temperature table)."""
+        if self.temperature is None:
+            return self.W, self.V, self.Gamma
+        if temp_c is None:
+            raise UnitsError(
+                "this calibration depends on temperature; give the temperature of the data (temp_c)"
+            )
+        return self.temperature.interpolate(temp_c, extrapolate=extrapolate)
+
+    def apply(self, values, units: str, *, counts_per_g: float | None = None,
+              gravity_mps2: float | None = None, temp_c=None, extrapolate: bool = False) -> np.ndarray:
+        """Calibrated specific force in g of readings ``values`` (..., 3) in ``units``.
+
+        ``units`` is required: the calibration refuses to guess.  Counts use the
+        calibration's own ``counts_per_g`` unless one is given, and a different one
+        is refused (the coefficients would be wrong by the ratio).
+        """
+        check_units(units)
+        x = np.asarray(values, dtype=float)
+        if x.shape[-1] != 3:
+            raise DataError(f"readings must have 3 columns (x, y, z); got shape {x.shape}")
+        if not np.all(np.isfinite(x)):
+            raise DataError("readings contain NaN or infinity")
+        if units == "counts":
+            own = self.counts_per_g
+            if counts_per_g is None and own is None:
+                raise UnitsError("calibration was fitted in %s; counts need counts_per_g" % self.input_units)
+            if counts_per_g is not None and own is not None and not np.isclose(counts_per_g, own):
+                raise UnitsError(
+                    f"calibration was fitted at {own:g} counts/g; data given at {counts_per_g:g} counts/g"
+                )
+            scale = own if counts_per_g is None else float(counts_per_g)
+        else:
+            scale = units_per_g(units, gravity_mps2=gravity_mps2)
+        gf = x / scale
+        W, V, G = self.coefficients(temp_c, extrapolate)
+        W = np.asarray(W)
+        return np.einsum("...ij,...j->...i", W, gf) + V + G * gf**3
+
+    # -- versioned JSON (imucal style) -------------------------------------------------
+    def to_dict(self) -> dict:
+        return {
+            "schema": SCHEMA,
+            "version": SCHEMA_VERSION,
+            "model": self.model,
+            "input_units": self.input_units,
+            "input_per_g": self.input_per_g,
+            "W": self.W.tolist(),
+            "V": self.V.tolist(),
+            "Gamma": self.Gamma.tolist(),
+            "temperature": None if self.temperature is None else self.temperature.to_dict(),
+            "metadata": self.metadata,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "calibration") -> "Calibration":
+        if not isinstance(d, dict) or d.get("schema") != SCHEMA:
+            raise DataError(f"{source}: not an accelcal calibration (missing schema {SCHEMA!r})")
+        v = d.get("version")
+        if v != SCHEMA_VERSION:
+            raise DataError(f"{source}: calibration version {v!r}; this station reads version {SCHEMA_VERSION}")
+        try:
+            temp = d.get("temperature")
+            return cls(
+                model=d["model"], W=d["W"], V=d["V"], Gamma=d.get("Gamma", [0, 0, 0]),
+                input_units=d["input_units"], input_per_g=float(d["input_per_g"]),
+                temperature=None if temp is None else TemperatureTable.from_dict(temp),
+                metadata=d.get("metadata", {}),
+            )
+        except KeyError as e:
+            raise DataError(f"{source}: missing key {e.args[0]!r}") from None
+        except (TypeError, ValueError) as e:
+            raise DataError(f"{source}: malformed calibration ({e})") from None
+
+    def save(self, path) -> None:
+        """Write JSON atomically (temporary file then rename): never a half-written file."""
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path) -> "Calibration":
+        path = Path(path)
+        try:
+            d = json.loads(path.read_text())
+        except OSError as e:
+            raise DataError(f"{path}: cannot read ({e.strerror})") from None
+        except json.JSONDecodeError as e:
+            raise DataError(f"{path}: not JSON (line {e.lineno}: {e.msg})") from None
+        return cls.from_dict(d, str(path))

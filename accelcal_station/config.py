@@ -1,0 +1,92 @@
+"""Configuration checking: every error names the key path and what is allowed."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterable
+
+import yaml
+
+from .errors import ConfigError
+
+
+def load_yaml(path) -> dict:
+    """Read a YAML mapping; errors name the file and line."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as e:
+        raise ConfigError(f"{p}: cannot read ({e.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{p}:{where} not valid YAML ({getattr(e, 'problem', e)})") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: must be a YAML mapping at top level")
+    return data
+
+
+def check_keys(d: Any, allowed: Iterable[str], path: str) -> dict:
+    """Refuse unknown keys (typos must not be silently ignored)."""
+    if d is None:
+        return {}
+    if not isinstance(d, dict):
+        raise ConfigError(f"{path}: must be a mapping")
+    allowed = list(allowed)
+    for k in d:
+        if k not in allowed:
+            raise ConfigError(f"{path}.{k}: unknown key; allowed: {', '.join(allowed)}")
+    return d
+
+
+def number(d: dict, key: str, path: str, default=None, lo: float | None = None, hi: float | None = None,
+           integer: bool = False):
+    """A number within [lo, hi]; ``default`` when absent (None means required)."""
+    if key not in d or d[key] is None:
+        if default is None:
+            raise ConfigError(f"{path}.{key}: required")
+        return default
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ConfigError(f"{path}.{key}: {v!r} is not a number")
+    if integer and int(v) != v:
+        raise ConfigError(f"{path}.{key}: {v!r} must be a whole number")
+    if v != v or (lo is not None and v < lo) or (hi is not None and v > hi):
+        rng = f"{'-inf' if lo is None else lo} to {'inf' if hi is None else hi}"
+        raise ConfigError(f"{path}.{key}: {v!r} out of range; allowed {rng}")
+    return int(v) if integer else float(v)
+
+
+def choice(d: dict, key: str, path: str, choices: Iterable, default=None):
+    choices = list(choices)
+    if key not in d or d[key] is None:
+        if default is None:
+            raise ConfigError(f"{path}.{key}: required; allowed: {', '.join(map(str, choices))}")
+        return default
+    v = d[key]
+    if v not in choices:
+        raise ConfigError(f"{path}.{key}: {v!r}; allowed: {', '.join(map(str, choices))}")
+    return v
+
+
+def vector3(d: dict, key: str, path: str, default=None, lo: float | None = None, hi: float | None = None):
+    """A per-axis triple [x, y, z] (a scalar is taken for all three axes)."""
+    if key not in d or d[key] is None:
+        if default is None:
+            raise ConfigError(f"{path}.{key}: required (a number or [x, y, z])")
+        return list(default)
+    v = d[key]
+    vals = [v, v, v] if isinstance(v, (int, float)) and not isinstance(v, bool) else v
+    if not isinstance(vals, (list, tuple)) or len(vals) != 3:
+        raise ConfigError(f"{path}.{key}: {v!r}; allowed: a number or a list [x, y, z]")
+    out = []
+    for i, x in enumerate(vals):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or x != x:
+            raise ConfigError(f"{path}.{key}[{i}]: {x!r} is not a number")
+        if (lo is not None and x < lo) or (hi is not None and x > hi):
+            raise ConfigError(f"{path}.{key}[{i}]: {x!r} out of range; allowed {lo} to {hi}")
+        out.append(float(x))
+    return out

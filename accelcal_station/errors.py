@@ -1,0 +1,47 @@
+"""Errors the station reports to its user as one line (what, where, what is allowed).
+
+Every error a user can cause derives from :class:`AccelcalError`; the command line
+prints ``str(err)`` on one line and exits non-zero, never a traceback.
+"""
+from __future__ import annotations
+
+
+class AccelcalError(Exception):
+    """Base class: a problem with the user's input, configuration or device."""
+
+    exit_code = 2
+
+    def __str__(self) -> str:  # one line, always
+        return " ".join(super().__str__().split())
+
+
+class DataError(AccelcalError):
+    """Input data is unreadable, malformed or physically implausible."""
+
+
+class UnitsError(AccelcalError):
+    """Data given in units the operation cannot accept."""
+
+
+class UnderdeterminedError(AccelcalError):
+    """The pose set cannot determine the requested model."""
+
+
+class ConfigError(AccelcalError):
+    """A configuration key is unknown or has an impossible value."""
+
+
+class DeviceError(AccelcalError):
+    """The device did not answer, answered wrongly, or is not the expected chip."""
+
+    exit_code = 3
+
+
+class TemperatureRangeError(AccelcalError):
+    """A temperature outside the calibrated range, with extrapolation not allowed."""
+
+
+class NVMError(AccelcalError):
+    """Non-volatile memory could not be written, read or verified."""
+
+    exit_code = 4

@@ -1,0 +1,146 @@
+"""Calibration models: fit a pose set (one board or a stack of boards).
+
+``fit`` and ``fit_batch`` are the entry points; both go through the same stacked
+code, so fitting D boards at once is identical to fitting them one at a time.
+
+  model "6"   diagonal gain + offset, least squares (AN4399 Eqns 6-17)
+  model "12"  full W + offset (AN4399 Eqns 35-48)
+  model "15"  full W + offset + diagonal cubic (AN4399 Eqns 67-72)
+  model "9"   A = M (V - B), symmetric M, gravity norm only (nine-position paper)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..calibration import Calibration, TemperatureTable
+from ..conventions import check_units, units_per_g
+from ..errors import DataError, UnderdeterminedError, UnitsError
+from ..session import Session
+from .gravity_norm import fit_norm_batch, nominal_scale
+from .linear import fit_linear_batch, six_param_six_face, six_param_two_pose
+from .result import BatchFit, FitResult
+
+MODELS = ("6", "9", "12", "15")
+
+
+def check_model(model) -> str:
+    m = str(model)
+    if m not in MODELS:
+        raise DataError(f"model {model!r}; allowed: 6, 9, 12, 15")
+    return m
+
+
+def _check_plausible_g(gf: np.ndarray, units: str) -> None:
+    norms = np.linalg.norm(gf, axis=-1)
+    med = float(np.median(norms))
+    if not (0.3 <= med <= 3.0):
+        hint = "counts given as g? use --units counts --counts-per-g N" if med > 3 else "wrong counts_per_g?"
+        raise UnitsError(f"readings in {units} have a median norm of {med:.4g} g, expected about 1 g ({hint})")
+
+
+def fit_batch(readings, references=None, model="12", *, units: str = "g", counts_per_g=None,
+              gravity_mps2: float | None = None, noise=None) -> BatchFit:
+    """Fit D boards at once.
+
+    readings: (D, P, 3) pose means in ``units``; references: (D, P, 3) or (P, 3)
+    expected output in g (required for 6/12/15, ignored by 9); noise: optional
+    (D, P, 3) standard error of each mean in ``units``.  counts_per_g may be a
+    scalar or one value per board; for model 9 it may be None (estimated).
+    """
+    model = check_model(model)
+    check_units(units)
+    x = np.asarray(readings, dtype=float)
+    if x.ndim != 3 or x.shape[-1] != 3:
+        raise DataError(f"readings must have shape (boards, poses, 3); got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise DataError("readings contain NaN or infinity")
+    D = x.shape[0]
+    if model == "9" and units == "counts" and counts_per_g is None:
+        scale = nominal_scale(x)  # (D,)
+    elif units == "counts":
+        cpg = np.broadcast_to(np.asarray(counts_per_g if counts_per_g is not None else np.nan, dtype=float), (D,))
+        if not np.all(np.isfinite(cpg)) or np.any(cpg <= 0):
+            raise UnitsError(f"model {model} on counts needs --counts-per-g (a positive number)")
+        scale = cpg.copy()
+    else:
+        scale = np.full(D, units_per_g(units, counts_per_g, gravity_mps2))
+    gf = x / scale[:, None, None]
+    if model != "9":
+        _check_plausible_g(gf, units)
+    nz = None
+    if noise is not None:
+        nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]
+    if model == "9":
+        res = fit_norm_batch(gf, noise_g=nz)
+    else:
+        if references is None:
+            raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
+                            "model 9 needs none")
+        ref = np.asarray(references, dtype=float)
+        if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
+            raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
+        res = fit_linear_batch(gf, ref, model, nz)
+    res.input_units = units
+    res.input_per_g = scale
+    return res
+
+
+def fit(readings, references=None, model="12", *, units: str = "g", counts_per_g=None,
+        gravity_mps2: float | None = None, noise=None) -> FitResult:
+    """Fit one board: readings (P, 3) in ``units``; returns a FitResult.
+
+    Raises UnderdeterminedError, naming what is missing, when the poses cannot
+    determine the model; never returns NaN coefficients.
+    """
+    x = np.asarray(readings, dtype=float)
+    if x.ndim != 2 or x.shape[-1] != 3:
+        raise DataError(f"readings must have shape (poses, 3); got {x.shape}")
+    ref = None if references is None else np.asarray(references, dtype=float)[None]
+    nz = None if noise is None else np.asarray(noise, dtype=float)[None]
+    b = fit_batch(x[None], ref, model, units=units, counts_per_g=counts_per_g,
+                  gravity_mps2=gravity_mps2, noise=nz)
+    if not b.ok[0]:
+        raise UnderdeterminedError(b.messages[0])
+    return b.result(0)
+
+
+def fit_session(session: Session, model="12") -> FitResult:
+    """Fit a Session (references from the session; std/n give the noise)."""
+    if len(session) == 0:
+        raise DataError("the session has no poses")
+    noise = None
+    if session.noise_g() is not None:
+        noise = session.noise_g() * session.input_per_g
+    return fit(session.readings, session.references_g if str(model) != "9" else None, model,
+               units=session.units, counts_per_g=session.counts_per_g,
+               gravity_mps2=session.gravity_mps2, noise=noise)
+
+
+def fit_temperature(session: Session, model="12", method: str = "linear",
+                    tolerance_c: float = 2.0) -> tuple[Calibration, list[tuple[float, FitResult]]]:
+    """Fit at each calibration temperature and build a temperature table (AN4399 section 9).
+
+    Poses are grouped by temp_c (within ``tolerance_c``); each group is fitted on its own
+    and every parameter is then interpolated ``linear``-ly or by a ``quadratic``.
+    """
+    groups = session.by_temperature(tolerance_c)
+    if len(groups) < 2:
+        raise UnderdeterminedError(
+            f"temperature calibration needs poses at two or more temperatures; found {len(groups)} "
+            f"(grouping within {tolerance_c:g} C)")
+    fits = []
+    for t, sub in groups:
+        try:
+            fits.append((t, fit_session(sub, model)))
+        except UnderdeterminedError as e:
+            raise UnderdeterminedError(f"at {t:g} C: {e}") from None
+    table = TemperatureTable([t for t, _ in fits], [f.W for _, f in fits], [f.V for _, f in fits],
+                             [f.Gamma for _, f in fits], method)
+    first = fits[0][1].calibration
+    cal = Calibration(str(model), table.W[0], table.V[0], table.Gamma[0], first.input_units,
+                      first.input_per_g, temperature=table)
+    return cal, fits
+
+
+__all__ = ["MODELS", "BatchFit", "FitResult", "check_model", "fit", "fit_batch", "fit_session",
+           "fit_temperature", "six_param_six_face", "six_param_two_pose"]

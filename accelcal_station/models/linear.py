@@ -1,0 +1,190 @@
+"""AN4399 linear least-squares models: 6, 12 and 15 parameters, and closed forms.
+
+Per output channel c the model is linear in its coefficients:
+  6  parameters  G_c = W_cc G_fc + V_c                             (AN4399 Eqns 6-17 generalised)
+  12 parameters  G_c = W_cx G_fx + W_cy G_fy + W_cz G_fz + V_c     (AN4399 Eqns 35-48)
+  15 parameters  the 12 above + Gamma_cc G_fc^3                    (AN4399 Eqns 67-72)
+and is solved per channel by least squares against the pose references,
+``beta = (X^T X)^-1 X^T Y`` (AN4399 Eqn 46), for a stack of boards at once.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import UnderdeterminedError
+from .result import BatchFit
+
+AXES = "xyz"
+N_COEF = {"6": 2, "12": 4, "15": 5}
+COND_LIMIT = 1e8  # beyond this the poses do not determine the model in float64 at mg level
+
+
+def param_names(model: str) -> list[str]:
+    w = [f"W_{r}{c}" for r in AXES for c in AXES]
+    v = [f"V_{a}" for a in AXES]
+    if model == "6":
+        return [f"W_{a}{a}" for a in AXES] + v
+    if model == "12":
+        return w + v
+    return w + v + [f"Gamma_{a}{a}" for a in AXES]
+
+
+def regressors(gf: np.ndarray, model: str) -> np.ndarray:
+    """Design matrix per channel, shape (D, 3, P, k), from readings in g (D, P, 3)."""
+    D, P, _ = gf.shape
+    if model == "6":
+        return np.stack([gf, np.ones_like(gf)], axis=-1).transpose(0, 2, 1, 3)
+    base = np.concatenate([gf, np.ones((D, P, 1))], axis=-1)  # (D, P, 4)
+    X = np.broadcast_to(base[:, None], (D, 3, P, 4))
+    if model == "12":
+        return X
+    cubic = (gf**3).transpose(0, 2, 1)[..., None]  # (D, 3, P, 1)
+    return np.concatenate([X, cubic], axis=-1)
+
+
+def coefficients_to_an4399(beta: np.ndarray, model: str):
+    """Map per-channel coefficient vectors (D, 3, k) to W (D,3,3), V (D,3), Gamma (D,3)."""
+    D = beta.shape[0]
+    W = np.zeros((D, 3, 3))
+    G = np.zeros((D, 3))
+    if model == "6":
+        idx = np.arange(3)
+        W[:, idx, idx] = beta[..., 0]
+        V = beta[..., 1]
+    else:
+        W = beta[..., :3].copy()
+        V = beta[..., 3].copy()
+        if model == "15":
+            G = beta[..., 4].copy()
+    return W, V, G
+
+
+def _params(W, V, G, model):
+    D = W.shape[0]
+    if model == "6":
+        return np.concatenate([np.diagonal(W, axis1=1, axis2=2), V], axis=1)
+    if model == "12":
+        return np.concatenate([W.reshape(D, 9), V], axis=1)
+    return np.concatenate([W.reshape(D, 9), V, G], axis=1)
+
+
+def diagnose_underdetermined(gf: np.ndarray, model: str) -> str:
+    """Say what a single board's pose set is missing for ``model`` (gf: (P, 3) in g)."""
+    P = gf.shape[0]
+    k = N_COEF[model]
+    if P < k:
+        return f"model {model} needs at least {k} poses; got {P}"
+    spread = gf.max(axis=0) - gf.min(axis=0)
+    for c in range(3):
+        if spread[c] < 0.05:
+            return (f"channel {AXES[c]} has no spread across the {P} poses (all within {spread[c]:.3f} g): "
+                    f"add poses that tilt the {AXES[c]} axis toward and away from gravity")
+    if model in ("12", "15"):
+        centred = gf - gf.mean(axis=0)
+        _, s, vt = np.linalg.svd(centred, full_matrices=False)
+        if s[-1] < 1e-3 * s[0]:
+            n = vt[-1]
+            return (f"the {P} poses lie in a plane (normal {n[0]:+.2f}, {n[1]:+.2f}, {n[2]:+.2f}): "
+                    f"model {model} needs poses out of that plane")
+    if model == "15":
+        for c in range(3):
+            levels = np.unique(np.round(np.abs(gf[:, c]), 1))
+            if len(levels) < 3 or np.all(np.isin(levels, (0.0, 1.0))):
+                return (f"the cubic term of channel {AXES[c]} cannot be told from its gain with these poses "
+                        f"(channel {AXES[c]} only near 0 and +-1 g): model 15 needs intermediate tilts, e.g. an4399-8")
+    return f"the poses do not determine model {model} (the design is numerically singular)"
+
+
+def fit_linear_batch(gf: np.ndarray, ref: np.ndarray, model: str, noise_g: np.ndarray | None = None) -> BatchFit:
+    """Least-squares fit of model 6, 12 or 15 for a stack of boards (AN4399 Eqn 46).
+
+    gf: (D, P, 3) uncalibrated readings in g; ref: (D, P, 3) or (P, 3) expected output in g;
+    noise_g: optional (D, P, 3) or (P, 3) standard error of each pose's mean in g.
+    Boards whose poses cannot determine the model get ``ok=False`` and a message.
+    """
+    gf = np.asarray(gf, dtype=float)
+    D, P, _ = gf.shape
+    ref = np.broadcast_to(np.asarray(ref, dtype=float), (D, P, 3))
+    k = N_COEF[model]
+    X = regressors(gf, model)  # (D, 3, P, k)
+    y = ref.transpose(0, 2, 1)  # (D, 3, P)
+    ok = np.ones(D, dtype=bool)
+    if P < k:
+        msg = f"model {model} needs at least {k} poses; got {P}"
+        raise UnderdeterminedError(msg)
+    U, s, Vt = np.linalg.svd(X, full_matrices=False)  # (D,3,P,k), (D,3,k), (D,3,k,k)
+    cond_c = s[..., 0] / np.maximum(s[..., -1], 1e-300)
+    bad = np.any(cond_c > COND_LIMIT, axis=1)
+    ok &= ~bad
+    inv_s = np.where(s > s[..., :1] / COND_LIMIT, 1.0 / np.maximum(s, 1e-300), 0.0)
+    uty = np.einsum("dcpk,dcp->dck", U, y)
+    beta = np.einsum("dckj,dck->dcj", Vt, inv_s * uty)  # V diag(1/s) U^T y
+    fitted = np.einsum("dcpk,dck->dcp", X, beta)
+    r = y - fitted  # (D, 3, P): reference minus calibrated (AN4399 residual)
+    rss = np.sum(r**2, axis=-1)  # (D, 3)
+    # leave-one-pose-out residuals from the hat matrix, r_i / (1 - h_ii)
+    h = np.sum(U**2, axis=-1)  # (D, 3, P)
+    cv_ok = np.all(h < 1.0 - 1e-9, axis=(1, 2)) & ok
+    loo = r / np.where(h < 1.0 - 1e-9, 1.0 - h, 1.0)
+    cv_rms = np.where(cv_ok, np.sqrt(np.mean(loo**2, axis=(1, 2))), np.nan)
+    # parameter covariance sigma^2 (X^T X)^-1 = sigma^2 V diag(1/s^2) V^T
+    cov_unit = np.einsum("dcik,dck,dcjk->dcij", Vt.transpose(0, 1, 3, 2), inv_s**2, Vt.transpose(0, 1, 3, 2))
+    dof = P - k
+    s2 = np.full((D, 3), np.nan)
+    if dof > 0:
+        s2 = rss / dof
+    if noise_g is not None:
+        nz = np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3))
+        s2n = np.mean(nz**2, axis=1)
+        s2 = np.where(np.isnan(s2), s2n, np.maximum(s2, s2n))
+    se_ok = np.all(np.isfinite(s2), axis=1) & ok
+    cov = cov_unit * np.where(np.isfinite(s2), s2, 0.0)[..., None, None]  # (D, 3, k, k)
+    se = np.sqrt(np.clip(np.diagonal(cov, axis1=2, axis2=3), 0.0, None))  # (D, 3, k)
+    W, V, G = coefficients_to_an4399(beta, model)
+    sW, sV, sG = coefficients_to_an4399(se, model)
+    calibrated = ref - r.transpose(0, 2, 1)
+    norm_err = np.linalg.norm(calibrated, axis=-1) - np.linalg.norm(ref, axis=-1)
+    messages = ["" if ok[d] else diagnose_underdetermined(gf[d], model) for d in range(D)]
+    return BatchFit(
+        model=model, W=W, V=V, Gamma=G,
+        residuals_g=r.transpose(0, 2, 1), norm_error_g=norm_err, P=rss,
+        residual_rms_g=np.sqrt(np.mean(r**2, axis=(1, 2))),
+        crossval_rms_g=cv_rms, crossval_ok=cv_ok,
+        condition_number=np.max(cond_c, axis=1),
+        stderr_W=sW, stderr_V=sV, stderr_Gamma=sG, stderr_ok=se_ok,
+        covariance=cov, params=_params(W, V, G, model), param_names=param_names(model),
+        ok=ok, messages=messages, readings_g=gf,
+    )
+
+
+# -- AN4399 closed forms ---------------------------------------------------------------
+
+def six_param_two_pose(gf0, gf1, ref0=None):
+    """Gain and offset from two opposite poses (AN4399 Eqns 6-17).
+
+    gf0, gf1: readings in g (3,) at the two poses; ref0: expected output of pose 0
+    (default +1/sqrt(3) on every axis, the note's +-g/sqrt(3) poses; pose 1 is -ref0).
+    Returns (W_diag, V).
+    """
+    gf0 = np.asarray(gf0, dtype=float)
+    gf1 = np.asarray(gf1, dtype=float)
+    r0 = np.full(3, 1.0 / np.sqrt(3.0)) if ref0 is None else np.asarray(ref0, dtype=float)
+    d = gf0 - gf1
+    if np.any(np.abs(d) < 1e-6):
+        raise UnderdeterminedError("the two poses read the same on some channel; they must be opposite")
+    w = 2.0 * r0 / d
+    return w, r0 - w * gf0
+
+
+def six_param_six_face(g_plus, g_minus):
+    """Gain and offset per axis from the six faces, on-axis channel only (AN4399 Eqns 12-17).
+
+    g_plus[c], g_minus[c]: channel c's reading in g with +1 g and -1 g along c.
+    """
+    gp = np.asarray(g_plus, dtype=float)
+    gm = np.asarray(g_minus, dtype=float)
+    d = gp - gm
+    if np.any(np.abs(d) < 1e-6):
+        raise UnderdeterminedError("a channel reads the same on both faces; faces must be opposite")
+    w = 2.0 / d
+    return w, -w * (gp + gm) / 2.0

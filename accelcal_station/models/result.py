@@ -1,0 +1,160 @@
+"""Fit results: one object per fit (scipy.optimize style), one per batch of boards."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..calibration import Calibration
+
+MODEL_PARAMS = {"6": 6, "9": 9, "12": 12, "15": 15}
+
+
+@dataclass
+class FitResult:
+    """Everything a fit says about one board.
+
+    residuals_g: (P, 3) reference minus calibrated output, per pose and axis, in g
+      (model 9: calibrated output minus its projection on the unit sphere).
+    norm_error_g: (P,) |calibrated| - 1 g per pose.
+    P: (3,) per-channel sum of squared residuals (AN4399 Eqn 45; g^2).
+    stderr: standard errors of W, V, Gamma (same shapes), or None where the data
+      cannot say (an exact fit with no per-pose noise given).
+    crossval_rms_g: leave-one-pose-out RMS (model 9: RMS norm error of each
+      left-out pose), or None when leaving a pose out leaves the model undetermined.
+    """
+
+    model: str
+    calibration: Calibration
+    pose_count: int
+    readings_g: np.ndarray
+    residuals_g: np.ndarray
+    norm_error_g: np.ndarray
+    P: np.ndarray
+    residual_rms_g: float
+    residual_max_g: float
+    stderr: dict[str, np.ndarray] | None
+    covariance: np.ndarray | None
+    condition_number: float
+    crossval_rms_g: float | None
+    crossval_residuals_g: np.ndarray | None
+    params: np.ndarray
+    param_names: list[str]
+    success: bool = True
+    status: str = "ok"
+    message: str = ""
+    nfev: int = 1
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def W(self) -> np.ndarray:
+        return self.calibration.W
+
+    @property
+    def V(self) -> np.ndarray:
+        return self.calibration.V
+
+    @property
+    def Gamma(self) -> np.ndarray:
+        return self.calibration.Gamma
+
+    def to_json_dict(self, pose_names: list[str] | None = None) -> dict:
+        names = pose_names or [str(i) for i in range(self.pose_count)]
+        poses = []
+        for i in range(self.pose_count):
+            poses.append({
+                "pose": names[i],
+                "reading_g": self.readings_g[i].tolist(),
+                "residual_g": self.residuals_g[i].tolist(),
+                "norm_error_g": float(self.norm_error_g[i]),
+            })
+        se = None
+        if self.stderr is not None:
+            se = {k: np.asarray(v).tolist() for k, v in self.stderr.items()}
+        return {
+            "model": self.model,
+            "pose_count": self.pose_count,
+            "W": self.W.tolist(),
+            "V": self.V.tolist(),
+            "Gamma": self.Gamma.tolist(),
+            "params": dict(zip(self.param_names, self.params.tolist())),
+            "stderr": se,
+            "P": self.P.tolist(),
+            "residual_rms_g": self.residual_rms_g,
+            "residual_max_g": self.residual_max_g,
+            "crossval_rms_g": self.crossval_rms_g,
+            "condition_number": self.condition_number,
+            "success": self.success,
+            "status": self.status,
+            "message": self.message,
+            "nfev": self.nfev,
+            "input_units": self.calibration.input_units,
+            "input_per_g": self.calibration.input_per_g,
+            "poses": poses,
+        }
+
+
+@dataclass
+class BatchFit:
+    """Stacked fits of D boards; ``ok[d]`` False marks a board that could not be fitted."""
+
+    model: str
+    W: np.ndarray  # (D, 3, 3)
+    V: np.ndarray  # (D, 3)
+    Gamma: np.ndarray  # (D, 3)
+    residuals_g: np.ndarray  # (D, P, 3)
+    norm_error_g: np.ndarray  # (D, P)
+    P: np.ndarray  # (D, 3)
+    residual_rms_g: np.ndarray  # (D,)
+    crossval_rms_g: np.ndarray  # (D,), NaN where not computable (see crossval_ok)
+    crossval_ok: np.ndarray  # (D,) bool
+    condition_number: np.ndarray  # (D,)
+    stderr_W: np.ndarray  # (D, 3, 3)
+    stderr_V: np.ndarray  # (D, 3)
+    stderr_Gamma: np.ndarray  # (D, 3)
+    stderr_ok: np.ndarray  # (D,) bool
+    covariance: np.ndarray  # model specific, (D, ...)
+    params: np.ndarray  # (D, k)
+    param_names: list[str]
+    ok: np.ndarray  # (D,) bool
+    messages: list[str]
+    readings_g: np.ndarray  # (D, P, 3)
+    input_units: str = "g"
+    input_per_g: np.ndarray | float = 1.0
+    nfev: np.ndarray | None = None
+    status: list[str] | None = None
+
+    def __len__(self) -> int:
+        return len(self.ok)
+
+    def result(self, d: int) -> FitResult:
+        """The FitResult of board ``d`` (identical to fitting that board alone)."""
+        per_g = float(np.broadcast_to(self.input_per_g, (len(self),))[d])
+        cal = Calibration(self.model, self.W[d], self.V[d], self.Gamma[d], self.input_units, per_g)
+        res = self.residuals_g[d]
+        stderr = None
+        if self.stderr_ok[d]:
+            stderr = {"W": self.stderr_W[d], "V": self.stderr_V[d], "Gamma": self.stderr_Gamma[d]}
+        return FitResult(
+            model=self.model,
+            calibration=cal,
+            pose_count=res.shape[0],
+            readings_g=self.readings_g[d],
+            residuals_g=res,
+            norm_error_g=self.norm_error_g[d],
+            P=self.P[d],
+            residual_rms_g=float(self.residual_rms_g[d]),
+            residual_max_g=float(np.max(np.abs(res))) if res.size else 0.0,
+            stderr=stderr,
+            covariance=self.covariance[d] if self.stderr_ok[d] else None,
+            condition_number=float(self.condition_number[d]),
+            crossval_rms_g=float(self.crossval_rms_g[d]) if self.crossval_ok[d] else None,
+            crossval_residuals_g=None,
+            params=self.params[d],
+            param_names=self.param_names,
+            success=bool(self.ok[d]),
+            status=self.status[d] if self.status else ("ok" if self.ok[d] else "failed"),
+            message=self.messages[d],
+            nfev=int(self.nfev[d]) if self.nfev is not None else 1,
+        )

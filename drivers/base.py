@@ -1,0 +1,152 @@
+"""The driver interface every sensor implements (python-can's BusABC in spirit).
+
+Counts cross this boundary: a driver returns raw integer counts and says how many
+counts make 1 g at its current range; everything after that is in g.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import DeviceError
+
+
+@dataclass(frozen=True)
+class Identity:
+    chip: str  # "mma8451", "mpu6050", ...
+    chip_id: int  # WHO_AM_I value
+    serial: str  # board serial number ("" when the board has none)
+    interface: str  # "i2c:1@0x1d", "serial:/dev/ttyUSB0", "simulated"
+    firmware: str | None = None
+
+
+@dataclass
+class Capture:
+    """Averaged counts of one static capture.
+
+    mean_counts, std_counts: per axis (3,), std is the sample standard deviation;
+    n: samples averaged; dropped: samples the device lost (overrun, sequence gap);
+    temp_c: chip temperature (None when the chip has no sensor);
+    t_start, t_end: timestamps (s) of the first and last sample;
+    samples, timestamps: the raw stream when kept.
+    """
+
+    mean_counts: np.ndarray
+    std_counts: np.ndarray
+    n: int
+    dropped: int = 0
+    temp_c: float | None = None
+    t_start: float = 0.0
+    t_end: float = 0.0
+    samples: np.ndarray | None = field(default=None, repr=False)
+    timestamps: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def sem_counts(self) -> np.ndarray:
+        """Standard error of the mean per axis, in counts."""
+        return self.std_counts / np.sqrt(max(self.n, 1))
+
+    @classmethod
+    def from_samples(cls, samples, timestamps, dropped: int = 0, temp_c: float | None = None,
+                     keep: bool = False) -> "Capture":
+        s = np.asarray(samples, dtype=float)
+        t = np.asarray(timestamps, dtype=float)
+        if s.ndim != 2 or s.shape[1] != 3 or len(s) == 0:
+            raise DeviceError(f"capture returned no usable samples (shape {s.shape})")
+        return cls(
+            mean_counts=s.mean(axis=0),
+            std_counts=s.std(axis=0, ddof=1) if len(s) > 1 else np.zeros(3),
+            n=len(s), dropped=int(dropped), temp_c=temp_c,
+            t_start=float(t[0]), t_end=float(t[-1]),
+            samples=np.asarray(samples) if keep else None,
+            timestamps=t if keep else None,
+        )
+
+
+class NVM(ABC):
+    """Byte-addressed non-volatile memory on the board (EEPROM, bridge flash, simulated)."""
+
+    size: int
+    page_size: int
+
+    @abstractmethod
+    def read(self, addr: int, n: int) -> bytes:
+        """Read n bytes from addr."""
+
+    @abstractmethod
+    def write(self, addr: int, data: bytes) -> None:
+        """Write data at addr; splits at page boundaries and waits for each write cycle."""
+
+    def _check_range(self, addr: int, n: int) -> None:
+        if addr < 0 or n < 0 or addr + n > self.size:
+            raise DeviceError(f"NVM access {addr}..{addr + n} outside 0..{self.size}")
+
+
+class Driver(ABC):
+    """One sensor.  Use as a context manager: ``with make_driver(cfg) as dev: ...``."""
+
+    name: str = "abstract"
+
+    def __enter__(self) -> "Driver":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @abstractmethod
+    def open(self) -> None:
+        """Connect, check the chip's identity, bring it to a known state."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the bus or port; safe to call twice."""
+
+    @abstractmethod
+    def identify(self) -> Identity:
+        """Chip and board identity."""
+
+    @abstractmethod
+    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options) -> None:
+        """Set full scale (g) and output data rate (Hz); chip-specific options by name."""
+
+    @property
+    @abstractmethod
+    def range_g(self) -> int:
+        """Current full scale in g."""
+
+    @property
+    @abstractmethod
+    def odr_hz(self) -> float:
+        """Current output data rate in Hz."""
+
+    @property
+    @abstractmethod
+    def counts_per_g(self) -> float:
+        """Nominal counts per g at the current range (e.g. 4096 for MMA8451 at 2 g)."""
+
+    @abstractmethod
+    def read_samples(self, n: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """The next n samples: counts (n, 3) int64, timestamps (n,) in s, dropped count."""
+
+    def temperature_c(self) -> float | None:
+        """Chip temperature in C, or None when the chip has no sensor."""
+        return None
+
+    @property
+    def nvm(self) -> NVM | None:
+        """The board's non-volatile memory, or None when it has none."""
+        return None
+
+    def capture(self, n: int | None = None, seconds: float | None = None, keep: bool = False) -> Capture:
+        """Average n samples (or ``seconds`` worth at the current data rate)."""
+        if n is None:
+            if seconds is None:
+                raise DeviceError("capture needs n samples or a duration in seconds")
+            n = max(1, int(round(seconds * self.odr_hz)))
+        if n < 1:
+            raise DeviceError(f"capture of {n} samples; need at least 1")
+        counts, t, dropped = self.read_samples(int(n))
+        return Capture.from_samples(counts, t, dropped, self.temperature_c(), keep)
