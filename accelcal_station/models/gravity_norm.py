@@ -155,11 +155,10 @@ def fit_norm_batch(gf: np.ndarray, noise_g: np.ndarray | None = None, crossval: 
     resid = cal / np.maximum(nrm, 1e-300)[..., None] - cal  # unit-sphere point minus calibrated
     dof = P - 9
     s2 = np.full(D, np.nan)
-    if dof > 0:
+    if noise_g is not None:  # measured noise when known (see linear.py)
+        s2 = np.mean(np.asarray(noise_g) ** 2, axis=(1, 2))
+    elif dof > 0:
         s2 = np.sum(r**2, axis=1) / dof
-    if noise_g is not None:
-        s2n = np.mean(np.asarray(noise_g) ** 2, axis=(1, 2))
-        s2 = np.where(np.isnan(s2), s2n, np.maximum(s2, s2n))
     JtJ = np.einsum("dpi,dpj->dij", J, J)
     cov = np.linalg.pinv(JtJ) * np.where(np.isfinite(s2), s2, 0.0)[:, None, None]
     se_ok = np.isfinite(s2) & ok
