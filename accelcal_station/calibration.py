@@ -235,10 +235,9 @@ class Calibration:
 
     def save(self, path) -> None:
         """Write JSON atomically (temporary file then rename): never a half-written file."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
-        tmp.replace(path)
+        from .posetable import atomic_write_text
+
+        atomic_write_text(Path(path), json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
     def load(cls, path) -> "Calibration":

@@ -90,3 +90,21 @@ def vector3(d: dict, key: str, path: str, default=None, lo: float | None = None,
             raise ConfigError(f"{path}.{key}[{i}]: {x!r} out of range; allowed {lo} to {hi}")
         out.append(float(x))
     return out
+
+
+def atomic_write_text(path, text: str) -> None:
+    """Write through a temporary file, fsync and rename: the file is whole or absent, never
+    half written.  Raises OSError (callers turn it into their own one-line error)."""
+    import os
+
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, p)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise

@@ -85,11 +85,16 @@ class Session:
             return None
         return np.array([p.reference_g for p in self.poses])
 
+    def noise(self) -> np.ndarray | None:
+        """(P, 3) standard error of each pose mean in the session's units, when std and n are known."""
+        if not self.poses or not all(p.std is not None and p.n for p in self.poses):
+            return None
+        return np.array([p.std / np.sqrt(p.n) for p in self.poses])
+
     def noise_g(self) -> np.ndarray | None:
         """(P, 3) standard error of each pose mean in g, when std and n are known."""
-        if not all(p.std is not None and p.n for p in self.poses) or not self.poses:
-            return None
-        return np.array([p.std / np.sqrt(p.n) for p in self.poses]) / self.input_per_g
+        nz = self.noise()
+        return None if nz is None else nz / self.input_per_g
 
     @property
     def temps_c(self) -> np.ndarray | None:

@@ -108,9 +108,7 @@ def fit_session(session: Session, model="12") -> FitResult:
     """Fit a Session (references from the session; std/n give the noise)."""
     if len(session) == 0:
         raise DataError("the session has no poses")
-    noise = None
-    if session.noise_g() is not None:
-        noise = session.noise_g() * session.input_per_g
+    noise = session.noise()  # input units: works for scale-less counts (model 9) too
     return fit(session.readings, session.references_g if str(model) != "9" else None, model,
                units=session.units, counts_per_g=session.counts_per_g,
                gravity_mps2=session.gravity_mps2, noise=noise)

@@ -1,0 +1,214 @@
+"""`accelcal fit`: fit a calibration model to a pose table or a raw sample log."""
+from __future__ import annotations
+
+import json
+import math
+
+import click
+import numpy as np
+
+from ..conventions import check_units
+from ..errors import AccelcalError, DataError, UnitsError
+from ..models import MODELS, FitResult, fit, fit_session, fit_temperature
+from ..posetable import read_pose_table
+from ..rawlog import StaticDetection, detect_static, read_raw_log, to_session
+from ..session import Session
+
+
+def _number(value: str | None, flag: str, integer: bool = False, positive: bool = True):
+    """Parse a numeric option ourselves so a typo is one line, not a usage screen."""
+    if value is None:
+        return None
+    try:
+        v = int(value) if integer else float(value)
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v) or (v <= 0 if positive else v < 0):
+        kind = "whole number" if integer else "number"
+        raise DataError(f"{flag} {value!r}; allowed: a {'positive' if positive else 'non-negative'} {kind}")
+    return v
+
+
+def _clean(o):
+    """JSON-safe: numpy to Python, non-finite floats to null (never NaN in output)."""
+    if isinstance(o, dict):
+        return {k: _clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_clean(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _clean(o.tolist())
+    if isinstance(o, (np.floating, float)):
+        return float(o) if math.isfinite(o) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    return o
+
+
+def _fit_one(session: Session, model: str) -> FitResult:
+    return fit_session(session, model)
+
+
+def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate):
+    if raw:
+        log = read_raw_log(path, columns, skip_rows or 0, rate)
+        try:
+            det = detect_static(log.xyz, log.rate_hz)
+        except AccelcalError as e:
+            raise type(e)(f"{path}: {e}") from None
+        if not det.segments:
+            raise DataError(f"{path}: no static interval of {det.min_samples} samples or more found "
+                            f"(noise floor {_vec(det.noise_sigma, '.3g')}); hold each pose still for about 1 s")
+        return to_session(log, det.segments, units or "counts", cpg, gravity), (log, det)
+    for flag, v in (("--columns", columns), ("--skip-rows", skip_rows), ("--rate", rate)):
+        if v is not None:
+            raise DataError(f"{flag} is for raw sample logs; add --raw to read {path} as one")
+    return read_pose_table(path, units, cpg, gravity, references=model != "9"), None
+
+
+def _vec(v, fmt: str = "+.6f") -> str:
+    return "[" + " ".join(f"{x:{fmt}}" for x in np.asarray(v, dtype=float)) + "]"
+
+
+def _scale_text(session: Session, fit: FitResult) -> str:
+    u = session.units
+    if u == "counts" and session.counts_per_g is None:
+        return (f"counts, 1 g = {fit.calibration.input_per_g:.6g} counts estimated from the data "
+                "(no counts_per_g or --units given)")
+    if u == "counts":
+        return f"counts at {fit.calibration.input_per_g:.6g} counts/g (given)"
+    if u == "mps2":
+        return f"m/s^2 at {fit.calibration.input_per_g:.6g} m/s^2 per g"
+    return "g"
+
+
+def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
+    cv = "n/a (a left-out pose leaves the model undetermined)" if fit.crossval_rms_g is None \
+        else f"{fit.crossval_rms_g * 1e3:.3f} mg"
+    out = [f"W     = {_vec(fit.W[0])}"] + [f"        {_vec(r)}" for r in fit.W[1:]]
+    out += [f"V     = {_vec(fit.V)} g", f"Gamma = {_vec(fit.Gamma)}",
+            f"residual RMS {fit.residual_rms_g * 1e3:.3f} mg, max {fit.residual_max_g * 1e3:.3f} mg; "
+            f"leave-one-pose-out RMS {cv}; condition number {fit.condition_number:.3g}"]
+    if fit.message:
+        out.append(f"note: {fit.message}")
+    w = max(4, *(len(n) for n in names))
+    out.append(f"{'pose':<{w}}  {'x_g':>9} {'y_g':>9} {'z_g':>9}  {'res_x_mg':>9} {'res_y_mg':>9} "
+               f"{'res_z_mg':>9}  {'norm_err_mg':>11}")
+    for n, g, r, e in zip(names, fit.readings_g, fit.residuals_g * 1e3, fit.norm_error_g * 1e3):
+        out.append(f"{n:<{w}}  {g[0]:+9.5f} {g[1]:+9.5f} {g[2]:+9.5f}  {r[0]:+9.3f} {r[1]:+9.3f} {r[2]:+9.3f}  "
+                   f"{e:+11.3f}")
+    return out
+
+
+def _segmentation(log, det: StaticDetection, names: list[str]) -> tuple[dict, list[str]]:
+    rate = f"{log.rate_hz:.6g} Hz" if log.rate_hz else "unknown rate (give --rate HZ for times in seconds)"
+    lines = [f"raw log {log.source}: {len(log)} samples at {rate}; noise floor sigma {_vec(det.noise_sigma, '.4g')} "
+             f"per sample; found {len(det.segments)} static intervals of {det.min_samples}+ samples "
+             f"({int(det.still.sum())} samples used):"]
+    segs = []
+    for n, s in zip(names, det.segments):
+        parts = ", ".join(f"{a}-{b - 1}" for a, b in s.ranges)
+        span = f", t {log.t[s.start]:.2f}-{log.t[s.stop - 1]:.2f} s" if log.rate_hz else ""
+        lines.append(f"  {n}: samples {parts} ({s.n} used{span})")
+        segs.append({"pose": n, "start": s.start, "stop": s.stop, "n": s.n, "ranges": [list(r) for r in s.ranges],
+                     "t_start": float(log.t[s.start]), "t_end": float(log.t[s.stop - 1]),
+                     "mean": s.mean, "std": s.std})
+    info = {"samples": len(log), "rate_hz": log.rate_hz, "columns": log.columns, "window_samples": det.window,
+            "noise_sigma": det.noise_sigma, "threshold": det.threshold, "min_samples": det.min_samples,
+            "count": len(det.segments), "segments": segs}
+    return info, lines
+
+
+@click.command("fit")
+@click.argument("path", metavar="FILE")
+@click.option("--raw", is_flag=True, help="FILE is a raw sample log: find its static poses automatically.")
+@click.option("--model", default=None, metavar="6|9|12|15",
+              help="Parameters to fit (default 12 for a pose table, 9 for a raw log, which has no references).")
+@click.option("--units", default=None, metavar="counts|g|mps2",
+              help="Units of the readings (default: the table's '# units:' line, else counts).")
+@click.option("--counts-per-g", "counts_per_g", default=None, metavar="N",
+              help="Counts per g (needed for counts with models 6, 12, 15; model 9 estimates it).")
+@click.option("--gravity", default=None, metavar="M_S2", help="Local gravity in m/s^2 for --units mps2.")
+@click.option("--temp-method", default="linear", metavar="linear|quadratic",
+              help="Interpolation between calibration temperatures (tables with temp_c at 2+ temperatures).")
+@click.option("--columns", default=None, metavar="NAMES",
+              help="Raw log columns, e.g. t,x,y,z or -,-,x,y,z (- ignores a column).")
+@click.option("--skip-rows", default=None, metavar="N", help="Raw log: lines to skip at the top.")
+@click.option("--rate", default=None, metavar="HZ", help="Raw log without a time column: sample rate in Hz.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the summary.")
+@click.option("-o", "--output", default=None, metavar="FILE", help="Write the calibration JSON here (atomically).")
+def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns, skip_rows, rate, as_json,
+            output) -> None:
+    """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
+    model = model if model is not None else ("9" if raw else "12")
+    if model not in MODELS:
+        raise DataError(f"--model {model!r}; allowed: {', '.join(MODELS)}")
+    if units is not None:
+        try:
+            check_units(units)
+        except UnitsError as e:
+            raise UnitsError(f"--units: {e}") from None
+    if temp_method not in ("linear", "quadratic"):
+        raise DataError(f"--temp-method {temp_method!r}; allowed: linear, quadratic")
+    cpg = _number(counts_per_g, "--counts-per-g")
+    grav = _number(gravity, "--gravity")
+    session, rawinfo = _load(path, raw, model, units, cpg, grav, columns,
+                             _number(skip_rows, "--skip-rows", integer=True, positive=False),
+                             _number(rate, "--rate"))
+    if model != "9" and session.units == "counts" and session.counts_per_g is None:
+        raise UnitsError(f"{path}: readings are counts with no counts_per_g; model {model} needs --counts-per-g N "
+                         "or a '# counts_per_g: N' line (only model 9 can estimate it)")
+    have_t = [p.temp_c is not None for p in session.poses]
+    if any(have_t) and not all(have_t):
+        raise DataError(f"{path}: pose {session.names[have_t.index(False)]!r} has no temp_c while others do; "
+                        "give temp_c for every pose or for none")
+    temps = session.by_temperature() if any(have_t) else []
+    try:
+        if len(temps) >= 2:
+            cal, fits = fit_temperature(session, model, temp_method)
+            subs = [sub for _, sub in temps]
+        else:
+            fits = [(None, _fit_one(session, model))]
+            cal, subs = fits[0][1].calibration, [session]
+    except AccelcalError as e:
+        found = f" (found {len(session)} static intervals in the raw log)" if rawinfo else ""
+        raise type(e)(f"{path}: {e}{found}") from None
+
+    cal.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
+    report: dict = {}
+    text: list[str] = []
+    if rawinfo is not None:
+        report["segmentation"], seg_lines = _segmentation(*rawinfo, session.names)
+        text += seg_lines
+    if len(fits) == 1:
+        fr = fits[0][1]
+        report.update(fr.to_json_dict(session.names))
+        text.append(f"{path}: model {model}, {len(session)} poses, {_scale_text(session, fr)}")
+        text += _fit_text(fr, session.names)
+    else:
+        allres = np.concatenate([f.residuals_g for _, f in fits])
+        cvs = [f.crossval_rms_g for _, f in fits]
+        report.update({
+            "model": model, "pose_count": len(session), "W": cal.W, "V": cal.V, "Gamma": cal.Gamma,
+            "P": np.sum([f.P for _, f in fits], axis=0),
+            "residual_rms_g": float(np.sqrt(np.mean(allres**2))), "residual_max_g": float(np.max(np.abs(allres))),
+            "crossval_rms_g": None if any(c is None for c in cvs) else float(np.sqrt(np.mean(np.square(cvs)))),
+            "temperature_method": temp_method, "calibration": cal.to_dict(),
+            "temperatures": [dict(temp_c=t, **f.to_json_dict(s.names)) for (t, f), s in zip(fits, subs)],
+            "poses": [dict(temp_c=t, **p) for (t, f), s in zip(fits, subs) for p in f.to_json_dict(s.names)["poses"]],
+        })
+        text.append(f"{path}: model {model}, {len(session)} poses at {len(fits)} temperatures "
+                    f"({', '.join(f'{t:g}' for t, _ in fits)} C), {temp_method} interpolation, "
+                    f"{_scale_text(session, fits[0][1])}")
+        for (t, f), s in zip(fits, subs):
+            text.append(f"-- at {t:g} C: {len(s)} poses")
+            text += _fit_text(f, s.names)
+    report["source"] = str(path)
+    report["units"] = session.units
+    if output:
+        cal.save(output)
+        report["output"] = str(output)
+        text.append(f"calibration written to {output}")
+    if as_json:
+        click.echo(json.dumps(_clean(report), allow_nan=False))
+    else:
+        click.echo("\n".join(text))

@@ -1,0 +1,156 @@
+"""`accelcal report`: list, show, export and summarise the runs in the results store."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from ..config import load_yaml
+from ..errors import DataError
+from ..store import PARAM_NAMES, VERDICTS, STATUSES, Store, store_path
+
+
+def _filter_options(f):
+    opts = [
+        click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file)."),
+        click.option("--config", "config_path", default=None, metavar="FILE",
+                     help="Station config naming the store (store.path)."),
+        click.option("--device", multiple=True, metavar="SERIAL", help="Only these device serials (repeatable)."),
+        click.option("--lot", default=None, metavar="LOT", help="Only this lot."),
+        click.option("--station", default=None, metavar="ID", help="Only this station."),
+        click.option("--operator", default=None, metavar="NAME", help="Only this operator."),
+        click.option("--verdict", default=None, metavar="PASS|FAIL", help="Only this verdict."),
+        click.option("--status", default=None, metavar="|".join(STATUSES), help="Only this run status."),
+        click.option("--since", default=None, metavar="TIME", help="Started at or after (ISO 8601; naive = local)."),
+        click.option("--until", default=None, metavar="TIME", help="Started before (ISO 8601; naive = local)."),
+    ]
+    for o in reversed(opts):
+        f = o(f)
+    return f
+
+
+def _open(db, config_path) -> Store:
+    if db is None and config_path is None:
+        raise DataError("no results store given; pass --db FILE or --config FILE (with store.path)")
+    path = Path(db) if db is not None else store_path(load_yaml(config_path), Path(config_path).parent)
+    return Store(path, create=False)
+
+
+def _filters(device, lot, station, operator, verdict, status, since, until) -> dict:
+    if verdict is not None and verdict.upper() not in VERDICTS:
+        raise DataError(f"--verdict {verdict!r}; allowed: PASS, FAIL")
+    if status is not None and status not in STATUSES:
+        raise DataError(f"--status {status!r}; allowed: {', '.join(STATUSES)}")
+    return {"device": list(device) or None, "lot": lot, "station": station, "operator": operator,
+            "verdict": verdict and verdict.upper(), "status": status, "since": since, "until": until}
+
+
+@click.group("report")
+def command() -> None:
+    """List, show, export and summarise recorded runs."""
+
+
+@command.command("list")
+@_filter_options
+@click.option("--limit", default=None, type=click.IntRange(1), help="At most this many runs.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def list_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, limit, as_json):
+    """Runs matching the filters, oldest first."""
+    with _open(db, config_path) as store:
+        runs = store.list_runs(limit, **_filters(device, lot, station, operator, verdict, status, since, until))
+    if as_json:
+        click.echo(json.dumps(runs, indent=1))
+        return
+    click.echo(f"{'id':>5}  {'started (UTC)':16}  {'status':11}  {'device':14}  {'lot':8}  verdict  "
+               f"{'nvm':7}  poses  {'rms mg':>7}  reasons")
+    for r in runs:
+        rms = "" if r["residual_rms_g"] is None else f"{r['residual_rms_g'] * 1e3:7.3f}"
+        click.echo(f"{r['id']:>5}  {r['started_at'][:16].replace('T', ' '):16}  {r['status']:11}  "
+                   f"{r['device_serial'] or '':14}  {r['lot'] or '':8}  {r['verdict'] or '':7}  "
+                   f"{r['nvm_status'] or '':7}  {r['pose_count']:5}  {rms:>7}  "
+                   f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
+    click.echo(f"{len(runs)} run(s)")
+
+
+@command.command("show")
+@click.argument("run_id", type=int)
+@click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")
+@click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def show_cmd(run_id, db, config_path, as_json):
+    """Everything recorded for one run."""
+    with _open(db, config_path) as store:
+        rec = store.get_run(run_id).to_dict()
+    if as_json:
+        click.echo(json.dumps(rec, indent=1))
+        return
+    for k in ("id", "status", "status_reason", "started_at_iso", "finished_at_iso", "device_serial", "chip",
+              "station_id", "operator", "lot", "config_hash", "model", "verdict", "nvm_status"):
+        click.echo(f"{k:16} {rec[k] if rec[k] is not None else ''}")
+    for reason in rec["reasons"]:
+        click.echo(f"{'reason':16} {reason}")
+    if rec["calibration"]:
+        c = rec["calibration"]
+        click.echo(f"{'W':16} {c['W']}\n{'V (g)':16} {c['V']}\n{'Gamma (1/g^2)':16} {c['Gamma']}")
+    click.echo(f"{'poses':16} {len(rec['poses'])} ({rec['units']})")
+    for p in rec["poses"]:
+        click.echo(f"  {p['name']:10} mean {[round(x, 2) for x in p['mean']]}  n {p['n']}  retries {p['retries']}")
+
+
+@command.command("export")
+@_filter_options
+@click.option("-o", "--output", default=None, metavar="FILE", help="Write here (atomically); default stdout.")
+@click.option("--format", "fmt", default=None, metavar="csv|json",
+              help="Output format (default: from the file name, else csv).")
+@click.option("--poses", is_flag=True, help="CSV: one row per pose instead of one per run.")
+@click.option("--json", "as_json", is_flag=True, help="With -o, print a JSON line saying what was written.")
+def export_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, output, fmt,
+               poses, as_json):
+    """Export runs as CSV (one row per run, calibration flattened; or per pose) or JSON (everything)."""
+    if fmt is None:
+        fmt = "json" if output and output.lower().endswith(".json") else "csv"
+    if fmt not in ("csv", "json"):
+        raise DataError(f"--format {fmt!r}; allowed: csv, json")
+    flt = _filters(device, lot, station, operator, verdict, status, since, until)
+    with _open(db, config_path) as store:
+        n = len(store.list_runs(**flt))
+        if fmt == "json":
+            data = store.export_json(output, **flt)
+            text = json.dumps({"schema": "accelcal.runs", "version": 1, "runs": data}, indent=1)
+        else:
+            text = store.export_csv(output, kind="poses" if poses else "runs", **flt)
+    if output is None:
+        click.echo(text.rstrip("\n"))
+    elif as_json:
+        click.echo(json.dumps({"path": output, "format": fmt, "runs": n}))
+    else:
+        click.echo(f"wrote {n} run(s) to {output} ({fmt})")
+
+
+@command.command("summary")
+@_filter_options
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def summary_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, as_json):
+    """Lot summary: counts, pass rate, failure reasons, parameter distributions."""
+    with _open(db, config_path) as store:
+        s = store.lot_summary(**_filters(device, lot, station, operator, verdict, status, since, until))
+    if as_json:
+        click.echo(json.dumps(s, indent=1))
+        return
+    rate = "n/a" if s["pass_rate"] is None else f"{100 * s['pass_rate']:.1f} %"
+    click.echo(f"runs {s['runs']} ({', '.join(f'{k} {v}' for k, v in s['by_status'].items())}), "
+               f"devices {s['devices']}, {s['first_started'] or '-'} .. {s['last_started'] or '-'}")
+    click.echo(f"PASS {s['pass']}  FAIL {s['fail']}  pass rate {rate}")
+    for code, n in s["failure_reasons"].items():
+        click.echo(f"  fail: {code:24} {n}")
+    for why, n in s["interruptions"].items():
+        click.echo(f"  interrupted: {why} ({n})")
+    click.echo("nvm: " + (", ".join(f"{k} {v}" for k, v in s["nvm"].items()) or "-"))
+    if s["parameters"]:
+        click.echo(f"{'parameter':14} {'mean':>12} {'std':>12} {'min':>12} {'max':>12}   (n {s['parameters']['W00']['n']})")
+        for name in PARAM_NAMES:
+            d = s["parameters"][name]
+            click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")
+    for name, d in s["fit"].items():
+        click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")

@@ -1,0 +1,329 @@
+"""Raw sample logs: read them and find the static poses in them automatically.
+
+A raw log is a CSV or whitespace-separated table of samples, with or without a
+header.  ``columns`` names its columns (``t,x,y,z``; ``-`` ignores a column);
+without it a header such as ``time,acc_x,acc_y,acc_z`` is recognised, and a
+header-less file of 3 (``x,y,z``) or 4 (``t,x,y,z``) columns is taken as is.  The
+time column is in seconds; without one, ``rate_hz`` gives the sample rate.
+
+Static intervals are found relative to the log's own noise floor, so the same
+code works on counts (signed or 16-bit unsigned), g or m/s^2 with no tuning:
+
+1. moving standard deviation per axis over a window of about 0.1 s;
+2. noise floor per axis: the 10th percentile of that moving std, scaled to a
+   per-sample sigma with the chi distribution of a ``w``-sample std (so it holds
+   as long as a tenth of the log is still), and never below the quantisation
+   step / sqrt(12);
+3. a window is still when every axis stays within ``STILL_FACTOR`` sigma; a
+   sample is still when every window covering it is (which trims the edges next
+   to motion), and edge windows whose mean is off the run's median by more than
+   ``EDGE_FACTOR`` standard errors (a slow start or end of a move) are trimmed;
+4. neighbouring still runs whose means agree within ``MERGE_FACTOR`` sigma are
+   one pose (a glitch split it, or the board was only bumped), and poses held
+   shorter than ``min_duration_s`` (about 1 s) are dropped.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+from .errors import DataError
+from .session import PoseRecord, Session
+
+STILL_FACTOR = 3.0  # windows whose std exceeds this many noise sigmas are motion
+MERGE_FACTOR = 4.0  # neighbouring still runs closer than this many sigmas are the same pose
+EDGE_FACTOR = 4.0  # edge windows whose mean is off by this many standard errors are trimmed
+FLOOR_QUANTILE = 0.10
+WINDOW_S = 0.1
+MIN_DURATION_S = 1.0
+WINDOW_NO_RATE = 16  # samples, when the rate is unknown
+MIN_SAMPLES_NO_RATE = 64
+MIN_LOG_SAMPLES = 10
+
+_TIME_NAMES = {"t", "ts", "time", "times", "timesec", "timestamp", "sec", "seconds"}  # normalised names
+_AXIS_PREFIXES = ("", "a", "acc", "accel", "acceleration", "accelerometer")
+
+
+@dataclass
+class RawLog:
+    """Samples of one log: ``t`` (N,) in seconds (sample index when the rate is
+    unknown), ``xyz`` (N, 3) in the log's units, ``line`` (N,) file line of each sample."""
+
+    t: np.ndarray
+    xyz: np.ndarray
+    line: np.ndarray
+    source: str
+    columns: list[str]
+    rate_hz: float | None
+    has_time: bool
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+@dataclass
+class Segment:
+    """One static pose: samples ``start``..``stop`` (stop exclusive) of the log, of which the
+    ``n`` in ``ranges`` were used for the per-axis ``mean`` and ``std`` (log units)."""
+
+    start: int
+    stop: int
+    mean: np.ndarray
+    std: np.ndarray
+    n: int
+    ranges: list[tuple[int, int]] = field(default_factory=list)
+
+
+@dataclass
+class StaticDetection:
+    """What segmentation found and the figures it used (per-axis sigma in log units)."""
+
+    segments: list[Segment]
+    window: int
+    noise_sigma: np.ndarray
+    threshold: np.ndarray
+    min_samples: int
+    still: np.ndarray  # (N,) bool, samples used
+
+
+# -- reading ----------------------------------------------------------------------------
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _split_fn(line: str):
+    if "," in line:
+        return lambda s: [c.strip() for c in s.split(",")]
+    if ";" in line:
+        return lambda s: [c.strip() for c in s.split(";")]
+    return str.split
+
+
+def _parse_columns(spec: str | list[str]) -> list[str]:
+    names = [c.strip().lower() for c in (spec.split(",") if isinstance(spec, str) else spec)]
+    for c in names:
+        if c not in ("t", "x", "y", "z", "-"):
+            raise DataError(f"--columns {spec!r}: {c!r} is not a column name; allowed: t, x, y, z, - (ignore)")
+    for c in "txyz":
+        if names.count(c) > 1:
+            raise DataError(f"--columns {spec!r}: {c!r} appears twice")
+    for c in "xyz":
+        if c not in names:
+            raise DataError(f"--columns {spec!r}: no {c!r} column; name x, y and z (and t if there is time)")
+    return names
+
+
+def _columns_from_header(path: Path, line: int, header: list[str]) -> list[str]:
+    """Map a header like ``time,acc_x,acc_y,acc_z,gyr_x`` to ``t,x,y,z,-``."""
+    norm = [re.sub(r"\(.*?\)|\[.*?\]|[^a-z0-9]", "", h.lower()) for h in header]
+    out = ["-"] * len(header)
+    for a in "xyz":
+        hits = [i for i, h in enumerate(norm) if h in {p + a for p in _AXIS_PREFIXES}]
+        if len(hits) != 1:
+            raise DataError(f"{path}: line {line}: cannot tell which header column is {a} "
+                            f"({'none' if not hits else 'several'} of {', '.join(header)} match); "
+                            "give --columns, e.g. t,x,y,z (- ignores a column)")
+        out[hits[0]] = a
+    times = [i for i, h in enumerate(norm) if h in _TIME_NAMES]
+    if len(times) == 1:
+        out[times[0]] = "t"
+    return out
+
+
+def read_raw_log(path, columns: str | list[str] | None = None, skip_rows: int = 0,
+                 rate_hz: float | None = None) -> RawLog:
+    """Read a raw sample log (see the module doc); errors name the file, line and column."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as e:
+        raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a text file (expected a CSV or whitespace-separated log)") from None
+    if skip_rows < 0:
+        raise DataError(f"--skip-rows {skip_rows}; allowed: 0 or more")
+    if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise DataError(f"--rate {rate_hz}; allowed: a positive sample rate in Hz")
+    rows = [(i + 1, s) for i, s in enumerate(text.splitlines()) if i >= skip_rows]
+    rows = [(n, s.strip()) for n, s in rows if s.strip() and not s.lstrip().startswith("#")]
+    if not rows:
+        raise DataError(f"{path}: no data lines" + (f" after skipping {skip_rows} rows" if skip_rows else ""))
+    split = _split_fn(rows[0][1])
+    first_line, first = rows[0][0], split(rows[0][1])
+    names = _parse_columns(columns) if columns else None
+    if names is not None:
+        if len(names) != len(first):
+            raise DataError(f"{path}: line {first_line}: {len(first)} fields but --columns names {len(names)} "
+                            "(use - for each column to ignore)")
+        header = any(not _is_number(first[i]) for i, c in enumerate(names) if c != "-")
+    else:
+        header = any(not _is_number(c) for c in first)
+        if header:
+            names = _columns_from_header(path, first_line, first)
+        elif len(first) in (3, 4):
+            names = ["x", "y", "z"] if len(first) == 3 else ["t", "x", "y", "z"]
+        else:
+            raise DataError(f"{path}: line {first_line}: {len(first)} columns and no header; "
+                            "give --columns, e.g. t,x,y,z (- ignores a column)")
+    if header:
+        rows = rows[1:]
+    if "t" in names and rate_hz is not None:
+        raise DataError(f"{path}: the log has a time column; --rate is only for logs without one")
+    use = [(i, c) for i, c in enumerate(names) if c != "-"]
+    label = (lambda i: f"column {i + 1} ({first[i]})") if header else (lambda i: f"column {i + 1} ({names[i]})")
+    data = np.empty((len(rows), len(use)))
+    lines = np.empty(len(rows), dtype=np.int64)
+    for k, (ln, s) in enumerate(rows):
+        cells = split(s)
+        if len(cells) != len(names):
+            raise DataError(f"{path}: line {ln}: {len(cells)} fields; expected {len(names)} like the first line")
+        for j, (i, _) in enumerate(use):
+            try:
+                v = float(cells[i])
+            except ValueError:
+                raise DataError(f"{path}: line {ln}, {label(i)}: {cells[i]!r} is not a number") from None
+            if not math.isfinite(v):
+                raise DataError(f"{path}: line {ln}, {label(i)}: {cells[i]!r}; allowed: a finite number")
+            data[k, j] = v
+        lines[k] = ln
+    if len(rows) < MIN_LOG_SAMPLES:
+        raise DataError(f"{path}: {len(rows)} samples; a raw log needs at least {MIN_LOG_SAMPLES}")
+    col = {c: j for j, (_, c) in enumerate(use)}
+    xyz = data[:, [col["x"], col["y"], col["z"]]]
+    if "t" in col:
+        t = data[:, col["t"]]
+        back = np.flatnonzero(np.diff(t) < 0)
+        if back.size:
+            raise DataError(f"{path}: line {lines[back[0] + 1]}, {label(names.index('t'))}: time goes backwards; "
+                            "allowed: non-decreasing seconds")
+        dt = float(np.median(np.diff(t)))
+        if not dt > 0:
+            raise DataError(f"{path}: {label(names.index('t'))}: time does not advance; allowed: seconds")
+        rate = 1.0 / dt
+    elif rate_hz is not None:
+        t, rate = np.arange(len(rows)) / rate_hz, float(rate_hz)
+    else:
+        t, rate = np.arange(len(rows), dtype=float), None
+    return RawLog(t, xyz, lines, str(path), names, rate, "t" in col)
+
+
+# -- segmentation ------------------------------------------------------------------------
+
+def moving_std(x: np.ndarray, w: int, chunk: int = 1 << 15) -> np.ndarray:
+    """Std of every ``w``-sample window of each column: (N - w + 1, 3)."""
+    x = x - np.median(x, axis=0)  # keeps 16-bit offsets from costing precision
+    out = np.empty((len(x) - w + 1, x.shape[1]))
+    for s in range(0, len(out), chunk):
+        e = min(s + chunk, len(out))
+        win = np.lib.stride_tricks.sliding_window_view(x[s:e + w - 1], w, axis=0)
+        out[s:e] = win.std(axis=-1)
+    return out
+
+
+def _quantum(x: np.ndarray) -> np.ndarray:
+    """Smallest step between distinct values per axis (the LSB of integer data)."""
+    out = np.empty(x.shape[1])
+    for a in range(x.shape[1]):
+        d = np.diff(np.unique(x[:, a]))
+        out[a] = d.min() if d.size else 0.0
+    return out
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
+def _segment(xyz: np.ndarray, ranges: list[tuple[int, int]]) -> Segment:
+    s = np.concatenate([xyz[a:b] for a, b in ranges])
+    return Segment(ranges[0][0], ranges[-1][1], s.mean(axis=0), s.std(axis=0, ddof=1), len(s), list(ranges))
+
+
+def detect_static(xyz, rate_hz: float | None = None, min_duration_s: float = MIN_DURATION_S) -> StaticDetection:
+    """Find the static intervals of a log (steps 1-4 of the module doc)."""
+    x = np.asarray(xyz, dtype=float)
+    N = len(x)
+    if rate_hz:
+        w = int(np.clip(round(WINDOW_S * rate_hz), 5, 64))
+        min_n = max(3 * w, int(round(min_duration_s * rate_hz)))
+    else:
+        w, min_n = WINDOW_NO_RATE, MIN_SAMPLES_NO_RATE
+    if N < max(2 * w, min_n):
+        raise DataError(f"the log has {N} samples; finding static poses needs at least {max(2 * w, min_n)}")
+    ms = moving_std(x, w)
+    dof = w - 1
+    low = np.sqrt(chi2.ppf(FLOOR_QUANTILE, dof) / dof)  # 10th percentile of s / sigma
+    med = np.median(x, axis=0)
+    sigma = np.maximum(np.quantile(ms, FLOOR_QUANTILE, axis=0) / low, _quantum(x) / np.sqrt(12.0))
+    # noiseless (simulated) data: a floor far below any motion, relative to the data's span
+    sigma = np.maximum(sigma, 1e-9 * max(float(np.max(np.abs(x - med))), 1e-300))
+    thr = STILL_FACTOR * sigma
+    still_win = np.all(ms <= thr, axis=1)
+    # a sample is still only when every window covering it is: erosion by w - 1
+    cover = np.convolve((~still_win).astype(np.int64), np.ones(w, dtype=np.int64))
+    still = cover == 0
+    # trim edges whose window mean still leans toward the neighbouring motion (the slow
+    # start and end of a move pass the std test but would bias the pose mean)
+    c = np.concatenate([np.zeros((1, 3)), np.cumsum(x - med, axis=0)])
+    wmean = (c[w:] - c[:-w]) / w + med  # (N - w + 1, 3)
+    tol = EDGE_FACTOR * sigma / np.sqrt(w)
+    runs = []
+    for a, b in _runs(still):
+        if b - a < 2 * w:  # a pause inside a move, not a pose
+            continue
+        ok = np.flatnonzero(np.all(np.abs(wmean[a:b - w + 1] - np.median(x[a:b], axis=0)) <= tol, axis=1))
+        if ok.size:
+            runs.append((a + int(ok[0]), a + int(ok[-1]) + w))
+    merged: list[list[tuple[int, int]]] = []
+    for r in runs:
+        if merged:
+            prev = _segment(x, merged[-1])
+            cur = x[r[0]:r[1]].mean(axis=0)
+            if np.all(np.abs(cur - prev.mean) <= MERGE_FACTOR * sigma):
+                merged[-1].append(r)
+                continue
+        merged.append([r])
+    segs = [_segment(x, m) for m in merged]
+    segs = [s for s in segs if s.n >= min_n]
+    used = np.zeros(N, dtype=bool)
+    for s in segs:
+        for a, b in s.ranges:
+            used[a:b] = True
+    return StaticDetection(segs, w, sigma, thr, min_n, used)
+
+
+def segment_static(t, xyz, rate_hz: float | None = None, min_duration_s: float = MIN_DURATION_S) -> list[Segment]:
+    """Static poses of a log (see detect_static).
+
+    ``t``: sample times in seconds (they give the rate when ``rate_hz`` is None), or None
+    for a log with no time and unknown rate (windows are then counted in samples).
+    """
+    if t is not None and rate_hz is None:
+        t = np.asarray(t, dtype=float)
+        if len(t) != len(xyz):
+            raise DataError(f"t has {len(t)} samples and xyz {len(xyz)}; they must match")
+        dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        rate_hz = 1.0 / dt if dt > 0 else None
+    return detect_static(xyz, rate_hz, min_duration_s).segments
+
+
+def to_session(log: RawLog, segments: list[Segment], units: str = "counts", counts_per_g: float | None = None,
+               gravity_mps2: float | None = None, device: str | None = None) -> Session:
+    """One PoseRecord per static segment (no references: such a session fits model 9)."""
+    poses = [PoseRecord(f"s{i + 1:02d}", s.mean, s.std, s.n, t_start=float(log.t[s.start]),
+                        t_end=float(log.t[s.stop - 1])) for i, s in enumerate(segments)]
+    return Session(poses, units, counts_per_g, gravity_mps2, device, {"source": log.source})
+
+
+__all__ = ["RawLog", "Segment", "StaticDetection", "detect_static", "moving_std", "read_raw_log",
+           "segment_static", "to_session"]

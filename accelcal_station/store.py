@@ -1,0 +1,618 @@
+"""The results store: every station run in one SQLite file.
+
+A run is committed as ``running`` when it starts, so a crash leaves a record; its
+poses, calibration, verdict and NVM outcome are then written in ONE transaction by
+``finish_run`` (or ``interrupt_run``), never half.  ``mark_stale_interrupted`` turns
+runs whose station process died into ``interrupted``.
+
+Journal mode is SQLite's default rollback journal, not WAL: the store stays one
+file (WAL keeps -wal/-shm files beside it and does not work on network shares),
+and a station commits a few times per board, so WAL's writer/reader overlap buys
+nothing; readers wait out a commit through the busy timeout.  synchronous stays
+FULL (the default): a committed run survives power loss.  Foreign keys are on.
+
+Schema versions live in ``PRAGMA user_version``; ``MIGRATIONS[i]`` upgrades
+version i to i + 1.  Times are unix seconds (REAL); exports also give ISO 8601 UTC.
+Failure reasons are strings whose first word is a code (acceptance.py: the limit key,
+``"residual_rms_g 0.012 > limit 0.01 (...)"``); summaries group reasons by that code.
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import os
+import re
+import socket
+import sqlite3
+import time as _time
+from collections import Counter
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from .calibration import Calibration
+from .config import atomic_write_text, check_keys
+from .errors import ConfigError, DataError
+from .session import PoseRecord, Session
+
+STATUSES = ("running", "complete", "interrupted", "error")
+VERDICTS = ("PASS", "FAIL")
+AXES = "xyz"
+
+# statements are split at ';' (keep it out of comments and strings)
+MIGRATIONS: list[str] = [
+    """
+    CREATE TABLE runs (
+        id INTEGER PRIMARY KEY,
+        started_at REAL NOT NULL,
+        finished_at REAL,
+        status TEXT NOT NULL DEFAULT 'running'
+            CHECK (status IN ('running', 'complete', 'interrupted', 'error')),
+        status_reason TEXT,
+        device_serial TEXT,
+        chip TEXT,
+        station_id TEXT,
+        operator TEXT,
+        lot TEXT,
+        config_hash TEXT,
+        config_text TEXT,
+        model TEXT,
+        units TEXT,
+        counts_per_g REAL,
+        gravity_mps2 REAL,
+        verdict TEXT CHECK (verdict IN ('PASS', 'FAIL')),
+        reasons TEXT,           -- JSON list of "code detail..."
+        nvm_status TEXT,        -- written / failed / none
+        nvm_outcome TEXT,       -- JSON (writer.BurnOutcome.to_dict)
+        calibration TEXT,       -- JSON (Calibration.to_dict)
+        fit_summary TEXT,       -- JSON (FitResult.to_json_dict or similar)
+        host TEXT,
+        pid INTEGER
+    );
+    CREATE INDEX runs_device ON runs (device_serial, started_at);
+    CREATE INDEX runs_lot ON runs (lot, started_at);
+    CREATE INDEX runs_started ON runs (started_at);
+    CREATE TABLE poses (
+        run_id INTEGER NOT NULL REFERENCES runs (id) ON DELETE CASCADE,
+        idx INTEGER NOT NULL,
+        name TEXT NOT NULL,
+        pitch_deg REAL, roll_deg REAL,
+        ref_x REAL, ref_y REAL, ref_z REAL,          -- expected output, g
+        mean_x REAL NOT NULL, mean_y REAL NOT NULL, mean_z REAL NOT NULL,  -- session units
+        std_x REAL, std_y REAL, std_z REAL,          -- session units
+        n INTEGER,
+        dropped INTEGER NOT NULL DEFAULT 0,
+        temp_c REAL,
+        t_start REAL, t_end REAL,
+        retries INTEGER NOT NULL DEFAULT 0,          -- rejected captures before this one
+        PRIMARY KEY (run_id, idx)
+    );
+    CREATE TABLE events (
+        id INTEGER PRIMARY KEY,
+        run_id INTEGER NOT NULL REFERENCES runs (id) ON DELETE CASCADE,
+        t REAL NOT NULL,
+        kind TEXT NOT NULL,
+        message TEXT,
+        data TEXT                                    -- JSON
+    );
+    CREATE INDEX events_run ON events (run_id);
+    """,
+]
+SCHEMA_VERSION = len(MIGRATIONS)
+
+_POSE_COLS = ("idx", "name", "pitch_deg", "roll_deg", "ref_x", "ref_y", "ref_z", "mean_x", "mean_y", "mean_z",
+              "std_x", "std_y", "std_z", "n", "dropped", "temp_c", "t_start", "t_end", "retries")
+_RUN_CSV_COLS = ("id", "started_at", "finished_at", "status", "status_reason", "device_serial", "chip",
+                 "station_id", "operator", "lot", "config_hash", "model", "units", "counts_per_g", "verdict",
+                 "reasons", "nvm_status", "pose_count")
+_FIT_SCALARS = ("residual_rms_g", "residual_max_g", "crossval_rms_g", "condition_number")
+PARAM_NAMES = ([f"W{i}{j}" for i in range(3) for j in range(3)] + [f"V{i}" for i in range(3)]
+               + [f"Gamma{i}" for i in range(3)])
+
+
+DEFAULT_STORE = "accelcal-runs.sqlite"
+
+
+def store_path(config: dict, base_dir: str | Path = ".") -> Path:
+    """The store file of a station config: ``store: {path: FILE}`` (default DEFAULT_STORE),
+    a relative path taken from ``base_dir`` (the config file's folder)."""
+    section = check_keys(config.get("store"), ("path",), "store")
+    p = section.get("path", DEFAULT_STORE)
+    if not isinstance(p, str) or not p.strip():
+        raise ConfigError(f"store.path: {p!r}; allowed: a file path")
+    return Path(base_dir) / Path(p).expanduser()
+
+
+class StoreError(DataError):
+    """The results store cannot be opened, read or written."""
+
+
+def iso(t: float | None) -> str | None:
+    """Unix seconds as ISO 8601 UTC."""
+    return None if t is None else datetime.fromtimestamp(t, timezone.utc).isoformat(timespec="milliseconds")
+
+
+def timestamp(value, what: str = "time") -> float | None:
+    """Unix seconds from unix seconds, a datetime or an ISO 8601 string (naive = local time)."""
+    if value is None or (isinstance(value, (int, float)) and not isinstance(value, bool)):
+        return None if value is None else float(value)
+    if isinstance(value, str):
+        try:
+            value = datetime.fromisoformat(value)
+        except ValueError:
+            raise DataError(f"{what} {value!r}: not a date; allowed ISO 8601 like 2024-05-01 or "
+                            "2024-05-01T13:30") from None
+    if isinstance(value, datetime):
+        return value.timestamp()
+    raise DataError(f"{what} {value!r}: not a time")
+
+
+def reason_code(reason: str) -> str:
+    """The code of a failure reason: its first word (acceptance.py starts each with the limit key)."""
+    m = re.match(r"[^\s:]+", str(reason).strip())
+    return m.group(0) if m else ""
+
+
+def param_vector(cal: dict) -> np.ndarray:
+    """W (row major), V, Gamma of a calibration dict as 15 numbers, PARAM_NAMES order."""
+    return np.concatenate([np.asarray(cal["W"], float).ravel(), np.asarray(cal["V"], float),
+                           np.asarray(cal.get("Gamma", [0, 0, 0]), float)])
+
+
+def _opt(x, cast=float):
+    return None if x is None else cast(x)
+
+
+def _json(x) -> str | None:
+    return None if x is None else json.dumps(x, allow_nan=False)
+
+
+def _stats(values: np.ndarray) -> dict:
+    """mean, sample std (ddof=1; 0 for one value), min, max and n over axis 0."""
+    v = np.asarray(values, dtype=float)
+    return {"n": int(len(v)), "mean": v.mean(axis=0).tolist(),
+            "std": (v.std(axis=0, ddof=1) if len(v) > 1 else np.zeros(v.shape[1:])).tolist(),
+            "min": v.min(axis=0).tolist(), "max": v.max(axis=0).tolist()}
+
+
+@dataclass
+class RunRecord:
+    """One stored run; ``session()`` rebuilds the captured Session."""
+
+    id: int
+    started_at: float
+    finished_at: float | None
+    status: str
+    status_reason: str | None
+    device_serial: str | None
+    chip: str | None
+    station_id: str | None
+    operator: str | None
+    lot: str | None
+    config_hash: str | None
+    config_text: str | None
+    model: str | None
+    units: str | None
+    counts_per_g: float | None
+    gravity_mps2: float | None
+    verdict: str | None
+    reasons: list[str]
+    nvm_status: str | None
+    nvm_outcome: dict | None
+    calibration: dict | None
+    fit_summary: dict | None
+    host: str | None
+    pid: int | None
+    poses: list[PoseRecord] = field(default_factory=list)
+    retries: list[int] = field(default_factory=list)
+    events: list[dict] = field(default_factory=list)
+
+    def session(self) -> Session:
+        return Session(list(self.poses), self.units or "counts", self.counts_per_g, self.gravity_mps2,
+                       self.device_serial, {"run_id": self.id, "station_id": self.station_id, "lot": self.lot,
+                                            "chip": self.chip, "started_at": iso(self.started_at)})
+
+    def calibration_object(self) -> Calibration | None:
+        return None if self.calibration is None else Calibration.from_dict(self.calibration, f"run {self.id}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["started_at_iso"], d["finished_at_iso"] = iso(self.started_at), iso(self.finished_at)
+        d["poses"] = [_pose_dict(p, r) for p, r in zip(self.poses, self.retries)]
+        return d
+
+
+def _pose_dict(p: PoseRecord, retries: int) -> dict:
+    arr = lambda a: None if a is None else np.asarray(a).tolist()  # noqa: E731
+    return {"name": p.name, "pitch_deg": p.pitch_deg, "roll_deg": p.roll_deg, "reference_g": arr(p.reference_g),
+            "mean": arr(p.mean), "std": arr(p.std), "n": p.n, "dropped": p.dropped, "temp_c": p.temp_c,
+            "t_start": p.t_start, "t_end": p.t_end, "retries": retries}
+
+
+class Store:
+    """The SQLite results store at ``path`` (created with its parent folder when missing,
+    unless ``create`` is False).  Use as a context manager; one Store per thread.
+    """
+
+    def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True):
+        self.path = Path(path)
+        if not create and not self.path.is_file():
+            raise StoreError(f"{self.path}: no results store there")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = sqlite3.connect(self.path, timeout=timeout_s, isolation_level=None)
+        except (OSError, sqlite3.Error) as e:
+            raise StoreError(f"{self.path}: cannot open results store ({e})") from None
+        self._db.row_factory = sqlite3.Row
+        try:
+            self._db.execute("PRAGMA foreign_keys = ON")
+            self._migrate()
+        except sqlite3.DatabaseError as e:
+            self._db.close()
+            raise StoreError(f"{self.path}: not a usable results store ({e})") from None
+        except BaseException:
+            self._db.close()
+            raise
+
+    def __enter__(self) -> "Store":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._db.close()
+
+    @contextmanager
+    def _tx(self, what: str):
+        """One IMMEDIATE transaction: all of it is committed or none of it."""
+        try:
+            self._db.execute("BEGIN IMMEDIATE")
+        except sqlite3.Error as e:
+            raise StoreError(f"{self.path}: cannot {what} ({e})") from None
+        try:
+            yield self._db
+            self._db.execute("COMMIT")
+        except BaseException as e:
+            if self._db.in_transaction:  # SQLite rolls back by itself on some errors (disk full)
+                self._db.execute("ROLLBACK")
+            if isinstance(e, sqlite3.Error):
+                raise StoreError(f"{self.path}: cannot {what} ({e}); nothing was recorded") from None
+            raise
+
+    @contextmanager
+    def _snapshot(self):
+        """One read transaction, so queries spanning tables see one committed state."""
+        if self._db.in_transaction:
+            yield
+            return
+        try:
+            self._db.execute("BEGIN")
+            yield
+        except sqlite3.Error as e:
+            raise StoreError(f"{self.path}: cannot read runs ({e})") from None
+        finally:
+            if self._db.in_transaction:
+                self._db.execute("COMMIT")
+
+    def _migrate(self) -> None:
+        version = self._db.execute("PRAGMA user_version").fetchone()[0]
+        if version > SCHEMA_VERSION:
+            raise StoreError(f"{self.path}: results store schema version {version} is newer than this "
+                             f"station's {SCHEMA_VERSION}; upgrade accelcal-station")
+        if version == SCHEMA_VERSION:
+            return
+        with self._tx("upgrade the schema") as db:
+            version = db.execute("PRAGMA user_version").fetchone()[0]  # another process may have won
+            if version == 0 and db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]:
+                raise StoreError(f"{self.path}: an SQLite file that is not an accelcal results store")
+            for v in range(version, SCHEMA_VERSION):
+                for stmt in MIGRATIONS[v].split(";"):
+                    if stmt.strip():
+                        db.execute(stmt)
+                db.execute(f"PRAGMA user_version = {v + 1}")
+
+    @property
+    def schema_version(self) -> int:
+        return self._db.execute("PRAGMA user_version").fetchone()[0]
+
+    # -- recording ----------------------------------------------------------------------
+    def start_run(self, *, device_serial: str | None, chip: str | None = None, station_id: str | None = None,
+                  operator: str | None = None, lot: str | None = None, config_text: str | None = None,
+                  config_hash: str | None = None, model: str | None = None, units: str | None = None,
+                  counts_per_g: float | None = None, gravity_mps2: float | None = None,
+                  started_at: float | None = None) -> int:
+        """Commit a ``running`` row now (a crash leaves it recorded) and return its id.
+
+        ``config_hash`` defaults to the SHA-256 of ``config_text``.
+        """
+        if config_hash is None and config_text is not None:
+            config_hash = hashlib.sha256(config_text.encode()).hexdigest()
+        with self._tx("start a run") as db:
+            cur = db.execute(
+                "INSERT INTO runs (started_at, status, device_serial, chip, station_id, operator, lot, config_hash,"
+                " config_text, model, units, counts_per_g, gravity_mps2, host, pid)"
+                " VALUES (?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (_time.time() if started_at is None else float(started_at), device_serial, chip, station_id,
+                 operator, lot, config_hash, config_text, _opt(model, str), units, _opt(counts_per_g),
+                 _opt(gravity_mps2), socket.gethostname(), os.getpid()))
+            return int(cur.lastrowid)
+
+    def _running(self, db, run_id: int) -> None:
+        row = db.execute("SELECT status FROM runs WHERE id = ?", (run_id,)).fetchone()
+        if row is None:
+            raise StoreError(f"{self.path}: no run {run_id}")
+        if row["status"] != "running":
+            raise StoreError(f"{self.path}: run {run_id} is already {row['status']}; a run is closed once")
+
+    def _insert_poses(self, db, run_id: int, session: Session, retries: Sequence[int] | None) -> None:
+        if retries is not None and len(retries) != len(session):
+            raise DataError(f"retries has {len(retries)} entries for {len(session)} poses")
+        rows = []
+        for i, p in enumerate(session.poses):
+            ref = [None] * 3 if p.reference_g is None else [float(v) for v in p.reference_g]
+            std = [None] * 3 if p.std is None else [float(v) for v in p.std]
+            rows.append((run_id, i, p.name, _opt(p.pitch_deg), _opt(p.roll_deg), *ref, *map(float, p.mean), *std,
+                         _opt(p.n, int), int(p.dropped), _opt(p.temp_c), _opt(p.t_start), _opt(p.t_end),
+                         0 if retries is None else int(retries[i])))
+        db.executemany(f"INSERT INTO poses (run_id, {', '.join(_POSE_COLS)}) VALUES ({', '.join('?' * 20)})", rows)
+        db.execute("UPDATE runs SET units = ?, counts_per_g = ?, gravity_mps2 = ? WHERE id = ?",
+                   (session.units, _opt(session.counts_per_g), _opt(session.gravity_mps2), run_id))
+
+    def finish_run(self, run_id: int, *, session: Session, calibration: Calibration | None, verdict: str | None,
+                   reasons: Iterable[str] = (), nvm_outcome: Any = None, fit_summary: dict | None = None,
+                   model: str | None = None, retries: Sequence[int] | None = None,
+                   finished_at: float | None = None) -> None:
+        """Record poses, calibration, verdict and NVM outcome of a run as ``complete``, atomically.
+
+        ``nvm_outcome``: a writer.BurnOutcome, its dict, or None when nothing was burned.
+        """
+        if verdict is not None and verdict not in VERDICTS:
+            raise DataError(f"verdict {verdict!r}; allowed: PASS, FAIL")
+        if nvm_outcome is not None and hasattr(nvm_outcome, "to_dict"):
+            nvm_outcome = nvm_outcome.to_dict()
+        nvm_status = "none" if nvm_outcome is None else ("written" if nvm_outcome.get("ok") else "failed")
+        with self._tx(f"record run {run_id}") as db:
+            self._running(db, run_id)
+            self._insert_poses(db, run_id, session, retries)
+            cal = None if calibration is None else calibration.to_dict()
+            try:
+                texts = [_json(list(map(str, reasons))), _json(nvm_outcome), _json(cal), _json(fit_summary)]
+            except (TypeError, ValueError) as e:
+                raise DataError(f"run {run_id}: result is not JSON-serialisable ({e})") from None
+            db.execute(
+                "UPDATE runs SET status = 'complete', finished_at = ?, verdict = ?, reasons = ?, nvm_status = ?,"
+                " nvm_outcome = ?, calibration = ?, fit_summary = ?, model = coalesce(?, model) WHERE id = ?",
+                (_time.time() if finished_at is None else float(finished_at), verdict, texts[0], nvm_status,
+                 *texts[1:], _opt(model or (calibration.model if calibration else None), str), run_id))
+
+    def interrupt_run(self, run_id: int, reason: str, *, session: Session | None = None,
+                      status: str = "interrupted", retries: Sequence[int] | None = None,
+                      nvm_outcome: Any = None) -> None:
+        """Close a run as ``interrupted`` (or ``error``) with the poses captured so far, atomically."""
+        if status not in ("interrupted", "error"):
+            raise DataError(f"status {status!r}; allowed: interrupted, error")
+        if nvm_outcome is not None and hasattr(nvm_outcome, "to_dict"):
+            nvm_outcome = nvm_outcome.to_dict()
+        with self._tx(f"record run {run_id}") as db:
+            self._running(db, run_id)
+            if session is not None:
+                self._insert_poses(db, run_id, session, retries)
+            db.execute("UPDATE runs SET status = ?, status_reason = ?, finished_at = ?, nvm_status = ?,"
+                       " nvm_outcome = ? WHERE id = ?",
+                       (status, str(reason), _time.time(),
+                        None if nvm_outcome is None else ("written" if nvm_outcome.get("ok") else "failed"),
+                        _json(nvm_outcome), run_id))
+
+    def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None) -> None:
+        """Append an event (a rejected capture, an operator prompt, ...), committed at once."""
+        with self._tx(f"log an event of run {run_id}") as db:
+            db.execute("INSERT INTO events (run_id, t, kind, message, data) VALUES (?, ?, ?, ?, ?)",
+                       (run_id, _time.time(), kind, message, _json(data)))
+
+    def mark_stale_interrupted(self, max_age_s: float | None = None) -> list[int]:
+        """Mark ``running`` runs whose station process is gone as interrupted; returns their ids.
+
+        A run is stale when it was started on this host by a process that no longer
+        exists, or (any host) when ``max_age_s`` is given and it started longer ago.
+        """
+        host, now, stale = socket.gethostname(), _time.time(), []
+        with self._tx("mark stale runs") as db:
+            for r in db.execute("SELECT id, host, pid, started_at FROM runs WHERE status = 'running'").fetchall():
+                old = max_age_s is not None and now - r["started_at"] > max_age_s
+                if old or (r["host"] == host and r["pid"] is not None and not _alive(r["pid"])):
+                    stale.append(r["id"])
+            db.executemany("UPDATE runs SET status = 'interrupted', finished_at = ?, status_reason = ?"
+                           " WHERE id = ?", [(now, "station stopped during the run", i) for i in stale])
+        return stale
+
+    # -- queries ------------------------------------------------------------------------
+    def _where(self, device=None, station=None, lot=None, operator=None, since=None, until=None,
+               verdict=None, status=None, model=None, run_ids=None) -> tuple[str, list]:
+        clauses, args = [], []
+        for col, v in (("device_serial", device), ("station_id", station), ("lot", lot), ("operator", operator),
+                       ("verdict", verdict), ("status", status), ("model", model)):
+            if v is not None:
+                vals = [v] if isinstance(v, (str, int)) else list(v)
+                clauses.append(f"{col} IN ({', '.join('?' * len(vals))})")
+                args += [str(x) for x in vals]
+        for op, v, what in ((">=", since, "since"), ("<", until, "until")):
+            t = timestamp(v, what)
+            if t is not None:
+                clauses.append(f"started_at {op} ?")
+                args.append(t)
+        if run_ids is not None:
+            ids = [int(i) for i in run_ids]
+            clauses.append(f"id IN ({', '.join('?' * len(ids))})")
+            args += ids
+        return (" WHERE " + " AND ".join(clauses)) if clauses else "", args
+
+    def _runs(self, filters: dict, limit: int | None = None) -> list[sqlite3.Row]:
+        where, args = self._where(**filters)
+        sql = f"SELECT * FROM runs{where} ORDER BY started_at, id"
+        if limit is not None:
+            sql += f" LIMIT {int(limit)}"
+        try:
+            return self._db.execute(sql, args).fetchall()
+        except sqlite3.Error as e:
+            raise StoreError(f"{self.path}: cannot read runs ({e})") from None
+
+    def list_runs(self, limit: int | None = None, **filters) -> list[dict]:
+        """Run summaries (no poses) matching filters: device, station, lot, operator, since,
+        until, verdict, status, model (a value or a list of values), run_ids."""
+        with self._snapshot():
+            counts = dict(self._db.execute("SELECT run_id, count(*) FROM poses GROUP BY run_id").fetchall())
+            rows = self._runs(filters, limit)
+        out = []
+        for r in rows:
+            fit = json.loads(r["fit_summary"]) if r["fit_summary"] else {}
+            out.append({"id": r["id"], "started_at": iso(r["started_at"]), "finished_at": iso(r["finished_at"]),
+                        "status": r["status"], "status_reason": r["status_reason"],
+                        "device_serial": r["device_serial"], "chip": r["chip"], "station_id": r["station_id"],
+                        "operator": r["operator"], "lot": r["lot"], "model": r["model"], "verdict": r["verdict"],
+                        "reasons": json.loads(r["reasons"]) if r["reasons"] else [],
+                        "nvm_status": r["nvm_status"], "pose_count": counts.get(r["id"], 0),
+                        "residual_rms_g": fit.get("residual_rms_g")})
+        return out
+
+    def _record(self, r: sqlite3.Row) -> RunRecord:
+        load = lambda k: None if r[k] is None else json.loads(r[k])  # noqa: E731
+        rec = RunRecord(**{k: r[k] for k in r.keys() if k not in ("reasons", "nvm_outcome", "calibration",
+                                                                   "fit_summary")},
+                        reasons=load("reasons") or [], nvm_outcome=load("nvm_outcome"),
+                        calibration=load("calibration"), fit_summary=load("fit_summary"))
+        for p in self._db.execute("SELECT * FROM poses WHERE run_id = ? ORDER BY idx", (r["id"],)):
+            vec = lambda c: None if p[f"{c}_x"] is None else [p[f"{c}_{a}"] for a in AXES]  # noqa: E731
+            rec.poses.append(PoseRecord(p["name"], vec("mean"), vec("std"), p["n"], vec("ref"), p["pitch_deg"],
+                                        p["roll_deg"], p["temp_c"], p["dropped"], p["t_start"], p["t_end"]))
+            rec.retries.append(p["retries"])
+        rec.events = [{"t": e["t"], "kind": e["kind"], "message": e["message"],
+                       "data": None if e["data"] is None else json.loads(e["data"])}
+                      for e in self._db.execute("SELECT * FROM events WHERE run_id = ? ORDER BY id", (r["id"],))]
+        return rec
+
+    def get_run(self, run_id: int) -> RunRecord:
+        with self._snapshot():
+            rows = self._runs({"run_ids": [run_id]})
+            if not rows:
+                raise StoreError(f"{self.path}: no run {run_id}")
+            return self._record(rows[0])
+
+    def runs(self, **filters) -> list[RunRecord]:
+        """Full records (poses, events) of the matching runs."""
+        with self._snapshot():
+            return [self._record(r) for r in self._runs(filters)]
+
+    def sessions_for_batch(self, **filters) -> list[Session]:
+        """Sessions of complete runs with poses (for batch recalibration of a lot)."""
+        filters.setdefault("status", "complete")
+        return [rec.session() for rec in self.runs(**filters) if rec.poses]
+
+    # -- exports and summaries ----------------------------------------------------------
+    def export_json(self, path: str | Path | None = None, **filters) -> list[dict]:
+        """Every matching run in full; written atomically to ``path`` when given."""
+        data = [rec.to_dict() for rec in self.runs(**filters)]
+        if path is not None:
+            _export(path, json.dumps({"schema": "accelcal.runs", "version": 1, "runs": data}, indent=1) + "\n")
+        return data
+
+    def export_csv(self, path: str | Path | None = None, kind: str = "runs", **filters) -> str:
+        """CSV of runs (one row per run, calibration flattened) or poses (one row per pose).
+
+        Returns the text; written atomically to ``path`` when given.
+        """
+        if kind not in ("runs", "poses"):
+            raise DataError(f"CSV kind {kind!r}; allowed: runs, poses")
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        recs = self.runs(**filters)
+        if kind == "runs":
+            w.writerow([*_RUN_CSV_COLS, *_FIT_SCALARS, *PARAM_NAMES])
+            for rec in recs:
+                d = asdict(rec)
+                d.update(started_at=iso(rec.started_at), finished_at=iso(rec.finished_at),
+                         reasons="; ".join(rec.reasons), pose_count=len(rec.poses))
+                fit = rec.fit_summary or {}
+                params = param_vector(rec.calibration).tolist() if rec.calibration else [None] * 15
+                w.writerow([*(d[c] for c in _RUN_CSV_COLS), *(fit.get(k) for k in _FIT_SCALARS), *params])
+        else:
+            w.writerow(["run_id", "device_serial", "lot", "verdict", "units", *_POSE_COLS])
+            for rec in recs:
+                for i, (p, retries) in enumerate(zip(rec.poses, rec.retries)):
+                    v = lambda a: [None] * 3 if a is None else list(a)  # noqa: E731
+                    w.writerow([rec.id, rec.device_serial, rec.lot, rec.verdict, rec.units, i, p.name, p.pitch_deg,
+                                p.roll_deg, *v(p.reference_g), *v(p.mean), *v(p.std), p.n, p.dropped, p.temp_c,
+                                p.t_start, p.t_end, retries])
+        text = buf.getvalue()
+        if path is not None:
+            _export(path, text)
+        return text
+
+    def lot_summary(self, **filters) -> dict:
+        """Counts, pass rate, failure reasons and parameter distributions of the matching runs.
+
+        pass_rate = PASS / (PASS + FAIL) over complete runs (None when there are none);
+        failure_reasons counts FAIL runs per reason code; parameters (W, V, Gamma
+        elements, PARAM_NAMES) and fit figures give mean, sample std (ddof=1), min,
+        max over complete runs with a calibration.
+        """
+        rows = self._runs(filters)
+        by_status = Counter(r["status"] for r in rows)
+        done = [r for r in rows if r["status"] == "complete"]
+        verdicts = Counter(r["verdict"] for r in done if r["verdict"])
+        decided = verdicts["PASS"] + verdicts["FAIL"]
+        fail_reasons: Counter = Counter()
+        for r in done:
+            if r["verdict"] == "FAIL":
+                fail_reasons.update({reason_code(x) for x in json.loads(r["reasons"] or "[]")})
+        cals = [json.loads(r["calibration"]) for r in done if r["calibration"]]
+        params = None
+        if cals:
+            s = _stats(np.array([param_vector(c) for c in cals]))
+            params = {name: {k: (v if k == "n" else v[i]) for k, v in s.items()} for i, name in enumerate(PARAM_NAMES)}
+        fits = [json.loads(r["fit_summary"]) for r in done if r["fit_summary"]]
+        fit_stats = {}
+        for k in _FIT_SCALARS:
+            vals = [f[k] for f in fits if isinstance(f.get(k), (int, float))]
+            if vals:
+                fit_stats[k] = _stats(np.array(vals))
+        starts = [r["started_at"] for r in rows]
+        return {
+            "runs": len(rows),
+            "by_status": {s: by_status.get(s, 0) for s in STATUSES},
+            "pass": verdicts["PASS"], "fail": verdicts["FAIL"],
+            "pass_rate": verdicts["PASS"] / decided if decided else None,
+            "failure_reasons": dict(fail_reasons.most_common()),
+            "interruptions": dict(Counter(r["status_reason"] or "unknown" for r in rows
+                                          if r["status"] in ("interrupted", "error")).most_common()),
+            "nvm": dict(Counter(r["nvm_status"] or "none" for r in done)),
+            "devices": len({r["device_serial"] for r in rows}),
+            "models": dict(Counter(r["model"] for r in done if r["model"])),
+            "first_started": iso(min(starts)) if starts else None,
+            "last_started": iso(max(starts)) if starts else None,
+            "parameters": params,
+            "fit": fit_stats,
+        }
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _export(path, text: str) -> None:
+    try:
+        atomic_write_text(path, text)
+    except OSError as e:
+        raise StoreError(f"{path}: cannot write export ({e.strerror})") from None
