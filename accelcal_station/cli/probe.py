@@ -1,0 +1,94 @@
+"""`accelcal probe`: identify the configured device, show its settings and a few averaged readings."""
+from __future__ import annotations
+
+import json
+import math
+
+import click
+import numpy as np
+
+from ..config import load_yaml
+from ..drivers import make_driver
+from ..errors import ConfigError, DeviceError
+
+
+def device_section(path: str) -> dict:
+    """The ``device:`` section of a station config, or a file that is only a device section."""
+    data = load_yaml(path)
+    section = data.get("device", data if "driver" in data else None)
+    if not isinstance(section, dict):
+        raise ConfigError(f"{path}: no 'device' section; allowed: a mapping with 'driver: simulated, mma8451 "
+                          "or mpu6050'")
+    return dict(section)
+
+
+def _with_port(section: dict, port: str) -> dict:
+    """--port overrides the serial port, or the I2C bus of an MMA8451 (a number or /dev/i2c-N)."""
+    if section.get("driver") == "mma8451":
+        section["bus"] = int(port) if port.isdigit() else port
+    elif section.get("driver") == "simulated":
+        raise ConfigError(f"--port {port}: the simulated driver has no port")
+    else:
+        section["port"] = port
+    return section
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {k: _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple, np.ndarray)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        return float(o) if math.isfinite(o) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    return o
+
+
+@click.command("probe")
+@click.option("--config", "config_path", required=True, type=click.Path(dir_okay=False),
+              help="Station YAML with a device: section (e.g. configs/mma8451-emulated.yaml).")
+@click.option("--port", default=None, help="Override the serial port, or the I2C bus number / /dev/i2c-N.")
+@click.option("--readings", default=3, show_default=True, type=click.IntRange(1, 100),
+              help="How many averaged readings to take.")
+@click.option("--samples", default=32, show_default=True, type=click.IntRange(1, 100000),
+              help="Samples averaged per reading.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+def command(config_path: str, port: str | None, readings: int, samples: int, as_json: bool) -> None:
+    """Identify the device in --config and print its configuration, temperature and averaged readings."""
+    section = device_section(config_path)
+    if port is not None:
+        section = _with_port(section, port)
+    try:
+        with make_driver(section) as dev:
+            ident = dev.identify()
+            settings = dev.settings() if hasattr(dev, "settings") else {}
+            temp = dev.temperature_c()
+            caps = [dev.capture(n=samples) for _ in range(readings)]
+            cpg, rng, odr = dev.counts_per_g, dev.range_g, dev.odr_hz
+    except OSError as e:  # a driver should not let one escape; if it does, still one line
+        raise DeviceError(f"{section.get('driver')}: {e.strerror or e}") from None
+    result = {
+        "chip": ident.chip, "chip_id": ident.chip_id, "interface": ident.interface, "serial": ident.serial,
+        "firmware": ident.firmware, "range_g": rng, "odr_hz": odr, "counts_per_g": cpg, "settings": settings,
+        "temperature_c": temp,
+        "readings": [{"n": c.n, "dropped": c.dropped, "mean_counts": c.mean_counts, "std_counts": c.std_counts,
+                      "mean_g": c.mean_counts / cpg, "t_start": c.t_start, "t_end": c.t_end} for c in caps],
+    }
+    if as_json:
+        click.echo(json.dumps(_jsonable(result)))
+        return
+    click.echo(f"device       {ident.chip} (chip id 0x{ident.chip_id:02X}) on {ident.interface}"
+               + (f", serial {ident.serial}" if ident.serial else "")
+               + (f", firmware {ident.firmware}" if ident.firmware else ""))
+    click.echo(f"range        +-{rng} g, {cpg:g} counts/g")
+    click.echo(f"data rate    {odr:g} Hz")
+    for k, v in settings.items():
+        click.echo(f"{k.replace('_', ' '):12s} {v}")
+    click.echo(f"temperature  {'none: chip has no sensor' if temp is None else f'{temp:.2f} C'}")
+    click.echo(f"readings     mean of {samples} samples each (counts | g | std counts)")
+    for i, c in enumerate(caps, 1):
+        cts = " ".join(f"{v:9.1f}" for v in c.mean_counts)
+        g = " ".join(f"{v:+8.4f}" for v in c.mean_counts / cpg)
+        sd = " ".join(f"{v:6.1f}" for v in c.std_counts)
+        click.echo(f"  {i:2d}  {cts} | {g} | {sd}" + (f"  ({c.dropped} dropped)" if c.dropped else ""))

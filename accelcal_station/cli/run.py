@@ -1,0 +1,51 @@
+"""`accelcal run`: calibrate one board end to end."""
+from __future__ import annotations
+
+import json
+
+import click
+
+from ..station import Station, StationConfig
+
+
+@click.command("run")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+              help="Station config YAML (default: the simulated station, configs/sim.yaml).")
+@click.option("--serial", default=None, help="Board serial number (default: the device's own).")
+@click.option("--operator", default=None, help="Operator name, recorded with the run.")
+@click.option("--lot", default=None, help="Production lot, recorded with the run.")
+@click.option("--store", "store_file", type=click.Path(dir_okay=False), default=None,
+              help="Results store file (default: the config's store.path).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object (human lines go to stderr).")
+def command(config_path, serial, operator, lot, store_file, as_json):
+    """Calibrate one board: identify, present each pose, capture, fit, judge, write NVM, verify, record.
+
+    Exit status: 0 PASS, 1 FAIL, 2 bad input or configuration, 3 device error,
+    4 NVM error, 5 operator abort.
+    """
+    cfg = StationConfig.load(config_path, store_file)
+
+    def echo(text: str) -> None:
+        click.echo(text, err=as_json)
+
+    echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}")
+    rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
+    if as_json:
+        click.echo(json.dumps(rep.to_dict(), indent=2))
+    else:
+        t = rep.timing
+        f = rep.fit
+        if f is not None:
+            click.echo(f"fit: model {rep.model}, {f.pose_count} poses, residual RMS {f.residual_rms_g * 1e3:.3f} mg"
+                       + ("" if f.crossval_rms_g is None else f", cross-validated {f.crossval_rms_g * 1e3:.3f} mg"))
+        if rep.verify_error_max_mg is not None:
+            click.echo(f"verify: max error {rep.verify_error_max_mg:.3f} mg after calibration")
+        colour = "green" if rep.verdict == "PASS" else "red"
+        click.secho(f"{rep.verdict} board {rep.serial} (run {rep.run_id}, store {rep.store})", fg=colour, bold=True)
+        for r in rep.reasons:
+            click.secho(f"  - {r}", fg=colour)
+        if t:
+            click.echo(f"time: sampling floor {t['sampling_floor_s']:.1f} s of {t.get('board_time_s', 0):.1f} s "
+                       f"board time at {t['odr_hz']:g} Hz; host compute {t['host_compute_s']:.2f} s")
+    if rep.verdict != "PASS":
+        raise click.exceptions.Exit(1)

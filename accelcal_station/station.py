@@ -1,0 +1,393 @@
+"""The station: calibrate one board end to end (DESIGN.md, "The flow of one board").
+
+identify -> plan poses -> for each pose: jig.present, gated capture -> fit -> judge ->
+closed-loop verify (fresh captures, calibration applied in software) -> judge again ->
+burn NVM (A/B slot, read-back) -> re-verify through the calibration read back from
+NVM -> record everything in the store.  A board that fails is never written.
+"""
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import yaml
+
+from .acceptance import Limits, Verdict, judge
+from .calibration import Calibration
+from .capture import CaptureSettings, StillnessGate, WrongPose, gated_capture
+from .config import check_keys, choice, load_yaml, number
+from .drivers import Driver, make_driver
+from .errors import AccelcalError, ConfigError, UnderdeterminedError
+from .fixtures.base import Jig, PoseSpec
+from .fixtures.designs import get_design
+from .fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
+from .models import check_model, fit_session
+from .models.result import FitResult
+from .session import PoseRecord, Session
+from .store import Store, store_path
+from .writer import BurnError, CalibrationWriter
+
+TOP_KEYS = ("station", "store", "device", "jig", "plan", "capture", "acceptance", "nvm", "verify")
+JIG_TYPES = ("simulated", "operator", "motorized")
+
+
+def default_config_path() -> Path:
+    """configs/sim.yaml, wherever the package is installed."""
+    from . import configs
+
+    return Path(configs.__file__).parent / "sim.yaml"
+
+
+@dataclass
+class StationConfig:
+    """A checked station configuration (every error names its key path)."""
+
+    raw: dict
+    text: str
+    path: Path
+    station_id: str
+    design: str
+    model: str
+    capture: CaptureSettings
+    limits: Limits
+    nvm_write: bool
+    slot_size: int | None
+    verify_poses: int
+    verify_design: str | None
+    store_file: Path
+
+    @classmethod
+    def load(cls, path: str | Path | None = None, store_override: str | Path | None = None) -> "StationConfig":
+        default = path is None
+        p = default_config_path() if default else Path(path)
+        raw = load_yaml(p)
+        check_keys(raw, TOP_KEYS, str(p.name))
+        if "device" not in raw:
+            raise ConfigError(f"{p}: device: required (a mapping with a 'driver' key)")
+        st = check_keys(raw.get("station"), ["id"], "station")
+        plan = check_keys(raw.get("plan"), ["design", "model"], "plan")
+        design = str(plan.get("design", "an4399-8"))
+        get_design(design)  # unknown names fail now, not mid-run
+        try:
+            model = check_model(plan.get("model", "12"))
+        except AccelcalError:
+            raise ConfigError(f"plan.model: {plan.get('model')!r}; allowed: 6, 9, 12, 15") from None
+        cap = check_keys(raw.get("capture"), CaptureSettings.__dataclass_fields__, "capture")
+        defaults = CaptureSettings()
+        settings = CaptureSettings(**{
+            k: number(cap, k, "capture", getattr(defaults, k), lo=0.0,
+                      integer=isinstance(getattr(defaults, k), int)) for k in cap})
+        if settings.k_leave < settings.k_enter:
+            raise ConfigError("capture.k_leave must be >= capture.k_enter (hysteresis)")
+        nvm = check_keys(raw.get("nvm"), ["write", "slot_size"], "nvm")
+        write = nvm.get("write", True)
+        if not isinstance(write, bool):
+            raise ConfigError(f"nvm.write: {write!r}; allowed: true, false")
+        slot = nvm.get("slot_size")
+        slot = None if slot is None else number(nvm, "slot_size", "nvm", lo=64, integer=True)
+        ver = check_keys(raw.get("verify"), ["poses", "design"], "verify")
+        vdesign = ver.get("design")
+        if vdesign is not None:
+            get_design(str(vdesign))
+        jig = raw.get("jig") or {"type": "simulated"}
+        check_keys(jig, list(jig), "jig")
+        choice(jig, "type", "jig", JIG_TYPES)
+        base = Path.cwd() if default else p.parent
+        store_file = Path(store_override) if store_override else store_path(raw, base)
+        return cls(raw, p.read_text(), p, str(st.get("id", "station-1")), design, model, settings,
+                   Limits.from_config(raw.get("acceptance")), write, slot,
+                   number(ver, "poses", "verify", 3, 0, 64, integer=True),
+                   None if vdesign is None else str(vdesign), store_file)
+
+
+def board_of(driver: Driver):
+    """The SimulatedBoard behind a simulated or emulated driver, else None."""
+    board = getattr(driver, "board", None)
+    if board is None and getattr(driver, "emulator", None) is not None:
+        board = getattr(driver.emulator, "board", None)
+    return board
+
+
+def make_jig(cfg: dict, driver: Driver, echo: Callable[[str], None]) -> Jig:
+    """Build the configured jig for this driver."""
+    kind = cfg.get("type", "simulated")
+    rest = {k: v for k, v in cfg.items() if k != "type"}
+    if kind == "simulated":
+        from .fixtures.simulated_jig import SimulatedJig
+
+        check_keys(rest, ["move_time_s"], "jig")
+        board = board_of(driver)
+        if board is None:
+            raise ConfigError("jig.type: simulated needs a simulated or emulated device; "
+                              "use operator or motorized with real hardware")
+        return SimulatedJig(board, number(rest, "move_time_s", "jig", 2.0, 0.0, 120.0))
+    if kind == "operator":
+        hand = None
+        if rest.get("hand") is not None:
+            from .fixtures.simulated_hand import SimulatedHand
+
+            board = board_of(driver)
+            if board is None:
+                raise ConfigError("jig.hand: a simulated hand needs a simulated or emulated device")
+            hand = SimulatedHand.from_config(rest["hand"], board, "jig.hand")
+        jig = OperatorJig.from_config(cfg, "jig", hand=hand)
+        jig.echo = echo
+        return jig
+    from .fixtures.motorized_jig import MotorizedJig
+
+    return MotorizedJig.from_config(rest, "jig")
+
+
+@dataclass
+class RunReport:
+    """What one run did; ``to_dict`` is the `accelcal run --json` object."""
+
+    run_id: int | None = None
+    serial: str = ""
+    chip: str = ""
+    station_id: str = ""
+    verdict: str = "FAIL"
+    reasons: list[str] = field(default_factory=list)
+    model: str = ""
+    design: str = ""
+    fit: FitResult | None = None
+    measured: dict[str, float] = field(default_factory=dict)
+    verify_error_max_mg: float | None = None
+    nvm: dict | None = None
+    nvm_verified: bool = False
+    poses: list[dict] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    events: list[str] = field(default_factory=list)
+    timing: dict[str, float] = field(default_factory=dict)
+    store: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        f = self.fit
+        return {
+            "run_id": self.run_id, "serial": self.serial, "chip": self.chip, "station_id": self.station_id,
+            "verdict": self.verdict, "reasons": self.reasons, "model": self.model, "design": self.design,
+            "W": None if f is None else f.W.tolist(), "V": None if f is None else f.V.tolist(),
+            "Gamma": None if f is None else f.Gamma.tolist(),
+            "residual_rms_mg": None if f is None else f.residual_rms_g * 1e3,
+            "crossval_rms_mg": None if f is None or f.crossval_rms_g is None else f.crossval_rms_g * 1e3,
+            "measured": self.measured, "verify_error_max_mg": self.verify_error_max_mg,
+            "nvm": self.nvm, "nvm_verified": self.nvm_verified, "poses": self.poses, "skipped": self.skipped,
+            "events": self.events, "timing": self.timing, "store": self.store,
+        }
+
+
+class Station:
+    """Runs the flow for one board at a time."""
+
+    def __init__(self, config: StationConfig, *, operator: str | None = None, serial: str | None = None,
+                 lot: str | None = None, echo: Callable[[str], None] = print,
+                 progress: Callable[[str, float], None] | None = None):
+        self.cfg = config
+        self.operator = operator
+        self.serial_override = serial
+        self.lot = lot
+        self.echo = echo
+        self.progress = progress
+        self.samples_read = 0
+        self.samples_used = 0
+
+    # -- pieces -----------------------------------------------------------------------
+    def _live(self, driver: Driver, gate: StillnessGate):
+        n = max(8, int(round(0.2 * driver.odr_hz)))
+
+        def live():
+            counts, t, _ = driver.read_samples(n)
+            self.samples_read += len(counts)
+            still = gate.update(counts.astype(float), float(t[-1]))
+            return counts.mean(axis=0) / driver.counts_per_g, still
+        return live
+
+    def _capture_pose(self, driver: Driver, jig: Jig, pose: PoseSpec, floor, report: RunReport):
+        """Present and capture one pose; operator jigs retry a wrong pose, others fail."""
+        s = self.cfg.capture
+        attempts = 0
+        while True:
+            attempts += 1
+            jig.present(pose, self._live(driver, StillnessGate(s, floor)) if isinstance(jig, OperatorJig) else None)
+            try:
+                gc = gated_capture(driver, s, pose.reference_g, floor)
+            except WrongPose as e:
+                report.events.append(f"{pose.name}: {e}")
+                if not isinstance(jig, OperatorJig) or attempts > s.max_recaptures:
+                    raise
+                self.echo(f"  refused: {e}")
+                continue
+            self.samples_read += gc.samples_read
+            self.samples_used += gc.capture.n
+            for ev in gc.events:
+                report.events.append(f"{pose.name}: {ev}")
+                self.echo(f"  {ev}")
+            return gc, attempts - 1
+
+    # -- the run ---------------------------------------------------------------------
+    def run(self) -> RunReport:
+        cfg = self.cfg
+        rep = RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
+        wall0 = time.perf_counter()
+        design = get_design(cfg.design)
+        driver = make_driver(cfg.raw["device"])
+        with Store(cfg.store_file) as store:
+            store.mark_stale_interrupted()
+            with driver:
+                ident = driver.identify()
+                rep.serial = self.serial_override or ident.serial
+                rep.chip = ident.chip
+                dev = cfg.raw["device"]
+                driver.configure(dev.get("range_g"), dev.get("odr_hz"))
+                board = board_of(driver)
+                clock0 = board.clock.now() if board is not None else None
+                run_id = store.start_run(device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id,
+                                         operator=self.operator, lot=self.lot, config_text=cfg.text,
+                                         model=cfg.model, units="counts", counts_per_g=driver.counts_per_g)
+                rep.run_id = run_id
+                records: list[PoseRecord] = []
+                retries: list[int] = []
+                session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
+                try:
+                    with make_jig(cfg.raw.get("jig") or {"type": "simulated"}, driver, self.echo) as jig:
+                        self._run_poses(driver, jig, design, records, retries, rep)
+                        self._fit_judge_write(driver, jig, session, rep)
+                except (AccelcalError, KeyboardInterrupt) as e:
+                    why = "operator aborted" if isinstance(e, OperatorAbort) else (
+                        "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
+                    store.interrupt_run(run_id, why, session=session if records else None,
+                                        status="interrupted" if isinstance(e, (OperatorAbort, KeyboardInterrupt))
+                                        else "error", retries=retries if records else None,
+                                        nvm_outcome=rep.nvm)
+                    raise
+                rep.timing = self._timing(driver, board, clock0, wall0)
+                store.finish_run(run_id, session=session, calibration=None if rep.fit is None else rep.fit.calibration,
+                                 verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
+                                 fit_summary={"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
+                                              "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing,
+                                              "nvm_verified": rep.nvm_verified},
+                                 model=cfg.model, retries=retries)
+        return rep
+
+    def _run_poses(self, driver, jig, design, records, retries, rep) -> None:
+        floor = None
+        for i, pose in enumerate(design):
+            self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
+            try:
+                gc, tries = self._capture_pose(driver, jig, pose, floor, rep)
+            except PoseSkipped:
+                rep.skipped.append(pose.name)
+                self.echo("  skipped")
+                continue
+            floor = gc.floor_counts
+            c = gc.capture
+            records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, pose.reference_g,
+                                      pose.pitch_deg, pose.roll_deg, c.temp_c, c.dropped, c.t_start, c.t_end))
+            retries.append(tries + gc.recaptures)
+            sem_mg = c.sem_counts / driver.counts_per_g * 1e3
+            rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
+                              "sem_mg": sem_mg.tolist(), "retries": tries + gc.recaptures,
+                              "reached_target": gc.reached_target})
+            self.echo(f"  n={c.n} sem={np.max(sem_mg):.3f} mg" + ("" if gc.reached_target else " (time limit)"))
+            if self.progress:
+                self.progress("poses", (i + 1) / len(design))
+
+    def _fit_judge_write(self, driver, jig, session: Session, rep: RunReport) -> None:
+        cfg = self.cfg
+        try:
+            fit = fit_session(session, cfg.model)
+        except UnderdeterminedError as e:
+            rep.verdict, rep.reasons = "FAIL", [f"fit: {e}"]
+            return
+        rep.fit = fit
+        verdict = judge(fit, cfg.limits)
+        rep.measured = verdict.measured
+        if not verdict.passed:
+            rep.verdict, rep.reasons = "FAIL", verdict.reasons
+            self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
+            return
+        cal = fit.calibration
+        checks = self._verify_captures(driver, jig, rep)
+        if checks:
+            err = self._verify_error(cal, checks)
+            rep.verify_error_max_mg = err
+            verdict = judge(fit, cfg.limits, err)
+            rep.measured = verdict.measured
+            if not verdict.passed:
+                rep.verdict, rep.reasons = "FAIL", verdict.reasons
+                return
+        rep.verdict, rep.reasons = "PASS", []
+        if not cfg.nvm_write:
+            return
+        nvm = driver.nvm
+        if nvm is None:
+            rep.verdict, rep.reasons = "FAIL", ["nvm: the device has no NVM to write; set nvm.write: false"]
+            return
+        writer = CalibrationWriter(nvm, cfg.slot_size)
+        try:
+            outcome = writer.burn(cal, rep.serial, cfg.station_id)
+        except BurnError as e:
+            rep.nvm = e.outcome.to_dict()
+            rep.verdict, rep.reasons = "FAIL", [f"nvm: {e}"]
+            return
+        rep.nvm = outcome.to_dict()
+        # closed loop through NVM: the calibration read back must do what the fitted one did
+        back = writer.read_newest(rep.serial)
+        if back is None:
+            rep.verdict, rep.reasons = "FAIL", ["nvm: no valid calibration readable after writing"]
+            return
+        stored = back[0]
+        if checks:
+            same = all(np.allclose(stored.apply(c, units="counts", temp_c=t), cal.apply(c, units="counts", temp_c=t),
+                                   atol=1e-9) for c, _, t in checks)
+        else:
+            same = np.allclose(stored.W, cal.W) and np.allclose(stored.V, cal.V)
+        rep.nvm_verified = bool(same)
+        if not same:
+            rep.verdict, rep.reasons = "FAIL", ["nvm: calibration read back from NVM differs from the fitted one"]
+        self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
+
+    def _verify_captures(self, driver, jig, rep) -> list[tuple[np.ndarray, np.ndarray, float | None]]:
+        """Fresh captures at the verification poses: (mean counts, expected g, temp)."""
+        n = self.cfg.verify_poses
+        if n == 0:
+            return []
+        poses = get_design(self.cfg.verify_design) if self.cfg.verify_design else get_design(self.cfg.design)
+        out = []
+        for pose in poses[:n]:
+            self.echo(f"verify {pose.name}")
+            gc, _ = self._capture_pose(driver, jig, pose, None, rep)
+            out.append((gc.capture.mean_counts, pose.reference_g, gc.capture.temp_c))
+        return out
+
+    def _verify_error(self, cal: Calibration, checks) -> float:
+        errs = [np.max(np.abs(cal.apply(c, units="counts", temp_c=t if cal.temperature is not None else None) - ref))
+                for c, ref, t in checks]
+        return float(np.max(errs)) * 1e3
+
+    def _timing(self, driver, board, clock0, wall0) -> dict[str, float]:
+        odr = driver.odr_hz
+        t = {
+            "odr_hz": odr,
+            "samples_averaged": self.samples_used,
+            "samples_read": self.samples_read,
+            "sampling_floor_s": self.samples_used / odr,
+            "sampling_s": self.samples_read / odr,
+            "host_compute_s": time.perf_counter() - wall0,
+        }
+        if board is not None:
+            t["device_time_s"] = board.clock.now() - clock0  # moves, waits, EEPROM cycles, sampling
+            t["board_time_s"] = t["device_time_s"] + (0.0 if board.clock.realtime else t["host_compute_s"])
+        return t
+
+
+def config_hash(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def dump_config(cfg: StationConfig) -> str:
+    return yaml.safe_dump(cfg.raw, sort_keys=False)

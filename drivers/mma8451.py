@@ -1,0 +1,498 @@
+"""NXP MMA8451Q three-axis accelerometer on I2C through smbus2, with a 24Cxx EEPROM on the same bus.
+
+Register map and behaviour from the MMA8451Q data sheet (Rev. 10.3, 02/2017, section 6):
+WHO_AM_I 0x0D reads 0x1A; configuration registers only change in STANDBY (CTRL_REG1 0x2A
+bit 0 ACTIVE clear); data are 14-bit, left-justified, two's complement, MSB first in 0x01-0x06.
+
+The driver only calls smbus2's ``SMBus`` methods, so the same code runs against a real
+``/dev/i2c-N`` and against :class:`~accelcal_station.drivers.mma8451_emulator.MMA8451Emulator`
+(``bus: emulated``); the only other thing injected is the clock it waits on.
+
+Faults and what the driver does:
+  NACK or bus error (OSError)  retried ``retries`` times (1 ms apart), then DeviceError naming the bus,
+                               address and register (NVMError for the EEPROM)
+  wrong chip                   refused by name before anything is written to it
+  no data ready                DeviceError after ``timeout_s`` plus two sample periods of STATUS polling
+  overrun (ZYXOW)              the stream goes on; lost samples are counted in ``dropped``
+  NACKs during reset or an EEPROM write cycle are expected and waited out (bounded).
+"""
+from __future__ import annotations
+
+import errno
+import os
+import time
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator
+
+import numpy as np
+import smbus2
+from smbus2 import i2c_msg
+
+from ..config import check_keys, choice, number
+from ..errors import ConfigError, DeviceError, NVMError
+from .base import NVM, Driver, Identity
+
+# --- register map (data sheet table 11) -------------------------------------------------
+STATUS = 0x00
+OUT_X_MSB = 0x01
+WHO_AM_I = 0x0D
+XYZ_DATA_CFG = 0x0E
+CTRL_REG1 = 0x2A
+CTRL_REG2 = 0x2B
+OFF_X, OFF_Y, OFF_Z = 0x2F, 0x30, 0x31
+
+REGISTER_NAMES = {
+    0x00: "STATUS", 0x01: "OUT_X_MSB", 0x02: "OUT_X_LSB", 0x03: "OUT_Y_MSB", 0x04: "OUT_Y_LSB",
+    0x05: "OUT_Z_MSB", 0x06: "OUT_Z_LSB", 0x09: "F_SETUP", 0x0B: "SYSMOD", 0x0C: "INT_SOURCE",
+    0x0D: "WHO_AM_I", 0x0E: "XYZ_DATA_CFG", 0x0F: "HP_FILTER_CUTOFF", 0x2A: "CTRL_REG1",
+    0x2B: "CTRL_REG2", 0x2C: "CTRL_REG3", 0x2D: "CTRL_REG4", 0x2E: "CTRL_REG5",
+    0x2F: "OFF_X", 0x30: "OFF_Y", 0x31: "OFF_Z",
+}
+
+CHIP_ID = 0x1A
+# WHO_AM_I of the MMA8451's register-compatible relatives (Linux drivers/iio/accel/mma8452.c),
+# so a wrong part on the jig is refused by name
+KNOWN_CHIP_IDS = {0x2A: "MMA8452Q", 0x3A: "MMA8453Q", 0x4A: "MMA8652FC", 0x5A: "MMA8653FC",
+                  0x6A: "FXLS8471Q"}
+ADDRESSES = (0x1C, 0x1D)  # SA0 pin low / high
+
+STATUS_ZYXDR = 0x08  # new X, Y, Z data ready
+STATUS_ZYXOW = 0x80  # new data overwrote unread data
+CTRL1_ACTIVE = 0x01
+CTRL1_F_READ = 0x02  # 8-bit fast read: must stay clear for 14-bit bursts
+CTRL1_DR_SHIFT, CTRL1_DR_MASK = 3, 0x38
+CTRL2_RST = 0x40
+CTRL2_MODS_MASK = 0x03
+FS_MASK = 0x03
+
+ODR_HZ = (800.0, 400.0, 200.0, 100.0, 50.0, 12.5, 6.25, 1.5625)  # index = CTRL_REG1 DR bits
+FS_BITS = {2: 0, 4: 1, 8: 2}  # XYZ_DATA_CFG FS1:FS0
+COUNTS_PER_G = {2: 4096, 4: 2048, 8: 1024}  # 14-bit sensitivity, data sheet table 2
+MODS = {"normal": 0, "low_noise_low_power": 1, "high_resolution": 2, "low_power": 3}
+# OFF_X/Y/Z: signed 8-bit, "2 mg/LSB" in the data sheet; the LSB is exactly 1/512 g, i.e. 8/4/2
+# counts at 2/4/8 g (NXP AN4069 offset = -out_14bit/8 at 2 g; NXP's 8 g bare-metal example
+# uses /2), independent of the range
+OFF_LSB_G = 1.0 / 512.0
+RESET_POLLS = 20  # CTRL_REG2 reads while the chip reboots (boot takes about 0.5 ms)
+
+
+def decode_counts(raw: bytes) -> np.ndarray:
+    """Bursts of OUT_X_MSB..OUT_Z_LSB -> counts (n, 3) int64: 14-bit left-justified two's complement."""
+    return (np.frombuffer(bytes(raw), dtype=">i2").astype(np.int64) >> 2).reshape(-1, 3)
+
+
+def off_lsb_to_counts(lsb, range_g: int) -> np.ndarray:
+    """Offset-trim LSBs -> 14-bit counts at ``range_g`` (1 LSB = 1/512 g)."""
+    return np.asarray(lsb, dtype=np.int64) * (COUNTS_PER_G[range_g] // 512)
+
+
+def odr_index(odr_hz: float, path: str = "odr_hz") -> int:
+    """CTRL_REG1 DR code of a data rate; 1.56 is accepted for 1.5625 Hz."""
+    if isinstance(odr_hz, (int, float)) and not isinstance(odr_hz, bool):
+        for i, f in enumerate(ODR_HZ):
+            if abs(float(odr_hz) - f) <= 0.01 * f:
+                return i
+    raise ConfigError(f"{path}: {odr_hz!r} Hz; allowed: {', '.join(f'{f:g}' for f in ODR_HZ)}")
+
+
+class SystemClock:
+    """Wall-clock time for real hardware (the emulator supplies a virtual one)."""
+
+    @staticmethod
+    def now() -> float:
+        return time.monotonic()
+
+    @staticmethod
+    def sleep(seconds: float) -> None:
+        time.sleep(seconds)
+
+
+def _os_reason(e: OSError) -> str:
+    text = f"[Errno {e.errno}] {e.strerror or os.strerror(e.errno or 0)}" if e.errno else str(e)
+    if e.errno == errno.EBUSY:
+        text += " (a kernel driver owns this address; unbind it, e.g. the mma8452 module)"
+    elif e.errno == errno.ENOTTY:
+        text += " (not an I2C adapter)"
+    return text
+
+
+class I2CTarget:
+    """One address on an SMBus-like object: bounded retries, errors naming bus, address, register."""
+
+    def __init__(self, smbus: Any, bus_label: str, address: int, clock, retries: int = 3,
+                 retry_delay_s: float = 0.001):
+        self.smbus, self.bus_label, self.address = smbus, bus_label, address
+        self.clock, self.retries, self.retry_delay_s = clock, retries, retry_delay_s
+
+    def where(self, register: int | None = None, what: str | None = None) -> str:
+        w = f"i2c bus {self.bus_label} address 0x{self.address:02x}"
+        if register is not None:
+            w += f" register 0x{register:02X} ({REGISTER_NAMES.get(register, 'reg')})"
+        return w + (f" {what}" if what else "")
+
+    def call(self, op: str, register: int | None, fn: Callable, *args, error=DeviceError,
+             what: str | None = None, hint: str = ""):
+        """``fn(*args)``; an OSError (NACK, bus fault) is retried ``retries`` times, then ``error``."""
+        for attempt in range(self.retries + 1):
+            try:
+                return fn(*args)
+            except OSError as e:
+                last = e
+                if attempt < self.retries:
+                    self.clock.sleep(self.retry_delay_s)
+        raise error(f"{op} {self.where(register, what)} failed after {self.retries + 1} attempts: "
+                    f"{_os_reason(last)}{hint}")
+
+    def read_byte(self, register: int, **kw) -> int:
+        return self.call("read", register, self.smbus.read_byte_data, self.address, register, **kw)
+
+    def write_byte(self, register: int, value: int, **kw) -> None:
+        self.call("write", register, self.smbus.write_byte_data, self.address, register, value & 0xFF, **kw)
+
+    def read_block(self, register: int, length: int, **kw) -> list[int]:
+        return self.call("read", register, self.smbus.read_i2c_block_data, self.address, register, length,
+                         **kw)
+
+
+class I2CEeprom(NVM):
+    """24Cxx EEPROM with 2-byte word addresses (24C32 and up), through smbus2 ``i2c_rdwr``.
+
+    Writes are split at page boundaries (a page write wraps inside its page otherwise) and each
+    waits out the write cycle by ACK polling: the part NACKs its address until tWR is over.
+    """
+
+    READ_CHUNK = 256  # well under the kernel's 8192-byte i2c_msg limit
+
+    def __init__(self, target: I2CTarget, size: int = 4096, page_size: int = 32,
+                 write_cycle_s: float = 0.005):
+        self.t, self.size, self.page_size, self.write_cycle_s = target, int(size), int(page_size), write_cycle_s
+
+    def _msgs(self, *msgs) -> None:
+        self.t.smbus.i2c_rdwr(*msgs)
+
+    def _where(self, addr: int, n: int) -> str:
+        return f"EEPROM bytes {addr}..{addr + n - 1}"
+
+    def read(self, addr: int, n: int) -> bytes:
+        self._check_range(addr, n)
+        out = bytearray()
+        for a in range(addr, addr + n, self.READ_CHUNK):
+            m = min(self.READ_CHUNK, addr + n - a)
+            rd = i2c_msg.read(self.t.address, m)
+            self.t.call("read", None, self._msgs, i2c_msg.write(self.t.address, [a >> 8, a & 0xFF]), rd,
+                        error=NVMError, what=self._where(a, m))
+            out += bytes(rd)
+        return bytes(out)
+
+    def write(self, addr: int, data: bytes) -> None:
+        data = bytes(data)
+        self._check_range(addr, len(data))
+        i = 0
+        while i < len(data):
+            a = addr + i
+            m = min(self.page_size - a % self.page_size, len(data) - i)
+            msg = i2c_msg.write(self.t.address, [a >> 8, a & 0xFF, *data[i:i + m]])
+            self.t.call("page write", None, self._msgs, msg, error=NVMError, what=self._where(a, m))
+            self._ready()
+            i += m
+
+    def _ready(self) -> None:
+        """ACK polling: address the part (setting its pointer, writing nothing) until it answers."""
+        deadline = self.t.clock.now() + 4 * self.write_cycle_s
+        while True:
+            try:
+                self._msgs(i2c_msg.write(self.t.address, [0, 0]))
+                return
+            except OSError as e:
+                if self.t.clock.now() > deadline:
+                    raise NVMError(f"EEPROM at {self.t.where()} did not answer within "
+                                   f"{4 * self.write_cycle_s * 1e3:g} ms: {_os_reason(e)}") from None
+                self.t.clock.sleep(self.write_cycle_s / 10)
+
+
+class MMA8451(Driver):
+    """MMA8451Q over smbus2.  ``bus`` is a bus number or /dev path, or an SMBus-like object."""
+
+    name = "mma8451"
+
+    def __init__(self, bus: int | str | Any = 1, address: int = 0x1D, range_g: int = 2, odr_hz: float = 100.0,
+                 oversampling: str = "high_resolution", retries: int = 3, timeout_s: float = 1.0,
+                 serial: str = "", offset_trim_lsb=None, eeprom: dict | None = None, clock=None,
+                 bus_label: str | None = None):
+        if address not in ADDRESSES:
+            raise ConfigError(f"address {address!r}; allowed: 0x1c (SA0 low), 0x1d (SA0 high)")
+        self._bus_spec = bus
+        self._owns_bus = isinstance(bus, (int, str))
+        self.bus_label = bus_label or (str(bus) if self._owns_bus else type(bus).__name__)
+        self.address = address
+        self.clock = clock or SystemClock()
+        self.retries, self.timeout_s, self.serial = int(retries), float(timeout_s), serial
+        self._want = dict(range_g=range_g, odr_hz=odr_hz, oversampling=oversampling)
+        self._trim0 = offset_trim_lsb
+        self._eeprom_cfg = eeprom
+        self._smbus = None if self._owns_bus else bus
+        self._dev: I2CTarget | None = None
+        self._identified = False  # never write to a chip that is not an MMA8451
+        self.emulator = None  # the MMA8451Emulator when built for ``bus: emulated``
+        self._nvm: I2CEeprom | None = None
+        self._range_g, self._odr_hz, self._mods = 2, 800.0, "normal"  # power-on defaults
+
+    # --- construction ---------------------------------------------------------------------
+    CONFIG_KEYS = ("bus", "address", "range_g", "odr_hz", "oversampling", "retries", "timeout_s", "serial",
+                   "offset_trim_lsb", "eeprom", "simulator", "seed", "emulator")
+
+    @classmethod
+    def from_config(cls, cfg: dict, path: str = "device") -> "MMA8451":
+        """Build from a ``device:`` section (driver key already removed); ``bus: emulated`` needs no hardware."""
+        cfg = check_keys(cfg, cls.CONFIG_KEYS, path)
+        bus = cfg.get("bus", 1)
+        emulated = bus == "emulated"
+        if not emulated and not (isinstance(bus, int) and not isinstance(bus, bool) and bus >= 0) \
+                and not (isinstance(bus, str) and bus.startswith("/dev/")):
+            raise ConfigError(f"{path}.bus: {bus!r}; allowed: a bus number (1 for /dev/i2c-1), "
+                              "a /dev/i2c-N path, or 'emulated'")
+        for k in ("simulator", "seed", "emulator"):
+            if k in cfg and not emulated:
+                raise ConfigError(f"{path}.{k}: only used with bus: emulated")
+        address = cfg.get("address", 0x1D)
+        if address not in ADDRESSES or isinstance(address, bool):
+            shown = f"0x{address:02x}" if isinstance(address, int) else repr(address)
+            raise ConfigError(f"{path}.address: {shown}; allowed: 0x1c (SA0 low), 0x1d (SA0 high)")
+        trim = cfg.get("offset_trim_lsb")
+        if trim is not None:
+            if not isinstance(trim, (list, tuple)) or len(trim) != 3 or not all(
+                    isinstance(v, int) and not isinstance(v, bool) and -128 <= v <= 127 for v in trim):
+                raise ConfigError(f"{path}.offset_trim_lsb: {trim!r}; allowed: [x, y, z] whole numbers -128..127")
+        eeprom = cfg.get("eeprom", {})
+        if eeprom not in (None, False):
+            e = check_keys(eeprom, ("address", "size", "page_size", "write_cycle_ms"), f"{path}.eeprom")
+            eeprom = dict(address=number(e, "address", f"{path}.eeprom", 0x50, 0x50, 0x57, integer=True),
+                          size=number(e, "size", f"{path}.eeprom", 4096, 256, 65536, integer=True),
+                          page_size=number(e, "page_size", f"{path}.eeprom", 32, 8, 256, integer=True),
+                          write_cycle_ms=number(e, "write_cycle_ms", f"{path}.eeprom", 5.0, 0.1, 100.0))
+        else:
+            eeprom = None
+        odr = cfg.get("odr_hz", 100.0)
+        odr_index(odr, f"{path}.odr_hz")
+        kw = dict(
+            address=address,
+            range_g=choice(cfg, "range_g", path, tuple(COUNTS_PER_G), default=2),
+            odr_hz=float(odr),
+            oversampling=choice(cfg, "oversampling", path, tuple(MODS), default="high_resolution"),
+            retries=number(cfg, "retries", path, 3, 0, 20, integer=True),
+            timeout_s=number(cfg, "timeout_s", path, 1.0, 0.001, 60.0),
+            serial=str(cfg.get("serial") or ""),
+            offset_trim_lsb=trim, eeprom=eeprom,
+        )
+        if emulated:
+            from .mma8451_emulator import MMA8451Emulator
+
+            emu = MMA8451Emulator.from_config(cfg, path, address=address,
+                                              eeprom_address=eeprom["address"] if eeprom else None)
+            if eeprom:  # the emulated EEPROM's geometry is the simulated board's
+                eeprom.update(size=emu.eeprom_size, page_size=emu.eeprom_page_size)
+            kw["serial"] = kw["serial"] or emu.board.serial
+            drv = cls(emu, clock=emu.clock, bus_label="emulated", **kw)
+            drv.emulator = emu  # its .board is what a simulated jig moves
+            return drv
+        return cls(bus, **kw)
+
+    # --- lifecycle ------------------------------------------------------------------------
+    def _open_bus(self):
+        bus = self._bus_spec
+        node = bus if isinstance(bus, str) else f"/dev/i2c-{bus}"
+        try:
+            return smbus2.SMBus(bus)
+        except FileNotFoundError:
+            raise DeviceError(f"i2c bus {bus}: {node} does not exist; enable I2C (raspi-config > Interface "
+                              "Options > I2C) or list buses with `i2cdetect -l`") from None
+        except PermissionError:
+            raise DeviceError(f"i2c bus {bus}: permission denied on {node}; add the user to the i2c group "
+                              "(sudo usermod -aG i2c $USER) and log in again") from None
+        except OSError as e:
+            raise DeviceError(f"i2c bus {bus}: cannot open {node}: {_os_reason(e)}") from None
+
+    def open(self) -> None:
+        if self._dev is not None:
+            return
+        if self._owns_bus:
+            self._smbus = self._open_bus()
+        self._dev = I2CTarget(self._smbus, self.bus_label, self.address, self.clock, self.retries)
+        try:
+            self._check_identity()
+            self._identified = True
+            self.reset()
+            self.configure(**self._want)
+            if self._trim0 is not None:
+                self.set_offset_trim(self._trim0)
+        except BaseException:
+            self.close()
+            raise
+        if self._eeprom_cfg:
+            e = self._eeprom_cfg
+            self._nvm = I2CEeprom(I2CTarget(self._smbus, self.bus_label, e["address"], self.clock, self.retries),
+                                  e["size"], e["page_size"], e["write_cycle_ms"] / 1e3)
+
+    def close(self) -> None:
+        if self._identified and self._smbus is not None:
+            try:  # leave the part in STANDBY (lowest power); a dead bus must not mask the real error
+                self._smbus.write_byte_data(self.address, CTRL_REG1, 0)
+            except OSError:
+                pass
+        if self._owns_bus and self._smbus is not None:
+            self._smbus.close()
+            self._smbus = None
+        self._dev = self._nvm = None
+        self._identified = False
+
+    @property
+    def dev(self) -> I2CTarget:
+        if self._dev is None:
+            raise DeviceError(f"MMA8451 on i2c bus {self.bus_label} is not open; use `with driver:` or open()")
+        return self._dev
+
+    def _check_identity(self) -> None:
+        hint = "; check wiring, power and the address (SA0 pin: 0x1c low, 0x1d high)"
+        who = self.dev.call("read", WHO_AM_I, self.dev.smbus.read_byte_data, self.address, WHO_AM_I, hint=hint)
+        if who != CHIP_ID:
+            name = f" ({KNOWN_CHIP_IDS[who]})" if who in KNOWN_CHIP_IDS else ""
+            raise DeviceError(f"found chip id 0x{who:02x}{name} at bus {self.bus_label} address 0x{self.address:02x}: "
+                              f"not an MMA8451 (expects WHO_AM_I 0x{CHIP_ID:02X})")
+
+    def reset(self) -> None:
+        """Software reset (CTRL_REG2 RST) and wait for it to self-clear.
+
+        The part reboots at once and may not ACK meanwhile, so NACKs are expected here
+        (as in Linux mma8452_reset()); all registers return to their defaults (STANDBY, 2 g, 800 Hz).
+        """
+        try:
+            self.dev.smbus.write_byte_data(self.address, CTRL_REG2, CTRL2_RST)
+        except OSError:
+            pass
+        last: Any = "RST bit still set"
+        for _ in range(RESET_POLLS):
+            self.clock.sleep(0.0002)
+            try:
+                if not self.dev.smbus.read_byte_data(self.address, CTRL_REG2) & CTRL2_RST:
+                    self._range_g, self._odr_hz, self._mods = 2, 800.0, "normal"
+                    return
+            except OSError as e:
+                last = _os_reason(e)
+        raise DeviceError(f"software reset of {self.dev.where(CTRL_REG2)} did not complete: {last}")
+
+    # --- configuration --------------------------------------------------------------------
+    @contextmanager
+    def _standby(self) -> Iterator[int]:
+        """STANDBY for the duration (configuration writes are ignored while ACTIVE), then ACTIVE."""
+        ctrl1 = self.dev.read_byte(CTRL_REG1) & ~CTRL1_ACTIVE
+        self._write_checked(CTRL_REG1, ctrl1)
+        yield ctrl1
+        self.dev.write_byte(CTRL_REG1, self.dev.read_byte(CTRL_REG1) | CTRL1_ACTIVE)
+
+    def _write_checked(self, register: int, value: int, mask: int = 0xFF) -> None:
+        """Write and read back: a chip still ACTIVE silently ignores configuration writes."""
+        self.dev.write_byte(register, value)
+        got = self.dev.read_byte(register)
+        if (got ^ value) & mask:
+            raise DeviceError(f"{self.dev.where(register)}: wrote 0x{value & 0xFF:02x}, read back 0x{got:02x} "
+                              "(configuration registers only change in STANDBY)")
+
+    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options) -> None:
+        """Full scale (2/4/8 g), data rate (1.56-800 Hz), ``oversampling`` (CTRL_REG2 MODS), in STANDBY."""
+        mods = options.pop("oversampling", None)
+        if options:
+            raise ConfigError(f"mma8451 options {', '.join(map(str, options))}: unknown; allowed: oversampling")
+        range_g = self._range_g if range_g is None else range_g
+        if range_g not in FS_BITS:
+            raise ConfigError(f"range_g: {range_g!r}; allowed: 2, 4, 8")
+        dr = odr_index(self._odr_hz if odr_hz is None else odr_hz)
+        mods = self._mods if mods is None else mods
+        if mods not in MODS:
+            raise ConfigError(f"oversampling: {mods!r}; allowed: {', '.join(MODS)}")
+        with self._standby() as ctrl1:
+            self._write_checked(XYZ_DATA_CFG, FS_BITS[range_g], FS_MASK)
+            ctrl2 = self.dev.read_byte(CTRL_REG2)
+            self._write_checked(CTRL_REG2, (ctrl2 & ~CTRL2_MODS_MASK & ~CTRL2_RST) | MODS[mods], CTRL2_MODS_MASK)
+            self._write_checked(CTRL_REG1, (ctrl1 & ~(CTRL1_DR_MASK | CTRL1_F_READ)) | (dr << CTRL1_DR_SHIFT))
+        self._range_g, self._odr_hz, self._mods = range_g, ODR_HZ[dr], mods
+
+    def set_offset_trim(self, lsb) -> None:
+        """Write OFF_X/Y/Z (signed 8-bit, 1/512 g = "2 mg" per LSB) in STANDBY and verify by read-back."""
+        vals = [int(v) for v in lsb]
+        if len(vals) != 3 or any(not -128 <= v <= 127 for v in vals):
+            raise ConfigError(f"offset trim {list(lsb)!r}; allowed: three whole numbers -128..127 (1/512 g each)")
+        with self._standby():
+            for reg, v in zip((OFF_X, OFF_Y, OFF_Z), vals):
+                self._write_checked(reg, v & 0xFF)
+
+    def get_offset_trim(self) -> tuple[int, int, int]:
+        raw = self.dev.read_block(OFF_X, 3)
+        return tuple(int(v) for v in np.array(raw, dtype=np.uint8).view(np.int8))
+
+    # --- properties -----------------------------------------------------------------------
+    @property
+    def range_g(self) -> int:
+        return self._range_g
+
+    @property
+    def odr_hz(self) -> float:
+        return self._odr_hz
+
+    @property
+    def counts_per_g(self) -> float:
+        return float(COUNTS_PER_G[self._range_g])
+
+    @property
+    def oversampling(self) -> str:
+        return self._mods
+
+    @property
+    def nvm(self) -> NVM | None:
+        return self._nvm
+
+    def identify(self) -> Identity:
+        return Identity(chip="mma8451", chip_id=CHIP_ID, serial=self.serial,
+                        interface=f"i2c:{self.bus_label}@0x{self.address:02x}")
+
+    def settings(self) -> dict:
+        """Chip-specific settings for display (``accelcal probe``)."""
+        s = {"oversampling": self._mods, "offset_trim_lsb": list(self.get_offset_trim())}
+        if self._nvm is not None:
+            s["eeprom"] = (f"24Cxx at 0x{self._nvm.t.address:02x}, {self._nvm.size} bytes, "
+                           f"{self._nvm.page_size}-byte pages")
+        return s
+
+    # --- data -----------------------------------------------------------------------------
+    def _wait_ready(self, deadline: float) -> tuple[int, float]:
+        """Poll STATUS until ZYXDR, sleeping a quarter period between polls."""
+        poll = 0.25 / self._odr_hz
+        while True:
+            status = self.dev.read_byte(STATUS)
+            now = self.clock.now()
+            if status & STATUS_ZYXDR:
+                return status, now
+            if now > deadline:
+                raise DeviceError(f"{self.dev.where(STATUS)}: no data ready (ZYXDR) within "
+                                  f"{self.timeout_s:g} s + 2 samples at {self._odr_hz:g} Hz; the chip is not "
+                                  "sampling (power, ACTIVE bit)")
+            self.clock.sleep(poll)
+
+    def read_samples(self, n: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """Next n samples: counts (n, 3) int64 in 14-bit units, data-ready times (s), dropped count.
+
+        ZYXOW means at least one sample was overwritten unread; how many is estimated from the
+        gap between data-ready instants (``round(gap * odr) - 1``, at least 1).
+        """
+        period = 1.0 / self._odr_hz
+        self.dev.read_block(OUT_X_MSB, 6)  # reading the MSBs clears stale ZYXDR/ZYXOW
+        t_prev = self.clock.now()
+        raw = bytearray()
+        t = np.empty(n)
+        dropped = 0
+        for i in range(n):
+            status, t[i] = self._wait_ready(self.clock.now() + self.timeout_s + 2 * period)
+            raw += bytes(self.dev.read_block(OUT_X_MSB, 6))
+            if status & STATUS_ZYXOW:
+                dropped += max(1, int(round((t[i] - t_prev) * self._odr_hz)) - 1)
+            t_prev = t[i]
+        return decode_counts(raw), t, dropped

@@ -1,0 +1,340 @@
+"""Register-level MMA8451Q emulator behind smbus2's ``SMBus`` API, fed by a simulated board.
+
+One emulated I2C bus carries the MMA8451Q (0x1D or 0x1C) and the board's 24Cxx EEPROM (0x50).
+Every SMBus call is decomposed into the I2C messages it puts on a real bus (write the register
+pointer, then read or write with auto-increment), so ``read_byte_data``, ``read_i2c_block_data``,
+``write_*`` and ``i2c_rdwr`` (with real ``smbus2.i2c_msg`` objects) all reach the same device
+models.  A NACK raises ``OSError(EREMOTEIO)``, as Linux i2c adapters do.
+
+Time is the board's virtual clock.  Each transaction costs its bus time (9 bits a byte at
+``bus_hz``), and the driver waits on :attr:`MMA8451Emulator.clock`, whose ``sleep`` advances the
+board clock; so polling STATUS moves virtual time and tests run fast.  While the chip is ACTIVE,
+every instant of the board's ODR grid that time passes is a sample, read with ``board.read()``.
+Time moved by others (a jig's ``clock.sleep``) produces no samples until the chip is next
+addressed; the driver discards stale data before a capture anyway.
+
+Chip behaviour modelled (MMA8451Q data sheet Rev. 10.3): WHO_AM_I; software reset (registers to
+defaults, NACKs while it reboots); configuration writes ignored while ACTIVE (CTRL_REG1 except the
+ACTIVE bit, XYZ_DATA_CFG, HP_FILTER_CUTOFF, CTRL_REG2 except RST, OFF_X/Y/Z); STATUS ZYXDR/ZYXOW per axis,
+cleared by reading that axis's MSB; 14-bit left-justified output with the OFF_X/Y/Z trim added
+(1/512 g per LSB) and clipped to the 14-bit range.  MODS (oversampling) is stored but does not
+change the noise, which is the simulator's ``noise`` effect.
+
+Faults for tests: :meth:`nack_next`, :meth:`nack_every`, ``never_ready``, :meth:`force_overrun`,
+``chip_id`` (another part), ``present=False`` (nothing at the address).
+"""
+from __future__ import annotations
+
+import ctypes
+import errno
+import os
+from typing import Any
+
+import numpy as np
+from smbus2.smbus2 import I2C_M_RD
+
+from ..config import check_keys, load_yaml, number
+from ..errors import ConfigError
+from .mma8451 import (CHIP_ID, CTRL1_ACTIVE, CTRL1_DR_MASK, CTRL1_DR_SHIFT, CTRL2_RST, CTRL_REG1,
+                      CTRL_REG2, FS_MASK, ODR_HZ, OFF_X, OFF_Z, OUT_X_MSB, STATUS, STATUS_ZYXDR, STATUS_ZYXOW,
+                      WHO_AM_I, XYZ_DATA_CFG, off_lsb_to_counts)
+
+N_REGS = 0x32
+BOOT_S = 0.0005  # reboot after a software reset; the part NACKs meanwhile
+SYSMOD = 0x0B
+# writes ignored while ACTIVE (data sheet: "must be in Standby mode to change"; Linux mma8452.c changes
+# these only through mma8452_change_config()): XYZ_DATA_CFG, HP_FILTER_CUTOFF, CTRL_REG2 (except RST),
+# OFF_X/Y/Z; CTRL_REG1 except its ACTIVE bit.  Other registers are not used by the driver and write through.
+STANDBY_ONLY = frozenset([XYZ_DATA_CFG, 0x0F, CTRL_REG2, OFF_X, OFF_X + 1, OFF_Z])
+READ_ONLY = frozenset([0x00, 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0B, 0x0C, 0x0D, 0x10, 0x16, 0x1E, 0x22])
+
+
+def _nack(addr: int) -> OSError:
+    return OSError(errno.EREMOTEIO, f"{os.strerror(errno.EREMOTEIO)} (emulated NACK at 0x{addr:02x})")
+
+
+class _Chip:
+    """The MMA8451Q register file and sample pipeline."""
+
+    def __init__(self, emu: "MMA8451Emulator", chip_id: int):
+        self.emu, self.chip_id = emu, chip_id
+        self.ignored_writes: list[tuple[int, int]] = []  # (register, value) dropped while ACTIVE
+        self.write_log: list[tuple[int, int, bool]] = []  # (register, value, was ACTIVE)
+        self.reset()
+
+    def reset(self) -> None:
+        self.pointer, self._snap = 0, None
+        self.regs = bytearray(N_REGS)
+        self.regs[WHO_AM_I] = self.chip_id
+        self.unread = np.zeros(3, dtype=np.int64)  # samples latched since each axis's MSB was read
+        self.out = np.zeros(3, dtype=np.int64)  # latest sample, 14-bit counts before trim
+
+    @property
+    def active(self) -> bool:
+        return bool(self.regs[CTRL_REG1] & CTRL1_ACTIVE)
+
+    @property
+    def range_g(self) -> int:
+        return (2, 4, 8)[min(self.regs[XYZ_DATA_CFG] & FS_MASK, 2)]
+
+    @property
+    def odr_hz(self) -> float:
+        return ODR_HZ[(self.regs[CTRL_REG1] & CTRL1_DR_MASK) >> CTRL1_DR_SHIFT]
+
+    def latch(self, counts: np.ndarray, k: int) -> None:
+        self.out = counts
+        self.unread += k
+
+    def status(self) -> int:
+        dr, ow = self.unread > 0, self.unread > 1
+        bits = int(dr @ [1, 2, 4]) | int(ow @ [16, 32, 64])
+        return bits | (STATUS_ZYXDR if dr.any() else 0) | (STATUS_ZYXOW if ow.any() else 0)
+
+    def data_bytes(self) -> bytes:
+        trim = off_lsb_to_counts(np.array(self.regs[OFF_X:OFF_Z + 1], dtype=np.uint8).view(np.int8), self.range_g)
+        v = np.clip(self.out + trim, -8192, 8191)
+        return (v << 2).astype(">i2").tobytes()
+
+    # I2C face: a write sets the register pointer, further bytes are written with auto-increment
+    def i2c_write(self, data: bytes) -> None:
+        if not data:
+            return
+        self.pointer = data[0]
+        for value in data[1:]:
+            self.write_register(self.pointer, value)
+            self.pointer += 1
+
+    def i2c_read(self, n: int) -> bytes:
+        self._snap = None  # MSB/LSB pairs of one burst belong to one sample
+        out = bytearray()
+        for _ in range(n):
+            out.append(self.read_register(self.pointer))
+            self.pointer += 1
+        return bytes(out)
+
+    def read_register(self, reg: int) -> int:
+        if reg == STATUS:
+            return self.status()
+        if OUT_X_MSB <= reg <= OUT_X_MSB + 5:
+            if self._snap is None:
+                self._snap = self.data_bytes()
+            if (reg - OUT_X_MSB) % 2 == 0:
+                self.unread[(reg - OUT_X_MSB) // 2] = 0
+            return self._snap[reg - OUT_X_MSB]
+        if reg == SYSMOD:
+            return 1 if self.active else 0
+        return self.regs[reg] if reg < N_REGS else 0
+
+    def write_register(self, reg: int, value: int) -> None:
+        was_active = self.active
+        self.write_log.append((reg, value, was_active))
+        if reg >= N_REGS or reg in READ_ONLY:
+            return
+        if reg == CTRL_REG2 and value & CTRL2_RST:
+            self.reset()
+            self.emu._boot_until = self.emu.clock.now() + BOOT_S
+            return
+        if was_active and (reg in STANDBY_ONLY or (reg == CTRL_REG1 and (value ^ self.regs[reg]) & ~CTRL1_ACTIVE)):
+            self.ignored_writes.append((reg, value))
+            if reg != CTRL_REG1:
+                return
+            value = (self.regs[reg] & ~CTRL1_ACTIVE) | (value & CTRL1_ACTIVE)  # only ACTIVE may change
+        self.regs[reg] = value
+        if reg == CTRL_REG1 and self.active and not was_active:
+            self.emu._start_sampling()
+
+
+class _Clock:
+    """The driver's view of time on the emulated bus: the board clock, advanced through the chip."""
+
+    def __init__(self, emu: "MMA8451Emulator"):
+        self.emu = emu
+
+    def now(self) -> float:
+        return self.emu.board.clock.now()
+
+    def sleep(self, seconds: float) -> None:
+        self.emu._advance(max(0.0, float(seconds)))
+
+
+class MMA8451Emulator:
+    """The subset of ``smbus2.SMBus`` the MMA8451 driver uses, on an emulated bus.
+
+    ``board`` is a SimulatedBoard (``configure``, ``read``, ``clock``, ``eeprom``).
+    """
+
+    def __init__(self, board: Any, address: int = 0x1D, eeprom_address: int | None = 0x50, chip_id: int = CHIP_ID,
+                 bus_hz: float = 400_000.0, never_ready: bool = False, present: bool = True):
+        self.board, self.address, self.eeprom_address = board, address, eeprom_address
+        self.bus_hz, self.never_ready, self.present = float(bus_hz), never_ready, present
+        if board.chip.name != "mma8451":
+            raise ConfigError(f"MMA8451 emulator needs a simulated mma8451 board, not {board.chip.name!r}")
+        self.clock = _Clock(self)
+        self._grid0 = 0.0
+        self._boot_until = -np.inf
+        self._nacks: list[list] = []  # [remaining, address or None, register or None]
+        self._nack_every = 0
+        self._overrun, self._overrun_at = 0, 0
+        self.samples_produced = 0
+        self.transactions = 0
+        self.nack_log: list[tuple[int, int | None]] = []  # (address, register) of every NACKed transaction
+        self.chip = _Chip(self, chip_id)
+
+    # --- construction from a device config section ----------------------------------------
+    @classmethod
+    def from_config(cls, cfg: dict, path: str, address: int, eeprom_address: int | None) -> "MMA8451Emulator":
+        """The emulated bus of a ``bus: emulated`` device section.
+
+        ``simulator``: the simulated board's configuration (drivers/simulated.py), inline or the path of
+        a YAML file; a station config's ``device:`` section (configs/sim.yaml) is taken as it is.
+        Absent: an ideal MMA8451 of its data sheet.  ``emulator``: bus speed and faults.
+        """
+        from .simulated import SimulatedBoard
+
+        sim, where = cfg.get("simulator"), f"{path}.simulator"
+        if isinstance(sim, str):
+            sim, where = load_yaml(sim), sim
+            if isinstance(sim.get("device"), dict):
+                sim, where = {k: v for k, v in sim["device"].items() if k != "driver"}, f"{where}: device"
+        elif sim is not None and not isinstance(sim, dict):
+            raise ConfigError(f"{path}.simulator: {sim!r}; allowed: a mapping or the path of a simulator YAML file")
+        seed = number(cfg, "seed", path, 0, 0, 2**63 - 1, integer=True) if cfg.get("seed") is not None else None
+        board = SimulatedBoard.from_config(sim, chip="mma8451", seed=seed, path=where)
+        e = check_keys(cfg.get("emulator"), ("chip_id", "nack_every", "never_ready", "present", "bus_hz"),
+                       f"{path}.emulator")
+        ep = f"{path}.emulator"
+        for k in ("never_ready", "present"):
+            if not isinstance(e.get(k, False), bool):
+                raise ConfigError(f"{ep}.{k}: {e[k]!r}; allowed: true, false")
+        emu = cls(board, address=address, eeprom_address=eeprom_address,
+                  chip_id=number(e, "chip_id", ep, CHIP_ID, 0, 255, integer=True),
+                  bus_hz=number(e, "bus_hz", ep, 400_000.0, 10_000.0, 3_400_000.0),
+                  never_ready=e.get("never_ready", False), present=e.get("present", True))
+        emu.nack_every(number(e, "nack_every", ep, 0, 0, 1000, integer=True))
+        return emu
+
+    @property
+    def nacked(self) -> int:
+        return len(self.nack_log)
+
+    @property
+    def eeprom(self):
+        return self.board.eeprom
+
+    @property
+    def eeprom_size(self) -> int:
+        return int(self.board.eeprom.size)
+
+    @property
+    def eeprom_page_size(self) -> int:
+        return int(self.board.eeprom.page_size)
+
+    # --- faults ---------------------------------------------------------------------------
+    def nack_next(self, k: int = 1, register: int | None = None, address: int | None = None) -> None:
+        """NACK the next k transactions (to ``address``, touching ``register`` when given)."""
+        self._nacks.append([int(k), address, register])
+
+    def nack_every(self, n: int) -> None:
+        """NACK every n-th transaction (0: never)."""
+        self._nack_every = int(n)
+
+    def force_overrun(self, n: int = 1, after: int = 0) -> None:
+        """After ``after`` more samples, the host misses n: they are produced and overwritten unread (ZYXOW)."""
+        self._overrun, self._overrun_at = int(n), self.samples_produced + int(after)
+
+    # --- time and samples -----------------------------------------------------------------
+    def _start_sampling(self) -> None:
+        self.board.configure(range_g=self.chip.range_g, odr_hz=self.chip.odr_hz)
+        self._grid0 = self.board.clock.now()  # configure() restarts the board's ODR grid now
+
+    def _advance(self, dt: float) -> None:
+        """Let dt seconds pass; while ACTIVE the chip latches every sample of its ODR grid."""
+        clock, chip = self.board.clock, self.chip
+        target = clock.now() + dt
+        if chip.active and not self.never_ready:
+            odr = chip.odr_hz
+            # grid instants in (now, target], counted as the board does (SimulatedBoard._times)
+            k = int(np.floor((target - self._grid0) * odr + 1e-6) - np.floor((clock.now() - self._grid0) * odr + 1e-6))
+            if k and self._overrun and self.samples_produced + k > self._overrun_at:
+                k, self._overrun = k + self._overrun, 0  # forced overrun: the host stalls while these go by
+            if k:
+                counts, _ = self.board.read(k)  # the board clock moves to the last grid instant
+                chip.latch(np.rint(np.asarray(counts[-1], dtype=float)).astype(np.int64), k)
+                self.samples_produced += k
+        clock.advance_to(max(target, clock.now()))
+
+    # --- the bus --------------------------------------------------------------------------
+    def _device(self, addr: int):
+        if addr == self.address and self.present:
+            return self.chip
+        if self.eeprom_address is not None and addr == self.eeprom_address:
+            return self.board.eeprom
+        return None
+
+    def _transaction(self, msgs: list[tuple[int, bool, Any]]) -> list[bytes]:
+        """Run one combined transaction: ``(addr, is_read, data or length)`` messages; NACK -> OSError."""
+        nbytes = sum(1 + (m[2] if m[1] else len(m[2])) for m in msgs)
+        self._advance(9 * nbytes / self.bus_hz)
+        self.transactions += 1
+        addr = msgs[0][0]
+        register = msgs[0][2][0] if not msgs[0][1] and len(msgs[0][2]) else None
+        if self._injected_nack(addr, register) or (addr == self.address and self.clock.now() < self._boot_until):
+            self.nack_log.append((addr, register))
+            raise _nack(addr)
+        out = []
+        for a, is_read, d in msgs:
+            dev = self._device(a)
+            if dev is None:
+                self.nack_log.append((a, register))
+                raise _nack(a)
+            try:  # device models NACK by raising OSError(EREMOTEIO), e.g. an EEPROM in its write cycle
+                out.append(dev.i2c_read(d) if is_read else dev.i2c_write(bytes(d)))
+            except OSError:
+                self.nack_log.append((a, register))
+                raise
+        return out
+
+    def _injected_nack(self, addr: int, register: int | None) -> bool:
+        if self._nack_every and self.transactions % self._nack_every == 0:
+            return True
+        for rule in self._nacks:
+            if rule[0] > 0 and rule[1] in (None, addr) and rule[2] in (None, register):
+                rule[0] -= 1
+                return True
+        return False
+
+    # --- smbus2.SMBus API subset ----------------------------------------------------------
+    def open(self, bus=None) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> "MMA8451Emulator":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def read_byte_data(self, i2c_addr: int, register: int, force=None) -> int:
+        return self._transaction([(i2c_addr, False, [register]), (i2c_addr, True, 1)])[1][0]
+
+    def write_byte_data(self, i2c_addr: int, register: int, value: int, force=None) -> None:
+        self._transaction([(i2c_addr, False, [register, value & 0xFF])])
+
+    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force=None) -> list[int]:
+        if length > 32:
+            raise ValueError("Desired block length over 32 bytes")  # smbus2's limit (I2C_SMBUS_BLOCK_MAX)
+        return list(self._transaction([(i2c_addr, False, [register]), (i2c_addr, True, length)])[1])
+
+    def write_i2c_block_data(self, i2c_addr: int, register: int, data, force=None) -> None:
+        if len(data) > 32:
+            raise ValueError("Data length cannot exceed 32 bytes")
+        self._transaction([(i2c_addr, False, [register, *data])])
+
+    def i2c_rdwr(self, *i2c_msgs) -> None:
+        """Combined transaction of ``smbus2.i2c_msg`` objects; read messages are filled in place."""
+        msgs = [(m.addr, bool(m.flags & I2C_M_RD), m.len if m.flags & I2C_M_RD else bytes(m)) for m in i2c_msgs]
+        for m, data in zip(i2c_msgs, self._transaction(msgs)):
+            if m.flags & I2C_M_RD:
+                ctypes.memmove(m.buf, data, m.len)

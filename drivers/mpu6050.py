@@ -1,0 +1,632 @@
+"""MPU6050 behind a serial bridge MCU (docs/bridge-protocol.md), through pyserial.
+
+The bridge (firmware/mpu6050_bridge) owns the chip on I2C; this driver speaks the
+framed protocol of :mod:`bridge_protocol` over a serial port and knows the chip's
+registers (RM-MPU-6000A-00 rev 4.2):
+
+- WHO_AM_I (0x75) reads 0x68; PWR_MGMT_1 (0x6B) wakes it (SLEEP bit 6 clear, clock PLL X gyro);
+- ACCEL_CONFIG (0x1C) AFS_SEL bits 4:3: 2/4/8/16 g = 16384/8192/4096/2048 counts per g;
+- CONFIG (0x1A) DLPF_CFG bits 2:0; SMPLRT_DIV (0x19): rate = gyro rate / (1 + div), gyro
+  rate 8 kHz with DLPF_CFG 0, else 1 kHz; the accelerometer itself is sampled at 1 kHz;
+- ACCEL_XOUT_H (0x3B): big-endian int16 x, y, z, then TEMP_OUT: T = raw / 340 + 36.53 C;
+- XA/YA/ZA_OFFS (0x06-0x0B): big-endian int16 trim in the +-16 g format (2048 LSB per g);
+  bit 0 of each is reserved and kept on write (InvenSense offset-register app note).
+
+Link behaviour: garbage and CRC failures are skipped by the parser (resync); a gap
+in the bridge's sequence numbers counts lost frames, and lost SAMPLE frames are the
+capture's ``dropped``; a command unanswered within ``timeout_s`` is resent up to
+``retries`` times; a NAK for an I2C or NVM fault is retried the same way; a BOOT frame
+(the bridge reset) makes the driver wake and reconfigure the chip and resume, at most
+``MAX_RESETS`` times per operation.
+"""
+from __future__ import annotations
+
+import errno
+import time
+from collections import deque
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable
+
+import numpy as np
+import serial
+
+from ..config import check_keys, choice, number
+from ..errors import ConfigError, DeviceError, NVMError
+from . import bridge_protocol as bp
+from .base import NVM, Capture, Driver, Identity
+
+WHO_AM_I = 0x75
+CHIP_ID = 0x68
+KNOWN_CHIP_IDS = {0x70: "MPU-6500", 0x71: "MPU-9250", 0x73: "MPU-9255", 0x72: "MPU-6555", 0x19: "MPU-6886",
+                  0x12: "ICM-20602", 0x98: "ICM-20689", 0x00: "nothing (I2C read failed)",
+                  0xFF: "nothing (bus idle high)"}
+XA_OFFS_H = 0x06
+SMPLRT_DIV = 0x19
+CONFIG = 0x1A
+ACCEL_CONFIG = 0x1C
+ACCEL_XOUT_H = 0x3B
+TEMP_OUT_H = 0x41
+PWR_MGMT_1 = 0x6B
+PWR_SLEEP = 0x40
+PWR_CLKSEL_PLL_X = 0x01
+AFS_SEL = {2: 0, 4: 1, 8: 2, 16: 3}
+COUNTS_PER_G = {2: 16384, 4: 8192, 8: 4096, 16: 2048}
+DLPF_BANDWIDTH_HZ = (260, 184, 94, 44, 21, 10, 5)  # accelerometer, per DLPF_CFG 0..6
+ACCEL_RATE_HZ = 1000.0
+OFFSET_LSB_PER_G = 2048.0
+MAX_RESETS = 2
+RETRYABLE_NAKS = (bp.ERR_I2C, bp.ERR_NVM)
+PERMISSION_HINT = "add the user to the dialout group (sudo usermod -aG dialout $USER) and log in again"
+
+
+def temperature_from_raw(raw) -> np.ndarray | float:
+    """TEMP_OUT to C (register map 4.18: raw / 340 + 36.53)."""
+    return np.asarray(raw, dtype=float) / 340.0 + 36.53
+
+
+def rate_base_hz(dlpf: int) -> float:
+    """Gyro output rate that SMPLRT_DIV divides: 8 kHz with the DLPF off (DLPF_CFG 0), else 1 kHz."""
+    return 8000.0 if dlpf == 0 else 1000.0
+
+
+def smplrt_div_for(odr_hz: float, dlpf: int, path: str = "odr_hz") -> int:
+    """SMPLRT_DIV giving ``odr_hz``: 1000 / (1 + k) Hz, the rates the accelerometer really produces."""
+    ok = isinstance(odr_hz, (int, float)) and not isinstance(odr_hz, bool) and 0 < odr_hz <= ACCEL_RATE_HZ
+    div = rate_base_hz(dlpf) / odr_hz - 1.0 if ok else -1.0
+    if not ok or abs(div - round(div)) > 1e-6 * (div + 1) or not 0 <= round(div) <= 255 \
+            or abs(ACCEL_RATE_HZ / odr_hz - round(ACCEL_RATE_HZ / odr_hz)) > 1e-6 * ACCEL_RATE_HZ / odr_hz:
+        lo = rate_base_hz(dlpf) / 256.0
+        raise ConfigError(f"{path}: {odr_hz!r} Hz; allowed: 1000 / (1 + k) Hz down to {lo:g} Hz with dlpf {dlpf} "
+                          "(e.g. 1000, 500, 200, 100, 50)")
+    return int(round(div))
+
+
+@dataclass
+class LinkStats:
+    frames: int = 0  # good frames received
+    lost_frames: int = 0  # from gaps in the bridge's sequence numbers
+    timeouts: int = 0  # commands or streams that went unanswered for timeout_s
+    retries: int = 0  # commands resent (timeout or retryable NAK)
+    naks: int = 0
+    resets: int = 0  # BOOT frames seen after open
+    dropped_samples: int = 0
+
+    parser: bp.ParserStats = field(default_factory=bp.ParserStats)
+
+
+class BridgeReset(DeviceError):
+    """The bridge sent BOOT: it restarted, and the chip is back at its power-on state."""
+
+    def __init__(self, port: str, frame: bp.Frame):
+        cause = bp.BOOT_CAUSES.get(frame.payload[1], "unknown") if len(frame.payload) >= 2 else "unknown"
+        self.cause = cause
+        super().__init__(f"MPU6050 bridge on {port} reset ({cause})")
+
+
+class BridgeRefused(DeviceError):
+    """The bridge answered NAK with an error that retrying cannot fix."""
+
+
+class _McuClock:
+    """MCU microsecond timestamps (u32, wrap every 71.6 min) as seconds that never go back.
+
+    Across a bridge reset the MCU clock restarts; the gap is bridged with the host's clock.
+    """
+
+    def __init__(self) -> None:
+        self._last: int | None = None
+        self._us = 0
+        self._host_t = 0.0
+
+    def seconds(self, ts_us: int, boot: bool = False) -> float:
+        host_t = time.monotonic()
+        if self._last is None:
+            self._us = ts_us
+        elif boot:
+            self._us += int((host_t - self._host_t) * 1e6)
+        else:
+            d = (ts_us - self._last) & 0xFFFFFFFF
+            self._us += d if d < 0x80000000 else 0  # a step back only at an unseen reset
+        self._last, self._host_t = ts_us, host_t
+        return self._us * 1e-6
+
+
+class BridgeLink:
+    """Frames over a pyserial port: send commands, match ACK/NAK by seq, bounded retries."""
+
+    def __init__(self, port: str, baud: int = bp.DEFAULT_BAUD, timeout_s: float = 0.5, retries: int = 3):
+        self.port, self.baud, self.timeout_s, self.retries = port, baud, timeout_s, retries
+        self.stats = LinkStats()
+        self.parser = bp.FrameParser()
+        self.stats.parser = self.parser.stats
+        self.clock = _McuClock()
+        self._ser = None
+        self._seq = 0
+        self._expect: int | None = None
+        self._queue: deque[tuple[bp.Frame, float]] = deque()
+
+    def open(self) -> None:
+        try:
+            self._ser = serial.Serial(self.port, self.baud, timeout=0.02, write_timeout=max(1.0, self.timeout_s),
+                                      exclusive=True)
+        except serial.SerialException as e:
+            code = e.errno if isinstance(e.errno, int) else getattr(e.__context__, "errno", None)
+            if code == errno.ENOENT:
+                raise DeviceError(f"serial port {self.port} does not exist; is the bridge plugged in? "
+                                  "(list ports: python -m serial.tools.list_ports)") from None
+            if code == errno.EACCES:
+                raise DeviceError(f"permission denied on serial port {self.port}; {PERMISSION_HINT}") from None
+            if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK):
+                raise DeviceError(f"serial port {self.port} is in use by another program") from None
+            raise DeviceError(f"cannot open serial port {self.port}: {e}") from None
+        except (OSError, ValueError) as e:
+            raise DeviceError(f"cannot open serial port {self.port}: {e}") from None
+        self._ser.reset_input_buffer()
+
+    def close(self) -> None:
+        if self._ser is not None:
+            try:
+                self._ser.close()
+            finally:
+                self._ser = None
+
+    @property
+    def is_open(self) -> bool:
+        return self._ser is not None
+
+    def _io(self, fn: Callable, *args):
+        if self._ser is None:
+            raise DeviceError(f"serial port {self.port} is not open; use `with driver:` or open()")
+        try:
+            return fn(*args)
+        except (serial.SerialException, OSError) as e:
+            raise DeviceError(f"lost serial port {self.port}: {e}") from None
+
+    def send(self, type_: int, payload: bytes = b"") -> int:
+        """Send one command frame; returns its seq."""
+        self._seq = (self._seq + 1) & 0xFFFF
+        self._io(self._ser.write, bp.encode_frame(type_, self._seq, 0, payload))
+        return self._seq
+
+    def next_frame(self, deadline: float) -> tuple[bp.Frame, float] | None:
+        """The next good frame and its MCU time in s, or None at the (monotonic) deadline."""
+        while not self._queue:
+            # read before looking at the clock: a host that was descheduled still finds what came
+            data = self._io(self._ser.read, max(1, self._io(lambda: self._ser.in_waiting)))
+            for f in self.parser.feed(data):
+                self._track(f)
+            if not self._queue and time.monotonic() >= deadline:
+                return None
+        return self._queue.popleft()
+
+    def _track(self, f: bp.Frame) -> None:
+        self.stats.frames += 1
+        boot = f.type == bp.RSP_BOOT
+        if not boot and self._expect is not None:
+            gap = (f.seq - self._expect) & 0xFFFF
+            if gap < 0x8000:
+                self.stats.lost_frames += gap
+        self._expect = (f.seq + 1) & 0xFFFF
+        self._queue.append((f, self.clock.seconds(f.ts_us, boot)))
+
+    def command(self, cmd: int, payload: bytes = b"", timeout_s: float | None = None) -> bytes:
+        """Send ``cmd`` until ACKed (at most 1 + retries times); return the ACK's data.
+
+        Raises BridgeReset on a BOOT frame, DeviceError on a NAK or no answer.
+        """
+        name = bp.COMMAND_NAMES.get(cmd, hex(cmd))
+        timeout_s = self.timeout_s if timeout_s is None else timeout_s
+        attempts = self.retries + 1
+        why = f"no answer within {timeout_s:g} s"
+        for attempt in range(attempts):
+            if attempt:
+                self.stats.retries += 1
+            seq = self.send(cmd, payload)
+            deadline = time.monotonic() + timeout_s
+            while (got := self.next_frame(deadline)) is not None:
+                f = got[0]
+                if f.type == bp.RSP_BOOT:
+                    raise BridgeReset(self.port, f)
+                if f.type not in (bp.RSP_ACK, bp.RSP_NAK) or len(f.payload) < bp.ACK_PREFIX.size:
+                    continue  # samples or STREAM_END of a stream this command ended
+                if bp.ACK_PREFIX.unpack_from(f.payload) != (cmd, seq):
+                    continue  # a late answer to an earlier attempt
+                if f.type == bp.RSP_ACK:
+                    return f.payload[bp.ACK_PREFIX.size:]
+                self.stats.naks += 1
+                err = f.payload[3] if len(f.payload) > 3 else 0
+                why = f"bridge answered NAK: {bp.ERROR_TEXT.get(err, f'error 0x{err:02x}')}"
+                if err not in RETRYABLE_NAKS:
+                    raise BridgeRefused(f"MPU6050 bridge on {self.port} refused {name}: "
+                                      f"{bp.ERROR_TEXT.get(err, f'error 0x{err:02x}')}")
+                break
+            else:
+                self.stats.timeouts += 1
+        hint = {bp.ERR_I2C: "; check the MPU6050's SDA/SCL wiring, 3.3 V supply and AD0 (address 0x68)"}
+        raise DeviceError(f"MPU6050 bridge on {self.port}: {name} failed after {attempts} attempts ({why})"
+                          + (hint[bp.ERR_I2C] if "I2C" in why else
+                             f"; check the cable, baud rate ({self.baud}) and that the bridge firmware is flashed"))
+
+
+@dataclass
+class BridgeIdentity:
+    protocol: int
+    firmware: str
+    i2c_address: int
+    who_am_i: int
+    nvm_size: int
+    nvm_page_size: int
+    serial: str
+
+
+class BridgeNVM(NVM):
+    """The bridge MCU's EEPROM in 32-byte pages (NVM_READ / NVM_WRITE), every write read back."""
+
+    def __init__(self, dev: "MPU6050Bridge", size: int, page_size: int):
+        self.dev, self.size, self.page_size = dev, size, page_size
+
+    def _page(self, page: int) -> bytes:
+        data = self.dev._call(bp.CMD_NVM_READ, bytes([page]))
+        if len(data) != 1 + self.page_size or data[0] != page:
+            raise DeviceError(f"MPU6050 bridge on {self.dev.port}: NVM_READ page {page} answered "
+                              f"{len(data)} bytes for page {data[:1].hex() or '?'}")
+        return data[1:]
+
+    def read(self, addr: int, n: int) -> bytes:
+        self._check_range(addr, n)
+        ps = self.page_size
+        out = b"".join(self._page(p) for p in range(addr // ps, (addr + n + ps - 1) // ps))
+        return out[addr % ps: addr % ps + n]
+
+    def write(self, addr: int, data: bytes) -> None:
+        data = bytes(data)
+        self._check_range(addr, len(data))
+        ps, i = self.page_size, 0
+        while i < len(data):
+            page, off = divmod(addr + i, ps)
+            chunk = data[i:i + ps - off]
+            # NVM_WRITE takes whole pages: merge a partial one with what is there
+            new = self._page(page) if len(chunk) < ps else b""
+            new = new[:off] + chunk + new[off + len(chunk):] if new else chunk
+            try:
+                self.dev._call(bp.CMD_NVM_WRITE, bytes([page]) + new)
+            except DeviceError as e:
+                raise NVMError(f"NVM write of page {page} (0x{page * ps:03x}) failed: {e}") from None
+            back = self._page(page)
+            if back != new:
+                bad = next(k for k in range(ps) if back[k] != new[k])
+                raise NVMError(f"NVM page {page} read back differs at 0x{page * ps + bad:03x}: wrote "
+                               f"0x{new[bad]:02x}, read 0x{back[bad]:02x} (EEPROM worn or write interrupted)")
+            i += len(chunk)
+
+
+class MPU6050Bridge(Driver):
+    """MPU6050 through the serial bridge.  ``port``: /dev/ttyUSB0, /dev/ttyACM0, a pty, COM3."""
+
+    name = "mpu6050"
+    CONFIG_KEYS = ("port", "baud", "range_g", "odr_hz", "dlpf", "timeout_s", "retries", "boot_wait_s",
+                   "simulator", "seed")
+
+    def __init__(self, port: str, baud: int = bp.DEFAULT_BAUD, range_g: int = 2, odr_hz: float = 100.0,
+                 dlpf: int = 3, timeout_s: float = 0.5, retries: int = 3, boot_wait_s: float = 2.0,
+                 emulator: Any = None):
+        if range_g not in COUNTS_PER_G:
+            raise ConfigError(f"range_g: {range_g!r}; allowed: 2, 4, 8, 16")
+        if dlpf not in range(len(DLPF_BANDWIDTH_HZ)):
+            raise ConfigError(f"dlpf: {dlpf!r}; allowed: 0..6 (DLPF_CFG)")
+        smplrt_div_for(odr_hz, dlpf)
+        self.port = port
+        self.boot_wait_s = float(boot_wait_s)
+        self._emulator = emulator
+        self.link = BridgeLink(port, int(baud), float(timeout_s), int(retries))
+        self._want = (int(range_g), float(odr_hz), int(dlpf))
+        self._range_g, self._odr_hz, self._dlpf, self._div = 2, ACCEL_RATE_HZ, 0, 0  # power-on
+        self._offsets_set: np.ndarray | None = None
+        self._bridge: BridgeIdentity | None = None
+        self._nvm: BridgeNVM | None = None
+        self._stream_temp_c: float | None = None
+
+    @classmethod
+    def from_config(cls, cfg: dict, path: str = "device") -> "MPU6050Bridge":
+        """From a ``device:`` section (driver key removed); ``port: emulated`` runs the bridge emulator."""
+        cfg = check_keys(cfg, cls.CONFIG_KEYS, path)
+        port = cfg.get("port")
+        if not isinstance(port, str) or not port:
+            raise ConfigError(f"{path}.port: {port!r}; allowed: a serial port such as /dev/ttyUSB0, "
+                              "or 'emulated'")
+        for k in ("simulator", "seed"):
+            if k in cfg and port != "emulated":
+                raise ConfigError(f"{path}.{k}: only used with port: emulated")
+        dlpf = number(cfg, "dlpf", path, 3, 0, 6, integer=True)
+        odr = number(cfg, "odr_hz", path, 100.0, 0.0, ACCEL_RATE_HZ)
+        smplrt_div_for(odr, dlpf, f"{path}.odr_hz")
+        kw = dict(baud=number(cfg, "baud", path, bp.DEFAULT_BAUD, 1200, 4_000_000, integer=True),
+                  range_g=choice(cfg, "range_g", path, tuple(COUNTS_PER_G), default=2),
+                  odr_hz=odr, dlpf=dlpf,
+                  timeout_s=number(cfg, "timeout_s", path, 0.5, 0.01, 60.0),
+                  retries=number(cfg, "retries", path, 3, 0, 20, integer=True),
+                  boot_wait_s=number(cfg, "boot_wait_s", path, 2.0, 0.0, 30.0))
+        if port == "emulated":
+            from .mpu6050_emulator import MPU6050BridgeEmulator
+
+            return cls("emulated", emulator=MPU6050BridgeEmulator.from_config(cfg, path), **kw)
+        return cls(port, **kw)
+
+    # --- lifecycle ------------------------------------------------------------------------
+    def open(self) -> None:
+        if self.link.is_open:
+            return
+        if self._emulator is not None:
+            self.port = self.link.port = self._emulator.start()
+        self.link.open()
+        try:
+            self._bridge = self._hello()
+            who = self._read(WHO_AM_I, 1)[0]
+            if who != CHIP_ID:
+                name = KNOWN_CHIP_IDS.get(who, "an unknown part")
+                raise DeviceError(f"wrong chip behind the bridge on {self.port}: WHO_AM_I (0x75) reads 0x{who:02x} "
+                                  f"({name}); expected 0x{CHIP_ID:02x} (MPU6050)")
+            self._nvm = BridgeNVM(self, self._bridge.nvm_size, self._bridge.nvm_page_size)
+            self._with_recovery(self._init_chip)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        self.link.close()
+        if self._emulator is not None:
+            self._emulator.stop()
+
+    def _hello(self) -> BridgeIdentity:
+        """IDENTIFY until answered; an Arduino reboots when the port opens (DTR), so allow boot_wait_s."""
+        deadline = time.monotonic() + self.boot_wait_s
+        while True:
+            try:
+                d = self.link.command(bp.CMD_IDENTIFY)
+                break
+            except BridgeReset as e:
+                if time.monotonic() >= deadline:
+                    raise DeviceError(f"{e} again and again while opening; check its power supply") from None
+            except BridgeRefused:
+                raise
+            except DeviceError:
+                if time.monotonic() >= deadline:
+                    raise
+        if len(d) != bp.IDENTIFY_DATA.size:
+            raise DeviceError(f"MPU6050 bridge on {self.port}: IDENTIFY answered {len(d)} bytes, expected "
+                              f"{bp.IDENTIFY_DATA.size}; flash firmware/mpu6050_bridge")
+        proto, major, minor, addr, who, size, page, serial_no = bp.IDENTIFY_DATA.unpack(d)
+        if proto != bp.PROTOCOL_VERSION:
+            raise DeviceError(f"MPU6050 bridge on {self.port} speaks protocol {proto}, this host "
+                              f"{bp.PROTOCOL_VERSION}; flash firmware/mpu6050_bridge from this release")
+        return BridgeIdentity(proto, f"{major}.{minor}", addr, who, size, page,
+                              serial_no.rstrip(b"\0 ").decode("ascii", "replace"))
+
+    def _init_chip(self) -> None:
+        """Wake (PWR_MGMT_1: SLEEP off, PLL clock), then range, DLPF, rate, and any offsets set earlier."""
+        self._write(PWR_MGMT_1, bytes([PWR_CLKSEL_PLL_X]))
+        self._configure(*self._want)
+        if self._offsets_set is not None:
+            self._write_offsets(self._offsets_set)
+
+    def _with_recovery(self, op: Callable[[], Any]) -> Any:
+        """Run op; if the bridge resets meanwhile, re-initialise the chip and run op again."""
+        for _ in range(MAX_RESETS + 1):
+            try:
+                return op()
+            except BridgeReset as e:
+                last = e
+                self.link.stats.resets += 1
+                try:
+                    self._init_chip()
+                except BridgeReset as e2:
+                    last = e2
+                    self.link.stats.resets += 1
+        raise DeviceError(f"{last}; it reset {MAX_RESETS + 1} times during one operation: check its power "
+                          "supply and USB cable")
+
+    def _call(self, cmd: int, payload: bytes = b"") -> bytes:
+        return self._with_recovery(lambda: self.link.command(cmd, payload))
+
+    def reset(self) -> None:
+        """RESET the bridge (the chip goes back to power-on), wait for BOOT, re-initialise."""
+        self.link.command(bp.CMD_RESET)
+        deadline = time.monotonic() + self.boot_wait_s + self.link.timeout_s
+        while (got := self.link.next_frame(deadline)) is not None:
+            if got[0].type == bp.RSP_BOOT:
+                self._with_recovery(self._init_chip)
+                return
+        raise DeviceError(f"MPU6050 bridge on {self.port} did not come back (no BOOT) within "
+                          f"{self.boot_wait_s + self.link.timeout_s:g} s of RESET")
+
+    # --- registers ------------------------------------------------------------------------
+    def _read(self, reg: int, n: int) -> bytes:
+        d = self.link.command(bp.CMD_READ_REG, bytes([reg, n]))
+        if len(d) != 1 + n or d[0] != reg:
+            raise DeviceError(f"MPU6050 bridge on {self.port}: READ_REG 0x{reg:02x} answered {d.hex()}")
+        return d[1:]
+
+    def _write(self, reg: int, data: bytes) -> None:
+        """WRITE_REG; the bridge reads the register back and the driver checks it."""
+        d = self.link.command(bp.CMD_WRITE_REG, bytes([reg]) + bytes(data))
+        if d[1:] != bytes(data):
+            raise DeviceError(f"MPU6050 register 0x{reg:02x} via {self.port}: wrote {bytes(data).hex()}, "
+                              f"read back {d[1:].hex() or 'nothing'}")
+
+    def read_register(self, reg: int, n: int = 1) -> bytes:
+        return self._with_recovery(lambda: self._read(reg, n))
+
+    def write_register(self, reg: int, data: bytes) -> None:
+        self._with_recovery(lambda: self._write(reg, data))
+
+    def accel_offsets(self) -> np.ndarray:
+        """XA/YA/ZA_OFFS as int16 (+-16 g format: 2048 LSB per g; bit 0 reserved)."""
+        return np.frombuffer(self.read_register(XA_OFFS_H, 6), dtype=">i2").astype(np.int64)
+
+    def set_accel_offsets(self, values) -> None:
+        """Write XA/YA/ZA_OFFS read-modify-write: bits 15:1 from ``values``, bit 0 kept as read."""
+        try:
+            v = np.asarray(values, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            v = np.full(1, np.nan)
+        if v.shape != (3,) or not np.all(np.isfinite(v)) or np.any(v != np.round(v)) \
+                or np.any(v < -32768) or np.any(v > 32767):
+            raise ConfigError(f"accel offsets {np.asarray(values).tolist()!r}; allowed: three whole numbers "
+                              "-32768..32767 (2048 per g)")
+        self._with_recovery(lambda: self._write_offsets(v.astype(np.int64)))
+        self._offsets_set = v.astype(np.int64)
+
+    def _write_offsets(self, values: np.ndarray) -> None:
+        cur = np.frombuffer(self._read(XA_OFFS_H, 6), dtype=">u2").astype(np.int64)
+        new = (values.astype(np.int64) & 0xFFFE) | (cur & 1)
+        self._write(XA_OFFS_H, new.astype(">u2").tobytes())
+
+    # --- configuration --------------------------------------------------------------------
+    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options) -> None:
+        unknown = set(options) - {"dlpf"}
+        if unknown:
+            raise ConfigError(f"configure: unknown option {sorted(unknown)[0]!r}; allowed: dlpf")
+        r = self._want[0] if range_g is None else range_g
+        o = self._want[1] if odr_hz is None else odr_hz
+        d = options.get("dlpf")
+        d = self._want[2] if d is None else d
+        if r not in COUNTS_PER_G:
+            raise ConfigError(f"range_g: {r!r}; allowed: 2, 4, 8, 16")
+        if d not in range(len(DLPF_BANDWIDTH_HZ)):
+            raise ConfigError(f"dlpf: {d!r}; allowed: 0..6 (DLPF_CFG)")
+        smplrt_div_for(o, d)
+        self._want = (int(r), float(o), int(d))
+        self._with_recovery(lambda: self._configure(*self._want))
+
+    def _configure(self, range_g: int, odr_hz: float, dlpf: int) -> None:
+        div = smplrt_div_for(odr_hz, dlpf)
+        d = self.link.command(bp.CMD_CONFIGURE, bp.CONFIGURE.pack(AFS_SEL[range_g], dlpf, div))
+        if len(d) != bp.CONFIGURE_DATA.size:
+            raise DeviceError(f"MPU6050 bridge on {self.port}: CONFIGURE answered {len(d)} bytes")
+        accel_config, config, got_div, _ = bp.CONFIGURE_DATA.unpack(d)
+        if (accel_config >> 3) & 3 != AFS_SEL[range_g] or config & 7 != dlpf or got_div != div:
+            raise DeviceError(f"MPU6050 via {self.port} did not take the configuration: "
+                              f"ACCEL_CONFIG 0x{accel_config:02x}, CONFIG 0x{config:02x}, SMPLRT_DIV {got_div} (wanted AFS_SEL {AFS_SEL[range_g]}, "
+                              f"DLPF_CFG {dlpf}, SMPLRT_DIV {div})")
+        self._range_g, self._dlpf, self._div = range_g, dlpf, div
+        self._odr_hz = rate_base_hz(dlpf) / (1 + div)
+
+    @property
+    def range_g(self) -> int:
+        return self._range_g
+
+    @property
+    def odr_hz(self) -> float:
+        return self._odr_hz
+
+    @property
+    def dlpf(self) -> int:
+        return self._dlpf
+
+    @property
+    def counts_per_g(self) -> float:
+        return float(COUNTS_PER_G[self._range_g])
+
+    @property
+    def nvm(self) -> NVM | None:
+        return self._nvm
+
+    @property
+    def stats(self) -> LinkStats:
+        return self.link.stats
+
+    def identify(self) -> Identity:
+        if self._bridge is None:
+            raise DeviceError(f"MPU6050 bridge on {self.port} is not open; use `with driver:` or open()")
+        b = self._bridge
+        return Identity(chip="mpu6050", chip_id=b.who_am_i, serial=b.serial, interface=f"serial:{self.port}",
+                        firmware=f"mpu6050-bridge {b.firmware} (protocol {b.protocol})")
+
+    def settings(self) -> dict:
+        """Chip-specific settings for display (``accelcal probe``)."""
+        b = self._bridge
+        return {"dlpf": self._dlpf, "accel_bandwidth_hz": DLPF_BANDWIDTH_HZ[self._dlpf],
+                "smplrt_div": self._div, "accel_offsets_lsb": self.accel_offsets().tolist(),
+                "i2c_address": f"0x{b.i2c_address:02x}" if b else None,
+                "nvm": f"bridge EEPROM, {b.nvm_size} bytes, {b.nvm_page_size}-byte pages" if b else None}
+
+    # --- data -----------------------------------------------------------------------------
+    def temperature_c(self) -> float | None:
+        raw = np.frombuffer(self.read_register(TEMP_OUT_H, 2), dtype=">i2")[0]
+        return float(temperature_from_raw(raw))
+
+    def capture(self, n: int | None = None, seconds: float | None = None, keep: bool = False) -> Capture:
+        """As Driver.capture; temp_c is the mean TEMP_OUT over the captured samples."""
+        cap = super().capture(n, seconds, keep)
+        return replace(cap, temp_c=self._stream_temp_c) if self._stream_temp_c is not None else cap
+
+    def read_samples(self, n: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """Stream n samples: counts (m, 3) int64, MCU times (m,) s, dropped = n - m lost frames.
+
+        A stall (no frame for timeout_s plus two periods) stops the stream and asks for the
+        rest, at most ``retries`` times; a bridge reset re-initialises the chip and asks for
+        the rest, at most MAX_RESETS times.
+        """
+        n = int(n)
+        if n < 1:
+            raise DeviceError(f"read of {n} samples; need at least 1")
+        raw, times = bytearray(), []
+        dropped = [0]
+        stalls = resets = 0
+        while (rest := n - len(times) - dropped[0]) > 0:
+            try:
+                status = self._stream(rest, raw, times, dropped)
+                if status == "done":
+                    continue
+            except BridgeReset as e:
+                resets += 1
+                self.link.stats.resets += 1
+                if resets > MAX_RESETS:
+                    raise DeviceError(f"{e} {resets} times during one capture; check its power supply "
+                                      "and USB cable") from None
+                self._with_recovery(self._init_chip)
+                continue
+            stalls += 1
+            if stalls > self.link.retries:
+                why = f"no sample for {self._inactivity_s():g} s" if status == "stalled" else \
+                    "it ended the stream early (I2C read failed)"
+                raise DeviceError(f"MPU6050 bridge on {self.port} broke off streaming {stalls} times in one "
+                                  f"capture ({why}); got {len(times)} of {n} samples")
+            self.link.stats.retries += 1
+            if status == "stalled":
+                self._call(bp.CMD_STOP)
+        self.link.stats.dropped_samples += dropped[0]
+        if not times:
+            raise DeviceError(f"MPU6050 bridge on {self.port}: all {n} samples of the capture were lost")
+        data = np.frombuffer(bytes(raw), dtype=">i2").reshape(-1, 4).astype(np.int64)
+        self._stream_temp_c = float(temperature_from_raw(data[:, 3].mean()))
+        return data[:, :3], np.asarray(times), dropped[0]
+
+    def _inactivity_s(self) -> float:
+        return self.link.timeout_s + 2.0 / self._odr_hz
+
+    def _stream(self, m: int, raw: bytearray, times: list, dropped: list) -> str:
+        """One STREAM of m samples into raw/times: "done", "short" (STREAM_END before m) or "stalled"."""
+        self.link.command(bp.CMD_STREAM, bp.STREAM.pack(m))
+        expected = 0
+        wait = self._inactivity_s()
+        while (got := self.link.next_frame(time.monotonic() + wait)) is not None:
+            f, t = got
+            if f.type == bp.RSP_BOOT:
+                raise BridgeReset(self.port, f)
+            if f.type == bp.RSP_SAMPLE and len(f.payload) == 4 + bp.SAMPLE_BYTES:
+                i = bp.SAMPLE_INDEX.unpack_from(f.payload)[0]
+                if i < expected or i >= m:
+                    continue
+                dropped[0] += i - expected
+                expected = i + 1
+                raw += f.payload[4:]
+                times.append(t)
+                if expected == m:
+                    return "done"  # STREAM_END follows; the next command skips it
+            elif f.type == bp.RSP_STREAM_END and len(f.payload) == bp.STREAM_END.size:
+                sent = min(bp.STREAM_END.unpack(f.payload)[0], m)
+                dropped[0] += max(0, sent - expected)
+                return "done" if sent >= m else "short"
+        self.link.stats.timeouts += 1
+        return "stalled"

@@ -1,0 +1,375 @@
+"""The simulated board: a SensorModel with state (orientation, clock, temperature, EEPROM).
+
+:class:`SimulatedBoard` is the physical board; :class:`SimulatedDriver` is the
+:class:`Driver` that talks to it (python-can's ``virtual`` interface in spirit), and
+the register-level emulators of the real chips are fed by a board through
+``configure()`` and ``read()`` only.
+
+Time is a :class:`VirtualClock`: reading n samples advances it by n / ODR (the
+samples sit on the chip's ODR grid) without waiting, so a whole calibration takes
+milliseconds; ``realtime: true`` also sleeps the wall time, for demonstrations.
+One ``seed`` drives three independent random streams (noise, drift, pose scatter),
+so switching one effect on does not change the draws of the others.
+
+Board configuration (YAML mapping; the ``device`` section of a station config
+with ``driver: simulated``)::
+
+    chip: mma8451         # datasheet defaults: mma8451 | mpu6050
+    range_g: 2            # full scale, g (chip's allowed ranges)
+    odr_hz: 100           # output data rate, Hz
+    dlpf: 3               # MPU6050 DLPF_CFG 0..6 (MPU6050 only)
+    seed: 1               # reproducible runs (default: fresh entropy, kept in .seed)
+    serial: SIM-0001      # board serial (default: from the seed)
+    realtime: false       # sleep wall time as the virtual clock advances
+    ambient_c: 25         # ambient temperature, C
+    self_heating_c: 0     # die temperature above ambient, C
+    eeprom: {size_bytes: 4096, page_bytes: 32, write_cycle_ms: 5, fail_at_write: null}
+    simulator: FILE.yaml  # or an inline mapping {effects: {...}}; or `effects:` here directly
+"""
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from scipy.signal import lfilter
+
+from ..calibration import Calibration
+from ..config import check_keys, load_yaml, number
+from ..errors import ConfigError, DeviceError
+from ..sensor_model import SensorModel, get_chip, rotation_matrix
+from .base import Driver, Identity
+from .eeprom import EEPROM24
+
+BOARD_KEYS = ("chip", "range_g", "odr_hz", "dlpf", "seed", "serial", "realtime", "ambient_c",
+              "self_heating_c", "eeprom", "simulator", "effects")
+EEPROM_KEYS = ("size_bytes", "page_bytes", "write_cycle_ms", "fail_at_write")
+
+
+class VirtualClock:
+    """Simulated time in seconds; ``realtime`` also sleeps the wall time."""
+
+    def __init__(self, start: float = 0.0, realtime: bool = False) -> None:
+        self.t = float(start)
+        self.realtime = realtime
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep(self, dt: float) -> None:
+        if dt > 0:
+            if self.realtime:
+                time.sleep(dt)
+            self.t += dt
+
+    def advance_to(self, t: float) -> None:
+        self.sleep(t - self.t)
+
+
+def load_sensor_config(cfg: dict, path: str) -> tuple[Any, str]:
+    """The ``effects`` mapping named by a board config, and the key path for its errors."""
+    if "simulator" in cfg and "effects" in cfg:
+        raise ConfigError(f"{path}: give either simulator or effects, not both")
+    if "effects" in cfg:
+        return cfg["effects"], f"{path}.effects"
+    sim = cfg.get("simulator")
+    if sim is None:
+        return None, f"{path}.simulator"
+    where = f"{path}.simulator"
+    if isinstance(sim, str):
+        sim, where = load_yaml(sim), f"{path}.simulator({sim})"
+    check_keys(sim, ["effects"], where)
+    return sim.get("effects") or {}, f"{where}.effects"
+
+
+class SimulatedBoard:
+    """A simulated accelerometer board (see module docstring and sensor_model)."""
+
+    def __init__(self, model: SensorModel, seed: int | None = None, serial: str | None = None,
+                 realtime: bool = False, ambient_c: float = 25.0, self_heating_c: float = 0.0,
+                 eeprom: EEPROM24 | None = None, clock: VirtualClock | None = None) -> None:
+        self.model = model
+        self.chip = model.chip
+        ss = np.random.SeedSequence(seed)
+        self.seed = int(ss.entropy)
+        self._rng_noise, self._rng_drift, self._rng_pose = (np.random.default_rng(s) for s in ss.spawn(3))
+        self.serial = serial if serial is not None else f"SIM-{self.seed % 10**8:08d}"
+        self.clock = clock if clock is not None else VirtualClock(realtime=realtime)
+        self.eeprom = eeprom if eeprom is not None else EEPROM24(clock=self.clock)
+        self.eeprom.clock = self.clock
+        self.ambient_c = float(ambient_c)
+        self.self_heating_c = float(self_heating_c)
+        self._t_power = self.clock.now()
+        self.pose = None
+        self.true_rotation = np.eye(3)  # R_err of the current pose
+        self._dir = np.array([0.0, 0.0, 1.0])  # true output direction (flat board)
+        self._f = model.gravity_g() * self._dir
+        self._settle = np.zeros(3)  # settling transient at time _t_settle
+        self._t_settle = self._t_power
+        self._walk = np.zeros(3)  # drift random-walk state at time _t_walk
+        self._t_walk = self._t_power
+        self._disturbances: list[tuple[float, float, float, np.ndarray]] = []
+        c = self.chip
+        self.configure(c.default_range_g, c.default_odr_hz, c.default_dlpf)
+
+    @classmethod
+    def from_config(cls, cfg: dict | None = None, chip: str | None = None, seed: int | None = None,
+                    path: str = "simulator") -> "SimulatedBoard":
+        """Build a board from its YAML mapping; ``chip``/``seed`` arguments override it.
+
+        ``cfg=None`` is an ideal chip of its datasheet: noise, quantization and
+        saturation only (configs/sim.yaml is the realistic default board).
+        """
+        cfg = dict(check_keys(cfg, BOARD_KEYS, path))
+        spec = get_chip(chip or cfg.get("chip", "mma8451"), f"{path}.chip")
+        effects, epath = load_sensor_config(cfg, path)
+        model = SensorModel.from_config(effects, spec, epath)
+        if seed is None and cfg.get("seed") is not None:
+            seed = number(cfg, "seed", path, lo=0, integer=True)
+        realtime = cfg.get("realtime", False)
+        if not isinstance(realtime, bool):
+            raise ConfigError(f"{path}.realtime: {realtime!r}; allowed: true, false")
+        serial = cfg.get("serial")
+        if serial is not None and not isinstance(serial, (str, int)):
+            raise ConfigError(f"{path}.serial: {serial!r}; allowed: a string")
+        e = check_keys(cfg.get("eeprom"), EEPROM_KEYS, f"{path}.eeprom")
+        ep = f"{path}.eeprom"
+        page = number(e, "page_bytes", ep, 32, 1, 4096, integer=True)
+        size = number(e, "size_bytes", ep, 4096, page, 2**20, integer=True)
+        if size % page:
+            raise ConfigError(f"{ep}.size_bytes: {size} must be a multiple of page_bytes ({page})")
+        fail = e.get("fail_at_write")
+        eeprom = EEPROM24(size, page, number(e, "write_cycle_ms", ep, 5.0, 0.0, 1000.0) / 1000.0,
+                          fail_at_write=None if fail is None else number(e, "fail_at_write", ep, lo=1, integer=True))
+        board = cls(model, seed, None if serial is None else str(serial), realtime,
+                    number(cfg, "ambient_c", path, 25.0, -60.0, 150.0),
+                    number(cfg, "self_heating_c", path, 0.0, 0.0, 50.0), eeprom)
+        board.configure(cfg.get("range_g", spec.default_range_g), cfg.get("odr_hz", spec.default_odr_hz),
+                        cfg.get("dlpf"), path)
+        return board
+
+    # -- configuration ----------------------------------------------------------------------
+    def configure(self, range_g: int, odr_hz: float, dlpf: int | None = None, path: str = "configure") -> None:
+        """Set full scale (g), output data rate (Hz) and, on the MPU6050, DLPF_CFG."""
+        range_g, odr_hz, dlpf = self.chip.check(range_g, odr_hz, dlpf, path)
+        self.model.check_range(range_g)
+        self.range_g, self.odr_hz, self.dlpf = range_g, odr_hz, dlpf
+        self._grid0 = self.clock.now()  # the ODR grid restarts with the new setting
+
+    @property
+    def counts_per_g(self) -> float:
+        return self.chip.counts_per_g(self.range_g)
+
+    @property
+    def identity(self) -> Identity:
+        return Identity(self.chip.name, self.chip.chip_id, self.serial, "simulated")
+
+    @property
+    def temperature_c(self) -> float:
+        """True die temperature, C (ambient plus self-heating)."""
+        return self.ambient_c + self.self_heating_c
+
+    def set_temperature(self, ambient_c: float) -> None:
+        self.ambient_c = float(ambient_c)
+
+    @property
+    def noise_sigma_counts(self) -> np.ndarray:
+        """Per-sample white-noise standard deviation in counts at the current setting."""
+        return self.model.noise_sigma_g(self.odr_hz, self.dlpf) * self.counts_per_g
+
+    def truth(self, temp_c: float | None = None) -> Calibration:
+        """The exact AN4399 calibration at temp_c (default: the die temperature now)."""
+        return self.model.truth(self.temperature_c if temp_c is None else temp_c, self.counts_per_g)
+
+    # -- orientation -------------------------------------------------------------------------
+    @property
+    def true_direction(self) -> np.ndarray:
+        """Unit vector of the true ideal output (positive along gravity)."""
+        return self._dir.copy()
+
+    @property
+    def true_force_g(self) -> np.ndarray:
+        """True specific force in standard g (sensor frame)."""
+        return self._f.copy()
+
+    def pose_error_rotation(self) -> np.ndarray:
+        """R_err = R_jig R_scatter for one presentation (a fresh scatter draw)."""
+        if not self.model.has("pose_error"):
+            return np.eye(3)
+        p = self.model.effects["pose_error"]
+        scatter = self._rng_pose.normal(0.0, p["scatter_deg"], 3) if p["scatter_deg"] > 0 else np.zeros(3)
+        return rotation_matrix(p["jig_rotation_deg"]) @ rotation_matrix(scatter)
+
+    def set_pose(self, pose, rotation=None) -> None:
+        """Bring the board to a commanded PoseSpec; the true output is R_err @ reference_g.
+
+        ``rotation``: an R_err already drawn with :meth:`pose_error_rotation` (a jig
+        that moves there first); by default a fresh one is drawn.
+        """
+        R = self.pose_error_rotation() if rotation is None else np.asarray(rotation, dtype=float)
+        self.pose, self.true_rotation = pose, R
+        self.set_gravity_direction(R @ pose.reference_g)
+
+    def set_gravity_direction(self, direction) -> None:
+        """Set the true output direction exactly (no pose error); starts a settling transient."""
+        d = np.asarray(direction, dtype=float).reshape(3)
+        n = np.linalg.norm(d)
+        if not np.isfinite(n) or n == 0:
+            raise DeviceError(f"gravity direction {d.tolist()} must be a finite non-zero vector")
+        f_new = self.model.gravity_g() * d / n
+        now = self.clock.now()
+        self._settle = self._settling_at(np.array([now]))[0] + self._settle_fraction() * (f_new - self._f)
+        self._t_settle = now
+        self._dir, self._f = d / n, f_new
+
+    # -- samples -------------------------------------------------------------------------------
+    def _settle_fraction(self) -> float:
+        return self.model.effects["settling"]["fraction"] if self.model.has("settling") else 0.0
+
+    def _settling_at(self, t: np.ndarray) -> np.ndarray:
+        if not self.model.has("settling"):
+            return np.zeros((len(t), 3))
+        tau = self.model.effects["settling"]["tau_s"]
+        return self._settle * np.exp(-(t - self._t_settle) / tau)[:, None]
+
+    def _drift(self, t: np.ndarray) -> np.ndarray:
+        """Offset drift (g) at sample times t: warm-up plus random walk (state carried on)."""
+        if not self.model.has("drift"):
+            return np.zeros((len(t), 3))
+        p = self.model.effects["drift"]
+        warm = 1e-3 * p["warmup_mg"] * (1.0 - np.exp(-(t - self._t_power) / p["warmup_tau_s"]))[:, None]
+        dts = np.diff(np.concatenate([[self._t_walk], t]))
+        steps = self._rng_drift.standard_normal((len(t), 3)) * np.sqrt(dts)[:, None]
+        walk = self._walk + np.cumsum(steps * 1e-6 * p["random_walk_ug_per_rts"], axis=0)
+        self._walk, self._t_walk = walk[-1].copy(), float(t[-1])
+        return warm + walk
+
+    def _times(self, n: int) -> np.ndarray:
+        """The next n instants of the ODR grid after now; the clock advances to the last."""
+        if n < 1:
+            raise DeviceError(f"read of {n} samples; need at least 1")
+        m0 = np.floor((self.clock.now() - self._grid0) * self.odr_hz + 1e-6) + 1
+        t = self._grid0 + (m0 + np.arange(n)) / self.odr_hz
+        self.clock.advance_to(float(t[-1]))
+        return t
+
+    def _sample(self, t: np.ndarray, G: np.ndarray, settle: np.ndarray) -> np.ndarray:
+        x = G + self._drift(t) + settle
+        if self.model.has("noise"):
+            x = x + self._rng_noise.standard_normal((len(t), 3)) * self.model.noise_sigma_g(self.odr_hz, self.dlpf)
+        return self.model.to_counts(x, self.counts_per_g)
+
+    def read(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """n samples at the current pose: counts (n, 3) and timestamps t_s (n,).
+
+        Counts are int64 when quantization is enabled (always for a real chip), else
+        float64 unrounded counts.  The virtual clock advances by n / ODR.
+        """
+        t = self._times(int(n))
+        f = self._f[None]
+        if self._disturbances:
+            f = self._disturbed(t)
+        G = self.model.response_g(f, self.temperature_c)
+        return self._sample(t, G, self._settling_at(t)), t
+
+    def disturb(self, after_s: float, duration_s: float, amplitude_deg: float) -> None:
+        """Someone bumps the board: from ``after_s`` (virtual clock, from now) for
+        ``duration_s`` it tips by up to ``amplitude_deg`` (a half-sine) and comes back."""
+        d = self._dir
+        axis = np.cross(d, np.eye(3)[int(np.argmin(np.abs(d)))])
+        t0 = self.clock.now() + float(after_s)
+        self._disturbances.append((t0, t0 + float(duration_s), float(amplitude_deg), axis / np.linalg.norm(axis)))
+
+    def _disturbed(self, t: np.ndarray) -> np.ndarray:
+        f = np.repeat(self._f[None], len(t), axis=0)
+        for t0, t1, amp, axis in self._disturbances:
+            m = (t >= t0) & (t < t1)
+            if m.any():
+                ang = amp * np.sin(np.pi * (t[m] - t0) / (t1 - t0))
+                f[m] = rotation_matrix(axis * ang[:, None]) @ self._f
+        self._disturbances = [d for d in self._disturbances if d[1] > t[-1]]
+        return f
+
+    def read_motion(self, directions) -> tuple[np.ndarray, np.ndarray]:
+        """One sample per row of ``directions`` (n, 3) while the true output follows them.
+
+        The board rotates about its sensor (no centripetal force); each change of
+        the true force feeds the settling transient.  The board ends at the last row.
+        """
+        d = np.asarray(directions, dtype=float)
+        d = d / np.linalg.norm(d, axis=1, keepdims=True)
+        f = self.model.gravity_g() * d
+        t = self._times(len(d))
+        settle = np.zeros_like(f)
+        if self.model.has("settling"):
+            tau = self.model.effects["settling"]["tau_s"]
+            steps = self._settle_fraction() * np.diff(np.vstack([self._f, f]), axis=0)
+            x0 = self._settling_at(t[:1])[0] + steps[0]
+            a = np.exp(-1.0 / (self.odr_hz * tau))  # s_k = a s_{k-1} + step_k on the ODR grid
+            settle[0] = x0
+            if len(t) > 1:
+                settle[1:] = lfilter([1.0], [1.0, -a], steps[1:], axis=0, zi=(a * x0)[None])[0]
+            self._settle, self._t_settle = settle[-1].copy(), float(t[-1])
+        self._dir, self._f = d[-1].copy(), f[-1].copy()
+        return self._sample(t, self.model.response_g(f, self.temperature_c), settle), t
+
+
+class SimulatedDriver(Driver):
+    """The driver of a SimulatedBoard: the same interface as the hardware drivers."""
+
+    name = "simulated"
+
+    def __init__(self, board: SimulatedBoard) -> None:
+        self.board = board
+        self._open = False
+
+    @classmethod
+    def from_config(cls, cfg: dict | None, path: str = "device") -> "SimulatedDriver":
+        return cls(SimulatedBoard.from_config(cfg, path=path))
+
+    def open(self) -> None:
+        self._open = True
+
+    def close(self) -> None:
+        self._open = False
+
+    def _check_open(self) -> None:
+        if not self._open:
+            raise DeviceError("simulated device is not open (use it as a context manager)")
+
+    def identify(self) -> Identity:
+        self._check_open()
+        return self.board.identity
+
+    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options) -> None:
+        self._check_open()
+        unknown = set(options) - {"dlpf"}
+        if unknown:
+            raise ConfigError(f"configure: unknown option {sorted(unknown)[0]!r}; allowed: dlpf")
+        b = self.board
+        b.configure(b.range_g if range_g is None else range_g, b.odr_hz if odr_hz is None else odr_hz,
+                    options.get("dlpf", b.dlpf))
+
+    @property
+    def range_g(self) -> int:
+        return self.board.range_g
+
+    @property
+    def odr_hz(self) -> float:
+        return self.board.odr_hz
+
+    @property
+    def counts_per_g(self) -> float:
+        return self.board.counts_per_g
+
+    def read_samples(self, n: int) -> tuple[np.ndarray, np.ndarray, int]:
+        self._check_open()
+        counts, t = self.board.read(n)
+        return counts, t, 0
+
+    def temperature_c(self) -> float | None:
+        return self.board.temperature_c if self.board.chip.has_temperature else None
+
+    @property
+    def nvm(self) -> EEPROM24:
+        return self.board.eeprom
