@@ -185,8 +185,9 @@ class Station:
 
     def __init__(self, config: StationConfig, *, operator: str | None = None, serial: str | None = None,
                  lot: str | None = None, echo: Callable[[str], None] = print,
-                 progress: Callable[[str, float], None] | None = None):
+                 progress: Callable[[str, float], None] | None = None, driver: Driver | None = None):
         self.cfg = config
+        self.driver = driver  # default: built from the config's device section at run()
         self.operator = operator
         self.serial_override = serial
         self.lot = lot
@@ -234,7 +235,9 @@ class Station:
         rep = RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
         wall0 = time.perf_counter()
         design = get_design(cfg.design)
-        driver = make_driver(cfg.raw["device"])
+        if self.driver is None:
+            self.driver = make_driver(cfg.raw["device"])
+        driver = self.driver
         with Store(cfg.store_file) as store:
             store.mark_stale_interrupted()
             with driver:

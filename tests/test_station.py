@@ -1,0 +1,152 @@
+"""The station end to end on the simulated board: the issue's done-when items."""
+from __future__ import annotations
+
+import json
+import sqlite3
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from accelcal_station.cli import cli
+from accelcal_station.drivers import make_driver
+from accelcal_station.station import Station, StationConfig, default_config_path
+from accelcal_station.writer import CalibrationWriter
+
+
+def sim_config(tmp_path, **changes) -> str:
+    """The default station config with sections replaced, written to tmp_path."""
+    cfg = yaml.safe_load(default_config_path().read_text())
+    for key, value in changes.items():
+        section, _, sub = key.partition("__")
+        if sub:
+            cfg.setdefault(section, {})[sub] = value
+        else:
+            cfg[section] = value
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    p = tmp_path / "station.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    return str(p)
+
+
+def test_default_run_passes_and_leaves_verified_nvm_and_a_record(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(cli, ["run", "--json", "--operator", "ci"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["verdict"] == "PASS" and out["nvm"]["ok"] and out["nvm_verified"]
+    assert out["verify_error_max_mg"] < 2.0
+    db = sqlite3.connect(tmp_path / "accelcal-runs.sqlite")
+    status, verdict, nvm = db.execute("SELECT status, verdict, nvm_status FROM runs").fetchone()
+    assert (status, verdict, nvm) == ("complete", "PASS", "written")
+    assert db.execute("SELECT count(*) FROM poses").fetchone()[0] == 8
+
+
+def test_station_burns_the_fitted_calibration_into_the_board(tmp_path):
+    cfg = StationConfig.load(sim_config(tmp_path))
+    st = Station(cfg, echo=lambda s: None)
+    rep = st.run()
+    assert rep.verdict == "PASS"
+    cal, header, slot = CalibrationWriter(st.driver.nvm).read_newest(rep.serial)
+    np.testing.assert_array_equal(cal.W, rep.fit.W)
+    assert header.station_id == "sim-station-1" and slot == "A"
+    # the fit recovers the simulator's truth at mg level (the design's predicted error is ~0.05 mg)
+    truth = st.driver.board.truth()
+    g = np.array([[0.3, -0.5, 0.81], [1.0, 0.0, 0.0]]) * 4096
+    np.testing.assert_allclose(cal.apply(g, units="counts"), truth.apply(g, units="counts"), atol=1e-3)
+
+
+def test_board_beyond_limits_fails_with_reasons_and_nvm_untouched(tmp_path):
+    cfg = yaml.safe_load(default_config_path().read_text())
+    cfg["device"]["simulator"]["effects"]["offset"]["offset_mg"] = [180.0, -27.0, 41.0]
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    p = tmp_path / "bad.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    st = Station(StationConfig.load(p), echo=lambda s: None)
+    rep = st.run()
+    assert rep.verdict == "FAIL"
+    assert any(r.startswith("offset_max_mg 17") and "> limit 120" in r for r in rep.reasons), rep.reasons  # |V| = 180 mg / gain
+    assert rep.nvm is None
+    assert set(st.driver.nvm.read(0, st.driver.nvm.size)) == {0xFF}  # never written
+    r = CliRunner().invoke(cli, ["run", "--config", str(p)])
+    assert r.exit_code == 1 and "FAIL" in r.output and "offset_max_mg" in r.output
+
+
+def test_power_loss_between_page_writes_keeps_the_previous_calibration(tmp_path):
+    cfg = StationConfig.load(sim_config(tmp_path))
+    driver = make_driver(cfg.raw["device"])
+    first = Station(cfg, echo=lambda s: None, driver=driver).run()
+    assert first.verdict == "PASS"
+    driver.board.eeprom.inject_power_loss(at_write=2, fail_bytes=10)  # dies inside the 2nd page write
+    second = Station(cfg, echo=lambda s: None, driver=driver).run()
+    assert second.verdict == "FAIL" and second.nvm is not None and not second.nvm["ok"]
+    assert any("untouched" in r for r in second.reasons), second.reasons
+    cal, header, _ = CalibrationWriter(driver.nvm).read_newest(first.serial)
+    assert header.generation == 1
+    np.testing.assert_array_equal(cal.W, first.fit.W)
+    # a corrupted newest slot is detected by its CRC and ignored
+    third = Station(cfg, echo=lambda s: None, driver=driver).run()
+    assert third.verdict == "PASS" and third.nvm["generation"] == 2
+    w = CalibrationWriter(driver.nvm)
+    addr = w.slot_addr(1) + 40
+    driver.nvm.write(addr, bytes([driver.nvm.read(addr, 1)[0] ^ 0xFF]))
+    cal, header, slot = w.read_newest(first.serial)
+    assert header.generation == 1 and slot == "A"
+    assert [s.state for s in w.status()] == ["valid", "corrupt"]
+
+
+OPERATOR_JIG = {"type": "operator", "hand": {"wrong_face": ["p2"], "bump": ["p3"]}}
+
+
+def test_operator_flow_through_the_command_line(tmp_path):
+    path = sim_config(tmp_path, jig=OPERATOR_JIG)
+    # pose 1: accept; pose 2 is on the wrong face: Enter is refused, r re-places it, Enter;
+    # poses 3-8 and the 3 verification poses: accept
+    answers = "\n" + "\n" + "r\n" + "\n" + "\n" * 6 + "\n" * 3
+    r = CliRunner().invoke(cli, ["run", "--config", path, "--operator", "ana"], input=answers)
+    assert r.exit_code == 0, r.output
+    out = r.output
+    assert "put the board" in out and "pitch" in out
+    # the wrong face is refused, naming the face the board is actually on
+    assert "WRONG FACE: board is on 'z- down" in out or "WRONG FACE: board is on '" in out
+    wrong = out.split("WRONG FACE: board is on '")[1].split("'")[0]
+    assert wrong and "not accepted" in out
+    # the bumped board's capture is discarded and re-captured
+    assert "moved during capture" in out
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    retries = dict(db.execute("SELECT name, retries FROM poses"))
+    assert retries["p3"] >= 1 and retries["p1"] == 0
+    assert db.execute("SELECT operator, verdict FROM runs").fetchone() == ("ana", "PASS")
+
+
+def test_wrong_face_message_names_the_actual_face(tmp_path):
+    path = sim_config(tmp_path, jig={"type": "operator", "hand": {"wrong_face": ["p1"]}})
+    r = CliRunner().invoke(cli, ["run", "--config", path], input="\na\n")
+    assert r.exit_code == 5
+    face_line = [ln for ln in r.output.splitlines() if "WRONG FACE" in ln][0]
+    # p1 expects about (+0.57, -0.58, +0.58) g; the hand turned it a quarter turn about x
+    assert "board is on '" in face_line and "deg off" in face_line
+
+
+def test_operator_abort_is_recorded_as_interrupted(tmp_path):
+    path = sim_config(tmp_path, jig={"type": "operator", "hand": {}})
+    r = CliRunner().invoke(cli, ["run", "--config", path], input="\n\na\n")
+    assert r.exit_code == 5 and "operator aborted at pose p3" in r.output
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    status, reason = db.execute("SELECT status, status_reason FROM runs").fetchone()
+    assert status == "interrupted" and "aborted" in reason
+    assert db.execute("SELECT count(*) FROM poses").fetchone()[0] == 2
+
+
+@pytest.mark.parametrize("changes,message", [
+    ({"plan__design": "an4399-99"}, "unknown design"),
+    ({"plan__model": 7}, "plan.model: 7; allowed: 6, 9, 12, 15"),
+    ({"jig": {"type": "robot"}}, "jig.type: 'robot'; allowed: simulated, operator, motorized"),
+    ({"capture__hold_sec": 1}, "capture.hold_sec: unknown key"),
+    ({"acceptance__residual_rms_mg": -1}, "acceptance.residual_rms_mg: -1 out of range"),
+])
+def test_config_errors_name_the_key(tmp_path, changes, message):
+    r = CliRunner().invoke(cli, ["run", "--config", sim_config(tmp_path, **changes)])
+    assert r.exit_code == 2
+    assert message in r.stderr and r.stderr.count("\n") == 1 and "Traceback" not in r.output
