@@ -96,8 +96,9 @@ class StationConfig:
         jig = raw.get("jig") or {"type": "simulated"}
         check_keys(jig, list(jig), "jig")
         choice(jig, "type", "jig", JIG_TYPES)
-        base = Path.cwd() if default else p.parent
-        store_file = Path(store_override) if store_override else store_path(raw, base)
+        # a relative store path is taken from the current directory: the station's
+        # working folder, never the (possibly installed, read-only) config folder
+        store_file = Path(store_override) if store_override else store_path(raw, Path.cwd())
         return cls(raw, p.read_text(), p, str(st.get("id", "station-1")), design, model, settings,
                    Limits.from_config(raw.get("acceptance")), write, slot,
                    number(ver, "poses", "verify", 3, 0, 64, integer=True),
