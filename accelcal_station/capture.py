@@ -16,10 +16,10 @@ Motion while averaging discards the average and starts over (a re-capture).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Callable
 
 import numpy as np
-from scipy.stats import chi2
 
 from .drivers.base import Capture, Driver
 from .errors import DeviceError
@@ -75,6 +75,14 @@ class GatedCapture:
     events: list[str] = field(default_factory=list)
 
 
+@lru_cache(maxsize=64)
+def _chi_quartile(n: int) -> float:
+    """25th percentile of s / sigma for n samples (chi distribution, n - 1 dof)."""
+    from scipy.stats import chi2  # imported on first use: scipy.stats costs a second at start-up
+
+    return float(np.sqrt(chi2.ppf(0.25, n - 1) / (n - 1)))
+
+
 class StillnessGate:
     """Tracks the noise floor and the still/moving state block by block (with hysteresis).
 
@@ -98,7 +106,7 @@ class StillnessGate:
         std = block.std(axis=0, ddof=1)
         mean = block.mean(axis=0)
         self.history = (self.history + [std])[-64:]
-        q = np.sqrt(chi2.ppf(0.25, n - 1) / (n - 1))
+        q = _chi_quartile(n)
         est = np.percentile(np.array(self.history), 25, axis=0) / q
         if self.seed is None or len(self.history) >= 8:
             # quantisation can make a quiet axis read std 0: never let the floor reach zero

@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import chi2
 
 from .errors import DataError
 from .session import PoseRecord, Session
@@ -262,6 +261,8 @@ def detect_static(xyz, rate_hz: float | None = None, min_duration_s: float = MIN
         raise DataError(f"the log has {N} samples; finding static poses needs at least {max(2 * w, min_n)}")
     ms = moving_std(x, w)
     dof = w - 1
+    from scipy.stats import chi2  # on first use: scipy.stats costs a second at start-up
+
     low = np.sqrt(chi2.ppf(FLOOR_QUANTILE, dof) / dof)  # 10th percentile of s / sigma
     med = np.median(x, axis=0)
     sigma = np.maximum(np.quantile(ms, FLOOR_QUANTILE, axis=0) / low, _quantum(x) / np.sqrt(12.0))

@@ -61,10 +61,22 @@ class StationConfig:
     store_file: Path
 
     @classmethod
-    def load(cls, path: str | Path | None = None, store_override: str | Path | None = None) -> "StationConfig":
+    def load(cls, path: str | Path | None = None, store_override: str | Path | None = None,
+             port: str | None = None, jig_port: str | None = None) -> "StationConfig":
+        """Read and check a station config; ``port``/``jig_port`` override the device's
+        port (or MMA8451 bus) and the motorized jig's port."""
         default = path is None
         p = default_config_path() if default else Path(path)
         raw = load_yaml(p)
+        if port is not None:
+            from .cli.probe import _with_port
+
+            raw["device"] = _with_port(dict(raw.get("device") or {}), port)
+        if jig_port is not None:
+            jig = dict(raw.get("jig") or {})
+            if jig.get("type") != "motorized":
+                raise ConfigError(f"--jig-port {jig_port}: the config's jig is not motorized (jig.type: motorized)")
+            raw["jig"] = {**jig, "port": jig_port}
         check_keys(raw, TOP_KEYS, str(p.name))
         if "device" not in raw:
             raise ConfigError(f"{p}: device: required (a mapping with a 'driver' key)")
@@ -381,7 +393,7 @@ class Station:
             "samples_read": self.samples_read,
             "sampling_floor_s": self.samples_used / odr,
             "sampling_s": self.samples_read / odr,
-            "host_compute_s": time.perf_counter() - wall0,
+            "host_compute_s": time.perf_counter() - wall0,  # wall time of the run on this host
         }
         if board is not None:
             t["device_time_s"] = board.clock.now() - clock0  # moves, waits, EEPROM cycles, sampling

@@ -317,7 +317,7 @@ class MPU6050Bridge(Driver):
         smplrt_div_for(odr_hz, dlpf)
         self.port = port
         self.boot_wait_s = float(boot_wait_s)
-        self._emulator = emulator
+        self.emulator = emulator
         self.link = BridgeLink(port, int(baud), float(timeout_s), int(retries))
         self._want = (int(range_g), float(odr_hz), int(dlpf))
         self._range_g, self._odr_hz, self._dlpf, self._div = 2, ACCEL_RATE_HZ, 0, 0  # power-on
@@ -356,8 +356,8 @@ class MPU6050Bridge(Driver):
     def open(self) -> None:
         if self.link.is_open:
             return
-        if self._emulator is not None:
-            self.port = self.link.port = self._emulator.start()
+        if self.emulator is not None:
+            self.port = self.link.port = self.emulator.start()
         self.link.open()
         try:
             self._bridge = self._hello()
@@ -374,8 +374,8 @@ class MPU6050Bridge(Driver):
 
     def close(self) -> None:
         self.link.close()
-        if self._emulator is not None:
-            self._emulator.stop()
+        if self.emulator is not None:
+            self.emulator.stop()
 
     def _hello(self) -> BridgeIdentity:
         """IDENTIFY until answered; an Arduino reboots when the port opens (DTR), so allow boot_wait_s."""

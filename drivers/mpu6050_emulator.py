@@ -12,7 +12,8 @@ The NVM is the MCU's 1 KiB EEPROM (an EEPROM24 model with 32-byte pages).
 Samples come from ``board.configure()`` / ``board.read()``; timestamps are the
 board's virtual clock since the last (emulated) MCU boot.  Streams run as fast as
 the pty takes them unless the board is ``realtime``.  Sample rates the simulated
-chip cannot produce (DLPF_CFG 0 with a rate other than 1000 / (1 + k)) are NAKed.
+chip cannot produce (above 1 kHz, or DLPF_CFG 0 with a rate other than 1000 / (1 + k))
+are NAKed with ERR_BAD_ARG, where the firmware would repeat samples.
 
 Faults for tests: :meth:`corrupt` (flip a bit in each of the next k bytes sent),
 :meth:`drop_frames`, :meth:`inject_garbage`, :meth:`stall` (ignore input and send
@@ -27,6 +28,7 @@ import select
 import threading
 import time
 import tty
+from collections import deque
 from typing import Any
 
 import numpy as np
@@ -66,7 +68,7 @@ class MPU6050BridgeEmulator:
         self.lock = threading.RLock()  # held while the thread touches the board: take it to move the board
         self.frames_sent = 0
         self.frames_dropped = 0
-        self.commands: list[int] = []  # command types handled, in order
+        self.commands: deque[int] = deque(maxlen=1000)  # the latest command types handled, in order
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._master = self._slave = -1
@@ -83,15 +85,16 @@ class MPU6050BridgeEmulator:
 
     @classmethod
     def from_config(cls, cfg: dict, path: str = "device") -> "MPU6050BridgeEmulator":
-        """From a device section's ``simulator`` (board mapping or YAML path) and ``seed``."""
+        """From a device section's ``simulator`` (a board mapping, or a YAML file as ``board_config_from_file``
+        takes) and ``seed``."""
         from .simulated import SimulatedBoard
 
-        sim = cfg.get("simulator")
+        sim, file_seed = cfg.get("simulator"), None
         if isinstance(sim, str):
-            sim = load_yaml(sim)
+            sim, file_seed = board_config_from_file(sim)
         elif sim is not None and not isinstance(sim, dict):
             raise ConfigError(f"{path}.simulator: {sim!r}; allowed: a mapping or the path of a simulator YAML file")
-        seed = number(cfg, "seed", path, 0, 0, 2**32 - 1, integer=True) if cfg.get("seed") is not None else None
+        seed = number(cfg, "seed", path, 0, 0, 2**32 - 1, integer=True) if cfg.get("seed") is not None else file_seed
         return cls(SimulatedBoard.from_config(sim, chip="mpu6050", seed=seed, path=f"{path}.simulator"))
 
     # --- lifecycle ------------------------------------------------------------------------
@@ -324,7 +327,7 @@ class MPU6050BridgeEmulator:
         afs, dlpf, div = bp.CONFIGURE.unpack(p)
         if afs > 3 or dlpf > 6:
             return self._nak(bp.CMD_CONFIGURE, seq, bp.ERR_BAD_ARG)
-        rate = min(rate_base_hz(dlpf) / (1 + div), ACCEL_RATE_HZ)
+        rate = rate_base_hz(dlpf) / (1 + div)
         try:
             self.board.configure((2, 4, 8, 16)[afs], rate, dlpf)
         except ConfigError:

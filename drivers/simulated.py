@@ -32,7 +32,6 @@ import time
 from typing import Any
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..calibration import Calibration
 from ..config import check_keys, load_yaml, number
@@ -308,6 +307,8 @@ class SimulatedBoard:
             a = np.exp(-1.0 / (self.odr_hz * tau))  # s_k = a s_{k-1} + step_k on the ODR grid
             settle[0] = x0
             if len(t) > 1:
+                from scipy.signal import lfilter  # on first use: keeps start-up fast
+
                 settle[1:] = lfilter([1.0], [1.0, -a], steps[1:], axis=0, zi=(a * x0)[None])[0]
             self._settle, self._t_settle = settle[-1].copy(), float(t[-1])
         self._dir, self._f = d[-1].copy(), f[-1].copy()

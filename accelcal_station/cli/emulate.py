@@ -1,0 +1,80 @@
+"""`accelcal emulate mpu6050-bridge`: run the MPU6050 serial-bridge emulator on a new pseudo-terminal.
+
+Prints the terminal's path and keeps answering on it until Ctrl-C or SIGTERM, so the
+station can be tried end to end: point a config's ``port`` (or ``--port``) at the path.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import threading
+
+import click
+
+from ..drivers.mpu6050_emulator import MPU6050BridgeEmulator, board_config_from_file
+from ..drivers.simulated import SimulatedBoard
+
+KINDS = ("mpu6050-bridge", "motor-jig")
+
+
+@click.command("emulate")
+@click.argument("kind", type=click.Choice(KINDS))
+@click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=None, help="Seed of the simulated board.")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+              help="Simulated board YAML (e.g. configs/sim.yaml); its chip becomes an MPU6050.")
+@click.option("--motor-jig", "with_jig", is_flag=True,
+              help="mpu6050-bridge: also start a motorized jig emulator that turns the same board.")
+@click.option("--jig-speed", type=click.FloatRange(1.0, 1e5), default=180.0, show_default=True,
+              help="Jig axis speed in deg/s (motion runs in real time).")
+@click.option("--json", "as_json", is_flag=True, help="Print the port(s) as one JSON object.")
+def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool, jig_speed: float,
+            as_json: bool) -> None:
+    """Start an emulated device (or jig) on a new pseudo-terminal and print its path; Ctrl-C stops it.
+
+    \b
+    mpu6050-bridge              the MPU6050 serial bridge (docs/bridge-protocol.md)
+    mpu6050-bridge --motor-jig  the bridge plus a motorized jig holding the same board
+    motor-jig                   a motorized two-axis jig alone (docs/jig-protocol.md)
+    """
+    from ..fixtures.jig_emulator import JigEmulator
+
+    emus: list = []
+    ports: dict[str, str] = {}
+    board = None
+    if kind == "mpu6050-bridge":
+        board_cfg, cfg_seed = board_config_from_file(config_path) if config_path else (None, None)
+        board = SimulatedBoard.from_config(board_cfg, chip="mpu6050", seed=seed if seed is not None else cfg_seed,
+                                           path=f"{config_path}: device" if config_path else "simulator")
+        bridge = MPU6050BridgeEmulator(board)
+        emus.append(bridge)
+    if kind == "motor-jig" or with_jig:
+        jig = JigEmulator(board=board, speed_deg_s=jig_speed, accel_deg_s2=jig_speed * 4,
+                          board_lock=emus[0].lock if emus else None)
+        emus.append(jig)
+    done = threading.Event()
+    previous = {s: signal.signal(s, lambda *_: done.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        for e in emus:
+            started = e.start()
+            ports["jig_port" if isinstance(e, JigEmulator) else "port"] = e.port if started is e else started
+        if as_json:
+            click.echo(json.dumps({"emulator": kind, **ports, "seed": None if board is None else board.seed}))
+        else:
+            if "port" in ports:
+                click.echo(f"MPU6050 bridge emulator on {ports['port']} (seed {board.seed}; Ctrl-C to stop)")
+            if "jig_port" in ports:
+                click.echo(f"motorized jig emulator on {ports['jig_port']}")
+            if "port" in ports and "jig_port" in ports:
+                click.echo(f"try: accelcal run --config configs/mpu6050.yaml --port {ports['port']} "
+                           f"--jig-port {ports['jig_port']}")
+            elif "port" in ports:
+                click.echo(f"try: accelcal probe --config configs/mpu6050.yaml --port {ports['port']}")
+        while not done.wait(0.2):
+            pass
+    finally:
+        for e in emus:
+            e.stop()
+        for s, h in previous.items():
+            signal.signal(s, h)
+    if not as_json:
+        click.echo("emulator stopped", err=True)
