@@ -8,6 +8,7 @@ NVM -> record everything in the store.  A board that fails is never written.
 from __future__ import annotations
 
 import hashlib
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -193,6 +194,38 @@ class RunReport:
         }
 
 
+class CaptureProgress:
+    """A progress bar (stderr) for any capture that takes longer than a moment of wall time.
+
+    Virtual-clock captures finish in milliseconds and never show one; a real board at
+    100 Hz averaging for seconds does.
+    """
+
+    def __init__(self, label: str, after_s: float = 0.5):
+        self.label, self.after_s = label, after_s
+        self.t0 = time.monotonic()
+        self.bar = None
+        self.done = 0
+
+    def __call__(self, fraction: float) -> None:
+        if self.bar is None:
+            if time.monotonic() - self.t0 < self.after_s:
+                return
+            import click
+
+            self.bar = click.progressbar(length=1000, label=self.label, file=sys.stderr)
+            self.bar.__enter__()
+        step = int(1000 * min(max(fraction, 0.0), 1.0)) - self.done
+        if step > 0:
+            self.bar.update(step)
+            self.done += step
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+            self.bar = None
+
+
 class Station:
     """Runs the flow for one board at a time."""
 
@@ -227,14 +260,17 @@ class Station:
         while True:
             attempts += 1
             jig.present(pose, self._live(driver, StillnessGate(s, floor)) if isinstance(jig, OperatorJig) else None)
+            bar = CaptureProgress(f"  capturing {pose.name}")
             try:
-                gc = gated_capture(driver, s, pose.reference_g, floor)
+                gc = gated_capture(driver, s, pose.reference_g, floor, progress=bar)
             except WrongPose as e:
                 report.events.append(f"{pose.name}: {e}")
                 if not isinstance(jig, OperatorJig) or attempts > s.max_recaptures:
                     raise
                 self.echo(f"  refused: {e}")
                 continue
+            finally:
+                bar.close()
             self.samples_read += gc.samples_read
             self.samples_used += gc.capture.n
             for ev in gc.events:

@@ -150,3 +150,21 @@ def test_config_errors_name_the_key(tmp_path, changes, message):
     r = CliRunner().invoke(cli, ["run", "--config", sim_config(tmp_path, **changes)])
     assert r.exit_code == 2
     assert message in r.stderr and r.stderr.count("\n") == 1 and "Traceback" not in r.output
+
+
+def test_a_long_capture_shows_a_progress_bar_and_a_virtual_one_does_not(capsys):
+    from accelcal_station.capture import CaptureSettings, gated_capture
+    from accelcal_station.drivers.simulated import SimulatedBoard, SimulatedDriver
+    from accelcal_station.station import CaptureProgress
+
+    settings = CaptureSettings(target_sem_mg=0.12, hold_s=0.1, min_samples=32)
+    for realtime in (True, False):
+        board = SimulatedBoard.from_config({"realtime": realtime, "effects": {"noise": {}, "quantization": {}}},
+                                           seed=1)
+        with SimulatedDriver(board) as drv:
+            bar = CaptureProgress(f"capturing realtime={realtime}", after_s=0.2)
+            gc = gated_capture(drv, settings, None, progress=bar)
+            bar.close()
+        assert gc.reached_target
+    err = capsys.readouterr().err
+    assert "capturing realtime=True" in err and "capturing realtime=False" not in err

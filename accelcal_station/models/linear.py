@@ -87,6 +87,13 @@ def diagnose_underdetermined(gf: np.ndarray, model: str) -> str:
             return (f"the {P} poses lie in a plane (normal {n[0]:+.2f}, {n[1]:+.2f}, {n[2]:+.2f}): "
                     f"model {model} needs poses out of that plane")
     if model == "15":
+        # opposite pairs (p, -p): the four odd columns g_x, g_y, g_z, g_c^3 take only
+        # (number of pairs) independent values, so the cubic is lost among gain and cross-axis
+        d = gf / np.linalg.norm(gf, axis=1, keepdims=True)
+        paired = np.all(np.min(np.linalg.norm(d[:, None, :] + d[None, :, :], axis=-1), axis=1) < 0.1)
+        if paired and P // 2 < 4:
+            return (f"the {P} poses are {P // 2} opposite pairs: the cubic terms cannot be told from gain and "
+                    "cross-axis; model 15 needs at least 4 directions that are not opposite, e.g. an4399-8")
         for c in range(3):
             levels = np.unique(np.round(np.abs(gf[:, c]), 1))
             if len(levels) < 3 or np.all(np.isin(levels, (0.0, 1.0))):
