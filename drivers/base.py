@@ -79,6 +79,18 @@ class NVM(ABC):
     def write(self, addr: int, data: bytes) -> None:
         """Write data at addr; splits at page boundaries and waits for each write cycle."""
 
+    def page_chunks(self, addr: int, data: bytes):
+        """(address, bytes) pieces of a write that each stay inside one page (24Cxx page
+        writes wrap within their page, so a write must never cross a page boundary)."""
+        data = bytes(data)
+        self._check_range(addr, len(data))
+        i = 0
+        while i < len(data):
+            a = addr + i
+            chunk = data[i:i + self.page_size - a % self.page_size]
+            yield a, chunk
+            i += len(chunk)
+
     def _check_range(self, addr: int, n: int) -> None:
         if addr < 0 or n < 0 or addr + n > self.size:
             raise DeviceError(f"NVM access {addr}..{addr + n} outside 0..{self.size}")

@@ -100,15 +100,9 @@ class EEPROM24(NVM):
         return self.cells[addr:addr + n].tobytes()
 
     def write(self, addr: int, data: bytes) -> None:
-        data = bytes(data)
-        self._check_range(addr, len(data))
-        i = 0
-        while i < len(data):
-            a = addr + i
-            chunk = data[i:i + self.page_size - a % self.page_size]
+        for a, chunk in self.page_chunks(addr, data):
             self._wait()
             self._program(a, chunk)
-            i += len(chunk)
         self._wait()
 
     def _wait(self) -> None:

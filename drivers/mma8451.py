@@ -185,16 +185,10 @@ class I2CEeprom(NVM):
         return bytes(out)
 
     def write(self, addr: int, data: bytes) -> None:
-        data = bytes(data)
-        self._check_range(addr, len(data))
-        i = 0
-        while i < len(data):
-            a = addr + i
-            m = min(self.page_size - a % self.page_size, len(data) - i)
-            msg = i2c_msg.write(self.t.address, [a >> 8, a & 0xFF, *data[i:i + m]])
-            self.t.call("page write", None, self._msgs, msg, error=NVMError, what=self._where(a, m))
+        for a, chunk in self.page_chunks(addr, data):
+            msg = i2c_msg.write(self.t.address, [a >> 8, a & 0xFF, *chunk])
+            self.t.call("page write", None, self._msgs, msg, error=NVMError, what=self._where(a, len(chunk)))
             self._ready()
-            i += m
 
     def _ready(self) -> None:
         """ACK polling: address the part (setting its pointer, writing nothing) until it answers."""
