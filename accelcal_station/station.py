@@ -17,7 +17,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
-from .acceptance import Limits, Verdict, judge
+from .acceptance import Limits, judge
 from .calibration import Calibration
 from .capture import CaptureSettings, StillnessGate, WrongPose, gated_capture
 from .config import check_keys, choice, load_yaml, number

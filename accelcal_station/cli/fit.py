@@ -9,7 +9,7 @@ import numpy as np
 
 from ..conventions import check_units
 from ..errors import AccelcalError, DataError, UnitsError
-from ..models import MODELS, FitResult, fit, fit_session, fit_temperature
+from ..models import MODELS, FitResult, fit_session, fit_temperature
 from ..posetable import read_pose_table
 from ..rawlog import StaticDetection, detect_static, read_raw_log, to_session
 from ..session import Session

@@ -30,7 +30,7 @@ def check_model(model) -> str:
     return m
 
 
-def _check_plausible_g(gf: np.ndarray, units: str) -> None:
+def check_plausible_g(gf: np.ndarray, units: str) -> None:
     norms = np.linalg.norm(gf, axis=-1)
     med = float(np.median(norms))
     if not (0.3 <= med <= 3.0):
@@ -66,7 +66,7 @@ def fit_batch(readings, references=None, model="12", *, units: str = "g", counts
         scale = np.full(D, units_per_g(units, counts_per_g, gravity_mps2))
     gf = x / scale[:, None, None]
     if model != "9":
-        _check_plausible_g(gf, units)
+        check_plausible_g(gf, units)
     nz = None
     if noise is not None:
         nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]

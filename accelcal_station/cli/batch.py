@@ -1,0 +1,155 @@
+"""`accelcal batch`: recalibrate many boards from stored runs or pose tables with one model.
+
+Exit status: 0 every board fitted; 1 some boards skipped (each reported with its
+reason; the others' results are written); 2 bad input (no boards, a bad option,
+an unreadable store, an unwritable output).
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from ..batch import (BatchReport, expand_paths, record_in_store, recalibrate, sessions_from_files,
+                     sessions_from_store, summary_csv, write_calibrations)
+from ..conventions import check_units
+from ..errors import DataError, UnitsError
+from ..models import MODELS
+from ..store import Store
+from .fit import _clean, _number
+
+PROGRESS_MIN_BOARDS = 10  # below this a progress bar is noise
+
+
+def _bar(show: bool, length: int, label: str):
+    """A click progress bar on stderr (stdout stays the report), or a no-op."""
+    if not show:
+        return _NoBar()
+    return click.progressbar(length=length, label=label, file=sys.stderr, show_pos=True)
+
+
+class _NoBar:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return None
+
+    def update(self, n: int) -> None:
+        pass
+
+
+def _mg(v) -> str:
+    return "n/a" if v is None else f"{v * 1e3:.3f} mg"
+
+
+def _text(report: BatchReport, outputs: dict, list_all: bool) -> list[str]:
+    lines = []
+    for r in report.results:
+        who = r.source + (f" ({r.serial})" if r.serial else "")
+        if not r.ok:
+            lines.append(click.style("SKIP ", fg="red", bold=True) + f"{who}: {r.message}")
+        elif list_all:
+            lines.append(click.style("ok   ", fg="green") + f"{who}: {r.pose_count} poses, residual RMS "
+                         f"{_mg(r.residual_rms_g)}, leave-one-out {_mg(r.crossval_rms_g)}")
+    n, ok = len(report.results), len(report.fitted)
+    rms = sorted(r.residual_rms_g for r in report.fitted)
+    med = f", median residual RMS {_mg(rms[len(rms) // 2])}" if rms else ""
+    colour = "green" if ok == n else ("yellow" if ok else "red")
+    lines.append(click.style(f"{ok} of {n} boards recalibrated with model {report.model}", fg=colour, bold=True)
+                 + f"{med}; {n - ok} skipped; {report.fit_calls} fit call(s), {report.elapsed_s:.2f} s")
+    if "out_dir" in outputs:
+        lines.append(f"calibrations: {outputs['calibrations']} file(s) in {outputs['out_dir']}")
+    if "csv" in outputs:
+        lines.append(f"summary: {outputs['csv']}")
+    if "store" in outputs:
+        st = outputs["store"]
+        lines.append(f"store {st['path']}: {st['events']} recalibration event(s) on source runs, "
+                     f"{st['runs']} new run(s)")
+    return lines
+
+
+@click.command("batch")
+@click.argument("paths", nargs=-1, metavar="[POSE_TABLE|DIR|GLOB]...")
+@click.option("--from-store", "from_store", default=None, metavar="FILE",
+              help="Take boards from this results store (complete runs with poses).")
+@click.option("--lot", default=None, metavar="LOT", help="--from-store: only this lot.")
+@click.option("--device", multiple=True, metavar="SERIAL", help="--from-store: only these serials (repeatable).")
+@click.option("--station", default=None, metavar="ID", help="--from-store: only runs of this station.")
+@click.option("--since", default=None, metavar="TIME", help="--from-store: started at or after (ISO 8601).")
+@click.option("--until", default=None, metavar="TIME", help="--from-store: started before (ISO 8601).")
+@click.option("--run", "run_ids", multiple=True, metavar="ID", help="--from-store: only these run ids (repeatable).")
+@click.option("--model", default="12", show_default=True, metavar="6|9|12|15", help="Model to fit.")
+@click.option("--units", default=None, metavar="counts|g|mps2", help="Pose tables: units (default: each table's).")
+@click.option("--counts-per-g", "counts_per_g", default=None, metavar="N",
+              help="Pose tables: counts per g (default: each table's '# counts_per_g:').")
+@click.option("--gravity", default=None, metavar="M_S2", help="Pose tables in mps2: local gravity.")
+@click.option("--out-dir", default=None, metavar="DIR", help="Write one calibration JSON per fitted board here.")
+@click.option("--csv", "csv_path", default=None, metavar="FILE", help="Write a summary CSV (one row per board).")
+@click.option("--to-store", "to_store", default=None, metavar="FILE",
+              help="Record results in this results store (events on source runs when it is the --from-store "
+                   "file; new runs otherwise).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+@click.pass_context
+def command(ctx, paths, from_store, lot, device, station, since, until, run_ids, model, units, counts_per_g,
+            gravity, out_dir, csv_path, to_store, as_json) -> None:
+    """Recalibrate many boards with one model (vectorised); unfittable boards are reported and skipped.
+
+    Exit status 0: all boards fitted; 1: some skipped; 2: bad input.
+    """
+    if model not in MODELS:
+        raise DataError(f"--model {model!r}; allowed: {', '.join(MODELS)}")
+    if units is not None:
+        try:
+            check_units(units)
+        except UnitsError as e:
+            raise UnitsError(f"--units: {e}") from None
+    cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
+    store_filters = {"lot": lot, "device": list(device) or None, "station": station, "since": since,
+                     "until": until, "run_ids": [_number(i, "--run", integer=True) for i in run_ids] or None}
+    if from_store is None and any(v is not None for v in store_filters.values()):
+        flag = next(k for k, v in store_filters.items() if v is not None).replace("run_ids", "run").replace("_", "-")
+        raise DataError(f"--{flag} filters runs of a results store; add --from-store FILE")
+    if not paths and from_store is None:
+        raise DataError("no boards given; pass pose tables, directories or globs, or --from-store FILE")
+    for p in (csv_path,):
+        if p is not None and not Path(p).resolve().parent.is_dir():
+            raise DataError(f"--csv {p}: cannot write (no such directory {Path(p).parent})")
+
+    sources = []
+    if from_store is not None:
+        with Store(from_store, create=False) as st:
+            sources += sessions_from_store(st, **store_filters)
+    files = expand_paths(paths)
+    show = not as_json and len(files) + len(sources) > PROGRESS_MIN_BOARDS
+    with _bar(show and len(files) > PROGRESS_MIN_BOARDS, len(files), "reading pose tables") as bar:
+        sources += sessions_from_files(files, units, cpg, grav, model, progress=bar.update)
+    if not sources:
+        raise DataError(f"{from_store}: no complete runs with poses match the filters")
+    with _bar(show, len(sources), f"fitting model {model}") as bar:
+        report = recalibrate(sources, model, progress=bar.update)
+
+    outputs: dict = {}
+    written: dict = {}
+    if out_dir is not None:
+        written = write_calibrations(report, out_dir)
+        outputs.update(out_dir=str(out_dir), calibrations=len(written))
+    if csv_path is not None:
+        summary_csv(report, csv_path)
+        outputs["csv"] = str(csv_path)
+    if to_store is not None:
+        with Store(to_store) as st:
+            outputs["store"] = {"path": str(to_store), **record_in_store(report, st, source_store=from_store)}
+
+    if as_json:
+        doc = report.to_dict()
+        doc["outputs"] = outputs
+        for d in doc["results"]:
+            d["file"] = str(written[d["source"]]) if d["source"] in written else None
+        click.echo(json.dumps(_clean(doc), allow_nan=False))
+    else:
+        click.echo("\n".join(_text(report, outputs, list_all=not outputs)))
+    if report.skipped:
+        ctx.exit(1)
