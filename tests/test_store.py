@@ -306,7 +306,7 @@ def test_refuses_foreign_and_newer_files(tmp_path):
         Store(tmp_path / "fresh.sqlite").get_run(5)
 
 
-def test_report_cli(db, tmp_path):
+def test_report_cli(db, tmp_path, monkeypatch):
     from click.testing import CliRunner
 
     from accelcal_station.cli import cli
@@ -323,7 +323,8 @@ def test_report_cli(db, tmp_path):
     assert [x["device_serial"] for x in json.loads(r.output)] == ["SN0001"]
     r = run(cli, ["report", "list", "--db", str(db)])
     assert r.exit_code == 0 and "operator abort" in r.output and r.output.strip().endswith("4 run(s)")
-    (tmp_path / "station.yaml").write_text("store:\n  path: sub/runs.sqlite\n")  # relative to the config
+    (tmp_path / "station.yaml").write_text("store:\n  path: sub/runs.sqlite\n")  # relative to the cwd
+    monkeypatch.chdir(tmp_path)
     r = run(cli, ["report", "summary", "--config", str(tmp_path / "station.yaml"), "--lot", "L1", "--json"])
     assert r.exit_code == 0 and json.loads(r.output) == json.loads(json.dumps(expect))
     r = run(cli, ["report", "summary", "--db", str(db)])
@@ -336,7 +337,7 @@ def test_report_cli(db, tmp_path):
     r = run(cli, ["report", "show", "2", "--db", str(db), "--json"])
     assert r.exit_code == 0 and json.loads(r.output)["reasons"] == ["offset_max_mg 80 > limit 60 (offset)"]
     for args, msg in [(["list", "--db", str(tmp_path / "none.sqlite")], "none.sqlite: no results store there"),
-                      (["list"], "no results store given"),
+                      (["list"], "accelcal-runs.sqlite: no results store there"),  # the default station's
                       (["list", "--db", str(db), "--verdict", "ok"], "--verdict 'ok'; allowed: PASS, FAIL"),
                       (["list", "--db", str(db), "--since", "soon"], "since 'soon': not a date"),
                       (["export", "--db", str(db), "--format", "xml"], "--format 'xml'; allowed: csv, json"),

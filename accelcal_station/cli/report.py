@@ -13,7 +13,8 @@ from ..store import PARAM_NAMES, VERDICTS, STATUSES, Store, store_path
 
 def _filter_options(f):
     opts = [
-        click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file)."),
+        click.option("--db", default=None, metavar="FILE",
+                     help="Results store (SQLite file); default: the store of --config or of the default station."),
         click.option("--config", "config_path", default=None, metavar="FILE",
                      help="Station config naming the store (store.path)."),
         click.option("--device", multiple=True, metavar="SERIAL", help="Only these device serials (repeatable)."),
@@ -31,10 +32,13 @@ def _filter_options(f):
 
 
 def _open(db, config_path) -> Store:
-    if db is None and config_path is None:
-        raise DataError("no results store given; pass --db FILE or --config FILE (with store.path)")
-    path = Path(db) if db is not None else store_path(load_yaml(config_path), Path(config_path).parent)
-    return Store(path, create=False)
+    """--db, else the store of --config, else that of the default station (as `accelcal run`)."""
+    if db is not None:
+        return Store(Path(db), create=False)
+    from ..station import default_config_path
+
+    # relative store paths are taken from the current directory, as `accelcal run` does
+    return Store(store_path(load_yaml(config_path or default_config_path()), Path.cwd()), create=False)
 
 
 def _filters(device, lot, station, operator, verdict, status, since, until) -> dict:
