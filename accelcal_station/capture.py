@@ -77,10 +77,11 @@ class GatedCapture:
 
 @lru_cache(maxsize=64)
 def _chi_quartile(n: int) -> float:
-    """25th percentile of s / sigma for n samples (chi distribution, n - 1 dof)."""
-    from scipy.stats import chi2  # imported on first use: scipy.stats costs a second at start-up
-
-    return float(np.sqrt(chi2.ppf(0.25, n - 1) / (n - 1)))
+    """25th percentile of s / sigma for n samples: chi with n - 1 dof, by the
+    Wilson-Hilferty cube-root approximation (within 0.7 % for n >= 4; no scipy import in the capture loop)."""
+    k = n - 1
+    z = -0.6744897501960817  # standard normal 25th percentile
+    return float(np.sqrt((1.0 - 2.0 / (9 * k) + z * np.sqrt(2.0 / (9 * k))) ** 3))
 
 
 class StillnessGate:

@@ -1,0 +1,141 @@
+"""Station time per board against the sampling floor, on the simulated board at its real data rate.
+
+    python benchmarks/bench_station_time.py [--boards 10] [--config configs/sim.yaml] [--small]
+
+Runs ``accelcal run``'s Station on the default simulated configuration (MMA8451
+at 100 Hz, 8 poses an4399-8, model 12, 3 verification poses, NVM burn, SQLite
+store) for ``--boards`` boards (fixed seeds), and again with the jig's
+``move_time_s`` set to 0, which leaves the station's own overhead.  Time is
+*virtual*: the board's clock advances by n / ODR per n samples, by the jig's
+move time per pose and by the EEPROM's write cycles, without waiting; a board's
+time is that device time plus the host's wall-clock compute (RunReport.timing:
+board_time_s = device_time_s + host_compute_s).
+
+Split per board (mean): the sampling floor (samples averaged / ODR, fit and
+verification poses), samples read but not averaged (waiting for stillness and
+the hold time), jig moves (poses presented x move_time_s), other device time
+(EEPROM write cycles and read-back), host compute (fit, simulation, store).
+The floor itself is set by the capture target: averaging to a standard error
+of ``capture.target_sem_mg`` needs (sigma / target)^2 samples per pose.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import dataclasses
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import table  # noqa: E402
+
+from accelcal_station.drivers import make_driver  # noqa: E402
+from accelcal_station.fixtures.designs import get_design  # noqa: E402
+from accelcal_station.station import Station, StationConfig  # noqa: E402
+
+COMPONENTS = ("floor_fit", "floor_verify", "gating", "moves", "other_device", "host")
+LABELS = {
+    "floor_fit": "sampling floor: fit poses (averaged / ODR)",
+    "floor_verify": "sampling floor: verification poses",
+    "gating": "samples read, not averaged (stillness, hold)",
+    "moves": "jig moves (poses presented x move_time_s)",
+    "other_device": "other device time (EEPROM writes, read-back)",
+    "host": "host compute (fit, simulator, store; wall)",
+}
+
+
+def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, dict]:
+    """Mean seconds per component over ``boards`` runs, and facts of the runs.
+
+    One extra board runs first and is not counted: it pays the process's one-time
+    imports (scipy.stats for the capture gate), which no later board pays.
+    """
+    move = float((cfg.raw.get("jig") or {}).get("move_time_s", 2.0))
+    acc = {k: [] for k in COMPONENTS + ("total", "device")}
+    facts = {"verdicts": [], "samples_per_pose": []}
+    Station(cfg, echo=lambda *_: None, driver=make_driver({**cfg.raw["device"], "seed": seed - 1})).run()
+    for i in range(boards):
+        driver = make_driver({**cfg.raw["device"], "seed": seed + i})
+        rep = Station(cfg, echo=lambda *_: None, driver=driver).run()
+        t = rep.timing
+        odr = t["odr_hz"]
+        n_fit = sum(p["n"] for p in rep.poses)
+        n_verify = t["samples_averaged"] - n_fit
+        presented = len(rep.poses) + (cfg.verify_poses if rep.verify_error_max_mg is not None else 0)
+        moves = presented * move
+        acc["floor_fit"].append(n_fit / odr)
+        acc["floor_verify"].append(n_verify / odr)
+        acc["gating"].append((t["samples_read"] - t["samples_averaged"]) / odr)
+        acc["moves"].append(moves)
+        acc["other_device"].append(t["device_time_s"] - t["sampling_s"] - moves)
+        acc["host"].append(t["host_compute_s"])
+        acc["device"].append(t["device_time_s"])
+        acc["total"].append(t["board_time_s"])
+        facts["verdicts"].append(rep.verdict)
+        facts["samples_per_pose"] += [p["n"] for p in rep.poses]
+        facts["odr_hz"] = odr
+    return {k: float(np.mean(v)) for k, v in acc.items()}, facts
+
+
+def needed_samples(cfg: StationConfig) -> float:
+    """(sigma / target)^2: samples one pose needs to reach the capture target, per the
+    simulated chip's noise (white noise and the LSB^2/12 of quantization)."""
+    board = make_driver({**cfg.raw["device"], "seed": 0}).board
+    sigma = float(np.max(board.noise_sigma_counts))
+    target = cfg.capture.target_sem_mg * 1e-3 * board.counts_per_g
+    return (sigma**2 + 1.0 / 12.0) / target**2
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--boards", type=int, default=10, help="boards per configuration (default 10)")
+    ap.add_argument("--config", default=None, help="station configuration (default: configs/sim.yaml)")
+    ap.add_argument("--seed", type=int, default=100)
+    ap.add_argument("--small", action="store_true", help="a quick run: 2 boards per configuration")
+    a = ap.parse_args(argv)
+    if a.small:
+        a.boards = min(a.boards, 2)
+    if a.boards < 1:
+        print("error: --boards must be >= 1", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory(prefix="accelcal-bench-") as tmp:
+        cfg = StationConfig.load(a.config, store_override=Path(tmp) / "runs.sqlite")
+        if cfg.raw["device"].get("driver") != "simulated" or (cfg.raw.get("jig") or {}).get("type", "simulated") \
+                != "simulated":
+            print("error: --config: this benchmark needs device.driver: simulated and jig.type: simulated",
+                  file=sys.stderr)
+            return 2
+        raw0 = copy.deepcopy(cfg.raw)
+        raw0.setdefault("jig", {"type": "simulated"})["move_time_s"] = 0.0
+        cfg0 = dataclasses.replace(cfg, raw=raw0)
+        move = float((cfg.raw.get("jig") or {}).get("move_time_s", 2.0))
+        res, facts = run_boards(cfg, a.boards, a.seed)
+        res0, _ = run_boards(cfg0, a.boards, a.seed)
+    n_need = needed_samples(cfg)
+    poses = len(get_design(cfg.design)) + cfg.verify_poses
+    theory = poses * n_need / facts["odr_hz"]
+    print(f"station time per board (virtual time: device clock + host wall compute), mean of {a.boards} simulated "
+          f"boards per column: {cfg.raw['device'].get('chip', 'mma8451')} at {facts['odr_hz']:g} Hz, design "
+          f"{cfg.design} + {cfg.verify_poses} verification poses, model {cfg.model}, capture target "
+          f"{cfg.capture.target_sem_mg:g} mg")
+    print(f"verdicts: {', '.join(sorted(set(facts['verdicts'])))}; samples averaged per pose: mean "
+          f"{np.mean(facts['samples_per_pose']):.0f} (the noise needs {n_need:.0f} for the target)")
+    rows = []
+    for k in COMPONENTS:
+        rows.append([LABELS[k], f"{res[k]:.2f}", f"{res[k] / res['total']:.0%}", f"{res0[k]:.2f}",
+                     f"{res0[k] / res0['total']:.0%}"])
+    floor, floor0 = res["floor_fit"] + res["floor_verify"], res0["floor_fit"] + res0["floor_verify"]
+    rows.append(["total board time", f"{res['total']:.2f}", "100%", f"{res0['total']:.2f}", "100%"])
+    rows.append(["ratio: total / sampling floor", f"{res['total'] / floor:.2f}", "", f"{res0['total'] / floor0:.2f}", ""])
+    rows.append(["ratio: total / noise-limited floor", f"{res['total'] / theory:.2f}", "",
+                 f"{res0['total'] / theory:.2f}", ""])
+    print(table(["seconds per board", f"moves {move:g} s", "share", "moves 0 s", "share"], rows))
+    print(f"noise-limited floor: {poses} poses x {n_need:.0f} samples / {facts['odr_hz']:g} Hz = {theory:.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,126 @@
+"""Every benchmark runs with tiny sizes and prints its table with finite ratios (benchmarks/)."""
+from __future__ import annotations
+
+import importlib.util
+import math
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+DASHES = re.compile(r"^-+(  -+)+$")
+
+
+def load(name: str):
+    """A benchmark script as a module (its own folder goes on sys.path for benchlib)."""
+    spec = importlib.util.spec_from_file_location(f"bench_smoke_{name}", BENCH / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def run(capsys, name: str, *argv: str) -> str:
+    assert load(name).main(list(argv)) == 0
+    return capsys.readouterr().out
+
+
+def tables(out: str) -> list[list[list[str]]]:
+    """Every fixed-width table printed (rows split on runs of 2+ spaces), header excluded."""
+    lines = out.splitlines()
+    found = []
+    for i, line in enumerate(lines):
+        if DASHES.match(line):
+            rows = []
+            for r in lines[i + 1:]:
+                cells = re.split(r"\s{2,}", r.strip())
+                if len(cells) < 2:  # a note under the table
+                    break
+                rows.append(cells)
+            found.append(rows)
+    return found
+
+
+def number(cell: str) -> float:
+    v = float(cell.rstrip("%"))
+    assert math.isfinite(v), cell
+    return v
+
+
+def test_accuracy_ratios_near_the_limit(capsys):
+    out = run(capsys, "bench_accuracy", "--boards", "12", "--heldout", "2", "--samples", "64", "--optimal", "0")
+    (rows,) = tables(out)
+    mod = load("bench_accuracy")
+    assert [(r[0], r[1]) for r in rows] == [(m, d) for m in ("6", "12", "15", "9") for d in mod.PLAN[m]]
+    for r in rows:
+        assert r[3] == "12/12"
+        ratios = [number(c) for c in r[4:7] if c != "-"] + [number(r[9])]
+        # pooled RMS over 12 boards x >= 3 parameters: outside 0.3..3 has probability < 1e-9
+        assert all(0.3 < v < 3.0 for v in ratios), r
+        # a fitted calibration is never better than the true one on the same readings, beyond chance
+        assert number(r[11]) > 0.8, r
+
+
+def test_peers_table_and_identical_solvers(capsys):
+    out = run(capsys, "bench_peers", "--boards", "10", "--heldout", "2", "--samples", "32")
+    methods, ratios = tables(out)
+    names = [r[0] for r in methods]
+    try:
+        importlib.import_module("imucal")
+        have_imucal = True
+    except ImportError:
+        have_imucal = False
+    if have_imucal:
+        assert names[0].startswith("imucal ") and ratios[0][0].startswith("imucal Ferraris")
+    else:
+        assert "imucal not installed: pip install -e '.[bench]'" in out
+    assert names[-5:] == ["accelcal model 12", "scipy least_squares, 9-param", "accelcal model 9",
+                          "accelcal model 12", "true calibration (noise only)"]
+    for r in ratios:
+        assert all(number(c) > 0 for c in r[1:])
+    # scipy and accelcal minimise the same cost: same answer to print precision
+    assert ratios[-1][1:] == ["1.00", "1.00", "1.00", "1.00"]
+
+
+def test_batch_fit_rates(capsys):
+    out = run(capsys, "bench_batch_fit", "--boards", "200", "--loop-boards", "8")
+    rows = [ln.split() for ln in out.splitlines() if re.match(r"^\s+(6|9|12|15) ", ln)]
+    assert [r[0] for r in rows] == ["6"] * 3 + ["12"] * 3 + ["15"] * 3 + ["9"] * 4
+    assert all(number(r[-1]) > 0 and number(r[-3]) > 0 for r in rows)
+
+
+def test_batch_end_to_end_and_memory(capsys):
+    out = run(capsys, "bench_batch", "--boards", "20", "--loop-boards", "5", "--store-boards", "5",
+              "--memory-boards", "200")
+    e2e, mem = tables(out)
+    assert [r[0] for r in e2e] == ["files", "files", "files", "store"]
+    assert all(number(r[3]) > 0 for r in e2e) and number(e2e[2][-1]) > 0
+    assert [r[0] for r in mem] == [f"fit_batch model {m} ({d})" for m, d in
+                                  (("6", "an4399-8"), ("12", "an4399-8"), ("15", "an4399-8"), ("9", "nine-position"))
+                                  ] + ["batch.recalibrate model 12 (an4399-8)"]
+    # a fit keeps at least its inputs' worth of results per board
+    assert all(number(r[2]) > 0 for r in mem[:4])
+
+
+def test_station_time_above_floor(capsys):
+    out = run(capsys, "bench_station_time", "--boards", "1")
+    (rows,) = tables(out)
+    by = {r[0]: r[1:] for r in rows}
+    assert "verdicts: PASS" in out
+    moved, still = by["ratio: total / sampling floor"]
+    # board time includes the averaged samples, so it can never be below the sampling floor
+    assert number(moved) > number(still) >= 1.0
+    assert number(by["jig moves (poses presented x move_time_s)"][0]) == 22.0  # 11 poses x 2 s
+
+
+def test_bad_arguments_exit_2(capsys):
+    assert load("bench_accuracy").main(["--models", "7"]) == 2
+    assert "error: --models" in capsys.readouterr().err
+
+
+@pytest.fixture(autouse=True)
+def _keep_sys_path():
+    saved = list(sys.path)
+    yield
+    sys.path[:] = saved
