@@ -14,11 +14,9 @@ import click
 
 from ..batch import (BatchReport, expand_paths, record_in_store, recalibrate, sessions_from_files,
                      sessions_from_store, summary_csv, write_calibrations)
-from ..conventions import check_units
-from ..errors import DataError, UnitsError
-from ..models import MODELS
+from ..errors import DataError
 from ..store import Store
-from .fit import _clean, _number
+from ._common import check_model_units, jsonable as _clean, parse_number as _number
 
 PROGRESS_MIN_BOARDS = 10  # below this a progress bar is noise
 
@@ -99,13 +97,7 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
 
     Exit status 0: all boards fitted; 1: some skipped; 2: bad input.
     """
-    if model not in MODELS:
-        raise DataError(f"--model {model!r}; allowed: {', '.join(MODELS)}")
-    if units is not None:
-        try:
-            check_units(units)
-        except UnitsError as e:
-            raise UnitsError(f"--units: {e}") from None
+    check_model_units(model, units)
     cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
     store_filters = {"lot": lot, "device": list(device) or None, "station": station, "since": since,
                      "until": until, "run_ids": [_number(i, "--run", integer=True) for i in run_ids] or None}

@@ -2,50 +2,16 @@
 from __future__ import annotations
 
 import json
-import math
 
 import click
 import numpy as np
 
-from ..conventions import check_units
 from ..errors import AccelcalError, DataError, UnitsError
-from ..models import MODELS, FitResult, fit_session, fit_temperature
+from ..models import FitResult, fit_session, fit_temperature
 from ..posetable import read_pose_table
 from ..rawlog import StaticDetection, detect_static, read_raw_log, to_session
 from ..session import Session
-
-
-def _number(value: str | None, flag: str, integer: bool = False, positive: bool = True):
-    """Parse a numeric option ourselves so a typo is one line, not a usage screen."""
-    if value is None:
-        return None
-    try:
-        v = int(value) if integer else float(value)
-    except ValueError:
-        v = math.nan
-    if not math.isfinite(v) or (v <= 0 if positive else v < 0):
-        kind = "whole number" if integer else "number"
-        raise DataError(f"{flag} {value!r}; allowed: a {'positive' if positive else 'non-negative'} {kind}")
-    return v
-
-
-def _clean(o):
-    """JSON-safe: numpy to Python, non-finite floats to null (never NaN in output)."""
-    if isinstance(o, dict):
-        return {k: _clean(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _clean(o.tolist())
-    if isinstance(o, (np.floating, float)):
-        return float(o) if math.isfinite(o) else None
-    if isinstance(o, np.integer):
-        return int(o)
-    return o
-
-
-def _fit_one(session: Session, model: str) -> FitResult:
-    return fit_session(session, model)
+from ._common import check_model_units, jsonable as _clean, parse_number as _number
 
 
 def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate):
@@ -140,13 +106,7 @@ def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns
             output) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
     model = model if model is not None else ("9" if raw else "12")
-    if model not in MODELS:
-        raise DataError(f"--model {model!r}; allowed: {', '.join(MODELS)}")
-    if units is not None:
-        try:
-            check_units(units)
-        except UnitsError as e:
-            raise UnitsError(f"--units: {e}") from None
+    check_model_units(model, units)
     if temp_method not in ("linear", "quadratic"):
         raise DataError(f"--temp-method {temp_method!r}; allowed: linear, quadratic")
     cpg = _number(counts_per_g, "--counts-per-g")
@@ -167,7 +127,7 @@ def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns
             cal, fits = fit_temperature(session, model, temp_method)
             subs = [sub for _, sub in temps]
         else:
-            fits = [(None, _fit_one(session, model))]
+            fits = [(None, fit_session(session, model))]
             cal, subs = fits[0][1].calibration, [session]
     except AccelcalError as e:
         found = f" (found {len(session)} static intervals in the raw log)" if rawinfo else ""

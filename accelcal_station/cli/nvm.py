@@ -27,7 +27,7 @@ from ..drivers import make_driver
 from ..errors import DeviceError, NVMError
 from ..store import iso
 from ..writer import CalibrationWriter, SlotStatus
-from .fit import _clean
+from ._common import jsonable as _clean
 from .probe import device_section
 
 

@@ -2,14 +2,13 @@
 from __future__ import annotations
 
 import json
-import math
 
 import click
-import numpy as np
 
 from ..config import load_yaml
 from ..drivers import make_driver
 from ..errors import ConfigError, DeviceError
+from ._common import jsonable
 
 
 def device_section(path: str) -> dict:
@@ -31,18 +30,6 @@ def _with_port(section: dict, port: str) -> dict:
     else:
         section["port"] = port
     return section
-
-
-def _jsonable(o):
-    if isinstance(o, dict):
-        return {k: _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple, np.ndarray)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, (float, np.floating)):
-        return float(o) if math.isfinite(o) else None
-    if isinstance(o, np.integer):
-        return int(o)
-    return o
 
 
 @click.command("probe")
@@ -76,7 +63,7 @@ def command(config_path: str, port: str | None, readings: int, samples: int, as_
                       "mean_g": c.mean_counts / cpg, "t_start": c.t_start, "t_end": c.t_end} for c in caps],
     }
     if as_json:
-        click.echo(json.dumps(_jsonable(result)))
+        click.echo(json.dumps(jsonable(result)))
         return
     click.echo(f"device       {ident.chip} (chip id 0x{ident.chip_id:02X}) on {ident.interface}"
                + (f", serial {ident.serial}" if ident.serial else "")

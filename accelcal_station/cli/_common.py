@@ -1,0 +1,51 @@
+"""Helpers shared by the commands (the leading underscore keeps this module from being
+registered as a command)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..conventions import check_units
+from ..errors import DataError, UnitsError
+from ..models import MODELS
+
+
+def parse_number(value: str | None, flag: str, integer: bool = False, positive: bool = True):
+    """Parse a numeric option ourselves so a typo is one line, not a usage screen."""
+    if value is None:
+        return None
+    try:
+        v = int(value) if integer else float(value)
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v) or (v <= 0 if positive else v < 0):
+        kind = "whole number" if integer else "number"
+        raise DataError(f"{flag} {value!r}; allowed: a {'positive' if positive else 'non-negative'} {kind}")
+    return v
+
+
+def jsonable(o):
+    """JSON-safe: numpy to Python, non-finite floats to null (never NaN in output)."""
+    if isinstance(o, dict):
+        return {k: jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [jsonable(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return jsonable(o.tolist())
+    if isinstance(o, (np.floating, float)):
+        return float(o) if math.isfinite(o) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    return o
+
+
+def check_model_units(model: str, units: str | None) -> None:
+    """--model and --units as one line each when wrong."""
+    if model not in MODELS:
+        raise DataError(f"--model {model!r}; allowed: {', '.join(MODELS)}")
+    if units is not None:
+        try:
+            check_units(units)
+        except UnitsError as e:
+            raise UnitsError(f"--units: {e}") from None

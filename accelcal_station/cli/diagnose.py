@@ -1,0 +1,66 @@
+"""`accelcal diagnose`: find the sim-to-real gap, the catalog effect behind it, and how far it shrinks."""
+from __future__ import annotations
+
+import json
+
+import click
+
+from ..diagnose import diagnose, load_data, load_simulator, selftest as run_selftest, to_json
+from ..diagnose_report import check_report_dir, selftest_lines, summary_lines, write_report
+from ..errors import DataError
+from ._common import jsonable as _clean, parse_number as _number
+
+
+@click.command("diagnose")
+@click.argument("files", nargs=-1, metavar="FILES...")
+@click.option("--config", default=None, metavar="FILE",
+              help="Station YAML whose simulated device is supposed to describe the boards (default configs/sim.yaml).")
+@click.option("--raw", is_flag=True, help="FILES are raw sample logs: find their static poses automatically.")
+@click.option("--units", default=None, metavar="counts|g|mps2", help="Units of the readings (default: the file's).")
+@click.option("--counts-per-g", "counts_per_g", default=None, metavar="N",
+              help="Counts per g of the data (default: the file's, else estimated from the readings' norm).")
+@click.option("--gravity", default=None, metavar="M_S2", help="Local gravity in m/s^2 for --units mps2.")
+@click.option("--columns", default=None, metavar="NAMES", help="Raw log columns, e.g. t,x,y,z or -,-,x,y,z.")
+@click.option("--skip-rows", default=None, metavar="N", help="Raw log: lines to skip at the top.")
+@click.option("--rate", default=None, metavar="HZ",
+              help="Sample rate in Hz: of a raw log without a time column, or of the samples behind a pose table's "
+                   "std (default: the simulator's ODR); it sets the simulated noise bandwidth.")
+@click.option("--samples", default=None, metavar="N",
+              help="Samples averaged per pose, when the data do not say (default 1: a per-sample floor).")
+@click.option("--norm-only", is_flag=True, help="Ignore references: analyse the norm of the readings only.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the summary.")
+@click.option("--report", "report_dir", default=None, metavar="DIR",
+              help="Write PNG figures and summary.md to DIR (needs matplotlib: the report extra).")
+@click.option("--selftest", is_flag=True,
+              help="Simulate boards with each catalog effect, withhold it from the configuration, and check "
+                   "that the diagnosis names it (exit 1 if not).")
+@click.option("--seed", type=click.IntRange(0, None), default=1, show_default=True, help="Self-test seed.")
+@click.pass_context
+def command(ctx, files, config, raw, units, counts_per_g, gravity, columns, skip_rows, rate, samples, norm_only,
+            as_json, report_dir, selftest, seed) -> None:
+    """Diagnose the sim-to-real gap of real data against the simulator configuration."""
+    if selftest:
+        if files or report_dir:
+            raise DataError("--selftest simulates its own data; give no FILES and no --report with it")
+        result = run_selftest(config, seed)
+        click.echo(json.dumps(_clean(result), allow_nan=False) if as_json else "\n".join(selftest_lines(result)))
+        if not result["passed"]:
+            ctx.exit(1)
+        return
+    out_dir = check_report_dir(report_dir) if report_dir else None
+    sim = load_simulator(config)
+    data = load_data(list(files), raw, units, _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity"),
+                     columns, _number(skip_rows, "--skip-rows", integer=True, positive=False), _number(rate, "--rate"),
+                     _number(samples, "--samples", integer=True), norm_only)
+    d = diagnose(data, sim)
+    js = _clean(to_json(d))
+    if out_dir is not None:
+        written = write_report(d, out_dir, js)
+        js["report"] = [str(p) for p in written]
+    if as_json:
+        click.echo(json.dumps(js, allow_nan=False))
+    else:
+        lines = summary_lines(d)
+        if out_dir is not None:
+            lines.append(f"report: {out_dir}/summary.md and {len(js['report']) - 1} figures")
+        click.echo("\n".join(lines))

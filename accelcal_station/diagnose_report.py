@@ -1,0 +1,351 @@
+"""What `accelcal diagnose` says: the human summary, the self-test table, figures and markdown.
+
+Figures need matplotlib (the ``report`` extra) and use the Agg backend; every file
+is written to a temporary name and renamed, so a report directory never holds a
+half-written file.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .diagnose import MIN_GAP_SHRINK, Diagnosis, explained
+from .errors import AccelcalError, DataError
+from .posetable import atomic_write_text
+
+FIGURES = {"sphere": "residuals over the sphere of orientations", "level": "residual against input level",
+           "temperature": "residual against temperature", "time": "residual against time in capture"}
+
+
+# -- text ---------------------------------------------------------------------------------------------
+
+def _g(x) -> str:
+    return "n/a" if x is None or not np.isfinite(x) else (f"{x:.3g}" if x < 100 else f"{x:.0f}")
+
+
+def config_hint(effect: str, fitted: dict) -> dict | None:
+    """The fitted effect as simulator-configuration parameters (approximate where W is not I)."""
+    f = fitted
+    try:
+        if effect == "cubic":
+            return {"cubic_per_g2": [-f[f"Gamma_{a}"] for a in "xyz"]}  # AN4399 Eqn 67: Gamma = -c
+        if effect == "quadratic":
+            return {"quadratic_per_g": [-f[f"Q_{a}"] for a in "xyz"]}
+        if effect == "offset":
+            return {"offset_mg": [-1e3 * f[f"V_{a}"] for a in "xyz"]}
+        if effect == "gain":
+            return {"gain": [1.0 / f[f"W_{a}{a}"] for a in "xyz"]}
+        if effect == "temperature":
+            return {"offset_mg_per_c": [-1e3 * f[f"offset_{a}_per_25C"] / 25.0 for a in "xyz"],
+                    "gain_ppm_per_c": [-1e6 * f[f"gain_{a}_per_25C"] / 25.0 for a in "xyz"]}
+        if effect == "noise":
+            return {"density_ug_per_rthz": f["density_ug_per_rthz"]}
+        if effect == "quantization":
+            return {"lsb_counts": int(round(f["lsb_counts"]))}
+        if effect == "pose_error":
+            return {"scatter_deg": f["scatter_deg"]}
+        if effect == "settling":
+            return {"tau_s": f["settling_tau_s"]}
+        if effect == "drift":
+            return {"warmup_mg": [1e3 * f[f"warmup_{a}"] for a in "xyz"], "warmup_tau_s": f["drift_tau_s"]} \
+                if "drift_tau_s" in f else {"warmup_tau_s": f.get("drift_tau_s_time")}
+    except KeyError:
+        return None
+    return None
+
+
+def _yaml_inline(d: dict) -> str:
+    def v(x):
+        if isinstance(x, list):
+            return "[" + ", ".join(v(y) for y in x) + "]"
+        return f"{x:.4g}" if isinstance(x, float) else str(x)
+    return "{" + ", ".join(f"{k}: {v(x)}" for k, x in d.items()) + "}"
+
+
+def summary_lines(d: Diagnosis) -> list[str]:
+    """The human summary: gap, where, which, how far, and what to do."""
+    data, sim, b = d.data, d.sim, d.base
+    kind = ("references" if not data.norm_only else "norm only (no references)") + \
+        (f", raw captures at {data.rate_hz:g} Hz" if data.captures is not None else "")
+    n_txt = f"{np.median(data.n):.0f} samples/pose" + ("" if data.n_known else " (assumed)")
+    temps = "" if data.temp_c is None else f", {data.n_temps} temperature(s)"
+    fl = d.floor
+    out = [f"accelcal diagnose: {data.P} poses from {', '.join(data.sources)} ({kind}; {n_txt}{temps})",
+           f"simulator {sim.source}: {', '.join(sim.enabled) or 'no effects'}; fitted baseline: "
+           f"{', '.join(sim.baseline) or 'nothing (W = I)'}; floor from noise "
+           f"{1e3 * float(np.mean(fl.sigma_g)):.3g} mg/sample at {data.rate_hz or sim.odr_hz:g} Hz"
+           f" and a {1e3 * fl.q_g:.3g} mg LSB"]
+    out += [f"note: {n}" for n in data.notes]
+    if not d.static_ok:
+        out.append(f"note: no static view: {d.static_why}")
+    out.append("")
+    exp = 1e3 * b.expected_rms_g
+    out.append(f"GAP  held-out residual {1e3 * b.rms_g:.4g} mg RMS against {exp:.3g} mg expected from the simulator: "
+               f"ratio {_g(d.gap_before)} (1.0 = the simulator explains the data)")
+    views = [f"{v} view {_g(b.view_gap(v))}" for v in ("static", "time") if b.view_gap(v) is not None]
+    if len(views) > 1:
+        out.append("     " + "; ".join(views) + " (the headline is their RMS)")
+    out.append("")
+    out.append("WHERE (held-out ratio to the floor, baseline model)")
+    w = d.where
+    if "by_axis" in w:
+        out.append("  by axis: " + ", ".join(f"{a} {_g(v)}" for a, v in w["by_axis"].items()))
+    if w.get("by_pose"):
+        out.append("  worst poses: " + ", ".join(f"{p['pose']} {_g(p['z_rms'])}" for p in w["by_pose"][:4]))
+    if w.get("by_level"):
+        rows = {}
+        for r in w["by_level"]:
+            rows.setdefault(r["axis"], []).append(f"{r['level_g'][0]:+.1f}..{r['level_g'][1]:+.1f} g: "
+                                                  f"{r['mean_residual_mg']:+.3g} mg")
+        label = "channel" if not data.norm_only else "norm residual vs channel"
+        for a, rr in rows.items():
+            out.append(f"  by input level ({label} {a}, mean residual): " + "; ".join(rr))
+    if w.get("by_temperature"):
+        out.append("  by temperature: " + ", ".join(f"{t['temp_c']:.0f} C {_g(t['gap'])}" for t in w["by_temperature"]))
+    if w.get("by_time_in_capture"):
+        tt = w["by_time_in_capture"]
+        out.append("  by time in capture: " + ", ".join(f"{t['t_s']:.1f} s {_g(t['gap'])}" for t in tt)
+                   + f" (first block leans {tt[0]['toward_step_mg']:+.3g} mg along the last move)")
+    if "noise" in w:
+        nz = w["noise"]
+        out.append("  noise: per-sample sigma " + "/".join(f"{x:.3g}" for x in nz["sigma_mg"]) + " mg against the "
+                   f"simulator's {np.mean(nz['simulator_sigma_mg']):.3g} mg (ratio "
+                   + "/".join(_g(x) for x in nz["ratio"]) + ")")
+    if "allan" in w:
+        al = w["allan"]
+        out.append(f"  Allan deviation at {al['tau_s'][-1]:.3g} s: " + "/".join(_g(x) for x in al["ratio_at_longest_tau"])
+                   + " x white noise (x, y, z; 1 = white, more = drift or flicker)")
+    out.append("")
+    out.append(f"WHICH (each candidate added to the model, refitted on training folds, scored on held-out poses;\n"
+               f"       selected while a one-sided paired test (t or Wilcoxon, doubled) on per-pose held-out log density\n"
+               f"       beats alpha = {d.alpha:g} / candidates, the gap shrinks by {MIN_GAP_SHRINK:.0%} of its log, "
+               "and the gap is outside its chance range)")
+    for i, r in enumerate(d.ranking):
+        mark = "  <- selected" if r["effect"] in d.selected else ""
+        out.append(f"  {i + 1:2d}. {r['effect']:<13} held-out gap {_g(r['held_out_gap']):>7}   p {r['p_value']:.2g}{mark}")
+    if not d.ranking:
+        out.append("  (no catalog effect can be tested on these data)")
+    for e, why in d.untestable.items():
+        out.append(f"  not testable: {e}: {why}")
+    out.append("")
+    out.append("HOW FAR (held-out gap)")
+    txt = f"  baseline {_g(d.gap_before)}"
+    for s in d.steps:
+        txt += f" -> + {s['added']} {_g(s['gap_after'])}"
+    out.append(txt)
+    out.append("")
+    if d.selected:
+        out.append(f"VERDICT: {', '.join(d.selected)} explain{'s' if len(d.selected) == 1 else ''} the gap "
+                   f"({_g(d.gap_before)} -> {_g(d.gap_after)}). Add to the simulator configuration:")
+        for s in d.steps:
+            hint = config_hint(s["added"], s["fitted"])
+            out.append(f"  {s['added']}: {_yaml_inline(hint)}" if hint else f"  {s['added']}: (see --json steps)")
+        if d.gap_after > 2:
+            out.append(f"  a gap of {_g(d.gap_after)} remains that no catalog effect explains")
+    elif explained(d.base, d.alpha):
+        out.append(f"VERDICT: the simulator explains these data (gap {_g(d.gap_before)}); no effect needs adding")
+    elif d.gap_before < 1:
+        out.append(f"VERDICT: the data scatter less than the simulator predicts (gap {_g(d.gap_before)} < 1): its noise "
+                   "or quantization is pessimistic for these boards, or the samples per pose are overstated")
+    else:
+        out.append(f"VERDICT: no catalog effect explains the gap of {_g(d.gap_before)}: the data hold something the "
+                   "simulator does not model (see WHERE for its shape)")
+    if not data.n_known:
+        out.append(f"  (the floor assumes {np.median(data.n):.0f} sample(s) per pose: with more, the true gap is larger)")
+    return out
+
+
+def selftest_lines(r: dict) -> list[str]:
+    out = [f"accelcal diagnose --selftest: {r['design']} boards, seed {r['seed']}, alpha {r['alpha']:g}",
+           f"{'withheld':<13}{'data':<46}{'named':<14}{'gap before':>11}{'after':>9}  result"]
+    for c in r["cases"]:
+        res = "ok" if c["pass"] else "FAIL"
+        if not c["revealable"]:
+            res += " (not revealable: see below)"
+        out.append(f"{c['withheld']:<13}{c['data']:<46}{str(c['named'] or '-'):<14}{_g(c['gap_before']):>11}"
+                   f"{_g(c['gap_after_named']):>9}  {res}")
+    out.append("")
+    out.append("effects the data cannot reveal, and why:")
+    for effect, row in r["coverage"].items():
+        for kind, st in row.items():
+            if st != "testable":
+                out.append(f"  {effect} / {kind}: {st}")
+    out.append("")
+    out.append("self-test " + ("passed" if r["passed"] else "FAILED"))
+    return out
+
+
+# -- figures ------------------------------------------------------------------------------------------
+
+def _pyplot():
+    try:
+        import matplotlib
+    except ImportError:
+        raise AccelcalError("--report needs matplotlib for its figures: pip install 'accelcal-station[report]'") \
+            from None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def check_report_dir(path) -> Path:
+    """The report directory (created if missing); errors before any analysis runs."""
+    _pyplot()
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise DataError(f"--report {path}: exists and is not a directory")
+    if not p.parent.is_dir():
+        raise DataError(f"--report {path}: cannot create it (no such directory {p.parent})")
+    p.mkdir(exist_ok=True)
+    return p
+
+
+def _save(fig, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
+    try:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _z_pose(e) -> np.ndarray | None:
+    if e.r_static is None:
+        return None
+    return np.sqrt(np.mean(e.r_static**2 / e.v_static, axis=1))
+
+
+def _empty(ax, text: str) -> None:
+    ax.text(0.5, 0.5, text, ha="center", va="center", wrap=True, transform=ax.transAxes)
+    ax.set_axis_off()
+
+
+def write_report(d: Diagnosis, out_dir, json_obj: dict) -> list[Path]:
+    """PNG figures and summary.md (which embeds them) in out_dir; returns the files written."""
+    plt = _pyplot()
+    out = Path(out_dir)
+    data = d.data
+    after = " + ".join(d.selected) if d.selected else "no effect added"
+    files = []
+
+    # sphere: direction of each pose (reference, or reading when norm-only), coloured by held-out z
+    fig = plt.figure(figsize=(11, 4.2))
+    u = data.ref if data.ref is not None else data.g
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    lon, lat = np.arctan2(u[:, 1], u[:, 0]), np.arcsin(np.clip(u[:, 2], -1, 1))
+    for k, (e, title) in enumerate(((d.base, "baseline"), (d.final, after))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="mollweide")
+        z = _z_pose(e)
+        if z is None:
+            ax.set_title(f"{title}: no static view")
+            continue
+        sc = ax.scatter(lon, lat, c=np.log10(np.maximum(z, 1e-3)), cmap="viridis", s=40, vmin=-0.5,
+                        vmax=max(1.0, float(np.log10(max(_z_pose(d.base).max(), 1.0)))))
+        ax.set_title(f"{title}: held-out gap {_g(e.view_gap('static'))}", fontsize=10)
+        ax.grid(True, alpha=0.3)
+        ax.set_xticklabels([])
+        fig.colorbar(sc, ax=ax, shrink=0.7, label="log10 residual / floor")
+    fig.suptitle("Residuals over the sphere of orientations (direction of gravity in the sensor frame)")
+    files.append(out / "sphere.png")
+    _save(fig, files[-1])
+    plt.close(fig)
+
+    # residual against input level
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), sharey=True)
+    for c, ax in enumerate(axes):
+        if d.base.r_static is None:
+            _empty(ax, "no static view")
+            continue
+        col = 0 if data.norm_only else c
+        for e, lab, st in ((d.base, "baseline", dict(color="0.6", marker="o", s=14)),
+                           (d.final, after, dict(color="C3", marker="x", s=18))):
+            ax.scatter(data.g[:, c], 1e3 * e.r_static[:, col], label=lab, **st)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_xlabel(f"reading {'xyz'[c]} (g)")
+        ax.set_title(f"{'norm residual' if data.norm_only else 'channel ' + 'xyz'[c]}", fontsize=10)
+    axes[0].set_ylabel("held-out residual (mg)")
+    if d.base.r_static is not None:
+        axes[0].legend(fontsize=8)
+    fig.suptitle("Residual against input level")
+    files.append(out / "level.png")
+    _save(fig, files[-1])
+    plt.close(fig)
+
+    # residual against temperature
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    if data.temp_c is None or data.n_temps < 2 or d.base.r_static is None:
+        _empty(ax, "all poses at one temperature (or no temp_c): nothing to plot against temperature"
+               if d.base.r_static is not None else "no static view")
+    else:
+        for e, lab, st in ((d.base, "baseline", dict(color="0.6", marker="o")), (d.final, after, dict(color="C3", marker="x"))):
+            ax.scatter(data.temp_c, _z_pose(e), label=lab, **st)
+        ax.set_yscale("log")
+        ax.axhline(1, color="k", lw=0.5)
+        ax.set_xlabel("temperature (C)")
+        ax.set_ylabel("held-out residual / floor")
+        ax.legend(fontsize=8)
+    ax.set_title("Residual against temperature")
+    files.append(out / "temperature.png")
+    _save(fig, files[-1])
+    plt.close(fig)
+
+    # residual against time in capture
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    td_rows = d.base.r_time
+    if td_rows is None:
+        _empty(ax, "no raw samples: time within a capture needs raw logs (--raw)")
+    else:
+        from .gap_effects import time_data
+
+        td = time_data(data)
+        edges = np.linspace(0.0, float(td.t_in.max()) + 1e-9, 11)
+        k = np.digitize(td.t_in, edges[1:-1])
+        mid = 0.5 * (edges[1:] + edges[:-1])
+        has = np.array([np.any(k == i) for i in range(10)])
+        for e, lab, col in ((d.base, "baseline", "0.4"), (d.final, after, "C3")):
+            rms = np.array([np.sqrt(np.mean(e.r_time[k == i] ** 2)) if has[i] else np.nan for i in range(10)])
+            exp = np.array([np.sqrt(np.mean(e.v_time[k == i])) if has[i] else np.nan for i in range(10)])
+            ax.plot(mid[has], 1e3 * rms[has], "o-", color=col, lw=2, label=f"{lab}: RMS")
+            ax.plot(mid[has], 1e3 * exp[has], "--", color=col, lw=1, label=f"{lab}: expected")
+        ax.plot(td.t_in, 1e3 * np.abs(d.base.r_time), ".", color="0.6", alpha=0.2, ms=2)
+        ax.set_yscale("log")
+        ax.set_xlabel("time since the capture started (s)")
+        ax.set_ylabel("|block mean - capture mean| (mg)")
+        ax.legend(fontsize=8)
+    ax.set_title("Residual against time in capture")
+    files.append(out / "time.png")
+    _save(fig, files[-1])
+    plt.close(fig)
+
+    al = d.where.get("allan")
+    if al:
+        fig, ax = plt.subplots(figsize=(6, 3.6))
+        for c in range(3):
+            ax.loglog(al["tau_s"], al["adev_mg"][c], "-o", ms=3, label=f"{'xyz'[c]} data")
+            ax.loglog(al["tau_s"], al["white_mg"][c], ":", color=f"C{c}")
+        sim_sig = 1e3 * float(np.mean(d.floor.sigma_g))
+        ax.loglog(al["tau_s"], sim_sig / np.sqrt(np.array(al["tau_s"]) * (data.rate_hz or 1)), "k--",
+                  label="simulator white noise")
+        ax.set_xlabel("tau (s)")
+        ax.set_ylabel("Allan deviation (mg)")
+        ax.legend(fontsize=7)
+        ax.set_title("Noise: Allan deviation of the longest capture")
+        files.append(out / "allan.png")
+        _save(fig, files[-1])
+        plt.close(fig)
+
+    md = ["# Sim-to-real gap diagnosis", "", "```", *summary_lines(d), "```", ""]
+    md += ["| effect | held-out gap | p |", "|---|---|---|"]
+    md += [f"| {r['effect']}{' (selected)' if r['effect'] in d.selected else ''} | {_g(r['held_out_gap'])} | "
+           f"{r['p_value']:.2g} |" for r in json_obj["ranking"]]
+    md.append("")
+    for f in files:
+        title = FIGURES.get(f.stem, "noise: Allan deviation")
+        md += [f"## {title[0].upper() + title[1:]}", "", f"![{title}]({f.name})", ""]
+    files.append(out / "summary.md")
+    atomic_write_text(files[-1], "\n".join(md) + "\n")
+    return files
+
