@@ -32,14 +32,14 @@ from pathlib import Path
 import numpy as np
 
 from .drivers.simulated import SimulatedBoard
-from .errors import AccelcalError, ConfigError, DataError, UnderdeterminedError
+from .errors import ConfigError, DataError, UnderdeterminedError
 from .fixtures.designs import get_design
 from .fixtures.simulated_jig import SimulatedJig
 from .gap_effects import (Capture, Evaluation, Floor, GapData, TimeData, design_rank_ok, evaluate,
                           random_var, static_design, time_data)
 from .models.gravity_norm import nominal_scale
 from .posetable import read_pose_table
-from .rawlog import RawLog, detect_static, read_raw_log, to_session
+from .rawlog import RawLog, read_raw_log, static_session
 from .sensor_model import EFFECT_NAMES, SensorModel
 from .session import PoseRecord, Session
 
@@ -171,14 +171,7 @@ def gap_data(parts: list[tuple[Session, list[Capture] | None, str]], samples: in
 
 def raw_part(log: RawLog, units: str = "counts", counts_per_g=None, gravity=None):
     """Segment a raw log into static poses; returns (Session, captures, source)."""
-    try:
-        det = detect_static(log.xyz, log.rate_hz)
-    except AccelcalError as e:
-        raise type(e)(f"{log.source}: {e}") from None
-    if not det.segments:
-        raise DataError(f"{log.source}: no static interval of {det.min_samples} samples or more found; "
-                        "hold each pose still for about 1 s")
-    session = to_session(log, det.segments, units, counts_per_g, gravity)
+    session, det = static_session(log, units, counts_per_g, gravity)
     t0 = float(log.t[0])
     caps = None
     if log.rate_hz:

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DataError
+from .errors import AccelcalError, DataError
 from .session import PoseRecord, Session
 
 STILL_FACTOR = 3.0  # windows whose std exceeds this many noise sigmas are motion
@@ -326,5 +326,19 @@ def to_session(log: RawLog, segments: list[Segment], units: str = "counts", coun
     return Session(poses, units, counts_per_g, gravity_mps2, device, {"source": log.source})
 
 
-__all__ = ["RawLog", "Segment", "StaticDetection", "detect_static", "moving_std", "read_raw_log",
+def static_session(log: RawLog, units: str = "counts", counts_per_g: float | None = None,
+                   gravity_mps2: float | None = None) -> tuple[Session, StaticDetection]:
+    """Find the static poses of a raw log and make them a Session; no pose is one clear error."""
+    try:
+        det = detect_static(log.xyz, log.rate_hz)
+    except AccelcalError as e:
+        raise type(e)(f"{log.source}: {e}") from None
+    if not det.segments:
+        sigma = " ".join(f"{x:.3g}" for x in det.noise_sigma)
+        raise DataError(f"{log.source}: no static interval of {det.min_samples} samples or more found "
+                        f"(noise floor [{sigma}]); hold each pose still for about 1 s")
+    return to_session(log, det.segments, units, counts_per_g, gravity_mps2), det
+
+
+__all__ = ["RawLog", "Segment", "StaticDetection", "detect_static", "static_session", "moving_std", "read_raw_log",
            "segment_static", "to_session"]

@@ -9,7 +9,7 @@ import numpy as np
 from ..errors import AccelcalError, DataError, UnitsError
 from ..models import FitResult, fit_session, fit_temperature
 from ..posetable import read_pose_table
-from ..rawlog import StaticDetection, detect_static, read_raw_log, to_session
+from ..rawlog import StaticDetection, read_raw_log, static_session
 from ..session import Session
 from ._common import check_model_units, jsonable as _clean, parse_number as _number
 
@@ -17,14 +17,8 @@ from ._common import check_model_units, jsonable as _clean, parse_number as _num
 def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate):
     if raw:
         log = read_raw_log(path, columns, skip_rows or 0, rate)
-        try:
-            det = detect_static(log.xyz, log.rate_hz)
-        except AccelcalError as e:
-            raise type(e)(f"{path}: {e}") from None
-        if not det.segments:
-            raise DataError(f"{path}: no static interval of {det.min_samples} samples or more found "
-                            f"(noise floor {_vec(det.noise_sigma, '.3g')}); hold each pose still for about 1 s")
-        return to_session(log, det.segments, units or "counts", cpg, gravity), (log, det)
+        session, det = static_session(log, units or "counts", cpg, gravity)
+        return session, (log, det)
     for flag, v in (("--columns", columns), ("--skip-rows", skip_rows), ("--rate", rate)):
         if v is not None:
             raise DataError(f"{flag} is for raw sample logs; add --raw to read {path} as one")
