@@ -16,6 +16,8 @@ def load_yaml(path) -> dict:
         text = p.read_text()
     except OSError as e:
         raise ConfigError(f"{p}: cannot read ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: not a text file (expected a YAML configuration)") from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:

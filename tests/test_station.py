@@ -171,3 +171,10 @@ def test_a_long_capture_shows_a_progress_bar_and_a_virtual_one_does_not(capsys):
         assert gc.reached_target
     err = capsys.readouterr().err
     assert "capturing realtime=True" in err and "capturing realtime=False" not in err
+
+
+def test_a_binary_config_is_one_line(tmp_path):
+    p = tmp_path / "garbage.yaml"
+    p.write_bytes(bytes(range(128, 256)))
+    r = CliRunner().invoke(cli, ["run", "--config", str(p)])
+    assert r.exit_code == 2 and r.stderr == f"error: {p}: not a text file (expected a YAML configuration)\n"

@@ -3,6 +3,7 @@ exposes a click command named ``command``; they are discovered automatically."""
 from __future__ import annotations
 
 import importlib
+import os
 import pkgutil
 
 import click
@@ -23,6 +24,19 @@ class StationGroup(click.Group):
         except KeyboardInterrupt:
             click.echo("interrupted", err=True)
             ctx.exit(130)
+        except (click.exceptions.Exit, click.ClickException, click.exceptions.Abort):
+            raise
+        except OSError as e:  # a file or device error no layer below turned into words
+            where = f" ({e.filename})" if getattr(e, "filename", None) else ""
+            click.secho(f"error: {e.strerror or e}{where}", fg="red", err=True)
+            ctx.exit(2)
+        except Exception as e:
+            # a bug: still one line for the operator; the traceback on request
+            if os.environ.get("ACCELCAL_DEBUG"):
+                raise
+            click.secho(f"internal error (please report): {type(e).__name__}: {e}; "
+                        "set ACCELCAL_DEBUG=1 for the traceback", fg="red", err=True)
+            ctx.exit(70)
 
 
 @click.group(cls=StationGroup, context_settings={"help_option_names": ["-h", "--help"]})
