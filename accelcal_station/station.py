@@ -57,6 +57,7 @@ class StationConfig:
     limits: Limits
     nvm_write: bool
     slot_size: int | None
+    offset_trim: bool
     verify_poses: int
     verify_design: str | None
     store_file: Path
@@ -96,10 +97,14 @@ class StationConfig:
                       integer=isinstance(getattr(defaults, k), int)) for k in cap})
         if settings.k_leave < settings.k_enter:
             raise ConfigError("capture.k_leave must be >= capture.k_enter (hysteresis)")
-        nvm = check_keys(raw.get("nvm"), ["write", "slot_size"], "nvm")
-        write = nvm.get("write", True)
-        if not isinstance(write, bool):
-            raise ConfigError(f"nvm.write: {write!r}; allowed: true, false")
+        nvm = check_keys(raw.get("nvm"), ["write", "slot_size", "offset_trim"], "nvm")
+        write, trim = nvm.get("write", True), nvm.get("offset_trim", False)
+        for key, v in (("write", write), ("offset_trim", trim)):
+            if not isinstance(v, bool):
+                raise ConfigError(f"nvm.{key}: {v!r}; allowed: true, false")
+        if trim and model == "15":
+            raise ConfigError("nvm.offset_trim: the 15-parameter model's cubic term cannot be moved into "
+                              "offset registers; allowed with models 6, 9, 12")
         slot = nvm.get("slot_size")
         slot = None if slot is None else number(nvm, "slot_size", "nvm", lo=64, integer=True)
         ver = check_keys(raw.get("verify"), ["poses", "design"], "verify")
@@ -113,7 +118,7 @@ class StationConfig:
         # working folder, never the (possibly installed, read-only) config folder
         store_file = Path(store_override) if store_override else store_path(raw, Path.cwd())
         return cls(raw, p.read_text(), p, str(st.get("id", "station-1")), design, model, settings,
-                   Limits.from_config(raw.get("acceptance")), write, slot,
+                   Limits.from_config(raw.get("acceptance")), write, slot, trim,
                    number(ver, "poses", "verify", 3, 0, 64, integer=True),
                    None if vdesign is None else str(vdesign), store_file)
 
@@ -173,6 +178,8 @@ class RunReport:
     verify_error_max_mg: float | None = None
     nvm: dict | None = None
     nvm_verified: bool = False
+    offset_trim_lsb: list[int] | None = None
+    calibration: Calibration | None = None  # what was (or would be) written: the fit's, trim applied
     poses: list[dict] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     events: list[str] = field(default_factory=list)
@@ -180,16 +187,17 @@ class RunReport:
     store: str = ""
 
     def to_dict(self) -> dict[str, Any]:
-        f = self.fit
+        f, c = self.fit, self.calibration
         return {
             "run_id": self.run_id, "serial": self.serial, "chip": self.chip, "station_id": self.station_id,
             "verdict": self.verdict, "reasons": self.reasons, "model": self.model, "design": self.design,
-            "W": None if f is None else f.W.tolist(), "V": None if f is None else f.V.tolist(),
-            "Gamma": None if f is None else f.Gamma.tolist(),
+            "W": None if c is None else c.W.tolist(), "V": None if c is None else c.V.tolist(),
+            "Gamma": None if c is None else c.Gamma.tolist(),
             "residual_rms_mg": None if f is None else f.residual_rms_g * 1e3,
             "crossval_rms_mg": None if f is None or f.crossval_rms_g is None else f.crossval_rms_g * 1e3,
             "measured": self.measured, "verify_error_max_mg": self.verify_error_max_mg,
-            "nvm": self.nvm, "nvm_verified": self.nvm_verified, "poses": self.poses, "skipped": self.skipped,
+            "nvm": self.nvm, "nvm_verified": self.nvm_verified, "offset_trim_lsb": self.offset_trim_lsb,
+            "poses": self.poses, "skipped": self.skipped,
             "events": self.events, "timing": self.timing, "store": self.store,
         }
 
@@ -317,9 +325,10 @@ class Station:
                                         nvm_outcome=rep.nvm)
                     raise
                 rep.timing = self._timing(driver, board, clock0, wall0)
-                store.finish_run(run_id, session=session, calibration=None if rep.fit is None else rep.fit.calibration,
+                store.finish_run(run_id, session=session, calibration=rep.calibration,
                                  verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
                                  fit_summary={"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
+                                              "offset_trim_lsb": rep.offset_trim_lsb,
                                               "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing,
                                               "nvm_verified": rep.nvm_verified},
                                  model=cfg.model, retries=retries)
@@ -356,6 +365,7 @@ class Station:
             rep.verdict, rep.reasons = "FAIL", [f"fit: {e}"]
             return
         rep.fit = fit
+        rep.calibration = fit.calibration
         verdict = judge(fit, cfg.limits)
         rep.measured = verdict.measured
         if not verdict.passed:
@@ -363,6 +373,8 @@ class Station:
             self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
             return
         cal = fit.calibration
+        if cfg.offset_trim:
+            cal = rep.calibration = self._trim_offsets(driver, cal, rep)
         checks = self._verify_captures(driver, jig, rep)
         if checks:
             err = self._verify_error(cal, checks)
@@ -402,6 +414,28 @@ class Station:
         if not same:
             rep.verdict, rep.reasons = "FAIL", ["nvm: calibration read back from NVM differs from the fitted one"]
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
+
+    def _trim_offsets(self, driver, cal: Calibration, rep: RunReport) -> Calibration:
+        """Move the zero-g offset into the chip's offset registers and shift V to match.
+
+        The trimmed output is G_f' = G_f + t, so G = W (G_f' - t) + V: V' = V - W t.
+        The registers are volatile: the trim is reported (and recorded) so the device
+        config's ``offset_trim_lsb`` can restore it at power-up.
+        """
+        lsb_g = getattr(driver, "offset_trim_lsb_g", None)
+        if lsb_g is None or not hasattr(driver, "set_offset_trim"):
+            raise ConfigError(f"nvm.offset_trim: the {driver.name} driver has no offset-trim registers; "
+                              "set nvm.offset_trim: false")
+        offset_g = -np.linalg.solve(cal.W, cal.V)  # zero-g output of the untrimmed chip
+        old = np.asarray(driver.get_offset_trim(), dtype=float) if hasattr(driver, "get_offset_trim") else 0.0
+        total = np.clip(np.round(old - offset_g / lsb_g), -128, 127).astype(int)
+        driver.set_offset_trim(tuple(int(v) for v in total))
+        t = (total - old) * lsb_g
+        rep.offset_trim_lsb = total.tolist()
+        self.echo(f"offset trim {total.tolist()} LSB ({lsb_g * 1e3:.2f} mg each): "
+                  "add device.offset_trim_lsb to the config to restore it at power-up")
+        return Calibration(cal.model, cal.W, cal.V - cal.W @ t, cal.Gamma, cal.input_units, cal.input_per_g,
+                           cal.temperature, dict(cal.metadata, offset_trim_lsb=total.tolist()))
 
     def _verify_captures(self, driver, jig, rep) -> list[tuple[np.ndarray, np.ndarray, float | None]]:
         """Fresh captures at the verification poses: (mean counts, expected g, temp)."""

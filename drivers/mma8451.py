@@ -208,6 +208,7 @@ class MMA8451(Driver):
     """MMA8451Q over smbus2.  ``bus`` is a bus number or /dev path, or an SMBus-like object."""
 
     name = "mma8451"
+    offset_trim_lsb_g = OFF_LSB_G  # the station's optional offset-register trim uses this
 
     def __init__(self, bus: int | str | Any = 1, address: int = 0x1D, range_g: int = 2, odr_hz: float = 100.0,
                  oversampling: str = "high_resolution", retries: int = 3, timeout_s: float = 1.0,

@@ -72,3 +72,37 @@ def test_emulate_bridge_with_motor_jig_prints_both_ports():
         proc.terminate()
         proc.wait(timeout=30)  # generous: two emulator threads join on a loaded CI machine
     assert proc.returncode == 0
+
+
+def test_mma8451_offset_trim_moves_the_offset_into_the_chip(tmp_path):
+    cfg = yaml.safe_load((CONFIGS / "mma8451-emulated.yaml").read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    cfg["nvm"]["offset_trim"] = True
+    p = tmp_path / "trim.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"], input="\n" * 8)
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    # the emulated board's offsets are +12, -8, +25 mg: 1/512 g per LSB -> about -6, +4, -13 LSB
+    offset_mg = np.array(cfg["device"]["simulator"]["effects"]["offset"]["offset_mg"])
+    np.testing.assert_allclose(out["offset_trim_lsb"], -offset_mg / (1000 / 512), atol=1.0)
+    # what is left for V is under one trim LSB, and the closed loop through the trimmed chip holds
+    assert np.max(np.abs(out["V"])) < 1 / 512
+    assert out["verify_error_max_mg"] < 1.0 and out["nvm_verified"]
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    stored_v = json.loads(db.execute("SELECT calibration FROM runs").fetchone()[0])["V"]
+    np.testing.assert_allclose(stored_v, out["V"])
+
+
+def test_offset_trim_is_refused_where_it_cannot_work(tmp_path):
+    cfg = yaml.safe_load((CONFIGS / "sim.yaml").read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    cfg["nvm"]["offset_trim"] = True
+    p = tmp_path / "trim.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", str(p)])
+    assert r.exit_code == 2 and "the simulated driver has no offset-trim registers" in r.stderr
+    cfg["plan"]["model"] = 15
+    p.write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", str(p)])
+    assert r.exit_code == 2 and "nvm.offset_trim: the 15-parameter model" in r.stderr
