@@ -174,7 +174,8 @@ class Calibration:
 
         ``units`` is required: the calibration refuses to guess.  Counts use the
         calibration's own ``counts_per_g`` unless one is given, and a different one
-        is refused (the coefficients would be wrong by the ratio).
+        is refused (the coefficients would be wrong by the ratio); m/s^2 likewise
+        use the calibration's own gravity unless ``gravity_mps2`` is given.
         """
         check_units(units)
         x = np.asarray(values, dtype=float)
@@ -192,6 +193,8 @@ class Calibration:
                 )
             scale = own if counts_per_g is None else float(counts_per_g)
         else:
+            if units == "mps2" and gravity_mps2 is None and self.input_units == "mps2":
+                gravity_mps2 = self.input_per_g  # the local gravity it was fitted with, as for counts
             scale = units_per_g(units, gravity_mps2=gravity_mps2)
         gf = x / scale
         W, V, G = self.coefficients(temp_c, extrapolate)

@@ -117,9 +117,14 @@ class StationConfig:
         # a relative store path is taken from the current directory: the station's
         # working folder, never the (possibly installed, read-only) config folder
         store_file = Path(store_override) if store_override else store_path(raw, Path.cwd())
+        limits = Limits.from_config(raw.get("acceptance"))
+        verify_poses = number(ver, "poses", "verify", 3, 0, 64, integer=True)
+        if verify_poses == 0 and "verify_error_max_mg" in limits.values:
+            # without verification captures this limit would never be judged: a board would pass unchecked
+            raise ConfigError("acceptance.verify_error_max_mg: needs verification captures (verify.poses: 0); "
+                              "allowed: verify.poses of 1 or more, or remove the limit")
         return cls(raw, p.read_text(), p, str(st.get("id", "station-1")), design, model, settings,
-                   Limits.from_config(raw.get("acceptance")), write, slot, trim,
-                   number(ver, "poses", "verify", 3, 0, 64, integer=True),
+                   limits, write, slot, trim, verify_poses,
                    None if vdesign is None else str(vdesign), store_file)
 
 
@@ -325,13 +330,20 @@ class Station:
                                         nvm_outcome=rep.nvm)
                     raise
                 rep.timing = self._timing(driver, board, clock0, wall0)
-                store.finish_run(run_id, session=session, calibration=rep.calibration,
-                                 verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
-                                 fit_summary={"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
-                                              "offset_trim_lsb": rep.offset_trim_lsb,
-                                              "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing,
-                                              "nvm_verified": rep.nvm_verified},
-                                 model=cfg.model, retries=retries)
+                try:
+                    store.finish_run(run_id, session=session, calibration=rep.calibration,
+                                     verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
+                                     fit_summary={"measured": rep.measured,
+                                                  "verify_error_max_mg": rep.verify_error_max_mg,
+                                                  "offset_trim_lsb": rep.offset_trim_lsb,
+                                                  "design": cfg.design, "skipped": rep.skipped,
+                                                  "timing": rep.timing, "nvm_verified": rep.nvm_verified},
+                                     model=cfg.model, retries=retries)
+                except AccelcalError as e:
+                    # never leave the run 'running': record it as an error (finish_run rolled back)
+                    store.interrupt_run(run_id, f"could not record the result: {e}", status="error",
+                                        nvm_outcome=rep.nvm)
+                    raise
         return rep
 
     def _run_poses(self, driver, jig, design, records, retries, rep) -> None:

@@ -201,7 +201,10 @@ class CalibrationWriter:
         (outcome attached) when the write or its read-back verification fails; the
         previous calibration is then still the newest valid one.
         """
-        scan = self._scan()
+        try:
+            scan = self._scan()
+        except OSError as e:
+            raise NVMError(f"reading the NVM before the burn failed ({e.strerror or e}); nothing was written") from None
         prev = self._newest(scan)
         target = 0 if prev is None else 1 - prev
         gen = 1 if prev is None else (scan[prev][2].generation + 1) % GENERATION_MOD
@@ -226,6 +229,15 @@ class CalibrationWriter:
             if newest != target:
                 raise NVMError(f"burn of NVM slot {SLOTS[target]}: slot is not the newest valid after writing")
         except (AccelcalError, OSError) as e:
+            # say what the board really holds now: an error after the last byte landed
+            # (or in the read-back) may leave the new blob as the newest valid one
+            try:
+                now_newest = self._newest(self._scan())
+            except (AccelcalError, OSError):
+                now_newest = None
+            if now_newest == target:
+                kept = (f"the new calibration (slot {SLOTS[target]}, generation {gen}) did land and is the "
+                        "newest valid one, but it was not verified")
             raise BurnError(f"{e}; {kept}", outcome) from None
         outcome.ok = outcome.verified = True
         return outcome
@@ -262,6 +274,8 @@ class CalibrationWriter:
             doc = json.loads(path.read_text())
         except OSError as e:
             raise NVMError(f"{path}: cannot read ({e.strerror})") from None
+        except UnicodeDecodeError:
+            raise NVMError(f"{path}: not an NVM backup (not a text file)") from None
         except json.JSONDecodeError as e:
             raise NVMError(f"{path}: not an NVM backup (not JSON, line {e.lineno}: {e.msg})") from None
         if not isinstance(doc, dict) or doc.get("schema") != IMAGE_SCHEMA:
@@ -287,8 +301,8 @@ class CalibrationWriter:
         """Write a backup image back and read it back.
 
         With ``serial``, refuses an image whose newest calibration is bound to another
-        board.  The slot now holding the newest calibration is written last, so an
-        interruption during the first slot leaves it intact.
+        board.  Slots are written in the order ``_order`` gives, so an interruption
+        during either write leaves a valid calibration (old or restored) whenever the two slots allow it.
         """
         img, _ = self.load_image(path)
         image_scan = self._scan(img)
@@ -298,7 +312,7 @@ class CalibrationWriter:
                            f"not this board's {serial!r}; allow another serial (--any-serial) to restore it")
         if backup_to is not None:
             self.backup(backup_to)
-        for j in self._order():
+        for j in self._order([st.state == "valid" for st, _, _ in image_scan]):
             s = j * self.slot_size
             self._write_verified(self.slot_addr(j), img[s: s + self.slot_size], f"restore of NVM slot {SLOTS[j]}")
         return self.status()
@@ -311,6 +325,16 @@ class CalibrationWriter:
             self._write_verified(self.slot_addr(j), b"\xff" * self.slot_size, f"erase of NVM slot {SLOTS[j]}")
         return self.status()
 
-    def _order(self) -> list[int]:
-        """Slots in write order: the one holding the newest valid calibration last."""
-        return [1, 0] if self._newest(self._scan()) == 0 else [0, 1]
+    def _order(self, new_valid: list[bool] | None = None) -> list[int]:
+        """Slots in write order: the one holding the newest valid calibration last.
+
+        ``new_valid`` (restore): whether each slot's new content is a valid blob.  When the
+        slot written first would get no valid blob, it goes second if that keeps one valid
+        calibration in NVM throughout (the other slot still holds one while it is written).
+        """
+        scan = self._scan()
+        first = 1 if self._newest(scan) == 0 else 0
+        if new_valid is not None and not new_valid[first] and new_valid[1 - first] \
+                and scan[first][0].state == "valid":
+            first = 1 - first
+        return [first, 1 - first]

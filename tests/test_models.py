@@ -122,6 +122,32 @@ def test_fit_temperature_recovers_linear_drift():
         cal.apply(g * 4096, units="counts")
 
 
+
+def test_fit_temperature_model_9_on_counts_keeps_one_scale():
+    # model 9 on counts without counts_per_g estimates a scale per temperature group; the
+    # table must still give unit norms at every calibration temperature (it gave 1.5 % off at 50 C)
+    ref = an4399_reference(*np.array([[0, 0], [0, 90], [0, 180], [0, -90], [90, 0], [-90, 0],
+                                      [-45, 90], [0, 45], [-45, 0], [30, 120]]).T)
+
+    def counts(t):
+        gain = np.array([1.02, 0.98, 1.01]) * (1 + np.array([1e-3, -2e-3, 5e-4]) * t)
+        return 4096 * (ref * gain + np.array([0.03, -0.02, 0.05]) + 1e-3 * t * np.array([0.5, -0.3, 0.2]))
+
+    poses = [PoseRecord(f"p{i}@{t}", c, temp_c=t) for t in (0.0, 50.0) for i, c in enumerate(counts(t))]
+    cal, _ = fit_temperature(Session(poses, units="counts"), "9")
+    for t in (0.0, 50.0):
+        out = cal.apply(counts(t), units="counts", temp_c=t)
+        np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-9)
+
+
+def test_mps2_calibration_applies_with_its_own_gravity():
+    ref = an4399_reference([-90, 90, 0, 0, 0, 0], [0, 0, 90, -90, 0, 180])
+    cal = fit(ref * 9.79, ref, "6", units="mps2", gravity_mps2=9.79).calibration
+    np.testing.assert_allclose(cal.apply(ref * 9.79, units="mps2"), ref, atol=1e-12)
+    # an explicit gravity still wins
+    np.testing.assert_allclose(cal.apply(ref * 9.80665, units="mps2", gravity_mps2=9.80665), ref, atol=1e-12)
+
+
 def test_calibraxis_norm_model_within_10_mg(calibraxis):
     for key in ("set_1_counts", "set_2_counts"):
         x = np.array(calibraxis[key])

@@ -148,6 +148,8 @@ def test_operator_abort_is_recorded_as_interrupted(tmp_path):
     ({"jig": {"type": "robot"}}, "jig.type: 'robot'; allowed: simulated, operator, motorized"),
     ({"capture__hold_sec": 1}, "capture.hold_sec: unknown key"),
     ({"acceptance__residual_rms_mg": -1}, "acceptance.residual_rms_mg: -1 out of range"),
+    # the default acceptance limits the verification error: with no verification it would never be judged
+    ({"verify__poses": 0}, "acceptance.verify_error_max_mg: needs verification captures (verify.poses: 0)"),
 ])
 def test_config_errors_name_the_key(tmp_path, changes, message):
     r = CliRunner().invoke(cli, ["run", "--config", sim_config(tmp_path, **changes)])

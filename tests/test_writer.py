@@ -222,7 +222,29 @@ def test_restore_refuses_bad_images(eeprom, tmp_path):
         w.restore(tmp_path / "junk.json")
     with pytest.raises(NVMError, match="cannot read"):
         w.restore(tmp_path / "missing.json")
+    (tmp_path / "binary.json").write_bytes(bytes(range(128, 256)))
+    with pytest.raises(NVMError, match="binary.json: not an NVM backup \\(not a text file\\)"):
+        w.restore(tmp_path / "binary.json")
     assert eeprom.read(0, 4096) == before  # nothing refused was written
+
+
+@pytest.mark.parametrize("at_write", [3, 64, 65, 70, 128])  # pages 1-64: slot written first; 65-128: second
+def test_power_loss_during_restore_keeps_a_valid_calibration(eeprom, tmp_path, at_write):
+    """Restoring an image whose slot B is blank over A (newest) + B: whichever slot is being
+    written, the other must hold a valid calibration (old or restored)."""
+    w = CalibrationWriter(eeprom)
+    w.burn(cal(1), SERIAL, STATION)  # A, generation 1
+    w.backup(tmp_path / "img.json")  # image: A valid, B blank
+    w.burn(cal(2), SERIAL, STATION)  # B, generation 2
+    w.burn(cal(3), SERIAL, STATION)  # A, generation 3 (newest)
+    eeprom.inject_power_loss(at_write=at_write)
+    with pytest.raises(NVMError, match="power loss"):
+        w.restore(tmp_path / "img.json")
+    got = CalibrationWriter(eeprom).read_newest(SERIAL)
+    assert got is not None, f"no valid calibration left after power loss at page write {at_write}"
+    assert any(same(got[0], cal(i)) for i in (1, 2, 3))
+    w.restore(tmp_path / "img.json")  # power is back: the restore completes
+    assert same(w.read_newest()[0], cal(1)) and [s.state for s in w.status()] == ["valid", "empty"]
 
 
 @pytest.mark.parametrize("driver", ["mma8451", "simulated"])
@@ -245,3 +267,30 @@ def test_burn_through_a_driver_nvm_survives_power_loss(driver):
         assert CalibrationWriter(dev.nvm).status()[1].state == "corrupt"
         assert w.burn(cal(2), serial, STATION).verified
         assert same(CalibrationWriter(dev.nvm).read_newest(serial)[0], cal(2))
+
+
+def test_a_readback_error_after_the_blob_landed_says_so():
+    class FlakyReadEEPROM(EEPROM24):
+        """A 24C32 whose bus glitches on the first read after a write, once armed."""
+        armed = fail_next_read = False
+
+        def write(self, addr, data):
+            super().write(addr, data)
+            self.fail_next_read = self.armed
+
+        def read(self, addr, n):
+            if self.fail_next_read:
+                self.armed = self.fail_next_read = False
+                raise OSError(121, "Remote I/O error")
+            return super().read(addr, n)
+
+    nvm = FlakyReadEEPROM()
+    w = CalibrationWriter(nvm)
+    w.burn(cal(1), "SN1", "st")
+    nvm.armed = True
+    with pytest.raises(BurnError) as e:
+        w.burn(cal(2), "SN1", "st")
+    assert "did land and is the newest valid one, but it was not verified" in str(e.value)
+    assert not e.value.outcome.ok
+    c, h, slot = w.read_newest("SN1")
+    assert h.generation == 2 and slot == "B"

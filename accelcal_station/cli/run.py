@@ -6,6 +6,7 @@ import json
 import click
 
 from ..station import Station, StationConfig
+from ._common import jsonable
 
 
 @click.command("run")
@@ -33,7 +34,7 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
     echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}")
     rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
     if as_json:
-        click.echo(json.dumps(rep.to_dict(), indent=2))
+        click.echo(json.dumps(jsonable(rep.to_dict()), indent=2, allow_nan=False))
     else:
         t = rep.timing
         f = rep.fit

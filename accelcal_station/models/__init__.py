@@ -132,9 +132,12 @@ def fit_temperature(session: Session, model="12", method: str = "linear",
             fits.append((t, fit_session(sub, model)))
         except UnderdeterminedError as e:
             raise UnderdeterminedError(f"at {t:g} C: {e}") from None
-    table = TemperatureTable([t for t, _ in fits], [f.W for _, f in fits], [f.V for _, f in fits],
-                             [f.Gamma for _, f in fits], method)
     first = fits[0][1].calibration
+    # model 9 on counts estimates input_per_g per group: bring every group's W and Gamma
+    # to the first group's scale, since the table is applied with that one scale
+    ratio = [first.input_per_g / f.calibration.input_per_g for _, f in fits]
+    table = TemperatureTable([t for t, _ in fits], [f.W * r for (_, f), r in zip(fits, ratio)],
+                             [f.V for _, f in fits], [f.Gamma * r**3 for (_, f), r in zip(fits, ratio)], method)
     cal = Calibration(str(model), table.W[0], table.V[0], table.Gamma[0], first.input_units,
                       first.input_per_g, temperature=table)
     return cal, fits
