@@ -54,9 +54,11 @@ def number(d: dict, key: str, path: str, default=None, lo: float | None = None, 
     v = d[key]
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise ConfigError(f"{path}.{key}: {v!r} is not a number")
+    if v != v or v in (float("inf"), float("-inf")):
+        raise ConfigError(f"{path}.{key}: {v!r} is not a finite number")
     if integer and int(v) != v:
         raise ConfigError(f"{path}.{key}: {v!r} must be a whole number")
-    if v != v or (lo is not None and v < lo) or (hi is not None and v > hi):
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
         rng = f"{'-inf' if lo is None else lo} to {'inf' if hi is None else hi}"
         raise ConfigError(f"{path}.{key}: {v!r} out of range; allowed {rng}")
     return int(v) if integer else float(v)

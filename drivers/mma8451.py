@@ -262,7 +262,8 @@ class MMA8451(Driver):
         if eeprom not in (None, False):
             e = check_keys(eeprom, ("address", "size", "page_size", "write_cycle_ms"), f"{path}.eeprom")
             eeprom = dict(address=number(e, "address", f"{path}.eeprom", 0x50, 0x50, 0x57, integer=True),
-                          size=number(e, "size", f"{path}.eeprom", 4096, 256, 65536, integer=True),
+                          # 24C32 and up: smaller 24Cxx take a 1-byte word address, which this driver does not send
+                          size=number(e, "size", f"{path}.eeprom", 4096, 4096, 65536, integer=True),
                           page_size=number(e, "page_size", f"{path}.eeprom", 32, 8, 256, integer=True),
                           write_cycle_ms=number(e, "write_cycle_ms", f"{path}.eeprom", 5.0, 0.1, 100.0))
         else:

@@ -37,7 +37,7 @@ from .base import NVM, Capture, Driver, Identity
 
 WHO_AM_I = 0x75
 CHIP_ID = 0x68
-KNOWN_CHIP_IDS = {0x70: "MPU-6500", 0x71: "MPU-9250", 0x73: "MPU-9255", 0x72: "MPU-6555", 0x19: "MPU-6886",
+KNOWN_CHIP_IDS = {0x70: "MPU-6500", 0x71: "MPU-9250", 0x73: "MPU-9255", 0x7C: "MPU-6555", 0x19: "MPU-6886",
                   0x12: "ICM-20602", 0x98: "ICM-20689", 0x00: "nothing (I2C read failed)",
                   0xFF: "nothing (bus idle high)"}
 XA_OFFS_H = 0x06
@@ -358,8 +358,8 @@ class MPU6050Bridge(Driver):
             return
         if self.emulator is not None:
             self.port = self.link.port = self.emulator.start()
-        self.link.open()
         try:
+            self.link.open()  # inside: a port that fails to open must still stop the emulator
             self._bridge = self._hello()
             who = self._read(WHO_AM_I, 1)[0]
             if who != CHIP_ID:

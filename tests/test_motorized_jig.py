@@ -326,6 +326,24 @@ def test_open_errors_are_one_line(tmp_path):
         MotorizedJig("/dev/null").status()
 
 
+def test_controller_with_zero_speed_is_refused_at_open():
+    # move_time_s() divides by speed and acceleration: a controller reporting 0 must not reach it
+    with JigEmulator(speed_deg_s=0.0, accel_deg_s2=0.0, homed=True) as e:
+        jig = jig_for(e, home_on_open=False)
+        with pytest.raises(DeviceError, match=r"'SPEED\?': speed 0 deg/s, acceleration 0 deg/s\^2; both must be > 0"):
+            jig.open()
+        assert jig._ser is None
+
+
+def test_non_finite_status_position_is_malformed():
+    # a NaN position would pass the arrival check (NaN > tolerance is False)
+    with JigEmulator(position_deg=(float("nan"), 0.0), homed=True, **FAST) as e:
+        jig = jig_for(e, home_on_open=False)
+        with pytest.raises(DeviceError, match=r"'STATUS\?': malformed reply 'STATUS IDLE nan 0.000 1 0'"):
+            jig.open()  # open() reads STATUS? once
+        assert jig._ser is None
+
+
 def test_emulator_shuts_down_cleanly():
     before = set(threading.enumerate())
     fds = len(os.listdir("/proc/self/fd"))

@@ -308,12 +308,13 @@ def test_port_in_use(emu, dev):
     assert "in use" in one_line(e.value)
 
 
-def test_wrong_chip_names_what_was_found():
-    with MPU6050BridgeEmulator(seed=1, who_am_i=0x70) as e:
+@pytest.mark.parametrize("who, name", [(0x70, "MPU-6500"), (0x7C, "MPU-6555")])
+def test_wrong_chip_names_what_was_found(who, name):
+    with MPU6050BridgeEmulator(seed=1, who_am_i=who) as e:
         with pytest.raises(DeviceError) as err:
             MPU6050Bridge(e.port, **FAST).open()
     msg = one_line(err.value)
-    assert "WHO_AM_I (0x75) reads 0x70 (MPU-6500)" in msg and "expected 0x68" in msg
+    assert f"WHO_AM_I (0x75) reads 0x{who:02x} ({name})" in msg and "expected 0x68" in msg
 
 
 def test_no_chip_on_i2c():
@@ -363,6 +364,14 @@ def test_port_emulated_through_make_driver():
     with make_driver({"driver": "mpu6050", "port": "emulated", "simulator": sim, "seed": 3}) as d:
         # configs/sim.yaml's board: z gain 1.021 and offset +41 mg (SEM 45/sqrt(400) counts, 0.14 mg)
         assert d.capture(400).mean_counts[2] / 16384 == pytest.approx(1.062, abs=0.005)
+
+
+def test_failed_port_open_stops_the_emulator():
+    emu = MPU6050BridgeEmulator(seed=2)
+    d = MPU6050Bridge("emulated", baud=-5, emulator=emu, **FAST)  # pyserial refuses the baud rate
+    with pytest.raises(DeviceError, match="cannot open serial port"):
+        d.open()
+    assert no_bridge_threads() and emu._master == -1 and emu._slave == -1  # no thread or pty left behind
 
 
 def test_emulator_stops_cleanly_and_closes_fds():

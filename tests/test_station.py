@@ -180,3 +180,12 @@ def test_a_binary_config_is_one_line(tmp_path):
     p.write_bytes(bytes(range(128, 256)))
     r = CliRunner().invoke(cli, ["run", "--config", str(p)])
     assert r.exit_code == 2 and r.stderr == f"error: {p}: not a text file (expected a YAML configuration)\n"
+
+
+def test_non_finite_config_numbers_are_one_line(tmp_path):
+    for value, key in ((float("inf"), "verify__poses"), (float("nan"), "capture__max_s")):
+        p = sim_config(tmp_path, **{key: value})  # YAML .inf / .nan
+        section, sub = key.split("__")
+        assert (".inf" if value > 0 else ".nan") in open(p).read()
+        r = CliRunner().invoke(cli, ["run", "--config", p])
+        assert r.exit_code == 2 and f"{section}.{sub}:" in r.stderr and "not a finite number" in r.stderr, r.output
