@@ -26,6 +26,8 @@ afterwards power is back and the EEPROM works normally, so a test can
 from __future__ import annotations
 
 import errno
+import os
+from pathlib import Path
 
 import numpy as np
 
@@ -54,7 +56,8 @@ class EEPROM24(NVM):
     """Byte/page model of a 24Cxx EEPROM with write-cycle timing and power-loss injection."""
 
     def __init__(self, size: int = 4096, page_size: int = 32, write_cycle_s: float = 0.005,
-                 clock=None, fail_at_write: int | None = None, fail_bytes: int | None = None) -> None:
+                 clock=None, fail_at_write: int | None = None, fail_bytes: int | None = None,
+                 image_path=None) -> None:
         if size <= 0 or page_size <= 0 or size % page_size:
             raise NVMError(f"EEPROM size {size} must be a positive multiple of the page size {page_size}")
         self.size = int(size)
@@ -68,6 +71,14 @@ class EEPROM24(NVM):
         self.fail_at_write = fail_at_write
         self.fail_bytes = fail_bytes
         self._armed_at = 0
+        # a simulated board kept between commands: the cells live in a file, loaded
+        # now and saved (whole, atomically) after every page write, as a real part keeps them
+        self.image_path = None if image_path is None else Path(image_path)
+        if self.image_path is not None and self.image_path.exists():
+            data = self.image_path.read_bytes()
+            if len(data) != self.size:
+                raise NVMError(f"{self.image_path}: EEPROM image is {len(data)} bytes; this EEPROM has {self.size}")
+            self.cells[:] = np.frombuffer(data, dtype=np.uint8)
 
     def inject_power_loss(self, at_write: int = 1, fail_bytes: int | None = None) -> None:
         """Arm a power loss on the ``at_write``-th page write from now (1 = the next one)."""
@@ -89,9 +100,17 @@ class EEPROM24(NVM):
             self.cells[addr:addr + k] = np.frombuffer(bytes(data[:k]), dtype=np.uint8)
             self.fail_at_write = None
             self.busy_until = -np.inf  # power comes back with the chip idle
+            self._save()
             raise PowerLossError(f"simulated power loss during EEPROM page write {self.page_writes} "
                                  f"at 0x{addr:04x}: {k} of {n} bytes written")
         self.cells[addr:addr + n] = np.frombuffer(bytes(data), dtype=np.uint8)
+        self._save()
+
+    def _save(self) -> None:
+        if self.image_path is not None:
+            tmp = self.image_path.with_name(self.image_path.name + ".tmp")
+            tmp.write_bytes(self.cells.tobytes())
+            os.replace(tmp, self.image_path)
 
     # -- NVM face --------------------------------------------------------------------------
     def read(self, addr: int, n: int) -> bytes:

@@ -42,7 +42,7 @@ from .eeprom import EEPROM24
 
 BOARD_KEYS = ("chip", "range_g", "odr_hz", "dlpf", "seed", "serial", "realtime", "ambient_c",
               "self_heating_c", "eeprom", "simulator", "effects")
-EEPROM_KEYS = ("size_bytes", "page_bytes", "write_cycle_ms", "fail_at_write")
+EEPROM_KEYS = ("size_bytes", "page_bytes", "write_cycle_ms", "fail_at_write", "image")
 
 
 class VirtualClock:
@@ -138,8 +138,12 @@ class SimulatedBoard:
         if size % page:
             raise ConfigError(f"{ep}.size_bytes: {size} must be a multiple of page_bytes ({page})")
         fail = e.get("fail_at_write")
+        image = e.get("image")
+        if image is not None and (not isinstance(image, str) or not image.strip()):
+            raise ConfigError(f"{ep}.image: {image!r}; allowed: a file path (relative: the current directory)")
         eeprom = EEPROM24(size, page, number(e, "write_cycle_ms", ep, 5.0, 0.0, 1000.0) / 1000.0,
-                          fail_at_write=None if fail is None else number(e, "fail_at_write", ep, lo=1, integer=True))
+                          fail_at_write=None if fail is None else number(e, "fail_at_write", ep, lo=1, integer=True),
+                          image_path=image)
         board = cls(model, seed, None if serial is None else str(serial), realtime,
                     number(cfg, "ambient_c", path, 25.0, -60.0, 150.0),
                     number(cfg, "self_heating_c", path, 0.0, 0.0, 50.0), eeprom)

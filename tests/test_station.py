@@ -189,3 +189,26 @@ def test_non_finite_config_numbers_are_one_line(tmp_path):
         assert (".inf" if value > 0 else ".nan") in open(p).read()
         r = CliRunner().invoke(cli, ["run", "--config", p])
         assert r.exit_code == 2 and f"{section}.{sub}:" in r.stderr and "not a finite number" in r.stderr, r.output
+
+
+def test_a_simulated_board_kept_between_commands(tmp_path, monkeypatch):
+    """With device.seed and device.eeprom.image the simulated board survives between commands,
+    so `accelcal nvm read` shows what `accelcal run` burned."""
+    monkeypatch.chdir(tmp_path)
+    cfg = yaml.safe_load(default_config_path().read_text())
+    cfg["device"]["seed"] = 11
+    cfg["device"]["eeprom"]["image"] = "board.eeprom"
+    cfg["store"] = {"path": "runs.sqlite"}
+    (tmp_path / "kept.yaml").write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", "kept.yaml", "--json"])
+    assert r.exit_code == 0, r.output
+    burned = json.loads(r.stdout)
+    assert (tmp_path / "board.eeprom").stat().st_size == 4096
+    r = CliRunner().invoke(cli, ["nvm", "read", "--config", "kept.yaml", "--json"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    assert json.dumps(doc).count(burned["serial"]) >= 1
+    assert str(burned["W"][0][0])[:8] in json.dumps(doc)
+    (tmp_path / "board.eeprom").write_bytes(b"\xff" * 100)
+    r = CliRunner().invoke(cli, ["nvm", "read", "--config", "kept.yaml"])
+    assert r.exit_code != 0 and "EEPROM image is 100 bytes; this EEPROM has 4096" in r.stderr
