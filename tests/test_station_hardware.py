@@ -74,12 +74,19 @@ def test_emulate_bridge_with_motor_jig_prints_both_ports():
     assert proc.returncode == 0
 
 
-def test_mma8451_offset_trim_moves_the_offset_into_the_chip(tmp_path):
-    cfg = yaml.safe_load((CONFIGS / "mma8451-emulated.yaml").read_text())
+def trim_config(tmp_path, name: str, **plan) -> tuple[dict, Path]:
+    """configs/NAME with nvm.offset_trim on and a store in tmp_path, written to tmp_path."""
+    cfg = yaml.safe_load((CONFIGS / name).read_text())
     cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
     cfg["nvm"]["offset_trim"] = True
+    cfg["plan"].update(plan)
     p = tmp_path / "trim.yaml"
     p.write_text(yaml.safe_dump(cfg))
+    return cfg, p
+
+
+def test_mma8451_offset_trim_moves_the_offset_into_the_chip(tmp_path):
+    cfg, p = trim_config(tmp_path, "mma8451-emulated.yaml")
     r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"], input="\n" * 8)
     assert r.exit_code == 0, r.output
     out = json.loads(r.stdout)
@@ -95,14 +102,9 @@ def test_mma8451_offset_trim_moves_the_offset_into_the_chip(tmp_path):
 
 
 def test_offset_trim_is_refused_where_it_cannot_work(tmp_path):
-    cfg = yaml.safe_load((CONFIGS / "sim.yaml").read_text())
-    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
-    cfg["nvm"]["offset_trim"] = True
-    p = tmp_path / "trim.yaml"
-    p.write_text(yaml.safe_dump(cfg))
+    _, p = trim_config(tmp_path, "sim.yaml")
     r = CliRunner().invoke(cli, ["run", "--config", str(p)])
     assert r.exit_code == 2 and "the simulated driver has no offset-trim registers" in r.stderr
-    cfg["plan"]["model"] = 15
-    p.write_text(yaml.safe_dump(cfg))
+    _, p = trim_config(tmp_path, "sim.yaml", model=15)
     r = CliRunner().invoke(cli, ["run", "--config", str(p)])
     assert r.exit_code == 2 and "nvm.offset_trim: the 15-parameter model" in r.stderr
