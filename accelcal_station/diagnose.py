@@ -375,6 +375,11 @@ def explained(e: Evaluation, alpha: float = ALPHA) -> bool:
 def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     """Gap, where, which and how far (module doc)."""
     floor = sim.floor(data.rate_hz)
+    if floor.q_g <= 0 and np.any(floor.sigma_g <= 0):
+        # a zero floor makes every held-out ratio 0/0: there is nothing to compare the data with
+        raise ConfigError(f"{sim.source}: the simulator predicts no noise on some axis (no noise density and no "
+                          "quantization), so it claims exact readings; enable noise (and quantization) under "
+                          "simulator.effects")
     for src, cpg in zip(data.sources, data.counts_per_g):
         if cpg is not None and abs(cpg / sim.counts_per_g - 1) > 0.05:
             data.notes.append(f"{src}: {cpg:.6g} counts/g, the simulator's board has {sim.counts_per_g:g} counts/g "
@@ -391,21 +396,24 @@ def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
         return evaluate(data, floor, base_fx, tuple(added), td, static_ok)
 
     base = current = ev(())
+    # the (pose, axis) units some view scores: a norm-only static view scores one per pose, and its two
+    # structural zeros per pose would inflate the paired test's sample size (and dilute its mean)
+    units = base.nll_unit != 0
     selected: list[str] = []
     steps: list[dict] = []
     ranking: list[dict] | None = None
     remaining = list(testable)
     while remaining:
         evs = {c: ev(selected + [c]) for c in remaining}
-        pv = {c: _p_greater((current.nll_unit - evs[c].nll_unit).ravel()) for c in remaining}
+        pv = {c: _p_greater((current.nll_unit - evs[c].nll_unit)[units]) for c in remaining}
         order = sorted(remaining, key=lambda c: evs[c].score)
         best = order[0]
-        tied = [c for c in order if c == best or _p_greater((evs[c].nll_unit - evs[best].nll_unit).ravel()) >= alpha]
+        tied = [c for c in order if c == best or _p_greater((evs[c].nll_unit - evs[best].nll_unit)[units]) >= alpha]
         choice = min(tied, key=lambda c: (evs[c].n_params, evs[c].score))
         order.remove(choice)
         order.insert(0, choice)
         level = alpha / len(remaining)
-        lg_cur, lg_new = abs(math.log(current.gap)), abs(math.log(evs[choice].gap))
+        lg_cur, lg_new = (abs(math.log(max(x, 1e-300))) for x in (current.gap, evs[choice].gap))  # gap 0: exact data
         accept = (not explained(current, alpha)) and pv[choice] < level and lg_new <= (1 - MIN_GAP_SHRINK) * lg_cur
         if ranking is None:
             ranking = [{"effect": c, "held_out_gap": evs[c].gap, "score": evs[c].score, "p_value": pv[c],
@@ -505,7 +513,7 @@ def breakdown(data: GapData, sim: Simulator, floor: Floor, base: Evaluation, aft
         w["noise"] = {"sigma_mg": (1e3 * meas).tolist(), "simulator_sigma_mg": (1e3 * sim_rand).tolist(),
                       "ratio": (meas / np.where(sim_rand > 0, sim_rand, np.nan)).tolist(),
                       "rate_hz": data.rate_hz or sim.odr_hz}
-    if data.captures is not None and data.rate_hz:
+    if data.captures is not None and data.rate_hz and td is not None:  # td: None when captures are too short
         longest = max(data.captures, key=lambda c: len(c.t))
         x = longest.x / longest.per_g
         taus, ad = zip(*[allan(x[:, a], data.rate_hz) for a in range(3)])

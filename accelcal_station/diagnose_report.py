@@ -192,14 +192,16 @@ def _pyplot():
 
 
 def check_report_dir(path) -> Path:
-    """The report directory (created if missing); errors before any analysis runs."""
+    """The report directory, checked before any analysis runs (write_report creates it, so a
+    run that fails leaves no empty directory behind)."""
     _pyplot()
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise DataError(f"--report {path}: exists and is not a directory")
     if not p.parent.is_dir():
         raise DataError(f"--report {path}: cannot create it (no such directory {p.parent})")
-    p.mkdir(exist_ok=True)
+    if not os.access(p if p.exists() else p.parent, os.W_OK | os.X_OK):
+        raise DataError(f"--report {path}: not writable")
     return p
 
 
@@ -224,12 +226,31 @@ def _empty(ax, text: str) -> None:
 
 
 def write_report(d: Diagnosis, out_dir, json_obj: dict) -> list[Path]:
-    """PNG figures and summary.md (which embeds them) in out_dir; returns the files written."""
+    """PNG figures and summary.md (which embeds them) in out_dir; returns the files written.
+
+    On any failure the files written so far (and out_dir, if this call created it) are removed.
+    """
     plt = _pyplot()
     out = Path(out_dir)
+    created = not out.exists()
+    out.mkdir(exist_ok=True)
+    files: list[Path] = []
+    try:
+        return _write_report(plt, d, out, json_obj, files)
+    except BaseException:
+        for f in files:
+            f.unlink(missing_ok=True)
+        if created:
+            try:
+                out.rmdir()
+            except OSError:
+                pass
+        raise
+
+
+def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path]) -> list[Path]:
     data = d.data
     after = " + ".join(d.selected) if d.selected else "no effect added"
-    files = []
 
     # sphere: direction of each pose (reference, or reading when norm-only), coloured by held-out z
     fig = plt.figure(figsize=(11, 4.2))

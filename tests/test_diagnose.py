@@ -12,8 +12,11 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
+from accelcal_station.diagnose import _p_greater, diagnose, gap_data, load_data, load_simulator
 from accelcal_station.diagnose_report import selftest_lines
-from accelcal_station.gap_effects import bias_var, mean_var, value_step, within_spread
+from accelcal_station.fixtures.designs import get_design
+from accelcal_station.gap_effects import Capture, bias_var, evaluate, mean_var, value_step, within_spread
+from accelcal_station.session import PoseRecord, Session
 
 REPO = Path(__file__).resolve().parents[1]
 # the effects a pose table or a raw log can reveal (the self-test must name each of them)
@@ -138,6 +141,22 @@ def test_report_without_matplotlib_is_one_line(cubic_table, tmp_path, monkeypatc
     assert not (tmp_path / "rep").exists()
 
 
+def test_norm_only_paired_test_counts_one_unit_per_pose(cubic_table, tmp_path):
+    """Without references a pose's norm residual is one score: the paired test must not add two zeros per pose."""
+    rows = list(csv.DictReader(line for line in cubic_table.read_text().splitlines() if not line.startswith("#")))
+    path = tmp_path / "norm.csv"  # no std, no n, no references: the static norm view is the only view
+    path.write_text("# units: counts\n# counts_per_g: 4096\npose,x,y,z\n"
+                    + "".join(f"{r['pose']},{r['x']},{r['y']},{r['z']}\n" for r in rows))
+    sim = load_simulator()
+    data = load_data([path], samples=200)
+    d = diagnose(data, sim)
+    assert d.selected == ["cubic"]
+    cubic = evaluate(data, d.floor, sim.baseline, ("cubic",), None, True)
+    diff = d.base.nll_unit - cubic.nll_unit
+    assert np.count_nonzero(d.base.nll_unit) == data.P
+    assert d.ranking[0]["p_value"] == _p_greater(diff[d.base.nll_unit != 0])
+
+
 def test_null_table_names_nothing(tmp_path):
     # 72 held-out residuals: the gap's sd is about 0.09, so 0.6-1.5 fails with p < 1e-5
     r = run("simulate", "--config", REPO / "configs" / "sim.yaml", "--poses", "optimal-24", "--samples", 200,
@@ -197,8 +216,50 @@ def test_bad_input_is_one_line(tmp_path, cubic_table):
     rows = list(csv.DictReader(line for line in cubic_table.read_text().splitlines() if not line.startswith("#")))
     few.write_text("# units: counts\n# counts_per_g: 4096\npose,pitch_deg,roll_deg,x,y,z\n"
                    + "".join(f"{r['pose']},,,{r['x']},{r['y']},{r['z']}\n" for r in rows[:5]))
-    assert "nothing to diagnose" in one_line_error(run("diagnose", few))
+    # a run that fails after --report was checked leaves no (empty) report directory behind
+    assert "nothing to diagnose" in one_line_error(run("diagnose", few, "--report", tmp_path / "rep"))
     assert not (tmp_path / "rep").exists()
+    cfg = yaml.safe_load((REPO / "configs" / "sim.yaml").read_text())
+    for e in ("noise", "quantization"):  # a simulator that claims exact readings: no floor to compare with
+        del cfg["device"]["simulator"]["effects"][e]
+    (tmp_path / "exact.yaml").write_text(yaml.safe_dump(cfg))
+    assert "predicts no noise" in one_line_error(run("diagnose", cubic_table, "--config", tmp_path / "exact.yaml"))
+
+
+def test_report_failing_midway_leaves_no_half_written_report(cubic_table, tmp_path):
+    out = tmp_path / "rep"
+    (out / "level.png").mkdir(parents=True)  # the second figure cannot be written
+    assert "level.png" in one_line_error(run("diagnose", cubic_table, "--report", out))
+    assert sorted(p.name for p in out.iterdir()) == ["level.png"]  # the sphere figure written first is gone
+
+
+def test_noise_free_data_and_exact_simulator_do_not_crash(tmp_path):
+    """Readings equal to their references under a simulator with nothing to fit: held-out gap exactly 0."""
+    cfg = yaml.safe_load((REPO / "configs" / "sim.yaml").read_text())
+    for e in ("offset", "gain", "cross_axis"):
+        del cfg["device"]["simulator"]["effects"][e]
+    (tmp_path / "ideal.yaml").write_text(yaml.safe_dump(cfg))
+    rows = "".join(f"{p.name},{','.join(repr(float(v)) for v in p.reference_g)},"
+                   f"{','.join(repr(float(v)) for v in p.reference_g)}\n" for p in get_design("optimal-24"))
+    (tmp_path / "exact.csv").write_text("# units: g\npose,x,y,z,ref_x,ref_y,ref_z\n" + rows)
+    r = run("diagnose", tmp_path / "exact.csv", "--config", tmp_path / "ideal.yaml", "--json")
+    assert r.exit_code == 0, r.output
+    js = json.loads(r.stdout)
+    assert js["gap_before"] == 0 and js["selected"] == []
+
+
+def test_raw_captures_too_short_for_time_blocks():
+    """Captures under 24 samples give no time view; the breakdown must not need one (Allan needs it)."""
+    rng = np.random.default_rng(3)
+    records, caps = [], []
+    for k, pose in enumerate(get_design("optimal-24")):
+        x = np.round(4096 * np.asarray(pose.reference_g) + rng.normal(0, 3, (20, 3)))
+        caps.append(Capture(2.0 * k + np.arange(20) / 20.0, x, 1.0))
+        records.append(PoseRecord(pose.name, x.mean(0), x.std(0, ddof=1), 20, pose.reference_g))
+    data = gap_data([(Session(records, "counts", 4096.0, None, "mma8451"), caps, "short")], rate_hz=20.0)
+    d = diagnose(data, load_simulator())
+    assert d.base.r_time is None and "allan" not in d.where
+    assert "noise" in d.where and np.isfinite(d.gap_before)
 
 
 # -- the floor ------------------------------------------------------------------------------------
