@@ -32,11 +32,12 @@ from pathlib import Path
 import numpy as np
 
 from .drivers.simulated import SimulatedBoard
-from .errors import ConfigError, DataError, UnderdeterminedError
+from .errors import ConfigError, DataError, UnderdeterminedError, UnitsError
 from .fixtures.designs import get_design
 from .fixtures.simulated_jig import SimulatedJig
 from .gap_effects import (Capture, Evaluation, Floor, GapData, TimeData, design_rank_ok, evaluate,
                           random_var, static_design, time_data)
+from .models import check_plausible_g
 from .models.gravity_norm import nominal_scale
 from .posetable import read_pose_table
 from .rawlog import RawLog, read_raw_log, static_session
@@ -130,6 +131,10 @@ def gap_data(parts: list[tuple[Session, list[Capture] | None, str]], samples: in
         if len(s) == 0:
             raise DataError(f"{src}: no poses")
         per_g = _scale(s, src, notes)
+        try:
+            check_plausible_g(s.readings / per_g, s.units)  # e.g. counts given as g
+        except UnitsError as e:
+            raise UnitsError(f"{src}: {e}") from None
         scales.append(per_g if s.units == "counts" else None)
         g.append(s.readings / per_g)
         ref.append([p.reference_g for p in s.poses])

@@ -276,3 +276,14 @@ def test_quantization_floor_matches_monte_carlo():
         assert np.var(means) == pytest.approx(float(mean_var(sigma, 1.0, n)), rel=0.04), sigma
     assert within_spread(0.05, 1.0) > 100 * within_spread(0.5, 1.0)  # heavy quantization: w(x) swings
     assert value_step(np.array([[0, 64, 128], [-64, 0, 192]])) == 64 and value_step(np.array([0.1, 0.25])) == pytest.approx(0.15)
+
+
+def test_counts_given_as_g_are_refused(shared):
+    from click.testing import CliRunner
+
+    from accelcal_station.cli import cli
+
+    log = shared / "datasets" / "imucal_annotated_session.csv"
+    r = CliRunner().invoke(cli, ["diagnose", "--raw", "--columns", "-,-,x,y,z,-,-,-", "--rate", "204.8",
+                                 "--units", "g", str(log)])
+    assert r.exit_code == 2 and "median norm of 2066 g" in r.stderr and r.stderr.count("\n") == 1
