@@ -205,13 +205,18 @@ def check_report_dir(path) -> Path:
     return p
 
 
-def _save(fig, path: Path) -> None:
+def _save(fig, files: list[Path], path: Path) -> None:
+    """Write one figure whole (temporary file, rename), list it, and free it."""
+    import matplotlib.pyplot as plt
+
+    files.append(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
     try:
         fig.savefig(tmp, dpi=110, bbox_inches="tight")
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+        plt.close(fig)
 
 
 def _z_pose(e) -> np.ndarray | None:
@@ -270,9 +275,7 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
         ax.set_xticklabels([])
         fig.colorbar(sc, ax=ax, shrink=0.7, label="log10 residual / floor")
     fig.suptitle("Residuals over the sphere of orientations (direction of gravity in the sensor frame)")
-    files.append(out / "sphere.png")
-    _save(fig, files[-1])
-    plt.close(fig)
+    _save(fig, files, out / "sphere.png")
 
     # residual against input level
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), sharey=True)
@@ -291,9 +294,7 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
     if d.base.r_static is not None:
         axes[0].legend(fontsize=8)
     fig.suptitle("Residual against input level")
-    files.append(out / "level.png")
-    _save(fig, files[-1])
-    plt.close(fig)
+    _save(fig, files, out / "level.png")
 
     # residual against temperature
     fig, ax = plt.subplots(figsize=(6, 3.6))
@@ -309,9 +310,7 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
         ax.set_ylabel("held-out residual / floor")
         ax.legend(fontsize=8)
     ax.set_title("Residual against temperature")
-    files.append(out / "temperature.png")
-    _save(fig, files[-1])
-    plt.close(fig)
+    _save(fig, files, out / "temperature.png")
 
     # residual against time in capture
     fig, ax = plt.subplots(figsize=(6, 3.6))
@@ -337,9 +336,7 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
         ax.set_ylabel("|block mean - capture mean| (mg)")
         ax.legend(fontsize=8)
     ax.set_title("Residual against time in capture")
-    files.append(out / "time.png")
-    _save(fig, files[-1])
-    plt.close(fig)
+    _save(fig, files, out / "time.png")
 
     al = d.where.get("allan")
     if al:
@@ -354,9 +351,7 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
         ax.set_ylabel("Allan deviation (mg)")
         ax.legend(fontsize=7)
         ax.set_title("Noise: Allan deviation of the longest capture")
-        files.append(out / "allan.png")
-        _save(fig, files[-1])
-        plt.close(fig)
+        _save(fig, files, out / "allan.png")
 
     md = ["# Sim-to-real gap diagnosis", "", "```", *summary_lines(d), "```", ""]
     md += ["| effect | held-out gap | p |", "|---|---|---|"]
