@@ -1,0 +1,189 @@
+"""The real bridge firmware on a simulated ATmega328P (simavr), as a port source for MPU6050Bridge.
+
+``make -C firmware`` builds the sketch with the Debian AVR toolchain (arduino-mk) and the
+harness firmware/sim/mpu6050_sim.c on libsimavr.  :class:`SimavrBridge` starts the harness
+on the built ELF and returns the path of the pseudo-terminal wired to the MCU's UART0;
+pyserial opens it as it would /dev/ttyUSB0.  Behind the firmware's TWI sits the harness's
+MPU6050 register model; whenever the firmware bursts the data registers (0x3B) and no
+sample is queued, the harness asks ("NEED") and waits, simulated time standing still,
+while this module answers with one sample of the project's simulated sensor
+(``SimulatedBoard.read``, counts at the range the firmware configured) -- so a jig
+emulator that turns the board turns what the firmware reads.  The NVM is the AVR's own
+EEPROM in simavr.
+
+Same lifecycle as :class:`MPU6050BridgeEmulator` (``start()`` -> port, ``stop()``, ``lock``,
+``board``), so ``MPU6050Bridge(port, emulator=SimavrBridge(board))`` and the station's
+jig emulator use it unchanged.
+"""
+from __future__ import annotations
+
+import os
+import queue
+import shutil
+import subprocess
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError, DeviceError
+from .mpu6050 import ACCEL_RATE_HZ, CHIP_ID, COUNTS_PER_G, PWR_SLEEP, rate_base_hz
+
+FIRMWARE_DIR = Path(os.environ.get("ACCELCAL_FIRMWARE_DIR", Path(__file__).resolve().parents[1] / "firmware"))
+ELF = FIRMWARE_DIR / "build" / "mpu6050_bridge" / "mpu6050_bridge.elf"
+HARNESS = FIRMWARE_DIR / "build" / "mpu6050_sim"
+TOOLS = ("avr-gcc", "make", "cc", "pkg-config")
+START_TIMEOUT_S = 10.0
+TEMP_OFFSET_C, TEMP_LSB_PER_C = 36.53, 340.0  # TEMP_OUT = (T - 36.53) * 340 (register map 4.18)
+
+
+def unavailable_reason() -> str | None:
+    """Why the simavr bridge cannot run here (None if it can, building it if need be)."""
+    if ELF.is_file() and HARNESS.is_file():
+        return None
+    missing = [t for t in TOOLS if shutil.which(t) is None]
+    if missing:
+        return (f"AVR toolchain / simavr not installed (missing {', '.join(missing)}); apt-get install gcc-avr "
+                "avr-libc arduino-core-avr arduino-mk simavr libsimavr-dev libsimavrparts1 libelf-dev pkg-config")
+    r = subprocess.run(["make", "-C", str(FIRMWARE_DIR)], capture_output=True, text=True)
+    if r.returncode != 0:
+        return f"make -C {FIRMWARE_DIR} failed: {(r.stdout + r.stderr).strip().splitlines()[-1:]}"
+    return None
+
+
+class SimavrBridge:
+    """The bridge firmware in simavr on a pseudo-terminal, fed by a SimulatedBoard."""
+
+    def __init__(self, board: Any = None, seed: int | None = None, factory_offsets=(1001, -2000, 3),
+                 who_am_i: int = CHIP_ID):
+        if board is None:
+            from .simulated import SimulatedBoard
+
+            board = SimulatedBoard.from_config(None, chip="mpu6050", seed=seed)
+        self.board = board
+        self.factory_offsets = tuple(int(v) for v in factory_offsets)
+        self.who_am_i = who_am_i
+        self.lock = threading.RLock()  # held while a sample is taken: take it to move the board
+        self.port: str | None = None
+        self.registers: dict[str, int] = {}  # the chip's configuration registers as last written
+        self._proc: subprocess.Popen | None = None
+        self._thread: threading.Thread | None = None
+        self._stats: queue.Queue[dict] = queue.Queue()
+        self._asleep = True
+
+    # --- lifecycle ------------------------------------------------------------------------
+    def start(self) -> str:
+        """Build if needed, start the harness, return the pseudo-terminal's path."""
+        if self._proc is not None:
+            return self.port
+        why = unavailable_reason()
+        if why:
+            raise DeviceError(f"cannot run the bridge firmware in simavr: {why}")
+        off = ",".join(str(v) for v in self.factory_offsets)
+        self._proc = subprocess.Popen([str(HARNESS), str(ELF), "-o", off, "-w", str(self.who_am_i)],
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+        ready: queue.Queue[str] = queue.Queue()
+        self._thread = threading.Thread(target=self._serve, args=(ready,), name="simavr-bridge", daemon=True)
+        self._thread.start()
+        try:
+            self.port = ready.get(timeout=START_TIMEOUT_S)
+        except queue.Empty:
+            self.stop()
+            raise DeviceError(f"simavr harness {HARNESS} did not open its pseudo-terminal "
+                              f"within {START_TIMEOUT_S:g} s") from None
+        return self.port
+
+    def stop(self) -> None:
+        """Stop the harness; safe to call twice."""
+        p, self._proc = self._proc, None
+        if p is None:
+            return
+        try:
+            p.stdin.write("Q\n")
+            p.stdin.flush()
+            p.wait(timeout=2.0)
+        except (OSError, ValueError, subprocess.TimeoutExpired):
+            p.kill()
+            p.wait()
+        for f in (p.stdin, p.stdout):
+            try:
+                f.close()
+            except OSError:
+                pass
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def __enter__(self) -> "SimavrBridge":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # --- side channel ---------------------------------------------------------------------
+    def _send(self, line: str) -> None:
+        p = self._proc
+        if p is None:
+            raise DeviceError("simavr harness is not running")
+        p.stdin.write(line + "\n")
+        p.stdin.flush()
+
+    def _serve(self, ready: queue.Queue) -> None:
+        p = self._proc
+        try:
+            for line in p.stdout:
+                word, _, rest = line.strip().partition(" ")
+                if word == "PTY":
+                    ready.put(rest)
+                elif word == "NEED":
+                    self._send(self._sample_line())
+                elif word == "CFG":
+                    self._configured(*(int(v) for v in rest.split()))
+                elif word == "STATS":
+                    self._stats.put({k: int(v) for k, v in (kv.split("=") for kv in rest.split())})
+        except (OSError, ValueError, DeviceError):
+            pass  # the harness went away (stop)
+
+    def _configured(self, accel_config: int, config: int, div: int, pwr: int) -> None:
+        """The firmware wrote a configuration register: the board follows the chip's range and rate."""
+        self.registers = {"ACCEL_CONFIG": accel_config, "CONFIG": config, "SMPLRT_DIV": div, "PWR_MGMT_1": pwr}
+        self._asleep = bool(pwr & PWR_SLEEP)
+        dlpf = config & 7
+        range_g = (2, 4, 8, 16)[(accel_config >> 3) & 3]
+        rate = min(rate_base_hz(dlpf) / (1 + div), ACCEL_RATE_HZ)  # the accelerometer samples at 1 kHz
+        with self.lock:
+            try:
+                self.board.configure(range_g, rate, dlpf)
+            except ConfigError:
+                pass  # mid-CONFIGURE (SMPLRT_DIV written before CONFIG): the next write completes it
+
+    def _sample_line(self) -> str:
+        with self.lock:
+            counts, _ = self.board.read(1)
+            temp_c = self.board.temperature_c
+            cpg = self.board.counts_per_g
+        if cpg != COUNTS_PER_G[self.board.range_g]:
+            raise DeviceError(f"simulated board at {cpg} counts per g")
+        xyz = np.clip(np.round(np.asarray(counts, dtype=float).reshape(-1)[:3]), -32768, 32767).astype(int)
+        t = int(np.clip(round((temp_c - TEMP_OFFSET_C) * TEMP_LSB_PER_C), -32768, 32767))
+        return f"D {xyz[0]} {xyz[1]} {xyz[2]} {t}"
+
+    # --- measurements and faults ----------------------------------------------------------
+    def stats(self, timeout_s: float = 5.0) -> dict[str, int]:
+        """The harness's counters: cycles, sim_us, free_ram_now / free_ram_min (bytes never
+        touched by the stack, by stack painting), uart_tx / uart_rx / uart_lost bytes, samples."""
+        self._send("S")
+        try:
+            return self._stats.get(timeout=timeout_s)
+        except queue.Empty:
+            raise DeviceError("simavr harness did not answer a STATS request") from None
+
+    def wear_cell(self, addr: int | None, value: int = 0xFF) -> None:
+        """EEPROM cell ``addr`` always reads ``value`` (a worn-out cell); None: no worn cell."""
+        self._send("E -1" if addr is None else f"E {int(addr)} {int(value) & 0xFF}")
+
+    def reset(self, after_samples: int | None = None) -> None:
+        """Pull the MCU's reset pin now, or after ``after_samples`` more reads of the data registers."""
+        self._send(f"B {0 if after_samples is None else max(1, int(after_samples))}")

@@ -1,0 +1,390 @@
+/* mpu6050_sim: the bridge firmware's ELF on a simulated ATmega328P (libsimavr), with
+ *   - UART0 on a pseudo-terminal (raw mode) that pyserial opens like /dev/ttyUSB0;
+ *   - an MPU6050 register model at I2C address 0x68 on the TWI bus
+ *     (RM-MPU-6000A-00 rev 4.2: WHO_AM_I, PWR_MGMT_1, SMPLRT_DIV, CONFIG, ACCEL_CONFIG,
+ *     ACCEL_XOUT_H..TEMP_OUT_L at 0x3B, XA/YA/ZA_OFFS at 0x06);
+ *   - the AVR's own 1 KiB EEPROM (simavr's model), the NVM the firmware pages;
+ *   - stack painting: free RAM between the static data and the deepest stack.
+ *
+ * Usage: mpu6050_sim FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I]
+ *
+ * Side channel: stdin / stdout, one text line per message (the Python side owns both).
+ *   stdout "PTY <path>"              once, when the port is ready
+ *   stdout "CFG <accel_config> <config> <smplrt_div> <pwr_mgmt_1>"  after the firmware writes one
+ *   stdout "NEED"                    the firmware reads the data registers and no sample is queued:
+ *                                    the simulation waits (simulated time stands still) for a "D"
+ *   stdout "STATS <key>=<value> ..." in answer to "S"
+ *   stdin  "D <x> <y> <z> <temp>"    one sample: accelerometer counts at the configured range with
+ *                                    the factory trim (int16) and TEMP_OUT (int16); queued, one per
+ *                                    burst read of ACCEL_XOUT_H
+ *   stdin  "X"                       drop queued samples (the board was moved)
+ *   stdin  "E <addr> <value>"        EEPROM cell <addr> is worn: it always reads <value>
+ *   stdin  "E -1"                    no worn cell
+ *   stdin  "B <k>"                   reset the MCU (external reset) after k more samples; "B 0": now
+ *   stdin  "S"                       report statistics
+ *   stdin  "Q"                       quit
+ * The simulation runs as fast as the host CPU allows; it never sleeps.  Simulated time is the
+ * firmware's time (its timer0, its UART bit timing at 115200 baud).
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <pty.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include "avr_eeprom.h"
+#include "avr_twi.h"
+#include "avr_uart.h"
+#include "sim_avr.h"
+#include "sim_elf.h"
+#include "sim_io.h"
+#include "sim_irq.h"
+
+#define MPU_ADDR 0x68
+#define REG_XA_OFFS_H 0x06
+#define REG_SMPLRT_DIV 0x19
+#define REG_CONFIG 0x1A
+#define REG_ACCEL_CONFIG 0x1C
+#define REG_ACCEL_XOUT_H 0x3B
+#define REG_TEMP_OUT_H 0x41
+#define REG_PWR_MGMT_1 0x6B
+#define REG_WHO_AM_I 0x75
+#define PWR_SLEEP 0x40
+#define PWR_DEVICE_RESET 0x80
+#define OFFSET_LSB_PER_G 2048
+#define PAINT 0xA5
+#define QUEUE_LEN 4096
+#define OUT_LEN (1 << 20)
+
+static avr_t *avr;
+static int pty_master = -1;
+
+/* --- MPU6050 register model ---------------------------------------------------------- */
+typedef struct { int16_t v[4]; } sample_t;  /* x, y, z counts, TEMP_OUT */
+
+static struct {
+  uint8_t regs[0x80];
+  int16_t factory[3];
+  uint8_t who;
+  avr_irq_t *irq;
+  uint8_t selected, index, reg;
+  sample_t queue[QUEUE_LEN];
+  unsigned head, tail;
+  unsigned long samples_used, waits, i2c_bytes;
+} mpu;
+
+static void put_be16(uint8_t *p, int v) { p[0] = (uint8_t)((v >> 8) & 0xFF); p[1] = (uint8_t)(v & 0xFF); }
+static int get_be16(const uint8_t *p) { return (int16_t)((p[0] << 8) | p[1]); }
+
+static void mpu_power_on_reset(void) {
+  memset(mpu.regs, 0, sizeof(mpu.regs));
+  mpu.regs[REG_WHO_AM_I] = mpu.who;
+  mpu.regs[REG_PWR_MGMT_1] = PWR_SLEEP;
+  for (int i = 0; i < 3; i++) put_be16(mpu.regs + REG_XA_OFFS_H + 2 * i, mpu.factory[i]);
+}
+
+static void side_input(int block);
+static long reset_after = -1;  /* samples until an external reset; -1: none */
+static int reset_now;
+
+/* One sample into the data registers: counts plus the offset registers' change from the
+ * factory trim (2048 LSB per g, bit 0 reserved), scaled to the configured range. */
+static void mpu_new_sample(void) {
+  if (mpu.regs[REG_PWR_MGMT_1] & PWR_SLEEP) return;  /* asleep: data registers hold */
+  while (mpu.head == mpu.tail) {
+    mpu.waits++;
+    printf("NEED\n");
+    fflush(stdout);
+    side_input(1);
+  }
+  sample_t s = mpu.queue[mpu.tail++ % QUEUE_LEN];
+  mpu.samples_used++;
+  if (reset_after > 0 && --reset_after == 0) reset_now = 1;
+  int afs = (mpu.regs[REG_ACCEL_CONFIG] >> 3) & 3;
+  for (int i = 0; i < 3; i++) {
+    int d = (get_be16(mpu.regs + REG_XA_OFFS_H + 2 * i) & ~1) - (mpu.factory[i] & ~1);
+    long v = s.v[i] + (long)d * (16384 >> afs) / OFFSET_LSB_PER_G;
+    v = v < -32768 ? -32768 : v > 32767 ? 32767 : v;
+    put_be16(mpu.regs + REG_ACCEL_XOUT_H + 2 * i, (int)v);
+  }
+  put_be16(mpu.regs + REG_TEMP_OUT_H, s.v[3]);
+}
+
+static void mpu_write(uint8_t reg, uint8_t v) {
+  reg &= 0x7F;
+  if (reg == REG_PWR_MGMT_1 && (v & PWR_DEVICE_RESET)) {
+    uint8_t keep[14];
+    memcpy(keep, mpu.regs + REG_ACCEL_XOUT_H, 14);
+    mpu_power_on_reset();
+    memcpy(mpu.regs + REG_ACCEL_XOUT_H, keep, 14);
+  } else if (reg != REG_WHO_AM_I && !(reg >= REG_ACCEL_XOUT_H && reg < REG_ACCEL_XOUT_H + 14)) {
+    mpu.regs[reg] = v;
+  }
+  if (reg == REG_SMPLRT_DIV || reg == REG_CONFIG || reg == REG_ACCEL_CONFIG || reg == REG_PWR_MGMT_1) {
+    printf("CFG %u %u %u %u\n", mpu.regs[REG_ACCEL_CONFIG], mpu.regs[REG_CONFIG], mpu.regs[REG_SMPLRT_DIV],
+           mpu.regs[REG_PWR_MGMT_1]);
+    fflush(stdout);
+  }
+}
+
+/* TWI messages from the AVR's master (as simavr's parts/i2c_eeprom.c): START+ADDR selects,
+ * the first written byte is the register pointer, later bytes are written with auto-increment;
+ * reads return the register at the pointer and increment it. */
+static void mpu_twi_hook(avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  (void)param;
+  avr_twi_msg_irq_t v;
+  v.u.v = value;
+  if (v.u.twi.msg & TWI_COND_STOP) mpu.selected = 0;
+  if (v.u.twi.msg & TWI_COND_START) {
+    mpu.selected = 0;
+    mpu.index = 0;
+    if ((v.u.twi.addr >> 1) == MPU_ADDR) {
+      mpu.selected = v.u.twi.addr;
+      avr_raise_irq(mpu.irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_ACK, mpu.selected, 1));
+    }
+  }
+  if (!mpu.selected) return;
+  if (v.u.twi.msg & TWI_COND_WRITE) {
+    avr_raise_irq(mpu.irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_ACK, mpu.selected, 1));
+    if (mpu.index++ == 0) {
+      mpu.reg = v.u.twi.data & 0x7F;
+    } else {
+      mpu_write(mpu.reg, v.u.twi.data);
+      mpu.reg = (mpu.reg + 1) & 0x7F;
+    }
+    mpu.i2c_bytes++;
+  }
+  if (v.u.twi.msg & TWI_COND_READ) {
+    if (mpu.reg == REG_ACCEL_XOUT_H) mpu_new_sample();  /* a burst from 0x3B: the next sample */
+    avr_raise_irq(mpu.irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_READ, mpu.selected, mpu.regs[mpu.reg]));
+    mpu.reg = (mpu.reg + 1) & 0x7F;
+    mpu.i2c_bytes++;
+  }
+}
+
+static void mpu_attach(void) {
+  static const char *names[2] = {[TWI_IRQ_INPUT] = "8>mpu6050.out", [TWI_IRQ_OUTPUT] = "32<mpu6050.in"};
+  mpu.irq = avr_alloc_irq(&avr->irq_pool, 0, 2, names);
+  avr_irq_register_notify(mpu.irq + TWI_IRQ_OUTPUT, mpu_twi_hook, NULL);
+  avr_connect_irq(mpu.irq + TWI_IRQ_INPUT, avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_INPUT));
+  avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), mpu.irq + TWI_IRQ_OUTPUT);
+}
+
+/* --- UART0 <-> pseudo-terminal ------------------------------------------------------- */
+static uint8_t out_buf[OUT_LEN];
+static size_t out_len;
+static unsigned long uart_tx_bytes, uart_rx_bytes, uart_tx_lost;
+static int uart_xoff;
+static uint8_t in_buf[4096];
+static size_t in_len, in_pos;
+
+static void uart_out_hook(avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  (void)param;
+  uart_tx_bytes++;
+  if (out_len < OUT_LEN) out_buf[out_len++] = (uint8_t)value;
+  else uart_tx_lost++;  /* host not reading: a USB-serial adapter would drop them too */
+}
+static void uart_xon_hook(avr_irq_t *irq, uint32_t value, void *param) { (void)irq; (void)value; (void)param; uart_xoff = 0; }
+static void uart_xoff_hook(avr_irq_t *irq, uint32_t value, void *param) { (void)irq; (void)value; (void)param; uart_xoff = 1; }
+
+static void uart_attach(void) {
+  uint32_t flags = 0;
+  avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+  flags &= ~(AVR_UART_FLAG_STDIO | AVR_UART_FLAG_POLL_SLEEP);  /* no console echo, never usleep */
+  avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart_out_hook, NULL);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), uart_xon_hook, NULL);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), uart_xoff_hook, NULL);
+}
+
+static void pty_open(void) {
+  int slave;
+  char name[256];
+  struct termios t;
+  if (openpty(&pty_master, &slave, name, NULL, NULL) < 0) {
+    perror("openpty");
+    exit(1);
+  }
+  cfmakeraw(&t);
+  tcgetattr(slave, &t);
+  cfmakeraw(&t);
+  tcsetattr(slave, TCSANOW, &t);
+  fcntl(pty_master, F_SETFL, O_NONBLOCK);
+  /* the slave stays open here so the master never reads EIO between host sessions */
+  printf("PTY %s\n", name);
+  fflush(stdout);
+}
+
+static void uart_pump(void) {
+  if (out_len) {
+    ssize_t k = write(pty_master, out_buf, out_len);
+    if (k > 0) {
+      memmove(out_buf, out_buf + k, out_len - (size_t)k);
+      out_len -= (size_t)k;
+    }
+  }
+  if (in_pos == in_len) {
+    ssize_t k = read(pty_master, in_buf, sizeof(in_buf));
+    in_pos = 0;
+    in_len = k > 0 ? (size_t)k : 0;
+  }
+  avr_irq_t *rx = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+  while (in_pos < in_len && !uart_xoff) {
+    avr_raise_irq(rx, in_buf[in_pos++]);
+    uart_rx_bytes++;
+  }
+}
+
+/* --- stack painting ------------------------------------------------------------------ */
+static uint16_t paint_lo;                /* first byte above .data + .bss + .noinit */
+static unsigned long min_free = 0xFFFF;  /* over all boots so far */
+
+static void paint(void) {
+  for (unsigned a = paint_lo; a <= avr->ramend; a++) avr->data[a] = PAINT;
+}
+
+static unsigned long free_now(void) {
+  unsigned a = paint_lo;
+  while (a <= avr->ramend && avr->data[a] == PAINT) a++;
+  return a - paint_lo;
+}
+
+/* --- side channel -------------------------------------------------------------------- */
+static char line[256];
+static size_t line_len;
+static int worn_addr = -1, worn_value;
+
+static void side_line(const char *s) {
+  int x, y, z, t;
+  switch (s[0]) {
+    case 'D':
+      if (sscanf(s + 1, "%d %d %d %d", &x, &y, &z, &t) == 4 && mpu.head - mpu.tail < QUEUE_LEN) {
+        sample_t v = {{(int16_t)x, (int16_t)y, (int16_t)z, (int16_t)t}};
+        mpu.queue[mpu.head++ % QUEUE_LEN] = v;
+      }
+      break;
+    case 'X': mpu.tail = mpu.head; break;
+    case 'B':
+      if (sscanf(s + 1, "%d", &x) == 1) {
+        reset_after = x > 0 ? x : -1;
+        reset_now = x <= 0;
+      }
+      break;
+    case 'E':
+      if (sscanf(s + 1, "%d %d", &x, &y) >= 1) worn_addr = x, worn_value = y;
+      break;
+    case 'S': {
+      unsigned long f = free_now();
+      printf("STATS cycles=%llu sim_us=%llu free_ram_now=%lu free_ram_min=%lu static_ram=%u ramend=%u "
+             "uart_tx=%lu uart_rx=%lu uart_lost=%lu samples=%lu waits=%lu i2c_bytes=%lu\n",
+             (unsigned long long)avr->cycle, (unsigned long long)(avr->cycle / (avr->frequency / 1000000)),
+             f, f < min_free ? f : min_free, paint_lo - 0x100, avr->ramend, uart_tx_bytes, uart_rx_bytes,
+             uart_tx_lost, mpu.samples_used, mpu.waits, mpu.i2c_bytes);
+      fflush(stdout);
+      break;
+    }
+    case 'Q': exit(0);
+  }
+}
+
+/* Read what stdin has; with block, wait until at least one whole line was handled. */
+static void side_input(int block) {
+  for (;;) {
+    struct pollfd p = {0, POLLIN, 0};
+    int handled = 0;
+    if (poll(&p, 1, block ? 50 : 0) > 0) {
+      char buf[4096];
+      ssize_t k = read(0, buf, sizeof(buf));
+      if (k <= 0) exit(0);  /* the Python side went away */
+      for (ssize_t i = 0; i < k; i++) {
+        if (buf[i] == '\n') {
+          line[line_len] = 0;
+          side_line(line);
+          line_len = 0;
+          handled = 1;
+        } else if (line_len < sizeof(line) - 1) {
+          line[line_len++] = buf[i];
+        }
+      }
+    } else if (block) {
+      uart_pump();  /* keep the host link moving while waiting */
+    }
+    if (!block || (handled && mpu.head != mpu.tail)) return;
+  }
+}
+
+static void worn_cell(void) {
+  avr_eeprom_desc_t d = {.ee = NULL, .offset = (uint16_t)worn_addr, .size = 1};
+  uint8_t b = 0;
+  d.ee = &b;
+  avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &d);
+  if (b != (uint8_t)worn_value) {
+    b = (uint8_t)worn_value;
+    d.ee = &b;
+    avr_ioctl(avr, AVR_IOCTL_EEPROM_SET, &d);
+  }
+}
+
+int main(int argc, char **argv) {
+  elf_firmware_t fw;
+  int opt, ox = 1001, oy = -2000, oz = 3, who = 0x68;
+  while ((opt = getopt(argc, argv, "o:w:")) != -1) {
+    if (opt == 'o' && sscanf(optarg, "%d,%d,%d", &ox, &oy, &oz) == 3) continue;
+    if (opt == 'w' && sscanf(optarg, "%i", &who) == 1) continue;
+    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I]\n", argv[0]);
+    return 2;
+  }
+  if (optind >= argc) {
+    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I]\n", argv[0]);
+    return 2;
+  }
+  memset(&fw, 0, sizeof(fw));
+  if (elf_read_firmware(argv[optind], &fw) != 0) {
+    fprintf(stderr, "%s: cannot read ELF\n", argv[optind]);
+    return 1;
+  }
+  avr = avr_make_mcu_by_name("atmega328p");
+  if (!avr) return 1;
+  avr_init(avr);
+  avr->frequency = 16000000;
+  avr->log = 1;  /* errors only */
+  avr_load_firmware(avr, &fw);
+  mpu.factory[0] = (int16_t)ox, mpu.factory[1] = (int16_t)oy, mpu.factory[2] = (int16_t)oz;
+  mpu.who = (uint8_t)who;
+  mpu_power_on_reset();
+  mpu_attach();
+  uart_attach();
+  paint_lo = (uint16_t)(0x100 + fw.datasize + fw.bsssize + 3);  /* + .noinit: mcusr_at_boot, reset_magic */
+  paint();
+  pty_open();
+  for (unsigned long n = 0;; n++) {
+    if (avr->pc == 0 && n) {  /* watchdog reset: RAM keeps its contents, the stack starts again */
+      unsigned long f = free_now();
+      if (f < min_free) min_free = f;
+      paint();
+    }
+    if (reset_now) {
+      reset_now = 0;
+      reset_after = -1;
+      avr_reset(avr);
+      avr->data[0x54] |= 1 << 1;  /* MCUSR.EXTRF: the reset pin */
+    }
+    int state = avr_run(avr);
+    if (state == cpu_Done || state == cpu_Crashed) {
+      fprintf(stderr, "simulated MCU stopped (state %d) at pc 0x%04x\n", state, avr->pc);
+      return 3;
+    }
+    if (worn_addr >= 0) worn_cell();
+    if ((n & 1023) == 0) {
+      uart_pump();
+      side_input(0);
+    }
+  }
+}

