@@ -245,6 +245,7 @@ static void uart_pump(void) {
 /* --- stack painting ------------------------------------------------------------------ */
 static uint16_t paint_lo;                /* first byte above .data + .bss + .noinit */
 static unsigned long min_free = 0xFFFF;  /* over all boots so far */
+static unsigned min_sp = 0xFFFF;         /* lowest stack pointer seen between instructions */
 
 static void paint(void) {
   for (unsigned a = paint_lo; a <= avr->ramend; a++) avr->data[a] = PAINT;
@@ -283,9 +284,9 @@ static void side_line(const char *s) {
     case 'S': {
       unsigned long f = free_now();
       printf("STATS cycles=%llu sim_us=%llu free_ram_now=%lu free_ram_min=%lu static_ram=%u ramend=%u "
-             "uart_tx=%lu uart_rx=%lu uart_lost=%lu samples=%lu waits=%lu i2c_bytes=%lu\n",
+             "min_sp_free=%u uart_tx=%lu uart_rx=%lu uart_lost=%lu samples=%lu waits=%lu i2c_bytes=%lu\n",
              (unsigned long long)avr->cycle, (unsigned long long)(avr->cycle / (avr->frequency / 1000000)),
-             f, f < min_free ? f : min_free, paint_lo - 0x100, avr->ramend, uart_tx_bytes, uart_rx_bytes,
+             f, f < min_free ? f : min_free, paint_lo - 0x100, avr->ramend, min_sp + 1 - paint_lo, uart_tx_bytes, uart_rx_bytes,
              uart_tx_lost, mpu.samples_used, mpu.waits, mpu.i2c_bytes);
       fflush(stdout);
       break;
@@ -381,6 +382,8 @@ int main(int argc, char **argv) {
       fprintf(stderr, "simulated MCU stopped (state %d) at pc 0x%04x\n", state, avr->pc);
       return 3;
     }
+    unsigned sp = avr->data[R_SPL] | (avr->data[R_SPH] << 8);
+    if (sp < min_sp && sp >= paint_lo) min_sp = sp;
     if (worn_addr >= 0) worn_cell();
     if ((n & 1023) == 0) {
       uart_pump();
