@@ -11,10 +11,18 @@ SEM ~45/sqrt(n); tolerances are >= 8 SEM (false-failure rate < 1e-14 per asserti
 """
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
+from click.testing import CliRunner
+
+from accelcal_station.cli import cli
 
 from accelcal_station.drivers import bridge_protocol as bp
 from accelcal_station.drivers import mpu6050_simavr
@@ -23,6 +31,11 @@ from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.mpu6050_simavr import SimavrBridge
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.errors import NVMError
+from accelcal_station.fixtures.jig_emulator import JigEmulator
+from accelcal_station.writer import CalibrationWriter
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIGS = REPO / "configs"
 
 FACTORY = (1001, -2000, 3)
 LINK = {"python": dict(timeout_s=0.25, retries=3, boot_wait_s=0.3),
@@ -173,3 +186,54 @@ def test_free_ram_at_deepest_stack(avr):
     # headroom: at least 256 bytes never touched; and the stack was used (not a blank reading)
     assert 256 <= s["free_ram_min"] < 2048 - s["static_ram"] - 64
     assert s["uart_lost"] == 0
+
+
+# --- the station's commands against the firmware ------------------------------------------------
+def test_probe_cli_on_the_port(bridge):
+    r = CliRunner().invoke(cli, ["probe", "--config", str(CONFIGS / "mpu6050.yaml"), "--port", bridge.port, "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["chip"] == "mpu6050" and out["chip_id"] == 0x68, out
+    assert out["interface"] == f"serial:{bridge.port}"
+
+
+def test_whole_run_with_motorized_jig(bridge, tmp_path):
+    jig = JigEmulator(board=bridge.board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock).start()
+    try:
+        cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
+        cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+        cfg["jig"].update(settle_s=0.0, speed_deg_s=4000, accel_deg_s2=1e5)  # fast axes: a quick test
+        cfg["device"].update(LINK[bridge.kind], odr_hz=200)  # drop-free on the chip up to 333 Hz
+        p = tmp_path / "mpu.yaml"
+        p.write_text(yaml.safe_dump(cfg))
+        r = CliRunner().invoke(cli, ["run", "--config", str(p), "--port", bridge.port, "--jig-port", jig.port,
+                                     "--json"])
+        assert r.exit_code == 0, r.output
+        out = json.loads(r.stdout)
+        assert out["verdict"] == "PASS" and out["chip"] == "mpu6050" and out["nvm_verified"]
+        assert sum(c.startswith("MOVE") for c in jig.received) >= 8
+    finally:
+        jig.stop()
+    # the calibration is in the bridge's NVM, read back through the protocol (the AVR's EEPROM for simavr)
+    with MPU6050Bridge(bridge.port, **LINK[bridge.kind]) as dev:
+        cal, _, _ = CalibrationWriter(dev.nvm).read_newest(out["serial"])
+    np.testing.assert_allclose(cal.W, out["W"], rtol=0, atol=0)
+    # the fit inverts the simulated sensor's own errors (truth) to well under 1 mg
+    g = np.array([[0.6, -0.6, 0.52], [0.0, 0.0, 1.0]]) * cal.input_per_g
+    truth = bridge.board.truth()
+    np.testing.assert_allclose(cal.apply(g, units="counts"), truth.apply(g, units="counts"), atol=1e-3)
+
+
+def test_emulate_firmware_prints_a_port_that_probe_opens():
+    require_simavr()
+    p = subprocess.Popen([sys.executable, "-m", "accelcal_station", "emulate", "mpu6050-bridge", "--firmware",
+                          "--seed", "5", "--json"], stdout=subprocess.PIPE, text=True, cwd=REPO)
+    try:
+        port = json.loads(p.stdout.readline())["port"]
+        r = subprocess.run([sys.executable, "-m", "accelcal_station", "probe", "--config", "configs/mpu6050.yaml",
+                            "--port", port], capture_output=True, text=True, cwd=REPO, timeout=60)
+        assert r.returncode == 0, r.stderr
+        assert "mpu6050 (chip id 0x68)" in r.stdout and "mpu6050-bridge 1.0" in r.stdout, r.stdout
+    finally:
+        p.terminate()
+        p.wait(timeout=10)

@@ -26,14 +26,18 @@ KINDS = ("mpu6050-bridge", "motor-jig")
               help="mpu6050-bridge: also start a motorized jig emulator that turns the same board.")
 @click.option("--jig-speed", type=click.FloatRange(1.0, 1e5), default=180.0, show_default=True,
               help="Jig axis speed in deg/s (motion runs in real time).")
+@click.option("--firmware", "on_avr", is_flag=True,
+              help="mpu6050-bridge: run the real bridge firmware on a simulated ATmega328P (simavr; built "
+                   "by make -C firmware) instead of the Python emulator.")
 @click.option("--json", "as_json", is_flag=True, help="Print the port(s) as one JSON object.")
 def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool, jig_speed: float,
-            as_json: bool) -> None:
+            on_avr: bool, as_json: bool) -> None:
     """Start an emulated device (or jig) on a new pseudo-terminal and print its path; Ctrl-C stops it.
 
     \b
     mpu6050-bridge              the MPU6050 serial bridge (docs/bridge-protocol.md)
     mpu6050-bridge --motor-jig  the bridge plus a motorized jig holding the same board
+    mpu6050-bridge --firmware   the real firmware in simavr (AVR toolchain and simavr needed)
     motor-jig                   a motorized two-axis jig alone (docs/jig-protocol.md)
     """
     from ..fixtures.jig_emulator import JigEmulator
@@ -45,7 +49,12 @@ def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool
         board_cfg, cfg_seed = board_config_from_file(config_path) if config_path else (None, None)
         board = SimulatedBoard.from_config(board_cfg, chip="mpu6050", seed=seed if seed is not None else cfg_seed,
                                            path=f"{config_path}: device" if config_path else "simulator")
-        bridge = MPU6050BridgeEmulator(board)
+        if on_avr:
+            from ..drivers.mpu6050_simavr import SimavrBridge
+
+            bridge = SimavrBridge(board)
+        else:
+            bridge = MPU6050BridgeEmulator(board)
         emus.append(bridge)
     if kind == "motor-jig" or with_jig:
         jig = JigEmulator(board=board, speed_deg_s=jig_speed, accel_deg_s2=jig_speed * 4,
@@ -61,7 +70,8 @@ def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool
             click.echo(json.dumps({"emulator": kind, **ports, "seed": None if board is None else board.seed}))
         else:
             if "port" in ports:
-                click.echo(f"MPU6050 bridge emulator on {ports['port']} (seed {board.seed}; Ctrl-C to stop)")
+                what = "bridge firmware in simavr" if on_avr else "bridge emulator"
+                click.echo(f"MPU6050 {what} on {ports['port']} (seed {board.seed}; Ctrl-C to stop)")
             if "jig_port" in ports:
                 click.echo(f"motorized jig emulator on {ports['jig_port']}")
             if "port" in ports and "jig_port" in ports:
