@@ -11,7 +11,8 @@
 // test suite (tests/test_bridge_protocol.py) parses this file and checks it, and
 // checks TEST_FRAME / TEST_FRAME_CRC against the host CRC.
 //
-// Build: Arduino IDE or `arduino-cli compile --fqbn arduino:avr:uno firmware/mpu6050_bridge`.
+// Build: Arduino IDE, `arduino-cli compile --fqbn arduino:avr:uno firmware/mpu6050_bridge`, or
+// `make -C firmware` (Debian gcc-avr + arduino-mk; also builds the simavr harness in firmware/sim).
 
 #include <Arduino.h>
 #include <Wire.h>
