@@ -17,6 +17,7 @@ jig emulator use it unchanged.
 """
 from __future__ import annotations
 
+import functools
 import os
 import queue
 import shutil
@@ -38,8 +39,9 @@ START_TIMEOUT_S = 10.0
 TEMP_OFFSET_C, TEMP_LSB_PER_C = 36.53, 340.0  # TEMP_OUT = (T - 36.53) * 340 (register map 4.18)
 
 
+@functools.lru_cache(maxsize=1)
 def unavailable_reason() -> str | None:
-    """Why the simavr bridge cannot run here (None if it can, building it if need be)."""
+    """Why the simavr bridge cannot run here (None if it can, building it once if need be)."""
     if ELF.is_file() and HARNESS.is_file():
         return None
     missing = [t for t in TOOLS if shutil.which(t) is None]
@@ -48,7 +50,8 @@ def unavailable_reason() -> str | None:
                 "avr-libc arduino-core-avr arduino-mk simavr libsimavr-dev libsimavrparts1 libelf-dev pkg-config")
     r = subprocess.run(["make", "-C", str(FIRMWARE_DIR)], capture_output=True, text=True)
     if r.returncode != 0:
-        return f"make -C {FIRMWARE_DIR} failed: {(r.stdout + r.stderr).strip().splitlines()[-1:]}"
+        last = (r.stdout + r.stderr).strip().splitlines()[-1:] or ["no output"]
+        return f"make -C {FIRMWARE_DIR} failed: {last[0]}"
     return None
 
 

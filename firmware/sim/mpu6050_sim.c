@@ -212,7 +212,6 @@ static void pty_open(void) {
     perror("openpty");
     exit(1);
   }
-  cfmakeraw(&t);
   tcgetattr(slave, &t);
   cfmakeraw(&t);
   tcsetattr(slave, TCSANOW, &t);
