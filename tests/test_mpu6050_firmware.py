@@ -15,6 +15,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,8 @@ from accelcal_station.cli import cli
 
 from accelcal_station.drivers import bridge_protocol as bp
 from accelcal_station.drivers import mpu6050_simavr
-from accelcal_station.drivers.mpu6050 import ACCEL_CONFIG, CONFIG, PWR_MGMT_1, SMPLRT_DIV, MPU6050Bridge
+from accelcal_station.drivers.mpu6050 import (ACCEL_CONFIG, CONFIG, PWR_MGMT_1, SMPLRT_DIV, BridgeLink, BridgeRefused,
+                                              MPU6050Bridge)
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.mpu6050_simavr import SimavrBridge
 from accelcal_station.drivers.simulated import SimulatedBoard
@@ -149,6 +151,72 @@ def test_reset_command(bridge, dev):
     dev.reset()
     assert dev.read_register(ACCEL_CONFIG)[0] == 3 << 3
     assert dev.capture(50).n == 50
+
+
+# --- the protocol itself, frame by frame ------------------------------------------------------
+def frames_until(link, kind: int, within_s: float = 3.0) -> list:
+    """Frames read until one of type ``kind`` (inclusive); fails if none comes."""
+    got, deadline = [], time.monotonic() + within_s
+    while (g := link.next_frame(deadline)) is not None:
+        got.append(g[0])
+        if g[0].type == kind:
+            return got
+    raise AssertionError(f"no {bp.FRAME_NAMES[kind]} within {within_s} s; got {[f.name for f in got]}")
+
+
+@pytest.fixture
+def link(bridge):
+    lk = BridgeLink(bridge.port, timeout_s=LINK[bridge.kind]["timeout_s"], retries=0)
+    lk.open()
+    if bridge.kind == "simavr":
+        frames_until(lk, bp.RSP_BOOT)  # the MCU boots after the port opened (100 ms of chip reset)
+    yield lk
+    lk.close()
+
+
+@pytest.mark.parametrize("cmd,payload,err", [
+    (0x55, b"", bp.ERR_UNKNOWN_CMD),
+    (bp.CMD_CONFIGURE, b"\x00\x03", bp.ERR_BAD_LENGTH),
+    (bp.CMD_CONFIGURE, bytes([4, 3, 9]), bp.ERR_BAD_ARG),  # AFS_SEL 4
+    (bp.CMD_STREAM, bytes(4), bp.ERR_BAD_ARG),  # zero samples
+    (bp.CMD_READ_REG, bytes([0x3B, 17]), bp.ERR_BAD_ARG),  # above REG_MAX_COUNT
+    (bp.CMD_WRITE_REG, bytes([0x7F, 1, 2]), bp.ERR_BAD_ARG),  # past register 0x7F
+    (bp.CMD_NVM_READ, bytes([32]), bp.ERR_BAD_ARG),  # page 32 of 32
+    (bp.CMD_NVM_WRITE, bytes([0]) + bytes(31), bp.ERR_BAD_LENGTH),
+])
+def test_nak_paths(link, cmd, payload, err):
+    with pytest.raises(BridgeRefused) as e:
+        link.command(cmd, payload)
+    assert bp.ERROR_TEXT[err] in str(e.value)
+
+
+def test_bad_crc_is_dropped_and_the_next_frame_answered(link):
+    bad = bytearray(bp.encode_frame(bp.CMD_IDENTIFY, 77))
+    bad[-1] ^= 0x01
+    link._ser.write(bytes(bad))
+    assert len(link.command(bp.CMD_IDENTIFY)) == bp.IDENTIFY_DATA.size
+    assert link.stats.naks == 0 and link.stats.lost_frames == 0  # no answer to the damaged frame
+
+
+def test_a_command_ends_a_stream_with_stream_end_first(link):
+    link.command(bp.CMD_WRITE_REG, bytes([PWR_MGMT_1, 0x01]))  # wake the chip
+    assert bp.STREAM_DATA.unpack(link.command(bp.CMD_STREAM, bp.STREAM.pack(100000)))[0] == 100000
+    got = frames_until(link, bp.RSP_SAMPLE)
+    seq = link.send(bp.CMD_STOP)
+    got = frames_until(link, bp.RSP_ACK)
+    ends = [f for f in got if f.type == bp.RSP_STREAM_END]
+    assert len(ends) == 1 and got[-1].payload == bp.ack(bp.CMD_STOP, seq)
+    assert got.index(ends[0]) < len(got) - 1  # STREAM_END before the ACK
+    samples = [bp.SAMPLE_INDEX.unpack_from(f.payload)[0] for f in got if f.type == bp.RSP_SAMPLE]
+    assert bp.STREAM_END.unpack(ends[0].payload)[0] == samples[-1] + 1  # count sent = last index + 1
+    assert link.stats.lost_frames == 0
+
+
+def test_reset_command_boots_with_its_cause(link):
+    link.command(bp.CMD_RESET)
+    boot = frames_until(link, bp.RSP_BOOT)[-1]
+    assert bp.BOOT.unpack(boot.payload) == (bp.PROTOCOL_VERSION, bp.BOOT_COMMAND, 1, 0)
+    assert len(link.command(bp.CMD_IDENTIFY)) == bp.IDENTIFY_DATA.size
 
 
 # --- only on the simulated chip ----------------------------------------------------------------

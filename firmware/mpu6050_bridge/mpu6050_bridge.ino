@@ -93,7 +93,10 @@ static const uint8_t TEST_FRAME[] = {
 // MCUSR must be read and the watchdog stopped before anything else runs, or a
 // watchdog reset keeps re-triggering (AVR keeps WDE set after a watchdog reset).
 uint8_t mcusr_at_boot __attribute__((section(".noinit")));
-uint16_t reset_magic __attribute__((section(".noinit")));
+// volatile: do_reset() stores it just before an endless loop, which C++ lets the compiler
+// assume is never reached; avr-gcc 7.3 (-Os -flto) dropped the plain store, and a RESET
+// command came back as a watchdog boot (found running this build in simavr).
+volatile uint16_t reset_magic __attribute__((section(".noinit")));
 void early_init(void) __attribute__((naked, used, section(".init3")));
 void early_init(void) {
   mcusr_at_boot = MCUSR;

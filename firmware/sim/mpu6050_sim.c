@@ -365,16 +365,16 @@ int main(int argc, char **argv) {
   paint();
   pty_open();
   for (unsigned long n = 0;; n++) {
-    if (avr->pc == 0 && n) {  /* watchdog reset: RAM keeps its contents, the stack starts again */
-      unsigned long f = free_now();
-      if (f < min_free) min_free = f;
-      paint();
-    }
     if (reset_now) {
       reset_now = 0;
       reset_after = -1;
       avr_reset(avr);
       avr->data[0x54] |= 1 << 1;  /* MCUSR.EXTRF: the reset pin */
+    }
+    if (avr->pc == 0 && n) {  /* watchdog reset: RAM keeps its contents, the stack starts again */
+      unsigned long f = free_now();
+      if (f < min_free) min_free = f;
+      paint();
     }
     int state = avr_run(avr);
     if (state == cpu_Done || state == cpu_Crashed) {
