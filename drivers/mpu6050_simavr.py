@@ -190,3 +190,7 @@ class SimavrBridge:
     def reset(self, after_samples: int | None = None) -> None:
         """Pull the MCU's reset pin now, or after ``after_samples`` more reads of the data registers."""
         self._send(f"B {0 if after_samples is None else max(1, int(after_samples))}")
+
+    def set_chip_present(self, present: bool) -> None:
+        """Connect or disconnect the MPU6050 from the TWI bus (a loose SDA/SCL wire)."""
+        self._send(f"A {int(bool(present))}")

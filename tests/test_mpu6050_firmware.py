@@ -32,7 +32,7 @@ from accelcal_station.drivers.mpu6050 import (ACCEL_CONFIG, CONFIG, PWR_MGMT_1, 
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.mpu6050_simavr import SimavrBridge
 from accelcal_station.drivers.simulated import SimulatedBoard
-from accelcal_station.errors import NVMError
+from accelcal_station.errors import DeviceError, NVMError
 from accelcal_station.fixtures.jig_emulator import JigEmulator
 from accelcal_station.writer import CalibrationWriter
 
@@ -210,6 +210,28 @@ def test_a_command_ends_a_stream_with_stream_end_first(link):
     samples = [bp.SAMPLE_INDEX.unpack_from(f.payload)[0] for f in got if f.type == bp.RSP_SAMPLE]
     assert bp.STREAM_END.unpack(ends[0].payload)[0] == samples[-1] + 1  # count sent = last index + 1
     assert link.stats.lost_frames == 0
+
+
+def unplug(bridge) -> None:
+    """The MPU6050 leaves the I2C bus (no ACK to address 0x68)."""
+    if bridge.kind == "simavr":
+        bridge.set_chip_present(False)
+    else:
+        with bridge.lock:
+            bridge.i2c_present = False
+
+
+def test_no_chip_on_i2c(bridge, link):
+    unplug(bridge)
+    time.sleep(0.05)  # the side channel is asynchronous to the serial link
+    ident = bp.IDENTIFY_DATA.unpack(link.command(bp.CMD_IDENTIFY))
+    assert ident[4] == 0x00  # WHO_AM_I: nothing answered
+    with pytest.raises(DeviceError) as e:
+        link.command(bp.CMD_READ_REG, bytes([0x75, 1]))
+    assert bp.ERROR_TEXT[bp.ERR_I2C] in str(e.value) and "SDA/SCL" in str(e.value)
+    link.command(bp.CMD_STREAM, bp.STREAM.pack(10))
+    end = frames_until(link, bp.RSP_STREAM_END)[-1]
+    assert bp.STREAM_END.unpack(end.payload)[0] == 0  # the first sample read failed: a short stream
 
 
 def test_reset_command_boots_with_its_cause(link):

@@ -18,6 +18,7 @@
  *                                    the factory trim (int16) and TEMP_OUT (int16); queued, one per
  *                                    burst read of ACCEL_XOUT_H
  *   stdin  "X"                       drop queued samples (the board was moved)
+ *   stdin  "A 0" / "A 1"             the MPU6050 leaves / rejoins the bus (no ACK to its address)
  *   stdin  "E <addr> <value>"        EEPROM cell <addr> is worn: it always reads <value>
  *   stdin  "E -1"                    no worn cell
  *   stdin  "B <k>"                   reset the MCU (external reset) after k more samples; "B 0": now
@@ -71,6 +72,7 @@ static struct {
   uint8_t regs[0x80];
   int16_t factory[3];
   uint8_t who;
+  int absent;  /* 1: nothing answers at 0x68 (unplugged breakout) */
   avr_irq_t *irq;
   uint8_t selected, index, reg;
   sample_t queue[QUEUE_LEN];
@@ -144,7 +146,7 @@ static void mpu_twi_hook(avr_irq_t *irq, uint32_t value, void *param) {
   if (v.u.twi.msg & TWI_COND_START) {
     mpu.selected = 0;
     mpu.index = 0;
-    if ((v.u.twi.addr >> 1) == MPU_ADDR) {
+    if ((v.u.twi.addr >> 1) == MPU_ADDR && !mpu.absent) {
       mpu.selected = v.u.twi.addr;
       avr_raise_irq(mpu.irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_ACK, mpu.selected, 1));
     }
@@ -271,6 +273,9 @@ static void side_line(const char *s) {
       }
       break;
     case 'X': mpu.tail = mpu.head; break;
+    case 'A':
+      if (sscanf(s + 1, "%d", &x) == 1) mpu.absent = !x;
+      break;
     case 'B':
       if (sscanf(s + 1, "%d", &x) == 1) {
         reset_after = x > 0 ? x : -1;
