@@ -49,6 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     with SimavrBridge(seed=1) as b:
         with MPU6050Bridge(b.port, timeout_s=1.0, retries=2, boot_wait_s=3.0) as dev:
             rows = stream_rates(dev, a.n)
+            # every other path once, so the deepest stack covers them: registers, NVM, RESET
+            dev.read_register(0x3B, 16)
+            dev.write_register(0x06, bytes(6))
             dev.nvm.write(0, bytes(range(64)))
             dev.reset()
         s = b.stats()
