@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, DeviceError
-from .mpu6050 import ACCEL_RATE_HZ, CHIP_ID, COUNTS_PER_G, PWR_SLEEP, rate_base_hz
+from .mpu6050 import ACCEL_RATE_HZ, CHIP_ID, rate_base_hz
 
 FIRMWARE_DIR = Path(os.environ.get("ACCELCAL_FIRMWARE_DIR", Path(__file__).resolve().parents[1] / "firmware"))
 ELF = FIRMWARE_DIR / "build" / "mpu6050_bridge" / "mpu6050_bridge.elf"
@@ -73,7 +73,6 @@ class SimavrBridge:
         self._proc: subprocess.Popen | None = None
         self._thread: threading.Thread | None = None
         self._stats: queue.Queue[dict] = queue.Queue()
-        self._asleep = True
 
     # --- lifecycle ------------------------------------------------------------------------
     def start(self) -> str:
@@ -152,7 +151,6 @@ class SimavrBridge:
     def _configured(self, accel_config: int, config: int, div: int, pwr: int) -> None:
         """The firmware wrote a configuration register: the board follows the chip's range and rate."""
         self.registers = {"ACCEL_CONFIG": accel_config, "CONFIG": config, "SMPLRT_DIV": div, "PWR_MGMT_1": pwr}
-        self._asleep = bool(pwr & PWR_SLEEP)
         dlpf = config & 7
         range_g = (2, 4, 8, 16)[(accel_config >> 3) & 3]
         rate = min(rate_base_hz(dlpf) / (1 + div), ACCEL_RATE_HZ)  # the accelerometer samples at 1 kHz
@@ -166,9 +164,6 @@ class SimavrBridge:
         with self.lock:
             counts, _ = self.board.read(1)
             temp_c = self.board.temperature_c
-            cpg = self.board.counts_per_g
-        if cpg != COUNTS_PER_G[self.board.range_g]:
-            raise DeviceError(f"simulated board at {cpg} counts per g")
         xyz = np.clip(np.round(np.asarray(counts, dtype=float).reshape(-1)[:3]), -32768, 32767).astype(int)
         t = int(np.clip(round((temp_c - TEMP_OFFSET_C) * TEMP_LSB_PER_C), -32768, 32767))
         return f"D {xyz[0]} {xyz[1]} {xyz[2]} {t}"
