@@ -1,4 +1,4 @@
-"""Real accelerometer data (../shared/datasets) through `accelcal fit`."""
+"""Real accelerometer data (tests/data, see its README) through `accelcal fit`."""
 from __future__ import annotations
 
 import csv
@@ -22,8 +22,8 @@ def _run(*args):
 
 
 @pytest.fixture(scope="module")
-def imucal(shared):
-    path = shared / "datasets" / "imucal_annotated_session.csv"
+def imucal(data_dir):
+    path = data_dir / "imucal_annotated_session.csv"
     with path.open() as f:
         rows = list(csv.DictReader(f))
     parts = np.array([r["part"] for r in rows])
