@@ -7,6 +7,7 @@ import click
 import numpy as np
 
 from ..errors import AccelcalError, DataError, UnitsError
+from ..identifiability import assess, worst_parameter
 from ..models import FitResult, fit_session, fit_temperature
 from ..posetable import read_pose_table
 from ..rawlog import StaticDetection, read_raw_log, static_session
@@ -50,6 +51,7 @@ def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
             f"leave-one-pose-out RMS {cv}; condition number {fit.condition_number:.3g}"]
     if fit.message:
         out.append(f"note: {fit.message}")
+    out += _barely_text(fit)
     w = max(4, *(len(n) for n in names))
     out.append(f"{'pose':<{w}}  {'x_g':>9} {'y_g':>9} {'z_g':>9}  {'res_x_mg':>9} {'res_y_mg':>9} "
                f"{'res_z_mg':>9}  {'norm_err_mg':>11}")
@@ -57,6 +59,20 @@ def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
         out.append(f"{n:<{w}}  {g[0]:+9.5f} {g[1]:+9.5f} {g[2]:+9.5f}  {r[0]:+9.3f} {r[1]:+9.3f} {r[2]:+9.3f}  "
                    f"{e:+11.3f}")
     return out
+
+
+def _barely_text(fit: FitResult) -> list[str]:
+    """A barely determined fit, flagged with its degrees of freedom and least certain parameter."""
+    ident = assess(fit.readings_g, fit.model)
+    if not ident.barely:
+        return []
+    per = " per channel" if fit.model != "9" else ""
+    worst = worst_parameter(fit.stderr, fit.model)
+    se = (f"; least certain: {worst[0]} +- {worst[1]} (1 sigma)" if worst
+          else "; standard errors unknown (no per-pose noise and no spare orientation)")
+    return [f"warning: barely determined: {ident.distinct} distinct orientations for {ident.coefficients} "
+            f"coefficients{per} ({ident.dof} degree{'s' if ident.dof != 1 else ''} of freedom){se}; "
+            "add poses in new orientations"]
 
 
 def _segmentation(log, det: StaticDetection, names: list[str]) -> tuple[dict, list[str]]:
