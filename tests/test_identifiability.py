@@ -85,7 +85,7 @@ def test_barely_determined_fit_is_flagged_in_the_summary(data_dir):
     import json
     stderr_W = np.array(json.loads(js.stdout)["stderr"]["W"])
     i, j = "xyz".index(name[2]), "xyz".index(name[3])
-    assert float(se.split()[0]) == pytest.approx(np.degrees(np.arcsin(stderr_W[i, j])), rel=2e-3)
+    assert float(se.split()[0]) == pytest.approx(np.degrees(np.arcsin(stderr_W[i, j])), rel=5e-3)  # 3 digits printed
 
 
 def test_well_determined_fit_is_not_flagged(tmp_path):

@@ -9,21 +9,15 @@ import numpy as np
 from ..errors import AccelcalError, DataError, UnitsError
 from ..identifiability import assess, worst_parameter
 from ..models import FitResult, fit_session, fit_temperature
-from ..posetable import read_pose_table
-from ..rawlog import StaticDetection, read_raw_log, static_session
+from ..loader import Loaded, load
+from ..rawlog import StaticDetection
 from ..session import Session
 from ._common import check_model_units, jsonable as _clean, parse_number as _number
 
 
-def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate):
-    if raw:
-        log = read_raw_log(path, columns, skip_rows or 0, rate)
-        session, det = static_session(log, units or "counts", cpg, gravity)
-        return session, (log, det)
-    for flag, v in (("--columns", columns), ("--skip-rows", skip_rows), ("--rate", rate)):
-        if v is not None:
-            raise DataError(f"{flag} is for raw sample logs; add --raw to read {path} as one")
-    return read_pose_table(path, units, cpg, gravity, references=model != "9"), None
+def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate) -> Loaded:
+    return load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, columns=columns,
+                skip_rows=skip_rows, rate_hz=rate, references=model != "9")
 
 
 def _vec(v, fmt: str = "+.6f") -> str:
@@ -121,9 +115,10 @@ def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns
         raise DataError(f"--temp-method {temp_method!r}; allowed: linear, quadratic")
     cpg = _number(counts_per_g, "--counts-per-g")
     grav = _number(gravity, "--gravity")
-    session, rawinfo = _load(path, raw, model, units, cpg, grav, columns,
-                             _number(skip_rows, "--skip-rows", integer=True, positive=False),
-                             _number(rate, "--rate"))
+    loaded = _load(path, raw, model, units, cpg, grav, columns,
+                   _number(skip_rows, "--skip-rows", integer=True, positive=False), _number(rate, "--rate"))
+    session = loaded.session
+    rawinfo = (loaded.log, loaded.detection) if loaded.log is not None else None
     if model != "9" and session.units == "counts" and session.counts_per_g is None:
         raise UnitsError(f"{path}: readings are counts with no counts_per_g; model {model} needs --counts-per-g N "
                          "or a '# counts_per_g: N' line (only model 9 can estimate it)")
@@ -146,6 +141,8 @@ def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns
     cal.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
     report: dict = {}
     text: list[str] = []
+    report["inferred"] = loaded.to_json()
+    text += [f"read {path}: " + "; ".join(loaded.inferred)]
     if rawinfo is not None:
         report["segmentation"], seg_lines = _segmentation(*rawinfo, session.names)
         text += seg_lines
