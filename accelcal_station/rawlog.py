@@ -132,7 +132,7 @@ _UNIT_WORDS = {  # a unit in a column name, normalised -> (kind, unit)
     "g": ("acc", "g"), "mg": ("acc", "mg"), "ms2": ("acc", "mps2"), "mps2": ("acc", "mps2"), "ms": ("time", "ms"),
     "counts": ("acc", "counts"), "count": ("acc", "counts"), "lsb": ("acc", "counts"), "raw": ("acc", "counts"),
     "s": ("time", "s"), "sec": ("time", "s"), "msec": ("time", "ms"), "us": ("time", "us"), "usec": ("time", "us"),
-    "µs": ("time", "us"),
+    "µs": ("time", "us"), "ns": ("time", "ns"), "nsec": ("time", "ns"),
 }
 _TIME_WORDS = {"millis": "ms", "micros": "us", "timems": "ms", "timeus": "us", "timestampms": "ms",
                "timestampus": "us", "tms": "ms", "tus": "us"}
@@ -142,6 +142,7 @@ _RATE_TEXT = re.compile(r"(?<![\w.])(\d+(?:\.\d+)?)\s*(k?hz)\b", re.I)
 _NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 MAX_ABS_READING = 1e9  # beyond any ADC or unit: a reading this large is not acceleration data
 RATE_LIMITS_HZ = (1e-3, 1e7)
+JUDGED_RATE_HZ = (1.0, 1e5)  # a time unit guessed from the step must give a logger's rate
 PREAMBLE_LOOKAHEAD = 5  # rows that must follow the data start with the data's field count
 
 
@@ -157,6 +158,7 @@ class LogInfo:
     axis_names: dict[str, str] = field(default_factory=dict)  # x/y/z/t -> the file's column name
     units_hint: str | None = None  # units named in the x, y, z column names: g, mg, mps2, counts
     stated_rate_hz: float | None = None
+    time_unit_judged: bool = False  # the time unit was guessed from the step alone
 
 
 def _short(s: str, n: int = 40) -> str:
@@ -281,15 +283,24 @@ def _data_start(rows: list[tuple[int, str]], split) -> int:
 
 def _judge_time_unit(dt: float, info: LogInfo) -> float:
     """Seconds per unit of a time column whose name gives no unit."""
-    scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+    scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
     if info.time_unit is None:
         if info.stated_rate_hz:  # the unit that makes the step match the stated rate
             info.time_unit = min(scale, key=lambda u: abs(math.log(dt * scale[u] * info.stated_rate_hz)))
+            info.time_unit_judged = False
             info.time_unit_reason = f"its step {dt:g} matches the stated {info.stated_rate_hz:g} Hz"
         else:
             info.time_unit = "s" if dt < 1 else "ms" if dt < 50 else "us"
+            info.time_unit_judged = True
             info.time_unit_reason = f"judged from its median step {dt:g} (not named in the header)"
     return scale[info.time_unit]
+
+
+def check_rate(rate_hz: float | None) -> None:
+    """--rate within RATE_LIMITS_HZ (a denormal or huge rate would overflow every time axis)."""
+    if rate_hz is not None and not (math.isfinite(rate_hz) and RATE_LIMITS_HZ[0] <= rate_hz <= RATE_LIMITS_HZ[1]):
+        raise DataError(f"--rate {rate_hz!r}; allowed: a sample rate from {RATE_LIMITS_HZ[0]:g} to "
+                        f"{RATE_LIMITS_HZ[1]:g} Hz")
 
 
 def read_raw_log(path, columns: str | list[str] | None = None, skip_rows: int | None = None,
@@ -302,9 +313,7 @@ def read_raw_log(path, columns: str | list[str] | None = None, skip_rows: int | 
     path = Path(path)
     if skip_rows is not None and skip_rows < 0:
         raise DataError(f"--skip-rows {skip_rows}; allowed: 0 or more")
-    if rate_hz is not None and not (math.isfinite(rate_hz) and RATE_LIMITS_HZ[0] <= rate_hz <= RATE_LIMITS_HZ[1]):
-        raise DataError(f"--rate {rate_hz:g}; allowed: a sample rate from {RATE_LIMITS_HZ[0]:g} to "
-                        f"{RATE_LIMITS_HZ[1]:g} Hz")
+    check_rate(rate_hz)
     text = read_text_file(path, "a CSV or whitespace-separated log")
     info = LogInfo()
     lines = text.splitlines()
@@ -394,9 +403,11 @@ def read_raw_log(path, columns: str | list[str] | None = None, skip_rows: int | 
     else:
         t, rate = np.arange(len(rows), dtype=float), None
         info.rate_source = None
-    if rate is not None and not RATE_LIMITS_HZ[0] <= rate <= RATE_LIMITS_HZ[1]:
-        raise DataError(f"{path}: the time column gives {rate:g} Hz; allowed: {RATE_LIMITS_HZ[0]:g} to "
-                        f"{RATE_LIMITS_HZ[1]:g} Hz (name its unit in the header, e.g. time_ms)")
+    lo, hi = JUDGED_RATE_HZ if info.time_unit_judged else RATE_LIMITS_HZ
+    if rate is not None and not lo <= rate <= hi:
+        how = f"in {info.time_unit}, {info.time_unit_reason}" if info.time_unit else ""
+        raise DataError(f"{path}: the time column ({how}) gives {rate:g} Hz; allowed: {lo:g} to {hi:g} Hz "
+                        "(name its unit in the header: time_s, time_ms, time_us or time_ns)")
     return RawLog(t, xyz, lines_arr, str(path), names, rate, "t" in col, info)
 
 

@@ -117,3 +117,85 @@ def test_units_are_judged_the_same_in_fit_batch_and_diagnose(tmp_path, log12, ki
     assert board["input_units"] == want
     assert board["input_per_g"] == pytest.approx(json.loads(single.stdout)["input_per_g"], rel=1e-12)
     np.testing.assert_allclose(board["W"], json.loads(single.stdout)["W"], atol=1e-9)
+
+
+# -- inputs that cannot be data: one line, non-zero exit, no numpy warnings -------------------------
+
+def test_fifo_device_and_directory_are_refused(tmp_path):
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)  # reading it would block forever
+    for args, what in [(("fit", "--raw", fifo), "a FIFO"), (("fit", fifo), "a FIFO"),
+                       (("diagnose", "--raw", fifo, "--rate", "100"), "a FIFO"),
+                       (("fit", "--raw", "/dev/zero"), "a device"), (("fit", "/dev/zero"), "a device"),
+                       (("fit", "--raw", tmp_path), "a directory")]:
+        _one_line_error(_run(*args), what, "allowed: a log file")
+
+
+def test_huge_field_huge_reading_and_tiny_rate_are_refused(tmp_path, log12):
+    counts = log12[0][:400]
+    big_cell = _write(tmp_path / "cell.csv", "ax,ay,az", _cells(counts, ".0f") + [["1" * 200_000, "abc" * 70_000, "3"]])
+    _one_line_error(_run("fit", "--raw", big_cell, "--rate", "100"), "allowed: a finite number")
+    table = tmp_path / "table.csv"
+    table.write_text("pose,pitch_deg,roll_deg,x,y,z\np1,0,0,\"" + "9" * 200_000 + "\",0,1\n")
+    _one_line_error(_run("fit", table), "table.csv", "field larger than field limit")
+    huge = _write(tmp_path / "huge.csv", "ax,ay,az", _cells(counts, ".0f") + [["1e308", "0", "0"]])
+    _one_line_error(_run("fit", "--raw", huge, "--rate", "100"), "'1e308'; allowed: a reading within +-1e+09")
+    huge_table = tmp_path / "huge_table.csv"
+    huge_table.write_text("# units: g\npose,pitch_deg,roll_deg,x,y,z\n" +
+                          "".join(f"p{i},,,{v},0,1\n" for i, v in enumerate([1e308, 0, 1, 0, 1, 0, 1, 0, 1, 0])))
+    _one_line_error(_run("fit", huge_table, "--model", "9"), "pose 'p0', column x", "allowed: a reading within")
+    ok = _write(tmp_path / "ok.csv", "ax,ay,az", _cells(counts, ".0f"))
+    _one_line_error(_run("fit", "--raw", ok, "--rate", "1e-320"), "--rate 1e-320; allowed: a sample rate from")
+    _one_line_error(_run("diagnose", "--raw", ok, "--rate", "1e-320"), "--rate 1e-320")
+    _one_line_error(_run("diagnose", ok, "--rate", "1e-320"), "--rate 1e-320")  # a pose table's sample rate too
+    _one_line_error(_run("fit", "--raw", ok, "--rate", "1e300"), "allowed: a sample rate from")
+
+
+# -- every hint, followed -------------------------------------------------------------------------
+
+def _suggested_columns(stderr: str) -> str:
+    return stderr.split("e.g. ")[1].split()[0]
+
+
+def test_column_hints_work_when_followed(tmp_path, log12):
+    counts = log12[0]
+    ambiguous = _write(tmp_path / "amb.csv", "a,b,c,gyro", _cells(np.hstack([counts, counts[:, :1] * 0]), ".0f"),
+                       ["Fs,100"])
+    r = _run("fit", "--raw", ambiguous)
+    _one_line_error(r, "cannot tell which header column is x", "give --columns with 4 names")
+    assert _run("fit", "--raw", ambiguous, "--columns", _suggested_columns(r.stderr)).exit_code == 0
+    five = _write(tmp_path / "five.csv", None, _cells(np.hstack([counts, counts[:, :2] * 0]), ".0f"))
+    r = _run("fit", "--raw", five, "--rate", "100")
+    _one_line_error(r, "5 columns and no header; give --columns with 5 names")
+    assert _run("fit", "--raw", five, "--rate", "100", "--columns", _suggested_columns(r.stderr)).exit_code == 0
+
+
+def test_units_hints_work_when_followed(tmp_path, log12):
+    counts = log12[0]
+    odd = _write(tmp_path / "odd.csv", "ax,ay,az", _cells(counts / CPG * 2.5, ".7g"), ["# rate: 100"])
+    r = _run("fit", "--raw", odd)
+    _one_line_error(r, "median norm of the readings 2.5", "give --units counts|g|mps2")
+    assert _run("fit", "--raw", odd, "--units", "g").exit_code == 0
+    as_g = _write(tmp_path / "as_g.csv", "ax,ay,az", _cells(counts, ".0f"), ["# rate: 100"])
+    r = _run("fit", "--raw", as_g, "--units", "g", "--model", "12")
+    _one_line_error(r, "counts given as g? use --units counts --counts-per-g N")
+    assert _run("fit", "--raw", as_g, "--units", "counts", "--counts-per-g", str(CPG)).exit_code == 0
+
+
+def test_rate_and_raw_hints_work_when_followed(tmp_path, log12):
+    counts = log12[0]
+    norate = _write(tmp_path / "norate.csv", "ax,ay,az", _cells(counts, ".0f"))
+    r = _run("diagnose", "--raw", norate)
+    _one_line_error(r, "no time column and no --rate")
+    assert _run("diagnose", "--raw", norate, "--rate", "100").exit_code == 0
+    r = _run("fit", norate, "--rate", "100")
+    _one_line_error(r, "--rate is for raw sample logs; add --raw")
+    assert _run("fit", norate, "--rate", "100", "--raw").exit_code == 0
+    t_ns = np.arange(len(counts)) * 10_000_000  # nanoseconds: judged as us, that is 0.1 Hz... refused
+    ns = _write(tmp_path / "ns.csv", "time,ax,ay,az", [[str(t)] + c for t, c in zip(t_ns, _cells(counts, ".0f"))])
+    r = _run("fit", "--raw", ns)
+    _one_line_error(r, "gives 0.1 Hz", "name its unit in the header: time_s, time_ms, time_us or time_ns")
+    renamed = tmp_path / "renamed.csv"
+    renamed.write_text(ns.read_text().replace("time,", "time_ns,", 1))
+    r = _run("fit", "--raw", renamed, "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["inferred"]["rate_hz"] == pytest.approx(RATE)

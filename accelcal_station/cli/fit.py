@@ -16,6 +16,8 @@ from ._common import check_model_units, jsonable as _clean, parse_number as _num
 
 
 def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate) -> Loaded:
+    if rate is not None and not raw:
+        raise DataError(f"--rate is for raw sample logs; add --raw to read {path} as one")
     return load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, columns=columns,
                 skip_rows=skip_rows, rate_hz=rate, references=model != "9")
 
