@@ -95,3 +95,40 @@ def test_imucal_session_both_estimates_on_held_out_halves(data_dir):
     assert np.all(norm.misplacement_deg < 5)  # the faces were placed within a few degrees
     print(f"imucal: held-out norm error RMS norm fit {rms(e_norm) * 1e3:.3f} mg, opposite-face "
           f"{rms(e_classic) * 1e3:.3f} mg; misplacement {np.round(norm.misplacement_deg, 2)} deg")
+
+
+def _table(path, x, ref, names):
+    path.write_text("# units: g\npose,pitch_deg,roll_deg,x,y,z,ref_x,ref_y,ref_z\n" + "".join(
+        f"{n},,,{r[0]!r},{r[1]!r},{r[2]!r},{e[0]:g},{e[1]:g},{e[2]:g}\n" for n, r, e in zip(names, x.tolist(), ref)))
+    return path
+
+
+def test_cli_hand_placed_reports_both_and_writes_the_norm_fit(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from accelcal_station.calibration import Calibration
+    from accelcal_station.cli import cli
+
+    x, ref, tilt, S, b = hand_placed_session()
+    names = [f"p{i:02d}" for i in range(len(x))]
+    table = _table(tmp_path / "hand.csv", x, ref, names)
+    run = lambda *a: CliRunner().invoke(cli, [str(v) for v in a])  # noqa: E731
+    r = run("fit", table, "--hand-placed", "-o", tmp_path / "cal.json")
+    assert r.exit_code == 0, r.output
+    line = next(s for s in r.stdout.splitlines() if "held-out norm error RMS" in s)
+    norm_mg, classic_mg = (float(v.split(" mg")[0]) for v in line.split("norm fit ")[1].split("opposite-face "))
+    assert norm_mg <= classic_mg
+    js = json.loads(run("fit", table, "--hand-placed", "--json").stdout)["hand_placed"]
+    np.testing.assert_allclose(js["norm"]["misplacement_deg"], norm_faces(x, ref).misplacement_deg)
+    cal = Calibration.load(tmp_path / "cal.json")
+    np.testing.assert_allclose(np.diag(cal.W), js["norm"]["gain"])
+    # one visit per face: nothing can be held out, and it says so
+    one = _table(tmp_path / "once.csv", x[:6], ref[:6], names[:6])
+    r = run("fit", one, "--hand-placed")
+    assert r.exit_code == 0 and "cannot hold poses out: faces +x, -x, +y, -y, +z, -z have one pose" in r.stdout
+    # the hint for a model other than 6, followed
+    r = run("fit", table, "--hand-placed", "--model", "12")
+    assert r.exit_code != 0 and "give --model 6" in r.stderr
+    assert run("fit", table, "--hand-placed", "--model", "6").exit_code == 0

@@ -7,6 +7,8 @@ import click
 import numpy as np
 
 from ..errors import AccelcalError, DataError, UnitsError
+from ..calibration import Calibration
+from ..handplaced import norm_faces, opposite_face
 from ..identifiability import assess, worst_parameter
 from ..models import FitResult, fit_session, fit_temperature
 from ..loader import Loaded, load
@@ -71,6 +73,38 @@ def _barely_text(fit: FitResult) -> list[str]:
             "add poses in new orientations"]
 
 
+def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dict, list[str], Calibration]:
+    """The norm fit of hand-placed faces against the opposite-face estimate (handplaced module)."""
+    x, ref = fr.readings_g, session.references_g
+    try:
+        norm, classic = norm_faces(x, ref), opposite_face(x, ref)
+    except AccelcalError as e:
+        raise type(e)(f"--hand-placed: {e}") from None
+    ax = np.argmax(np.abs(ref), axis=1)
+    sign = np.sign(ref[np.arange(len(ref)), ax])
+    once = [f"{'+-'[s < 0]}{'xyz'[a]}" for a in range(3) for s in (1, -1) if np.sum((ax == a) & (sign == s)) < 2]
+    held = None
+    if not once:  # every face seen twice or more: each pose can be left out of both fits
+        held = {m: float(np.sqrt(np.mean([f(np.delete(x, i, 0), np.delete(ref, i, 0)).norm_error_g(x[i:i + 1])[0]
+                                          ** 2 for i in range(len(x))])))
+                for m, f in (("norm", norm_faces), ("opposite_face", opposite_face))}
+    lines = [f"hand-placed faces: {len(x)} poses, {norm.distinct} distinct orientations",
+             f"  opposite-face: gain {_vec(classic.gain)}  offset {_vec(classic.offset_g * 1e3, '+.3f')} mg",
+             f"  norm fit:      gain {_vec(norm.gain)}  offset {_vec(norm.offset_g * 1e3, '+.3f')} mg",
+             "  held-out norm error RMS (each pose left out of both fits): " +
+             (f"norm fit {held['norm'] * 1e3:.3f} mg, opposite-face {held['opposite_face'] * 1e3:.3f} mg" if held
+              else f"cannot hold poses out: face{'s' if len(once) > 1 else ''} {', '.join(once)} "
+                   f"{'have' if len(once) > 1 else 'has'} one pose (revisit every face to check the fits)"),
+             "  misplacement (deg): " + ", ".join(f"{n} {m:.2f}" for n, m in zip(session.names, norm.misplacement_deg)),
+             f"  note: {norm.note}"]
+    W, V = norm.as_an4399()
+    out = Calibration("6", W, V, np.zeros(3), cal.input_units, cal.input_per_g, metadata=dict(cal.metadata))
+    js = {"opposite_face": {"gain": classic.gain, "offset_g": classic.offset_g},
+          "norm": {"gain": norm.gain, "offset_g": norm.offset_g, "misplacement_deg": norm.misplacement_deg},
+          "held_out_norm_rms_g": held, "distinct_orientations": norm.distinct, "note": norm.note}
+    return js, lines, out
+
+
 def _segmentation(log, det: StaticDetection, names: list[str]) -> tuple[dict, list[str]]:
     rate = f"{log.rate_hz:.6g} Hz" if log.rate_hz else "unknown rate (give --rate HZ for times in seconds)"
     lines = [f"raw log {log.source}: {len(log)} samples at {rate}; noise floor sigma {_vec(det.noise_sigma, '.4g')} "
@@ -106,12 +140,16 @@ def _segmentation(log, det: StaticDetection, names: list[str]) -> tuple[dict, li
               help="Raw log columns, e.g. t,x,y,z or -,-,x,y,z (- ignores a column).")
 @click.option("--skip-rows", default=None, metavar="N", help="Raw log: lines to skip at the top.")
 @click.option("--rate", default=None, metavar="HZ", help="Raw log without a time column: sample rate in Hz.")
+@click.option("--hand-placed", "hand_placed", is_flag=True,
+              help="Six faces placed by hand ('axis up' references): fit gain and offset by the gravity norm, "
+                   "estimate each pose's misplacement, compare with the opposite-face estimate on held-out poses; "
+                   "-o writes the norm fit.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the summary.")
 @click.option("-o", "--output", default=None, metavar="FILE", help="Write the calibration JSON here (atomically).")
-def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns, skip_rows, rate, as_json,
-            output) -> None:
+def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns, skip_rows, rate, hand_placed,
+            as_json, output) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
-    model = model if model is not None else ("9" if raw else "12")
+    model = model if model is not None else ("6" if hand_placed else "9" if raw else "12")
     check_model_units(model, units)
     if temp_method not in ("linear", "quadratic"):
         raise DataError(f"--temp-method {temp_method!r}; allowed: linear, quadratic")
@@ -173,6 +211,11 @@ def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns
             text += _fit_text(f, s.names)
     report["source"] = str(path)
     report["units"] = session.units
+    if hand_placed:
+        if len(fits) != 1 or model != "6":
+            raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")
+        report["hand_placed"], hp_lines, cal = _hand_placed(session, fits[0][1], cal)
+        text += hp_lines
     if output:
         cal.save(output)
         report["output"] = str(output)
