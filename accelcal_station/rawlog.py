@@ -535,5 +535,5 @@ def static_session(log: RawLog, units: str = "counts", counts_per_g: float | Non
     return to_session(log, det.segments, units, counts_per_g, gravity_mps2), det
 
 
-__all__ = ["LogInfo", "RawLog", "read_text_file", "Segment", "StaticDetection", "detect_static", "static_session", "moving_std", "read_raw_log",
-           "segment_static", "to_session"]
+__all__ = ["LogInfo", "RawLog", "Segment", "StaticDetection", "check_rate", "detect_static", "moving_std",
+           "read_raw_log", "read_text_file", "segment_static", "static_session", "to_session"]
