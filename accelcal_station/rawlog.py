@@ -182,7 +182,7 @@ def _split_name(h: str) -> tuple[str, str | None]:
 
 
 def _hint_columns(header: list[str]) -> str:
-    """An example --columns with the file's field count (first three numeric-looking names as x, y, z)."""
+    """An example --columns with the file's field count: the first three columns as x, y, z, the rest ignored."""
     names = ["-"] * len(header)
     for i, a in zip(range(len(header)), "xyz"):
         names[i] = a
@@ -296,6 +296,61 @@ def _judge_time_unit(dt: float, info: LogInfo) -> float:
     return scale[info.time_unit]
 
 
+def _parse_rows(path: Path, rows, split, names: list[str], use, label) -> tuple[np.ndarray, np.ndarray]:
+    """The used columns of every data row as floats, and each row's file line; one error per bad cell."""
+    data = np.empty((len(rows), len(use)))
+    lines_arr = np.empty(len(rows), dtype=np.int64)
+    for k, (ln, s) in enumerate(rows):
+        cells = split(s)
+        if len(cells) != len(names):
+            raise DataError(f"{path}: line {ln}: {len(cells)} fields; expected {len(names)} like the first line")
+        for j, (i, c) in enumerate(use):
+            try:
+                v = float(cells[i])
+            except ValueError:
+                raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])} is not a number") from None
+            if not math.isfinite(v):
+                raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])}; allowed: a finite number")
+            if c != "t" and abs(v) > MAX_ABS_READING:
+                raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])}; allowed: a reading within "
+                                f"+-{MAX_ABS_READING:g}")
+            data[k, j] = v
+        lines_arr[k] = ln
+    return data, lines_arr
+
+
+def _time_axis(path: Path, t, n: int, rate_hz: float | None, info: LogInfo, lines_arr, tlabel: str):
+    """Sample times in seconds and the rate: from the time column, --rate, a stated rate, or sample numbers."""
+    if t is not None:
+        back = np.flatnonzero(np.diff(t) < 0)
+        if back.size:
+            raise DataError(f"{path}: line {lines_arr[back[0] + 1]}, {tlabel}: time goes backwards; "
+                            "allowed: non-decreasing times")
+        dt = float(np.median(np.diff(t)))
+        if not dt > 0:
+            raise DataError(f"{path}: {tlabel}: time does not advance; allowed: times in s, ms or us")
+        per = _judge_time_unit(dt, info)
+        t, rate = t * per, 1.0 / (dt * per)
+        info.rate_source = f"time column {info.axis_names.get('t', 't')!r} in {info.time_unit}"
+    elif rate_hz is not None:
+        t, rate = np.arange(n) / rate_hz, float(rate_hz)
+        info.rate_source = "--rate"
+    elif info.stated_rate_hz is not None:
+        if not RATE_LIMITS_HZ[0] <= info.stated_rate_hz <= RATE_LIMITS_HZ[1]:
+            raise DataError(f"{path}: {info.rate_source}: {info.stated_rate_hz:g} Hz; allowed: {RATE_LIMITS_HZ[0]:g} "
+                            f"to {RATE_LIMITS_HZ[1]:g} Hz (give --rate HZ)")
+        t, rate = np.arange(n) / info.stated_rate_hz, info.stated_rate_hz
+    else:
+        t, rate = np.arange(n, dtype=float), None
+        info.rate_source = None
+    lo, hi = JUDGED_RATE_HZ if info.time_unit_judged else RATE_LIMITS_HZ
+    if rate is not None and not lo <= rate <= hi:
+        how = f"in {info.time_unit}, {info.time_unit_reason}" if info.time_unit else ""
+        raise DataError(f"{path}: the time column ({how}) gives {rate:g} Hz; allowed: {lo:g} to {hi:g} Hz "
+                        "(name its unit in the header: time_s, time_ms, time_us or time_ns)")
+    return t, rate
+
+
 def check_rate(rate_hz: float | None) -> None:
     """--rate within RATE_LIMITS_HZ (a denormal or huge rate would overflow every time axis)."""
     if rate_hz is not None and not (math.isfinite(rate_hz) and RATE_LIMITS_HZ[0] <= rate_hz <= RATE_LIMITS_HZ[1]):
@@ -357,57 +412,13 @@ def read_raw_log(path, columns: str | list[str] | None = None, skip_rows: int | 
         raise DataError(f"{path}: the log has a time column; --rate is only for logs without one")
     use = [(i, c) for i, c in enumerate(names) if c != "-"]
     label = (lambda i: f"column {i + 1} ({first[i]})") if header else (lambda i: f"column {i + 1} ({names[i]})")
-    data = np.empty((len(rows), len(use)))
-    lines_arr = np.empty(len(rows), dtype=np.int64)
-    for k, (ln, s) in enumerate(rows):
-        cells = split(s)
-        if len(cells) != len(names):
-            raise DataError(f"{path}: line {ln}: {len(cells)} fields; expected {len(names)} like the first line")
-        for j, (i, c) in enumerate(use):
-            try:
-                v = float(cells[i])
-            except ValueError:
-                raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])} is not a number") from None
-            if not math.isfinite(v):
-                raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])}; allowed: a finite number")
-            if c != "t" and abs(v) > MAX_ABS_READING:
-                raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])}; allowed: a reading within "
-                                f"+-{MAX_ABS_READING:g}")
-            data[k, j] = v
-        lines_arr[k] = ln
+    data, lines_arr = _parse_rows(path, rows, split, names, use, label)
     if len(rows) < MIN_LOG_SAMPLES:
         raise DataError(f"{path}: {len(rows)} samples; a raw log needs at least {MIN_LOG_SAMPLES}")
     col = {c: j for j, (_, c) in enumerate(use)}
     xyz = data[:, [col["x"], col["y"], col["z"]]]
-    if "t" in col:
-        t = data[:, col["t"]]
-        back = np.flatnonzero(np.diff(t) < 0)
-        if back.size:
-            raise DataError(f"{path}: line {lines_arr[back[0] + 1]}, {label(names.index('t'))}: time goes "
-                            "backwards; allowed: non-decreasing times")
-        dt = float(np.median(np.diff(t)))
-        if not dt > 0:
-            raise DataError(f"{path}: {label(names.index('t'))}: time does not advance; allowed: times in s, ms or us")
-        per = _judge_time_unit(dt, info)
-        t = t * per
-        rate = 1.0 / (dt * per)
-        info.rate_source = f"time column {info.axis_names.get('t', 't')!r} in {info.time_unit}"
-    elif rate_hz is not None:
-        t, rate = np.arange(len(rows)) / rate_hz, float(rate_hz)
-        info.rate_source = "--rate"
-    elif info.stated_rate_hz is not None:
-        if not RATE_LIMITS_HZ[0] <= info.stated_rate_hz <= RATE_LIMITS_HZ[1]:
-            raise DataError(f"{path}: {info.rate_source}: {info.stated_rate_hz:g} Hz; allowed: {RATE_LIMITS_HZ[0]:g} "
-                            f"to {RATE_LIMITS_HZ[1]:g} Hz (give --rate HZ)")
-        t, rate = np.arange(len(rows)) / info.stated_rate_hz, info.stated_rate_hz
-    else:
-        t, rate = np.arange(len(rows), dtype=float), None
-        info.rate_source = None
-    lo, hi = JUDGED_RATE_HZ if info.time_unit_judged else RATE_LIMITS_HZ
-    if rate is not None and not lo <= rate <= hi:
-        how = f"in {info.time_unit}, {info.time_unit_reason}" if info.time_unit else ""
-        raise DataError(f"{path}: the time column ({how}) gives {rate:g} Hz; allowed: {lo:g} to {hi:g} Hz "
-                        "(name its unit in the header: time_s, time_ms, time_us or time_ns)")
+    t, rate = _time_axis(path, data[:, col["t"]] if "t" in col else None, len(rows), rate_hz, info, lines_arr,
+                         label(names.index("t")) if "t" in col else "")
     return RawLog(t, xyz, lines_arr, str(path), names, rate, "t" in col, info)
 
 
