@@ -30,7 +30,8 @@ from .calibration import Calibration
 from .errors import AccelcalError, DataError
 from .models import check_plausible_g, check_model, fit_batch, fit_temperature
 from .models.result import FitResult
-from .posetable import atomic_write_text, read_pose_table
+from .loader import load_pose_table
+from .posetable import atomic_write_text
 from .session import Session
 from .store import PARAM_NAMES, Store, iso, param_vector
 
@@ -128,7 +129,7 @@ def sessions_from_files(paths: Sequence[Path], units: str | None = None, counts_
     out: list[Source] = []
     for p in paths:
         try:
-            out.append((str(p), read_pose_table(p, units, counts_per_g, gravity_mps2, references=model != "9")))
+            out.append((str(p), load_pose_table(p, units, counts_per_g, gravity_mps2, references=model != "9").session))
         except AccelcalError as e:
             out.append((str(p), e))
         if progress:

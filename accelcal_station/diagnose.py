@@ -39,7 +39,7 @@ from .gap_effects import (Capture, Evaluation, Floor, GapData, TimeData, design_
                           random_var, static_design, time_data)
 from .models import check_plausible_g
 from .models.gravity_norm import nominal_scale
-from .posetable import read_pose_table
+from .loader import load
 from .rawlog import RawLog, read_raw_log, static_session
 from .sensor_model import EFFECT_NAMES, SensorModel
 from .session import PoseRecord, Session
@@ -192,24 +192,32 @@ def load_data(paths, raw: bool = False, units=None, counts_per_g=None, gravity=N
     """Read pose tables (or, with ``raw``, raw logs) the way `accelcal fit` does."""
     if not paths:
         raise DataError("no data files given; allowed: pose tables, or raw logs with --raw (or use --selftest)")
-    parts, rates = [], set()
+    parts, rates, inferred = [], set(), []
     for path in paths:
         if raw:
-            log = read_raw_log(path, columns, skip_rows or 0, rate)
+            loaded = load(path, True, units=units, counts_per_g=counts_per_g, gravity_mps2=gravity, columns=columns,
+                          skip_rows=skip_rows, rate_hz=rate)
+            log = loaded.log
+            inferred.append(f"{path}: " + "; ".join(loaded.inferred))
             if not log.rate_hz:
                 raise DataError(f"{path}: no time column and no --rate: the diagnosis needs the sample rate "
                                 "(noise bandwidth, time within captures)")
             rates.add(round(log.rate_hz, 6))
-            parts.append(raw_part(log, units or "counts", counts_per_g, gravity))
+            parts.append(raw_part(log, loaded.session.units, loaded.session.counts_per_g,
+                                  loaded.session.gravity_mps2))
         else:
             for flag, v in (("--columns", columns), ("--skip-rows", skip_rows)):
                 if v is not None:
                     raise DataError(f"{flag} is for raw sample logs; add --raw to read {path} as one")
-            parts.append((read_pose_table(path, units, counts_per_g, gravity), None, str(path)))
+            loaded = load(path, units=units, counts_per_g=counts_per_g, gravity_mps2=gravity)
+            inferred.append(f"{path}: " + "; ".join(loaded.inferred))
+            parts.append((loaded.session, None, str(path)))
     if len(rates) > 1:
         raise DataError(f"raw logs at different rates ({', '.join(f'{r:g}' for r in sorted(rates))} Hz); "
                         "diagnose logs of one rate together")
-    return gap_data(parts, samples, norm_only, rates.pop() if rates else rate)
+    data = gap_data(parts, samples, norm_only, rates.pop() if rates else rate)
+    data.notes[:0] = inferred  # what reading the files inferred comes first in the summary
+    return data
 
 
 # -- candidates ------------------------------------------------------------------------------------
@@ -549,6 +557,7 @@ def to_json(d: Diagnosis) -> dict:
         "data": {"sources": data.sources, "poses": data.P, "references": not data.norm_only,
                  "samples_per_pose_known": data.n_known, "temperatures": data.n_temps,
                  "raw_captures": data.captures is not None, "rate_hz": data.rate_hz,
+                 "counts_per_g": data.counts_per_g,
                  "static_view": d.static_ok, "static_view_note": d.static_why or None, "notes": data.notes},
         "where": d.where,
     }

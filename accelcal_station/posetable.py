@@ -41,12 +41,26 @@ _META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
 
 
 def _read_text(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8-sig")
-    except OSError as e:
-        raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
-    except UnicodeDecodeError:
-        raise DataError(f"{path}: not a text file (expected a CSV pose table)") from None
+    from .rawlog import read_text_file  # regular files only: a FIFO or device would block
+
+    return read_text_file(path, "a CSV pose table")
+
+
+def table_metadata(path) -> dict[str, str]:
+    """The ``# key: value`` lines before a pose table's header."""
+    meta: dict[str, str] = {}
+    for raw in _read_text(Path(path)).splitlines():
+        s = raw.strip()
+        if s and not s.startswith("#"):
+            break
+        m = _META_RE.match(s)
+        if m:
+            meta[m.group(1)] = m.group(2)
+    return meta
+
+
+def _short(s: str, n: int = 40) -> str:
+    return repr(s if len(s) <= n else s[:n] + "...")
 
 
 def _meta_number(path: Path, line: int, key: str, value: str) -> float:
@@ -78,11 +92,11 @@ class _Row:
         try:
             v = float(s)
         except ValueError:
-            raise DataError(f"{self.where(col)}: {s!r} is not a number") from None
+            raise DataError(f"{self.where(col)}: {_short(s)} is not a number") from None
         if not math.isfinite(v):
-            raise DataError(f"{self.where(col)}: {s!r}; allowed: a finite number (no NaN or infinity)")
+            raise DataError(f"{self.where(col)}: {_short(s)}; allowed: a finite number (no NaN or infinity)")
         if not lo <= v <= hi:
-            raise DataError(f"{self.where(col)}: {s!r} out of range; allowed {lo:g} to {hi:g}")
+            raise DataError(f"{self.where(col)}: {_short(s)} out of range; allowed {lo:g} to {hi:g}")
         return v
 
     def group(self, cols: tuple[str, ...], **kw) -> np.ndarray | None:
@@ -125,7 +139,10 @@ def read_pose_table(path, units: str | None = None, counts_per_g: float | None =
     if header_at is None:
         raise DataError(f"{path}: empty: no header line; expected {','.join(COLUMNS[:6])} (and optional columns)")
 
-    header = [c.strip() for c in next(csv.reader([lines[header_at]]))]
+    try:
+        header = [c.strip() for c in next(csv.reader([lines[header_at]]))]
+    except csv.Error as e:
+        raise DataError(f"{path}: line {header_at + 1}: not a readable CSV header ({e})") from None
     hline = header_at + 1
     seen: set[str] = set()
     for c in header:
@@ -157,7 +174,11 @@ def read_pose_table(path, units: str | None = None, counts_per_g: float | None =
 
     poses: list[PoseRecord] = []
     body = "\n".join(lines[header_at + 1:])
-    for k, cells in enumerate(csv.reader(io.StringIO(body))):
+    try:
+        table = list(csv.reader(io.StringIO(body)))
+    except csv.Error as e:  # e.g. a cell longer than the csv module's field limit
+        raise DataError(f"{path}: not a readable CSV table ({e}); allowed: a pose table of numbers") from None
+    for k, cells in enumerate(table):
         line = header_at + 2 + k
         if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
             continue
@@ -261,4 +282,4 @@ def atomic_write_text(path: Path, text: str) -> None:
         raise DataError(f"{path}: cannot write ({e.strerror or e})") from None
 
 
-__all__ = ["COLUMNS", "read_pose_table", "write_pose_table", "atomic_write_text"]
+__all__ = ["COLUMNS", "read_pose_table", "table_metadata", "write_pose_table", "atomic_write_text"]

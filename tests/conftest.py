@@ -5,21 +5,27 @@ from pathlib import Path
 import pytest
 import yaml
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
+# Everything the tests read lives in the repository (tests/data/README.md gives each
+# file's provenance and licence), so a plain clone passes with nothing beside it.
+DATA = Path(__file__).resolve().parent / "data"
+REPO = DATA.parents[1]
 
 
 @pytest.fixture(scope="session")
-def shared() -> Path:
-    if not SHARED.is_dir():
-        pytest.fail(f"../shared not found at {SHARED}: tests need the shared vectors and datasets")
-    return SHARED
+def data_dir() -> Path:
+    return DATA
 
 
 @pytest.fixture(scope="session")
-def an4399(shared) -> dict:
-    return yaml.safe_load((shared / "vectors" / "an4399.yaml").read_text())
+def an4399() -> dict:
+    return yaml.safe_load((DATA / "an4399.yaml").read_text())
 
 
 @pytest.fixture(scope="session")
-def calibraxis(shared) -> dict:
-    return yaml.safe_load((shared / "datasets" / "calibraxis_points.yaml").read_text())
+def calibraxis() -> dict:
+    return yaml.safe_load((DATA / "calibraxis_points.yaml").read_text())
+
+
+@pytest.fixture(scope="session")
+def nine_position_paper() -> dict:
+    return yaml.safe_load((DATA / "nine_position_paper.yaml").read_text())

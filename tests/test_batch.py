@@ -93,7 +93,7 @@ def test_model_9_batch_equals_one_at_a_time():
     short = ("short", make_board(99)[0])  # 8 poses cannot determine 9 parameters
     rep = recalibrate([*boards[:10], short, *boards[10:]], "9")
     assert len(rep.fitted) == 20 and rep.fit_calls == 2  # one stack per pose count: 14 (20 boards) and 8 (fails)
-    assert "model 9 needs at least 9 poses" in rep.results[10].message
+    assert "8 distinct orientations; the 9-parameter norm model needs at least 9" in rep.results[10].message
     for (_, s), r in zip(boards, rep.fitted):
         one = fit_session(s, "9")
         np.testing.assert_array_equal(r.calibration.W, one.W)

@@ -1,4 +1,4 @@
-"""Real accelerometer data (../shared/datasets) through `accelcal fit`."""
+"""Real accelerometer data (tests/data, see its README) through `accelcal fit`."""
 from __future__ import annotations
 
 import csv
@@ -22,8 +22,8 @@ def _run(*args):
 
 
 @pytest.fixture(scope="module")
-def imucal(shared):
-    path = shared / "datasets" / "imucal_annotated_session.csv"
+def imucal(data_dir):
+    path = data_dir / "imucal_annotated_session.csv"
     with path.open() as f:
         rows = list(csv.DictReader(f))
     parts = np.array([r["part"] for r in rows])
@@ -100,4 +100,4 @@ def test_imucal_raw_session_segments_into_the_six_faces(imucal):
     # through the CLI: six poses are too few for model 9, and it says so on one line
     r = _run("fit", "--raw", path, "--columns", "-,-,x,y,z,-,-,-", "--rate", IMUCAL_RATE, "--model", "9")
     assert r.exit_code != 0 and r.stderr.count("\n") == 1
-    assert "model 9 needs at least 9 poses (it has 9 parameters); got 6" in r.stderr
+    assert "6 distinct orientations; the 9-parameter norm model needs at least 9 well spread" in r.stderr

@@ -188,9 +188,9 @@ def test_one_file_per_temperature_names_temperature(tmp_path):
     assert gaps[0] > 3 * gaps[25] and gaps[50] > 3 * gaps[25]  # the gap lies at the ends of the range
 
 
-def test_real_imucal_raw_session_names_noise(shared):
+def test_real_imucal_raw_session_names_noise(data_dir):
     """The real IMU's noise is several times the simulated MMA8451's: the diagnosis says so."""
-    path = shared / "datasets" / "imucal_annotated_session.csv"
+    path = data_dir / "imucal_annotated_session.csv"
     r = run("diagnose", "--raw", path, "--columns", "-,-,x,y,z,-,-,-", "--rate", "204.8", "--json")
     assert r.exit_code == 0, r.output
     js = json.loads(r.stdout)
@@ -278,12 +278,12 @@ def test_quantization_floor_matches_monte_carlo():
     assert value_step(np.array([[0, 64, 128], [-64, 0, 192]])) == 64 and value_step(np.array([0.1, 0.25])) == pytest.approx(0.15)
 
 
-def test_counts_given_as_g_are_refused(shared):
+def test_counts_given_as_g_are_refused(data_dir):
     from click.testing import CliRunner
 
     from accelcal_station.cli import cli
 
-    log = shared / "datasets" / "imucal_annotated_session.csv"
+    log = data_dir / "imucal_annotated_session.csv"
     r = CliRunner().invoke(cli, ["diagnose", "--raw", "--columns", "-,-,x,y,z,-,-,-", "--rate", "204.8",
                                  "--units", "g", str(log)])
     assert r.exit_code == 2 and "median norm of 2066 g" in r.stderr and r.stderr.count("\n") == 1

@@ -221,7 +221,7 @@ def test_planar_poses_are_refused():
     planar = flat @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]).T  # a tilted plane: every channel spreads
     with pytest.raises(UnderdeterminedError, match="plane"):
         fit(planar, planar, "12")
-    with pytest.raises(UnderdeterminedError, match="needs at least 9 poses"):
+    with pytest.raises(UnderdeterminedError, match="6 distinct orientations; the 9-parameter norm model needs at least 9"):
         fit(planar[:6], model="9")
 
 

@@ -176,8 +176,9 @@ def test_cli_raw_16bit_unsigned_counts_no_flags(tmp_path, log32):
     assert js["segmentation"]["count"] == 32 and js["segmentation"]["rate_hz"] is None
     W = np.array(js["W"]) / js["input_per_g"] * CPG
     np.testing.assert_allclose(W, np.linalg.inv(S), atol=1e-3)
-    # the 32768 offset goes into V: V = -S^-1 (b + 32768 / 4096) in true g
-    np.testing.assert_allclose(js["V"], -np.linalg.inv(S) @ (b + 32768 / CPG), atol=2e-3)
+    # unsigned counts: the loader subtracts the mid-scale code, so V is the board's own offset
+    assert js["inferred"]["offset_counts"] == 32768 and js["inferred"]["counts_per_g"] == CPG
+    np.testing.assert_allclose(js["V"], -np.linalg.inv(S) @ b, atol=2e-3)
 
 
 @pytest.mark.parametrize("scale, units", [(1 / CPG, None), (1 / CPG, "g"), (9.80665 / CPG, "mps2")])
@@ -190,7 +191,7 @@ def test_cli_raw_in_g_and_mps2(tmp_path, log32, scale, units):
     assert r.exit_code == 0, r.stderr
     js = json.loads(r.stdout)
     assert js["segmentation"]["count"] == 32
-    assert js["units"] == (units or "counts")
+    assert js["units"] == (units or "g")  # judged from the norm when not given
     W = np.array(js["W"]) * scale * CPG / js["input_per_g"]  # the data are counts * scale
     np.testing.assert_allclose(W, np.linalg.inv(S), atol=1e-3)
     np.testing.assert_allclose(js["V"], -np.linalg.inv(S) @ b, atol=1e-3)

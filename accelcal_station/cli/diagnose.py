@@ -8,6 +8,7 @@ import click
 from ..diagnose import diagnose, load_data, load_simulator, selftest as run_selftest, to_json
 from ..diagnose_report import check_report_dir, selftest_lines, summary_lines, write_report
 from ..errors import DataError
+from ..rawlog import check_rate
 from ._common import jsonable as _clean, parse_number as _number
 
 
@@ -48,9 +49,11 @@ def command(ctx, files, config, raw, units, counts_per_g, gravity, columns, skip
             ctx.exit(1)
         return
     out_dir = check_report_dir(report_dir) if report_dir else None
+    rate_hz = _number(rate, "--rate")
+    check_rate(rate_hz)
     sim = load_simulator(config)
     data = load_data(list(files), raw, units, _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity"),
-                     columns, _number(skip_rows, "--skip-rows", integer=True, positive=False), _number(rate, "--rate"),
+                     columns, _number(skip_rows, "--skip-rows", integer=True, positive=False), rate_hz,
                      _number(samples, "--samples", integer=True), norm_only)
     d = diagnose(data, sim)
     js = _clean(to_json(d))

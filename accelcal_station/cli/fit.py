@@ -7,22 +7,21 @@ import click
 import numpy as np
 
 from ..errors import AccelcalError, DataError, UnitsError
+from ..calibration import Calibration
+from ..handplaced import norm_faces, opposite_face
+from ..identifiability import assess, worst_parameter
 from ..models import FitResult, fit_session, fit_temperature
-from ..posetable import read_pose_table
-from ..rawlog import StaticDetection, read_raw_log, static_session
+from ..loader import Loaded, load
+from ..rawlog import StaticDetection
 from ..session import Session
 from ._common import check_model_units, jsonable as _clean, parse_number as _number
 
 
-def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate):
-    if raw:
-        log = read_raw_log(path, columns, skip_rows or 0, rate)
-        session, det = static_session(log, units or "counts", cpg, gravity)
-        return session, (log, det)
-    for flag, v in (("--columns", columns), ("--skip-rows", skip_rows), ("--rate", rate)):
-        if v is not None:
-            raise DataError(f"{flag} is for raw sample logs; add --raw to read {path} as one")
-    return read_pose_table(path, units, cpg, gravity, references=model != "9"), None
+def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate) -> Loaded:
+    if rate is not None and not raw:
+        raise DataError(f"--rate is for raw sample logs; add --raw to read {path} as one")
+    return load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, columns=columns,
+                skip_rows=skip_rows, rate_hz=rate, references=model != "9")
 
 
 def _vec(v, fmt: str = "+.6f") -> str:
@@ -50,6 +49,7 @@ def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
             f"leave-one-pose-out RMS {cv}; condition number {fit.condition_number:.3g}"]
     if fit.message:
         out.append(f"note: {fit.message}")
+    out += _barely_text(fit)
     w = max(4, *(len(n) for n in names))
     out.append(f"{'pose':<{w}}  {'x_g':>9} {'y_g':>9} {'z_g':>9}  {'res_x_mg':>9} {'res_y_mg':>9} "
                f"{'res_z_mg':>9}  {'norm_err_mg':>11}")
@@ -57,6 +57,52 @@ def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
         out.append(f"{n:<{w}}  {g[0]:+9.5f} {g[1]:+9.5f} {g[2]:+9.5f}  {r[0]:+9.3f} {r[1]:+9.3f} {r[2]:+9.3f}  "
                    f"{e:+11.3f}")
     return out
+
+
+def _barely_text(fit: FitResult) -> list[str]:
+    """A barely determined fit, flagged with its degrees of freedom and least certain parameter."""
+    ident = assess(fit.readings_g, fit.model)
+    if not ident.barely:
+        return []
+    per = " per channel" if fit.model != "9" else ""
+    worst = worst_parameter(fit.stderr, fit.model)
+    se = (f"; least certain: {worst[0]} +- {worst[1]} (1 sigma)" if worst
+          else "; standard errors unknown (no per-pose noise and no spare orientation)")
+    return [f"warning: barely determined: {ident.distinct} distinct orientations for {ident.coefficients} "
+            f"coefficients{per} ({ident.dof} degree{'s' if ident.dof != 1 else ''} of freedom){se}; "
+            "add poses in new orientations"]
+
+
+def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dict, list[str], Calibration]:
+    """The norm fit of hand-placed faces against the opposite-face estimate (handplaced module)."""
+    x, ref = fr.readings_g, session.references_g
+    try:
+        norm, classic = norm_faces(x, ref), opposite_face(x, ref)
+    except AccelcalError as e:
+        raise type(e)(f"--hand-placed: {e}") from None
+    ax = np.argmax(np.abs(ref), axis=1)
+    sign = np.sign(ref[np.arange(len(ref)), ax])
+    once = [f"{'+-'[s < 0]}{'xyz'[a]}" for a in range(3) for s in (1, -1) if np.sum((ax == a) & (sign == s)) < 2]
+    held = None
+    if not once:  # every face seen twice or more: each pose can be left out of both fits
+        held = {m: float(np.sqrt(np.mean([f(np.delete(x, i, 0), np.delete(ref, i, 0)).norm_error_g(x[i:i + 1])[0]
+                                          ** 2 for i in range(len(x))])))
+                for m, f in (("norm", norm_faces), ("opposite_face", opposite_face))}
+    lines = [f"hand-placed faces: {len(x)} poses, {norm.distinct} distinct orientations",
+             f"  opposite-face: gain {_vec(classic.gain)}  offset {_vec(classic.offset_g * 1e3, '+.3f')} mg",
+             f"  norm fit:      gain {_vec(norm.gain)}  offset {_vec(norm.offset_g * 1e3, '+.3f')} mg",
+             "  held-out norm error RMS (each pose left out of both fits): " +
+             (f"norm fit {held['norm'] * 1e3:.3f} mg, opposite-face {held['opposite_face'] * 1e3:.3f} mg" if held
+              else f"cannot hold poses out: face{'s' if len(once) > 1 else ''} {', '.join(once)} "
+                   f"{'have' if len(once) > 1 else 'has'} one pose (revisit every face to check the fits)"),
+             "  misplacement (deg): " + ", ".join(f"{n} {m:.2f}" for n, m in zip(session.names, norm.misplacement_deg)),
+             f"  note: {norm.note}"]
+    W, V = norm.as_an4399()
+    out = Calibration("6", W, V, np.zeros(3), cal.input_units, cal.input_per_g, metadata=dict(cal.metadata))
+    js = {"opposite_face": {"gain": classic.gain, "offset_g": classic.offset_g},
+          "norm": {"gain": norm.gain, "offset_g": norm.offset_g, "misplacement_deg": norm.misplacement_deg},
+          "held_out_norm_rms_g": held, "distinct_orientations": norm.distinct, "note": norm.note}
+    return js, lines, out
 
 
 def _segmentation(log, det: StaticDetection, names: list[str]) -> tuple[dict, list[str]]:
@@ -94,20 +140,25 @@ def _segmentation(log, det: StaticDetection, names: list[str]) -> tuple[dict, li
               help="Raw log columns, e.g. t,x,y,z or -,-,x,y,z (- ignores a column).")
 @click.option("--skip-rows", default=None, metavar="N", help="Raw log: lines to skip at the top.")
 @click.option("--rate", default=None, metavar="HZ", help="Raw log without a time column: sample rate in Hz.")
+@click.option("--hand-placed", "hand_placed", is_flag=True,
+              help="Six faces placed by hand ('axis up' references): fit gain and offset by the gravity norm, "
+                   "estimate each pose's misplacement, compare with the opposite-face estimate on held-out poses; "
+                   "-o writes the norm fit.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the summary.")
 @click.option("-o", "--output", default=None, metavar="FILE", help="Write the calibration JSON here (atomically).")
-def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns, skip_rows, rate, as_json,
-            output) -> None:
+def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns, skip_rows, rate, hand_placed,
+            as_json, output) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
-    model = model if model is not None else ("9" if raw else "12")
+    model = model if model is not None else ("6" if hand_placed else "9" if raw else "12")
     check_model_units(model, units)
     if temp_method not in ("linear", "quadratic"):
         raise DataError(f"--temp-method {temp_method!r}; allowed: linear, quadratic")
     cpg = _number(counts_per_g, "--counts-per-g")
     grav = _number(gravity, "--gravity")
-    session, rawinfo = _load(path, raw, model, units, cpg, grav, columns,
-                             _number(skip_rows, "--skip-rows", integer=True, positive=False),
-                             _number(rate, "--rate"))
+    loaded = _load(path, raw, model, units, cpg, grav, columns,
+                   _number(skip_rows, "--skip-rows", integer=True, positive=False), _number(rate, "--rate"))
+    session = loaded.session
+    rawinfo = (loaded.log, loaded.detection) if loaded.log is not None else None
     if model != "9" and session.units == "counts" and session.counts_per_g is None:
         raise UnitsError(f"{path}: readings are counts with no counts_per_g; model {model} needs --counts-per-g N "
                          "or a '# counts_per_g: N' line (only model 9 can estimate it)")
@@ -130,6 +181,8 @@ def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns
     cal.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
     report: dict = {}
     text: list[str] = []
+    report["inferred"] = loaded.to_json()
+    text += [f"read {path}: " + "; ".join(loaded.inferred)]
     if rawinfo is not None:
         report["segmentation"], seg_lines = _segmentation(*rawinfo, session.names)
         text += seg_lines
@@ -158,6 +211,11 @@ def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns
             text += _fit_text(f, s.names)
     report["source"] = str(path)
     report["units"] = session.units
+    if hand_placed:
+        if len(fits) != 1 or model != "6":
+            raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")
+        report["hand_placed"], hp_lines, cal = _hand_placed(session, fits[0][1], cal)
+        text += hp_lines
     if output:
         cal.save(output)
         report["output"] = str(output)

@@ -15,6 +15,7 @@ import numpy as np
 from ..calibration import Calibration, TemperatureTable
 from ..conventions import check_units, units_per_g
 from ..errors import DataError, UnderdeterminedError, UnitsError
+from ..identifiability import assess, assess_batch
 from ..session import Session
 from .gravity_norm import fit_norm_batch, nominal_scale
 from .linear import fit_linear_batch, six_param_six_face, six_param_two_pose
@@ -70,6 +71,9 @@ def fit_batch(readings, references=None, model="12", *, units: str = "g", counts
     nz = None
     if noise is not None:
         nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]
+    determined, _ = assess_batch(gf, model)  # from the distinct orientations, before any solver runs
+    if D == 1 and not determined[0]:
+        raise UnderdeterminedError(assess(gf[0], model).reason)
     if model == "9":
         res = fit_norm_batch(gf, noise_g=nz)
     else:
@@ -80,6 +84,9 @@ def fit_batch(readings, references=None, model="12", *, units: str = "g", counts
         if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
             raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
         res = fit_linear_batch(gf, ref, model, nz)
+    for d in np.flatnonzero(~determined):
+        res.ok[d] = False
+        res.messages[d] = assess(gf[d], model).reason
     res.input_units = units
     res.input_per_g = scale
     return res

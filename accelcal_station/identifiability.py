@@ -1,0 +1,222 @@
+"""Can the data determine a model?  Judged from the poses themselves, before fitting.
+
+Revisiting a face adds no information, so the poses are first grouped into distinct
+orientations (readings within ``DISTINCT_TOL_DEG`` of each other are one orientation).
+The design is then the model's regressors over those orientations:
+
+  6   per channel c: [g_c, 1]                     (AN4399 Eqns 6-17)
+  12  [g_x, g_y, g_z, 1]                          (AN4399 Eqn 46's X)
+  15  [g_x, g_y, g_z, 1, g_c^3] per channel       (AN4399 Eqns 67-72)
+  9   the norm model linearised at M = I, B = 0:  |u|' = [u_x^2, u_y^2, u_z^2, 2u_xu_y,
+      2u_xu_z, 2u_yu_z, u_x, u_y, u_z] for each unit direction u (nine-position paper)
+
+A model is determined when there are at least as many distinct orientations as
+coefficients per solve and no column of the (column-normalised) design is close to a
+combination of the others.  The reason a model is refused is said in words.
+
+``assess_batch`` is vectorised for `accelcal batch`; ``assess`` is one board.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import UnderdeterminedError
+
+DISTINCT_TOL_DEG = 5.0  # readings closer than this are the same orientation (a revisit)
+SPREAD_MIN_G = 0.25  # a channel must see gravity change by this much for its gain (model 6)
+REL_SV_MIN = 0.05  # smallest / largest singular value of the normalised design
+COEFFS = {"6": 2, "12": 4, "15": 5, "9": 9}  # coefficients per least-squares solve
+PARAMS = {"6": 6, "12": 12, "15": 15, "9": 9}
+AXES = "xyz"
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """Whether ``model`` is determined by the poses, and how well.
+
+    distinct: distinct orientations among ``poses``; dof: distinct orientations minus the
+    coefficients of one solve (per channel for 6/12/15); barely: determined with so few
+    spare orientations that one bad pose moves the fit (dof < max(2, coefficients / 4)).
+    """
+
+    model: str
+    poses: int
+    distinct: int
+    coefficients: int
+    determined: bool
+    reason: str
+
+    @property
+    def dof(self) -> int:
+        return self.distinct - self.coefficients
+
+    @property
+    def barely(self) -> bool:
+        return self.determined and self.dof < max(2, math.ceil(self.coefficients / 4))
+
+
+def _centre(gf: np.ndarray) -> np.ndarray:
+    """Directions are taken about 0 unless the data sit far off it (unsigned counts)."""
+    mid = 0.5 * (gf.max(axis=-2) + gf.min(axis=-2))
+    far = np.linalg.norm(mid, axis=-1, keepdims=True) > 0.5
+    return np.where(far, mid, 0.0)
+
+
+def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG) -> np.ndarray:
+    """(D, P) bool: pose p is the first of its orientation (no earlier pose within ``tol_deg``)."""
+    x = gf - _centre(gf)[..., None, :]
+    u = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
+    close = np.einsum("dpi,dqi->dpq", u, u) > math.cos(math.radians(tol_deg))
+    earlier = np.tril(close, k=-1)
+    return ~np.any(earlier, axis=-1)
+
+
+def _design(gf: np.ndarray, model: str) -> np.ndarray:
+    """Regressors per solve, (D, S, P, k): S = 3 channels for 6/15, 1 for 12 and 9."""
+    D, P, _ = gf.shape
+    ones = np.ones((D, P, 1))
+    if model == "6":
+        return np.stack([gf, np.ones_like(gf)], axis=-1).transpose(0, 2, 1, 3)
+    if model == "9":
+        x = gf - _centre(gf)[:, None, :]
+        u = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
+        ux, uy, uz = u[..., 0], u[..., 1], u[..., 2]
+        J = np.stack([ux**2, uy**2, uz**2, 2 * ux * uy, 2 * ux * uz, 2 * uy * uz, ux, uy, uz], axis=-1)
+        return J[:, None]
+    base = np.concatenate([gf, ones], axis=-1)[:, None]
+    if model == "12":
+        return base
+    cubic = (gf**3).transpose(0, 2, 1)[..., None]
+    return np.concatenate([np.broadcast_to(base, (D, 3, P, 4)), cubic], axis=-1)
+
+
+def _rel_sv(X: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Smallest / largest singular value of the column-normalised design over distinct orientations."""
+    Xd = X * first[:, None, :, None]
+    norm = np.linalg.norm(Xd, axis=-2, keepdims=True)
+    Xn = Xd / np.where(norm > 0, norm, 1.0)
+    s = np.linalg.svd(Xn, compute_uv=False)  # (D, S, k)
+    return np.min(s[..., -1] / np.maximum(s[..., 0], 1e-300), axis=-1)
+
+
+def assess_batch(gf, model: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vectorised check of D boards: (determined (D,) bool, distinct orientations (D,) int).
+
+    gf: (D, P, 3) uncalibrated readings in (about) g.  ``assess`` says why a board fails.
+    """
+    gf = np.asarray(gf, dtype=float)
+    model = str(model)
+    k = COEFFS[model]
+    first = first_of_orientation(gf)
+    distinct = first.sum(axis=-1)
+    ok = distinct >= k
+    X = _design(gf, model)
+    ok &= _rel_sv(X, first) >= REL_SV_MIN
+    if model == "6":
+        spread = gf.max(axis=1) - gf.min(axis=1)
+        ok &= np.all(spread >= SPREAD_MIN_G, axis=-1)
+    return ok, distinct
+
+
+def _alignment(gf: np.ndarray) -> str | None:
+    """'along one axis (x)' / 'in one plane (normal ...)' when the directions span < 3 dims."""
+    if len(gf) < 2:
+        return None
+    _, s, vt = np.linalg.svd(gf - gf.mean(axis=0), full_matrices=False)  # affine: the models have an offset
+    s = np.concatenate([s, np.zeros(3 - len(s))])
+    if s[1] < 0.15 * s[0]:
+        axis = int(np.argmax(np.abs(vt[0])))
+        return f"every pose is along one axis ({AXES[axis]} up or down)"
+    if s[2] < 0.1 * s[0]:
+        n = vt[2]
+        return f"every pose lies in one plane (normal {n[0]:+.2f}, {n[1]:+.2f}, {n[2]:+.2f})"
+    return None
+
+
+def _reason(gf: np.ndarray, model: str, distinct: int, first: np.ndarray) -> str:
+    P, k = len(gf), COEFFS[model]
+    seen = f"{distinct} distinct orientation{'s' if distinct != 1 else ''}" + \
+        (f" among {P} poses (revisits add no information)" if P > distinct else "")
+    if model == "9":
+        if distinct < 9:
+            return f"{seen}; the 9-parameter norm model needs at least 9 well spread"
+        return (f"{seen}, but they are not spread enough to determine the 9-parameter norm model "
+                f"({_alignment(gf[first]) or 'too close together'}); add poses in other directions")
+    if model == "6":
+        spread = gf.max(axis=0) - gf.min(axis=0)
+        flat = [AXES[c] for c in range(3) if spread[c] < SPREAD_MIN_G]
+        if flat:
+            where = _alignment(gf[first])
+            return (f"{where + ': ' if where else ''}the {', '.join(flat)} gain{'s are' if len(flat) > 1 else ' is'} "
+                    f"not determined (gravity on {', '.join(flat)} changes by less than {SPREAD_MIN_G:g} g "
+                    f"across the poses); model 6 needs each axis both up and down")
+    if distinct < k:
+        return f"{seen}; model {model} needs at least {k} poses in distinct orientations"
+    spread = gf.max(axis=0) - gf.min(axis=0)
+    for c in range(3):
+        if spread[c] < 0.05:  # a stuck channel or no tilt of that axis at all
+            return (f"channel {AXES[c]} has no spread across the {P} poses (all within {spread[c]:.3f} g): "
+                    f"add poses that tilt the {AXES[c]} axis toward and away from gravity")
+    where = _alignment(gf[first])
+    if where:
+        return f"{where}: model {model} needs poses out of it ({seen})"
+    if model == "15":
+        g = gf[first]
+        near = np.all((np.abs(np.abs(g) - 1) < 0.1) | (np.abs(g) < 0.1), axis=0)
+        if np.any(near):
+            return ("a cubic cannot be told from the gain when every reading is about +-1 g or 0 "
+                    f"(channel{'s' if near.sum() > 1 else ''} {', '.join(AXES[c] for c in range(3) if near[c])}); "
+                    "model 15 needs intermediate tilts, e.g. the an4399-8 design")
+        return "the cubic terms cannot be told from gain and cross-axis with these poses; use e.g. the an4399-8 design"
+    return f"the {seen} do not determine model {model} (two coefficients move together); add poses in other directions"
+
+
+def assess(gf, model: str) -> Identifiability:
+    """One board: readings (P, 3) in about g (see ``assess_batch``)."""
+    gf = np.asarray(gf, dtype=float)
+    model = str(model)
+    ok, distinct = assess_batch(gf[None], model)
+    d = int(distinct[0])
+    reason = "" if ok[0] else _reason(gf, model, d, first_of_orientation(gf[None])[0])
+    return Identifiability(model, len(gf), d, COEFFS[model], bool(ok[0]), reason)
+
+
+def require(gf, model: str) -> Identifiability:
+    """``assess`` that raises UnderdeterminedError with the reason when the model is not determined."""
+    a = assess(gf, model)
+    if not a.determined:
+        raise UnderdeterminedError(a.reason)
+    return a
+
+
+def worst_parameter(stderr: dict[str, np.ndarray] | None, model: str) -> tuple[str, str] | None:
+    """(name, standard error in the parameter's own units) of the least certain parameter.
+
+    Parameters are compared by their effect on the output at 1 g; a cross term is shown
+    as an angle in degrees, a gain in percent, an offset in mg, a cubic in mg/g^3.
+    """
+    if stderr is None:
+        return None
+    W, V, G = (np.asarray(stderr[k], dtype=float) for k in ("W", "V", "Gamma"))
+    cands: list[tuple[float, str, str]] = []
+    for r in range(3):
+        for c in range(3):
+            if model == "6" and r != c:
+                continue
+            name = f"W_{AXES[r]}{AXES[c]}"
+            if r == c:
+                cands.append((W[r, c], name, f"{100 * W[r, c]:.3g} %"))
+            else:
+                cands.append((W[r, c], name, f"{math.degrees(math.asin(min(W[r, c], 1.0))):.3g} deg"))
+        cands.append((V[r], f"V_{AXES[r]}", f"{1e3 * V[r]:.3g} mg"))
+        if model == "15":
+            cands.append((G[r], f"Gamma_{AXES[r]}{AXES[r]}", f"{1e3 * G[r]:.3g} mg/g^3"))
+    _, name, text = max(cands, key=lambda c: c[0])
+    return name, text
+
+
+__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "assess", "assess_batch", "first_of_orientation", "require",
+           "worst_parameter"]

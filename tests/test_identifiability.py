@@ -1,0 +1,105 @@
+"""Identifiability from the data: distinct orientations, refusals in words, barely determined fits."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from accelcal_station.cli import cli
+from accelcal_station.identifiability import assess, assess_batch
+
+FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1.0]])
+DATA_SET_1 = "calibraxis_set_1.csv"
+
+
+def _run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def _board(ref, seed=0, tilt_deg=1.0, noise_g=2e-4):
+    """Readings of a board with gain, offset and cross-axis, placed by hand (a small random tilt per pose)."""
+    rng = np.random.default_rng(seed)
+    W = np.array([[1.02, 0.01, -0.005], [0.004, 0.98, 0.008], [-0.006, 0.003, 1.01]])
+    true = []
+    for r in ref:
+        a = np.deg2rad(tilt_deg) * rng.standard_normal(3)
+        K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+        true.append((np.eye(3) + K) @ r)
+    return np.array(true) @ W.T + [0.03, -0.02, 0.01] + noise_g * rng.standard_normal((len(ref), 3))
+
+
+def _table(path, g, ref=None):
+    head = "pose,pitch_deg,roll_deg,x,y,z" + (",ref_x,ref_y,ref_z" if ref is not None else "")
+    rows = [f"p{i},,,{x!r},{y!r},{z!r}" + ("" if ref is None else ",{},{},{}".format(*ref[i]))
+            for i, (x, y, z) in enumerate(g.tolist())]
+    path.write_text("# units: g\n" + head + "\n" + "\n".join(rows) + "\n")
+    return path
+
+
+def test_model_9_on_six_faces_revisited_says_why(tmp_path):
+    ref = np.concatenate([FACES, FACES])  # every face visited twice: 12 poses, 6 orientations
+    table = _table(tmp_path / "revisited.csv", _board(ref))
+    r = _run("fit", table, "--model", "9", "-o", tmp_path / "cal.json")
+    assert r.exit_code != 0 and r.stderr.count("\n") == 1
+    assert ("6 distinct orientations among 12 poses (revisits add no information); "
+            "the 9-parameter norm model needs at least 9 well spread") in r.stderr
+    assert "converge" not in r.stderr and not (tmp_path / "cal.json").exists()
+
+
+def test_model_15_on_faces_cubic_cannot_be_told_from_gain(tmp_path):
+    table = _table(tmp_path / "faces.csv", _board(FACES), FACES)
+    r = _run("fit", table, "--model", "15")
+    assert r.exit_code != 0 and r.stderr.count("\n") == 1
+    assert "a cubic cannot be told from the gain when every reading is about +-1 g" in r.stderr
+    assert _run("fit", table, "--model", "12").exit_code == 0  # the same poses determine model 12
+
+
+@pytest.mark.parametrize("model", ["6", "12"])
+def test_poses_along_one_axis_are_refused(tmp_path, model):
+    ref = np.array([[1, 0, 0], [-1, 0, 0]] * 3, float)
+    table = _table(tmp_path / "x_only.csv", _board(ref, tilt_deg=0.5), ref)
+    r = _run("fit", table, "--model", model, "-o", tmp_path / "cal.json")
+    assert r.exit_code != 0 and r.stderr.count("\n") == 1, r.output
+    want = {"6": "along one axis (x up or down): the y, z gains are not determined",
+            "12": "2 distinct orientations among 6 poses (revisits add no information); model 12 needs at least 4"}
+    assert want[model] in r.stderr
+    assert not (tmp_path / "cal.json").exists()  # never a degenerate calibration (W diagonal [1, 0, 0])
+
+
+def test_model_6_names_the_undetermined_gains():
+    ref = np.array([[1, 0, 0], [-1, 0, 0]] * 3, float)
+    g = _board(ref, tilt_deg=6.0)  # tilted enough that y and z wobble, not enough to determine their gains
+    a = assess(g, "6")
+    assert not a.determined and "the y, z gains are not determined" in a.reason
+
+
+def test_barely_determined_fit_is_flagged_in_the_summary(data_dir):
+    """Real data (calibraxis set 1): 10 poses for the 9-parameter model, 1 degree of freedom."""
+    r = _run("fit", data_dir / DATA_SET_1, "--model", "9")
+    assert r.exit_code == 0, r.output
+    line = next(s for s in r.stdout.splitlines() if "barely determined" in s)
+    assert "10 distinct orientations for 9 coefficients (1 degree of freedom)" in line
+    name, se = line.split("least certain: ")[1].split(" +- ")
+    assert name.startswith("W_") and name[2] != name[3] and se.split()[1] == "deg"  # a cross term, in degrees
+    js = _run("fit", data_dir / DATA_SET_1, "--model", "9", "--json")
+    import json
+    stderr_W = np.array(json.loads(js.stdout)["stderr"]["W"])
+    i, j = "xyz".index(name[2]), "xyz".index(name[3])
+    assert float(se.split()[0]) == pytest.approx(np.degrees(np.arcsin(stderr_W[i, j])), rel=5e-3)  # 3 digits printed
+
+
+def test_well_determined_fit_is_not_flagged(tmp_path):
+    from accelcal_station.fixtures.designs import get_design, references
+
+    ref = references(get_design("optimal-14"))
+    r = _run("fit", _table(tmp_path / "t.csv", _board(ref), ref), "--model", "12")
+    assert r.exit_code == 0 and "barely" not in r.stdout
+
+
+def test_batch_assessment_matches_one_board_at_a_time():
+    boards = np.stack([_board(FACES, s) for s in range(3)] + [_board(np.array([[1, 0, 0], [-1, 0, 0]] * 3, float))])
+    for model in ("6", "12", "15"):
+        ok, distinct = assess_batch(boards, model)
+        assert ok.tolist() == [assess(b, model).determined for b in boards]
+        assert distinct.tolist() == [6, 6, 6, 2]
+    assert assess_batch(boards, "12")[0].tolist() == [True, True, True, False]
