@@ -115,7 +115,8 @@ def test_json_names_the_cubic_and_recovers_it(cubic_table):
     gamma = [js["steps"][0]["fitted"][f"Gamma_{a}"] for a in "xyz"]
     np.testing.assert_allclose(gamma, -np.array(CUBIC), rtol=0.15)
     untestable = {u["effect"] for u in js["untestable"]}
-    assert {"drift", "settling", "quantization", "temperature", "gravity", "saturation"} <= untestable
+    assert {"drift", "settling", "temperature", "gravity", "saturation"} <= untestable
+    assert js["stochastic"]["quantization"]["testable"] is False  # stochastic: its own section
     assert js["where"]["by_axis"]["z"] > 2  # the gap is everywhere, not one axis
 
 

@@ -5,7 +5,8 @@ import json
 
 import click
 
-from ..diagnose import diagnose, load_data, load_simulator, selftest as run_selftest, to_json
+from ..diagnose import diagnose, load_data, load_simulator, to_json
+from ..diagnose_selftest import selftest as run_selftest
 from ..diagnose_report import check_report_dir, selftest_lines, summary_lines, write_report
 from ..errors import DataError
 from ._common import jsonable as _clean, parse_number as _number

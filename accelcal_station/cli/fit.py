@@ -8,21 +8,14 @@ import numpy as np
 
 from ..errors import AccelcalError, DataError, UnitsError
 from ..models import FitResult, fit_session, fit_temperature
-from ..posetable import read_pose_table
-from ..rawlog import StaticDetection, read_raw_log, static_session
+from ..loading import load_session
+from ..rawlog import StaticDetection
 from ..session import Session
 from ._common import check_model_units, jsonable as _clean, parse_number as _number
 
 
 def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate):
-    if raw:
-        log = read_raw_log(path, columns, skip_rows or 0, rate)
-        session, det = static_session(log, units or "counts", cpg, gravity)
-        return session, (log, det)
-    for flag, v in (("--columns", columns), ("--skip-rows", skip_rows), ("--rate", rate)):
-        if v is not None:
-            raise DataError(f"{flag} is for raw sample logs; add --raw to read {path} as one")
-    return read_pose_table(path, units, cpg, gravity, references=model != "9"), None
+    return load_session(path, raw, units, cpg, gravity, columns, skip_rows, rate, references=model != "9")
 
 
 def _vec(v, fmt: str = "+.6f") -> str:
