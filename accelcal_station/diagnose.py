@@ -299,14 +299,14 @@ def _stochastic(data, floor, final, td, why, alpha, ev_pose=None) -> tuple[dict,
         ok, reason = eff.testable(data, td)
         if name == "pose_error" and ok and final.r_static is None:
             ok, reason = False, "the static view is unavailable"
+        q = out.get("quantization", {})
+        if name == "noise" and q.get("passed") and q["lsb_mg"] > 2e3 * float(np.max(floor.sim_sigma_g)):
+            ok, reason = False, (f"the samples sit on a {q['lsb_mg']:.3g} mg grid, over twice the simulated noise: "
+                                 "the grid sets the within-pose spread, so the noise cannot be measured")
         if not ok:
             out[name] = {"testable": False, "reason": reason}
             continue
-        fl = floor
-        if name == "noise" and out.get("quantization", {}).get("passed"):  # the spread a coarser LSB makes
-            fl = Floor(floor.sigma_g, 1e-3 * out["quantization"]["lsb_mg"], floor.scatter_rad, floor.gamma,
-                       floor.sim_sigma_g, floor.source, floor.sim_q_g)
-        sig = eff.signature(data, fl, ev_pose() if name == "pose_error" else final, td, alpha)
+        sig = eff.signature(data, floor, ev_pose() if name == "pose_error" else final, td, alpha)
         out[name] = {"testable": True, **sig.to_json()}
         why.pop(name, None)
     if "pose_error" in out:
