@@ -14,6 +14,8 @@ a configuration without the effect under test, and checks what the diagnosis nam
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from .diagnose import ALPHA, candidates, diagnose
@@ -103,8 +105,13 @@ def _extra_g(extra: str | None, pose, prev_ref, x_g: np.ndarray, tilt: dict, see
     return np.zeros_like(x_g)
 
 
+@lru_cache(maxsize=None)
+def _design(name: str) -> tuple:
+    return tuple(get_design(name))  # an optimal design is searched for: seconds, so once per process
+
+
 def _poses(kind: str):
-    poses = list(get_design(SELFTEST_DESIGN))
+    poses = list(_design(SELFTEST_DESIGN))
     return poses + poses[::-1] if kind == "refs-revisit" else poses
 
 

@@ -21,11 +21,11 @@ def _detrended(data) -> list[np.ndarray]:
 
 
 def _avar(x: np.ndarray, m: int) -> np.ndarray:
-    """Overlapping Allan variance of each column at cluster size m (IEEE 952 Eqn C.2)."""
-    c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
-    avg = (c[m:] - c[:-m]) / m
-    d = avg[m:] - avg[:-m]
-    return 0.5 * np.mean(d**2, axis=0)
+    """Overlapping Allan variance at cluster size m (IEEE 952 Eqn C.2) of x (..., n, 3), averaged over axes."""
+    c = np.concatenate([np.zeros(x.shape[:-2] + (1, x.shape[-1])), np.cumsum(x, axis=-2)], axis=-2)
+    avg = (c[..., m:, :] - c[..., :-m, :]) / m
+    d = avg[..., m:, :] - avg[..., :-m, :]
+    return 0.5 * np.mean(d**2, axis=(-2, -1))
 
 
 class RandomWalk:
@@ -51,11 +51,12 @@ class RandomWalk:
         n = min(len(x) for x in caps)
         m2 = max(2, n // 4)
         m1 = max(1, m2 // 4)
-        obs = np.array([[_avar(x, m).mean() for m in (m1, m2)] for x in caps]).mean(axis=0)
+        obs = np.array([[_avar(x, m) for m in (m1, m2)] for x in caps]).mean(axis=0)
         rng = np.random.default_rng(seed)
         perm = np.zeros((N_PERM, 2))
-        for k in range(N_PERM):
-            perm[k] = np.array([[_avar(x[rng.permutation(len(x))], m).mean() for m in (m1, m2)] for x in caps]).mean(0)
+        for x in caps:  # all permutations of one capture at once
+            xp = x[np.argsort(rng.random((N_PERM, len(x))), axis=1)]
+            perm += np.stack([_avar(xp, m) for m in (m1, m2)], axis=1) / len(caps)
         white = perm.mean(axis=0)
         p = float((1 + np.sum(perm[:, 1] >= obs[1])) / (1 + N_PERM))
         ex = obs - white
