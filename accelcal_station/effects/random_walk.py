@@ -6,15 +6,18 @@ import numpy as np
 from .base import Signature
 
 N_PERM = 199  # permutations: smallest attainable p is 1/200 = 0.005
+SKIP_START = 0.3  # fraction of each capture left out: a transient after the move is settling's, not drift's
 MIN_SLOPE = 0.25  # Allan-deviation slope of the excess: 0.5 for a random walk, 0 for flicker (1/f)
 
 
 def _detrended(data) -> list[np.ndarray]:
-    """Each capture in g with its own straight line removed (a warm-up or trend is drift's deterministic part)."""
+    """Each capture in g, its first SKIP_START left out and its own straight line removed (a warm-up or
+    trend is drift's deterministic part)."""
     out = []
     for c in data.captures:
-        x = c.x / c.per_g
-        t = np.asarray(c.t, float) - c.t[0]
+        keep = slice(int(SKIP_START * len(c.t)), None)  # a settling transient lives at the start
+        x = c.x[keep] / c.per_g
+        t = np.asarray(c.t[keep], float) - c.t[0]
         A = np.stack([np.ones_like(t), t], axis=1)
         out.append(x - A @ np.linalg.lstsq(A, x, rcond=None)[0])
     return out
@@ -37,8 +40,8 @@ class RandomWalk:
     def testable(self, data, td) -> tuple[bool, str]:
         if td is None:
             return False, "a random walk shows only within raw captures: it needs raw logs"
-        if min(len(c.t) for c in data.captures) < 64:
-            return False, "captures shorter than 64 samples are too short for an Allan deviation"
+        if min(len(c.t) for c in data.captures) < 96:
+            return False, "captures shorter than 96 samples are too short for an Allan deviation"
         return True, ""
 
     def signature(self, data, floor, ev, td, alpha, seed: int = 0) -> Signature:
