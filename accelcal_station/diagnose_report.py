@@ -64,30 +64,10 @@ def _yaml_inline(d: dict) -> str:
     return "{" + ", ".join(f"{k}: {v(x)}" for k, x in d.items()) + "}"
 
 
-def summary_lines(d: Diagnosis) -> list[str]:
-    """The human summary: gap, where, which, how far, and what to do."""
-    data, sim, b = d.data, d.sim, d.base
-    kind = ("references" if not data.norm_only else "norm only (no references)") + \
-        (f", raw captures at {data.rate_hz:g} Hz" if data.captures is not None else "")
-    n_txt = f"{np.median(data.n):.0f} samples/pose" + ("" if data.n_known else " (assumed)")
-    temps = "" if data.temp_c is None else f", {data.n_temps} temperature(s)"
-    fl = d.floor
-    out = [f"accelcal diagnose: {data.P} poses from {', '.join(data.sources)} ({kind}; {n_txt}{temps})",
-           f"simulator {sim.source}: {', '.join(sim.enabled) or 'no effects'}; fitted baseline: "
-           f"{', '.join(sim.baseline) or 'nothing (W = I)'}; floor from the {fl.source}: "
-           f"{1e3 * float(np.mean(fl.sigma_g)):.3g} mg/sample at {data.rate_hz or sim.odr_hz:g} Hz"
-           f" and a {1e3 * fl.q_g:.3g} mg LSB"]
-    out += [f"note: {n}" for n in data.notes]
-    if not d.static_ok:
-        out.append(f"note: no static view: {d.static_why}")
-    out.append("")
-    out.append(f"GAP  held-out residual {1e3 * b.rms_g:.4g} mg RMS over the floor fixed before any candidate: "
-               f"ratio {_g(d.gap_before)} (1.0 = at the floor; only residuals move it)")
-    views = [f"{v} view {_g(b.floor_gap(v))}" for v in ("static", "time") if b.floor_gap(v) is not None]
-    if len(views) > 1:
-        out.append("     " + "; ".join(views) + " (the headline is their RMS)")
-    out.append("")
-    out.append("WHERE (held-out ratio to the floor, baseline model)")
+def _where_lines(d: Diagnosis) -> list[str]:
+    """Where the baseline's held-out gap lies (diagnose.breakdown) as text."""
+    data = d.data
+    out = ["WHERE (held-out ratio to the floor, baseline model)"]
     w = d.where
     if "by_axis" in w:
         out.append("  by axis: " + ", ".join(f"{a} {_g(v)}" for a, v in w["by_axis"].items()))
@@ -116,11 +96,39 @@ def summary_lines(d: Diagnosis) -> list[str]:
         al = w["allan"]
         out.append(f"  Allan deviation at {al['tau_s'][-1]:.3g} s: " + "/".join(_g(x) for x in al["ratio_at_longest_tau"])
                    + " x white noise (x, y, z; 1 = white, more = drift or flicker)")
+    return out
+
+
+def summary_lines(d: Diagnosis) -> list[str]:
+    """The human summary: gap, where, which, how far, and what to do."""
+    data, sim, b = d.data, d.sim, d.base
+    kind = ("references" if not data.norm_only else "norm only (no references)") + \
+        (f", raw captures at {data.rate_hz:g} Hz" if data.captures is not None else "")
+    n_txt = f"{np.median(data.n):.0f} samples/pose" + ("" if data.n_known else " (assumed)")
+    temps = "" if data.temp_c is None else f", {data.n_temps} temperature(s)"
+    fl = d.floor
+    out = [f"accelcal diagnose: {data.P} poses from {', '.join(data.sources)} ({kind}; {n_txt}{temps})",
+           f"simulator {sim.source}: {', '.join(sim.enabled) or 'no effects'}; fitted baseline: "
+           f"{', '.join(sim.baseline) or 'nothing (W = I)'}; floor from the {fl.source}: "
+           f"{1e3 * float(np.mean(fl.sigma_g)):.3g} mg/sample at {data.rate_hz or sim.odr_hz:g} Hz"
+           f" and a {1e3 * fl.q_g:.3g} mg LSB"]
+    out += [f"note: {n}" for n in data.notes]
+    if not d.static_ok:
+        out.append(f"note: no static view: {d.static_why}")
+    out.append("")
+    out.append(f"GAP  held-out residual {1e3 * b.rms_g:.4g} mg RMS over the floor fixed before any candidate: "
+               f"ratio {_g(d.gap_before)} (1.0 = at the floor; only residuals move it)")
+    views = [f"{v} view {_g(b.floor_gap(v))}" for v in ("static", "time") if b.floor_gap(v) is not None]
+    if len(views) > 1:
+        out.append("     " + "; ".join(views) + " (the headline is their RMS)")
+    out.append("")
+    out += _where_lines(d)
     out.append("")
     out.append(f"WHICH (each candidate added to the model, refitted on training folds, scored on held-out poses;\n"
                f"       selected while a one-sided paired test (t or Wilcoxon, doubled) on per-pose held-out log density\n"
-               f"       beats alpha = {d.alpha:g} / candidates, the gap shrinks by {MIN_GAP_SHRINK:.0%} of its log, "
-               "and the gap is outside its chance range)")
+               f"       beats alpha = {d.alpha:g} / candidates, the held-out RMS shrinks, some view loses "
+               f"{MIN_GAP_SHRINK:.0%} of its log gap,\n       and the gap is outside its chance range; "
+               "when the best fails a rule the next is tried)")
     for i, r in enumerate(d.ranking):
         mark = "  <- selected" if r["effect"] in d.selected else ""
         out.append(f"  {i + 1:2d}. {r['effect']:<13} held-out gap {_g(r['held_out_gap']):>7}   p {r['p_value']:.2g}{mark}")
