@@ -396,9 +396,18 @@ def _check_sim(data: GapData, sim: Simulator) -> None:
                               "so only the simulator's LSB in g may not hold")
 
 
+def at_floor(e: Evaluation, alpha: float = ALPHA) -> bool:
+    """Whether no view's mean squared standardised held-out residual lies above the 1 - alpha/views
+    quantile of chi^2_N / N (one-sided: residuals below their prediction leave nothing to explain)."""
+    from scipy import stats
+
+    views = [(r, v) for r, v in ((e.r_static, e.v_static), (e.r_time, e.v_time)) if r is not None]
+    return all(np.sum(r**2 / v) <= stats.chi2.ppf(1 - alpha / len(views), r.size) for r, v in views)
+
+
 def verdict(d: Diagnosis) -> tuple[str, str]:
     """explained / partly explained / unexplained / nothing to explain (module doc, step 5)."""
-    base_ok, final_ok = explained(d.base, d.alpha), explained(d.final, d.alpha)
+    base_ok, final_ok = at_floor(d.base, d.alpha), at_floor(d.final, d.alpha)
     stoch = [n for n in d.selected if n in STOCHASTIC]
     shape = d.leftover.get("summary", "")
     if base_ok and not d.selected:
