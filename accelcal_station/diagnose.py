@@ -53,6 +53,20 @@ DEGENERATE = {
 }
 
 
+TIME_ONLY = {"settling": "a transient after each pose change shows only within a capture: it needs raw logs",
+             "drift": "drift over time needs raw time series (raw logs): pose tables carry no capture times"}
+
+
+def _saturation_why(data: GapData, sim: Simulator) -> str:
+    top, clip = float(np.max(np.abs(data.g))), sim.clip_g
+    if top < 0.95 * clip:
+        return (f"static gravity poses read at most {top:.2f} g on any axis, below the {clip:.2f} g where "
+                "the output clips (range x full_scale_fraction): clipping cannot show; it needs inputs near "
+                "full scale (centrifuge, shaker)")
+    return (f"readings reach {top:.2f} g, at the {clip:.2f} g clip level: clipped poses are not modelled "
+            "as a fitted term; remove them or measure on a larger range")
+
+
 def candidates(data: GapData, sim: Simulator, td: TimeData | None) -> tuple[list[str], dict[str, str], bool, str]:
     """(testable candidates, {effect: why not}, static view usable, why not)."""
     base = sim.baseline
@@ -77,27 +91,13 @@ def candidates(data: GapData, sim: Simulator, td: TimeData | None) -> tuple[list
         if e in base:
             continue
         if e == "saturation":
-            top = float(np.max(np.abs(data.g)))
-            clip = sim.clip_g
-            if top < 0.95 * clip:
-                why[e] = (f"static gravity poses read at most {top:.2f} g on any axis, below the {clip:.2f} g where "
-                          "the output clips (range x full_scale_fraction): clipping cannot show; it needs inputs near "
-                          "full scale (centrifuge, shaker)")
-            else:
-                why[e] = (f"readings reach {top:.2f} g, at the {clip:.2f} g clip level: clipped poses are not modelled "
-                          "as a fitted term; remove them or measure on a larger range")
+            why[e] = _saturation_why(data, sim)
             continue
         if e in ("noise", "quantization", "pose_error"):
             continue  # stochastic: judged by its own signature (_stochastic), never by the gap
-        if e == "settling":
+        if e in TIME_ONLY:
             if td is None:
-                why[e] = "a transient after each pose change shows only within a capture: it needs raw logs"
-            else:
-                testable.append(e)
-            continue
-        if e == "drift":
-            if td is None:
-                why[e] = "drift over time needs raw time series (raw logs): pose tables carry no capture times"
+                why[e] = TIME_ONLY[e]
             else:
                 testable.append(e)
             continue
