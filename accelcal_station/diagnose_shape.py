@@ -21,13 +21,17 @@ def _bases(data, c: int) -> dict[str, np.ndarray]:
             "approach direction": np.sign(np.round(step, 1))}
 
 
+MIN_SPAN = 0.1  # a shape's regressor must vary by this much (g^k) over the poses to be judged at all
+
+
 def _reduction(r: np.ndarray, w: np.ndarray, X: np.ndarray) -> float:
-    """Drop of sum(w r^2) when r is regressed on X by weighted least squares."""
+    """Drop of sum(w r^2) when r is regressed on X by weighted least squares (0 when the poses do not
+    span X, or are too few to leave twice its columns as residual degrees of freedom)."""
+    keep = np.ptp(X, axis=0) > MIN_SPAN
+    if not keep.any() or len(r) < 3 * keep.sum():
+        return 0.0
     sw = np.sqrt(w)
     Xw, rw = X * sw[:, None], r * sw
-    keep = np.linalg.norm(Xw, axis=0) > 0
-    if not keep.any():
-        return 0.0
     beta = np.linalg.lstsq(Xw[:, keep], rw, rcond=None)[0]
     return float(rw @ rw - np.sum((rw - Xw[:, keep] @ beta) ** 2))
 
