@@ -390,3 +390,21 @@ def test_counts_given_as_g_are_refused(shared):
     r = CliRunner().invoke(cli, ["diagnose", "--raw", "--columns", "-,-,x,y,z,-,-,-", "--rate", "204.8",
                                  "--units", "g", str(log)])
     assert r.exit_code == 2 and "median norm of 2066 g" in r.stderr and r.stderr.count("\n") == 1
+
+
+def test_diagnosis_core_imports_nothing_from_cli_and_loads_like_fit():
+    import ast
+
+    import accelcal_station.diagnose_load as dl
+
+    pkg = REPO / "accelcal_station"
+    files = [*pkg.glob("diagnose*.py"), *(pkg / "effects").glob("*.py"), pkg / "gap_effects.py", pkg / "loading.py"]
+    for f in files:
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                assert "cli" not in (node.module or "").split("."), (f.name, node.module)
+    # one loader: diagnose reads files through the function `accelcal fit` uses
+    from accelcal_station.cli import fit as cli_fit
+    from accelcal_station.loading import load_session
+
+    assert dl.load_session is load_session and cli_fit.load_session is load_session
