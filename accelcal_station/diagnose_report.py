@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .diagnose import MIN_GAP_SHRINK, Diagnosis, explained
+from .diagnose import MIN_GAP_SHRINK, Diagnosis
 from .errors import AccelcalError, DataError
 from .posetable import atomic_write_text
 
@@ -64,31 +64,10 @@ def _yaml_inline(d: dict) -> str:
     return "{" + ", ".join(f"{k}: {v(x)}" for k, x in d.items()) + "}"
 
 
-def summary_lines(d: Diagnosis) -> list[str]:
-    """The human summary: gap, where, which, how far, and what to do."""
-    data, sim, b = d.data, d.sim, d.base
-    kind = ("references" if not data.norm_only else "norm only (no references)") + \
-        (f", raw captures at {data.rate_hz:g} Hz" if data.captures is not None else "")
-    n_txt = f"{np.median(data.n):.0f} samples/pose" + ("" if data.n_known else " (assumed)")
-    temps = "" if data.temp_c is None else f", {data.n_temps} temperature(s)"
-    fl = d.floor
-    out = [f"accelcal diagnose: {data.P} poses from {', '.join(data.sources)} ({kind}; {n_txt}{temps})",
-           f"simulator {sim.source}: {', '.join(sim.enabled) or 'no effects'}; fitted baseline: "
-           f"{', '.join(sim.baseline) or 'nothing (W = I)'}; floor from noise "
-           f"{1e3 * float(np.mean(fl.sigma_g)):.3g} mg/sample at {data.rate_hz or sim.odr_hz:g} Hz"
-           f" and a {1e3 * fl.q_g:.3g} mg LSB"]
-    out += [f"note: {n}" for n in data.notes]
-    if not d.static_ok:
-        out.append(f"note: no static view: {d.static_why}")
-    out.append("")
-    exp = 1e3 * b.expected_rms_g
-    out.append(f"GAP  held-out residual {1e3 * b.rms_g:.4g} mg RMS against {exp:.3g} mg expected from the simulator: "
-               f"ratio {_g(d.gap_before)} (1.0 = the simulator explains the data)")
-    views = [f"{v} view {_g(b.view_gap(v))}" for v in ("static", "time") if b.view_gap(v) is not None]
-    if len(views) > 1:
-        out.append("     " + "; ".join(views) + " (the headline is their RMS)")
-    out.append("")
-    out.append("WHERE (held-out ratio to the floor, baseline model)")
+def _where_lines(d: Diagnosis) -> list[str]:
+    """Where the baseline's held-out gap lies (diagnose.breakdown) as text."""
+    data = d.data
+    out = ["WHERE (held-out ratio to the floor, baseline model)"]
     w = d.where
     if "by_axis" in w:
         out.append("  by axis: " + ", ".join(f"{a} {_g(v)}" for a, v in w["by_axis"].items()))
@@ -117,11 +96,39 @@ def summary_lines(d: Diagnosis) -> list[str]:
         al = w["allan"]
         out.append(f"  Allan deviation at {al['tau_s'][-1]:.3g} s: " + "/".join(_g(x) for x in al["ratio_at_longest_tau"])
                    + " x white noise (x, y, z; 1 = white, more = drift or flicker)")
+    return out
+
+
+def summary_lines(d: Diagnosis) -> list[str]:
+    """The human summary: gap, where, which, how far, and what to do."""
+    data, sim, b = d.data, d.sim, d.base
+    kind = ("references" if not data.norm_only else "norm only (no references)") + \
+        (f", raw captures at {data.rate_hz:g} Hz" if data.captures is not None else "")
+    n_txt = f"{np.median(data.n):.0f} samples/pose" + ("" if data.n_known else " (assumed)")
+    temps = "" if data.temp_c is None else f", {data.n_temps} temperature(s)"
+    fl = d.floor
+    out = [f"accelcal diagnose: {data.P} poses from {', '.join(data.sources)} ({kind}; {n_txt}{temps})",
+           f"simulator {sim.source}: {', '.join(sim.enabled) or 'no effects'}; fitted baseline: "
+           f"{', '.join(sim.baseline) or 'nothing (W = I)'}; floor from the {fl.source}: "
+           f"{1e3 * float(np.mean(fl.sigma_g)):.3g} mg/sample at {data.rate_hz or sim.odr_hz:g} Hz"
+           f" and a {1e3 * fl.q_g:.3g} mg LSB"]
+    out += [f"note: {n}" for n in data.notes]
+    if not d.static_ok:
+        out.append(f"note: no static view: {d.static_why}")
+    out.append("")
+    out.append(f"GAP  held-out residual {1e3 * b.rms_g:.4g} mg RMS over the floor fixed before any candidate: "
+               f"ratio {_g(d.gap_before)} (1.0 = at the floor; only residuals move it)")
+    views = [f"{v} view {_g(b.floor_gap(v))}" for v in ("static", "time") if b.floor_gap(v) is not None]
+    if len(views) > 1:
+        out.append("     " + "; ".join(views) + " (the headline is their RMS)")
+    out.append("")
+    out += _where_lines(d)
     out.append("")
     out.append(f"WHICH (each candidate added to the model, refitted on training folds, scored on held-out poses;\n"
                f"       selected while a one-sided paired test (t or Wilcoxon, doubled) on per-pose held-out log density\n"
-               f"       beats alpha = {d.alpha:g} / candidates, the gap shrinks by {MIN_GAP_SHRINK:.0%} of its log, "
-               "and the gap is outside its chance range)")
+               f"       beats alpha = {d.alpha:g} / candidates, the held-out RMS shrinks, some view loses "
+               f"{MIN_GAP_SHRINK:.0%} of its log gap,\n       and the gap is outside its chance range; "
+               "when the best fails a rule the next is tried)")
     for i, r in enumerate(d.ranking):
         mark = "  <- selected" if r["effect"] in d.selected else ""
         out.append(f"  {i + 1:2d}. {r['effect']:<13} held-out gap {_g(r['held_out_gap']):>7}   p {r['p_value']:.2g}{mark}")
@@ -130,48 +137,46 @@ def summary_lines(d: Diagnosis) -> list[str]:
     for e, why in d.untestable.items():
         out.append(f"  not testable: {e}: {why}")
     out.append("")
-    out.append("HOW FAR (held-out gap)")
-    txt = f"  baseline {_g(d.gap_before)}"
+    out.append("HOW FAR (held-out gap; held-out residual RMS)")
+    txt = f"  baseline {_g(d.gap_before)} ({1e3 * d.base.rms_g:.3g} mg)"
     for s in d.steps:
-        txt += f" -> + {s['added']} {_g(s['gap_after'])}"
+        txt += f" -> + {s['added']} {_g(s['gap_after'])} ({s['rms_mg_after']:.3g} mg)"
     out.append(txt)
     out.append("")
-    if d.selected:
-        out.append(f"VERDICT: {', '.join(d.selected)} explain{'s' if len(d.selected) == 1 else ''} the gap "
-                   f"({_g(d.gap_before)} -> {_g(d.gap_after)}). Add to the simulator configuration:")
+    out.append("STOCHASTIC (each judged by its own signature; never lowers the gap)")
+    for name, st in d.stochastic.items():
+        if st.get("testable"):
+            out.append(f"  {name}: {'NAMED' if st['passed'] else 'no'}: {st['reason']}")
+        else:
+            out.append(f"  {name}: not testable: {st['reason']}")
+    out.append("")
+    out.append(f"VERDICT: {d.verdict}: {d.verdict_text}")
+    if d.steps:
+        out.append("  add to the simulator configuration:")
         for s in d.steps:
             hint = config_hint(s["added"], s["fitted"])
             out.append(f"  {s['added']}: {_yaml_inline(hint)}" if hint else f"  {s['added']}: (see --json steps)")
-        if d.gap_after > 2:
-            out.append(f"  a gap of {_g(d.gap_after)} remains that no catalog effect explains")
-    elif explained(d.base, d.alpha):
-        out.append(f"VERDICT: the simulator explains these data (gap {_g(d.gap_before)}); no effect needs adding")
-    elif d.gap_before < 1:
-        out.append(f"VERDICT: the data scatter less than the simulator predicts (gap {_g(d.gap_before)} < 1): its noise "
-                   "or quantization is pessimistic for these boards, or the samples per pose are overstated")
-    else:
-        out.append(f"VERDICT: no catalog effect explains the gap of {_g(d.gap_before)}: the data hold something the "
-                   "simulator does not model (see WHERE for its shape)")
     if not data.n_known:
         out.append(f"  (the floor assumes {np.median(data.n):.0f} sample(s) per pose: with more, the true gap is larger)")
     return out
 
 
 def selftest_lines(r: dict) -> list[str]:
-    out = [f"accelcal diagnose --selftest: {r['design']} boards, seed {r['seed']}, alpha {r['alpha']:g}",
-           f"{'withheld':<13}{'data':<46}{'named':<14}{'gap before':>11}{'after':>9}  result"]
+    out = [f"accelcal diagnose --selftest: {r['design']} boards ({r['physics']}), seed {r['seed']}, alpha {r['alpha']:g}",
+           f"{'case':<19}{'expect':<12}{'named':<26}{'verdict':<19}{'rms mg before':>14}{'after':>8}  result"]
     for c in r["cases"]:
         res = "ok" if c["pass"] else "FAIL"
         if not c["revealable"]:
             res += " (not revealable: see below)"
-        out.append(f"{c['withheld']:<13}{c['data']:<46}{str(c['named'] or '-'):<14}{_g(c['gap_before']):>11}"
-                   f"{_g(c['gap_after_named']):>9}  {res}")
-    out.append("")
-    out.append("effects the data cannot reveal, and why:")
-    for effect, row in r["coverage"].items():
-        for kind, st in row.items():
-            if st != "testable":
-                out.append(f"  {effect} / {kind}: {st}")
+        out.append(f"{c['case']:<19}{c['kind']:<12}{', '.join(c['selected']) or '-':<26}{c['verdict']:<19}"
+                   f"{c['rms_mg_before']:>14.3g}{c['rms_mg_after']:>8.3g}  {res}")
+    if "coverage" in r:
+        out.append("")
+        out.append("effects the data cannot reveal, and why:")
+        for effect, row in r["coverage"].items():
+            for kind, st in row.items():
+                if not st.startswith("testable"):
+                    out.append(f"  {effect} / {kind}: {st}")
     out.append("")
     out.append("self-test " + ("passed" if r["passed"] else "FAILED"))
     return out

@@ -102,6 +102,7 @@ class GapData:
     sources: list[str]
     notes: list[str] = field(default_factory=list)
     counts_per_g: list = field(default_factory=list)  # per file: counts per g used (None: not counts)
+    zero_g: np.ndarray | None = None  # (3,) the zero-g reading of the baseline fit (centres cubic and square)
 
     @property
     def P(self) -> int:
@@ -133,6 +134,9 @@ class Floor:
     q_g: float
     scatter_rad: float
     gamma: float  # configured local gravity in standard g
+    sim_sigma_g: np.ndarray | None = None  # the simulator's own sigma, when sigma_g was measured from the data
+    source: str = "simulator noise and quantization"
+    sim_q_g: float | None = None  # the simulator's own LSB, when q_g was measured from the data
 
 
 def bias_var(sigma, q) -> np.ndarray:
@@ -295,10 +299,12 @@ def time_data(data: GapData) -> TimeData | None:
 
 # -- static design ---------------------------------------------------------------------------
 
-def static_design(E, g, ref, dT, drift_h, norm: bool, n_temps: int):
+def static_design(E, g, ref, dT, drift_h, norm: bool, n_temps: int, g0=None):
     """Design of the static view for effects E.
 
-    g: (..., P, 3) readings; ref: (P, 3) or None; dT: (P,) or None; drift_h: (..., P, 2) or None.
+    g: (..., P, 3) readings; ref: (P, 3) or None; dT: (P,) or None; drift_h: (..., P, 2) or None;
+    g0: (3,) the zero-g reading: a sensor's nonlinearity acts on its response to force, G - g0
+    (reading = S a + c (S a)^3 + b), so the cubic and square columns are centred there.
     Returns A (..., P, 3, p), b (..., P, 3), d (p,) norm-shift flags, labels (p,) of (effect, detail).
     """
     lead = g.shape[:-2]
@@ -337,12 +343,13 @@ def static_design(E, g, ref, dT, drift_h, norm: bool, n_temps: int):
     if "offset" in E:
         for c in range(3):
             add("offset", f"V_{ax[c]}", {c: 1.0})
+    z0 = np.zeros(3) if g0 is None else np.asarray(g0, float)
     if "cubic" in E:
         for c in range(3):
-            add("cubic", f"Gamma_{ax[c]}", {c: g[..., c] ** 3})
+            add("cubic", f"Gamma_{ax[c]}", {c: (g[..., c] - z0[c]) ** 3})
     if "quadratic" in E:
         for c in range(3):
-            add("quadratic", f"Q_{ax[c]}", {c: g[..., c] ** 2})
+            add("quadratic", f"Q_{ax[c]}", {c: (g[..., c] - z0[c]) ** 2})
     if "temperature" in E and dT is not None:
         x = dT / T_SCALE_C
         for c in range(3):
@@ -470,6 +477,8 @@ class Evaluation:
     fitted_static: np.ndarray | None = None  # (P, m) in-sample residuals of the whole-data fit
     r_spread: np.ndarray | None = None  # (P, 3) within-pose variance minus predicted, g^2 (scored, not in gap)
     v_spread: np.ndarray | None = None
+    floor_time: np.ndarray | None = None  # (R,) the floor alone of the time view's rows
+    pv_static: np.ndarray | None = None  # (P, m) the fit's own prediction variance of the held-out residuals
 
     def _rows(self):
         r = [x.ravel() for x in (self.r_static, self.r_time) if x is not None]
@@ -478,12 +487,17 @@ class Evaluation:
 
     @property
     def gap(self) -> float:
-        """Held-out residual RMS over its predicted RMS (1.0: the model explains the data).
+        """Held-out residual RMS over the floor's RMS, the floor fixed before any candidate (1.0: at the floor).
 
-        With raw captures both views count alike: the RMS of the static and time views' ratios.
+        Only the residuals move it: the floor is the same for every model.  With raw captures
+        both views count alike: the RMS of the static and time views' ratios.
         """
-        gaps = [g for g in (self.view_gap("static"), self.view_gap("time")) if g is not None]
+        gaps = [g for g in (self.floor_gap("static"), self.floor_gap("time")) if g is not None]
         return float(np.sqrt(np.mean(np.square(gaps))))
+
+    def floor_gap(self, view: str) -> float | None:
+        r, f = {"static": (self.r_static, self.floor_static), "time": (self.r_time, self.floor_time)}[view]
+        return None if r is None else float(np.sqrt(np.sum(r**2) / np.sum(f)))
 
     def view_gap(self, view: str) -> float | None:
         r, v = {"static": (self.r_static, self.v_static), "time": (self.r_time, self.v_time),
@@ -566,7 +580,7 @@ def evaluate(data: GapData, floor: Floor, baseline: tuple[str, ...], added: tupl
     # training captures by maximum marginal likelihood; a held-out capture is scored by its
     # marginal density N(e; 0, V + psi^2 f f^T) (proper, comparable with the baseline's N(e; 0, V)),
     # and its amplitude estimated (BLUP) to extrapolate the settled mean for the static view.
-    r_time = v_time = None
+    r_time = v_time = fl_time = None
     corr = np.zeros((F, P, 3))
     extra = np.zeros((F, P, 3))  # variance the settled-mean extrapolation adds to a pose mean
     n_time = 0
@@ -625,14 +639,16 @@ def evaluate(data: GapData, floor: Floor, baseline: tuple[str, ...], added: tupl
                 extra = post.reshape(F, P, 3) * cap[:, :, None] ** 2
                 params["settling_tau_s"] = float(TAU_SETTLE_S[si[-1]])
                 params["settling_amplitude_mg_rms"] = float(1e3 * np.sqrt(p2[-1, 0]))
+                params["_settling_a_g"] = _heldout(a_hat.reshape(F, P, 3), fold)  # each capture's, held out
         r_time = (y - settle_fit)[fr, rows]
+        fl_time = v_row[fr, rows]
         v_time = (v_row + pv_d - post_rows)[fr, rows]  # Var(e - f a_hat) = V - f^2 Var(a | e)
         np.add.at(nll, (td.unit, td.axis), _nll(y[fr, rows], (v_row + pv_d)[fr, rows]))
         if g_all is not None:
             nll -= g_all[np.repeat(fold, 3), np.arange(3 * P)].reshape(P, 3)
 
     # static view
-    r_s = v_s = fl_s = fit_s = None
+    r_s = v_s = fl_s = fit_s = pv_s = None
     n_static = 0
     if static_ok:
         norm = data.norm_only
@@ -641,14 +657,20 @@ def evaluate(data: GapData, floor: Floor, baseline: tuple[str, ...], added: tupl
         use_drift = "drift" in E and td is not None
         grid = range(len(TAU_DRIFT_S)) if use_drift else [None]
         s2 = np.full(F, floor.scatter_rad**2)
-        base_v = mean_var(sigma[:, None, :], q[:, None, None], data.n[None, :, None]) + extra  # (F, P, 3)
+        floor0 = np.broadcast_to(mean_var(sigma[:, None, :], q[:, None, None], data.n[None, :, None]), (F, P, 3))
+        base_v = floor0 + extra  # (F, P, 3)
         shape = None if norm else 1.0 - (data.ref / np.linalg.norm(data.ref, axis=1, keepdims=True)) ** 2
+        if norm:
+            uh0 = data.g / np.linalg.norm(data.g, axis=1, keepdims=True)
+            floor0 = np.sum(uh0**2 * floor0, axis=-1)[..., None]
+        else:
+            floor0 = floor0 + floor.scatter_rad**2 * shape[None]
         n_iter = 3 if "pose_error" in added and not norm else 1
         for it in range(n_iter):
             outs = []
             for a in grid:
                 dh = None if a is None else np.stack([td.cap_drift1[a], td.cap_drift2], axis=-1)
-                A, b, d, labels = static_design(E, g, data.ref, dT, dh, norm, data.n_temps)
+                A, b, d, labels = static_design(E, g, data.ref, dT, dh, norm, data.n_temps, data.zero_g)
                 p = A.shape[-1]
                 if norm:
                     uh = data.g / np.linalg.norm(data.g, axis=1, keepdims=True)
@@ -689,12 +711,14 @@ def evaluate(data: GapData, floor: Floor, baseline: tuple[str, ...], added: tupl
         if "pose_error" in added and not norm:
             params["scatter_deg"] = float(np.degrees(np.sqrt(s2[-1])))
         r_s = _heldout(r, fold)
-        fl_s = _heldout(v0, fold)
-        v_s = fl_s + _heldout(pv, fold)
+        fl_s = _heldout(floor0, fold)
+        v_s = _heldout(v0 + pv, fold)
+        pv_s = _heldout(pv, fold)
         if norm:
             np.add.at(nll, (np.arange(P), np.argmax(np.abs(data.g), axis=1)), _nll(r_s, v_s)[:, 0])
         else:
             nll += _nll(r_s, v_s)
     n_var = {"pose_error": 1}  # noise and quantization are measured within poses, not fitted to residuals
     n_params = n_static + n_time + sum(n_var.get(a, 0) for a in added)
-    return Evaluation(tuple(added), n_params, r_s, v_s, fl_s, r_time, v_time, nll, params, fit_s, r_sp, v_sp)
+    return Evaluation(tuple(added), n_params, r_s, v_s, fl_s, r_time, v_time, nll, params, fit_s, r_sp, v_sp,
+                      fl_time, pv_s)

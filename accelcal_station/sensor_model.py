@@ -307,6 +307,9 @@ class SensorModel:
     chip: ChipSpec
     effects: dict[str, dict[str, Any]] = field(default_factory=dict)
     path: str = "simulator.effects"
+    # True: the nonlinearity acts forward on the sensor's linear response u = K f, G = o + u + q u^2 + c u^3
+    # (a sensor's physics, not the inverse of a calibration model; the diagnosis self-check's boards)
+    forward: bool = False
 
     @classmethod
     def from_config(cls, effects: Any, chip: ChipSpec | str = "mma8451",
@@ -395,6 +398,9 @@ class SensorModel:
         q, c = self.nonlinearity()
         if not (np.any(q) or np.any(c)):
             return G
+        if self.forward:  # reading = S a + q (S a)^2 + c (S a)^3 + b, with S = K(T), b = o(T)
+            u = G - o
+            return o + u + q * u**2 + c * u**3
         shape = G.shape
         G = G.reshape(-1, 3)
         f2 = f.reshape(-1, 3) if f.shape == shape else np.broadcast_to(f, shape).reshape(-1, 3)

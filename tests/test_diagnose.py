@@ -15,7 +15,8 @@ from accelcal_station.cli import cli
 from accelcal_station.diagnose import _p_greater, diagnose, gap_data, load_data, load_simulator
 from accelcal_station.diagnose_report import selftest_lines
 from accelcal_station.fixtures.designs import get_design
-from accelcal_station.gap_effects import Capture, bias_var, evaluate, mean_var, value_step, within_spread
+from accelcal_station.gap_effects import Capture, GapData, bias_var, evaluate, mean_var, value_step, within_spread
+from accelcal_station.sensor_model import rotation_matrix
 from accelcal_station.session import PoseRecord, Session
 
 REPO = Path(__file__).resolve().parents[1]
@@ -57,31 +58,54 @@ def cubic_table(tmp_path_factory):
 
 
 # -- the self-test -------------------------------------------------------------------------------
-# Fixed seed (1): deterministic.  Run with seeds 300-359, all 15 cases passed in all 60 runs, so the
-# false-failure rate of these assertions for an arbitrary seed is below 5 % per run (95 % upper
-# bound, rule of three); the null cases' false alarms are bounded by alpha = 0.01 per greedy step.
+# Fixed seed (1): deterministic.  The benchmark (benchmarks/bench_diagnose.py, table in
+# benchmarks/README.md) gives every case's hit rate over 50 seeds; the null cases' false alarms
+# are bounded by alpha = 0.01 per greedy step and per signature test.
+OFF_CATALOG = {"product", "face_tilt", "flicker", "hysteresis"}
+
 
 def test_selftest_names_every_revealable_withheld_effect_first(selftest):
-    cases = {c["withheld"]: c for c in selftest["cases"] if c["withheld"] != "none"}
+    cases = {c["case"]: c for c in selftest["cases"] if c["kind"] == "named"}
     assert {e for e, c in cases.items() if c["revealable"]} == REVEALABLE
     for effect in REVEALABLE:
         c = cases[effect]
         assert c["named"] == effect, c
-        assert c["gap_after_named"] <= c["gap_before"] / 2, c  # held-out gap at least halved
-        assert c["gap_before"] > 2, c  # the effect really opened a gap
-    assert selftest["passed"]
+        if effect not in ("pose_error", "noise", "quantization"):  # deterministic: held-out RMS at least halved
+            assert c["rms_mg_after_named"] <= c["rms_mg_before"] / 2, c
+            assert c["gap_before"] > 2, c  # the effect really opened a gap
+    assert selftest["passed"] and "forward" in selftest["physics"]
+
+
+def test_selftest_off_catalog_effects_are_unexplained_with_nothing_named(selftest):
+    cases = {c["case"]: c for c in selftest["cases"] if c["kind"] == "unexplained"}
+    assert set(cases) == OFF_CATALOG
+    for c in cases.values():
+        assert c["selected"] == [] and c["verdict"] == "unexplained", c
+        assert c["gap_before"] > 3 and c["rms_mg_after"] == c["rms_mg_before"], c  # a real gap, left as it was
+    assert "product of axes" in cases["product"]["left"]
+    assert "fixed per orientation" in cases["face_tilt"]["left"]
+    assert "approach direction" in cases["hysteresis"]["left"]
+    assert "time-varying" in cases["flicker"]["left"]
+
+
+def test_selftest_two_effect_cases_name_both(selftest):
+    cases = {c["case"]: c for c in selftest["cases"] if c["kind"] == "both"}
+    assert set(cases) == {"cubic+temperature", "drift+settling"}
+    for name, c in cases.items():
+        assert set(name.split("+")) <= set(c["selected"]), c
+        assert c["rms_mg_after"] < c["rms_mg_before"] / 2, c
 
 
 def test_selftest_null_cases_name_nothing(selftest):
-    nulls = [c for c in selftest["cases"] if c["withheld"] == "none"]
+    nulls = [c for c in selftest["cases"] if c["kind"] == "null"]
     assert len(nulls) == 2 and {c["data"].split(",")[0] for c in nulls} == {"pose table with references", "raw log (no references)"}
     for c in nulls:
-        assert c["named"] is None and c["selected"] == [], c
+        assert c["named"] is None and c["selected"] == [] and c["verdict"] == "nothing to explain", c
         assert 0.6 < c["gap_before"] < 1.5, c
 
 
 def test_selftest_says_which_effects_it_cannot_reveal_and_why(selftest):
-    cases = {c["withheld"]: c for c in selftest["cases"]}
+    cases = {c["case"]: c for c in selftest["cases"]}
     for effect in ("gravity", "saturation"):  # on every kind of static gravity data
         assert not cases[effect]["revealable"] and cases[effect]["named"] is None
         assert cases[effect]["gap_before"] < 1.5  # and indeed the board's effect left no gap
@@ -90,15 +114,91 @@ def test_selftest_says_which_effects_it_cannot_reveal_and_why(selftest):
     cov = selftest["coverage"]
     assert "raw" in cov["drift"]["refs"] and cov["drift"]["raw"] == "testable"
     assert "raw" in cov["settling"]["norm"] and "raw" in cov["quantization"]["refs"]
-    assert "rotation" in cov["pose_error"]["norm"] and cov["pose_error"]["refs"] == "testable"
+    assert "rotation" in cov["pose_error"]["norm"] and cov["pose_error"]["refs"] == "testable (signature)"
     assert "temperature" in cov["temperature"]["refs"] and cov["temperature"]["refs-3T"] == "testable"
     text = "\n".join(selftest_lines(selftest))
-    for effect in cases:
-        assert any(line.startswith(effect) for line in text.splitlines()), effect
+    for name in cases:
+        assert any(line.startswith(name) for line in text.splitlines()), name
     assert "drift / refs:" in text and text.rstrip().endswith("self-test passed")
 
 
-# -- a diagnosis through the CLI -----------------------------------------------------------------
+# -- the headline only residuals move --------------------------------------------------------------
+
+def _crafted(extra_g, std_factor: float = 1.0, scatter_deg: float = 0.0, seed: int = 5) -> GapData:
+    """Pose means made by hand: reference + an off-catalog term + noise of the simulator's floor,
+    the poses' std std_factor x the simulator's per-sample sigma, an optional random pose scatter."""
+    rng = np.random.default_rng(seed)
+    sim = load_simulator()
+    sigma = float(sim.sigma_g(None)[0])
+    n = 200
+    recs = []
+    for k, pose in enumerate(list(get_design("optimal-24")) * 2):
+        ref = pose.reference_g
+        true = rotation_matrix(rng.normal(0, scatter_deg, 3)) @ ref if scatter_deg else ref
+        g = true + extra_g(ref) + rng.normal(0, std_factor * sigma / np.sqrt(n), 3)
+        recs.append(PoseRecord(f"{pose.name}#{k}", g * 4096.0, np.full(3, std_factor * sigma * 4096.0), n, ref,
+                               pose.pitch_deg, pose.roll_deg, 25.0))
+    return gap_data([(Session(recs, "counts", 4096.0, None, "mma8451"), None, "crafted")])
+
+
+def test_noise_and_pose_error_cannot_lower_the_gap():
+    """A product term (off-catalog) with three times the simulator's noise: noise is named by its own
+    signature, but the gap and the held-out RMS stay where the residuals put them."""
+    data = _crafted(lambda r: np.array([0.0, 0.0, 0.02 * r[0] * r[1]]), std_factor=3.0)
+    d = diagnose(data, load_simulator())
+    assert "noise" in d.selected and d.stochastic["noise"]["passed"]
+    assert d.steps == [] and d.gap_after == d.gap_before and d.final.rms_g == d.base.rms_g
+    assert d.gap_before > 3 and d.verdict == "unexplained"
+    assert not d.stochastic["pose_error"]["passed"]  # a product term leaves a radial part
+    assert "radial" in d.stochastic["pose_error"]["reason"]
+
+
+def test_pose_scatter_is_named_by_geometry_and_leaves_the_gap():
+    data = _crafted(lambda r: np.zeros(3), scatter_deg=0.1)
+    d = diagnose(data, load_simulator())
+    pe = d.stochastic["pose_error"]
+    assert d.selected[:1] == ["pose_error"] and pe["passed"], pe
+    assert pe["across_ratio"] > 2 and pe["along_ratio"] < 2 and 0.05 < pe["scatter_deg"] < 0.2
+    assert d.gap_after == d.gap_before > 2 and d.final.rms_g == d.base.rms_g  # never lowers the headline
+
+
+def test_a_tilt_that_repeats_on_revisit_is_not_pose_error():
+    tilts: dict = {}
+
+    def tilt(ref):
+        key = tuple(np.round(ref, 3))
+        tilts.setdefault(key, rotation_matrix(np.random.default_rng(len(tilts)).normal(0, 0.15, 3)))
+        return tilts[key] @ ref - ref
+
+    d = diagnose(_crafted(tilt), load_simulator())
+    pe = d.stochastic["pose_error"]
+    assert not pe["passed"] and pe["revisit_ratio"] < 1.5, pe  # revisits repeat the tilt: not a random pose error
+    assert d.selected == [] and d.verdict == "unexplained"
+    assert "fixed per orientation" in d.leftover["summary"]
+
+
+def test_forward_cubic_is_the_sensors_physics():
+    from accelcal_station.sensor_model import SensorModel
+
+    m = SensorModel.from_config({"offset": {"offset_mg": [20.0, -10.0, 5.0]}, "cubic": {"cubic_per_g2": CUBIC}})
+    m.forward = True
+    f = np.random.default_rng(2).normal(size=(50, 3))
+    u = f @ m.linear_matrix(25.0).T
+    np.testing.assert_allclose(m.response_g(f, 25.0), m.offset_g(25.0) + u + np.array(CUBIC) * u**3, atol=1e-15)
+
+
+def test_identifiability_is_said_in_words():
+    """Six faces revisited: six distinct orientations; a cubic next to the gain is confounded there."""
+    from accelcal_station.diagnose_identify import describe_design
+
+    recs = [PoseRecord(f"f{k}", p.reference_g * 4096.0, None, 100, p.reference_g, p.pitch_deg, p.roll_deg, 25.0)
+            for k, p in enumerate(list(get_design("six-face")) * 3)]
+    data = gap_data([(Session(recs, "counts", 4096.0, None, "mma8451"), None, "faces")])
+    words = describe_design(data, ("gain", "offset", "cubic"))
+    assert words["distinct_orientations"] == 6 and data.P == 18
+    assert any("cubic" in " ".join(g) and "gain" in " ".join(g) for g in words["confounded"]), words
+    assert "6 distinct orientations cannot determine" in words["text"]
+
 
 def test_json_names_the_cubic_and_recovers_it(cubic_table):
     r = run("diagnose", cubic_table, "--json")
@@ -115,7 +215,8 @@ def test_json_names_the_cubic_and_recovers_it(cubic_table):
     gamma = [js["steps"][0]["fitted"][f"Gamma_{a}"] for a in "xyz"]
     np.testing.assert_allclose(gamma, -np.array(CUBIC), rtol=0.15)
     untestable = {u["effect"] for u in js["untestable"]}
-    assert {"drift", "settling", "quantization", "temperature", "gravity", "saturation"} <= untestable
+    assert {"drift", "settling", "temperature", "gravity", "saturation"} <= untestable
+    assert js["stochastic"]["quantization"]["testable"] is False  # stochastic: its own section
     assert js["where"]["by_axis"]["z"] > 2  # the gap is everywhere, not one axis
 
 
@@ -123,7 +224,8 @@ def test_human_summary_and_report(cubic_table, tmp_path):
     out = tmp_path / "rep"
     r = run("diagnose", cubic_table, "--report", out)
     assert r.exit_code == 0, r.output
-    assert "VERDICT: cubic explains the gap" in r.stdout and "cubic_per_g2" in r.stdout
+    verdict = next(line for line in r.stdout.splitlines() if line.startswith("VERDICT: "))
+    assert "cubic" in verdict and "cubic_per_g2" in r.stdout and "STOCHASTIC" in r.stdout
     for name in ("sphere", "level", "temperature", "time"):
         png = out / f"{name}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -189,16 +291,17 @@ def test_one_file_per_temperature_names_temperature(tmp_path):
 
 
 def test_real_imucal_raw_session_names_noise(data_dir):
-    """The real IMU's noise is several times the simulated MMA8451's: the diagnosis says so."""
+    """The real IMU's noise is several times the simulated MMA8451's: the noise signature says so, and the
+    headline gap (against the data's own within-capture spread) is not lowered by it."""
     path = data_dir / "imucal_annotated_session.csv"
     r = run("diagnose", "--raw", path, "--columns", "-,-,x,y,z,-,-,-", "--rate", "204.8", "--json")
     assert r.exit_code == 0, r.output
     js = json.loads(r.stdout)
     assert js["data"]["poses"] == 6 and not js["data"]["static_view"]  # six faces cannot hold out model 9
-    assert js["selected"][:1] == ["noise"] and js["gap_after"] < js["gap_before"] / 2
-    density = js["steps"][0]["fitted"]["density_ug_per_rthz"]
-    assert all(250 < x < 450 for x in density)  # about 3 mg per sample at 204.8 Hz
-    assert all(r > 2.5 for r in js["where"]["noise"]["ratio"])
+    assert "noise" in js["selected"] and js["stochastic"]["noise"]["passed"]
+    assert all(2.5 < x < 4.5 for x in js["stochastic"]["noise"]["ratio"])  # about 3 mg per sample at 204.8 Hz
+    assert js["gap_after"] == js["gap_before"] and js["steps"] == []
+    assert js["verdict"] == "unexplained" and "time-varying" in js["left"]["summary"]
 
 
 # -- bad input -----------------------------------------------------------------------------------
@@ -287,3 +390,21 @@ def test_counts_given_as_g_are_refused(data_dir):
     r = CliRunner().invoke(cli, ["diagnose", "--raw", "--columns", "-,-,x,y,z,-,-,-", "--rate", "204.8",
                                  "--units", "g", str(log)])
     assert r.exit_code == 2 and "median norm of 2066 g" in r.stderr and r.stderr.count("\n") == 1
+
+
+def test_diagnosis_core_imports_nothing_from_cli_and_loads_like_fit():
+    import ast
+
+    import accelcal_station.diagnose_load as dl
+
+    pkg = REPO / "accelcal_station"
+    files = [*pkg.glob("diagnose*.py"), *(pkg / "effects").glob("*.py"), pkg / "gap_effects.py", pkg / "loading.py"]
+    for f in files:
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                assert "cli" not in (node.module or "").split("."), (f.name, node.module)
+    # one loader: diagnose reads files through the function `accelcal fit` uses
+    from accelcal_station.cli import fit as cli_fit
+    from accelcal_station.loader import load
+
+    assert dl.load is load and cli_fit.load is load

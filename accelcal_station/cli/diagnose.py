@@ -5,7 +5,8 @@ import json
 
 import click
 
-from ..diagnose import diagnose, load_data, load_simulator, selftest as run_selftest, to_json
+from ..diagnose import diagnose, load_data, load_simulator, to_json
+from ..diagnose_selftest import selftest as run_selftest
 from ..diagnose_report import check_report_dir, selftest_lines, summary_lines, write_report
 from ..errors import DataError
 from ..rawlog import check_rate
@@ -33,8 +34,8 @@ from ._common import jsonable as _clean, parse_number as _number
 @click.option("--report", "report_dir", default=None, metavar="DIR",
               help="Write PNG figures and summary.md to DIR (needs matplotlib: the report extra).")
 @click.option("--selftest", is_flag=True,
-              help="Simulate boards with each catalog effect, withhold it from the configuration, and check "
-                   "that the diagnosis names it (exit 1 if not).")
+              help="Forward-physics boards with each catalog effect withheld from the configuration, off-catalog "
+                   "effects, two-effect cases and null boards: check what the diagnosis names (exit 1 if a case fails).")
 @click.option("--seed", type=click.IntRange(0, None), default=1, show_default=True, help="Self-test seed.")
 @click.pass_context
 def command(ctx, files, config, raw, units, counts_per_g, gravity, columns, skip_rows, rate, samples, norm_only,

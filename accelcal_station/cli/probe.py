@@ -5,20 +5,10 @@ import json
 
 import click
 
-from ..config import load_yaml
+from ..loading import device_section  # noqa: F401  (cli.nvm, cli.simulate import it from here)
 from ..drivers import make_driver
 from ..errors import ConfigError, DeviceError
 from ._common import jsonable
-
-
-def device_section(path: str) -> dict:
-    """The ``device:`` section of a station config, or a file that is only a device section."""
-    data = load_yaml(path)
-    section = data.get("device", data if "driver" in data else None)
-    if not isinstance(section, dict):
-        raise ConfigError(f"{path}: no 'device' section; allowed: a mapping with 'driver: simulated, mma8451 "
-                          "or mpu6050'")
-    return dict(section)
 
 
 def _with_port(section: dict, port: str) -> dict:
