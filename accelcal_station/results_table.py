@@ -72,19 +72,26 @@ class ResultsWriter:
         self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         self._f = None
         self._pq = None
+        self._arrow_csv = None
+        if self.fmt == "csv":
+            from .lot import arrow_available
+            self._arrow_csv = arrow_available()  # pyarrow's CSV writer: formats floats ~10x faster
 
     def __enter__(self) -> "ResultsWriter":
         try:
-            self._f = open(self.tmp, "wb" if self.fmt == "parquet" else "w", newline="" if self.fmt == "csv" else None)
+            binary = self.fmt == "parquet" or self._arrow_csv
+            self._f = open(self.tmp, "wb" if binary else "w", newline="" if self.fmt == "csv" and not binary else None)
         except OSError as e:
             raise DataError(f"--out {self.path}: cannot write ({e.strerror})") from None
-        if self.fmt == "csv":
+        if self.fmt == "csv" and not self._arrow_csv:
             self._f.write(",".join(RESULT_COLUMNS) + "\r\n")
         return self
 
     def write_chunk(self, chunk, res, model, units, verdicts, reasons) -> None:
         cols = _columns(chunk, res, model, units, verdicts, reasons)
-        if self.fmt == "csv":
+        if self.fmt == "csv" and self._arrow_csv:
+            self._write_arrow_csv(cols)
+        elif self.fmt == "csv":
             buf = io.StringIO()
             text = {k: (_text(np.asarray(v, float)) if k in FLOAT_COLUMNS else
                         (np.asarray(v).astype(int).astype(str) if k in ("ok", "first_row", "pose_count") else v))
@@ -109,22 +116,17 @@ class ResultsWriter:
         self._f.flush()
         os.fsync(self._f.fileno())  # once per chunk
 
+    def _write_arrow_csv(self, cols: dict) -> None:
+        import pyarrow.csv as pcsv
+        table = _arrow_table(cols, csv=True)
+        if self._pq is None:
+            self._pq = pcsv.CSVWriter(self._f, table.schema,
+                                      write_options=pcsv.WriteOptions(quoting_style="needed", eol="\r\n"))
+        self._pq.write_table(table)
+
     def _write_parquet(self, cols: dict) -> None:
-        import pyarrow as pa
         import pyarrow.parquet as pq
-        arrays = {}
-        for c in RESULT_COLUMNS:
-            v = cols[c]
-            if c in FLOAT_COLUMNS:
-                a = np.asarray(v, float)
-                arrays[c] = pa.array(a, mask=np.isnan(a))
-            elif c == "ok":
-                arrays[c] = pa.array(np.asarray(v, bool))
-            elif c in ("first_row", "pose_count"):
-                arrays[c] = pa.array(np.asarray(v, np.int64))
-            else:
-                arrays[c] = pa.array(list(v), pa.string())
-        table = pa.table(arrays)
+        table = _arrow_table(cols)
         if self._pq is None:
             self._pq = pq.ParquetWriter(self._f, table.schema)
         self._pq.write_table(table)
@@ -148,3 +150,21 @@ class ResultsWriter:
             raise DataError(f"--out {self.path}: cannot write ({e.strerror})") from None
         finally:
             self.tmp.unlink(missing_ok=True)
+
+
+def _arrow_table(cols: dict, csv: bool = False):
+    """The chunk as an Arrow table (null where a value does not exist); ok as 0/1 in CSV."""
+    import pyarrow as pa
+    arrays = {}
+    for c in RESULT_COLUMNS:
+        v = cols[c]
+        if c in FLOAT_COLUMNS:
+            a = np.asarray(v, float)
+            arrays[c] = pa.array(a, mask=np.isnan(a))
+        elif c == "ok":
+            arrays[c] = pa.array(np.asarray(v, np.int8 if csv else bool))
+        elif c in ("first_row", "pose_count"):
+            arrays[c] = pa.array(np.asarray(v, np.int64))
+        else:
+            arrays[c] = pa.array(list(v), pa.string())
+    return pa.table(arrays)
