@@ -15,7 +15,7 @@ import click
 from ..batch import (BatchReport, expand_paths, record_in_store, recalibrate, sessions_from_files,
                      sessions_from_store, summary_csv, write_calibrations)
 from ..errors import DataError
-from ..store import Store
+from ..store import Store, store_target
 from ._common import check_model_units, jsonable as _clean, parse_number as _number
 
 PROGRESS_MIN_BOARDS = 10  # below this a progress bar is noise
@@ -104,8 +104,9 @@ def _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path, chunk_board
 
 @click.command("batch")
 @click.argument("paths", nargs=-1, metavar="[POSE_TABLE|DIR|GLOB]...")
-@click.option("--from-store", "from_store", default=None, metavar="FILE",
-              help="Take boards from this results store (complete runs with poses).")
+@click.option("--from-store", "from_store", default=None, metavar="FILE|URL",
+              help="Take boards from this results store (complete runs with poses): a file, sqlite:///FILE "
+                   "or postgresql://USER@HOST/DB.")
 @click.option("--lot", default=None, metavar="LOT", help="--from-store: only this lot.")
 @click.option("--device", multiple=True, metavar="SERIAL", help="--from-store: only these serials (repeatable).")
 @click.option("--station", default=None, metavar="ID", help="--from-store: only runs of this station.")
@@ -119,7 +120,7 @@ def _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path, chunk_board
 @click.option("--gravity", default=None, metavar="M_S2", help="Pose tables in mps2: local gravity.")
 @click.option("--out-dir", default=None, metavar="DIR", help="Write one calibration JSON per fitted board here.")
 @click.option("--csv", "csv_path", default=None, metavar="FILE", help="Write a summary CSV (one row per board).")
-@click.option("--to-store", "to_store", default=None, metavar="FILE",
+@click.option("--to-store", "to_store", default=None, metavar="FILE|URL",
               help="Record results in this results store (events on source runs when it is the --from-store "
                    "file; new runs otherwise).")
 @click.option("--out", "out", default=None, metavar="FILE",
@@ -160,7 +161,7 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
 
     sources = []
     if from_store is not None:
-        with Store(from_store, create=False) as st:
+        with Store(store_target(from_store), create=False) as st:
             sources += sessions_from_store(st, **store_filters)
     files = expand_paths(paths)
     show = not as_json and len(files) + len(sources) > PROGRESS_MIN_BOARDS
@@ -180,7 +181,7 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
         summary_csv(report, csv_path)
         outputs["csv"] = str(csv_path)
     if to_store is not None:
-        with Store(to_store) as st:
+        with Store(store_target(to_store)) as st:
             outputs["store"] = {"path": str(to_store), **record_in_store(report, st, source_store=from_store)}
 
     if as_json:

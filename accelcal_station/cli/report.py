@@ -8,7 +8,7 @@ import click
 
 from ..config import load_yaml
 from ..errors import DataError
-from ..store import PARAM_NAMES, VERDICTS, STATUSES, Store, store_path
+from ..store import PARAM_NAMES, VERDICTS, STATUSES, Store, store_path, store_target
 
 
 def _filter_options(f):
@@ -34,7 +34,7 @@ def _filter_options(f):
 def _open(db, config_path) -> Store:
     """--db, else the store of --config, else that of the default station (as `accelcal run`)."""
     if db is not None:
-        return Store(Path(db), create=False)
+        return Store(store_target(db), create=False)
     from ..station import default_config_path
 
     # relative store paths are taken from the current directory, as `accelcal run` does
