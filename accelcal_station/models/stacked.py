@@ -276,23 +276,22 @@ def _normal(J: np.ndarray, r: np.ndarray):
 
 
 def _gauss_newton(gf: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-12):
-    """Plain batched Gauss-Newton steps; returns params, cost, and whether each settled
-    (a step that lowered the cost and was below ``tol`` relative to the parameters)."""
+    """Plain batched Gauss-Newton steps (no line search: the caller sends the boards that do not
+    settle to the damped fit).  Returns params, cost, and whether each settled: a finite
+    cost and a last step below ``tol`` relative to the parameters."""
     g = np.ascontiguousarray(gf.transpose(2, 0, 1))
     p = p.copy()
-    r, J = _resid_jac(p, g)
-    cost = np.einsum("np,np->n", r, r)
-    settled = np.zeros(len(p), dtype=bool)
+    step = np.full_like(p, np.inf)
+    pd = np.ones(len(p), dtype=bool)
     for _ in range(iters):
-        step, pd = _chol_solve(*_normal(J, r))
-        pn = p + np.where(pd[:, None], step, 0.0)
-        rn, Jn = _resid_jac(pn, g)
-        cn = np.einsum("np,np->n", rn, rn)
-        better = pd & np.isfinite(cn) & (cn <= cost * (1 + 1e-12) + 1e-30)
-        small = np.linalg.norm(step, axis=1) <= tol * (1 + np.linalg.norm(p, axis=1))
-        settled = better & small
-        p[better], r[better], cost[better] = pn[better], rn[better], cn[better]
-        J[:, better] = Jn[:, better]
+        r, J = _resid_jac(p, g)
+        step, ok = _chol_solve(*_normal(J, r))
+        pd &= ok
+        p += np.where(ok[:, None], step, 0.0)
+    r, _ = _resid_jac(p, g)
+    cost = np.einsum("np,np->n", r, r)
+    settled = pd & np.isfinite(cost) & np.all(np.isfinite(p), axis=1) \
+        & (np.linalg.norm(step, axis=1) <= tol * (1 + np.linalg.norm(p, axis=1)))
     return p, cost, settled
 
 
@@ -302,11 +301,12 @@ def fit9(gf: np.ndarray, noise_g: np.ndarray | None = None, gn_iters: int = 6, l
     D, P, _ = gf.shape
     if P < 9:
         raise UnderdeterminedError(f"model 9 needs at least 9 poses (it has 9 parameters); got {P}")
-    p, _, settled = _gauss_newton(gf, _sphere_start(gf), gn_iters)
+    p0 = _sphere_start(gf)
+    p, _, settled = _gauss_newton(gf, p0, gn_iters)
     conv = settled.copy()
     lm = np.flatnonzero(~settled)
-    if lm.size:  # the damped fit only where Gauss-Newton did not settle
-        p[lm], _, conv[lm] = gn.levenberg_marquardt(gf[lm], p[lm])
+    if lm.size:  # the damped fit only where Gauss-Newton did not settle, from the same start
+        p[lm], _, conv[lm] = gn.levenberg_marquardt(gf[lm], p0[lm])
     M, _ = gn._unpack(p)
     flip = np.trace(M, axis1=1, axis2=2) < 0
     p[flip, :6] *= -1
@@ -384,7 +384,7 @@ def _propagate9(cov, M, B):
     return sW, sV
 
 
-BLOCK = {"12": 2048, "9": 512, "6": 2048, "15": 1024}  # boards per call: the working set stays in cache
+BLOCK = {"12": 2048, "9": 512, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
 
 
 def _concat(parts: list[BatchFit]) -> BatchFit:
