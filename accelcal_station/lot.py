@@ -255,6 +255,11 @@ def _is_float(v: str) -> bool:
         return False
 
 
+def _comment_row(row) -> str:
+    """pyarrow: a '#' line after the header is skipped (as pose tables allow); other bad rows fail."""
+    return "skip" if (row.text or "").lstrip().startswith("#") else "error"
+
+
 def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int) -> Iterator[LotChunk]:
     """The CSV body through pyarrow's streaming reader (several times faster than csv)."""
     import pyarrow as pa
@@ -262,7 +267,7 @@ def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int) 
     types = {c: pa.string() for c in header}
     reader = pcsv.open_csv(path, read_options=pcsv.ReadOptions(skip_rows=skip, column_names=header,
                                                                block_size=1 << 20),
-                           parse_options=pcsv.ParseOptions(ignore_empty_lines=True),
+                           parse_options=pcsv.ParseOptions(ignore_empty_lines=True, invalid_row_handler=_comment_row),
                            convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True))
     try:
         yield from _arrow_chunks(reader, header, path)

@@ -98,7 +98,12 @@ def _bad_lot(tmp_path):
     return lot
 
 
-def test_lot_csv_to_results_every_board_reported(tmp_path):
+@pytest.mark.parametrize("reader", ["pyarrow", "python"])
+def test_lot_csv_to_results_every_board_reported(tmp_path, monkeypatch, reader):
+    if reader == "python":  # the pure-Python CSV reader and writer (pyarrow not installed)
+        monkeypatch.setattr("accelcal_station.lot.arrow_available", lambda: False)
+    else:
+        pytest.importorskip("pyarrow.csv", reason="the optional pyarrow is not installed")
     lot = _bad_lot(tmp_path)
     out = tmp_path / "results.csv"
     r = CliRunner().invoke(main, ["batch", str(lot), "--model", "12", "--out", str(out), "--chunk-boards", "64"])
@@ -192,3 +197,20 @@ def test_lot_bad_input_is_one_line(tmp_path):
     link.symlink_to(tmp_path / "elsewhere.csv")
     r = CliRunner().invoke(main, ["batch", str(good), "--out", str(link)])
     assert r.exit_code == 2 and "symbolic link" in r.output and not (tmp_path / "elsewhere.csv").exists()
+
+
+def test_model9_lot_matches_todays_fitter(tmp_path):
+    lot = write_lot(tmp_path / "lot.csv", 30, design="optimal-12", seed=9)
+    text = lot.read_text().splitlines()
+    text.insert(10, "# a comment line between rows is skipped")
+    lot.write_text("\n".join(text) + "\n")
+    s = recalibrate_lot(lot, tmp_path / "r.csv", model="9", chunk_boards=7)
+    assert (s.boards, s.fitted) == (30, 30)
+    rows = _read_csv(tmp_path / "r.csv")
+    body = [ln.split(",") for ln in lot.read_text().splitlines()[3:] if not ln.startswith("#")]
+    x = np.array([[float(v) for v in c[4:7]] for c in body]).reshape(30, 12, 3) / 4096
+    ref = fit_norm_batch(x)
+    for d in (0, 13, 29):
+        assert float(rows[d]["W11"]) == pytest.approx(ref.W[d, 1, 1], abs=1e-8)
+        assert float(rows[d]["V0"]) == pytest.approx(ref.V[d, 0], abs=1e-8)
+        assert float(rows[d]["crossval_rms_mg"]) == pytest.approx(ref.crossval_rms_g[d] * 1e3, abs=1e-3)
