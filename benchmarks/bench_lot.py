@@ -13,8 +13,8 @@
    files to calibration JSONs + a summary CSV (today's path); runs in an SQLite
    results store to recalibration events in it.
 3. Peak RSS of ``accelcal batch LOT.csv --model 12 --out results.csv`` (a child
-   process, ru_maxrss) at each --rss lot size, and the 10 M extrapolation (linear
-   through the two largest sizes).
+   process, ru_maxrss) at each --rss lot size, and the 10 M extrapolation (the larger
+   peak plus the growth per board between the two largest sizes, never negative).
 Lots come from accelcal_station.lotsim (random gain/cross-axis 1 %, offset 30 mg, 1 mg noise).
 """
 from __future__ import annotations
@@ -144,9 +144,9 @@ def peak_rss(work: Path, sizes: list[int]) -> None:
         lot.unlink()
     if len(got) >= 2:
         (n1, m1), (n2, m2) = got[-2], got[-1]
-        slope = (m2 - m1) / (n2 - n1)
+        slope = max(0.0, (m2 - m1) / (n2 - n1))  # a peak that fell is not extrapolated downwards
         print(f"   ratio {n2 // n1}x boards -> {m2 / m1:.2f}x peak RSS; 10,000,000 boards extrapolated "
-              f"(linear): {m2 + slope * (10_000_000 - n2):.0f} MB")
+              f"(linear growth, clamped at >= 0): {max(m1, m2) + slope * (10_000_000 - n2):.0f} MB")
 
 
 def main(argv: list[str] | None = None) -> int:
