@@ -62,6 +62,7 @@ class PgServer:
     def _run(self, cmd: list[str]) -> None:
         r = subprocess.run(self.user_prefix + cmd, capture_output=True, text=True, timeout=60)
         if r.returncode != 0:
+            shutil.rmtree(self.root, ignore_errors=True)
             unavailable(f"{os.path.basename(cmd[0])} failed: {(r.stderr or r.stdout).strip()[-300:]}")
 
     def url(self, db: str = "postgres") -> str:
