@@ -33,7 +33,7 @@ from .models.result import FitResult
 from .loader import load_pose_table
 from .posetable import atomic_write_text
 from .session import Session
-from .store import PARAM_NAMES, Store, iso, param_vector
+from .store import PARAM_NAMES, Store, iso, param_vector, store_identity
 
 BATCH_STATION = "accelcal-batch"  # station_id of runs recorded by a batch recalibration
 Source = tuple[str, "Session | AccelcalError"]
@@ -339,7 +339,7 @@ def record_in_store(report: BatchReport, store: Store, *, source_store: str | Pa
     becomes a new complete run (station ``accelcal-batch``, no verdict) with its
     poses and calibration.
     """
-    same = source_store is not None and Path(source_store).resolve() == store.path.resolve()
+    same = source_store is not None and store_identity(source_store) == store.identity
     events = runs = 0
     for r in report.results:
         if same and r.run_id is not None:

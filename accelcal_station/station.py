@@ -29,7 +29,7 @@ from .fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
 from .models import check_model, fit_session
 from .models.result import FitResult
 from .session import PoseRecord, Session
-from .store import Store, store_path
+from .store import Store, store_path, store_target
 from .writer import BurnError, CalibrationWriter
 
 TOP_KEYS = ("station", "store", "device", "jig", "plan", "capture", "acceptance", "nvm", "verify")
@@ -60,7 +60,7 @@ class StationConfig:
     offset_trim: bool
     verify_poses: int
     verify_design: str | None
-    store_file: Path
+    store_file: Path | str  # a file, or a store URL (postgresql://...)
 
     @classmethod
     def load(cls, path: str | Path | None = None, store_override: str | Path | None = None,
@@ -116,7 +116,7 @@ class StationConfig:
         choice(jig, "type", "jig", JIG_TYPES)
         # a relative store path is taken from the current directory: the station's
         # working folder, never the (possibly installed, read-only) config folder
-        store_file = Path(store_override) if store_override else store_path(raw, Path.cwd())
+        store_file = store_target(store_override) if store_override else store_path(raw, Path.cwd())
         limits = Limits.from_config(raw.get("acceptance"))
         verify_poses = number(ver, "poses", "verify", 3, 0, 64, integer=True)
         if verify_poses == 0 and "verify_error_max_mg" in limits.values:

@@ -1,4 +1,5 @@
-"""The results store: every station run in one SQLite file.
+"""The results store: every station run in one database, an SQLite file (the default) or a
+line's shared PostgreSQL server (``postgresql://...``; storedb.py).
 
 A run is committed as ``running`` when it starts, so a crash leaves a record; its
 poses, calibration, verdict and NVM outcome are then written in ONE transaction by
@@ -25,7 +26,6 @@ import json
 import os
 import re
 import socket
-import sqlite3
 import time as _time
 from collections import Counter
 from contextlib import contextmanager
@@ -40,6 +40,7 @@ from .calibration import Calibration
 from .config import atomic_write_text, check_keys
 from .errors import ConfigError, DataError
 from .session import PoseRecord, Session
+from .storedb import Database, Row, describe_target, is_url
 
 STATUSES = ("running", "complete", "interrupted", "error")
 VERDICTS = ("PASS", "FAIL")
@@ -119,14 +120,33 @@ PARAM_NAMES = ([f"W{i}{j}" for i in range(3) for j in range(3)] + [f"V{i}" for i
 DEFAULT_STORE = "accelcal-runs.sqlite"
 
 
-def store_path(config: dict, base_dir: str | Path = ".") -> Path:
-    """The store file of a station config: ``store: {path: FILE}`` (default DEFAULT_STORE),
-    a relative path taken from ``base_dir`` (the config file's folder)."""
+def store_path(config: dict, base_dir: str | Path = ".") -> Path | str:
+    """The store of a station config: ``store: {path: FILE or URL}`` (default DEFAULT_STORE),
+    a relative path taken from ``base_dir`` (the config file's folder); a URL
+    (``postgresql://...``, ``sqlite:///...``) is returned as it is."""
     section = check_keys(config.get("store"), ("path",), "store")
     p = section.get("path", DEFAULT_STORE)
     if not isinstance(p, str) or not p.strip():
-        raise ConfigError(f"store.path: {p!r}; allowed: a file path")
+        raise ConfigError(f"store.path: {p!r}; allowed: a file path, sqlite:///PATH or postgresql://...")
+    return store_target(p, base_dir)
+
+
+def store_target(p: str | Path, base_dir: str | Path = ".") -> Path | str:
+    """A store given by the user: a URL as it is, a path taken from ``base_dir``."""
+    if is_url(p):
+        return str(p)
     return Path(base_dir) / Path(p).expanduser()
+
+
+def _sqlerror():
+    from sqlalchemy.exc import SQLAlchemyError
+    return SQLAlchemyError
+
+
+def _msg(e: BaseException) -> str:
+    """The driver's own first line of a database error (SQLAlchemy wraps it in a long text)."""
+    orig = getattr(e, "orig", None)
+    return (str(orig if orig is not None else e).strip().splitlines() or [type(e).__name__])[0]
 
 
 class StoreError(DataError):
@@ -236,26 +256,30 @@ def _pose_dict(p: PoseRecord, retries: int) -> dict:
 
 
 class Store:
-    """The SQLite results store at ``path`` (created with its parent folder when missing,
-    unless ``create`` is False).  Use as a context manager; one Store per thread.
+    """The results store at ``path``: a file path or ``sqlite:///PATH`` (an SQLite file, created
+    with its parent folder when missing unless ``create`` is False) or ``postgresql://...``
+    (a server database; the schema is created in it when missing).  Use as a context
+    manager; one Store per thread.  ``path`` is the file (SQLite) or the URL without its
+    password (PostgreSQL), as messages name it.
     """
 
     def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True):
-        self.path = Path(path)
-        if not create and not self.path.is_file():
-            raise StoreError(f"{self.path}: no results store there")
+        SQLError = _sqlerror()
+        name = describe_target(path)
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._db = sqlite3.connect(self.path, timeout=timeout_s, isolation_level=None)
-        except (OSError, sqlite3.Error) as e:
-            raise StoreError(f"{self.path}: cannot open results store ({e})") from None
-        self._db.row_factory = sqlite3.Row
+            self._db = Database(str(path) if is_url(path) else Path(path), timeout_s, create)
+        except FileNotFoundError:
+            raise StoreError(f"{name}: no results store there") from None
+        except ValueError as e:
+            raise StoreError(str(e)) from None
+        except (OSError, SQLError) as e:
+            raise StoreError(f"{name}: cannot open results store ({_msg(e)})") from None
+        self.path = self._db.path if self._db.dialect == "sqlite" else self._db.name
         try:
-            self._db.execute("PRAGMA foreign_keys = ON")
             self._migrate()
-        except sqlite3.DatabaseError as e:
+        except SQLError as e:
             self._db.close()
-            raise StoreError(f"{self.path}: not a usable results store ({e})") from None
+            raise StoreError(f"{self.path}: not a usable results store ({_msg(e)})") from None
         except BaseException:
             self._db.close()
             raise
@@ -269,21 +293,31 @@ class Store:
     def close(self) -> None:
         self._db.close()
 
+    @property
+    def identity(self) -> str:
+        """What makes two Store objects the same store: the resolved file, or the URL."""
+        return store_identity(self.path)
+
+    @property
+    def dialect(self) -> str:
+        return self._db.dialect
+
     @contextmanager
     def _tx(self, what: str):
-        """One IMMEDIATE transaction: all of it is committed or none of it."""
+        """One write transaction (IMMEDIATE on SQLite): all of it is committed or none of it."""
+        SQLError = _sqlerror()
         try:
-            self._db.execute("BEGIN IMMEDIATE")
-        except sqlite3.Error as e:
-            raise StoreError(f"{self.path}: cannot {what} ({e})") from None
+            self._db.begin()
+        except SQLError as e:
+            raise StoreError(f"{self.path}: cannot {what} ({_msg(e)})") from None
         try:
             yield self._db
-            self._db.execute("COMMIT")
+            self._db.commit()
         except BaseException as e:
-            if self._db.in_transaction:  # SQLite rolls back by itself on some errors (disk full)
-                self._db.execute("ROLLBACK")
-            if isinstance(e, sqlite3.Error):
-                raise StoreError(f"{self.path}: cannot {what} ({e}); nothing was recorded") from None
+            if self._db.in_transaction:
+                self._db.rollback()
+            if isinstance(e, SQLError):
+                raise StoreError(f"{self.path}: cannot {what} ({_msg(e)}); nothing was recorded") from None
             raise
 
     @contextmanager
@@ -293,34 +327,36 @@ class Store:
             yield
             return
         try:
-            self._db.execute("BEGIN")
+            self._db.begin(write=False)
             yield
-        except sqlite3.Error as e:
-            raise StoreError(f"{self.path}: cannot read runs ({e})") from None
+        except _sqlerror() as e:
+            raise StoreError(f"{self.path}: cannot read runs ({_msg(e)})") from None
         finally:
             if self._db.in_transaction:
-                self._db.execute("COMMIT")
+                self._db.commit()
 
     def _migrate(self) -> None:
-        version = self._db.execute("PRAGMA user_version").fetchone()[0]
+        version = self._db.schema_version()
         if version > SCHEMA_VERSION:
             raise StoreError(f"{self.path}: results store schema version {version} is newer than this "
                              f"station's {SCHEMA_VERSION}; upgrade accelcal-station")
         if version == SCHEMA_VERSION:
             return
         with self._tx("upgrade the schema") as db:
-            version = db.execute("PRAGMA user_version").fetchone()[0]  # another process may have won
-            if version == 0 and db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]:
-                raise StoreError(f"{self.path}: an SQLite file that is not an accelcal results store")
+            db.lock_schema()
+            version = db.schema_version()  # another process may have won
+            if version == 0 and db.foreign_content():
+                kind = "an SQLite file" if db.dialect == "sqlite" else "a database with runs/poses/events tables"
+                raise StoreError(f"{self.path}: {kind} that is not an accelcal results store")
             for v in range(version, SCHEMA_VERSION):
                 for stmt in MIGRATIONS[v].split(";"):
                     if stmt.strip():
-                        db.execute(stmt)
-                db.execute(f"PRAGMA user_version = {v + 1}")
+                        db.raw(db.ddl(stmt))
+                db.set_schema_version(v + 1)
 
     @property
     def schema_version(self) -> int:
-        return self._db.execute("PRAGMA user_version").fetchone()[0]
+        return self._db.schema_version()
 
     # -- recording ----------------------------------------------------------------------
     def start_run(self, *, device_serial: str | None, chip: str | None = None, station_id: str | None = None,
@@ -338,11 +374,11 @@ class Store:
             cur = db.execute(
                 "INSERT INTO runs (started_at, status, device_serial, chip, station_id, operator, lot, config_hash,"
                 " config_text, model, units, counts_per_g, gravity_mps2, host, pid)"
-                " VALUES (?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                " VALUES (?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
                 (_time.time() if started_at is None else float(started_at), device_serial, chip, station_id,
                  operator, lot, config_hash, config_text, _opt(model, str), units, _opt(counts_per_g),
                  _opt(gravity_mps2), socket.gethostname(), os.getpid()))
-            return int(cur.lastrowid)
+            return int(cur.fetchone()[0])
 
     def _running(self, db, run_id: int) -> None:
         row = db.execute("SELECT status FROM runs WHERE id = ?", (run_id,)).fetchone()
@@ -453,15 +489,15 @@ class Store:
             args += ids
         return (" WHERE " + " AND ".join(clauses)) if clauses else "", args
 
-    def _runs(self, filters: dict, limit: int | None = None) -> list[sqlite3.Row]:
+    def _runs(self, filters: dict, limit: int | None = None) -> list[Row]:
         where, args = self._where(**filters)
         sql = f"SELECT * FROM runs{where} ORDER BY started_at, id"
         if limit is not None:
             sql += f" LIMIT {int(limit)}"
         try:
             return self._db.execute(sql, args).fetchall()
-        except sqlite3.Error as e:
-            raise StoreError(f"{self.path}: cannot read runs ({e})") from None
+        except _sqlerror() as e:
+            raise StoreError(f"{self.path}: cannot read runs ({_msg(e)})") from None
 
     def list_runs(self, limit: int | None = None, **filters) -> list[dict]:
         """Run summaries (no poses) matching filters: device, station, lot, operator, since,
@@ -481,7 +517,7 @@ class Store:
                         "residual_rms_g": fit.get("residual_rms_g")})
         return out
 
-    def _record(self, r: sqlite3.Row) -> RunRecord:
+    def _record(self, r: Row) -> RunRecord:
         load = lambda k: None if r[k] is None else json.loads(r[k])  # noqa: E731
         rec = RunRecord(**{k: r[k] for k in r.keys() if k not in ("reasons", "nvm_outcome", "calibration",
                                                                    "fit_summary")},
@@ -616,3 +652,11 @@ def _export(path, text: str) -> None:
         atomic_write_text(path, text)
     except OSError as e:
         raise StoreError(f"{path}: cannot write export ({e.strerror})") from None
+
+
+def store_identity(target) -> str:
+    """A store's identity: the resolved file of an SQLite store, the URL of a server store."""
+    if is_url(target) and not str(target).startswith("sqlite:///"):
+        return describe_target(target)
+    p = str(target)[len("sqlite:///"):] if str(target).startswith("sqlite:///") else target
+    return str(Path(p).resolve())

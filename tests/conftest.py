@@ -29,3 +29,23 @@ def calibraxis() -> dict:
 @pytest.fixture(scope="session")
 def nine_position_paper() -> dict:
     return yaml.safe_load((DATA / "nine_position_paper.yaml").read_text())
+
+
+@pytest.fixture(scope="session")
+def pg_server():
+    """A throwaway PostgreSQL server (tests/pgserver.py); skipped with the reason where unavailable."""
+    from pgserver import PgServer
+
+    server = PgServer()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store_url(request, tmp_path):
+    """A fresh results store as a URL: an SQLite file, and a database on the throwaway server."""
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'line.sqlite'}"
+    return request.getfixturevalue("pg_server").new_database()

@@ -15,7 +15,7 @@ import click
 from ..batch import (BatchReport, expand_paths, record_in_store, recalibrate, sessions_from_files,
                      sessions_from_store, summary_csv, write_calibrations)
 from ..errors import DataError
-from ..store import Store
+from ..store import Store, store_target
 from ._common import check_model_units, jsonable as _clean, parse_number as _number
 
 PROGRESS_MIN_BOARDS = 10  # below this a progress bar is noise
@@ -69,10 +69,44 @@ def _text(report: BatchReport, outputs: dict, list_all: bool) -> list[str]:
     return lines
 
 
+def _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path, chunk_boards, as_json, other) -> None:
+    """accelcal batch LOT --out RESULTS: stream a lot file into one results table."""
+    from ..acceptance import Limits
+    from ..config import load_yaml
+    from ..streaming import recalibrate_lot
+
+    if out is None:
+        raise DataError("--config judges a lot file's boards; add --out RESULTS.csv (or .parquet, .jsonl)")
+    if other:
+        raise DataError(f"--out writes a lot file's results table; {', '.join(other)} cannot be combined with it")
+    if len(paths) != 1:
+        raise DataError(f"--out takes one lot file; got {len(paths)} path(s)")
+    limits = None
+    if config_path is not None:
+        limits = Limits.from_config(load_yaml(config_path).get("acceptance"))
+    summary = recalibrate_lot(paths[0], out, model, units=units, counts_per_g=cpg, gravity_mps2=grav,
+                              limits=limits, chunk_boards=chunk_boards)
+    if as_json:
+        click.echo(json.dumps(_clean({**summary.to_dict(), "out": str(out)}), allow_nan=False))
+    else:
+        for serial, reason in summary.unfitted_examples:
+            click.echo(click.style("SKIP ", fg="red", bold=True) + f"{serial}: {reason}")
+        n, ok = summary.boards, summary.fitted
+        verdicts = f"; PASS {summary.passed}, FAIL {summary.failed}" if limits is not None else ""
+        click.echo(click.style(f"{ok} of {n} boards recalibrated with model {model}",
+                               fg="green" if ok == n else "yellow", bold=True)
+                   + f"; {n - ok} skipped{verdicts}; {summary.elapsed_s:.2f} s ({summary.boards_per_s:.0f} boards/s)")
+        click.echo(f"results: {out}" + (f" (every skipped board is listed there with its reason)"
+                                         if n - ok > len(summary.unfitted_examples) else ""))
+    if summary.fitted < summary.boards:
+        ctx.exit(1)
+
+
 @click.command("batch")
 @click.argument("paths", nargs=-1, metavar="[POSE_TABLE|DIR|GLOB]...")
-@click.option("--from-store", "from_store", default=None, metavar="FILE",
-              help="Take boards from this results store (complete runs with poses).")
+@click.option("--from-store", "from_store", default=None, metavar="FILE|URL",
+              help="Take boards from this results store (complete runs with poses): a file, sqlite:///FILE "
+                   "or postgresql://USER@HOST/DB.")
 @click.option("--lot", default=None, metavar="LOT", help="--from-store: only this lot.")
 @click.option("--device", multiple=True, metavar="SERIAL", help="--from-store: only these serials (repeatable).")
 @click.option("--station", default=None, metavar="ID", help="--from-store: only runs of this station.")
@@ -86,19 +120,34 @@ def _text(report: BatchReport, outputs: dict, list_all: bool) -> list[str]:
 @click.option("--gravity", default=None, metavar="M_S2", help="Pose tables in mps2: local gravity.")
 @click.option("--out-dir", default=None, metavar="DIR", help="Write one calibration JSON per fitted board here.")
 @click.option("--csv", "csv_path", default=None, metavar="FILE", help="Write a summary CSV (one row per board).")
-@click.option("--to-store", "to_store", default=None, metavar="FILE",
+@click.option("--to-store", "to_store", default=None, metavar="FILE|URL",
               help="Record results in this results store (events on source runs when it is the --from-store "
                    "file; new runs otherwise).")
+@click.option("--out", "out", default=None, metavar="FILE",
+              help="Lot file mode: write one results table (.csv, .parquet or .jsonl), a row per board.")
+@click.option("--config", "config_path", default=None, metavar="YAML",
+              help="Lot file mode: judge boards against this station config's acceptance limits.")
+@click.option("--chunk-boards", "chunk_boards", default="4096", show_default=True, metavar="N",
+              help="Lot file mode: boards read, fitted and written per chunk (bounds memory).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @click.pass_context
 def command(ctx, paths, from_store, lot, device, station, since, until, run_ids, model, units, counts_per_g,
-            gravity, out_dir, csv_path, to_store, as_json) -> None:
+            gravity, out_dir, csv_path, to_store, out, config_path, chunk_boards, as_json) -> None:
     """Recalibrate many boards with one model (vectorised); unfittable boards are reported and skipped.
+
+    A lot file (one CSV or Parquet table of every pose, with a serial column) is
+    streamed in chunks into one results table: accelcal batch LOT.csv --out results.csv
 
     Exit status 0: all boards fitted; 1: some skipped; 2: bad input.
     """
     check_model_units(model, units)
     cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
+    if out is not None or config_path is not None:
+        _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path,
+                  int(_number(chunk_boards, "--chunk-boards", integer=True)), as_json,
+                  [k for k, v in (("--from-store", from_store), ("--out-dir", out_dir), ("--csv", csv_path),
+                                  ("--to-store", to_store)) if v is not None])
+        return
     store_filters = {"lot": lot, "device": list(device) or None, "station": station, "since": since,
                      "until": until, "run_ids": [_number(i, "--run", integer=True) for i in run_ids] or None}
     if from_store is None and any(v is not None for v in store_filters.values()):
@@ -112,7 +161,7 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
 
     sources = []
     if from_store is not None:
-        with Store(from_store, create=False) as st:
+        with Store(store_target(from_store), create=False) as st:
             sources += sessions_from_store(st, **store_filters)
     files = expand_paths(paths)
     show = not as_json and len(files) + len(sources) > PROGRESS_MIN_BOARDS
@@ -132,7 +181,7 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
         summary_csv(report, csv_path)
         outputs["csv"] = str(csv_path)
     if to_store is not None:
-        with Store(to_store) as st:
+        with Store(store_target(to_store)) as st:
             outputs["store"] = {"path": str(to_store), **record_in_store(report, st, source_store=from_store)}
 
     if as_json:

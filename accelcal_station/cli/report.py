@@ -8,13 +8,14 @@ import click
 
 from ..config import load_yaml
 from ..errors import DataError
-from ..store import PARAM_NAMES, VERDICTS, STATUSES, Store, store_path
+from ..store import PARAM_NAMES, VERDICTS, STATUSES, Store, store_path, store_target
 
 
 def _filter_options(f):
     opts = [
-        click.option("--db", default=None, metavar="FILE",
-                     help="Results store (SQLite file); default: the store of --config or of the default station."),
+        click.option("--db", default=None, metavar="FILE|URL",
+                     help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB; default: "
+                          "the store of --config or of the default station."),
         click.option("--config", "config_path", default=None, metavar="FILE",
                      help="Station config naming the store (store.path)."),
         click.option("--device", multiple=True, metavar="SERIAL", help="Only these device serials (repeatable)."),
@@ -34,7 +35,7 @@ def _filter_options(f):
 def _open(db, config_path) -> Store:
     """--db, else the store of --config, else that of the default station (as `accelcal run`)."""
     if db is not None:
-        return Store(Path(db), create=False)
+        return Store(store_target(db), create=False)
     from ..station import default_config_path
 
     # relative store paths are taken from the current directory, as `accelcal run` does
@@ -79,7 +80,7 @@ def list_cmd(db, config_path, device, lot, station, operator, verdict, status, s
 
 @command.command("show")
 @click.argument("run_id", type=int)
-@click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")
+@click.option("--db", default=None, metavar="FILE|URL", help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB.")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def show_cmd(run_id, db, config_path, as_json):

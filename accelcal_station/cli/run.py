@@ -16,7 +16,8 @@ from ._common import jsonable
 @click.option("--operator", default=None, help="Operator name, recorded with the run.")
 @click.option("--lot", default=None, help="Production lot, recorded with the run.")
 @click.option("--store", "store_file", type=click.Path(dir_okay=False), default=None,
-              help="Results store file (default: the config's store.path).")
+              help="Results store: a file, sqlite:///FILE or postgresql://USER@HOST/DB "
+                   "(default: the config's store.path).")
 @click.option("--port", default=None, help="Override the device's serial port (or the MMA8451's I2C bus).")
 @click.option("--jig-port", default=None, help="Override the motorized jig's serial port.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (human lines go to stderr).")

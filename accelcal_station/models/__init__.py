@@ -20,6 +20,7 @@ from ..session import Session
 from .gravity_norm import fit_norm_batch, nominal_scale
 from .linear import fit_linear_batch, six_param_six_face, six_param_two_pose
 from .result import BatchFit, FitResult
+from .stacked import fit_stacked
 
 MODELS = ("6", "9", "12", "15")
 
@@ -40,8 +41,11 @@ def check_plausible_g(gf: np.ndarray, units: str) -> None:
 
 
 def fit_batch(readings, references=None, model="12", *, units: str = "g", counts_per_g=None,
-              gravity_mps2: float | None = None, noise=None) -> BatchFit:
+              gravity_mps2: float | None = None, noise=None, fast: bool = False) -> BatchFit:
     """Fit D boards at once.
+
+    ``fast``: the stacked fitters of models/stacked.py (same estimators, closed forms and
+    batched Gauss-Newton; equal to 1e-9 g), for batches of many boards.
 
     readings: (D, P, 3) pose means in ``units``; references: (D, P, 3) or (P, 3)
     expected output in g (required for 6/12/15, ignored by 9); noise: optional
@@ -75,7 +79,7 @@ def fit_batch(readings, references=None, model="12", *, units: str = "g", counts
     if D == 1 and not determined[0]:
         raise UnderdeterminedError(assess(gf[0], model).reason)
     if model == "9":
-        res = fit_norm_batch(gf, noise_g=nz)
+        res = fit_stacked(gf, None, "9", nz) if fast else fit_norm_batch(gf, noise_g=nz)
     else:
         if references is None:
             raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
@@ -83,7 +87,7 @@ def fit_batch(readings, references=None, model="12", *, units: str = "g", counts
         ref = np.asarray(references, dtype=float)
         if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
             raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
-        res = fit_linear_batch(gf, ref, model, nz)
+        res = fit_stacked(gf, ref, model, nz) if fast else fit_linear_batch(gf, ref, model, nz)
     for d in np.flatnonzero(~determined):
         res.ok[d] = False
         res.messages[d] = assess(gf[d], model).reason

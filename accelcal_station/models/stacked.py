@@ -1,0 +1,428 @@
+"""Fast stacked fitters for a chunk of boards: the same estimators as linear.py and
+gravity_norm.py, written as elementwise numpy over the board axis.
+
+Model 12 (AN4399 Eqn 46) is solved on the centred design: with xc = g - mean(g),
+S = xc^T xc (3 x 3), W^T = S^-1 xc^T (ref - mean(ref)) and V = mean(ref) - W mean(g),
+which is the normal-equation solution of ``[g 1] beta = ref`` (the intercept column
+drops out by the Frisch-Waugh theorem).  S^-1 comes from the adjugate, so no
+per-board LAPACK call is made; (X^T X)^-1 of the full design follows by the block
+(Schur complement) formula, giving standard errors, and the hat matrix diagonal
+h = 1/P + xc^T S^-1 xc gives closed-form leave-one-out residuals r / (1 - h).
+The condition number sqrt(lambda_max / lambda_min) of X^T X uses the extreme roots of
+its characteristic polynomial (coefficients from principal minors, all computed
+through S so they carry no cancellation), found by Laguerre's method, which
+converges monotonically from outside the roots of a polynomial with real roots.
+
+Models 6 and 15 use linear.fit_linear_batch (already batched normal equations).
+Model 9 uses batched Gauss-Newton from a closed-form sphere start with the damped
+(Levenberg-Marquardt) fit of gravity_norm.py only for the boards Gauss-Newton does not
+settle; leave-one-out refits start from the full fit (warm start, a few GN steps).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import UnderdeterminedError
+from . import gravity_norm as gn
+from .linear import COND_LIMIT, diagnose_underdetermined, fit_linear_batch, param_names
+from .result import BatchFit
+
+CHECK_COND = 1e5  # above this, extreme eigenvalues are recomputed by LAPACK (rare)
+
+
+def _sym_inv3(a, b, c, d, e, f):
+    """Inverse of symmetric [[a b c] [b d e] [c e f]] by the adjugate: 6 entries and det."""
+    A00, A01, A02 = d * f - e * e, c * e - b * f, b * e - c * d
+    A11, A12, A22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * A00 + b * A01 + c * A02
+    return (A00, A01, A02, A11, A12, A22), det
+
+
+def _laguerre_root(coef, x, iters: int = 4):
+    """A root of the monic quartic x^4 - e1 x^3 + e2 x^2 - e3 x + e4 from x (vectorised).
+
+    All roots real: started above (below) all roots, Laguerre's iteration goes
+    monotonically to the largest (smallest).  Returns the root and the last step.
+    """
+    e1, e2, e3, e4 = coef
+    step = np.zeros_like(x)
+    for _ in range(iters):
+        p = (((x - e1) * x + e2) * x - e3) * x + e4
+        dp = ((4 * x - 3 * e1) * x + 2 * e2) * x - e3
+        d2p = (12 * x - 6 * e1) * x + 2 * e2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            g1 = dp / p
+            h = g1 * g1 - d2p / p
+            sq = np.sqrt(np.maximum(3.0 * (4.0 * h - g1 * g1), 0.0))
+            den = g1 + np.copysign(sq, g1)
+            step = np.where((p == 0) | (den == 0), 0.0, 4.0 / den)
+        x = x - step
+    return x, step
+
+
+def _smallest_root(coef, top):
+    """The smallest root of the quartic once its largest ``top`` is known: deflate to a cubic,
+    take its smallest root in trigonometric form (three real roots), polish by 2 Newton steps
+    on the quartic (a cluster of small roots makes Laguerre from below slow)."""
+    e1, e2, e3, e4 = coef
+    a = top - e1  # x^3 + a x^2 + b x + c = quartic / (x - top)
+    b = e2 + top * a
+    c = -e3 + top * b
+    p = b - a * a / 3.0
+    q = 2.0 * a**3 / 27.0 - a * b / 3.0 + c
+    m = np.sqrt(np.maximum(-p / 3.0, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        arg = np.clip(np.where(m > 0, -q / (2.0 * m**3), 0.0), -1.0, 1.0)
+    t = np.arccos(arg) / 3.0
+    x = 2.0 * m * np.cos(t + 2.0 * np.pi / 3.0) - a / 3.0  # the smallest of the three
+    step = np.zeros_like(x)
+    for _ in range(2):
+        f = (((x - e1) * x + e2) * x - e3) * x + e4
+        df = ((4 * x - 3 * e1) * x + 2 * e2) * x - e3
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = np.where(df != 0, f / df, 0.0)
+        x = x - step
+    return x, step
+
+
+def _cond12(S, det, xbar, P, G_full):
+    """Condition number of X = [g 1] (sqrt of eigenvalue ratio of X^T X), per board."""
+    a, b, c, d, e, f = S
+    x0, x1, x2 = xbar
+    Pn = float(P)
+    e1 = a + d + f + Pn * (x0 * x0 + x1 * x1 + x2 * x2) + Pn
+
+    def m2(sii, sjj, sij, xi, xj):  # 2x2 principal minor of A = S + P xbar xbar^T
+        return sii * sjj - sij * sij + Pn * (sii * xj * xj + sjj * xi * xi - 2 * sij * xi * xj)
+
+    e2 = m2(a, d, b, x0, x1) + m2(a, f, c, x0, x2) + m2(d, f, e, x1, x2) + Pn * (a + d + f)
+    (i00, i01, i02, i11, i12, i22), _ = _sym_inv3(a, b, c, d, e, f)
+    q = (i00 * x0 * x0 + i11 * x1 * x1 + i22 * x2 * x2 + 2 * (i01 * x0 * x1 + i02 * x0 * x2 + i12 * x1 * x2))
+    e3 = det + Pn * q + Pn * ((a * d - b * b) + (a * f - c * c) + (d * f - e * e))  # q already / det
+    e4 = Pn * det
+    coef = (e1, e2, e3, e4)
+    hi, s_hi = _laguerre_root(coef, e1.copy())
+    lo, s_lo = _smallest_root(coef, hi)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cond = np.sqrt(hi / np.maximum(lo, 1e-300))
+    unsure = ~np.isfinite(cond) | (cond > CHECK_COND) | (np.abs(s_lo) > 1e-9 * np.abs(lo)) \
+        | (np.abs(s_hi) > 1e-9 * np.abs(hi))
+    if unsure.any():
+        ev = np.linalg.eigvalsh(G_full(unsure))
+        cond[unsure] = np.sqrt(ev[:, -1] / np.maximum(ev[:, 0], 1e-300))
+    return cond
+
+
+class _ChannelCovariance:
+    """(D, 3, 4, 4) covariance (X^T X)^-1 s2_c, built per board on indexing (saves D x 48 floats)."""
+
+    def __init__(self, Ginv: np.ndarray, s2: np.ndarray):
+        self.Ginv, self.s2 = Ginv, s2
+
+    def __len__(self) -> int:
+        return len(self.Ginv)
+
+    def __getitem__(self, d):
+        return self.Ginv[d][..., None, :, :] * self.s2[d][..., None, None]
+
+
+def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) -> BatchFit:
+    """Model 12 for a stack of boards (D, P, 3) in g; same results as fit_linear_batch."""
+    gf = np.asarray(gf, dtype=float)
+    D, P, _ = gf.shape
+    if P < 4:
+        raise UnderdeterminedError(f"model 12 needs at least 4 poses; got {P}")
+    ref = np.broadcast_to(np.asarray(ref, dtype=float), (D, P, 3))
+    g = np.ascontiguousarray(gf.transpose(2, 0, 1))  # (3, D, P): each axis contiguous
+    y = np.ascontiguousarray(ref.transpose(2, 0, 1))
+    xbar, ybar = g.mean(axis=2), y.mean(axis=2)  # (3, D)
+    xc, yc = g - xbar[..., None], y - ybar[..., None]
+    S = tuple(np.einsum("dp,dp->d", xc[i], xc[j]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
+    adj, det = _sym_inv3(*S)
+    scale = np.maximum(S[0] + S[3] + S[5], 1e-300)
+    ok = det > 1e-12 * scale**3  # a quick screen; the condition number decides below
+    det_safe = np.where(ok, det, 1.0)
+    i00, i01, i02, i11, i12, i22 = (np.where(ok, v, 0.0) / det_safe for v in adj)
+    Si = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])  # (3, 3, D)
+    C = np.einsum("idp,cdp->icd", xc, yc)  # (3 in, 3 out, D)
+    Wt = np.einsum("jid,icd->jcd", Si, C)  # W[c, j] = Wt[j, c]
+    W = Wt.transpose(2, 1, 0)  # (D, 3, 3)
+    V = ybar.T - np.einsum("dcj,dj->dc", W, xbar.T)
+    r = np.empty_like(yc)  # (3, D, P) reference minus calibrated
+    for c in range(3):
+        r[c] = yc[c] - Wt[0, c, :, None] * xc[0] - Wt[1, c, :, None] * xc[1] - Wt[2, c, :, None] * xc[2]
+    h = (i00[:, None] * xc[0] ** 2 + i11[:, None] * xc[1] ** 2 + i22[:, None] * xc[2] ** 2
+         + 2 * (i01[:, None] * xc[0] * xc[1] + i02[:, None] * xc[0] * xc[2] + i12[:, None] * xc[1] * xc[2]))
+    h += 1.0 / P  # hat diagonal (D, P)
+
+    def G_full(mask):
+        X = np.concatenate([gf[mask], np.ones((int(mask.sum()), P, 1))], axis=-1)
+        return X.swapaxes(1, 2) @ X
+
+    cond = _cond12(S, det_safe, xbar, P, G_full)
+    ok &= np.isfinite(cond) & (cond <= COND_LIMIT)
+    rss = np.einsum("cdp,cdp->dc", r, r)  # (D, 3)
+    cv_ok = np.all(h < 1.0 - 1e-9, axis=1) & ok
+    loo = r / np.where(h < 1.0 - 1e-9, 1.0 - h, 1.0)
+    cv_rms = np.where(cv_ok, np.sqrt(np.einsum("cdp,cdp->d", loo, loo) / (3 * P)), np.nan)
+    dof = P - 4
+    s2 = np.full((D, 3), np.nan)
+    if noise_g is not None:
+        nz = np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3))
+        s2 = np.mean(nz**2, axis=1)
+    elif dof > 0:
+        s2 = rss / dof
+    se_ok = np.all(np.isfinite(s2), axis=1) & ok
+    s2z = np.where(np.isfinite(s2), s2, 0.0)
+    # (X^T X)^-1 of X = [g 1] by the block formula: [[S^-1, -S^-1 xbar], [., 1/P + xbar^T S^-1 xbar]]
+    Ginv = np.empty((D, 4, 4))
+    Ginv[:, :3, :3] = Si.transpose(2, 0, 1)
+    u = -np.einsum("ijd,jd->di", Si, xbar)
+    Ginv[:, :3, 3] = Ginv[:, 3, :3] = u
+    Ginv[:, 3, 3] = 1.0 / P - np.einsum("di,id->d", u, xbar)
+    diag = np.diagonal(Ginv, axis1=1, axis2=2)  # (D, 4)
+    sW = np.sqrt(np.clip(s2z[:, :, None] * diag[:, None, :3], 0.0, None))
+    sV = np.sqrt(np.clip(s2z * diag[:, 3:4], 0.0, None))
+    resid = r.transpose(1, 2, 0)  # (D, P, 3) view
+    calibrated = y - r
+    norm_err = np.sqrt(np.einsum("cdp,cdp->dp", calibrated, calibrated)) - np.sqrt(np.einsum("cdp,cdp->dp", y, y))
+    messages = [""] * D
+    for d in np.flatnonzero(~ok):
+        messages[d] = diagnose_underdetermined(gf[d], "12")
+    W = np.where(ok[:, None, None], W, 0.0)
+    V = np.where(ok[:, None], V, 0.0)
+    return BatchFit(
+        model="12", W=W, V=V, Gamma=np.zeros((D, 3)), residuals_g=resid, norm_error_g=norm_err, P=rss,
+        residual_rms_g=np.sqrt(rss.sum(axis=1) / (3 * P)), crossval_rms_g=cv_rms, crossval_ok=cv_ok,
+        condition_number=cond, stderr_W=sW, stderr_V=sV, stderr_Gamma=np.zeros((D, 3)), stderr_ok=se_ok,
+        covariance=_ChannelCovariance(Ginv, s2z),
+        params=np.concatenate([W.reshape(D, 9), V], axis=1), param_names=param_names("12"),
+        ok=ok, messages=messages, readings_g=gf)
+
+
+# -- model 9 -------------------------------------------------------------------------------------
+
+def _sphere_start(gf: np.ndarray) -> np.ndarray:
+    """gravity_norm._sphere_start in closed form: |v|^2 = 2 v.c + k by the centred 3x3 solve."""
+    D, P, _ = gf.shape
+    g = gf.transpose(2, 0, 1)
+    b = np.einsum("idp,idp->dp", g, g)
+    xbar = g.mean(axis=2)
+    xc, bc = g - xbar[..., None], b - b.mean(axis=1)[:, None]
+    S = tuple(np.einsum("dp,dp->d", xc[i], xc[j]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
+    (i00, i01, i02, i11, i12, i22), det = _sym_inv3(*S)
+    q = np.einsum("idp,dp->id", xc, bc)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = 0.5 * np.array([i00 * q[0] + i01 * q[1] + i02 * q[2], i01 * q[0] + i11 * q[1] + i12 * q[2],
+                            i02 * q[0] + i12 * q[1] + i22 * q[2]]).T / det[:, None]
+    bad = ~np.all(np.isfinite(c), axis=1)
+    if bad.any():  # degenerate poses: the reference start (regularised solve, mid-range fallback)
+        c[bad] = gn._sphere_start(gf[bad])[:, 6:]
+    r = np.median(np.linalg.norm(gf - c[:, None], axis=-1), axis=1)
+    r = np.where(r > 0, r, 1.0)
+    p0 = np.zeros((D, 9))
+    p0[:, :3] = 1.0 / r[:, None]
+    p0[:, 6:] = c
+    return p0
+
+
+def _resid_jac(p: np.ndarray, g: np.ndarray):
+    """r (N, P) and J (9, N, P) of r_i = |M (v_i - B)| - 1 (gravity_norm._residual_jacobian),
+    with g (3, N, P): each component a contiguous array."""
+    m = [p[:, k, None] for k in range(9)]
+    M = ((m[0], m[3], m[4]), (m[3], m[1], m[5]), (m[4], m[5], m[2]))
+    u = [g[i] - m[6 + i] for i in range(3)]
+    a = [M[i][0] * u[0] + M[i][1] * u[1] + M[i][2] * u[2] for i in range(3)]
+    n = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    inv = 1.0 / np.maximum(n, 1e-300)
+    ah = [ai * inv for ai in a]
+    J = np.empty((9,) + n.shape)
+    J[0], J[1], J[2] = ah[0] * u[0], ah[1] * u[1], ah[2] * u[2]
+    J[3] = ah[0] * u[1] + ah[1] * u[0]
+    J[4] = ah[0] * u[2] + ah[2] * u[0]
+    J[5] = ah[1] * u[2] + ah[2] * u[1]
+    for j in range(3):
+        J[6 + j] = -(ah[0] * M[0][j] + ah[1] * M[1][j] + ah[2] * M[2][j])
+    return n - 1.0, J
+
+
+def _chol_solve(A: list, b: list):
+    """Solve A x = b for N symmetric 9 x 9 systems at once by Cholesky, elementwise over N.
+
+    A[i][j] (i >= j) and b[i] are (N,) arrays.  Returns x (N, 9) and whether A was positive definite.
+    """
+    n = len(b)
+    L = [[None] * n for _ in range(n)]
+    ok = np.ones(b[0].shape, dtype=bool)
+    for j in range(n):
+        s = A[j][j] - sum((L[j][k] * L[j][k] for k in range(j)), np.zeros_like(b[0]))
+        ok &= s > 1e-300
+        L[j][j] = np.sqrt(np.where(s > 1e-300, s, 1.0))
+        for i in range(j + 1, n):
+            L[i][j] = (A[i][j] - sum((L[i][k] * L[j][k] for k in range(j)), np.zeros_like(b[0]))) / L[j][j]
+    y = [None] * n
+    for i in range(n):
+        y[i] = (b[i] - sum((L[i][k] * y[k] for k in range(i)), np.zeros_like(b[0]))) / L[i][i]
+    x = [None] * n
+    for i in reversed(range(n)):
+        x[i] = (y[i] - sum((L[k][i] * x[k] for k in range(i + 1, n)), np.zeros_like(b[0]))) / L[i][i]
+    return np.stack(x, axis=1), ok
+
+
+def _normal(J: np.ndarray, r: np.ndarray):
+    """J^T J (lower triangle, lists of (N,)) and -J^T r of a (9, N, P) Jacobian."""
+    A = [[np.einsum("np,np->n", J[i], J[j]) if j <= i else None for j in range(9)] for i in range(9)]
+    return A, [-np.einsum("np,np->n", J[i], r) for i in range(9)]
+
+
+def _gauss_newton(gf: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-12):
+    """Plain batched Gauss-Newton steps (no line search: the caller sends the boards that do not
+    settle to the damped fit).  Returns params, cost, and whether each settled: a finite
+    cost and a last step below ``tol`` relative to the parameters."""
+    g = np.ascontiguousarray(gf.transpose(2, 0, 1))
+    p = p.copy()
+    step = np.full_like(p, np.inf)
+    pd = np.ones(len(p), dtype=bool)
+    for _ in range(iters):
+        r, J = _resid_jac(p, g)
+        step, ok = _chol_solve(*_normal(J, r))
+        pd &= ok
+        p += np.where(ok[:, None], step, 0.0)
+    r, _ = _resid_jac(p, g)
+    cost = np.einsum("np,np->n", r, r)
+    settled = pd & np.isfinite(cost) & np.all(np.isfinite(p), axis=1) \
+        & (np.linalg.norm(step, axis=1) <= tol * (1 + np.linalg.norm(p, axis=1)))
+    return p, cost, settled
+
+
+def fit9(gf: np.ndarray, noise_g: np.ndarray | None = None, gn_iters: int = 6, loo_iters: int = 3) -> BatchFit:
+    """Model 9 for a stack of boards (D, P, 3) in nominal g; same results as fit_norm_batch."""
+    gf = np.asarray(gf, dtype=float)
+    D, P, _ = gf.shape
+    if P < 9:
+        raise UnderdeterminedError(f"model 9 needs at least 9 poses (it has 9 parameters); got {P}")
+    p0 = _sphere_start(gf)
+    p, _, settled = _gauss_newton(gf, p0, gn_iters)
+    conv = settled.copy()
+    lm = np.flatnonzero(~settled)
+    if lm.size:  # the damped fit only where Gauss-Newton did not settle, from the same start
+        p[lm], _, conv[lm] = gn.levenberg_marquardt(gf[lm], p0[lm])
+    M, _ = gn._unpack(p)
+    flip = np.trace(M, axis1=1, axis2=2) < 0
+    p[flip, :6] *= -1
+    return _finish9(gf, p, conv, noise_g, loo_iters)
+
+
+def _finish9(gf, p, conv, noise_g, loo_iters) -> BatchFit:
+    """Everything gravity_norm.fit_norm_batch reports, from fitted parameters."""
+    D, P, _ = gf.shape
+    M, B = gn._unpack(p)
+    r, J = gn._residual_jacobian(p, gf)
+    JtJ = J.swapaxes(1, 2) @ J
+    ev = np.linalg.eigvalsh(JtJ)
+    cond = np.sqrt(np.maximum(ev[:, -1], 0) / np.maximum(ev[:, 0], 1e-300))
+    ok = np.ones(D, dtype=bool)
+    messages = [""] * D
+    bad = np.flatnonzero(cond > gn.COND_LIMIT)
+    ok[bad] = False
+    for d in bad:
+        centred = gf[d] - gf[d].mean(axis=0)
+        sv = np.linalg.svd(centred, compute_uv=False)
+        messages[d] = ((f"the {P} poses lie in a plane: model 9 needs orientations spread over the sphere "
+                        "(e.g. six faces plus three tilts)") if sv[-1] < 1e-3 * sv[0]
+                       else f"the {P} poses do not determine model 9 (condition number {cond[d]:.3g})")
+    for d in np.flatnonzero(ok & ~conv):
+        ok[d] = False
+        messages[d] = "model 9 did not converge (Levenberg-Marquardt stopped at its iteration limit)"
+    W, V = M, -np.einsum("dij,dj->di", M, B)
+    cal = np.einsum("dij,dpj->dpi", W, gf) + V[:, None, :]
+    nrm = np.linalg.norm(cal, axis=-1)
+    resid = cal / np.maximum(nrm, 1e-300)[..., None] - cal
+    s2 = np.full(D, np.nan)
+    if noise_g is not None:
+        s2 = np.mean(np.asarray(noise_g) ** 2, axis=(1, 2))
+    elif P > 9:
+        s2 = np.sum(r**2, axis=1) / (P - 9)
+    good = ok & (ev[:, 0] > 0)
+    cov = np.zeros((D, 9, 9))
+    cov[good] = np.linalg.inv(JtJ[good])
+    cov *= np.where(np.isfinite(s2), s2, 0.0)[:, None, None]
+    sW, sV = _propagate9(cov, M, B)
+    cv, cv_ok = np.full(D, np.nan), np.zeros(D, dtype=bool)
+    if P >= 10:
+        idx = np.array([np.delete(np.arange(P), i) for i in range(P)])
+        sub = gf[:, idx, :].reshape(D * P, P - 1, 3)
+        ps, _, _ = _gauss_newton(sub, np.repeat(p, P, axis=0), loo_iters)
+        Ms, Bs = gn._unpack(ps)
+        a = np.einsum("dij,dj->di", Ms, gf.reshape(D * P, 3) - Bs)
+        e = (np.linalg.norm(a, axis=-1) - 1.0).reshape(D, P)
+        cv_ok = ok & np.all(np.isfinite(e), axis=1)
+        cv = np.where(cv_ok, np.sqrt(np.mean(e**2, axis=1)), np.nan)
+    return BatchFit(
+        model="9", W=W, V=V, Gamma=np.zeros((D, 3)), residuals_g=resid, norm_error_g=nrm - 1.0,
+        P=np.sum(resid**2, axis=1), residual_rms_g=np.sqrt(np.mean(r**2, axis=1)),
+        crossval_rms_g=cv, crossval_ok=cv_ok, condition_number=cond,
+        stderr_W=sW, stderr_V=sV, stderr_Gamma=np.zeros((D, 3)), stderr_ok=np.isfinite(s2) & ok,
+        covariance=cov, params=p, param_names=list(gn.PARAM_NAMES), ok=ok, messages=messages,
+        readings_g=gf, status=["converged" if c else "max_iter" for c in conv])
+
+
+def _propagate9(cov, M, B):
+    """Standard errors of W = M and V = -M B from the covariance of (M, B) (first order)."""
+    D = len(cov)
+    Gw = np.zeros((9, 9))
+    for j, (a, b) in enumerate(zip(*gn._IU)):
+        Gw[3 * a + b, j] = Gw[3 * b + a, j] = 1.0
+    Gv = np.zeros((D, 3, 9))
+    for j, (a, b) in enumerate(zip(*gn._IU)):
+        Gv[:, a, j] -= B[:, b]
+        if a != b:
+            Gv[:, b, j] -= B[:, a]
+    Gv[:, :, 6:] = -M
+    sW = np.sqrt(np.clip(np.einsum("ij,djk,ik->di", Gw, cov, Gw), 0, None)).reshape(D, 3, 3)
+    sV = np.sqrt(np.clip(np.einsum("dij,djk,dik->di", Gv, cov, Gv), 0, None))
+    return sW, sV
+
+
+BLOCK = {"12": 2048, "9": 512, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
+
+
+def _concat(parts: list[BatchFit]) -> BatchFit:
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+    kw = {}
+    for name in first.__dataclass_fields__:
+        vals = [getattr(b, name) for b in parts]
+        v0 = vals[0]
+        if name in ("model", "param_names", "input_units"):
+            kw[name] = v0
+        elif name in ("messages", "status"):
+            kw[name] = None if v0 is None else [m for v in vals for m in v]
+        elif isinstance(v0, _ChannelCovariance):
+            kw[name] = _ChannelCovariance(np.concatenate([v.Ginv for v in vals]), np.concatenate([v.s2 for v in vals]))
+        elif v0 is None or np.ndim(v0) == 0:
+            kw[name] = v0
+        else:
+            kw[name] = np.concatenate(vals)
+    return BatchFit(**kw)
+
+
+def fit_stacked(gf: np.ndarray, ref: np.ndarray | None, model: str, noise_g: np.ndarray | None = None) -> BatchFit:
+    """The fast fitter of ``model`` on (D, P, 3) readings in g (references in g for 6/12/15),
+    in blocks of BLOCK[model] boards."""
+    gf = np.asarray(gf, dtype=float)
+    D, P, _ = gf.shape
+    ref = None if ref is None else np.broadcast_to(np.asarray(ref, dtype=float), (D, P, 3))
+    nz = None if noise_g is None else np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3))
+    parts = []
+    for a in range(0, D, BLOCK[model]):
+        sl = slice(a, a + BLOCK[model])
+        n = None if nz is None else nz[sl]
+        if model == "9":
+            parts.append(fit9(gf[sl], n))
+        elif model == "12":
+            parts.append(fit12(gf[sl], ref[sl], n))
+        else:
+            parts.append(fit_linear_batch(gf[sl], ref[sl], model, n))
+    return _concat(parts)

@@ -1,0 +1,85 @@
+"""A line database: the results store as a URL, on SQLite and on a real throwaway PostgreSQL
+server (tests/pgserver.py), exercised by separate `accelcal` processes at the same time."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from click.testing import CliRunner
+
+from accelcal_station.cli import cli
+from accelcal_station.posetable import write_pose_table
+from accelcal_station.store import Store
+
+ACCELCAL = [sys.executable, "-m", "accelcal_station"]
+
+
+def _report_list(url) -> list[dict]:
+    r = CliRunner().invoke(cli, ["report", "list", "--db", url, "--json"])
+    assert r.exit_code == 0, r.output
+    return json.loads(r.stdout)
+
+
+def test_two_stations_record_at_once_and_report_lists_both(store_url, tmp_path):
+    procs = [subprocess.Popen([*ACCELCAL, "run", "--store", store_url, "--serial", s, "--operator", "ci",
+                               "--lot", "L7", "--json"], cwd=tmp_path, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for s in ("SN-A", "SN-B")]
+    outs = [p.communicate(timeout=120) for p in procs]
+    for p, (out, err) in zip(procs, outs):
+        assert p.returncode == 0, err[-2000:]
+    ids = sorted(json.loads(out)["run_id"] for out, _ in outs)
+    runs = _report_list(store_url)
+    assert sorted(r["id"] for r in runs) == ids and len(set(ids)) == 2
+    assert sorted(r["device_serial"] for r in runs) == ["SN-A", "SN-B"]
+    assert all(r["status"] == "complete" and r["verdict"] == "PASS" and r["pose_count"] == 8 for r in runs)
+    with Store(store_url, create=False) as st:
+        assert st.lot_summary(lot="L7")["pass"] == 2
+
+
+def test_batch_from_and_to_the_store(store_url, tmp_path):
+    for s in ("SN-1", "SN-2"):
+        r = CliRunner().invoke(cli, ["run", "--store", store_url, "--serial", s, "--json"])
+        assert r.exit_code == 0, r.output
+    # from the store back into the same store: events on the source runs
+    r = CliRunner().invoke(cli, ["batch", "--from-store", store_url, "--to-store", store_url, "--model", "12",
+                                 "--json"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    assert doc["fitted"] == 2 and doc["outputs"]["store"]["events"] == 2 and doc["outputs"]["store"]["runs"] == 0
+    with Store(store_url, create=False) as st:
+        for rec in st.runs():
+            assert [e["kind"] for e in rec.events].count("recalibration") == 1
+        session = st.runs()[0].session()
+    # pose tables into the store: new runs of station accelcal-batch
+    write_pose_table(session, tmp_path / "b1.csv", {"serial": "SN-9"})
+    r = CliRunner().invoke(cli, ["batch", str(tmp_path / "b1.csv"), "--to-store", store_url, "--json"])
+    assert r.exit_code == 0, r.output
+    runs = _report_list(store_url)
+    assert len(runs) == 3 and runs[-1]["station_id"] == "accelcal-batch" and runs[-1]["device_serial"] == "SN-9"
+
+
+def test_store_url_errors_are_one_line(tmp_path):
+    r = CliRunner().invoke(cli, ["report", "list", "--db", "mysql://u@h/db"])
+    assert r.exit_code == 2 and "unknown store URL scheme" in r.output and "Traceback" not in r.output
+    r = CliRunner().invoke(cli, ["report", "list", "--db", f"sqlite:///{tmp_path / 'none.sqlite'}"])
+    assert r.exit_code == 2 and "no results store there" in r.output
+
+
+def test_postgresql_unreachable_is_one_line(tmp_path):
+    pytest.importorskip("psycopg", reason="psycopg is not installed")
+    url = f"postgresql://nobody:secret@/x?host={tmp_path}&port=1"
+    r = CliRunner().invoke(cli, ["report", "list", "--db", url])
+    assert r.exit_code == 2 and "cannot open results store" in r.output
+    assert "secret" not in r.output and "Traceback" not in r.output
+
+
+def test_postgresql_schema_is_versioned_and_reopens(pg_server):
+    url = pg_server.new_database()
+    with Store(url) as st:
+        v = st.schema_version
+        rid = st.start_run(device_serial="X1", started_at=1.5e9 + 0.123456789)
+    assert v >= 1
+    with Store(url, create=False) as st:  # double precision survives (PostgreSQL REAL would not)
+        assert st.schema_version == v and st.get_run(rid).started_at == 1.5e9 + 0.123456789

@@ -1,0 +1,216 @@
+"""Lot files streamed through `accelcal batch LOT --out RESULTS`, and the fast stacked fitters
+checked against today's fitters (models/linear.py, models/gravity_norm.py) on thousands of boards."""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from accelcal_station.acceptance import Limits, judge
+from accelcal_station.cli import cli as main
+from accelcal_station.conventions import an4399_reference
+from accelcal_station.fixtures.designs import get_design, references
+from accelcal_station.lotsim import write_lot
+from accelcal_station.models import fit
+from accelcal_station.models.gravity_norm import fit_norm_batch
+from accelcal_station.models.linear import fit_linear_batch
+from accelcal_station.models.stacked import fit_stacked
+from accelcal_station.streaming import recalibrate_lot
+
+
+def _boards(D, ref, seed, noise=1e-3):
+    rng = np.random.default_rng(seed)
+    K = np.eye(3) + rng.normal(0, 0.01, (D, 3, 3))
+    return np.einsum("dij,pj->dpi", K, ref) + rng.normal(0, 0.03, (D, 1, 3)) + rng.normal(0, noise, (D,) + ref.shape)
+
+
+@pytest.mark.parametrize("model,design", [("12", "an4399-8"), ("6", "six-face"), ("15", "an4399-8")])
+def test_stacked_linear_matches_todays_fitter(model, design):
+    ref = references(get_design(design))
+    x = _boards(3000, ref, seed=1)
+    x[5] = x[5, :1]  # one board with every pose the same: underdetermined in both
+    a, b = fit_linear_batch(x, ref, model), fit_stacked(x, ref, model)
+    assert np.array_equal(a.ok, b.ok) and not a.ok[5] and a.ok.sum() == 2999
+    assert b.messages[5] == a.messages[5]
+    ok = a.ok
+    for k in ("W", "V", "Gamma", "residual_rms_g", "crossval_rms_g", "stderr_W", "stderr_V"):
+        np.testing.assert_allclose(getattr(b, k)[ok], getattr(a, k)[ok], rtol=0, atol=1e-9, err_msg=k)
+    np.testing.assert_allclose(b.condition_number[ok], a.condition_number[ok], rtol=1e-8)
+    np.testing.assert_allclose(b.residuals_g[ok], a.residuals_g[ok], atol=1e-9)
+    d = 7  # a board's FitResult (covariance too) matches
+    np.testing.assert_allclose(b.result(d).covariance, a.result(d).covariance, rtol=1e-7, atol=1e-18)
+
+
+def test_stacked_model9_matches_todays_fitter():
+    rng = np.random.default_rng(2)
+    ref = references(get_design("optimal-12"))
+    x = _boards(400, ref, seed=3)
+    a, b = fit_norm_batch(x), fit_stacked(x, None, "9")
+    assert a.ok.all() and b.ok.all()
+    for k in ("W", "V", "residual_rms_g", "stderr_W", "stderr_V"):
+        np.testing.assert_allclose(getattr(b, k), getattr(a, k), rtol=0, atol=1e-8, err_msg=k)
+    np.testing.assert_allclose(b.condition_number, a.condition_number, rtol=1e-6)
+    both = a.crossval_ok & b.crossval_ok
+    assert both.sum() >= 390
+    # leave-one-out: warm 3-step Gauss-Newton refits against full damped refits (to 1e-6 g)
+    np.testing.assert_allclose(b.crossval_rms_g[both], a.crossval_rms_g[both], rtol=0, atol=1e-6)
+    del rng
+
+
+def test_stacked_model9_planar_poses_are_refused_with_a_reason():
+    ref = np.array([[np.cos(t), np.sin(t), 0.0] for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)])
+    x = _boards(3, ref, seed=4)
+    b = fit_stacked(x, None, "9")
+    assert not b.ok.any() and all(b.messages) and b.messages == fit_norm_batch(x).messages
+
+
+def _read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _bad_lot(tmp_path):
+    """A generated lot with boards broken in each way the reader and the fitter must report."""
+    lot = write_lot(tmp_path / "lot.csv", 300, seed=5)
+    lines = lot.read_text().splitlines()
+    head, body = lines[:3], lines[3:]
+    P = 8
+
+    def cells(i):
+        return body[i].split(",")
+
+    def put(i, col, value):
+        c = cells(i)
+        c[head[2].split(",").index(col)] = value
+        body[i] = ",".join(c)
+
+    put(3 * P + 2, "x", "abc")       # board 3: a cell that is not a number
+    put(4 * P + 1, "y", "")          # board 4: an empty reading
+    put(5 * P, "pitch_deg", "")      # board 5: a pose without a reference
+    put(5 * P, "roll_deg", "")
+    for i in range(6 * P, 7 * P):    # board 6: every pose the same (underdetermined)
+        body[i] = ",".join(cells(i)[:2] + cells(6 * P)[2:])
+    del body[7 * P + 3:8 * P]        # board 7: 3 poses only
+    lot.write_text("\n".join(head + body) + "\n")
+    return lot
+
+
+@pytest.mark.parametrize("reader", ["pyarrow", "python"])
+def test_lot_csv_to_results_every_board_reported(tmp_path, monkeypatch, reader):
+    if reader == "python":  # the pure-Python CSV reader and writer (pyarrow not installed)
+        monkeypatch.setattr("accelcal_station.lot.arrow_available", lambda: False)
+    else:
+        pytest.importorskip("pyarrow.csv", reason="the optional pyarrow is not installed")
+    lot = _bad_lot(tmp_path)
+    out = tmp_path / "results.csv"
+    r = CliRunner().invoke(main, ["batch", str(lot), "--model", "12", "--out", str(out), "--chunk-boards", "64"])
+    assert r.exit_code == 1, r.output
+    assert "295 of 300 boards recalibrated" in r.output
+    rows = _read_csv(out)
+    assert [row["serial"] for row in rows] == [f"B{i:08d}" for i in range(300)]
+    why = {row["serial"]: row["message"] for row in rows if row["ok"] == "0"}
+    assert set(why) == {f"B{i:08d}" for i in (3, 4, 5, 6, 7)}
+    assert "'abc' is not a number" in why["B00000003"]
+    assert "reading is empty, NaN or infinite" in why["B00000004"]
+    assert "has no reference" in why["B00000005"]
+    assert "no spread" in why["B00000006"] or "do not determine" in why["B00000006"]
+    assert "at least 4 poses" in why["B00000007"]
+    assert not list(tmp_path.glob(".*.tmp"))
+    # a fitted board's row is what fitting its own poses with today's fitter gives
+    text = lot.read_text().splitlines()
+    mine = [ln.split(",") for ln in text[3:] if ln.startswith("B00000010,")]
+    x = np.array([[float(v) for v in c[4:7]] for c in mine])
+    ref = an4399_reference(np.array([float(c[2]) for c in mine]), np.array([float(c[3]) for c in mine]))
+    noise = np.full((len(mine), 3), 4.0 / np.sqrt(200))
+    f = fit(x, ref, "12", units="counts", counts_per_g=4096, noise=noise)
+    row = rows[10]
+    assert float(row["W01"]) == pytest.approx(f.W[0, 1], abs=1e-12)
+    assert float(row["V2"]) == pytest.approx(f.V[2], abs=1e-12)
+    assert float(row["residual_rms_mg"]) == pytest.approx(f.residual_rms_g * 1e3, rel=1e-9)
+    assert float(row["crossval_rms_mg"]) == pytest.approx(f.crossval_rms_g * 1e3, rel=1e-9)
+    assert float(row["condition_number"]) == pytest.approx(f.condition_number, rel=1e-8)
+
+
+def test_lot_verdicts_follow_acceptance_judge(tmp_path):
+    lot = write_lot(tmp_path / "lot.csv", 200, seed=6, offset_sigma_g=0.08)
+    cfg = tmp_path / "station.yaml"
+    cfg.write_text("acceptance:\n  offset_max_mg: 100\n  residual_rms_mg: 1.5\n  crossval_rms_mg: 2.0\n")
+    out = tmp_path / "r.jsonl"
+    r = CliRunner().invoke(main, ["batch", str(lot), "--out", str(out), "--config", str(cfg), "--json"])
+    assert r.exit_code == 0, r.output
+    summary = json.loads(r.output)
+    rows = [json.loads(ln) for ln in out.read_text().splitlines()]
+    assert len(rows) == 200 and summary["pass"] + summary["fail"] == 200 and summary["fail"] > 0
+    limits = Limits({"offset_max_mg": 100, "residual_rms_mg": 1.5, "crossval_rms_mg": 2.0})
+    text = lot.read_text().splitlines()[3:]
+    for d in (0, 1, 2, 3, 4, 5, 6, 7):
+        mine = [c.split(",") for c in text[8 * d:8 * d + 8]]
+        x = np.array([[float(v) for v in c[4:7]] for c in mine])
+        ref = an4399_reference(np.array([float(c[2]) for c in mine]), np.array([float(c[3]) for c in mine]))
+        v = judge(fit(x, ref, "12", units="counts", counts_per_g=4096, noise=np.full((8, 3), 4.0 / np.sqrt(200))),
+                  limits)
+        assert rows[d]["verdict"] == v.label and rows[d]["reasons"] == v.reasons
+
+
+@pytest.mark.parametrize("fmt", ["parquet", "jsonl"])
+def test_parquet_lot_and_other_result_formats_give_the_same_numbers(tmp_path, fmt):
+    pq = pytest.importorskip("pyarrow.parquet", reason="Parquet needs the optional pyarrow (the parquet extra)")
+    lot_csv = write_lot(tmp_path / "lot.csv", 150, seed=7)
+    lot_pq = write_lot(tmp_path / "lot.parquet", 150, seed=7, parquet=True)
+    recalibrate_lot(lot_csv, tmp_path / "a.csv", chunk_boards=40)
+    recalibrate_lot(lot_pq, tmp_path / f"b.{fmt}", chunk_boards=33)
+    a = _read_csv(tmp_path / "a.csv")
+    if fmt == "parquet":
+        b = pq.read_table(tmp_path / "b.parquet").to_pylist()
+    else:
+        b = [json.loads(ln) for ln in (tmp_path / "b.jsonl").read_text().splitlines()]
+    assert [r["serial"] for r in a] == [r["serial"] for r in b]
+    for ra, rb in zip(a, b):
+        for k in ("W00", "W12", "V1", "residual_rms_mg", "crossval_rms_mg", "condition_number"):
+            assert float(ra[k]) == pytest.approx(rb[k], rel=1e-12, abs=1e-15)
+
+
+def test_results_file_is_absent_when_the_run_dies_midway(tmp_path):
+    lot = write_lot(tmp_path / "lot.csv", 100, seed=8)
+    out = tmp_path / "results.csv"
+
+    def die(n):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        recalibrate_lot(lot, out, chunk_boards=10, progress=die)
+    assert not out.exists() and not list(tmp_path.glob(".*.tmp"))
+
+
+def test_lot_bad_input_is_one_line(tmp_path):
+    lot = tmp_path / "lot.csv"
+    lot.write_text("serial,pose,x,y,z,bogus\n")
+    r = CliRunner().invoke(main, ["batch", str(lot), "--out", str(tmp_path / "r.csv")])
+    assert r.exit_code == 2 and "unknown column 'bogus'" in r.output and "Traceback" not in r.output
+    good = write_lot(tmp_path / "g.csv", 3)
+    r = CliRunner().invoke(main, ["batch", str(good), "--out", str(tmp_path / "r.txt")])
+    assert r.exit_code == 2 and "unknown format" in r.output
+    link = tmp_path / "link.csv"
+    link.symlink_to(tmp_path / "elsewhere.csv")
+    r = CliRunner().invoke(main, ["batch", str(good), "--out", str(link)])
+    assert r.exit_code == 2 and "symbolic link" in r.output and not (tmp_path / "elsewhere.csv").exists()
+
+
+def test_model9_lot_matches_todays_fitter(tmp_path):
+    lot = write_lot(tmp_path / "lot.csv", 30, design="optimal-12", seed=9)
+    text = lot.read_text().splitlines()
+    text.insert(10, "# a comment line between rows is skipped")
+    lot.write_text("\n".join(text) + "\n")
+    s = recalibrate_lot(lot, tmp_path / "r.csv", model="9", chunk_boards=7)
+    assert (s.boards, s.fitted) == (30, 30)
+    rows = _read_csv(tmp_path / "r.csv")
+    body = [ln.split(",") for ln in lot.read_text().splitlines()[3:] if not ln.startswith("#")]
+    x = np.array([[float(v) for v in c[4:7]] for c in body]).reshape(30, 12, 3) / 4096
+    ref = fit_norm_batch(x)
+    for d in (0, 13, 29):
+        assert float(rows[d]["W11"]) == pytest.approx(ref.W[d, 1, 1], abs=1e-8)
+        assert float(rows[d]["V0"]) == pytest.approx(ref.V[d, 0], abs=1e-8)
+        assert float(rows[d]["crossval_rms_mg"]) == pytest.approx(ref.crossval_rms_g[d] * 1e3, abs=1e-3)
