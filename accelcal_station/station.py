@@ -28,6 +28,7 @@ from .fixtures.designs import get_design
 from .fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
 from .models import check_model, fit_session
 from .models.result import FitResult
+from .run_identity import IDENTITY_KEYS, identity_options
 from .session import PoseRecord, Session
 from .store import Store, store_path
 from .writer import BurnError, CalibrationWriter
@@ -82,7 +83,8 @@ class StationConfig:
         check_keys(raw, TOP_KEYS, str(p.name))
         if "device" not in raw:
             raise ConfigError(f"{p}: device: required (a mapping with a 'driver' key)")
-        st = check_keys(raw.get("station"), ["id"], "station")
+        st = check_keys(raw.get("station"), ["id", *IDENTITY_KEYS], "station")
+        identity_options(raw)
         plan = check_keys(raw.get("plan"), ["design", "model"], "plan")
         design = str(plan.get("design", "an4399-8"))
         get_design(design)  # unknown names fail now, not mid-run
@@ -254,6 +256,7 @@ class Station:
         self.progress = progress
         self.samples_read = 0
         self.samples_used = 0
+        self.operator_wait_s = 0.0
 
     # -- pieces -----------------------------------------------------------------------
     def _live(self, driver: Driver, gate: StillnessGate):
@@ -302,28 +305,38 @@ class Station:
         driver = self.driver
         with Store(cfg.store_file) as store:
             store.mark_stale_interrupted()
+            if cfg.limits.defaults_line():
+                self.echo(cfg.limits.defaults_line())
+                rep.events.append(cfg.limits.defaults_line())
             with driver:
-                ident = driver.identify()
+                try:
+                    ident = driver.identify()
+                    dev = cfg.raw["device"]
+                    driver.configure(dev.get("range_g"), dev.get("odr_hz"))
+                except AccelcalError as e:
+                    self._record_unreachable(store, e)
+                    raise
                 rep.serial = self.serial_override or ident.serial
                 rep.chip = ident.chip
-                dev = cfg.raw["device"]
-                driver.configure(dev.get("range_g"), dev.get("odr_hz"))
                 board = board_of(driver)
                 clock0 = board.clock.now() if board is not None else None
                 run_id = store.start_run(device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id,
                                          operator=self.operator, lot=self.lot, config_text=cfg.text,
                                          model=cfg.model, units="counts", counts_per_g=driver.counts_per_g)
                 rep.run_id = run_id
+                self._burn_log = lambda kind, data, r=run_id: store.log_event(r, kind, kind, data)
                 records: list[PoseRecord] = []
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
                 try:
                     with make_jig(cfg.raw.get("jig") or {"type": "simulated"}, driver, self.echo) as jig:
-                        self._run_poses(driver, jig, design, records, retries, rep)
-                        self._fit_judge_write(driver, jig, session, rep)
+                        try:
+                            self._run_poses(driver, jig, design, records, retries, rep)
+                            self._fit_judge_write(driver, jig, session, rep)
+                        finally:
+                            self.operator_wait_s = float(getattr(jig, "wait_s", 0.0))
                 except (AccelcalError, KeyboardInterrupt) as e:
-                    why = "operator aborted" if isinstance(e, OperatorAbort) else (
-                        "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
+                    why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else str(e)
                     store.interrupt_run(run_id, why, session=session if records else None,
                                         status="interrupted" if isinstance(e, (OperatorAbort, KeyboardInterrupt))
                                         else "error", retries=retries if records else None,
@@ -333,7 +346,7 @@ class Station:
                 try:
                     store.finish_run(run_id, session=session, calibration=rep.calibration,
                                      verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
-                                     fit_summary={"measured": rep.measured,
+                                     fit_summary={**fit_figures(rep.fit), "measured": rep.measured,
                                                   "verify_error_max_mg": rep.verify_error_max_mg,
                                                   "offset_trim_lsb": rep.offset_trim_lsb,
                                                   "design": cfg.design, "skipped": rep.skipped,
@@ -345,6 +358,13 @@ class Station:
                                         nvm_outcome=rep.nvm)
                     raise
         return rep
+
+    def _record_unreachable(self, store: Store, err: AccelcalError) -> None:
+        """A device that does not answer still leaves a record: status error, with the reason."""
+        cfg = self.cfg
+        rid = store.start_run(device_serial=self.serial_override, station_id=cfg.station_id,
+                              operator=self.operator, lot=self.lot, config_text=cfg.text, model=cfg.model)
+        store.interrupt_run(rid, f"device: {err}", status="error")
 
     def _run_poses(self, driver, jig, design, records, retries, rep) -> None:
         floor = None
@@ -404,13 +424,18 @@ class Station:
             rep.verdict, rep.reasons = "FAIL", ["nvm: the device has no NVM to write; set nvm.write: false"]
             return
         writer = CalibrationWriter(nvm, cfg.slot_size)
+        log = getattr(self, "_burn_log", None) or (lambda kind, data: None)
+        # recorded (committed) before the first byte: a crash mid-burn still says what may be on the board
+        log("nvm_burning", {"serial": rep.serial, "model": cal.model})
         try:
             outcome = writer.burn(cal, rep.serial, cfg.station_id)
         except BurnError as e:
             rep.nvm = e.outcome.to_dict()
+            log("nvm_burn_failed", rep.nvm)
             rep.verdict, rep.reasons = "FAIL", [f"nvm: {e}"]
             return
         rep.nvm = outcome.to_dict()
+        log("nvm_burned", rep.nvm)
         # closed loop through NVM: the calibration read back must do what the fitted one did
         back = writer.read_newest(rep.serial)
         if back is None:
@@ -475,12 +500,24 @@ class Station:
             "samples_read": self.samples_read,
             "sampling_floor_s": self.samples_used / odr,
             "sampling_s": self.samples_read / odr,
-            "host_compute_s": time.perf_counter() - wall0,  # wall time of the run on this host
+            "wall_s": time.perf_counter() - wall0,
         }
+        t["operator_wait_s"] = self.operator_wait_s
+        # host compute: wall time not spent waiting for the operator (nor, on a real-time
+        # board, sleeping through sampling and moves)
+        t["host_compute_s"] = max(0.0, t["wall_s"] - self.operator_wait_s)
         if board is not None:
             t["device_time_s"] = board.clock.now() - clock0  # moves, waits, EEPROM cycles, sampling
             t["board_time_s"] = t["device_time_s"] + (0.0 if board.clock.realtime else t["host_compute_s"])
         return t
+
+
+def fit_figures(fit: FitResult | None) -> dict[str, float | None]:
+    """The fit's scalar figures as the store keeps them (report list/export columns)."""
+    if fit is None:
+        return {}
+    return {"residual_rms_g": fit.residual_rms_g, "residual_max_g": fit.residual_max_g,
+            "crossval_rms_g": fit.crossval_rms_g, "condition_number": fit.condition_number}
 
 
 def config_hash(text: str) -> str:

@@ -8,6 +8,8 @@ import click
 
 from ..config import load_yaml
 from ..errors import DataError
+from ._mes import JsonGroup
+from ._text import clean
 from ..store import PARAM_NAMES, VERDICTS, STATUSES, Store, store_path
 
 
@@ -50,8 +52,18 @@ def _filters(device, lot, station, operator, verdict, status, since, until) -> d
             "verdict": verdict and verdict.upper(), "status": status, "since": since, "until": until}
 
 
-@click.group("report")
-def command() -> None:
+class ReportGroup(JsonGroup):
+    """`accelcal report [--db F] --json` lists the runs, as `report list --json` does."""
+
+    def describe(self, ctx: click.Context):
+        with _open(ctx.params.get("db"), ctx.params.get("config_path")) as store:
+            return store.list_runs()
+
+
+@click.group("report", cls=ReportGroup)
+@click.option("--db", default=None, metavar="FILE", help="With --json and no subcommand: the store to list.")
+@click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
+def command(db, config_path) -> None:
     """List, show, export and summarise recorded runs."""
 
 
@@ -97,9 +109,33 @@ def show_cmd(run_id, db, config_path, as_json):
     if rec["calibration"]:
         c = rec["calibration"]
         click.echo(f"{'W':16} {c['W']}\n{'V (g)':16} {c['V']}\n{'Gamma (1/g^2)':16} {c['Gamma']}")
+    for line in _fit_lines(rec.get("fit_summary") or {}):
+        click.echo(line)
     click.echo(f"{'poses':16} {len(rec['poses'])} ({rec['units']})")
     for p in rec["poses"]:
-        click.echo(f"  {p['name']:10} mean {[round(x, 2) for x in p['mean']]}  n {p['n']}  retries {p['retries']}")
+        click.echo(f"  {clean(p['name']):10} mean {[round(x, 2) for x in p['mean']]}  n {p['n']}  "
+                   f"retries {p['retries']}")
+    for e in rec.get("events") or []:
+        click.echo(f"{'event':16} {e['kind']}: {clean(e['message'] or '')}")
+
+
+def _fit_lines(fit: dict) -> list[str]:
+    """Residuals, cross-validation, verification error and timing of a recorded run."""
+    out = []
+    for key, label in (("residual_rms_g", "residual rms"), ("residual_max_g", "residual max"),
+                       ("crossval_rms_g", "cross-validated")):
+        if isinstance(fit.get(key), (int, float)):
+            out.append(f"{label:16} {fit[key] * 1e3:.3f} mg")
+    if isinstance(fit.get("condition_number"), (int, float)):
+        out.append(f"{'condition':16} {fit['condition_number']:.3g}")
+    if isinstance(fit.get("verify_error_max_mg"), (int, float)):
+        out.append(f"{'verify error':16} {fit['verify_error_max_mg']:.3f} mg (max, after calibration)")
+    if fit.get("skipped"):
+        out.append(f"{'skipped':16} {', '.join(map(clean, fit['skipped']))}")
+    t = fit.get("timing") or {}
+    if t:
+        out.append(f"{'timing':16} " + ", ".join(f"{k} {v:.3g}" for k, v in t.items() if isinstance(v, (int, float))))
+    return out
 
 
 @command.command("export")
@@ -112,8 +148,8 @@ def show_cmd(run_id, db, config_path, as_json):
 def export_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, output, fmt,
                poses, as_json):
     """Export runs as CSV (one row per run, calibration flattened; or per pose) or JSON (everything)."""
-    if fmt is None:
-        fmt = "json" if output and output.lower().endswith(".json") else "csv"
+    if fmt is None:  # --json without -o means JSON on stdout
+        fmt = "json" if (output and output.lower().endswith(".json")) or (as_json and output is None) else "csv"
     if fmt not in ("csv", "json"):
         raise DataError(f"--format {fmt!r}; allowed: csv, json")
     flt = _filters(device, lot, station, operator, verdict, status, since, until)

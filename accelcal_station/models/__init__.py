@@ -19,6 +19,7 @@ from ..session import Session
 from .gravity_norm import fit_norm_batch, nominal_scale
 from .linear import fit_linear_batch, six_param_six_face, six_param_two_pose
 from .result import BatchFit, FitResult
+from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
 
 MODELS = ("6", "9", "12", "15")
 
@@ -82,7 +83,23 @@ def fit_batch(readings, references=None, model="12", *, units: str = "g", counts
         res = fit_linear_batch(gf, ref, model, nz)
     res.input_units = units
     res.input_per_g = scale
+    _refuse_absurd(res, gf)
     return res
+
+
+def _refuse_absurd(res: BatchFit, gf: np.ndarray) -> None:
+    """Mark boards whose readings or coefficients are physically absurd as not fitted
+    (models/sanity.py): a degenerate calibration is never returned as a result."""
+    if res.model == "9":  # raw readings may carry any offset (unsigned counts): judge the output
+        why = absurd_norm_model(res.W, res.norm_error_g)
+    else:
+        why = [a or b for a, b in zip(absurd_readings(gf), absurd_coefficients(res.W, res.V))]
+    for d, w in enumerate(why):
+        if w and res.ok[d]:
+            res.ok[d] = False
+            res.messages[d] = w
+            if res.status:
+                res.status[d] = "failed"
 
 
 def fit(readings, references=None, model="12", *, units: str = "g", counts_per_g=None,

@@ -1,0 +1,59 @@
+"""What a manufacturing execution system (MES) reads: errors as one JSON object on stdout
+under --json, and group commands that describe themselves as JSON."""
+from __future__ import annotations
+
+import functools
+import json
+from typing import Iterable
+
+import click
+
+
+def wants_json(args: Iterable[str]) -> bool:
+    """--json anywhere on the command line before a bare '--'."""
+    for a in args:
+        if a == "--":
+            return False
+        if a == "--json":
+            return True
+    return False
+
+
+def emit_error(ctx: click.Context, message: str, code: int, kind: str) -> None:
+    """One line: red on stderr, or under --json one JSON object on stdout (nothing else there)."""
+    if ctx.meta.get("accelcal.json"):
+        click.echo(json.dumps({"error": message, "code": code, "kind": kind}))
+    else:
+        click.secho(f"error: {message}" if kind != "internal" else message, fg="red", err=True)
+
+
+def commands_doc(group: click.Group, ctx: click.Context) -> dict:
+    """A group's subcommands as JSON: name and one-line help of each."""
+    return {"command": ctx.command_path, "help": (group.help or "").strip().split("\n")[0],
+            "subcommands": [{"name": n, "help": group.commands[n].get_short_help_str(200)}
+                            for n in group.list_commands(ctx)]}
+
+
+class JsonGroup(click.Group):
+    """A group that, called bare with --json, prints its subcommands as one JSON object."""
+
+    def __init__(self, *a, **kw):
+        kw.setdefault("invoke_without_command", True)
+        super().__init__(*a, **kw)
+        self.params.append(click.Option(["--json", "group_json"], is_flag=True,
+                                         help="Called without a subcommand: print the subcommands as JSON."))
+        cb = self.callback
+        if cb is not None:  # the group's own function does not take the flag
+            self.callback = functools.update_wrapper(lambda *a, group_json=False, **k: cb(*a, **k), cb)
+
+    def invoke(self, ctx: click.Context):
+        if ctx.invoked_subcommand is None:
+            if ctx.params.get("group_json"):
+                click.echo(json.dumps(self.describe(ctx)))
+            else:
+                click.echo(ctx.get_help())
+            return None
+        return super().invoke(ctx)
+
+    def describe(self, ctx: click.Context) -> dict:
+        return commands_doc(self, ctx)
