@@ -97,6 +97,9 @@ class StationConfig:
         settings = CaptureSettings(**{
             k: number(cap, k, "capture", getattr(defaults, k), lo=0.0,
                       integer=isinstance(getattr(defaults, k), int)) for k in cap})
+        for k in ("block_s", "max_s", "settle_timeout_s", "min_samples"):
+            if getattr(settings, k) <= 0:
+                raise ConfigError(f"capture.{k}: {getattr(settings, k)!r}; allowed: a positive number")
         if settings.k_leave < settings.k_enter:
             raise ConfigError("capture.k_leave must be >= capture.k_enter (hysteresis)")
         nvm = check_keys(raw.get("nvm"), ["write", "slot_size", "offset_trim"], "nvm")

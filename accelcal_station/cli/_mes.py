@@ -42,18 +42,16 @@ class JsonGroup(click.Group):
         super().__init__(*a, **kw)
         self.params.append(click.Option(["--json", "group_json"], is_flag=True,
                                          help="Called without a subcommand: print the subcommands as JSON."))
-        cb = self.callback
-        if cb is not None:  # the group's own function does not take the flag
-            self.callback = functools.update_wrapper(lambda *a, group_json=False, **k: cb(*a, **k), cb)
+        cb = self.callback or (lambda **k: None)
 
-    def invoke(self, ctx: click.Context):
-        if ctx.invoked_subcommand is None:
-            if ctx.params.get("group_json"):
-                click.echo(json.dumps(self.describe(ctx)))
-            else:
-                click.echo(ctx.get_help())
-            return None
-        return super().invoke(ctx)
+        def callback(*args, group_json=False, **kwargs):
+            ctx = click.get_current_context()
+            if ctx.invoked_subcommand is None:  # bare: describe (JSON) or help, nothing else
+                click.echo(json.dumps(self.describe(ctx)) if group_json else ctx.get_help())
+                ctx.exit(0)
+            return cb(*args, **kwargs)
 
-    def describe(self, ctx: click.Context) -> dict:
+        self.callback = functools.update_wrapper(callback, cb)
+
+    def describe(self, ctx: click.Context):
         return commands_doc(self, ctx)
