@@ -78,8 +78,12 @@ def measure(fit: FitResult) -> dict[str, float]:
     return m
 
 
-def judge(fit: FitResult, limits: Limits, verify_error_max_mg: float | None = None) -> Verdict:
-    """PASS only if every configured limit holds; a limit that cannot be measured fails."""
+def judge(fit: FitResult, limits: Limits, verify_error_max_mg: float | None = None,
+          planned_poses: int = 0) -> Verdict:
+    """PASS only if every configured limit holds; a limit that cannot be measured fails.
+
+    The fit must also rest on enough distinct poses: the model's unknowns per axis plus
+    one, and every pose the plan has (a skipped pose fails the run)."""
     m = measure(fit)
     if verify_error_max_mg is not None:
         m["verify_error_max_mg"] = verify_error_max_mg
@@ -89,6 +93,8 @@ def judge(fit: FitResult, limits: Limits, verify_error_max_mg: float | None = No
     if have < need:
         reasons.append(f"distinct_poses {have} < {need} needed by model {fit.model} "
                        "(its unknowns per axis plus one, so cross-validation is measurable)")
+    elif have < planned_poses:
+        reasons.append(f"distinct_poses {have} < {planned_poses} planned (a pose was skipped or repeated)")
     for key, lim in limits.values.items():
         if key not in m:
             if key == "verify_error_max_mg" and verify_error_max_mg is None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import sys
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -311,8 +312,9 @@ class Station:
             if cfg.limits.defaults_line():
                 self.echo(cfg.limits.defaults_line())
                 rep.events.append(cfg.limits.defaults_line())
-            with driver:
+            with ExitStack() as stack:
                 try:
+                    stack.enter_context(driver)  # opening a port that nobody answers on is recorded too
                     ident = driver.identify()
                     dev = cfg.raw["device"]
                     driver.configure(dev.get("range_g"), dev.get("odr_hz"))
@@ -401,7 +403,8 @@ class Station:
             return
         rep.fit = fit
         rep.calibration = fit.calibration
-        verdict = judge(fit, cfg.limits)
+        planned = len(get_design(cfg.design))
+        verdict = judge(fit, cfg.limits, planned_poses=planned)
         rep.measured = verdict.measured
         if not verdict.passed:
             rep.verdict, rep.reasons = "FAIL", verdict.reasons
@@ -414,7 +417,7 @@ class Station:
         if checks:
             err = self._verify_error(cal, checks)
             rep.verify_error_max_mg = err
-            verdict = judge(fit, cfg.limits, err)
+            verdict = judge(fit, cfg.limits, err, planned_poses=planned)
             rep.measured = verdict.measured
             if not verdict.passed:
                 rep.verdict, rep.reasons = "FAIL", verdict.reasons
