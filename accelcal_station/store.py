@@ -212,6 +212,7 @@ class RunRecord:
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
     events: list[dict] = field(default_factory=list)
+    damaged: list[str] = field(default_factory=list)  # JSON columns that did not parse (shown, not fatal)
 
     def session(self) -> Session:
         return Session(list(self.poses), self.units or "counts", self.counts_per_g, self.gravity_mps2,
@@ -252,7 +253,7 @@ class Store:
         self._db.row_factory = sqlite3.Row
         try:
             self._db.execute("PRAGMA foreign_keys = ON")
-            self._migrate()
+            self._migrate(create)
         except sqlite3.DatabaseError as e:
             self._db.close()
             raise StoreError(f"{self.path}: not a usable results store ({e})") from None
@@ -299,10 +300,15 @@ class Store:
             raise StoreError(f"{self.path}: cannot read runs ({e})") from None
         finally:
             if self._db.in_transaction:
-                self._db.execute("COMMIT")
+                try:
+                    self._db.execute("COMMIT")
+                except sqlite3.Error as e:  # a damaged page can surface only here
+                    raise StoreError(f"{self.path}: cannot read runs ({e})") from None
 
-    def _migrate(self) -> None:
+    def _migrate(self, create: bool = True) -> None:
         version = self._db.execute("PRAGMA user_version").fetchone()[0]
+        if version == 0 and not create:  # a reader never writes a schema into a file it only reads
+            raise StoreError(f"{self.path}: not an accelcal results store (no schema); nothing was written")
         if version > SCHEMA_VERSION:
             raise StoreError(f"{self.path}: results store schema version {version} is newer than this "
                              f"station's {SCHEMA_VERSION}; upgrade accelcal-station")
@@ -471,22 +477,25 @@ class Store:
             rows = self._runs(filters, limit)
         out = []
         for r in rows:
-            fit = json.loads(r["fit_summary"]) if r["fit_summary"] else {}
+            damaged = [c for c in ("fit_summary", "reasons") if _damaged(r[c])]
+            fit = {} if "fit_summary" in damaged else (json.loads(r["fit_summary"]) if r["fit_summary"] else {})
             out.append({"id": r["id"], "started_at": iso(r["started_at"]), "finished_at": iso(r["finished_at"]),
                         "status": r["status"], "status_reason": r["status_reason"],
                         "device_serial": r["device_serial"], "chip": r["chip"], "station_id": r["station_id"],
                         "operator": r["operator"], "lot": r["lot"], "model": r["model"], "verdict": r["verdict"],
-                        "reasons": json.loads(r["reasons"]) if r["reasons"] else [],
+                        "reasons": [] if "reasons" in damaged or not r["reasons"] else json.loads(r["reasons"]),
                         "nvm_status": r["nvm_status"], "pose_count": counts.get(r["id"], 0),
-                        "residual_rms_g": fit.get("residual_rms_g")})
+                        "residual_rms_g": fit.get("residual_rms_g") if isinstance(fit, dict) else None,
+                        **({"damaged": damaged} if damaged else {})})
         return out
 
     def _record(self, r: sqlite3.Row) -> RunRecord:
-        load = lambda k: None if r[k] is None else json.loads(r[k])  # noqa: E731
-        rec = RunRecord(**{k: r[k] for k in r.keys() if k not in ("reasons", "nvm_outcome", "calibration",
-                                                                   "fit_summary")},
+        cols = ("reasons", "nvm_outcome", "calibration", "fit_summary")
+        damaged = [k for k in cols if _damaged(r[k])]
+        load = lambda k: None if r[k] is None or k in damaged else json.loads(r[k])  # noqa: E731
+        rec = RunRecord(**{k: r[k] for k in r.keys() if k not in cols},
                         reasons=load("reasons") or [], nvm_outcome=load("nvm_outcome"),
-                        calibration=load("calibration"), fit_summary=load("fit_summary"))
+                        calibration=load("calibration"), fit_summary=load("fit_summary"), damaged=damaged)
         for p in self._db.execute("SELECT * FROM poses WHERE run_id = ? ORDER BY idx", (r["id"],)):
             vec = lambda c: None if p[f"{c}_x"] is None else [p[f"{c}_{a}"] for a in AXES]  # noqa: E731
             rec.poses.append(PoseRecord(p["name"], vec("mean"), vec("std"), p["n"], vec("ref"), p["pitch_deg"],
@@ -570,13 +579,13 @@ class Store:
         fail_reasons: Counter = Counter()
         for r in done:
             if r["verdict"] == "FAIL":
-                fail_reasons.update({reason_code(x) for x in json.loads(r["reasons"] or "[]")})
-        cals = [json.loads(r["calibration"]) for r in done if r["calibration"]]
+                fail_reasons.update({reason_code(x) for x in _load_or(r["reasons"], [])})
+        cals = [c for c in (_load_or(r["calibration"], None) for r in done) if c]
         params = None
         if cals:
             s = _stats(np.array([param_vector(c) for c in cals]))
             params = {name: {k: (v if k == "n" else v[i]) for k, v in s.items()} for i, name in enumerate(PARAM_NAMES)}
-        fits = [json.loads(r["fit_summary"]) for r in done if r["fit_summary"]]
+        fits = [f for f in (_load_or(r["fit_summary"], None) for r in done) if isinstance(f, dict)]
         fit_stats = {}
         for k in _FIT_SCALARS:
             vals = [f[k] for f in fits if isinstance(f.get(k), (int, float))]
@@ -599,6 +608,22 @@ class Store:
             "parameters": params,
             "fit": fit_stats,
         }
+
+
+def _damaged(text) -> bool:
+    """A JSON column that does not parse: the row is shown as damaged, the listing goes on."""
+    if text is None:
+        return False
+    try:
+        json.loads(text)
+    except (TypeError, ValueError):
+        return True
+    return False
+
+
+def _load_or(text, default):
+    """A JSON column's value, or ``default`` when it is empty or damaged."""
+    return default if text is None or _damaged(text) else json.loads(text)
 
 
 def _alive(pid: int) -> bool:

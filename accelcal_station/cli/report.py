@@ -85,7 +85,8 @@ def list_cmd(db, config_path, device, lot, station, operator, verdict, status, s
         click.echo(f"{r['id']:>5}  {r['started_at'][:16].replace('T', ' '):16}  {r['status']:11}  "
                    f"{r['device_serial'] or '':14}  {r['lot'] or '':8}  {r['verdict'] or '':7}  "
                    f"{r['nvm_status'] or '':7}  {r['pose_count']:5}  {rms:>7}  "
-                   f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
+                   + clean(f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
+                   + (f"  DAMAGED ({', '.join(r['damaged'])} unreadable)" if r.get("damaged") else ""))
     click.echo(f"{len(runs)} run(s)")
 
 
@@ -104,8 +105,10 @@ def show_cmd(run_id, db, config_path, as_json):
     for k in ("id", "status", "status_reason", "started_at_iso", "finished_at_iso", "device_serial", "chip",
               "station_id", "operator", "lot", "config_hash", "model", "verdict", "nvm_status"):
         click.echo(f"{k:16} {rec[k] if rec[k] is not None else ''}")
+    if rec.get("damaged"):
+        click.echo(f"{'DAMAGED':16} {', '.join(rec['damaged'])} unreadable in the store")
     for reason in rec["reasons"]:
-        click.echo(f"{'reason':16} {reason}")
+        click.echo(f"{'reason':16} {clean(reason)}")
     if rec["calibration"]:
         c = rec["calibration"]
         click.echo(f"{'W':16} {c['W']}\n{'V (g)':16} {c['V']}\n{'Gamma (1/g^2)':16} {c['Gamma']}")
