@@ -15,6 +15,7 @@ import time
 import tty
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
@@ -207,3 +208,24 @@ def test_emulate_prints_a_seed_that_seed_accepts():
     seed = _emulate_seed()
     assert isinstance(seed, int) and seed >= 0  # fresh entropy: usually beyond 2**32
     assert _emulate_seed("--seed", str(seed)) == seed
+
+
+def test_lot_report_html_and_run_plot(tmp_path):
+    pytest.importorskip("matplotlib")
+    path = sim_config(tmp_path)
+    db = str(tmp_path / "runs.sqlite")
+    for _ in range(3):
+        assert CliRunner().invoke(cli, ["run", "--config", path]).exit_code == 0
+    page = tmp_path / "lot.html"
+    r = CliRunner().invoke(cli, ["report", "summary", "--db", db, "--html", str(page)])
+    assert r.exit_code == 0, r.output
+    text = page.read_text()
+    assert "pass rate 100.0 %" in text and text.count("data:image/png;base64,") == 1 + 9
+    assert all(f"<h3>{n}</h3>" in text for n in ("W00", "V2 (mg)", "W12"))
+    # individuals chart: x = 1, 2, 4 -> centre 7/3, mean moving range 1.5, sigma 1.5 / 1.128
+    from accelcal_station.lot_report import control_limits
+    c, lo, hi = control_limits(np.array([1.0, 2.0, 4.0]))
+    assert c == pytest.approx(7 / 3) and hi - c == pytest.approx(3 * 1.5 / 1.128)
+    png = tmp_path / "r1.png"
+    r = CliRunner().invoke(cli, ["report", "plot", "1", "--db", db, "-o", str(png)])
+    assert r.exit_code == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

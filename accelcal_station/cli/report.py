@@ -174,10 +174,20 @@ def export_cmd(db, config_path, device, lot, station, operator, verdict, status,
 @command.command("summary")
 @_filter_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-def summary_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, as_json):
+@click.option("--html", "html_file", default=None, metavar="FILE",
+              help="Also write a lot report (histograms vs limits, pass rate and reasons over time, control "
+                   "charts) as one HTML file with embedded PNGs.")
+def summary_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, as_json,
+                html_file):
     """Lot summary: counts, pass rate, failure reasons, parameter distributions."""
+    flt = _filters(device, lot, station, operator, verdict, status, since, until)
     with _open(db, config_path) as store:
-        s = store.lot_summary(**_filters(device, lot, station, operator, verdict, status, since, until))
+        s = store.lot_summary(**flt)
+        if html_file is not None:
+            from ..lot_report import write_lot_html
+
+            write_lot_html(store.runs(**flt), html_file, f"accelcal lot report{f' - lot {lot}' if lot else ''}")
+            click.echo(f"lot report written to {html_file}", err=True)
     if as_json:
         click.echo(json.dumps(s, indent=1))
         return
@@ -197,3 +207,19 @@ def summary_cmd(db, config_path, device, lot, station, operator, verdict, status
             click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")
     for name, d in s["fit"].items():
         click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")
+
+
+@command.command("plot")
+@click.argument("run_id", type=int)
+@click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")
+@click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
+@click.option("-o", "--output", default=None, metavar="FILE.png", help="Figure file (default run-ID-residuals.png).")
+def plot_cmd(run_id, db, config_path, output):
+    """Draw one run's residuals per pose and axis (PNG)."""
+    from ..lot_report import residual_figure
+
+    with _open(db, config_path) as store:
+        rec = store.get_run(run_id)
+    out = output or f"run-{run_id}-residuals.png"
+    residual_figure(rec, out)
+    click.echo(f"residuals of run {run_id} drawn in {out}")
