@@ -8,6 +8,7 @@ import numpy as np
 from .config import check_keys, number
 from .models.result import FitResult
 from .models.sanity import distinct_directions, poses_needed
+from .reasons import Reason
 
 LIMIT_KEYS = {
     "residual_rms_mg": "RMS of per-pose per-axis residuals, mg",
@@ -51,7 +52,7 @@ class Limits:
 @dataclass
 class Verdict:
     passed: bool
-    reasons: list[str]
+    reasons: list[Reason]
     measured: dict[str, float]
 
     @property
@@ -91,15 +92,16 @@ def judge(fit: FitResult, limits: Limits, verify_error_max_mg: float | None = No
     have, need = distinct_directions(fit.readings_g), poses_needed(fit.model)
     m["distinct_poses"] = float(have)
     if have < need:
-        reasons.append(f"distinct_poses {have} < {need} needed by model {fit.model} "
-                       "(its unknowns per axis plus one, so cross-validation is measurable)")
+        reasons.append(Reason("distinct_poses", f"{have} < {need} needed by model {fit.model} (its unknowns "
+                              "per axis plus one, so cross-validation is measurable)", " "))
     elif have < planned_poses:
-        reasons.append(f"distinct_poses {have} < {planned_poses} planned (a pose was skipped or repeated)")
+        reasons.append(Reason("distinct_poses", f"{have} < {planned_poses} planned (a pose was skipped or "
+                              "repeated)", " "))
     for key, lim in limits.values.items():
         if key not in m:
             if key == "verify_error_max_mg" and verify_error_max_mg is None:
                 continue  # judged after verification
-            reasons.append(f"{key}: not measurable for this fit (limit {lim:g})")
+            reasons.append(Reason(key, f"not measurable for this fit (limit {lim:g})"))
         elif not m[key] <= lim:
-            reasons.append(f"{key} {m[key]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})")
+            reasons.append(Reason(key, f"{m[key]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})", " "))
     return Verdict(not reasons, reasons, m)

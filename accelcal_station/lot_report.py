@@ -103,7 +103,8 @@ def _time_figure(plt, done: list[RunRecord]) -> str:
         per_day[d]["runs"] += 1
         per_day[d]["pass"] += r.verdict == "PASS"
         if r.verdict == "FAIL":
-            for code in {reason_code(x) for x in r.reasons}:
+            typed = (r.fit_summary or {}).get("reason_codes") if isinstance(r.fit_summary, dict) else None
+            for code in set(typed) if isinstance(typed, list) and all(typed) else {reason_code(x) for x in r.reasons}:
                 per_day[d][f"reason:{code}"] += 1
                 reasons[code] += 1
     rate = [per_day[d]["pass"] / per_day[d]["runs"] * 100 for d in days]

@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 
 from .acceptance import Limits, judge
-from .calibration import Calibration
+from .calibration import MODELS, Calibration
 from .capture import CaptureSettings, StillnessGate, WrongPose, gated_capture
 from .config import check_keys, choice, load_yaml, number
 from .drivers import Driver, make_driver
@@ -29,6 +29,7 @@ from .fixtures.designs import get_design
 from .fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
 from .models import check_model, fit_session
 from .models.result import FitResult
+from .reasons import Reason, codes
 from .run_identity import IDENTITY_KEYS, identity_options
 from .session import PoseRecord, Session
 from .store import Store, store_path
@@ -92,7 +93,7 @@ class StationConfig:
         try:
             model = check_model(plan.get("model", "12"))
         except AccelcalError:
-            raise ConfigError(f"plan.model: {plan.get('model')!r}; allowed: 6, 9, 12, 15") from None
+            raise ConfigError(f"plan.model: {plan.get('model')!r}; allowed: {', '.join(MODELS)}") from None
         cap = check_keys(raw.get("capture"), CaptureSettings.__dataclass_fields__, "capture")
         defaults = CaptureSettings()
         settings = CaptureSettings(**{
@@ -181,7 +182,7 @@ class RunReport:
     chip: str = ""
     station_id: str = ""
     verdict: str = "FAIL"
-    reasons: list[str] = field(default_factory=list)
+    reasons: list[Reason] = field(default_factory=list)
     model: str = ""
     design: str = ""
     fit: FitResult | None = None
@@ -201,7 +202,8 @@ class RunReport:
         f, c = self.fit, self.calibration
         return {
             "run_id": self.run_id, "serial": self.serial, "chip": self.chip, "station_id": self.station_id,
-            "verdict": self.verdict, "reasons": self.reasons, "model": self.model, "design": self.design,
+            "verdict": self.verdict, "reasons": [str(r) for r in self.reasons], "reason_codes": codes(self.reasons),
+            "model": self.model, "design": self.design,
             "W": None if c is None else c.W.tolist(), "V": None if c is None else c.V.tolist(),
             "Gamma": None if c is None else c.Gamma.tolist(),
             "residual_rms_mg": None if f is None else f.residual_rms_g * 1e3,
@@ -351,7 +353,8 @@ class Station:
                 try:
                     store.finish_run(run_id, session=session, calibration=rep.calibration,
                                      verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
-                                     fit_summary={**fit_figures(rep.fit), "measured": rep.measured,
+                                     fit_summary={**fit_figures(rep.fit), "reason_codes": codes(rep.reasons),
+                                                  "measured": rep.measured,
                                                   "verify_error_max_mg": rep.verify_error_max_mg,
                                                   "offset_trim_lsb": rep.offset_trim_lsb,
                                                   "design": cfg.design, "skipped": rep.skipped,
@@ -399,7 +402,7 @@ class Station:
         try:
             fit = fit_session(session, cfg.model)
         except UnderdeterminedError as e:
-            rep.verdict, rep.reasons = "FAIL", [f"fit: {e}"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("fit", str(e))]
             return
         rep.fit = fit
         rep.calibration = fit.calibration
@@ -427,7 +430,7 @@ class Station:
             return
         nvm = driver.nvm
         if nvm is None:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: the device has no NVM to write; set nvm.write: false"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "the device has no NVM to write; set nvm.write: false")]
             return
         writer = CalibrationWriter(nvm, cfg.slot_size)
         log = getattr(self, "_burn_log", None) or (lambda kind, data: None)
@@ -438,14 +441,14 @@ class Station:
         except BurnError as e:
             rep.nvm = e.outcome.to_dict()
             log("nvm_burn_failed", rep.nvm)
-            rep.verdict, rep.reasons = "FAIL", [f"nvm: {e}"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
             return
         rep.nvm = outcome.to_dict()
         log("nvm_burned", rep.nvm)
         # closed loop through NVM: the calibration read back must do what the fitted one did
         back = writer.read_newest(rep.serial)
         if back is None:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: no valid calibration readable after writing"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "no valid calibration readable after writing")]
             return
         stored = back[0]
         if checks:
@@ -455,7 +458,7 @@ class Station:
             same = np.allclose(stored.W, cal.W) and np.allclose(stored.V, cal.V)
         rep.nvm_verified = bool(same)
         if not same:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: calibration read back from NVM differs from the fitted one"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "calibration read back from NVM differs from the fitted one")]
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
 
     def _trim_offsets(self, driver, cal: Calibration, rep: RunReport) -> Calibration:

@@ -579,7 +579,10 @@ class Store:
         fail_reasons: Counter = Counter()
         for r in done:
             if r["verdict"] == "FAIL":
-                fail_reasons.update({reason_code(x) for x in _load_or(r["reasons"], [])})
+                fit = _load_or(r["fit_summary"], None)
+                typed = fit.get("reason_codes") if isinstance(fit, dict) else None
+                fail_reasons.update(set(typed) if isinstance(typed, list) and all(typed) else
+                                    {reason_code(x) for x in _load_or(r["reasons"], [])})  # older rows: parsed
         cals = [c for c in (_load_or(r["calibration"], None) for r in done) if c]
         params = None
         if cals:

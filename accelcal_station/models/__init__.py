@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..calibration import Calibration, TemperatureTable
+from ..calibration import MODELS, Calibration, TemperatureTable
 from ..conventions import check_units, units_per_g
 from ..errors import DataError, UnderdeterminedError, UnitsError
 from ..session import Session
@@ -21,13 +21,12 @@ from .linear import fit_linear_batch, six_param_six_face, six_param_two_pose
 from .result import BatchFit, FitResult
 from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
 
-MODELS = ("6", "9", "12", "15")
 
 
 def check_model(model) -> str:
     m = str(model)
     if m not in MODELS:
-        raise DataError(f"model {model!r}; allowed: 6, 9, 12, 15")
+        raise DataError(f"model {model!r}; allowed: {', '.join(MODELS)}")
     return m
 
 

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .linear import N_COEF
+
 # a pose's reading of gravity, in g: far outside this the sample is not a reading of 1 g
 READING_NORM_G = (0.3, 3.0)
 # W maps reading (g) to g: a gain off by 2x or an inverted axis is no calibration
@@ -17,7 +19,7 @@ COND_MAX = 10.0
 OFFSET_MAX_G = 1.0
 # two poses are one pose for counting when their readings point within this angle
 DISTINCT_DEG = 5.0
-PARAMS_PER_AXIS = {"6": 2, "9": 9, "12": 4, "15": 5}
+PARAMS_PER_AXIS = {**N_COEF, "9": 9}  # model 9: nine parameters, all from every pose
 
 
 def distinct_directions(readings_g: np.ndarray, tol_deg: float = DISTINCT_DEG) -> int:
