@@ -34,10 +34,10 @@ class StationGroup(JsonGroup):
             ctx.exit(130)
         except click.exceptions.Exit:
             raise
-        except click.ClickException as e:
-            if not ctx.meta.get("accelcal.json"):
-                raise
-            emit_error(ctx, clean(e.format_message()), e.exit_code, "usage")
+        except click.ClickException as e:  # usage errors too: one line, with where to look
+            sub = getattr(e, "ctx", None)
+            hint = f" (see {sub.command_path} --help)" if isinstance(e, click.UsageError) and sub else ""
+            emit_error(ctx, clean(e.format_message()) + hint, e.exit_code, "usage")
             ctx.exit(e.exit_code)
         except click.exceptions.Abort:
             raise

@@ -70,6 +70,27 @@ def fit_batch(readings, references=None, model="12", *, units: str = "g", counts
     nz = None
     if noise is not None:
         nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]
+    gf_fit = gf
+    if model != "9" and references is not None:
+        # a board with an absurd reading (1e308) is fitted on its references instead, so it
+        # cannot overflow the stack, and is then refused with the reading named
+        bad = np.array([bool(w) for w in absurd_readings(gf)])
+        if bad.any():
+            ref = np.broadcast_to(np.asarray(references, dtype=float), gf.shape)
+            gf_fit = np.where(bad[:, None, None], ref, gf)
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            res = _fit_stack(gf_fit, references, x, model, nz)
+    except np.linalg.LinAlgError:
+        raise DataError("the readings cannot be fitted (numerically singular or overflowing: "
+                        "a reading far beyond the sensor's range?)") from None
+    res.input_units = units
+    res.input_per_g = scale
+    _refuse_absurd(res, gf)
+    return res
+
+
+def _fit_stack(gf, references, x, model: str, nz) -> BatchFit:
     if model == "9":
         res = fit_norm_batch(gf, noise_g=nz)
     else:
@@ -80,9 +101,6 @@ def fit_batch(readings, references=None, model="12", *, units: str = "g", counts
         if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
             raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
         res = fit_linear_batch(gf, ref, model, nz)
-    res.input_units = units
-    res.input_per_g = scale
-    _refuse_absurd(res, gf)
     return res
 
 
