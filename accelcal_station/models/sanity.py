@@ -43,7 +43,8 @@ def poses_needed(model: str) -> int:
 
 def absurd_readings(gf: np.ndarray) -> list[str]:
     """Per board of (D, P, 3) readings in g: '' or why some pose is not a reading of gravity."""
-    norms = np.linalg.norm(gf, axis=-1)
+    with np.errstate(over="ignore"):  # 1e308 squared is inf: still refused
+        norms = np.linalg.norm(gf, axis=-1)
     lo, hi = READING_NORM_G
     bad = ~((norms >= lo) & (norms <= hi))
     out = []
