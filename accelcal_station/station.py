@@ -331,7 +331,7 @@ class Station:
                                          operator=self.operator, lot=self.lot, config_text=cfg.text,
                                          model=cfg.model, units="counts", counts_per_g=driver.counts_per_g)
                 rep.run_id = run_id
-                self._burn_log = lambda kind, data, r=run_id: store.log_event(r, kind, kind, data)
+                self._burn_log = lambda kind, data, r=run_id: store.record_burn(r, kind, data)
                 records: list[PoseRecord] = []
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
@@ -434,10 +434,10 @@ class Station:
             return
         writer = CalibrationWriter(nvm, cfg.slot_size)
         log = getattr(self, "_burn_log", None) or (lambda kind, data: None)
-        # recorded (committed) before the first byte: a crash mid-burn still says what may be on the board
-        log("nvm_burning", {"serial": rep.serial, "model": cal.model})
         try:
-            outcome = writer.burn(cal, rep.serial, cfg.station_id)
+            # recorded (committed) before the first byte: a crash mid-burn still says what may be on the board
+            outcome = writer.burn(cal, rep.serial, cfg.station_id,
+                                  before_write=lambda o: log("nvm_burning", o.to_dict()))
         except BurnError as e:
             rep.nvm = e.outcome.to_dict()
             log("nvm_burn_failed", rep.nvm)

@@ -410,11 +410,26 @@ class Store:
             self._running(db, run_id)
             if session is not None:
                 self._insert_poses(db, run_id, session, retries)
-            db.execute("UPDATE runs SET status = ?, status_reason = ?, finished_at = ?, nvm_status = ?,"
-                       " nvm_outcome = ? WHERE id = ?",
+            # no outcome given: keep what record_burn wrote (a burn cut short stays 'burning')
+            db.execute("UPDATE runs SET status = ?, status_reason = ?, finished_at = ?,"
+                       " nvm_status = coalesce(?, nvm_status), nvm_outcome = coalesce(?, nvm_outcome) WHERE id = ?",
                        (status, str(reason), _time.time(),
                         None if nvm_outcome is None else ("written" if nvm_outcome.get("ok") else "failed"),
                         _json(nvm_outcome), run_id))
+
+    def record_burn(self, run_id: int, kind: str, outcome: dict) -> None:
+        """A burn as it happens, committed at once: ``nvm_burning`` (slot, generation, blob CRC)
+        sets the run's nvm_status to ``burning`` before the first byte; ``nvm_burned`` /
+        ``nvm_burn_failed`` to ``burned`` / ``failed`` (finish_run then records the outcome)."""
+        status = {"nvm_burning": "burning", "nvm_burned": "burned", "nvm_burn_failed": "failed"}[kind]
+        crc = outcome.get("crc32")
+        with self._tx(f"record the burn of run {run_id}") as db:
+            db.execute("INSERT INTO events (run_id, t, kind, message, data) VALUES (?, ?, ?, ?, ?)",
+                       (run_id, _time.time(), kind, f"slot {outcome.get('slot')}, generation "
+                        f"{outcome.get('generation')}, CRC-32 {crc if crc is None else f'0x{crc:08x}'}",
+                        _json(outcome)))
+            db.execute("UPDATE runs SET nvm_status = ?, nvm_outcome = ? WHERE id = ?",
+                       (status, _json(outcome), run_id))
 
     def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None) -> None:
         """Append an event (a rejected capture, an operator prompt, ...), committed at once."""

@@ -192,7 +192,8 @@ class CalibrationWriter:
                            f"(wrote 0x{data[off]:02x}, read 0x{back[off]:02x})")
 
     def burn(self, calibration: Calibration, serial: str, station_id: str, *, time: float | None = None,
-             backup_to: str | Path | None = None) -> BurnOutcome:
+             backup_to: str | Path | None = None,
+             before_write: Callable[[BurnOutcome], None] | None = None) -> BurnOutcome:
         """Write ``calibration`` to the slot not holding the newest valid blob, with generation + 1.
 
         Refuses a blob larger than a slot before writing anything.  A newest blob bound
@@ -223,6 +224,8 @@ class CalibrationWriter:
             outcome.backup = str(backup_to)
         kept = "no previous calibration" if prev is None else \
             f"previous calibration (slot {SLOTS[prev]}, generation {previous['generation']}) is untouched"
+        if before_write is not None:  # e.g. the store records slot, generation and CRC before any byte
+            before_write(outcome)
         try:
             self._write_verified(outcome.addr, blob, f"burn of NVM slot {SLOTS[target]}")
             newest = self._newest(self._scan())

@@ -229,3 +229,29 @@ def test_lot_report_html_and_run_plot(tmp_path):
     png = tmp_path / "r1.png"
     r = CliRunner().invoke(cli, ["report", "plot", "1", "--db", db, "-o", str(png)])
     assert r.exit_code == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_crash_during_the_burn_leaves_the_run_burning_with_the_blob_crc(tmp_path):
+    """Power is cut (the EEPROM raises mid-page, as the fault injector does) and then the
+    station process dies before it can record anything else: the store already says
+    `burning`, with the slot, generation and CRC-32 of the blob being written."""
+    from accelcal_station.station import Station, StationConfig
+    from accelcal_station.drivers import make_driver
+
+    cfg = StationConfig.load(sim_config(tmp_path))
+    driver = make_driver(cfg.raw["device"])
+
+    class Died(BaseException):
+        pass
+
+    def die(*_a, **_k):
+        raise Died()
+    driver.nvm.write = die  # the process dies at the first byte of the burn
+    with pytest.raises(Died):
+        Station(cfg, echo=lambda s: None, driver=driver).run()
+    (status, nvm_status, outcome), = db_row(tmp_path, "SELECT status, nvm_status, nvm_outcome FROM runs")
+    assert status == "running" and nvm_status == "burning"
+    o = json.loads(outcome)
+    assert o["slot"] == "A" and o["generation"] == 1 and isinstance(o["crc32"], int)
+    kinds = [k for k, in db_row(tmp_path, "SELECT kind FROM events")]
+    assert kinds == ["nvm_burning"]
