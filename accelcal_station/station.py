@@ -7,7 +7,6 @@ NVM -> record everything in the store.  A board that fails is never written.
 """
 from __future__ import annotations
 
-import hashlib
 import sys
 import time
 from contextlib import ExitStack
@@ -16,7 +15,6 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-import yaml
 
 from .acceptance import Limits, judge
 from .calibration import MODELS, Calibration
@@ -527,11 +525,3 @@ def fit_figures(fit: FitResult | None) -> dict[str, float | None]:
         return {}
     return {"residual_rms_g": fit.residual_rms_g, "residual_max_g": fit.residual_max_g,
             "crossval_rms_g": fit.crossval_rms_g, "condition_number": fit.condition_number}
-
-
-def config_hash(text: str) -> str:
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
-def dump_config(cfg: StationConfig) -> str:
-    return yaml.safe_dump(cfg.raw, sort_keys=False)
