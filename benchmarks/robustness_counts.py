@@ -124,7 +124,7 @@ def main() -> None:
     from test_restore_power_loss import SCENARIOS, sweep  # the test's own sweep
     faults = survived = 0
     with tempfile.TemporaryDirectory() as d:
-        for b, i in SCENARIOS + [(3, 2), (2, 3), (5, 4)]:
+        for b, i in SCENARIOS + [(3, 2), (2, 3), (4, 5), (5, 4)]:
             f, s = sweep(b, i, Path(d))
             faults, survived = faults + f, survived + s
     print(f"faults: {faults} power losses injected into nvm restore, {survived} left the board's previous "

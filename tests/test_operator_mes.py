@@ -214,7 +214,7 @@ def test_lot_report_html_and_run_plot(tmp_path):
     pytest.importorskip("matplotlib")
     path = sim_config(tmp_path)
     db = str(tmp_path / "runs.sqlite")
-    for _ in range(3):
+    for _ in range(2):  # two boards: the fewest a control chart's moving range needs
         assert CliRunner().invoke(cli, ["run", "--config", path]).exit_code == 0
     page = tmp_path / "lot.html"
     r = CliRunner().invoke(cli, ["report", "summary", "--db", db, "--html", str(page)])
@@ -255,3 +255,11 @@ def test_a_crash_during_the_burn_leaves_the_run_burning_with_the_blob_crc(tmp_pa
     assert o["slot"] == "A" and o["generation"] == 1 and isinstance(o["crc32"], int)
     kinds = [k for k, in db_row(tmp_path, "SELECT kind FROM events")]
     assert kinds == ["nvm_burning"]
+
+
+def test_report_group_db_reaches_its_subcommands(tmp_path):
+    path = sim_config(tmp_path)
+    assert CliRunner().invoke(cli, ["run", "--config", path]).exit_code == 0
+    db = str(tmp_path / "runs.sqlite")
+    r = CliRunner().invoke(cli, ["report", "--db", db, "list", "--json"])
+    assert r.exit_code == 0 and len(json.loads(r.stdout)) == 1

@@ -34,7 +34,12 @@ def _filter_options(f):
 
 
 def _open(db, config_path) -> Store:
-    """--db, else the store of --config, else that of the default station (as `accelcal run`)."""
+    """--db, else the store of --config, else that of the default station (as `accelcal run`);
+    `accelcal report --db F SUBCOMMAND` gives the subcommand that store too."""
+    ctx = click.get_current_context(silent=True)
+    group = ctx.parent.params if ctx is not None and ctx.parent is not None else {}
+    db = db if db is not None else group.get("db")
+    config_path = config_path if config_path is not None else group.get("config_path")
     if db is not None:
         return Store(Path(db), create=False)
     from ..station import default_config_path
