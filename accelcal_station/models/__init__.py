@@ -31,7 +31,8 @@ def check_model(model) -> str:
 
 
 def check_plausible_g(gf: np.ndarray, units: str) -> None:
-    norms = np.linalg.norm(gf, axis=-1)
+    with np.errstate(over="ignore"):  # a 1e308 reading is refused per pose later (models/sanity.py)
+        norms = np.linalg.norm(gf, axis=-1)
     med = float(np.median(norms))
     if not (0.3 <= med <= 3.0):
         hint = "counts given as g? use --units counts --counts-per-g N" if med > 3 else "wrong counts_per_g?"
