@@ -70,6 +70,8 @@ def _run_in_pty(tmp_path, how: str):
         os.write(master, b"\r")
         _read_until(master, b"a=abort")
         if how == "eof":
+            live = _read_until(master, b"\x1b7\x1b[1A", timeout_s=10)  # the live line redrawn while waiting
+            assert b"now [" in live + _read_until(master, b"]", timeout_s=5)
             os.write(master, b"\x04")
         else:
             time.sleep(0.5)  # as a person would: a signal in the instant between the prompt and the read is lost
