@@ -7,6 +7,8 @@ import numpy as np
 
 from .config import check_keys, number
 from .models.result import FitResult
+from .models.sanity import distinct_directions, poses_needed
+from .reasons import Reason
 
 LIMIT_KEYS = {
     "residual_rms_mg": "RMS of per-pose per-axis residuals, mg",
@@ -22,20 +24,35 @@ LIMIT_KEYS = {
 }
 
 
+# limits every run is judged on even when a config leaves them out (printed when used):
+# a cross-validated error this large means some pose disagrees with the others by tens of mg
+DEFAULT_LIMITS = {"crossval_rms_mg": 10.0}
+
+
 @dataclass
 class Limits:
     values: dict[str, float] = field(default_factory=dict)
+    defaulted: list[str] = field(default_factory=list)  # keys filled from DEFAULT_LIMITS
 
     @classmethod
     def from_config(cls, d: dict | None, path: str = "acceptance") -> "Limits":
         d = check_keys(d or {}, LIMIT_KEYS, path)
-        return cls({k: number(d, k, path, lo=0.0) for k in d})
+        values = {k: number(d, k, path, lo=0.0) for k in d}
+        missing = [k for k in DEFAULT_LIMITS if k not in values]
+        return cls({**values, **{k: DEFAULT_LIMITS[k] for k in missing}}, missing)
+
+    def defaults_line(self) -> str:
+        """One line naming the safe defaults in use, or ''."""
+        if not self.defaulted:
+            return ""
+        return "acceptance: " + ", ".join(f"{k} not set, using the safe default {self.values[k]:g}"
+                                          for k in self.defaulted)
 
 
 @dataclass
 class Verdict:
     passed: bool
-    reasons: list[str]
+    reasons: list[Reason]
     measured: dict[str, float]
 
     @property
@@ -62,17 +79,29 @@ def measure(fit: FitResult) -> dict[str, float]:
     return m
 
 
-def judge(fit: FitResult, limits: Limits, verify_error_max_mg: float | None = None) -> Verdict:
-    """PASS only if every configured limit holds; a limit that cannot be measured fails."""
+def judge(fit: FitResult, limits: Limits, verify_error_max_mg: float | None = None,
+          planned_poses: int = 0) -> Verdict:
+    """PASS only if every configured limit holds; a limit that cannot be measured fails.
+
+    The fit must also rest on enough distinct poses: the model's unknowns per axis plus
+    one, and every pose the plan has (a skipped pose fails the run)."""
     m = measure(fit)
     if verify_error_max_mg is not None:
         m["verify_error_max_mg"] = verify_error_max_mg
     reasons = []
+    have, need = distinct_directions(fit.readings_g), poses_needed(fit.model)
+    m["distinct_poses"] = float(have)
+    if have < need:
+        reasons.append(Reason("distinct_poses", f"{have} < {need} needed by model {fit.model} (its unknowns "
+                              "per axis plus one, so cross-validation is measurable)", " "))
+    elif have < planned_poses:
+        reasons.append(Reason("distinct_poses", f"{have} < {planned_poses} planned (a pose was skipped or "
+                              "repeated)", " "))
     for key, lim in limits.values.items():
         if key not in m:
             if key == "verify_error_max_mg" and verify_error_max_mg is None:
                 continue  # judged after verification
-            reasons.append(f"{key}: not measurable for this fit (limit {lim:g})")
+            reasons.append(Reason(key, f"not measurable for this fit (limit {lim:g})"))
         elif not m[key] <= lim:
-            reasons.append(f"{key} {m[key]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})")
+            reasons.append(Reason(key, f"{m[key]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})", " "))
     return Verdict(not reasons, reasons, m)

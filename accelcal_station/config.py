@@ -7,19 +7,26 @@ from typing import Any, Iterable
 import yaml
 
 from .errors import ConfigError
+from .safe_yaml import MAX_BYTES, HostileYAML, safe_load
 
 
 def load_yaml(path) -> dict:
     """Read a YAML mapping; errors name the file and line."""
     p = Path(path)
     try:
-        text = p.read_text()
+        size = p.stat().st_size
+        if p.is_file() and size > MAX_BYTES:  # refused by its size before a byte is read
+            raise ConfigError(f"{p}: {size} bytes; a configuration is at most {MAX_BYTES} bytes")
+        with open(p, encoding="utf-8") as f:
+            text = f.read(MAX_BYTES + 1)  # a FIFO or device is never read without end
     except OSError as e:
         raise ConfigError(f"{p}: cannot read ({e.strerror})") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{p}: not a text file (expected a YAML configuration)") from None
     try:
-        data = yaml.safe_load(text)
+        data = safe_load(text)
+    except HostileYAML as e:
+        raise ConfigError(f"{p}: refused ({e})") from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
@@ -97,18 +104,8 @@ def vector3(d: dict, key: str, path: str, default=None, lo: float | None = None,
 
 
 def atomic_write_text(path, text: str) -> None:
-    """Write through a temporary file, fsync and rename: the file is whole or absent, never
-    half written.  Raises OSError (callers turn it into their own one-line error)."""
-    import os
+    """Write whole or not at all, never through a symlink (atomic.atomic_write).
+    Raises OSError (callers turn it into their own one-line error)."""
+    from .atomic import atomic_write
 
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, p)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    atomic_write(path, text)

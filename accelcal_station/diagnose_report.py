@@ -13,6 +13,7 @@ import numpy as np
 
 from .diagnose import MIN_GAP_SHRINK, Diagnosis
 from .errors import AccelcalError, DataError
+from .atomic import atomic_write
 from .posetable import atomic_write_text
 
 FIGURES = {"sphere": "residuals over the sphere of orientations", "level": "residual against input level",
@@ -196,12 +197,28 @@ def _pyplot():
     return plt
 
 
+SYSTEM_DIRS = ("/", "/bin", "/boot", "/dev", "/etc", "/lib", "/lib64", "/opt", "/proc", "/root", "/run",
+               "/sbin", "/srv", "/sys", "/tmp", "/usr", "/var", "/home")
+
+
+def is_system_dir(p: Path) -> bool:
+    """/ and the system's own folders (and anything under /proc, /sys, /dev, /etc, /usr...)."""
+    r = p.expanduser().resolve()
+    if str(r) in SYSTEM_DIRS or r == Path.home().resolve():
+        return True
+    return any(r.is_relative_to(d) for d in ("/proc", "/sys", "/dev", "/etc", "/boot", "/bin", "/sbin",
+                                              "/lib", "/usr"))
+
+
 def check_report_dir(path) -> Path:
     """The report directory, checked before any analysis runs (write_report creates it, so a
     run that fails leaves no empty directory behind)."""
     _pyplot()
     p = Path(path)
-    if p.exists() and not p.is_dir():
+    if is_system_dir(p):
+        raise DataError(f"--report {path}: refusing a system folder; allowed: a folder of your own "
+                        "(e.g. ./diagnosis)")
+    if p.is_symlink() or (p.exists() and not p.is_dir()):
         raise DataError(f"--report {path}: exists and is not a directory")
     if not p.parent.is_dir():
         raise DataError(f"--report {path}: cannot create it (no such directory {p.parent})")
@@ -214,14 +231,11 @@ def _save(fig, files: list[Path], path: Path) -> None:
     """Write one figure whole (temporary file, rename), list it, and free it."""
     import matplotlib.pyplot as plt
 
-    files.append(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
     try:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight")
-        os.replace(tmp, path)
+        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
     finally:
-        tmp.unlink(missing_ok=True)
         plt.close(fig)
+    files.append(path)  # only files this run wrote are ever removed on a later failure
 
 
 def _z_pose(e) -> np.ndarray | None:
@@ -366,7 +380,7 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
     for f in files:
         title = FIGURES.get(f.stem, "noise: Allan deviation")
         md += [f"## {title[0].upper() + title[1:]}", "", f"![{title}]({f.name})", ""]
+    atomic_write_text(out / "summary.md", "\n".join(md) + "\n")
     files.append(out / "summary.md")
-    atomic_write_text(files[-1], "\n".join(md) + "\n")
     return files
 

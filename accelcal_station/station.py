@@ -7,18 +7,17 @@ NVM -> record everything in the store.  A board that fails is never written.
 """
 from __future__ import annotations
 
-import hashlib
 import sys
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-import yaml
 
 from .acceptance import Limits, judge
-from .calibration import Calibration
+from .calibration import MODELS, Calibration
 from .capture import CaptureSettings, StillnessGate, WrongPose, gated_capture
 from .config import check_keys, choice, load_yaml, number
 from .drivers import Driver, make_driver
@@ -28,6 +27,8 @@ from .fixtures.designs import get_design
 from .fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
 from .models import check_model, fit_session
 from .models.result import FitResult
+from .reasons import Reason, codes
+from .run_identity import IDENTITY_KEYS, identity_options
 from .session import PoseRecord, Session
 from .store import Store, store_path, store_target
 from .writer import BurnError, CalibrationWriter
@@ -82,19 +83,23 @@ class StationConfig:
         check_keys(raw, TOP_KEYS, str(p.name))
         if "device" not in raw:
             raise ConfigError(f"{p}: device: required (a mapping with a 'driver' key)")
-        st = check_keys(raw.get("station"), ["id"], "station")
+        st = check_keys(raw.get("station"), ["id", *IDENTITY_KEYS], "station")
+        identity_options(raw)
         plan = check_keys(raw.get("plan"), ["design", "model"], "plan")
         design = str(plan.get("design", "an4399-8"))
         get_design(design)  # unknown names fail now, not mid-run
         try:
             model = check_model(plan.get("model", "12"))
         except AccelcalError:
-            raise ConfigError(f"plan.model: {plan.get('model')!r}; allowed: 6, 9, 12, 15") from None
+            raise ConfigError(f"plan.model: {plan.get('model')!r}; allowed: {', '.join(MODELS)}") from None
         cap = check_keys(raw.get("capture"), CaptureSettings.__dataclass_fields__, "capture")
         defaults = CaptureSettings()
         settings = CaptureSettings(**{
             k: number(cap, k, "capture", getattr(defaults, k), lo=0.0,
                       integer=isinstance(getattr(defaults, k), int)) for k in cap})
+        for k in ("block_s", "max_s", "settle_timeout_s", "min_samples"):
+            if getattr(settings, k) <= 0:
+                raise ConfigError(f"capture.{k}: {getattr(settings, k)!r}; allowed: a positive number")
         if settings.k_leave < settings.k_enter:
             raise ConfigError("capture.k_leave must be >= capture.k_enter (hysteresis)")
         nvm = check_keys(raw.get("nvm"), ["write", "slot_size", "offset_trim"], "nvm")
@@ -175,7 +180,7 @@ class RunReport:
     chip: str = ""
     station_id: str = ""
     verdict: str = "FAIL"
-    reasons: list[str] = field(default_factory=list)
+    reasons: list[Reason] = field(default_factory=list)
     model: str = ""
     design: str = ""
     fit: FitResult | None = None
@@ -195,7 +200,8 @@ class RunReport:
         f, c = self.fit, self.calibration
         return {
             "run_id": self.run_id, "serial": self.serial, "chip": self.chip, "station_id": self.station_id,
-            "verdict": self.verdict, "reasons": self.reasons, "model": self.model, "design": self.design,
+            "verdict": self.verdict, "reasons": [str(r) for r in self.reasons], "reason_codes": codes(self.reasons),
+            "model": self.model, "design": self.design,
             "W": None if c is None else c.W.tolist(), "V": None if c is None else c.V.tolist(),
             "Gamma": None if c is None else c.Gamma.tolist(),
             "residual_rms_mg": None if f is None else f.residual_rms_g * 1e3,
@@ -254,6 +260,7 @@ class Station:
         self.progress = progress
         self.samples_read = 0
         self.samples_used = 0
+        self.operator_wait_s = 0.0
 
     # -- pieces -----------------------------------------------------------------------
     def _live(self, driver: Driver, gate: StillnessGate):
@@ -302,28 +309,39 @@ class Station:
         driver = self.driver
         with Store(cfg.store_file) as store:
             store.mark_stale_interrupted()
-            with driver:
-                ident = driver.identify()
+            if cfg.limits.defaults_line():
+                self.echo(cfg.limits.defaults_line())
+                rep.events.append(cfg.limits.defaults_line())
+            with ExitStack() as stack:
+                try:
+                    stack.enter_context(driver)  # opening a port that nobody answers on is recorded too
+                    ident = driver.identify()
+                    dev = cfg.raw["device"]
+                    driver.configure(dev.get("range_g"), dev.get("odr_hz"))
+                except AccelcalError as e:
+                    self._record_unreachable(store, e)
+                    raise
                 rep.serial = self.serial_override or ident.serial
                 rep.chip = ident.chip
-                dev = cfg.raw["device"]
-                driver.configure(dev.get("range_g"), dev.get("odr_hz"))
                 board = board_of(driver)
                 clock0 = board.clock.now() if board is not None else None
                 run_id = store.start_run(device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id,
                                          operator=self.operator, lot=self.lot, config_text=cfg.text,
                                          model=cfg.model, units="counts", counts_per_g=driver.counts_per_g)
                 rep.run_id = run_id
+                self._burn_log = lambda kind, data, r=run_id: store.record_burn(r, kind, data)
                 records: list[PoseRecord] = []
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
                 try:
                     with make_jig(cfg.raw.get("jig") or {"type": "simulated"}, driver, self.echo) as jig:
-                        self._run_poses(driver, jig, design, records, retries, rep)
-                        self._fit_judge_write(driver, jig, session, rep)
+                        try:
+                            self._run_poses(driver, jig, design, records, retries, rep)
+                            self._fit_judge_write(driver, jig, session, rep)
+                        finally:
+                            self.operator_wait_s = float(getattr(jig, "wait_s", 0.0))
                 except (AccelcalError, KeyboardInterrupt) as e:
-                    why = "operator aborted" if isinstance(e, OperatorAbort) else (
-                        "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
+                    why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else str(e)
                     store.interrupt_run(run_id, why, session=session if records else None,
                                         status="interrupted" if isinstance(e, (OperatorAbort, KeyboardInterrupt))
                                         else "error", retries=retries if records else None,
@@ -333,7 +351,8 @@ class Station:
                 try:
                     store.finish_run(run_id, session=session, calibration=rep.calibration,
                                      verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
-                                     fit_summary={"measured": rep.measured,
+                                     fit_summary={**fit_figures(rep.fit), "reason_codes": codes(rep.reasons),
+                                                  "measured": rep.measured,
                                                   "verify_error_max_mg": rep.verify_error_max_mg,
                                                   "offset_trim_lsb": rep.offset_trim_lsb,
                                                   "design": cfg.design, "skipped": rep.skipped,
@@ -345,6 +364,13 @@ class Station:
                                         nvm_outcome=rep.nvm)
                     raise
         return rep
+
+    def _record_unreachable(self, store: Store, err: AccelcalError) -> None:
+        """A device that does not answer still leaves a record: status error, with the reason."""
+        cfg = self.cfg
+        rid = store.start_run(device_serial=self.serial_override, station_id=cfg.station_id,
+                              operator=self.operator, lot=self.lot, config_text=cfg.text, model=cfg.model)
+        store.interrupt_run(rid, f"device: {err}", status="error")
 
     def _run_poses(self, driver, jig, design, records, retries, rep) -> None:
         floor = None
@@ -374,11 +400,12 @@ class Station:
         try:
             fit = fit_session(session, cfg.model)
         except UnderdeterminedError as e:
-            rep.verdict, rep.reasons = "FAIL", [f"fit: {e}"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("fit", str(e))]
             return
         rep.fit = fit
         rep.calibration = fit.calibration
-        verdict = judge(fit, cfg.limits)
+        planned = len(get_design(cfg.design))
+        verdict = judge(fit, cfg.limits, planned_poses=planned)
         rep.measured = verdict.measured
         if not verdict.passed:
             rep.verdict, rep.reasons = "FAIL", verdict.reasons
@@ -391,7 +418,7 @@ class Station:
         if checks:
             err = self._verify_error(cal, checks)
             rep.verify_error_max_mg = err
-            verdict = judge(fit, cfg.limits, err)
+            verdict = judge(fit, cfg.limits, err, planned_poses=planned)
             rep.measured = verdict.measured
             if not verdict.passed:
                 rep.verdict, rep.reasons = "FAIL", verdict.reasons
@@ -401,20 +428,25 @@ class Station:
             return
         nvm = driver.nvm
         if nvm is None:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: the device has no NVM to write; set nvm.write: false"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "the device has no NVM to write; set nvm.write: false")]
             return
         writer = CalibrationWriter(nvm, cfg.slot_size)
+        log = getattr(self, "_burn_log", None) or (lambda kind, data: None)
         try:
-            outcome = writer.burn(cal, rep.serial, cfg.station_id)
+            # recorded (committed) before the first byte: a crash mid-burn still says what may be on the board
+            outcome = writer.burn(cal, rep.serial, cfg.station_id,
+                                  before_write=lambda o: log("nvm_burning", o.to_dict()))
         except BurnError as e:
             rep.nvm = e.outcome.to_dict()
-            rep.verdict, rep.reasons = "FAIL", [f"nvm: {e}"]
+            log("nvm_burn_failed", rep.nvm)
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
             return
         rep.nvm = outcome.to_dict()
+        log("nvm_burned", rep.nvm)
         # closed loop through NVM: the calibration read back must do what the fitted one did
         back = writer.read_newest(rep.serial)
         if back is None:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: no valid calibration readable after writing"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "no valid calibration readable after writing")]
             return
         stored = back[0]
         if checks:
@@ -424,7 +456,7 @@ class Station:
             same = np.allclose(stored.W, cal.W) and np.allclose(stored.V, cal.V)
         rep.nvm_verified = bool(same)
         if not same:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: calibration read back from NVM differs from the fitted one"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "calibration read back from NVM differs from the fitted one")]
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
 
     def _trim_offsets(self, driver, cal: Calibration, rep: RunReport) -> Calibration:
@@ -475,17 +507,21 @@ class Station:
             "samples_read": self.samples_read,
             "sampling_floor_s": self.samples_used / odr,
             "sampling_s": self.samples_read / odr,
-            "host_compute_s": time.perf_counter() - wall0,  # wall time of the run on this host
+            "wall_s": time.perf_counter() - wall0,
         }
+        t["operator_wait_s"] = self.operator_wait_s
+        # host compute: wall time not spent waiting for the operator (nor, on a real-time
+        # board, sleeping through sampling and moves)
+        t["host_compute_s"] = max(0.0, t["wall_s"] - self.operator_wait_s)
         if board is not None:
             t["device_time_s"] = board.clock.now() - clock0  # moves, waits, EEPROM cycles, sampling
             t["board_time_s"] = t["device_time_s"] + (0.0 if board.clock.realtime else t["host_compute_s"])
         return t
 
 
-def config_hash(text: str) -> str:
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
-def dump_config(cfg: StationConfig) -> str:
-    return yaml.safe_dump(cfg.raw, sort_keys=False)
+def fit_figures(fit: FitResult | None) -> dict[str, float | None]:
+    """The fit's scalar figures as the store keeps them (report list/export columns)."""
+    if fit is None:
+        return {}
+    return {"residual_rms_g": fit.residual_rms_g, "residual_max_g": fit.residual_max_g,
+            "crossval_rms_g": fit.crossval_rms_g, "condition_number": fit.condition_number}

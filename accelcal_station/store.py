@@ -232,6 +232,7 @@ class RunRecord:
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
     events: list[dict] = field(default_factory=list)
+    damaged: list[str] = field(default_factory=list)  # JSON columns that did not parse (shown, not fatal)
 
     def session(self) -> Session:
         return Session(list(self.poses), self.units or "counts", self.counts_per_g, self.gravity_mps2,
@@ -276,7 +277,7 @@ class Store:
             raise StoreError(f"{name}: cannot open results store ({_msg(e)})") from None
         self.path = self._db.path if self._db.dialect == "sqlite" else self._db.name
         try:
-            self._migrate()
+            self._migrate(create)
         except SQLError as e:
             self._db.close()
             raise StoreError(f"{self.path}: not a usable results store ({_msg(e)})") from None
@@ -333,10 +334,15 @@ class Store:
             raise StoreError(f"{self.path}: cannot read runs ({_msg(e)})") from None
         finally:
             if self._db.in_transaction:
-                self._db.commit()
+                try:
+                    self._db.commit()
+                except _sqlerror() as e:  # a damaged page can surface only here
+                    raise StoreError(f"{self.path}: cannot read runs ({_msg(e)})") from None
 
-    def _migrate(self) -> None:
+    def _migrate(self, create: bool = True) -> None:
         version = self._db.schema_version()
+        if version == 0 and not create:  # a reader never writes a schema into a file it only reads
+            raise StoreError(f"{self.path}: not an accelcal results store (no schema); nothing was written")
         if version > SCHEMA_VERSION:
             raise StoreError(f"{self.path}: results store schema version {version} is newer than this "
                              f"station's {SCHEMA_VERSION}; upgrade accelcal-station")
@@ -440,11 +446,26 @@ class Store:
             self._running(db, run_id)
             if session is not None:
                 self._insert_poses(db, run_id, session, retries)
-            db.execute("UPDATE runs SET status = ?, status_reason = ?, finished_at = ?, nvm_status = ?,"
-                       " nvm_outcome = ? WHERE id = ?",
+            # no outcome given: keep what record_burn wrote (a burn cut short stays 'burning')
+            db.execute("UPDATE runs SET status = ?, status_reason = ?, finished_at = ?,"
+                       " nvm_status = coalesce(?, nvm_status), nvm_outcome = coalesce(?, nvm_outcome) WHERE id = ?",
                        (status, str(reason), _time.time(),
                         None if nvm_outcome is None else ("written" if nvm_outcome.get("ok") else "failed"),
                         _json(nvm_outcome), run_id))
+
+    def record_burn(self, run_id: int, kind: str, outcome: dict) -> None:
+        """A burn as it happens, committed at once: ``nvm_burning`` (slot, generation, blob CRC)
+        sets the run's nvm_status to ``burning`` before the first byte; ``nvm_burned`` /
+        ``nvm_burn_failed`` to ``burned`` / ``failed`` (finish_run then records the outcome)."""
+        status = {"nvm_burning": "burning", "nvm_burned": "burned", "nvm_burn_failed": "failed"}[kind]
+        crc = outcome.get("crc32")
+        with self._tx(f"record the burn of run {run_id}") as db:
+            db.execute("INSERT INTO events (run_id, t, kind, message, data) VALUES (?, ?, ?, ?, ?)",
+                       (run_id, _time.time(), kind, f"slot {outcome.get('slot')}, generation "
+                        f"{outcome.get('generation')}, CRC-32 {crc if crc is None else f'0x{crc:08x}'}",
+                        _json(outcome)))
+            db.execute("UPDATE runs SET nvm_status = ?, nvm_outcome = ? WHERE id = ?",
+                       (status, _json(outcome), run_id))
 
     def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None) -> None:
         """Append an event (a rejected capture, an operator prompt, ...), committed at once."""
@@ -507,22 +528,25 @@ class Store:
             rows = self._runs(filters, limit)
         out = []
         for r in rows:
-            fit = json.loads(r["fit_summary"]) if r["fit_summary"] else {}
+            damaged = [c for c in ("fit_summary", "reasons") if _damaged(r[c])]
+            fit = {} if "fit_summary" in damaged else (json.loads(r["fit_summary"]) if r["fit_summary"] else {})
             out.append({"id": r["id"], "started_at": iso(r["started_at"]), "finished_at": iso(r["finished_at"]),
                         "status": r["status"], "status_reason": r["status_reason"],
                         "device_serial": r["device_serial"], "chip": r["chip"], "station_id": r["station_id"],
                         "operator": r["operator"], "lot": r["lot"], "model": r["model"], "verdict": r["verdict"],
-                        "reasons": json.loads(r["reasons"]) if r["reasons"] else [],
+                        "reasons": [] if "reasons" in damaged or not r["reasons"] else json.loads(r["reasons"]),
                         "nvm_status": r["nvm_status"], "pose_count": counts.get(r["id"], 0),
-                        "residual_rms_g": fit.get("residual_rms_g")})
+                        "residual_rms_g": fit.get("residual_rms_g") if isinstance(fit, dict) else None,
+                        **({"damaged": damaged} if damaged else {})})
         return out
 
     def _record(self, r: Row) -> RunRecord:
-        load = lambda k: None if r[k] is None else json.loads(r[k])  # noqa: E731
-        rec = RunRecord(**{k: r[k] for k in r.keys() if k not in ("reasons", "nvm_outcome", "calibration",
-                                                                   "fit_summary")},
+        cols = ("reasons", "nvm_outcome", "calibration", "fit_summary")
+        damaged = [k for k in cols if _damaged(r[k])]
+        load = lambda k: None if r[k] is None or k in damaged else json.loads(r[k])  # noqa: E731
+        rec = RunRecord(**{k: r[k] for k in r.keys() if k not in cols},
                         reasons=load("reasons") or [], nvm_outcome=load("nvm_outcome"),
-                        calibration=load("calibration"), fit_summary=load("fit_summary"))
+                        calibration=load("calibration"), fit_summary=load("fit_summary"), damaged=damaged)
         for p in self._db.execute("SELECT * FROM poses WHERE run_id = ? ORDER BY idx", (r["id"],)):
             vec = lambda c: None if p[f"{c}_x"] is None else [p[f"{c}_{a}"] for a in AXES]  # noqa: E731
             rec.poses.append(PoseRecord(p["name"], vec("mean"), vec("std"), p["n"], vec("ref"), p["pitch_deg"],
@@ -606,13 +630,16 @@ class Store:
         fail_reasons: Counter = Counter()
         for r in done:
             if r["verdict"] == "FAIL":
-                fail_reasons.update({reason_code(x) for x in json.loads(r["reasons"] or "[]")})
-        cals = [json.loads(r["calibration"]) for r in done if r["calibration"]]
+                fit = _load_or(r["fit_summary"], None)
+                typed = fit.get("reason_codes") if isinstance(fit, dict) else None
+                fail_reasons.update(set(typed) if isinstance(typed, list) and all(typed) else
+                                    {reason_code(x) for x in _load_or(r["reasons"], [])})  # older rows: parsed
+        cals = [c for c in (_load_or(r["calibration"], None) for r in done) if c]
         params = None
         if cals:
             s = _stats(np.array([param_vector(c) for c in cals]))
             params = {name: {k: (v if k == "n" else v[i]) for k, v in s.items()} for i, name in enumerate(PARAM_NAMES)}
-        fits = [json.loads(r["fit_summary"]) for r in done if r["fit_summary"]]
+        fits = [f for f in (_load_or(r["fit_summary"], None) for r in done) if isinstance(f, dict)]
         fit_stats = {}
         for k in _FIT_SCALARS:
             vals = [f[k] for f in fits if isinstance(f.get(k), (int, float))]
@@ -635,6 +662,22 @@ class Store:
             "parameters": params,
             "fit": fit_stats,
         }
+
+
+def _damaged(text) -> bool:
+    """A JSON column that does not parse: the row is shown as damaged, the listing goes on."""
+    if text is None:
+        return False
+    try:
+        json.loads(text)
+    except (TypeError, ValueError):
+        return True
+    return False
+
+
+def _load_or(text, default):
+    """A JSON column's value, or ``default`` when it is empty or damaged."""
+    return default if text is None or _damaged(text) else json.loads(text)
 
 
 def _alive(pid: int) -> bool:

@@ -192,7 +192,8 @@ class CalibrationWriter:
                            f"(wrote 0x{data[off]:02x}, read 0x{back[off]:02x})")
 
     def burn(self, calibration: Calibration, serial: str, station_id: str, *, time: float | None = None,
-             backup_to: str | Path | None = None) -> BurnOutcome:
+             backup_to: str | Path | None = None,
+             before_write: Callable[[BurnOutcome], None] | None = None) -> BurnOutcome:
         """Write ``calibration`` to the slot not holding the newest valid blob, with generation + 1.
 
         Refuses a blob larger than a slot before writing anything.  A newest blob bound
@@ -223,6 +224,8 @@ class CalibrationWriter:
             outcome.backup = str(backup_to)
         kept = "no previous calibration" if prev is None else \
             f"previous calibration (slot {SLOTS[prev]}, generation {previous['generation']}) is untouched"
+        if before_write is not None:  # e.g. the store records slot, generation and CRC before any byte
+            before_write(outcome)
         try:
             self._write_verified(outcome.addr, blob, f"burn of NVM slot {SLOTS[target]}")
             newest = self._newest(self._scan())
@@ -312,10 +315,40 @@ class CalibrationWriter:
                            f"not this board's {serial!r}; allow another serial (--any-serial) to restore it")
         if backup_to is not None:
             self.backup(backup_to)
-        for j in self._order([st.state == "valid" for st, _, _ in image_scan]):
-            s = j * self.slot_size
-            self._write_verified(self.slot_addr(j), img[s: s + self.slot_size], f"restore of NVM slot {SLOTS[j]}")
+        for j, content in self._restore_plan(self.image(), img):
+            self._write_verified(self.slot_addr(j), content, f"restore of NVM slot {SLOTS[j]}")
         return self.status()
+
+    def _newest_id(self, image: bytes) -> tuple | None:
+        """Identity (generation, CRC-32, serial) of the newest valid blob of an image, or None."""
+        scan = self._scan(image)
+        i = self._newest(scan)
+        return None if i is None else (scan[i][2].generation, scan[i][2].crc32, scan[i][2].serial)
+
+    def _restore_plan(self, cur: bytes, img: bytes) -> list[tuple[int, bytes]]:
+        """Slot writes taking the NVM from ``cur`` to ``img`` such that after a power loss at
+        any point (a slot torn, i.e. invalid, or whole) the newest valid blob is the board's
+        previous newest or the image's newest.  Plans are checked by simulation; the
+        three-write plan first copies the image's newest blob over the board's older slot."""
+        n = self.slot_size
+        allowed = {self._newest_id(cur), self._newest_id(img)}
+        part = lambda b, j: b[j * n: (j + 1) * n]  # noqa: E731
+        put = lambda b, j, c: b[:j * n] + c + b[(j + 1) * n:]  # noqa: E731
+        torn = b"\x00" * n  # any torn slot fails its CRC: modelled as an invalid slot
+        plans = [[(0, part(img, 0)), (1, part(img, 1))], [(1, part(img, 1)), (0, part(img, 0))]]
+        k = self._newest(self._scan(img))
+        if k is not None:
+            plans.append([(1 - k, part(img, k)), (k, part(img, k)), (1 - k, part(img, 1 - k))])
+        for plan in plans:
+            state, safe = cur, True
+            for j, content in plan:
+                safe &= self._newest_id(put(state, j, torn)) in allowed
+                state = put(state, j, content)
+                safe &= self._newest_id(state) in allowed
+            if safe:
+                return plan
+        raise NVMError("restore: no write order keeps a valid calibration through a power loss; "
+                       "erase the NVM first (nvm erase) and restore again")
 
     def erase(self, backup_to: str | Path | None = None) -> list[SlotStatus]:
         """Erase both slots to 0xFF (the EEPROM's blank state) and verify."""

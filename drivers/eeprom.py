@@ -26,7 +26,6 @@ afterwards power is back and the EEPROM works normally, so a test can
 from __future__ import annotations
 
 import errno
-import os
 from pathlib import Path
 
 import numpy as np
@@ -108,9 +107,9 @@ class EEPROM24(NVM):
 
     def _save(self) -> None:
         if self.image_path is not None:
-            tmp = self.image_path.with_name(self.image_path.name + ".tmp")
-            tmp.write_bytes(self.cells.tobytes())
-            os.replace(tmp, self.image_path)
+            from ..atomic import atomic_write  # a planted <image>.tmp symlink is never followed
+
+            atomic_write(self.image_path, self.cells.tobytes())
 
     # -- NVM face --------------------------------------------------------------------------
     def read(self, addr: int, n: int) -> bytes:

@@ -29,6 +29,7 @@ with ``driver: simulated``)::
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -141,6 +142,8 @@ class SimulatedBoard:
         image = e.get("image")
         if image is not None and (not isinstance(image, str) or not image.strip()):
             raise ConfigError(f"{ep}.image: {image!r}; allowed: a file path (relative: the current directory)")
+        if image is not None:
+            _check_image_path(image, f"{ep}.image")
         eeprom = EEPROM24(size, page, number(e, "write_cycle_ms", ep, 5.0, 0.0, 1000.0) / 1000.0,
                           fail_at_write=None if fail is None else number(e, "fail_at_write", ep, lo=1, integer=True),
                           image_path=image)
@@ -378,3 +381,16 @@ class SimulatedDriver(Driver):
     @property
     def nvm(self) -> EEPROM24:
         return self.board.eeprom
+
+
+def _check_image_path(image: str, where: str) -> None:
+    """Up front, not at burn time: the image's folder exists and the image is a regular file."""
+    from ..atomic import check_target
+
+    p = Path(image)
+    if not p.parent.is_dir():
+        raise ConfigError(f"{where}: {image}: folder {p.parent} does not exist; allowed: a file in an existing folder")
+    try:
+        check_target(p)
+    except OSError as e:
+        raise ConfigError(f"{where}: {image} {e.strerror}") from None

@@ -4,38 +4,55 @@ from __future__ import annotations
 
 import importlib
 import os
+import sys
 import pkgutil
 
 import click
 
 from .. import __version__
 from ..errors import AccelcalError
+from ._mes import JsonGroup, emit_error, wants_json
+from ._text import clean
 
 
-class StationGroup(click.Group):
-    """Turns every AccelcalError into one red line on stderr and its exit code."""
+class StationGroup(JsonGroup):
+    """Turns every AccelcalError into one line and its exit code: red on stderr, or under
+    --json one JSON object on stdout (cli/_mes.py)."""
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        ctx.meta["accelcal.json"] = wants_json(args)
+        return super().parse_args(ctx, args)
 
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
         except AccelcalError as e:
-            click.secho(f"error: {e}", fg="red", err=True)
+            emit_error(ctx, clean(str(e)), e.exit_code, type(e).__name__)
             ctx.exit(e.exit_code)
         except KeyboardInterrupt:
-            click.echo("interrupted", err=True)
+            emit_error(ctx, "interrupted", 130, "interrupted")
             ctx.exit(130)
-        except (click.exceptions.Exit, click.ClickException, click.exceptions.Abort):
+        except click.exceptions.Exit:
             raise
+        except click.ClickException as e:  # usage errors too: one line, with where to look
+            sub = getattr(e, "ctx", None)
+            hint = f" (see {sub.command_path} --help)" if isinstance(e, click.UsageError) and sub else ""
+            emit_error(ctx, clean(e.format_message()) + hint, e.exit_code, "usage")
+            ctx.exit(e.exit_code)
+        except click.exceptions.Abort:
+            raise
+        except BrokenPipeError:
+            raise  # the reader went away (| head): main() ends quietly
         except OSError as e:  # a file or device error no layer below turned into words
             where = f" ({e.filename})" if getattr(e, "filename", None) else ""
-            click.secho(f"error: {e.strerror or e}{where}", fg="red", err=True)
+            emit_error(ctx, clean(f"{e.strerror or e}{where}"), 2, "os")
             ctx.exit(2)
         except Exception as e:
             # a bug: still one line for the operator; the traceback on request
             if os.environ.get("ACCELCAL_DEBUG"):
                 raise
-            click.secho(f"internal error (please report): {type(e).__name__}: {e}; "
-                        "set ACCELCAL_DEBUG=1 for the traceback", fg="red", err=True)
+            emit_error(ctx, f"internal error (please report): {type(e).__name__}: {clean(str(e))}; "
+                       "set ACCELCAL_DEBUG=1 for the traceback", 70, "internal")
             ctx.exit(70)
 
 
@@ -54,5 +71,10 @@ for _m in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
 
 
 def main() -> None:
-    """Console entry point."""
-    cli(prog_name="accelcal")
+    """Console entry point; output piped into a reader that stops early (| head) ends quietly."""
+    try:
+        cli(prog_name="accelcal")
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # Python's own flush at exit must not complain either
+        sys.exit(0)

@@ -19,7 +19,8 @@ KINDS = ("mpu6050-bridge", "motor-jig")
 
 @click.command("emulate")
 @click.argument("kind", type=click.Choice(KINDS))
-@click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=None, help="Seed of the simulated board.")
+@click.option("--seed", type=click.IntRange(0, None), default=None,
+              help="Seed of the simulated board (any seed it prints, which may be 128-bit).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="Simulated board YAML (e.g. configs/sim.yaml); its chip becomes an MPU6050.")
 @click.option("--motor-jig", "with_jig", is_flag=True,

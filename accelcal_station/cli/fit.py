@@ -15,6 +15,7 @@ from ..loader import Loaded, load
 from ..rawlog import StaticDetection
 from ..session import Session
 from ._common import check_model_units, jsonable as _clean, parse_number as _number
+from ._text import clean
 
 
 def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate) -> Loaded:
@@ -223,4 +224,4 @@ def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns
     if as_json:
         click.echo(json.dumps(_clean(report), allow_nan=False))
     else:
-        click.echo("\n".join(text))
+        click.echo("\n".join(clean(t) for t in text))  # pose names from the file: never raw escapes

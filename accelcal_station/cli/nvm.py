@@ -28,6 +28,7 @@ from ..errors import DeviceError, NVMError
 from ..store import iso
 from ..writer import CalibrationWriter, SlotStatus
 from ._common import jsonable as _clean
+from ._mes import JsonGroup
 from .probe import device_section
 
 
@@ -140,7 +141,7 @@ def _json_option(f):
     return click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")(f)
 
 
-@click.group("nvm")
+@click.group("nvm", cls=JsonGroup)
 def command() -> None:
     """Read, back up, restore or erase the calibration NVM of a board (service)."""
 

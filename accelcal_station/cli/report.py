@@ -8,6 +8,8 @@ import click
 
 from ..config import load_yaml
 from ..errors import DataError
+from ._mes import JsonGroup
+from ._text import clean
 from ..store import PARAM_NAMES, VERDICTS, STATUSES, Store, store_path, store_target
 
 
@@ -33,7 +35,12 @@ def _filter_options(f):
 
 
 def _open(db, config_path) -> Store:
-    """--db, else the store of --config, else that of the default station (as `accelcal run`)."""
+    """--db, else the store of --config, else that of the default station (as `accelcal run`);
+    `accelcal report --db F SUBCOMMAND` gives the subcommand that store too."""
+    ctx = click.get_current_context(silent=True)
+    group = ctx.parent.params if ctx is not None and ctx.parent is not None else {}
+    db = db if db is not None else group.get("db")
+    config_path = config_path if config_path is not None else group.get("config_path")
     if db is not None:
         return Store(store_target(db), create=False)
     from ..station import default_config_path
@@ -51,8 +58,18 @@ def _filters(device, lot, station, operator, verdict, status, since, until) -> d
             "verdict": verdict and verdict.upper(), "status": status, "since": since, "until": until}
 
 
-@click.group("report")
-def command() -> None:
+class ReportGroup(JsonGroup):
+    """`accelcal report [--db F] --json` lists the runs, as `report list --json` does."""
+
+    def describe(self, ctx: click.Context):
+        with _open(ctx.params.get("db"), ctx.params.get("config_path")) as store:
+            return store.list_runs()
+
+
+@click.group("report", cls=ReportGroup)
+@click.option("--db", default=None, metavar="FILE", help="With --json and no subcommand: the store to list.")
+@click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
+def command(db, config_path) -> None:
     """List, show, export and summarise recorded runs."""
 
 
@@ -74,7 +91,8 @@ def list_cmd(db, config_path, device, lot, station, operator, verdict, status, s
         click.echo(f"{r['id']:>5}  {r['started_at'][:16].replace('T', ' '):16}  {r['status']:11}  "
                    f"{r['device_serial'] or '':14}  {r['lot'] or '':8}  {r['verdict'] or '':7}  "
                    f"{r['nvm_status'] or '':7}  {r['pose_count']:5}  {rms:>7}  "
-                   f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
+                   + clean(f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
+                   + (f"  DAMAGED ({', '.join(r['damaged'])} unreadable)" if r.get("damaged") else ""))
     click.echo(f"{len(runs)} run(s)")
 
 
@@ -93,14 +111,40 @@ def show_cmd(run_id, db, config_path, as_json):
     for k in ("id", "status", "status_reason", "started_at_iso", "finished_at_iso", "device_serial", "chip",
               "station_id", "operator", "lot", "config_hash", "model", "verdict", "nvm_status"):
         click.echo(f"{k:16} {rec[k] if rec[k] is not None else ''}")
+    if rec.get("damaged"):
+        click.echo(f"{'DAMAGED':16} {', '.join(rec['damaged'])} unreadable in the store")
     for reason in rec["reasons"]:
-        click.echo(f"{'reason':16} {reason}")
+        click.echo(f"{'reason':16} {clean(reason)}")
     if rec["calibration"]:
         c = rec["calibration"]
         click.echo(f"{'W':16} {c['W']}\n{'V (g)':16} {c['V']}\n{'Gamma (1/g^2)':16} {c['Gamma']}")
+    for line in _fit_lines(rec.get("fit_summary") or {}):
+        click.echo(line)
     click.echo(f"{'poses':16} {len(rec['poses'])} ({rec['units']})")
     for p in rec["poses"]:
-        click.echo(f"  {p['name']:10} mean {[round(x, 2) for x in p['mean']]}  n {p['n']}  retries {p['retries']}")
+        click.echo(f"  {clean(p['name']):10} mean {[round(x, 2) for x in p['mean']]}  n {p['n']}  "
+                   f"retries {p['retries']}")
+    for e in rec.get("events") or []:
+        click.echo(f"{'event':16} {e['kind']}: {clean(e['message'] or '')}")
+
+
+def _fit_lines(fit: dict) -> list[str]:
+    """Residuals, cross-validation, verification error and timing of a recorded run."""
+    out = []
+    for key, label in (("residual_rms_g", "residual rms"), ("residual_max_g", "residual max"),
+                       ("crossval_rms_g", "cross-validated")):
+        if isinstance(fit.get(key), (int, float)):
+            out.append(f"{label:16} {fit[key] * 1e3:.3f} mg")
+    if isinstance(fit.get("condition_number"), (int, float)):
+        out.append(f"{'condition':16} {fit['condition_number']:.3g}")
+    if isinstance(fit.get("verify_error_max_mg"), (int, float)):
+        out.append(f"{'verify error':16} {fit['verify_error_max_mg']:.3f} mg (max, after calibration)")
+    if fit.get("skipped"):
+        out.append(f"{'skipped':16} {', '.join(map(clean, fit['skipped']))}")
+    t = fit.get("timing") or {}
+    if t:
+        out.append(f"{'timing':16} " + ", ".join(f"{k} {v:.3g}" for k, v in t.items() if isinstance(v, (int, float))))
+    return out
 
 
 @command.command("export")
@@ -113,8 +157,8 @@ def show_cmd(run_id, db, config_path, as_json):
 def export_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, output, fmt,
                poses, as_json):
     """Export runs as CSV (one row per run, calibration flattened; or per pose) or JSON (everything)."""
-    if fmt is None:
-        fmt = "json" if output and output.lower().endswith(".json") else "csv"
+    if fmt is None:  # --json without -o means JSON on stdout
+        fmt = "json" if (output and output.lower().endswith(".json")) or (as_json and output is None) else "csv"
     if fmt not in ("csv", "json"):
         raise DataError(f"--format {fmt!r}; allowed: csv, json")
     flt = _filters(device, lot, station, operator, verdict, status, since, until)
@@ -136,10 +180,20 @@ def export_cmd(db, config_path, device, lot, station, operator, verdict, status,
 @command.command("summary")
 @_filter_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-def summary_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, as_json):
+@click.option("--html", "html_file", default=None, metavar="FILE",
+              help="Also write a lot report (histograms vs limits, pass rate and reasons over time, control "
+                   "charts) as one HTML file with embedded PNGs.")
+def summary_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, as_json,
+                html_file):
     """Lot summary: counts, pass rate, failure reasons, parameter distributions."""
+    flt = _filters(device, lot, station, operator, verdict, status, since, until)
     with _open(db, config_path) as store:
-        s = store.lot_summary(**_filters(device, lot, station, operator, verdict, status, since, until))
+        s = store.lot_summary(**flt)
+        if html_file is not None:
+            from ..lot_report import write_lot_html
+
+            write_lot_html(store.runs(**flt), html_file, f"accelcal lot report{f' - lot {lot}' if lot else ''}")
+            click.echo(f"lot report written to {html_file}", err=True)
     if as_json:
         click.echo(json.dumps(s, indent=1))
         return
@@ -159,3 +213,19 @@ def summary_cmd(db, config_path, device, lot, station, operator, verdict, status
             click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")
     for name, d in s["fit"].items():
         click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")
+
+
+@command.command("plot")
+@click.argument("run_id", type=int)
+@click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")
+@click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
+@click.option("-o", "--output", default=None, metavar="FILE.png", help="Figure file (default run-ID-residuals.png).")
+def plot_cmd(run_id, db, config_path, output):
+    """Draw one run's residuals per pose and axis (PNG)."""
+    from ..lot_report import residual_figure
+
+    with _open(db, config_path) as store:
+        rec = store.get_run(run_id)
+    out = output or f"run-{run_id}-residuals.png"
+    residual_figure(rec, out)
+    click.echo(f"residuals of run {run_id} drawn in {out}")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..calibration import Calibration, TemperatureTable
+from ..calibration import MODELS, Calibration, TemperatureTable
 from ..conventions import check_units, units_per_g
 from ..errors import DataError, UnderdeterminedError, UnitsError
 from ..identifiability import assess, assess_batch
@@ -21,19 +21,20 @@ from .gravity_norm import fit_norm_batch, nominal_scale
 from .linear import fit_linear_batch, six_param_six_face, six_param_two_pose
 from .result import BatchFit, FitResult
 from .stacked import fit_stacked
+from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
 
-MODELS = ("6", "9", "12", "15")
 
 
 def check_model(model) -> str:
     m = str(model)
     if m not in MODELS:
-        raise DataError(f"model {model!r}; allowed: 6, 9, 12, 15")
+        raise DataError(f"model {model!r}; allowed: {', '.join(MODELS)}")
     return m
 
 
 def check_plausible_g(gf: np.ndarray, units: str) -> None:
-    norms = np.linalg.norm(gf, axis=-1)
+    with np.errstate(over="ignore"):  # a 1e308 reading is refused per pose later (models/sanity.py)
+        norms = np.linalg.norm(gf, axis=-1)
     med = float(np.median(norms))
     if not (0.3 <= med <= 3.0):
         hint = "counts given as g? use --units counts --counts-per-g N" if med > 3 else "wrong counts_per_g?"
@@ -78,6 +79,30 @@ def fit_batch(readings, references=None, model="12", *, units: str = "g", counts
     determined, _ = assess_batch(gf, model)  # from the distinct orientations, before any solver runs
     if D == 1 and not determined[0]:
         raise UnderdeterminedError(assess(gf[0], model).reason)
+    gf_fit = gf
+    if model != "9" and references is not None:
+        # a board with an absurd reading (1e308) is fitted on its references instead, so it
+        # cannot overflow the stack, and is then refused with the reading named
+        bad = np.array([bool(w) for w in absurd_readings(gf)])
+        if bad.any():
+            ref = np.broadcast_to(np.asarray(references, dtype=float), gf.shape)
+            gf_fit = np.where(bad[:, None, None], ref, gf)
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            res = _fit_stack(gf_fit, references, x, model, nz, fast)
+    except np.linalg.LinAlgError:
+        raise DataError("the readings cannot be fitted (numerically singular or overflowing: "
+                        "a reading far beyond the sensor's range?)") from None
+    for d in np.flatnonzero(~determined):
+        res.ok[d] = False
+        res.messages[d] = assess(gf[d], model).reason
+    res.input_units = units
+    res.input_per_g = scale
+    _refuse_absurd(res, gf)
+    return res
+
+
+def _fit_stack(gf, references, x, model: str, nz, fast: bool = False) -> BatchFit:
     if model == "9":
         res = fit_stacked(gf, None, "9", nz) if fast else fit_norm_batch(gf, noise_g=nz)
     else:
@@ -88,12 +113,22 @@ def fit_batch(readings, references=None, model="12", *, units: str = "g", counts
         if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
             raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
         res = fit_stacked(gf, ref, model, nz) if fast else fit_linear_batch(gf, ref, model, nz)
-    for d in np.flatnonzero(~determined):
-        res.ok[d] = False
-        res.messages[d] = assess(gf[d], model).reason
-    res.input_units = units
-    res.input_per_g = scale
     return res
+
+
+def _refuse_absurd(res: BatchFit, gf: np.ndarray) -> None:
+    """Mark boards whose readings or coefficients are physically absurd as not fitted
+    (models/sanity.py): a degenerate calibration is never returned as a result."""
+    if res.model == "9":  # raw readings may carry any offset (unsigned counts): judge the output
+        why = absurd_norm_model(res.W, res.norm_error_g)
+    else:
+        why = [a or b for a, b in zip(absurd_readings(gf), absurd_coefficients(res.W, res.V))]
+    for d, w in enumerate(why):
+        if w and res.ok[d]:
+            res.ok[d] = False
+            res.messages[d] = w
+            if res.status:
+                res.status[d] = "failed"
 
 
 def fit(readings, references=None, model="12", *, units: str = "g", counts_per_g=None,

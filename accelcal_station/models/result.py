@@ -8,8 +8,6 @@ import numpy as np
 
 from ..calibration import Calibration
 
-MODEL_PARAMS = {"6": 6, "9": 9, "12": 12, "15": 15}
-
 
 @dataclass
 class FitResult:

@@ -1,0 +1,57 @@
+"""What a manufacturing execution system (MES) reads: errors as one JSON object on stdout
+under --json, and group commands that describe themselves as JSON."""
+from __future__ import annotations
+
+import functools
+import json
+from typing import Iterable
+
+import click
+
+
+def wants_json(args: Iterable[str]) -> bool:
+    """--json anywhere on the command line before a bare '--'."""
+    for a in args:
+        if a == "--":
+            return False
+        if a == "--json":
+            return True
+    return False
+
+
+def emit_error(ctx: click.Context, message: str, code: int, kind: str) -> None:
+    """One line: red on stderr, or under --json one JSON object on stdout (nothing else there)."""
+    if ctx.meta.get("accelcal.json"):
+        click.echo(json.dumps({"error": message, "code": code, "kind": kind}))
+    else:
+        click.secho(f"error: {message}" if kind != "internal" else message, fg="red", err=True)
+
+
+def commands_doc(group: click.Group, ctx: click.Context) -> dict:
+    """A group's subcommands as JSON: name and one-line help of each."""
+    return {"command": ctx.command_path, "help": (group.help or "").strip().split("\n")[0],
+            "subcommands": [{"name": n, "help": group.commands[n].get_short_help_str(200)}
+                            for n in group.list_commands(ctx)]}
+
+
+class JsonGroup(click.Group):
+    """A group that, called bare with --json, prints its subcommands as one JSON object."""
+
+    def __init__(self, *a, **kw):
+        kw.setdefault("invoke_without_command", True)
+        super().__init__(*a, **kw)
+        self.params.append(click.Option(["--json", "group_json"], is_flag=True,
+                                         help="Called without a subcommand: print the subcommands as JSON."))
+        cb = self.callback or (lambda **k: None)
+
+        def callback(*args, group_json=False, **kwargs):
+            ctx = click.get_current_context()
+            if ctx.invoked_subcommand is None:  # bare: describe (JSON) or help, nothing else
+                click.echo(json.dumps(self.describe(ctx)) if group_json else ctx.get_help())
+                ctx.exit(0)
+            return cb(*args, **kwargs)
+
+        self.callback = functools.update_wrapper(callback, cb)
+
+    def describe(self, ctx: click.Context):
+        return commands_doc(self, ctx)
