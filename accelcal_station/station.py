@@ -370,12 +370,21 @@ class Station:
                 self.progress("poses", (i + 1) / len(design))
 
     def _fit_judge_write(self, driver, jig, session: Session, rep: RunReport) -> None:
+        cal = self._fit_judge(driver, session, rep)
+        if cal is None:
+            return
+        checks = self._verify_captures(driver, jig, rep)
+        if self._judge_verified(cal, checks, rep):
+            self._burn(driver, cal, checks, rep)
+
+    def _fit_judge(self, driver, session: Session, rep: RunReport) -> Calibration | None:
+        """Fit and judge before any verification capture; the calibration to verify, or None (FAIL)."""
         cfg = self.cfg
         try:
             fit = fit_session(session, cfg.model)
         except UnderdeterminedError as e:
             rep.verdict, rep.reasons = "FAIL", [f"fit: {e}"]
-            return
+            return None
         rep.fit = fit
         rep.calibration = fit.calibration
         verdict = judge(fit, cfg.limits)
@@ -383,20 +392,28 @@ class Station:
         if not verdict.passed:
             rep.verdict, rep.reasons = "FAIL", verdict.reasons
             self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
-            return
+            return None
         cal = fit.calibration
         if cfg.offset_trim:
             cal = rep.calibration = self._trim_offsets(driver, cal, rep)
-        checks = self._verify_captures(driver, jig, rep)
+        return cal
+
+    def _judge_verified(self, cal: Calibration, checks, rep: RunReport) -> bool:
+        """Judge again with the verification captures (when there are any); True: PASS so far."""
         if checks:
             err = self._verify_error(cal, checks)
             rep.verify_error_max_mg = err
-            verdict = judge(fit, cfg.limits, err)
+            verdict = judge(rep.fit, self.cfg.limits, err)
             rep.measured = verdict.measured
             if not verdict.passed:
                 rep.verdict, rep.reasons = "FAIL", verdict.reasons
-                return
+                return False
         rep.verdict, rep.reasons = "PASS", []
+        return True
+
+    def _burn(self, driver, cal: Calibration, checks, rep: RunReport) -> None:
+        """Burn NVM, read back, and check the calibration read back does what the fitted one did."""
+        cfg = self.cfg
         if not cfg.nvm_write:
             return
         nvm = driver.nvm

@@ -103,6 +103,10 @@ MIGRATIONS: list[str] = [
     );
     CREATE INDEX events_run ON events (run_id);
     """,
+    """
+    ALTER TABLE runs ADD COLUMN panel_id TEXT;   -- the boards calibrated together on one jig (panel.py)
+    CREATE INDEX runs_panel ON runs (panel_id);
+    """,
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -327,21 +331,22 @@ class Store:
                   operator: str | None = None, lot: str | None = None, config_text: str | None = None,
                   config_hash: str | None = None, model: str | None = None, units: str | None = None,
                   counts_per_g: float | None = None, gravity_mps2: float | None = None,
-                  started_at: float | None = None) -> int:
+                  started_at: float | None = None, panel_id: str | None = None) -> int:
         """Commit a ``running`` row now (a crash leaves it recorded) and return its id.
 
-        ``config_hash`` defaults to the SHA-256 of ``config_text``.
+        ``config_hash`` defaults to the SHA-256 of ``config_text``; ``panel_id`` ties the runs
+        of the boards calibrated together on one jig.
         """
         if config_hash is None and config_text is not None:
             config_hash = hashlib.sha256(config_text.encode()).hexdigest()
         with self._tx("start a run") as db:
             cur = db.execute(
                 "INSERT INTO runs (started_at, status, device_serial, chip, station_id, operator, lot, config_hash,"
-                " config_text, model, units, counts_per_g, gravity_mps2, host, pid)"
-                " VALUES (?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                " config_text, model, units, counts_per_g, gravity_mps2, host, pid, panel_id)"
+                " VALUES (?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (_time.time() if started_at is None else float(started_at), device_serial, chip, station_id,
                  operator, lot, config_hash, config_text, _opt(model, str), units, _opt(counts_per_g),
-                 _opt(gravity_mps2), socket.gethostname(), os.getpid()))
+                 _opt(gravity_mps2), socket.gethostname(), os.getpid(), panel_id))
             return int(cur.lastrowid)
 
     def _running(self, db, run_id: int) -> None:
