@@ -213,6 +213,7 @@ class RunRecord:
     fit_summary: dict | None
     host: str | None
     pid: int | None
+    panel_id: str | None = None  # the boards calibrated together on one jig
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
     events: list[dict] = field(default_factory=list)
@@ -483,6 +484,7 @@ class Store:
                         "operator": r["operator"], "lot": r["lot"], "model": r["model"], "verdict": r["verdict"],
                         "reasons": json.loads(r["reasons"]) if r["reasons"] else [],
                         "nvm_status": r["nvm_status"], "pose_count": counts.get(r["id"], 0),
+                        "panel_id": r["panel_id"],
                         "residual_rms_g": fit.get("residual_rms_g")})
         return out
 

@@ -300,7 +300,7 @@ def test_refuses_foreign_and_newer_files(tmp_path):
     Store(newer).close()
     with sqlite3.connect(newer) as c:
         c.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
-    with pytest.raises(StoreError, match="schema version 2 is newer than this station's 1"):
+    with pytest.raises(StoreError, match=f"schema version {SCHEMA_VERSION + 1} is newer than this station's {SCHEMA_VERSION}"):
         Store(newer)
     with pytest.raises(StoreError, match="no run 5"):
         Store(tmp_path / "fresh.sqlite").get_run(5)
