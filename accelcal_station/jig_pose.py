@@ -4,11 +4,11 @@ All boards on a panel see the same true orientation at each pose: board b's read
 pose p is the calibration model of ``R_p r_p`` (r_p the commanded reference, R_p the
 jig's true, slightly wrong, rotation).  With references (models 6, 12, 15) each board's
 fit leaves the part of ``R_p r_p - r_p`` its model cannot absorb in its residuals; that
-part is common to all boards, while noise is not.  Averaging the residuals of the
+part is common to all boards, while noise is not.  One linear least squares over the
 *other* boards (leave one board out, so a board's own noise is never fitted back into
-its references) and turning each reference by the small rotation that explains the
-average (delta_p x r_p = mean residual, delta_p perpendicular to r_p) removes the jig's
-per-pose scatter from every board's residuals and acceptance figures.
+its references) finds the small move of each reference, perpendicular to it (a rotation),
+that best explains what their fits leave; it removes the jig's per-pose scatter from
+every board's residuals and acceptance figures.
 
 What no panel can estimate: the part of the scatter that a calibration model absorbs
 (for a full W: a rotation common to all poses, and for cube-vertex designs such as
@@ -22,8 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .models.linear import fit_linear_batch
-from .sensor_model import rotation_matrix
+from .models.linear import regressors
 
 REFERENCE_MODELS = ("6", "12", "15")
 MIN_BOARDS = 4  # leave-one-out over 3 others: a board's own noise never sets its references
@@ -53,15 +52,32 @@ class JigPoseEstimate:
         return float(np.sqrt(np.mean(np.sum(self.rotvec_deg**2, axis=-1))))
 
 
-def _turn(refs: np.ndarray, err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotate refs (..., 3) by delta with delta x r = err's part perpendicular to r: (new refs, delta rad)."""
-    delta = np.cross(refs, err) / np.sum(refs**2, axis=-1, keepdims=True)
-    return (rotation_matrix(np.degrees(delta)) @ refs[..., None])[..., 0], delta
+def _tangents(refs: np.ndarray) -> np.ndarray:
+    """Two unit vectors perpendicular to each reference (P, 2, 3): the directions a small
+    rotation can move it."""
+    r = refs / np.linalg.norm(refs, axis=-1, keepdims=True)
+    seed = np.eye(3)[np.argmin(np.abs(r), axis=-1)]
+    t1 = np.cross(r, seed)
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    return np.stack([t1, np.cross(r, t1)], axis=1)
+
+
+def _annihilators(gf: np.ndarray, model: str) -> np.ndarray:
+    """I - H per board and channel (B, 3, P, P): what of a reference pattern a board's fit cannot
+    absorb (H the hat matrix of AN4399 Eqn 46's least squares on that board's readings)."""
+    X = regressors(gf, model)
+    H = X @ np.linalg.pinv(X)
+    return np.eye(X.shape[-2]) - H
 
 
 def estimate_jig_poses(readings_g: np.ndarray, references_g: np.ndarray, model: str,
-                       iterations: int = 3) -> JigPoseEstimate:
-    """Joint per-pose jig rotation from B boards' readings (B, P, 3) in g at references (P, 3)."""
+                       iterations: int = 2) -> JigPoseEstimate:
+    """Joint per-pose jig rotation from B boards' readings (B, P, 3) in g at references (P, 3).
+
+    Linear least squares over all boards: the tangential move u of every reference that
+    minimises sum_b |(I - H_b)(ref + T u)|^2 (min-norm: the patterns every fit absorbs are
+    left alone); each board's own move leaves that board out.
+    """
     gf = np.asarray(readings_g, dtype=float)
     ref = np.asarray(references_g, dtype=float)
     B, P = gf.shape[:2]
@@ -75,20 +91,24 @@ def estimate_jig_poses(readings_g: np.ndarray, references_g: np.ndarray, model: 
         return JigPoseEstimate(refs, zero, B, f"panel of {B} board{'s' * (B != 1)} is too small to estimate the "
                                               f"jig's per-pose rotation (needs at least {MIN_BOARDS}: each board's "
                                               "references come from the other boards)")
-    panel = np.broadcast_to(ref, (P, 3)).copy()
-    total = np.zeros((P, 3))
+    M = _annihilators(gf, model)  # (B, 3, P, P)
+    panel = ref.copy()
     for _ in range(iterations):
-        fit = fit_linear_batch(gf, refs, model)
-        ok = fit.ok
-        if ok.sum() < MIN_BOARDS:
-            return JigPoseEstimate(np.broadcast_to(ref, (B, P, 3)).copy(), zero, B,
-                                   f"only {int(ok.sum())} boards could be fitted; the jig's per-pose rotation "
-                                   f"needs at least {MIN_BOARDS}")
-        err = -fit.residuals_g  # calibrated minus reference (B, P, 3)
-        err = np.where(ok[:, None, None], err, 0.0)
-        s, n = err.sum(axis=0), int(ok.sum())
-        loo = (s - err) / np.where(ok, n - 1, n)[:, None, None]
-        refs, _ = _turn(refs, loo)
-        panel, d = _turn(panel, s / n)
-        total += d
-    return JigPoseEstimate(refs, np.degrees(total), B)
+        T = _tangents(panel)  # (P, 2, 3): moves of pose p along its two tangents
+        # A_b: (3P, 2P) columns = (I - H_b) applied per channel to each unit move
+        basis = np.zeros((P, 2, P, 3))
+        basis[np.arange(P), :, np.arange(P)] = T
+        cols = basis.reshape(2 * P, P, 3).transpose(0, 2, 1)  # (2P, 3, P)
+        A = np.einsum("bcpq,kcq->bcpk", M, cols).reshape(B, 3 * P, 2 * P)
+        r0 = np.einsum("bcpq,bqc->bcp", M, refs).reshape(B, 3 * P)
+        N_b = A.transpose(0, 2, 1) @ A  # (B, 2P, 2P)
+        g_b = np.einsum("bkr,br->bk", A.transpose(0, 2, 1), r0)
+        N, g = N_b.sum(0), g_b.sum(0)
+        u_all = -np.linalg.pinv(N, rcond=1e-8) @ g
+        u_loo = -np.einsum("bij,bj->bi", np.linalg.pinv(N - N_b, rcond=1e-8), g - g_b)
+        refs = refs + np.einsum("bpk,pkc->bpc", u_loo.reshape(B, P, 2), T)
+        panel = panel + np.einsum("pk,pkc->pc", u_all.reshape(P, 2), T)
+    refs /= np.linalg.norm(refs, axis=-1, keepdims=True) / np.linalg.norm(ref, axis=-1)[None, :, None]
+    panel /= np.linalg.norm(panel, axis=-1, keepdims=True) / np.linalg.norm(ref, axis=-1)[:, None]
+    rotvec = np.degrees(np.cross(ref, panel) / np.sum(ref**2, axis=-1, keepdims=True))
+    return JigPoseEstimate(refs, rotvec, B)

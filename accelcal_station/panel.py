@@ -38,12 +38,16 @@ from .fixtures.base import Jig, PoseSpec
 from .fixtures.designs import get_design
 from .fixtures.operator_jig import OperatorAbort
 from .jig_pose import JigPoseEstimate, estimate_jig_poses
+from .sensor_model import rotation_matrix
 from .session import PoseRecord, Session
 from .station import RunReport, Station, StationConfig, board_of, make_jig
 from .store import Store
 
 MAX_BOARDS = 64
 PANEL_KEYS = ("boards", "spread", "mux")
+# simulated boards only: how the board really sits in its slot (rotation vector, degrees); a
+# board seated upside down reads the opposite face at every pose
+SEAT_KEY = "seated_deg"
 
 
 @dataclass
@@ -64,6 +68,7 @@ class PanelBoard:
     cal: Any = None
     clock0: float | None = None
     open_: bool = False
+    seat: np.ndarray = field(default_factory=lambda: np.eye(3))
 
     @property
     def active(self) -> bool:
@@ -120,10 +125,9 @@ def panel_sections(device: dict, path: str = "device") -> list[tuple[dict, str]]
         if not isinstance(over, dict):
             raise ConfigError(f"{where}: {over!r}; allowed: a mapping of device keys")
         sec = copy.deepcopy(base)
-        if isinstance(boards, int):
-            sec["seed"] = seed * 1000 + i
-            if device.get("driver") == "simulated":
-                sec["serial"] = f"{device.get('serial') or 'PANEL'}-{i + 1:02d}"
+        sec["seed"] = seed * 1000 + i  # each board its own draws unless its mapping says otherwise
+        if device.get("driver") == "simulated":
+            sec["serial"] = f"{device.get('serial') or 'PANEL'}-{i + 1:02d}"
         sec.update(copy.deepcopy(over))
         if device.get("spread") is not None:
             sec = _spread(sec, device["spread"], rng, f"{path}.spread")
@@ -154,17 +158,18 @@ class PanelSimulatedJig(Jig):
 
     name = "simulated"
 
-    def __init__(self, boards: list, move_time_s: float = 2.0):
+    def __init__(self, boards: list, move_time_s: float = 2.0, seats: list | None = None):
         self.boards = boards
         self.move_time_s = float(move_time_s)
+        self.seats = seats or [np.eye(3)] * len(boards)
 
     def present(self, pose: PoseSpec, live=None) -> None:
         R = self.boards[0].pose_error_rotation()
         clocks = {id(b.clock): b.clock for b in self.boards}
         for c in clocks.values():
             c.sleep(self.move_time_s)
-        for b in self.boards:
-            b.set_pose(pose, rotation=R)
+        for b, seat in zip(self.boards, self.seats):
+            b.set_pose(pose, rotation=seat @ R)
 
 
 def make_panel_jig(cfg: dict, boards: list[PanelBoard], echo: Callable[[str], None]) -> Jig:
@@ -176,7 +181,8 @@ def make_panel_jig(cfg: dict, boards: list[PanelBoard], echo: Callable[[str], No
         if not sims or any(s is None for s in sims):
             raise ConfigError("jig.type: simulated needs simulated or emulated devices; "
                               "use operator or motorized with real hardware")
-        return PanelSimulatedJig(sims, number(cfg, "move_time_s", "jig", 2.0, 0.0, 120.0))
+        return PanelSimulatedJig(sims, number(cfg, "move_time_s", "jig", 2.0, 0.0, 120.0),
+                                 [b.seat for b in boards if b.driver is not None])
     first = next((b.driver for b in boards if b.driver is not None), None)
     return make_jig(cfg, first, echo)
 
@@ -206,7 +212,13 @@ class PanelStation:
             quiet = (lambda *_: None)
             st = Station(cfg, operator=self.operator, lot=self.lot, echo=quiet)
             rep = RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
+            seat = sec.pop(SEAT_KEY, None)
             pb = PanelBoard(i, sec, path, group_of(sec, i), st, rep)
+            if seat is not None:
+                if not (isinstance(seat, list) and len(seat) == 3 and all(
+                        isinstance(v, (int, float)) and not isinstance(v, bool) for v in seat)):
+                    raise ConfigError(f"{path}.{SEAT_KEY}: {seat!r}; allowed: [x, y, z] rotation vector in degrees")
+                pb.seat = rotation_matrix(seat)
             pb.driver = self.drivers[i] if self.drivers is not None else self._make_driver(sec, path)
             st.driver = pb.driver
             rep.serial = str(sec.get("serial") or "")
