@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
             ["single board (mean above)", f"{res['total']:.2f}"],
             [f"single board / {a.panel}", f"{share:.2f}"],
             [f"panel of {a.panel}, per board", f"{t['per_board_s']:.2f}"],
-            [f"ratio: panel per board / (single / {a.panel})  (goal <= 1.2)", f"{t['per_board_s'] / share:.2f}"]]))
+            [f"ratio: panel per board / (single / {a.panel}), goal <= 1.2", f"{t['per_board_s'] / share:.2f}"]]))
     return 0
 
 
