@@ -139,7 +139,7 @@ def group_of(section: dict, index: int) -> str:
     """The thread a board is read by: its I2C bus or serial port (a simulated board: its own)."""
     drv = section.get("driver")
     if drv == "mma8451" and section.get("mux") is not None:
-        return f"i2c:{section.get('bus', 1)}" + (f"#{index}" if section.get("bus") == "emulated" else "")
+        return f"i2c:{section.get('bus', 1)}"
     if drv == "mpu6050" and section.get("port") not in (None, "emulated"):
         return f"serial:{section['port']}"
     return f"board:{index}"
@@ -198,8 +198,10 @@ class PanelStation:
         self.drivers = drivers  # default: built from the config's device section
         self.panel_id = panel_id or new_panel_id(config.station_id)
         self.jig = jig  # default: built from the config's jig section
+        self._buses: dict = {}  # one MuxBus per (I2C bus, mux address), shared by its boards
         self.estimate: JigPoseEstimate | None = None
         self.timing: dict[str, float] = {}
+        self.boards: list[PanelBoard] = []
 
     # -- building -------------------------------------------------------------------
     def _boards(self) -> list[PanelBoard]:
@@ -227,10 +229,14 @@ class PanelStation:
 
     def _make_driver(self, sec: dict, path: str) -> Driver:
         if sec.get("mux") is not None:
-            from .drivers.tca9548a import make_muxed_driver
-
-            return make_muxed_driver(sec, path)
-        return make_driver({k: v for k, v in sec.items() if k != "mux"}, path)
+            if sec.get("driver") != "mma8451":
+                raise ConfigError(f"{path}.mux: a TCA9548A multiplexer holds I2C boards (driver: mma8451)")
+            if sec.get("bus") == "emulated":
+                from .drivers.emulated import emulated_muxed_mma8451 as muxed
+            else:
+                from .drivers.tca9548a import muxed_mma8451 as muxed
+            return muxed(sec, path, self._buses)
+        return make_driver(sec, path)
 
     def _open(self, b: PanelBoard, store: Store) -> None:
         """Open, identify, configure one board and start its run; a device error fails that board only."""
@@ -320,7 +326,7 @@ class PanelStation:
         cfg = self.cfg
         wall0 = time.perf_counter()
         design = get_design(cfg.design)
-        boards = self._boards()
+        boards = self.boards = self._boards()
         with Store(cfg.store_file) as store:
             store.mark_stale_interrupted()
             try:
@@ -358,6 +364,9 @@ class PanelStation:
                     b.driver.close()
                 except (AccelcalError, OSError):
                     pass
+        for bus in self._buses.values():
+            bus.close()
+        self._buses.clear()
 
     def _fit_all(self, boards: list[PanelBoard]) -> None:
         """Joint jig-pose estimation over the boards with every pose, then each board's fit and verdict."""
