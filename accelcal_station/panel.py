@@ -101,6 +101,11 @@ def _spread(section: dict, spread: dict, rng: np.random.Generator, path: str) ->
     return section
 
 
+def _simulated(section: dict) -> bool:
+    """A simulated board, or a driver on an emulated bus or port (these take a seed)."""
+    return section.get("driver") == "simulated" or "emulated" in (section.get("bus"), section.get("port"))
+
+
 def panel_sections(device: dict, path: str = "device") -> list[tuple[dict, str]]:
     """Per-board device sections and their key paths; a device without ``boards`` is a panel of one."""
     if not isinstance(device, dict):
@@ -116,7 +121,7 @@ def panel_sections(device: dict, path: str = "device") -> list[tuple[dict, str]]
     n = boards if isinstance(boards, int) else len(boards)
     if not 1 <= n <= MAX_BOARDS:
         raise ConfigError(f"{path}.boards: {n} boards; allowed: 1..{MAX_BOARDS}")
-    seed = number(device, "seed", path, 1, 0, 2**32 - 1, integer=True)
+    seed = number(device, "seed", path, 1, 0, 2**32 - 1, integer=True) if _simulated(device) else 0
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n):
@@ -125,7 +130,8 @@ def panel_sections(device: dict, path: str = "device") -> list[tuple[dict, str]]
         if not isinstance(over, dict):
             raise ConfigError(f"{where}: {over!r}; allowed: a mapping of device keys")
         sec = copy.deepcopy(base)
-        sec["seed"] = seed * 1000 + i  # each board its own draws unless its mapping says otherwise
+        if _simulated(device) or _simulated(over):
+            sec["seed"] = seed * 1000 + i  # each board its own draws unless its mapping says otherwise
         if device.get("driver") == "simulated":
             sec["serial"] = f"{device.get('serial') or 'PANEL'}-{i + 1:02d}"
         sec.update(copy.deepcopy(over))

@@ -75,3 +75,42 @@ def test_two_boards_on_one_channel_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"device.boards\[1\].channel: 0 already holds a board"):
         PanelStation(StationConfig.load(mux_config(tmp_path, [{"channel": 0}, {"channel": 0}])),
                      echo=lambda s: None).run()
+
+
+def test_two_mpu6050_bridges_on_two_ptys_with_the_motorized_jig(tmp_path):
+    from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
+    from accelcal_station.drivers.simulated import SimulatedBoard
+    from accelcal_station.fixtures.jig_emulator import JigEmulator
+    from accelcal_station.fixtures.simulated_jig import FixtureBoards
+
+    sim = yaml.safe_load((CONFIGS / "sim.yaml").read_text())["device"]["simulator"]
+    boards = [SimulatedBoard.from_config(sim, chip="mpu6050", seed=s) for s in (3, 4)]
+    # the second board is 9 % too sensitive on x: beyond gain_error_max, it alone fails
+    boards[1].model.effects["gain"]["gain"] = np.array([1.09, 0.987, 1.021])
+    bridges = [MPU6050BridgeEmulator(b) for b in boards]
+    ports = [br.start() for br in bridges]
+    jig = JigEmulator(board=FixtureBoards(boards, [br.lock for br in bridges]), speed_deg_s=4000,
+                      accel_deg_s2=1e5).start()
+    try:
+        cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
+        cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+        cfg["jig"].update(port=jig.port, settle_s=0.0, speed_deg_s=4000, accel_deg_s2=1e5)
+        cfg["device"]["boards"] = [{"port": ports[0]}, {"port": ports[1]}]
+        p = tmp_path / "mpu.yaml"
+        p.write_text(yaml.safe_dump(cfg))
+        r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"])
+        assert r.exit_code == 1, r.output
+        out = json.loads(r.stdout)
+        a, b = out["boards"]
+        assert a["verdict"] == "PASS" and a["nvm_verified"] and a["chip"] == "mpu6050"
+        assert b["verdict"] == "FAIL" and any(x.startswith("gain_error_max") for x in b["reasons"])
+        assert sum(c.startswith("MOVE") for c in jig.received) >= 8  # one jig moved both boards
+        cal, _, _ = CalibrationWriter(bridges[0].nvm).read_newest(a["serial"])
+        np.testing.assert_allclose(cal.W, a["W"], rtol=0, atol=0)
+        assert CalibrationWriter(bridges[1].nvm).read_newest(b["serial"]) is None  # a failed board is never written
+        db = sqlite3.connect(tmp_path / "runs.sqlite")
+        assert db.execute("SELECT count(*), count(DISTINCT panel_id) FROM runs").fetchone() == (2, 1)
+    finally:
+        jig.stop()
+        for br in bridges:
+            br.stop()
