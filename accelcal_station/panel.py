@@ -36,7 +36,7 @@ from .drivers import Driver, make_driver
 from .errors import AccelcalError, ConfigError
 from .fixtures.base import Jig, PoseSpec
 from .fixtures.designs import get_design
-from .fixtures.operator_jig import OperatorAbort
+from .fixtures.operator_jig import OperatorAbort, OperatorJig
 from .jig_pose import JigPoseEstimate, estimate_jig_poses
 from .sensor_model import rotation_matrix
 from .session import PoseRecord, Session
@@ -264,31 +264,34 @@ class PanelStation:
             counts_per_g=b.driver.counts_per_g if b.open_ else None, panel_id=self.panel_id)
 
     # -- capture ------------------------------------------------------------------------
-    def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor) -> GatedCapture | None:
+    def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor) -> tuple[GatedCapture | None, Exception | None]:
         try:
-            return gated_capture(b.driver, self.cfg.capture, pose.reference_g, floor)
-        except WrongPose as e:
-            b.fail(f"pose {pose.name}: {e}")
-        except AccelcalError as e:
-            b.fail(f"device: {pose.name}: {e}")
-        return None
+            return gated_capture(b.driver, self.cfg.capture, pose.reference_g, floor), None
+        except AccelcalError as e:  # WrongPose, not still, NACK...: this board's, never the panel's
+            return None, e
 
-    def capture_all(self, boards: list[PanelBoard], pose: PoseSpec,
-                    floors: dict[int, Any] | None = None) -> dict[int, GatedCapture]:
-        """Capture ``pose`` on every active board at once: one thread per group, boards of a group in turn."""
+    def capture_all(self, boards: list[PanelBoard], pose: PoseSpec, floors: dict[int, Any] | None = None
+                    ) -> tuple[dict[int, GatedCapture], dict[int, Exception]]:
+        """Capture ``pose`` on every active board at once: one thread per group, boards of a group in turn.
+
+        Returns the captures and the errors, by board index; nothing is marked failed here.
+        """
         groups: dict[str, list[PanelBoard]] = {}
         for b in boards:
             if b.active:
                 groups.setdefault(b.group, []).append(b)
-        out: dict[int, GatedCapture] = {}
+        caps: dict[int, GatedCapture] = {}
+        errors: dict[int, Exception] = {}
         lock = threading.Lock()
 
         def run(members: list[PanelBoard]) -> None:
             for b in members:
-                gc = self._capture_one(b, pose, (floors or {}).get(b.index))
-                if gc is not None:
-                    with lock:
-                        out[b.index] = gc
+                gc, err = self._capture_one(b, pose, (floors or {}).get(b.index))
+                with lock:
+                    if gc is not None:
+                        caps[b.index] = gc
+                    else:
+                        errors[b.index] = err
 
         if len(groups) <= 1:
             for members in groups.values():
@@ -296,14 +299,36 @@ class PanelStation:
         else:
             with ThreadPoolExecutor(max_workers=len(groups)) as ex:
                 list(ex.map(run, groups.values()))
-        return out
+        return caps, errors
+
+    def _present_and_capture(self, boards: list[PanelBoard], jig: Jig, pose: PoseSpec,
+                             floors: dict[int, Any] | None = None) -> dict[int, GatedCapture]:
+        """Present ``pose`` and capture the panel; a board that could not be captured fails with its reason.
+
+        The panel is placed once: when every board reads a wrong pose it is the panel that is
+        misplaced, and an operator is asked to place it again (up to capture.max_recaptures).
+        """
+        for attempt in range(self.cfg.capture.max_recaptures + 1):
+            jig.present(pose, None)
+            caps, errors = self.capture_all(boards, pose, floors)
+            misplaced = len(boards) > 1 and not caps and errors and all(
+                isinstance(e, WrongPose) for e in errors.values())
+            if not misplaced:
+                break
+            self.echo(f"  every board reads a wrong pose at {pose.name}: the panel is not in the planned pose")
+            if not isinstance(jig, OperatorJig) or attempt == self.cfg.capture.max_recaptures:
+                break
+        for b in boards:
+            if b.index in errors:
+                e = errors[b.index]
+                b.fail(f"pose {pose.name}: {e}" if isinstance(e, WrongPose) else f"device: {pose.name}: {e}")
+                self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
+        return caps
 
     def _poses(self, boards: list[PanelBoard], jig: Jig, design: list[PoseSpec]) -> None:
         for i, pose in enumerate(design):
             self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
-            jig.present(pose, None)
-            caps = self.capture_all(boards, pose, {b.index: b.floor for b in boards})
-            self._check_panel_pose(boards, pose, caps)
+            caps = self._present_and_capture(boards, jig, pose, {b.index: b.floor for b in boards})
             for b in boards:
                 gc = caps.get(b.index)
                 if gc is None:
@@ -320,12 +345,6 @@ class PanelStation:
                                     "sem_mg": sem_mg.tolist(), "retries": gc.recaptures,
                                     "reached_target": gc.reached_target})
                 b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events]
-
-    def _check_panel_pose(self, boards: list[PanelBoard], pose: PoseSpec, caps: dict) -> None:
-        """The panel is placed once: when no board is on the planned pose, the panel itself is misplaced."""
-        tried = [b for b in boards if b.open_ and any(r.startswith(f"pose {pose.name}:") for r in b.rep.reasons)]
-        if len(boards) > 1 and tried and not caps and len(tried) == sum(b.open_ for b in boards):
-            self.echo(f"  every board refused pose {pose.name}: the panel is not in the planned pose")
 
     # -- the run ---------------------------------------------------------------------
     def run(self) -> list[RunReport]:
@@ -404,8 +423,7 @@ class PanelStation:
         poses = get_design(self.cfg.verify_design or self.cfg.design)[:n]
         for pose in poses:
             self.echo(f"verify {pose.name}")
-            jig.present(pose, None)
-            caps = self.capture_all(todo, pose)
+            caps = self._present_and_capture(todo, jig, pose)
             for b in todo:
                 gc = caps.get(b.index)
                 if gc is not None:

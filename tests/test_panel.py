@@ -127,3 +127,13 @@ def test_joint_estimation_says_when_the_panel_is_too_small():
     assert not est.estimated and "too small" in est.note and f"at least {MIN_BOARDS}" in est.note
     np.testing.assert_array_equal(est.references_g[0], ref)
     assert "no pose references" in estimate_jig_poses(gf, ref, "9").note
+
+
+def test_a_misplaced_panel_is_named_as_the_panel(tmp_path):
+    seated = {"seated_deg": [0.0, 180.0, 0.0]}
+    cfg = StationConfig.load(panel_config(tmp_path, [dict(seated) for _ in range(3)]))
+    lines: list[str] = []
+    reps = PanelStation(cfg, echo=lines.append).run()
+    assert [r.verdict for r in reps] == ["FAIL"] * 3
+    assert any("the panel is not in the planned pose" in ln for ln in lines)
+    assert all(len(r.reasons) == 1 and r.reasons[0].startswith("pose p1:") for r in reps)
