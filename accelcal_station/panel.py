@@ -1,8 +1,9 @@
 """Panel calibration: several boards on one jig, every pose captured on all of them at once.
 
 The flow (DESIGN.md "Scale"): the panel is placed once; at each pose the jig presents the
-whole panel and every board is captured at once (one thread per bus or serial port;
-boards that share a bus are read in turn by its thread); then each board gets its own
+whole panel and every board is captured at once (one thread per serial port or board;
+boards that share a multiplexed I2C bus take turns on it, transaction by transaction,
+within each sample period: drivers/tca9548a.py MuxBus.lock); then each board gets its own
 fit, verdict, verification, NVM burn with read-back, and its own run in the store, all
 sharing one ``panel_id``.  A board that fails (NACKs, sits on the wrong face, is beyond
 its limits) is named with its own reason and dropped from the rest of the flow; it never
@@ -142,11 +143,13 @@ def panel_sections(device: dict, path: str = "device") -> list[tuple[dict, str]]
 
 
 def group_of(section: dict, index: int) -> str:
-    """The thread a board is read by: its I2C bus or serial port (a simulated board: its own)."""
-    drv = section.get("driver")
-    if drv == "mma8451" and section.get("mux") is not None:
-        return f"i2c:{section.get('bus', 1)}"
-    if drv == "mpu6050" and section.get("port") not in (None, "emulated"):
+    """The thread a board is read by: its serial port, else its own.
+
+    Boards behind a multiplexer each have their own thread too: their transactions are
+    serialised on the bus (MuxBus.lock), so they are read in turn, transaction by
+    transaction, within each sample period rather than one whole capture after another.
+    """
+    if section.get("driver") == "mpu6050" and section.get("port") not in (None, "emulated"):
         return f"serial:{section['port']}"
     return f"board:{index}"
 

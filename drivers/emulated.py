@@ -50,8 +50,7 @@ def emulated_muxed_mma8451(section: dict, path: str, buses: dict) -> MMA8451:
 
     ``buses`` shares one emulated bus (mux emulator, MuxBus) per mux address among a panel's
     boards: the driver talks smbus2 calls through a :class:`MuxChannel`, the mux emulator
-    routes them to this board's MMA8451 emulator, and every board on the bus waits on the
-    bus's one clock.
+    routes them to this board's MMA8451 emulator; the driver waits on that board's clock.
     """
     address, channel, rest = mux_settings(section, path)
     key = ("emulated", address)
@@ -61,7 +60,7 @@ def emulated_muxed_mma8451(section: dict, path: str, buses: dict) -> MMA8451:
     if mux.smbus.channels.get(channel) is not None:
         raise ConfigError(f"{path}.channel: {channel} already holds a board on the emulated bus's "
                           f"mux 0x{address:02x}; allowed: one board per channel")
-    drv = emulated_mma8451(rest, path, bus=MuxChannel(mux, channel), clock=mux.smbus.clock,
+    drv = emulated_mma8451(rest, path, bus=MuxChannel(mux, channel),
                            bus_label=f"emulated/mux0x{address:02x}.{channel}")
     mux.smbus.attach(channel, drv.emulator)
     return drv
