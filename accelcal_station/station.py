@@ -25,6 +25,7 @@ from .drivers import Driver, make_driver
 from .errors import AccelcalError, ConfigError, UnderdeterminedError
 from .fixtures.base import Jig, PoseSpec
 from .fixtures.designs import get_design
+from .fixtures.factory import board_of, make_jig  # noqa: F401  (re-exported: the jig factory lives there)
 from .fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
 from .models import check_model, fit_session
 from .models.result import FitResult
@@ -126,44 +127,6 @@ class StationConfig:
         return cls(raw, p.read_text(), p, str(st.get("id", "station-1")), design, model, settings,
                    limits, write, slot, trim, verify_poses,
                    None if vdesign is None else str(vdesign), store_file)
-
-
-def board_of(driver: Driver):
-    """The SimulatedBoard behind a simulated or emulated driver, else None."""
-    board = getattr(driver, "board", None)
-    if board is None and getattr(driver, "emulator", None) is not None:
-        board = getattr(driver.emulator, "board", None)
-    return board
-
-
-def make_jig(cfg: dict, driver: Driver, echo: Callable[[str], None]) -> Jig:
-    """Build the configured jig for this driver."""
-    kind = cfg.get("type", "simulated")
-    rest = {k: v for k, v in cfg.items() if k != "type"}
-    if kind == "simulated":
-        from .fixtures.simulated_jig import SimulatedJig
-
-        check_keys(rest, ["move_time_s"], "jig")
-        board = board_of(driver)
-        if board is None:
-            raise ConfigError("jig.type: simulated needs a simulated or emulated device; "
-                              "use operator or motorized with real hardware")
-        return SimulatedJig(board, number(rest, "move_time_s", "jig", 2.0, 0.0, 120.0))
-    if kind == "operator":
-        hand = None
-        if rest.get("hand") is not None:
-            from .fixtures.simulated_hand import SimulatedHand
-
-            board = board_of(driver)
-            if board is None:
-                raise ConfigError("jig.hand: a simulated hand needs a simulated or emulated device")
-            hand = SimulatedHand.from_config(rest["hand"], board, "jig.hand")
-        jig = OperatorJig.from_config(cfg, "jig", hand=hand)
-        jig.echo = echo
-        return jig
-    from .fixtures.motorized_jig import MotorizedJig
-
-    return MotorizedJig.from_config(rest, "jig")
 
 
 @dataclass
