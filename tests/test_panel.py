@@ -137,3 +137,18 @@ def test_a_misplaced_panel_is_named_as_the_panel(tmp_path):
     assert [r.verdict for r in reps] == ["FAIL"] * 3
     assert any("the panel is not in the planned pose" in ln for ln in lines)
     assert all(len(r.reasons) == 1 and r.reasons[0].startswith("pose p1:") for r in reps)
+
+
+def test_a_board_that_is_not_still_is_named_and_the_others_pass(tmp_path):
+    from accelcal_station.drivers import make_driver
+    from accelcal_station.panel import panel_sections
+
+    cfg = StationConfig.load(panel_config(tmp_path, 3))
+    drivers = [make_driver(sec, path) for sec, path in panel_sections(cfg.raw["device"])]
+    for k in range(100):  # shaken through the first pose: 3 deg jolts every 0.5 s for 50 s
+        drivers[1].board.disturb(after_s=1.0 + 0.5 * k, duration_s=0.4, amplitude_deg=3.0)
+    lines: list[str] = []
+    reps = PanelStation(cfg, echo=lines.append, drivers=drivers).run()
+    assert [r.verdict for r in reps] == ["PASS", "FAIL", "PASS"]
+    assert reps[1].reasons[0].startswith("device: p1:") and "not still" in reps[1].reasons[0]
+    assert any(ln.strip().startswith("board 2 (PNL-02)") for ln in lines)
