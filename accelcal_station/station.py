@@ -24,6 +24,7 @@ from .drivers import Driver, make_driver
 from .errors import AccelcalError, ConfigError, UnderdeterminedError
 from .fixtures.base import Jig, PoseSpec
 from .fixtures.designs import get_design
+from .fixtures.factory import board_of, make_jig  # noqa: F401  (re-exported: the jig factory lives there)
 from .fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
 from .models import check_model, fit_session
 from .models.result import FitResult
@@ -131,44 +132,6 @@ class StationConfig:
         return cls(raw, p.read_text(), p, str(st.get("id", "station-1")), design, model, settings,
                    limits, write, slot, trim, verify_poses,
                    None if vdesign is None else str(vdesign), store_file)
-
-
-def board_of(driver: Driver):
-    """The SimulatedBoard behind a simulated or emulated driver, else None."""
-    board = getattr(driver, "board", None)
-    if board is None and getattr(driver, "emulator", None) is not None:
-        board = getattr(driver.emulator, "board", None)
-    return board
-
-
-def make_jig(cfg: dict, driver: Driver, echo: Callable[[str], None]) -> Jig:
-    """Build the configured jig for this driver."""
-    kind = cfg.get("type", "simulated")
-    rest = {k: v for k, v in cfg.items() if k != "type"}
-    if kind == "simulated":
-        from .fixtures.simulated_jig import SimulatedJig
-
-        check_keys(rest, ["move_time_s"], "jig")
-        board = board_of(driver)
-        if board is None:
-            raise ConfigError("jig.type: simulated needs a simulated or emulated device; "
-                              "use operator or motorized with real hardware")
-        return SimulatedJig(board, number(rest, "move_time_s", "jig", 2.0, 0.0, 120.0))
-    if kind == "operator":
-        hand = None
-        if rest.get("hand") is not None:
-            from .fixtures.simulated_hand import SimulatedHand
-
-            board = board_of(driver)
-            if board is None:
-                raise ConfigError("jig.hand: a simulated hand needs a simulated or emulated device")
-            hand = SimulatedHand.from_config(rest["hand"], board, "jig.hand")
-        jig = OperatorJig.from_config(cfg, "jig", hand=hand)
-        jig.echo = echo
-        return jig
-    from .fixtures.motorized_jig import MotorizedJig
-
-    return MotorizedJig.from_config(rest, "jig")
 
 
 @dataclass
@@ -396,12 +359,21 @@ class Station:
                 self.progress("poses", (i + 1) / len(design))
 
     def _fit_judge_write(self, driver, jig, session: Session, rep: RunReport) -> None:
+        cal = self._fit_judge(driver, session, rep)
+        if cal is None:
+            return
+        checks = self._verify_captures(driver, jig, rep)
+        if self._judge_verified(cal, checks, rep):
+            self._burn(driver, cal, checks, rep)
+
+    def _fit_judge(self, driver, session: Session, rep: RunReport) -> Calibration | None:
+        """Fit and judge before any verification capture; the calibration to verify, or None (FAIL)."""
         cfg = self.cfg
         try:
             fit = fit_session(session, cfg.model)
         except UnderdeterminedError as e:
             rep.verdict, rep.reasons = "FAIL", [Reason("fit", str(e))]
-            return
+            return None
         rep.fit = fit
         rep.calibration = fit.calibration
         planned = len(get_design(cfg.design))
@@ -410,20 +382,28 @@ class Station:
         if not verdict.passed:
             rep.verdict, rep.reasons = "FAIL", verdict.reasons
             self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
-            return
+            return None
         cal = fit.calibration
         if cfg.offset_trim:
             cal = rep.calibration = self._trim_offsets(driver, cal, rep)
-        checks = self._verify_captures(driver, jig, rep)
+        return cal
+
+    def _judge_verified(self, cal: Calibration, checks, rep: RunReport) -> bool:
+        """Judge again with the verification captures (when there are any); True: PASS so far."""
         if checks:
             err = self._verify_error(cal, checks)
             rep.verify_error_max_mg = err
-            verdict = judge(fit, cfg.limits, err, planned_poses=planned)
+            verdict = judge(rep.fit, self.cfg.limits, err, planned_poses=len(get_design(self.cfg.design)))
             rep.measured = verdict.measured
             if not verdict.passed:
                 rep.verdict, rep.reasons = "FAIL", verdict.reasons
-                return
+                return False
         rep.verdict, rep.reasons = "PASS", []
+        return True
+
+    def _burn(self, driver, cal: Calibration, checks, rep: RunReport) -> None:
+        """Burn NVM, read back, and check the calibration read back does what the fitted one did."""
+        cfg = self.cfg
         if not cfg.nvm_write:
             return
         nvm = driver.nvm

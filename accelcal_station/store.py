@@ -104,6 +104,10 @@ MIGRATIONS: list[str] = [
     );
     CREATE INDEX events_run ON events (run_id);
     """,
+    """
+    ALTER TABLE runs ADD COLUMN panel_id TEXT;   -- the boards calibrated together on one jig (panel.py)
+    CREATE INDEX runs_panel ON runs (panel_id);
+    """,
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -229,6 +233,7 @@ class RunRecord:
     fit_summary: dict | None
     host: str | None
     pid: int | None
+    panel_id: str | None = None  # the boards calibrated together on one jig
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
     events: list[dict] = field(default_factory=list)
@@ -369,21 +374,22 @@ class Store:
                   operator: str | None = None, lot: str | None = None, config_text: str | None = None,
                   config_hash: str | None = None, model: str | None = None, units: str | None = None,
                   counts_per_g: float | None = None, gravity_mps2: float | None = None,
-                  started_at: float | None = None) -> int:
+                  started_at: float | None = None, panel_id: str | None = None) -> int:
         """Commit a ``running`` row now (a crash leaves it recorded) and return its id.
 
-        ``config_hash`` defaults to the SHA-256 of ``config_text``.
+        ``config_hash`` defaults to the SHA-256 of ``config_text``; ``panel_id`` ties the runs
+        of the boards calibrated together on one jig.
         """
         if config_hash is None and config_text is not None:
             config_hash = hashlib.sha256(config_text.encode()).hexdigest()
         with self._tx("start a run") as db:
             cur = db.execute(
                 "INSERT INTO runs (started_at, status, device_serial, chip, station_id, operator, lot, config_hash,"
-                " config_text, model, units, counts_per_g, gravity_mps2, host, pid)"
-                " VALUES (?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
+                " config_text, model, units, counts_per_g, gravity_mps2, host, pid, panel_id)"
+                " VALUES (?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
                 (_time.time() if started_at is None else float(started_at), device_serial, chip, station_id,
                  operator, lot, config_hash, config_text, _opt(model, str), units, _opt(counts_per_g),
-                 _opt(gravity_mps2), socket.gethostname(), os.getpid()))
+                 _opt(gravity_mps2), socket.gethostname(), os.getpid(), panel_id))
             return int(cur.fetchone()[0])
 
     def _running(self, db, run_id: int) -> None:
@@ -536,6 +542,7 @@ class Store:
                         "operator": r["operator"], "lot": r["lot"], "model": r["model"], "verdict": r["verdict"],
                         "reasons": [] if "reasons" in damaged or not r["reasons"] else json.loads(r["reasons"]),
                         "nvm_status": r["nvm_status"], "pose_count": counts.get(r["id"], 0),
+                        "panel_id": r["panel_id"],
                         "residual_rms_g": fit.get("residual_rms_g") if isinstance(fit, dict) else None,
                         **({"damaged": damaged} if damaged else {})})
         return out

@@ -1,6 +1,6 @@
 """Station time per board against the sampling floor, on the simulated board at its real data rate.
 
-    python benchmarks/bench_station_time.py [--boards 10] [--config configs/sim.yaml] [--small]
+    python benchmarks/bench_station_time.py [--boards 10] [--panel 16] [--config configs/sim.yaml] [--small]
 
 Runs ``accelcal run``'s Station on the default simulated configuration (MMA8451
 at 100 Hz, 8 poses an4399-8, model 12, 3 verification poses, NVM burn, SQLite
@@ -17,6 +17,12 @@ the hold time), jig moves (poses presented x move_time_s), other device time
 (EEPROM write cycles and read-back), host compute (fit, simulation, store).
 The floor itself is set by the capture target: averaging to a standard error
 of ``capture.target_sem_mg`` needs (sigma / target)^2 samples per pose.
+
+Panel (``--panel N``, default 16): the same configuration as a panel of N boards on one
+jig (panel.py): every pose presented once and captured on all boards at once.  Its time
+is the longest board's device time plus the host's wall time for the whole panel (fits,
+simulation and store of all N boards); per board it is that divided by N, printed beside
+(single-board time / N) and their ratio, all measured in this run.
 """
 from __future__ import annotations
 
@@ -34,6 +40,7 @@ from benchlib import table  # noqa: E402
 
 from accelcal_station.drivers import make_driver  # noqa: E402
 from accelcal_station.fixtures.designs import get_design  # noqa: E402
+from accelcal_station.panel import PanelStation  # noqa: E402
 from accelcal_station.station import Station, StationConfig  # noqa: E402
 
 COMPONENTS = ("floor_fit", "floor_verify", "gating", "moves", "other_device", "host")
@@ -80,6 +87,15 @@ def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, dict]:
     return {k: float(np.mean(v)) for k, v in acc.items()}, facts
 
 
+def run_panel(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, list[str]]:
+    """One panel of ``boards`` boards (seeds from ``seed``): the panel's timing and the verdicts."""
+    raw = copy.deepcopy(cfg.raw)
+    raw["device"] = {**raw["device"], "boards": boards, "seed": seed}
+    st = PanelStation(dataclasses.replace(cfg, raw=raw), echo=lambda *_: None)
+    reports = st.run()
+    return st.timing, [r.verdict for r in reports]
+
+
 def needed_samples(cfg: StationConfig) -> float:
     """(sigma / target)^2: samples one pose needs to reach the capture target, per the
     simulated chip's noise (white noise and the LSB^2/12 of quantization)."""
@@ -94,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--boards", type=int, default=10, help="boards per configuration (default 10)")
     ap.add_argument("--config", default=None, help="station configuration (default: configs/sim.yaml)")
     ap.add_argument("--seed", type=int, default=100)
+    ap.add_argument("--panel", type=int, default=16, help="boards on the panel (default 16; 0: no panel)")
     ap.add_argument("--small", action="store_true", help="a quick run: 2 boards per configuration")
     a = ap.parse_args(argv)
     if a.small:
@@ -114,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         move = float((cfg.raw.get("jig") or {}).get("move_time_s", 2.0))
         res, facts = run_boards(cfg, a.boards, a.seed)
         res0, _ = run_boards(cfg0, a.boards, a.seed)
+        panel = run_panel(cfg, a.panel, a.seed) if a.panel > 0 else None
     n_need = needed_samples(cfg)
     poses = len(get_design(cfg.design)) + cfg.verify_poses
     theory = poses * n_need / facts["odr_hz"]
@@ -134,6 +152,16 @@ def main(argv: list[str] | None = None) -> int:
                  f"{res0['total'] / theory:.2f}", ""])
     print(table(["seconds per board", f"moves {move:g} s", "share", "moves 0 s", "share"], rows))
     print(f"noise-limited floor: {poses} poses x {n_need:.0f} samples / {facts['odr_hz']:g} Hz = {theory:.2f} s")
+    if panel is not None:
+        t, verdicts = panel
+        share = res["total"] / a.panel
+        print(f"panel of {a.panel} boards on one jig (verdicts: {', '.join(sorted(set(verdicts)))}): "
+              f"{t['panel_time_s']:.2f} s (device {t['device_time_s']:.2f} s + host {t['host_compute_s']:.2f} s)")
+        print(table(["seconds per board", "value"], [
+            ["single board (mean above)", f"{res['total']:.2f}"],
+            [f"single board / {a.panel}", f"{share:.2f}"],
+            [f"panel of {a.panel}, per board", f"{t['per_board_s']:.2f}"],
+            [f"ratio: panel per board / (single / {a.panel}), goal <= 1.2", f"{t['per_board_s'] / share:.2f}"]]))
     return 0
 
 

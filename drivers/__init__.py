@@ -19,6 +19,12 @@ DRIVERS = {
     "mpu6050": "accelcal_station.drivers.mpu6050:MPU6050Bridge",
 }
 
+# name -> (config key that says "emulated", "module:factory function")
+EMULATED = {
+    "mma8451": ("bus", "accelcal_station.drivers.emulated:emulated_mma8451"),
+    "mpu6050": ("port", "accelcal_station.drivers.emulated:emulated_mpu6050"),
+}
+
 
 def make_driver(config: dict[str, Any], path: str = "device") -> Driver:
     """Build the driver named by ``config['driver']`` from the rest of the section."""
@@ -27,9 +33,14 @@ def make_driver(config: dict[str, Any], path: str = "device") -> Driver:
     name = config.get("driver")
     if name not in DRIVERS:
         raise ConfigError(f"{path}.driver: {name!r}; allowed: {', '.join(DRIVERS)}")
+    rest = {k: v for k, v in config.items() if k != "driver"}
+    if name in EMULATED and rest.get(EMULATED[name][0]) == "emulated":
+        # the emulated bus/port is built here and handed to the driver (python-can's `virtual`)
+        module, fn = EMULATED[name][1].split(":")
+        return getattr(importlib.import_module(module), fn)(rest, path)
     module, cls = DRIVERS[name].split(":")
     driver_cls = getattr(importlib.import_module(module), cls)
-    return driver_cls.from_config({k: v for k, v in config.items() if k != "driver"}, path=path)
+    return driver_cls.from_config(rest, path=path)
 
 
 __all__ = ["NVM", "Capture", "Driver", "Identity", "DRIVERS", "make_driver"]

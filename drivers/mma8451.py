@@ -6,7 +6,8 @@ bit 0 ACTIVE clear); data are 14-bit, left-justified, two's complement, MSB firs
 
 The driver only calls smbus2's ``SMBus`` methods, so the same code runs against a real
 ``/dev/i2c-N`` and against :class:`~accelcal_station.drivers.mma8451_emulator.MMA8451Emulator`
-(``bus: emulated``); the only other thing injected is the clock it waits on.
+(``bus: emulated``, built by drivers/emulated.py and handed in); the only other thing
+injected is the clock it waits on.  This module never imports the emulator.
 
 Faults and what the driver does:
   NACK or bus error (OSError)  retried ``retries`` times (1 ms apart), then DeviceError naming the bus,
@@ -237,8 +238,12 @@ class MMA8451(Driver):
                    "offset_trim_lsb", "eeprom", "simulator", "seed", "emulator")
 
     @classmethod
-    def from_config(cls, cfg: dict, path: str = "device") -> "MMA8451":
-        """Build from a ``device:`` section (driver key already removed); ``bus: emulated`` needs no hardware."""
+    def parse_config(cls, cfg: dict, path: str = "device") -> tuple[Any, dict]:
+        """Check a ``device:`` section (driver key removed): (bus spec, constructor keywords).
+
+        ``bus: emulated`` is checked here but built by the factory (drivers/emulated.py), which
+        hands the emulated bus in: this module never imports its emulator.
+        """
         cfg = check_keys(cfg, cls.CONFIG_KEYS, path)
         bus = cfg.get("bus", 1)
         emulated = bus == "emulated"
@@ -280,17 +285,15 @@ class MMA8451(Driver):
             serial=str(cfg.get("serial") or ""),
             offset_trim_lsb=trim, eeprom=eeprom,
         )
-        if emulated:
-            from .mma8451_emulator import MMA8451Emulator
+        return bus, kw
 
-            emu = MMA8451Emulator.from_config(cfg, path, address=address,
-                                              eeprom_address=eeprom["address"] if eeprom else None)
-            if eeprom:  # the emulated EEPROM's geometry is the simulated board's
-                eeprom.update(size=emu.eeprom_size, page_size=emu.eeprom_page_size)
-            kw["serial"] = kw["serial"] or emu.board.serial
-            drv = cls(emu, clock=emu.clock, bus_label="emulated", **kw)
-            drv.emulator = emu  # its .board is what a simulated jig moves
-            return drv
+    @classmethod
+    def from_config(cls, cfg: dict, path: str = "device") -> "MMA8451":
+        """Build from a ``device:`` section on a real bus; ``bus: emulated`` goes through the
+        factory (``make_driver``), which builds the emulated bus and hands it in."""
+        bus, kw = cls.parse_config(cfg, path)
+        if bus == "emulated":
+            raise ConfigError(f"{path}.bus: emulated is built by make_driver (drivers/emulated.py)")
         return cls(bus, **kw)
 
     # --- lifecycle ------------------------------------------------------------------------

@@ -328,7 +328,16 @@ class MPU6050Bridge(Driver):
 
     @classmethod
     def from_config(cls, cfg: dict, path: str = "device") -> "MPU6050Bridge":
-        """From a ``device:`` section (driver key removed); ``port: emulated`` runs the bridge emulator."""
+        """From a ``device:`` section (driver key removed) on a real port; ``port: emulated`` is
+        built by the factory (``make_driver``, drivers/emulated.py), which hands the emulator in."""
+        port, kw = cls.parse_config(cfg, path)
+        if port == "emulated":
+            raise ConfigError(f"{path}.port: emulated is built by make_driver (drivers/emulated.py)")
+        return cls(port, **kw)
+
+    @classmethod
+    def parse_config(cls, cfg: dict, path: str = "device") -> tuple[str, dict]:
+        """Check a ``device:`` section: (port, constructor keywords)."""
         cfg = check_keys(cfg, cls.CONFIG_KEYS, path)
         port = cfg.get("port")
         if not isinstance(port, str) or not port:
@@ -346,11 +355,7 @@ class MPU6050Bridge(Driver):
                   timeout_s=number(cfg, "timeout_s", path, 0.5, 0.01, 60.0),
                   retries=number(cfg, "retries", path, 3, 0, 20, integer=True),
                   boot_wait_s=number(cfg, "boot_wait_s", path, 2.0, 0.0, 30.0))
-        if port == "emulated":
-            from .mpu6050_emulator import MPU6050BridgeEmulator
-
-            return cls("emulated", emulator=MPU6050BridgeEmulator.from_config(cfg, path), **kw)
-        return cls(port, **kw)
+        return port, kw
 
     # --- lifecycle ------------------------------------------------------------------------
     def open(self) -> None:

@@ -104,14 +104,28 @@ def test_batch_end_to_end_and_memory(capsys):
 
 
 def test_station_time_above_floor(capsys):
-    out = run(capsys, "bench_station_time", "--boards", "1")
-    (rows,) = tables(out)
+    out = run(capsys, "bench_station_time", "--boards", "1", "--panel", "4")
+    rows, panel = tables(out)
     by = {r[0]: r[1:] for r in rows}
     assert "verdicts: PASS" in out
     moved, still = by["ratio: total / sampling floor"]
     # board time includes the averaged samples, so it can never be below the sampling floor
     assert number(moved) > number(still) >= 1.0
     assert number(by["jig moves (poses presented x move_time_s)"][0]) == 22.0  # 11 poses x 2 s
+    per = {r[0]: number(r[1]) for r in panel}
+    # a panel shares every pose's moves and sampling: per board it costs far less than one board
+    assert per["panel of 4, per board"] < 0.5 * per["single board (mean above)"]
+    assert math.isclose(per["single board / 4"], per["single board (mean above)"] / 4, rel_tol=0.01)
+
+
+def test_panel_pose_scatter(capsys):
+    out = run(capsys, "bench_panel_pose", "--small")
+    (rows,) = tables(out)
+    by = {r[0]: [number(v) for v in r[1:]] for r in rows}
+    assert list(by) == ["alone", "panel of 4", "panel of 16", "perfect jig"]
+    # the panel's estimate removes the jig's scatter from the residuals (1.5 mg alone vs 0.04 mg noise)
+    assert by["panel of 16"][4] < 0.2 * by["alone"][4]
+    assert all(math.isfinite(v) and v > 0 for r in by.values() for v in r)
 
 
 def test_bad_arguments_exit_2(capsys):

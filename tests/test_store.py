@@ -58,7 +58,7 @@ def db(tmp_path):
 def test_run_round_trip_rebuilds_session(db):
     nvm = EEPROM24()
     with Store(db) as store:
-        assert store.schema_version == SCHEMA_VERSION == 1
+        assert store.schema_version == SCHEMA_VERSION == 2
         s, _, _ = board(1)
         fit = fit_session(s, "12")
         outcome = CalibrationWriter(nvm).burn(fit.calibration, s.device, "st1")
@@ -300,7 +300,7 @@ def test_refuses_foreign_and_newer_files(tmp_path):
     Store(newer).close()
     with sqlite3.connect(newer) as c:
         c.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
-    with pytest.raises(StoreError, match="schema version 2 is newer than this station's 1"):
+    with pytest.raises(StoreError, match=f"schema version {SCHEMA_VERSION + 1} is newer than this station's {SCHEMA_VERSION}"):
         Store(newer)
     with pytest.raises(StoreError, match="no run 5"):
         Store(tmp_path / "fresh.sqlite").get_run(5)

@@ -35,6 +35,9 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
         click.echo(text, err=as_json)
 
     echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}")
+    if isinstance(cfg.raw["device"], dict) and "boards" in cfg.raw["device"]:
+        _run_panel(cfg, operator, serial, lot, as_json, echo)
+        return
     rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
     if as_json:
         click.echo(json.dumps(jsonable(rep.to_dict()), indent=2, allow_nan=False))
@@ -70,3 +73,30 @@ def timing_lines(t: dict) -> list[str]:
         out.append(f"time: wall {t['wall_s']:.1f} s = operator waiting {t['operator_wait_s']:.1f} s "
                    f"+ station {t['host_compute_s']:.1f} s (sampling, moves, compute)")
     return out
+
+
+def _run_panel(cfg: StationConfig, operator, serial, lot, as_json: bool, echo) -> None:
+    """A panel: one line per board; exit 1 when any board failed."""
+    from ..errors import ConfigError
+    from ..panel import PanelStation, panel_dict
+
+    if serial is not None:
+        raise ConfigError("--serial: a panel's boards keep their own serials; remove --serial "
+                          "(or set device.boards[i].serial)")
+    station = PanelStation(cfg, operator=operator, lot=lot, echo=echo)
+    reports = station.run()
+    if as_json:
+        click.echo(json.dumps(jsonable(panel_dict(station.panel_id, reports, station)), indent=2, allow_nan=False))
+    else:
+        for i, rep in enumerate(reports):
+            colour = "green" if rep.verdict == "PASS" else "red"
+            why = "" if not rep.reasons else ": " + "; ".join(rep.reasons)
+            click.secho(f"board {i + 1:2d} {rep.serial or '-':<14} {rep.verdict} (run {rep.run_id}){why}", fg=colour)
+        t = station.timing
+        passed = sum(r.verdict == "PASS" for r in reports)
+        line = f"panel {station.panel_id}: {passed}/{len(reports)} passed, store {cfg.store_file}"
+        if "panel_time_s" in t:
+            line += f"; {t['panel_time_s']:.1f} s board time, {t['per_board_s']:.2f} s per board"
+        click.echo(line)
+    if any(r.verdict != "PASS" for r in reports):
+        raise click.exceptions.Exit(1)

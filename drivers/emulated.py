@@ -1,0 +1,66 @@
+"""Factories of emulated buses and ports (python-can's ``virtual`` interface in spirit).
+
+A driver never imports its emulator: ``make_driver`` routes ``bus: emulated`` /
+``port: emulated`` here, and this module builds the register-level emulator and hands it
+to the driver as its SMBus (MMA8451) or as the thing that owns its pseudo-terminal
+(MPU6050 bridge).  The import graph is one way: emulated -> driver, emulated -> emulator.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from ..errors import ConfigError
+
+from .mma8451 import MMA8451
+from .mma8451_emulator import MMA8451Emulator
+from .mpu6050 import MPU6050Bridge
+from .mpu6050_emulator import MPU6050BridgeEmulator
+from .tca9548a import MuxBus, MuxChannel, mux_settings
+from .tca9548a_emulator import TCA9548AEmulator
+
+
+def emulated_mma8451(cfg: dict, path: str = "device", bus: Any = None, clock: Any = None,
+                     bus_label: str = "emulated") -> MMA8451:
+    """An MMA8451 driver on an emulated smbus2 bus fed by a simulated board.
+
+    ``bus``: the SMBus-like object the driver talks through (default: the chip's own
+    emulator; a multiplexer channel for a panel); ``clock``: what the driver waits on
+    (default: the emulator's).
+    """
+    _, kw = MMA8451.parse_config(cfg, path)
+    eeprom = kw["eeprom"]
+    emu = MMA8451Emulator.from_config(cfg, path, address=kw["address"],
+                                      eeprom_address=eeprom["address"] if eeprom else None)
+    if eeprom:  # the emulated EEPROM's geometry is the simulated board's
+        eeprom.update(size=emu.eeprom_size, page_size=emu.eeprom_page_size)
+    kw["serial"] = kw["serial"] or emu.board.serial
+    drv = MMA8451(emu if bus is None else bus, clock=clock or emu.clock, bus_label=bus_label, **kw)
+    drv.emulator = emu  # its .board is what a simulated jig moves
+    return drv
+
+
+def emulated_mpu6050(cfg: dict, path: str = "device") -> MPU6050Bridge:
+    """An MPU6050 bridge driver whose port is a pseudo-terminal answered by the bridge emulator."""
+    _, kw = MPU6050Bridge.parse_config(cfg, path)
+    return MPU6050Bridge("emulated", emulator=MPU6050BridgeEmulator.from_config(cfg, path), **kw)
+
+
+def emulated_muxed_mma8451(section: dict, path: str, buses: dict) -> MMA8451:
+    """An emulated MMA8451 board behind channel ``section['channel']`` of a TCA9548A emulator.
+
+    ``buses`` shares one emulated bus (mux emulator, MuxBus) per mux address among a panel's
+    boards: the driver talks smbus2 calls through a :class:`MuxChannel`, the mux emulator
+    routes them to this board's MMA8451 emulator; the driver waits on that board's clock.
+    """
+    address, channel, rest = mux_settings(section, path)
+    key = ("emulated", address)
+    if key not in buses:
+        buses[key] = MuxBus(TCA9548AEmulator(address), address, "emulated")
+    mux = buses[key]
+    if mux.smbus.channels.get(channel) is not None:
+        raise ConfigError(f"{path}.channel: {channel} already holds a board on the emulated bus's "
+                          f"mux 0x{address:02x}; allowed: one board per channel")
+    drv = emulated_mma8451(rest, path, bus=MuxChannel(mux, channel),
+                           bus_label=f"emulated/mux0x{address:02x}.{channel}")
+    mux.smbus.attach(channel, drv.emulator)
+    return drv

@@ -1,0 +1,103 @@
+"""TI TCA9548A 1-to-8 I2C multiplexer, host side: one channel as an SMBus-like object.
+
+Data sheet (TCA9548A, SCPS207G): the mux answers at 0x70-0x77 (A2..A0); its one control
+register is written and read without a register address (SMBus send/receive byte); bit n
+set connects downstream channel n.  :class:`MuxChannel` selects its channel before every
+transaction, so any number of identical boards (MMA8451 at 0x1d, EEPROM at 0x50) share
+one bus, each behind its own channel.  It wraps a real ``smbus2.SMBus`` or the
+register-level emulator (drivers/tca9548a_emulator.py) the same way.
+"""
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import smbus2
+
+from ..config import check_keys, number
+from ..errors import ConfigError, DeviceError
+from .mma8451 import MMA8451
+
+ADDRESSES = range(0x70, 0x78)
+CHANNELS = range(8)
+
+
+class MuxBus:
+    """One I2C bus with a TCA9548A on it: remembers the selected channel; one transaction at a time."""
+
+    def __init__(self, smbus: Any, address: int = 0x70, label: str = ""):
+        if address not in ADDRESSES:
+            raise ConfigError(f"mux.address: 0x{address:02x}; allowed: 0x70..0x77")
+        self.smbus, self.address, self.label = smbus, address, label
+        self.selected: int | None = None
+        self.lock = threading.RLock()
+
+    def select(self, channel: int) -> None:
+        if self.selected != channel:
+            self.selected = None  # unknown until the write is acknowledged
+            try:
+                self.smbus.write_byte(self.address, 1 << channel)
+            except OSError as e:
+                raise DeviceError(f"TCA9548A at bus {self.label} address 0x{self.address:02x}: cannot select "
+                                  f"channel {channel}: {e.strerror or e}") from None
+            self.selected = channel
+
+    def close(self) -> None:
+        if hasattr(self.smbus, "close"):
+            self.smbus.close()
+
+
+class MuxChannel:
+    """The subset of ``smbus2.SMBus`` the MMA8451 driver uses, through one mux channel."""
+
+    def __init__(self, mux: MuxBus, channel: int):
+        if channel not in CHANNELS:
+            raise ConfigError(f"channel: {channel!r}; allowed: 0..7")
+        self.mux, self.channel = mux, channel
+
+    def _call(self, name: str, *args):
+        with self.mux.lock:
+            self.mux.select(self.channel)
+            return getattr(self.mux.smbus, name)(*args)
+
+    def read_byte_data(self, i2c_addr: int, register: int, force=None) -> int:
+        return self._call("read_byte_data", i2c_addr, register)
+
+    def write_byte_data(self, i2c_addr: int, register: int, value: int, force=None) -> None:
+        self._call("write_byte_data", i2c_addr, register, value)
+
+    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force=None) -> list[int]:
+        return self._call("read_i2c_block_data", i2c_addr, register, length)
+
+    def write_i2c_block_data(self, i2c_addr: int, register: int, data, force=None) -> None:
+        self._call("write_i2c_block_data", i2c_addr, register, data)
+
+    def i2c_rdwr(self, *msgs) -> None:
+        self._call("i2c_rdwr", *msgs)
+
+    def close(self) -> None:
+        pass  # the bus belongs to the MuxBus
+
+
+def mux_settings(section: dict, path: str) -> tuple[int, int, dict]:
+    """(mux address, channel, the device section without the mux keys) of a board behind a mux."""
+    m = check_keys(section.get("mux"), ("address",), f"{path}.mux")
+    address = number(m, "address", f"{path}.mux", 0x70, 0x70, 0x77, integer=True)
+    if "channel" not in section:
+        raise ConfigError(f"{path}.channel: required behind a mux; allowed: 0..7")
+    channel = number(section, "channel", path, 0, 0, 7, integer=True)
+    rest = {k: v for k, v in section.items() if k not in ("mux", "channel", "driver")}
+    return address, channel, rest
+
+
+def muxed_mma8451(section: dict, path: str, buses: dict) -> MMA8451:
+    """An MMA8451 behind a TCA9548A on a real bus; ``buses`` shares one MuxBus per (bus, mux address)."""
+    address, channel, rest = mux_settings(section, path)
+    bus, kw = MMA8451.parse_config(rest, path)
+    key = (bus, address)
+    if key not in buses:
+        try:
+            buses[key] = MuxBus(smbus2.SMBus(bus), address, str(bus))
+        except OSError as e:
+            raise DeviceError(f"i2c bus {bus}: cannot open: {e.strerror or e}") from None
+    return MMA8451(MuxChannel(buses[key], channel), bus_label=f"{bus}/mux0x{address:02x}.{channel}", **kw)

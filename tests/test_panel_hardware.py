@@ -1,0 +1,116 @@
+"""Panels through the real-chip code paths: 8 MMA8451 behind a TCA9548A emulator (smbus2 API), and
+2 MPU6050 bridges on two pseudo-terminals with the motorized jig (pyserial)."""
+from __future__ import annotations
+
+import json
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from accelcal_station.cli import cli
+from accelcal_station.drivers.tca9548a import MuxChannel
+from accelcal_station.errors import ConfigError
+from accelcal_station.panel import PanelStation
+from accelcal_station.station import StationConfig
+from accelcal_station.writer import CalibrationWriter
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def mux_config(tmp_path, boards=None) -> str:
+    cfg = yaml.safe_load((CONFIGS / "panel-mma8451-emulated.yaml").read_text())
+    if boards is not None:
+        cfg["device"]["boards"] = boards
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    p = tmp_path / "panel.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    return str(p)
+
+
+def test_eight_mma8451_behind_a_tca9548a_with_three_bad_boards(tmp_path):
+    boards = [{"channel": ch} for ch in range(8)]
+    boards[2]["emulator"] = {"present": False}  # nothing answers at 0x1d behind channel 2: NACK
+    boards[4]["seated_deg"] = [180.0, 0.0, 0.0]  # seated upside down in its slot: wrong face
+    boards[6]["simulator"] = {"effects": {"gain": {"gain": [1.09, 1.0, 1.0]}, "noise": {},
+                                          "quantization": {}}}  # 9 % gain: beyond gain_error_max
+    cfg = StationConfig.load(mux_config(tmp_path, boards))
+    st = PanelStation(cfg, echo=lambda s: None)
+    reps = st.run()
+    verdicts = [r.verdict for r in reps]
+    assert verdicts == ["PASS", "PASS", "FAIL", "PASS", "FAIL", "PASS", "FAIL", "PASS"]
+    assert reps[2].reasons[0].startswith("device:") and "0x1d" in reps[2].reasons[0]
+    assert "NACK" in reps[2].reasons[0] or "Remote I/O" in reps[2].reasons[0]
+    assert len(reps[4].reasons) == 1 and "from the planned pose" in reps[4].reasons[0]
+    assert any(r.startswith("gain_error_max") for r in reps[6].reasons)
+    # every transaction of every board went through its mux channel on the one emulated bus
+    drivers = [b.driver for b in st.boards]
+    assert all(isinstance(d._bus_spec, MuxChannel) for d in drivers)
+    mux = drivers[0]._bus_spec.mux.smbus
+    assert {d._bus_spec.mux.smbus for d in drivers} == {mux} and mux.selects > 8
+    # each passing board's own EEPROM (0x50 behind its channel) holds its own fit
+    for b, rep in zip(st.boards, reps):
+        if rep.verdict == "PASS":
+            assert rep.nvm_verified
+            cal, _, _ = CalibrationWriter(b.driver.emulator.board.eeprom).read_newest(rep.serial)
+            np.testing.assert_array_equal(cal.W, rep.calibration.W)
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    rows = db.execute("SELECT count(*), count(DISTINCT panel_id), sum(verdict = 'PASS'), "
+                      "sum(nvm_status = 'written') FROM runs").fetchone()
+    assert rows == (8, 1, 5, 5)
+
+
+def test_mux_panel_cli_json_and_exit_status(tmp_path):
+    boards = [{"channel": 0}, {"channel": 3, "emulator": {"present": False}}]
+    r = CliRunner().invoke(cli, ["run", "--config", mux_config(tmp_path, boards), "--json"])
+    assert r.exit_code == 1
+    out = json.loads(r.stdout)
+    assert [b["verdict"] for b in out["boards"]] == ["PASS", "FAIL"] and out["panel_id"]
+
+
+def test_two_boards_on_one_channel_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"device.boards\[1\].channel: 0 already holds a board"):
+        PanelStation(StationConfig.load(mux_config(tmp_path, [{"channel": 0}, {"channel": 0}])),
+                     echo=lambda s: None).run()
+
+
+def test_two_mpu6050_bridges_on_two_ptys_with_the_motorized_jig(tmp_path):
+    from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
+    from accelcal_station.drivers.simulated import SimulatedBoard
+    from accelcal_station.fixtures.jig_emulator import JigEmulator
+    from accelcal_station.fixtures.simulated_jig import FixtureBoards
+
+    sim = yaml.safe_load((CONFIGS / "sim.yaml").read_text())["device"]["simulator"]
+    boards = [SimulatedBoard.from_config(sim, chip="mpu6050", seed=s) for s in (3, 4)]
+    # the second board is 9 % too sensitive on x: beyond gain_error_max, it alone fails
+    boards[1].model.effects["gain"]["gain"] = np.array([1.09, 0.987, 1.021])
+    bridges = [MPU6050BridgeEmulator(b) for b in boards]
+    ports = [br.start() for br in bridges]
+    jig = JigEmulator(board=FixtureBoards(boards, [br.lock for br in bridges]), speed_deg_s=4000,
+                      accel_deg_s2=1e5).start()
+    try:
+        cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
+        cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+        cfg["jig"].update(port=jig.port, settle_s=0.0, speed_deg_s=4000, accel_deg_s2=1e5)
+        cfg["device"]["boards"] = [{"port": ports[0]}, {"port": ports[1]}]
+        p = tmp_path / "mpu.yaml"
+        p.write_text(yaml.safe_dump(cfg))
+        r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"])
+        assert r.exit_code == 1, r.output
+        out = json.loads(r.stdout)
+        a, b = out["boards"]
+        assert a["verdict"] == "PASS" and a["nvm_verified"] and a["chip"] == "mpu6050"
+        assert b["verdict"] == "FAIL" and any(x.startswith("gain_error_max") for x in b["reasons"])
+        assert sum(c.startswith("MOVE") for c in jig.received) >= 8  # one jig moved both boards
+        cal, _, _ = CalibrationWriter(bridges[0].nvm).read_newest(a["serial"])
+        np.testing.assert_allclose(cal.W, a["W"], rtol=0, atol=0)
+        assert CalibrationWriter(bridges[1].nvm).read_newest(b["serial"]) is None  # a failed board is never written
+        db = sqlite3.connect(tmp_path / "runs.sqlite")
+        assert db.execute("SELECT count(*), count(DISTINCT panel_id) FROM runs").fetchone() == (2, 1)
+    finally:
+        jig.stop()
+        for br in bridges:
+            br.stop()
