@@ -32,7 +32,12 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
         click.echo(text, err=as_json)
 
     echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}")
-    rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
+    if "thermal" in cfg.raw:
+        from ..thermal import ThermalStation
+
+        rep = ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
+    else:
+        rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
     if as_json:
         click.echo(json.dumps(jsonable(rep.to_dict()), indent=2, allow_nan=False))
     else:
@@ -47,7 +52,10 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
         click.secho(f"{rep.verdict} board {rep.serial} (run {rep.run_id}, store {rep.store})", fg=colour, bold=True)
         for r in rep.reasons:
             click.secho(f"  - {r}", fg=colour)
-        if t and "board_time_s" in t:
+        if t and "soak_s" in t:
+            click.echo(f"time per board: soak {t['soak_s']:.0f} s, sampling floor {t['sampling_floor_s']:.1f} s, "
+                       f"rest {t['rest_s']:.1f} s of {t['board_time_s']:.0f} s ({t['clock']} clock)")
+        elif t and "board_time_s" in t:
             click.echo(f"time: sampling floor {t['sampling_floor_s']:.1f} s of {t['board_time_s']:.1f} s "
                        f"board time at {t['odr_hz']:g} Hz (simulated clock); host compute {t['host_compute_s']:.2f} s")
         elif t:
