@@ -1,0 +1,152 @@
+"""Temperature calibration in an emulated chamber: the thermal plan end to end, its failures,
+the chamber driver over a pseudo-terminal, and the chamber's first-order physics."""
+from __future__ import annotations
+
+import json
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from accelcal_station.cli import cli
+from accelcal_station.drivers.simulated import VirtualClock
+from accelcal_station.instruments import AsciiChamber, ChamberError
+from accelcal_station.instruments.chamber_emulator import ChamberEmulator, ChamberPhysics
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def _config(tmp_path, name="t.yaml", faults=None, **device):
+    cfg = yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    if faults:
+        cfg["chamber"]["emulator"]["faults"] = faults
+    if device:
+        cfg["device"] = device
+    p = tmp_path / name
+    p.write_text(yaml.safe_dump(cfg))
+    return p
+
+
+def _run(path):
+    r = CliRunner().invoke(cli, ["run", "--config", str(path), "--json"])
+    return r, json.loads(r.stdout)
+
+
+def _stored(tmp_path):
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    return db.execute("SELECT status, verdict, reasons, nvm_status FROM runs").fetchall()
+
+
+def test_thermal_sim_burns_a_three_temperature_table_that_verifies_at_45c(tmp_path):
+    r, out = _run(_config(tmp_path))
+    assert r.exit_code == 0, r.output
+    th = out["thermal"]
+    assert out["verdict"] == "PASS" and out["chip"] == "mpu6050" and out["nvm_verified"]
+    assert len(th["table"]["temps_c"]) == 3 and th["temp_source"] == "die"
+    # the table's temperatures are the die's, near the set points (self-heating 1.5 C, a lagging board)
+    np.testing.assert_allclose(th["table"]["temps_c"], [-20 + 1.5, 25 + 1.5, 70 + 1.5], atol=0.5)
+    (v,) = th["verify"]
+    assert v["set_point_c"] == 45 and v["within_limit"] and v["error_max_mg"] <= v["limit_mg"]
+    # the board's temperature effect at 45 C is many mg: one calibration alone would fail
+    assert not v["without_table_within_limit"] and v["without_table_error_max_mg"] > 2 * v["limit_mg"]
+    t = out["timing"]
+    assert t["soak_s"] > 0.8 * t["board_time_s"]  # soak dominates
+    assert t["soak_s"] + t["sampling_floor_s"] + t["rest_s"] == pytest.approx(t["board_time_s"])
+    assert _stored(tmp_path) == [("complete", "PASS", "[]", "written")]
+
+
+@pytest.mark.parametrize("faults, kind", [
+    ({"min_air_c": -5}, "set point -20 C not reached"),       # refrigeration cannot go below -5 C
+    ({"alarm_at_s": 1000, "alarm_code": 3}, "alarm 3 (refrigeration fault) during the soak at -20 C"),
+])
+def test_chamber_faults_end_in_a_recorded_fail_and_nothing_burned(tmp_path, faults, kind):
+    r, out = _run(_config(tmp_path, faults=faults))
+    assert r.exit_code == 1, r.output
+    assert out["verdict"] == "FAIL" and kind in out["reasons"][0] and out["nvm"] is None
+    (row,) = _stored(tmp_path)
+    assert row[:2] == ("complete", "FAIL") and kind in row[2] and row[3] == "none"
+
+
+def test_door_opened_mid_capture_fails_the_run_and_burns_nothing(tmp_path):
+    _, clean = _run(_config(tmp_path, "clean.yaml"))
+    visit = next(v for v in clean["thermal"]["visits"] if v["set_point_c"] == 25)
+    mid = (visit["t_soaked_s"] + visit["t_end_s"]) / 2  # the same seed runs the same timeline up to here
+    (tmp_path / "runs.sqlite").unlink()
+    r, out = _run(_config(tmp_path, faults={"door_open_at_s": mid, "door_open_s": 20}))
+    assert r.exit_code == 1
+    assert "door opened during the capture" in out["reasons"][0] and "at 25 C" in out["reasons"][0]
+    assert out["nvm"] is None and not out["nvm_verified"]
+    (row,) = _stored(tmp_path)
+    assert row[1] == "FAIL" and "door opened" in row[2] and row[3] == "none"
+
+
+def test_through_the_mpu6050_bridge_and_the_chamber_on_pseudo_terminals(tmp_path):
+    """Bridge emulator (pyserial on a pty) and chamber emulator (pyvisa on a pty) around one board.
+
+    The bridge's 1 KiB NVM holds two 512-byte slots; a three-temperature table blob (format 1,
+    f64) is 604 bytes, so this run does not burn (nvm.write: false) and the burn is refused whole.
+    """
+    sim = yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())["device"]
+    dev = {"driver": "mpu6050", "port": "emulated", "seed": 15, "range_g": 2, "odr_hz": 100,
+           "simulator": {"self_heating_c": 1.5, "simulator": sim["simulator"]}}
+    p = _config(tmp_path, **dev)
+    cfg = yaml.safe_load(p.read_text())
+    cfg["nvm"]["write"] = False
+    p.write_text(yaml.safe_dump(cfg))
+    r, out = _run(p)
+    assert r.exit_code == 0, r.output
+    (v,) = out["thermal"]["verify"]
+    assert out["verdict"] == "PASS" and out["chip"] == "mpu6050" and out["thermal"]["temp_source"] == "die"
+    assert v["within_limit"] and not v["without_table_within_limit"]
+
+
+def test_chamber_driver_over_a_pty_sets_reads_and_reports_alarms():
+    clock = VirtualClock()
+    emu = ChamberEmulator(ChamberPhysics(clock, start_c=25.0, air_tau_s=100.0, board_tau_s=200.0))
+    port = emu.start()
+    try:
+        with AsciiChamber(port, timeout_s=0.5, retries=0, min_c=-40, max_c=120) as ch:
+            ch.set_point(-20.0)
+            assert emu.received[-2:] == ["TEMP, S-20.0", "MODE, CONSTANT"]
+            clock.sleep(100.0)  # one air time constant: 63.2 % of the way
+            st = ch.status()
+            assert st.mode == "CONSTANT" and st.alarms == ()
+            assert st.air_c == pytest.approx(25 - 45 * (1 - np.exp(-1)), abs=0.06)  # 0.1 C resolution
+            emu.open_door(clock.now() + 1.0, 30.0)
+            clock.sleep(2.0)
+            assert ch.status().door_open
+            with pytest.raises(Exception, match="out of the chamber's range"):
+                ch.set_point(150.0)
+            with pytest.raises(ChamberError, match="refused 'BOGUS'"):
+                ch.query("BOGUS")
+        emu.stop()
+        with pytest.raises(ChamberError, match="cannot open|no answer"):
+            with AsciiChamber(port, timeout_s=0.1, retries=0):
+                pass
+    finally:
+        emu.stop()
+
+
+def test_chamber_physics_matches_a_fine_numerical_integration():
+    clock = VirtualClock()
+    ph = ChamberPhysics(clock, start_c=25.0, air_tau_s=240.0, board_tau_s=420.0)
+    ph.set_point_c, ph.running = 70.0, True
+    air, board, dt = 25.0, 25.0, 0.01
+    for _ in range(int(900 / dt)):  # explicit Euler of the cascade, independent of the closed form
+        air, board = air + dt * (70.0 - air) / 240.0, board + dt * (air - board) / 420.0
+    clock.sleep(900.0)
+    assert ph.air_temperature_c() == pytest.approx(air, abs=0.01)
+    assert ph.board_temperature_c() == pytest.approx(board, abs=0.01)
+
+
+def test_thermal_config_errors_name_the_key(tmp_path):
+    cfg = yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())
+    cfg["thermal"]["set_points_c"] = [-20, 70]
+    p = tmp_path / "bad.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"])
+    assert r.exit_code == 2 and "thermal.set_points_c" in r.output and "3 or more" in r.output
