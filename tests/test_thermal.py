@@ -150,3 +150,31 @@ def test_thermal_config_errors_name_the_key(tmp_path):
     p.write_text(yaml.safe_dump(cfg))
     r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"])
     assert r.exit_code == 2 and "thermal.set_points_c" in r.output and "3 or more" in r.output
+
+
+def test_emulate_chamber_then_set_and_read_it_as_the_hint_says():
+    import select
+    import signal
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "accelcal_station", "emulate", "chamber", "--speed", "1000"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert select.select([proc.stdout], [], [], 60.0)[0], "emulator printed nothing within 60 s"
+        port = proc.stdout.readline().split()[3]
+        hint = proc.stdout.readline().strip()
+        assert hint == f"try: accelcal chamber set --temp-c -20 --port {port}; accelcal chamber status --port {port}"
+        r = CliRunner().invoke(cli, ["chamber", "set", "--temp-c", "-20", "--port", port, "--json"])
+        assert r.exit_code == 0, r.output
+        first = json.loads(r.stdout)
+        assert first["mode"] == "CONSTANT" and first["alarms"] == []
+        import time
+
+        time.sleep(1.5)  # 1500 s of chamber time: more than six air time constants
+        r = CliRunner().invoke(cli, ["chamber", "status", "--port", port, "--json"])
+        assert json.loads(r.stdout)["air_c"] == pytest.approx(-20.0, abs=0.2)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=10)
+    assert proc.returncode == 0
