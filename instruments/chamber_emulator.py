@@ -15,7 +15,8 @@ so the simulator's temperature effect (physical offset and gain) follows the lag
 :class:`ChamberEmulator` answers docs/chamber-protocol.md on the master side of ``os.openpty()``.
 Faults: :meth:`limit_air` (cooling or heating cannot reach beyond a temperature: the set
 point is never reached), :meth:`alarm_at` (an alarm code at a clock time; the chamber
-stops regulating), :meth:`open_door` (door alarm, air relaxes to room temperature).
+stops regulating), :meth:`open_door` (door alarm, air relaxes to room temperature),
+``stall_at_s`` (the controller stops answering: a timeout).
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ from ..errors import ConfigError
 from .chamber import DOOR_OPEN
 
 EMULATOR_KEYS = ("start_c", "room_c", "air_tau_s", "board_tau_s", "door_tau_s", "faults")
-FAULT_KEYS = ("min_air_c", "max_air_c", "alarm_at_s", "alarm_code", "door_open_at_s", "door_open_s")
+FAULT_KEYS = ("min_air_c", "max_air_c", "alarm_at_s", "alarm_code", "door_open_at_s", "door_open_s", "stall_at_s")
 
 
 class ChamberPhysics:
@@ -114,6 +115,7 @@ class ChamberEmulator:
         self.physics = physics
         self.model = model
         self.received: list[str] = []
+        self.stall_at_s: float | None = None  # from this clock time the controller answers nothing
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._master = self._slave = -1
@@ -138,7 +140,9 @@ class ChamberEmulator:
             raise ConfigError(f"{fp}.alarm_code: needs alarm_at_s (when the alarm goes off, clock seconds)")
         if "door_open_at_s" in f:
             emu.open_door(number(f, "door_open_at_s", fp, lo=0.0), number(f, "door_open_s", fp, 60.0, 0.0, 1e5))
-        elif "door_open_s" in f:
+        if "stall_at_s" in f:
+            emu.stall_at_s = number(f, "stall_at_s", fp, lo=0.0)
+        if "door_open_s" in f and "door_open_at_s" not in f:
             raise ConfigError(f"{fp}.door_open_s: needs door_open_at_s (when the door opens, clock seconds)")
         return emu
 
@@ -159,11 +163,13 @@ class ChamberEmulator:
         self.physics.schedule(at_s + for_s, "door", False)
 
     # --- protocol -----------------------------------------------------------------------
-    def answer(self, line: str) -> str:
-        """The reply to one command line (without terminator)."""
+    def answer(self, line: str) -> str | None:
+        """The reply to one command line (without terminator); None: a hung controller says nothing."""
         p = self.physics
         cmd = line.strip()
         self.received.append(cmd)
+        if self.stall_at_s is not None and p.clock.now() >= self.stall_at_s:
+            return None
         with p.lock:
             p.advance()
             head, _, arg = cmd.partition(",")
@@ -227,7 +233,8 @@ class ChamberEmulator:
                 line, buf = buf[:cut], buf[cut + 1:]
                 if line.strip():
                     reply = self.answer(line.decode("ascii", "replace"))
-                    os.write(self._master, reply.encode("ascii") + b"\r\n")
+                    if reply is not None:
+                        os.write(self._master, reply.encode("ascii") + b"\r\n")
 
     def stop(self) -> None:
         if self._thread is not None:

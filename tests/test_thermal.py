@@ -178,3 +178,33 @@ def test_emulate_chamber_then_set_and_read_it_as_the_hint_says():
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=10)
     assert proc.returncode == 0
+
+
+def test_a_chamber_that_stops_answering_mid_plan_is_recorded_with_what_it_had(tmp_path):
+    _, clean = _run(_config(tmp_path, "clean.yaml"))
+    second = next(v for v in clean["thermal"]["visits"] if v["set_point_c"] == 25)
+    (tmp_path / "runs.sqlite").unlink()
+    r = CliRunner().invoke(cli, ["run", "--config", str(_config(tmp_path, faults={"stall_at_s": second["t_start_s"] + 60})),
+                                 "--json"])
+    assert r.exit_code == 3 and "no answer to" in r.output  # DeviceError: one line, exit 3
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    (status, why, nvm), = db.execute("SELECT status, status_reason, nvm_status FROM runs").fetchall()
+    assert status == "error" and "at set point 25 C (2/4)" in why and "8 poses captured" in why and nvm is None
+    temps = [t for (t,) in db.execute("SELECT temp_c FROM poses")]
+    assert len(temps) == 8 and all(abs(t - (-18.5)) < 1.0 for t in temps)  # the -20 C poses, die temperature
+
+
+def test_mma8451_has_no_sensor_so_the_station_uses_the_chamber_air_and_says_so(tmp_path):
+    cfg = yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    cfg["device"]["chip"] = "mma8451"
+    cfg["device"]["simulator"]["effects"]["noise"]["density_ug_per_rthz"] = [99.0] * 3
+    cfg["thermal"]["soak"]["hold_s"] = 2400  # no die sensor: hold long enough for the lagging board (tau 420 s)
+    p = tmp_path / "mma.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    r, out = _run(p)
+    assert r.exit_code == 0, r.output
+    assert out["thermal"]["temp_source"] == "chamber_air"
+    assert any("no temperature sensor" in e and "chamber air" in e for e in out["events"])
+    assert out["thermal"]["table"]["temps_c"] == [-20.0, 25.0, 70.0]  # the air, 0.1 C resolution
+    assert out["thermal"]["verify"][0]["within_limit"]
