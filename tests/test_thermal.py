@@ -85,23 +85,18 @@ def test_door_opened_mid_capture_fails_the_run_and_burns_nothing(tmp_path):
 
 
 def test_through_the_mpu6050_bridge_and_the_chamber_on_pseudo_terminals(tmp_path):
-    """Bridge emulator (pyserial on a pty) and chamber emulator (pyvisa on a pty) around one board.
-
-    The bridge's 1 KiB NVM holds two 512-byte slots; a three-temperature table blob (format 1,
-    f64) is 604 bytes, so this run does not burn (nvm.write: false) and the burn is refused whole.
-    """
+    """Bridge emulator (pyserial on a pty) and chamber emulator (pyvisa on a pty) around one board;
+    the table is burned in the bridge's 1 KiB EEPROM (a 484-byte blob in a 512-byte slot) and read back."""
     sim = yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())["device"]
     dev = {"driver": "mpu6050", "port": "emulated", "seed": 15, "range_g": 2, "odr_hz": 100,
            "simulator": {"self_heating_c": 1.5, "simulator": sim["simulator"]}}
-    p = _config(tmp_path, **dev)
-    cfg = yaml.safe_load(p.read_text())
-    cfg["nvm"]["write"] = False
-    p.write_text(yaml.safe_dump(cfg))
-    r, out = _run(p)
+    r, out = _run(_config(tmp_path, **dev))
     assert r.exit_code == 0, r.output
     (v,) = out["thermal"]["verify"]
     assert out["verdict"] == "PASS" and out["chip"] == "mpu6050" and out["thermal"]["temp_source"] == "die"
     assert v["within_limit"] and not v["without_table_within_limit"]
+    assert out["nvm_verified"] and out["nvm"]["ok"] and out["nvm"]["length"] == 484
+    assert len(out["thermal"]["table"]["temps_c"]) == 3
 
 
 def test_chamber_driver_over_a_pty_sets_reads_and_reports_alarms():
