@@ -172,6 +172,7 @@ class ThermalStation(Station):
         self.report_events: list[str] = []
         self.retry_counts: list[int] = []
         self.verify: list[dict] = []
+        self.table_verdict: dict | None = None
 
     # -- the run --------------------------------------------------------------------
     def run(self) -> ThermalRunReport:
@@ -217,7 +218,7 @@ class ThermalStation(Station):
                 rep.events.extend(self.report_events)
                 rep.timing = self._thermal_timing(driver, clock, t0, wall0)
                 rep.thermal = self._summary(rep)
-                store.finish_run(run_id, session=session, calibration=rep.calibration if rep.nvm else None,
+                store.finish_run(run_id, session=session, calibration=rep.calibration,
                                  verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
                                  fit_summary={"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
                                               "design": cfg.design, "timing": rep.timing, "thermal": rep.thermal,
@@ -233,6 +234,16 @@ class ThermalStation(Station):
                f"{sum(x.poses for x in self.results)} poses captured"
 
     def _plan(self, driver, chamber, jig, clock, records, retries, rep) -> None:
+        try:
+            self._visit_all(driver, chamber, jig, clock, records, retries, rep)
+        except BaseException:
+            try:
+                chamber.standby()  # leave the chamber safe; the original error is what matters
+            except AccelcalError:
+                pass
+            raise
+
+    def _visit_all(self, driver, chamber, jig, clock, records, retries, rep) -> None:
         visits = self.plan.visits()
         groups: dict[float, list[PoseRecord]] = {}
         for i, (sp, role) in enumerate(visits):
@@ -274,7 +285,7 @@ class ThermalStation(Station):
                     "chamber air temperature (the board is taken to be at the air temperature after the soak)")
             self.echo(f"  note: {note}")
             self.report_events.append(note)
-        t0 = clock.now()
+        t0 = next_note = clock.now()
         window: list[tuple[float, float]] = []
         while True:
             st = chamber.status()
@@ -292,6 +303,10 @@ class ThermalStation(Station):
                     self.soak_s += now - t0
                     self.echo(f"  soaked in {now - t0:.0f} s: board {temp:.2f} C ({res.temp_source}), air {st.air_c:.1f} C")
                     return
+            if now >= next_note + 600.0:  # a soak takes most of an hour: say where it is every 10 minutes
+                next_note = now
+                held = now - window[0][0] if window else 0.0
+                self.echo(f"  soaking {now - t0:.0f} s: air {st.air_c:.1f} C, board {temp:.2f} C, stable for {held:.0f} s")
             if now - t0 >= rule.timeout_s:
                 res.soak_s = now - t0
                 self.soak_s += now - t0
@@ -383,6 +398,7 @@ class ThermalStation(Station):
         rep.verify_error_max_mg = max((v["error_max_mg"] for v in self.verify), default=None)
         if rep.verify_error_max_mg is not None:
             rep.measured["verify_error_max_mg"] = rep.verify_error_max_mg
+        self.table_verdict = {"verdict": "FAIL" if reasons else "PASS", "reasons": list(reasons)}
         if reasons:
             rep.verdict, rep.reasons = "FAIL", reasons
             self.echo("FAIL before writing: " + "; ".join(reasons))
@@ -437,5 +453,6 @@ class ThermalStation(Station):
                 "method": p.method, "soak": p.soak.__dict__,
                 "temp_source": self.results[0].temp_source if self.results else None,
                 "visits": [r.to_dict() for r in self.results],
-                "table": None if table is None else {"temps_c": table.temps_c.tolist(), "method": table.method},
+                "table": None if table is None else {"temps_c": table.temps_c.tolist(), "method": table.method,
+                                                     **(self.table_verdict or {})},
                 "verify": self.verify, "panel": None}

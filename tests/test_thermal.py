@@ -203,3 +203,23 @@ def test_mma8451_has_no_sensor_so_the_station_uses_the_chamber_air_and_says_so(t
     assert any("no temperature sensor" in e and "chamber air" in e for e in out["events"])
     assert out["thermal"]["table"]["temps_c"] == [-20.0, 25.0, 70.0]  # the air, 0.1 C resolution
     assert out["thermal"]["verify"][0]["within_limit"]
+
+
+def test_quadratic_table_and_a_per_temperature_limit_that_fails(tmp_path):
+    cfg = yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    cfg["thermal"]["method"] = "quadratic"
+    p = tmp_path / "q.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    r, out = _run(p)
+    assert r.exit_code == 0, r.output
+    assert out["thermal"]["table"]["method"] == "quadratic" and out["thermal"]["table"]["verdict"] == "PASS"
+    assert out["thermal"]["verify"][0]["within_limit"]
+    # the board's z offset at 70 C is ~60 + 0.45 * 46 + 0.0025 * 46^2 = 86 mg: a 75 mg limit fails there only
+    cfg["acceptance"]["offset_max_mg"] = 75
+    p.write_text(yaml.safe_dump(cfg))
+    r, out = _run(p)
+    assert r.exit_code == 1 and out["nvm"] is None
+    verdicts = {v["set_point_c"]: v["verdict"] for v in out["thermal"]["visits"] if v["role"] == "calibrate"}
+    assert verdicts == {-20.0: "PASS", 25.0: "PASS", 70.0: "FAIL"}
+    assert out["reasons"][0].startswith("at 70 C: offset_max_mg")
