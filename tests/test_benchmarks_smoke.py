@@ -124,3 +124,13 @@ def _keep_sys_path():
     saved = list(sys.path)
     yield
     sys.path[:] = saved
+
+
+def test_thermal_time_split(capsys):
+    out = run(capsys, "bench_thermal_time", "--boards", "1")
+    (rows,) = tables(out)
+    by = {r[0]: r[1:] for r in rows}
+    assert "verdicts: PASS" in out
+    soak, floor, rest, total = (number(by[k][0]) for k in (
+        "soak (all set points)", "sampling floor (averaged / ODR)", "rest (moves, gating, EEPROM)", "total per board"))
+    assert soak + floor + rest == pytest.approx(total, abs=2.0) and soak > floor > 0
