@@ -274,6 +274,8 @@ class ThermalStation(Station):
             raise ChamberFault("door open", f"door opened {context} (alarm {st.alarm_text()})")
         if st.alarms:
             raise ChamberFault("alarm", f"alarm {st.alarm_text()} {context}")
+        if st.mode != "CONSTANT":
+            raise ChamberFault("stopped", f"the chamber left constant mode ({st.mode}) {context}")
 
     def _soak(self, driver, chamber, clock, res: SetPointResult) -> None:
         """Wait until the soak rule holds (module docstring); ChamberFault on timeout or alarm."""

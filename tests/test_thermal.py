@@ -179,9 +179,12 @@ def test_a_chamber_that_stops_answering_mid_plan_is_recorded_with_what_it_had(tm
     _, clean = _run(_config(tmp_path, "clean.yaml"))
     second = next(v for v in clean["thermal"]["visits"] if v["set_point_c"] == 25)
     (tmp_path / "runs.sqlite").unlink()
-    r = CliRunner().invoke(cli, ["run", "--config", str(_config(tmp_path, faults={"stall_at_s": second["t_start_s"] + 60})),
-                                 "--json"])
-    assert r.exit_code == 3 and "no answer to" in r.output  # DeviceError: one line, exit 3
+    p = _config(tmp_path, faults={"stall_at_s": second["t_start_s"] + 60})
+    cfg = yaml.safe_load(p.read_text())
+    cfg["chamber"].update(timeout_s=0.2, retries=1)  # a quick test: 2 attempts of 0.2 s
+    p.write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"])
+    assert r.exit_code == 3 and "no answer to 'MON?' within 0.2 s (2 attempts)" in r.output  # one line, exit 3
     db = sqlite3.connect(tmp_path / "runs.sqlite")
     (status, why, nvm), = db.execute("SELECT status, status_reason, nvm_status FROM runs").fetchall()
     assert status == "error" and "at set point 25 C (2/4)" in why and "8 poses captured" in why and nvm is None

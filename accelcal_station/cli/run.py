@@ -46,6 +46,11 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
         if f is not None:
             click.echo(f"fit: model {rep.model}, {f.pose_count} poses, residual RMS {f.residual_rms_g * 1e3:.3f} mg"
                        + ("" if f.crossval_rms_g is None else f", cross-validated {f.crossval_rms_g * 1e3:.3f} mg"))
+        table = (getattr(rep, "thermal", None) or {}).get("table")
+        if table:
+            click.echo(f"table: {len(table['temps_c'])} temperatures ("
+                       + ", ".join(f"{t:.1f}" for t in table["temps_c"]) + f" C), {table['method']}; "
+                       f"the fit above is the one at the temperature nearest {cfg.raw['thermal'].get('reference_c', 25)} C")
         if rep.verify_error_max_mg is not None:
             click.echo(f"verify: max error {rep.verify_error_max_mg:.3f} mg after calibration")
         colour = "green" if rep.verdict == "PASS" else "red"
