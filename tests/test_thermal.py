@@ -226,3 +226,12 @@ def test_quadratic_table_and_a_per_temperature_limit_that_fails(tmp_path):
     verdicts = {v["set_point_c"]: v["verdict"] for v in out["thermal"]["visits"] if v["role"] == "calibrate"}
     assert verdicts == {-20.0: "PASS", 25.0: "PASS", 70.0: "FAIL"}
     assert out["reasons"][0].startswith("at 70 C: offset_max_mg")
+
+
+def test_a_chamber_without_a_thermal_plan_is_refused(tmp_path):
+    cfg = yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())
+    del cfg["thermal"]
+    p = tmp_path / "c.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", str(p)])
+    assert r.exit_code == 2 and "needs both thermal: and chamber:" in r.output

@@ -32,7 +32,7 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
         click.echo(text, err=as_json)
 
     echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}")
-    if "thermal" in cfg.raw:
+    if "thermal" in cfg.raw or "chamber" in cfg.raw:  # ThermalStation refuses one without the other
         from ..thermal import ThermalStation
 
         rep = ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
