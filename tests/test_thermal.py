@@ -57,6 +57,20 @@ def test_thermal_sim_burns_a_three_temperature_table_that_verifies_at_45c(tmp_pa
     assert t["soak_s"] > 0.8 * t["board_time_s"]  # soak dominates
     assert t["soak_s"] + t["sampling_floor_s"] + t["rest_s"] == pytest.approx(t["board_time_s"])
     assert _stored(tmp_path) == [("complete", "PASS", "[]", "written")]
+    # against the simulator's own truth (its physics, not the fit): the stored table inverts the
+    # board at a calibration temperature to well under 1 mg, and at 45 C within the linear
+    # interpolation error of the quadratic offset term (0.0025 mg/C^2 x 20 C x 25 C = 1.25 mg on z)
+    from accelcal_station.calibration import Calibration
+    from accelcal_station.drivers.simulated import SimulatedBoard
+
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    cal = Calibration.from_dict(json.loads(db.execute("SELECT calibration FROM runs").fetchone()[0]))
+    dev = {k: v for k, v in yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())["device"].items() if k != "driver"}
+    board = SimulatedBoard.from_config(dev)
+    g = np.array([[0.0, 0.0, 1.0], [0.6, -0.6, 0.52], [-1.0, 0.0, 0.0]]) * cal.input_per_g
+    for temp_c, tol_mg in ((th["table"]["temps_c"][1], 0.5), (v["board_temp_c"], 2.0)):
+        err = cal.apply(g, units="counts", temp_c=temp_c) - board.truth(temp_c).apply(g, units="counts")
+        assert np.max(np.abs(err)) * 1e3 < tol_mg, (temp_c, err)
 
 
 @pytest.mark.parametrize("faults, kind", [
