@@ -4,7 +4,7 @@
 (``TEMP?``, ``TEMP, S<c>``, ``MODE, CONSTANT``, ``MON?``, ``ALARM?``; docs/chamber-protocol.md)
 through pyvisa with the pure-Python pyvisa-py backend, so the same code addresses a
 chamber on a serial line (``ASRL/dev/ttyUSB2::INSTR``, or a bare device path) or on
-Ethernet (``TCPIP::10.0.0.5::57732::SOCKET``).  The emulator (instruments/chamber_emulator.py)
+Ethernet (``TCPIP::10.0.0.5::5025::SOCKET``).  The emulator (instruments/chamber_emulator.py)
 answers on a pseudo-terminal; this module never imports it (the factory in
 ``accelcal_station.instruments`` builds it and hands the port in).
 """
