@@ -249,3 +249,38 @@ def test_a_chamber_without_a_thermal_plan_is_refused(tmp_path):
     p.write_text(yaml.safe_dump(cfg))
     r = CliRunner().invoke(cli, ["run", "--config", str(p)])
     assert r.exit_code == 2 and "needs both thermal: and chamber:" in r.output
+
+
+def test_chamber_driver_over_tcp_through_pyvisa_socket():
+    """host:port opens TCPIP::host::port::SOCKET; the emulator's protocol answers on a local socket."""
+    import socket
+    import threading
+
+    clock = VirtualClock()
+    emu = ChamberEmulator(ChamberPhysics(clock, start_c=25.0))
+    srv = socket.create_server(("127.0.0.1", 0))
+    port = srv.getsockname()[1]
+
+    def serve():
+        conn, _ = srv.accept()
+        with conn:
+            buf = b""
+            while True:
+                data = conn.recv(4096)
+                if not data:
+                    return
+                buf += data
+                while b"\r\n" in buf:
+                    line, buf = buf.split(b"\r\n", 1)
+                    conn.sendall(emu.answer(line.decode()).encode() + b"\r\n")
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    try:
+        with AsciiChamber(f"127.0.0.1:{port}", timeout_s=2.0) as ch:
+            assert ch.resource_name == f"TCPIP::127.0.0.1::{port}::SOCKET"
+            ch.set_point(70.0)
+            clock.sleep(3000.0)
+            assert ch.status().air_c == pytest.approx(70.0, abs=0.1)
+    finally:
+        srv.close()
