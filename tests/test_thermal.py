@@ -284,3 +284,12 @@ def test_chamber_driver_over_tcp_through_pyvisa_socket():
             assert ch.status().air_c == pytest.approx(70.0, abs=0.1)
     finally:
         srv.close()
+
+
+def test_chamber_driver_never_imports_its_emulator():
+    import ast
+
+    src = (Path(__file__).resolve().parents[1] / "instruments" / "chamber.py").read_text()
+    names = {a.name for n in ast.walk(ast.parse(src)) if isinstance(n, ast.Import) for a in n.names}
+    names |= {n.module or "" for n in ast.walk(ast.parse(src)) if isinstance(n, ast.ImportFrom)}
+    assert not any("emulator" in n for n in names), names
