@@ -293,3 +293,13 @@ def test_chamber_driver_never_imports_its_emulator():
     names = {a.name for n in ast.walk(ast.parse(src)) if isinstance(n, ast.Import) for a in n.names}
     names |= {n.module or "" for n in ast.walk(ast.parse(src)) if isinstance(n, ast.ImportFrom)}
     assert not any("emulator" in n for n in names), names
+
+
+def test_the_hardware_thermal_config_is_valid():
+    from accelcal_station.station import StationConfig
+    from accelcal_station.thermal import ThermalPlan
+
+    cfg = StationConfig.load(CONFIGS / "thermal-mpu6050.yaml")
+    plan = ThermalPlan.from_config(cfg.raw["thermal"], cfg.model)
+    assert plan.visits() == [(-20.0, "calibrate"), (25.0, "calibrate"), (45.0, "verify"), (70.0, "calibrate")]
+    AsciiChamber.from_config(cfg.raw["chamber"])  # every key known, port and limits accepted
