@@ -170,7 +170,6 @@ class ThermalStation(Station):
         self.results: list[SetPointResult] = []
         self.soak_s = 0.0
         self.report_events: list[str] = []
-        self.retry_counts: list[int] = []
         self.verify: list[dict] = []
         self.table_verdict: dict | None = None
 
@@ -252,11 +251,9 @@ class ThermalStation(Station):
             self.results.append(res)
             chamber.set_point(sp)
             self._soak(driver, chamber, clock, res)
-            n0 = len(self.retry_counts)
-            groups[sp] = self._capture_set_point(driver, chamber, jig, clock, self._poses_for(role), res, rep)
-            if role == "calibrate":
-                records.extend(groups[sp])
-                retries.extend(self.retry_counts[n0:])
+            # calibration poses go to the run's session as they come: an interrupted run keeps them
+            sink = (records, retries) if role == "calibrate" else None
+            groups[sp] = self._capture_set_point(driver, chamber, jig, clock, self._poses_for(role), res, rep, sink)
             if self.progress:
                 self.progress("set points", (i + 1) / len(visits))
         chamber.standby()
@@ -319,7 +316,8 @@ class ThermalStation(Station):
                                    f"{rule.hold_s:g} s at {sp:g} C within {rule.timeout_s:g} s (board {temp:.2f} C)")
             clock.sleep(rule.poll_s)
 
-    def _capture_set_point(self, driver, chamber, jig, clock, poses, res: SetPointResult, rep) -> list[PoseRecord]:
+    def _capture_set_point(self, driver, chamber, jig, clock, poses, res: SetPointResult, rep,
+                           sink: tuple[list, list] | None) -> list[PoseRecord]:
         used0, t0, floor, out = self.samples_used, clock.now(), None, []
         sp = res.set_point_c
         for k, pose in enumerate(poses):
@@ -332,9 +330,15 @@ class ThermalStation(Station):
             if abs(temp - res.board_temp_c) > self.plan.capture_band_c:
                 raise ChamberFault("temperature moved", f"board temperature {temp:.2f} C during {pose.name} at {sp:g} C "
                                    f"left the band +-{self.plan.capture_band_c:g} C around {res.board_temp_c:.2f} C")
-            out.append(PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, pose.reference_g,
-                                  pose.pitch_deg, pose.roll_deg, temp, c.dropped, c.t_start, c.t_end))
-            self.retry_counts.append(tries + gc.recaptures)
+            rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, pose.reference_g,
+                             pose.pitch_deg, pose.roll_deg, temp, c.dropped, c.t_start, c.t_end)
+            out.append(rec)
+            if sink is not None:
+                sink[0].append(rec)
+                sink[1].append(tries + gc.recaptures)
+            rep.poses.append({"pose": rec.name, "set_point_c": sp, "role": res.role, "temp_c": temp, "n": c.n,
+                              "sem_mg": (c.sem_counts / driver.counts_per_g * 1e3).tolist(),
+                              "retries": tries + gc.recaptures})
             res.poses += 1
         res.sampling_floor_s = (self.samples_used - used0) / driver.odr_hz
         res.t_end_s = clock.now()

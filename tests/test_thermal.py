@@ -303,3 +303,20 @@ def test_the_hardware_thermal_config_is_valid():
     plan = ThermalPlan.from_config(cfg.raw["thermal"], cfg.model)
     assert plan.visits() == [(-20.0, "calibrate"), (25.0, "calibrate"), (45.0, "verify"), (70.0, "calibrate")]
     AsciiChamber.from_config(cfg.raw["chamber"])  # every key known, port and limits accepted
+
+
+
+def test_a_run_stopped_mid_capture_keeps_the_poses_of_that_set_point_it_had(tmp_path):
+    _, clean = _run(_config(tmp_path, "clean.yaml"))
+    second = next(v for v in clean["thermal"]["visits"] if v["set_point_c"] == 25)
+    (tmp_path / "runs.sqlite").unlink()
+    p = _config(tmp_path, faults={"stall_at_s": (second["t_soaked_s"] + second["t_end_s"]) / 2})
+    cfg = yaml.safe_load(p.read_text())
+    cfg["chamber"].update(timeout_s=0.2, retries=0)
+    p.write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"])
+    assert r.exit_code == 3
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    names = [n for (n,) in db.execute("SELECT name FROM poses")]
+    at25 = [n for n in names if n.endswith("@25C")]
+    assert len(names) - len(at25) == 8 and 0 < len(at25) < 8  # all of -20 C, part of 25 C
