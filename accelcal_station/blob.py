@@ -6,7 +6,8 @@ Layout (little-endian, format version 1)::
     0      4     magic b"ACAL"
     4      2     format version (u16)
     6      1     model (u8: 6, 9, 12 or 15)
-    7      1     flags (bit 0: temperature table present, bit 1: quadratic interpolation)
+    7      1     flags (bit 0: temperature table present, bit 1: quadratic interpolation,
+                 bit 2: no base coefficients, the table's first row is the base)
     8      4     generation counter (u32, wraps; newer = serial-number arithmetic, RFC 1982)
     12     2     total length in bytes, CRC included (u16)
     14     1     input units (0 counts, 1 g, 2 mps2)
@@ -20,7 +21,10 @@ Layout (little-endian, format version 1)::
     216+128K 4   CRC-32 (zlib.crc32, IEEE 802.3) over every byte before it
 
 f64 throughout so a blob round-trips a Calibration exactly; without a temperature
-table a blob is 220 bytes, and each temperature point adds 128.
+table a blob is 220 bytes, and each temperature point adds 128.  A table whose first row
+equals the base W, V, Gamma (as every fitted table has) is written without the base
+(flag bit 2): 100 + 128 K bytes, so a 3-temperature table fits a 512-byte slot (the
+MPU6050 bridge's 1 KiB EEPROM holds two).
 """
 from __future__ import annotations
 
@@ -46,7 +50,7 @@ HEADER_SIZE = _HEAD.size  # 96
 
 UNITS_CODE = {"counts": 0, "g": 1, "mps2": 2}
 _UNITS_NAME = {v: k for k, v in UNITS_CODE.items()}
-_FLAG_TEMP, _FLAG_QUADRATIC = 0x01, 0x02
+_FLAG_TEMP, _FLAG_QUADRATIC, _FLAG_NO_BASE = 0x01, 0x02, 0x04
 
 
 class BlobError(NVMError):
@@ -73,8 +77,14 @@ class BlobHeader:
         return asdict(self)
 
 
-def blob_size(temperature_points: int = 0) -> int:
-    return HEADER_SIZE + _COEF.size + temperature_points * _TEMP.size + _CRC.size
+def blob_size(temperature_points: int = 0, base: bool = True) -> int:
+    return HEADER_SIZE + (_COEF.size if base else 0) + temperature_points * _TEMP.size + _CRC.size
+
+
+def _base_is_first_row(calibration: Calibration) -> bool:
+    t = calibration.temperature
+    return t is not None and np.array_equal(t.W[0], calibration.W) and np.array_equal(t.V[0], calibration.V) \
+        and np.array_equal(t.Gamma[0], calibration.Gamma)
 
 
 def newer(a: int, b: int) -> bool:
@@ -103,13 +113,16 @@ def encode(calibration: Calibration, serial: str, station_id: str, generation: i
     if k > 255:
         raise DataError(f"temperature table has {k} points; a blob holds at most 255")
     flags = 0 if table is None else _FLAG_TEMP | (_FLAG_QUADRATIC if table.method == "quadratic" else 0)
-    length = blob_size(k)
+    base = not _base_is_first_row(calibration)
+    flags |= 0 if base else _FLAG_NO_BASE
+    length = blob_size(k, base)
     body = bytearray(_HEAD.pack(
         MAGIC, FORMAT_VERSION, int(calibration.model), flags, int(generation), length,
         UNITS_CODE[calibration.input_units], k, int(round(time)), float(calibration.input_per_g),
         _text(serial, "serial"), _text(station_id, "station id"),
     ))
-    body += _COEF.pack(*_coef(calibration.W, calibration.V, calibration.Gamma))
+    if base:
+        body += _COEF.pack(*_coef(calibration.W, calibration.V, calibration.Gamma))
     for i in range(k):
         body += _TEMP.pack(table.temps_c[i], *_coef(table.W[i], table.V[i], table.Gamma[i]))
     body += _CRC.pack(zlib.crc32(body))
@@ -124,14 +137,15 @@ def blob_length(head: bytes, source: str = "blob") -> int:
     h = head[:HEADER_SIZE]
     if h == b"\xff" * HEADER_SIZE or h == b"\0" * HEADER_SIZE:
         raise BlobError(f"{source}: empty (erased)", "empty")
-    magic, version, _, _, _, length, _, k = _HEAD.unpack(h)[:8]
+    magic, version, _, flags, _, length, _, k = _HEAD.unpack(h)[:8]
     if magic != MAGIC:
         raise BlobError(f"{source}: bad magic {magic!r}; expected {MAGIC!r}", "magic")
     if version != FORMAT_VERSION:
         raise BlobError(f"{source}: blob format version {version}; this station reads {FORMAT_VERSION}", "version")
-    if length != blob_size(k):
+    want = blob_size(k, not flags & _FLAG_NO_BASE)
+    if length != want:
         raise BlobError(f"{source}: length field {length} does not match {k} temperature points "
-                        f"({blob_size(k)} bytes)", "length")
+                        f"({want} bytes)", "length")
     return length
 
 
@@ -150,17 +164,20 @@ def decode(data: bytes, source: str = "blob") -> tuple[Calibration, BlobHeader]:
         raise BlobError(f"{source}: CRC mismatch (stored 0x{crc:08x}, computed 0x{computed:08x})", "crc")
     _, version, model, flags, gen, _, units, k, t, per_g, serial, station = _HEAD.unpack_from(data)
     try:
-        if flags & ~(_FLAG_TEMP | _FLAG_QUADRATIC) or bool(flags & _FLAG_TEMP) != (k > 0):
+        if flags & ~(_FLAG_TEMP | _FLAG_QUADRATIC | _FLAG_NO_BASE) or bool(flags & _FLAG_TEMP) != (k > 0) \
+                or (flags & _FLAG_NO_BASE and not k):
             raise DataError(f"flags 0x{flags:02x} inconsistent with {k} temperature points")
         if units not in _UNITS_NAME:
             raise DataError(f"input units code {units}; allowed {sorted(_UNITS_NAME)}")
-        c = np.array(_COEF.unpack_from(data, HEADER_SIZE))
+        base = not flags & _FLAG_NO_BASE
+        start = HEADER_SIZE + (_COEF.size if base else 0)
         table = None
         if k:
-            rows = np.array([_TEMP.unpack_from(data, HEADER_SIZE + _COEF.size + i * _TEMP.size)
-                             for i in range(k)])
+            rows = np.array([_TEMP.unpack_from(data, start + i * _TEMP.size) for i in range(k)])
             table = TemperatureTable(rows[:, 0], rows[:, 1:10].reshape(k, 3, 3), rows[:, 10:13], rows[:, 13:16],
                                      "quadratic" if flags & _FLAG_QUADRATIC else "linear")
+        c = np.array(_COEF.unpack_from(data, HEADER_SIZE)) if base else np.concatenate(
+            [rows[0, 1:10], rows[0, 10:13], rows[0, 13:16]])
         cal = Calibration(str(model), c[:9].reshape(3, 3), c[9:12], c[12:15], _UNITS_NAME[units], per_g, table)
         header = BlobHeader(version, str(model), gen, length, serial.rstrip(b"\0").decode("utf-8"),
                             station.rstrip(b"\0").decode("utf-8"), t, crc, k)

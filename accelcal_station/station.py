@@ -34,7 +34,8 @@ from .session import PoseRecord, Session
 from .store import Store, store_path, store_target
 from .writer import BurnError, CalibrationWriter
 
-TOP_KEYS = ("station", "store", "device", "jig", "plan", "capture", "acceptance", "nvm", "verify")
+TOP_KEYS = ("station", "store", "device", "jig", "plan", "capture", "acceptance", "nvm", "verify",
+            "thermal", "chamber")  # thermal plans: accelcal_station/thermal.py
 JIG_TYPES = ("simulated", "operator", "motorized")
 
 

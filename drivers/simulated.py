@@ -99,6 +99,7 @@ class SimulatedBoard:
         self.eeprom.clock = self.clock
         self.ambient_c = float(ambient_c)
         self.self_heating_c = float(self_heating_c)
+        self.environment = None  # e.g. an emulated chamber's physics: then the board's temperature follows it
         self._t_power = self.clock.now()
         self.pose = None
         self.true_rotation = np.eye(3)  # R_err of the current pose
@@ -172,7 +173,9 @@ class SimulatedBoard:
 
     @property
     def temperature_c(self) -> float:
-        """True die temperature, C (ambient plus self-heating)."""
+        """True die temperature, C (ambient, or the board's temperature in its environment, plus self-heating)."""
+        if self.environment is not None:
+            return self.environment.board_temperature_c() + self.self_heating_c
         return self.ambient_c + self.self_heating_c
 
     def set_temperature(self, ambient_c: float) -> None:

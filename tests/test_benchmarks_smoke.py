@@ -148,3 +148,13 @@ def test_bench_lot_prints_every_figure(capsys):
     assert all(float(v.replace(",", "")) > 0 for r in rates for v in r[1:])
     assert len(re.findall(r"boards/s", out)) >= 5 and "10,000,000 boards extrapolated" in out
     assert len(re.findall(r"peak RSS\s+\d+ MB", out)) == 2
+
+
+def test_thermal_time_split(capsys):
+    out = run(capsys, "bench_thermal_time", "--boards", "1")
+    (rows,) = tables(out)
+    by = {r[0]: r[1:] for r in rows}
+    assert "verdicts: PASS" in out
+    soak, floor, rest, total = (number(by[k][0]) for k in (
+        "soak (all set points)", "sampling floor (averaged / ODR)", "rest (moves, gating, EEPROM)", "total per board"))
+    assert soak + floor + rest == pytest.approx(total, abs=2.0) and soak > floor > 0

@@ -123,3 +123,23 @@ def test_generation_order_wraps():
     assert newer(2, 1) and not newer(1, 2) and not newer(5, 5)
     assert newer(0, 0xFFFFFFFF) and not newer(0xFFFFFFFF, 0)
     assert newer(3, 0xFFFFFFFE)
+
+
+def test_fitted_table_blob_drops_the_redundant_base_and_round_trips_exactly():
+    """A table whose first row is the base (every fitted one) is written without the base: a
+    3-temperature table fits a 512-byte slot; any other table keeps the base, both exact."""
+    rng = np.random.default_rng(7)
+    k = 3
+    table = TemperatureTable(np.array([-18.5, 26.3, 71.3]), np.eye(3) + rng.normal(0, 0.01, (k, 3, 3)),
+                             rng.normal(0, 0.05, (k, 3)), np.zeros((k, 3)), "linear")
+    cal = Calibration("12", table.W[0], table.V[0], table.Gamma[0], "counts", 16384.0, temperature=table)
+    blob = encode(cal, "SN1", "st", 1, 0)
+    assert len(blob) == HEADER_SIZE + 128 * k + 4 <= 512
+    back, header = decode(blob)
+    assert header.temperature_points == k
+    for a, b in ((back.W, cal.W), (back.V, cal.V), (back.temperature.W, table.W), (back.temperature.V, table.V)):
+        assert np.array_equal(a, b)
+    other = Calibration("12", np.eye(3), np.zeros(3), np.zeros(3), "counts", 16384.0, temperature=table)
+    blob2 = encode(other, "SN1", "st", 1, 0)
+    assert len(blob2) == blob_size(k)
+    assert np.array_equal(decode(blob2)[0].W, np.eye(3))

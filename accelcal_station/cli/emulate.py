@@ -14,7 +14,7 @@ import click
 from ..drivers.mpu6050_emulator import MPU6050BridgeEmulator, board_config_from_file
 from ..drivers.simulated import SimulatedBoard
 
-KINDS = ("mpu6050-bridge", "motor-jig")
+KINDS = ("mpu6050-bridge", "motor-jig", "chamber")
 
 
 @click.command("emulate")
@@ -30,9 +30,22 @@ KINDS = ("mpu6050-bridge", "motor-jig")
 @click.option("--firmware", "on_avr", is_flag=True,
               help="mpu6050-bridge: run the real bridge firmware on a simulated ATmega328P (simavr; built "
                    "by make -C firmware) instead of the Python emulator.")
+@click.option("--speed", type=click.FloatRange(0.01, 1e6), default=60.0, show_default=True,
+              help="chamber: its clock runs this many times faster than the wall clock.")
+@click.option("--start-c", type=click.FloatRange(-70, 150), default=25.0, show_default=True,
+              help="chamber: air temperature at start, C.")
+@click.option("--air-tau-s", type=click.FloatRange(1, 1e5), default=240.0, show_default=True,
+              help="chamber: air time constant toward the set point, s (chamber clock).")
+@click.option("--min-air-c", type=click.FloatRange(-100, 300), default=None,
+              help="chamber fault: the air never gets colder than this (set points below are never reached).")
+@click.option("--alarm-at-s", type=click.FloatRange(0, None), default=None,
+              help="chamber fault: refrigeration alarm (code 3) at this chamber-clock time, s.")
+@click.option("--door-open-at-s", type=click.FloatRange(0, None), default=None,
+              help="chamber fault: the door opens at this chamber-clock time for 60 s.")
 @click.option("--json", "as_json", is_flag=True, help="Print the port(s) as one JSON object.")
 def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool, jig_speed: float,
-            on_avr: bool, as_json: bool) -> None:
+            on_avr: bool, speed: float, start_c: float, air_tau_s: float, min_air_c: float | None,
+            alarm_at_s: float | None, door_open_at_s: float | None, as_json: bool) -> None:
     """Start an emulated device (or jig) on a new pseudo-terminal and print its path; Ctrl-C stops it.
 
     \b
@@ -40,7 +53,11 @@ def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool
     mpu6050-bridge --motor-jig  the bridge plus a motorized jig holding the same board
     mpu6050-bridge --firmware   the real firmware in simavr (AVR toolchain and simavr needed)
     motor-jig                   a motorized two-axis jig alone (docs/jig-protocol.md)
+    chamber                     a thermal chamber (docs/chamber-protocol.md) on an accelerated clock
     """
+    if kind == "chamber":
+        _chamber(speed, start_c, air_tau_s, min_air_c, alarm_at_s, door_open_at_s, as_json)
+        return
     from ..fixtures.jig_emulator import JigEmulator
 
     emus: list = []
@@ -85,6 +102,35 @@ def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool
     finally:
         for e in emus:
             e.stop()
+        for s, h in previous.items():
+            signal.signal(s, h)
+    if not as_json:
+        click.echo("emulator stopped", err=True)
+
+
+def _chamber(speed, start_c, air_tau_s, min_air_c, alarm_at_s, door_open_at_s, as_json) -> None:
+    from ..instruments.chamber_emulator import AcceleratedClock, ChamberEmulator, ChamberPhysics
+
+    emu = ChamberEmulator(ChamberPhysics(AcceleratedClock(speed), start_c, air_tau_s=air_tau_s))
+    if min_air_c is not None:
+        emu.limit_air(min_air_c=min_air_c)
+    if alarm_at_s is not None:
+        emu.alarm_at(alarm_at_s, 3)
+    if door_open_at_s is not None:
+        emu.open_door(door_open_at_s, 60.0)
+    done = threading.Event()
+    previous = {s: signal.signal(s, lambda *_: done.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        port = emu.start()
+        if as_json:
+            click.echo(json.dumps({"emulator": "chamber", "chamber_port": port, "speed": speed}))
+        else:
+            click.echo(f"chamber emulator on {port} (clock x{speed:g}; Ctrl-C to stop)")
+            click.echo(f"try: accelcal chamber set --temp-c -20 --port {port}; accelcal chamber status --port {port}")
+        while not done.wait(0.2):
+            pass
+    finally:
+        emu.stop()
         for s, h in previous.items():
             signal.signal(s, h)
     if not as_json:

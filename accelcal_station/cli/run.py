@@ -38,7 +38,12 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
     if isinstance(cfg.raw["device"], dict) and "boards" in cfg.raw["device"]:
         _run_panel(cfg, operator, serial, lot, as_json, echo)
         return
-    rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
+    if "thermal" in cfg.raw or "chamber" in cfg.raw:  # ThermalStation refuses one without the other
+        from ..thermal import ThermalStation
+
+        rep = ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
+    else:
+        rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
     if as_json:
         click.echo(json.dumps(jsonable(rep.to_dict()), indent=2, allow_nan=False))
     else:
@@ -47,14 +52,23 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
         if f is not None:
             click.echo(f"fit: model {rep.model}, {f.pose_count} poses, residual RMS {f.residual_rms_g * 1e3:.3f} mg"
                        + ("" if f.crossval_rms_g is None else f", cross-validated {f.crossval_rms_g * 1e3:.3f} mg"))
+        table = (getattr(rep, "thermal", None) or {}).get("table")
+        if table:
+            click.echo(f"table: {len(table['temps_c'])} temperatures ("
+                       + ", ".join(f"{t:.1f}" for t in table["temps_c"]) + f" C), {table['method']}; "
+                       f"the fit above is the one at the temperature nearest {cfg.raw['thermal'].get('reference_c', 25)} C")
         if rep.verify_error_max_mg is not None:
             click.echo(f"verify: max error {rep.verify_error_max_mg:.3f} mg after calibration")
         colour = "green" if rep.verdict == "PASS" else "red"
         click.secho(f"{rep.verdict} board {rep.serial} (run {rep.run_id}, store {rep.store})", fg=colour, bold=True)
         for r in rep.reasons:
             click.secho(f"  - {r}", fg=colour)
-        for line in timing_lines(t):
-            click.echo(line)
+        if t and "soak_s" in t:
+            click.echo(f"time per board: soak {t['soak_s']:.0f} s, sampling floor {t['sampling_floor_s']:.1f} s, "
+                       f"rest {t['rest_s']:.1f} s of {t['board_time_s']:.0f} s ({t['clock']} clock)")
+        else:
+            for line in timing_lines(t):
+                click.echo(line)
     if rep.verdict != "PASS":
         raise click.exceptions.Exit(1)
 

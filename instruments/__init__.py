@@ -1,0 +1,46 @@
+"""Instruments beside the device and the jig: the thermal chamber.
+
+``make_chamber(config, board)`` builds the chamber named by a station config's ``chamber:``
+section, like ``drivers.make_driver``; ``port: emulated`` starts the chamber emulator on
+a pseudo-terminal around the simulated board (its clock and its temperature) and hands
+the port to the real driver, so the emulated station runs the real protocol code.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from ..errors import ConfigError
+from .chamber import AsciiChamber, Chamber, ChamberError, ChamberStatus
+
+DRIVERS = ("ascii",)
+
+
+def make_chamber(config: dict[str, Any], board: Any = None, path: str = "chamber") -> Chamber:
+    """The configured chamber; with ``port: emulated`` the emulator is started and stopped on close."""
+    if not isinstance(config, dict):
+        raise ConfigError(f"{path}: must be a mapping (driver, port, ...)")
+    name = config.get("driver", "ascii")
+    if name not in DRIVERS:
+        raise ConfigError(f"{path}.driver: {name!r}; allowed: {', '.join(DRIVERS)}")
+    if config.get("port") != "emulated":
+        if "emulator" in config:
+            raise ConfigError(f"{path}.emulator: only used with port: emulated")
+        return AsciiChamber.from_config(config, path)
+    if board is None:
+        raise ConfigError(f"{path}.port: emulated needs a simulated or emulated device (the board in the chamber)")
+    from .chamber_emulator import ChamberEmulator
+
+    emu = ChamberEmulator.from_config(config.get("emulator"), board.clock, f"{path}.emulator")
+    couple(board, emu)
+    chamber = AsciiChamber.from_config(config, path, port=emu.start())
+    chamber.on_close.append(emu.stop)
+    chamber.emulator = emu
+    return chamber
+
+
+def couple(board: Any, emulator: Any) -> None:
+    """Put the simulated board in the emulated chamber: its temperature follows the chamber's physics."""
+    board.environment = emulator.physics
+
+
+__all__ = ["AsciiChamber", "Chamber", "ChamberError", "ChamberStatus", "make_chamber", "couple"]
