@@ -18,7 +18,6 @@ from .rawlog import RawLog, static_session
 from .sensor_model import SensorModel
 from .session import Session
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "sim.yaml"
 FITTED = ("offset", "gain", "cross_axis", "cubic", "quadratic", "temperature", "drift", "settling")
 
 # -- the simulator's claim ---------------------------------------------------------------------
@@ -64,9 +63,16 @@ class Simulator:
         return self.model.chip.code_limits[1] * frac / self.counts_per_g
 
 
+def _default_config() -> Path:
+    """configs/sim.yaml, wherever the package is installed (an editable checkout or site-packages)."""
+    from . import configs
+
+    return Path(configs.__file__).parent / "sim.yaml"
+
+
 def load_simulator(path=None) -> Simulator:
     """The simulated board of a station config (default configs/sim.yaml)."""
-    path = Path(path) if path is not None else DEFAULT_CONFIG
+    path = Path(path) if path is not None else _default_config()
     if not path.is_file():
         raise ConfigError(f"{path}: no such simulator configuration (give --config FILE with a device: section, "
                           "driver: simulated)")
