@@ -14,6 +14,7 @@ from click.testing import CliRunner
 from accelcal_station.cli import cli
 from accelcal_station.diagnose import _p_greater, diagnose, gap_data, load_data, load_simulator
 from accelcal_station.diagnose_report import selftest_lines
+from accelcal_station.diagnose_selftest import selftest as run_selftest
 from accelcal_station.fixtures.designs import get_design
 from accelcal_station.gap_effects import Capture, GapData, bias_var, evaluate, mean_var, value_step, within_spread
 from accelcal_station.sensor_model import rotation_matrix
@@ -58,10 +59,44 @@ def cubic_table(tmp_path_factory):
 
 
 # -- the self-test -------------------------------------------------------------------------------
-# Fixed seed (1): deterministic.  The benchmark (benchmarks/bench_diagnose.py, table in
-# benchmarks/README.md) gives every case's hit rate over 50 seeds; the null cases' false alarms
-# are bounded by alpha = 0.01 per greedy step and per signature test.
+# Fixed seeds (1 through the CLI, with coverage; 2 and 3 in-process): deterministic.  The
+# benchmark (benchmarks/bench_diagnose.py, table in benchmarks/README.md, 50 seeds per case) gives
+# the per-case miss rates: flicker 0.04, each null case 0.02, every other case 0.00.  A seed drawn
+# at random therefore fails some case with probability about 1 - 0.96 * 0.98 * 0.98 = 0.08, and
+# three seeds about 0.22: that is the false-failure rate these fixed seeds stand for (alpha = 0.01
+# per greedy step and per signature test, Bonferroni over the views).
 OFF_CATALOG = {"product", "face_tilt", "flicker", "hysteresis"}
+MORE_SEEDS = (2, 3)
+
+
+def _check_case_rules(result: dict) -> None:
+    """The pass rules of the issue, checked here rather than read back from each case's `pass`."""
+    for c in result["cases"]:
+        if c["kind"] == "named" and c["revealable"]:
+            assert c["named"] == c["case"], c
+            if c["case"] not in ("pose_error", "noise", "quantization"):
+                assert c["rms_mg_after_named"] <= c["rms_mg_before"] / 2, c
+        elif c["kind"] == "named":
+            assert c["named"] is None, c
+        elif c["kind"] == "unexplained":
+            assert c["selected"] == [] and c["verdict"] == "unexplained", c
+        elif c["kind"] == "both":
+            assert set(c["case"].split("+")) <= set(c["selected"]), c
+            assert c["rms_mg_after"] < c["rms_mg_before"] / 2, c
+        else:
+            assert c["kind"] == "null" and c["selected"] == [] and c["verdict"] == "nothing to explain", c
+
+
+@pytest.mark.parametrize("seed", MORE_SEEDS)
+def test_selftest_passes_at_more_fixed_seeds(seed):
+    result = run_selftest(seed=seed, coverage=False)
+    assert len(result["cases"]) == 21 and result["seed"] == seed
+    _check_case_rules(result)
+    assert result["passed"]
+
+
+def test_selftest_rules_hold_at_the_cli_seed(selftest):
+    _check_case_rules(selftest)
 
 
 def test_selftest_names_every_revealable_withheld_effect_first(selftest):
