@@ -35,6 +35,7 @@ from .effects import STOCHASTIC
 from .errors import ConfigError, UnderdeterminedError
 from .gap_effects import (Evaluation, Floor, GapData, TimeData, design_rank_ok, evaluate, random_var,
                           sigma_from_within, static_design, time_data)
+from .effects.jig_rotation import jig_rotation
 from .sensor_model import EFFECT_NAMES
 
 ALPHA = 0.01
@@ -313,13 +314,6 @@ def _stochastic(data, floor, final, td, why, alpha, ev_pose=None) -> tuple[dict,
         sig = eff.signature(data, floor, ev_pose() if name == "pose_error" else final, td, alpha)
         out[name] = {"testable": True, **sig.to_json()}
         why.pop(name, None)
-    if "pose_error" in out:
-        out["pose_error"]["jig_rotation"] = (
-            "a fixed jig rotation is a deterministic 3-parameter rotation of the references; the baseline's full "
-            "cross_axis matrix W absorbs it exactly, so it cannot be told from the board's own cross-axis"
-            if "cross_axis" in final_effects(final) else
-            "a fixed jig rotation is a 3-parameter rotation; without cross_axis in the model it shows as "
-            "cross_axis (that candidate's result above)")
     passed = sorted((n for n, v in out.items() if v.get("passed")), key=lambda n: out[n]["p_value"])
     return out, passed
 
@@ -354,6 +348,8 @@ def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     centres.append(_zero_g(base))
     final, selected, steps, ranking, tried = _select(ev, data, sim, base, testable, td, alpha)
     stoch, passed = _stochastic(data, floor, final, td, why, alpha, lambda: ev(selected + ["pose_error"]))
+    if "pose_error" in stoch:
+        stoch["pose_error"]["jig_rotation"] = jig_rotation(data, base, sim.baseline, floor.gamma, alpha)
     where = breakdown(data, sim, floor, base, final, td)
     d = Diagnosis(data, sim, floor, base, final, ranking, steps, selected + [p for p in passed if p not in selected], why, static_ok, static_why,
                   where, alpha, stoch, tried)

@@ -150,6 +150,10 @@ def summary_lines(d: Diagnosis) -> list[str]:
             out.append(f"  {name}: {'NAMED' if st['passed'] else 'no'}: {st['reason']}")
         else:
             out.append(f"  {name}: not testable: {st['reason']}")
+    jig = d.stochastic.get("pose_error", {}).get("jig_rotation")
+    if jig:
+        state = ("FITTED" if jig["passed"] else "no") if jig["testable"] else "not testable"
+        out.append(f"  jig rotation (deterministic, 3 parameters): {state}: {jig['reason']}")
     out.append("")
     out.append(f"VERDICT: {d.verdict}: {d.verdict_text}")
     if d.steps:

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from accelcal_station.cli import cli
 from accelcal_station.diagnose import _p_greater, diagnose, gap_data, load_data, load_simulator
-from accelcal_station.diagnose_report import selftest_lines
+from accelcal_station.diagnose_report import selftest_lines, summary_lines
 from accelcal_station.diagnose_selftest import selftest as run_selftest
 from accelcal_station.fixtures.designs import get_design
 from accelcal_station.gap_effects import Capture, GapData, bias_var, evaluate, mean_var, value_step, within_spread
@@ -443,3 +443,42 @@ def test_diagnosis_core_imports_nothing_from_cli_and_loads_like_fit():
     from accelcal_station.loader import load
 
     assert dl.load is load and cli_fit.load is load
+
+
+# -- a fixed jig rotation: a deterministic 3-parameter rotation fitted on the references ---------------
+
+@pytest.fixture(scope="module")
+def sim_without_cross_axis(tmp_path_factory):
+    """A simulator whose baseline is offset and gain only: its W cannot absorb a rotation."""
+    cfg = yaml.safe_load((REPO / "configs" / "sim.yaml").read_text())
+    cfg["device"]["simulator"]["effects"].pop("cross_axis")
+    path = tmp_path_factory.mktemp("nox") / "sim.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return load_simulator(path)
+
+
+def test_a_fixed_jig_rotation_is_fitted_on_the_references(sim_without_cross_axis):
+    truth_deg = np.array([0.3, -0.2, 0.1])
+    rot = rotation_matrix(truth_deg)
+    d = diagnose(_crafted(lambda r: rot @ r - r), sim_without_cross_axis)
+    jig = d.stochastic["pose_error"]["jig_rotation"]
+    assert jig["passed"] and jig["p_value"] < d.alpha, jig
+    assert np.allclose(jig["rotation_deg"], truth_deg, atol=0.02), jig  # the rotation that made the data
+    assert "jig rotation (deterministic, 3 parameters): FITTED" in "\n".join(summary_lines(d))
+
+
+@pytest.mark.parametrize("extra", [lambda r: 0.02 * r**3, lambda r: 0.01 * r**2,
+                                   lambda r: np.array([0.0, 0.0, 0.02 * r[0] * r[1]])],
+                         ids=["cubic", "quadratic", "product"])
+def test_a_jig_rotation_is_never_named_for_a_radial_residual(sim_without_cross_axis, extra):
+    jig = diagnose(_crafted(extra), sim_without_cross_axis).stochastic["pose_error"]["jig_rotation"]
+    assert jig["testable"] and not jig["passed"] and "radial" in jig["reason"], jig
+
+
+def test_a_jig_rotation_on_a_null_board_and_under_a_full_cross_axis_matrix(sim_without_cross_axis):
+    # fixed seed; a null board names a rotation with probability alpha = 0.01 (chi-square, 3 dof)
+    jig = diagnose(_crafted(lambda r: np.zeros(3)), sim_without_cross_axis).stochastic["pose_error"]["jig_rotation"]
+    assert not jig["passed"] and "chance" in jig["reason"]
+    rot = rotation_matrix([0.3, -0.2, 0.1])
+    jig = diagnose(_crafted(lambda r: rot @ r - r), load_simulator()).stochastic["pose_error"]["jig_rotation"]
+    assert not jig["testable"] and "absorbs" in jig["reason"]
