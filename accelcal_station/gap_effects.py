@@ -56,245 +56,18 @@ views' gaps).  The score of a model is its Gaussian log predictive density per
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
-TAU_DRIFT_S = np.geomspace(10.0, 1000.0, 13)
-TAU_SETTLE_S = np.geomspace(0.02, 3.0, 19)
-MAX_FOLDS = 8
-T_SCALE_C = 25.0  # dT in units of 25 C keeps the design well scaled
-_SYM = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+from .effects import DETERMINISTIC
+from .effects.columns import StaticView
+from .evaluation import Evaluation, nll as _nll
+from .gap_data import (MAX_FOLDS, TAU_DRIFT_S, TAU_SETTLE_S, Capture, GapData, TimeData,  # noqa: F401  (API)
+                       time_data, value_step)
+from .noise_floor import (Floor, bias_var, mean_var, random_var, sigma_from_within,  # noqa: F401  (API)
+                          within_spread)
+
 _S2_GRID = np.concatenate([[0.0], np.geomspace(1e-12, 1e-2, 121)])  # pose scatter variance, rad^2
 _PSI2_GRID = np.concatenate([[0.0], np.geomspace(1e-14, 1e-2, 73)])  # settling amplitude variance, g^2
-
-
-# -- data ----------------------------------------------------------------------------------
-
-@dataclass
-class Capture:
-    """Raw samples of one static pose: t (n,) seconds since its file started, x (n, 3) in data units."""
-
-    t: np.ndarray
-    x: np.ndarray
-    per_g: float  # data units per nominal g
-
-
-@dataclass
-class GapData:
-    """Real (or simulated) data in nominal g, ready for the diagnosis.
-
-    g: (P, 3) pose means; ref: (P, 3) expected output in g or None (norm-only);
-    n: (P,) samples per mean (``n_known`` False: assumed); std_g: (P, 3) per-sample std or None;
-    temp_c: (P,) or None; file: (P,) index into ``sources``; captures: one per pose (raw logs) or None.
-    """
-
-    names: list[str]
-    g: np.ndarray
-    ref: np.ndarray | None
-    n: np.ndarray
-    n_known: bool
-    std_g: np.ndarray | None
-    temp_c: np.ndarray | None
-    file: np.ndarray
-    captures: list[Capture] | None
-    rate_hz: float | None
-    sources: list[str]
-    notes: list[str] = field(default_factory=list)
-    counts_per_g: list = field(default_factory=list)  # per file: counts per g used (None: not counts)
-    zero_g: np.ndarray | None = None  # (3,) the zero-g reading of the baseline fit (centres cubic and square)
-
-    @property
-    def P(self) -> int:
-        return len(self.g)
-
-    @property
-    def norm_only(self) -> bool:
-        return self.ref is None
-
-    @property
-    def n_temps(self) -> int:
-        return 0 if self.temp_c is None else len(np.unique(np.round(self.temp_c / 2.0)))
-
-    def folds(self) -> np.ndarray:
-        """Fold of every pose: round-robin over the recorded order (spreads designs, temperatures, time)."""
-        return np.arange(self.P) % self.n_folds
-
-    @property
-    def n_folds(self) -> int:
-        """Leave-one-out up to 12 poses (every pose counts), else MAX_FOLDS folds."""
-        return self.P if self.P <= 12 else MAX_FOLDS
-
-
-@dataclass
-class Floor:
-    """What the simulator says the noise is: per-sample sigma (3,) g, quantization step q g, pose scatter s rad."""
-
-    sigma_g: np.ndarray
-    q_g: float
-    scatter_rad: float
-    gamma: float  # configured local gravity in standard g
-    sim_sigma_g: np.ndarray | None = None  # the simulator's own sigma, when sigma_g was measured from the data
-    source: str = "simulator noise and quantization"
-    sim_q_g: float | None = None  # the simulator's own LSB, when q_g was measured from the data
-
-
-def bias_var(sigma, q) -> np.ndarray:
-    """B: variance (over poses) of the quantization error a mean of n samples keeps (module doc)."""
-    sigma, q = np.broadcast_arrays(np.asarray(sigma, float), np.asarray(q, float))
-    k = np.arange(1, 201)  # enough terms for B -> q^2/12 as sigma -> 0
-    qs = np.where(q > 0, q, 1.0)[..., None]
-    terms = qs**2 / (2 * np.pi**2 * k**2) * np.exp(-4 * np.pi**2 * k**2 * sigma[..., None]**2 / qs**2)
-    return np.where(q > 0, terms.sum(-1), 0.0)
-
-
-def random_var(sigma, q) -> np.ndarray:
-    """Per-sample variance around a pose's mean: sigma^2 + q^2/12 - B."""
-    sigma, q = np.broadcast_arrays(np.asarray(sigma, float), np.asarray(q, float))
-    return sigma**2 + q**2 / 12.0 - bias_var(sigma, q)
-
-
-def within_spread(sigma, q) -> np.ndarray:
-    """Variance, over a pose's position on the quantization grid, of its within-pose variance.
-
-    w(x) = Var[Q(x + noise)] for x uniform in one step (numerically, on 64 positions);
-    0 without quantization.  Heavy quantization (sigma << q) makes w swing from 0 (x mid-step)
-    to about q^2/4 (x on a step edge), which a sampling variance alone would not predict.
-    """
-    from scipy.special import ndtr
-
-    sigma, q = np.broadcast_arrays(np.asarray(sigma, float), np.asarray(q, float))
-    out = np.zeros(sigma.shape)
-    for idx in np.ndindex(sigma.shape):
-        s, h = float(sigma[idx]), float(q[idx])
-        if h <= 0:
-            continue
-        x = (np.arange(64) + 0.5) / 64 * h
-        K = int(np.ceil(6 * s / h)) + 1
-        k = np.arange(-K, K + 1)[:, None] * h
-        if s > 0:
-            pk = ndtr((k + h / 2 - x) / s) - ndtr((k - h / 2 - x) / s)
-        else:
-            pk = (np.abs(k - x) < h / 2).astype(float)
-        m = np.sum(pk * k, axis=0)
-        w = np.sum(pk * k**2, axis=0) - m**2
-        out[idx] = np.var(w)
-    return out
-
-
-def mean_var(sigma, q, n) -> np.ndarray:
-    """Variance of a mean of n samples: B + (sigma^2 + q^2/12 - B) / n (module doc)."""
-    return bias_var(sigma, q) + random_var(sigma, q) / n
-
-
-def sigma_from_within(w2, q) -> np.ndarray:
-    """White-noise sigma whose within-pose variance (with quantization q) is w2: solves random_var = w2."""
-    w2 = np.asarray(w2, float)
-    s2 = np.maximum(w2 - np.asarray(q) ** 2 / 12.0, 0.0)
-    for _ in range(30):
-        s2 = np.maximum(w2 - np.asarray(q) ** 2 / 12.0 + bias_var(np.sqrt(s2), q), 0.0)
-    return np.sqrt(s2)
-
-
-def value_step(x: np.ndarray) -> float:
-    """The grid the values sit on (their LSB) in data units, 0 when they are not on one."""
-    v = np.unique(np.asarray(x, float).ravel())
-    if len(v) < 2:
-        return 0.0
-    if np.all(v == np.round(v)):
-        return float(np.gcd.reduce(np.diff(v).astype(np.int64)))
-    d = np.diff(v)
-    step = float(d.min())
-    on_grid = np.abs((v - v[0]) / step - np.round((v - v[0]) / step)) < 1e-6
-    return step if step > 0 and np.all(on_grid) else 0.0
-
-
-# -- time view data --------------------------------------------------------------------------
-
-@dataclass
-class TimeData:
-    """Block rows of the raw captures (see module doc); every array is per row unless noted."""
-
-    e: np.ndarray  # (R,) block mean minus capture mean, g
-    axis: np.ndarray  # (R,)
-    unit: np.ndarray  # (R,) pose index
-    inv_m: np.ndarray  # (R,) 1/m_b - 1/n_k
-    t_in: np.ndarray  # (R,) block mid time since the capture started, s
-    drift1: np.ndarray  # (Gw, R) block-minus-capture mean of 1 - exp(-t/tau)
-    drift2: np.ndarray  # (R,) same of t / T
-    settle: np.ndarray  # (Gs, R) same of exp(-(t - t0)/tau)
-    step_unit: np.ndarray  # (P, 3) direction of the last move: mean reading minus the previous capture's
-    cap_drift1: np.ndarray  # (Gw, P) capture mean of 1 - exp(-t/tau)
-    cap_drift2: np.ndarray  # (P,)
-    cap_settle: np.ndarray  # (Gs, P) capture mean of exp(-(t - t0)/tau)
-    diff_var: np.ndarray  # (P, 3) half the variance of first differences (white-noise variance), g^2
-    step_units: np.ndarray  # (P,) value grid (LSB) of each capture, data units (0: none found)
-    per_g: np.ndarray  # (P,) data units per g of each capture
-
-    def lsb_g(self, use: np.ndarray) -> float:
-        """The LSB of the captures selected by ``use``: gcd of their integer value grids, in g."""
-        st = self.step_units[use]
-        st = st[st > 0]
-        if not st.size:
-            return 0.0
-        step = float(np.gcd.reduce(st.astype(np.int64))) if np.all(st == np.round(st)) else float(st.min())
-        return step / float(np.median(self.per_g[use]))
-
-
-def time_data(data: GapData) -> TimeData | None:
-    """Cut every capture into blocks (at most 8, at least 12 samples each)."""
-    caps = data.captures
-    if caps is None:
-        return None
-    P = data.P
-    span = np.zeros(len(data.sources))
-    for k, c in enumerate(caps):
-        span[data.file[k]] = max(span[data.file[k]], float(c.t[-1]))
-    rows: dict[str, list] = {k: [] for k in ("e", "axis", "unit", "inv_m", "t_in", "d1", "d2", "s")}
-    cap_d1 = np.zeros((len(TAU_DRIFT_S), P))
-    cap_d2 = np.zeros(P)
-    cap_s = np.zeros((len(TAU_SETTLE_S), P))
-    diff_var = np.zeros((P, 3))
-    step_units = np.zeros(P)
-    means = np.array([c.x.mean(axis=0) / c.per_g for c in caps])
-    step = np.zeros((P, 3))
-    for k in range(1, P):
-        if data.file[k] == data.file[k - 1]:
-            step[k] = means[k] - means[k - 1]
-    nrm = np.linalg.norm(step, axis=1, keepdims=True)
-    step_unit = np.where(nrm > 0, step / np.where(nrm > 0, nrm, 1.0), 0.0)
-    for k, c in enumerate(caps):
-        x = c.x / c.per_g
-        t = np.asarray(c.t, float)
-        T = max(span[data.file[k]], 1e-9)
-        h1 = 1.0 - np.exp(-t[None, :] / TAU_DRIFT_S[:, None])  # (Gw, n)
-        h2 = t / T
-        hs = np.exp(-(t[None, :] - t[0]) / TAU_SETTLE_S[:, None])  # (Gs, n)
-        cap_d1[:, k], cap_d2[k], cap_s[:, k] = h1.mean(1), h2.mean(), hs.mean(1)
-        diff_var[k] = 0.5 * np.var(np.diff(x, axis=0), axis=0, ddof=1) if len(x) > 2 else np.nan
-        step_units[k] = value_step(c.x)
-        n = len(x)
-        B = min(8, n // 12)
-        if B < 2:
-            continue
-        xm = x.mean(axis=0)
-        for idx in np.array_split(np.arange(n), B):
-            m = len(idx)
-            for a in range(3):
-                rows["e"].append(x[idx, a].mean() - xm[a])
-                rows["axis"].append(a)
-                rows["unit"].append(k)
-                rows["inv_m"].append(1.0 / m - 1.0 / n)
-                rows["t_in"].append(float(t[idx].mean() - t[0]))
-                rows["d1"].append(h1[:, idx].mean(1) - cap_d1[:, k])
-                rows["d2"].append(h2[idx].mean() - cap_d2[k])
-                rows["s"].append(hs[:, idx].mean(1) - cap_s[:, k])
-    if not rows["e"]:
-        return None
-    return TimeData(np.array(rows["e"]), np.array(rows["axis"]), np.array(rows["unit"]), np.array(rows["inv_m"]),
-                    np.array(rows["t_in"]), np.array(rows["d1"]).T, np.array(rows["d2"]), np.array(rows["s"]).T,
-                    step_unit, cap_d1, cap_d2, cap_s, diff_var, step_units,
-                    np.array([c.per_g for c in caps], float))
 
 
 # -- static design ---------------------------------------------------------------------------
@@ -312,63 +85,15 @@ def static_design(E, g, ref, dT, drift_h, norm: bool, n_temps: int, g0=None):
         lead = np.broadcast_shapes(lead, drift_h.shape[:-2])
     g = np.broadcast_to(g, lead + g.shape[-2:])
     P = g.shape[-2]
-    cols: list[np.ndarray] = []
-    labels: list[tuple[str, str]] = []
-    d: list[float] = []
-    b = np.zeros(lead + (P, 3))
-
-    def add(effect, detail, per_channel: dict[int, np.ndarray], shift: float = 0.0):
-        col = np.zeros(lead + (P, 3))
-        for c, val in per_channel.items():
-            col[..., c] = val
-        cols.append(col)
-        labels.append((effect, detail))
-        d.append(shift)
-
-    ax = "xyz"
-    if "cross_axis" in E:
-        if norm:
-            for i, j in _SYM:
-                add("cross_axis" if i != j else "gain", f"W_{ax[i]}{ax[j]}",
-                    {i: g[..., j]} if i == j else {i: g[..., j], j: g[..., i]})
-        else:
-            for i in range(3):
-                for j in range(3):
-                    add("cross_axis" if i != j else "gain", f"W_{ax[i]}{ax[j]}", {i: g[..., j]})
-    elif "gain" in E:
-        for c in range(3):
-            add("gain", f"W_{ax[c]}{ax[c]}", {c: g[..., c]})
-    else:
-        b = b + g  # W = I: the nominal sensitivity is taken as exact
-    if "offset" in E:
-        for c in range(3):
-            add("offset", f"V_{ax[c]}", {c: 1.0})
     z0 = np.zeros(3) if g0 is None else np.asarray(g0, float)
-    if "cubic" in E:
-        for c in range(3):
-            add("cubic", f"Gamma_{ax[c]}", {c: (g[..., c] - z0[c]) ** 3})
-    if "quadratic" in E:
-        for c in range(3):
-            add("quadratic", f"Q_{ax[c]}", {c: (g[..., c] - z0[c]) ** 2})
-    if "temperature" in E and dT is not None:
-        x = dT / T_SCALE_C
-        for c in range(3):
-            add("temperature", f"gain_{ax[c]}_per_25C", {c: x * g[..., c]})
-            add("temperature", f"offset_{ax[c]}_per_25C", {c: x})
-            if n_temps >= 3:
-                add("temperature", f"gain_{ax[c]}_per_25C2", {c: x**2 * g[..., c]})
-                add("temperature", f"offset_{ax[c]}_per_25C2", {c: x**2})
-    if "drift" in E and drift_h is not None:
-        for c in range(3):
-            add("drift", f"warmup_{ax[c]}", {c: -drift_h[..., 0]})
-            add("drift", f"trend_{ax[c]}", {c: -drift_h[..., 1]})
-    if "gravity" in E:
-        if norm:
-            add("gravity", "delta", {}, shift=1.0)
-        else:
-            add("gravity", "delta", {c: -ref[:, c] for c in range(3)})
-    A = np.stack(cols, axis=-1) if cols else np.zeros(lead + (P, 3, 0))
-    return A, b, np.array(d), labels
+    view = StaticView(g, ref, dT, drift_h, norm, n_temps, z0, frozenset(E))
+    for name, effect in DETERMINISTIC.items():
+        if name in E:
+            effect.columns(view)
+    # W = I without gain or cross_axis: the nominal sensitivity is taken as exact
+    b = np.zeros(lead + (P, 3)) + (0.0 if {"gain", "cross_axis"} & set(E) else g)
+    A = np.stack(view.cols, axis=-1) if view.cols else np.zeros(lead + (P, 3, 0))
+    return A, b, np.array(view.shifts), view.labels
 
 
 def _pinv(G: np.ndarray) -> np.ndarray:
@@ -460,68 +185,6 @@ def design_rank_ok(E, data: GapData, norm: bool) -> tuple[bool, float]:
 
 
 # -- evaluation ------------------------------------------------------------------------------
-
-@dataclass
-class Evaluation:
-    """Held-out residuals and variances of one model (see module doc)."""
-
-    added: tuple[str, ...]
-    n_params: int
-    r_static: np.ndarray | None  # (P, m) held-out residuals (m = 3 with references, 1 norm-only), g
-    v_static: np.ndarray | None  # (P, m) their predicted variance (floor + fit), g^2
-    floor_static: np.ndarray | None  # (P, m) floor alone
-    r_time: np.ndarray | None  # (R,) held-out block residuals, g
-    v_time: np.ndarray | None
-    nll_unit: np.ndarray  # (P, 3) held-out negative log predictive density per pose and axis
-    params: dict  # whole-data fit: label -> value
-    fitted_static: np.ndarray | None = None  # (P, m) in-sample residuals of the whole-data fit
-    r_spread: np.ndarray | None = None  # (P, 3) within-pose variance minus predicted, g^2 (scored, not in gap)
-    v_spread: np.ndarray | None = None
-    floor_time: np.ndarray | None = None  # (R,) the floor alone of the time view's rows
-    pv_static: np.ndarray | None = None  # (P, m) the fit's own prediction variance of the held-out residuals
-
-    def _rows(self):
-        r = [x.ravel() for x in (self.r_static, self.r_time) if x is not None]
-        v = [x.ravel() for x in (self.v_static, self.v_time) if x is not None]
-        return np.concatenate(r), np.concatenate(v)
-
-    @property
-    def gap(self) -> float:
-        """Held-out residual RMS over the floor's RMS, the floor fixed before any candidate (1.0: at the floor).
-
-        Only the residuals move it: the floor is the same for every model.  With raw captures
-        both views count alike: the RMS of the static and time views' ratios.
-        """
-        gaps = [g for g in (self.floor_gap("static"), self.floor_gap("time")) if g is not None]
-        return float(np.sqrt(np.mean(np.square(gaps))))
-
-    def floor_gap(self, view: str) -> float | None:
-        r, f = {"static": (self.r_static, self.floor_static), "time": (self.r_time, self.floor_time)}[view]
-        return None if r is None else float(np.sqrt(np.sum(r**2) / np.sum(f)))
-
-    def view_gap(self, view: str) -> float | None:
-        r, v = {"static": (self.r_static, self.v_static), "time": (self.r_time, self.v_time),
-                "spread": (self.r_spread, self.v_spread)}[view]
-        return None if r is None else float(np.sqrt(np.sum(r**2) / np.sum(v)))
-
-    @property
-    def rms_g(self) -> float:
-        r, _ = self._rows()
-        return float(np.sqrt(np.mean(r**2)))
-
-    @property
-    def expected_rms_g(self) -> float:
-        _, v = self._rows()
-        return float(np.sqrt(np.mean(v)))
-
-    @property
-    def score(self) -> float:
-        return float(np.mean(np.sum(self.nll_unit, axis=1)))
-
-
-def _nll(r, v):
-    return 0.5 * (np.log(2 * np.pi * v) + r**2 / v)
-
 
 def _heldout(x: np.ndarray, fold: np.ndarray) -> np.ndarray:
     """Pick each pose's entry from its own fold: x (F, P, ...) -> (P, ...)."""

@@ -482,3 +482,28 @@ def test_a_jig_rotation_on_a_null_board_and_under_a_full_cross_axis_matrix(sim_w
     rot = rotation_matrix([0.3, -0.2, 0.1])
     jig = diagnose(_crafted(lambda r: rot @ r - r), load_simulator()).stochastic["pose_error"]["jig_rotation"]
     assert not jig["testable"] and "absorbs" in jig["reason"]
+
+
+# -- the catalog: one class per effect, one interface ------------------------------------------------
+
+def test_every_catalog_effect_is_one_class_on_the_shared_interface():
+    from accelcal_station.effects import DETERMINISTIC, STOCHASTIC, DeterministicEffect, StochasticEffect
+    from accelcal_station.gap_effects import static_design
+    from accelcal_station.sensor_model import EFFECT_NAMES
+
+    assert set(EFFECT_NAMES) <= set(DETERMINISTIC) | set(STOCHASTIC)
+    for eff in DETERMINISTIC.values():
+        assert isinstance(eff, DeterministicEffect) and eff.signature(None, None, None, None, 0.01) is None
+        assert sys.modules[type(eff).__module__].__file__.endswith(f"{eff.name}.py")  # one file per effect
+    for eff in STOCHASTIC.values():
+        assert isinstance(eff, StochasticEffect) and not eff.static_columns
+    # each static effect's columns come from its own class and carry its name (the diagonal of W is the gain)
+    ref = np.array([p.reference_g for p in get_design("optimal-24")], float)
+    dT = np.linspace(-10.0, 10.0, len(ref))
+    for name, eff in DETERMINISTIC.items():
+        _, _, _, labels = static_design({name}, ref, ref, dT, np.zeros((len(ref), 2)), False, 3)
+        assert bool(labels) == eff.static_columns, name
+        assert {e for e, _ in labels} <= {name, "gain"}, (name, labels)
+    # untestable deterministic effects say why in words
+    ok, why = DETERMINISTIC["settling"].testable(None, None)
+    assert not ok and "raw logs" in why
