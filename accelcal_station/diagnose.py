@@ -69,12 +69,12 @@ def candidates(data: GapData, sim: Simulator, td: TimeData | None) -> tuple[list
             continue  # stochastic only: judged by its own signature (_stochastic), never by the gap
         eff = DETERMINISTIC[e]
         ok, reason = eff.testable(data, td)
-        if not ok:
+        if eff.static_columns and not eff.time_columns and not static_ok:
+            why[e] = f"the static view is unavailable: {static_why}"
+        elif not ok:
             why[e] = Saturation.reason(data, sim.clip_g) if isinstance(eff, Saturation) else reason
         elif eff.time_columns:
             testable.append(e)  # judged in the time view too: the static view's rank does not gate it
-        elif not static_ok:
-            why[e] = f"the static view is unavailable: {static_why}"
         else:
             why_not = _static_why_not(data, base, eff, dof)
             if why_not:
