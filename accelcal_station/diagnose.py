@@ -28,14 +28,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .diagnose_identify import describe_design
 from .diagnose_load import FITTED, Simulator, gap_data, load_data, load_simulator, raw_part  # noqa: F401  (API)
 from .diagnose_shape import leftover_shape
 from .effects import DETERMINISTIC, STOCHASTIC, Saturation
+from .effects.jig_rotation import jig_rotation
 from .errors import ConfigError, UnderdeterminedError
 from .gap_effects import (Evaluation, Floor, GapData, TimeData, design_rank_ok, evaluate, random_var,
                           sigma_from_within, static_design, time_data)
-from .effects.jig_rotation import jig_rotation
+from .identifiability import describe_design
 from .sensor_model import EFFECT_NAMES
 
 ALPHA = 0.01
