@@ -29,6 +29,7 @@ from .errors import AccelcalError, ConfigError, UnderdeterminedError
 from .fixtures.designs import get_design
 from .instruments import ChamberError, make_chamber
 from .models import fit_session
+from .reasons import Reason, wrap
 from .session import PoseRecord, Session
 from .station import RunReport, Station, StationConfig, board_of, make_jig
 from .store import Store
@@ -136,7 +137,7 @@ class SetPointResult:
     poses: int = 0
     fit: dict | None = None
     verdict: str | None = None
-    reasons: list[str] = field(default_factory=list)
+    reasons: list[Reason] = field(default_factory=list)
     verify_error_max_mg: float | None = None
     without_table_error_max_mg: float | None = None
     t_start_s: float = 0.0
@@ -205,7 +206,7 @@ class ThermalStation(Station):
                         self._plan(driver, chamber, jig, clock, records, retries, rep)
                 except (AccelcalError, KeyboardInterrupt) as e:
                     if isinstance(e, ChamberFault):
-                        rep.verdict, rep.reasons = "FAIL", [f"chamber: {e}"]
+                        rep.verdict, rep.reasons = "FAIL", [Reason("chamber", str(e))]
                         self.echo(f"FAIL: chamber: {e} (nothing burned)")
                     else:
                         where = self._where()
@@ -354,13 +355,13 @@ class ThermalStation(Station):
             try:
                 fit = fit_session(Session(groups[sp], "counts", cpg, device=rep.serial), self.cfg.model)
             except UnderdeterminedError as e:
-                res.verdict, res.reasons = "FAIL", [f"fit: {e}"]
-                reasons.append(f"at {sp:g} C: fit: {e}")
+                res.verdict, res.reasons = "FAIL", [Reason("fit", str(e))]
+                reasons.append(wrap(Reason("fit", str(e)), f"at {sp:g} C: "))
                 continue
             v = judge(fit, self.cfg.limits)
             res.fit = {"residual_rms_mg": fit.residual_rms_g * 1e3, "V_mg": (fit.V * 1e3).tolist(), **v.measured}
             res.verdict, res.reasons = v.label, v.reasons
-            reasons += [f"at {sp:g} C: {r}" for r in v.reasons]
+            reasons += [wrap(r, f"at {sp:g} C: ") for r in v.reasons]
             fits.append((float(np.mean(temps)), fit))
         return fits, reasons
 
@@ -387,7 +388,7 @@ class ThermalStation(Station):
             try:
                 with_table = float(np.max(np.abs(cal.apply(x, units="counts", temp_c=t) - ref))) * 1e3
             except AccelcalError as e:
-                reasons.append(f"verify at {res.set_point_c:g} C: {e}")
+                reasons.append(Reason.of("verify", f"verify at {res.set_point_c:g} C: {e}"))
                 continue
             single = float(np.max(np.abs(ref_fit.calibration.apply(x, units="counts") - ref))) * 1e3
             res.verify_error_max_mg, res.without_table_error_max_mg = with_table, single
@@ -400,11 +401,12 @@ class ThermalStation(Station):
             self.echo(f"verify at {res.set_point_c:g} C: {with_table:.3f} mg with the table, "
                       f"{single:.3f} mg with the {ref_t:.1f} C calibration alone (limit {limit} mg)")
             if limit is not None and not with_table <= limit:
-                reasons.append(f"verify at {res.set_point_c:g} C: verify_error_max_mg {with_table:.4g} > limit {limit:g}")
+                reasons.append(Reason.of("verify_error_max_mg", f"verify at {res.set_point_c:g} C: verify_error_max_mg "
+                                          f"{with_table:.4g} > limit {limit:g}"))
         rep.verify_error_max_mg = max((v["error_max_mg"] for v in self.verify), default=None)
         if rep.verify_error_max_mg is not None:
             rep.measured["verify_error_max_mg"] = rep.verify_error_max_mg
-        self.table_verdict = {"verdict": "FAIL" if reasons else "PASS", "reasons": list(reasons)}
+        self.table_verdict = {"verdict": "FAIL" if reasons else "PASS", "reasons": [str(r) for r in reasons]}
         if reasons:
             rep.verdict, rep.reasons = "FAIL", reasons
             self.echo("FAIL before writing: " + "; ".join(reasons))
@@ -415,19 +417,19 @@ class ThermalStation(Station):
 
     def _burn(self, driver, cal: Calibration, groups, rep) -> None:
         if driver.nvm is None:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: the device has no NVM to write; set nvm.write: false"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "the device has no NVM to write; set nvm.write: false")]
             return
         writer = CalibrationWriter(driver.nvm, self.cfg.slot_size)
         try:
             outcome = writer.burn(cal, rep.serial, self.cfg.station_id)
         except BurnError as e:
             rep.nvm = e.outcome.to_dict()
-            rep.verdict, rep.reasons = "FAIL", [f"nvm: {e}"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
             return
         rep.nvm = outcome.to_dict()
         back = writer.read_newest(rep.serial)
         if back is None or back[0].temperature is None:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: no temperature table readable after writing"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "no temperature table readable after writing")]
             return
         stored = back[0]
         recs = [p for r in self.results if r.role == "verify" for p in groups.get(r.set_point_c, [])]
@@ -436,7 +438,7 @@ class ThermalStation(Station):
             and np.allclose(stored.temperature.temps_c, cal.temperature.temps_c)
         rep.nvm_verified = bool(same)
         if not same:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: the table read back from NVM differs from the fitted one"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "the table read back from NVM differs from the fitted one")]
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, "
                   f"{len(stored.temperature.temps_c)}-temperature table read back"
                   + (" and verified" if same else " DIFFERS"))
