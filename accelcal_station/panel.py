@@ -375,10 +375,11 @@ class PanelStation:
             except (AccelcalError, KeyboardInterrupt) as e:
                 why = "operator aborted" if isinstance(e, OperatorAbort) else (
                     "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
-                for b in boards:
+                for b in boards:  # each run closed with the poses its board captured so far
                     if b.rep.run_id is not None:
                         store.interrupt_run(b.rep.run_id, why, status="interrupted" if isinstance(
-                            e, (OperatorAbort, KeyboardInterrupt)) else "error", nvm_outcome=b.rep.nvm)
+                            e, (OperatorAbort, KeyboardInterrupt)) else "error", nvm_outcome=b.rep.nvm,
+                            session=_session(b) if b.records else None, retries=b.retries if b.records else None)
                 self._close(boards)
                 raise
             self._close(boards)
@@ -459,8 +460,7 @@ class PanelStation:
 
     def _record(self, store: Store, b: PanelBoard) -> None:
         rep = b.rep
-        session = Session(b.records, units="counts", counts_per_g=b.driver.counts_per_g if b.open_ else None,
-                          device=rep.serial)
+        session = _session(b)
         est = self.estimate
         summary = {"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
                    "offset_trim_lsb": rep.offset_trim_lsb, "design": self.cfg.design, "skipped": rep.skipped,
@@ -475,6 +475,12 @@ class PanelStation:
             store.interrupt_run(rep.run_id, f"could not record the result: {e}", status="error", nvm_outcome=rep.nvm)
             rep.verdict = "FAIL"
             rep.reasons.append(Reason("store", str(e)))
+
+
+def _session(b: PanelBoard) -> Session:
+    """The poses one board of the panel captured, as a Session."""
+    return Session(b.records, units="counts", counts_per_g=b.driver.counts_per_g if b.open_ else None,
+                   device=b.rep.serial)
 
 
 def panel_dict(panel_id: str, reports: list[RunReport], station: PanelStation | None = None) -> dict:
