@@ -224,6 +224,7 @@ class ThermalPanelStation(PanelStation):
         """Each board's split as a single board reports it, and the panel's: the boards share the soak
         and are captured at once, so the per-board figure is the panel's time / boards."""
         opened = [b for b in boards if b.open_]
+        self._sync(opened)  # the burns ran on each board's own clock (own EEPROM): the panel waits for the last
         for b in opened:
             b.rep.timing = b.station._thermal_timing(b.driver, clock, t0, wall0)
             b.rep.timing["boards"] = len(boards)
