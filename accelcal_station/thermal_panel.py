@@ -24,7 +24,6 @@ import numpy as np
 
 from .errors import AccelcalError
 from .fixtures.base import Jig, PoseSpec
-from .fixtures.designs import get_design
 from .fixtures.operator_jig import OperatorAbort
 from .instruments import couple, make_chamber
 from .panel import PanelBoard, PanelStation, make_panel_jig

@@ -118,3 +118,22 @@ def test_door_opened_mid_capture_fails_every_board_and_burns_nothing(tmp_path):
         assert b["nvm"] is None and not b["nvm_verified"]
     rows = _stored(tmp_path)
     assert all(r[2] == "FAIL" and "door opened" in r[3] and r[4] == "none" for r in rows)
+
+
+def test_a_chamber_that_stops_answering_records_every_board_interrupted_with_its_poses(tmp_path):
+    _, clean = _run(_config(tmp_path, name="clean.yaml"))
+    second = next(v for v in clean["boards"][0]["thermal"]["visits"] if v["set_point_c"] == 25)
+    (tmp_path / "runs.sqlite").unlink()
+    p = _config(tmp_path, faults={"stall_at_s": (second["t_soaked_s"] + second["t_end_s"]) / 2})
+    cfg = yaml.safe_load(p.read_text())
+    cfg["chamber"].update(timeout_s=0.2, retries=0)
+    p.write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"])
+    assert r.exit_code == 3
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    runs = db.execute("SELECT id, status, status_reason FROM runs").fetchall()
+    assert len(runs) == 3 and all(s == "error" and "at set point 25 C" in why for _, s, why in runs)
+    for run_id, _, _ in runs:
+        names = [n for (n,) in db.execute("SELECT name FROM poses WHERE run_id = ?", (run_id,))]
+        at25 = [n for n in names if n.endswith("@25C")]
+        assert len(names) - len(at25) == 8 and 0 < len(at25) < 8  # all of -20 C, part of 25 C
