@@ -200,6 +200,9 @@ def make_panel_jig(cfg: dict, boards: list[PanelBoard], echo: Callable[[str], No
 class PanelStation:
     """Runs the flow for every board of a panel at once (a single board is a panel of one)."""
 
+    board_station: type = Station  # each board's own station and report (thermal_panel.py uses its own)
+    board_report: type = RunReport
+
     def __init__(self, config: StationConfig, *, operator: str | None = None, lot: str | None = None,
                  echo: Callable[[str], None] = print, drivers: list[Driver] | None = None,
                  panel_id: str | None = None, jig: Jig | None = None):
@@ -222,8 +225,8 @@ class PanelStation:
         out = []
         for i, (sec, path) in enumerate(sections):
             quiet = (lambda *_: None)
-            st = Station(cfg, operator=self.operator, lot=self.lot, echo=quiet)
-            rep = RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
+            st = self.board_station(cfg, operator=self.operator, lot=self.lot, echo=quiet)
+            rep = self.board_report(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
             seat = sec.pop(SEAT_KEY, None)
             pb = PanelBoard(i, sec, path, group_of(sec, i), st, rep)
             if seat is not None:
@@ -467,6 +470,8 @@ class PanelStation:
                    "timing": rep.timing, "nvm_verified": rep.nvm_verified, "panel_id": self.panel_id,
                    "jig_pose": None if est is None else {"estimated": est.estimated, "note": est.note,
                                                          "rotvec_deg": est.rotvec_deg.tolist()}}
+        if getattr(rep, "thermal", None) is not None:
+            summary["thermal"] = rep.thermal
         try:
             store.finish_run(rep.run_id, session=session, calibration=rep.calibration, verdict=rep.verdict,
                              reasons=rep.reasons, nvm_outcome=rep.nvm, fit_summary=summary,

@@ -42,9 +42,10 @@ PLAN_KEYS = ("set_points_c", "verify_set_points_c", "method", "soak", "capture_b
 class ChamberFault(AccelcalError):
     """The thermal environment failed the plan: a recorded FAIL, not a crash.  ``kind`` says which."""
 
-    def __init__(self, kind: str, message: str) -> None:
+    def __init__(self, kind: str, message: str, soak_s: float = 0.0) -> None:
         super().__init__(message)
         self.kind = kind
+        self.soak_s = soak_s  # a soak that timed out: the time it took, still counted as soak
 
 
 @dataclass(frozen=True)
@@ -107,6 +108,47 @@ def _temps(d: dict, key: str, path: str, required: bool) -> list[float]:
     if len(set(out)) != len(out):
         raise ConfigError(f"{path}.{key}: {v}; each temperature once")
     return sorted(out)
+
+
+def soak_until(rule: SoakRule, sp: float, chamber, clock, read, check_alarms, echo
+               ) -> tuple[float, np.ndarray, float, float]:
+    """Wait for the soak rule at ``sp`` (module docstring) over every temperature ``read(status)`` gives
+    (one per board: the rule holds when each board's max - min over the hold is within tolerance).
+
+    Returns (soak time, the temperatures, the air temperature, the time soaked), all on ``clock``;
+    ChamberFault on timeout or alarm.
+    """
+    t0 = next_note = clock.now()
+    window: list[tuple[float, np.ndarray]] = []
+    while True:
+        st = chamber.status()
+        check_alarms(st, f"during the soak at {sp:g} C")
+        temps = np.asarray(read(st), dtype=float)
+        now = clock.now()
+        if abs(st.air_c - sp) > rule.band_c:
+            window = []
+        else:
+            window.append((now, temps))
+            while np.max(np.ptp(np.stack([x for _, x in window]), axis=0)) > rule.tolerance_c:
+                window.pop(0)
+            if now - window[0][0] >= rule.hold_s:
+                return now - t0, temps, st.air_c, now
+        if now >= next_note + 600.0:  # a soak takes most of an hour: say where it is every 10 minutes
+            next_note = now
+            held = now - window[0][0] if window else 0.0
+            echo(f"  soaking {now - t0:.0f} s: air {st.air_c:.1f} C, board {_span(temps)} C, stable for {held:.0f} s")
+        if now - t0 >= rule.timeout_s:
+            if abs(st.air_c - sp) > rule.band_c:
+                raise ChamberFault("set point not reached", f"set point {sp:g} C not reached within "
+                                   f"{rule.timeout_s:g} s (air {st.air_c:.1f} C, band +-{rule.band_c:g} C)", now - t0)
+            raise ChamberFault("not stable", f"board temperature not stable within {rule.tolerance_c:g} C for "
+                               f"{rule.hold_s:g} s at {sp:g} C within {rule.timeout_s:g} s (board {_span(temps)} C)",
+                               now - t0)
+        clock.sleep(rule.poll_s)
+
+
+def _span(temps: np.ndarray) -> str:
+    return f"{temps[0]:.2f}" if len(temps) == 1 else f"{temps.min():.2f}..{temps.max():.2f}"
 
 
 class WallClock:
@@ -277,7 +319,6 @@ class ThermalStation(Station):
 
     def _soak(self, driver, chamber, clock, res: SetPointResult) -> None:
         """Wait until the soak rule holds (module docstring); ChamberFault on timeout or alarm."""
-        rule, sp = self.plan.soak, res.set_point_c
         has_sensor = driver.temperature_c() is not None
         res.temp_source = "die" if has_sensor else "chamber_air"
         if not has_sensor and len(self.results) == 1:
@@ -285,37 +326,17 @@ class ThermalStation(Station):
                     "chamber air temperature (the board is taken to be at the air temperature after the soak)")
             self.echo(f"  note: {note}")
             self.report_events.append(note)
-        t0 = next_note = clock.now()
-        window: list[tuple[float, float]] = []
-        while True:
-            st = chamber.status()
-            self._check_alarms(st, f"during the soak at {sp:g} C")
-            temp = driver.temperature_c() if has_sensor else st.air_c
-            now = clock.now()
-            if abs(st.air_c - sp) > rule.band_c:
-                window = []
-            else:
-                window.append((now, temp))
-                while max(x for _, x in window) - min(x for _, x in window) > rule.tolerance_c:
-                    window.pop(0)
-                if now - window[0][0] >= rule.hold_s:
-                    res.soak_s, res.board_temp_c, res.air_temp_c, res.t_soaked_s = now - t0, temp, st.air_c, now
-                    self.soak_s += now - t0
-                    self.echo(f"  soaked in {now - t0:.0f} s: board {temp:.2f} C ({res.temp_source}), air {st.air_c:.1f} C")
-                    return
-            if now >= next_note + 600.0:  # a soak takes most of an hour: say where it is every 10 minutes
-                next_note = now
-                held = now - window[0][0] if window else 0.0
-                self.echo(f"  soaking {now - t0:.0f} s: air {st.air_c:.1f} C, board {temp:.2f} C, stable for {held:.0f} s")
-            if now - t0 >= rule.timeout_s:
-                res.soak_s = now - t0
-                self.soak_s += now - t0
-                if abs(st.air_c - sp) > rule.band_c:
-                    raise ChamberFault("set point not reached", f"set point {sp:g} C not reached within "
-                                       f"{rule.timeout_s:g} s (air {st.air_c:.1f} C, band +-{rule.band_c:g} C)")
-                raise ChamberFault("not stable", f"board temperature not stable within {rule.tolerance_c:g} C for "
-                                   f"{rule.hold_s:g} s at {sp:g} C within {rule.timeout_s:g} s (board {temp:.2f} C)")
-            clock.sleep(rule.poll_s)
+        read = (lambda st: np.array([driver.temperature_c()])) if has_sensor else (lambda st: np.array([st.air_c]))
+        try:
+            soak_s, temps, air_c, now = soak_until(self.plan.soak, res.set_point_c, chamber, clock, read,
+                                                   self._check_alarms, self.echo)
+        except ChamberFault as e:
+            res.soak_s = e.soak_s
+            self.soak_s += e.soak_s
+            raise
+        self.soak_s += soak_s
+        res.soak_s, res.board_temp_c, res.air_temp_c, res.t_soaked_s = soak_s, float(temps[0]), air_c, now
+        self.echo(f"  soaked in {soak_s:.0f} s: board {temps[0]:.2f} C ({res.temp_source}), air {air_c:.1f} C")
 
     def _capture_set_point(self, driver, chamber, jig, clock, poses, res: SetPointResult, rep,
                            sink: tuple[list, list] | None) -> list[PoseRecord]:
