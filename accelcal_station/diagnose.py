@@ -33,9 +33,8 @@ from .diagnose_shape import leftover_shape
 from .effects import DETERMINISTIC, STOCHASTIC, Saturation
 from .effects.jig_rotation import jig_rotation
 from .errors import ConfigError, UnderdeterminedError
-from .gap_effects import (Evaluation, Floor, GapData, TimeData, design_rank_ok, evaluate, random_var,
-                          sigma_from_within, static_design, time_data)
-from .identifiability import describe_design
+from .gap_effects import (Evaluation, Floor, GapData, TimeData, describe_design, design_rank_ok, evaluate,
+                          random_var, sigma_from_within, static_design, time_data)
 from .sensor_model import EFFECT_NAMES
 
 ALPHA = 0.01

@@ -63,6 +63,7 @@ import numpy as np
 from .effects import DETERMINISTIC
 from .effects.columns import StaticView
 from .evaluation import Evaluation, nll as _nll
+from .identifiability import describe_terms
 from .gap_data import (MAX_FOLDS, TAU_DRIFT_S, TAU_SETTLE_S, Capture, GapData, TimeData,  # noqa: F401  (API)
                        time_data, value_step)
 from .noise_floor import (Floor, bias_var, mean_var, random_var, sigma_from_within,  # noqa: F401  (API)
@@ -96,6 +97,16 @@ def static_design(E, g, ref, dT, drift_h, norm: bool, n_temps: int, g0=None):
     b = np.zeros(lead + (P, 3)) + (0.0 if {"gain", "cross_axis"} & set(E) else g)
     A = np.stack(view.cols, axis=-1) if view.cols else np.zeros(lead + (P, 3, 0))
     return A, b, np.array(view.shifts), view.labels
+
+
+def describe_design(data, effects) -> dict:
+    """identifiability.describe_terms of the static design of ``effects`` on ideal readings
+    (g = ref, or unit readings without references).  data: a gap_data.GapData."""
+    ideal = data.ref if data.ref is not None else data.g / np.linalg.norm(data.g, axis=1, keepdims=True)
+    dT = None if data.temp_c is None else data.temp_c - np.mean(data.temp_c)
+    dh = np.zeros((data.P, 2)) if "drift" in effects else None
+    A, _, _, labels = static_design(set(effects), ideal, data.ref, dT, dh, data.ref is None, data.n_temps)
+    return describe_terms(A, labels, ideal)
 
 
 def _pinv(G: np.ndarray) -> np.ndarray:

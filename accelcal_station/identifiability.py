@@ -17,8 +17,8 @@ combination of the others.  The reason a model is refused is said in words.
 ``assess_batch`` is vectorised for `accelcal batch`; ``assess`` is one board.
 
 `accelcal diagnose` asks the same question of any model of the effects catalog:
-``describe_design`` takes the static design of those effects (gap_effects.static_design) on
-ideal readings, and names the terms along every relative singular value below
+``describe_terms`` takes the static design of those effects (built by
+gap_effects.describe_design on ideal readings), and names the terms along every relative singular value below
 ``TERM_REL_SV_MIN`` (confounded: no data of this design can separate them).
 """
 from __future__ import annotations
@@ -29,12 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import UnderdeterminedError
-from .gap_effects import static_design
 
 DISTINCT_TOL_DEG = 5.0  # readings closer than this are the same orientation (a revisit)
 SPREAD_MIN_G = 0.25  # a channel must see gravity change by this much for its gain (model 6)
 REL_SV_MIN = 0.05  # smallest / largest singular value of the normalised design
-TERM_REL_SV_MIN = 1e-6  # describe_design: terms along a smaller relative singular value are not determined
+TERM_REL_SV_MIN = 1e-6  # describe_terms: terms along a smaller relative singular value are not determined
 COEFFS = {"6": 2, "12": 4, "15": 5, "9": 9}  # coefficients per least-squares solve
 PARAMS = {"6": 6, "12": 12, "15": 15, "9": 9}
 AXES = "xyz"
@@ -225,18 +224,12 @@ def worst_parameter(stderr: dict[str, np.ndarray] | None, model: str) -> tuple[s
     return name, text
 
 
-def describe_design(data, effects) -> dict:
-    """Distinct orientations, relative singular values of the column-scaled static design of ``effects``
-    (on ideal readings g = ref, or unit readings without references), and which terms are confounded.
-
-    data: a gap_data.GapData; the text says it in words (diagnose's untestable reasons).
-    """
-    ideal = data.ref if data.ref is not None else data.g / np.linalg.norm(data.g, axis=1, keepdims=True)
-    dT = None if data.temp_c is None else data.temp_c - np.mean(data.temp_c)
-    dh = np.zeros((data.P, 2)) if "drift" in effects else None
-    A, _, _, labels = static_design(set(effects), ideal, data.ref, dT, dh, data.ref is None, data.n_temps)
+def describe_terms(A: np.ndarray, labels: list, ideal: np.ndarray) -> dict:
+    """Distinct orientations of ``ideal`` (P, 3), relative singular values of the column-scaled
+    design ``A`` (..., n_terms) whose columns are ``labels`` ((effect, detail) pairs), and which
+    terms are confounded; the text says it in words (diagnose's untestable reasons)."""
     n_or = int(first_of_orientation(ideal[None])[0].sum())
-    out = {"distinct_orientations": n_or, "poses": data.P, "parameters": len(labels)}
+    out = {"distinct_orientations": n_or, "poses": len(ideal), "parameters": len(labels)}
     if not labels:
         return {**out, "text": f"{n_or} distinct orientations; no fitted terms"}
     M = A.reshape(-1, A.shape[-1])
@@ -260,5 +253,5 @@ def describe_design(data, effects) -> dict:
     return out
 
 
-__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "assess", "assess_batch", "describe_design", "first_of_orientation",
+__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "assess", "assess_batch", "describe_terms", "first_of_orientation",
            "require", "worst_parameter"]

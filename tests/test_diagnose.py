@@ -224,7 +224,7 @@ def test_forward_cubic_is_the_sensors_physics():
 
 def test_identifiability_is_said_in_words():
     """Six faces revisited: six distinct orientations; a cubic next to the gain is confounded there."""
-    from accelcal_station.identifiability import describe_design
+    from accelcal_station.gap_effects import describe_design
 
     recs = [PoseRecord(f"f{k}", p.reference_g * 4096.0, None, 100, p.reference_g, p.pitch_deg, p.roll_deg, 25.0)
             for k, p in enumerate(list(get_design("six-face")) * 3)]
