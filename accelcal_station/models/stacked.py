@@ -246,6 +246,26 @@ def _resid_jac(p: np.ndarray, g: np.ndarray):
     return n - 1.0, J
 
 
+def _masked_grad(p: np.ndarray, g: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """J^T (w r) (N, 9) of r_i = |M (v_i - B)| - 1 without forming J (the sums of _resid_jac's
+    columns weighted by w r, grouped as sum_q (a_k r / |a|) u_l and sum_q a_k r / |a|)."""
+    m = [p[:, k, None] for k in range(9)]
+    M = ((m[0], m[3], m[4]), (m[3], m[1], m[5]), (m[4], m[5], m[2]))
+    u = [g[i] - m[6 + i] for i in range(3)]
+    a = [M[i][0] * u[0] + M[i][1] * u[1] + M[i][2] * u[2] for i in range(3)]
+    n = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    f = (n - 1.0) * w / np.maximum(n, 1e-300)
+    c = [ai * f for ai in a]  # ah_k * r * w
+    S = [[np.einsum("np,np->n", c[k], u[l]) for l in range(3)] for k in range(3)]
+    s = [ck.sum(axis=1) for ck in c]
+    out = np.empty((len(p), 9))
+    out[:, 0], out[:, 1], out[:, 2] = S[0][0], S[1][1], S[2][2]
+    out[:, 3], out[:, 4], out[:, 5] = S[0][1] + S[1][0], S[0][2] + S[2][0], S[1][2] + S[2][1]
+    for j in range(3):
+        out[:, 6 + j] = -(s[0] * M[0][j][:, 0] + s[1] * M[1][j][:, 0] + s[2] * M[2][j][:, 0])
+    return out
+
+
 def _chol_solve(A: list, b: list):
     """Solve A x = b for N symmetric 9 x 9 systems at once by Cholesky, elementwise over N.
 
@@ -269,20 +289,13 @@ def _chol_solve(A: list, b: list):
     return np.stack(x, axis=1), ok
 
 
-_TRI = [(i, j) for i in range(9) for j in range(i + 1)]
-_TI = np.array([i for i, _ in _TRI])
-_TJ = np.array([j for _, j in _TRI])
-
-
 def _normal(J: np.ndarray, r: np.ndarray):
-    """J^T J (lower triangle, lists of (N,)) and -J^T r of a (9, N, P) Jacobian: the 45 products
-    in one array operation (45 einsum calls cost more in dispatch than in arithmetic)."""
-    prod = (J[_TI] * J[_TJ]).sum(axis=-1)  # (45, N)
-    A = [[None] * 9 for _ in range(9)]
-    for k, (i, j) in enumerate(_TRI):
-        A[i][j] = prod[k]
-    grad = -(J * r).sum(axis=-1)
-    return A, list(grad)
+    """J^T J (lower triangle, lists of (N,)) and -J^T r of a (9, N, P) Jacobian, by one batched
+    matmul (45 einsum calls cost more in dispatch than in arithmetic)."""
+    Jn = J.transpose(1, 0, 2)  # (N, 9, P)
+    A = np.ascontiguousarray((Jn @ Jn.transpose(0, 2, 1)).transpose(1, 2, 0))  # (9, 9, N)
+    grad = -np.einsum("knp,np->kn", J, r)
+    return [[A[i, j] if j <= i else None for j in range(9)] for i in range(9)], list(grad)
 
 
 def _gauss_newton(gf: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-12):
@@ -386,7 +399,7 @@ def _loo9(gf, p, r, J, Ainv, steps: int) -> np.ndarray:
     applies the same inverse (a chord step: the matrix moves by O(step), so the error
     contracts by that factor per step, as a Gauss-Newton step does)."""
     D, P, _ = gf.shape
-    U = np.einsum("dkl,dpl->dpk", Ainv, J)  # u_i (D, P, 9)
+    U = J @ Ainv  # u_i = A^-1 j_i (D, P, 9); A^-1 symmetric
     h = np.einsum("dpk,dpk->dp", U, J)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv1h = np.where(h < 1.0 - 1e-9, 1.0 / (1.0 - h), np.nan)
@@ -396,11 +409,10 @@ def _loo9(gf, p, r, J, Ainv, steps: int) -> np.ndarray:
     # step 1: -(A_i^-1)(g - j_i r_i) = -(A^-1 g) - u_i (u_i.g - r_i) / (1 - h_i)
     ps = p[:, None, :] - Ag[:, None, :] - U * ((ug - r) * inv1h)[..., None]  # (D, P, 9)
     g = np.ascontiguousarray(np.broadcast_to(gf.transpose(2, 0, 1)[:, :, None, :], (3, D, P, P)))
-    keep = 1.0 - np.eye(P)  # row i: pose i held out
+    keep_n = np.tile(1.0 - np.eye(P), (D, 1))  # row (d, i): pose i held out
     for _ in range(steps - 1):
-        rr, JJ = _resid_jac(ps.reshape(D * P, 9), g.reshape(3, D * P, P))
-        Gi = np.einsum("knq,nq->nk", JJ, (rr.reshape(D, P, P) * keep).reshape(D * P, P)).reshape(D, P, 9)
-        AG = np.einsum("dkl,dpl->dpk", Ainv, Gi)
+        Gi = _masked_grad(ps.reshape(D * P, 9), g.reshape(3, D * P, P), keep_n).reshape(D, P, 9)
+        AG = Gi @ Ainv
         ps -= AG + U * (np.einsum("dpk,dpk->dp", U, Gi) * inv1h)[..., None]
     M, B = gn._unpack(ps.reshape(D * P, 9))
     a = np.einsum("nij,nj->ni", M, gf.reshape(D * P, 3) - B)
@@ -419,8 +431,8 @@ def _propagate9(cov, M, B):
         if a != b:
             Gv[:, b, j] -= B[:, a]
     Gv[:, :, 6:] = -M
-    sW = np.sqrt(np.clip(np.einsum("ij,djk,ik->di", Gw, cov, Gw), 0, None)).reshape(D, 3, 3)
-    sV = np.sqrt(np.clip(np.einsum("dij,djk,dik->di", Gv, cov, Gv), 0, None))
+    sW = np.sqrt(np.clip(((Gw @ cov) * Gw).sum(axis=-1), 0, None)).reshape(D, 3, 3)  # diag(G C G^T)
+    sV = np.sqrt(np.clip(((Gv @ cov) * Gv).sum(axis=-1), 0, None))
     return sW, sV
 
 
