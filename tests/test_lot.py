@@ -44,6 +44,22 @@ def test_stacked_linear_matches_todays_fitter(model, design):
     np.testing.assert_allclose(b.result(d).covariance, a.result(d).covariance, rtol=1e-7, atol=1e-18)
 
 
+def test_stacked_model12_groups_boards_by_reference_set():
+    # boards of one stack measured on two fixtures (different pose references), interleaved:
+    # the stacked fitter groups them by reference set and returns them in input order
+    ref_a, ref_b = references(get_design("an4399-8")), references(get_design("optimal-12"))[:8]
+    x = np.concatenate([_boards(300, ref_a, seed=5), _boards(300, ref_b, seed=6)])
+    ref = np.concatenate([np.broadcast_to(ref_a, (300, 8, 3)), np.broadcast_to(ref_b, (300, 8, 3))])
+    order = np.random.default_rng(7).permutation(600)
+    x, ref = x[order], np.ascontiguousarray(ref[order])
+    a, b = fit_linear_batch(x, ref, "12"), fit_stacked(x, ref, "12")
+    assert a.ok.all() and b.ok.all()
+    for k in ("W", "V", "residuals_g", "crossval_rms_g", "stderr_W", "stderr_V", "norm_error_g"):
+        np.testing.assert_allclose(getattr(b, k), getattr(a, k), rtol=0, atol=1e-9, err_msg=k)
+    np.testing.assert_allclose(b.condition_number, a.condition_number, rtol=1e-8)
+    np.testing.assert_allclose(b.result(11).covariance, a.result(11).covariance, rtol=1e-7, atol=1e-18)
+
+
 def test_stacked_model9_matches_todays_fitter():
     rng = np.random.default_rng(2)
     ref = references(get_design("optimal-12"))

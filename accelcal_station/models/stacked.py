@@ -127,15 +127,19 @@ class _ChannelCovariance:
 
 
 def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) -> BatchFit:
-    """Model 12 for a stack of boards (D, P, 3) in g; same results as fit_linear_batch."""
+    """Model 12 for a stack of boards (D, P, 3) in g; same results as fit_linear_batch.
+
+    ``ref`` is (D, P, 3), or (P, 3) shared by every board: then its centred form, its norms
+    and the cross products xc^T yc (one BLAS matmul) are computed once for the stack."""
     gf = np.asarray(gf, dtype=float)
     D, P, _ = gf.shape
     if P < 4:
         raise UnderdeterminedError(f"model 12 needs at least 4 poses; got {P}")
-    ref = np.broadcast_to(np.asarray(ref, dtype=float), (D, P, 3))
+    ref = np.asarray(ref, dtype=float)
+    shared = ref.ndim == 2
     g = np.ascontiguousarray(gf.transpose(2, 0, 1))  # (3, D, P): each axis contiguous
-    y = np.ascontiguousarray(ref.transpose(2, 0, 1))
-    xbar, ybar = g.mean(axis=2), y.mean(axis=2)  # (3, D)
+    y = ref.T[:, None, :] if shared else np.ascontiguousarray(ref.transpose(2, 0, 1))  # (3, 1 or D, P)
+    xbar, ybar = g.mean(axis=2), y.mean(axis=2)  # (3, D), (3, 1 or D)
     xc, yc = g - xbar[..., None], y - ybar[..., None]
     S = tuple(np.einsum("dp,dp->d", xc[i], xc[j]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
     adj, det = _sym_inv3(*S)
@@ -144,11 +148,14 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
     det_safe = np.where(ok, det, 1.0)
     i00, i01, i02, i11, i12, i22 = (np.where(ok, v, 0.0) / det_safe for v in adj)
     Si = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])  # (3, 3, D)
-    C = np.einsum("idp,cdp->icd", xc, yc)  # (3 in, 3 out, D)
+    if shared:  # (3 D, P) @ (P, 3): one BLAS call
+        C = (xc.reshape(3 * D, P) @ yc[:, 0, :].T).reshape(3, D, 3).transpose(0, 2, 1)
+    else:
+        C = np.einsum("idp,cdp->icd", xc, yc)  # (3 in, 3 out, D)
     Wt = np.einsum("jid,icd->jcd", Si, C)  # W[c, j] = Wt[j, c]
     W = Wt.transpose(2, 1, 0)  # (D, 3, 3)
     V = ybar.T - np.einsum("dcj,dj->dc", W, xbar.T)
-    r = np.empty_like(yc)  # (3, D, P) reference minus calibrated
+    r = np.empty_like(xc)  # (3, D, P) reference minus calibrated
     for c in range(3):
         r[c] = yc[c] - Wt[0, c, :, None] * xc[0] - Wt[1, c, :, None] * xc[1] - Wt[2, c, :, None] * xc[2]
     h = (i00[:, None] * xc[0] ** 2 + i11[:, None] * xc[1] ** 2 + i22[:, None] * xc[2] ** 2
@@ -185,7 +192,7 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
     sV = np.sqrt(np.clip(s2z * diag[:, 3:4], 0.0, None))
     resid = r.transpose(1, 2, 0)  # (D, P, 3) view
     calibrated = y - r
-    norm_err = np.sqrt(np.einsum("cdp,cdp->dp", calibrated, calibrated)) - np.sqrt(np.einsum("cdp,cdp->dp", y, y))
+    norm_err = np.sqrt(np.einsum("cdp,cdp->dp", calibrated, calibrated)) - np.sqrt((y * y).sum(axis=0))
     messages = [""] * D
     for d in np.flatnonzero(~ok):
         messages[d] = diagnose_underdetermined(gf[d], "12")
@@ -436,45 +443,84 @@ def _propagate9(cov, M, B):
     return sW, sV
 
 
-BLOCK = {"12": 2048, "9": 512, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
+BLOCK = {"12": 2048, "9": 1024, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
 
 
-def _concat(parts: list[BatchFit]) -> BatchFit:
-    if len(parts) == 1:
-        return parts[0]
-    first = parts[0]
+def _assemble(parts: list[tuple[np.ndarray | slice, BatchFit]], D: int, gf: np.ndarray) -> BatchFit:
+    """One BatchFit of D boards from fits of board subsets (rows given by a slice or indices),
+    written into arrays allocated once (no list of parts concatenated afterwards)."""
+    if len(parts) == 1 and parts[0][0] == slice(0, D):
+        return parts[0][1]
+    first = parts[0][1]
     kw = {}
     for name in first.__dataclass_fields__:
-        vals = [getattr(b, name) for b in parts]
-        v0 = vals[0]
+        v0 = getattr(first, name)
         if name in ("model", "param_names", "input_units"):
             kw[name] = v0
+        elif name == "readings_g":
+            kw[name] = gf
         elif name in ("messages", "status"):
-            kw[name] = None if v0 is None else [m for v in vals for m in v]
+            if v0 is None:
+                kw[name] = None
+                continue
+            out = [""] * D
+            for rows, b in parts:
+                if isinstance(rows, slice):
+                    out[rows] = getattr(b, name)
+                else:
+                    for k, i in enumerate(rows):
+                        out[i] = getattr(b, name)[k]
+            kw[name] = out
         elif isinstance(v0, _ChannelCovariance):
-            kw[name] = _ChannelCovariance(np.concatenate([v.Ginv for v in vals]), np.concatenate([v.s2 for v in vals]))
+            Ginv, s2 = np.empty((D,) + v0.Ginv.shape[1:]), np.empty((D,) + v0.s2.shape[1:])
+            for rows, b in parts:
+                Ginv[rows], s2[rows] = getattr(b, name).Ginv, getattr(b, name).s2
+            kw[name] = _ChannelCovariance(Ginv, s2)
         elif v0 is None or np.ndim(v0) == 0:
             kw[name] = v0
         else:
-            kw[name] = np.concatenate(vals)
+            out = np.empty((D,) + np.shape(v0)[1:], dtype=np.asarray(v0).dtype)
+            for rows, b in parts:
+                out[rows] = getattr(b, name)
+            kw[name] = out
     return BatchFit(**kw)
+
+
+def _reference_groups(ref: np.ndarray) -> list[tuple[np.ndarray | slice, np.ndarray]]:
+    """Boards grouped by identical reference sets: [(rows, shared (P, 3) references)].
+    A lot usually has one set (the fixture's poses); a broadcast array is recognised free."""
+    D = len(ref)
+    if D == 0 or ref.strides[0] == 0 or np.array_equal(ref, np.broadcast_to(ref[0], ref.shape)):
+        return [(slice(0, D), np.ascontiguousarray(ref[0]) if D else ref.reshape(-1, 3))]
+    uniq, inv = np.unique(ref.reshape(D, -1), axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    return [(np.flatnonzero(inv == k), uniq[k].reshape(-1, 3)) for k in range(len(uniq))]
 
 
 def fit_stacked(gf: np.ndarray, ref: np.ndarray | None, model: str, noise_g: np.ndarray | None = None) -> BatchFit:
     """The fast fitter of ``model`` on (D, P, 3) readings in g (references in g for 6/12/15),
-    in blocks of BLOCK[model] boards."""
+    in blocks of BLOCK[model] boards; model 12 per group of boards sharing their references."""
     gf = np.asarray(gf, dtype=float)
     D, P, _ = gf.shape
     ref = None if ref is None else np.broadcast_to(np.asarray(ref, dtype=float), (D, P, 3))
     nz = None if noise_g is None else np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3))
+    if model == "12":
+        groups = _reference_groups(ref)
+    else:
+        groups = [(slice(0, D), ref)]
     parts = []
-    for a in range(0, D, BLOCK[model]):
-        sl = slice(a, a + BLOCK[model])
-        n = None if nz is None else nz[sl]
-        if model == "9":
-            parts.append(fit9(gf[sl], n))
-        elif model == "12":
-            parts.append(fit12(gf[sl], ref[sl], n))
-        else:
-            parts.append(fit_linear_batch(gf[sl], ref[sl], model, n))
-    return _concat(parts)
+    for rows, gref in groups:
+        idx = np.arange(D)[rows] if isinstance(rows, slice) else rows
+        for a in range(0, len(idx), BLOCK[model]):
+            sel = slice(idx[0] + a, min(idx[0] + a + BLOCK[model], idx[-1] + 1)) \
+                if isinstance(rows, slice) else idx[a:a + BLOCK[model]]
+            n = None if nz is None else nz[sel]
+            if model == "9":
+                parts.append((sel, fit9(gf[sel], n)))
+            elif model == "12":
+                parts.append((sel, fit12(gf[sel], gref, n)))
+            else:
+                parts.append((sel, fit_linear_batch(gf[sel], ref[sel], model, n)))
+    if not parts:
+        raise UnderdeterminedError("no boards to fit")
+    return _assemble(parts, D, gf)
