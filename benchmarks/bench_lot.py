@@ -84,7 +84,7 @@ def fit_rates(n: int, n9: int, n_today9: int, n_loop: int, repeats: int = 3) -> 
         goal = (f"{TARGET[model]:>10,} ({'met' if r_new >= TARGET[model] else 'not met'})"
                 if model in TARGET else "")
         print(f"   {model:5} {r_new:12,.0f} {r_old:12,.0f} {r_loop:10,.0f} {r_new / r_old:14.1f} {r_new / r_loop:13.0f}"
-              f" {goal}")
+              f" {goal}".rstrip())
 
 
 def _sessions(n: int) -> list[Session]:
