@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -20,7 +19,7 @@ from .errors import AccelcalError, DataError
 from .models.gravity_norm import nominal_scale
 from .posetable import read_pose_table, table_metadata
 from .rawlog import MAX_ABS_READING, LogInfo, RawLog, StaticDetection, read_raw_log, read_text_file, static_session
-from .session import PoseRecord, Session
+from .session import Session
 
 G_RANGE = (0.5, 2.0)  # median norm of readings in g
 MPS2_RANGE = (5.0, 20.0)  # in m/s^2

@@ -27,7 +27,6 @@ import os
 import select
 import threading
 import time
-import tty
 from collections import deque
 from typing import Any
 
@@ -35,6 +34,7 @@ import numpy as np
 
 from ..config import check_keys, load_yaml, number
 from ..errors import ConfigError
+from ..pty_server import PtyServer
 from . import bridge_protocol as bp
 from .eeprom import EEPROM24, PowerLossError
 from .mpu6050 import (ACCEL_CONFIG, ACCEL_RATE_HZ, ACCEL_XOUT_H, CHIP_ID, CONFIG, OFFSET_LSB_PER_G, PWR_MGMT_1,
@@ -45,8 +45,11 @@ CHUNK = 32  # samples produced between looks at the input (a STOP is seen within
 EEPROM_WRITE_S_PER_BYTE = 0.0034  # ATmega328P EEPROM programming time per byte
 
 
-class MPU6050BridgeEmulator:
+class MPU6050BridgeEmulator(PtyServer):
     """The bridge and its MPU6050 on a pseudo-terminal.  ``start()`` returns the port path."""
+
+    thread_name = "mpu6050-bridge"
+    master_nonblocking = True  # _run polls the master between samples
 
     def __init__(self, board: Any = None, seed: int | None = None, who_am_i: int = CHIP_ID,
                  i2c_present: bool = True, serial: str | None = None, i2c_address: int = 0x68,
@@ -96,38 +99,6 @@ class MPU6050BridgeEmulator:
             raise ConfigError(f"{path}.simulator: {sim!r}; allowed: a mapping or the path of a simulator YAML file")
         seed = number(cfg, "seed", path, 0, 0, 2**32 - 1, integer=True) if cfg.get("seed") is not None else file_seed
         return cls(SimulatedBoard.from_config(sim, chip="mpu6050", seed=seed, path=f"{path}.simulator"))
-
-    # --- lifecycle ------------------------------------------------------------------------
-    def start(self) -> str:
-        """Open a new pseudo-terminal, start answering on it, return the slave's path."""
-        if self._thread is not None:
-            return self.port
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)  # bytes pass unchanged: no echo, no CR/LF translation
-        os.set_blocking(self._master, False)
-        self.port = os.ttyname(self._slave)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"mpu6050-bridge {self.port}", daemon=True)
-        self._thread.start()
-        return self.port
-
-    def stop(self) -> None:
-        """Stop the thread and close the pseudo-terminal; safe to call twice."""
-        if self._thread is not None:
-            self._stop.set()
-            self._thread.join(timeout=5.0)
-            self._thread = None
-        for fd in (self._master, self._slave):
-            if fd >= 0:
-                os.close(fd)
-        self._master = self._slave = -1
-
-    def __enter__(self) -> "MPU6050BridgeEmulator":
-        self.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
 
     # --- faults ---------------------------------------------------------------------------
     def corrupt(self, n_bytes: int, after_bytes: int = 0) -> None:

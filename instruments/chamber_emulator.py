@@ -24,11 +24,11 @@ import math
 import os
 import select
 import threading
-import tty
 from typing import Any
 
 from ..config import check_keys, number
 from ..errors import ConfigError
+from ..pty_server import PtyServer
 from .chamber import DOOR_OPEN
 
 EMULATOR_KEYS = ("start_c", "room_c", "air_tau_s", "board_tau_s", "door_tau_s", "faults")
@@ -108,8 +108,10 @@ class ChamberPhysics:
         return self.board_c_state
 
 
-class ChamberEmulator:
+class ChamberEmulator(PtyServer):
     """The ASCII chamber (docs/chamber-protocol.md) on a pseudo-terminal; ``start()`` returns its path."""
+
+    thread_name = "chamber"
 
     def __init__(self, physics: ChamberPhysics, model: str = "ACCELCAL-EMU") -> None:
         self.physics = physics
@@ -206,18 +208,7 @@ class ChamberEmulator:
                 return f"OK:{cmd}"
             return "NA:COMMAND ERR"
 
-    # --- lifecycle ------------------------------------------------------------------------
-    def start(self) -> str:
-        if self._thread is not None:
-            return self.port
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
-        self.port = os.ttyname(self._slave)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"chamber {self.port}", daemon=True)
-        self._thread.start()
-        return self.port
-
+    # --- serving --------------------------------------------------------------------------
     def _run(self) -> None:
         buf = b""
         while not self._stop.is_set():
@@ -235,23 +226,6 @@ class ChamberEmulator:
                     reply = self.answer(line.decode("ascii", "replace"))
                     if reply is not None:
                         os.write(self._master, reply.encode("ascii") + b"\r\n")
-
-    def stop(self) -> None:
-        if self._thread is not None:
-            self._stop.set()
-            self._thread.join(timeout=5.0)
-            self._thread = None
-        for fd in (self._master, self._slave):
-            if fd >= 0:
-                os.close(fd)
-        self._master = self._slave = -1
-
-    def __enter__(self) -> "ChamberEmulator":
-        self.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
 
 
 class AcceleratedClock:

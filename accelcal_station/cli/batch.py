@@ -96,7 +96,7 @@ def _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path, chunk_board
         click.echo(click.style(f"{ok} of {n} boards recalibrated with model {model}",
                                fg="green" if ok == n else "yellow", bold=True)
                    + f"; {n - ok} skipped{verdicts}; {summary.elapsed_s:.2f} s ({summary.boards_per_s:.0f} boards/s)")
-        click.echo(f"results: {out}" + (f" (every skipped board is listed there with its reason)"
+        click.echo(f"results: {out}" + (" (every skipped board is listed there with its reason)"
                                          if n - ok > len(summary.unfitted_examples) else ""))
     if summary.fitted < summary.boards:
         ctx.exit(1)
