@@ -13,10 +13,19 @@ its characteristic polynomial (coefficients from principal minors, all computed
 through S so they carry no cancellation), found by Laguerre's method, which
 converges monotonically from outside the roots of a polynomial with real roots.
 
+The design [g 1] is each board's own readings, so it cannot be factored once per lot;
+what boards share is the reference set (the fixture's poses): fit_stacked groups boards
+by identical references, and within a group the centred references, their norms and the
+cross products xc^T yc (one BLAS matmul over the group) are computed once.
+
 Models 6 and 15 use linear.fit_linear_batch (already batched normal equations).
-Model 9 uses batched Gauss-Newton from a closed-form sphere start with the damped
-(Levenberg-Marquardt) fit of gravity_norm.py only for the boards Gauss-Newton does not
-settle; leave-one-out refits start from the full fit (warm start, a few GN steps).
+Model 9 uses batched Gauss-Newton from a closed-form sphere start (the 9 x 9 normal
+matrices by one batched matmul, solved by an elementwise Cholesky over boards; it stops
+once every board's step is below 1e-12), with the damped (Levenberg-Marquardt) fit of
+gravity_norm.py only for the boards Gauss-Newton does not settle.  Leave-one-out starts
+from the full fit: a first step in closed form for every (board, held-out pose) by
+Sherman-Morrison on the full normal matrix inverse (also the covariance), then one chord
+step (gradient re-evaluated without the held-out pose, same matrix).
 """
 from __future__ import annotations
 
