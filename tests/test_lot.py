@@ -60,10 +60,10 @@ def test_stacked_model12_groups_boards_by_reference_set():
     np.testing.assert_allclose(b.result(11).covariance, a.result(11).covariance, rtol=1e-7, atol=1e-18)
 
 
-def test_stacked_model9_matches_todays_fitter():
-    rng = np.random.default_rng(2)
+@pytest.mark.parametrize("noise_g,cv_rtol", [(1e-3, 5e-3), (1e-2, 3e-2)])
+def test_stacked_model9_matches_todays_fitter(noise_g, cv_rtol):
     ref = references(get_design("optimal-12"))
-    x = _boards(400, ref, seed=3)
+    x = _boards(400, ref, seed=3, noise=noise_g)
     a, b = fit_norm_batch(x), fit_stacked(x, None, "9")
     assert a.ok.all() and b.ok.all()
     for k in ("W", "V", "residual_rms_g", "stderr_W", "stderr_V"):
@@ -71,9 +71,10 @@ def test_stacked_model9_matches_todays_fitter():
     np.testing.assert_allclose(b.condition_number, a.condition_number, rtol=1e-6)
     both = a.crossval_ok & b.crossval_ok
     assert both.sum() >= 390
-    # leave-one-out: warm 3-step Gauss-Newton refits against full damped refits (to 1e-6 g)
-    np.testing.assert_allclose(b.crossval_rms_g[both], a.crossval_rms_g[both], rtol=0, atol=1e-6)
-    del rng
+    # leave-one-out: the stacked fitter's one Gauss-Newton step from the full fit (leverage,
+    # stacked._loo9) against today's damped refits to convergence; the gap is second order
+    # in the step, so it grows with the noise (seen: 0.10 % at 1 mg, 1.2 % at 10 mg)
+    np.testing.assert_allclose(b.crossval_rms_g[both], a.crossval_rms_g[both], rtol=cv_rtol, atol=0)
 
 
 def test_stacked_model9_planar_poses_are_refused_with_a_reason():
