@@ -475,44 +475,57 @@ def _propagate9(cov, M, B):
 BLOCK = {"12": 2048, "9": 1024, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
 
 
-def _assemble(parts: list[tuple[np.ndarray | slice, BatchFit]], D: int, gf: np.ndarray) -> BatchFit:
-    """One BatchFit of D boards from fits of board subsets (rows given by a slice or indices),
-    written into arrays allocated once (no list of parts concatenated afterwards)."""
-    if len(parts) == 1 and parts[0][0] == slice(0, D):
-        return parts[0][1]
-    first = parts[0][1]
-    kw = {}
-    for name in first.__dataclass_fields__:
-        v0 = getattr(first, name)
-        if name in ("model", "param_names", "input_units"):
-            kw[name] = v0
-        elif name == "readings_g":
-            kw[name] = gf
-        elif name in ("messages", "status"):
-            if v0 is None:
-                kw[name] = None
-                continue
-            out = [""] * D
-            for rows, b in parts:
-                if isinstance(rows, slice):
-                    out[rows] = getattr(b, name)
-                else:
-                    for k, i in enumerate(rows):
-                        out[i] = getattr(b, name)[k]
-            kw[name] = out
-        elif isinstance(v0, _ChannelCovariance):
-            Ginv, s2 = np.empty((D,) + v0.Ginv.shape[1:]), np.empty((D,) + v0.s2.shape[1:])
-            for rows, b in parts:
-                Ginv[rows], s2[rows] = getattr(b, name).Ginv, getattr(b, name).s2
-            kw[name] = _ChannelCovariance(Ginv, s2)
-        elif v0 is None or np.ndim(v0) == 0:
-            kw[name] = v0
-        else:
-            out = np.empty((D,) + np.shape(v0)[1:], dtype=np.asarray(v0).dtype)
-            for rows, b in parts:
-                out[rows] = getattr(b, name)
-            kw[name] = out
-    return BatchFit(**kw)
+class _Assembler:
+    """One BatchFit of D boards from fits of board subsets (rows given by a slice or indices):
+    each part is copied into arrays allocated at the first part as soon as it is fitted, while
+    it is still in cache (and no list of parts is kept to concatenate afterwards)."""
+
+    _SHARED = ("model", "param_names", "input_units")
+
+    def __init__(self, D: int, gf: np.ndarray):
+        self.D, self.gf, self.kw, self.whole = D, gf, None, None
+
+    def add(self, rows: np.ndarray | slice, b: BatchFit) -> None:
+        if isinstance(rows, slice) and rows == slice(0, self.D):
+            self.whole = b
+            return
+        if self.kw is None:
+            self.kw = {name: self._alloc(name, getattr(b, name)) for name in b.__dataclass_fields__}
+            self.copied = [name for name, out in self.kw.items() if name not in self._SHARED
+                           and (isinstance(out, (list, _ChannelCovariance))
+                                or (isinstance(out, np.ndarray) and out is not self.gf))]
+        for name in self.copied:
+            out, v = self.kw[name], getattr(b, name)
+            if isinstance(out, _ChannelCovariance):
+                out.Ginv[rows], out.s2[rows] = v.Ginv, v.s2
+            elif isinstance(out, np.ndarray):
+                out[rows] = v
+            elif isinstance(rows, slice):
+                out[rows] = v
+            else:
+                for k, i in enumerate(rows):
+                    out[i] = v[k]
+
+    def _alloc(self, name: str, v0):
+        D = self.D
+        if name in self._SHARED:
+            return v0
+        if name == "readings_g":
+            return self.gf
+        if name in ("messages", "status"):
+            return None if v0 is None else [""] * D
+        if isinstance(v0, _ChannelCovariance):
+            return _ChannelCovariance(np.empty((D,) + v0.Ginv.shape[1:]), np.empty((D,) + v0.s2.shape[1:]))
+        if v0 is None or np.ndim(v0) == 0:
+            return v0
+        return np.empty((D,) + np.shape(v0)[1:], dtype=np.asarray(v0).dtype)
+
+    def result(self) -> BatchFit:
+        if self.whole is not None:
+            return self.whole
+        if self.kw is None:
+            raise UnderdeterminedError("no boards to fit")
+        return BatchFit(**self.kw)
 
 
 def _reference_groups(ref: np.ndarray) -> list[tuple[np.ndarray | slice, np.ndarray]]:
@@ -537,7 +550,7 @@ def fit_stacked(gf: np.ndarray, ref: np.ndarray | None, model: str, noise_g: np.
         groups = _reference_groups(ref)
     else:
         groups = [(slice(0, D), ref)]
-    parts = []
+    out = _Assembler(D, gf)
     for rows, gref in groups:
         idx = np.arange(D)[rows] if isinstance(rows, slice) else rows
         for a in range(0, len(idx), BLOCK[model]):
@@ -545,11 +558,9 @@ def fit_stacked(gf: np.ndarray, ref: np.ndarray | None, model: str, noise_g: np.
                 if isinstance(rows, slice) else idx[a:a + BLOCK[model]]
             n = None if nz is None else nz[sel]
             if model == "9":
-                parts.append((sel, fit9(gf[sel], n)))
+                out.add(sel, fit9(gf[sel], n))
             elif model == "12":
-                parts.append((sel, fit12(gf[sel], gref, n)))
+                out.add(sel, fit12(gf[sel], gref, n))
             else:
-                parts.append((sel, fit_linear_batch(gf[sel], ref[sel], model, n)))
-    if not parts:
-        raise UnderdeterminedError("no boards to fit")
-    return _assemble(parts, D, gf)
+                out.add(sel, fit_linear_batch(gf[sel], ref[sel], model, n))
+    return out.result()
