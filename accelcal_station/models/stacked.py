@@ -306,30 +306,66 @@ def _chol_solve(A: list, b: list):
 
 
 def _normal(J: np.ndarray, r: np.ndarray):
-    """J^T J (N, 9, 9), its lower triangle as lists of (N,) and -J^T r of a (9, N, P) Jacobian,
-    by one batched matmul (45 einsum calls cost more in dispatch than in arithmetic)."""
+    """J^T J (N, 9, 9) and -J^T r (N, 9) of a (9, N, P) Jacobian, by one batched matmul
+    (45 einsum calls cost more in dispatch than in arithmetic)."""
     Jn = J.transpose(1, 0, 2)  # (N, 9, P)
-    A = Jn @ Jn.transpose(0, 2, 1)
-    At = np.ascontiguousarray(A.transpose(1, 2, 0))  # (9, 9, N): each entry contiguous
-    grad = -np.einsum("knp,np->kn", J, r)
-    return A, [[At[i, j] if j <= i else None for j in range(9)] for i in range(9)], list(grad)
+    return Jn @ Jn.transpose(0, 2, 1), -np.einsum("knp,np->nk", J, r)
+
+
+def _spd_solve(A: np.ndarray, b: np.ndarray):
+    """x (N, 9) of A x = b for N symmetric positive definite A (N, 9, 9), and whether each A
+    was positive definite: LAPACK's batched Cholesky, then the two triangular solves
+    elementwise over N; a stack with a matrix that is not positive definite (rare: degenerate
+    poses) goes to _chol_solve, which flags each board."""
+    try:
+        L = np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        At = A.transpose(1, 2, 0)
+        return _chol_solve([[At[i, j] for j in range(i + 1)] for i in range(9)], list(b.T))
+    Lt = np.ascontiguousarray(L.transpose(1, 2, 0))  # (9, 9, N)
+    bt = b.T
+    y = [None] * 9
+    for i in range(9):
+        acc = bt[i].copy()
+        for k in range(i):
+            acc -= Lt[i, k] * y[k]
+        y[i] = acc / Lt[i, i]
+    x = [None] * 9
+    for i in reversed(range(9)):
+        acc = y[i].copy()
+        for k in range(i + 1, 9):
+            acc -= Lt[k, i] * x[k]
+        x[i] = acc / Lt[i, i]
+    return np.stack(x, axis=1), np.ones(len(A), dtype=bool)
 
 
 def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-12):
     """Plain batched Gauss-Newton (no line search: the caller sends the boards that do not
-    settle to the damped fit) on readings g (3, N, P).  A board is settled once its next step
-    is below ``tol`` relative to its parameters; that step is not taken, so the residuals r,
-    Jacobian J and J^T J returned are those at the parameters returned.  Returns
-    (params, settled, r, J, J^T J)."""
+    settle to the damped fit) on readings g (3, N, P).
+
+    A board is settled once the error left after its last step, estimated from the
+    contraction of its steps (q = |s_k| / |s_k-1| < 1/2: left <= |s_k| q / (1 - q)), is below
+    ``tol`` relative to its parameters, or once a step itself is below ``tol``.  The
+    Jacobian J and J^T J returned are from the last evaluation, before that last step
+    (below 1e-9 relative in practice); the residuals r are re-evaluated at the parameters
+    returned.  Returns (params, settled, r, J, J^T J)."""
     p = p.copy()
+    prev = np.full(len(p), np.nan)  # no contraction estimate before the second step
     for _ in range(iters):
         r, J = _resid_jac(p, g)
-        A, lower, grad = _normal(J, r)
-        step, pd = _chol_solve(lower, grad)
-        small = pd & (np.linalg.norm(step, axis=1) <= tol * (1 + np.linalg.norm(p, axis=1)))
+        A, grad = _normal(J, r)
+        step, pd = _spd_solve(A, grad)
+        size = np.linalg.norm(step, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = size / prev
+            left = np.where(q < 0.5, size * q / (1.0 - q), np.inf)
+        limit = tol * (1 + np.linalg.norm(p, axis=1))
+        small = pd & ((left <= limit) | (size <= limit))
+        p += np.where(pd[:, None], step, 0.0)
+        prev = size
         if np.all(small | ~pd):
             break
-        p += np.where((pd & ~small)[:, None], step, 0.0)
+    r = _norm_resid(p[:, None, :], g.transpose(1, 2, 0))
     settled = small & np.all(np.isfinite(p), axis=1) & np.isfinite(r).all(axis=1)
     return p, settled, r, J, A
 
