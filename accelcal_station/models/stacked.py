@@ -218,6 +218,15 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
 
 # -- model 9 -------------------------------------------------------------------------------------
 
+def _median_rows(x: np.ndarray) -> np.ndarray:
+    """np.median(x, axis=1) by one partition (np.median's general path costs more here)."""
+    P = x.shape[1]
+    if P % 2:
+        return np.partition(x, P // 2, axis=1)[:, P // 2]
+    part = np.partition(x, (P // 2 - 1, P // 2), axis=1)
+    return 0.5 * (part[:, P // 2 - 1] + part[:, P // 2])
+
+
 def _sphere_start(gf: np.ndarray) -> np.ndarray:
     """gravity_norm._sphere_start in closed form: |v|^2 = 2 v.c + k by the centred 3x3 solve."""
     D, P, _ = gf.shape
@@ -234,7 +243,8 @@ def _sphere_start(gf: np.ndarray) -> np.ndarray:
     bad = ~np.all(np.isfinite(c), axis=1)
     if bad.any():  # degenerate poses: the reference start (regularised solve, mid-range fallback)
         c[bad] = gn._sphere_start(gf[bad])[:, 6:]
-    r = np.median(np.linalg.norm(gf - c[:, None], axis=-1), axis=1)
+    u = gf - c[:, None]
+    r = _median_rows(np.sqrt(np.einsum("dpi,dpi->dp", u, u)))
     r = np.where(r > 0, r, 1.0)
     p0 = np.zeros((D, 9))
     p0[:, :3] = 1.0 / r[:, None]
@@ -491,20 +501,20 @@ def _loo9(gf, p, r, J, Ainv, steps: int = 1) -> np.ndarray:
     return _norm_resid(ps, gf)
 
 
+_W_OF_P = [0, 3, 4, 3, 1, 5, 4, 5, 2]  # the parameter of W[a, b] (row-major): M_xx M_xy M_xz ...
+
+
 def _propagate9(cov, M, B):
     """Standard errors of W = M and V = -M B from the covariance of (M, B) (first order)."""
     D = len(cov)
-    Gw = np.zeros((9, 9))
-    for j, (a, b) in enumerate(zip(*gn._IU)):
-        Gw[3 * a + b, j] = Gw[3 * b + a, j] = 1.0
     Gv = np.zeros((D, 3, 9))
     for j, (a, b) in enumerate(zip(*gn._IU)):
         Gv[:, a, j] -= B[:, b]
         if a != b:
             Gv[:, b, j] -= B[:, a]
     Gv[:, :, 6:] = -M
-    sW = np.sqrt(np.clip(((Gw @ cov) * Gw).sum(axis=-1), 0, None)).reshape(D, 3, 3)  # diag(G C G^T)
-    sV = np.sqrt(np.clip(((Gv @ cov) * Gv).sum(axis=-1), 0, None))
+    sW = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2)[:, _W_OF_P], 0, None)).reshape(D, 3, 3)  # W = M
+    sV = np.sqrt(np.clip(((Gv @ cov) * Gv).sum(axis=-1), 0, None))  # diag(G C G^T)
     return sW, sV
 
 
