@@ -29,6 +29,10 @@ step (gradient re-evaluated without the held-out pose, same matrix).
 """
 from __future__ import annotations
 
+import os
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from ..errors import UnderdeterminedError
@@ -585,28 +589,56 @@ def _reference_groups(ref: np.ndarray) -> list[tuple[np.ndarray | slice, np.ndar
     return [(np.flatnonzero(inv == k), uniq[k].reshape(-1, 3)) for k in range(len(uniq))]
 
 
-def fit_stacked(gf: np.ndarray, ref: np.ndarray | None, model: str, noise_g: np.ndarray | None = None) -> BatchFit:
+def _workers() -> int:
+    """Threads for fit_stacked: the CPUs this process may run on (numpy releases the GIL in
+    its loops and LAPACK calls, so blocks fit in parallel), at most 8."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        n = os.cpu_count() or 1
+    return max(1, min(n, 8))
+
+
+def fit_stacked(gf: np.ndarray, ref: np.ndarray | None, model: str, noise_g: np.ndarray | None = None,
+                workers: int | None = None) -> BatchFit:
     """The fast fitter of ``model`` on (D, P, 3) readings in g (references in g for 6/12/15),
-    in blocks of BLOCK[model] boards; model 12 per group of boards sharing their references."""
+    in blocks of BLOCK[model] boards, fitted by ``workers`` threads (default: one per CPU);
+    model 12 per group of boards sharing their references.  Blocks are independent, so the
+    result does not depend on the number of threads."""
     gf = np.asarray(gf, dtype=float)
     D, P, _ = gf.shape
     ref = None if ref is None else np.broadcast_to(np.asarray(ref, dtype=float), (D, P, 3))
     nz = None if noise_g is None else np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3))
-    if model == "12":
-        groups = _reference_groups(ref)
-    else:
-        groups = [(slice(0, D), ref)]
-    out = _Assembler(D, gf)
+    groups = _reference_groups(ref) if model == "12" else [(slice(0, D), ref)]
+    jobs = []
     for rows, gref in groups:
         idx = np.arange(D)[rows] if isinstance(rows, slice) else rows
         for a in range(0, len(idx), BLOCK[model]):
             sel = slice(idx[0] + a, min(idx[0] + a + BLOCK[model], idx[-1] + 1)) \
                 if isinstance(rows, slice) else idx[a:a + BLOCK[model]]
-            n = None if nz is None else nz[sel]
-            if model == "9":
-                out.add(sel, fit9(gf[sel], n))
-            elif model == "12":
-                out.add(sel, fit12(gf[sel], gref, n))
-            else:
-                out.add(sel, fit_linear_batch(gf[sel], ref[sel], model, n))
+            jobs.append((sel, gref))
+
+    def run(job):
+        sel, gref = job
+        n = None if nz is None else nz[sel]
+        if model == "9":
+            return sel, fit9(gf[sel], n)
+        if model == "12":
+            return sel, fit12(gf[sel], gref, n)
+        return sel, fit_linear_batch(gf[sel], ref[sel], model, n)
+
+    out = _Assembler(D, gf)
+    workers = _workers() if workers is None else max(1, int(workers))
+    if workers == 1 or len(jobs) <= 1:
+        for job in jobs:
+            out.add(*run(job))
+        return out.result()
+    with ThreadPoolExecutor(max_workers=workers) as ex:
+        pending: deque = deque()
+        for job in jobs:  # at most 2 blocks per thread in flight: memory stays bounded
+            pending.append(ex.submit(run, job))
+            if len(pending) >= 2 * workers:
+                out.add(*pending.popleft().result())
+        while pending:
+            out.add(*pending.popleft().result())
     return out.result()
