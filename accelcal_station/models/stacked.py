@@ -59,17 +59,17 @@ def _laguerre_root(coef, x, iters: int = 4):
     """
     e1, e2, e3, e4 = coef
     step = np.zeros_like(x)
-    for _ in range(iters):
-        p = (((x - e1) * x + e2) * x - e3) * x + e4
-        dp = ((4 * x - 3 * e1) * x + 2 * e2) * x - e3
-        d2p = (12 * x - 6 * e1) * x + 2 * e2
-        with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(iters):
+            p = (((x - e1) * x + e2) * x - e3) * x + e4
+            dp = ((4 * x - 3 * e1) * x + 2 * e2) * x - e3
+            d2p = (12 * x - 6 * e1) * x + 2 * e2
             g1 = dp / p
             h = g1 * g1 - d2p / p
             sq = np.sqrt(np.maximum(3.0 * (4.0 * h - g1 * g1), 0.0))
             den = g1 + np.copysign(sq, g1)
             step = np.where((p == 0) | (den == 0), 0.0, 4.0 / den)
-        x = x - step
+            x = x - step
     return x, step
 
 
@@ -89,12 +89,12 @@ def _smallest_root(coef, top):
     t = np.arccos(arg) / 3.0
     x = 2.0 * m * np.cos(t + 2.0 * np.pi / 3.0) - a / 3.0  # the smallest of the three
     step = np.zeros_like(x)
-    for _ in range(2):
-        f = (((x - e1) * x + e2) * x - e3) * x + e4
-        df = ((4 * x - 3 * e1) * x + 2 * e2) * x - e3
-        with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(2):
+            f = (((x - e1) * x + e2) * x - e3) * x + e4
+            df = ((4 * x - 3 * e1) * x + 2 * e2) * x - e3
             step = np.where(df != 0, f / df, 0.0)
-        x = x - step
+            x = x - step
     return x, step
 
 
@@ -568,7 +568,7 @@ class _Assembler:
             return _ChannelCovariance(np.empty((D,) + v0.Ginv.shape[1:]), np.empty((D,) + v0.s2.shape[1:]))
         if v0 is None or np.ndim(v0) == 0:
             return v0
-        return np.empty((D,) + np.shape(v0)[1:], dtype=np.asarray(v0).dtype)
+        return np.empty_like(v0, shape=(D,) + np.shape(v0)[1:])  # the part's memory layout: contiguous copies
 
     def result(self) -> BatchFit:
         if self.whole is not None:
