@@ -150,30 +150,31 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
         raise UnderdeterminedError(f"model 12 needs at least 4 poses; got {P}")
     ref = np.asarray(ref, dtype=float)
     shared = ref.ndim == 2
-    g = np.ascontiguousarray(gf.transpose(2, 0, 1))  # (3, D, P): each axis contiguous
-    y = ref.T[:, None, :] if shared else np.ascontiguousarray(ref.transpose(2, 0, 1))  # (3, 1 or D, P)
-    xbar, ybar = g.mean(axis=2), y.mean(axis=2)  # (3, D), (3, 1 or D)
-    xc, yc = g - xbar[..., None], y - ybar[..., None]
-    S = tuple(np.einsum("dp,dp->d", xc[i], xc[j]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
+    # (3, P, D): boards last, so sums over poses add P contiguous rows (short-row reductions are slow)
+    g = np.ascontiguousarray(gf.transpose(2, 1, 0))
+    y = ref.T[:, :, None] if shared else np.ascontiguousarray(ref.transpose(2, 1, 0))  # (3, P, 1 or D)
+    xbar, ybar = g.sum(axis=1) / P, y.sum(axis=1) / P  # (3, D), (3, 1 or D)
+    xc, yc = g - xbar[:, None, :], y - ybar[:, None, :]
+    S = tuple((xc[i] * xc[j]).sum(axis=0) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
     adj, det = _sym_inv3(*S)
     scale = np.maximum(S[0] + S[3] + S[5], 1e-300)
     ok = det > 1e-12 * scale**3  # a quick screen; the condition number decides below
     det_safe = np.where(ok, det, 1.0)
     i00, i01, i02, i11, i12, i22 = (np.where(ok, v, 0.0) / det_safe for v in adj)
     Si = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])  # (3, 3, D)
-    if shared:  # (3 D, P) @ (P, 3): one BLAS call
-        C = (xc.reshape(3 * D, P) @ yc[:, 0, :].T).reshape(3, D, 3).transpose(0, 2, 1)
+    if shared:  # (3, P) @ (3 in, P, D): BLAS
+        C = yc[:, :, 0] @ xc  # (3 in, 3 out, D)
     else:
-        C = np.einsum("idp,cdp->icd", xc, yc)  # (3 in, 3 out, D)
+        C = np.einsum("ipd,cpd->icd", xc, yc)
     Wt = np.einsum("jid,icd->jcd", Si, C)  # W[c, j] = Wt[j, c]
     W = Wt.transpose(2, 1, 0)  # (D, 3, 3)
     V = ybar.T - np.einsum("dcj,dj->dc", W, xbar.T)
-    r = np.empty_like(xc)  # (3, D, P) reference minus calibrated
+    r = np.empty_like(xc)  # (3, P, D) reference minus calibrated
     for c in range(3):
-        r[c] = yc[c] - Wt[0, c, :, None] * xc[0] - Wt[1, c, :, None] * xc[1] - Wt[2, c, :, None] * xc[2]
-    h = (i00[:, None] * xc[0] ** 2 + i11[:, None] * xc[1] ** 2 + i22[:, None] * xc[2] ** 2
-         + 2 * (i01[:, None] * xc[0] * xc[1] + i02[:, None] * xc[0] * xc[2] + i12[:, None] * xc[1] * xc[2]))
-    h += 1.0 / P  # hat diagonal (D, P)
+        r[c] = yc[c] - Wt[0, c] * xc[0] - Wt[1, c] * xc[1] - Wt[2, c] * xc[2]
+    h = (i00 * xc[0] ** 2 + i11 * xc[1] ** 2 + i22 * xc[2] ** 2
+         + 2 * (i01 * xc[0] * xc[1] + i02 * xc[0] * xc[2] + i12 * xc[1] * xc[2]))
+    h += 1.0 / P  # hat diagonal (P, D)
 
     def G_full(mask):
         X = np.concatenate([gf[mask], np.ones((int(mask.sum()), P, 1))], axis=-1)
@@ -181,10 +182,12 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
 
     cond = _cond12(S, det_safe, xbar, P, G_full)
     ok &= np.isfinite(cond) & (cond <= COND_LIMIT)
-    rss = np.einsum("cdp,cdp->dc", r, r)  # (D, 3)
-    cv_ok = np.all(h < 1.0 - 1e-9, axis=1) & ok
-    loo = r / np.where(h < 1.0 - 1e-9, 1.0 - h, 1.0)
-    cv_rms = np.where(cv_ok, np.sqrt(np.einsum("cdp,cdp->d", loo, loo) / (3 * P)), np.nan)
+    r2 = r * r
+    rss = r2.sum(axis=1).T  # (D, 3)
+    fit_h = h < 1.0 - 1e-9
+    cv_ok = fit_h.all(axis=0) & ok
+    w = 1.0 / np.where(fit_h, 1.0 - h, 1.0) ** 2  # leave-one-out residual r / (1 - h), squared
+    cv_rms = np.where(cv_ok, np.sqrt(((r2[0] + r2[1] + r2[2]) * w).sum(axis=0) / (3 * P)), np.nan)
     dof = P - 4
     s2 = np.full((D, 3), np.nan)
     if noise_g is not None:
@@ -203,9 +206,9 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
     diag = np.diagonal(Ginv, axis1=1, axis2=2)  # (D, 4)
     sW = np.sqrt(np.clip(s2z[:, :, None] * diag[:, None, :3], 0.0, None))
     sV = np.sqrt(np.clip(s2z * diag[:, 3:4], 0.0, None))
-    resid = r.transpose(1, 2, 0)  # (D, P, 3) view
-    calibrated = y - r
-    norm_err = np.sqrt(np.einsum("cdp,cdp->dp", calibrated, calibrated)) - np.sqrt((y * y).sum(axis=0))
+    resid = r.transpose(2, 1, 0)  # (D, P, 3) view
+    cal = y - r
+    norm_err = (np.sqrt(cal[0] * cal[0] + cal[1] * cal[1] + cal[2] * cal[2]) - np.sqrt((y * y).sum(axis=0))).T
     messages = [""] * D
     for d in np.flatnonzero(~ok):
         messages[d] = diagnose_underdetermined(gf[d], "12")
