@@ -541,7 +541,7 @@ def _propagate9(cov, M, B):
     return sW, sV
 
 
-BLOCK = {"12": 2048, "9": 1024, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
+BLOCK = {"12": 8192, "9": 1024, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
 
 
 class _Assembler:
