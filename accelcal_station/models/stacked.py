@@ -127,16 +127,23 @@ def _cond12(S, det, xbar, P, G_full):
 
 
 class _ChannelCovariance:
-    """(D, 3, 4, 4) covariance (X^T X)^-1 s2_c, built per board on indexing (saves D x 48 floats)."""
+    """(D, 3, 4, 4) covariance (X^T X)^-1 s2_c of model 12, built per board on indexing from the
+    10 distinct entries of the symmetric (X^T X)^-1 (saves D x 38 floats and their copies).
 
-    def __init__(self, Ginv: np.ndarray, s2: np.ndarray):
-        self.Ginv, self.s2 = Ginv, s2
+    ``G`` (D, 10): S^-1 upper triangle (00 01 02 11 12 22), u = -S^-1 xbar (3), 1/P + xbar^T S^-1 xbar;
+    ``s2`` (D, 3): the residual variance per output channel."""
+
+    _ROWS = np.array([[0, 1, 2, 6], [1, 3, 4, 7], [2, 4, 5, 8], [6, 7, 8, 9]])
+
+    def __init__(self, G: np.ndarray, s2: np.ndarray):
+        self.G, self.s2 = G, s2
 
     def __len__(self) -> int:
-        return len(self.Ginv)
+        return len(self.G)
 
     def __getitem__(self, d):
-        return self.Ginv[d][..., None, :, :] * self.s2[d][..., None, None]
+        Ginv = self.G[d][..., self._ROWS]  # (..., 4, 4)
+        return Ginv[..., None, :, :] * self.s2[d][..., None, None]
 
 
 def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) -> BatchFit:
@@ -198,14 +205,10 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
     se_ok = np.all(np.isfinite(s2), axis=1) & ok
     s2z = np.where(np.isfinite(s2), s2, 0.0)
     # (X^T X)^-1 of X = [g 1] by the block formula: [[S^-1, -S^-1 xbar], [., 1/P + xbar^T S^-1 xbar]]
-    Ginv = np.empty((D, 4, 4))
-    Ginv[:, :3, :3] = Si.transpose(2, 0, 1)
-    u = -np.einsum("ijd,jd->di", Si, xbar)
-    Ginv[:, :3, 3] = Ginv[:, 3, :3] = u
-    Ginv[:, 3, 3] = 1.0 / P - np.einsum("di,id->d", u, xbar)
-    diag = np.diagonal(Ginv, axis1=1, axis2=2)  # (D, 4)
-    sW = np.sqrt(np.clip(s2z[:, :, None] * diag[:, None, :3], 0.0, None))
-    sV = np.sqrt(np.clip(s2z * diag[:, 3:4], 0.0, None))
+    u = -np.einsum("ijd,jd->id", Si, xbar)  # (3, D)
+    G = np.stack([i00, i01, i02, i11, i12, i22, u[0], u[1], u[2], 1.0 / P - (u * xbar).sum(axis=0)], axis=1)
+    sW = np.sqrt(np.clip(s2z[:, :, None] * G[:, None, [0, 3, 5]], 0.0, None))
+    sV = np.sqrt(np.clip(s2z * G[:, 9:10], 0.0, None))
     resid = r.transpose(2, 1, 0)  # (D, P, 3) view
     cal = y - r
     norm_err = (np.sqrt(cal[0] * cal[0] + cal[1] * cal[1] + cal[2] * cal[2]) - np.sqrt((y * y).sum(axis=0))).T
@@ -218,7 +221,7 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
         model="12", W=W, V=V, Gamma=np.zeros((D, 3)), residuals_g=resid, norm_error_g=norm_err, P=rss,
         residual_rms_g=np.sqrt(rss.sum(axis=1) / (3 * P)), crossval_rms_g=cv_rms, crossval_ok=cv_ok,
         condition_number=cond, stderr_W=sW, stderr_V=sV, stderr_Gamma=np.zeros((D, 3)), stderr_ok=se_ok,
-        covariance=_ChannelCovariance(Ginv, s2z),
+        covariance=_ChannelCovariance(G, s2z),
         params=np.concatenate([W.reshape(D, 9), V], axis=1), param_names=param_names("12"),
         ok=ok, messages=messages, readings_g=gf)
 
@@ -566,7 +569,7 @@ class _Assembler:
         for name in self.copied:
             out, v = self.kw[name], getattr(b, name)
             if isinstance(out, _ChannelCovariance):
-                out.Ginv[rows], out.s2[rows] = v.Ginv, v.s2
+                out.G[rows], out.s2[rows] = v.G, v.s2
             elif isinstance(out, np.ndarray):
                 out[rows] = v
             elif isinstance(rows, slice):
@@ -584,7 +587,7 @@ class _Assembler:
         if name in ("messages", "status"):
             return None if v0 is None else [""] * D
         if isinstance(v0, _ChannelCovariance):
-            return _ChannelCovariance(np.empty((D,) + v0.Ginv.shape[1:]), np.empty((D,) + v0.s2.shape[1:]))
+            return _ChannelCovariance(np.empty((D,) + v0.G.shape[1:]), np.empty((D,) + v0.s2.shape[1:]))
         if v0 is None or np.ndim(v0) == 0:
             return v0
         return np.empty_like(v0, shape=(D,) + np.shape(v0)[1:])  # the part's memory layout: contiguous copies
