@@ -483,8 +483,9 @@ def _finish9(gf, p, conv, noise_g, loo_iters, r, J, JtJ) -> BatchFit:
     elif P > 9:
         s2 = np.einsum("dp,dp->d", r, r) / (P - 9)
     good = ok & (ev[:, 0] > 0)
-    Ainv = _spd_inv(JtJ) if good.all() else None
-    if Ainv is None:
+    if good.all():
+        Ainv = np.linalg.inv(JtJ)
+    else:
         Ainv = np.zeros((D, 9, 9))
         Ainv[good] = np.linalg.inv(JtJ[good])
     s2z = np.where(np.isfinite(s2), s2, 0.0)
@@ -566,27 +567,6 @@ def _propagate9(Ainv, s2, M, B):
     sW = np.sqrt(np.clip(var_p, 0, None)).reshape(D, 3, 3)  # W = M
     sV = np.sqrt(np.clip(((Gv @ Ainv) * Gv).sum(axis=-1) * s2[:, None], 0, None))  # diag(G C G^T)
     return sW, sV
-
-
-def _spd_inv(A: np.ndarray) -> np.ndarray | None:
-    """A^-1 (N, 9, 9) of symmetric positive definite A as L^-T L^-1: LAPACK's batched Cholesky,
-    L^-1 by forward substitution elementwise over N, one batched matmul (half the time of
-    np.linalg.inv's LU here).  None when some A is not positive definite."""
-    try:
-        L = np.linalg.cholesky(A)
-    except np.linalg.LinAlgError:
-        return None
-    Lt = np.ascontiguousarray(L.transpose(1, 2, 0))  # (9, 9, N)
-    X = np.zeros_like(Lt)  # L^-1, lower triangular
-    for j in range(9):
-        X[j, j] = 1.0 / Lt[j, j]
-        for i in range(j + 1, 9):
-            acc = Lt[i, j] * X[j, j]
-            for k in range(j + 1, i):
-                acc += Lt[i, k] * X[k, j]
-            X[i, j] = -acc / Lt[i, i]
-    Xn = X.transpose(2, 0, 1)
-    return Xn.transpose(0, 2, 1) @ Xn
 
 
 BLOCK = {"12": 8192, "9": 1024, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
