@@ -532,6 +532,8 @@ def _loo9(gf, p, r, J, Ainv, steps: int = 1) -> np.ndarray:
     per board, about 3 times the cost of everything else; the error contracts by the
     size of the step each time)."""
     D, P, _ = gf.shape
+    if steps == 1:
+        return _loo9_one_step(gf, p, r, J, Ainv)
     Jd = np.ascontiguousarray(J.transpose(1, 2, 0))  # (D, P, 9)
     U = Jd @ Ainv  # u_i = A^-1 j_i (D, P, 9); A^-1 symmetric
     h = np.einsum("dpk,dpk->dp", U, Jd)
@@ -552,6 +554,25 @@ def _loo9(gf, p, r, J, Ainv, steps: int = 1) -> np.ndarray:
 
 
 _W_OF_P = [0, 3, 4, 3, 1, 5, 4, 5, 2]  # the parameter of W[a, b] (row-major): M_xx M_xy M_xz ...
+
+
+def _loo9_one_step(gf, p, r, J, Ainv) -> np.ndarray:
+    """_loo9 with one step, on (D, 9, P) and (D, P) arrays: u_i as the columns of A^-1 J^T,
+    each parameter of the stepped fits a (D, P) array (no (D, P, 9) broadcast)."""
+    Jn = J.transpose(1, 0, 2)  # (D, 9, P)
+    Ut = Ainv @ Jn  # column i: u_i = A^-1 j_i
+    h = np.einsum("dkp,dkp->dp", Ut, Jn)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv1h = np.where(h < 1.0 - 1e-9, 1.0 / (1.0 - h), np.nan)
+    grad = np.einsum("kdp,dp->dk", J, r)  # J^T r (~0 at the optimum)
+    Ag = (Ainv @ grad[..., None])[..., 0]
+    c = (np.einsum("dkp,dk->dp", Ut, grad) - r) * inv1h
+    m = [(p[:, k] - Ag[:, k])[:, None] - Ut[:, k] * c for k in range(9)]  # stepped parameters (D, P)
+    u = [gf[..., i] - m[6 + i] for i in range(3)]
+    a0 = m[0] * u[0] + m[3] * u[1] + m[4] * u[2]
+    a1 = m[3] * u[0] + m[1] * u[1] + m[5] * u[2]
+    a2 = m[4] * u[0] + m[5] * u[1] + m[2] * u[2]
+    return np.sqrt(a0 * a0 + a1 * a1 + a2 * a2) - 1.0
 
 
 def _propagate9(Ainv, s2, M, B):
