@@ -18,14 +18,22 @@ what boards share is the reference set (the fixture's poses): fit_stacked groups
 by identical references, and within a group the centred references, their norms and the
 cross products xc^T yc (one BLAS matmul over the group) are computed once.
 
+Arrays are laid out (3, P, D), boards last, so sums over poses are additions of P
+contiguous rows; the covariance is kept as the 10 distinct entries of (X^T X)^-1 per board.
+
 Models 6 and 15 use linear.fit_linear_batch (already batched normal equations).
 Model 9 uses batched Gauss-Newton from a closed-form sphere start (the 9 x 9 normal
-matrices by one batched matmul, solved by an elementwise Cholesky over boards; it stops
-once every board's step is below 1e-12), with the damped (Levenberg-Marquardt) fit of
-gravity_norm.py only for the boards Gauss-Newton does not settle.  Leave-one-out starts
-from the full fit: a first step in closed form for every (board, held-out pose) by
-Sherman-Morrison on the full normal matrix inverse (also the covariance), then one chord
-step (gradient re-evaluated without the held-out pose, same matrix).
+matrices by one batched matmul, solved by LAPACK's batched Cholesky and elementwise
+triangular solves), stopping each board once the error left, estimated from the
+contraction of its steps, is below 1e-10 relative (boards still moving are evaluated
+alone), with the damped (Levenberg-Marquardt) fit of gravity_norm.py only for the boards
+Gauss-Newton does not settle.  Leave-one-out is one Gauss-Newton step from the full fit
+per (board, held-out pose), in closed form by Sherman-Morrison on the full normal matrix
+inverse (also the covariance): the one-step (leverage) approximation, whose tolerance
+against exact refits _loo9 states and tests/test_lot.py checks.
+
+fit_stacked fits blocks of boards (BLOCK) in one thread per CPU and copies each into the
+lot's arrays as soon as it is done.
 """
 from __future__ import annotations
 
