@@ -77,6 +77,23 @@ def test_stacked_model9_matches_todays_fitter(noise_g, cv_rtol):
     np.testing.assert_allclose(b.crossval_rms_g[both], a.crossval_rms_g[both], rtol=cv_rtol, atol=0)
 
 
+@pytest.mark.parametrize("model,design", [("12", "an4399-8"), ("9", "optimal-12")])
+def test_stacked_threads_give_the_single_thread_result(model, design, monkeypatch):
+    # blocks of 64 boards, so 700 boards are 11 blocks spread over the threads and assembled
+    from accelcal_station.models import stacked
+    monkeypatch.setitem(stacked.BLOCK, model, 64)
+    ref = references(get_design(design))
+    x = _boards(700, ref, seed=8)
+    r = None if model == "9" else ref
+    a, b = fit_stacked(x, r, model, workers=1), fit_stacked(x, r, model, workers=3)
+    whole = stacked.fit9(x) if model == "9" else stacked.fit12(x, ref)  # one block, no assembly
+    for k in ("W", "V", "residuals_g", "crossval_rms_g", "condition_number", "stderr_W", "ok"):
+        assert np.array_equal(getattr(a, k), getattr(b, k), equal_nan=k != "ok"), k
+        np.testing.assert_allclose(getattr(a, k), getattr(whole, k), rtol=1e-12, atol=1e-15, err_msg=k)
+    assert a.messages == b.messages
+    np.testing.assert_array_equal(a.result(650).covariance, b.result(650).covariance)
+
+
 def test_stacked_model9_planar_poses_are_refused_with_a_reason():
     ref = np.array([[np.cos(t), np.sin(t), 0.0] for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)])
     x = _boards(3, ref, seed=4)
