@@ -18,7 +18,8 @@ import numpy as np
 from .atomic import atomic_write
 from .errors import AccelcalError, DataError
 from .safe_yaml import HostileYAML, safe_load
-from .store import RunRecord, iso, param_vector, reason_code
+from .reasons import codes
+from .store import RunRecord, iso, param_vector
 
 # shown parameters: name, index into store.param_vector, unit scale, limit key, limit centre
 PARAMS = [(f"W{i}{i}", 4 * i, 1.0, "gain_error_max", 1.0) for i in range(3)] + \
@@ -103,8 +104,7 @@ def _time_figure(plt, done: list[RunRecord]) -> str:
         per_day[d]["runs"] += 1
         per_day[d]["pass"] += r.verdict == "PASS"
         if r.verdict == "FAIL":
-            typed = (r.fit_summary or {}).get("reason_codes") if isinstance(r.fit_summary, dict) else None
-            for code in set(typed) if isinstance(typed, list) and all(typed) else {reason_code(x) for x in r.reasons}:
+            for code in set(codes(r.reasons)):
                 per_day[d][f"reason:{code}"] += 1
                 reasons[code] += 1
     rate = [per_day[d]["pass"] / per_day[d]["runs"] * 100 for d in days]

@@ -200,6 +200,9 @@ def make_panel_jig(cfg: dict, boards: list[PanelBoard], echo: Callable[[str], No
 class PanelStation:
     """Runs the flow for every board of a panel at once (a single board is a panel of one)."""
 
+    board_station: type = Station  # each board's own station and report (thermal_panel.py uses its own)
+    board_report: type = RunReport
+
     def __init__(self, config: StationConfig, *, operator: str | None = None, lot: str | None = None,
                  echo: Callable[[str], None] = print, drivers: list[Driver] | None = None,
                  panel_id: str | None = None, jig: Jig | None = None):
@@ -222,8 +225,8 @@ class PanelStation:
         out = []
         for i, (sec, path) in enumerate(sections):
             quiet = (lambda *_: None)
-            st = Station(cfg, operator=self.operator, lot=self.lot, echo=quiet)
-            rep = RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
+            st = self.board_station(cfg, operator=self.operator, lot=self.lot, echo=quiet)
+            rep = self.board_report(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
             seat = sec.pop(SEAT_KEY, None)
             pb = PanelBoard(i, sec, path, group_of(sec, i), st, rep)
             if seat is not None:
@@ -375,10 +378,11 @@ class PanelStation:
             except (AccelcalError, KeyboardInterrupt) as e:
                 why = "operator aborted" if isinstance(e, OperatorAbort) else (
                     "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
-                for b in boards:
+                for b in boards:  # each run closed with the poses its board captured so far
                     if b.rep.run_id is not None:
                         store.interrupt_run(b.rep.run_id, why, status="interrupted" if isinstance(
-                            e, (OperatorAbort, KeyboardInterrupt)) else "error", nvm_outcome=b.rep.nvm)
+                            e, (OperatorAbort, KeyboardInterrupt)) else "error", nvm_outcome=b.rep.nvm,
+                            session=_session(b) if b.records else None, retries=b.retries if b.records else None)
                 self._close(boards)
                 raise
             self._close(boards)
@@ -459,14 +463,15 @@ class PanelStation:
 
     def _record(self, store: Store, b: PanelBoard) -> None:
         rep = b.rep
-        session = Session(b.records, units="counts", counts_per_g=b.driver.counts_per_g if b.open_ else None,
-                          device=rep.serial)
+        session = _session(b)
         est = self.estimate
         summary = {"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
                    "offset_trim_lsb": rep.offset_trim_lsb, "design": self.cfg.design, "skipped": rep.skipped,
                    "timing": rep.timing, "nvm_verified": rep.nvm_verified, "panel_id": self.panel_id,
                    "jig_pose": None if est is None else {"estimated": est.estimated, "note": est.note,
                                                          "rotvec_deg": est.rotvec_deg.tolist()}}
+        if getattr(rep, "thermal", None) is not None:
+            summary["thermal"] = rep.thermal
         try:
             store.finish_run(rep.run_id, session=session, calibration=rep.calibration, verdict=rep.verdict,
                              reasons=rep.reasons, nvm_outcome=rep.nvm, fit_summary=summary,
@@ -475,6 +480,12 @@ class PanelStation:
             store.interrupt_run(rep.run_id, f"could not record the result: {e}", status="error", nvm_outcome=rep.nvm)
             rep.verdict = "FAIL"
             rep.reasons.append(Reason("store", str(e)))
+
+
+def _session(b: PanelBoard) -> Session:
+    """The poses one board of the panel captured, as a Session."""
+    return Session(b.records, units="counts", counts_per_g=b.driver.counts_per_g if b.open_ else None,
+                   device=b.rep.serial)
 
 
 def panel_dict(panel_id: str, reports: list[RunReport], station: PanelStation | None = None) -> dict:

@@ -14,8 +14,9 @@ FULL (the default): a committed run survives power loss.  Foreign keys are on.
 
 Schema versions live in ``PRAGMA user_version``; ``MIGRATIONS[i]`` upgrades
 version i to i + 1.  Times are unix seconds (REAL); exports also give ISO 8601 UTC.
-Failure reasons are strings whose first word is a code (acceptance.py: the limit key,
-``"residual_rms_g 0.012 > limit 0.01 (...)"``); summaries group reasons by that code.
+Failure reasons are typed (reasons.Reason): the ``reasons`` column holds a JSON list of
+``{"code", "message"}`` objects and summaries group by the code.  Rows written before
+schema 3 held bare text; migration 3 gives each its code once (_typed_reasons).
 """
 from __future__ import annotations
 
@@ -24,7 +25,6 @@ import hashlib
 import io
 import json
 import os
-import re
 import socket
 import time as _time
 from collections import Counter
@@ -39,6 +39,7 @@ import numpy as np
 from .calibration import Calibration
 from .config import atomic_write_text, check_keys
 from .errors import ConfigError, DataError
+from .reasons import Reason, codes
 from .session import PoseRecord, Session
 from .storedb import Database, Row, describe_target, is_url
 
@@ -46,8 +47,35 @@ STATUSES = ("running", "complete", "interrupted", "error")
 VERDICTS = ("PASS", "FAIL")
 AXES = "xyz"
 
-# statements are split at ';' (keep it out of comments and strings)
-MIGRATIONS: list[str] = [
+
+def _legacy_code(text: str, typed: list | None, i: int) -> str:
+    """The code of a reason stored as bare text before schema 3: the station's own
+    ``reason_codes`` when it kept them, else the text's first word (acceptance.py starts
+    each limit reason with its key).  Used by migration 3 only, once per row."""
+    if typed is not None and i < len(typed) and isinstance(typed[i], str) and typed[i]:
+        return typed[i]
+    words = text.strip().split(None, 1)
+    return words[0].split(":", 1)[0] if words else ""
+
+
+def _typed_reasons(db) -> None:
+    """Migration 3: every stored reason becomes ``{"code", "message"}``; damaged rows stay as they are."""
+    rows = db.execute("SELECT id, reasons, fit_summary FROM runs WHERE reasons IS NOT NULL").fetchall()
+    updates = []
+    for r in rows:
+        old, fit = _load_or(r["reasons"], None), _load_or(r["fit_summary"], None)
+        if not isinstance(old, list):
+            continue
+        typed = fit.get("reason_codes") if isinstance(fit, dict) and len(fit.get("reason_codes") or []) == len(old) \
+            else None
+        new = [x if isinstance(x, dict) else {"code": _legacy_code(str(x), typed, i), "message": str(x)}
+               for i, x in enumerate(old)]
+        updates.append((json.dumps(new), r["id"]))
+    db.executemany("UPDATE runs SET reasons = ? WHERE id = ?", updates)
+
+
+# statements are split at ';' (keep it out of comments and strings); a callable gets the connection
+MIGRATIONS: list = [
     """
     CREATE TABLE runs (
         id INTEGER PRIMARY KEY,
@@ -68,7 +96,7 @@ MIGRATIONS: list[str] = [
         counts_per_g REAL,
         gravity_mps2 REAL,
         verdict TEXT CHECK (verdict IN ('PASS', 'FAIL')),
-        reasons TEXT,           -- JSON list of "code detail..."
+        reasons TEXT,           -- JSON list of {"code", "message"} (text before schema 3)
         nvm_status TEXT,        -- written / failed / none
         nvm_outcome TEXT,       -- JSON (writer.BurnOutcome.to_dict)
         calibration TEXT,       -- JSON (Calibration.to_dict)
@@ -108,6 +136,7 @@ MIGRATIONS: list[str] = [
     ALTER TABLE runs ADD COLUMN panel_id TEXT;   -- the boards calibrated together on one jig (panel.py)
     CREATE INDEX runs_panel ON runs (panel_id);
     """,
+    _typed_reasons,
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -177,10 +206,10 @@ def timestamp(value, what: str = "time") -> float | None:
     raise DataError(f"{what} {value!r}: not a time")
 
 
-def reason_code(reason: str) -> str:
-    """The code of a failure reason: its first word (acceptance.py starts each with the limit key)."""
-    m = re.match(r"[^\s:]+", str(reason).strip())
-    return m.group(0) if m else ""
+def stored_reasons(text) -> list[Reason]:
+    """The typed reasons of a ``reasons`` column ([] when empty or damaged)."""
+    value = _load_or(text, [])
+    return [Reason.from_dict(x) for x in value] if isinstance(value, list) else []
 
 
 def param_vector(cal: dict) -> np.ndarray:
@@ -226,7 +255,7 @@ class RunRecord:
     counts_per_g: float | None
     gravity_mps2: float | None
     verdict: str | None
-    reasons: list[str]
+    reasons: list[Reason]
     nvm_status: str | None
     nvm_outcome: dict | None
     calibration: dict | None
@@ -251,6 +280,7 @@ class RunRecord:
         d = asdict(self)
         d["started_at_iso"], d["finished_at_iso"] = iso(self.started_at), iso(self.finished_at)
         d["poses"] = [_pose_dict(p, r) for p, r in zip(self.poses, self.retries)]
+        d["reasons"], d["reason_codes"] = [str(r) for r in self.reasons], codes(self.reasons)
         return d
 
 
@@ -360,6 +390,10 @@ class Store:
                 kind = "an SQLite file" if db.dialect == "sqlite" else "a database with runs/poses/events tables"
                 raise StoreError(f"{self.path}: {kind} that is not an accelcal results store")
             for v in range(version, SCHEMA_VERSION):
+                if callable(MIGRATIONS[v]):
+                    MIGRATIONS[v](db)
+                    db.set_schema_version(v + 1)
+                    continue
                 for stmt in MIGRATIONS[v].split(";"):
                     if stmt.strip():
                         db.raw(db.ddl(stmt))
@@ -414,12 +448,13 @@ class Store:
                    (session.units, _opt(session.counts_per_g), _opt(session.gravity_mps2), run_id))
 
     def finish_run(self, run_id: int, *, session: Session, calibration: Calibration | None, verdict: str | None,
-                   reasons: Iterable[str] = (), nvm_outcome: Any = None, fit_summary: dict | None = None,
+                   reasons: Iterable[Reason] = (), nvm_outcome: Any = None, fit_summary: dict | None = None,
                    model: str | None = None, retries: Sequence[int] | None = None,
                    finished_at: float | None = None) -> None:
         """Record poses, calibration, verdict and NVM outcome of a run as ``complete``, atomically.
 
-        ``nvm_outcome``: a writer.BurnOutcome, its dict, or None when nothing was burned.
+        ``nvm_outcome``: a writer.BurnOutcome, its dict, or None when nothing was burned;
+        ``reasons``: Reason objects (a plain string is kept with code "").
         """
         if verdict is not None and verdict not in VERDICTS:
             raise DataError(f"verdict {verdict!r}; allowed: PASS, FAIL")
@@ -431,7 +466,7 @@ class Store:
             self._insert_poses(db, run_id, session, retries)
             cal = None if calibration is None else calibration.to_dict()
             try:
-                texts = [_json(list(map(str, reasons))), _json(nvm_outcome), _json(cal), _json(fit_summary)]
+                texts = [_json([Reason.from_dict(r).to_dict() for r in reasons]), _json(nvm_outcome), _json(cal), _json(fit_summary)]
             except (TypeError, ValueError) as e:
                 raise DataError(f"run {run_id}: result is not JSON-serialisable ({e})") from None
             db.execute(
@@ -536,11 +571,12 @@ class Store:
         for r in rows:
             damaged = [c for c in ("fit_summary", "reasons") if _damaged(r[c])]
             fit = {} if "fit_summary" in damaged else (json.loads(r["fit_summary"]) if r["fit_summary"] else {})
+            reasons = stored_reasons(r["reasons"])
             out.append({"id": r["id"], "started_at": iso(r["started_at"]), "finished_at": iso(r["finished_at"]),
                         "status": r["status"], "status_reason": r["status_reason"],
                         "device_serial": r["device_serial"], "chip": r["chip"], "station_id": r["station_id"],
                         "operator": r["operator"], "lot": r["lot"], "model": r["model"], "verdict": r["verdict"],
-                        "reasons": [] if "reasons" in damaged or not r["reasons"] else json.loads(r["reasons"]),
+                        "reasons": [str(x) for x in reasons], "reason_codes": codes(reasons),
                         "nvm_status": r["nvm_status"], "pose_count": counts.get(r["id"], 0),
                         "panel_id": r["panel_id"],
                         "residual_rms_g": fit.get("residual_rms_g") if isinstance(fit, dict) else None,
@@ -548,11 +584,11 @@ class Store:
         return out
 
     def _record(self, r: Row) -> RunRecord:
-        cols = ("reasons", "nvm_outcome", "calibration", "fit_summary")
+        cols = ("reasons", "nvm_outcome", "calibration", "fit_summary")  # JSON columns
         damaged = [k for k in cols if _damaged(r[k])]
         load = lambda k: None if r[k] is None or k in damaged else json.loads(r[k])  # noqa: E731
         rec = RunRecord(**{k: r[k] for k in r.keys() if k not in cols},
-                        reasons=load("reasons") or [], nvm_outcome=load("nvm_outcome"),
+                        reasons=stored_reasons(r["reasons"]), nvm_outcome=load("nvm_outcome"),
                         calibration=load("calibration"), fit_summary=load("fit_summary"), damaged=damaged)
         for p in self._db.execute("SELECT * FROM poses WHERE run_id = ? ORDER BY idx", (r["id"],)):
             vec = lambda c: None if p[f"{c}_x"] is None else [p[f"{c}_{a}"] for a in AXES]  # noqa: E731
@@ -637,10 +673,7 @@ class Store:
         fail_reasons: Counter = Counter()
         for r in done:
             if r["verdict"] == "FAIL":
-                fit = _load_or(r["fit_summary"], None)
-                typed = fit.get("reason_codes") if isinstance(fit, dict) else None
-                fail_reasons.update(set(typed) if isinstance(typed, list) and all(typed) else
-                                    {reason_code(x) for x in _load_or(r["reasons"], [])})  # older rows: parsed
+                fail_reasons.update(set(codes(stored_reasons(r["reasons"]))))
         cals = [c for c in (_load_or(r["calibration"], None) for r in done) if c]
         params = None
         if cals:

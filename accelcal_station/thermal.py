@@ -29,6 +29,7 @@ from .errors import AccelcalError, ConfigError, UnderdeterminedError
 from .fixtures.designs import get_design
 from .instruments import ChamberError, make_chamber
 from .models import fit_session
+from .reasons import Reason, wrap
 from .session import PoseRecord, Session
 from .station import RunReport, Station, StationConfig, board_of, make_jig
 from .store import Store
@@ -41,9 +42,10 @@ PLAN_KEYS = ("set_points_c", "verify_set_points_c", "method", "soak", "capture_b
 class ChamberFault(AccelcalError):
     """The thermal environment failed the plan: a recorded FAIL, not a crash.  ``kind`` says which."""
 
-    def __init__(self, kind: str, message: str) -> None:
+    def __init__(self, kind: str, message: str, soak_s: float = 0.0) -> None:
         super().__init__(message)
         self.kind = kind
+        self.soak_s = soak_s  # a soak that timed out: the time it took, still counted as soak
 
 
 @dataclass(frozen=True)
@@ -108,6 +110,47 @@ def _temps(d: dict, key: str, path: str, required: bool) -> list[float]:
     return sorted(out)
 
 
+def soak_until(rule: SoakRule, sp: float, chamber, clock, read, check_alarms, echo
+               ) -> tuple[float, np.ndarray, float, float]:
+    """Wait for the soak rule at ``sp`` (module docstring) over every temperature ``read(status)`` gives
+    (one per board: the rule holds when each board's max - min over the hold is within tolerance).
+
+    Returns (soak time, the temperatures, the air temperature, the time soaked), all on ``clock``;
+    ChamberFault on timeout or alarm.
+    """
+    t0 = next_note = clock.now()
+    window: list[tuple[float, np.ndarray]] = []
+    while True:
+        st = chamber.status()
+        check_alarms(st, f"during the soak at {sp:g} C")
+        temps = np.asarray(read(st), dtype=float)
+        now = clock.now()
+        if abs(st.air_c - sp) > rule.band_c:
+            window = []
+        else:
+            window.append((now, temps))
+            while np.max(np.ptp(np.stack([x for _, x in window]), axis=0)) > rule.tolerance_c:
+                window.pop(0)
+            if now - window[0][0] >= rule.hold_s:
+                return now - t0, temps, st.air_c, now
+        if now >= next_note + 600.0:  # a soak takes most of an hour: say where it is every 10 minutes
+            next_note = now
+            held = now - window[0][0] if window else 0.0
+            echo(f"  soaking {now - t0:.0f} s: air {st.air_c:.1f} C, board {_span(temps)} C, stable for {held:.0f} s")
+        if now - t0 >= rule.timeout_s:
+            if abs(st.air_c - sp) > rule.band_c:
+                raise ChamberFault("set point not reached", f"set point {sp:g} C not reached within "
+                                   f"{rule.timeout_s:g} s (air {st.air_c:.1f} C, band +-{rule.band_c:g} C)", now - t0)
+            raise ChamberFault("not stable", f"board temperature not stable within {rule.tolerance_c:g} C for "
+                               f"{rule.hold_s:g} s at {sp:g} C within {rule.timeout_s:g} s (board {_span(temps)} C)",
+                               now - t0)
+        clock.sleep(rule.poll_s)
+
+
+def _span(temps: np.ndarray) -> str:
+    return f"{temps[0]:.2f}" if len(temps) == 1 else f"{temps.min():.2f}..{temps.max():.2f}"
+
+
 class WallClock:
     """Real time, for a station with real hardware (the simulated board brings its virtual clock)."""
 
@@ -136,7 +179,7 @@ class SetPointResult:
     poses: int = 0
     fit: dict | None = None
     verdict: str | None = None
-    reasons: list[str] = field(default_factory=list)
+    reasons: list[Reason] = field(default_factory=list)
     verify_error_max_mg: float | None = None
     without_table_error_max_mg: float | None = None
     t_start_s: float = 0.0
@@ -205,7 +248,7 @@ class ThermalStation(Station):
                         self._plan(driver, chamber, jig, clock, records, retries, rep)
                 except (AccelcalError, KeyboardInterrupt) as e:
                     if isinstance(e, ChamberFault):
-                        rep.verdict, rep.reasons = "FAIL", [f"chamber: {e}"]
+                        rep.verdict, rep.reasons = "FAIL", [Reason("chamber", str(e))]
                         self.echo(f"FAIL: chamber: {e} (nothing burned)")
                     else:
                         where = self._where()
@@ -276,7 +319,6 @@ class ThermalStation(Station):
 
     def _soak(self, driver, chamber, clock, res: SetPointResult) -> None:
         """Wait until the soak rule holds (module docstring); ChamberFault on timeout or alarm."""
-        rule, sp = self.plan.soak, res.set_point_c
         has_sensor = driver.temperature_c() is not None
         res.temp_source = "die" if has_sensor else "chamber_air"
         if not has_sensor and len(self.results) == 1:
@@ -284,37 +326,17 @@ class ThermalStation(Station):
                     "chamber air temperature (the board is taken to be at the air temperature after the soak)")
             self.echo(f"  note: {note}")
             self.report_events.append(note)
-        t0 = next_note = clock.now()
-        window: list[tuple[float, float]] = []
-        while True:
-            st = chamber.status()
-            self._check_alarms(st, f"during the soak at {sp:g} C")
-            temp = driver.temperature_c() if has_sensor else st.air_c
-            now = clock.now()
-            if abs(st.air_c - sp) > rule.band_c:
-                window = []
-            else:
-                window.append((now, temp))
-                while max(x for _, x in window) - min(x for _, x in window) > rule.tolerance_c:
-                    window.pop(0)
-                if now - window[0][0] >= rule.hold_s:
-                    res.soak_s, res.board_temp_c, res.air_temp_c, res.t_soaked_s = now - t0, temp, st.air_c, now
-                    self.soak_s += now - t0
-                    self.echo(f"  soaked in {now - t0:.0f} s: board {temp:.2f} C ({res.temp_source}), air {st.air_c:.1f} C")
-                    return
-            if now >= next_note + 600.0:  # a soak takes most of an hour: say where it is every 10 minutes
-                next_note = now
-                held = now - window[0][0] if window else 0.0
-                self.echo(f"  soaking {now - t0:.0f} s: air {st.air_c:.1f} C, board {temp:.2f} C, stable for {held:.0f} s")
-            if now - t0 >= rule.timeout_s:
-                res.soak_s = now - t0
-                self.soak_s += now - t0
-                if abs(st.air_c - sp) > rule.band_c:
-                    raise ChamberFault("set point not reached", f"set point {sp:g} C not reached within "
-                                       f"{rule.timeout_s:g} s (air {st.air_c:.1f} C, band +-{rule.band_c:g} C)")
-                raise ChamberFault("not stable", f"board temperature not stable within {rule.tolerance_c:g} C for "
-                                   f"{rule.hold_s:g} s at {sp:g} C within {rule.timeout_s:g} s (board {temp:.2f} C)")
-            clock.sleep(rule.poll_s)
+        read = (lambda st: np.array([driver.temperature_c()])) if has_sensor else (lambda st: np.array([st.air_c]))
+        try:
+            soak_s, temps, air_c, now = soak_until(self.plan.soak, res.set_point_c, chamber, clock, read,
+                                                   self._check_alarms, self.echo)
+        except ChamberFault as e:
+            res.soak_s = e.soak_s
+            self.soak_s += e.soak_s
+            raise
+        self.soak_s += soak_s
+        res.soak_s, res.board_temp_c, res.air_temp_c, res.t_soaked_s = soak_s, float(temps[0]), air_c, now
+        self.echo(f"  soaked in {soak_s:.0f} s: board {temps[0]:.2f} C ({res.temp_source}), air {air_c:.1f} C")
 
     def _capture_set_point(self, driver, chamber, jig, clock, poses, res: SetPointResult, rep,
                            sink: tuple[list, list] | None) -> list[PoseRecord]:
@@ -354,13 +376,13 @@ class ThermalStation(Station):
             try:
                 fit = fit_session(Session(groups[sp], "counts", cpg, device=rep.serial), self.cfg.model)
             except UnderdeterminedError as e:
-                res.verdict, res.reasons = "FAIL", [f"fit: {e}"]
-                reasons.append(f"at {sp:g} C: fit: {e}")
+                res.verdict, res.reasons = "FAIL", [Reason("fit", str(e))]
+                reasons.append(wrap(Reason("fit", str(e)), f"at {sp:g} C: "))
                 continue
             v = judge(fit, self.cfg.limits)
             res.fit = {"residual_rms_mg": fit.residual_rms_g * 1e3, "V_mg": (fit.V * 1e3).tolist(), **v.measured}
             res.verdict, res.reasons = v.label, v.reasons
-            reasons += [f"at {sp:g} C: {r}" for r in v.reasons]
+            reasons += [wrap(r, f"at {sp:g} C: ") for r in v.reasons]
             fits.append((float(np.mean(temps)), fit))
         return fits, reasons
 
@@ -387,7 +409,7 @@ class ThermalStation(Station):
             try:
                 with_table = float(np.max(np.abs(cal.apply(x, units="counts", temp_c=t) - ref))) * 1e3
             except AccelcalError as e:
-                reasons.append(f"verify at {res.set_point_c:g} C: {e}")
+                reasons.append(Reason.of("verify", f"verify at {res.set_point_c:g} C: {e}"))
                 continue
             single = float(np.max(np.abs(ref_fit.calibration.apply(x, units="counts") - ref))) * 1e3
             res.verify_error_max_mg, res.without_table_error_max_mg = with_table, single
@@ -400,11 +422,12 @@ class ThermalStation(Station):
             self.echo(f"verify at {res.set_point_c:g} C: {with_table:.3f} mg with the table, "
                       f"{single:.3f} mg with the {ref_t:.1f} C calibration alone (limit {limit} mg)")
             if limit is not None and not with_table <= limit:
-                reasons.append(f"verify at {res.set_point_c:g} C: verify_error_max_mg {with_table:.4g} > limit {limit:g}")
+                reasons.append(Reason.of("verify_error_max_mg", f"verify at {res.set_point_c:g} C: verify_error_max_mg "
+                                          f"{with_table:.4g} > limit {limit:g}"))
         rep.verify_error_max_mg = max((v["error_max_mg"] for v in self.verify), default=None)
         if rep.verify_error_max_mg is not None:
             rep.measured["verify_error_max_mg"] = rep.verify_error_max_mg
-        self.table_verdict = {"verdict": "FAIL" if reasons else "PASS", "reasons": list(reasons)}
+        self.table_verdict = {"verdict": "FAIL" if reasons else "PASS", "reasons": [str(r) for r in reasons]}
         if reasons:
             rep.verdict, rep.reasons = "FAIL", reasons
             self.echo("FAIL before writing: " + "; ".join(reasons))
@@ -415,19 +438,19 @@ class ThermalStation(Station):
 
     def _burn(self, driver, cal: Calibration, groups, rep) -> None:
         if driver.nvm is None:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: the device has no NVM to write; set nvm.write: false"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "the device has no NVM to write; set nvm.write: false")]
             return
         writer = CalibrationWriter(driver.nvm, self.cfg.slot_size)
         try:
             outcome = writer.burn(cal, rep.serial, self.cfg.station_id)
         except BurnError as e:
             rep.nvm = e.outcome.to_dict()
-            rep.verdict, rep.reasons = "FAIL", [f"nvm: {e}"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
             return
         rep.nvm = outcome.to_dict()
         back = writer.read_newest(rep.serial)
         if back is None or back[0].temperature is None:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: no temperature table readable after writing"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "no temperature table readable after writing")]
             return
         stored = back[0]
         recs = [p for r in self.results if r.role == "verify" for p in groups.get(r.set_point_c, [])]
@@ -436,7 +459,7 @@ class ThermalStation(Station):
             and np.allclose(stored.temperature.temps_c, cal.temperature.temps_c)
         rep.nvm_verified = bool(same)
         if not same:
-            rep.verdict, rep.reasons = "FAIL", ["nvm: the table read back from NVM differs from the fitted one"]
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "the table read back from NVM differs from the fitted one")]
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, "
                   f"{len(stored.temperature.temps_c)}-temperature table read back"
                   + (" and verified" if same else " DIFFERS"))

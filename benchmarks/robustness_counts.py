@@ -41,6 +41,15 @@ def clean(r, json_mode: bool) -> bool:
 def _clean(r, json_mode: bool) -> bool:
     if r.exit_code in (0, 70) or "Traceback" in r.output:
         return False
+    if r.exit_code == 1 and not json_mode and r.stdout.startswith("SKIP ") and not r.stderr:
+        return True  # batch: the board is skipped with its reason (batch.py), exit 1
+    if json_mode and r.exit_code == 1:
+        try:
+            doc = json.loads(r.stdout)
+        except ValueError:
+            return False
+        if isinstance(doc, dict) and doc.get("fitted") == 0 and doc.get("skipped"):
+            return True
     if json_mode:
         try:
             obj = json.loads(r.stdout)
@@ -100,6 +109,126 @@ def fit_tables(tmp: Path, rng):
         yield p, str(rng.choice(["6", "12", "15"]))
 
 
+GOOD_ROWS = ["p1,0,0,1,0.01,0.02,1.01", "p2,0,0,-1,0.0,0.01,-0.99", "p3,1,0,0,1.02,0.0,0.01",
+             "p4,-1,0,0,-0.98,0.01,0.0", "p5,0,1,0,0.0,1.01,0.02", "p6,0,-1,0,0.01,-0.99,0.0"]
+
+
+def bad_files(tmp: Path) -> list[Path]:
+    """Hostile data files: missing, a folder, empty, binary, a FIFO, a link to a device, bad
+    header, bad cells (text, nan, inf, 1e308, '' ), too few rows, a CSV injection."""
+    head = "# units: g\npose,ref_x,ref_y,ref_z,x,y,z\n"
+    texts = {"empty": "", "binary": "\x00\xff\xfe\x01" * 64, "header_only": head,
+             "wrong_header": "a,b,c\n1,2,3\n", "one_row": head + GOOD_ROWS[0] + "\n",
+             "two_rows": head + "\n".join(GOOD_ROWS[:2]) + "\n",
+             "units_bad": head.replace("g", "furlongs", 1) + "\n".join(GOOD_ROWS) + "\n",
+             "short_row": head + "\n".join(GOOD_ROWS[:5]) + "\np6,0,-1\n",
+             "long_row": head + "\n".join(GOOD_ROWS) + ",9,9\n",
+             "dup_header": head + head + "\n".join(GOOD_ROWS) + "\n",
+             "latin1": (head + "\n".join(GOOD_ROWS) + "\n").replace("p1", "p\xe9"),
+             "huge_line": head + "p1," + "9" * 200000 + ",0,1,0,0,1\n"}
+    for cell in ("x", "nan", "inf", "-inf", "1e308", "", "=cmd|' /C calc'!A0", "0x10", "1,5"):
+        texts[f"cell_{len(texts)}"] = head + "\n".join(GOOD_ROWS[:-1]) + f"\np6,0,-1,0,{cell},-0.99,0.0\n"
+    out = []
+    for name, text in texts.items():
+        p = tmp / f"bad_{name}.csv"
+        p.write_bytes(text.encode("latin-1") if name == "latin1" else text.encode("utf-8", "surrogateescape"))
+        out.append(p)
+    (tmp / "bad_dir.csv").mkdir(exist_ok=True)
+    fifo = tmp / "bad_fifo.csv"
+    if not fifo.exists():
+        os.mkfifo(fifo)
+    (tmp / "bad_dev.csv").unlink(missing_ok=True)
+    (tmp / "bad_dev.csv").symlink_to("/dev/zero")
+    return out + [tmp / "bad_missing.csv", tmp / "bad_dir.csv", fifo, tmp / "bad_dev.csv"]
+
+
+def bad_stores(tmp: Path) -> list[str]:
+    """Results stores that are not: missing, a folder, text, an empty file, a foreign SQLite
+    file, a damaged header, unusable URLs."""
+    import sqlite3
+
+    (tmp / "text.sqlite").write_text("hello\n")
+    (tmp / "zero.sqlite").write_bytes(b"")
+    (tmp / "header.sqlite").write_bytes(b"SQLite format 3\x00" + b"\xff" * 4000)
+    (tmp / "dir.sqlite").mkdir(exist_ok=True)
+    with sqlite3.connect(tmp / "foreign.sqlite") as c:
+        c.execute("CREATE TABLE IF NOT EXISTS t (x)")
+    return [str(tmp / n) for n in ("none.sqlite", "text.sqlite", "zero.sqlite", "header.sqlite", "dir.sqlite",
+                                   "foreign.sqlite")] + ["postgresql://nobody@127.0.0.1:1/x", "mysql://x/y",
+                                                         "sqlite:///" + str(tmp / "nodir" / "x" / "y.sqlite")]
+
+
+def cli_cases(tmp: Path):
+    """Generated bad command lines for every command but `run` (its configs are config_cases):
+    each yields the arguments and a path that must not exist afterwards (or None)."""
+    files, stores = bad_files(tmp), bad_stores(tmp)
+    good = tmp / "good.csv"
+    good.write_text("# units: g\npose,ref_x,ref_y,ref_z,x,y,z\n" + "\n".join(GOOD_ROWS) + "\n")
+    out = tmp / "out.json"
+    nums = ["x", "-1", "0", "nan", "inf", "1e400", "", "-0"]
+    for f in files:
+        for model in ("6", "12"):
+            yield ["fit", str(f), "--model", model, "-o", str(out)], out
+        yield ["fit", str(f), "--raw", "-o", str(out)], out
+        yield ["batch", str(f), "--out-dir", str(tmp / "cals")], tmp / "cals" / "none"  # a board SKIPped
+        yield ["diagnose", str(f)], None
+    for opt in ("--counts-per-g", "--gravity", "--rate", "--skip-rows"):
+        for v in nums:
+            yield ["fit", str(good), opt, v, "--units", "mps2" if opt == "--gravity" else "counts",
+                   *(["--raw"] if opt in ("--rate", "--skip-rows") else []), "-o", str(out)], out
+            yield ["diagnose", str(good), opt, v], None
+    for opt, vals in (("--model", ["7", "0", "x", "12.0", ""]), ("--units", ["furlongs", "", "G "]),
+                      ("--temp-method", ["cubic", ""]), ("--columns", ["a,b", "x,x,x", ",,,", "t,x,y"])):
+        for v in vals:
+            yield ["fit", str(good), opt, v, "-o", str(out)], out
+            yield ["batch", str(good), opt, v, "--out", str(tmp / "r.csv")], tmp / "r.csv"
+    for opt, vals in (("--chunk-boards", ["0", "-1", "x"]), ("--out", ["/", "/dev/null", str(tmp / "bad_dir.csv"),
+                                                                       str(tmp / "r.xls")]),
+                      ("--csv", ["/", str(tmp / "bad_dir.csv")]), ("--since", ["yesterday", "2024-13-01"]),
+                      ("--run", ["x", "-1"])):
+        for v in vals:
+            yield ["batch", str(good), opt, v], None
+    for st in stores:
+        yield ["batch", "--from-store", st], None
+        for sub in (["list"], ["show", "1"], ["export"], ["summary"], ["export", "-o", str(tmp / "e.csv")]):
+            yield ["report", *sub, "--db", st], (tmp / "e.csv") if "-o" in sub else None
+    db = tmp / "runs.sqlite"
+    for sub in (["show", "x"], ["show", "-1"], ["show", "99"], ["list", "--since", "yesterday"],
+                ["list", "--until", "2024-02-30"], ["list", "--verdict", "MAYBE"], ["list", "--status", "done"],
+                ["export", "--format", "xml"], ["export", "-o", "/"], ["export", "-o", str(tmp / "bad_dir.csv")],
+                ["export", "-o", "/dev/null"], ["export", "-o", str(tmp / "nodir" / "e.csv")],
+                ["summary", "--html", "/"], ["summary", "--html", str(tmp / "bad_dir.csv")], ["plot", "x"],
+                ["plot", "99"], ["show"], ["nonesuch"]):
+        yield ["report", *sub, "--db", str(db)], None
+    cfgs = [str(tmp / "missing.yaml"), str(tmp / "bad_dir.csv"), str(tmp / "bomb.yaml"), str(tmp / "deep.yaml"),
+            str(tmp / "dup.yaml"), str(tmp / "binary.yaml"), str(tmp / "list.yaml"), str(files[0])]
+    img = tmp / "image.json"
+    for c in cfgs:
+        for sub in (["read"], ["backup", str(img)], ["erase", "--yes"], ["restore", str(good)]):
+            yield ["nvm", *sub, "--config", c], img if sub[0] == "backup" else None
+        yield ["probe", "--config", c], None
+        yield ["simulate", "--config", c, "--out", str(tmp / "s.csv")], tmp / "s.csv"
+        yield ["diagnose", str(good), "--config", c], None
+    for f in files[:8]:
+        yield ["nvm", "restore", str(f), "--config", str(REPO / "configs" / "sim.yaml")], None
+    for opt, vals in (("--poses", ["nope", "", "six-face,x"]), ("--samples", ["0", "-1", "x"]),
+                      ("--temps", ["a,b", "1e9", "nan", ","]), ("--move-s", ["-1", "nan"]), ("--seed", ["-1", "x"]),
+                      ("--out", ["/", str(tmp / "bad_dir.csv"), "/dev/null", str(tmp / "nodir" / "s.csv")]),
+                      ("--truth-out", ["/", str(tmp / "bad_dir.csv")])):
+        for v in vals:
+            args = ["simulate", opt, v] + ([] if opt == "--out" else ["--out", str(tmp / "s.csv")])
+            yield args, None if opt == "--out" else tmp / "s.csv"
+    for name in ("nope", "", "six-face ", "an4399-8; rm -rf /", "\x1b[31mred", "x" * 5000):
+        yield ["poses", name], None
+    for opt, vals in (("--model", ["7", "x"]), ("--noise-mg", ["-1", "nan", "x", "inf"])):
+        for v in vals:
+            yield ["poses", "six-face", opt, v], None
+    for sub in (["--samples", "0"], ["--rate", "0"], ["--seed", "-1"], ["--selftest", str(good)],
+                ["--report", "/", str(good)], ["--report", "/etc", str(good)], ["--report", str(good), str(good)],
+                ["--norm-only", str(files[0])], []):
+        yield ["diagnose", *sub], None
+
+
 def main() -> None:
     rng = np.random.default_rng(12)
     runner = CliRunner()
@@ -114,6 +243,25 @@ def main() -> None:
             out = tmp / "cal.json"
             r = runner.invoke(cli, ["fit", str(p), "--model", model, "-o", str(out)])
             tried, ok = tried + 1, ok + (clean(r, False) and not out.exists())
+        for args, must_not_exist in cli_cases(tmp):
+            for json_mode in (False, True):
+                if must_not_exist is not None and must_not_exist.exists():
+                    must_not_exist.unlink() if not must_not_exist.is_dir() else None
+                r = runner.invoke(cli, args + (["--json"] if json_mode else []))
+                good = clean(r, json_mode) and (must_not_exist is None or not must_not_exist.exists())
+                if not good and os.environ.get("VERBOSE"):
+                    print(f"  ^ {args[:6]}", file=sys.stderr)
+                tried, ok = tried + 1, ok + good
+        esc = tmp / "escape.csv"  # a valid table whose pose names carry terminal escape codes
+        esc.write_text("# units: g\npose,ref_x,ref_y,ref_z,x,y,z\n" + "\n".join(
+            r.replace(r.split(",")[0], f"\x1b[31m{r.split(',')[0]}\x1b]0;x\x07") for r in GOOD_ROWS) + "\n")
+        for args in (["fit", str(esc), "--model", "6"], ["diagnose", str(esc)], ["batch", str(esc)]):
+            for json_mode in (False, True):
+                r = runner.invoke(cli, args + (["--json"] if json_mode else []))
+                good = r.exit_code != 70 and "Traceback" not in r.output and not {"\x1b", "\x07"} & set(r.output)
+                if not good and os.environ.get("VERBOSE"):
+                    print(f"RAW ESCAPE ECHOED: {args[:2]}", file=sys.stderr)
+                tried, ok = tried + 1, ok + good
         for args in (["report", "list", "--db", str(tmp / "none.sqlite")], ["nvm", "read", "--config", "/nonexist"],
                      ["fit", "/nonexist.csv"], ["poses", "nope"], ["run", "--port"], ["report", "show", "x"]):
             for json_mode in (False, True):

@@ -153,10 +153,13 @@ def test_bench_lot_prints_every_figure(capsys):
 
 
 def test_thermal_time_split(capsys):
-    out = run(capsys, "bench_thermal_time", "--boards", "1")
+    out = run(capsys, "bench_thermal_time", "--boards", "1", "--panel", "2")
     (rows,) = tables(out)
     by = {r[0]: r[1:] for r in rows}
-    assert "verdicts: PASS" in out
-    soak, floor, rest, total = (number(by[k][0]) for k in (
-        "soak (all set points)", "sampling floor (averaged / ODR)", "rest (moves, gating, EEPROM)", "total per board"))
-    assert soak + floor + rest == pytest.approx(total, abs=2.0) and soak > floor > 0
+    assert "verdicts: one board PASS; panel PASS (2/2 PASS)" in out
+    keys = ("soak (all set points)", "sampling floor (averaged / ODR)", "rest (moves, gating, EEPROM)", "total per board")
+    for col in (0, 2):  # one board, then the panel's per-board figure
+        soak, floor, rest, total = (number(by[k][col]) for k in keys)
+        assert soak + floor + rest == pytest.approx(total, abs=2.0) and soak > floor > 0
+    # two boards share one soak: per board, the panel's soak is about half one board's
+    assert number(by[keys[0]][0]) / number(by[keys[0]][2]) == pytest.approx(2.0, rel=0.05)

@@ -408,3 +408,44 @@ def test_diagnosis_core_imports_nothing_from_cli_and_loads_like_fit():
     from accelcal_station.loader import load
 
     assert dl.load is load and cli_fit.load is load
+
+
+def _tree(root: Path) -> dict:
+    """Every file under root with its bytes (folders as None)."""
+    return {str(p.relative_to(root)): (p.read_bytes() if p.is_file() else None) for p in sorted(root.rglob("*"))}
+
+
+def test_report_never_deletes_a_file_it_did_not_write(cubic_table, tmp_path):
+    """A report folder already holding the user's files: a failed report removes only what it
+    wrote, a good one adds its own files beside them; neither touches the user's."""
+    out = tmp_path / "rep"
+    (out / "sub").mkdir(parents=True)
+    (out / "notes.txt").write_text("my notes\n")
+    (out / "sub" / "data.csv").write_text("a,b\n1,2\n")
+    (out / "summary.md.tmp").write_text("not the report's temporary file\n")
+    (out / "level.png").mkdir()  # the second figure cannot be written: the run fails midway
+    before = _tree(out)
+    assert "level.png" in one_line_error(run("diagnose", cubic_table, "--report", out))
+    assert _tree(out) == before  # sphere.png (which it wrote) is gone; nothing of the user's is
+    (out / "level.png").rmdir()
+    before = _tree(out)
+    r = run("diagnose", cubic_table, "--report", out)
+    assert r.exit_code == 0, r.output
+    after = _tree(out)
+    assert {k: v for k, v in after.items() if k in before} == before
+    assert "summary.md" in after and "sphere.png" in after
+
+
+@pytest.mark.parametrize("target", ["/", "/etc", "/usr/share", "/proc/self", "~", "/dev/shm"])
+def test_report_refuses_root_and_system_folders(cubic_table, target):
+    p = Path(target).expanduser()
+    names = ("summary.md", "sphere.png", "level.png")
+    before = {n: (p / n).exists() for n in names}
+    assert "system folder" in one_line_error(run("diagnose", cubic_table, "--report", target))
+    assert {n: (p / n).exists() for n in names} == before  # refused before anything was written
+
+
+def test_report_refuses_a_link_to_root(cubic_table, tmp_path):
+    (tmp_path / "link").symlink_to("/")
+    err = one_line_error(run("diagnose", cubic_table, "--report", tmp_path / "link"))
+    assert "system folder" in err or "not a directory" in err

@@ -178,3 +178,21 @@ def test_terminal_escapes_in_pose_names_are_not_echoed_raw(tmp_path):
     r = CliRunner().invoke(cli, ["fit", str(p), "--model", "6"])
     assert r.exit_code == 0, r.output
     assert "\x1b" not in r.output and "\x07" not in r.output and "\\x1b[2J" in r.output
+
+
+def test_diagnose_summary_does_not_echo_escape_codes_in_pose_names(tmp_path):
+    rows = ["0,0,1,0.01,0.02,1.01", "0,0,-1,0.0,0.01,-0.99", "1,0,0,1.02,0.0,0.01", "-1,0,0,-0.98,0.01,0.0",
+            "0,1,0,0.0,1.01,0.02", "0,-1,0,0.01,-0.99,0.0"]
+    p = tmp_path / "t.csv"
+    p.write_text("# units: g\npose,ref_x,ref_y,ref_z,x,y,z\n"
+                 + "".join(f"\x1b]0;owned\x07p{i},{r}\n" for i, r in enumerate(rows)))
+    r = CliRunner().invoke(cli, ["diagnose", str(p)])
+    assert r.exit_code != 70 and "Traceback" not in r.output
+    assert "\x1b" not in r.output and "\x07" not in r.output and "\\x1b]0;owned\\x07p" in r.output
+
+
+def test_batch_chunk_boards_outside_lot_mode_is_refused_not_ignored(tmp_path):
+    p = tmp_path / "t.csv"
+    p.write_text("# units: g\npose,ref_x,ref_y,ref_z,x,y,z\np1,0,0,1,0,0,1\n")
+    r = CliRunner().invoke(cli, ["batch", str(p), "--chunk-boards", "x"])
+    assert "--chunk-boards x: applies to lot file mode only" in one_line_error(r)

@@ -83,3 +83,55 @@ def test_postgresql_schema_is_versioned_and_reopens(pg_server):
     assert v >= 1
     with Store(url, create=False) as st:  # double precision survives (PostgreSQL REAL would not)
         assert st.schema_version == v and st.get_run(rid).started_at == 1.5e9 + 0.123456789
+
+
+def test_reasons_stored_as_text_are_typed_once_by_the_migration(store_url, monkeypatch):
+    """A store written at schema 2 (reasons as bare text) opened by this station: migration 3
+    gives every reason a code once (the station's own reason_codes when the row kept them),
+    a damaged row stays shown as damaged, and summaries then group by the stored code."""
+    import accelcal_station.store as store_mod
+    from accelcal_station.models import fit_session
+    from accelcal_station.reasons import Reason
+    from accelcal_station.session import PoseRecord, Session
+
+    refs = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1), (0.6, 0.8, 0), (0, 0.6, 0.8)]
+    s = Session([PoseRecord(f"p{i}", [4096 * a * 1.01 + 3, 4096 * b * 0.99 - 5, 4096 * c + 7], [2.0] * 3, 100,
+                            [a, b, c]) for i, (a, b, c) in enumerate(refs)], "counts", 4096.0, device="SN-OLD")
+    fit = fit_session(s, "12")
+    legacy = [  # (reasons as an older station stored them, fit_summary reason_codes it kept)
+        (["at 70 C: offset_max_mg 90 > limit 60 (offset)"], ["offset_max_mg"]),
+        (["residual_rms_mg 3.1 > limit 2 (RMS)", "nvm: read-back differs"], None),
+        ("[not json", None),
+    ]
+    monkeypatch.setattr(store_mod, "SCHEMA_VERSION", 2)
+    with Store(store_url) as st:
+        assert st.schema_version == 2
+        for text, typed in legacy:
+            rid = st.start_run(device_serial="SN-OLD", lot="OLD")
+            st.finish_run(rid, session=s, calibration=fit.calibration, verdict="FAIL",
+                          fit_summary={"residual_rms_g": 0.001, **({"reason_codes": typed} if typed else {})})
+            with st._tx("write a schema-2 row") as db:
+                db.execute("UPDATE runs SET reasons = ? WHERE id = ?",
+                           (text if isinstance(text, str) else json.dumps(text), rid))
+    monkeypatch.undo()
+    with Store(store_url) as st:
+        assert st.schema_version == store_mod.SCHEMA_VERSION == 3
+        recs = st.runs(lot="OLD")
+        summary = st.lot_summary(lot="OLD")
+    assert [(r.code, str(r)) for r in recs[0].reasons] == [
+        ("offset_max_mg", "at 70 C: offset_max_mg 90 > limit 60 (offset)")]
+    assert [r.code for r in recs[1].reasons] == ["residual_rms_mg", "nvm"]
+    assert all(isinstance(r, Reason) for r in recs[1].reasons)
+    assert recs[2].reasons == [] and "reasons" in recs[2].damaged
+    assert summary["failure_reasons"] == {"offset_max_mg": 1, "residual_rms_mg": 1, "nvm": 1}
+    rows = _report_list(store_url)
+    assert rows[0]["reason_codes"] == ["offset_max_mg"] and rows[2]["damaged"] == ["reasons"]
+    # new rows are stored typed: the code is kept, whatever the text says
+    with Store(store_url) as st:
+        rid = st.start_run(device_serial="SN-NEW", lot="NEW")
+        st.finish_run(rid, session=s, calibration=fit.calibration, verdict="FAIL",
+                      reasons=[Reason.of("verify_error_max_mg", "verify at 70 C: 3.2 mg > limit 2")])
+        with st._snapshot():
+            raw = st._db.execute("SELECT reasons FROM runs WHERE id = ?", (rid,)).fetchone()[0]
+        assert st.lot_summary(lot="NEW")["failure_reasons"] == {"verify_error_max_mg": 1}
+    assert json.loads(raw) == [{"code": "verify_error_max_mg", "message": "verify at 70 C: 3.2 mg > limit 2"}]

@@ -57,10 +57,21 @@ def _read_until(fd, marker: bytes, timeout_s: float = 60.0) -> bytes:
     return buf
 
 
-def _run_in_pty(tmp_path, how: str):
+def panel_config(tmp_path, boards: int = 1) -> str:
+    """configs/panel-sim.yaml with the operator jig (the simulated hand holds the fixture)."""
+    cfg = yaml.safe_load((REPO / "configs" / "panel-sim.yaml").read_text())
+    cfg["jig"] = {"type": "operator", "hand": {}}
+    cfg["device"]["boards"] = boards
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    p = tmp_path / "panel.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    return str(p)
+
+
+def _run_in_pty(tmp_path, how: str, path: str | None = None):
     """`accelcal run` with the operator jig on a pseudo-terminal: accept pose 1, then at the
     second prompt send end of input (Ctrl-D) or Ctrl-C (SIGINT, as the terminal does)."""
-    path = sim_config(tmp_path, jig={"type": "operator", "hand": {}})
+    path = path or sim_config(tmp_path, jig={"type": "operator", "hand": {}})
     master, slave = pty.openpty()
     proc = subprocess.Popen([sys.executable, "-m", "accelcal_station", "run", "--config", path],
                             stdin=slave, stdout=slave, stderr=slave, cwd=tmp_path, close_fds=True)
@@ -265,3 +276,27 @@ def test_report_group_db_reaches_its_subcommands(tmp_path):
     db = str(tmp_path / "runs.sqlite")
     r = CliRunner().invoke(cli, ["report", "--db", db, "list", "--json"])
     assert r.exit_code == 0 and len(json.loads(r.stdout)) == 1
+
+
+def test_panel_abort_at_the_operator_prompt_exits_5_and_records_each_board_interrupted(tmp_path):
+    """A panel on the operator jig: end of input at the second prompt is an operator abort
+    (exit 5, one error line) and every board's run is `interrupted` with the pose it captured."""
+    r = CliRunner().invoke(cli, ["run", "--config", panel_config(tmp_path, boards=2)], input="\n")
+    assert r.exit_code == 5, r.output
+    errors = [ln for ln in r.output.splitlines() if "error" in ln.lower() or "Aborted" in ln]
+    assert len(errors) == 1 and "operator aborted at pose p2" in errors[0], r.output
+    runs = db_row(tmp_path, "SELECT id, status, status_reason, panel_id FROM runs ORDER BY id")
+    assert len(runs) == 2 and all(s == "interrupted" and "operator aborted" in why for _, s, why, _ in runs)
+    assert len({p for *_, p in runs}) == 1  # one panel
+    poses = dict(db_row(tmp_path, "SELECT run_id, count(*) FROM poses GROUP BY run_id"))
+    assert poses.get(runs[0][0]) == 1  # board 1, held by the simulated hand, captured pose p1
+
+
+def test_panel_ctrl_c_at_the_operator_prompt_on_a_terminal(tmp_path):
+    rc, out = _run_in_pty(tmp_path, "ctrl-c", panel_config(tmp_path))
+    assert rc == 5, out
+    assert "Traceback" not in out and "Aborted!" not in out
+    assert out.count("error: ") == 1 and "error: operator aborted at pose p2" in out, out
+    (status, reason), = db_row(tmp_path, "SELECT status, status_reason FROM runs")
+    assert status == "interrupted" and "aborted" in reason
+    assert db_row(tmp_path, "SELECT count(*) FROM poses") == [(1,)]

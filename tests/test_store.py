@@ -19,7 +19,8 @@ from accelcal_station.drivers.eeprom import EEPROM24
 from accelcal_station.errors import DataError
 from accelcal_station.models import fit_batch, fit_session
 from accelcal_station.session import PoseRecord, Session
-from accelcal_station.store import PARAM_NAMES, SCHEMA_VERSION, Store, StoreError, reason_code
+from accelcal_station.reasons import Reason
+from accelcal_station.store import PARAM_NAMES, SCHEMA_VERSION, Store, StoreError
 from accelcal_station.writer import CalibrationWriter
 
 CPG = 4096.0
@@ -58,7 +59,7 @@ def db(tmp_path):
 def test_run_round_trip_rebuilds_session(db):
     nvm = EEPROM24()
     with Store(db) as store:
-        assert store.schema_version == SCHEMA_VERSION == 2
+        assert store.schema_version == SCHEMA_VERSION == 3
         s, _, _ = board(1)
         fit = fit_session(s, "12")
         outcome = CalibrationWriter(nvm).burn(fit.calibration, s.device, "st1")
@@ -195,13 +196,15 @@ def test_lot_summary_matches_numpy(db):
         rows = []
         for i in range(24):
             verdict = "PASS" if rng.random() < 0.7 else "FAIL"
-            reasons = [] if verdict == "PASS" else list(rng.choice(
-                ["residual_rms_mg 3.1 > limit 2 (RMS)", "offset_max_mg 90 > limit 60 (offset)",
-                 "crossval_rms_mg: not measurable for this fit (limit 3)"], size=rng.integers(1, 3), replace=False))
+            choices = [Reason("residual_rms_mg", "3.1 > limit 2 (RMS)", " "),
+                       Reason("offset_max_mg", "90 > limit 60 (offset)", " "),
+                       Reason("crossval_rms_mg", "not measurable for this fit (limit 3)")]
+            reasons = [] if verdict == "PASS" else [choices[k] for k in rng.choice(
+                3, size=rng.integers(1, 3), replace=False)]
             rid, s, fit = record(store, 100 + i, verdict=verdict, reasons=reasons,
                                  nvm={"ok": bool(i % 5)} if verdict == "PASS" else None)
             rows.append((verdict, reasons, fit))
-        record(store, 500, lot="other", verdict="FAIL", reasons=["gain_error_max 0.2 > limit 0.05"])
+        record(store, 500, lot="other", verdict="FAIL", reasons=[Reason("gain_error_max", "0.2 > limit 0.05", " ")])
         store.interrupt_run(store.start_run(device_serial="SNx", lot="L1"), "e-stop")
         summ = store.lot_summary(lot="L1")
 
@@ -211,7 +214,7 @@ def test_lot_summary_matches_numpy(db):
     assert summ["pass_rate"] == pytest.approx(verdicts.count("PASS") / 24, abs=0)
     expect = {}
     for v, reasons, _ in rows:
-        for code in {r.split()[0].rstrip(":") for r in reasons}:
+        for code in {r.code for r in reasons}:
             expect[code] = expect.get(code, 0) + 1
     assert summ["failure_reasons"] == expect and "gain_error_max" not in summ["failure_reasons"]
     assert summ["nvm"] == {"written": sum(1 for i, (v, _, _) in enumerate(rows) if v == "PASS" and i % 5),
@@ -226,13 +229,12 @@ def test_lot_summary_matches_numpy(db):
         assert (d["min"], d["max"]) == (P[:, j].min(), P[:, j].max())
     rms = np.array([f.residual_rms_g for _, _, f in rows])
     assert summ["fit"]["residual_rms_g"]["mean"] == pytest.approx(rms.mean(), rel=1e-12)
-    assert reason_code("offset_max_mg: x") == reason_code("offset_max_mg 3 > 2") == "offset_max_mg"
 
 
 def test_filters_and_exports(db, tmp_path):
     with Store(db) as store:
         ids = [record(store, i, lot="A" if i < 3 else "B", verdict="FAIL" if i == 4 else "PASS",
-                      reasons=["residual_rms_mg 5 > limit 2 (RMS)"] if i == 4 else (),
+                      reasons=[Reason("residual_rms_mg", "5 > limit 2 (RMS)", " ")] if i == 4 else (),
                       started_at=1_700_000_000 + 3600 * i)[0] for i in range(5)]
         store.interrupt_run(store.start_run(device_serial="SN9", lot="B", started_at=1_700_000_000 + 3600 * 9),
                             "power cut")
@@ -314,7 +316,7 @@ def test_report_cli(db, tmp_path, monkeypatch):
     with Store(db) as store:
         for i in range(3):
             record(store, i, verdict="FAIL" if i == 1 else "PASS",
-                   reasons=["offset_max_mg 80 > limit 60 (offset)"] if i == 1 else ())
+                   reasons=[Reason("offset_max_mg", "80 > limit 60 (offset)", " ")] if i == 1 else ())
         store.interrupt_run(store.start_run(device_serial="SN7", lot="L1"), "operator abort")
         expect = store.lot_summary(lot="L1")
     run = CliRunner().invoke

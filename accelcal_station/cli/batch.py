@@ -142,6 +142,10 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
     """
     check_model_units(model, units)
     cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
+    if out is None and config_path is None and \
+            ctx.get_parameter_source("chunk_boards") is not click.core.ParameterSource.DEFAULT:
+        raise DataError(f"--chunk-boards {chunk_boards}: applies to lot file mode only; add --out FILE "
+                        "(a results table) or remove --chunk-boards")
     if out is not None or config_path is not None:
         _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path,
                   int(_number(chunk_boards, "--chunk-boards", integer=True)), as_json,

@@ -7,6 +7,7 @@ import click
 
 from ..diagnose import diagnose, load_data, load_simulator, to_json
 from ..diagnose_selftest import selftest as run_selftest
+from ._text import clean
 from ..diagnose_report import check_report_dir, selftest_lines, summary_lines, write_report
 from ..errors import DataError
 from ..rawlog import check_rate
@@ -67,4 +68,4 @@ def command(ctx, files, config, raw, units, counts_per_g, gravity, columns, skip
         lines = summary_lines(d)
         if out_dir is not None:
             lines.append(f"report: {out_dir}/summary.md and {len(js['report']) - 1} figures")
-        click.echo("\n".join(lines))
+        click.echo("\n".join(clean(ln) for ln in "\n".join(lines).split("\n")))  # pose names from files

@@ -97,6 +97,8 @@ def _run_panel(cfg: StationConfig, operator, serial, lot, as_json: bool, echo) -
     if serial is not None:
         raise ConfigError("--serial: a panel's boards keep their own serials; remove --serial "
                           "(or set device.boards[i].serial)")
+    if "thermal" in cfg.raw or "chamber" in cfg.raw:  # a thermal plan over the panel (thermal_panel.py)
+        from ..thermal_panel import ThermalPanelStation as PanelStation
     station = PanelStation(cfg, operator=operator, lot=lot, echo=echo)
     reports = station.run()
     if as_json:
@@ -112,5 +114,10 @@ def _run_panel(cfg: StationConfig, operator, serial, lot, as_json: bool, echo) -
         if "panel_time_s" in t:
             line += f"; {t['panel_time_s']:.1f} s board time, {t['per_board_s']:.2f} s per board"
         click.echo(line)
+        if "per_board" in t:
+            pb = t["per_board"]
+            click.echo(f"time per board ({t['boards']} boards): soak {pb['soak_s']:.0f} s, sampling floor "
+                       f"{pb['sampling_floor_s']:.1f} s, rest {pb['rest_s']:.1f} s of {pb['board_time_s']:.0f} s "
+                       f"({t['clock']} clock)")
     if any(r.verdict != "PASS" for r in reports):
         raise click.exceptions.Exit(1)
