@@ -598,7 +598,7 @@ def _propagate9(Ainv, s2, M, B):
     return sW, sV
 
 
-BLOCK = {"12": 8192, "9": 1024, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
+BLOCK = {"12": 8192, "9": 2048, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
 
 
 class _Assembler:
