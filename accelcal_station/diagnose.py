@@ -28,44 +28,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .diagnose_identify import describe_design
 from .diagnose_load import FITTED, Simulator, gap_data, load_data, load_simulator, raw_part  # noqa: F401  (API)
 from .diagnose_shape import leftover_shape
-from .effects import STOCHASTIC
+from .effects import DETERMINISTIC, STOCHASTIC, Saturation
+from .effects.jig_rotation import jig_rotation
 from .errors import ConfigError, UnderdeterminedError
-from .gap_effects import (Evaluation, Floor, GapData, TimeData, design_rank_ok, evaluate, random_var,
-                          sigma_from_within, static_design, time_data)
+from .gap_effects import (Evaluation, Floor, GapData, TimeData, describe_design, design_rank_ok, evaluate,
+                          random_var, sigma_from_within, static_design, time_data)
 from .sensor_model import EFFECT_NAMES
 
 ALPHA = 0.01
 MIN_GAP_SHRINK = 0.1  # an added effect must remove this fraction of log(gap) too
+
+
 # -- candidates ------------------------------------------------------------------------------------
-
-DEGENERATE = {
-    "gravity": "local gravity scales every static reading alike and the fitted gain absorbs it exactly "
-               "(1 g references and the 1 g norm cannot tell gravity from sensitivity); it needs an independent "
-               "reference such as a known gain or a second acceleration level",
-    "cubic": "each channel reads only near 0 and +-1 g in these poses, where g^3 equals g, so the cubic term "
-             "cannot be told from the gain; it needs intermediate tilts (e.g. an4399-8, optimal-N)",
-    "quadratic": "these poses do not separate g^2 from the offset and gain; it needs several input levels per channel",
-    "gain": "the baseline's cross_axis matrix already fits each axis's sensitivity",
-    "temperature": "the poses' temperatures do not separate a temperature term from the rest of the model",
-}
-
-
-TIME_ONLY = {"settling": "a transient after each pose change shows only within a capture: it needs raw logs",
-             "drift": "drift over time needs raw time series (raw logs): pose tables carry no capture times"}
-
-
-def _saturation_why(data: GapData, sim: Simulator) -> str:
-    top, clip = float(np.max(np.abs(data.g))), sim.clip_g
-    if top < 0.95 * clip:
-        return (f"static gravity poses read at most {top:.2f} g on any axis, below the {clip:.2f} g where "
-                "the output clips (range x full_scale_fraction): clipping cannot show; it needs inputs near "
-                "full scale (centrifuge, shaker)")
-    return (f"readings reach {top:.2f} g, at the {clip:.2f} g clip level: clipped poses are not modelled "
-            "as a fitted term; remove them or measure on a larger range")
-
 
 def candidates(data: GapData, sim: Simulator, td: TimeData | None) -> tuple[list[str], dict[str, str], bool, str]:
     """(testable candidates, {effect: why not}, static view usable, why not)."""
@@ -88,36 +64,34 @@ def candidates(data: GapData, sim: Simulator, td: TimeData | None) -> tuple[list
                       f"{' on the norm' if data.norm_only else ' over 3 channels'}) with a pose held out")
     testable = []
     for e in EFFECT_NAMES:
-        if e in base:
-            continue
-        if e == "saturation":
-            why[e] = _saturation_why(data, sim)
-            continue
-        if e in ("noise", "quantization", "pose_error"):
-            continue  # stochastic: judged by its own signature (_stochastic), never by the gap
-        if e in TIME_ONLY:
-            if td is None:
-                why[e] = TIME_ONLY[e]
+        if e in base or e not in DETERMINISTIC:
+            continue  # stochastic only: judged by its own signature (_stochastic), never by the gap
+        eff = DETERMINISTIC[e]
+        ok, reason = eff.testable(data, td)
+        if eff.static_columns and not eff.time_columns and not static_ok:
+            why[e] = f"the static view is unavailable: {static_why}"
+        elif not ok:
+            why[e] = Saturation.reason(data, sim.clip_g) if isinstance(eff, Saturation) else reason
+        elif eff.time_columns:
+            testable.append(e)  # judged in the time view too: the static view's rank does not gate it
+        else:
+            why_not = _static_why_not(data, base, eff, dof)
+            if why_not:
+                why[e] = why_not
             else:
                 testable.append(e)
-            continue
-        if not static_ok:
-            why[e] = f"the static view is unavailable: {static_why}"
-            continue
-        if e == "temperature" and data.n_temps < 2:
-            why[e] = ("the data have no temp_c" if data.temp_c is None else
-                      f"all poses at one temperature ({np.mean(data.temp_c):.1f} C)") + \
-                ": it needs poses at two or more temperatures"
-            continue
-        ok, cond = design_rank_ok(base + (e,), data, data.norm_only)
-        if not ok:
-            words = describe_design(data, base + (e,)).get("text", f"condition {cond:.3g}")
-            why[e] = DEGENERATE.get(e, "these poses do not separate it from the baseline") + f" ({words})"
-        elif dof(base + (e,)) < 0:
-            why[e] = f"{data.P} poses are too few to fit its parameters with a pose held out"
-        else:
-            testable.append(e)
     return testable, why, static_ok, static_why
+
+
+def _static_why_not(data: GapData, base: tuple[str, ...], eff, dof) -> str:
+    """Why the static view cannot fit ``eff`` on top of the baseline ('' when it can)."""
+    ok, cond = design_rank_ok(base + (eff.name,), data, data.norm_only)
+    if not ok:
+        words = describe_design(data, base + (eff.name,)).get("text", f"condition {cond:.3g}")
+        return f"{eff.degenerate} ({words})"
+    if dof(base + (eff.name,)) < 0:
+        return f"{data.P} poses are too few to fit its parameters with a pose held out"
+    return ""
 
 
 def _labels(effects, data: GapData):
@@ -313,13 +287,6 @@ def _stochastic(data, floor, final, td, why, alpha, ev_pose=None) -> tuple[dict,
         sig = eff.signature(data, floor, ev_pose() if name == "pose_error" else final, td, alpha)
         out[name] = {"testable": True, **sig.to_json()}
         why.pop(name, None)
-    if "pose_error" in out:
-        out["pose_error"]["jig_rotation"] = (
-            "a fixed jig rotation is a deterministic 3-parameter rotation of the references; the baseline's full "
-            "cross_axis matrix W absorbs it exactly, so it cannot be told from the board's own cross-axis"
-            if "cross_axis" in final_effects(final) else
-            "a fixed jig rotation is a 3-parameter rotation; without cross_axis in the model it shows as "
-            "cross_axis (that candidate's result above)")
     passed = sorted((n for n, v in out.items() if v.get("passed")), key=lambda n: out[n]["p_value"])
     return out, passed
 
@@ -354,6 +321,8 @@ def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     centres.append(_zero_g(base))
     final, selected, steps, ranking, tried = _select(ev, data, sim, base, testable, td, alpha)
     stoch, passed = _stochastic(data, floor, final, td, why, alpha, lambda: ev(selected + ["pose_error"]))
+    if "pose_error" in stoch:
+        stoch["pose_error"]["jig_rotation"] = jig_rotation(data, base, sim.baseline, floor.gamma, alpha)
     where = breakdown(data, sim, floor, base, final, td)
     d = Diagnosis(data, sim, floor, base, final, ranking, steps, selected + [p for p in passed if p not in selected], why, static_ok, static_why,
                   where, alpha, stoch, tried)

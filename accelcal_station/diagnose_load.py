@@ -9,7 +9,8 @@ import numpy as np
 
 from .drivers.simulated import SimulatedBoard
 from .errors import ConfigError, DataError, UnderdeterminedError, UnitsError
-from .gap_effects import Capture, Floor, GapData
+from .gap_data import Capture, GapData
+from .noise_floor import Floor
 from .loader import load
 from .loading import device_section
 from .models import check_plausible_g

@@ -13,6 +13,7 @@ import numpy as np
 
 from .diagnose import MIN_GAP_SHRINK, Diagnosis
 from .errors import AccelcalError, DataError
+from .gap_data import time_data
 from .atomic import atomic_write
 from .posetable import atomic_write_text
 
@@ -102,6 +103,13 @@ def _where_lines(d: Diagnosis) -> list[str]:
 
 def summary_lines(d: Diagnosis) -> list[str]:
     """The human summary: gap, where, which, how far, and what to do."""
+    out = _gap_lines(d) + [""] + _where_lines(d) + [""] + _which_lines(d)
+    out += _stochastic_lines(d) + _verdict_lines(d)
+    return out
+
+
+def _gap_lines(d: Diagnosis) -> list[str]:
+    """The data, the simulator and its floor, and the headline gap."""
     data, sim, b = d.data, d.sim, d.base
     kind = ("references" if not data.norm_only else "norm only (no references)") + \
         (f", raw captures at {data.rate_hz:g} Hz" if data.captures is not None else "")
@@ -122,9 +130,12 @@ def summary_lines(d: Diagnosis) -> list[str]:
     views = [f"{v} view {_g(b.floor_gap(v))}" for v in ("static", "time") if b.floor_gap(v) is not None]
     if len(views) > 1:
         out.append("     " + "; ".join(views) + " (the headline is their RMS)")
-    out.append("")
-    out += _where_lines(d)
-    out.append("")
+    return out
+
+
+def _which_lines(d: Diagnosis) -> list[str]:
+    """Every candidate's held-out gap and p, the untestable ones with why, and how far the gap fell."""
+    out: list[str] = []
     out.append(f"WHICH (each candidate added to the model, refitted on training folds, scored on held-out poses;\n"
                f"       selected while a one-sided paired test (t or Wilcoxon, doubled) on per-pose held-out log density\n"
                f"       beats alpha = {d.alpha:g} / candidates, the held-out RMS shrinks, some view loses "
@@ -144,13 +155,30 @@ def summary_lines(d: Diagnosis) -> list[str]:
         txt += f" -> + {s['added']} {_g(s['gap_after'])} ({s['rms_mg_after']:.3g} mg)"
     out.append(txt)
     out.append("")
+    return out
+
+
+def _stochastic_lines(d: Diagnosis) -> list[str]:
+    """Each stochastic effect's signature test, and the jig rotation."""
+    out: list[str] = []
     out.append("STOCHASTIC (each judged by its own signature; never lowers the gap)")
     for name, st in d.stochastic.items():
         if st.get("testable"):
             out.append(f"  {name}: {'NAMED' if st['passed'] else 'no'}: {st['reason']}")
         else:
             out.append(f"  {name}: not testable: {st['reason']}")
+    jig = d.stochastic.get("pose_error", {}).get("jig_rotation")
+    if jig:
+        state = ("FITTED" if jig["passed"] else "no") if jig["testable"] else "not testable"
+        out.append(f"  jig rotation (deterministic, 3 parameters): {state}: {jig['reason']}")
     out.append("")
+    return out
+
+
+def _verdict_lines(d: Diagnosis) -> list[str]:
+    """The verdict and the configuration hints that follow from it."""
+    data = d.data
+    out: list[str] = []
     out.append(f"VERDICT: {d.verdict}: {d.verdict_text}")
     if d.steps:
         out.append("  add to the simulator configuration:")
@@ -273,10 +301,17 @@ def write_report(d: Diagnosis, out_dir, json_obj: dict) -> list[Path]:
 
 
 def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path]) -> list[Path]:
-    data = d.data
+    """Every figure of the report, then summary.md linking them; ``files``: what was written so far."""
     after = " + ".join(d.selected) if d.selected else "no effect added"
+    for plot in (_plot_sphere, _plot_level, _plot_temperature, _plot_time, _plot_allan):
+        plot(plt, d, after, out, files)
+    _write_summary(d, out, json_obj, files)
+    return files
 
-    # sphere: direction of each pose (reference, or reading when norm-only), coloured by held-out z
+
+def _plot_sphere(plt, d: Diagnosis, after: str, out: Path, files: list[Path]) -> None:
+    """Direction of each pose (reference, or reading when norm-only), coloured by held-out z."""
+    data = d.data
     fig = plt.figure(figsize=(11, 4.2))
     u = data.ref if data.ref is not None else data.g
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
@@ -296,7 +331,10 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
     fig.suptitle("Residuals over the sphere of orientations (direction of gravity in the sensor frame)")
     _save(fig, files, out / "sphere.png")
 
-    # residual against input level
+
+def _plot_level(plt, d: Diagnosis, after: str, out: Path, files: list[Path]) -> None:
+    """Held-out residual against input level, per channel."""
+    data = d.data
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), sharey=True)
     for c, ax in enumerate(axes):
         if d.base.r_static is None:
@@ -315,7 +353,10 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
     fig.suptitle("Residual against input level")
     _save(fig, files, out / "level.png")
 
-    # residual against temperature
+
+def _plot_temperature(plt, d: Diagnosis, after: str, out: Path, files: list[Path]) -> None:
+    """Held-out residual over its floor against temperature."""
+    data = d.data
     fig, ax = plt.subplots(figsize=(6, 3.6))
     if data.temp_c is None or data.n_temps < 2 or d.base.r_static is None:
         _empty(ax, "all poses at one temperature (or no temp_c): nothing to plot against temperature"
@@ -331,15 +372,14 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
     ax.set_title("Residual against temperature")
     _save(fig, files, out / "temperature.png")
 
-    # residual against time in capture
+
+def _plot_time(plt, d: Diagnosis, after: str, out: Path, files: list[Path]) -> None:
+    """Block residuals against time within the capture: RMS per tenth of the capture and expected."""
     fig, ax = plt.subplots(figsize=(6, 3.6))
-    td_rows = d.base.r_time
-    if td_rows is None:
+    if d.base.r_time is None:
         _empty(ax, "no raw samples: time within a capture needs raw logs (--raw)")
     else:
-        from .gap_effects import time_data
-
-        td = time_data(data)
+        td = time_data(d.data)
         edges = np.linspace(0.0, float(td.t_in.max()) + 1e-9, 11)
         k = np.digitize(td.t_in, edges[1:-1])
         mid = 0.5 * (edges[1:] + edges[:-1])
@@ -357,21 +397,28 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
     ax.set_title("Residual against time in capture")
     _save(fig, files, out / "time.png")
 
-    al = d.where.get("allan")
-    if al:
-        fig, ax = plt.subplots(figsize=(6, 3.6))
-        for c in range(3):
-            ax.loglog(al["tau_s"], al["adev_mg"][c], "-o", ms=3, label=f"{'xyz'[c]} data")
-            ax.loglog(al["tau_s"], al["white_mg"][c], ":", color=f"C{c}")
-        sim_sig = 1e3 * float(np.mean(d.floor.sigma_g))
-        ax.loglog(al["tau_s"], sim_sig / np.sqrt(np.array(al["tau_s"]) * (data.rate_hz or 1)), "k--",
-                  label="simulator white noise")
-        ax.set_xlabel("tau (s)")
-        ax.set_ylabel("Allan deviation (mg)")
-        ax.legend(fontsize=7)
-        ax.set_title("Noise: Allan deviation of the longest capture")
-        _save(fig, files, out / "allan.png")
 
+def _plot_allan(plt, d: Diagnosis, after: str, out: Path, files: list[Path]) -> None:
+    """Allan deviation of the longest capture against the simulator's white noise (raw data only)."""
+    al = d.where.get("allan")
+    if not al:
+        return
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    for c in range(3):
+        ax.loglog(al["tau_s"], al["adev_mg"][c], "-o", ms=3, label=f"{'xyz'[c]} data")
+        ax.loglog(al["tau_s"], al["white_mg"][c], ":", color=f"C{c}")
+    sim_sig = 1e3 * float(np.mean(d.floor.sigma_g))
+    ax.loglog(al["tau_s"], sim_sig / np.sqrt(np.array(al["tau_s"]) * (d.data.rate_hz or 1)), "k--",
+              label="simulator white noise")
+    ax.set_xlabel("tau (s)")
+    ax.set_ylabel("Allan deviation (mg)")
+    ax.legend(fontsize=7)
+    ax.set_title("Noise: Allan deviation of the longest capture")
+    _save(fig, files, out / "allan.png")
+
+
+def _write_summary(d: Diagnosis, out: Path, json_obj: dict, files: list[Path]) -> None:
+    """summary.md: the text summary, the ranking and every figure written."""
     md = ["# Sim-to-real gap diagnosis", "", "```", *summary_lines(d), "```", ""]
     md += ["| effect | held-out gap | p |", "|---|---|---|"]
     md += [f"| {r['effect']}{' (selected)' if r['effect'] in d.selected else ''} | {_g(r['held_out_gap'])} | "
@@ -382,5 +429,4 @@ def _write_report(plt, d: Diagnosis, out: Path, json_obj: dict, files: list[Path
         md += [f"## {title[0].upper() + title[1:]}", "", f"![{title}]({f.name})", ""]
     atomic_write_text(out / "summary.md", "\n".join(md) + "\n")
     files.append(out / "summary.md")
-    return files
 

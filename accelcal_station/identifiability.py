@@ -15,6 +15,11 @@ coefficients per solve and no column of the (column-normalised) design is close 
 combination of the others.  The reason a model is refused is said in words.
 
 ``assess_batch`` is vectorised for `accelcal batch`; ``assess`` is one board.
+
+`accelcal diagnose` asks the same question of any model of the effects catalog:
+``describe_terms`` takes the static design of those effects (built by
+gap_effects.describe_design on ideal readings), and names the terms along every relative singular value below
+``TERM_REL_SV_MIN`` (confounded: no data of this design can separate them).
 """
 from __future__ import annotations
 
@@ -28,6 +33,7 @@ from .errors import UnderdeterminedError
 DISTINCT_TOL_DEG = 5.0  # readings closer than this are the same orientation (a revisit)
 SPREAD_MIN_G = 0.25  # a channel must see gravity change by this much for its gain (model 6)
 REL_SV_MIN = 0.05  # smallest / largest singular value of the normalised design
+TERM_REL_SV_MIN = 1e-6  # describe_terms: terms along a smaller relative singular value are not determined
 COEFFS = {"6": 2, "12": 4, "15": 5, "9": 9}  # coefficients per least-squares solve
 PARAMS = {"6": 6, "12": 12, "15": 15, "9": 9}
 AXES = "xyz"
@@ -218,5 +224,34 @@ def worst_parameter(stderr: dict[str, np.ndarray] | None, model: str) -> tuple[s
     return name, text
 
 
-__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "assess", "assess_batch", "first_of_orientation", "require",
-           "worst_parameter"]
+def describe_terms(A: np.ndarray, labels: list, ideal: np.ndarray) -> dict:
+    """Distinct orientations of ``ideal`` (P, 3), relative singular values of the column-scaled
+    design ``A`` (..., n_terms) whose columns are ``labels`` ((effect, detail) pairs), and which
+    terms are confounded; the text says it in words (diagnose's untestable reasons)."""
+    n_or = int(first_of_orientation(ideal[None])[0].sum())
+    out = {"distinct_orientations": n_or, "poses": len(ideal), "parameters": len(labels)}
+    if not labels:
+        return {**out, "text": f"{n_or} distinct orientations; no fitted terms"}
+    M = A.reshape(-1, A.shape[-1])
+    sc = np.linalg.norm(M, axis=0)
+    _, s, Vt = np.linalg.svd(M / np.where(sc > 0, sc, 1.0), full_matrices=False)
+    rel = s / s[0]
+    out["relative_singular_values"] = rel.tolist()
+    bad = np.flatnonzero(rel < TERM_REL_SV_MIN)
+    if not bad.size:
+        out["text"] = (f"{n_or} distinct orientations determine all {len(labels)} terms "
+                       f"(smallest relative singular value {rel[-1]:.2g})")
+        return out
+    groups = []
+    for k in bad:
+        v = np.abs(Vt[k]) / np.max(np.abs(Vt[k]))
+        groups.append([f"{e} {d}" for (e, d), x in zip(labels, v) if x > 0.2])
+    out["confounded"] = groups
+    out["text"] = (f"{n_or} distinct orientations cannot determine {len(bad)} combination(s) of the "
+                   f"{len(labels)} terms: " + "; ".join(" with ".join(g) for g in groups)
+                   + f" (relative singular value {rel[bad[0]]:.1g})")
+    return out
+
+
+__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "assess", "assess_batch", "describe_terms", "first_of_orientation",
+           "require", "worst_parameter"]

@@ -111,19 +111,10 @@ class _Row:
         return np.array([self.number(c, **kw) for c in cols])
 
 
-def read_pose_table(path, units: str | None = None, counts_per_g: float | None = None,
-                    gravity_mps2: float | None = None, *, references: bool = False) -> Session:
-    """Read a pose table into a Session; arguments override the file's metadata.
-
-    ``references=True`` makes every row give its expected output (pitch/roll or
-    ref columns), as models 6, 12 and 15 need; errors then name the row.
-    """
-    path = Path(path)
-    text = _read_text(path)
-    lines = text.splitlines()
+def _preamble(path: Path, lines: list[str]) -> tuple[dict[str, str], dict[str, int], int]:
+    """The ``# key: value`` metadata before the header, the line of each, and the header's index."""
     meta: dict[str, str] = {}
     meta_line: dict[str, int] = {}
-    header_at = None
     for i, raw in enumerate(lines):
         s = raw.strip()
         if not s:
@@ -134,16 +125,16 @@ def read_pose_table(path, units: str | None = None, counts_per_g: float | None =
                 meta[m.group(1)] = m.group(2)
                 meta_line[m.group(1)] = i + 1
             continue
-        header_at = i
-        break
-    if header_at is None:
-        raise DataError(f"{path}: empty: no header line; expected {','.join(COLUMNS[:6])} (and optional columns)")
+        return meta, meta_line, i
+    raise DataError(f"{path}: empty: no header line; expected {','.join(COLUMNS[:6])} (and optional columns)")
 
+
+def _header(path: Path, line: str, hline: int) -> list[str]:
+    """The header's columns, each known, none twice, the required ones and whole groups present."""
     try:
-        header = [c.strip() for c in next(csv.reader([lines[header_at]]))]
+        header = [c.strip() for c in next(csv.reader([line]))]
     except csv.Error as e:
-        raise DataError(f"{path}: line {header_at + 1}: not a readable CSV header ({e})") from None
-    hline = header_at + 1
+        raise DataError(f"{path}: line {hline}: not a readable CSV header ({e})") from None
     seen: set[str] = set()
     for c in header:
         if c in seen:
@@ -160,7 +151,65 @@ def read_pose_table(path, units: str | None = None, counts_per_g: float | None =
         if have and len(have) != len(grp):
             miss = next(c for c in grp if c not in seen)
             raise DataError(f"{path}: line {hline}: missing column {miss!r}: {', '.join(grp)} go together")
+    return header
 
+
+def _pose(row: _Row, references: bool) -> PoseRecord:
+    """One table row as a PoseRecord; errors name the row's line and column."""
+    name = row.cells["pose"]
+    if not name:
+        raise DataError(f"{row.where('pose')}: empty; every row needs a pose name")
+    mean = np.array([row.number(c) for c in "xyz"])
+    angles = row.group(GROUPS[0])
+    ref = row.group(GROUPS[1], lo=-10.0, hi=10.0)
+    if ref is not None and not np.any(ref):
+        raise DataError(f"{row.where('ref_x')}: the reference is (0, 0, 0); allowed: the expected output in g")
+    std = row.group(GROUPS[2], lo=0.0)
+    temp = None if row.empty("temp_c") else row.number("temp_c", -273.15, 1000.0)
+    n = None
+    if not row.empty("n"):
+        n = row.number("n", 1)
+        if n != int(n):
+            raise DataError(f"{row.where('n')}: {row.cells['n']!r}; allowed: a whole number of samples >= 1")
+        n = int(n)
+    if ref is None and angles is not None:
+        ref = an4399_reference(angles[0], angles[1])
+    if references and ref is None:
+        raise DataError(f"{row.where('pitch_deg')}: pose {name!r} has no reference; give pitch_deg/roll_deg "
+                        "or ref_x/ref_y/ref_z (only model 9 fits without references)")
+    return PoseRecord(name, mean, std, n, ref, None if angles is None else float(angles[0]),
+                      None if angles is None else float(angles[1]), temp)
+
+
+def _rows(path: Path, lines: list[str], header_at: int, header: list[str], references: bool) -> list[PoseRecord]:
+    """The poses of the table body (blank and ``#`` rows skipped)."""
+    try:
+        table = list(csv.reader(io.StringIO("\n".join(lines[header_at + 1:]))))
+    except csv.Error as e:  # e.g. a cell longer than the csv module's field limit
+        raise DataError(f"{path}: not a readable CSV table ({e}); allowed: a pose table of numbers") from None
+    poses: list[PoseRecord] = []
+    for k, cells in enumerate(table):
+        line = header_at + 2 + k
+        if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
+            continue
+        if len(cells) != len(header):
+            raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
+        poses.append(_pose(_Row(path, line, {c: v.strip() for c, v in zip(header, cells)}), references))
+    return poses
+
+
+def read_pose_table(path, units: str | None = None, counts_per_g: float | None = None,
+                    gravity_mps2: float | None = None, *, references: bool = False) -> Session:
+    """Read a pose table into a Session; arguments override the file's metadata.
+
+    ``references=True`` makes every row give its expected output (pitch/roll or
+    ref columns), as models 6, 12 and 15 need; errors then name the row.
+    """
+    path = Path(path)
+    lines = _read_text(path).splitlines()
+    meta, meta_line, header_at = _preamble(path, lines)
+    hline = header_at + 1
+    header = _header(path, lines[header_at], hline)
     units = units if units is not None else meta.get("units", "counts")
     try:
         check_units(units)
@@ -171,44 +220,7 @@ def read_pose_table(path, units: str | None = None, counts_per_g: float | None =
         counts_per_g = _meta_number(path, meta_line["counts_per_g"], "counts_per_g", meta["counts_per_g"])
     if gravity_mps2 is None and meta.get("gravity"):
         gravity_mps2 = _meta_number(path, meta_line["gravity"], "gravity", meta["gravity"])
-
-    poses: list[PoseRecord] = []
-    body = "\n".join(lines[header_at + 1:])
-    try:
-        table = list(csv.reader(io.StringIO(body)))
-    except csv.Error as e:  # e.g. a cell longer than the csv module's field limit
-        raise DataError(f"{path}: not a readable CSV table ({e}); allowed: a pose table of numbers") from None
-    for k, cells in enumerate(table):
-        line = header_at + 2 + k
-        if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
-            continue
-        if len(cells) != len(header):
-            raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
-        row = _Row(path, line, {c: v.strip() for c, v in zip(header, cells)})
-        name = row.cells["pose"]
-        if not name:
-            raise DataError(f"{row.where('pose')}: empty; every row needs a pose name")
-        mean = np.array([row.number(c) for c in "xyz"])
-        angles = row.group(GROUPS[0])
-        ref = row.group(GROUPS[1], lo=-10.0, hi=10.0)
-        if ref is not None and not np.any(ref):
-            raise DataError(f"{row.where('ref_x')}: the reference is (0, 0, 0); allowed: the expected output in g")
-        std = row.group(GROUPS[2], lo=0.0)
-        temp = None if row.empty("temp_c") else row.number("temp_c", -273.15, 1000.0)
-        n = None
-        if not row.empty("n"):
-            n = row.number("n", 1)
-            if n != int(n):
-                raise DataError(f"{row.where('n')}: {row.cells['n']!r}; allowed: a whole number of samples >= 1")
-            n = int(n)
-        if ref is None and angles is not None:
-            ref = an4399_reference(angles[0], angles[1])
-        if references and ref is None:
-            raise DataError(f"{row.where('pitch_deg')}: pose {name!r} has no reference; give pitch_deg/roll_deg "
-                            "or ref_x/ref_y/ref_z (only model 9 fits without references)")
-        poses.append(PoseRecord(name, mean, std, n, ref,
-                                None if angles is None else float(angles[0]),
-                                None if angles is None else float(angles[1]), temp))
+    poses = _rows(path, lines, header_at, header, references)
     if not poses:
         raise DataError(f"{path}: no pose rows after the header (line {hline})")
     extra = {k: v for k, v in meta.items() if k not in META_KEYS}

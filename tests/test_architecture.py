@@ -73,3 +73,23 @@ def test_no_import_cycle_between_modules():
     graph = {n: {m for m in _imports(n, p, known) if not n.startswith(m + ".")} for n, p in mods.items()}
     cycle = _cycle(graph)
     assert cycle is None, " -> ".join(cycle)
+
+
+def _reach(graph: dict[str, set[str]], start: str) -> set[str]:
+    seen, todo = set(), [start]
+    while todo:
+        for m in graph[todo.pop()] - seen:
+            seen.add(m)
+            todo.append(m)
+    return seen
+
+
+def test_fitting_never_loads_the_diagnosis_engine():
+    """`accelcal fit` and batch stand on models/ and identifiability; the sim-to-real diagnosis
+    (gap_effects, effects/, diagnose*) sits above them, never below."""
+    mods = _modules()
+    known = set(mods)
+    graph = {n: _imports(n, p, known) for n, p in mods.items()}
+    for low in ("accelcal_station.models", "accelcal_station.identifiability"):
+        above = {m for m in _reach(graph, low) if m.split(".")[1].startswith(("gap_", "diagnose", "effects"))}
+        assert not above, f"{low} reaches {sorted(above)}"

@@ -13,7 +13,8 @@ from click.testing import CliRunner
 
 from accelcal_station.cli import cli
 from accelcal_station.diagnose import _p_greater, diagnose, gap_data, load_data, load_simulator
-from accelcal_station.diagnose_report import selftest_lines
+from accelcal_station.diagnose_report import selftest_lines, summary_lines
+from accelcal_station.diagnose_selftest import selftest as run_selftest
 from accelcal_station.fixtures.designs import get_design
 from accelcal_station.gap_effects import Capture, GapData, bias_var, evaluate, mean_var, value_step, within_spread
 from accelcal_station.sensor_model import rotation_matrix
@@ -58,10 +59,44 @@ def cubic_table(tmp_path_factory):
 
 
 # -- the self-test -------------------------------------------------------------------------------
-# Fixed seed (1): deterministic.  The benchmark (benchmarks/bench_diagnose.py, table in
-# benchmarks/README.md) gives every case's hit rate over 50 seeds; the null cases' false alarms
-# are bounded by alpha = 0.01 per greedy step and per signature test.
+# Fixed seeds (1 through the CLI, with coverage; 2 and 3 in-process): deterministic.  The
+# benchmark (benchmarks/bench_diagnose.py, table in benchmarks/README.md, 50 seeds per case) gives
+# the per-case miss rates: flicker 0.04, each null case 0.02, every other case 0.00.  A seed drawn
+# at random therefore fails some case with probability about 1 - 0.96 * 0.98 * 0.98 = 0.08, and
+# three seeds about 0.22: that is the false-failure rate these fixed seeds stand for (alpha = 0.01
+# per greedy step and per signature test, Bonferroni over the views).
 OFF_CATALOG = {"product", "face_tilt", "flicker", "hysteresis"}
+MORE_SEEDS = (2, 3)
+
+
+def _check_case_rules(result: dict) -> None:
+    """The pass rules of the issue, checked here rather than read back from each case's `pass`."""
+    for c in result["cases"]:
+        if c["kind"] == "named" and c["revealable"]:
+            assert c["named"] == c["case"], c
+            if c["case"] not in ("pose_error", "noise", "quantization"):
+                assert c["rms_mg_after_named"] <= c["rms_mg_before"] / 2, c
+        elif c["kind"] == "named":
+            assert c["named"] is None, c
+        elif c["kind"] == "unexplained":
+            assert c["selected"] == [] and c["verdict"] == "unexplained", c
+        elif c["kind"] == "both":
+            assert set(c["case"].split("+")) <= set(c["selected"]), c
+            assert c["rms_mg_after"] < c["rms_mg_before"] / 2, c
+        else:
+            assert c["kind"] == "null" and c["selected"] == [] and c["verdict"] == "nothing to explain", c
+
+
+@pytest.mark.parametrize("seed", MORE_SEEDS)
+def test_selftest_passes_at_more_fixed_seeds(seed):
+    result = run_selftest(seed=seed, coverage=False)
+    assert len(result["cases"]) == 21 and result["seed"] == seed
+    _check_case_rules(result)
+    assert result["passed"]
+
+
+def test_selftest_rules_hold_at_the_cli_seed(selftest):
+    _check_case_rules(selftest)
 
 
 def test_selftest_names_every_revealable_withheld_effect_first(selftest):
@@ -189,7 +224,7 @@ def test_forward_cubic_is_the_sensors_physics():
 
 def test_identifiability_is_said_in_words():
     """Six faces revisited: six distinct orientations; a cubic next to the gain is confounded there."""
-    from accelcal_station.diagnose_identify import describe_design
+    from accelcal_station.gap_effects import describe_design
 
     recs = [PoseRecord(f"f{k}", p.reference_g * 4096.0, None, 100, p.reference_g, p.pitch_deg, p.roll_deg, 25.0)
             for k, p in enumerate(list(get_design("six-face")) * 3)]
@@ -398,7 +433,9 @@ def test_diagnosis_core_imports_nothing_from_cli_and_loads_like_fit():
     import accelcal_station.diagnose_load as dl
 
     pkg = REPO / "accelcal_station"
-    files = [*pkg.glob("diagnose*.py"), *(pkg / "effects").glob("*.py"), pkg / "gap_effects.py", pkg / "loading.py"]
+    files = [*pkg.glob("diagnose*.py"), *(pkg / "effects").glob("*.py"),
+             *(pkg / f"{m}.py" for m in ("gap_effects", "gap_data", "noise_floor", "evaluation", "identifiability",
+                                          "loading"))]
     for f in files:
         for node in ast.walk(ast.parse(f.read_text())):
             if isinstance(node, ast.ImportFrom):
@@ -408,6 +445,70 @@ def test_diagnosis_core_imports_nothing_from_cli_and_loads_like_fit():
     from accelcal_station.loader import load
 
     assert dl.load is load and cli_fit.load is load
+
+
+# -- a fixed jig rotation: a deterministic 3-parameter rotation fitted on the references ---------------
+
+@pytest.fixture(scope="module")
+def sim_without_cross_axis(tmp_path_factory):
+    """A simulator whose baseline is offset and gain only: its W cannot absorb a rotation."""
+    cfg = yaml.safe_load((REPO / "configs" / "sim.yaml").read_text())
+    cfg["device"]["simulator"]["effects"].pop("cross_axis")
+    path = tmp_path_factory.mktemp("nox") / "sim.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return load_simulator(path)
+
+
+def test_a_fixed_jig_rotation_is_fitted_on_the_references(sim_without_cross_axis):
+    truth_deg = np.array([0.3, -0.2, 0.1])
+    rot = rotation_matrix(truth_deg)
+    d = diagnose(_crafted(lambda r: rot @ r - r), sim_without_cross_axis)
+    jig = d.stochastic["pose_error"]["jig_rotation"]
+    assert jig["passed"] and jig["p_value"] < d.alpha, jig
+    assert np.allclose(jig["rotation_deg"], truth_deg, atol=0.02), jig  # the rotation that made the data
+    assert "jig rotation (deterministic, 3 parameters): FITTED" in "\n".join(summary_lines(d))
+
+
+@pytest.mark.parametrize("extra", [lambda r: 0.02 * r**3, lambda r: 0.01 * r**2,
+                                   lambda r: np.array([0.0, 0.0, 0.02 * r[0] * r[1]])],
+                         ids=["cubic", "quadratic", "product"])
+def test_a_jig_rotation_is_never_named_for_a_radial_residual(sim_without_cross_axis, extra):
+    jig = diagnose(_crafted(extra), sim_without_cross_axis).stochastic["pose_error"]["jig_rotation"]
+    assert jig["testable"] and not jig["passed"] and "radial" in jig["reason"], jig
+
+
+def test_a_jig_rotation_on_a_null_board_and_under_a_full_cross_axis_matrix(sim_without_cross_axis):
+    # fixed seed; a null board names a rotation with probability alpha = 0.01 (chi-square, 3 dof)
+    jig = diagnose(_crafted(lambda r: np.zeros(3)), sim_without_cross_axis).stochastic["pose_error"]["jig_rotation"]
+    assert not jig["passed"] and "chance" in jig["reason"]
+    rot = rotation_matrix([0.3, -0.2, 0.1])
+    jig = diagnose(_crafted(lambda r: rot @ r - r), load_simulator()).stochastic["pose_error"]["jig_rotation"]
+    assert not jig["testable"] and "absorbs" in jig["reason"]
+
+
+# -- the catalog: one class per effect, one interface ------------------------------------------------
+
+def test_every_catalog_effect_is_one_class_on_the_shared_interface():
+    from accelcal_station.effects import DETERMINISTIC, STOCHASTIC, DeterministicEffect, StochasticEffect
+    from accelcal_station.gap_effects import static_design
+    from accelcal_station.sensor_model import EFFECT_NAMES
+
+    assert set(EFFECT_NAMES) <= set(DETERMINISTIC) | set(STOCHASTIC)
+    for eff in DETERMINISTIC.values():
+        assert isinstance(eff, DeterministicEffect) and eff.signature(None, None, None, None, 0.01) is None
+        assert sys.modules[type(eff).__module__].__file__.endswith(f"{eff.name}.py")  # one file per effect
+    for eff in STOCHASTIC.values():
+        assert isinstance(eff, StochasticEffect) and not eff.static_columns
+    # each static effect's columns come from its own class and carry its name (the diagonal of W is the gain)
+    ref = np.array([p.reference_g for p in get_design("optimal-24")], float)
+    dT = np.linspace(-10.0, 10.0, len(ref))
+    for name, eff in DETERMINISTIC.items():
+        _, _, _, labels = static_design({name}, ref, ref, dT, np.zeros((len(ref), 2)), False, 3)
+        assert bool(labels) == eff.static_columns, name
+        assert {e for e, _ in labels} <= {name, "gain"}, (name, labels)
+    # untestable deterministic effects say why in words
+    ok, why = DETERMINISTIC["settling"].testable(None, None)
+    assert not ok and "raw logs" in why
 
 
 def _tree(root: Path) -> dict:

@@ -4,7 +4,8 @@ Deterministic effects contribute design columns to the static view (pose means) 
 time view (block means within raw captures) and are judged by held-out residuals
 (accelcal_station.gap_effects.evaluate).  Stochastic effects change only the variance
 of what is left; they are judged by their own signature (``signature``) and never move
-the headline gap.
+the headline gap.  Every effect is one class derived from DeterministicEffect or
+StochasticEffect, so adding an effect is one file plus its entry in effects/__init__.py.
 """
 from __future__ import annotations
 
@@ -12,7 +13,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
-    from ..gap_effects import Evaluation, Floor, GapData, TimeData
+    from ..evaluation import Evaluation
+    from ..gap_data import GapData, TimeData
+    from ..noise_floor import Floor
+    from .columns import StaticView
 
 
 @dataclass
@@ -37,7 +41,10 @@ class Effect(Protocol):
     name: str
     kind: str  # "deterministic" (design columns, judged by held-out residuals) or "stochastic" (signature)
     static_columns: bool  # contributes columns to the static view's design
-    time_columns: bool  # contributes columns to the time view's design
+    time_columns: bool  # contributes columns to the time view's design (fitted in gap_effects' time view)
+
+    def columns(self, view: "StaticView") -> None:
+        """Append this effect's static design columns to ``view`` (nothing for a stochastic effect)."""
 
     def testable(self, data: "GapData", td: "TimeData | None") -> tuple[bool, str]:
         """Whether these data can reveal the effect, and why not."""
@@ -45,3 +52,43 @@ class Effect(Protocol):
     def signature(self, data: "GapData", floor: "Floor", ev: "Evaluation", td: "TimeData | None",
                   alpha: float) -> Signature | None:
         """The stochastic signature test (None for deterministic effects)."""
+
+
+class DeterministicEffect:
+    """A parametric term of the measurement model: design columns, judged by held-out residuals."""
+
+    name = ""
+    kind = "deterministic"
+    static_columns = True
+    time_columns = False
+    # why the design rank check fails for it (diagnose.candidates adds the design's own words)
+    degenerate = "these poses do not separate it from the baseline"
+
+    def columns(self, view: "StaticView") -> None:
+        return None
+
+    def testable(self, data: "GapData", td: "TimeData | None") -> tuple[bool, str]:
+        """Effect-specific conditions only; the design's rank and degrees of freedom are diagnose.candidates'."""
+        return True, ""
+
+    def signature(self, data, floor, ev, td, alpha) -> Signature | None:
+        return None  # never judged by a variance signature
+
+
+class StochasticEffect:
+    """A change of the residuals' variance only: judged by ``signature``, never by the headline gap."""
+
+    name = ""
+    kind = "stochastic"
+    static_columns = False
+    time_columns = False
+
+    def columns(self, view: "StaticView") -> None:
+        return None  # no design columns: it cannot move the held-out residuals
+
+    def testable(self, data: "GapData", td: "TimeData | None") -> tuple[bool, str]:
+        return True, ""
+
+    def signature(self, data: "GapData", floor: "Floor", ev: "Evaluation", td: "TimeData | None",
+                  alpha: float) -> Signature:
+        raise NotImplementedError

@@ -3,14 +3,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Signature
+from ..noise_floor import random_var
+from .base import Signature, StochasticEffect
 
 MIN_RATIO_CHANGE = 0.1  # a sigma within 10 % of the simulator's is not a finding, however many samples
 
 
-class Noise:
+class Noise(StochasticEffect):
     name = "noise"
-    kind = "stochastic"
     static_columns = False
     time_columns = False
 
@@ -26,8 +26,6 @@ class Noise:
         squared first difference (raw samples; its variance is 3 s^4/(n-1), not 2 s^4/(n-1)).
         """
         from scipy import stats
-
-        from ..gap_effects import random_var
 
         n1 = np.maximum(data.n - 1.0, 1.0)
         if td is not None:

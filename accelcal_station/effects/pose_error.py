@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Signature
+from .base import Signature, StochasticEffect
 
 
 def _chi2_sf(x: float, dof: float) -> float:
@@ -20,9 +20,8 @@ def revisits(ref: np.ndarray) -> list[np.ndarray]:
     return [g for g in groups if len(g) > 1]
 
 
-class PoseError:
+class PoseError(StochasticEffect):
     name = "pose_error"
-    kind = "stochastic"
     static_columns = False
     time_columns = False
 

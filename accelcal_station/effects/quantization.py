@@ -1,12 +1,11 @@
 """quantization: the raw samples' value grid against the simulator's LSB."""
 from __future__ import annotations
 
-from .base import Signature
+from .base import Signature, StochasticEffect
 
 
-class Quantization:
+class Quantization(StochasticEffect):
     name = "quantization"
-    kind = "stochastic"
     static_columns = False
     time_columns = False
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Signature
+from .base import Signature, StochasticEffect
 
 N_PERM = 199  # permutations: smallest attainable p is 1/200 = 0.005
 SKIP_START = 0.3  # fraction of each capture left out: a transient after the move is settling's, not drift's
@@ -31,9 +31,8 @@ def _avar(x: np.ndarray, m: int) -> np.ndarray:
     return 0.5 * np.mean(d**2, axis=(-2, -1))
 
 
-class RandomWalk:
+class RandomWalk(StochasticEffect):
     name = "drift"
-    kind = "stochastic"
     static_columns = False
     time_columns = False
 

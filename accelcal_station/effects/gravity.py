@@ -1,0 +1,20 @@
+"""gravity: the local |g| differs from 1 g by delta (a shift of the norm, or of every reference)."""
+from __future__ import annotations
+
+from .base import DeterministicEffect
+from .columns import StaticView
+
+
+class Gravity(DeterministicEffect):
+    name = "gravity"
+    static_columns = True
+    time_columns = False
+    degenerate = ("local gravity scales every static reading alike and the fitted gain absorbs it exactly "
+                  "(1 g references and the 1 g norm cannot tell gravity from sensitivity); it needs an "
+                  "independent reference such as a known gain or a second acceleration level")
+
+    def columns(self, view: StaticView) -> None:
+        if view.norm:
+            view.add("gravity", "delta", {}, shift=1.0)
+        else:
+            view.add("gravity", "delta", {c: -view.ref[:, c] for c in range(3)})
