@@ -143,9 +143,11 @@ def _keep_sys_path():
 def test_bench_lot_prints_every_figure(capsys):
     out = run(capsys, "bench_lot", "--boards", "300", "--boards9", "40", "--today9", "20", "--loop-boards", "5",
               "--lot-boards", "300", "--files", "10", "--rss", "200,400")
-    rates = re.findall(r"^   (6|12|15|9)\s+([\d,]+)\s+([\d,]+)\s+([\d,]+)\s+([\d.]+)\s+(\d+)$", out, re.M)
+    rates = re.findall(r"^   (6|12|15|9)\s+([\d,]+)\s+([\d,]+)\s+([\d,]+)\s+([\d.]+)\s+(\d+)"
+                       r"(?:\s+([\d,]+) \((?:met|not met)\))?$", out, re.M)
     assert [r[0] for r in rates] == ["6", "12", "15", "9"]
-    assert all(float(v.replace(",", "")) > 0 for r in rates for v in r[1:])
+    assert all(float(v.replace(",", "")) > 0 for r in rates for v in r[1:6])
+    assert [r[6] for r in rates] == ["", "1,000,000", "", "100,000"]  # the targets, per model
     assert len(re.findall(r"boards/s", out)) >= 5 and "10,000,000 boards extrapolated" in out
     assert len(re.findall(r"peak RSS\s+\d+ MB", out)) == 2
 

@@ -44,10 +44,26 @@ def test_stacked_linear_matches_todays_fitter(model, design):
     np.testing.assert_allclose(b.result(d).covariance, a.result(d).covariance, rtol=1e-7, atol=1e-18)
 
 
-def test_stacked_model9_matches_todays_fitter():
-    rng = np.random.default_rng(2)
+def test_stacked_model12_groups_boards_by_reference_set():
+    # boards of one stack measured on two fixtures (different pose references), interleaved:
+    # the stacked fitter groups them by reference set and returns them in input order
+    ref_a, ref_b = references(get_design("an4399-8")), references(get_design("optimal-12"))[:8]
+    x = np.concatenate([_boards(300, ref_a, seed=5), _boards(300, ref_b, seed=6)])
+    ref = np.concatenate([np.broadcast_to(ref_a, (300, 8, 3)), np.broadcast_to(ref_b, (300, 8, 3))])
+    order = np.random.default_rng(7).permutation(600)
+    x, ref = x[order], np.ascontiguousarray(ref[order])
+    a, b = fit_linear_batch(x, ref, "12"), fit_stacked(x, ref, "12")
+    assert a.ok.all() and b.ok.all()
+    for k in ("W", "V", "residuals_g", "crossval_rms_g", "stderr_W", "stderr_V", "norm_error_g"):
+        np.testing.assert_allclose(getattr(b, k), getattr(a, k), rtol=0, atol=1e-9, err_msg=k)
+    np.testing.assert_allclose(b.condition_number, a.condition_number, rtol=1e-8)
+    np.testing.assert_allclose(b.result(11).covariance, a.result(11).covariance, rtol=1e-7, atol=1e-18)
+
+
+@pytest.mark.parametrize("noise_g,cv_rtol", [(1e-3, 5e-3), (1e-2, 3e-2)])
+def test_stacked_model9_matches_todays_fitter(noise_g, cv_rtol):
     ref = references(get_design("optimal-12"))
-    x = _boards(400, ref, seed=3)
+    x = _boards(400, ref, seed=3, noise=noise_g)
     a, b = fit_norm_batch(x), fit_stacked(x, None, "9")
     assert a.ok.all() and b.ok.all()
     for k in ("W", "V", "residual_rms_g", "stderr_W", "stderr_V"):
@@ -55,9 +71,27 @@ def test_stacked_model9_matches_todays_fitter():
     np.testing.assert_allclose(b.condition_number, a.condition_number, rtol=1e-6)
     both = a.crossval_ok & b.crossval_ok
     assert both.sum() >= 390
-    # leave-one-out: warm 3-step Gauss-Newton refits against full damped refits (to 1e-6 g)
-    np.testing.assert_allclose(b.crossval_rms_g[both], a.crossval_rms_g[both], rtol=0, atol=1e-6)
-    del rng
+    # leave-one-out: the stacked fitter's one Gauss-Newton step from the full fit (leverage,
+    # stacked._loo9) against today's damped refits to convergence; the gap is second order
+    # in the step, so it grows with the noise (seen: 0.10 % at 1 mg, 1.2 % at 10 mg)
+    np.testing.assert_allclose(b.crossval_rms_g[both], a.crossval_rms_g[both], rtol=cv_rtol, atol=0)
+
+
+@pytest.mark.parametrize("model,design", [("12", "an4399-8"), ("9", "optimal-12")])
+def test_stacked_threads_give_the_single_thread_result(model, design, monkeypatch):
+    # blocks of 64 boards, so 700 boards are 11 blocks spread over the threads and assembled
+    from accelcal_station.models import stacked
+    monkeypatch.setitem(stacked.BLOCK, model, 64)
+    ref = references(get_design(design))
+    x = _boards(700, ref, seed=8)
+    r = None if model == "9" else ref
+    a, b = fit_stacked(x, r, model, workers=1), fit_stacked(x, r, model, workers=3)
+    whole = stacked.fit9(x) if model == "9" else stacked.fit12(x, ref)  # one block, no assembly
+    for k in ("W", "V", "residuals_g", "crossval_rms_g", "condition_number", "stderr_W", "ok"):
+        assert np.array_equal(getattr(a, k), getattr(b, k), equal_nan=k != "ok"), k
+        np.testing.assert_allclose(getattr(a, k), getattr(whole, k), rtol=1e-12, atol=1e-15, err_msg=k)
+    assert a.messages == b.messages
+    np.testing.assert_array_equal(a.result(650).covariance, b.result(650).covariance)
 
 
 def test_stacked_model9_planar_poses_are_refused_with_a_reason():
