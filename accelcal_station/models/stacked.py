@@ -290,6 +290,48 @@ def _sphere_start(gf: np.ndarray) -> np.ndarray:
     return p0
 
 
+def _sym_mul(X, Y):
+    """X Y for symmetric 3 x 3 matrices that commute (so the product is symmetric), each given
+    as its 6 entries (00 01 02 11 12 22) of (N,) arrays."""
+    x00, x01, x02, x11, x12, x22 = X
+    y00, y01, y02, y11, y12, y22 = Y
+    return (x00 * y00 + x01 * y01 + x02 * y02, x00 * y01 + x01 * y11 + x02 * y12,
+            x00 * y02 + x01 * y12 + x02 * y22, x01 * y01 + x11 * y11 + x12 * y12,
+            x01 * y02 + x11 * y12 + x12 * y22, x02 * y02 + x12 * y12 + x22 * y22)
+
+
+def _ellipsoid_start(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Starting parameters (N, 9) from the algebraic ellipsoid fit v^T Q' v + l.v = 1 (linear
+    least squares in the 9 coefficients, one batched 9 x 9 Cholesky), and which boards it suits.
+
+    With c = -Q'^-1 l / 2 the ellipsoid is (v - c)^T Q (v - c) = 1, Q = Q' / (1 + c^T Q' c), so
+    M = Q^(1/2) (the symmetric root, by 3 Newton steps X <- (X + X^-1 Q) / 2 from I, which stay
+    polynomials in Q and so commute with it) and B = c.  The algebraic residual is nearly twice
+    the geometric one for a nearly spherical ellipsoid, so the start is within noise x
+    asphericity of the optimum and Gauss-Newton needs about one step fewer than from a sphere.
+    Boards whose fit is not a real ellipsoid around its centre (degenerate poses) are flagged
+    False and start from _sphere_start instead."""
+    x, y, z = g  # (N, P) each
+    Phi = np.stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, x, y, z])  # (9, N, P)
+    A, rhs = _normal(Phi, -np.ones_like(x))  # Phi^T Phi, Phi^T 1
+    th, ok = _spd_solve(A, rhs)
+    Qp = tuple(th[:, k] for k in (0, 3, 4, 1, 5, 2))  # 00 01 02 11 12 22
+    (i00, i01, i02, i11, i12, i22), det = _sym_inv3(*Qp)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        l0, l1, l2 = th[:, 6], th[:, 7], th[:, 8]
+        c = -0.5 * np.stack([i00 * l0 + i01 * l1 + i02 * l2, i01 * l0 + i11 * l1 + i12 * l2,
+                             i02 * l0 + i12 * l1 + i22 * l2], axis=1) / det[:, None]
+        k = 1.0 - 0.5 * (c[:, 0] * l0 + c[:, 1] * l1 + c[:, 2] * l2)  # 1 + c^T Q' c, as Q' c = -l / 2
+        Q = tuple(q / k for q in Qp)
+        X = tuple(0.5 * (q + e) for q, e in zip(Q, (1.0, 0.0, 0.0, 1.0, 0.0, 1.0)))  # first step from I
+        for _ in range(2):
+            Xi, dx = _sym_inv3(*X)
+            X = tuple(0.5 * (a + b / dx) for a, b in zip(X, _sym_mul(Xi, Q)))
+    p = np.stack([X[0], X[3], X[5], X[1], X[2], X[4], c[:, 0], c[:, 1], c[:, 2]], axis=1)
+    ok &= (det > 0) & (k > 0) & (Q[0] > 0) & (Q[3] > 0) & (Q[5] > 0) & np.all(np.isfinite(p), axis=1)
+    return p, ok
+
+
 def _resid_jac(p: np.ndarray, g: np.ndarray):
     """r (N, P) and J (9, N, P) of r_i = |M (v_i - B)| - 1 (gravity_norm._residual_jacobian),
     with g (3, N, P): each component a contiguous array."""
@@ -442,12 +484,14 @@ def fit9(gf: np.ndarray, noise_g: np.ndarray | None = None, gn_iters: int = 8, l
     if P < 9:
         raise UnderdeterminedError(f"model 9 needs at least 9 poses (it has 9 parameters); got {P}")
     g = np.ascontiguousarray(gf.transpose(2, 0, 1))
-    p0 = _sphere_start(gf)
+    p0, ell = _ellipsoid_start(g)
+    if not ell.all():
+        p0[~ell] = _sphere_start(gf[~ell])
     p, settled, r, J, A = _gauss_newton(g, p0, gn_iters)
     conv = settled.copy()
     lm = np.flatnonzero(~settled)
-    if lm.size:  # the damped fit only where Gauss-Newton did not settle, from the same start
-        p[lm], _, conv[lm] = gn.levenberg_marquardt(gf[lm], p0[lm])
+    if lm.size:  # the damped fit only where Gauss-Newton did not settle, from the sphere start
+        p[lm], _, conv[lm] = gn.levenberg_marquardt(gf[lm], _sphere_start(gf[lm]))
     M, _ = gn._unpack(p)
     flip = np.trace(M, axis1=1, axis2=2) < 0
     p[flip, :6] *= -1
