@@ -248,3 +248,22 @@ def test_model9_lot_matches_todays_fitter(tmp_path):
         assert float(rows[d]["W11"]) == pytest.approx(ref.W[d, 1, 1], abs=1e-8)
         assert float(rows[d]["V0"]) == pytest.approx(ref.V[d, 0], abs=1e-8)
         assert float(rows[d]["crossval_rms_mg"]) == pytest.approx(ref.crossval_rms_g[d] * 1e3, abs=1e-3)
+
+
+def test_model9_ellipsoid_start_is_exact_on_an_exact_ellipsoid():
+    # readings exactly on |M (v - B)| = 1 (M symmetric positive definite, not near identity):
+    # the algebraic fit and the Newton square root recover M and B; the sphere start cannot
+    from accelcal_station.models import stacked
+    rng = np.random.default_rng(11)
+    D, P = 50, 12
+    K = np.eye(3) + rng.normal(0, 0.05, (D, 3, 3))
+    M = 0.5 * (K + K.transpose(0, 2, 1))
+    B = rng.normal(0, 0.05, (D, 3))
+    u = references(get_design("optimal-12"))  # unit gravity vectors
+    v = np.einsum("dij,pj->dpi", np.linalg.inv(M), u) + B[:, None, :]
+    p0, ok = stacked._ellipsoid_start(np.ascontiguousarray(v.transpose(2, 0, 1)))
+    assert ok.all()
+    np.testing.assert_allclose(p0[:, [0, 1, 2]], M[:, [0, 1, 2], [0, 1, 2]], atol=1e-10)
+    np.testing.assert_allclose(p0[:, [3, 4, 5]], M[:, [0, 0, 1], [1, 2, 2]], atol=1e-10)
+    np.testing.assert_allclose(p0[:, 6:], B, atol=1e-10)
+    assert np.abs(stacked._sphere_start(v)[:, 6:] - B).max() > 1e-4

@@ -22,8 +22,8 @@ Arrays are laid out (3, P, D), boards last, so sums over poses are additions of 
 contiguous rows; the covariance is kept as the 10 distinct entries of (X^T X)^-1 per board.
 
 Models 6 and 15 use linear.fit_linear_batch (already batched normal equations).
-Model 9 uses batched Gauss-Newton from a closed-form sphere start (the 9 x 9 normal
-matrices by one batched matmul, solved by LAPACK's batched Cholesky and elementwise
+Model 9 uses batched Gauss-Newton from the algebraic ellipsoid fit (_ellipsoid_start: two
+steps settle a board where a sphere start needed three; the 9 x 9 normal matrices by one batched matmul, solved by LAPACK's batched Cholesky and elementwise
 triangular solves), stopping each board once the error left, estimated from the
 contraction of its steps, is below 1e-10 relative (boards still moving are evaluated
 alone), with the damped (Levenberg-Marquardt) fit of gravity_norm.py only for the boards
