@@ -440,19 +440,35 @@ def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10):
     The Jacobian J (9, N, P) and J^T J (N, 9, 9) returned are from each board's last
     evaluation, before its last step (1e-7 relative at most on optimal-12 lots, a 1e-7
     relative change of J); the residuals r are re-evaluated at the parameters returned.
-    Returns (params, settled, r, J, J^T J)."""
+    From the second evaluation on (when a board usually settles) the step is (J^T J)^-1 g by
+    LAPACK's batched inverse, which _finish9 needs anyway for the covariance, instead of the
+    Cholesky solve; a board whose step is not a descent direction (J^T J not positive
+    definite) is treated as the Cholesky path treats it.
+    Returns (params, settled, r, J, J^T J, (J^T J)^-1 (NaN where not computed)).
+    """
     p = p.copy()
     N = len(p)
     settled = np.zeros(N, dtype=bool)
     prev = np.full(N, np.nan)  # no contraction estimate before the second step
     act = np.arange(N)
     J = A = None
-    for _ in range(iters):
+    Ainv = np.full((N, 9, 9), np.nan)
+    for it in range(iters):
         whole = act.size == N
         pa = p if whole else p[act]
         ra, Ja = _resid_jac(pa, g if whole else g[:, act])
         Aa, grad = _normal(Ja, ra)
-        step, pd = _spd_solve(Aa, grad)
+        Ai = None
+        if it > 0:
+            try:
+                Ai = np.linalg.inv(Aa)
+            except np.linalg.LinAlgError:  # an exactly singular J^T J: the Cholesky path flags it
+                Ai = None
+        if Ai is None:
+            step, pd = _spd_solve(Aa, grad)
+        else:
+            step = (Ai @ grad[..., None])[..., 0]
+            pd = np.all(np.isfinite(step), axis=1) & (np.einsum("nk,nk->n", step, grad) > 0)
         size = np.linalg.norm(step, axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
             q = size / prev[act]
@@ -467,13 +483,14 @@ def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10):
             J, A = Ja, Aa
         else:
             J[:, act], A[act] = Ja, Aa
+        Ainv[act] = np.nan if Ai is None else Ai
         settled[act], prev[act] = small, size
         act = act[~(small | ~pd)]
         if not act.size:
             break
     r = _norm_resid(p[:, None, :], g.transpose(1, 2, 0))
     settled &= np.all(np.isfinite(p), axis=1) & np.isfinite(r).all(axis=1)
-    return p, settled, r, J, A
+    return p, settled, r, J, A, Ainv
 
 
 def fit9(gf: np.ndarray, noise_g: np.ndarray | None = None, gn_iters: int = 8, loo_iters: int = 1) -> BatchFit:
@@ -487,7 +504,7 @@ def fit9(gf: np.ndarray, noise_g: np.ndarray | None = None, gn_iters: int = 8, l
     p0, ell = _ellipsoid_start(g)
     if not ell.all():
         p0[~ell] = _sphere_start(gf[~ell])
-    p, settled, r, J, A = _gauss_newton(g, p0, gn_iters)
+    p, settled, r, J, A, Ainv = _gauss_newton(g, p0, gn_iters)
     conv = settled.copy()
     lm = np.flatnonzero(~settled)
     if lm.size:  # the damped fit only where Gauss-Newton did not settle, from the sphere start
@@ -497,17 +514,20 @@ def fit9(gf: np.ndarray, noise_g: np.ndarray | None = None, gn_iters: int = 8, l
     p[flip, :6] *= -1
     # r is even in M; the M columns of J change sign, so J^T J changes sign off the M/B diagonal blocks
     J[:6, flip] *= -1
-    A[np.ix_(flip, range(6), range(6, 9))] *= -1
-    A[np.ix_(flip, range(6, 9), range(6))] *= -1
+    for X in (A, Ainv):  # D X D with D = diag(-1 (M), +1 (B)): (D A D)^-1 = D A^-1 D
+        X[np.ix_(flip, range(6), range(6, 9))] *= -1
+        X[np.ix_(flip, range(6, 9), range(6))] *= -1
     if lm.size:
         r[lm], J[:, lm] = _resid_jac(p[lm], g[:, lm])
         A[lm] = _normal(J[:, lm], r[lm])[0]
-    return _finish9(gf, p, conv, noise_g, loo_iters, r, J, A)
+        Ainv[lm] = np.nan
+    return _finish9(gf, p, conv, noise_g, loo_iters, r, J, A, Ainv)
 
 
-def _finish9(gf, p, conv, noise_g, loo_iters, r, J, JtJ) -> BatchFit:
+def _finish9(gf, p, conv, noise_g, loo_iters, r, J, JtJ, Ainv=None) -> BatchFit:
     """Everything gravity_norm.fit_norm_batch reports, from fitted parameters p and the
-    residuals r (D, P), Jacobian J (9, D, P) and J^T J (D, 9, 9) at p."""
+    residuals r (D, P), Jacobian J (9, D, P) and J^T J (D, 9, 9) at p, and (J^T J)^-1 where
+    already computed (rows with NaN, or ``Ainv`` None, are inverted here)."""
     D, P, _ = gf.shape
     M, B = gn._unpack(p)
     ev = np.linalg.eigvalsh(JtJ)
@@ -535,11 +555,12 @@ def _finish9(gf, p, conv, noise_g, loo_iters, r, J, JtJ) -> BatchFit:
     elif P > 9:
         s2 = np.einsum("dp,dp->d", r, r) / (P - 9)
     good = ok & (ev[:, 0] > 0)
-    if good.all():
-        Ainv = np.linalg.inv(JtJ)
-    else:
-        Ainv = np.zeros((D, 9, 9))
-        Ainv[good] = np.linalg.inv(JtJ[good])
+    Ainv = np.full((D, 9, 9), np.nan) if Ainv is None else Ainv
+    need = good & np.isnan(Ainv[:, 0, 0])
+    if need.any():
+        Ainv[need] = np.linalg.inv(JtJ[need])
+    if not good.all():
+        Ainv[~good] = 0.0
     s2z = np.where(np.isfinite(s2), s2, 0.0)
     sW, sV = _propagate9(Ainv, s2z, M, B)
     cv, cv_ok = np.full(D, np.nan), np.zeros(D, dtype=bool)
