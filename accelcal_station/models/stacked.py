@@ -483,7 +483,10 @@ def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10):
             J, A = Ja, Aa
         else:
             J[:, act], A[act] = Ja, Aa
-        Ainv[act] = np.nan if Ai is None else Ai
+        if whole and Ai is not None:
+            Ainv = Ai  # no copy of the block's inverses
+        else:
+            Ainv[act] = np.nan if Ai is None else Ai
         settled[act], prev[act] = small, size
         act = act[~(small | ~pd)]
         if not act.size:
