@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import csv
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -31,10 +30,10 @@ import numpy as np
 from .conventions import an4399_reference, check_units, units_per_g
 from .errors import DataError, UnitsError
 from .posetable import COLUMNS as POSE_COLUMNS
+from .posetable import read_preamble
 
 COLUMNS = ("serial",) + POSE_COLUMNS
 NUMERIC = tuple(c for c in POSE_COLUMNS if c != "pose")
-_META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
 TEMP_TOLERANCE_C = 2.0  # as models.fit_temperature groups poses
 
 
@@ -55,30 +54,19 @@ class LotChunk:
 
 
 def _header(lines_iter, path: Path):
-    meta: dict[str, str] = {}
-    line_no = 0
-    for raw in lines_iter:
-        line_no += 1
-        s = raw.strip()
-        if not s:
-            continue
-        if s.startswith("#"):
-            m = _META_RE.match(s)
-            if m:
-                meta[m.group(1)] = m.group(2)
-            continue
-        header = [c.strip() for c in next(csv.reader([s]))]
-        for c in header:
-            if c not in COLUMNS:
-                raise DataError(f"{path}: line {line_no}: unknown column {c!r}; allowed: {', '.join(COLUMNS)}")
-        if len(set(header)) != len(header):
-            raise DataError(f"{path}: line {line_no}: a column appears twice in the header")
-        for c in ("serial", "pose", "x", "y", "z"):
-            if c not in header:
-                raise DataError(f"{path}: line {line_no}: missing column {c!r}; a lot file needs "
-                                "serial,pose,x,y,z (and pitch_deg,roll_deg or ref_x,ref_y,ref_z for models 6/12/15)")
-        return header, meta, line_no
-    raise DataError(f"{path}: empty: no header line; expected serial,{','.join(POSE_COLUMNS[:6])}")
+    meta, _, index, s = read_preamble(lines_iter, path, f"serial,{','.join(POSE_COLUMNS[:6])}")
+    line_no = index + 1
+    header = [c.strip() for c in next(csv.reader([s]))]
+    for c in header:
+        if c not in COLUMNS:
+            raise DataError(f"{path}: line {line_no}: unknown column {c!r}; allowed: {', '.join(COLUMNS)}")
+    if len(set(header)) != len(header):
+        raise DataError(f"{path}: line {line_no}: a column appears twice in the header")
+    for c in ("serial", "pose", "x", "y", "z"):
+        if c not in header:
+            raise DataError(f"{path}: line {line_no}: missing column {c!r}; a lot file needs "
+                            "serial,pose,x,y,z (and pitch_deg,roll_deg or ref_x,ref_y,ref_z for models 6/12/15)")
+    return header, meta, line_no
 
 
 def _floats(cells: list[str], col: str, lines: np.ndarray, path: Path, bad_rows: dict) -> np.ndarray:

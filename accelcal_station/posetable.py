@@ -24,6 +24,7 @@ import io
 import math
 import re
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
@@ -111,8 +112,10 @@ class _Row:
         return np.array([self.number(c, **kw) for c in cols])
 
 
-def _preamble(path: Path, lines: list[str]) -> tuple[dict[str, str], dict[str, int], int]:
-    """The ``# key: value`` metadata before the header, the line of each, and the header's index."""
+def read_preamble(lines: Iterable[str], path: Path, expected: str) -> tuple[dict[str, str], dict[str, int], int, str]:
+    """The ``# key: value`` metadata before the header, the line number of each, and the
+    header's index and text; ``lines`` may be a stream (a lot file is read on from there).
+    ``expected``: the header's columns, for the error when there is none."""
     meta: dict[str, str] = {}
     meta_line: dict[str, int] = {}
     for i, raw in enumerate(lines):
@@ -125,8 +128,8 @@ def _preamble(path: Path, lines: list[str]) -> tuple[dict[str, str], dict[str, i
                 meta[m.group(1)] = m.group(2)
                 meta_line[m.group(1)] = i + 1
             continue
-        return meta, meta_line, i
-    raise DataError(f"{path}: empty: no header line; expected {','.join(COLUMNS[:6])} (and optional columns)")
+        return meta, meta_line, i, s
+    raise DataError(f"{path}: empty: no header line; expected {expected}")
 
 
 def _header(path: Path, line: str, hline: int) -> list[str]:
@@ -207,7 +210,7 @@ def read_pose_table(path, units: str | None = None, counts_per_g: float | None =
     """
     path = Path(path)
     lines = _read_text(path).splitlines()
-    meta, meta_line, header_at = _preamble(path, lines)
+    meta, meta_line, header_at, _ = read_preamble(lines, path, f"{','.join(COLUMNS[:6])} (and optional columns)")
     hline = header_at + 1
     header = _header(path, lines[header_at], hline)
     units = units if units is not None else meta.get("units", "counts")

@@ -102,6 +102,15 @@ def diagnose_underdetermined(gf: np.ndarray, model: str) -> str:
     return f"the poses do not determine model {model} (the design is numerically singular)"
 
 
+def residual_variance(noise_g, rss: np.ndarray, D: int, P: int, dof: int) -> np.ndarray:
+    """Per-board, per-axis residual variance (D, 3), g^2: the measured noise (std/sqrt(n) per pose)
+    when known, since a few poses' residuals estimate sigma too poorly; else RSS / (P - k); NaN when neither."""
+    if noise_g is not None:
+        nz = np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3))
+        return np.mean(nz**2, axis=1)
+    return rss / dof if dof > 0 else np.full((D, 3), np.nan)
+
+
 def fit_linear_batch(gf: np.ndarray, ref: np.ndarray, model: str, noise_g: np.ndarray | None = None) -> BatchFit:
     """Least-squares fit of model 6, 12 or 15 for a stack of boards (AN4399 Eqn 46).
 
@@ -142,15 +151,7 @@ def fit_linear_batch(gf: np.ndarray, ref: np.ndarray, model: str, noise_g: np.nd
     loo = r / np.where(h < 1.0 - 1e-9, 1.0 - h, 1.0)
     cv_rms = np.where(cv_ok, np.sqrt(np.mean(loo**2, axis=(1, 2))), np.nan)
     cov_unit = Ginv  # (X^T X)^-1
-    # measured noise (std/sqrt(n) per pose) when known: the residuals of a few poses
-    # estimate sigma too poorly to be worth it; otherwise RSS / (P - k)
-    dof = P - k
-    s2 = np.full((D, 3), np.nan)
-    if noise_g is not None:
-        nz = np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3))
-        s2 = np.mean(nz**2, axis=1)
-    elif dof > 0:
-        s2 = rss / dof
+    s2 = residual_variance(noise_g, rss, D, P, P - k)
     se_ok = np.all(np.isfinite(s2), axis=1) & ok
     cov = cov_unit * np.where(np.isfinite(s2), s2, 0.0)[..., None, None]  # (D, 3, k, k)
     se = np.sqrt(np.clip(np.diagonal(cov, axis1=2, axis2=3), 0.0, None))  # (D, 3, k)

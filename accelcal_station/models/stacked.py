@@ -45,7 +45,7 @@ import numpy as np
 
 from ..errors import UnderdeterminedError
 from . import gravity_norm as gn
-from .linear import COND_LIMIT, diagnose_underdetermined, fit_linear_batch, param_names
+from .linear import COND_LIMIT, diagnose_underdetermined, fit_linear_batch, param_names, residual_variance
 from .result import BatchFit
 
 CHECK_COND = 1e5  # above this, extreme eigenvalues are recomputed by LAPACK (rare)
@@ -223,13 +223,7 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
     cv_ok = fit_h.all(axis=0) & ok
     w = 1.0 / np.where(fit_h, 1.0 - h, 1.0) ** 2  # leave-one-out residual r / (1 - h), squared
     cv_rms = np.where(cv_ok, np.sqrt(((r2[0] + r2[1] + r2[2]) * w).sum(axis=0) / (3 * P)), np.nan)
-    dof = P - 4
-    s2 = np.full((D, 3), np.nan)
-    if noise_g is not None:
-        nz = np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3))
-        s2 = np.mean(nz**2, axis=1)
-    elif dof > 0:
-        s2 = rss / dof
+    s2 = residual_variance(noise_g, rss, D, P, P - 4)
     se_ok = np.all(np.isfinite(s2), axis=1) & ok
     s2z = np.where(np.isfinite(s2), s2, 0.0)
     # (X^T X)^-1 of X = [g 1] by the block formula: [[S^-1, -S^-1 xbar], [., 1/P + xbar^T S^-1 xbar]]
