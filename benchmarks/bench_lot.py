@@ -1,6 +1,6 @@
 """A whole lot on one machine: fit rates, end-to-end boards/s and peak memory, in one run.
 
-    python benchmarks/bench_lot.py [--boards 100000] [--boards9 20000] [--rss 100000,1000000] [--small]
+    python benchmarks/bench_lot.py [--boards 100000] [--boards9 100000] [--rss 100000,1000000] [--small]
 
 1. Fits per second per model: the stacked fitters (models/stacked.py, what a lot file
    uses) beside today's batched fitters (models/linear.py fit_linear_batch,
@@ -11,6 +11,8 @@
    the loops run on subsets; rates are per board, so the ratios are like for like.
    The stacked rate is the best of --repeats runs (other processes on a shared machine
    only slow a run down); the target column is the issue's goal on a 2-core machine.
+   Then model 9 blocks in one thread in two fresh processes, with glibc's default heap
+   thresholds and with those fit_stacked sets (heap.py): fits/s and page faults per block.
 2. End-to-end boards/s, model 12: a lot file (CSV) to one results CSV; pose-table
    files to calibration JSONs + a summary CSV (today's path); runs in an SQLite
    results store to recalibration events in it.
@@ -85,6 +87,41 @@ def fit_rates(n: int, n9: int, n_today9: int, n_loop: int, repeats: int = 3) -> 
                 if model in TARGET else "")
         print(f"   {model:5} {r_new:12,.0f} {r_old:12,.0f} {r_loop:10,.0f} {r_new / r_old:14.1f} {r_new / r_loop:13.0f}"
               f" {goal}".rstrip())
+
+
+HEAP_HELPER = """
+import resource, sys, time
+import numpy as np
+from accelcal_station.fixtures.designs import get_design, references
+from accelcal_station.heap import keep_block_memory
+from accelcal_station.models.stacked import BLOCK
+from accelcal_station.models.stacked_norm import fit9
+sys.path.insert(0, sys.argv[2])
+from bench_lot import boards
+if sys.argv[1] == "kept":
+    keep_block_memory()
+n, blocks = BLOCK["9"], 6
+x = boards(n, references(get_design("optimal-12")), seed=1)
+fit9(x)
+r0, t0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt, time.perf_counter()
+for _ in range(blocks):
+    fit9(x)
+dt, faults = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - r0
+print(n * blocks / dt, faults / blocks)
+"""
+
+
+def heap_effect() -> None:
+    """Model 9 blocks in one thread, in a fresh process with glibc's default heap thresholds
+    and in one with heap.keep_block_memory (what fit_stacked sets)."""
+    print("   model 9, one thread, blocks of BLOCK['9'] boards in a fresh process (glibc heap defaults / kept):")
+    got = {}
+    for mode in ("default", "kept"):
+        out = subprocess.run([sys.executable, "-c", HEAP_HELPER, mode, str(Path(__file__).parent)],
+                             capture_output=True, text=True).stdout.split()
+        got[mode] = (float(out[0]), float(out[1])) if len(out) == 2 else (float("nan"), float("nan"))
+    (r0, f0), (r1, f1) = got["default"], got["kept"]
+    print(f"   {r0:10,.0f} -> {r1:10,.0f} fits/s ({r1 / r0:.2f}x); page faults per block {f0:,.0f} -> {f1:,.0f}")
 
 
 def _sessions(n: int) -> list[Session]:
@@ -165,7 +202,7 @@ def peak_rss(work: Path, sizes: list[int]) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--boards", type=int, default=100_000)
-    ap.add_argument("--boards9", type=int, default=20_000)
+    ap.add_argument("--boards9", type=int, default=100_000)
     ap.add_argument("--today9", type=int, default=2_000)
     ap.add_argument("--loop-boards", type=int, default=300)
     ap.add_argument("--lot-boards", type=int, default=100_000)
@@ -181,6 +218,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"bench_lot: {os.cpu_count()} CPU(s), numpy {np.__version__}, load average at start "
           f"{os.getloadavg()[0]:.1f} (other processes on the machine)")
     fit_rates(a.boards, a.boards9, a.today9, a.loop_boards, a.repeats)
+    heap_effect()
     with tempfile.TemporaryDirectory(prefix="accelcal-bench-lot-") as d:
         end_to_end(Path(d), a.lot_boards, a.files)
         peak_rss(Path(d), sizes)

@@ -150,6 +150,8 @@ def test_bench_lot_prints_every_figure(capsys):
     assert [r[6] for r in rates] == ["", "1,000,000", "", "100,000"]  # the targets, per model
     assert len(re.findall(r"boards/s", out)) >= 5 and "10,000,000 boards extrapolated" in out
     assert len(re.findall(r"peak RSS\s+\d+ MB", out)) == 2
+    heap = re.search(r"([\d,]+) -> +([\d,]+) fits/s \(([\d.]+)x\); page faults per block ([\d,]+) -> ([\d,]+)", out)
+    assert heap and all(float(v.replace(",", "")) >= 0 for v in heap.groups())
 
 
 def test_thermal_time_split(capsys):

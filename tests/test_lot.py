@@ -72,7 +72,7 @@ def test_stacked_model9_matches_todays_fitter(noise_g, cv_rtol):
     both = a.crossval_ok & b.crossval_ok
     assert both.sum() >= 390
     # leave-one-out: the stacked fitter's one Gauss-Newton step from the full fit (leverage,
-    # stacked._loo9) against today's damped refits to convergence; the gap is second order
+    # stacked_norm._loo9) against today's damped refits to convergence; the gap is second order
     # in the step, so it grows with the noise (seen: 0.10 % at 1 mg, 1.2 % at 10 mg)
     np.testing.assert_allclose(b.crossval_rms_g[both], a.crossval_rms_g[both], rtol=cv_rtol, atol=0)
 
@@ -253,7 +253,7 @@ def test_model9_lot_matches_todays_fitter(tmp_path):
 def test_model9_ellipsoid_start_is_exact_on_an_exact_ellipsoid():
     # readings exactly on |M (v - B)| = 1 (M symmetric positive definite, not near identity):
     # the algebraic fit and the Newton square root recover M and B; the sphere start cannot
-    from accelcal_station.models import stacked
+    from accelcal_station.models import stacked_norm
     rng = np.random.default_rng(11)
     D, P = 50, 12
     K = np.eye(3) + rng.normal(0, 0.05, (D, 3, 3))
@@ -261,9 +261,10 @@ def test_model9_ellipsoid_start_is_exact_on_an_exact_ellipsoid():
     B = rng.normal(0, 0.05, (D, 3))
     u = references(get_design("optimal-12"))  # unit gravity vectors
     v = np.einsum("dij,pj->dpi", np.linalg.inv(M), u) + B[:, None, :]
-    p0, ok = stacked._ellipsoid_start(np.ascontiguousarray(v.transpose(2, 0, 1)))
+    p0, ok = stacked_norm._ellipsoid_start(np.ascontiguousarray(v.transpose(2, 1, 0)))
+    p0 = p0.T
     assert ok.all()
     np.testing.assert_allclose(p0[:, [0, 1, 2]], M[:, [0, 1, 2], [0, 1, 2]], atol=1e-10)
     np.testing.assert_allclose(p0[:, [3, 4, 5]], M[:, [0, 0, 1], [1, 2, 2]], atol=1e-10)
     np.testing.assert_allclose(p0[:, 6:], B, atol=1e-10)
-    assert np.abs(stacked._sphere_start(v)[:, 6:] - B).max() > 1e-4
+    assert np.abs(stacked_norm._sphere_start(v)[:, 6:] - B).max() > 1e-4

@@ -93,6 +93,17 @@ class FitResult:
         }
 
 
+class LazyCovariance:
+    """A (D, ...) covariance stored as a few arrays and formed per board on indexing (the
+    stacked fitters' BatchFit.covariance); the arrays are named in ``_fields``, which the
+    lot assembler copies."""
+
+    _fields: tuple[str, ...] = ()
+
+    def __len__(self) -> int:
+        return len(getattr(self, self._fields[0]))
+
+
 @dataclass
 class BatchFit:
     """Stacked fits of D boards; ``ok[d]`` False marks a board that could not be fitted."""
