@@ -212,7 +212,10 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
         ok=ok, messages=messages, readings_g=gf)
 
 
-BLOCK = {"12": 8192, "9": 8192, "6": 1 << 40, "15": 1 << 40}  # boards per call: the working set stays in cache
+# Boards per call.  Model 12's working set stays in cache.  Model 9 makes ~1,500 numpy calls per
+# block whatever its size, and two threads hand the GIL over at each: at 8192 boards a call
+# works long enough that two threads fit 1.5x one (at 2048, 1.2x; bench_lot.py).
+BLOCK = {"12": 8192, "9": 8192, "6": 1 << 40, "15": 1 << 40}
 
 
 class _Assembler:

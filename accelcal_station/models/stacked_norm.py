@@ -226,7 +226,7 @@ def fit9(gf: np.ndarray, noise_g: np.ndarray | None = None, gn_iters: int = 8) -
     if flip.size:  # |M u| = |-M u|: keep the positive-definite branch, as gravity_norm does
         _flip_branch(p, lin, flip)
     if lm.size:
-        r_lm, J_lm = _resid_jac(p[:, lm], g[:, :, lm])
+        _, J_lm = _resid_jac(p[:, lm], g[:, :, lm])
         A_lm = _normal(J_lm)
         lin.put(lm, J_lm, A_lm, bw.cholesky(A_lm))
     return _finish9(gf, g, p, conv, noise_g, lin)
