@@ -342,7 +342,7 @@ def board_arrays(chunk: LotChunk, model: str):
             boards = np.searchsorted(starts, first, side="right") - 1
             for r, b in zip(first[::-1], boards[::-1]):  # reversed: the first bad row of a board wins
                 if chunk.bad[b] is None:
-                    reasons[b] = f"pose {chunk.names[r]!r}: {what}"
+                    reasons[b] = f"pose {str(chunk.names[r])!r}: {what}"
     if "temp_c" in c:
         t = c["temp_c"]
         have = np.isfinite(t)
