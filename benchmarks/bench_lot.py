@@ -11,8 +11,8 @@
    the loops run on subsets; rates are per board, so the ratios are like for like.
    The stacked rate is the best of --repeats runs (other processes on a shared machine
    only slow a run down); the target column is the issue's goal on a 2-core machine.
-   Then model 9 blocks in one thread in two fresh processes, with glibc's default heap
-   thresholds and with those fit_stacked sets (heap.py): fits/s and page faults per block.
+   Then blocks of models 9 and 12 in one thread in fresh processes, with glibc's default
+   heap thresholds and with those fit_stacked sets (heap.py): fits/s and page faults per block.
 2. End-to-end boards/s, model 12: a lot file (CSV) to one results CSV; pose-table
    files to calibration JSONs + a summary CSV (today's path); runs in an SQLite
    results store to recalibration events in it.
@@ -94,34 +94,39 @@ import resource, sys, time
 import numpy as np
 from accelcal_station.fixtures.designs import get_design, references
 from accelcal_station.heap import keep_block_memory
-from accelcal_station.models.stacked import BLOCK
+from accelcal_station.models.stacked import BLOCK, fit12
 from accelcal_station.models.stacked_norm import fit9
-sys.path.insert(0, sys.argv[2])
+sys.path.insert(0, sys.argv[3])
 from bench_lot import boards
 if sys.argv[1] == "kept":
     keep_block_memory()
-n, blocks = BLOCK["9"], 6
-x = boards(n, references(get_design("optimal-12")), seed=1)
-fit9(x)
+model = sys.argv[2]
+ref = references(get_design("optimal-12" if model == "9" else "an4399-8"))
+n, blocks = BLOCK[model], 6 if model == "9" else 60
+x = boards(n, ref, seed=1)
+run = (lambda: fit9(x)) if model == "9" else (lambda: fit12(x, ref))
+run()
 r0, t0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt, time.perf_counter()
 for _ in range(blocks):
-    fit9(x)
+    run()
 dt, faults = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - r0
 print(n * blocks / dt, faults / blocks)
 """
 
 
 def heap_effect() -> None:
-    """Model 9 blocks in one thread, in a fresh process with glibc's default heap thresholds
-    and in one with heap.keep_block_memory (what fit_stacked sets)."""
-    print("   model 9, one thread, blocks of BLOCK['9'] boards in a fresh process (glibc heap defaults / kept):")
-    got = {}
-    for mode in ("default", "kept"):
-        out = subprocess.run([sys.executable, "-c", HEAP_HELPER, mode, str(Path(__file__).parent)],
-                             capture_output=True, text=True).stdout.split()
-        got[mode] = (float(out[0]), float(out[1])) if len(out) == 2 else (float("nan"), float("nan"))
-    (r0, f0), (r1, f1) = got["default"], got["kept"]
-    print(f"   {r0:10,.0f} -> {r1:10,.0f} fits/s ({r1 / r0:.2f}x); page faults per block {f0:,.0f} -> {f1:,.0f}")
+    """Blocks of models 9 and 12 in one thread, in a fresh process with glibc's default heap
+    thresholds and in one with heap.keep_block_memory (what fit_stacked sets)."""
+    print("   one thread, blocks of BLOCK[model] boards in a fresh process (glibc heap defaults -> kept):")
+    for model in ("9", "12"):
+        got = {}
+        for mode in ("default", "kept"):
+            out = subprocess.run([sys.executable, "-c", HEAP_HELPER, mode, model, str(Path(__file__).parent)],
+                                 capture_output=True, text=True).stdout.split()
+            got[mode] = (float(out[0]), float(out[1])) if len(out) == 2 else (float("nan"), float("nan"))
+        (r0, f0), (r1, f1) = got["default"], got["kept"]
+        print(f"   model {model:2} {r0:10,.0f} -> {r1:10,.0f} fits/s ({r1 / r0:.2f}x); page faults per block "
+              f"{f0:,.0f} -> {f1:,.0f}")
 
 
 def _sessions(n: int) -> list[Session]:

@@ -150,8 +150,10 @@ def test_bench_lot_prints_every_figure(capsys):
     assert [r[6] for r in rates] == ["", "1,000,000", "", "100,000"]  # the targets, per model
     assert len(re.findall(r"boards/s", out)) >= 5 and "10,000,000 boards extrapolated" in out
     assert len(re.findall(r"peak RSS\s+\d+ MB", out)) == 2
-    heap = re.search(r"([\d,]+) -> +([\d,]+) fits/s \(([\d.]+)x\); page faults per block ([\d,]+) -> ([\d,]+)", out)
-    assert heap and all(float(v.replace(",", "")) >= 0 for v in heap.groups())
+    heap = re.findall(r"model (9|12) +([\d,]+) -> +([\d,]+) fits/s \(([\d.]+)x\); page faults per block "
+                      r"([\d,]+) -> ([\d,]+)", out)
+    assert [h[0] for h in heap] == ["9", "12"]
+    assert all(float(v.replace(",", "")) >= 0 for h in heap for v in h[1:])
 
 
 def test_thermal_time_split(capsys):
