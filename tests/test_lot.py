@@ -78,6 +78,20 @@ def test_stacked_model9_matches_todays_fitter(noise_g, cv_rtol):
     np.testing.assert_allclose(b.crossval_rms_g[both], a.crossval_rms_g[both], rtol=cv_rtol, atol=0)
 
 
+@pytest.mark.parametrize("P", [10, 11])
+def test_stacked_model9_leave_one_out_holds_with_few_poses(P):
+    # 10 or 11 random poses: leverages near 1, where one Gauss-Newton step from the full fit
+    # misses the held-out fit by up to several times the RMS (seen before the refits: 657 %
+    # at the 99th percentile for 10 poses); those held-out fits are refitted to convergence
+    rng = np.random.default_rng(P)
+    v = rng.normal(size=(P, 3))
+    x = _boards(300, v / np.linalg.norm(v, axis=1, keepdims=True), seed=3)
+    a, b = fit_norm_batch(x), fit_stacked(x, None, "9")
+    both = a.crossval_ok & b.crossval_ok
+    assert both.sum() >= 200
+    np.testing.assert_allclose(b.crossval_rms_g[both], a.crossval_rms_g[both], rtol=1e-2, atol=0)
+
+
 @pytest.mark.parametrize("model,design", [("12", "an4399-8"), ("9", "optimal-12")])
 def test_stacked_threads_give_the_single_thread_result(model, design, monkeypatch):
     # blocks of 64 boards, so 700 boards are 11 blocks spread over the threads and assembled
