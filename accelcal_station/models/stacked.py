@@ -212,10 +212,12 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
         ok=ok, messages=messages, readings_g=gf)
 
 
-# Boards per call.  Model 12's working set stays in cache.  Model 9 makes ~1,500 numpy calls per
-# block whatever its size, and two threads hand the GIL over at each: at 8192 boards a call
-# works long enough that two threads fit 1.5x one (at 2048, 1.2x; bench_lot.py).
-BLOCK = {"12": 8192, "9": 8192, "6": 1 << 40, "15": 1 << 40}
+# Boards per call.  A block makes the same numpy calls whatever its size, and two threads hand
+# the GIL over at each, so longer calls let two threads do more; too long and the working set
+# leaves the cache.  Model 9 (~1,500 calls): two threads fit 1.5x one at 8192 boards, 1.2x at
+# 2048.  Model 12, two threads at 100k boards, four alternating rounds: 1.02-1.19 M fits/s at
+# 8192, 1.10-1.28 M at 16384, 0.80-0.88 M at 25000.
+BLOCK = {"12": 16384, "9": 8192, "6": 1 << 40, "15": 1 << 40}
 
 
 class _Assembler:
