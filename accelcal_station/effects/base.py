@@ -9,6 +9,7 @@ StochasticEffect, so adding an effect is one file plus its entry in effects/__in
 """
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
@@ -75,7 +76,7 @@ class DeterministicEffect:
         return None  # never judged by a variance signature
 
 
-class StochasticEffect:
+class StochasticEffect(ABC):
     """A change of the residuals' variance only: judged by ``signature``, never by the headline gap."""
 
     name = ""
@@ -89,6 +90,7 @@ class StochasticEffect:
     def testable(self, data: "GapData", td: "TimeData | None") -> tuple[bool, str]:
         return True, ""
 
+    @abstractmethod
     def signature(self, data: "GapData", floor: "Floor", ev: "Evaluation", td: "TimeData | None",
                   alpha: float) -> Signature:
-        raise NotImplementedError
+        """The effect's signature test on the held-out residuals (each stochastic effect has its own)."""
