@@ -110,11 +110,18 @@ def _ellipsoid_start(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return p, ok
 
 
-def _calibrated(p: np.ndarray, g: np.ndarray) -> list[np.ndarray]:
-    """a = M (v - B) per axis, each (P, N), for parameters p (9, N) (or (9, P, N)) and g (3, P, N)."""
-    u = [g[i] - p[6 + i] for i in range(3)]
+_M_AT = ((0, 3, 4), (3, 1, 5), (4, 5, 2))  # the parameter of M[a][b] (M_xx M_yy M_zz M_xy M_xz M_yz)
+
+
+def _times_m(p: np.ndarray, u: list[np.ndarray]) -> list[np.ndarray]:
+    """M u per axis for the symmetric M of parameters p (9, N) (or (9, P, N))."""
     return [p[0] * u[0] + p[3] * u[1] + p[4] * u[2], p[3] * u[0] + p[1] * u[1] + p[5] * u[2],
             p[4] * u[0] + p[5] * u[1] + p[2] * u[2]]
+
+
+def _calibrated(p: np.ndarray, g: np.ndarray) -> list[np.ndarray]:
+    """a = M (v - B) per axis, each (P, N), for parameters p (9, N) (or (9, P, N)) and g (3, P, N)."""
+    return _times_m(p, [g[i] - p[6 + i] for i in range(3)])
 
 
 def _norm(a: list[np.ndarray]) -> np.ndarray:
@@ -124,7 +131,7 @@ def _norm(a: list[np.ndarray]) -> np.ndarray:
 def _resid_jac(p: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """r (P, N) and J (9, P, N) of r_i = |M (v_i - B)| - 1 (gravity_norm._residual_jacobian)."""
     u = [g[i] - p[6 + i] for i in range(3)]
-    a = _calibrated(p, g)
+    a = _times_m(p, u)
     n = _norm(a)
     inv = 1.0 / np.maximum(n, 1e-300)
     ah = [ai * inv for ai in a]
@@ -135,9 +142,8 @@ def _resid_jac(p: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     J[3] = ah[0] * u[1] + ah[1] * u[0]
     J[4] = ah[0] * u[2] + ah[2] * u[0]
     J[5] = ah[1] * u[2] + ah[2] * u[1]
-    M = ((0, 3, 4), (3, 1, 5), (4, 5, 2))
     for j in range(3):
-        J[6 + j] = -(ah[0] * p[M[0][j]] + ah[1] * p[M[1][j]] + ah[2] * p[M[2][j]])
+        J[6 + j] = -(ah[0] * p[_M_AT[0][j]] + ah[1] * p[_M_AT[1][j]] + ah[2] * p[_M_AT[2][j]])
     return n - 1.0, J
 
 
@@ -371,10 +377,9 @@ def _propagate9(Ainv: np.ndarray, s2: np.ndarray, p: np.ndarray) -> tuple[np.nda
         Gv[a, j] -= p[6 + b]
         if a != b:
             Gv[b, j] -= p[6 + a]
-    M = ((0, 3, 4), (3, 1, 5), (4, 5, 2))
     for a in range(3):
         for b in range(3):
-            Gv[a, 6 + b] = -p[M[a][b]]
+            Gv[a, 6 + b] = -p[_M_AT[a][b]]
     var_p = np.einsum("kkn->kn", Ainv)[_W_OF_P] * s2
     sW = np.sqrt(np.clip(var_p, 0, None)).T.reshape(N, 3, 3)
     var_v = np.einsum("akn,akn->an", np.einsum("akn,kln->aln", Gv, Ainv), Gv) * s2
