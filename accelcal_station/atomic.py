@@ -7,12 +7,15 @@ keeps its permission bits.  Errors are OSError with a strerror that says why.
 """
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import stat
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
+
+from .errors import DataError
 
 
 def check_target(path: str | Path) -> int | None:
@@ -60,8 +63,14 @@ def atomic_write(path: str | Path, data: bytes | str | Callable[[str], None]) ->
     except BaseException:
         if fd >= 0:
             os.close(fd)
-        try:
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
-        except FileNotFoundError:
-            pass
         raise
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """``atomic_write`` for the commands' own outputs: a failure is one DataError line naming the file."""
+    try:
+        atomic_write(path, text)
+    except OSError as e:
+        raise DataError(f"{path}: cannot write ({e.strerror or e})") from None

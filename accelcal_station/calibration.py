@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .conventions import check_units, units_per_g
 from .errors import DataError, TemperatureRangeError, UnitsError
@@ -23,7 +24,7 @@ SCHEMA_VERSION = 1
 MODELS = ("6", "9", "12", "15")
 
 
-@dataclass
+@dataclass(init=False)
 class TemperatureTable:
     """Per-temperature AN4399 coefficients and how to interpolate them (AN4399 Eqns 83-92).
 
@@ -37,13 +38,14 @@ class TemperatureTable:
     Gamma: np.ndarray  # (K, 3)
     method: str = "linear"
 
-    def __post_init__(self) -> None:
-        self.temps_c = np.asarray(self.temps_c, dtype=float)
-        order = np.argsort(self.temps_c)
-        self.temps_c = self.temps_c[order]
-        self.W = np.asarray(self.W, dtype=float)[order]
-        self.V = np.asarray(self.V, dtype=float)[order]
-        self.Gamma = np.asarray(self.Gamma, dtype=float)[order]
+    def __init__(self, temps_c: ArrayLike, W: ArrayLike, V: ArrayLike, Gamma: ArrayLike, method: str = "linear"):
+        temps = np.asarray(temps_c, dtype=float)
+        order = np.argsort(temps)
+        self.temps_c = temps[order]
+        self.W = np.asarray(W, dtype=float)[order]
+        self.V = np.asarray(V, dtype=float)[order]
+        self.Gamma = np.asarray(Gamma, dtype=float)[order]
+        self.method = method
         if self.method not in ("linear", "quadratic"):
             raise DataError(f"temperature method {self.method!r}; allowed: linear, quadratic")
         k = len(self.temps_c)
@@ -61,7 +63,7 @@ class TemperatureTable:
     def _params(self) -> np.ndarray:
         return np.concatenate([self.W.reshape(len(self.temps_c), 9), self.V, self.Gamma], axis=1)
 
-    def interpolate(self, temp_c, extrapolate: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def interpolate(self, temp_c: ArrayLike, extrapolate: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """W, V, Gamma at each temperature; shapes (..., 3, 3), (..., 3), (..., 3)."""
         t = np.asarray(temp_c, dtype=float)
         if not np.all(np.isfinite(t)):
@@ -92,7 +94,7 @@ class TemperatureTable:
         W = out[..., :9].reshape(t.shape + (3, 3))
         return W, out[..., 9:12], out[..., 12:15]
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "method": self.method,
             "temps_c": self.temps_c.tolist(),
@@ -102,11 +104,11 @@ class TemperatureTable:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "TemperatureTable":
+    def from_dict(cls, d: dict[str, Any]) -> TemperatureTable:
         return cls(d["temps_c"], d["W"], d["V"], d["Gamma"], d.get("method", "linear"))
 
 
-def quadratic_coefficients(temps_c, values) -> np.ndarray:
+def quadratic_coefficients(temps_c: ArrayLike, values: ArrayLike) -> np.ndarray:
     """alpha, beta, gamma with ``value(T) = alpha + beta T + gamma T^2`` (AN4399 Eqns 83-92).
 
     Exact through three temperatures; least squares through more.  ``values`` has
@@ -151,14 +153,15 @@ class Calibration:
             raise DataError(f"input_per_g {self.input_per_g} must be positive")
 
     @classmethod
-    def identity(cls, input_units: str = "g", input_per_g: float = 1.0) -> "Calibration":
+    def identity(cls, input_units: str = "g", input_per_g: float = 1.0) -> Calibration:
         return cls("12", np.eye(3), np.zeros(3), np.zeros(3), input_units, input_per_g)
 
     @property
     def counts_per_g(self) -> float | None:
         return self.input_per_g if self.input_units == "counts" else None
 
-    def coefficients(self, temp_c=None, extrapolate: bool = False):
+    def coefficients(self, temp_c: ArrayLike | None = None, extrapolate: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """W, V, Gamma (at ``temp_c`` when the calibration has a temperature table)."""
         if self.temperature is None:
             return self.W, self.V, self.Gamma
@@ -168,8 +171,9 @@ class Calibration:
             )
         return self.temperature.interpolate(temp_c, extrapolate=extrapolate)
 
-    def apply(self, values, units: str, *, counts_per_g: float | None = None,
-              gravity_mps2: float | None = None, temp_c=None, extrapolate: bool = False) -> np.ndarray:
+    def apply(self, values: ArrayLike, units: str, *, counts_per_g: float | None = None,
+              gravity_mps2: float | None = None, temp_c: ArrayLike | None = None,
+              extrapolate: bool = False) -> np.ndarray:
         """Calibrated specific force in g of readings ``values`` (..., 3) in ``units``.
 
         ``units`` is required: the calibration refuses to guess.  Counts use the
@@ -186,7 +190,7 @@ class Calibration:
         if units == "counts":
             own = self.counts_per_g
             if counts_per_g is None and own is None:
-                raise UnitsError("calibration was fitted in %s; counts need counts_per_g" % self.input_units)
+                raise UnitsError(f"calibration was fitted in {self.input_units}; counts need counts_per_g")
             if counts_per_g is not None and own is not None and not np.isclose(counts_per_g, own):
                 raise UnitsError(
                     f"calibration was fitted at {own:g} counts/g; data given at {counts_per_g:g} counts/g"
@@ -202,7 +206,7 @@ class Calibration:
         return np.einsum("...ij,...j->...i", W, gf) + V + G * gf**3
 
     # -- versioned JSON (imucal style) -------------------------------------------------
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "schema": SCHEMA,
             "version": SCHEMA_VERSION,
@@ -217,7 +221,7 @@ class Calibration:
         }
 
     @classmethod
-    def from_dict(cls, d: dict, source: str = "calibration") -> "Calibration":
+    def from_dict(cls, d: dict[str, Any], source: str = "calibration") -> Calibration:
         if not isinstance(d, dict) or d.get("schema") != SCHEMA:
             raise DataError(f"{source}: not an accelcal calibration (missing schema {SCHEMA!r})")
         v = d.get("version")
@@ -236,14 +240,14 @@ class Calibration:
         except (TypeError, ValueError) as e:
             raise DataError(f"{source}: malformed calibration ({e})") from None
 
-    def save(self, path) -> None:
+    def save(self, path: str | Path) -> None:
         """Write JSON atomically (temporary file then rename): never a half-written file."""
-        from .posetable import atomic_write_text
+        from .atomic import atomic_write_text
 
         atomic_write_text(Path(path), json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
-    def load(cls, path) -> "Calibration":
+    def load(cls, path: str | Path) -> Calibration:
         path = Path(path)
         try:
             d = json.loads(path.read_text())
@@ -252,3 +256,13 @@ class Calibration:
         except json.JSONDecodeError as e:
             raise DataError(f"{path}: not JSON (line {e.lineno}: {e.msg})") from None
         return cls.from_dict(d, str(path))
+
+
+PARAM_NAMES = ([f"W{i}{j}" for i in range(3) for j in range(3)] + [f"V{i}" for i in range(3)]
+               + [f"Gamma{i}" for i in range(3)])
+
+
+def param_vector(cal: dict[str, Any]) -> np.ndarray:
+    """W (row major), V, Gamma of a calibration dict as 15 numbers, PARAM_NAMES order."""
+    return np.concatenate([np.asarray(cal["W"], float).ravel(), np.asarray(cal["V"], float),
+                           np.asarray(cal.get("Gamma", [0, 0, 0]), float)])

@@ -14,6 +14,7 @@ convention, "the axis pointing up reads +1 g", is given as explicit expected out
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .errors import UnitsError
 
@@ -21,7 +22,7 @@ STANDARD_GRAVITY_MPS2 = 9.80665
 UNITS = ("counts", "g", "mps2")
 
 
-def an4399_reference(pitch_deg, roll_deg) -> np.ndarray:
+def an4399_reference(pitch_deg: ArrayLike, roll_deg: ArrayLike) -> np.ndarray:
     """Expected output in g for AN4399 pitch/roll (AN4399 Eqn 22, z down).
 
     Vectorised: returns shape ``broadcast(pitch, roll).shape + (3,)``.
@@ -32,7 +33,7 @@ def an4399_reference(pitch_deg, roll_deg) -> np.ndarray:
     return np.stack([-np.sin(theta), np.cos(theta) * np.sin(phi), np.cos(theta) * np.cos(phi)], axis=-1)
 
 
-def reference_to_angles(ref_g) -> tuple[np.ndarray, np.ndarray]:
+def reference_to_angles(ref_g: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Pitch and roll in degrees (AN4399 Eqns 25-26) of a unit expected output."""
     ref = np.asarray(ref_g, dtype=float)
     ref = ref / np.linalg.norm(ref, axis=-1, keepdims=True)
@@ -63,3 +64,27 @@ def units_per_g(units: str, counts_per_g: float | None = None, gravity_mps2: flo
     if not np.isfinite(c) or c <= 0:
         raise UnitsError(f"counts_per_g {counts_per_g} must be a positive number")
     return c
+
+
+FACES = {  # expected output (positive along gravity) -> operator words
+    (0, 0, 1): "z+ down: board flat, component side up",
+    (0, 0, -1): "z- down: board upside down, component side down",
+    (1, 0, 0): "x+ down: standing on its +x edge",
+    (-1, 0, 0): "x- down: standing on its -x edge",
+    (0, 1, 0): "y+ down: standing on its +y edge",
+    (0, -1, 0): "y- down: standing on its -y edge",
+}
+
+
+def nearest_face(direction: ArrayLike) -> str:
+    """The face (of six) closest to a measured output direction, in operator words."""
+    d = np.asarray(direction, dtype=float)
+    keys = np.array(list(FACES))
+    return FACES[tuple(keys[int(np.argmax(keys @ d))])]
+
+
+def angle_deg(a: ArrayLike, b: ArrayLike) -> float:
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    c = a @ b / (np.linalg.norm(a) * np.linalg.norm(b))
+    return float(np.rad2deg(np.arccos(np.clip(c, -1.0, 1.0))))

@@ -25,8 +25,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .errors import UnderdeterminedError
 
@@ -108,7 +110,7 @@ def _rel_sv(X: np.ndarray, first: np.ndarray) -> np.ndarray:
     return np.min(s[..., -1] / np.maximum(s[..., 0], 1e-300), axis=-1)
 
 
-def assess_batch(gf, model: str) -> tuple[np.ndarray, np.ndarray]:
+def assess_batch(gf: ArrayLike, model: str) -> tuple[np.ndarray, np.ndarray]:
     """Vectorised check of D boards: (determined (D,) bool, distinct orientations (D,) int).
 
     gf: (D, P, 3) uncalibrated readings in (about) g.  ``assess`` says why a board fails.
@@ -145,7 +147,7 @@ def _alignment(gf: np.ndarray) -> str | None:
 def _reason(gf: np.ndarray, model: str, distinct: int, first: np.ndarray) -> str:
     P, k = len(gf), COEFFS[model]
     seen = f"{distinct} distinct orientation{'s' if distinct != 1 else ''}" + \
-        (f" among {P} poses (revisits add no information)" if P > distinct else "")
+        (f" among {P} poses (revisits add no information)" if distinct < P else "")
     if model == "9":
         if distinct < 9:
             return f"{seen}; the 9-parameter norm model needs at least 9 well spread"
@@ -180,7 +182,7 @@ def _reason(gf: np.ndarray, model: str, distinct: int, first: np.ndarray) -> str
     return f"the {seen} do not determine model {model} (two coefficients move together); add poses in other directions"
 
 
-def assess(gf, model: str) -> Identifiability:
+def assess(gf: ArrayLike, model: str) -> Identifiability:
     """One board: readings (P, 3) in about g (see ``assess_batch``)."""
     gf = np.asarray(gf, dtype=float)
     model = str(model)
@@ -190,7 +192,7 @@ def assess(gf, model: str) -> Identifiability:
     return Identifiability(model, len(gf), d, COEFFS[model], bool(ok[0]), reason)
 
 
-def require(gf, model: str) -> Identifiability:
+def require(gf: ArrayLike, model: str) -> Identifiability:
     """``assess`` that raises UnderdeterminedError with the reason when the model is not determined."""
     a = assess(gf, model)
     if not a.determined:
@@ -224,12 +226,12 @@ def worst_parameter(stderr: dict[str, np.ndarray] | None, model: str) -> tuple[s
     return name, text
 
 
-def describe_terms(A: np.ndarray, labels: list, ideal: np.ndarray) -> dict:
+def describe_terms(A: np.ndarray, labels: list[tuple[str, str]], ideal: np.ndarray) -> dict[str, Any]:
     """Distinct orientations of ``ideal`` (P, 3), relative singular values of the column-scaled
     design ``A`` (..., n_terms) whose columns are ``labels`` ((effect, detail) pairs), and which
     terms are confounded; the text says it in words (diagnose's untestable reasons)."""
     n_or = int(first_of_orientation(ideal[None])[0].sum())
-    out = {"distinct_orientations": n_or, "poses": len(ideal), "parameters": len(labels)}
+    out: dict[str, Any] = {"distinct_orientations": n_or, "poses": len(ideal), "parameters": len(labels)}
     if not labels:
         return {**out, "text": f"{n_or} distinct orientations; no fitted terms"}
     M = A.reshape(-1, A.shape[-1])
@@ -245,7 +247,7 @@ def describe_terms(A: np.ndarray, labels: list, ideal: np.ndarray) -> dict:
     groups = []
     for k in bad:
         v = np.abs(Vt[k]) / np.max(np.abs(Vt[k]))
-        groups.append([f"{e} {d}" for (e, d), x in zip(labels, v) if x > 0.2])
+        groups.append([f"{e} {d}" for (e, d), x in zip(labels, v, strict=True) if x > 0.2])
     out["confounded"] = groups
     out["text"] = (f"{n_or} distinct orientations cannot determine {len(bad)} combination(s) of the "
                    f"{len(labels)} terms: " + "; ".join(" with ".join(g) for g in groups)

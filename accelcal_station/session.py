@@ -5,6 +5,7 @@ stay in their input units (usually counts) with the scale that turns them into g
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -87,9 +88,12 @@ class Session:
 
     def noise(self) -> np.ndarray | None:
         """(P, 3) standard error of each pose mean in the session's units, when std and n are known."""
-        if not self.poses or not all(p.std is not None and p.n for p in self.poses):
-            return None
-        return np.array([p.std / np.sqrt(p.n) for p in self.poses])
+        se = []
+        for p in self.poses:
+            if p.std is None or not p.n:
+                return None
+            se.append(p.std / np.sqrt(p.n))
+        return np.array(se) if se else None
 
     def noise_g(self) -> np.ndarray | None:
         """(P, 3) standard error of each pose mean in g, when std and n are known."""
@@ -102,7 +106,7 @@ class Session:
             return None
         return np.array([p.temp_c for p in self.poses], dtype=float)
 
-    def by_temperature(self, tolerance_c: float = 2.0) -> list[tuple[float, "Session"]]:
+    def by_temperature(self, tolerance_c: float = 2.0) -> list[tuple[float, Session]]:
         """Split into sessions of nearly equal temperature (clusters within tolerance)."""
         t = self.temps_c
         if t is None:
@@ -121,6 +125,6 @@ class Session:
             out.append((float(np.mean(t[g])), sub))
         return out
 
-    def subset(self, idx) -> "Session":
+    def subset(self, idx: Iterable[int]) -> Session:
         return Session([self.poses[i] for i in idx], self.units, self.counts_per_g, self.gravity_mps2,
                        self.device, dict(self.metadata))

@@ -26,13 +26,25 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import (CLASS_EFFECTS, angle_deg, apply_an4399, design_refs, make_boards, measure,  # noqa: E402
-                    params_by_name, random_directions, rms, sem_g, table, truth_stack)
+from benchlib import (
+    CLASS_EFFECTS,
+    angle_deg,
+    apply_an4399,
+    design_refs,
+    make_boards,
+    measure,
+    params_by_name,
+    random_directions,
+    rms,
+    sem_g,
+    table,
+    truth_stack,
+)
 
-from accelcal_station.fixtures.designs import predict_stderr  # noqa: E402
-from accelcal_station.models import fit_batch  # noqa: E402
-from accelcal_station.models.gravity_norm import fit_norm_batch  # noqa: E402
-from accelcal_station.models.linear import fit_linear_batch, regressors  # noqa: E402
+from accelcal_station.fixtures.designs import predict_stderr
+from accelcal_station.models.fitting import fit_batch
+from accelcal_station.models.gravity_norm import fit_norm_batch
+from accelcal_station.models.linear import fit_linear_batch, regressors
 
 PLAN = {  # model -> designs that determine it (an4399-2/-3 only determine model 6); plus optimal-N
     "6": ["an4399-2", "an4399-3", "an4399-4", "an4399-6", "an4399-8", "six-face"],
@@ -77,7 +89,7 @@ def run(boards: int, samples: int, heldout: int, seed: int, models: list[str], o
         sem = sem_g(pop[0], samples)
         rng = np.random.default_rng(seed + 100 + m_i)
         dirs = random_directions((boards, heldout), rng)
-        fresh = np.stack([measure(b, d, samples) for b, d in zip(pop, dirs)])  # (D, H, 3)
+        fresh = np.stack([measure(b, d, samples) for b, d in zip(pop, dirs, strict=True)])  # (D, H, 3)
         limit = rms(angle_deg(apply_an4399(W0, V0, G0, fresh), dirs))
         for design in PLAN[model] + ([f"optimal-{optimal}"] if optimal >= (9 if model == "9" else 5) else []):
             ref = design_refs(design)
@@ -118,7 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = run(a.boards, a.samples, a.heldout, a.seed, models, a.optimal)
     sem = rows[0]["sem_mg"]
     print(f"accuracy vs the Cramer-Rao limit: {a.boards} simulated MMA8451 boards per model, {a.samples} samples "
-          f"per pose (standard error {sem:.4f} mg per axis), {a.heldout} held-out orientations per board, seed {a.seed}")
+          f"per pose (standard error {sem:.4f} mg per axis), {a.heldout} held-out orientations per board, "
+          f"seed {a.seed}")
     for m in models:
         print(f"  model {m} boards: noise, quantization, {', '.join(CLASS_EFFECTS[m])}")
     print("param ratio = RMS(fitted - true) / predicted standard error, pooled per group (1.00 = at the limit; "

@@ -39,15 +39,21 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import design_refs, table  # noqa: E402
+from benchlib import design_refs, table
 
-from accelcal_station.batch import (expand_paths, recalibrate, sessions_from_files,  # noqa: E402
-                                    sessions_from_store, summary_csv, write_calibrations)
-from accelcal_station.fixtures.designs import get_design  # noqa: E402
-from accelcal_station.models import fit_batch, fit_session  # noqa: E402
-from accelcal_station.posetable import read_pose_table, write_pose_table  # noqa: E402
-from accelcal_station.session import PoseRecord, Session  # noqa: E402
-from accelcal_station.store import Store  # noqa: E402
+from accelcal_station.data.posetable import read_pose_table, write_pose_table
+from accelcal_station.fixtures.designs import get_design
+from accelcal_station.lot.batch import (
+    expand_paths,
+    recalibrate,
+    sessions_from_files,
+    sessions_from_store,
+    summary_csv,
+    write_calibrations,
+)
+from accelcal_station.models.fitting import fit_batch, fit_session
+from accelcal_station.session import PoseRecord, Session
+from accelcal_station.store.runs import Store
 
 CPG = 4096.0  # MMA8451 at 2 g
 SAMPLES = 256
@@ -186,8 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     mrows = []
     for model in ("6", "12", "15", "9"):
         m = run_child("fit", model, D)
-        mrows.append([f"fit_batch model {model} ({MEMORY_DESIGN[model]})", "tracemalloc peak", f"{m['peak_bytes'] / D:.0f}",
-                      f"{m['peak_bytes'] / 2**20:.1f}", f"{m['input_bytes'] / D:.0f}"])
+        mrows.append([f"fit_batch model {model} ({MEMORY_DESIGN[model]})", "tracemalloc peak",
+                      f"{m['peak_bytes'] / D:.0f}", f"{m['peak_bytes'] / 2**20:.1f}", f"{m['input_bytes'] / D:.0f}"])
     m = run_child("recal", a.model, D)
     if m["fitted"] != D:
         print(f"error: recalibrate fitted {m['fitted']} of {D} boards", file=sys.stderr)

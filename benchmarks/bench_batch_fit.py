@@ -25,12 +25,12 @@ import numpy as np
 from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import norm_residual  # noqa: E402
+from benchlib import norm_residual
 
-from accelcal_station.conventions import an4399_reference  # noqa: E402
-from accelcal_station.models import fit, fit_batch  # noqa: E402
-from accelcal_station.models.gravity_norm import fit_norm_batch  # noqa: E402
-from accelcal_station.models.linear import regressors  # noqa: E402
+from accelcal_station.conventions import an4399_reference
+from accelcal_station.models.fitting import fit, fit_batch
+from accelcal_station.models.gravity_norm import fit_norm_batch
+from accelcal_station.models.linear import regressors
 
 
 def make_boards(D: int, ref: np.ndarray, rng) -> np.ndarray:
@@ -44,6 +44,51 @@ def rate(fn, n: int) -> tuple[float, float]:
     fn()
     dt = time.perf_counter() - t0
     return n / dt, dt
+
+
+def _sphere(rng: np.random.Generator, n: int = 12) -> np.ndarray:
+    """``n`` directions spread over the sphere (model 9 needs no references, only orientations)."""
+    dirs = rng.normal(size=(n, 3))
+    return dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+
+
+def linear_rows(row, x: np.ndarray, ref8: np.ndarray, model: str, L: int, boards: int) -> None:
+    """Model 6, 12 or 15: the stacked fit against a loop of models.fit and a loop of numpy lstsq."""
+    r_ours, t = rate(lambda: fit_batch(x, ref8, model), boards)
+    row(model, "accelcal fit_batch (stacked normal eqns)", r_ours, t, 1.0)
+    r, t = rate(lambda: [fit(x[d], ref8, model) for d in range(L)], L)
+    row(model, "loop of accelcal models.fit", r, t, r_ours / r)
+
+    def loop_lstsq() -> None:
+        X = regressors(x[:L], model)  # (L, 3, P, k): each channel its own design
+        for d in range(L):
+            if model == "12":
+                np.linalg.lstsq(X[d, 0], ref8, rcond=None)
+            else:
+                for c in range(3):
+                    np.linalg.lstsq(X[d, c], ref8[:, c], rcond=None)
+    r, t = rate(loop_lstsq, L)
+    row(model, "loop of numpy.linalg.lstsq", r, t, r_ours / r)
+
+
+def norm_rows(row, x9: np.ndarray, L: int, L9: int, boards: int) -> None:
+    """Model 9 on 12 poses spread over the sphere: stacked LM, with leave-one-out, loops, scipy."""
+    r9, t = rate(lambda: fit_norm_batch(x9, crossval=False), boards)
+    row(9, "accelcal fit_norm_batch (stacked LM)", r9, t, 1.0)
+    n_cv = max(10, boards // 10)
+    r9cv, t = rate(lambda: fit_batch(x9[:n_cv], None, "9"), n_cv)
+    row(9, "  fit_batch, with leave-one-out crossval", r9cv, t, r9 / r9cv)
+    r, t = rate(lambda: [fit(x9[d], None, "9") for d in range(L9)], L9)
+    row(9, "  loop of accelcal models.fit (crossval too)", r, t, r9cv / r)
+    p0 = np.array([1, 1, 1, 0, 0, 0, 0, 0, 0], dtype=float)
+    r, t = rate(lambda: [least_squares(norm_residual, p0, args=(x9[d],), method="lm") for d in range(L)], L)
+    row(9, "loop of scipy.optimize.least_squares", r, t, r9 / r)
+    print("ratio: the stacked rate divided by this row's rate (indented loop rows: vs the crossval row)")
+    # agreement on the looped boards
+    n = min(50, boards)
+    ours = fit_norm_batch(x9[:n], crossval=False).params
+    theirs = np.array([least_squares(norm_residual, p0, args=(x9[d],), method="lm").x for d in range(n)])
+    print(f"max |param difference| ours vs scipy over {n} boards: {np.max(np.abs(ours - theirs)):.2e}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,42 +117,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{model:>5} {method:<44} {r:12.0f} {t:9.2f} {ratio:8.1f}", flush=True)
 
     for model in ("6", "12", "15"):
-        r_ours, t = rate(lambda: fit_batch(x, ref8, model), a.boards)
-        row(model, "accelcal fit_batch (stacked normal eqns)", r_ours, t, 1.0)
-        r, t = rate(lambda: [fit(x[d], ref8, model) for d in range(L)], L)
-        row(model, "loop of accelcal models.fit", r, t, r_ours / r)
-
-        def loop_lstsq():
-            X = regressors(x[:L], model)  # (L, 3, P, k): each channel its own design
-            for d in range(L):
-                if model == "12":
-                    np.linalg.lstsq(X[d, 0], ref8, rcond=None)
-                else:
-                    for c in range(3):
-                        np.linalg.lstsq(X[d, c], ref8[:, c], rcond=None)
-        r, t = rate(loop_lstsq, L)
-        row(model, "loop of numpy.linalg.lstsq", r, t, r_ours / r)
-
-    # model 9 on 12 poses spread over the sphere
-    dirs = rng.normal(size=(12, 3))
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    x9 = make_boards(a.boards, dirs, rng)
-    r9, t = rate(lambda: fit_norm_batch(x9, crossval=False), a.boards)
-    row(9, "accelcal fit_norm_batch (stacked LM)", r9, t, 1.0)
-    n_cv = max(10, a.boards // 10)
-    r9cv, t = rate(lambda: fit_batch(x9[:n_cv], None, "9"), n_cv)
-    row(9, "  fit_batch, with leave-one-out crossval", r9cv, t, r9 / r9cv)
-    r, t = rate(lambda: [fit(x9[d], None, "9") for d in range(L9)], L9)
-    row(9, "  loop of accelcal models.fit (crossval too)", r, t, r9cv / r)
-    p0 = np.array([1, 1, 1, 0, 0, 0, 0, 0, 0], dtype=float)
-    r, t = rate(lambda: [least_squares(norm_residual, p0, args=(x9[d],), method="lm") for d in range(L)], L)
-    row(9, "loop of scipy.optimize.least_squares", r, t, r9 / r)
-    print("ratio: the stacked rate divided by this row's rate (indented loop rows: vs the crossval row)")
-    # agreement on the looped boards
-    n = min(50, a.boards)
-    ours = fit_norm_batch(x9[:n], crossval=False).params
-    theirs = np.array([least_squares(norm_residual, p0, args=(x9[d],), method="lm").x for d in range(n)])
-    print(f"max |param difference| ours vs scipy over {n} boards: {np.max(np.abs(ours - theirs)):.2e}")
+        linear_rows(row, x, ref8, model, L, a.boards)
+    norm_rows(row, make_boards(a.boards, _sphere(rng), rng), L, L9, a.boards)
     return 0
 
 

@@ -1,6 +1,6 @@
 """Hit rate and false-naming rate of `accelcal diagnose` over many seeds per self-test case.
 
-Every case of accelcal_station.diagnose_selftest (each catalog effect, each off-catalog
+Every case of accelcal_station.diagnosis.selftest (each catalog effect, each off-catalog
 effect, the two-effect cases, the null cases) is run at SEEDS seeds on forward-physics
 boards.  hit: the case's pass rule holds (module doc of diagnose_selftest).  false naming:
 the diagnosis names an effect that the board does not have (for off-catalog and null
@@ -10,15 +10,15 @@ cases: names anything).  Prints a Markdown table; not run in CI (minutes).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
 import time
 from multiprocessing import Pool
 
-from accelcal_station.diagnose_load import load_simulator
-from accelcal_station.diagnose_selftest import _cases, run_case
-
+from accelcal_station.diagnosis.loading import load_simulator
+from accelcal_station.diagnosis.selftest import _cases, run_case
 
 LOG = os.environ.get("BENCH_DIAGNOSE_LOG")  # optional: one JSON line per run, for partial results
 
@@ -40,8 +40,7 @@ def main(seeds: int = 50, procs: int = 2) -> None:
     hits = [0] * len(cases)
     falses = [0] * len(cases)
     verdicts: list[dict] = [{} for _ in cases]
-    log = open(LOG, "a") if LOG else None
-    with Pool(procs) as pool:
+    with (open(LOG, "a") if LOG else contextlib.nullcontext()) as log, Pool(procs) as pool:
         for k, ok, false, verdict in pool.imap(_one, jobs, chunksize=1):
             if log:
                 log.write(json.dumps([k, ok, false, verdict]) + "\n")

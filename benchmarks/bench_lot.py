@@ -19,7 +19,7 @@
 3. Peak RSS of ``accelcal batch LOT.csv --model 12 --out results.csv`` (a child
    process, ru_maxrss) at each --rss lot size, and the 10 M extrapolation (the larger
    peak plus the growth per board between the two largest sizes, never negative).
-Lots come from accelcal_station.lotsim (random gain/cross-axis 1 %, offset 30 mg, 1 mg noise).
+Lots come from accelcal_station.lot.synthetic (random gain/cross-axis 1 %, offset 30 mg, 1 mg noise).
 """
 from __future__ import annotations
 
@@ -33,18 +33,24 @@ from pathlib import Path
 
 import numpy as np
 
-from accelcal_station.batch import (record_in_store, recalibrate, sessions_from_files, sessions_from_store,
-                                    summary_csv, write_calibrations)
+from accelcal_station.data.posetable import write_pose_table
 from accelcal_station.fixtures.designs import get_design, references
-from accelcal_station.lotsim import write_lot
-from accelcal_station.models import fit
+from accelcal_station.lot.batch import (
+    recalibrate,
+    record_in_store,
+    sessions_from_files,
+    sessions_from_store,
+    summary_csv,
+    write_calibrations,
+)
+from accelcal_station.lot.streaming import recalibrate_lot
+from accelcal_station.lot.synthetic import write_lot
+from accelcal_station.models.fitting import fit
 from accelcal_station.models.gravity_norm import fit_norm_batch
 from accelcal_station.models.linear import fit_linear_batch
 from accelcal_station.models.stacked import fit_stacked
-from accelcal_station.posetable import write_pose_table
 from accelcal_station.session import PoseRecord, Session
-from accelcal_station.store import Store
-from accelcal_station.streaming import recalibrate_lot
+from accelcal_station.store.runs import Store
 
 
 def boards(D: int, ref: np.ndarray, seed: int) -> np.ndarray:
@@ -77,12 +83,15 @@ def fit_rates(n: int, n9: int, n_today9: int, n_loop: int, repeats: int = 3) -> 
         ref = ref12 if model == "9" else ref8
         N = n9 if model == "9" else n
         x = boards(N, ref, seed=1)
-        r_new = best_rate(N, lambda: fit_stacked(x, None if model == "9" else ref, model), repeats)
+        r_new = best_rate(N, lambda x=x, ref=ref, model=model: fit_stacked(x, None if model == "9" else ref, model),
+                          repeats)
         Nt = n_today9 if model == "9" else N
-        today = (lambda: fit_norm_batch(x[:Nt])) if model == "9" else (lambda: fit_linear_batch(x, ref, model))
+        today = ((lambda x=x, Nt=Nt: fit_norm_batch(x[:Nt])) if model == "9"
+                 else (lambda x=x, ref=ref, model=model: fit_linear_batch(x, ref, model)))
         r_old = Nt / timed(today)
         L = n_loop
-        r_loop = L / timed(lambda: [fit(x[d], None if model == "9" else ref, model) for d in range(L)])
+        r_loop = L / timed(lambda x=x, ref=ref, model=model, L=L:
+                           [fit(x[d], None if model == "9" else ref, model) for d in range(L)])
         goal = (f"{TARGET[model]:>10,} ({'met' if r_new >= TARGET[model] else 'not met'})"
                 if model in TARGET else "")
         print(f"   {model:5} {r_new:12,.0f} {r_old:12,.0f} {r_loop:10,.0f} {r_new / r_old:14.1f} {r_new / r_loop:13.0f}"
@@ -93,7 +102,7 @@ HEAP_HELPER = """
 import resource, sys, time
 import numpy as np
 from accelcal_station.fixtures.designs import get_design, references
-from accelcal_station.heap import keep_block_memory
+from accelcal_station.models.heap import keep_block_memory
 from accelcal_station.models.stacked import BLOCK, fit12
 from accelcal_station.models.stacked_norm import fit9
 sys.path.insert(0, sys.argv[3])

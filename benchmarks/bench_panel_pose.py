@@ -33,11 +33,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import angle_deg, apply_an4399, design_refs, make_boards, random_directions, rms, table  # noqa: E402
+from benchlib import angle_deg, apply_an4399, design_refs, make_boards, random_directions, rms, table
 
-from accelcal_station.jig_pose import estimate_jig_poses  # noqa: E402
-from accelcal_station.models.linear import fit_linear_batch  # noqa: E402
-from accelcal_station.sensor_model import rotation_matrix  # noqa: E402
+from accelcal_station.models.linear import fit_linear_batch
+from accelcal_station.sim.sensor_model import rotation_matrix
+from accelcal_station.station.jig_pose import estimate_jig_poses
 
 SAMPLES = 225  # the station's mean samples per pose at capture.target_sem_mg 0.05 (bench_station_time)
 

@@ -32,10 +32,21 @@ import numpy as np
 from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import (angle_deg, apply_an4399, design_refs, make_boards, measure, measure_raw,  # noqa: E402
-                    norm_residual, random_directions, rms, table, truth_stack)
+from benchlib import (
+    angle_deg,
+    apply_an4399,
+    design_refs,
+    make_boards,
+    measure,
+    measure_raw,
+    norm_residual,
+    random_directions,
+    rms,
+    table,
+    truth_stack,
+)
 
-from accelcal_station.models import fit_batch  # noqa: E402
+from accelcal_station.models.fitting import fit_batch
 
 NOT_INSTALLED = "imucal not installed: pip install -e '.[bench]'"
 FACES = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")  # imucal names of nine-position poses 0..5
@@ -110,10 +121,9 @@ def main(argv: list[str] | None = None) -> int:
     W0, V0, G0 = truth_stack(boards)
     ref9 = design_refs("nine-position")
     raw = np.stack([measure_raw(b, ref9, a.samples) for b in boards])  # (D, 9, n, 3) g
-    x9 = raw.mean(axis=2)
     rng = np.random.default_rng(a.seed + 1)
     dirs = random_directions((a.boards, a.heldout), rng)
-    fresh = np.stack([measure(b, d, a.samples) for b, d in zip(boards, dirs)])
+    fresh = np.stack([measure(b, d, a.samples) for b, d in zip(boards, dirs, strict=True)])
     odr = boards[0].odr_hz
 
     def scores(W, V, cal=None):
@@ -121,6 +131,14 @@ def main(argv: list[str] | None = None) -> int:
         return {"W": rms(W - W0) * 1e6, "V": rms(V - V0) * 1e3, "tilt": rms(angle_deg(out, dirs)),
                 "norm": rms(np.linalg.norm(out, axis=-1) - 1.0) * 1e3}
 
+    rows, res, im, Ps, f9 = compare(a, raw, ref9, fresh, odr, W0, V0, scores)
+    report(a, odr, rows, res, im is not None, np.max(np.abs(Ps - f9.params)))
+    return 0
+
+
+def compare(a, raw, ref9, fresh, odr, W0, V0, scores):
+    """Every method on the same samples: imucal (six faces), ours 12 and 9, scipy's 9, the truth."""
+    x9 = raw.mean(axis=2)
     rows, res = [], {}
 
     def add(key, label, data, sc, seconds):
@@ -145,24 +163,27 @@ def main(argv: list[str] | None = None) -> int:
     f12n = fit_batch(x9, ref9, "12")
     add("ours12_9", "accelcal model 12", "nine positions", scores(f12n.W, f12n.V), time.perf_counter() - t0)
     add("truth", "true calibration (noise only)", "held-out only", scores(W0, V0), None)
+    return rows, res, im, Ps, f9
 
+
+def report(a, odr, rows, res, with_imucal: bool, max_diff: float) -> None:
+    """The table of errors against the truth, and the peer / ours ratios."""
     print(f"accuracy vs peers on identical data: {a.boards} simulated MMA8451 boards (noise, quantization, offset, "
           f"gain, symmetric cross-axis), {a.samples} samples per pose at {odr:g} Hz, {a.heldout} held-out "
           f"orientations per board, seed {a.seed}")
-    if im is None:
+    if not with_imucal:
         print(NOT_INSTALLED)
     print("errors vs the simulator truth (RMS over boards): W in ppm, V in mg (AN4399 form), held-out tilt in deg "
           "and |g| in mg; ms/board: fit time only")
     print(table(["method", "data", "W ppm", "V mg", "tilt deg", "|g| mg", "ms/board"], rows))
     print("ratios, peer / ours on the same data (> 1: ours is closer to the truth):")
     pairs = [("scipy9", "ours9", "scipy least_squares 9-param / accelcal model 9")]
-    if im is not None:
+    if with_imucal:
         pairs.insert(0, ("imucal", "ours12_6", "imucal Ferraris / accelcal model 12 (six faces)"))
     rrows = [[label] + [f"{res[p][k] / res[o][k]:.2f}" for k in ("W", "V", "tilt", "norm")] for p, o, label in pairs]
     print(table(["comparison", "W", "V", "tilt", "|g|"], rrows))
     print(f"max |parameter difference| scipy vs accelcal model 9 over {a.boards} boards: "
-          f"{np.max(np.abs(Ps - f9.params)):.1e}")
-    return 0
+          f"{max_diff:.1e}")
 
 
 if __name__ == "__main__":

@@ -36,12 +36,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import table  # noqa: E402
+from benchlib import table
 
-from accelcal_station.drivers import make_driver  # noqa: E402
-from accelcal_station.fixtures.designs import get_design  # noqa: E402
-from accelcal_station.panel import PanelStation  # noqa: E402
-from accelcal_station.station import Station, StationConfig  # noqa: E402
+from accelcal_station.drivers.factory import make_driver
+from accelcal_station.fixtures.designs import get_design
+from accelcal_station.station.board import Station
+from accelcal_station.station.panel import PanelStation
+from accelcal_station.station.settings import StationConfig
 
 COMPONENTS = ("floor_fit", "floor_verify", "gating", "moves", "other_device", "host")
 LABELS = {
@@ -141,13 +142,12 @@ def main(argv: list[str] | None = None) -> int:
           f"{cfg.capture.target_sem_mg:g} mg")
     print(f"verdicts: {', '.join(sorted(set(facts['verdicts'])))}; samples averaged per pose: mean "
           f"{np.mean(facts['samples_per_pose']):.0f} (the noise needs {n_need:.0f} for the target)")
-    rows = []
-    for k in COMPONENTS:
-        rows.append([LABELS[k], f"{res[k]:.2f}", f"{res[k] / res['total']:.0%}", f"{res0[k]:.2f}",
-                     f"{res0[k] / res0['total']:.0%}"])
+    rows = [[LABELS[k], f"{res[k]:.2f}", f"{res[k] / res['total']:.0%}", f"{res0[k]:.2f}",
+             f"{res0[k] / res0['total']:.0%}"] for k in COMPONENTS]
     floor, floor0 = res["floor_fit"] + res["floor_verify"], res0["floor_fit"] + res0["floor_verify"]
     rows.append(["total board time", f"{res['total']:.2f}", "100%", f"{res0['total']:.2f}", "100%"])
-    rows.append(["ratio: total / sampling floor", f"{res['total'] / floor:.2f}", "", f"{res0['total'] / floor0:.2f}", ""])
+    rows.append(["ratio: total / sampling floor", f"{res['total'] / floor:.2f}", "",
+                 f"{res0['total'] / floor0:.2f}", ""])
     rows.append(["ratio: total / noise-limited floor", f"{res['total'] / theory:.2f}", "",
                  f"{res0['total'] / theory:.2f}", ""])
     print(table(["seconds per board", f"moves {move:g} s", "share", "moves 0 s", "share"], rows))

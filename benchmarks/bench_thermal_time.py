@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import table  # noqa: E402
+from benchlib import table
 
-from accelcal_station.drivers import make_driver  # noqa: E402
-from accelcal_station.station import StationConfig  # noqa: E402
-from accelcal_station.thermal import ThermalStation  # noqa: E402
-from accelcal_station.thermal_panel import ThermalPanelStation  # noqa: E402
+from accelcal_station.drivers.factory import make_driver
+from accelcal_station.station.settings import StationConfig
+from accelcal_station.station.thermal import ThermalStation
+from accelcal_station.station.thermal_panel import ThermalPanelStation
 
 REPO = Path(__file__).resolve().parents[1]
 PARTS = ("soak_s", "sampling_floor_s", "rest_s", "board_time_s")

@@ -26,7 +26,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
 from accelcal_station.cli import cli  # noqa: E402
-from accelcal_station.station import default_config_path  # noqa: E402
+from accelcal_station.station.settings import default_config_path  # noqa: E402
 
 NUMPY_REPR = re.compile(r"\bnp\.\w+\(|\barray\(")
 BAD_VALUES = [-1, "x", [], {}, True, math.nan, -math.inf]
@@ -107,7 +107,7 @@ def fit_tables(tmp: Path, rng):
             refs = np.tile(refs[0], (len(refs), 1))
         lines = ["# units: g", "pose,ref_x,ref_y,ref_z,x,y,z"] + [
             f"p{j},{r[0]},{r[1]},{r[2]},{float(v[0])!r},{float(v[1])!r},{float(v[2])!r}"
-            for j, (r, v) in enumerate(zip(refs, x))]
+            for j, (r, v) in enumerate(zip(refs, x, strict=True))]
         p = tmp / f"t{i}.csv"
         p.write_text("\n".join(lines) + "\n")
         yield p, str(rng.choice(["6", "12", "15"]))
@@ -168,6 +168,14 @@ def cli_cases(tmp: Path):
     files, stores = bad_files(tmp), bad_stores(tmp)
     good = tmp / "good.csv"
     good.write_text("# units: g\npose,ref_x,ref_y,ref_z,x,y,z\n" + "\n".join(GOOD_ROWS) + "\n")
+    yield from _fit_batch_cases(tmp, files, good)
+    yield from _store_cases(tmp, stores)
+    yield from _config_cases(tmp, files, good)
+    yield from _simulate_poses_diagnose_cases(tmp, files, good)
+
+
+def _fit_batch_cases(tmp: Path, files: list, good: Path):
+    """fit, batch and diagnose on bad files and bad option values."""
     out = tmp / "out.json"
     nums = ["x", "-1", "0", "nan", "inf", "1e400", "", "-0"]
     for f in files:
@@ -192,6 +200,9 @@ def cli_cases(tmp: Path):
                       ("--run", ["x", "-1"])):
         for v in vals:
             yield ["batch", str(good), opt, v], None
+
+def _store_cases(tmp: Path, stores: list):
+    """batch and report on bad stores, and report with bad options."""
     for st in stores:
         yield ["batch", "--from-store", st], None
         for sub in (["list"], ["show", "1"], ["export"], ["summary"], ["export", "-o", str(tmp / "e.csv")]):
@@ -204,6 +215,9 @@ def cli_cases(tmp: Path):
                 ["summary", "--html", "/"], ["summary", "--html", str(tmp / "bad_dir.csv")], ["plot", "x"],
                 ["plot", "99"], ["show"], ["nonesuch"]):
         yield ["report", *sub, "--db", str(db)], None
+
+def _config_cases(tmp: Path, files: list, good: Path):
+    """nvm, probe, simulate and diagnose with bad configs; nvm restore of bad images."""
     cfgs = [str(tmp / "missing.yaml"), str(tmp / "bad_dir.csv"), str(tmp / "bomb.yaml"), str(tmp / "deep.yaml"),
             str(tmp / "dup.yaml"), str(tmp / "binary.yaml"), str(tmp / "list.yaml"), str(files[0])]
     img = tmp / "image.json"
@@ -215,6 +229,9 @@ def cli_cases(tmp: Path):
         yield ["diagnose", str(good), "--config", c], None
     for f in files[:8]:
         yield ["nvm", "restore", str(f), "--config", str(REPO / "configs" / "sim.yaml")], None
+
+def _simulate_poses_diagnose_cases(tmp: Path, files: list, good: Path):
+    """simulate, poses and diagnose with bad option values."""
     for opt, vals in (("--poses", ["nope", "", "six-face,x"]), ("--samples", ["0", "-1", "x"]),
                       ("--temps", ["a,b", "1e9", "nan", ","]), ("--move-s", ["-1", "nan"]), ("--seed", ["-1", "x"]),
                       ("--out", ["/", str(tmp / "bad_dir.csv"), "/dev/null", str(tmp / "nodir" / "s.csv")]),

@@ -1,46 +1,10 @@
-"""Sensor drivers: MMA8451 (I2C, smbus2), MPU6050 (serial bridge), simulated board.
+"""Sensor drivers: MMA8451 over I2C (smbus2), MPU6050 behind a serial bridge (pyserial), a
+simulated board with the same interface, the TCA9548A multiplexer and the boards' EEPROM.
+``factory.make_driver(config)`` builds a driver by name, like python-can's
+``Bus(interface=...)``; ``emulated`` builds the register-level or serial emulators and hands
+them to the real drivers as their bus or port.
 
-``make_driver(config)`` builds a driver by name, like python-can's
-``Bus(interface=...)``; the ``simulated`` driver makes every test hardware-free.
+May import ``sim`` (the simulated board's sensor model), ``config`` and the foundation; a
+driver never imports its emulator.  (This folder sits at the top of the repository and
+installs as ``accelcal_station.drivers``.)
 """
-from __future__ import annotations
-
-import importlib
-from typing import Any
-
-from ..errors import ConfigError
-from .base import NVM, Capture, Driver, Identity
-
-# name -> "module:Class"; imported lazily so a missing optional library only
-# matters for the driver that needs it
-DRIVERS = {
-    "simulated": "accelcal_station.drivers.simulated:SimulatedDriver",
-    "mma8451": "accelcal_station.drivers.mma8451:MMA8451",
-    "mpu6050": "accelcal_station.drivers.mpu6050:MPU6050Bridge",
-}
-
-# name -> (config key that says "emulated", "module:factory function")
-EMULATED = {
-    "mma8451": ("bus", "accelcal_station.drivers.emulated:emulated_mma8451"),
-    "mpu6050": ("port", "accelcal_station.drivers.emulated:emulated_mpu6050"),
-}
-
-
-def make_driver(config: dict[str, Any], path: str = "device") -> Driver:
-    """Build the driver named by ``config['driver']`` from the rest of the section."""
-    if not isinstance(config, dict):
-        raise ConfigError(f"{path}: must be a mapping with a 'driver' key")
-    name = config.get("driver")
-    if name not in DRIVERS:
-        raise ConfigError(f"{path}.driver: {name!r}; allowed: {', '.join(DRIVERS)}")
-    rest = {k: v for k, v in config.items() if k != "driver"}
-    if name in EMULATED and rest.get(EMULATED[name][0]) == "emulated":
-        # the emulated bus/port is built here and handed to the driver (python-can's `virtual`)
-        module, fn = EMULATED[name][1].split(":")
-        return getattr(importlib.import_module(module), fn)(rest, path)
-    module, cls = DRIVERS[name].split(":")
-    driver_cls = getattr(importlib.import_module(module), cls)
-    return driver_cls.from_config(rest, path=path)
-
-
-__all__ = ["NVM", "Capture", "Driver", "Identity", "DRIVERS", "make_driver"]

@@ -6,11 +6,22 @@ counts make 1 g at its current range; everything after that is in g.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..errors import DeviceError
+
+
+class Clock(Protocol):
+    """What a driver or a part waits on: the wall clock, or a simulated board's virtual one."""
+
+    def now(self) -> float: ...
+
+    def sleep(self, dt: float) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -49,8 +60,8 @@ class Capture:
         return self.std_counts / np.sqrt(max(self.n, 1))
 
     @classmethod
-    def from_samples(cls, samples, timestamps, dropped: int = 0, temp_c: float | None = None,
-                     keep: bool = False) -> "Capture":
+    def from_samples(cls, samples: ArrayLike, timestamps: ArrayLike, dropped: int = 0, temp_c: float | None = None,
+                     keep: bool = False) -> Capture:
         s = np.asarray(samples, dtype=float)
         t = np.asarray(timestamps, dtype=float)
         if s.ndim != 2 or s.shape[1] != 3 or len(s) == 0:
@@ -79,7 +90,7 @@ class NVM(ABC):
     def write(self, addr: int, data: bytes) -> None:
         """Write data at addr; splits at page boundaries and waits for each write cycle."""
 
-    def page_chunks(self, addr: int, data: bytes):
+    def page_chunks(self, addr: int, data: bytes) -> Iterator[tuple[int, bytes]]:
         """(address, bytes) pieces of a write that each stay inside one page (24Cxx page
         writes wrap within their page, so a write must never cross a page boundary)."""
         data = bytes(data)
@@ -101,11 +112,11 @@ class Driver(ABC):
 
     name: str = "abstract"
 
-    def __enter__(self) -> "Driver":
+    def __enter__(self) -> Driver:
         self.open()
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     @abstractmethod
@@ -121,7 +132,7 @@ class Driver(ABC):
         """Chip and board identity."""
 
     @abstractmethod
-    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options) -> None:
+    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options: Any) -> None:
         """Set full scale (g) and output data rate (Hz); chip-specific options by name."""
 
     @property

@@ -26,12 +26,13 @@ afterwards power is back and the EEPROM works normally, so a test can
 from __future__ import annotations
 
 import errno
+import os
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import NVMError
-from .base import NVM
+from .base import NVM, Clock
 
 
 class PowerLossError(NVMError):
@@ -55,14 +56,14 @@ class EEPROM24(NVM):
     """Byte/page model of a 24Cxx EEPROM with write-cycle timing and power-loss injection."""
 
     def __init__(self, size: int = 4096, page_size: int = 32, write_cycle_s: float = 0.005,
-                 clock=None, fail_at_write: int | None = None, fail_bytes: int | None = None,
-                 image_path=None) -> None:
+                 clock: Clock | None = None, fail_at_write: int | None = None, fail_bytes: int | None = None,
+                 image_path: str | os.PathLike[str] | None = None) -> None:
         if size <= 0 or page_size <= 0 or size % page_size:
             raise NVMError(f"EEPROM size {size} must be a positive multiple of the page size {page_size}")
         self.size = int(size)
         self.page_size = int(page_size)
         self.write_cycle_s = float(write_cycle_s)
-        self.clock = clock if clock is not None else _WallClock()
+        self.clock: Clock = clock if clock is not None else _WallClock()
         self.cells = np.full(self.size, 0xFF, dtype=np.uint8)
         self.pointer = 0  # internal address counter
         self.busy_until = -np.inf

@@ -10,7 +10,6 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import ConfigError
-
 from .mma8451 import MMA8451
 from .mma8451_emulator import MMA8451Emulator
 from .mpu6050 import MPU6050Bridge
@@ -19,7 +18,7 @@ from .tca9548a import MuxBus, MuxChannel, mux_settings
 from .tca9548a_emulator import TCA9548AEmulator
 
 
-def emulated_mma8451(cfg: dict, path: str = "device", bus: Any = None, clock: Any = None,
+def emulated_mma8451(cfg: dict[str, Any], path: str = "device", bus: Any = None, clock: Any = None,
                      bus_label: str = "emulated") -> MMA8451:
     """An MMA8451 driver on an emulated smbus2 bus fed by a simulated board.
 
@@ -39,13 +38,13 @@ def emulated_mma8451(cfg: dict, path: str = "device", bus: Any = None, clock: An
     return drv
 
 
-def emulated_mpu6050(cfg: dict, path: str = "device") -> MPU6050Bridge:
+def emulated_mpu6050(cfg: dict[str, Any], path: str = "device") -> MPU6050Bridge:
     """An MPU6050 bridge driver whose port is a pseudo-terminal answered by the bridge emulator."""
     _, kw = MPU6050Bridge.parse_config(cfg, path)
     return MPU6050Bridge("emulated", emulator=MPU6050BridgeEmulator.from_config(cfg, path), **kw)
 
 
-def emulated_muxed_mma8451(section: dict, path: str, buses: dict) -> MMA8451:
+def emulated_muxed_mma8451(section: dict[str, Any], path: str, buses: dict[tuple[Any, int], MuxBus]) -> MMA8451:
     """An emulated MMA8451 board behind channel ``section['channel']`` of a TCA9548A emulator.
 
     ``buses`` shares one emulated bus (mux emulator, MuxBus) per mux address among a panel's

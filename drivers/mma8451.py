@@ -22,16 +22,18 @@ from __future__ import annotations
 import errno
 import os
 import time
-from contextlib import contextmanager
-from typing import Any, Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager, suppress
+from typing import Any, TypeVar
 
 import numpy as np
 import smbus2
+from numpy.typing import ArrayLike
 from smbus2 import i2c_msg
 
-from ..config import check_keys, choice, number
-from ..errors import ConfigError, DeviceError, NVMError
-from .base import NVM, Driver, Identity
+from ..config.checks import check_keys, choice, number
+from ..errors import AccelcalError, ConfigError, DeviceError, NVMError
+from .base import NVM, Clock, Driver, Identity
 
 # --- register map (data sheet table 11) -------------------------------------------------
 STATUS = 0x00
@@ -76,13 +78,15 @@ MODS = {"normal": 0, "low_noise_low_power": 1, "high_resolution": 2, "low_power"
 OFF_LSB_G = 1.0 / 512.0
 RESET_POLLS = 20  # CTRL_REG2 reads while the chip reboots (boot takes about 0.5 ms)
 
+T = TypeVar("T")
 
-def decode_counts(raw: bytes) -> np.ndarray:
+
+def decode_counts(raw: bytes | bytearray) -> np.ndarray:
     """Bursts of OUT_X_MSB..OUT_Z_LSB -> counts (n, 3) int64: 14-bit left-justified two's complement."""
     return (np.frombuffer(bytes(raw), dtype=">i2").astype(np.int64) >> 2).reshape(-1, 3)
 
 
-def off_lsb_to_counts(lsb, range_g: int) -> np.ndarray:
+def off_lsb_to_counts(lsb: ArrayLike, range_g: int) -> np.ndarray:
     """Offset-trim LSBs -> 14-bit counts at ``range_g`` (1 LSB = 1/512 g)."""
     return np.asarray(lsb, dtype=np.int64) * (COUNTS_PER_G[range_g] // 512)
 
@@ -120,8 +124,8 @@ def _os_reason(e: OSError) -> str:
 class I2CTarget:
     """One address on an SMBus-like object: bounded retries, errors naming bus, address, register."""
 
-    def __init__(self, smbus: Any, bus_label: str, address: int, clock, retries: int = 3,
-                 retry_delay_s: float = 0.001):
+    def __init__(self, smbus: Any, bus_label: str, address: int, clock: Clock, retries: int = 3,
+                 retry_delay_s: float = 0.001) -> None:
         self.smbus, self.bus_label, self.address = smbus, bus_label, address
         self.clock, self.retries, self.retry_delay_s = clock, retries, retry_delay_s
 
@@ -131,8 +135,8 @@ class I2CTarget:
             w += f" register 0x{register:02X} ({REGISTER_NAMES.get(register, 'reg')})"
         return w + (f" {what}" if what else "")
 
-    def call(self, op: str, register: int | None, fn: Callable, *args, error=DeviceError,
-             what: str | None = None, hint: str = ""):
+    def call(self, op: str, register: int | None, fn: Callable[..., T], *args: Any,
+             error: type[AccelcalError] = DeviceError, what: str | None = None, hint: str = "") -> T:
         """``fn(*args)``; an OSError (NACK, bus fault) is retried ``retries`` times, then ``error``."""
         for attempt in range(self.retries + 1):
             try:
@@ -144,13 +148,13 @@ class I2CTarget:
         raise error(f"{op} {self.where(register, what)} failed after {self.retries + 1} attempts: "
                     f"{_os_reason(last)}{hint}")
 
-    def read_byte(self, register: int, **kw) -> int:
+    def read_byte(self, register: int, **kw: Any) -> int:
         return self.call("read", register, self.smbus.read_byte_data, self.address, register, **kw)
 
-    def write_byte(self, register: int, value: int, **kw) -> None:
+    def write_byte(self, register: int, value: int, **kw: Any) -> None:
         self.call("write", register, self.smbus.write_byte_data, self.address, register, value & 0xFF, **kw)
 
-    def read_block(self, register: int, length: int, **kw) -> list[int]:
+    def read_block(self, register: int, length: int, **kw: Any) -> list[int]:
         return self.call("read", register, self.smbus.read_i2c_block_data, self.address, register, length,
                          **kw)
 
@@ -165,10 +169,10 @@ class I2CEeprom(NVM):
     READ_CHUNK = 256  # well under the kernel's 8192-byte i2c_msg limit
 
     def __init__(self, target: I2CTarget, size: int = 4096, page_size: int = 32,
-                 write_cycle_s: float = 0.005):
+                 write_cycle_s: float = 0.005) -> None:
         self.t, self.size, self.page_size, self.write_cycle_s = target, int(size), int(page_size), write_cycle_s
 
-    def _msgs(self, *msgs) -> None:
+    def _msgs(self, *msgs: Any) -> None:
         self.t.smbus.i2c_rdwr(*msgs)
 
     def _where(self, addr: int, n: int) -> str:
@@ -213,8 +217,9 @@ class MMA8451(Driver):
 
     def __init__(self, bus: int | str | Any = 1, address: int = 0x1D, range_g: int = 2, odr_hz: float = 100.0,
                  oversampling: str = "high_resolution", retries: int = 3, timeout_s: float = 1.0,
-                 serial: str = "", offset_trim_lsb=None, eeprom: dict | None = None, clock=None,
-                 bus_label: str | None = None):
+                 serial: str = "", offset_trim_lsb: Sequence[int] | None = None,
+                 eeprom: dict[str, Any] | None = None, clock: Clock | None = None,
+                 bus_label: str | None = None) -> None:
         if address not in ADDRESSES:
             raise ConfigError(f"address {address!r}; allowed: 0x1c (SA0 low), 0x1d (SA0 high)")
         self._bus_spec = bus
@@ -223,13 +228,13 @@ class MMA8451(Driver):
         self.address = address
         self.clock = clock or SystemClock()
         self.retries, self.timeout_s, self.serial = int(retries), float(timeout_s), serial
-        self._want = dict(range_g=range_g, odr_hz=odr_hz, oversampling=oversampling)
+        self._want: dict[str, Any] = {"range_g": range_g, "odr_hz": odr_hz, "oversampling": oversampling}
         self._trim0 = offset_trim_lsb
         self._eeprom_cfg = eeprom
-        self._smbus = None if self._owns_bus else bus
+        self._smbus: Any = None if self._owns_bus else bus
         self._dev: I2CTarget | None = None
         self._identified = False  # never write to a chip that is not an MMA8451
-        self.emulator = None  # the MMA8451Emulator when built for ``bus: emulated``
+        self.emulator: Any = None  # the MMA8451Emulator when built for ``bus: emulated``
         self._nvm: I2CEeprom | None = None
         self._range_g, self._odr_hz, self._mods = 2, 800.0, "normal"  # power-on defaults
 
@@ -238,7 +243,7 @@ class MMA8451(Driver):
                    "offset_trim_lsb", "eeprom", "simulator", "seed", "emulator")
 
     @classmethod
-    def parse_config(cls, cfg: dict, path: str = "device") -> tuple[Any, dict]:
+    def parse_config(cls, cfg: dict[str, Any], path: str = "device") -> tuple[Any, dict[str, Any]]:
         """Check a ``device:`` section (driver key removed): (bus spec, constructor keywords).
 
         ``bus: emulated`` is checked here but built by the factory (drivers/emulated.py), which
@@ -259,36 +264,35 @@ class MMA8451(Driver):
             shown = f"0x{address:02x}" if isinstance(address, int) else repr(address)
             raise ConfigError(f"{path}.address: {shown}; allowed: 0x1c (SA0 low), 0x1d (SA0 high)")
         trim = cfg.get("offset_trim_lsb")
-        if trim is not None:
-            if not isinstance(trim, (list, tuple)) or len(trim) != 3 or not all(
-                    isinstance(v, int) and not isinstance(v, bool) and -128 <= v <= 127 for v in trim):
-                raise ConfigError(f"{path}.offset_trim_lsb: {trim!r}; allowed: [x, y, z] whole numbers -128..127")
+        if trim is not None and (not isinstance(trim, (list, tuple)) or len(trim) != 3 or not all(
+                isinstance(v, int) and not isinstance(v, bool) and -128 <= v <= 127 for v in trim)):
+            raise ConfigError(f"{path}.offset_trim_lsb: {trim!r}; allowed: [x, y, z] whole numbers -128..127")
         eeprom = cfg.get("eeprom", {})
         if eeprom not in (None, False):
             e = check_keys(eeprom, ("address", "size", "page_size", "write_cycle_ms"), f"{path}.eeprom")
-            eeprom = dict(address=number(e, "address", f"{path}.eeprom", 0x50, 0x50, 0x57, integer=True),
-                          # 24C32 and up: smaller 24Cxx take a 1-byte word address, which this driver does not send
-                          size=number(e, "size", f"{path}.eeprom", 4096, 4096, 65536, integer=True),
-                          page_size=number(e, "page_size", f"{path}.eeprom", 32, 8, 256, integer=True),
-                          write_cycle_ms=number(e, "write_cycle_ms", f"{path}.eeprom", 5.0, 0.1, 100.0))
+            eeprom = {"address": number(e, "address", f"{path}.eeprom", 0x50, 0x50, 0x57, integer=True),
+                      # 24C32 and up: smaller 24Cxx take a 1-byte word address, which this driver does not send
+                      "size": number(e, "size", f"{path}.eeprom", 4096, 4096, 65536, integer=True),
+                      "page_size": number(e, "page_size", f"{path}.eeprom", 32, 8, 256, integer=True),
+                      "write_cycle_ms": number(e, "write_cycle_ms", f"{path}.eeprom", 5.0, 0.1, 100.0)}
         else:
             eeprom = None
         odr = cfg.get("odr_hz", 100.0)
         odr_index(odr, f"{path}.odr_hz")
-        kw = dict(
-            address=address,
-            range_g=choice(cfg, "range_g", path, tuple(COUNTS_PER_G), default=2),
-            odr_hz=float(odr),
-            oversampling=choice(cfg, "oversampling", path, tuple(MODS), default="high_resolution"),
-            retries=number(cfg, "retries", path, 3, 0, 20, integer=True),
-            timeout_s=number(cfg, "timeout_s", path, 1.0, 0.001, 60.0),
-            serial=str(cfg.get("serial") or ""),
-            offset_trim_lsb=trim, eeprom=eeprom,
-        )
+        kw = {
+            "address": address,
+            "range_g": choice(cfg, "range_g", path, tuple(COUNTS_PER_G), default=2),
+            "odr_hz": float(odr),
+            "oversampling": choice(cfg, "oversampling", path, tuple(MODS), default="high_resolution"),
+            "retries": number(cfg, "retries", path, 3, 0, 20, integer=True),
+            "timeout_s": number(cfg, "timeout_s", path, 1.0, 0.001, 60.0),
+            "serial": str(cfg.get("serial") or ""),
+            "offset_trim_lsb": trim, "eeprom": eeprom,
+        }
         return bus, kw
 
     @classmethod
-    def from_config(cls, cfg: dict, path: str = "device") -> "MMA8451":
+    def from_config(cls, cfg: dict[str, Any], path: str = "device") -> MMA8451:
         """Build from a ``device:`` section on a real bus; ``bus: emulated`` goes through the
         factory (``make_driver``), which builds the emulated bus and hands it in."""
         bus, kw = cls.parse_config(cfg, path)
@@ -297,7 +301,7 @@ class MMA8451(Driver):
         return cls(bus, **kw)
 
     # --- lifecycle ------------------------------------------------------------------------
-    def _open_bus(self):
+    def _open_bus(self) -> Any:
         bus = self._bus_spec
         node = bus if isinstance(bus, str) else f"/dev/i2c-{bus}"
         try:
@@ -334,10 +338,8 @@ class MMA8451(Driver):
 
     def close(self) -> None:
         if self._identified and self._smbus is not None:
-            try:  # leave the part in STANDBY (lowest power); a dead bus must not mask the real error
+            with suppress(OSError):  # leave the part in STANDBY (lowest power); a dead bus must not mask the real error
                 self._smbus.write_byte_data(self.address, CTRL_REG1, 0)
-            except OSError:
-                pass
         if self._owns_bus and self._smbus is not None:
             self._smbus.close()
             self._smbus = None
@@ -364,10 +366,8 @@ class MMA8451(Driver):
         The part reboots at once and may not ACK meanwhile, so NACKs are expected here
         (as in Linux mma8452_reset()); all registers return to their defaults (STANDBY, 2 g, 800 Hz).
         """
-        try:
+        with suppress(OSError):
             self.dev.smbus.write_byte_data(self.address, CTRL_REG2, CTRL2_RST)
-        except OSError:
-            pass
         last: Any = "RST bit still set"
         for _ in range(RESET_POLLS):
             self.clock.sleep(0.0002)
@@ -396,7 +396,7 @@ class MMA8451(Driver):
             raise DeviceError(f"{self.dev.where(register)}: wrote 0x{value & 0xFF:02x}, read back 0x{got:02x} "
                               "(configuration registers only change in STANDBY)")
 
-    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options) -> None:
+    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options: Any) -> None:
         """Full scale (2/4/8 g), data rate (1.56-800 Hz), ``oversampling`` (CTRL_REG2 MODS), in STANDBY."""
         mods = options.pop("oversampling", None)
         if options:
@@ -415,18 +415,19 @@ class MMA8451(Driver):
             self._write_checked(CTRL_REG1, (ctrl1 & ~(CTRL1_DR_MASK | CTRL1_F_READ)) | (dr << CTRL1_DR_SHIFT))
         self._range_g, self._odr_hz, self._mods = range_g, ODR_HZ[dr], mods
 
-    def set_offset_trim(self, lsb) -> None:
+    def set_offset_trim(self, lsb: Sequence[int] | np.ndarray) -> None:
         """Write OFF_X/Y/Z (signed 8-bit, 1/512 g = "2 mg" per LSB) in STANDBY and verify by read-back."""
         vals = [int(v) for v in lsb]
         if len(vals) != 3 or any(not -128 <= v <= 127 for v in vals):
             raise ConfigError(f"offset trim {list(lsb)!r}; allowed: three whole numbers -128..127 (1/512 g each)")
         with self._standby():
-            for reg, v in zip((OFF_X, OFF_Y, OFF_Z), vals):
+            for reg, v in zip((OFF_X, OFF_Y, OFF_Z), vals, strict=True):
                 self._write_checked(reg, v & 0xFF)
 
     def get_offset_trim(self) -> tuple[int, int, int]:
         raw = self.dev.read_block(OFF_X, 3)
-        return tuple(int(v) for v in np.array(raw, dtype=np.uint8).view(np.int8))
+        x, y, z = (int(v) for v in np.array(raw, dtype=np.uint8).view(np.int8))
+        return x, y, z
 
     # --- properties -----------------------------------------------------------------------
     @property
@@ -453,9 +454,9 @@ class MMA8451(Driver):
         return Identity(chip="mma8451", chip_id=CHIP_ID, serial=self.serial,
                         interface=f"i2c:{self.bus_label}@0x{self.address:02x}")
 
-    def settings(self) -> dict:
+    def settings(self) -> dict[str, Any]:
         """Chip-specific settings for display (``accelcal probe``)."""
-        s = {"oversampling": self._mods, "offset_trim_lsb": list(self.get_offset_trim())}
+        s: dict[str, Any] = {"oversampling": self._mods, "offset_trim_lsb": list(self.get_offset_trim())}
         if self._nvm is not None:
             s["eeprom"] = (f"24Cxx at 0x{self._nvm.t.address:02x}, {self._nvm.size} bytes, "
                            f"{self._nvm.page_size}-byte pages")

@@ -28,16 +28,35 @@ from __future__ import annotations
 import ctypes
 import errno
 import os
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, Protocol
 
 import numpy as np
 from smbus2.smbus2 import I2C_M_RD
 
-from ..config import check_keys, load_yaml, number
+from ..config.checks import check_keys, load_yaml, number
 from ..errors import ConfigError
-from .mma8451 import (CHIP_ID, CTRL1_ACTIVE, CTRL1_DR_MASK, CTRL1_DR_SHIFT, CTRL2_RST, CTRL_REG1,
-                      CTRL_REG2, FS_MASK, ODR_HZ, OFF_X, OFF_Z, OUT_X_MSB, STATUS, STATUS_ZYXDR, STATUS_ZYXOW,
-                      WHO_AM_I, XYZ_DATA_CFG, off_lsb_to_counts)
+from .eeprom import EEPROM24
+from .mma8451 import (
+    CHIP_ID,
+    CTRL1_ACTIVE,
+    CTRL1_DR_MASK,
+    CTRL1_DR_SHIFT,
+    CTRL2_RST,
+    CTRL_REG1,
+    CTRL_REG2,
+    FS_MASK,
+    ODR_HZ,
+    OFF_X,
+    OFF_Z,
+    OUT_X_MSB,
+    STATUS,
+    STATUS_ZYXDR,
+    STATUS_ZYXOW,
+    WHO_AM_I,
+    XYZ_DATA_CFG,
+    off_lsb_to_counts,
+)
 
 N_REGS = 0x32
 BOOT_S = 0.0005  # reboot after a software reset; the part NACKs meanwhile
@@ -53,17 +72,26 @@ def _nack(addr: int) -> OSError:
     return OSError(errno.EREMOTEIO, f"{os.strerror(errno.EREMOTEIO)} (emulated NACK at 0x{addr:02x})")
 
 
+class _I2CDevice(Protocol):
+    """A device model on the emulated bus (the chip, the EEPROM): raw I2C reads and writes."""
+
+    def i2c_read(self, n: int) -> bytes: ...
+
+    def i2c_write(self, data: bytes) -> None: ...
+
+
 class _Chip:
     """The MMA8451Q register file and sample pipeline."""
 
-    def __init__(self, emu: "MMA8451Emulator", chip_id: int):
+    def __init__(self, emu: MMA8451Emulator, chip_id: int) -> None:
         self.emu, self.chip_id = emu, chip_id
         self.ignored_writes: list[tuple[int, int]] = []  # (register, value) dropped while ACTIVE
         self.write_log: list[tuple[int, int, bool]] = []  # (register, value, was ACTIVE)
         self.reset()
 
     def reset(self) -> None:
-        self.pointer, self._snap = 0, None
+        self.pointer = 0
+        self._snap: bytes | None = None
         self.regs = bytearray(N_REGS)
         self.regs[WHO_AM_I] = self.chip_id
         self.unread = np.zeros(3, dtype=np.int64)  # samples latched since each axis's MSB was read
@@ -147,7 +175,7 @@ class _Chip:
 class _Clock:
     """The driver's view of time on the emulated bus: the board clock, advanced through the chip."""
 
-    def __init__(self, emu: "MMA8451Emulator"):
+    def __init__(self, emu: MMA8451Emulator) -> None:
         self.emu = emu
 
     def now(self) -> float:
@@ -164,7 +192,7 @@ class MMA8451Emulator:
     """
 
     def __init__(self, board: Any, address: int = 0x1D, eeprom_address: int | None = 0x50, chip_id: int = CHIP_ID,
-                 bus_hz: float = 400_000.0, never_ready: bool = False, present: bool = True):
+                 bus_hz: float = 400_000.0, never_ready: bool = False, present: bool = True) -> None:
         self.board, self.address, self.eeprom_address = board, address, eeprom_address
         self.bus_hz, self.never_ready, self.present = float(bus_hz), never_ready, present
         if board.chip.name != "mma8451":
@@ -172,7 +200,7 @@ class MMA8451Emulator:
         self.clock = _Clock(self)
         self._grid0 = 0.0
         self._boot_until = -np.inf
-        self._nacks: list[list] = []  # [remaining, address or None, register or None]
+        self._nacks: list[list[Any]] = []  # [remaining, address or None, register or None]
         self._nack_every = 0
         self._overrun, self._overrun_at = 0, 0
         self.samples_produced = 0
@@ -182,7 +210,7 @@ class MMA8451Emulator:
 
     # --- construction from a device config section ----------------------------------------
     @classmethod
-    def from_config(cls, cfg: dict, path: str, address: int, eeprom_address: int | None) -> "MMA8451Emulator":
+    def from_config(cls, cfg: dict[str, Any], path: str, address: int, eeprom_address: int | None) -> MMA8451Emulator:
         """The emulated bus of a ``bus: emulated`` device section.
 
         ``simulator``: the simulated board's configuration (drivers/simulated.py), inline or the path of
@@ -191,7 +219,8 @@ class MMA8451Emulator:
         """
         from .simulated import SimulatedBoard
 
-        sim, where = cfg.get("simulator"), f"{path}.simulator"
+        sim: Any = cfg.get("simulator")  # a mapping, or a YAML file's path
+        where = f"{path}.simulator"
         if isinstance(sim, str):
             sim, where = load_yaml(sim), sim
             if isinstance(sim.get("device"), dict):
@@ -218,7 +247,7 @@ class MMA8451Emulator:
         return len(self.nack_log)
 
     @property
-    def eeprom(self):
+    def eeprom(self) -> EEPROM24:
         return self.board.eeprom
 
     @property
@@ -264,7 +293,7 @@ class MMA8451Emulator:
         clock.advance_to(max(target, clock.now()))
 
     # --- the bus --------------------------------------------------------------------------
-    def _device(self, addr: int):
+    def _device(self, addr: int) -> _I2CDevice | None:
         if addr == self.address and self.present:
             return self.chip
         if self.eeprom_address is not None and addr == self.eeprom_address:
@@ -281,14 +310,18 @@ class MMA8451Emulator:
         if self._injected_nack(addr, register) or (addr == self.address and self.clock.now() < self._boot_until):
             self.nack_log.append((addr, register))
             raise _nack(addr)
-        out = []
+        out: list[bytes] = []  # one entry per message: what a read returned, b"" for a write
         for a, is_read, d in msgs:
             dev = self._device(a)
             if dev is None:
                 self.nack_log.append((a, register))
                 raise _nack(a)
             try:  # device models NACK by raising OSError(EREMOTEIO), e.g. an EEPROM in its write cycle
-                out.append(dev.i2c_read(d) if is_read else dev.i2c_write(bytes(d)))
+                if is_read:
+                    out.append(dev.i2c_read(d))
+                else:
+                    dev.i2c_write(bytes(d))
+                    out.append(b"")
             except OSError:
                 self.nack_log.append((a, register))
                 raise
@@ -304,37 +337,38 @@ class MMA8451Emulator:
         return False
 
     # --- smbus2.SMBus API subset ----------------------------------------------------------
-    def open(self, bus=None) -> None:
+    def open(self, bus: int | str | None = None) -> None:
         pass
 
     def close(self) -> None:
         pass
 
-    def __enter__(self) -> "MMA8451Emulator":
+    def __enter__(self) -> MMA8451Emulator:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def read_byte_data(self, i2c_addr: int, register: int, force=None) -> int:
+    def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         return self._transaction([(i2c_addr, False, [register]), (i2c_addr, True, 1)])[1][0]
 
-    def write_byte_data(self, i2c_addr: int, register: int, value: int, force=None) -> None:
+    def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
         self._transaction([(i2c_addr, False, [register, value & 0xFF])])
 
-    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force=None) -> list[int]:
+    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force: bool | None = None) -> list[int]:
         if length > 32:
             raise ValueError("Desired block length over 32 bytes")  # smbus2's limit (I2C_SMBUS_BLOCK_MAX)
         return list(self._transaction([(i2c_addr, False, [register]), (i2c_addr, True, length)])[1])
 
-    def write_i2c_block_data(self, i2c_addr: int, register: int, data, force=None) -> None:
+    def write_i2c_block_data(self, i2c_addr: int, register: int, data: Sequence[int],
+                             force: bool | None = None) -> None:
         if len(data) > 32:
             raise ValueError("Data length cannot exceed 32 bytes")
         self._transaction([(i2c_addr, False, [register, *data])])
 
-    def i2c_rdwr(self, *i2c_msgs) -> None:
+    def i2c_rdwr(self, *i2c_msgs: Any) -> None:
         """Combined transaction of ``smbus2.i2c_msg`` objects; read messages are filled in place."""
         msgs = [(m.addr, bool(m.flags & I2C_M_RD), m.len if m.flags & I2C_M_RD else bytes(m)) for m in i2c_msgs]
-        for m, data in zip(i2c_msgs, self._transaction(msgs)):
+        for m, data in zip(i2c_msgs, self._transaction(msgs), strict=True):
             if m.flags & I2C_M_RD:
                 ctypes.memmove(m.buf, data, m.len)

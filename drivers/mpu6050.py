@@ -1,7 +1,7 @@
 """MPU6050 behind a serial bridge MCU (docs/bridge-protocol.md), through pyserial.
 
-The bridge (firmware/mpu6050_bridge) owns the chip on I2C; this driver speaks the
-framed protocol of :mod:`bridge_protocol` over a serial port and knows the chip's
+The bridge (firmware/mpu6050_bridge) owns the chip on I2C; this driver speaks to it
+through :class:`bridge_link.BridgeLink` (framing, retries, MCU clock) and knows the chip's
 registers (RM-MPU-6000A-00 rev 4.2):
 
 - WHO_AM_I (0x75) reads 0x68; PWR_MGMT_1 (0x6B) wakes it (SLEEP bit 6 clear, clock PLL X gyro);
@@ -12,28 +12,27 @@ registers (RM-MPU-6000A-00 rev 4.2):
 - XA/YA/ZA_OFFS (0x06-0x0B): big-endian int16 trim in the +-16 g format (2048 LSB per g);
   bit 0 of each is reserved and kept on write (InvenSense offset-register app note).
 
-Link behaviour: garbage and CRC failures are skipped by the parser (resync); a gap
-in the bridge's sequence numbers counts lost frames, and lost SAMPLE frames are the
-capture's ``dropped``; a command unanswered within ``timeout_s`` is resent up to
-``retries`` times; a NAK for an I2C or NVM fault is retried the same way; a BOOT frame
-(the bridge reset) makes the driver wake and reconfigure the chip and resume, at most
-``MAX_RESETS`` times per operation.
+Link behaviour (:mod:`bridge_link`): garbage and CRC failures are skipped (resync); a
+gap in the bridge's sequence numbers counts lost frames, and lost SAMPLE frames are the
+capture's ``dropped``; a command unanswered within ``timeout_s``, or NAKed for an I2C or
+NVM fault, is resent up to ``retries`` times; a BOOT frame (the bridge reset) makes the
+driver wake and reconfigure the chip and resume, at most ``MAX_RESETS`` times per operation.
 """
 from __future__ import annotations
 
-import errno
 import time
-from collections import deque
-from dataclasses import dataclass, field, replace
-from typing import Any, Callable
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any, TypeVar
 
 import numpy as np
-import serial
+from numpy.typing import ArrayLike
 
-from ..config import check_keys, choice, number
+from ..config.checks import check_keys, choice, number
 from ..errors import ConfigError, DeviceError, NVMError
 from . import bridge_protocol as bp
 from .base import NVM, Capture, Driver, Identity
+from .bridge_link import BridgeLink, BridgeRefused, BridgeReset, LinkStats
 
 WHO_AM_I = 0x75
 CHIP_ID = 0x68
@@ -55,11 +54,11 @@ DLPF_BANDWIDTH_HZ = (260, 184, 94, 44, 21, 10, 5)  # accelerometer, per DLPF_CFG
 ACCEL_RATE_HZ = 1000.0
 OFFSET_LSB_PER_G = 2048.0
 MAX_RESETS = 2
-RETRYABLE_NAKS = (bp.ERR_I2C, bp.ERR_NVM)
-PERMISSION_HINT = "add the user to the dialout group (sudo usermod -aG dialout $USER) and log in again"
+
+T = TypeVar("T")
 
 
-def temperature_from_raw(raw) -> np.ndarray | float:
+def temperature_from_raw(raw: ArrayLike) -> np.ndarray | float:
     """TEMP_OUT to C (register map 4.18: raw / 340 + 36.53)."""
     return np.asarray(raw, dtype=float) / 340.0 + 36.53
 
@@ -82,173 +81,6 @@ def smplrt_div_for(odr_hz: float, dlpf: int, path: str = "odr_hz") -> int:
 
 
 @dataclass
-class LinkStats:
-    frames: int = 0  # good frames received
-    lost_frames: int = 0  # from gaps in the bridge's sequence numbers
-    timeouts: int = 0  # commands or streams that went unanswered for timeout_s
-    retries: int = 0  # commands resent (timeout or retryable NAK)
-    naks: int = 0
-    resets: int = 0  # BOOT frames seen after open
-    dropped_samples: int = 0
-
-    parser: bp.ParserStats = field(default_factory=bp.ParserStats)
-
-
-class BridgeReset(DeviceError):
-    """The bridge sent BOOT: it restarted, and the chip is back at its power-on state."""
-
-    def __init__(self, port: str, frame: bp.Frame):
-        cause = bp.BOOT_CAUSES.get(frame.payload[1], "unknown") if len(frame.payload) >= 2 else "unknown"
-        self.cause = cause
-        super().__init__(f"MPU6050 bridge on {port} reset ({cause})")
-
-
-class BridgeRefused(DeviceError):
-    """The bridge answered NAK with an error that retrying cannot fix."""
-
-
-class _McuClock:
-    """MCU microsecond timestamps (u32, wrap every 71.6 min) as seconds that never go back.
-
-    Across a bridge reset the MCU clock restarts; the gap is bridged with the host's clock.
-    """
-
-    def __init__(self) -> None:
-        self._last: int | None = None
-        self._us = 0
-        self._host_t = 0.0
-
-    def seconds(self, ts_us: int, boot: bool = False) -> float:
-        host_t = time.monotonic()
-        if self._last is None:
-            self._us = ts_us
-        elif boot:
-            self._us += int((host_t - self._host_t) * 1e6)
-        else:
-            d = (ts_us - self._last) & 0xFFFFFFFF
-            self._us += d if d < 0x80000000 else 0  # a step back only at an unseen reset
-        self._last, self._host_t = ts_us, host_t
-        return self._us * 1e-6
-
-
-class BridgeLink:
-    """Frames over a pyserial port: send commands, match ACK/NAK by seq, bounded retries."""
-
-    def __init__(self, port: str, baud: int = bp.DEFAULT_BAUD, timeout_s: float = 0.5, retries: int = 3):
-        self.port, self.baud, self.timeout_s, self.retries = port, baud, timeout_s, retries
-        self.stats = LinkStats()
-        self.parser = bp.FrameParser()
-        self.stats.parser = self.parser.stats
-        self.clock = _McuClock()
-        self._ser = None
-        self._seq = 0
-        self._expect: int | None = None
-        self._queue: deque[tuple[bp.Frame, float]] = deque()
-
-    def open(self) -> None:
-        try:
-            self._ser = serial.Serial(self.port, self.baud, timeout=0.02, write_timeout=max(1.0, self.timeout_s),
-                                      exclusive=True)
-        except serial.SerialException as e:
-            code = e.errno if isinstance(e.errno, int) else getattr(e.__context__, "errno", None)
-            if code == errno.ENOENT:
-                raise DeviceError(f"serial port {self.port} does not exist; is the bridge plugged in? "
-                                  "(list ports: python -m serial.tools.list_ports)") from None
-            if code == errno.EACCES:
-                raise DeviceError(f"permission denied on serial port {self.port}; {PERMISSION_HINT}") from None
-            if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK):
-                raise DeviceError(f"serial port {self.port} is in use by another program") from None
-            raise DeviceError(f"cannot open serial port {self.port}: {e}") from None
-        except (OSError, ValueError) as e:
-            raise DeviceError(f"cannot open serial port {self.port}: {e}") from None
-        self._ser.reset_input_buffer()
-
-    def close(self) -> None:
-        if self._ser is not None:
-            try:
-                self._ser.close()
-            finally:
-                self._ser = None
-
-    @property
-    def is_open(self) -> bool:
-        return self._ser is not None
-
-    def _io(self, fn: Callable, *args):
-        if self._ser is None:
-            raise DeviceError(f"serial port {self.port} is not open; use `with driver:` or open()")
-        try:
-            return fn(*args)
-        except (serial.SerialException, OSError) as e:
-            raise DeviceError(f"lost serial port {self.port}: {e}") from None
-
-    def send(self, type_: int, payload: bytes = b"") -> int:
-        """Send one command frame; returns its seq."""
-        self._seq = (self._seq + 1) & 0xFFFF
-        self._io(self._ser.write, bp.encode_frame(type_, self._seq, 0, payload))
-        return self._seq
-
-    def next_frame(self, deadline: float) -> tuple[bp.Frame, float] | None:
-        """The next good frame and its MCU time in s, or None at the (monotonic) deadline."""
-        while not self._queue:
-            # read before looking at the clock: a host that was descheduled still finds what came
-            data = self._io(self._ser.read, max(1, self._io(lambda: self._ser.in_waiting)))
-            for f in self.parser.feed(data):
-                self._track(f)
-            if not self._queue and time.monotonic() >= deadline:
-                return None
-        return self._queue.popleft()
-
-    def _track(self, f: bp.Frame) -> None:
-        self.stats.frames += 1
-        boot = f.type == bp.RSP_BOOT
-        if not boot and self._expect is not None:
-            gap = (f.seq - self._expect) & 0xFFFF
-            if gap < 0x8000:
-                self.stats.lost_frames += gap
-        self._expect = (f.seq + 1) & 0xFFFF
-        self._queue.append((f, self.clock.seconds(f.ts_us, boot)))
-
-    def command(self, cmd: int, payload: bytes = b"", timeout_s: float | None = None) -> bytes:
-        """Send ``cmd`` until ACKed (at most 1 + retries times); return the ACK's data.
-
-        Raises BridgeReset on a BOOT frame, DeviceError on a NAK or no answer.
-        """
-        name = bp.COMMAND_NAMES.get(cmd, hex(cmd))
-        timeout_s = self.timeout_s if timeout_s is None else timeout_s
-        attempts = self.retries + 1
-        why = f"no answer within {timeout_s:g} s"
-        for attempt in range(attempts):
-            if attempt:
-                self.stats.retries += 1
-            seq = self.send(cmd, payload)
-            deadline = time.monotonic() + timeout_s
-            while (got := self.next_frame(deadline)) is not None:
-                f = got[0]
-                if f.type == bp.RSP_BOOT:
-                    raise BridgeReset(self.port, f)
-                if f.type not in (bp.RSP_ACK, bp.RSP_NAK) or len(f.payload) < bp.ACK_PREFIX.size:
-                    continue  # samples or STREAM_END of a stream this command ended
-                if bp.ACK_PREFIX.unpack_from(f.payload) != (cmd, seq):
-                    continue  # a late answer to an earlier attempt
-                if f.type == bp.RSP_ACK:
-                    return f.payload[bp.ACK_PREFIX.size:]
-                self.stats.naks += 1
-                err = f.payload[3] if len(f.payload) > 3 else 0
-                why = f"bridge answered NAK: {bp.ERROR_TEXT.get(err, f'error 0x{err:02x}')}"
-                if err not in RETRYABLE_NAKS:
-                    raise BridgeRefused(f"MPU6050 bridge on {self.port} refused {name}: "
-                                      f"{bp.ERROR_TEXT.get(err, f'error 0x{err:02x}')}")
-                break
-            else:
-                self.stats.timeouts += 1
-        hint = {bp.ERR_I2C: "; check the MPU6050's SDA/SCL wiring, 3.3 V supply and AD0 (address 0x68)"}
-        raise DeviceError(f"MPU6050 bridge on {self.port}: {name} failed after {attempts} attempts ({why})"
-                          + (hint[bp.ERR_I2C] if "I2C" in why else
-                             f"; check the cable, baud rate ({self.baud}) and that the bridge firmware is flashed"))
-
-
-@dataclass
 class BridgeIdentity:
     protocol: int
     firmware: str
@@ -262,7 +94,7 @@ class BridgeIdentity:
 class BridgeNVM(NVM):
     """The bridge MCU's EEPROM in 32-byte pages (NVM_READ / NVM_WRITE), every write read back."""
 
-    def __init__(self, dev: "MPU6050Bridge", size: int, page_size: int):
+    def __init__(self, dev: MPU6050Bridge, size: int, page_size: int) -> None:
         self.dev, self.size, self.page_size = dev, size, page_size
 
     def _page(self, page: int) -> bytes:
@@ -309,7 +141,7 @@ class MPU6050Bridge(Driver):
 
     def __init__(self, port: str, baud: int = bp.DEFAULT_BAUD, range_g: int = 2, odr_hz: float = 100.0,
                  dlpf: int = 3, timeout_s: float = 0.5, retries: int = 3, boot_wait_s: float = 2.0,
-                 emulator: Any = None):
+                 emulator: Any = None) -> None:
         if range_g not in COUNTS_PER_G:
             raise ConfigError(f"range_g: {range_g!r}; allowed: 2, 4, 8, 16")
         if dlpf not in range(len(DLPF_BANDWIDTH_HZ)):
@@ -327,7 +159,7 @@ class MPU6050Bridge(Driver):
         self._stream_temp_c: float | None = None
 
     @classmethod
-    def from_config(cls, cfg: dict, path: str = "device") -> "MPU6050Bridge":
+    def from_config(cls, cfg: dict[str, Any], path: str = "device") -> MPU6050Bridge:
         """From a ``device:`` section (driver key removed) on a real port; ``port: emulated`` is
         built by the factory (``make_driver``, drivers/emulated.py), which hands the emulator in."""
         port, kw = cls.parse_config(cfg, path)
@@ -336,7 +168,7 @@ class MPU6050Bridge(Driver):
         return cls(port, **kw)
 
     @classmethod
-    def parse_config(cls, cfg: dict, path: str = "device") -> tuple[str, dict]:
+    def parse_config(cls, cfg: dict[str, Any], path: str = "device") -> tuple[str, dict[str, Any]]:
         """Check a ``device:`` section: (port, constructor keywords)."""
         cfg = check_keys(cfg, cls.CONFIG_KEYS, path)
         port = cfg.get("port")
@@ -349,12 +181,12 @@ class MPU6050Bridge(Driver):
         dlpf = number(cfg, "dlpf", path, 3, 0, 6, integer=True)
         odr = number(cfg, "odr_hz", path, 100.0, 0.0, ACCEL_RATE_HZ)
         smplrt_div_for(odr, dlpf, f"{path}.odr_hz")
-        kw = dict(baud=number(cfg, "baud", path, bp.DEFAULT_BAUD, 1200, 4_000_000, integer=True),
-                  range_g=choice(cfg, "range_g", path, tuple(COUNTS_PER_G), default=2),
-                  odr_hz=odr, dlpf=dlpf,
-                  timeout_s=number(cfg, "timeout_s", path, 0.5, 0.01, 60.0),
-                  retries=number(cfg, "retries", path, 3, 0, 20, integer=True),
-                  boot_wait_s=number(cfg, "boot_wait_s", path, 2.0, 0.0, 30.0))
+        kw = {"baud": number(cfg, "baud", path, bp.DEFAULT_BAUD, 1200, 4_000_000, integer=True),
+              "range_g": choice(cfg, "range_g", path, tuple(COUNTS_PER_G), default=2),
+              "odr_hz": odr, "dlpf": dlpf,
+              "timeout_s": number(cfg, "timeout_s", path, 0.5, 0.01, 60.0),
+              "retries": number(cfg, "retries", path, 3, 0, 20, integer=True),
+              "boot_wait_s": number(cfg, "boot_wait_s", path, 2.0, 0.0, 30.0)}
         return port, kw
 
     # --- lifecycle ------------------------------------------------------------------------
@@ -414,7 +246,7 @@ class MPU6050Bridge(Driver):
         if self._offsets_set is not None:
             self._write_offsets(self._offsets_set)
 
-    def _with_recovery(self, op: Callable[[], Any]) -> Any:
+    def _with_recovery(self, op: Callable[[], T]) -> T:
         """Run op; if the bridge resets meanwhile, re-initialise the chip and run op again."""
         for _ in range(MAX_RESETS + 1):
             try:
@@ -468,7 +300,7 @@ class MPU6050Bridge(Driver):
         """XA/YA/ZA_OFFS as int16 (+-16 g format: 2048 LSB per g; bit 0 reserved)."""
         return np.frombuffer(self.read_register(XA_OFFS_H, 6), dtype=">i2").astype(np.int64)
 
-    def set_accel_offsets(self, values) -> None:
+    def set_accel_offsets(self, values: ArrayLike) -> None:
         """Write XA/YA/ZA_OFFS read-modify-write: bits 15:1 from ``values``, bit 0 kept as read."""
         try:
             v = np.asarray(values, dtype=float).reshape(-1)
@@ -487,7 +319,7 @@ class MPU6050Bridge(Driver):
         self._write(XA_OFFS_H, new.astype(">u2").tobytes())
 
     # --- configuration --------------------------------------------------------------------
-    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options) -> None:
+    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options: Any) -> None:
         unknown = set(options) - {"dlpf"}
         if unknown:
             raise ConfigError(f"configure: unknown option {sorted(unknown)[0]!r}; allowed: dlpf")
@@ -511,7 +343,8 @@ class MPU6050Bridge(Driver):
         accel_config, config, got_div, _ = bp.CONFIGURE_DATA.unpack(d)
         if (accel_config >> 3) & 3 != AFS_SEL[range_g] or config & 7 != dlpf or got_div != div:
             raise DeviceError(f"MPU6050 via {self.port} did not take the configuration: "
-                              f"ACCEL_CONFIG 0x{accel_config:02x}, CONFIG 0x{config:02x}, SMPLRT_DIV {got_div} (wanted AFS_SEL {AFS_SEL[range_g]}, "
+                              f"ACCEL_CONFIG 0x{accel_config:02x}, CONFIG 0x{config:02x}, SMPLRT_DIV {got_div} "
+                              f"(wanted AFS_SEL {AFS_SEL[range_g]}, "
                               f"DLPF_CFG {dlpf}, SMPLRT_DIV {div})")
         self._range_g, self._dlpf, self._div = range_g, dlpf, div
         self._odr_hz = rate_base_hz(dlpf) / (1 + div)
@@ -547,7 +380,7 @@ class MPU6050Bridge(Driver):
         return Identity(chip="mpu6050", chip_id=b.who_am_i, serial=b.serial, interface=f"serial:{self.port}",
                         firmware=f"mpu6050-bridge {b.firmware} (protocol {b.protocol})")
 
-    def settings(self) -> dict:
+    def settings(self) -> dict[str, Any]:
         """Chip-specific settings for display (``accelcal probe``)."""
         b = self._bridge
         return {"dlpf": self._dlpf, "accel_bandwidth_hz": DLPF_BANDWIDTH_HZ[self._dlpf],
@@ -575,7 +408,8 @@ class MPU6050Bridge(Driver):
         n = int(n)
         if n < 1:
             raise DeviceError(f"read of {n} samples; need at least 1")
-        raw, times = bytearray(), []
+        raw = bytearray()
+        times: list[float] = []
         dropped = [0]
         stalls = resets = 0
         while (rest := n - len(times) - dropped[0]) > 0:
@@ -610,7 +444,7 @@ class MPU6050Bridge(Driver):
     def _inactivity_s(self) -> float:
         return self.link.timeout_s + 2.0 / self._odr_hz
 
-    def _stream(self, m: int, raw: bytearray, times: list, dropped: list) -> str:
+    def _stream(self, m: int, raw: bytearray, times: list[float], dropped: list[int]) -> str:
         """One STREAM of m samples into raw/times: "done", "short" (STREAM_END before m) or "stalled"."""
         self.link.command(bp.CMD_STREAM, bp.STREAM.pack(m))
         expected = 0

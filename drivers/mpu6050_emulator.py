@@ -31,14 +31,28 @@ from collections import deque
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from ..config import check_keys, load_yaml, number
+from ..config.checks import check_keys, load_yaml, number
 from ..errors import ConfigError
-from ..pty_server import PtyServer
+from ..sim.pty_server import PtyServer
 from . import bridge_protocol as bp
 from .eeprom import EEPROM24, PowerLossError
-from .mpu6050 import (ACCEL_CONFIG, ACCEL_RATE_HZ, ACCEL_XOUT_H, CHIP_ID, CONFIG, OFFSET_LSB_PER_G, PWR_MGMT_1,
-                      PWR_SLEEP, SMPLRT_DIV, TEMP_OUT_H, WHO_AM_I, XA_OFFS_H, rate_base_hz)
+from .mpu6050 import (
+    ACCEL_CONFIG,
+    ACCEL_RATE_HZ,
+    ACCEL_XOUT_H,
+    CHIP_ID,
+    CONFIG,
+    OFFSET_LSB_PER_G,
+    PWR_MGMT_1,
+    PWR_SLEEP,
+    SMPLRT_DIV,
+    TEMP_OUT_H,
+    WHO_AM_I,
+    XA_OFFS_H,
+    rate_base_hz,
+)
 
 FIRMWARE = (1, 0)
 CHUNK = 32  # samples produced between looks at the input (a STOP is seen within 32 samples)
@@ -53,7 +67,7 @@ class MPU6050BridgeEmulator(PtyServer):
 
     def __init__(self, board: Any = None, seed: int | None = None, who_am_i: int = CHIP_ID,
                  i2c_present: bool = True, serial: str | None = None, i2c_address: int = 0x68,
-                 factory_offsets=None):
+                 factory_offsets: ArrayLike | None = None) -> None:
         if board is None:
             from .simulated import SimulatedBoard
 
@@ -87,7 +101,7 @@ class MPU6050BridgeEmulator(PtyServer):
         self._power_on(bp.BOOT_POWER_ON, send=False)
 
     @classmethod
-    def from_config(cls, cfg: dict, path: str = "device") -> "MPU6050BridgeEmulator":
+    def from_config(cls, cfg: dict[str, Any], path: str = "device") -> MPU6050BridgeEmulator:
         """From a device section's ``simulator`` (a board mapping, or a YAML file as ``board_config_from_file``
         takes) and ``seed``."""
         from .simulated import SimulatedBoard
@@ -225,7 +239,7 @@ class MPU6050BridgeEmulator(PtyServer):
                 return
             k = min(k, self._stall_after[0] - self.stream_sent)
         raw, t = self._sample(k)
-        for row, ti in zip(raw.astype(">i2"), t):
+        for row, ti in zip(raw.astype(">i2"), t, strict=True):
             self._send(bp.RSP_SAMPLE, bp.SAMPLE_INDEX.pack(self.stream_sent) + row.tobytes(), float(ti))
             self.stream_sent += 1
         if self.stream_sent >= self.stream_n:
@@ -340,9 +354,10 @@ class MPU6050BridgeEmulator(PtyServer):
         reg, data = p[0], p[1:]
         if reg + len(data) > 0x80:
             return self._nak(bp.CMD_WRITE_REG, seq, bp.ERR_BAD_ARG)
-        if not self._i2c_write(reg, data):
+        back = self._i2c_read(reg, len(data)) if self._i2c_write(reg, data) else None
+        if back is None:
             return self._nak(bp.CMD_WRITE_REG, seq, bp.ERR_I2C)
-        self._ack(bp.CMD_WRITE_REG, seq, bytes([reg]) + self._i2c_read(reg, len(data)))
+        self._ack(bp.CMD_WRITE_REG, seq, bytes([reg]) + back)
 
     def _nvm_read(self, seq: int, p: bytes) -> None:
         if len(p) != 1:
@@ -369,7 +384,7 @@ class MPU6050BridgeEmulator(PtyServer):
         self._power_on(bp.BOOT_COMMAND)
 
 
-def board_config_from_file(path: str) -> tuple[dict | None, int | None]:
+def board_config_from_file(path: str) -> tuple[dict[str, Any] | None, int | None]:
     """A simulated board mapping and seed from a YAML file for ``accelcal emulate --config``.
 
     Accepts a station config whose ``device`` is ``driver: simulated`` (configs/sim.yaml) or

@@ -23,6 +23,8 @@ import queue
 import shutil
 import subprocess
 import threading
+from collections.abc import Sequence
+from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
@@ -58,8 +60,8 @@ def unavailable_reason() -> str | None:
 class SimavrBridge:
     """The bridge firmware in simavr on a pseudo-terminal, fed by a SimulatedBoard."""
 
-    def __init__(self, board: Any = None, seed: int | None = None, factory_offsets=(1001, -2000, 3),
-                 who_am_i: int = CHIP_ID):
+    def __init__(self, board: Any = None, seed: int | None = None, factory_offsets: Sequence[int] = (1001, -2000, 3),
+                 who_am_i: int = CHIP_ID) -> None:
         if board is None:
             from .simulated import SimulatedBoard
 
@@ -70,14 +72,16 @@ class SimavrBridge:
         self.lock = threading.RLock()  # held while a sample is taken: take it to move the board
         self.port: str | None = None
         self.registers: dict[str, int] = {}  # the chip's configuration registers as last written
-        self._proc: subprocess.Popen | None = None
+        self._proc: subprocess.Popen[str] | None = None
         self._thread: threading.Thread | None = None
-        self._stats: queue.Queue[dict] = queue.Queue()
+        self._stats: queue.Queue[dict[str, int]] = queue.Queue()
 
     # --- lifecycle ------------------------------------------------------------------------
     def start(self) -> str:
         """Build if needed, start the harness, return the pseudo-terminal's path."""
         if self._proc is not None:
+            if self.port is None:  # an earlier start was interrupted before the harness answered
+                raise DeviceError("simavr harness is starting or did not start; stop() it first")
             return self.port
         why = unavailable_reason()
         if why:
@@ -89,12 +93,12 @@ class SimavrBridge:
         self._thread = threading.Thread(target=self._serve, args=(ready,), name="simavr-bridge", daemon=True)
         self._thread.start()
         try:
-            self.port = ready.get(timeout=START_TIMEOUT_S)
+            self.port = port = ready.get(timeout=START_TIMEOUT_S)
         except queue.Empty:
             self.stop()
             raise DeviceError(f"simavr harness {HARNESS} did not open its pseudo-terminal "
                               f"within {START_TIMEOUT_S:g} s") from None
-        return self.port
+        return port
 
     def stop(self) -> None:
         """Stop the harness; safe to call twice."""
@@ -102,38 +106,40 @@ class SimavrBridge:
         if p is None:
             return
         try:
-            p.stdin.write("Q\n")
-            p.stdin.flush()
+            if p.stdin is not None:
+                p.stdin.write("Q\n")
+                p.stdin.flush()
             p.wait(timeout=2.0)
         except (OSError, ValueError, subprocess.TimeoutExpired):
             p.kill()
             p.wait()
         for f in (p.stdin, p.stdout):
-            try:
-                f.close()
-            except OSError:
-                pass
+            if f is not None:
+                with suppress(OSError):
+                    f.close()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
             self._thread = None
 
-    def __enter__(self) -> "SimavrBridge":
+    def __enter__(self) -> SimavrBridge:
         self.start()
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.stop()
 
     # --- side channel ---------------------------------------------------------------------
     def _send(self, line: str) -> None:
         p = self._proc
-        if p is None:
+        if p is None or p.stdin is None:
             raise DeviceError("simavr harness is not running")
         p.stdin.write(line + "\n")
         p.stdin.flush()
 
-    def _serve(self, ready: queue.Queue) -> None:
+    def _serve(self, ready: queue.Queue[str]) -> None:
         p = self._proc
+        if p is None or p.stdout is None:
+            return  # stopped before this thread ran
         try:
             for line in p.stdout:
                 word, _, rest = line.strip().partition(" ")
@@ -154,11 +160,9 @@ class SimavrBridge:
         dlpf = config & 7
         range_g = (2, 4, 8, 16)[(accel_config >> 3) & 3]
         rate = min(rate_base_hz(dlpf) / (1 + div), ACCEL_RATE_HZ)  # the accelerometer samples at 1 kHz
-        with self.lock:
-            try:
-                self.board.configure(range_g, rate, dlpf)
-            except ConfigError:
-                pass  # mid-CONFIGURE (SMPLRT_DIV written before CONFIG): the next write completes it
+        # mid-CONFIGURE (SMPLRT_DIV written before CONFIG) is refused: the next write completes it
+        with self.lock, suppress(ConfigError):
+            self.board.configure(range_g, rate, dlpf)
 
     def _sample_line(self) -> str:
         with self.lock:

@@ -30,20 +30,37 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..calibration import Calibration
-from ..config import check_keys, load_yaml, number
+from ..config.checks import check_keys, load_yaml, number
 from ..errors import ConfigError, DeviceError
-from ..sensor_model import SensorModel, get_chip, rotation_matrix
+from ..sim.sensor_model import SensorModel, get_chip, rotation_matrix
 from .base import Driver, Identity
 from .eeprom import EEPROM24
 
 BOARD_KEYS = ("chip", "range_g", "odr_hz", "dlpf", "seed", "serial", "realtime", "ambient_c",
               "self_heating_c", "eeprom", "simulator", "effects")
 EEPROM_KEYS = ("size_bytes", "page_bytes", "write_cycle_ms", "fail_at_write", "image")
+
+
+class Pose(Protocol):
+    """What the board needs of a commanded pose (a fixtures PoseSpec): its name and reference output."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def reference_g(self) -> np.ndarray: ...
+
+
+class Environment(Protocol):
+    """Surroundings that set the board's temperature (an emulated chamber's physics)."""
+
+    def board_temperature_c(self) -> float: ...
 
 
 class VirtualClock:
@@ -66,7 +83,7 @@ class VirtualClock:
         self.sleep(t - self.t)
 
 
-def load_sensor_config(cfg: dict, path: str) -> tuple[Any, str]:
+def load_sensor_config(cfg: dict[str, Any], path: str) -> tuple[Any, str]:
     """The ``effects`` mapping named by a board config, and the key path for its errors."""
     if "simulator" in cfg and "effects" in cfg:
         raise ConfigError(f"{path}: give either simulator or effects, not both")
@@ -91,7 +108,7 @@ class SimulatedBoard:
         self.model = model
         self.chip = model.chip
         ss = np.random.SeedSequence(seed)
-        self.seed = int(ss.entropy)
+        self.seed = int(cast(int, ss.entropy))  # an int: the seed given, or fresh entropy for None
         self._rng_noise, self._rng_drift, self._rng_pose = (np.random.default_rng(s) for s in ss.spawn(3))
         self.serial = serial if serial is not None else f"SIM-{self.seed % 10**8:08d}"
         self.clock = clock if clock is not None else VirtualClock(realtime=realtime)
@@ -99,9 +116,10 @@ class SimulatedBoard:
         self.eeprom.clock = self.clock
         self.ambient_c = float(ambient_c)
         self.self_heating_c = float(self_heating_c)
-        self.environment = None  # e.g. an emulated chamber's physics: then the board's temperature follows it
+        # e.g. an emulated chamber's physics: then the board's temperature follows it
+        self.environment: Environment | None = None
         self._t_power = self.clock.now()
-        self.pose = None
+        self.pose: Pose | None = None
         self.true_rotation = np.eye(3)  # R_err of the current pose
         self._dir = np.array([0.0, 0.0, 1.0])  # true output direction (flat board)
         self._f = model.gravity_g() * self._dir
@@ -114,8 +132,8 @@ class SimulatedBoard:
         self.configure(c.default_range_g, c.default_odr_hz, c.default_dlpf)
 
     @classmethod
-    def from_config(cls, cfg: dict | None = None, chip: str | None = None, seed: int | None = None,
-                    path: str = "simulator") -> "SimulatedBoard":
+    def from_config(cls, cfg: dict[str, Any] | None = None, chip: str | None = None, seed: int | None = None,
+                    path: str = "simulator") -> SimulatedBoard:
         """Build a board from its YAML mapping; ``chip``/``seed`` arguments override it.
 
         ``cfg=None`` is an ideal chip of its datasheet: noise, quantization and
@@ -209,7 +227,7 @@ class SimulatedBoard:
         scatter = self._rng_pose.normal(0.0, p["scatter_deg"], 3) if p["scatter_deg"] > 0 else np.zeros(3)
         return rotation_matrix(p["jig_rotation_deg"]) @ rotation_matrix(scatter)
 
-    def set_pose(self, pose, rotation=None) -> None:
+    def set_pose(self, pose: Pose, rotation: ArrayLike | None = None) -> None:
         """Bring the board to a commanded PoseSpec; the true output is R_err @ reference_g.
 
         ``rotation``: an R_err already drawn with :meth:`pose_error_rotation` (a jig
@@ -219,7 +237,7 @@ class SimulatedBoard:
         self.pose, self.true_rotation = pose, R
         self.set_gravity_direction(R @ pose.reference_g)
 
-    def set_gravity_direction(self, direction) -> None:
+    def set_gravity_direction(self, direction: ArrayLike) -> None:
         """Set the true output direction exactly (no pose error); starts a settling transient."""
         d = np.asarray(direction, dtype=float).reshape(3)
         n = np.linalg.norm(d)
@@ -299,7 +317,7 @@ class SimulatedBoard:
         self._disturbances = [d for d in self._disturbances if d[1] > t[-1]]
         return f
 
-    def read_motion(self, directions) -> tuple[np.ndarray, np.ndarray]:
+    def read_motion(self, directions: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """One sample per row of ``directions`` (n, 3) while the true output follows them.
 
         The board rotates about its sensor (no centripetal force); each change of
@@ -335,7 +353,7 @@ class SimulatedDriver(Driver):
         self._open = False
 
     @classmethod
-    def from_config(cls, cfg: dict | None, path: str = "device") -> "SimulatedDriver":
+    def from_config(cls, cfg: dict[str, Any] | None, path: str = "device") -> SimulatedDriver:
         return cls(SimulatedBoard.from_config(cfg, path=path))
 
     def open(self) -> None:
@@ -352,7 +370,7 @@ class SimulatedDriver(Driver):
         self._check_open()
         return self.board.identity
 
-    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options) -> None:
+    def configure(self, range_g: int | None = None, odr_hz: float | None = None, **options: Any) -> None:
         self._check_open()
         unknown = set(options) - {"dlpf"}
         if unknown:

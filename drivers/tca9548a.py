@@ -10,11 +10,12 @@ register-level emulator (drivers/tca9548a_emulator.py) the same way.
 from __future__ import annotations
 
 import threading
+from collections.abc import Sequence
 from typing import Any
 
 import smbus2
 
-from ..config import check_keys, number
+from ..config.checks import check_keys, number
 from ..errors import ConfigError, DeviceError
 from .mma8451 import MMA8451
 
@@ -25,7 +26,7 @@ CHANNELS = range(8)
 class MuxBus:
     """One I2C bus with a TCA9548A on it: remembers the selected channel; one transaction at a time."""
 
-    def __init__(self, smbus: Any, address: int = 0x70, label: str = ""):
+    def __init__(self, smbus: Any, address: int = 0x70, label: str = "") -> None:
         if address not in ADDRESSES:
             raise ConfigError(f"mux.address: 0x{address:02x}; allowed: 0x70..0x77")
         self.smbus, self.address, self.label = smbus, address, label
@@ -50,36 +51,37 @@ class MuxBus:
 class MuxChannel:
     """The subset of ``smbus2.SMBus`` the MMA8451 driver uses, through one mux channel."""
 
-    def __init__(self, mux: MuxBus, channel: int):
+    def __init__(self, mux: MuxBus, channel: int) -> None:
         if channel not in CHANNELS:
             raise ConfigError(f"channel: {channel!r}; allowed: 0..7")
         self.mux, self.channel = mux, channel
 
-    def _call(self, name: str, *args):
+    def _call(self, name: str, *args: Any) -> Any:
         with self.mux.lock:
             self.mux.select(self.channel)
             return getattr(self.mux.smbus, name)(*args)
 
-    def read_byte_data(self, i2c_addr: int, register: int, force=None) -> int:
+    def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         return self._call("read_byte_data", i2c_addr, register)
 
-    def write_byte_data(self, i2c_addr: int, register: int, value: int, force=None) -> None:
+    def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
         self._call("write_byte_data", i2c_addr, register, value)
 
-    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force=None) -> list[int]:
+    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force: bool | None = None) -> list[int]:
         return self._call("read_i2c_block_data", i2c_addr, register, length)
 
-    def write_i2c_block_data(self, i2c_addr: int, register: int, data, force=None) -> None:
+    def write_i2c_block_data(self, i2c_addr: int, register: int, data: Sequence[int],
+                             force: bool | None = None) -> None:
         self._call("write_i2c_block_data", i2c_addr, register, data)
 
-    def i2c_rdwr(self, *msgs) -> None:
+    def i2c_rdwr(self, *msgs: Any) -> None:
         self._call("i2c_rdwr", *msgs)
 
     def close(self) -> None:
         pass  # the bus belongs to the MuxBus
 
 
-def mux_settings(section: dict, path: str) -> tuple[int, int, dict]:
+def mux_settings(section: dict[str, Any], path: str) -> tuple[int, int, dict[str, Any]]:
     """(mux address, channel, the device section without the mux keys) of a board behind a mux."""
     m = check_keys(section.get("mux"), ("address",), f"{path}.mux")
     address = number(m, "address", f"{path}.mux", 0x70, 0x70, 0x77, integer=True)
@@ -90,7 +92,7 @@ def mux_settings(section: dict, path: str) -> tuple[int, int, dict]:
     return address, channel, rest
 
 
-def muxed_mma8451(section: dict, path: str, buses: dict) -> MMA8451:
+def muxed_mma8451(section: dict[str, Any], path: str, buses: dict[tuple[Any, int], MuxBus]) -> MMA8451:
     """An MMA8451 behind a TCA9548A on a real bus; ``buses`` shares one MuxBus per (bus, mux address)."""
     address, channel, rest = mux_settings(section, path)
     bus, kw = MMA8451.parse_config(rest, path)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import errno
 import os
+from collections.abc import Sequence
 from typing import Any
 
 
@@ -28,7 +29,7 @@ def _nack(addr: int, why: str = "") -> OSError:
 class TCA9548AEmulator:
     """smbus2's ``SMBus`` API on an emulated bus: the mux plus what sits behind its channels."""
 
-    def __init__(self, address: int = 0x70):
+    def __init__(self, address: int = 0x70) -> None:
         self.address = address
         self.control = 0  # power-on: every channel disconnected
         self.channels: dict[int, Any] = {}
@@ -46,40 +47,41 @@ class TCA9548AEmulator:
             raise _nack(addr, ": two enabled channels answer this address")
         return hits[0]
 
-    def _on(self, addr: int, name: str, *args):
+    def _on(self, addr: int, name: str, *args: Any) -> Any:
         return getattr(self._route(addr), name)(addr, *args)
 
     # --- smbus2.SMBus API subset ---------------------------------------------------------
-    def open(self, bus=None) -> None:
+    def open(self, bus: int | str | None = None) -> None:
         pass
 
     def close(self) -> None:
         pass
 
-    def write_byte(self, i2c_addr: int, value: int, force=None) -> None:
+    def write_byte(self, i2c_addr: int, value: int, force: bool | None = None) -> None:
         if i2c_addr != self.address:
             raise _nack(i2c_addr)
         self.control = value & 0xFF
         self.selects += 1
 
-    def read_byte(self, i2c_addr: int, force=None) -> int:
+    def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
         if i2c_addr != self.address:
             raise _nack(i2c_addr)
         return self.control
 
-    def read_byte_data(self, i2c_addr: int, register: int, force=None) -> int:
+    def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         return self._on(i2c_addr, "read_byte_data", register)
 
-    def write_byte_data(self, i2c_addr: int, register: int, value: int, force=None) -> None:
+    def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
         self._on(i2c_addr, "write_byte_data", register, value)
 
-    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force=None) -> list[int]:
+    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force: bool | None = None) -> list[int]:
         return self._on(i2c_addr, "read_i2c_block_data", register, length)
 
-    def write_i2c_block_data(self, i2c_addr: int, register: int, data, force=None) -> None:
+    def write_i2c_block_data(self, i2c_addr: int, register: int, data: Sequence[int],
+                             force: bool | None = None) -> None:
         self._on(i2c_addr, "write_i2c_block_data", register, data)
 
-    def i2c_rdwr(self, *msgs) -> None:
+    def i2c_rdwr(self, *msgs: Any) -> None:
         addrs = {m.addr for m in msgs}
         if len(addrs) != 1:
             raise _nack(min(addrs), ": one target per combined transaction here")

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from accelcal_station.conventions import an4399_reference
-from accelcal_station.posetable import write_pose_table
+from accelcal_station.data.posetable import write_pose_table
 from accelcal_station.session import PoseRecord, Session
 
 COUNTS_PER_G = 4096

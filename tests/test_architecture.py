@@ -1,95 +1,105 @@
-"""The package's import graph has no cycles (a driver never imports its emulator)."""
+"""The house: layers kept by import-linter (pyproject.toml), sizes, one docstring per subpackage.
+
+The import contracts themselves live in pyproject.toml ([tool.importlinter]); these tests run
+``lint-imports`` on the package as it is and on a copy with one deliberately wrong import, so
+a broken contract cannot pass unnoticed.
+"""
 from __future__ import annotations
 
 import ast
+import os
+import re
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = {"accelcal_station": ROOT / "accelcal_station", "accelcal_station.drivers": ROOT / "drivers",
-            "accelcal_station.fixtures": ROOT / "fixtures"}
+PKG = ROOT / "accelcal_station"
+MAX_MODULE_LINES = 500
+MAX_FUNCTION_LINES = 60
+MAX_TOP_LEVEL_MODULES = 10
 
 
-def _modules() -> dict[str, Path]:
-    out = {}
-    for pkg, folder in PACKAGES.items():
-        for f in folder.rglob("*.py"):
-            rel = f.relative_to(folder).with_suffix("")
-            parts = [p for p in rel.parts if p != "__init__"]
-            out[".".join([pkg, *parts])] = f
-    return out
+def _lint_imports(cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+    exe = shutil.which("lint-imports", path=os.path.dirname(sys.executable)) or shutil.which("lint-imports")
+    if exe is None:
+        pytest.fail("lint-imports is not installed: pip install -e '.[test]' brings import-linter")
+    return subprocess.run([exe, "--no-cache"], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
 
-def _imports(name: str, path: Path, known: set[str]) -> set[str]:
-    """Modules of the package that ``name`` imports anywhere (module level or inside functions)."""
-    is_pkg = path.name == "__init__.py"
-    base = name.split(".") if is_pkg else name.split(".")[:-1]
-    found = set()
-    for node in ast.walk(ast.parse(path.read_text())):
-        targets = []
-        if isinstance(node, ast.ImportFrom):
-            mod = ".".join(base[:len(base) - node.level + 1] + ([node.module] if node.module else [])) \
-                if node.level else node.module or ""
-            targets = [mod] + [f"{mod}.{a.name}" for a in node.names]
-        elif isinstance(node, ast.Import):
-            targets = [a.name for a in node.names]
-        found |= {t for t in targets if t in known and t != name}
-    return found
+def test_import_contracts_are_kept():
+    r = _lint_imports(ROOT)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
+    assert re.search(r"Contracts: \d+ kept, 0 broken", r.stdout), r.stdout[-2000:]
 
 
-def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
-    state: dict[str, int] = {}
-    stack: list[str] = []
-
-    def visit(n: str) -> list[str] | None:
-        state[n] = 1
-        stack.append(n)
-        for m in sorted(graph[n]):
-            if state.get(m) == 1:
-                return stack[stack.index(m):] + [m]
-            if m not in state and (c := visit(m)):
-                return c
-        stack.pop()
-        state[n] = 2
-        return None
-
-    for n in sorted(graph):
-        if n not in state and (c := visit(n)):
-            return c
-    return None
+def _copy_with(tmp_path: Path, module: str, line: str) -> Path:
+    """A copy of the package (links resolved) with ``line`` added to ``module`` (path inside the package)."""
+    shutil.copytree(PKG, tmp_path / "accelcal_station", symlinks=False,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    target = tmp_path / "accelcal_station" / module
+    target.write_text(target.read_text() + f"\n{line}\n")
+    return tmp_path
 
 
-def test_drivers_never_import_their_emulators():
-    mods = _modules()
-    known = set(mods)
-    for drv in ("mma8451", "mpu6050"):
-        name = f"accelcal_station.drivers.{drv}"
-        assert f"{name}_emulator" not in _imports(name, mods[name], known)
+@pytest.mark.parametrize("module, line, broken", [
+    ("station/board.py", "from ..cli import main  # deliberately wrong",
+     "accelcal_station.station is not allowed to import accelcal_station.cli"),
+    ("models/linear.py", "from ..store.runs import Store  # deliberately wrong",
+     "accelcal_station.models is not allowed to import accelcal_station.store"),
+    ("drivers/mma8451.py", "from . import mma8451_emulator  # deliberately wrong",
+     "accelcal_station.drivers.mma8451 is not allowed to import accelcal_station.drivers.mma8451_emulator"),
+    ("lot/batch.py", "import tests.conftest  # deliberately wrong",
+     "accelcal_station.lot.batch -> tests"),
+])
+def test_a_wrong_import_breaks_a_contract(tmp_path, module, line, broken):
+    """The same contracts on a copy with one wrong import: lint-imports fails and names it."""
+    copy = _copy_with(tmp_path, module, line)
+    env = dict(os.environ, PYTHONPATH=str(copy))  # the copy is found before the installed package
+    r = _lint_imports(copy, env)
+    out = " ".join(r.stdout.split())
+    assert r.returncode == 1, r.stdout[-3000:] + r.stderr[-2000:]
+    assert broken in out, out[-3000:]
 
 
-def test_no_import_cycle_between_modules():
-    mods = _modules()
-    known = set(mods)
-    # package __init__ re-exports are edges too, except a package's own submodules importing it
-    graph = {n: {m for m in _imports(n, p, known) if not n.startswith(m + ".")} for n, p in mods.items()}
-    cycle = _cycle(graph)
-    assert cycle is None, " -> ".join(cycle)
+def _python_files() -> list[Path]:
+    """Every Python file of the repository: the package (drivers/ and fixtures/ by their own
+    folders), tests, benchmarks and examples."""
+    folders = ("accelcal_station", "drivers", "fixtures", "configs", "tests", "benchmarks", "examples")
+    return sorted({f for folder in folders for f in (ROOT / folder).rglob("*.py")
+                   if f.relative_to(ROOT).parts[:2] != ("tests", "data")})  # upstream scripts kept as they came
 
 
-def _reach(graph: dict[str, set[str]], start: str) -> set[str]:
-    seen, todo = set(), [start]
-    while todo:
-        for m in graph[todo.pop()] - seen:
-            seen.add(m)
-            todo.append(m)
-    return seen
+def test_no_module_over_500_lines():
+    big = {str(f.relative_to(ROOT)): n for f in _python_files() if (n := len(f.read_text().splitlines())) >
+           MAX_MODULE_LINES}
+    assert not big, f"modules over {MAX_MODULE_LINES} lines: {big}"
 
 
-def test_fitting_never_loads_the_diagnosis_engine():
-    """`accelcal fit` and batch stand on models/ and identifiability; the sim-to-real diagnosis
-    (gap_effects, effects/, diagnose*) sits above them, never below."""
-    mods = _modules()
-    known = set(mods)
-    graph = {n: _imports(n, p, known) for n, p in mods.items()}
-    for low in ("accelcal_station.models", "accelcal_station.identifiability"):
-        above = {m for m in _reach(graph, low) if m.split(".")[1].startswith(("gap_", "diagnose", "effects"))}
-        assert not above, f"{low} reaches {sorted(above)}"
+def test_no_function_over_60_lines():
+    """Counted from the first decorator (a click command's options are part of it) to the last line."""
+    long = []
+    for f in _python_files():
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                first = min([node.lineno, *(d.lineno for d in node.decorator_list)])
+                n = node.end_lineno - first + 1
+                if n > MAX_FUNCTION_LINES:
+                    long.append(f"{f.relative_to(ROOT)}:{node.lineno} {node.name} ({n} lines)")
+    assert not long, "functions over 60 lines:\n" + "\n".join(long)
+
+
+def test_top_level_holds_at_most_ten_modules():
+    mods = sorted(p.name for p in PKG.glob("*.py"))
+    assert len(mods) <= MAX_TOP_LEVEL_MODULES, mods
+
+
+def test_every_subpackage_says_what_it_holds_and_may_import():
+    inits = sorted(PKG.rglob("__init__.py")) + [ROOT / "drivers" / "__init__.py", ROOT / "fixtures" / "__init__.py"]
+    for init in inits:
+        doc = ast.get_docstring(ast.parse(init.read_text())) or ""
+        assert len(doc) > 80 and "import" in doc, f"{init.relative_to(ROOT)}: docstring {doc!r}"

@@ -1,4 +1,4 @@
-"""Batch recalibration (accelcal_station/batch.py, `accelcal batch`): vectorised fits equal
+"""Batch recalibration (accelcal_station/lot/batch.py, `accelcal batch`): vectorised fits equal
 one-at-a-time fits, unfittable boards are reported and skipped, results go to files and the store."""
 from __future__ import annotations
 
@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from accelcal_station.batch import recalibrate, sessions_from_files
 from accelcal_station.calibration import Calibration
 from accelcal_station.cli import cli
+from accelcal_station.data.posetable import read_pose_table, write_pose_table
 from accelcal_station.fixtures.designs import get_design
-from accelcal_station.models import fit_session, fit_temperature
-from accelcal_station.posetable import read_pose_table, write_pose_table
+from accelcal_station.lot.batch import recalibrate, sessions_from_files
+from accelcal_station.models.fitting import fit_session, fit_temperature
 from accelcal_station.session import PoseRecord, Session
-from accelcal_station.store import Store
+from accelcal_station.store.runs import Store
 
 CPG = 4096.0
 N_BOARDS = 200
@@ -74,7 +74,7 @@ def test_batch_of_200_equals_fitting_one_at_a_time(lot, tmp_path):
     assert rep["outputs"]["calibrations"] == N_BOARDS
     rows = list(csv.DictReader((tmp_path / "summary.csv").open()))
     assert len(rows) == N_BOARDS
-    for res, row in zip(rep["results"], rows):
+    for res, row in zip(rep["results"], rows, strict=True):
         one = fit_session(read_pose_table(res["source"], references=True), "12")
         np.testing.assert_array_equal(res["W"], one.W)  # identical, not merely close
         np.testing.assert_array_equal(res["V"], one.V)
@@ -94,7 +94,7 @@ def test_model_9_batch_equals_one_at_a_time():
     rep = recalibrate([*boards[:10], short, *boards[10:]], "9")
     assert len(rep.fitted) == 20 and rep.fit_calls == 2  # one stack per pose count: 14 (20 boards) and 8 (fails)
     assert "8 distinct orientations; the 9-parameter norm model needs at least 9" in rep.results[10].message
-    for (_, s), r in zip(boards, rep.fitted):
+    for (_, s), r in zip(boards, rep.fitted, strict=True):
         one = fit_session(s, "9")
         np.testing.assert_array_equal(r.calibration.W, one.W)
         np.testing.assert_array_equal(r.calibration.V, one.V)
@@ -151,7 +151,7 @@ def test_nan_and_missing_references_skip_only_their_board():
     rep = recalibrate(good[:2] + [("nan", nan), ("noref", noref)] + good[2:], "12")
     assert [r.ok for r in rep.results] == [True, True, False, False, True, True, True]
     assert "NaN" in rep.results[2].message and "no reference" in rep.results[3].message
-    for (src, s), r in zip(good, rep.fitted):
+    for (_src, s), r in zip(good, rep.fitted, strict=True):
         np.testing.assert_array_equal(r.calibration.W, fit_session(s, "12").W)
 
 
@@ -214,7 +214,7 @@ def test_batch_from_files_into_a_store_adds_runs(lot, tmp_path):
     with Store(db) as st:
         runs = st.runs()
         assert [x.station_id for x in runs] == ["accelcal-batch"] * 3 and all(x.status == "complete" for x in runs)
-        for rec, p in zip(runs, paths):
+        for rec, p in zip(runs, paths, strict=True):
             one = fit_session(read_pose_table(p, references=True), "12")
             np.testing.assert_array_equal(rec.calibration_object().W, one.W)
             assert rec.device_serial == read_pose_table(p).metadata["serial"] and len(rec.poses) == 8

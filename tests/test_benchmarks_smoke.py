@@ -161,7 +161,8 @@ def test_thermal_time_split(capsys):
     (rows,) = tables(out)
     by = {r[0]: r[1:] for r in rows}
     assert "verdicts: one board PASS; panel PASS (2/2 PASS)" in out
-    keys = ("soak (all set points)", "sampling floor (averaged / ODR)", "rest (moves, gating, EEPROM)", "total per board")
+    keys = ("soak (all set points)", "sampling floor (averaged / ODR)", "rest (moves, gating, EEPROM)",
+            "total per board")
     for col in (0, 2):  # one board, then the panel's per-board figure
         soak, floor, rest, total = (number(by[k][col]) for k in keys)
         assert soak + floor + rest == pytest.approx(total, abs=2.0) and soak > floor > 0

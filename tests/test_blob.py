@@ -9,11 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from accelcal_station.blob import (
-    HEADER_SIZE, MAGIC, BlobError, blob_length, blob_size, decode, encode, newer,
-)
 from accelcal_station.calibration import Calibration, TemperatureTable
 from accelcal_station.errors import DataError, NVMError
+from accelcal_station.nvm.blob import HEADER_SIZE, MAGIC, BlobError, blob_length, blob_size, decode, encode, newer
 
 
 def make_cal(seed: int = 0, k: int = 0, method: str = "linear", units: str = "counts") -> Calibration:

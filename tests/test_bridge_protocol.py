@@ -87,7 +87,7 @@ def test_firmware_frame_layout_matches_host(ino):
     host = {"len": 2, "seq": 2 + struct.calcsize("<B"), "type": 2 + struct.calcsize("<BH"),
             "ts": 2 + struct.calcsize("<BHB")}
     assert {k: off[k] for k in host} == host
-    assert off["payload"].replace(" ", "") == "2+HEADER_LEN" and 2 + bp.HEADER_LEN == 2 + struct.calcsize("<BHBI")
+    assert off["payload"].replace(" ", "") == "2+HEADER_LEN" and 2 + struct.calcsize("<BHBI") == 2 + bp.HEADER_LEN
     recv = ino[ino.index("static void handle_frame"):ino.index("// Byte-wise receiver")]
     assert "uint8_t len = rx_buf[0];" in recv and "uint8_t type = rx_buf[3];" in recv
     assert "rx_buf[1] | ((uint16_t)rx_buf[2] << 8)" in recv  # SEQ little-endian after LEN
@@ -186,7 +186,7 @@ def check_accepted(frames, stream: bytes) -> None:
 def feed_chunks(data: bytes, cuts: list[int]) -> tuple[list, bp.FrameParser]:
     p = bp.FrameParser()
     out, last = [], 0
-    for c in sorted(set(min(c, len(data)) for c in cuts)) + [len(data)]:
+    for c in sorted({min(c, len(data)) for c in cuts}) + [len(data)]:
         out += p.feed(data[last:c])
         assert p.pending < bp.MAX_FRAME + len(data)  # never unbounded
         last = c
@@ -223,7 +223,7 @@ def test_fuzz_mutated_frames(specs, flips, cuts, prefix):
     data = bytes(data) + bytes(bp.MAX_FRAME)  # zero padding ends any pending candidate
     got, p = feed_chunks(data, cuts)
     check_accepted(got, data)
-    intact = [bp.FrameParser().feed(f)[0] for f, s in zip(frames, starts)
+    intact = [bp.FrameParser().feed(f)[0] for f, s in zip(frames, starts, strict=True)
               if not touched & set(range(s, s + len(f)))]
     spurious = [f for f in got if bp.encode_frame(f.type, f.seq, f.ts_us, f.payload) not in frames]
     if not spurious:

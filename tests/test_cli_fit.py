@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from accelcal_station.calibration import Calibration
 from accelcal_station.cli import cli
 from accelcal_station.conventions import an4399_reference
-from accelcal_station.posetable import read_pose_table, write_pose_table
+from accelcal_station.data.posetable import read_pose_table, write_pose_table
 from accelcal_station.session import PoseRecord, Session
 
 TOL = 2e-5  # the vector file's tolerance for printed decimals
@@ -27,7 +27,8 @@ def _run(*args):
 def _table(tmp_path, an4399, name) -> Path:
     e = an4399[name]
     lines = [f"# counts_per_g: {an4399['counts_per_g']}", "pose,pitch_deg,roll_deg,x,y,z"]
-    lines += [f"p{i + 1},{a[0]},{a[1]},{c[0]},{c[1]},{c[2]}" for i, (a, c) in enumerate(zip(e["poses_deg"], e["counts"]))]
+    lines += [f"p{i + 1},{a[0]},{a[1]},{c[0]},{c[1]},{c[2]}"
+              for i, (a, c) in enumerate(zip(e["poses_deg"], e["counts"], strict=True))]
     p = tmp_path / f"{name}.csv"
     p.write_text("\n".join(lines) + "\n")
     return p
@@ -168,7 +169,8 @@ def test_bad_input_is_one_line_and_non_zero(tmp_path, an4399):
          "u.csv: line 1: unknown units 'parsecs'; allowed: counts, g, mps2"),
         (["fit", _bad(tmp_path, "\n".join(good.read_text().splitlines()[:5]) + "\n", "few.csv")],
          "few.csv: 3 distinct orientations; model 12 needs at least 4 poses"),
-        (["fit", good, "--model", "9"], "6 distinct orientations; the 9-parameter norm model needs at least 9 well spread"),
+        (["fit", good, "--model", "9"],
+         "6 distinct orientations; the 9-parameter norm model needs at least 9 well spread"),
         (["fit", good, "--model", "7"], "--model '7'; allowed: 6, 9, 12, 15"),
         (["fit", good, "--counts-per-g", "-4096"], "--counts-per-g '-4096'; allowed: a positive number"),
         (["fit", good, "--temp-method", "cubic"], "--temp-method 'cubic'; allowed: linear, quadratic"),

@@ -17,9 +17,9 @@ from click.testing import CliRunner
 
 from accelcal_station.calibration import Calibration
 from accelcal_station.cli import cli
-from accelcal_station.cli.probe import device_section
-from accelcal_station.drivers import make_driver
-from accelcal_station.writer import CalibrationWriter
+from accelcal_station.config.sections import device_section
+from accelcal_station.drivers.factory import make_driver
+from accelcal_station.nvm.writer import CalibrationWriter
 
 REPO = Path(__file__).resolve().parents[1]
 EMU_SERIAL = "EMU-0001"  # configs/mma8451-emulated.yaml's simulated board

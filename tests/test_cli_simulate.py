@@ -11,8 +11,8 @@ from click.testing import CliRunner
 
 from accelcal_station.calibration import Calibration
 from accelcal_station.cli import cli
+from accelcal_station.data.posetable import read_pose_table
 from accelcal_station.drivers.simulated import SimulatedBoard
-from accelcal_station.posetable import read_pose_table
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -12,7 +12,7 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-from accelcal_station.posetable import read_pose_table
+from accelcal_station.data.posetable import read_pose_table
 
 DATA = Path(__file__).resolve().parent / "data"
 TESTS = DATA.parent

@@ -9,7 +9,8 @@ import pytest
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-from accelcal_station.rawlog import detect_static, read_raw_log
+from accelcal_station.data.rawlog import read_raw_log
+from accelcal_station.data.static_poses import detect_static
 
 FACES = {  # expected output in g, axis-up convention of the data (x_p: x up reads +1 g)
     "x_p": (1, 0, 0), "x_a": (-1, 0, 0), "y_p": (0, 1, 0), "y_a": (0, -1, 0), "z_p": (0, 0, 1), "z_a": (0, 0, -1),

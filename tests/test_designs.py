@@ -11,9 +11,15 @@ from click.testing import CliRunner
 from accelcal_station.cli import cli
 from accelcal_station.errors import DataError, UnderdeterminedError
 from accelcal_station.fixtures.base import PoseSpec
-from accelcal_station.fixtures.designs import (DESIGNS, get_design, min_separation, optimal_design,
-                                               predict_stderr, references)
-from accelcal_station.models import fit, fit_batch
+from accelcal_station.fixtures.designs import (
+    DESIGNS,
+    get_design,
+    min_separation,
+    optimal_design,
+    predict_stderr,
+    references,
+)
+from accelcal_station.models.fitting import fit, fit_batch
 
 NAMED = [n for n in DESIGNS if n != "optimal-N"]
 TABLES = {"an4399-4": "example_3", "an4399-6": "example_4", "an4399-8": "example_5"}

@@ -1,4 +1,5 @@
-"""`accelcal diagnose`: the sim-to-real gap, the effect behind it, and the self-test on withheld effects."""
+"""`accelcal diagnose`: the sim-to-real gap, the effect behind it, the report and bad input (the self-test on
+withheld effects: test_diagnose_selftest.py)."""
 from __future__ import annotations
 
 import csv
@@ -12,18 +13,18 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-from accelcal_station.diagnose import _p_greater, diagnose, gap_data, load_data, load_simulator
-from accelcal_station.diagnose_report import selftest_lines, summary_lines
-from accelcal_station.diagnose_selftest import selftest as run_selftest
+from accelcal_station.diagnosis.engine import diagnose
+from accelcal_station.diagnosis.gap_data import Capture, GapData, value_step
+from accelcal_station.diagnosis.gap_effects import evaluate
+from accelcal_station.diagnosis.loading import gap_data, load_data, load_simulator
+from accelcal_station.diagnosis.noise_floor import bias_var, mean_var, within_spread
+from accelcal_station.diagnosis.report import summary_lines
+from accelcal_station.diagnosis.selection import _p_greater
 from accelcal_station.fixtures.designs import get_design
-from accelcal_station.gap_effects import Capture, GapData, bias_var, evaluate, mean_var, value_step, within_spread
-from accelcal_station.sensor_model import rotation_matrix
 from accelcal_station.session import PoseRecord, Session
+from accelcal_station.sim.sensor_model import rotation_matrix
 
 REPO = Path(__file__).resolve().parents[1]
-# the effects a pose table or a raw log can reveal (the self-test must name each of them)
-REVEALABLE = {"offset", "gain", "cross_axis", "cubic", "quadratic", "temperature", "pose_error", "noise",
-              "quantization", "drift", "settling"}
 CUBIC = [0.003, -0.002, 0.004]
 
 
@@ -39,13 +40,6 @@ def one_line_error(r) -> str:
 
 
 @pytest.fixture(scope="module")
-def selftest():
-    r = run("diagnose", "--selftest", "--json")
-    assert r.exit_code == 0, r.output
-    return json.loads(r.stdout)
-
-
-@pytest.fixture(scope="module")
 def cubic_table(tmp_path_factory):
     """A simulated board with a cubic nonlinearity the default configuration lacks."""
     d = tmp_path_factory.mktemp("cubic")
@@ -56,105 +50,6 @@ def cubic_table(tmp_path_factory):
             "--out", d / "table.csv")
     assert r.exit_code == 0, r.output
     return d / "table.csv"
-
-
-# -- the self-test -------------------------------------------------------------------------------
-# Fixed seeds (1 through the CLI, with coverage; 2 and 3 in-process): deterministic.  The
-# benchmark (benchmarks/bench_diagnose.py, table in benchmarks/README.md, 50 seeds per case) gives
-# the per-case miss rates: flicker 0.04, each null case 0.02, every other case 0.00.  A seed drawn
-# at random therefore fails some case with probability about 1 - 0.96 * 0.98 * 0.98 = 0.08, and
-# three seeds about 0.22: that is the false-failure rate these fixed seeds stand for (alpha = 0.01
-# per greedy step and per signature test, Bonferroni over the views).
-OFF_CATALOG = {"product", "face_tilt", "flicker", "hysteresis"}
-MORE_SEEDS = (2, 3)
-
-
-def _check_case_rules(result: dict) -> None:
-    """The pass rules of the issue, checked here rather than read back from each case's `pass`."""
-    for c in result["cases"]:
-        if c["kind"] == "named" and c["revealable"]:
-            assert c["named"] == c["case"], c
-            if c["case"] not in ("pose_error", "noise", "quantization"):
-                assert c["rms_mg_after_named"] <= c["rms_mg_before"] / 2, c
-        elif c["kind"] == "named":
-            assert c["named"] is None, c
-        elif c["kind"] == "unexplained":
-            assert c["selected"] == [] and c["verdict"] == "unexplained", c
-        elif c["kind"] == "both":
-            assert set(c["case"].split("+")) <= set(c["selected"]), c
-            assert c["rms_mg_after"] < c["rms_mg_before"] / 2, c
-        else:
-            assert c["kind"] == "null" and c["selected"] == [] and c["verdict"] == "nothing to explain", c
-
-
-@pytest.mark.parametrize("seed", MORE_SEEDS)
-def test_selftest_passes_at_more_fixed_seeds(seed):
-    result = run_selftest(seed=seed, coverage=False)
-    assert len(result["cases"]) == 21 and result["seed"] == seed
-    _check_case_rules(result)
-    assert result["passed"]
-
-
-def test_selftest_rules_hold_at_the_cli_seed(selftest):
-    _check_case_rules(selftest)
-
-
-def test_selftest_names_every_revealable_withheld_effect_first(selftest):
-    cases = {c["case"]: c for c in selftest["cases"] if c["kind"] == "named"}
-    assert {e for e, c in cases.items() if c["revealable"]} == REVEALABLE
-    for effect in REVEALABLE:
-        c = cases[effect]
-        assert c["named"] == effect, c
-        if effect not in ("pose_error", "noise", "quantization"):  # deterministic: held-out RMS at least halved
-            assert c["rms_mg_after_named"] <= c["rms_mg_before"] / 2, c
-            assert c["gap_before"] > 2, c  # the effect really opened a gap
-    assert selftest["passed"] and "forward" in selftest["physics"]
-
-
-def test_selftest_off_catalog_effects_are_unexplained_with_nothing_named(selftest):
-    cases = {c["case"]: c for c in selftest["cases"] if c["kind"] == "unexplained"}
-    assert set(cases) == OFF_CATALOG
-    for c in cases.values():
-        assert c["selected"] == [] and c["verdict"] == "unexplained", c
-        assert c["gap_before"] > 3 and c["rms_mg_after"] == c["rms_mg_before"], c  # a real gap, left as it was
-    assert "product of axes" in cases["product"]["left"]
-    assert "fixed per orientation" in cases["face_tilt"]["left"]
-    assert "approach direction" in cases["hysteresis"]["left"]
-    assert "time-varying" in cases["flicker"]["left"]
-
-
-def test_selftest_two_effect_cases_name_both(selftest):
-    cases = {c["case"]: c for c in selftest["cases"] if c["kind"] == "both"}
-    assert set(cases) == {"cubic+temperature", "drift+settling"}
-    for name, c in cases.items():
-        assert set(name.split("+")) <= set(c["selected"]), c
-        assert c["rms_mg_after"] < c["rms_mg_before"] / 2, c
-
-
-def test_selftest_null_cases_name_nothing(selftest):
-    nulls = [c for c in selftest["cases"] if c["kind"] == "null"]
-    assert len(nulls) == 2 and {c["data"].split(",")[0] for c in nulls} == {"pose table with references", "raw log (no references)"}
-    for c in nulls:
-        assert c["named"] is None and c["selected"] == [] and c["verdict"] == "nothing to explain", c
-        assert 0.6 < c["gap_before"] < 1.5, c
-
-
-def test_selftest_says_which_effects_it_cannot_reveal_and_why(selftest):
-    cases = {c["case"]: c for c in selftest["cases"]}
-    for effect in ("gravity", "saturation"):  # on every kind of static gravity data
-        assert not cases[effect]["revealable"] and cases[effect]["named"] is None
-        assert cases[effect]["gap_before"] < 1.5  # and indeed the board's effect left no gap
-    assert "gain absorbs" in cases["gravity"]["reason"]
-    assert "clips" in cases["saturation"]["reason"]
-    cov = selftest["coverage"]
-    assert "raw" in cov["drift"]["refs"] and cov["drift"]["raw"] == "testable"
-    assert "raw" in cov["settling"]["norm"] and "raw" in cov["quantization"]["refs"]
-    assert "rotation" in cov["pose_error"]["norm"] and cov["pose_error"]["refs"] == "testable (signature)"
-    assert "temperature" in cov["temperature"]["refs"] and cov["temperature"]["refs-3T"] == "testable"
-    text = "\n".join(selftest_lines(selftest))
-    for name in cases:
-        assert any(line.startswith(name) for line in text.splitlines()), name
-    assert "drift / refs:" in text and text.rstrip().endswith("self-test passed")
 
 
 # -- the headline only residuals move --------------------------------------------------------------
@@ -213,7 +108,7 @@ def test_a_tilt_that_repeats_on_revisit_is_not_pose_error():
 
 
 def test_forward_cubic_is_the_sensors_physics():
-    from accelcal_station.sensor_model import SensorModel
+    from accelcal_station.sim.sensor_model import SensorModel
 
     m = SensorModel.from_config({"offset": {"offset_mg": [20.0, -10.0, 5.0]}, "cubic": {"cubic_per_g2": CUBIC}})
     m.forward = True
@@ -224,7 +119,7 @@ def test_forward_cubic_is_the_sensors_physics():
 
 def test_identifiability_is_said_in_words():
     """Six faces revisited: six distinct orientations; a cubic next to the gain is confounded there."""
-    from accelcal_station.gap_effects import describe_design
+    from accelcal_station.diagnosis.effects.design import describe_design
 
     recs = [PoseRecord(f"f{k}", p.reference_g * 4096.0, None, 100, p.reference_g, p.pitch_deg, p.roll_deg, 25.0)
             for k, p in enumerate(list(get_design("six-face")) * 3)]
@@ -348,8 +243,10 @@ def test_bad_input_is_one_line(tmp_path, cubic_table):
     assert "--samples" in one_line_error(run("diagnose", cubic_table, "--samples", "many"))
     (tmp_path / "afile").write_text("x")
     assert "not a directory" in one_line_error(run("diagnose", cubic_table, "--report", tmp_path / "afile"))
-    assert "driver: simulated" in one_line_error(run("diagnose", cubic_table, "--config", REPO / "configs" / "mma8451.yaml"))
-    assert "no such simulator configuration" in one_line_error(run("diagnose", cubic_table, "--config", tmp_path / "no.yaml"))
+    assert "driver: simulated" in one_line_error(run("diagnose", cubic_table, "--config",
+                                                     REPO / "configs" / "mma8451.yaml"))
+    assert "no such simulator configuration" in one_line_error(run("diagnose", cubic_table, "--config",
+                                                                   tmp_path / "no.yaml"))
     few = tmp_path / "few.csv"  # five norm-only poses: nothing can be held out
     rows = list(csv.DictReader(line for line in cubic_table.read_text().splitlines() if not line.startswith("#")))
     few.write_text("# units: counts\n# counts_per_g: 4096\npose,pitch_deg,roll_deg,x,y,z\n"
@@ -413,7 +310,8 @@ def test_quantization_floor_matches_monte_carlo():
         # 20000 draws: the variance estimate's relative sd is about 1 %, so 4 % fails with p < 1e-4
         assert np.var(means) == pytest.approx(float(mean_var(sigma, 1.0, n)), rel=0.04), sigma
     assert within_spread(0.05, 1.0) > 100 * within_spread(0.5, 1.0)  # heavy quantization: w(x) swings
-    assert value_step(np.array([[0, 64, 128], [-64, 0, 192]])) == 64 and value_step(np.array([0.1, 0.25])) == pytest.approx(0.15)
+    assert value_step(np.array([[0, 64, 128], [-64, 0, 192]])) == 64 \
+        and value_step(np.array([0.1, 0.25])) == pytest.approx(0.15)
 
 
 def test_counts_given_as_g_are_refused(data_dir):
@@ -430,19 +328,17 @@ def test_counts_given_as_g_are_refused(data_dir):
 def test_diagnosis_core_imports_nothing_from_cli_and_loads_like_fit():
     import ast
 
-    import accelcal_station.diagnose_load as dl
+    import accelcal_station.diagnosis.loading as dl
 
     pkg = REPO / "accelcal_station"
-    files = [*pkg.glob("diagnose*.py"), *(pkg / "effects").glob("*.py"),
-             *(pkg / f"{m}.py" for m in ("gap_effects", "gap_data", "noise_floor", "evaluation", "identifiability",
-                                          "loading"))]
+    files = [*(pkg / "diagnosis").rglob("*.py"), pkg / "identifiability.py", pkg / "config" / "sections.py"]
     for f in files:
         for node in ast.walk(ast.parse(f.read_text())):
             if isinstance(node, ast.ImportFrom):
                 assert "cli" not in (node.module or "").split("."), (f.name, node.module)
     # one loader: diagnose reads files through the function `accelcal fit` uses
     from accelcal_station.cli import fit as cli_fit
-    from accelcal_station.loader import load
+    from accelcal_station.data.loader import load
 
     assert dl.load is load and cli_fit.load is load
 
@@ -489,9 +385,10 @@ def test_a_jig_rotation_on_a_null_board_and_under_a_full_cross_axis_matrix(sim_w
 # -- the catalog: one class per effect, one interface ------------------------------------------------
 
 def test_every_catalog_effect_is_one_class_on_the_shared_interface():
-    from accelcal_station.effects import DETERMINISTIC, STOCHASTIC, DeterministicEffect, StochasticEffect
-    from accelcal_station.gap_effects import static_design
-    from accelcal_station.sensor_model import EFFECT_NAMES
+    from accelcal_station.diagnosis.effects.base import DeterministicEffect, StochasticEffect
+    from accelcal_station.diagnosis.effects.catalog import DETERMINISTIC, STOCHASTIC
+    from accelcal_station.diagnosis.effects.design import static_design
+    from accelcal_station.sim.sensor_model import EFFECT_NAMES
 
     assert set(EFFECT_NAMES) <= set(DETERMINISTIC) | set(STOCHASTIC)
     for eff in DETERMINISTIC.values():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from accelcal_station.errors import UnderdeterminedError
-from accelcal_station.handplaced import norm_faces, opposite_face
+from accelcal_station.models.handplaced import norm_faces, opposite_face
 
 FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1.0]])
 IMUCAL_FACES = {"x_p": (1, 0, 0), "x_a": (-1, 0, 0), "y_p": (0, 1, 0), "y_a": (0, -1, 0), "z_p": (0, 0, 1),
@@ -99,7 +99,8 @@ def test_imucal_session_both_estimates_on_held_out_halves(data_dir):
 
 def _table(path, x, ref, names):
     path.write_text("# units: g\npose,pitch_deg,roll_deg,x,y,z,ref_x,ref_y,ref_z\n" + "".join(
-        f"{n},,,{r[0]!r},{r[1]!r},{r[2]!r},{e[0]:g},{e[1]:g},{e[2]:g}\n" for n, r, e in zip(names, x.tolist(), ref)))
+        f"{n},,,{r[0]!r},{r[1]!r},{r[2]!r},{e[0]:g},{e[1]:g},{e[2]:g}\n"
+        for n, r, e in zip(names, x.tolist(), ref, strict=True)))
     return path
 
 

@@ -10,8 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-from accelcal_station.posetable import write_pose_table
-from accelcal_station.store import Store
+from accelcal_station.data.posetable import write_pose_table
+from accelcal_station.store.runs import Store
 
 ACCELCAL = [sys.executable, "-m", "accelcal_station"]
 
@@ -27,7 +27,7 @@ def test_two_stations_record_at_once_and_report_lists_both(store_url, tmp_path):
                                "--lot", "L7", "--json"], cwd=tmp_path, stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True) for s in ("SN-A", "SN-B")]
     outs = [p.communicate(timeout=120) for p in procs]
-    for p, (out, err) in zip(procs, outs):
+    for p, (_out, err) in zip(procs, outs, strict=True):
         assert p.returncode == 0, err[-2000:]
     ids = sorted(json.loads(out)["run_id"] for out, _ in outs)
     runs = _report_list(store_url)
@@ -89,9 +89,9 @@ def test_reasons_stored_as_text_are_typed_once_by_the_migration(store_url, monke
     """A store written at schema 2 (reasons as bare text) opened by this station: migration 3
     gives every reason a code once (the station's own reason_codes when the row kept them),
     a damaged row stays shown as damaged, and summaries then group by the stored code."""
-    import accelcal_station.store as store_mod
-    from accelcal_station.models import fit_session
-    from accelcal_station.reasons import Reason
+    import accelcal_station.store.schema as store_mod
+    from accelcal_station.acceptance.reasons import Reason
+    from accelcal_station.models.fitting import fit_session
     from accelcal_station.session import PoseRecord, Session
 
     refs = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1), (0.6, 0.8, 0), (0, 0.6, 0.8)]

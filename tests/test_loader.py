@@ -9,9 +9,9 @@ import warnings
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from test_rawlog import CPG, RATE, make_log
 
 from accelcal_station.cli import cli
-from test_rawlog import CPG, RATE, make_log
 
 
 def _run(*args):
@@ -81,7 +81,7 @@ def test_column_names_time_units_and_unit_words(tmp_path, log12, names, tcol, ts
     cols = [tcol, *names, "gyr_x"]
     f = _write(tmp_path / "log.csv", ",".join(cols),
                [[f"{ti:.6f}" if tscale == 1 else f"{ti:.0f}"] + [f"{v:.6f}" for v in row] + ["0"]
-                for ti, row in zip(t, counts * scale)])
+                for ti, row in zip(t, counts * scale, strict=True)])
     r = _run("fit", "--raw", f, "--json")
     assert r.exit_code == 0, r.output
     inf = json.loads(r.stdout)["inferred"]
@@ -192,7 +192,8 @@ def test_rate_and_raw_hints_work_when_followed(tmp_path, log12):
     _one_line_error(r, "--rate is for raw sample logs; add --raw")
     assert _run("fit", norate, "--rate", "100", "--raw").exit_code == 0
     t_ns = np.arange(len(counts)) * 10_000_000  # nanoseconds: judged as us, that is 0.1 Hz... refused
-    ns = _write(tmp_path / "ns.csv", "time,ax,ay,az", [[str(t)] + c for t, c in zip(t_ns, _cells(counts, ".0f"))])
+    ns = _write(tmp_path / "ns.csv", "time,ax,ay,az",
+                [[str(t)] + c for t, c in zip(t_ns, _cells(counts, ".0f"), strict=True)])
     r = _run("fit", "--raw", ns)
     _one_line_error(r, "gives 0.1 Hz", "name its unit in the header: time_s, time_ms, time_us or time_ns")
     renamed = tmp_path / "renamed.csv"

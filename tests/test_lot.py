@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from accelcal_station.acceptance import Limits, judge
+from accelcal_station.acceptance.rules import Limits, judge
 from accelcal_station.cli import cli as main
 from accelcal_station.conventions import an4399_reference
 from accelcal_station.fixtures.designs import get_design, references
-from accelcal_station.lotsim import write_lot
-from accelcal_station.models import fit
+from accelcal_station.lot.streaming import recalibrate_lot
+from accelcal_station.lot.synthetic import write_lot
+from accelcal_station.models.fitting import fit
 from accelcal_station.models.gravity_norm import fit_norm_batch
 from accelcal_station.models.linear import fit_linear_batch
 from accelcal_station.models.stacked import fit_stacked
-from accelcal_station.streaming import recalibrate_lot
 
 
 def _boards(D, ref, seed, noise=1e-3):
@@ -150,7 +150,7 @@ def _bad_lot(tmp_path):
 @pytest.mark.parametrize("reader", ["pyarrow", "python"])
 def test_lot_csv_to_results_every_board_reported(tmp_path, monkeypatch, reader):
     if reader == "python":  # the pure-Python CSV reader and writer (pyarrow not installed)
-        monkeypatch.setattr("accelcal_station.lot.arrow_available", lambda: False)
+        monkeypatch.setattr("accelcal_station.data.lotfile.arrow_available", lambda: False)
     else:
         pytest.importorskip("pyarrow.csv", reason="the optional pyarrow is not installed")
     lot = _bad_lot(tmp_path)
@@ -217,7 +217,7 @@ def test_parquet_lot_and_other_result_formats_give_the_same_numbers(tmp_path, fm
     else:
         b = [json.loads(ln) for ln in (tmp_path / "b.jsonl").read_text().splitlines()]
     assert [r["serial"] for r in a] == [r["serial"] for r in b]
-    for ra, rb in zip(a, b):
+    for ra, rb in zip(a, b, strict=True):
         for k in ("W00", "W12", "V1", "residual_rms_mg", "crossval_rms_mg", "condition_number"):
             assert float(ra[k]) == pytest.approx(rb[k], rel=1e-12, abs=1e-15)
 
@@ -270,7 +270,7 @@ def test_model9_ellipsoid_start_is_exact_on_an_exact_ellipsoid():
     # the algebraic fit and the Newton square root recover M and B; the sphere start cannot
     from accelcal_station.models import stacked_norm
     rng = np.random.default_rng(11)
-    D, P = 50, 12
+    D = 50
     K = np.eye(3) + rng.normal(0, 0.05, (D, 3, 3))
     M = 0.5 * (K + K.transpose(0, 2, 1))
     B = rng.normal(0, 0.05, (D, 3))

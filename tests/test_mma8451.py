@@ -8,9 +8,20 @@ import pytest
 import smbus2
 from smbus2 import i2c_msg
 
-from accelcal_station.drivers import make_driver
-from accelcal_station.drivers.mma8451 import (CTRL_REG1, CTRL_REG2, OFF_X, OUT_X_MSB, STATUS, STATUS_ZYXDR,
-                                              STATUS_ZYXOW, WHO_AM_I, XYZ_DATA_CFG, MMA8451, decode_counts)
+from accelcal_station.drivers.factory import make_driver
+from accelcal_station.drivers.mma8451 import (
+    CTRL_REG1,
+    CTRL_REG2,
+    MMA8451,
+    OFF_X,
+    OUT_X_MSB,
+    STATUS,
+    STATUS_ZYXDR,
+    STATUS_ZYXOW,
+    WHO_AM_I,
+    XYZ_DATA_CFG,
+    decode_counts,
+)
 from accelcal_station.drivers.mma8451_emulator import STANDBY_ONLY, MMA8451Emulator
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.errors import ConfigError, DeviceError, NVMError

@@ -9,7 +9,8 @@ import pytest
 from accelcal_station.calibration import Calibration, TemperatureTable, quadratic_coefficients
 from accelcal_station.conventions import an4399_reference
 from accelcal_station.errors import DataError, TemperatureRangeError, UnderdeterminedError, UnitsError
-from accelcal_station.models import fit, fit_batch, fit_temperature, six_param_six_face, six_param_two_pose
+from accelcal_station.models.fitting import fit, fit_batch, fit_temperature
+from accelcal_station.models.linear import six_param_six_face, six_param_two_pose
 from accelcal_station.session import PoseRecord, Session
 
 TOL = 2e-5  # the vector file's tolerance for printed decimals
@@ -221,7 +222,8 @@ def test_planar_poses_are_refused():
     planar = flat @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]).T  # a tilted plane: every channel spreads
     with pytest.raises(UnderdeterminedError, match="plane"):
         fit(planar, planar, "12")
-    with pytest.raises(UnderdeterminedError, match="6 distinct orientations; the 9-parameter norm model needs at least 9"):
+    with pytest.raises(UnderdeterminedError,
+                       match="6 distinct orientations; the 9-parameter norm model needs at least 9"):
         fit(planar[:6], model="9")
 
 

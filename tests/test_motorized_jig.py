@@ -14,11 +14,10 @@ from accelcal_station.errors import ConfigError, DeviceError
 from accelcal_station.fixtures.base import PoseSpec
 from accelcal_station.fixtures.designs import get_design
 from accelcal_station.fixtures.jig_emulator import JigEmulator, run_jig_emulator_forever
-from accelcal_station.fixtures.motorized_jig import (MotorizedJig, checksum, frame, move_time_s, profile_deg,
-                                                     unframe)
+from accelcal_station.fixtures.motorized_jig import MotorizedJig, checksum, frame, move_time_s, profile_deg, unframe
 
 # fast motion so the suite stays quick: a 180 degree move takes 0.085 s
-FAST = dict(speed_deg_s=4000.0, accel_deg_s2=100000.0)
+FAST = {"speed_deg_s": 4000.0, "accel_deg_s2": 100000.0}
 
 
 class ManualClock:
@@ -214,9 +213,8 @@ def test_roll_wraps_to_the_nearer_turn(emu):
 
 
 def test_not_homed_is_reported_by_the_controller(emu):
-    with jig_for(emu, home_on_open=False) as jig:
-        with pytest.raises(DeviceError) as exc:
-            jig.present(PoseSpec("p", 10.0, 0.0))
+    with jig_for(emu, home_on_open=False) as jig, pytest.raises(DeviceError) as exc:
+        jig.present(PoseSpec("p", 10.0, 0.0))
     assert str(exc.value) == f"jig on {emu.port}: 'MOVE 10.000 0.000' refused: ERR 4 NOT_HOMED send HOME first"
 
 

@@ -16,13 +16,21 @@ import numpy as np
 import pytest
 
 from accelcal_station.drivers import bridge_protocol as bp
-from accelcal_station.drivers import make_driver
-from accelcal_station.drivers.mpu6050 import (ACCEL_CONFIG, CONFIG, PWR_MGMT_1, SMPLRT_DIV, MPU6050Bridge,
-                                              _McuClock, smplrt_div_for, temperature_from_raw)
+from accelcal_station.drivers.bridge_link import _McuClock
+from accelcal_station.drivers.factory import make_driver
+from accelcal_station.drivers.mpu6050 import (
+    ACCEL_CONFIG,
+    CONFIG,
+    PWR_MGMT_1,
+    SMPLRT_DIV,
+    MPU6050Bridge,
+    smplrt_div_for,
+    temperature_from_raw,
+)
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.errors import AccelcalError, ConfigError, DeviceError
 
-FAST = dict(timeout_s=0.25, retries=3, boot_wait_s=0.3)
+FAST = {"timeout_s": 0.25, "retries": 3, "boot_wait_s": 0.3}
 
 
 @pytest.fixture
@@ -310,17 +318,15 @@ def test_port_in_use(emu, dev):
 
 @pytest.mark.parametrize("who, name", [(0x70, "MPU-6500"), (0x7C, "MPU-6555")])
 def test_wrong_chip_names_what_was_found(who, name):
-    with MPU6050BridgeEmulator(seed=1, who_am_i=who) as e:
-        with pytest.raises(DeviceError) as err:
-            MPU6050Bridge(e.port, **FAST).open()
+    with MPU6050BridgeEmulator(seed=1, who_am_i=who) as e, pytest.raises(DeviceError) as err:
+        MPU6050Bridge(e.port, **FAST).open()
     msg = one_line(err.value)
     assert f"WHO_AM_I (0x75) reads 0x{who:02x} ({name})" in msg and "expected 0x68" in msg
 
 
 def test_no_chip_on_i2c():
-    with MPU6050BridgeEmulator(seed=1, i2c_present=False) as e:
-        with pytest.raises(DeviceError) as err:
-            MPU6050Bridge(e.port, timeout_s=0.1, retries=1, boot_wait_s=0.0).open()
+    with MPU6050BridgeEmulator(seed=1, i2c_present=False) as e, pytest.raises(DeviceError) as err:
+        MPU6050Bridge(e.port, timeout_s=0.1, retries=1, boot_wait_s=0.0).open()
     msg = one_line(err.value)
     assert "no I2C answer" in msg and "SDA/SCL" in msg
 

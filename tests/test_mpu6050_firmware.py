@@ -24,25 +24,30 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-
 from accelcal_station.drivers import bridge_protocol as bp
 from accelcal_station.drivers import mpu6050_simavr
-from accelcal_station.drivers.mpu6050 import (ACCEL_CONFIG, CONFIG, PWR_MGMT_1, SMPLRT_DIV, BridgeLink, BridgeRefused,
-                                              MPU6050Bridge)
+from accelcal_station.drivers.bridge_link import BridgeLink, BridgeRefused
+from accelcal_station.drivers.mpu6050 import (
+    ACCEL_CONFIG,
+    CONFIG,
+    PWR_MGMT_1,
+    SMPLRT_DIV,
+    MPU6050Bridge,
+)
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.mpu6050_simavr import SimavrBridge
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.errors import DeviceError, NVMError
 from accelcal_station.fixtures.jig_emulator import JigEmulator
-from accelcal_station.writer import CalibrationWriter
+from accelcal_station.nvm.writer import CalibrationWriter
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIGS = REPO / "configs"
 
 FACTORY = (1001, -2000, 3)
-LINK = {"python": dict(timeout_s=0.25, retries=3, boot_wait_s=0.3),
+LINK = {"python": {"timeout_s": 0.25, "retries": 3, "boot_wait_s": 0.3},
         # simulated MCU time runs about as fast as wall time on a loaded CI core: roomier timeouts
-        "simavr": dict(timeout_s=1.0, retries=2, boot_wait_s=3.0)}
+        "simavr": {"timeout_s": 1.0, "retries": 2, "boot_wait_s": 3.0}}
 
 
 def require_simavr() -> None:

@@ -21,7 +21,7 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-from accelcal_station.station import default_config_path
+from accelcal_station.station.settings import default_config_path
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -236,7 +236,7 @@ def test_lot_report_html_and_run_plot(tmp_path):
     assert "pass rate 100.0 %" in text and text.count("data:image/png;base64,") == 1 + 9
     assert all(f"<h3>{n}</h3>" in text for n in ("W00", "V2 (mg)", "W12"))
     # individuals chart: x = 1, 2, 4 -> centre 7/3, mean moving range 1.5, sigma 1.5 / 1.128
-    from accelcal_station.lot_report import control_limits
+    from accelcal_station.lot.report import control_limits
     c, lo, hi = control_limits(np.array([1.0, 2.0, 4.0]))
     assert c == pytest.approx(7 / 3) and hi - c == pytest.approx(3 * 1.5 / 1.128)
     png = tmp_path / "r1.png"
@@ -248,8 +248,9 @@ def test_a_crash_during_the_burn_leaves_the_run_burning_with_the_blob_crc(tmp_pa
     """Power is cut (the EEPROM raises mid-page, as the fault injector does) and then the
     station process dies before it can record anything else: the store already says
     `burning`, with the slot, generation and CRC-32 of the blob being written."""
-    from accelcal_station.station import Station, StationConfig
-    from accelcal_station.drivers import make_driver
+    from accelcal_station.drivers.factory import make_driver
+    from accelcal_station.station.board import Station
+    from accelcal_station.station.settings import StationConfig
 
     cfg = StationConfig.load(sim_config(tmp_path))
     driver = make_driver(cfg.raw["device"])

@@ -13,10 +13,11 @@ from accelcal_station.cli import cli
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.errors import ConfigError
 from accelcal_station.fixtures.designs import get_design, references
-from accelcal_station.jig_pose import MIN_BOARDS, estimate_jig_poses
-from accelcal_station.panel import PanelStation, panel_sections
-from accelcal_station.sensor_model import rotation_matrix
-from accelcal_station.station import StationConfig
+from accelcal_station.sim.sensor_model import rotation_matrix
+from accelcal_station.station.jig_pose import MIN_BOARDS, estimate_jig_poses
+from accelcal_station.station.panel import PanelStation
+from accelcal_station.station.panel_config import panel_sections
+from accelcal_station.station.settings import StationConfig
 
 CONFIGS = __import__("pathlib").Path(__file__).resolve().parents[1] / "configs"
 
@@ -140,8 +141,8 @@ def test_a_misplaced_panel_is_named_as_the_panel(tmp_path):
 
 
 def test_a_board_that_is_not_still_is_named_and_the_others_pass(tmp_path):
-    from accelcal_station.drivers import make_driver
-    from accelcal_station.panel import panel_sections
+    from accelcal_station.drivers.factory import make_driver
+    from accelcal_station.station.panel_config import panel_sections
 
     cfg = StationConfig.load(panel_config(tmp_path, 3))
     drivers = [make_driver(sec, path) for sec, path in panel_sections(cfg.raw["device"])]

@@ -14,9 +14,9 @@ from click.testing import CliRunner
 from accelcal_station.cli import cli
 from accelcal_station.drivers.tca9548a import MuxChannel
 from accelcal_station.errors import ConfigError
-from accelcal_station.panel import PanelStation
-from accelcal_station.station import StationConfig
-from accelcal_station.writer import CalibrationWriter
+from accelcal_station.nvm.writer import CalibrationWriter
+from accelcal_station.station.panel import PanelStation
+from accelcal_station.station.settings import StationConfig
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -52,7 +52,7 @@ def test_eight_mma8451_behind_a_tca9548a_with_three_bad_boards(tmp_path):
     mux = drivers[0]._bus_spec.mux.smbus
     assert {d._bus_spec.mux.smbus for d in drivers} == {mux} and mux.selects > 8
     # each passing board's own EEPROM (0x50 behind its channel) holds its own fit
-    for b, rep in zip(st.boards, reps):
+    for b, rep in zip(st.boards, reps, strict=True):
         if rep.verdict == "PASS":
             assert rep.nvm_verified
             cal, _, _ = CalibrationWriter(b.driver.emulator.board.eeprom).read_newest(rep.serial)

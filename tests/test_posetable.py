@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from accelcal_station.conventions import an4399_reference
+from accelcal_station.data.posetable import read_pose_table, write_pose_table
 from accelcal_station.errors import DataError, UnitsError
-from accelcal_station.posetable import read_pose_table, write_pose_table
 from accelcal_station.session import PoseRecord, Session
 
 HEADER = "pose,pitch_deg,roll_deg,x,y,z"
@@ -26,7 +26,7 @@ def _assert_same(a: Session, b: Session):
     assert (a.units, a.counts_per_g, a.gravity_mps2, a.device) == (b.units, b.counts_per_g, b.gravity_mps2, b.device)
     assert a.metadata == b.metadata
     assert len(a) == len(b)
-    for p, q in zip(a.poses, b.poses):
+    for p, q in zip(a.poses, b.poses, strict=True):
         assert p.name == q.name
         assert np.array_equal(p.mean, q.mean)
         for f in ("std", "reference_g"):

@@ -13,8 +13,9 @@ import pytest
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
+from accelcal_station.data.rawlog import RawLog, read_raw_log
+from accelcal_station.data.static_poses import detect_static, segment_static, to_session
 from accelcal_station.errors import DataError
-from accelcal_station.rawlog import RawLog, detect_static, read_raw_log, segment_static, to_session
 
 CPG = 4096.0
 RATE = 100.0
@@ -74,7 +75,7 @@ def _run(*args):
 
 def _check_segments(segs, holds):
     assert len(segs) == len(holds)
-    for s, (a, b) in zip(segs, holds):
+    for s, (a, b) in zip(segs, holds, strict=True):
         # used samples lie in the true hold (motion that is still below the noise at the
         # very start of a move may be included: allow 0.15 s) and cover most of it
         assert a - 15 <= s.start and s.stop <= b + 15, (s.ranges, (a, b))
@@ -113,7 +114,7 @@ def test_to_session_carries_segment_statistics(log32):
     det = detect_static(log.xyz, log.rate_hz)
     s = to_session(log, det.segments)
     assert len(s) == 32 and not s.has_references and s.metadata == {"source": "mem"}
-    for p, seg in zip(s.poses, det.segments):
+    for p, seg in zip(s.poses, det.segments, strict=True):
         used = np.concatenate([counts[a:b] for a, b in seg.ranges])
         assert np.array_equal(p.mean, used.mean(axis=0)) and p.n == len(used) == seg.n
         assert p.t_start == t[seg.start] and p.t_end == t[seg.stop - 1]
@@ -134,7 +135,7 @@ def test_cli_raw_csv_with_time_fits_model_9(tmp_path, log32):
     seg = js["segmentation"]
     assert seg["count"] == 32 and seg["columns"] == ["t", "x", "y", "z"]
     assert abs(seg["rate_hz"] - RATE) < 1e-6
-    assert all(a - 15 <= s["start"] and s["stop"] <= b_ + 15 for s, (a, b_) in zip(seg["segments"], holds))
+    assert all(a - 15 <= s["start"] and s["stop"] <= b_ + 15 for s, (a, b_) in zip(seg["segments"], holds, strict=True))
     assert js["crossval_rms_g"] is not None and js["crossval_rms_g"] < 1e-3
     _check_truth(js, S, b)
     # the human summary says how many intervals were found and which samples were used

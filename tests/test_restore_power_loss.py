@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accelcal_station.drivers.eeprom import EEPROM24, PowerLossError
 from accelcal_station.calibration import Calibration
+from accelcal_station.drivers.eeprom import EEPROM24, PowerLossError
 from accelcal_station.errors import NVMError
-from accelcal_station.writer import CalibrationWriter
+from accelcal_station.nvm.writer import CalibrationWriter
 
 SERIAL, STATION = "SN-0001", "station-1"
 SIZE, PAGE = 512, 16  # two 256-byte slots of 16 pages (a 220-byte blob fits): every page write is swept

@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 from accelcal_station.errors import ConfigError
-from accelcal_station.sensor_model import (CHIPS, EFFECT_NAMES, EFFECTS, SensorModel, get_chip,
-                                           parse_effects, rotation_matrix)
+from accelcal_station.sim.sensor_model import (
+    CHIPS,
+    EFFECT_NAMES,
+    EFFECTS,
+    SensorModel,
+    get_chip,
+    parse_effects,
+    rotation_matrix,
+)
 
 MMA = CHIPS["mma8451"]
 MPU = CHIPS["mpu6050"]
@@ -27,7 +34,7 @@ FULL = {  # every effect that the truth inverts, plus temperature
 
 def test_catalog_names_follow_design_md_in_order():
     text = (Path(__file__).resolve().parents[1] / "docs" / "DESIGN.md").read_text()
-    assert EFFECT_NAMES == tuple(re.findall(r"^\| `(\w+)` \|", text, re.M))
+    assert tuple(re.findall(r"^\| `(\w+)` \|", text, re.M)) == EFFECT_NAMES
     assert len(EFFECT_NAMES) == 13
 
 

@@ -8,15 +8,15 @@ import time
 import numpy as np
 import pytest
 
-from accelcal_station.drivers import make_driver
 from accelcal_station.drivers.eeprom import EEPROM24, PowerLossError
+from accelcal_station.drivers.factory import make_driver
 from accelcal_station.drivers.simulated import SimulatedBoard, SimulatedDriver, VirtualClock
 from accelcal_station.errors import ConfigError, DeviceError, NVMError
 from accelcal_station.fixtures.base import PoseSpec
 from accelcal_station.fixtures.designs import get_design, predict_stderr
 from accelcal_station.fixtures.simulated_jig import SimulatedJig, rotation_path
-from accelcal_station.models import fit_batch
-from accelcal_station.sensor_model import rotation_matrix
+from accelcal_station.models.fitting import fit_batch
+from accelcal_station.sim.sensor_model import rotation_matrix
 
 FLAT = PoseSpec("z+1g", 0.0, 0.0)
 X_UP = PoseSpec("x+1g", -90.0, 0.0)  # reference (+1, 0, 0) g

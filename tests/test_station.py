@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import sqlite3
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,9 +11,10 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-from accelcal_station.drivers import make_driver
-from accelcal_station.station import Station, StationConfig, default_config_path
-from accelcal_station.writer import CalibrationWriter
+from accelcal_station.drivers.factory import make_driver
+from accelcal_station.nvm.writer import CalibrationWriter
+from accelcal_station.station.board import Station
+from accelcal_station.station.settings import StationConfig, default_config_path
 
 
 def sim_config(tmp_path, **changes) -> str:
@@ -67,7 +69,8 @@ def test_board_beyond_limits_fails_with_reasons_and_nvm_untouched(tmp_path):
     st = Station(StationConfig.load(p), echo=lambda s: None)
     rep = st.run()
     assert rep.verdict == "FAIL"
-    assert any(r.startswith("offset_max_mg 17") and "> limit 120" in r for r in rep.reasons), rep.reasons  # |V| = 180 mg / gain
+    # |V| = 180 mg / gain
+    assert any(r.startswith("offset_max_mg 17") and "> limit 120" in r for r in rep.reasons), rep.reasons
     assert rep.nvm is None
     assert set(st.driver.nvm.read(0, st.driver.nvm.size)) == {0xFF}  # never written
     r = CliRunner().invoke(cli, ["run", "--config", str(p)])
@@ -158,9 +161,9 @@ def test_config_errors_name_the_key(tmp_path, changes, message):
 
 
 def test_a_long_capture_shows_a_progress_bar_and_a_virtual_one_does_not(capsys):
-    from accelcal_station.capture import CaptureSettings, gated_capture
     from accelcal_station.drivers.simulated import SimulatedBoard, SimulatedDriver
-    from accelcal_station.station import CaptureProgress
+    from accelcal_station.station.board import CaptureProgress
+    from accelcal_station.station.capture import CaptureSettings, gated_capture
 
     settings = CaptureSettings(target_sem_mg=0.12, hold_s=0.1, min_samples=32)
     for realtime in (True, False):
@@ -186,7 +189,7 @@ def test_non_finite_config_numbers_are_one_line(tmp_path):
     for value, key in ((float("inf"), "verify__poses"), (float("nan"), "capture__max_s")):
         p = sim_config(tmp_path, **{key: value})  # YAML .inf / .nan
         section, sub = key.split("__")
-        assert (".inf" if value > 0 else ".nan") in open(p).read()
+        assert (".inf" if value > 0 else ".nan") in Path(p).read_text()
         r = CliRunner().invoke(cli, ["run", "--config", p])
         assert r.exit_code == 2 and f"{section}.{sub}:" in r.stderr and "not a finite number" in r.stderr, r.output
 

@@ -16,7 +16,7 @@ from accelcal_station.cli import cli
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.fixtures.jig_emulator import JigEmulator
-from accelcal_station.writer import CalibrationWriter
+from accelcal_station.nvm.writer import CalibrationWriter
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

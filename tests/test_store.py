@@ -13,15 +13,17 @@ import threading
 import numpy as np
 import pytest
 
-from accelcal_station.calibration import Calibration
+from accelcal_station.acceptance.reasons import Reason
+from accelcal_station.calibration import PARAM_NAMES, Calibration
 from accelcal_station.conventions import an4399_reference
 from accelcal_station.drivers.eeprom import EEPROM24
 from accelcal_station.errors import DataError
-from accelcal_station.models import fit_batch, fit_session
+from accelcal_station.models.fitting import fit_batch, fit_session
+from accelcal_station.nvm.writer import CalibrationWriter
 from accelcal_station.session import PoseRecord, Session
-from accelcal_station.reasons import Reason
-from accelcal_station.store import PARAM_NAMES, SCHEMA_VERSION, Store, StoreError
-from accelcal_station.writer import CalibrationWriter
+from accelcal_station.store.records import StoreError
+from accelcal_station.store.runs import Store
+from accelcal_station.store.schema import SCHEMA_VERSION
 
 CPG = 4096.0
 POSES = [(0, 0), (0, 180), (90, 0), (-90, 0), (0, 90), (0, -90), (45, 45), (-30, 120)]
@@ -77,7 +79,7 @@ def test_run_round_trip_rebuilds_session(db):
     assert rec.retries == [0, 1, 0, 0, 2, 0, 0, 0]
     back = rec.session()
     assert (back.units, back.counts_per_g, back.device, len(back)) == ("counts", CPG, s.device, len(s))
-    for a, b in zip(s.poses, back.poses):
+    for a, b in zip(s.poses, back.poses, strict=True):
         assert a.name == b.name and np.array_equal(a.mean, b.mean) and np.array_equal(a.std, b.std)
         assert np.array_equal(a.reference_g, b.reference_g)
         assert (a.n, a.pitch_deg, a.roll_deg, a.temp_c, a.dropped, a.t_start, a.t_end) == \
@@ -124,14 +126,15 @@ def test_interrupted_runs_are_recorded(db, tmp_path):
         store.log_event(rid, "retry", "pose p2 not still", {"std_counts": [30, 2, 2]})
         store.interrupt_run(rid, "operator pressed Ctrl-C at pose 4", session=s.subset([0, 1, 2]))
         rec = store.get_run(rid)
-        assert (rec.status, rec.status_reason, len(rec.poses)) == ("interrupted", "operator pressed Ctrl-C at pose 4", 3)
+        assert (rec.status, rec.status_reason, len(rec.poses)) == (
+            "interrupted", "operator pressed Ctrl-C at pose 4", 3)
         assert rec.events[0]["kind"] == "retry" and rec.events[0]["data"] == {"std_counts": [30, 2, 2]}
         err = store.start_run(device_serial="SN2")
         store.interrupt_run(err, "device stopped answering", status="error")
         assert store.get_run(err).status == "error"
 
     # a station process that dies mid-run leaves a 'running' row; the next start marks it
-    code = (f"import os; from accelcal_station.store import Store; s = Store({str(db)!r}); "
+    code = (f"import os; from accelcal_station.store.runs import Store; s = Store({str(db)!r}); "
             "print(s.start_run(device_serial='SN-crash')); os._exit(9)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 9, out.stderr
@@ -213,7 +216,7 @@ def test_lot_summary_matches_numpy(db):
     assert (summ["pass"], summ["fail"]) == (verdicts.count("PASS"), verdicts.count("FAIL"))
     assert summ["pass_rate"] == pytest.approx(verdicts.count("PASS") / 24, abs=0)
     expect = {}
-    for v, reasons, _ in rows:
+    for _v, reasons, _ in rows:
         for code in {r.code for r in reasons}:
             expect[code] = expect.get(code, 0) + 1
     assert summ["failure_reasons"] == expect and "gain_error_max" not in summ["failure_reasons"]
@@ -302,7 +305,8 @@ def test_refuses_foreign_and_newer_files(tmp_path):
     Store(newer).close()
     with sqlite3.connect(newer) as c:
         c.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
-    with pytest.raises(StoreError, match=f"schema version {SCHEMA_VERSION + 1} is newer than this station's {SCHEMA_VERSION}"):
+    message = f"schema version {SCHEMA_VERSION + 1} is newer than this station's {SCHEMA_VERSION}"
+    with pytest.raises(StoreError, match=message):
         Store(newer)
     with pytest.raises(StoreError, match="no run 5"):
         Store(tmp_path / "fresh.sqlite").get_run(5)

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from accelcal_station.cli import cli
 from accelcal_station.drivers.simulated import VirtualClock
-from accelcal_station.instruments import AsciiChamber, ChamberError
+from accelcal_station.instruments.chamber import AsciiChamber, ChamberError
 from accelcal_station.instruments.chamber_emulator import ChamberEmulator, ChamberPhysics
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -65,7 +65,8 @@ def test_thermal_sim_burns_a_three_temperature_table_that_verifies_at_45c(tmp_pa
 
     db = sqlite3.connect(tmp_path / "runs.sqlite")
     cal = Calibration.from_dict(json.loads(db.execute("SELECT calibration FROM runs").fetchone()[0]))
-    dev = {k: v for k, v in yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())["device"].items() if k != "driver"}
+    device = yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())["device"]
+    dev = {k: v for k, v in device.items() if k != "driver"}
     board = SimulatedBoard.from_config(dev)
     g = np.array([[0.0, 0.0, 1.0], [0.6, -0.6, 0.52], [-1.0, 0.0, 0.0]]) * cal.input_per_g
     for temp_c, tol_mg in ((th["table"]["temps_c"][1], 0.5), (v["board_temp_c"], 2.0)):
@@ -133,9 +134,8 @@ def test_chamber_driver_over_a_pty_sets_reads_and_reports_alarms():
             with pytest.raises(ChamberError, match="refused 'BOGUS'"):
                 ch.query("BOGUS")
         emu.stop()
-        with pytest.raises(ChamberError, match="cannot open|no answer"):
-            with AsciiChamber(port, timeout_s=0.1, retries=0):
-                pass
+        with pytest.raises(ChamberError, match="cannot open|no answer"), AsciiChamber(port, timeout_s=0.1, retries=0):
+            pass
     finally:
         emu.stop()
 
@@ -289,15 +289,15 @@ def test_chamber_driver_over_tcp_through_pyvisa_socket():
 def test_chamber_driver_never_imports_its_emulator():
     import ast
 
-    src = (Path(__file__).resolve().parents[1] / "instruments" / "chamber.py").read_text()
+    src = (Path(__file__).resolve().parents[1] / "accelcal_station" / "instruments" / "chamber.py").read_text()
     names = {a.name for n in ast.walk(ast.parse(src)) if isinstance(n, ast.Import) for a in n.names}
     names |= {n.module or "" for n in ast.walk(ast.parse(src)) if isinstance(n, ast.ImportFrom)}
     assert not any("emulator" in n for n in names), names
 
 
 def test_the_hardware_thermal_config_is_valid():
-    from accelcal_station.station import StationConfig
-    from accelcal_station.thermal import ThermalPlan
+    from accelcal_station.station.settings import StationConfig
+    from accelcal_station.station.thermal_plan import ThermalPlan
 
     cfg = StationConfig.load(CONFIGS / "thermal-mpu6050.yaml")
     plan = ThermalPlan.from_config(cfg.raw["thermal"], cfg.model)

@@ -11,14 +11,15 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-from accelcal_station.station import default_config_path
+from accelcal_station.station.settings import default_config_path
 
 FACES = np.array([[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0.0]])
 
 
 def table(tmp_path, refs, readings, name="t.csv") -> str:
     lines = ["# units: g", "pose,ref_x,ref_y,ref_z,x,y,z"]
-    lines += [f"p{i},{r[0]},{r[1]},{r[2]},{float(x[0])!r},{float(x[1])!r},{float(x[2])!r}" for i, (r, x) in enumerate(zip(refs, readings))]
+    lines += [f"p{i},{r[0]},{r[1]},{r[2]},{float(x[0])!r},{float(x[1])!r},{float(x[2])!r}"
+              for i, (r, x) in enumerate(zip(refs, readings, strict=True))]
     p = tmp_path / name
     p.write_text("\n".join(lines) + "\n")
     return str(p)

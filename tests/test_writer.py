@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from accelcal_station.blob import blob_size, encode
 from accelcal_station.calibration import Calibration, TemperatureTable
 from accelcal_station.drivers.base import NVM
 from accelcal_station.drivers.eeprom import EEPROM24
 from accelcal_station.errors import NVMError
-from accelcal_station.writer import BurnError, CalibrationWriter
+from accelcal_station.nvm.blob import blob_size, encode
+from accelcal_station.nvm.writer import BurnError, CalibrationWriter
 
 SERIAL, STATION = "SN-0001", "station-1"
 
@@ -251,7 +251,7 @@ def test_power_loss_during_restore_keeps_a_valid_calibration(eeprom, tmp_path, a
 def test_burn_through_a_driver_nvm_survives_power_loss(driver):
     """The board's own NVM path: MMA8451 over smbus2 i2c_rdwr to the emulated 24C32 at 0x50,
     and the simulated board's EEPROM; power is lost in the 4th page write of a burn."""
-    from accelcal_station.drivers import make_driver
+    from accelcal_station.drivers.factory import make_driver
 
     cfg = {"driver": driver, "seed": 3, **({"bus": "emulated"} if driver == "mma8451" else {})}
     with make_driver(cfg) as dev:

@@ -3,21 +3,29 @@ registered as a command)."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
+from ..calibration import MODELS
 from ..conventions import check_units
 from ..errors import DataError, UnitsError
-from ..models import MODELS
 
 
-def parse_number(value: str | None, flag: str, integer: bool = False, positive: bool = True):
+def parse_number(value: str | None, flag: str, positive: bool = True) -> float | None:
     """Parse a numeric option ourselves so a typo is one line, not a usage screen."""
-    if value is None:
-        return None
+    return None if value is None else _parse(value, flag, False, positive)
+
+
+def parse_int(value: str | None, flag: str, positive: bool = True) -> int | None:
+    """A whole-number option, with the same one-line refusal."""
+    return None if value is None else int(_parse(value, flag, True, positive))
+
+
+def _parse(value: str, flag: str, integer: bool, positive: bool) -> float:
     try:
-        v = int(value) if integer else float(value)
-    except ValueError:
+        v = float(int(value)) if integer else float(value)
+    except (ValueError, OverflowError):
         v = math.nan
     if not math.isfinite(v) or (v <= 0 if positive else v < 0):
         kind = "whole number" if integer else "number"
@@ -25,7 +33,7 @@ def parse_number(value: str | None, flag: str, integer: bool = False, positive: 
     return v
 
 
-def jsonable(o):
+def jsonable(o: Any) -> Any:
     """JSON-safe: numpy to Python, non-finite floats to null (never NaN in output)."""
     if isinstance(o, dict):
         return {k: jsonable(v) for k, v in o.items()}

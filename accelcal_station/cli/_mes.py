@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import functools
 import json
-from typing import Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 import click
 
@@ -27,7 +28,7 @@ def emit_error(ctx: click.Context, message: str, code: int, kind: str) -> None:
         click.secho(f"error: {message}" if kind != "internal" else message, fg="red", err=True)
 
 
-def commands_doc(group: click.Group, ctx: click.Context) -> dict:
+def commands_doc(group: click.Group, ctx: click.Context) -> dict[str, Any]:
     """A group's subcommands as JSON: name and one-line help of each."""
     return {"command": ctx.command_path, "help": (group.help or "").strip().split("\n")[0],
             "subcommands": [{"name": n, "help": group.commands[n].get_short_help_str(200)}
@@ -37,14 +38,14 @@ def commands_doc(group: click.Group, ctx: click.Context) -> dict:
 class JsonGroup(click.Group):
     """A group that, called bare with --json, prints its subcommands as one JSON object."""
 
-    def __init__(self, *a, **kw):
+    def __init__(self, *a: Any, **kw: Any) -> None:
         kw.setdefault("invoke_without_command", True)
         super().__init__(*a, **kw)
         self.params.append(click.Option(["--json", "group_json"], is_flag=True,
                                          help="Called without a subcommand: print the subcommands as JSON."))
-        cb = self.callback or (lambda **k: None)
+        cb: Callable[..., Any] = self.callback or (lambda **k: None)
 
-        def callback(*args, group_json=False, **kwargs):
+        def callback(*args: Any, group_json: bool = False, **kwargs: Any) -> Any:
             ctx = click.get_current_context()
             if ctx.invoked_subcommand is None:  # bare: describe (JSON) or help, nothing else
                 click.echo(json.dumps(self.describe(ctx)) if group_json else ctx.get_help())
@@ -53,5 +54,5 @@ class JsonGroup(click.Group):
 
         self.callback = functools.update_wrapper(callback, cb)
 
-    def describe(self, ctx: click.Context):
+    def describe(self, ctx: click.Context) -> dict[str, Any]:
         return commands_doc(self, ctx)

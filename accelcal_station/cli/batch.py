@@ -12,11 +12,22 @@ from pathlib import Path
 
 import click
 
-from ..batch import (BatchReport, expand_paths, record_in_store, recalibrate, sessions_from_files,
-                     sessions_from_store, summary_csv, write_calibrations)
 from ..errors import DataError
-from ..store import Store, store_target
-from ._common import check_model_units, jsonable as _clean, parse_number as _number
+from ..lot.batch import (
+    BatchReport,
+    expand_paths,
+    recalibrate,
+    record_in_store,
+    sessions_from_files,
+    sessions_from_store,
+    summary_csv,
+    write_calibrations,
+)
+from ..store.location import store_target
+from ..store.runs import Store
+from ._common import check_model_units, parse_int
+from ._common import jsonable as _clean
+from ._common import parse_number as _number
 
 PROGRESS_MIN_BOARDS = 10  # below this a progress bar is noise
 
@@ -71,9 +82,9 @@ def _text(report: BatchReport, outputs: dict, list_all: bool) -> list[str]:
 
 def _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path, chunk_boards, as_json, other) -> None:
     """accelcal batch LOT --out RESULTS: stream a lot file into one results table."""
-    from ..acceptance import Limits
-    from ..config import load_yaml
-    from ..streaming import recalibrate_lot
+    from ..acceptance.rules import Limits
+    from ..config.checks import load_yaml
+    from ..lot.streaming import recalibrate_lot
 
     if out is None:
         raise DataError("--config judges a lot file's boards; add --out RESULTS.csv (or .parquet, .jsonl)")
@@ -148,12 +159,12 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
                         "(a results table) or remove --chunk-boards")
     if out is not None or config_path is not None:
         _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path,
-                  int(_number(chunk_boards, "--chunk-boards", integer=True)), as_json,
+                  parse_int(chunk_boards, "--chunk-boards") or 0, as_json,
                   [k for k, v in (("--from-store", from_store), ("--out-dir", out_dir), ("--csv", csv_path),
                                   ("--to-store", to_store)) if v is not None])
         return
     store_filters = {"lot": lot, "device": list(device) or None, "station": station, "since": since,
-                     "until": until, "run_ids": [_number(i, "--run", integer=True) for i in run_ids] or None}
+                     "until": until, "run_ids": [parse_int(i, "--run") for i in run_ids] or None}
     if from_store is None and any(v is not None for v in store_filters.values()):
         flag = next(k for k, v in store_filters.items() if v is not None).replace("run_ids", "run").replace("_", "-")
         raise DataError(f"--{flag} filters runs of a results store; add --from-store FILE")

@@ -5,7 +5,7 @@ import json
 
 import click
 
-from ..instruments import AsciiChamber
+from ..instruments.chamber import AsciiChamber
 
 
 @click.command("chamber")
@@ -20,7 +20,7 @@ def command(action: str, temp_c: float | None, port: str, baud: int, timeout_s: 
     if (action == "set") != (temp_c is not None):
         raise click.UsageError("give --temp-c with `set` only: accelcal chamber set --temp-c -20 --port P")
     with AsciiChamber(port, baud, timeout_s) as ch:
-        if action == "set":
+        if temp_c is not None:  # action == "set": checked above
             ch.set_point(temp_c)
         elif action == "standby":
             ch.standby()

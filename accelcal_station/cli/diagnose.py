@@ -5,13 +5,17 @@ import json
 
 import click
 
-from ..diagnose import diagnose, load_data, load_simulator, to_json
-from ..diagnose_selftest import selftest as run_selftest
-from ._text import clean
-from ..diagnose_report import check_report_dir, selftest_lines, summary_lines, write_report
+from ..data.rawlog import check_rate
+from ..diagnosis.engine import diagnose
+from ..diagnosis.loading import load_data, load_simulator
+from ..diagnosis.report import check_report_dir, selftest_lines, summary_lines, write_report
+from ..diagnosis.result import to_json
+from ..diagnosis.selftest import selftest as run_selftest
 from ..errors import DataError
-from ..rawlog import check_rate
-from ._common import jsonable as _clean, parse_number as _number
+from ._common import jsonable as _clean
+from ._common import parse_int
+from ._common import parse_number as _number
+from ._text import clean
 
 
 @click.command("diagnose")
@@ -35,8 +39,9 @@ from ._common import jsonable as _clean, parse_number as _number
 @click.option("--report", "report_dir", default=None, metavar="DIR",
               help="Write PNG figures and summary.md to DIR (needs matplotlib: the report extra).")
 @click.option("--selftest", is_flag=True,
-              help="Forward-physics boards with each catalog effect withheld from the configuration, off-catalog "
-                   "effects, two-effect cases and null boards: check what the diagnosis names (exit 1 if a case fails).")
+              help="Forward-physics boards with each catalog effect withheld from the configuration, "
+                   "off-catalog effects, two-effect cases and null boards: check what the diagnosis names "
+                   "(exit 1 if a case fails).")
 @click.option("--seed", type=click.IntRange(0, None), default=1, show_default=True, help="Self-test seed.")
 @click.pass_context
 def command(ctx, files, config, raw, units, counts_per_g, gravity, columns, skip_rows, rate, samples, norm_only,
@@ -55,8 +60,8 @@ def command(ctx, files, config, raw, units, counts_per_g, gravity, columns, skip
     check_rate(rate_hz)
     sim = load_simulator(config)
     data = load_data(list(files), raw, units, _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity"),
-                     columns, _number(skip_rows, "--skip-rows", integer=True, positive=False), rate_hz,
-                     _number(samples, "--samples", integer=True), norm_only)
+                     columns, parse_int(skip_rows, "--skip-rows", positive=False), rate_hz,
+                     parse_int(samples, "--samples"), norm_only)
     d = diagnose(data, sim)
     js = _clean(to_json(d))
     if out_dir is not None:

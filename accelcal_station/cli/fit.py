@@ -6,15 +6,18 @@ import json
 import click
 import numpy as np
 
-from ..errors import AccelcalError, DataError, UnitsError
 from ..calibration import Calibration
-from ..handplaced import norm_faces, opposite_face
+from ..data.loader import Loaded, load
+from ..data.static_poses import StaticDetection
+from ..errors import AccelcalError, DataError, UnitsError
 from ..identifiability import assess, worst_parameter
-from ..models import FitResult, fit_session, fit_temperature
-from ..loader import Loaded, load
-from ..rawlog import StaticDetection
+from ..models.fitting import fit_session, fit_temperature
+from ..models.handplaced import norm_faces, opposite_face
+from ..models.result import FitResult
 from ..session import Session
-from ._common import check_model_units, jsonable as _clean, parse_number as _number
+from ._common import check_model_units, parse_int
+from ._common import jsonable as _clean
+from ._common import parse_number as _number
 from ._text import clean
 
 
@@ -157,7 +160,7 @@ def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns
     cpg = _number(counts_per_g, "--counts-per-g")
     grav = _number(gravity, "--gravity")
     loaded = _load(path, raw, model, units, cpg, grav, columns,
-                   _number(skip_rows, "--skip-rows", integer=True, positive=False), _number(rate, "--rate"))
+                   parse_int(skip_rows, "--skip-rows", positive=False), _number(rate, "--rate"))
     session = loaded.session
     rawinfo = (loaded.log, loaded.detection) if loaded.log is not None else None
     if model != "9" and session.units == "counts" and session.counts_per_g is None:

@@ -23,14 +23,13 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..drivers import make_driver
+from ..config.sections import device_section
+from ..drivers.factory import make_driver
 from ..errors import DeviceError, NVMError
-from ..store import iso
-from ..writer import CalibrationWriter, SlotStatus
+from ..nvm.writer import CalibrationWriter, SlotStatus
+from ..store.records import iso
 from ._common import jsonable as _clean
 from ._mes import JsonGroup
-from .probe import device_section
-
 
 STATE_COLOUR = {"valid": "green", "empty": "yellow", "corrupt": "red"}
 
@@ -42,7 +41,7 @@ def _device(ctx: click.Context, config_path: str | None):
     if injected is not None:
         dev = injected
     else:
-        from ..station import default_config_path
+        from ..station.settings import default_config_path
 
         dev = make_driver(device_section(config_path or str(default_config_path())))
     try:

@@ -6,9 +6,9 @@ import json
 import click
 import numpy as np
 
-from ..fixtures.designs import describe, design_model, get_design, min_separation, predict_stderr, references
+from ..calibration import MODELS
 from ..errors import DataError
-from ..models import MODELS
+from ..fixtures.designs import describe, design_model, get_design, min_separation, predict_stderr, references
 
 # Display scale and unit per parameter family: gains and cubic terms are dimensionless
 # (shown in 1e-3), offsets are in g (shown in mg).
@@ -46,7 +46,7 @@ def command(name: str, model: str | None, noise_mg: float, as_json: bool) -> Non
             "design": name, "description": description, "convention": "AN4399 pitch/roll, z down, "
             "output positive along gravity",
             "poses": [{"name": p.name, "pitch_deg": p.pitch_deg, "roll_deg": p.roll_deg, "expected_g": _clean(r)}
-                      for p, r in zip(poses, ref)],
+                      for p, r in zip(poses, ref, strict=True)],
             "min_separation_g": sep, "model": model, "noise_g": pred["noise_g"],
             "stderr": {"param_names": pred["param_names"], "params": pred["params"].tolist(),
                        "W": pred["W"].tolist(), "V_g": pred["V"].tolist(), "Gamma": pred["Gamma"].tolist()},
@@ -55,11 +55,11 @@ def command(name: str, model: str | None, noise_mg: float, as_json: bool) -> Non
         return
     click.echo(f"design {name}: {description}")
     click.echo("pose        pitch_deg  roll_deg     x_g      y_g      z_g   (expected output, AN4399 z down)")
-    for p, r in zip(poses, _clean(np.round(ref, 4))):
+    for p, r in zip(poses, _clean(np.round(ref, 4)), strict=True):
         click.echo(f"{p.name:<10} {p.pitch_deg:10.2f} {p.roll_deg:9.2f}  {r[0]:+.4f}  {r[1]:+.4f}  {r[2]:+.4f}")
     click.echo(f"minimum channel separation: {sep:.4f} g (AN4399 section 5)")
     click.echo(f"predicted standard errors, model {model}, noise {noise_mg:g} mg per axis on each pose mean:")
-    for pname, se in zip(pred["param_names"], pred["params"]):
+    for pname, se in zip(pred["param_names"], pred["params"], strict=True):
         scale, unit = _SCALE[pname.split("_")[0]]
         click.echo(f"  {pname:<9} {se * scale:9.4f} {unit}")
     click.echo(f"condition number: {pred['condition_number']:.3g}")

@@ -5,21 +5,10 @@ import json
 
 import click
 
-from ..loading import device_section  # noqa: F401  (cli.nvm, cli.simulate import it from here)
-from ..drivers import make_driver
-from ..errors import ConfigError, DeviceError
+from ..config.sections import device_section, with_port
+from ..drivers.factory import make_driver
+from ..errors import DeviceError
 from ._common import jsonable
-
-
-def _with_port(section: dict, port: str) -> dict:
-    """--port overrides the serial port, or the I2C bus of an MMA8451 (a number or /dev/i2c-N)."""
-    if section.get("driver") == "mma8451":
-        section["bus"] = int(port) if port.isdigit() else port
-    elif section.get("driver") == "simulated":
-        raise ConfigError(f"--port {port}: the simulated driver has no port")
-    else:
-        section["port"] = port
-    return section
 
 
 @click.command("probe")
@@ -35,7 +24,7 @@ def command(config_path: str, port: str | None, readings: int, samples: int, as_
     """Identify the device in --config and print its configuration, temperature and averaged readings."""
     section = device_section(config_path)
     if port is not None:
-        section = _with_port(section, port)
+        section = with_port(section, port)
     try:
         with make_driver(section) as dev:
             ident = dev.identify()

@@ -6,11 +6,14 @@ from pathlib import Path
 
 import click
 
-from ..config import load_yaml
+from ..calibration import PARAM_NAMES
+from ..config.checks import load_yaml
 from ..errors import DataError
+from ..store.location import store_path, store_target
+from ..store.runs import Store
+from ..store.schema import STATUSES, VERDICTS
 from ._mes import JsonGroup
 from ._text import clean
-from ..store import PARAM_NAMES, VERDICTS, STATUSES, Store, store_path, store_target
 
 
 def _filter_options(f):
@@ -43,7 +46,7 @@ def _open(db, config_path) -> Store:
     config_path = config_path if config_path is not None else group.get("config_path")
     if db is not None:
         return Store(store_target(db), create=False)
-    from ..station import default_config_path
+    from ..station.settings import default_config_path
 
     # relative store paths are taken from the current directory, as `accelcal run` does
     return Store(store_path(load_yaml(config_path or default_config_path()), Path.cwd()), create=False)
@@ -190,7 +193,7 @@ def summary_cmd(db, config_path, device, lot, station, operator, verdict, status
     with _open(db, config_path) as store:
         s = store.lot_summary(**flt)
         if html_file is not None:
-            from ..lot_report import write_lot_html
+            from ..lot.report import write_lot_html
 
             write_lot_html(store.runs(**flt), html_file, f"accelcal lot report{f' - lot {lot}' if lot else ''}")
             click.echo(f"lot report written to {html_file}", err=True)
@@ -207,7 +210,8 @@ def summary_cmd(db, config_path, device, lot, station, operator, verdict, status
         click.echo(f"  interrupted: {why} ({n})")
     click.echo("nvm: " + (", ".join(f"{k} {v}" for k, v in s["nvm"].items()) or "-"))
     if s["parameters"]:
-        click.echo(f"{'parameter':14} {'mean':>12} {'std':>12} {'min':>12} {'max':>12}   (n {s['parameters']['W00']['n']})")
+        n = s["parameters"]["W00"]["n"]
+        click.echo(f"{'parameter':14} {'mean':>12} {'std':>12} {'min':>12} {'max':>12}   (n {n})")
         for name in PARAM_NAMES:
             d = s["parameters"][name]
             click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")
@@ -222,7 +226,7 @@ def summary_cmd(db, config_path, device, lot, station, operator, verdict, status
 @click.option("-o", "--output", default=None, metavar="FILE.png", help="Figure file (default run-ID-residuals.png).")
 def plot_cmd(run_id, db, config_path, output):
     """Draw one run's residuals per pose and axis (PNG)."""
-    from ..lot_report import residual_figure
+    from ..lot.report import residual_figure
 
     with _open(db, config_path) as store:
         rec = store.get_run(run_id)

@@ -5,8 +5,9 @@ import json
 
 import click
 
-from ..run_identity import ask_run_identity
-from ..station import Station, StationConfig
+from ..station.board import Station
+from ..station.identity import ask_run_identity
+from ..station.settings import StationConfig
 from ._common import jsonable
 
 
@@ -39,7 +40,7 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
         _run_panel(cfg, operator, serial, lot, as_json, echo)
         return
     if "thermal" in cfg.raw or "chamber" in cfg.raw:  # ThermalStation refuses one without the other
-        from ..thermal import ThermalStation
+        from ..station.thermal import ThermalStation
 
         rep = ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
     else:
@@ -56,7 +57,8 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
         if table:
             click.echo(f"table: {len(table['temps_c'])} temperatures ("
                        + ", ".join(f"{t:.1f}" for t in table["temps_c"]) + f" C), {table['method']}; "
-                       f"the fit above is the one at the temperature nearest {cfg.raw['thermal'].get('reference_c', 25)} C")
+                       "the fit above is the one at the temperature nearest "
+                       f"{cfg.raw['thermal'].get('reference_c', 25)} C")
         if rep.verify_error_max_mg is not None:
             click.echo(f"verify: max error {rep.verify_error_max_mg:.3f} mg after calibration")
         colour = "green" if rep.verdict == "PASS" else "red"
@@ -92,13 +94,13 @@ def timing_lines(t: dict) -> list[str]:
 def _run_panel(cfg: StationConfig, operator, serial, lot, as_json: bool, echo) -> None:
     """A panel: one line per board; exit 1 when any board failed."""
     from ..errors import ConfigError
-    from ..panel import PanelStation, panel_dict
+    from ..station.panel import PanelStation, panel_dict
 
     if serial is not None:
         raise ConfigError("--serial: a panel's boards keep their own serials; remove --serial "
                           "(or set device.boards[i].serial)")
     if "thermal" in cfg.raw or "chamber" in cfg.raw:  # a thermal plan over the panel (thermal_panel.py)
-        from ..thermal_panel import ThermalPanelStation as PanelStation
+        from ..station.thermal_panel import ThermalPanelStation as PanelStation
     station = PanelStation(cfg, operator=operator, lot=lot, echo=echo)
     reports = station.run()
     if as_json:

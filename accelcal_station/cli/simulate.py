@@ -15,14 +15,15 @@ from pathlib import Path
 import click
 import numpy as np
 
+from ..atomic import atomic_write_text
 from ..calibration import Calibration, TemperatureTable
+from ..config.sections import device_section
+from ..data.posetable import write_pose_table
+from ..drivers.simulated import SimulatedBoard
 from ..errors import ConfigError, DataError
 from ..fixtures.designs import get_design
 from ..fixtures.simulated_jig import SimulatedJig
-from ..posetable import atomic_write_text, write_pose_table
 from ..session import PoseRecord, Session
-from ..drivers.simulated import SimulatedBoard
-from .probe import device_section
 
 
 def parse_temps(text: str | None) -> list[float] | None:

@@ -23,8 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+Sym3 = tuple[np.ndarray, ...]  # the 6 distinct entries of symmetric 3 x 3 matrices: 00 01 02 11 12 22
 
-def inv3_sym(a, b, c, d, e, f):
+
+def inv3_sym(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, e: np.ndarray, f: np.ndarray
+             ) -> tuple[Sym3, np.ndarray]:
     """Adjugate and determinant of symmetric [[a b c] [b d e] [c e f]] (entries elementwise):
     the inverse is adj / det, with adj's 6 distinct entries returned in the same order."""
     A00, A01, A02 = d * f - e * e, c * e - b * f, b * e - c * d
@@ -33,7 +36,7 @@ def inv3_sym(a, b, c, d, e, f):
     return (A00, A01, A02, A11, A12, A22), det
 
 
-def mul3_sym(X, Y):
+def mul3_sym(X: Sym3, Y: Sym3) -> Sym3:
     """X Y for symmetric 3 x 3 matrices that commute (so the product is symmetric), each given
     as its 6 entries (00 01 02 11 12 22)."""
     x00, x01, x02, x11, x12, x22 = X
@@ -157,7 +160,8 @@ def _count_below(d: np.ndarray, e2: np.ndarray, x: np.ndarray) -> np.ndarray:
     return count
 
 
-def extreme_eigenvalues(A: np.ndarray, iters: int = 12, rtol: float = 1e-12):
+def extreme_eigenvalues(A: np.ndarray, iters: int = 12, rtol: float = 1e-12
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The smallest and largest eigenvalues (N,) of symmetric A (n, n, N), and ``sure`` (N,):
     both converged (last step within 1e-9 relative) and certified by a Sturm count (no
     eigenvalue below lo or above hi by more than that).  Where ``sure`` is False the caller should use LAPACK."""

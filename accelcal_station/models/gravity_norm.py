@@ -8,6 +8,7 @@ result is reported in AN4399 form as ``W = M``, ``V = -M B``, ``Gamma = 0``.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .result import BatchFit
 
@@ -48,7 +49,8 @@ def _sphere_start(gf: np.ndarray) -> np.ndarray:
     return p0
 
 
-def _unpack(p: np.ndarray):
+def _unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """M (D, 3, 3) symmetric and B (D, 3) from parameters (D, 9) ordered as PARAM_NAMES."""
     D = p.shape[0]
     M = np.zeros((D, 3, 3))
     M[:, _IU[0], _IU[1]] = p[:, :6]
@@ -56,7 +58,7 @@ def _unpack(p: np.ndarray):
     return M, p[:, 6:]
 
 
-def _residual_jacobian(p: np.ndarray, gf: np.ndarray):
+def _residual_jacobian(p: np.ndarray, gf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """r (D, P) and J (D, P, 9) of r_i = |M (v_i - B)| - 1."""
     M, B = _unpack(p)
     u = gf - B[:, None, :]
@@ -74,7 +76,8 @@ def _residual_jacobian(p: np.ndarray, gf: np.ndarray):
     return n - 1.0, J
 
 
-def levenberg_marquardt(gf: np.ndarray, p0: np.ndarray, max_iter: int = 200, tol: float = 1e-15):
+def levenberg_marquardt(gf: np.ndarray, p0: np.ndarray, max_iter: int = 200, tol: float = 1e-15
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vectorised LM over boards; returns params (D, 9), nfev (D,), converged (D,)."""
     p = p0.copy()
     D = p.shape[0]
@@ -95,7 +98,7 @@ def levenberg_marquardt(gf: np.ndarray, p0: np.ndarray, max_iter: int = 200, tol
         try:
             step = np.linalg.solve(A, -g[..., None])[..., 0]
         except np.linalg.LinAlgError:
-            step = np.stack([np.linalg.lstsq(Ai, -gi, rcond=None)[0] for Ai, gi in zip(A, g)])
+            step = np.stack([np.linalg.lstsq(Ai, -gi, rcond=None)[0] for Ai, gi in zip(A, g, strict=True)])
         pn = p[ia] + step
         rn, Jn = _residual_jacobian(pn, gf[ia])
         cn = np.sum(rn**2, axis=1)
@@ -112,7 +115,8 @@ def levenberg_marquardt(gf: np.ndarray, p0: np.ndarray, max_iter: int = 200, tol
     return p, nfev, ~active
 
 
-def _fit_core(gf: np.ndarray):
+def _fit_core(gf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sphere start then LM: params (D, 9) on the positive-definite branch, nfev (D,), converged (D,)."""
     p0 = _sphere_start(gf)
     p, nfev, conv = levenberg_marquardt(gf, p0)
     M, B = _unpack(p)
@@ -122,19 +126,12 @@ def _fit_core(gf: np.ndarray):
     return p, nfev, conv
 
 
-def fit_norm_batch(gf: np.ndarray, noise_g: np.ndarray | None = None, crossval: bool = True) -> BatchFit:
-    """Fit model 9 to a stack of boards' static readings gf (D, P, 3) in (nominal) g."""
+def _refusals(gf: np.ndarray, cond: np.ndarray, conv: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """ok (D,) and a message per board the fit cannot stand for: poses that do not determine
+    the nine parameters (cond(J) > COND_LIMIT), or LM stopped at its iteration limit."""
     D, P, _ = gf.shape
     ok = np.ones(D, dtype=bool)
     messages = [""] * D
-    if P < 9:
-        from ..errors import UnderdeterminedError
-        raise UnderdeterminedError(f"model 9 needs at least 9 poses (it has 9 parameters); got {P}")
-    p, nfev, conv = _fit_core(gf)
-    M, B = _unpack(p)
-    r, J = _residual_jacobian(p, gf)
-    s = np.linalg.svd(J, compute_uv=False)
-    cond = s[:, 0] / np.maximum(s[:, -1], 1e-300)
     for d in np.flatnonzero(cond > COND_LIMIT):
         ok[d] = False
         centred = gf[d] - gf[d].mean(axis=0)
@@ -147,50 +144,85 @@ def fit_norm_batch(gf: np.ndarray, noise_g: np.ndarray | None = None, crossval: 
     for d in np.flatnonzero(ok & ~conv):
         ok[d] = False
         messages[d] = "model 9 did not converge (Levenberg-Marquardt stopped at its iteration limit)"
-    W = M
-    V = -np.einsum("dij,dj->di", M, B)
-    Gm = np.zeros((D, 3))
-    cal = np.einsum("dij,dpj->dpi", W, gf) + V[:, None, :]
-    nrm = np.linalg.norm(cal, axis=-1)
-    resid = cal / np.maximum(nrm, 1e-300)[..., None] - cal  # unit-sphere point minus calibrated
+    return ok, messages
+
+
+def _covariance(J: np.ndarray, r: np.ndarray, noise_g: ArrayLike | None, ok: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Newton covariance ``(J^T J)^-1 s^2`` (D, 9, 9) and where it holds (D,): s^2 is the
+    measured noise when known (see linear.py), else RSS / (P - 9)."""
+    D, P = r.shape
     dof = P - 9
     s2 = np.full(D, np.nan)
-    if noise_g is not None:  # measured noise when known (see linear.py)
+    if noise_g is not None:
         s2 = np.mean(np.asarray(noise_g) ** 2, axis=(1, 2))
     elif dof > 0:
         s2 = np.sum(r**2, axis=1) / dof
     JtJ = np.einsum("dpi,dpj->dij", J, J)
     cov = np.linalg.pinv(JtJ) * np.where(np.isfinite(s2), s2, 0.0)[:, None, None]
-    se_ok = np.isfinite(s2) & ok
-    # propagate to W = M and V = -M B
+    return cov, np.isfinite(s2) & ok
+
+
+def _stderr_an4399(M: np.ndarray, B: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Standard errors of W = M (D, 3, 3) and V = -M B (D, 3): the covariance of the nine
+    parameters propagated through the Jacobians of those maps (first order, G cov G^T)."""
+    D = M.shape[0]
     Gw = np.zeros((D, 9, 9))
-    for j, (a, b) in enumerate(zip(*_IU)):
+    for j, (a, b) in enumerate(zip(*_IU, strict=True)):
         Gw[:, 3 * a + b, j] = 1.0
         Gw[:, 3 * b + a, j] = 1.0
     Gv = np.zeros((D, 3, 9))
-    for j, (a, b) in enumerate(zip(*_IU)):
+    for j, (a, b) in enumerate(zip(*_IU, strict=True)):
         Gv[:, a, j] -= B[:, b]
         if a != b:
             Gv[:, b, j] -= B[:, a]
     Gv[:, :, 6:] = -M
     sW = np.sqrt(np.clip(np.einsum("dij,djk,dik->di", Gw, cov, Gw), 0, None)).reshape(D, 3, 3)
     sV = np.sqrt(np.clip(np.einsum("dij,djk,dik->di", Gv, cov, Gv), 0, None))
+    return sW, sV
+
+
+def _crossval(gf: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Leave each pose out, refit on the rest, score the left-out pose's norm error
+    ``|M (v_i - B)| - 1``: RMS per board (D,) and where it holds (D,)."""
+    D, P, _ = gf.shape
+    idx = np.array([np.delete(np.arange(P), i) for i in range(P)])  # (P, P-1)
+    sub = gf[:, idx, :].reshape(D * P, P - 1, 3)
+    ps, _, convs = _fit_core(sub)
+    Ms, Bs = _unpack(ps)
+    left = gf.reshape(D * P, 3)  # board d, left-out pose i sits at row d * P + i
+    a = np.einsum("dij,dj->di", Ms, left - Bs)
+    e = (np.linalg.norm(a, axis=-1) - 1.0).reshape(D, P)
+    cv = np.sqrt(np.mean(e**2, axis=1))
+    cv_ok = ok & convs.reshape(D, P).all(axis=1) & np.all(np.isfinite(e), axis=1)
+    return np.where(cv_ok, cv, np.nan), cv_ok
+
+
+def fit_norm_batch(gf: np.ndarray, noise_g: ArrayLike | None = None, crossval: bool = True) -> BatchFit:
+    """Fit model 9 to a stack of boards' static readings gf (D, P, 3) in (nominal) g."""
+    D, P, _ = gf.shape
+    if P < 9:
+        from ..errors import UnderdeterminedError
+        raise UnderdeterminedError(f"model 9 needs at least 9 poses (it has 9 parameters); got {P}")
+    p, nfev, conv = _fit_core(gf)
+    M, B = _unpack(p)
+    r, J = _residual_jacobian(p, gf)
+    s = np.linalg.svd(J, compute_uv=False)
+    cond = s[:, 0] / np.maximum(s[:, -1], 1e-300)
+    ok, messages = _refusals(gf, cond, conv)
+    W = M  # AN4399 form: W = M, V = -M B, Gamma = 0
+    V = -np.einsum("dij,dj->di", M, B)
+    cal = np.einsum("dij,dpj->dpi", W, gf) + V[:, None, :]
+    nrm = np.linalg.norm(cal, axis=-1)
+    resid = cal / np.maximum(nrm, 1e-300)[..., None] - cal  # unit-sphere point minus calibrated
+    cov, se_ok = _covariance(J, r, noise_g, ok)
+    sW, sV = _stderr_an4399(M, B, cov)
     cv = np.full(D, np.nan)
     cv_ok = np.zeros(D, dtype=bool)
     if crossval and P >= 10:
-        # leave each pose out, refit on the rest, score the left-out pose's norm error
-        idx = np.array([np.delete(np.arange(P), i) for i in range(P)])  # (P, P-1)
-        sub = gf[:, idx, :].reshape(D * P, P - 1, 3)
-        ps, _, convs = _fit_core(sub)
-        Ms, Bs = _unpack(ps)
-        left = gf.reshape(D * P, 3)  # board d, left-out pose i sits at row d * P + i
-        a = np.einsum("dij,dj->di", Ms, left - Bs)
-        e = (np.linalg.norm(a, axis=-1) - 1.0).reshape(D, P)
-        cv = np.sqrt(np.mean(e**2, axis=1))
-        cv_ok = ok & convs.reshape(D, P).all(axis=1) & np.all(np.isfinite(e), axis=1)
-        cv = np.where(cv_ok, cv, np.nan)
+        cv, cv_ok = _crossval(gf, ok)
     return BatchFit(
-        model="9", W=W, V=V, Gamma=Gm, residuals_g=resid, norm_error_g=nrm - 1.0,
+        model="9", W=W, V=V, Gamma=np.zeros((D, 3)), residuals_g=resid, norm_error_g=nrm - 1.0,
         P=np.sum(resid**2, axis=1), residual_rms_g=np.sqrt(np.mean(r**2, axis=1)),
         crossval_rms_g=cv, crossval_ok=cv_ok, condition_number=cond,
         stderr_W=sW, stderr_V=sV, stderr_Gamma=np.zeros((D, 3)), stderr_ok=se_ok,

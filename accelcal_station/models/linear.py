@@ -10,6 +10,7 @@ and is solved per channel by least squares against the pose references,
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..errors import UnderdeterminedError
 from .result import BatchFit
@@ -42,7 +43,7 @@ def regressors(gf: np.ndarray, model: str) -> np.ndarray:
     return np.concatenate([X, cubic], axis=-1)
 
 
-def coefficients_to_an4399(beta: np.ndarray, model: str):
+def coefficients_to_an4399(beta: np.ndarray, model: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Map per-channel coefficient vectors (D, 3, k) to W (D,3,3), V (D,3), Gamma (D,3)."""
     D = beta.shape[0]
     W = np.zeros((D, 3, 3))
@@ -59,7 +60,8 @@ def coefficients_to_an4399(beta: np.ndarray, model: str):
     return W, V, G
 
 
-def _params(W, V, G, model):
+def _params(W: np.ndarray, V: np.ndarray, G: np.ndarray, model: str) -> np.ndarray:
+    """The parameter vector (D, k) in the order of param_names(model)."""
     D = W.shape[0]
     if model == "6":
         return np.concatenate([np.diagonal(W, axis1=1, axis2=2), V], axis=1)
@@ -72,7 +74,7 @@ def diagnose_underdetermined(gf: np.ndarray, model: str) -> str:
     """Say what a single board's pose set is missing for ``model`` (gf: (P, 3) in g)."""
     P = gf.shape[0]
     k = N_COEF[model]
-    if P < k:
+    if k > P:
         return f"model {model} needs at least {k} poses; got {P}"
     spread = gf.max(axis=0) - gf.min(axis=0)
     for c in range(3):
@@ -102,7 +104,7 @@ def diagnose_underdetermined(gf: np.ndarray, model: str) -> str:
     return f"the poses do not determine model {model} (the design is numerically singular)"
 
 
-def residual_variance(noise_g, rss: np.ndarray, D: int, P: int, dof: int) -> np.ndarray:
+def residual_variance(noise_g: ArrayLike | None, rss: np.ndarray, D: int, P: int, dof: int) -> np.ndarray:
     """Per-board, per-axis residual variance (D, 3), g^2: the measured noise (std/sqrt(n) per pose)
     when known, since a few poses' residuals estimate sigma too poorly; else RSS / (P - k); NaN when neither."""
     if noise_g is not None:
@@ -111,7 +113,40 @@ def residual_variance(noise_g, rss: np.ndarray, D: int, P: int, dof: int) -> np.
     return rss / dof if dof > 0 else np.full((D, 3), np.nan)
 
 
-def fit_linear_batch(gf: np.ndarray, ref: np.ndarray, model: str, noise_g: np.ndarray | None = None) -> BatchFit:
+def _solve_normal_equations(X: np.ndarray, y: np.ndarray, model: str
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``beta = (X^T X)^-1 X^T Y`` per board and channel (AN4399 Eqn 46).
+
+    X (D, 3, P, k), y (D, 3, P).  Returns the design used Xs (model 12 shares one across
+    channels: (D, 1, P, k)), (X^T X)^-1 (D, 1 or 3, k, k), beta (D, 3, k), the condition
+    number of X per channel (D, 1 or 3) and ok (D,): the design determines the model."""
+    k = N_COEF[model]
+    # Normal equations on the (small, well-scaled) design: batched k x k inverses are
+    # several times faster than batched SVDs, and cond(X) stays far below 1e8 for any
+    # design that determines the model.  Model 12 shares one design across channels.
+    Xs = X[:, :1] if model == "12" else X
+    XsT = Xs.swapaxes(-1, -2)
+    G = XsT @ Xs
+    ev = np.linalg.eigvalsh(G)
+    cond_c = np.sqrt(ev[..., -1] / np.maximum(ev[..., 0], 1e-300))
+    bad = np.any(cond_c > COND_LIMIT, axis=1)
+    G = np.where(bad[:, None, None, None], np.eye(k), G)  # keep singular boards from poisoning inv
+    Ginv_s = np.linalg.inv(G)
+    beta = (Ginv_s @ (XsT @ y[..., None]))[..., 0]  # (D, 3, k)
+    return Xs, Ginv_s, beta, cond_c, ~bad
+
+
+def _leave_one_out(Xs: np.ndarray, Ginv_s: np.ndarray, r: np.ndarray, ok: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Leave-one-pose-out RMS (D,) and where it holds (D,) from the hat matrix diagonal
+    ``h_ii = x_i^T (X^T X)^-1 x_i``: the left-out residual is ``r_i / (1 - h_ii)``."""
+    h = np.broadcast_to(np.sum((Xs @ Ginv_s) * Xs, axis=-1), r.shape)
+    cv_ok = np.all(h < 1.0 - 1e-9, axis=(1, 2)) & ok
+    loo = r / np.where(h < 1.0 - 1e-9, 1.0 - h, 1.0)
+    return np.where(cv_ok, np.sqrt(np.mean(loo**2, axis=(1, 2))), np.nan), cv_ok
+
+
+def fit_linear_batch(gf: ArrayLike, ref: ArrayLike, model: str, noise_g: ArrayLike | None = None) -> BatchFit:
     """Least-squares fit of model 6, 12 or 15 for a stack of boards (AN4399 Eqn 46).
 
     gf: (D, P, 3) uncalibrated readings in g; ref: (D, P, 3) or (P, 3) expected output in g;
@@ -124,33 +159,15 @@ def fit_linear_batch(gf: np.ndarray, ref: np.ndarray, model: str, noise_g: np.nd
     k = N_COEF[model]
     X = regressors(gf, model)  # (D, 3, P, k)
     y = ref.transpose(0, 2, 1)  # (D, 3, P)
-    ok = np.ones(D, dtype=bool)
-    if P < k:
+    if k > P:
         msg = f"model {model} needs at least {k} poses; got {P}"
         raise UnderdeterminedError(msg)
-    # Normal equations on the (small, well-scaled) design: batched k x k inverses are
-    # several times faster than batched SVDs, and cond(X) stays far below 1e8 for any
-    # design that determines the model.  Model 12 shares one design across channels.
-    Xs = X[:, :1] if model == "12" else X
-    XsT = Xs.swapaxes(-1, -2)
-    G = XsT @ Xs
-    ev = np.linalg.eigvalsh(G)
-    cond_c = np.sqrt(ev[..., -1] / np.maximum(ev[..., 0], 1e-300))
-    bad = np.any(cond_c > COND_LIMIT, axis=1)
-    ok &= ~bad
-    G = np.where(bad[:, None, None, None], np.eye(k), G)  # keep singular boards from poisoning inv
-    Ginv_s = np.linalg.inv(G)
-    Ginv = np.broadcast_to(Ginv_s, (D, 3, k, k))
-    beta = (Ginv_s @ (XsT @ y[..., None]))[..., 0]  # (D, 3, k)
+    Xs, Ginv_s, beta, cond_c, ok = _solve_normal_equations(X, y, model)
     fitted = (Xs @ beta[..., None])[..., 0]
     r = y - fitted  # (D, 3, P): reference minus calibrated (AN4399 residual)
     rss = np.sum(r**2, axis=-1)  # (D, 3)
-    # leave-one-pose-out residuals from the hat matrix, r_i / (1 - h_ii)
-    h = np.broadcast_to(np.sum((Xs @ Ginv_s) * Xs, axis=-1), (D, 3, P))
-    cv_ok = np.all(h < 1.0 - 1e-9, axis=(1, 2)) & ok
-    loo = r / np.where(h < 1.0 - 1e-9, 1.0 - h, 1.0)
-    cv_rms = np.where(cv_ok, np.sqrt(np.mean(loo**2, axis=(1, 2))), np.nan)
-    cov_unit = Ginv  # (X^T X)^-1
+    cv_rms, cv_ok = _leave_one_out(Xs, Ginv_s, r, ok)
+    cov_unit = np.broadcast_to(Ginv_s, (D, 3, k, k))  # (X^T X)^-1
     s2 = residual_variance(noise_g, rss, D, P, P - k)
     se_ok = np.all(np.isfinite(s2), axis=1) & ok
     cov = cov_unit * np.where(np.isfinite(s2), s2, 0.0)[..., None, None]  # (D, 3, k, k)
@@ -176,7 +193,8 @@ def fit_linear_batch(gf: np.ndarray, ref: np.ndarray, model: str, noise_g: np.nd
 
 # -- AN4399 closed forms ---------------------------------------------------------------
 
-def six_param_two_pose(gf0, gf1, ref0=None):
+def six_param_two_pose(gf0: ArrayLike, gf1: ArrayLike, ref0: ArrayLike | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """Gain and offset from two opposite poses (AN4399 Eqns 6-17).
 
     gf0, gf1: readings in g (3,) at the two poses; ref0: expected output of pose 0
@@ -193,7 +211,7 @@ def six_param_two_pose(gf0, gf1, ref0=None):
     return w, r0 - w * gf0
 
 
-def six_param_six_face(g_plus, g_minus):
+def six_param_six_face(g_plus: ArrayLike, g_minus: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Gain and offset per axis from the six faces, on-axis channel only (AN4399 Eqns 12-17).
 
     g_plus[c], g_minus[c]: channel c's reading in g with +1 g and -1 g along c.

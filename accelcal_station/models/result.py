@@ -57,16 +57,14 @@ class FitResult:
     def Gamma(self) -> np.ndarray:
         return self.calibration.Gamma
 
-    def to_json_dict(self, pose_names: list[str] | None = None) -> dict:
+    def to_json_dict(self, pose_names: list[str] | None = None) -> dict[str, Any]:
         names = pose_names or [str(i) for i in range(self.pose_count)]
-        poses = []
-        for i in range(self.pose_count):
-            poses.append({
-                "pose": names[i],
-                "reading_g": self.readings_g[i].tolist(),
-                "residual_g": self.residuals_g[i].tolist(),
-                "norm_error_g": float(self.norm_error_g[i]),
-            })
+        poses = [{
+            "pose": names[i],
+            "reading_g": self.readings_g[i].tolist(),
+            "residual_g": self.residuals_g[i].tolist(),
+            "norm_error_g": float(self.norm_error_g[i]),
+        } for i in range(self.pose_count)]
         se = None
         if self.stderr is not None:
             se = {k: np.asarray(v).tolist() for k, v in self.stderr.items()}
@@ -76,7 +74,7 @@ class FitResult:
             "W": self.W.tolist(),
             "V": self.V.tolist(),
             "Gamma": self.Gamma.tolist(),
-            "params": dict(zip(self.param_names, self.params.tolist())),
+            "params": dict(zip(self.param_names, self.params.tolist(), strict=True)),
             "stderr": se,
             "P": self.P.tolist(),
             "residual_rms_g": self.residual_rms_g,
@@ -103,6 +101,10 @@ class LazyCovariance:
     def __len__(self) -> int:
         return len(getattr(self, self._fields[0]))
 
+    def __getitem__(self, d: Any) -> np.ndarray:
+        """The covariance of board(s) ``d``."""
+        raise NotImplementedError
+
 
 @dataclass
 class BatchFit:
@@ -123,7 +125,7 @@ class BatchFit:
     stderr_V: np.ndarray  # (D, 3)
     stderr_Gamma: np.ndarray  # (D, 3)
     stderr_ok: np.ndarray  # (D,) bool
-    covariance: np.ndarray  # model specific, (D, ...)
+    covariance: np.ndarray | LazyCovariance  # model specific, (D, ...)
     params: np.ndarray  # (D, k)
     param_names: list[str]
     ok: np.ndarray  # (D,) bool

@@ -59,7 +59,7 @@ def absurd_readings(gf: np.ndarray) -> list[str]:
 def absurd_coefficients(W: np.ndarray, V: np.ndarray) -> list[str]:
     """Per board of (D, 3, 3) W and (D, 3) V: '' or why the calibration is physically absurd."""
     out = []
-    for w, v in zip(np.asarray(W, dtype=float), np.asarray(V, dtype=float)):
+    for w, v in zip(np.asarray(W, dtype=float), np.asarray(V, dtype=float), strict=True):
         diag = np.diag(w)
         off = w - np.diag(diag)
         if not (np.all(np.isfinite(w)) and np.all(np.isfinite(v))):
@@ -82,7 +82,7 @@ def absurd_norm_model(W: np.ndarray, norm_error_g: np.ndarray) -> list[str]:
     """Model 9 (any raw offset): '' or why the fit is absurd -- a singular or non-finite W,
     or a calibrated pose whose norm is not near 1 g (the fit did not converge on gravity)."""
     out = []
-    for w, ne in zip(np.asarray(W, dtype=float), np.asarray(norm_error_g, dtype=float)):
+    for w, ne in zip(np.asarray(W, dtype=float), np.asarray(norm_error_g, dtype=float), strict=True):
         if not (np.all(np.isfinite(w)) and np.all(np.isfinite(ne))):
             out.append("the fit gave non-finite coefficients")
         elif np.linalg.cond(w) > COND_MAX:

@@ -31,13 +31,16 @@ from __future__ import annotations
 
 import os
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from ..errors import UnderdeterminedError
-from ..heap import keep_block_memory
+from ..errors import DataError, UnderdeterminedError
 from . import boardwise as bw
+from .heap import keep_block_memory
 from .linear import COND_LIMIT, diagnose_underdetermined, fit_linear_batch, param_names, residual_variance
 from .result import BatchFit, LazyCovariance
 from .stacked_norm import fit9
@@ -45,7 +48,7 @@ from .stacked_norm import fit9
 CHECK_COND = 1e5  # above this, extreme eigenvalues are recomputed by LAPACK (rare)
 
 
-def _laguerre_root(coef, x, iters: int = 3):
+def _laguerre_root(coef: tuple[np.ndarray, ...], x: np.ndarray, iters: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """A root of the monic quartic x^4 - e1 x^3 + e2 x^2 - e3 x + e4 from x (vectorised).
 
     All roots real: started above (below) all roots, Laguerre's iteration goes
@@ -67,7 +70,7 @@ def _laguerre_root(coef, x, iters: int = 3):
     return x, step
 
 
-def _smallest_root(coef, top):
+def _smallest_root(coef: tuple[np.ndarray, ...], top: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The smallest root of the quartic once its largest ``top`` is known: deflate to a cubic,
     take its smallest root in trigonometric form (three real roots), polish by 2 Newton steps
     on the quartic (a cluster of small roots makes Laguerre from below slow)."""
@@ -92,14 +95,16 @@ def _smallest_root(coef, top):
     return x, step
 
 
-def _cond12(S, det, xbar, P, G_full):
+def _cond12(S: bw.Sym3, det: np.ndarray, xbar: np.ndarray, P: int,
+            G_full: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
     """Condition number of X = [g 1] (sqrt of eigenvalue ratio of X^T X), per board."""
     a, b, c, d, e, f = S
     x0, x1, x2 = xbar
     Pn = float(P)
     e1 = a + d + f + Pn * (x0 * x0 + x1 * x1 + x2 * x2) + Pn
 
-    def m2(sii, sjj, sij, xi, xj):  # 2x2 principal minor of A = S + P xbar xbar^T
+    def m2(sii: np.ndarray, sjj: np.ndarray, sij: np.ndarray, xi: np.ndarray, xj: np.ndarray
+           ) -> np.ndarray:  # 2x2 principal minor of A = S + P xbar xbar^T
         return sii * sjj - sij * sij + Pn * (sii * xj * xj + sjj * xi * xi - 2 * sij * xi * xj)
 
     e2 = m2(a, d, b, x0, x1) + m2(a, f, c, x0, x2) + m2(d, f, e, x1, x2) + Pn * (a + d + f)
@@ -133,12 +138,84 @@ class _ChannelCovariance(LazyCovariance):
     def __init__(self, G: np.ndarray, s2: np.ndarray):
         self.G, self.s2 = G, s2
 
-    def __getitem__(self, d):
+    def __getitem__(self, d: Any) -> np.ndarray:
         Ginv = self.G[d][..., self._ROWS]  # (..., 4, 4)
         return Ginv[..., None, :, :] * self.s2[d][..., None, None]
 
 
-def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) -> BatchFit:
+def _centred(gf: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Readings and references boards last (3, P, D) and centred: xc = g - mean(g),
+    yc = y - mean(y) (the centred form of AN4399 Eqn 46).  Returns xc, yc, xbar (3, D),
+    ybar (3, 1 or D) and y (3, P, 1 or D); shared (P, 3) references stay one column."""
+    P = gf.shape[1]
+    shared = ref.ndim == 2
+    # (3, P, D): boards last, so sums over poses add P contiguous rows (short-row reductions are slow)
+    g = np.ascontiguousarray(gf.transpose(2, 1, 0))
+    y = ref.T[:, :, None] if shared else np.ascontiguousarray(ref.transpose(2, 1, 0))  # (3, P, 1 or D)
+    xbar, ybar = g.sum(axis=1) / P, y.sum(axis=1) / P  # (3, D), (3, 1 or D)
+    return g - xbar[:, None, :], y - ybar[:, None, :], xbar, ybar, y
+
+
+def _scatter_inverse(xc: np.ndarray) -> tuple[bw.Sym3, np.ndarray, np.ndarray, bw.Sym3]:
+    """S = xc^T xc per board (its 6 distinct entries), det(S) (1 where singular), a quick
+    ok screen (D,) and S^-1 from the adjugate (zero where singular)."""
+    S = tuple((xc[i] * xc[j]).sum(axis=0) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
+    adj, det = bw.inv3_sym(*S)
+    scale = np.maximum(S[0] + S[3] + S[5], 1e-300)
+    ok = det > 1e-12 * scale**3  # a quick screen; the condition number decides below
+    det_safe = np.where(ok, det, 1.0)
+    Sinv = tuple(np.where(ok, v, 0.0) / det_safe for v in adj)
+    return S, det_safe, ok, Sinv
+
+
+def _slopes(Sinv: bw.Sym3, xc: np.ndarray, yc: np.ndarray, shared: bool) -> tuple[np.ndarray, np.ndarray]:
+    """S^-1 as (3, 3, D) and W^T = S^-1 xc^T yc (3 in, 3 out, D): the slopes of AN4399 Eqn 46
+    with the intercept column dropped (Frisch-Waugh)."""
+    i00, i01, i02, i11, i12, i22 = Sinv
+    Si = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])  # (3, 3, D)
+    # C = xc^T yc (3 in, 3 out, D); shared references: (3, P) @ (3 in, P, D) is one BLAS call
+    C = yc[:, :, 0] @ xc if shared else np.einsum("ipd,cpd->icd", xc, yc)
+    return Si, np.einsum("jid,icd->jcd", Si, C)  # W[c, j] = Wt[j, c]
+
+
+def _residuals_and_hat(xc: np.ndarray, yc: np.ndarray, Wt: np.ndarray, Sinv: bw.Sym3
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Reference minus calibrated r = yc - W xc (3, P, D) and the hat diagonal
+    h = 1/P + xc^T S^-1 xc (P, D)."""
+    i00, i01, i02, i11, i12, i22 = Sinv
+    r = np.empty_like(xc)  # (3, P, D) reference minus calibrated
+    for c in range(3):
+        r[c] = yc[c] - Wt[0, c] * xc[0] - Wt[1, c] * xc[1] - Wt[2, c] * xc[2]
+    h = (i00 * xc[0] ** 2 + i11 * xc[1] ** 2 + i22 * xc[2] ** 2
+         + 2 * (i01 * xc[0] * xc[1] + i02 * xc[0] * xc[2] + i12 * xc[1] * xc[2]))
+    h += 1.0 / xc.shape[1]  # hat diagonal (P, D)
+    return r, h
+
+
+def _gram(gf: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """X^T X of X = [g 1] for the boards in ``mask`` (n, 4, 4), for LAPACK's eigenvalues."""
+    X = np.concatenate([gf[mask], np.ones((int(mask.sum()), gf.shape[1], 1))], axis=-1)
+    return X.swapaxes(1, 2) @ X
+
+
+def _leave_one_out12(r2: np.ndarray, h: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Leave-one-pose-out RMS (D,) from the squared residuals r2 (3, P, D) and the hat
+    diagonal: the left-out residual is r / (1 - h); and where it holds (D,)."""
+    P = h.shape[0]
+    fit_h = h < 1.0 - 1e-9
+    cv_ok = fit_h.all(axis=0) & ok
+    w = 1.0 / np.where(fit_h, 1.0 - h, 1.0) ** 2  # leave-one-out residual r / (1 - h), squared
+    return np.where(cv_ok, np.sqrt(((r2[0] + r2[1] + r2[2]) * w).sum(axis=0) / (3 * P)), np.nan), cv_ok
+
+
+def _inverse_gram(Sinv: bw.Sym3, Si: np.ndarray, xbar: np.ndarray, P: int) -> np.ndarray:
+    """The 10 distinct entries (D, 10) of (X^T X)^-1 of X = [g 1] by the block (Schur complement)
+    formula [[S^-1, -S^-1 xbar], [., 1/P + xbar^T S^-1 xbar]] (see _ChannelCovariance)."""
+    u = -np.einsum("ijd,jd->id", Si, xbar)  # (3, D)
+    return np.stack([*Sinv, u[0], u[1], u[2], 1.0 / P - (u * xbar).sum(axis=0)], axis=1)
+
+
+def fit12(gf: ArrayLike, ref: ArrayLike, noise_g: ArrayLike | None = None) -> BatchFit:
     """Model 12 for a stack of boards (D, P, 3) in g; same results as fit_linear_batch.
 
     ``ref`` is (D, P, 3), or (P, 3) shared by every board: then its centred form, its norms
@@ -148,51 +225,21 @@ def fit12(gf: np.ndarray, ref: np.ndarray, noise_g: np.ndarray | None = None) ->
     if P < 4:
         raise UnderdeterminedError(f"model 12 needs at least 4 poses; got {P}")
     ref = np.asarray(ref, dtype=float)
-    shared = ref.ndim == 2
-    # (3, P, D): boards last, so sums over poses add P contiguous rows (short-row reductions are slow)
-    g = np.ascontiguousarray(gf.transpose(2, 1, 0))
-    y = ref.T[:, :, None] if shared else np.ascontiguousarray(ref.transpose(2, 1, 0))  # (3, P, 1 or D)
-    xbar, ybar = g.sum(axis=1) / P, y.sum(axis=1) / P  # (3, D), (3, 1 or D)
-    xc, yc = g - xbar[:, None, :], y - ybar[:, None, :]
-    S = tuple((xc[i] * xc[j]).sum(axis=0) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
-    adj, det = bw.inv3_sym(*S)
-    scale = np.maximum(S[0] + S[3] + S[5], 1e-300)
-    ok = det > 1e-12 * scale**3  # a quick screen; the condition number decides below
-    det_safe = np.where(ok, det, 1.0)
-    i00, i01, i02, i11, i12, i22 = (np.where(ok, v, 0.0) / det_safe for v in adj)
-    Si = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])  # (3, 3, D)
-    if shared:  # (3, P) @ (3 in, P, D): BLAS
-        C = yc[:, :, 0] @ xc  # (3 in, 3 out, D)
-    else:
-        C = np.einsum("ipd,cpd->icd", xc, yc)
-    Wt = np.einsum("jid,icd->jcd", Si, C)  # W[c, j] = Wt[j, c]
+    xc, yc, xbar, ybar, y = _centred(gf, ref)
+    S, det_safe, ok, Sinv = _scatter_inverse(xc)
+    Si, Wt = _slopes(Sinv, xc, yc, shared=ref.ndim == 2)
     W = Wt.transpose(2, 1, 0)  # (D, 3, 3)
     V = ybar.T - np.einsum("dcj,dj->dc", W, xbar.T)
-    r = np.empty_like(xc)  # (3, P, D) reference minus calibrated
-    for c in range(3):
-        r[c] = yc[c] - Wt[0, c] * xc[0] - Wt[1, c] * xc[1] - Wt[2, c] * xc[2]
-    h = (i00 * xc[0] ** 2 + i11 * xc[1] ** 2 + i22 * xc[2] ** 2
-         + 2 * (i01 * xc[0] * xc[1] + i02 * xc[0] * xc[2] + i12 * xc[1] * xc[2]))
-    h += 1.0 / P  # hat diagonal (P, D)
-
-    def G_full(mask):
-        X = np.concatenate([gf[mask], np.ones((int(mask.sum()), P, 1))], axis=-1)
-        return X.swapaxes(1, 2) @ X
-
-    cond = _cond12(S, det_safe, xbar, P, G_full)
+    r, h = _residuals_and_hat(xc, yc, Wt, Sinv)
+    cond = _cond12(S, det_safe, xbar, P, lambda mask: _gram(gf, mask))
     ok &= np.isfinite(cond) & (cond <= COND_LIMIT)
     r2 = r * r
     rss = r2.sum(axis=1).T  # (D, 3)
-    fit_h = h < 1.0 - 1e-9
-    cv_ok = fit_h.all(axis=0) & ok
-    w = 1.0 / np.where(fit_h, 1.0 - h, 1.0) ** 2  # leave-one-out residual r / (1 - h), squared
-    cv_rms = np.where(cv_ok, np.sqrt(((r2[0] + r2[1] + r2[2]) * w).sum(axis=0) / (3 * P)), np.nan)
+    cv_rms, cv_ok = _leave_one_out12(r2, h, ok)
     s2 = residual_variance(noise_g, rss, D, P, P - 4)
     se_ok = np.all(np.isfinite(s2), axis=1) & ok
     s2z = np.where(np.isfinite(s2), s2, 0.0)
-    # (X^T X)^-1 of X = [g 1] by the block formula: [[S^-1, -S^-1 xbar], [., 1/P + xbar^T S^-1 xbar]]
-    u = -np.einsum("ijd,jd->id", Si, xbar)  # (3, D)
-    G = np.stack([i00, i01, i02, i11, i12, i22, u[0], u[1], u[2], 1.0 / P - (u * xbar).sum(axis=0)], axis=1)
+    G = _inverse_gram(Sinv, Si, xbar, P)
     sW = np.sqrt(np.clip(s2z[:, :, None] * G[:, None, [0, 3, 5]], 0.0, None))
     sV = np.sqrt(np.clip(s2z * G[:, 9:10], 0.0, None))
     resid = r.transpose(2, 1, 0)  # (D, P, 3) view
@@ -228,7 +275,10 @@ class _Assembler:
     _SHARED = ("model", "param_names", "input_units")
 
     def __init__(self, D: int, gf: np.ndarray):
-        self.D, self.gf, self.kw, self.whole = D, gf, None, None
+        self.D, self.gf = D, gf
+        self.kw: dict[str, Any] | None = None
+        self.whole: BatchFit | None = None
+        self.copied: list[str] = []
 
     def add(self, rows: np.ndarray | slice, b: BatchFit) -> None:
         if isinstance(rows, slice) and rows == slice(0, self.D):
@@ -244,15 +294,13 @@ class _Assembler:
             if isinstance(out, LazyCovariance):
                 for f in out._fields:
                     getattr(out, f)[rows] = getattr(v, f)
-            elif isinstance(out, np.ndarray):
-                out[rows] = v
-            elif isinstance(rows, slice):
+            elif isinstance(out, np.ndarray) or isinstance(rows, slice):
                 out[rows] = v
             else:
                 for k, i in enumerate(rows):
                     out[i] = v[k]
 
-    def _alloc(self, name: str, v0):
+    def _alloc(self, name: str, v0: Any) -> Any:
         D = self.D
         if name in self._SHARED:
             return v0
@@ -295,7 +343,10 @@ def _workers() -> int:
     return max(1, min(n, 8))
 
 
-def fit_stacked(gf: np.ndarray, ref: np.ndarray | None, model: str, noise_g: np.ndarray | None = None,
+Job = tuple[np.ndarray | slice, np.ndarray | None]  # boards of one block, their references
+
+
+def fit_stacked(gf: ArrayLike, ref: ArrayLike | None, model: str, noise_g: ArrayLike | None = None,
                 workers: int | None = None) -> BatchFit:
     """The fast fitter of ``model`` on (D, P, 3) readings in g (references in g for 6/12/15),
     in blocks of BLOCK[model] boards, fitted by ``workers`` threads (default: one per CPU);
@@ -307,8 +358,8 @@ def fit_stacked(gf: np.ndarray, ref: np.ndarray | None, model: str, noise_g: np.
     D, P, _ = gf.shape
     ref = None if ref is None else np.broadcast_to(np.asarray(ref, dtype=float), (D, P, 3))
     nz = None if noise_g is None else np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3))
-    groups = _reference_groups(ref) if model == "12" else [(slice(0, D), ref)]
-    jobs = []
+    groups: list[Job] = list(_reference_groups(ref)) if model == "12" and ref is not None else [(slice(0, D), ref)]
+    jobs: list[Job] = []
     for rows, gref in groups:
         idx = np.arange(D)[rows] if isinstance(rows, slice) else rows
         for a in range(0, len(idx), BLOCK[model]):
@@ -316,14 +367,17 @@ def fit_stacked(gf: np.ndarray, ref: np.ndarray | None, model: str, noise_g: np.
                 if isinstance(rows, slice) else idx[a:a + BLOCK[model]]
             jobs.append((sel, gref))
 
-    def run(job):
-        sel, gref = job
+    def run(job: Job) -> tuple[np.ndarray | slice, BatchFit]:
+        sel, gref = job  # gref: model 12 the block's shared (P, 3) references, 6 and 15 all (D, P, 3)
         n = None if nz is None else nz[sel]
         if model == "9":
             return sel, fit9(gf[sel], n)
+        if gref is None:  # fitting.fit_batch says so first; a direct caller gets the same words
+            raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
+                            "model 9 needs none")
         if model == "12":
             return sel, fit12(gf[sel], gref, n)
-        return sel, fit_linear_batch(gf[sel], ref[sel], model, n)
+        return sel, fit_linear_batch(gf[sel], gref[sel], model, n)
 
     out = _Assembler(D, gf)
     workers = _workers() if workers is None else max(1, int(workers))
@@ -332,7 +386,7 @@ def fit_stacked(gf: np.ndarray, ref: np.ndarray | None, model: str, noise_g: np.
             out.add(*run(job))
         return out.result()
     with ThreadPoolExecutor(max_workers=workers) as ex:
-        pending: deque = deque()
+        pending: deque[Future[tuple[np.ndarray | slice, BatchFit]]] = deque()
         for job in jobs:  # at most 2 blocks per thread in flight: memory stays bounded
             pending.append(ex.submit(run, job))
             if len(pending) >= 2 * workers:

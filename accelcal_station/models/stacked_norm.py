@@ -22,8 +22,10 @@ and the 9 x 9 algebra is boardwise.py's elementwise routines, not one LAPACK cal
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..errors import UnderdeterminedError
 from . import boardwise as bw
@@ -39,7 +41,7 @@ class ScaledCovariance(LazyCovariance):
     def __init__(self, Ainv: np.ndarray, s2: np.ndarray):
         self.Ainv, self.s2 = Ainv, s2
 
-    def __getitem__(self, d):
+    def __getitem__(self, d: Any) -> np.ndarray:
         return self.Ainv[d] * np.asarray(self.s2[d])[..., None, None]
 
 
@@ -101,10 +103,10 @@ def _ellipsoid_start(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                              i02 * l0 + i12 * l1 + i22 * l2]) / det
         k = 1.0 - 0.5 * (c[0] * l0 + c[1] * l1 + c[2] * l2)  # 1 + c^T Q' c, as Q' c = -l / 2
         Q = tuple(q / k for q in Qp)
-        X = tuple(0.5 * (q + e) for q, e in zip(Q, (1.0, 0.0, 0.0, 1.0, 0.0, 1.0)))  # first step from I
+        X = tuple(0.5 * (q + e) for q, e in zip(Q, (1.0, 0.0, 0.0, 1.0, 0.0, 1.0), strict=True))  # first step from I
         for _ in range(2):
             Xi, dx = bw.inv3_sym(*X)
-            X = tuple(0.5 * (a + b / dx) for a, b in zip(X, bw.mul3_sym(Xi, Q)))
+            X = tuple(0.5 * (a + b / dx) for a, b in zip(X, bw.mul3_sym(Xi, Q), strict=True))
     p = np.stack([X[0], X[3], X[5], X[1], X[2], X[4], c[0], c[1], c[2]])
     ok = ch.ok & (det > 0) & (k > 0) & (Q[0] > 0) & (Q[3] > 0) & (Q[5] > 0) & np.all(np.isfinite(p), axis=0)
     return p, ok
@@ -166,7 +168,8 @@ class _Linearised:
         self.chol.L[:, :, rows], self.chol.inv_diag[:, rows], self.chol.ok[rows] = chol.L, chol.inv_diag, chol.ok
 
 
-def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10):
+def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10
+                  ) -> tuple[np.ndarray, np.ndarray, _Linearised]:
     """Plain batched Gauss-Newton (no line search: the caller sends the boards that do not
     settle to the damped fit) on readings g (3, P, N) from p (9, N).
 
@@ -181,7 +184,7 @@ def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10):
     settled = np.zeros(N, dtype=bool)
     prev = np.full(N, np.nan)  # no contraction estimate before the second step
     act = np.arange(N)
-    lin = None
+    lin: _Linearised | None = None
     for _ in range(iters):
         whole = act.size == N
         ra, Ja = _resid_jac(p if whole else p[:, act], g if whole else g[:, :, act])
@@ -201,7 +204,7 @@ def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10):
             p += step
         else:
             p[:, act] += step
-        if whole:
+        if whole or lin is None:  # the first iteration evaluates every board
             lin = _Linearised(Ja, Aa, chol)
         else:
             lin.put(act, Ja, Aa, chol)
@@ -209,11 +212,13 @@ def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10):
         act = act[~(small | ~pd)]
         if not act.size:
             break
+    if lin is None:
+        raise ValueError(f"Gauss-Newton needs at least one iteration; got {iters}")
     settled &= np.all(np.isfinite(p), axis=0)
     return p, settled, lin
 
 
-def fit9(gf: np.ndarray, noise_g: np.ndarray | None = None, gn_iters: int = 8) -> BatchFit:
+def fit9(gf: ArrayLike, noise_g: ArrayLike | None = None, gn_iters: int = 8) -> BatchFit:
     """Model 9 for a stack of boards (D, P, 3) in nominal g; same results as
     gravity_norm.fit_norm_batch (leave-one-out to the tolerance stated in _loo9)."""
     gf = np.asarray(gf, dtype=float)
@@ -283,7 +288,8 @@ def _judge(gf: np.ndarray, cond: np.ndarray, conv: np.ndarray) -> tuple[np.ndarr
     return ok, messages
 
 
-def _finish9(gf, g, p, conv, noise_g, lin: _Linearised) -> BatchFit:
+def _finish9(gf: np.ndarray, g: np.ndarray, p: np.ndarray, conv: np.ndarray, noise_g: ArrayLike | None,
+             lin: _Linearised) -> BatchFit:
     """Everything gravity_norm.fit_norm_batch reports, from the fitted parameters p (9, N)
     and each board's last linearisation."""
     D, P, _ = gf.shape
@@ -323,7 +329,7 @@ def _finish9(gf, g, p, conv, noise_g, lin: _Linearised) -> BatchFit:
 LOO_REFIT = 0.1  # a held-out fit is refitted when its one-step change |dp|^2 exceeds this x the residual RMS
 
 
-def _loo9(g, p, r, J, Ainv) -> np.ndarray:
+def _loo9(g: np.ndarray, p: np.ndarray, r: np.ndarray, J: np.ndarray, Ainv: np.ndarray) -> np.ndarray:
     """Held-out residuals (P, N) of model 9: pose i's residual under the fit without pose i.
 
     First one Gauss-Newton step from the full fit p (J (9, P, N) at p), in closed form for
@@ -373,7 +379,7 @@ def _propagate9(Ainv: np.ndarray, s2: np.ndarray, p: np.ndarray) -> tuple[np.nda
     covariance Ainv s2 of the parameters (Ainv (9, 9, N), p (9, N))."""
     N = p.shape[1]
     Gv = np.zeros((3, 9, N))  # dV / dp
-    for j, (a, b) in enumerate(zip(*gn._IU)):
+    for j, (a, b) in enumerate(zip(*gn._IU, strict=True)):
         Gv[a, j] -= p[6 + b]
         if a != b:
             Gv[b, j] -= p[6 + a]

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from accelcal_station.posetable import write_pose_table
+from accelcal_station.data.posetable import write_pose_table
 from accelcal_station.session import PoseRecord, Session
 
 HERE = Path(__file__).resolve().parent

@@ -1,0 +1,26 @@
+"""Station-config sections that the data commands read (the measurements themselves: loader.py)."""
+from __future__ import annotations
+
+from ..errors import ConfigError
+from .checks import load_yaml
+
+
+def device_section(path: str) -> dict:
+    """The ``device:`` section of a station config, or a file that is only a device section."""
+    data = load_yaml(path)
+    section = data.get("device", data if "driver" in data else None)
+    if not isinstance(section, dict):
+        raise ConfigError(f"{path}: no 'device' section; allowed: a mapping with 'driver: simulated, mma8451 "
+                          "or mpu6050'")
+    return dict(section)
+
+
+def with_port(section: dict, port: str) -> dict:
+    """--port overrides the serial port, or the I2C bus of an MMA8451 (a number or /dev/i2c-N)."""
+    if section.get("driver") == "mma8451":
+        section["bus"] = int(port) if port.isdigit() else port
+    elif section.get("driver") == "simulated":
+        raise ConfigError(f"--port {port}: the simulated driver has no port")
+    else:
+        section["port"] = port
+    return section

@@ -1,0 +1,293 @@
+"""The pose table: one CSV row per static pose, the station's interchange format.
+
+::
+
+    # device: mma8451
+    # units: counts
+    # counts_per_g: 4096
+    pose,pitch_deg,roll_deg,x,y,z,ref_x,ref_y,ref_z,temp_c,n,std_x,std_y,std_z
+    p1,39,-158,-2434.354,-977.106,-2937.402,,,,25.0,200,3.1,2.9,4.0
+
+Required columns: ``pose, x, y, z`` (the pose mean in the table's units) and, as a
+pair, ``pitch_deg, roll_deg`` (AN4399 angles, z down; may be empty or absent).
+Optional: ``ref_x, ref_y, ref_z`` (expected output in g, positive along gravity;
+they override the angles), ``temp_c``, ``n``, ``std_x, std_y, std_z`` (per-sample
+std in the table's units).  ``# key: value`` lines before the header carry
+metadata; ``units``, ``counts_per_g``, ``gravity`` (m/s^2) and ``device`` are
+used when the matching argument is not given, other keys are kept as strings in
+``Session.metadata``.  Blank lines and ``#`` lines after the header are skipped.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..atomic import atomic_write_text
+from ..conventions import an4399_reference, check_units
+from ..errors import DataError, UnitsError
+from ..session import PoseRecord, Session
+
+REQUIRED = ("pose", "x", "y", "z")
+GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std_y", "std_z"))
+COLUMNS = ("pose", "pitch_deg", "roll_deg", "x", "y", "z", "ref_x", "ref_y", "ref_z", "temp_c", "n",
+           "std_x", "std_y", "std_z")
+META_KEYS = ("units", "counts_per_g", "gravity", "device")
+_META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
+
+
+def _read_text(path: Path) -> str:
+    from .rawlog import read_text_file  # regular files only: a FIFO or device would block
+
+    return read_text_file(path, "a CSV pose table")
+
+
+def table_metadata(path: str | Path) -> dict[str, str]:
+    """The ``# key: value`` lines before a pose table's header."""
+    meta: dict[str, str] = {}
+    for raw in _read_text(Path(path)).splitlines():
+        s = raw.strip()
+        if s and not s.startswith("#"):
+            break
+        m = _META_RE.match(s)
+        if m:
+            meta[m.group(1)] = m.group(2)
+    return meta
+
+
+def _short(s: str, n: int = 40) -> str:
+    return repr(s if len(s) <= n else s[:n] + "...")
+
+
+def _meta_number(path: Path, line: int, key: str, value: str) -> float:
+    try:
+        v = float(value)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and v > 0):
+        raise UnitsError(f"{path}: line {line}: {key}: {value!r}; allowed: a positive number")
+    return v
+
+
+class _Row:
+    """One data row with the error context every cell needs."""
+
+    def __init__(self, path: Path, line: int, cells: dict[str, str]):
+        self.path, self.line, self.cells = path, line, cells
+
+    def where(self, col: str) -> str:
+        return f"{self.path}: line {self.line}, column {col}"
+
+    def empty(self, col: str) -> bool:
+        return self.cells.get(col, "") == ""
+
+    def number(self, col: str, lo: float = -math.inf, hi: float = math.inf) -> float:
+        s = self.cells.get(col, "")
+        if s == "":
+            raise DataError(f"{self.where(col)}: empty; allowed: a finite number")
+        try:
+            v = float(s)
+        except ValueError:
+            raise DataError(f"{self.where(col)}: {_short(s)} is not a number") from None
+        if not math.isfinite(v):
+            raise DataError(f"{self.where(col)}: {_short(s)}; allowed: a finite number (no NaN or infinity)")
+        if not lo <= v <= hi:
+            raise DataError(f"{self.where(col)}: {_short(s)} out of range; allowed {lo:g} to {hi:g}")
+        return v
+
+    def group(self, cols: tuple[str, ...], lo: float = -math.inf, hi: float = math.inf) -> np.ndarray | None:
+        """All cells of a column group, or None when all are empty (partial is an error)."""
+        filled = [not self.empty(c) for c in cols]
+        if not any(filled):
+            return None
+        if not all(filled):
+            missing = cols[filled.index(False)]
+            raise DataError(f"{self.where(missing)}: empty while {', '.join(cols)} are partly given; "
+                            "give all of them or none")
+        return np.array([self.number(c, lo, hi) for c in cols])
+
+
+def read_preamble(lines: Iterable[str], path: Path, expected: str) -> tuple[dict[str, str], dict[str, int], int, str]:
+    """The ``# key: value`` metadata before the header, the line number of each, and the
+    header's index and text; ``lines`` may be a stream (a lot file is read on from there).
+    ``expected``: the header's columns, for the error when there is none."""
+    meta: dict[str, str] = {}
+    meta_line: dict[str, int] = {}
+    for i, raw in enumerate(lines):
+        s = raw.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            m = _META_RE.match(s)
+            if m:
+                meta[m.group(1)] = m.group(2)
+                meta_line[m.group(1)] = i + 1
+            continue
+        return meta, meta_line, i, s
+    raise DataError(f"{path}: empty: no header line; expected {expected}")
+
+
+def _header(path: Path, line: str, hline: int) -> list[str]:
+    """The header's columns, each known, none twice, the required ones and whole groups present."""
+    try:
+        header = [c.strip() for c in next(csv.reader([line]))]
+    except csv.Error as e:
+        raise DataError(f"{path}: line {hline}: not a readable CSV header ({e})") from None
+    seen: set[str] = set()
+    for c in header:
+        if c in seen:
+            raise DataError(f"{path}: line {hline}: column {c!r} appears twice in the header")
+        if c not in COLUMNS:
+            raise DataError(f"{path}: line {hline}: unknown column {c!r}; allowed: {', '.join(COLUMNS)}")
+        seen.add(c)
+    for c in REQUIRED:
+        if c not in seen:
+            raise DataError(f"{path}: line {hline}: missing column {c!r}; "
+                            f"the header needs {','.join(COLUMNS[:6])} (pitch_deg/roll_deg may be left empty)")
+    for grp in GROUPS:
+        have = [c for c in grp if c in seen]
+        if have and len(have) != len(grp):
+            miss = next(c for c in grp if c not in seen)
+            raise DataError(f"{path}: line {hline}: missing column {miss!r}: {', '.join(grp)} go together")
+    return header
+
+
+def _pose(row: _Row, references: bool) -> PoseRecord:
+    """One table row as a PoseRecord; errors name the row's line and column."""
+    name = row.cells["pose"]
+    if not name:
+        raise DataError(f"{row.where('pose')}: empty; every row needs a pose name")
+    mean = np.array([row.number(c) for c in "xyz"])
+    angles = row.group(GROUPS[0])
+    ref = row.group(GROUPS[1], lo=-10.0, hi=10.0)
+    if ref is not None and not np.any(ref):
+        raise DataError(f"{row.where('ref_x')}: the reference is (0, 0, 0); allowed: the expected output in g")
+    std = row.group(GROUPS[2], lo=0.0)
+    temp = None if row.empty("temp_c") else row.number("temp_c", -273.15, 1000.0)
+    n: int | None = None
+    if not row.empty("n"):
+        count = row.number("n", 1)
+        if count != int(count):
+            raise DataError(f"{row.where('n')}: {row.cells['n']!r}; allowed: a whole number of samples >= 1")
+        n = int(count)
+    if ref is None and angles is not None:
+        ref = an4399_reference(angles[0], angles[1])
+    if references and ref is None:
+        raise DataError(f"{row.where('pitch_deg')}: pose {name!r} has no reference; give pitch_deg/roll_deg "
+                        "or ref_x/ref_y/ref_z (only model 9 fits without references)")
+    return PoseRecord(name, mean, std, n, ref, None if angles is None else float(angles[0]),
+                      None if angles is None else float(angles[1]), temp)
+
+
+def _rows(path: Path, lines: list[str], header_at: int, header: list[str], references: bool) -> list[PoseRecord]:
+    """The poses of the table body (blank and ``#`` rows skipped)."""
+    try:
+        table = list(csv.reader(io.StringIO("\n".join(lines[header_at + 1:]))))
+    except csv.Error as e:  # e.g. a cell longer than the csv module's field limit
+        raise DataError(f"{path}: not a readable CSV table ({e}); allowed: a pose table of numbers") from None
+    poses: list[PoseRecord] = []
+    for k, cells in enumerate(table):
+        line = header_at + 2 + k
+        if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
+            continue
+        if len(cells) != len(header):
+            raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
+        poses.append(_pose(_Row(path, line, {c: v.strip() for c, v in zip(header, cells, strict=True)}), references))
+    return poses
+
+
+def read_pose_table(path: str | Path, units: str | None = None, counts_per_g: float | None = None,
+                    gravity_mps2: float | None = None, *, references: bool = False) -> Session:
+    """Read a pose table into a Session; arguments override the file's metadata.
+
+    ``references=True`` makes every row give its expected output (pitch/roll or
+    ref columns), as models 6, 12 and 15 need; errors then name the row.
+    """
+    path = Path(path)
+    lines = _read_text(path).splitlines()
+    meta, meta_line, header_at, _ = read_preamble(lines, path, f"{','.join(COLUMNS[:6])} (and optional columns)")
+    hline = header_at + 1
+    header = _header(path, lines[header_at], hline)
+    units = units if units is not None else meta.get("units", "counts")
+    try:
+        check_units(units)
+    except UnitsError as e:
+        where = f"line {meta_line['units']}: " if "units" in meta and units == meta["units"] else ""
+        raise UnitsError(f"{path}: {where}{e}") from None
+    if counts_per_g is None and meta.get("counts_per_g"):
+        counts_per_g = _meta_number(path, meta_line["counts_per_g"], "counts_per_g", meta["counts_per_g"])
+    if gravity_mps2 is None and meta.get("gravity"):
+        gravity_mps2 = _meta_number(path, meta_line["gravity"], "gravity", meta["gravity"])
+    poses = _rows(path, lines, header_at, header, references)
+    if not poses:
+        raise DataError(f"{path}: no pose rows after the header (line {hline})")
+    extra = {k: v for k, v in meta.items() if k not in META_KEYS}
+    return Session(poses, units, counts_per_g, gravity_mps2, meta.get("device") or None, extra)
+
+
+def _fmt(v: float | None) -> str:
+    """Shortest text that reads back to the same float (exact round trip)."""
+    if v is None:
+        return ""
+    f = float(v)
+    return str(int(f)) if f.is_integer() and abs(f) < 1e15 else repr(f)
+
+
+def write_pose_table(session: Session, path: str | Path, metadata: dict[str, Any] | None = None) -> None:
+    """Write ``session`` so that read_pose_table gives it back exactly; atomic (tmp + rename).
+
+    Columns appear when any pose knows them: pitch/roll, ref (whenever references are
+    known, so they never depend on re-deriving them from angles), temp_c, n, std.
+    """
+    path = Path(path)
+    meta: dict[str, Any] = {"units": session.units}
+    if session.counts_per_g is not None:
+        meta["counts_per_g"] = _fmt(session.counts_per_g)
+    if session.gravity_mps2 is not None:
+        meta["gravity"] = _fmt(session.gravity_mps2)
+    if session.device:
+        meta["device"] = session.device
+    meta.update(session.metadata)
+    meta.update(metadata or {})
+    for k, v in meta.items():
+        if not re.fullmatch(r"[A-Za-z_][\w.-]*", str(k)) or "\n" in str(v) or "\r" in str(v):
+            raise DataError(f"{path}: metadata {k!r}: {v!r}; allowed: a word key and a one-line value")
+    P = session.poses
+    cols = ["pose", "pitch_deg", "roll_deg", "x", "y", "z"]
+    if any(p.reference_g is not None for p in P):
+        cols += ["ref_x", "ref_y", "ref_z"]
+    if any(p.temp_c is not None for p in P):
+        cols.append("temp_c")
+    if any(p.n is not None for p in P):
+        cols.append("n")
+    if any(p.std is not None for p in P):
+        cols += ["std_x", "std_y", "std_z"]
+    buf = io.StringIO()
+    for k, v in meta.items():
+        buf.write(f"# {k}: {v}\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for p in P:
+        if not p.name or p.name != p.name.strip() or p.name.startswith("#"):
+            raise DataError(f"{path}: pose name {p.name!r}; allowed: non-empty, no surrounding spaces, "
+                            "not starting with '#'")
+        vals = {"pose": p.name, "pitch_deg": _fmt(p.pitch_deg), "roll_deg": _fmt(p.roll_deg),
+                "temp_c": _fmt(p.temp_c), "n": "" if p.n is None else str(int(p.n))}
+        for a, i in zip("xyz", range(3), strict=True):
+            vals[a] = _fmt(p.mean[i])
+            vals[f"ref_{a}"] = "" if p.reference_g is None else _fmt(p.reference_g[i])
+            vals[f"std_{a}"] = "" if p.std is None else _fmt(p.std[i])
+        bad = [c for c in cols if c != "pose" and vals[c] and not math.isfinite(float(vals[c]))]
+        if bad:
+            raise DataError(f"{path}: pose {p.name!r}: {bad[0]} is not finite; a pose table holds finite numbers")
+        w.writerow([vals[c] for c in cols])
+    atomic_write_text(path, buf.getvalue())
+
+
+__all__ = ["COLUMNS", "read_pose_table", "table_metadata", "write_pose_table"]

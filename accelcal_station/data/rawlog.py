@@ -1,0 +1,397 @@
+"""Raw sample logs: read a log's samples, its columns and its time axis.
+
+A raw log is a CSV or whitespace-separated table of samples, with or without a
+header.  ``columns`` names its columns (``t,x,y,z``; ``-`` ignores a column);
+without it a header such as ``time,acc_x,acc_y,acc_z`` is recognised, and a
+header-less file of 3 (``x,y,z``) or 4 (``t,x,y,z``) columns is taken as is.  The
+time column is in seconds; without one, ``rate_hz`` gives the sample rate.
+Finding the static poses in the samples is static_poses.py.
+"""
+from __future__ import annotations
+
+import math
+import re
+import stat
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DataError
+
+MIN_LOG_SAMPLES = 10
+
+_TIME_NAMES = {"t", "ts", "time", "times", "timesec", "timestamp", "sec", "seconds"}  # normalised names
+_AXIS_PREFIXES = ("", "a", "acc", "accel", "acceleration", "accelerometer")
+
+Splitter = Callable[[str], list[str]]  # the fields of one row of text
+Rows = list[tuple[int, str]]  # (file line, stripped text) of each row
+
+_UNIT_WORDS = {  # a unit in a column name, normalised -> (kind, unit)
+    "g": ("acc", "g"), "mg": ("acc", "mg"), "ms2": ("acc", "mps2"), "mps2": ("acc", "mps2"), "ms": ("time", "ms"),
+    "counts": ("acc", "counts"), "count": ("acc", "counts"), "lsb": ("acc", "counts"), "raw": ("acc", "counts"),
+    "s": ("time", "s"), "sec": ("time", "s"), "msec": ("time", "ms"), "us": ("time", "us"), "usec": ("time", "us"),
+    "µs": ("time", "us"), "ns": ("time", "ns"), "nsec": ("time", "ns"),
+}
+_TIME_WORDS = {"millis": "ms", "micros": "us", "timems": "ms", "timeus": "us", "timestampms": "ms",
+               "timestampus": "us", "tms": "ms", "tus": "us"}
+_RATE_KEYS = re.compile(r"^(fs|sps|odr|hz|rate|freq|frequency|samplerate|samplingrate|samplingfrequency|"
+                        r"samplefrequency|samplefreq|datarate|outputdatarate|loggingrate|samplerateh?z?)$")
+_RATE_TEXT = re.compile(r"(?<![\w.])(\d+(?:\.\d+)?)\s*(k?hz)\b", re.I)
+_NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+MAX_ABS_READING = 1e9  # beyond any ADC or unit: a reading this large is not acceleration data
+RATE_LIMITS_HZ = (1e-3, 1e7)
+JUDGED_RATE_HZ = (1.0, 1e5)  # a time unit guessed from the step must give a logger's rate
+PREAMBLE_LOOKAHEAD = 5  # rows that must follow the data start with the data's field count
+
+@dataclass
+class LogInfo:
+    """What reading a log inferred, and from where (printed by the commands)."""
+
+    skipped_rows: int = 0
+    preamble: dict[str, str] = field(default_factory=dict)
+    rate_source: str | None = None  # "time column", "--rate", "preamble line 1 ('Fs,100')"
+    time_unit: str | None = None  # s, ms, us
+    time_unit_reason: str = ""
+    axis_names: dict[str, str] = field(default_factory=dict)  # x/y/z/t -> the file's column name
+    units_hint: str | None = None  # units named in the x, y, z column names: g, mg, mps2, counts
+    stated_rate_hz: float | None = None
+    time_unit_judged: bool = False  # the time unit was guessed from the step alone
+
+
+
+@dataclass
+class RawLog:
+    """Samples of one log: ``t`` (N,) in seconds (sample index when the rate is
+    unknown), ``xyz`` (N, 3) in the log's units, ``line`` (N,) file line of each sample."""
+
+    t: np.ndarray
+    xyz: np.ndarray
+    line: np.ndarray
+    source: str
+    columns: list[str]
+    rate_hz: float | None
+    has_time: bool
+    info: LogInfo = field(default_factory=LogInfo)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+# -- reading ----------------------------------------------------------------------------
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _split_fn(line: str) -> Splitter:
+    if "," in line:
+        return lambda s: [c.strip() for c in s.split(",")]
+    if ";" in line:
+        return lambda s: [c.strip() for c in s.split(";")]
+    return str.split
+
+
+def _parse_columns(spec: str | list[str]) -> list[str]:
+    names = [c.strip().lower() for c in (spec.split(",") if isinstance(spec, str) else spec)]
+    for c in names:
+        if c not in ("t", "x", "y", "z", "-"):
+            raise DataError(f"--columns {spec!r}: {c!r} is not a column name; allowed: t, x, y, z, - (ignore)")
+    for c in "txyz":
+        if names.count(c) > 1:
+            raise DataError(f"--columns {spec!r}: {c!r} appears twice")
+    for c in "xyz":
+        if c not in names:
+            raise DataError(f"--columns {spec!r}: no {c!r} column; name x, y and z (and t if there is time)")
+    return names
+
+
+def _short(s: str, n: int = 40) -> str:
+    return repr(s if len(s) <= n else s[:n] + "...")
+
+
+def _split_name(h: str) -> tuple[str, str | None]:
+    """'Acc_X [m/s^2]' -> ('accx', 'mps2'); 'time_ms' -> ('time', 'ms'); unit None when not named."""
+    low = h.strip().lower().replace("m/s^2", "ms2").replace("m/s²", "ms2").replace("m/s2", "ms2")
+    unit = None
+    m = re.search(r"[(\[]\s*([^)\]]*)\s*[)\]]", low)
+    if m:
+        u = re.sub(r"[^a-zµ0-9]", "", m.group(1))
+        unit = u if u in _UNIT_WORDS else None
+        low = low[:m.start()] + low[m.end():]
+    else:
+        parts = re.split(r"[_\s.-]+", low.strip())
+        if len(parts) > 1 and parts[-1] in _UNIT_WORDS and re.sub(r"[^a-z0-9]", "", "".join(parts[:-1])):
+            unit, low = parts[-1], "".join(parts[:-1])
+    return re.sub(r"[^a-z0-9]", "", low), unit
+
+
+def _hint_columns(header: list[str]) -> str:
+    """An example --columns with the file's field count: the first three columns as x, y, z, the rest ignored."""
+    names = ["-"] * len(header)
+    for i, a in zip(range(len(header)), "xyz", strict=False):  # fewer than 3 fields: as many as there are
+        names[i] = a
+    return ",".join(names)
+
+
+def _columns_from_header(path: Path, line: int, header: list[str], info: LogInfo) -> list[str]:
+    """Map a header like ``time_ms,acc_x [g],acc_y [g],acc_z [g],gyr_x`` to ``t,x,y,z,-``."""
+    split = [_split_name(h) for h in header]
+    out = ["-"] * len(header)
+    units: set[str] = set()
+    for a in "xyz":
+        want = {p + a for p in _AXIS_PREFIXES} | {a + "acc", a + "accel", a + "axis"}
+        hits = [i for i, (b, _) in enumerate(split) if b in want]
+        if len(hits) != 1:
+            raise DataError(f"{path}: line {line}: cannot tell which header column is {a} "
+                            f"({'none' if not hits else 'several'} of {', '.join(header)} match); give --columns "
+                            f"with {len(header)} names, t, x, y, z or - (ignore), e.g. {_hint_columns(header)}")
+        out[hits[0]] = a
+        info.axis_names[a] = header[hits[0]]
+        u = split[hits[0]][1]
+        if u and _UNIT_WORDS[u][0] == "acc":
+            units.add(_UNIT_WORDS[u][1])
+    if len(units) == 1:
+        info.units_hint = units.pop()
+    times = [i for i, (b, u) in enumerate(split) if out[i] == "-" and
+             (b in _TIME_NAMES or b in _TIME_WORDS) and (u is None or _UNIT_WORDS[u][0] == "time")]
+    if len(times) == 1:
+        i = times[0]
+        out[i] = "t"
+        info.axis_names["t"] = header[i]
+        b, u = split[i]
+        if u is not None or b in _TIME_WORDS:
+            info.time_unit = _UNIT_WORDS[u][1] if u is not None else _TIME_WORDS[b]
+            info.time_unit_reason = f"named in the header ({header[i]!r})"
+    return out
+
+
+def _check_file(path: Path) -> None:
+    """Only a regular file can be a log (a FIFO or a device would block or never end)."""
+    try:
+        st = path.stat()
+    except OSError as e:
+        raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
+                else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "not a regular file")
+        raise DataError(f"{path}: {kind}; allowed: a log file (CSV or whitespace-separated)")
+
+
+def read_text_file(path: Path, what: str) -> str:
+    """The text of a regular file, or one clear DataError."""
+    _check_file(path)
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except OSError as e:
+        raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a text file (expected {what})") from None
+
+
+def _stated_rate(key: str, value: str) -> float | None:
+    k = re.sub(r"[^a-z]", "", key.lower())
+    text = f"{key} {value}"
+    m = _RATE_TEXT.search(text)
+    if m:
+        return float(m.group(1)) * (1e3 if m.group(2).lower() == "khz" else 1.0)
+    if _RATE_KEYS.match(k) or k.endswith("hz"):
+        n = _NUM.search(value)
+        return float(n.group(0)) if n else None
+    return None
+
+
+def _preamble(skipped: Rows, info: LogInfo) -> None:
+    """Key/value lines before the data (``Fs,100``, ``# rate: 100``, ``Sample rate: 100 Hz``)."""
+    for ln, s in skipped:
+        body = s.lstrip("#").strip()
+        parts = re.split(r"\s*[,;:=\t]\s*", body, maxsplit=1)
+        key, value = (parts + [""])[:2]
+        if key:
+            info.preamble[key] = value
+        r = _stated_rate(key, value)
+        if r is not None and info.stated_rate_hz is None and math.isfinite(r) and r > 0:
+            info.stated_rate_hz = r
+            info.rate_source = f"stated on line {ln} ({_short(body)})"
+
+
+def _data_start(rows: Rows, split: Splitter) -> int:
+    """Index of the header or first data row: the first row from which the data's field count holds."""
+    counts = [len(split(s)) for _, s in rows]
+    k = max(set(counts[-20:]), key=counts[-20:].count)
+    for j in range(len(rows)):
+        ahead = counts[j:j + PREAMBLE_LOOKAHEAD + 1]
+        if all(c == k for c in ahead) and sum(_is_number(c) for c in split(rows[min(j + 1, len(rows) - 1)][1])) >= 3:
+            return j
+    return 0
+
+
+def _judge_time_unit(dt: float, info: LogInfo) -> float:
+    """Seconds per unit of a time column whose name gives no unit."""
+    scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+    stated = info.stated_rate_hz
+    if info.time_unit is None:
+        if stated:  # the unit that makes the step match the stated rate
+            info.time_unit = min(scale, key=lambda u: abs(math.log(dt * scale[u] * stated)))
+            info.time_unit_judged = False
+            info.time_unit_reason = f"its step {dt:g} matches the stated {info.stated_rate_hz:g} Hz"
+        else:
+            info.time_unit = "s" if dt < 1 else "ms" if dt < 50 else "us"
+            info.time_unit_judged = True
+            info.time_unit_reason = f"judged from its median step {dt:g} (not named in the header)"
+    return scale[info.time_unit]
+
+
+def _parse_rows(path: Path, rows: Rows, split: Splitter, names: list[str], use: list[tuple[int, str]],
+                label: Callable[[int], str]) -> tuple[np.ndarray, np.ndarray]:
+    """The used columns of every data row as floats, and each row's file line; one error per bad cell."""
+    data = np.empty((len(rows), len(use)))
+    lines_arr = np.empty(len(rows), dtype=np.int64)
+    for k, (ln, s) in enumerate(rows):
+        cells = split(s)
+        if len(cells) != len(names):
+            raise DataError(f"{path}: line {ln}: {len(cells)} fields; expected {len(names)} like the first line")
+        for j, (i, c) in enumerate(use):
+            try:
+                v = float(cells[i])
+            except ValueError:
+                raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])} is not a number") from None
+            if not math.isfinite(v):
+                raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])}; allowed: a finite number")
+            if c != "t" and abs(v) > MAX_ABS_READING:
+                raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])}; allowed: a reading within "
+                                f"+-{MAX_ABS_READING:g}")
+            data[k, j] = v
+        lines_arr[k] = ln
+    return data, lines_arr
+
+
+def _time_axis(path: Path, t: np.ndarray | None, n: int, rate_hz: float | None, info: LogInfo, lines_arr: np.ndarray,
+               tlabel: str) -> tuple[np.ndarray, float | None]:
+    """Sample times in seconds and the rate: from the time column, --rate, a stated rate, or sample numbers."""
+    if t is not None:
+        back = np.flatnonzero(np.diff(t) < 0)
+        if back.size:
+            raise DataError(f"{path}: line {lines_arr[back[0] + 1]}, {tlabel}: time goes backwards; "
+                            "allowed: non-decreasing times")
+        dt = float(np.median(np.diff(t)))
+        if not dt > 0:
+            raise DataError(f"{path}: {tlabel}: time does not advance; allowed: times in s, ms or us")
+        per = _judge_time_unit(dt, info)
+        t, rate = t * per, 1.0 / (dt * per)
+        info.rate_source = f"time column {info.axis_names.get('t', 't')!r} in {info.time_unit}"
+    elif rate_hz is not None:
+        t, rate = np.arange(n) / rate_hz, float(rate_hz)
+        info.rate_source = "--rate"
+    elif info.stated_rate_hz is not None:
+        if not RATE_LIMITS_HZ[0] <= info.stated_rate_hz <= RATE_LIMITS_HZ[1]:
+            raise DataError(f"{path}: {info.rate_source}: {info.stated_rate_hz:g} Hz; allowed: {RATE_LIMITS_HZ[0]:g} "
+                            f"to {RATE_LIMITS_HZ[1]:g} Hz (give --rate HZ)")
+        t, rate = np.arange(n) / info.stated_rate_hz, info.stated_rate_hz
+    else:
+        t, rate = np.arange(n, dtype=float), None
+        info.rate_source = None
+    lo, hi = JUDGED_RATE_HZ if info.time_unit_judged else RATE_LIMITS_HZ
+    if rate is not None and not lo <= rate <= hi:
+        how = f"in {info.time_unit}, {info.time_unit_reason}" if info.time_unit else ""
+        raise DataError(f"{path}: the time column ({how}) gives {rate:g} Hz; allowed: {lo:g} to {hi:g} Hz "
+                        "(name its unit in the header: time_s, time_ms, time_us or time_ns)")
+    return t, rate
+
+
+def check_rate(rate_hz: float | None) -> None:
+    """--rate within RATE_LIMITS_HZ (a denormal or huge rate would overflow every time axis)."""
+    if rate_hz is not None and not (math.isfinite(rate_hz) and RATE_LIMITS_HZ[0] <= rate_hz <= RATE_LIMITS_HZ[1]):
+        raise DataError(f"--rate {rate_hz!r}; allowed: a sample rate from {RATE_LIMITS_HZ[0]:g} to "
+                        f"{RATE_LIMITS_HZ[1]:g} Hz")
+
+
+def _data_rows(path: Path, text: str, skip_rows: int | None, info: LogInfo) -> tuple[Rows, Splitter]:
+    """The rows from the header (or first data row) on, and how to split them into fields.
+
+    ``skip_rows`` None finds the data block (_data_start); the rows before it and the
+    comments among them are read as the preamble (a stated sample rate, key/value lines)."""
+    lines = text.splitlines()
+    rows = [(i + 1, s.strip()) for i, s in enumerate(lines) if i >= (skip_rows or 0)]
+    comments = [(n, s) for n, s in rows if s.startswith("#")]
+    rows = [(n, s) for n, s in rows if s and not s.startswith("#")]
+    if not rows:
+        raise DataError(f"{path}: no data lines" + (f" after skipping {skip_rows} rows" if skip_rows else ""))
+    split = _split_fn(rows[-1][1])
+    if skip_rows is None:
+        j = _data_start(rows, split)
+        info.skipped_rows = j
+        _preamble(sorted([c for c in comments if c[0] < rows[j][0]] + rows[:j]), info)
+        rows = rows[j:]
+    else:
+        info.skipped_rows = skip_rows
+        _preamble([(n, s) for n, s in comments], info)
+    return rows, split
+
+
+def _column_names(path: Path, first_line: int, first: list[str], columns: str | list[str] | None,
+                  info: LogInfo) -> tuple[list[str], bool]:
+    """Each column's name (t, x, y, z or - for ignored) and whether the first row is a header:
+    from ``columns``, else from a header, else 3 (x, y, z) or 4 (t, x, y, z) columns."""
+    names = _parse_columns(columns) if columns else None
+    if names is not None:
+        if len(names) != len(first):
+            raise DataError(f"{path}: line {first_line}: {len(first)} fields but --columns names {len(names)} "
+                            "(use - for each column to ignore)")
+        header = any(not _is_number(first[i]) for i, c in enumerate(names) if c != "-")
+        info.axis_names = {c: (first[i] if header else f"column {i + 1}") for i, c in enumerate(names) if c != "-"}
+        return names, header
+    header = any(not _is_number(c) for c in first)
+    if header:
+        return _columns_from_header(path, first_line, first, info), header
+    if len(first) not in (3, 4):
+        raise DataError(f"{path}: line {first_line}: {len(first)} columns and no header; give --columns "
+                        f"with {len(first)} names, t, x, y, z or - (ignore), e.g. {_hint_columns(first)}")
+    names = ["x", "y", "z"] if len(first) == 3 else ["t", "x", "y", "z"]
+    info.axis_names = {c: f"column {i + 1}" for i, c in enumerate(names)}
+    if len(first) == 4:
+        info.time_unit, info.time_unit_reason = "s", "a header-less first column is seconds"
+    return names, header
+
+
+def read_raw_log(path: str | Path, columns: str | list[str] | None = None, skip_rows: int | None = None,
+                 rate_hz: float | None = None) -> RawLog:
+    """Read a raw sample log (see the module doc); errors name the file, line and column.
+
+    ``skip_rows`` None finds the data block itself: a preamble of key/value lines (``Fs,100``)
+    before the header is skipped and a stated sample rate is used when there is no time column.
+    """
+    path = Path(path)
+    if skip_rows is not None and skip_rows < 0:
+        raise DataError(f"--skip-rows {skip_rows}; allowed: 0 or more")
+    check_rate(rate_hz)
+    text = read_text_file(path, "a CSV or whitespace-separated log")
+    info = LogInfo()
+    rows, split = _data_rows(path, text, skip_rows, info)
+    first_line, first = rows[0][0], split(rows[0][1])
+    names, header = _column_names(path, first_line, first, columns, info)
+    if header:
+        rows = rows[1:]
+    if "t" in names and rate_hz is not None:
+        raise DataError(f"{path}: the log has a time column; --rate is only for logs without one")
+    use = [(i, c) for i, c in enumerate(names) if c != "-"]
+
+    def label(i: int) -> str:
+        return f"column {i + 1} ({first[i] if header else names[i]})"
+
+    data, lines_arr = _parse_rows(path, rows, split, names, use, label)
+    if len(rows) < MIN_LOG_SAMPLES:
+        raise DataError(f"{path}: {len(rows)} samples; a raw log needs at least {MIN_LOG_SAMPLES}")
+    col = {c: j for j, (_, c) in enumerate(use)}
+    xyz = data[:, [col["x"], col["y"], col["z"]]]
+    t, rate = _time_axis(path, data[:, col["t"]] if "t" in col else None, len(rows), rate_hz, info, lines_arr,
+                         label(names.index("t")) if "t" in col else "")
+    return RawLog(t, xyz, lines_arr, str(path), names, rate, "t" in col, info)
+
+
+__all__ = ["MAX_ABS_READING", "LogInfo", "RawLog", "check_rate", "read_raw_log", "read_text_file"]

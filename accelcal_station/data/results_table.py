@@ -1,0 +1,187 @@
+"""The results table of a lot: one row per board (fitted or not), CSV, Parquet or JSON lines.
+
+Columns (RESULT_COLUMNS): serial, first_row (the board's first data row, 1-based), ok,
+model, pose_count, input_units, input_per_g, W00..W22, V0..V2, Gamma0..Gamma2 (AN4399
+form: calibrated_g = W reading/input_per_g + V + Gamma (reading/input_per_g)^3),
+residual_rms_mg, residual_max_mg, crossval_rms_mg, condition_number, verdict,
+reasons ("; "-joined, each starting with its code) and message (why a board was not
+fitted).  Empty cells (null in JSON/Parquet) where a value does not exist.
+
+The table is written to a temporary file beside the output, flushed and fsynced once
+per chunk, and renamed over the output when complete: it is whole or absent.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..calibration import PARAM_NAMES
+from ..errors import DataError
+
+if TYPE_CHECKING:
+    from .lotfile import LotChunk
+
+FLOAT_COLUMNS = ("input_per_g", *PARAM_NAMES, "residual_rms_mg", "residual_max_mg", "crossval_rms_mg",
+                 "condition_number")
+RESULT_COLUMNS = ("serial", "first_row", "ok", "model", "pose_count", "input_units", *FLOAT_COLUMNS, "verdict",
+                  "reasons", "message")
+FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet", ".jsonl": "jsonl", ".ndjson": "jsonl"}
+
+
+def _columns(chunk: LotChunk, res: dict[str, Any], model: str, units: str, verdicts: Sequence[str],
+             reasons: Sequence[Sequence[str]]) -> dict[str, Any]:
+    """The chunk's results as one sequence per RESULT_COLUMNS column."""
+    B = len(chunk.serials)
+    params = np.concatenate([res["W"].reshape(B, 9), res["V"], res["Gamma"]], axis=1)
+    cols: dict[str, Any] = {
+        "serial": chunk.serials, "first_row": chunk.first_row, "ok": res["ok"], "model": [model] * B,
+        "pose_count": res["pose_count"], "input_units": [units] * B, "input_per_g": res["input_per_g"]}
+    for j, name in enumerate(PARAM_NAMES):
+        cols[name] = params[:, j]
+    cols.update(residual_rms_mg=res["residual_rms_g"] * 1e3, residual_max_mg=res["residual_max_g"] * 1e3,
+                crossval_rms_mg=res["crossval_rms_g"] * 1e3, condition_number=res["condition_number"],
+                verdict=verdicts, reasons=["; ".join(r) for r in reasons], message=res["message"])
+    return cols
+
+
+def _text(a: np.ndarray) -> np.ndarray:
+    """Floats as the shortest text that reads back exactly; '' for NaN."""
+    s = a.astype(str)
+    return np.where(np.isnan(a), "", s)
+
+
+class ResultsWriter:
+    """Append chunks to a results table at ``path`` (format from the extension)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.fmt = FORMATS.get(self.path.suffix.lower())
+        if self.fmt is None:
+            raise DataError(f"--out {self.path}: unknown format; allowed extensions: {', '.join(FORMATS)}")
+        if self.path.is_symlink():
+            raise DataError(f"--out {self.path}: is a symbolic link; give the real file (never written through)")
+        if self.path.exists() and not self.path.is_file():
+            raise DataError(f"--out {self.path}: exists and is not a file")
+        if not self.path.resolve().parent.is_dir():
+            raise DataError(f"--out {self.path}: cannot write (no such directory {self.path.parent})")
+        if self.fmt == "parquet":
+            try:
+                import pyarrow  # noqa: F401
+            except ImportError:
+                raise DataError(f"--out {self.path}: Parquet needs pyarrow; pip install "
+                                "'accelcal-station[parquet]', or write .csv / .jsonl") from None
+        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self._f: IO[Any] | None = None
+        self._pq: Any = None  # pyarrow's CSV or Parquet writer, once the first chunk is written
+        self._arrow_csv: bool | None = None
+        if self.fmt == "csv":
+            from .lotfile import arrow_available
+            self._arrow_csv = arrow_available()  # pyarrow's CSV writer: formats floats ~10x faster
+
+    def __enter__(self) -> ResultsWriter:
+        try:
+            binary = self.fmt == "parquet" or self._arrow_csv
+            self._f = open(self.tmp, "wb" if binary else "w", newline="" if self.fmt == "csv" and not binary else None)
+        except OSError as e:
+            raise DataError(f"--out {self.path}: cannot write ({e.strerror})") from None
+        if self.fmt == "csv" and not self._arrow_csv:
+            self._f.write(",".join(RESULT_COLUMNS) + "\r\n")
+        return self
+
+    @property
+    def _out(self) -> IO[Any]:
+        """The temporary file being written (open between __enter__ and __exit__)."""
+        if self._f is None:
+            raise DataError(f"--out {self.path}: not open; write chunks inside 'with ResultsWriter(...)'")
+        return self._f
+
+    def write_chunk(self, chunk: LotChunk, res: dict[str, Any], model: str, units: str, verdicts: Sequence[str],
+                    reasons: Sequence[Sequence[str]]) -> None:
+        """Append one chunk's rows, flushed and fsynced."""
+        cols = _columns(chunk, res, model, units, verdicts, reasons)
+        if self.fmt == "csv" and self._arrow_csv:
+            self._write_arrow_csv(cols)
+        elif self.fmt == "csv":
+            buf = io.StringIO()
+            text = {k: (_text(np.asarray(v, float)) if k in FLOAT_COLUMNS else
+                        (np.asarray(v).astype(int).astype(str) if k in ("ok", "first_row", "pose_count") else v))
+                    for k, v in cols.items()}
+            csv.writer(buf).writerows(zip(*(text[c] for c in RESULT_COLUMNS), strict=True))
+            self._out.write(buf.getvalue())
+        elif self.fmt == "jsonl":
+            B = len(chunk.serials)
+            lists = {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else list(v)) for k, v in cols.items()}
+            lines = []
+            for b in range(B):
+                row = {c: lists[c][b] for c in RESULT_COLUMNS}
+                row["ok"] = bool(row["ok"])
+                for c in FLOAT_COLUMNS:
+                    if row[c] != row[c]:  # NaN: no value
+                        row[c] = None
+                row["reasons"] = list(reasons[b])
+                lines.append(json.dumps(row, allow_nan=False))
+            self._out.write("\n".join(lines) + "\n")
+        else:
+            self._write_parquet(cols)
+        self._out.flush()
+        os.fsync(self._out.fileno())  # once per chunk
+
+    def _write_arrow_csv(self, cols: dict[str, Any]) -> None:
+        import pyarrow.csv as pcsv
+        table = _arrow_table(cols, csv=True)
+        if self._pq is None:
+            self._pq = pcsv.CSVWriter(self._out, table.schema,
+                                      write_options=pcsv.WriteOptions(quoting_style="needed", eol="\r\n"))
+        self._pq.write_table(table)
+
+    def _write_parquet(self, cols: dict[str, Any]) -> None:
+        import pyarrow.parquet as pq
+        table = _arrow_table(cols)
+        if self._pq is None:
+            self._pq = pq.ParquetWriter(self._out, table.schema)
+        self._pq.write_table(table)
+
+    def __exit__(self, exc_type: type[BaseException] | None, *rest: object) -> None:
+        try:
+            if self._pq is not None:
+                self._pq.close()
+            if exc_type is None:
+                self._out.flush()
+                os.fsync(self._out.fileno())
+            self._out.close()
+            if exc_type is None:
+                os.replace(self.tmp, self.path)
+                dfd = os.open(self.path.parent, os.O_RDONLY)
+                try:
+                    os.fsync(dfd)
+                finally:
+                    os.close(dfd)
+        except OSError as e:
+            raise DataError(f"--out {self.path}: cannot write ({e.strerror})") from None
+        finally:
+            self.tmp.unlink(missing_ok=True)
+
+
+def _arrow_table(cols: dict[str, Any], csv: bool = False) -> Any:
+    """The chunk as an Arrow table (null where a value does not exist); ok as 0/1 in CSV."""
+    import pyarrow as pa
+    arrays = {}
+    for c in RESULT_COLUMNS:
+        v = cols[c]
+        if c in FLOAT_COLUMNS:
+            a = np.asarray(v, float)
+            arrays[c] = pa.array(a, mask=np.isnan(a))
+        elif c == "ok":
+            arrays[c] = pa.array(np.asarray(v, np.int8 if csv else bool))
+        elif c in ("first_row", "pose_count"):
+            arrays[c] = pa.array(np.asarray(v, np.int64))
+        else:
+            arrays[c] = pa.array(list(v), pa.string())
+    return pa.table(arrays)

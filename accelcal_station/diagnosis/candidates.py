@@ -1,0 +1,74 @@
+"""Which catalog effects these data can test, and why not the others: the static view's rank and
+degrees of freedom with a fold held out, and each effect's own conditions (engine's module doc, step 3)."""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Collection
+
+import numpy as np
+
+from ..sim.sensor_model import EFFECT_NAMES
+from .effects.base import DeterministicEffect
+from .effects.catalog import DETERMINISTIC
+from .effects.design import describe_design, design_rank_ok, static_design
+from .effects.saturation import Saturation
+from .gap_data import GapData, TimeData
+from .loading import Simulator
+
+
+def candidates(data: GapData, sim: Simulator, td: TimeData | None) -> tuple[list[str], dict[str, str], bool, str]:
+    """(testable candidates, {effect: why not}, static view usable, why not)."""
+    base = sim.baseline
+    why: dict[str, str] = {}
+    static_ok, static_why = True, ""
+    ok, cond = design_rank_ok(base, data, data.norm_only)
+    p_train = data.P - math.ceil(data.P / data.n_folds)
+
+    def dof(effects: Collection[str]) -> int:
+        A_cols = len(_labels(effects, data))
+        return p_train - (A_cols if data.norm_only else math.ceil(A_cols / 3))
+
+    if not ok:
+        words = describe_design(data, base).get("text", f"condition {cond:.3g}")
+        static_ok, static_why = False, f"these poses do not determine the baseline ({', '.join(base)}): {words}"
+    elif dof(base) < 0:
+        static_ok = False
+        static_why = (f"{data.P} poses are too few to fit the baseline ({len(_labels(base, data))} parameters"
+                      f"{' on the norm' if data.norm_only else ' over 3 channels'}) with a pose held out")
+    testable = []
+    for e in EFFECT_NAMES:
+        if e in base or e not in DETERMINISTIC:
+            continue  # stochastic only: judged by its own signature (engine._stochastic), never by the gap
+        eff = DETERMINISTIC[e]
+        ok, reason = eff.testable(data, td)
+        if eff.static_columns and not eff.time_columns and not static_ok:
+            why[e] = f"the static view is unavailable: {static_why}"
+        elif not ok:
+            why[e] = Saturation.reason(data, sim.clip_g) if isinstance(eff, Saturation) else reason
+        elif eff.time_columns:
+            testable.append(e)  # judged in the time view too: the static view's rank does not gate it
+        else:
+            why_not = _static_why_not(data, base, eff, dof)
+            if why_not:
+                why[e] = why_not
+            else:
+                testable.append(e)
+    return testable, why, static_ok, static_why
+
+
+def _static_why_not(data: GapData, base: tuple[str, ...], eff: DeterministicEffect,
+                    dof: Callable[[Collection[str]], int]) -> str:
+    """Why the static view cannot fit ``eff`` on top of the baseline ('' when it can)."""
+    ok, cond = design_rank_ok(base + (eff.name,), data, data.norm_only)
+    if not ok:
+        words = describe_design(data, base + (eff.name,)).get("text", f"condition {cond:.3g}")
+        return f"{eff.degenerate} ({words})"
+    if dof(base + (eff.name,)) < 0:
+        return f"{data.P} poses are too few to fit its parameters with a pose held out"
+    return ""
+
+
+def _labels(effects: Collection[str], data: GapData) -> list[tuple[str, str]]:
+    dT = None if data.temp_c is None else data.temp_c - np.mean(data.temp_c)
+    dh = np.zeros((data.P, 2)) if "drift" in effects else None
+    return static_design(set(effects), data.g, data.ref, dT, dh, data.norm_only, data.n_temps)[3]

@@ -1,0 +1,220 @@
+"""Loading for `accelcal diagnose`: the simulator a configuration describes, and the data as GapData."""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..config.sections import device_section
+from ..data.loader import load
+from ..data.rawlog import RawLog
+from ..data.static_poses import StaticDetection, static_session
+from ..drivers.simulated import SimulatedBoard
+from ..errors import ConfigError, DataError, UnderdeterminedError, UnitsError
+from ..models.fitting import check_plausible_g
+from ..models.gravity_norm import nominal_scale
+from ..session import Session
+from ..sim.sensor_model import SensorModel
+from .gap_data import Capture, GapData
+from .noise_floor import Floor
+
+Part = tuple[Session, list[Capture] | None, str]  # one file: its poses, their raw captures (raw logs), its name
+FITTED = ("offset", "gain", "cross_axis", "cubic", "quadratic", "temperature", "drift", "settling")
+
+# -- the simulator's claim ---------------------------------------------------------------------
+
+@dataclass
+class Simulator:
+    """The simulated board a configuration describes, as the diagnosis needs it."""
+
+    model: SensorModel
+    counts_per_g: float
+    range_g: int
+    odr_hz: float
+    dlpf: int | None
+    source: str
+    device: dict = field(default_factory=dict)  # the board section (for the self-test)
+
+    @classmethod
+    def from_board(cls, board: SimulatedBoard, source: str, device: dict | None = None) -> Simulator:
+        return cls(board.model, board.counts_per_g, board.range_g, board.odr_hz, board.dlpf, source, device or {})
+
+    @property
+    def enabled(self) -> tuple[str, ...]:
+        return self.model.enabled
+
+    @property
+    def baseline(self) -> tuple[str, ...]:
+        """The deterministic effects the configuration enables: fitted to the data."""
+        return tuple(e for e in FITTED if e in self.enabled)
+
+    def sigma_g(self, rate_hz: float | None) -> np.ndarray:
+        """Per-sample noise sigma (g) at the data's rate (the configured ODR when unknown)."""
+        return self.model.noise_sigma_g(rate_hz or self.odr_hz, self.dlpf)
+
+    def floor(self, rate_hz: float | None) -> Floor:
+        m = self.model
+        q = m.effects["quantization"]["lsb_counts"] / self.counts_per_g if m.has("quantization") else 0.0
+        s = math.radians(m.effects["pose_error"]["scatter_deg"]) if m.has("pose_error") else 0.0
+        return Floor(self.sigma_g(rate_hz), q, s, m.gravity_g())
+
+    @property
+    def clip_g(self) -> float:
+        frac = self.model.effects["saturation"]["full_scale_fraction"] if self.model.has("saturation") else 1.0
+        return self.model.chip.code_limits[1] * frac / self.counts_per_g
+
+
+def _default_config() -> Path:
+    """configs/sim.yaml, wherever the package is installed (an editable checkout or site-packages)."""
+    from .. import configs
+
+    return Path(configs.__file__).parent / "sim.yaml"
+
+
+def load_simulator(path: str | Path | None = None) -> Simulator:
+    """The simulated board of a station config (default configs/sim.yaml)."""
+    path = Path(path) if path is not None else _default_config()
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such simulator configuration (give --config FILE with a device: section, "
+                          "driver: simulated)")
+    section = device_section(str(path))
+    if section.get("driver") != "simulated":
+        raise ConfigError(f"{path}: device.driver is {section.get('driver')!r}; accelcal diagnose needs the "
+                          "simulated device (driver: simulated) that is supposed to describe the boards")
+    section.pop("driver")
+    board = SimulatedBoard.from_config(section, seed=0, path=f"{path}: device")
+    return Simulator.from_board(board, str(path), section)
+
+
+# -- data ------------------------------------------------------------------------------------------
+
+def _scale(session: Session, source: str, notes: list[str]) -> float:
+    """Input units per nominal g: the data's own, else estimated from the readings' norm."""
+    if session.units == "counts" and session.counts_per_g is None:
+        est = float(nominal_scale(session.readings[None])[0])
+        notes.append(f"{source}: counts with no counts_per_g; {est:.1f} counts/g estimated from the readings' norm")
+        return est
+    return session.input_per_g
+
+
+def _checked_scale(session: Session, source: str, notes: list[str]) -> float:
+    """Input units per nominal g (_scale); refused when the readings are not near 1 g (e.g. counts given as g)."""
+    per_g = _scale(session, source, notes)
+    try:
+        check_plausible_g(session.readings / per_g, session.units)
+    except UnitsError as e:
+        raise UnitsError(f"{source}: {e}") from None
+    return per_g
+
+
+def _samples_per_pose(n: list[int | None], samples: int | None, notes: list[str]) -> tuple[np.ndarray, bool]:
+    """Samples behind every pose mean, and whether every pose says (else ``samples``, or 1, assumed)."""
+    if all(x for x in n):
+        return np.array(n, float), True
+    notes.append(f"samples per pose unknown: the floor assumes n = {samples or 1}"
+                 + ("" if samples else " (per-sample noise, so the ratio is a lower bound; give --samples N)"))
+    return np.full(len(n), float(samples or 1)), False
+
+
+def gap_data(parts: Sequence[Part], samples: int | None = None, norm_only: bool = False,
+             rate_hz: float | None = None) -> GapData:
+    """Combine sessions (one per file, with raw captures when read from raw logs) into GapData."""
+    notes: list[str] = []
+    gs: list[np.ndarray] = []
+    ref: list[np.ndarray | None] = []
+    n: list[int | None] = []
+    std: list[np.ndarray | None] = []
+    temp: list[float | None] = []
+    fid: list[int] = []
+    names: list[str] = []
+    caps: list[Capture] = []
+    scales: list[float | None] = []
+    sources = [src for _, _, src in parts]
+    for k, (s, cap, src) in enumerate(parts):
+        if len(s) == 0:
+            raise DataError(f"{src}: no poses")
+        per_g = _checked_scale(s, src, notes)
+        scales.append(per_g if s.units == "counts" else None)
+        gs.append(s.readings / per_g)
+        ref += [p.reference_g for p in s.poses]
+        n += [p.n for p in s.poses]
+        std += [None if p.std is None else p.std / per_g for p in s.poses]
+        temp += [p.temp_c for p in s.poses]
+        fid += [k] * len(s)
+        names += [f"{Path(src).stem}:{p.name}" if len(parts) > 1 else p.name for p in s.poses]
+        if cap is not None:
+            caps += [Capture(c.t, c.x, per_g) for c in cap]
+    g = np.concatenate(gs)
+    P = len(g)
+    if P < 4:
+        raise UnderdeterminedError(f"{P} poses; the diagnosis needs at least 4 (it holds some out of every fit)")
+    refs = None
+    if not norm_only and all(r is not None for r in ref):
+        refs = np.array(ref, float)
+    elif not norm_only and any(r is not None for r in ref):
+        notes.append("some poses have no reference: the analysis uses the norm only")
+    have_t = [t is not None for t in temp]
+    if any(have_t) and not all(have_t):
+        raise DataError(f"pose {names[have_t.index(False)]!r} has no temp_c while others do; "
+                        "give temp_c for every pose or for none")
+    n_arr, n_known = _samples_per_pose(n, samples, notes)
+    std_arr = np.array(std, float) if n_known and all(x is not None for x in std) else None
+    return GapData(names, g, refs, n_arr, n_known, std_arr, np.array(temp, float) if all(have_t) else None,
+                   np.array(fid), caps if len(caps) == P else None, rate_hz, sources, notes, scales)
+
+
+def raw_part(log: RawLog, units: str = "counts", counts_per_g: float | None = None,
+             gravity: float | None = None) -> Part:
+    """Segment a raw log into static poses; returns (Session, captures, source)."""
+    session, det = static_session(log, units, counts_per_g, gravity)
+    return _captures(log, session, det)
+
+
+def _captures(log: RawLog, session: Session, det: StaticDetection) -> Part:
+    """The Part of a segmented raw log: its poses' samples as captures (none without a sample rate)."""
+    t0 = float(log.t[0])
+    caps: list[Capture] | None = None
+    if log.rate_hz:
+        caps = []
+        for s in det.segments:
+            idx = np.concatenate([np.arange(a, b) for a, b in s.ranges])
+            caps.append(Capture(log.t[idx] - t0, log.xyz[idx], 1.0))
+    return session, caps, log.source
+
+
+def load_data(paths: Sequence[str | Path], raw: bool = False, units: str | None = None,
+              counts_per_g: float | None = None, gravity: float | None = None, columns: str | None = None,
+              skip_rows: int | None = None, rate: float | None = None, samples: int | None = None,
+              norm_only: bool = False) -> GapData:
+    """Read pose tables (or, with ``raw``, raw logs) with the loader `accelcal fit` uses (loader.load).
+
+    ``rate`` is the raw log's sample rate, or for pose tables the rate of the samples behind their std.
+    """
+    if not paths:
+        raise DataError("no data files given; allowed: pose tables, or raw logs with --raw (or use --selftest)")
+    parts: list[Part] = []
+    rates: set[float] = set()
+    inferred: list[str] = []
+    for path in paths:
+        loaded = load(str(path), raw, units=units, counts_per_g=counts_per_g, gravity_mps2=gravity,
+                      columns=columns, skip_rows=skip_rows, rate_hz=rate if raw else None, references=False)
+        inferred.append(f"{path}: " + "; ".join(loaded.inferred))
+        if loaded.log is None:
+            parts.append((loaded.session, None, str(path)))
+            continue
+        if not loaded.log.rate_hz:
+            raise DataError(f"{path}: no time column and no --rate: the diagnosis needs the sample rate "
+                            "(noise bandwidth, time within captures)")
+        rates.add(round(loaded.log.rate_hz, 6))
+        assert loaded.detection is not None, "a raw log is loaded with its segmentation"
+        parts.append(_captures(loaded.log, loaded.session, loaded.detection))
+    if len(rates) > 1:
+        raise DataError(f"raw logs at different rates ({', '.join(f'{r:g}' for r in sorted(rates))} Hz); "
+                        "diagnose logs of one rate together")
+    data = gap_data(parts, samples, norm_only, rates.pop() if rates else rate)
+    data.notes[:0] = inferred  # what reading the files inferred comes first in the summary
+    return data
+

@@ -1,0 +1,80 @@
+"""The Diagnosis record: what `accelcal diagnose` found (engine.diagnose), and its JSON."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .evaluation import Evaluation
+from .gap_data import GapData
+from .loading import Simulator
+from .noise_floor import Floor
+from .selection import ALPHA, MIN_GAP_SHRINK
+
+
+@dataclass
+class Diagnosis:
+    """The data, the simulator and its floor, the baseline's and the final model's held-out evaluations,
+    the selection (ranking, steps, every candidate tried), where the gap lies, the stochastic signatures,
+    what is left and the verdict (engine's module doc)."""
+
+    data: GapData
+    sim: Simulator
+    floor: Floor
+    base: Evaluation
+    final: Evaluation
+    ranking: list[dict[str, Any]]
+    steps: list[dict[str, Any]]
+    selected: list[str]
+    untestable: dict[str, str]
+    static_ok: bool
+    static_why: str
+    where: dict[str, Any]
+    alpha: float = ALPHA
+    stochastic: dict[str, Any] = field(default_factory=dict)
+    tried: list[dict[str, Any]] = field(default_factory=list)
+    verdict: str = ""
+    verdict_text: str = ""
+    leftover: dict[str, Any] = field(default_factory=dict)
+    identifiability: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def gap_before(self) -> float:
+        return self.base.gap
+
+    @property
+    def gap_after(self) -> float:
+        return self.final.gap
+
+
+def to_json(d: Diagnosis) -> dict[str, Any]:
+    """The JSON of `accelcal diagnose --json` (key order is the output's)."""
+    data, fl = d.data, d.floor
+    floor_rms = [float(np.sqrt(np.mean(x))) for x in (d.base.floor_static, d.base.floor_time) if x is not None]
+    return {
+        "verdict": d.verdict, "verdict_text": d.verdict_text,
+        "gap_before": d.gap_before, "gap_after": d.gap_after,
+        "rms_mg_before": 1e3 * d.base.rms_g, "rms_mg_after": 1e3 * d.final.rms_g,
+        "floor_mg": 1e3 * float(np.sqrt(np.mean(np.square(floor_rms)))),
+        "floor": {"source": fl.source, "sigma_mg": (1e3 * np.asarray(fl.sigma_g)).tolist(), "lsb_mg": 1e3 * fl.q_g,
+                  "pose_scatter_deg": math.degrees(fl.scatter_rad)},
+        "selected": d.selected, "steps": d.steps, "tried": d.tried, "ranking": d.ranking,
+        "stochastic": d.stochastic, "left": d.leftover, "identifiability": d.identifiability,
+        "untestable": [{"effect": e, "reason": r} for e, r in d.untestable.items()],
+        "baseline": list(d.sim.baseline), "config": d.sim.source, "config_effects": list(d.sim.enabled),
+        "test": {"gap": "held-out residual RMS over the floor's RMS; the floor is fixed before any candidate, so "
+                        "only residuals move the gap",
+                 "name": "one-sided paired test (min of t-test and Wilcoxon signed-rank, doubled) on per-(pose, axis) "
+                         "held-out log predictive density (fixed floor + the fit's prediction variance), "
+                         "Bonferroni over the candidates of each step; a candidate must also shrink the held-out RMS "
+                         "and min_gap_shrink of some view's log(gap); stop when every view's mean squared "
+                         "standardised residual lies in the two-sided 1-alpha range of chi2_N/N",
+                 "alpha": d.alpha, "min_gap_shrink": MIN_GAP_SHRINK},
+        "data": {"sources": data.sources, "poses": data.P, "references": not data.norm_only,
+                 "samples_per_pose_known": data.n_known, "temperatures": data.n_temps,
+                 "raw_captures": data.captures is not None, "rate_hz": data.rate_hz, "counts_per_g": data.counts_per_g,
+                 "static_view": d.static_ok, "static_view_note": d.static_why or None, "notes": data.notes},
+        "where": d.where,
+    }

@@ -1,0 +1,158 @@
+"""Which deterministic candidate explains the gap: the paired test, the rules a candidate must pass,
+the stopping rule and greedy forward selection (engine's module doc, step 3)."""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from .evaluation import Evaluation
+from .gap_data import GapData, TimeData
+from .loading import Simulator
+
+ALPHA = 0.01
+MIN_GAP_SHRINK = 0.1  # an added effect must remove this fraction of log(gap) too
+
+Evaluator = Callable[[list[str]], Evaluation]  # held-out evaluation of the baseline plus these candidates
+
+
+def _p_greater(d: np.ndarray) -> float:
+    """One-sided paired p-value that per-pose score differences d tend to be > 0.
+
+    The smaller of a t-test (power with few poses and a consistent effect) and a Wilcoxon
+    signed-rank test (power with many poses and heavy tails), doubled: a Bonferroni union
+    of the two, so the level holds whichever of them the data suit.
+    """
+    d = np.asarray(d, float)
+    if len(d) < 2 or not np.any(d != d[0]):
+        return 1.0 if len(d) < 2 or d[0] <= 0 else 0.0
+    from scipy import stats  # on first use: scipy.stats costs a second at every command's start-up
+
+    p_t = float(stats.ttest_1samp(d, 0.0, alternative="greater").pvalue)
+    p_w = float(stats.wilcoxon(d, alternative="greater").pvalue)
+    return min(1.0, 2 * min(p_t, p_w))
+
+
+def explained(e: Evaluation, alpha: float = ALPHA) -> bool:
+    """Whether every view's held-out residuals lie in the two-sided 1 - alpha/views range of chi^2_N / N.
+
+    Standardised by floor + the fit's own prediction variance (both fixed by the design):
+    a model that explains the data leaves a mean square of chi^2_N / N.
+    """
+    from scipy import stats
+
+    views = [(r, v) for r, v in ((e.r_static, e.v_static), (e.r_time, e.v_time)) if r is not None]
+    for r, v in views:
+        a = alpha / len(views)  # Bonferroni over the views
+        lo, hi = stats.chi2.ppf([a / 2, 1 - a / 2], r.size) / r.size
+        if not lo <= np.sum(r**2 / v) / r.size <= hi:
+            return False
+    return True
+
+
+def _settling_rule(ev: Evaluation, td: TimeData | None, alpha: float) -> tuple[bool, float]:
+    """A settling transient follows the step that caused it: its amplitudes a (per capture and axis)
+    have a consistent sign relative to the step direction (two-sided Wilcoxon on a * sign(step))."""
+    a = ev.params.get("_settling_a_g")
+    if a is None or td is None:
+        return False, 1.0
+    m = np.abs(td.step_unit) > 0.3
+    x = (np.asarray(a) * np.sign(td.step_unit))[m]
+    if len(x) < 6 or not np.any(x != 0):
+        return False, 1.0
+    from scipy import stats
+
+    p = float(stats.wilcoxon(x).pvalue)
+    return p < alpha, p
+
+
+def _rules(cur: Evaluation, new: Evaluation, p: float, level: float, effect: str, td: TimeData | None,
+           alpha: float) -> list[str]:
+    """The rules a candidate must pass to be added (engine's module doc, step 3); the failed ones."""
+    failed = []
+    if p >= level:
+        failed.append(f"paired test p = {p:.3g} >= {level:.3g}")
+    if new.rms_g >= cur.rms_g:
+        failed.append(f"held-out RMS did not shrink ({1e3 * cur.rms_g:.4g} -> {1e3 * new.rms_g:.4g} mg)")
+    shrinks = []
+    for view in ("static", "time"):  # a term may act in one view only (settling: within captures)
+        a, b = cur.floor_gap(view), new.floor_gap(view)
+        if a is not None and b is not None:
+            shrinks.append(abs(math.log(max(b, 1e-300))) <= (1 - MIN_GAP_SHRINK) * abs(math.log(max(a, 1e-300))))
+    if not any(shrinks):
+        failed.append(f"gap {cur.gap:.3g} -> {new.gap:.3g}: no view loses {MIN_GAP_SHRINK:.0%} of its log gap")
+    if effect == "settling":
+        ok, ps = _settling_rule(new, td, alpha)
+        if not ok:
+            failed.append(f"transient amplitudes do not follow the step direction (p = {ps:.3g})")
+    return failed
+
+
+def _fitted(e: Evaluation, effect: str, sim: Simulator, data: GapData) -> dict[str, Any]:
+    """The fitted values of an added effect, in the configuration's units where there is one."""
+    p = e.params
+    if effect == "noise":
+        enbw = sim.model.chip.enbw_hz(data.rate_hz or sim.odr_hz, sim.dlpf)
+        return {"density_ug_per_rthz": [1e6 * s / math.sqrt(enbw) for s in p["sigma_g"]]}
+    if effect == "quantization":
+        return {"lsb_counts": p["lsb_g"] * sim.counts_per_g, "lsb_mg": 1e3 * p["lsb_g"]}
+    if effect == "pose_error":
+        return {"scatter_deg": p["scatter_deg"]}
+    out = {k.split(":", 1)[1]: v for k, v in p.items() if k.startswith(effect + ":")}
+    out.update({k: v for k, v in p.items() if k.startswith(effect)})
+    return out
+
+
+def _step(ev: Evaluator, data: GapData, sim: Simulator, current: Evaluation, remaining: list[str],
+          selected: list[str], units: np.ndarray, td: TimeData | None, alpha: float,
+          ) -> tuple[Evaluation | None, dict[str, Any] | None, list[dict[str, Any]], list[dict[str, Any]]]:
+    """One greedy step: candidates in score order, the first that passes every rule (or None)."""
+    evs = {c: ev(selected + [c]) for c in remaining}
+    pv = {c: _p_greater((current.nll_unit - evs[c].nll_unit)[units]) for c in remaining}
+    order = sorted(remaining, key=lambda c: evs[c].score)
+    best = order[0]
+    tied = [c for c in order if c == best or _p_greater((evs[c].nll_unit - evs[best].nll_unit)[units]) >= alpha]
+    choice = min(tied, key=lambda c: (evs[c].n_params, evs[c].score))
+    order.remove(choice)
+    order.insert(0, choice)
+    level = alpha / len(remaining)
+    ranking = [{"effect": c, "held_out_gap": evs[c].gap, "score": evs[c].score, "p_value": pv[c],
+                "params": evs[c].n_params, "rms_mg": 1e3 * evs[c].rms_g} for c in order]
+    tried: list[dict[str, Any]] = []
+    for c in order:
+        failed = _rules(current, evs[c], pv[c], level, c, td, alpha)
+        tried.append({"step": len(selected) + 1, "effect": c, "accepted": not failed, "failed": failed})
+        if not failed:
+            step = {"added": c, "gap_before": current.gap, "gap_after": evs[c].gap,
+                    "rms_mg_before": 1e3 * current.rms_g, "rms_mg_after": 1e3 * evs[c].rms_g,
+                    "p_value": pv[c], "level": level, "fitted": _fitted(evs[c], c, sim, data)}
+            return evs[c], step, ranking, tried
+    return None, None, ranking, tried
+
+
+def select(ev: Evaluator, data: GapData, sim: Simulator, base: Evaluation, testable: list[str],
+           td: TimeData | None, alpha: float,
+           ) -> tuple[Evaluation, list[str], list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]]:
+    """Greedy forward selection of deterministic candidates (engine's module doc, step 3):
+    (final evaluation, selected, steps, the first step's ranking, every candidate tried)."""
+    # a norm-only static view scores one unit per pose: its structural zeros would inflate the test's n
+    units = base.nll_unit != 0
+    current = base
+    selected: list[str] = []
+    steps: list[dict[str, Any]] = []
+    tried: list[dict[str, Any]] = []
+    ranking: list[dict[str, Any]] | None = None
+    remaining = list(testable)
+    while remaining and not explained(current, alpha):
+        new, step, rank, tr = _step(ev, data, sim, current, remaining, selected, units, td, alpha)
+        ranking = ranking or rank
+        tried += tr
+        if new is None or step is None:
+            break
+        selected.append(step["added"])
+        steps.append(step)
+        current = new
+        remaining.remove(step["added"])
+    return current, selected, steps, ranking or [], tried

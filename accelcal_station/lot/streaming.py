@@ -1,0 +1,184 @@
+"""Streaming batch recalibration of a lot file: read a chunk, fit it stacked, judge it, write it.
+
+Peak memory is one chunk's (``chunk_boards`` boards) whatever the lot size.  Each
+chunk's results are appended to a temporary file beside the output, which is
+flushed and fsynced once per chunk and renamed over the output at the end: the
+results file is whole or absent after a crash, never half written.
+"""
+from __future__ import annotations
+
+import time as _time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..acceptance.rules import LIMIT_KEYS, Limits
+from ..data.lotfile import LotChunk, board_arrays, lot_scale, open_lot
+from ..data.results_table import ResultsWriter
+from ..errors import AccelcalError, DataError
+from ..models.fitting import check_model
+from ..models.gravity_norm import nominal_scale
+from ..models.stacked import fit_stacked
+
+
+@dataclass
+class LotSummary:
+    model: str
+    boards: int = 0
+    fitted: int = 0
+    passed: int = 0
+    failed: int = 0
+    elapsed_s: float = 0.0
+    unfitted_examples: list[tuple[str, str]] = field(default_factory=list)  # first few (serial, reason)
+
+    @property
+    def boards_per_s(self) -> float:
+        return self.boards / self.elapsed_s if self.elapsed_s > 0 else float("nan")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"model": self.model, "boards": self.boards, "fitted": self.fitted,
+                "skipped": self.boards - self.fitted, "pass": self.passed, "fail": self.failed,
+                "elapsed_s": self.elapsed_s, "boards_per_s": self.boards_per_s,
+                "skipped_examples": [{"serial": s, "reason": r} for s, r in self.unfitted_examples]}
+
+
+def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> dict[str, Any]:
+    """Fit every board of a chunk; a dict of per-board arrays (results_table.COLUMNS' sources)."""
+    x, ref, noise, reasons = board_arrays(chunk, model)
+    starts = chunk.starts
+    B = len(starts) - 1
+    sizes = np.diff(starts)
+    out: dict[str, Any] = {"ok": np.zeros(B, bool), "W": np.full((B, 3, 3), np.nan), "V": np.full((B, 3), np.nan),
+           "Gamma": np.full((B, 3), np.nan), "residual_rms_g": np.full(B, np.nan),
+           "residual_max_g": np.full(B, np.nan), "crossval_rms_g": np.full(B, np.nan),
+           "condition_number": np.full(B, np.nan), "stderr_V_max": np.full(B, np.nan),
+           "stderr_W_max": np.full(B, np.nan), "input_per_g": np.full(B, np.nan), "pose_count": sizes}
+    can = np.array([r is None for r in reasons], bool)
+    has_noise = np.zeros(B, bool)
+    if noise is not None and B:
+        has_noise = np.logical_and.reduceat(np.all(np.isfinite(noise), axis=1), starts[:-1])
+    for P in np.unique(sizes[can]):
+        for nz_flag in (False, True):
+            idx = np.flatnonzero(can & (sizes == P) & (has_noise == nz_flag))
+            if idx.size:
+                _fit_group(idx, int(P), x, ref, noise if nz_flag else None, starts, model, per_g, units,
+                           out, reasons)
+    out["message"] = ["" if r is None else r for r in reasons]
+    return out
+
+
+def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, noise: np.ndarray | None,
+               starts: np.ndarray, model: str, per_g: float | None, units: str, out: dict[str, Any],
+               reasons: list[str | None]) -> None:
+    """Fit the boards ``idx`` (all with ``P`` poses) in one stacked fit into ``out``; a board that
+    cannot be fitted gets its reason."""
+    rows = starts[idx][:, None] + np.arange(P)
+    xs = x[rows]
+    scale = nominal_scale(xs) if per_g is None else np.full(len(idx), per_g)
+    gf = xs / scale[:, None, None]
+    if model != "9":
+        med = np.median(np.linalg.norm(gf, axis=-1), axis=1)
+        implausible = ~((med >= 0.3) & (med <= 3.0))
+        for k in np.flatnonzero(implausible):
+            hint = "counts given as g? use --units counts --counts-per-g N" if med[k] > 3 else "wrong counts_per_g?"
+            reasons[idx[k]] = (f"readings in {units} have a median norm of {med[k]:.4g} g, expected about 1 g "
+                               f"({hint})")
+        keep = ~implausible
+        idx, rows, gf, scale = idx[keep], rows[keep], gf[keep], scale[keep]
+        if not idx.size:
+            return
+    nz = None if noise is None else noise[rows] / scale[:, None, None]
+    try:
+        # ref is None only when board_arrays gave every board a reason (models 6/12/15 need one)
+        b = fit_stacked(gf, None if model == "9" or ref is None else ref[rows], model, nz)
+    except AccelcalError as e:
+        for i in idx:
+            reasons[i] = str(e)
+        return
+    for k in np.flatnonzero(~b.ok):
+        reasons[idx[k]] = b.messages[k] or f"model {model} could not be fitted"
+    ok = b.ok
+    sel = idx[ok]
+    out["ok"][sel] = True
+    out["W"][sel], out["V"][sel], out["Gamma"][sel] = b.W[ok], b.V[ok], b.Gamma[ok]
+    out["residual_rms_g"][sel] = b.residual_rms_g[ok]
+    out["residual_max_g"][sel] = np.max(np.abs(b.residuals_g[ok]), axis=(1, 2))
+    out["crossval_rms_g"][sel] = np.where(b.crossval_ok[ok], b.crossval_rms_g[ok], np.nan)
+    out["condition_number"][sel] = b.condition_number[ok]
+    se = b.stderr_ok[ok]
+    out["stderr_V_max"][sel] = np.where(se, np.max(b.stderr_V[ok], axis=1), np.nan)
+    out["stderr_W_max"][sel] = np.where(se, np.max(b.stderr_W[ok].reshape(-1, 9), axis=1), np.nan)
+    out["input_per_g"][sel] = scale[ok]
+
+
+def measures(res: dict[str, Any]) -> dict[str, np.ndarray]:
+    """acceptance.measure for a chunk: every limit key's value per board (NaN: not measurable)."""
+    W = res["W"]
+    diag = np.diagonal(W, axis1=1, axis2=2)
+    off = W * (1 - np.eye(3))
+    return {"residual_rms_mg": res["residual_rms_g"] * 1e3, "residual_max_mg": res["residual_max_g"] * 1e3,
+            "crossval_rms_mg": res["crossval_rms_g"] * 1e3,
+            "gain_error_max": np.max(np.abs(diag - 1.0), axis=1),
+            "cross_axis_max": np.max(np.abs(off).reshape(-1, 9), axis=1),
+            "offset_max_mg": np.max(np.abs(res["V"]), axis=1) * 1e3,
+            "cubic_max": np.max(np.abs(res["Gamma"]), axis=1),
+            "stderr_offset_max_mg": res["stderr_V_max"] * 1e3, "stderr_gain_max": res["stderr_W_max"]}
+
+
+def judge_chunk(res: dict[str, Any], limits: Limits | None) -> tuple[list[str], list[list[str]]]:
+    """Verdict and reasons per board, as acceptance.judge words them ("" verdict: no limits given).
+
+    A board that could not be fitted FAILs with reason ``unfitted: <why>``; verify_error_max_mg
+    needs a verification capture and is not judged here.
+    """
+    B = len(res["ok"])
+    reasons: list[list[str]] = [[] for _ in range(B)]
+    for b in np.flatnonzero(~res["ok"]):
+        reasons[b].append(f"unfitted: {res['message'][b]}")
+    if limits is None:
+        return ["" if res["ok"][b] else "FAIL" for b in range(B)], reasons
+    m = measures(res)
+    for key, lim in limits.values.items():
+        if key == "verify_error_max_mg":
+            continue
+        v = m[key]
+        for b in np.flatnonzero(res["ok"] & np.isnan(v)):
+            reasons[b].append(f"{key}: not measurable for this fit (limit {lim:g})")
+        for b in np.flatnonzero(res["ok"] & ~(v <= lim) & ~np.isnan(v)):
+            reasons[b].append(f"{key} {v[b]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})")
+    return ["FAIL" if r else "PASS" for r in reasons], reasons
+
+
+def recalibrate_lot(path: str | Path, out: str | Path, model: str = "12", *, units: str | None = None,
+                    counts_per_g: float | None = None, gravity_mps2: float | None = None,
+                    limits: Limits | None = None, chunk_boards: int = 4096,
+                    progress: Callable[[int], None] | None = None) -> LotSummary:
+    """Fit every board of a lot file and write one results table (CSV, Parquet or JSON lines)."""
+    model = check_model(model)
+    if chunk_boards < 1:
+        raise DataError(f"--chunk-boards {chunk_boards}; allowed: a whole number >= 1")
+    meta, chunks = open_lot(path, chunk_boards)
+    units, per_g = lot_scale(meta, path, units, counts_per_g, gravity_mps2, model)
+    summary = LotSummary(model)
+    t0 = _time.perf_counter()
+    with ResultsWriter(out) as w:
+        for chunk in chunks:
+            res = fit_chunk(chunk, model, per_g, units)
+            verdicts, reasons = judge_chunk(res, limits)
+            w.write_chunk(chunk, res, model, units, verdicts, reasons)
+            n = len(chunk.serials)
+            summary.boards += n
+            summary.fitted += int(res["ok"].sum())
+            summary.passed += verdicts.count("PASS")
+            summary.failed += verdicts.count("FAIL")
+            for b in np.flatnonzero(~res["ok"])[:max(0, 5 - len(summary.unfitted_examples))]:
+                summary.unfitted_examples.append((chunk.serials[b], res["message"][b]))
+            if progress:
+                progress(n)
+        if summary.boards == 0:  # raised inside: the writer then leaves no output file
+            raise DataError(f"{path}: no boards (no rows after the header)")
+    summary.elapsed_s = _time.perf_counter() - t0
+    return summary

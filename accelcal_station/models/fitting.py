@@ -1,0 +1,204 @@
+"""Calibration models: fit a pose set (one board or a stack of boards).
+
+``fit`` and ``fit_batch`` are the entry points; both go through the same stacked
+code, so fitting D boards at once is identical to fitting them one at a time.
+
+  model "6"   diagonal gain + offset, least squares (AN4399 Eqns 6-17)
+  model "12"  full W + offset (AN4399 Eqns 35-48)
+  model "15"  full W + offset + diagonal cubic (AN4399 Eqns 67-72)
+  model "9"   A = M (V - B), symmetric M, gravity norm only (nine-position paper)
+"""
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..calibration import MODELS, Calibration, TemperatureTable
+from ..conventions import check_units, units_per_g
+from ..errors import DataError, UnderdeterminedError, UnitsError
+from ..identifiability import assess, assess_batch
+from ..session import Session
+from .gravity_norm import fit_norm_batch, nominal_scale
+from .linear import fit_linear_batch, six_param_six_face, six_param_two_pose
+from .result import BatchFit, FitResult
+from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
+from .stacked import fit_stacked
+
+
+def check_model(model: str | int) -> str:
+    m = str(model)
+    if m not in MODELS:
+        raise DataError(f"model {model!r}; allowed: {', '.join(MODELS)}")
+    return m
+
+
+def check_plausible_g(gf: np.ndarray, units: str) -> None:
+    with np.errstate(over="ignore"):  # a 1e308 reading is refused per pose later (models/sanity.py)
+        norms = np.linalg.norm(gf, axis=-1)
+    med = float(np.median(norms))
+    if not (0.3 <= med <= 3.0):
+        hint = "counts given as g? use --units counts --counts-per-g N" if med > 3 else "wrong counts_per_g?"
+        raise UnitsError(f"readings in {units} have a median norm of {med:.4g} g, expected about 1 g ({hint})")
+
+
+def _input_per_g(x: np.ndarray, model: str, units: str, counts_per_g: ArrayLike | None,
+                 gravity_mps2: float | None) -> np.ndarray:
+    """Input units per g of each board (D,): counts_per_g (one or one per board), estimated from
+    the readings for model 9 on counts without it, else the g or m/s^2 scale."""
+    D = x.shape[0]
+    if model == "9" and units == "counts" and counts_per_g is None:
+        return nominal_scale(x)  # (D,)
+    if units == "counts":
+        cpg = np.broadcast_to(np.asarray(counts_per_g if counts_per_g is not None else np.nan, dtype=float), (D,))
+        if not np.all(np.isfinite(cpg)) or np.any(cpg <= 0):
+            raise UnitsError(f"model {model} on counts needs --counts-per-g (a positive number)")
+        return cpg.copy()
+    return np.full(D, units_per_g(units, gravity_mps2=gravity_mps2))  # g or mps2: no counts_per_g
+
+
+def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: str | int = "12", *,
+              units: str = "g", counts_per_g: ArrayLike | None = None, gravity_mps2: float | None = None,
+              noise: ArrayLike | None = None, fast: bool = False) -> BatchFit:
+    """Fit D boards at once.
+
+    ``fast``: the stacked fitters of models/stacked.py (same estimators, closed forms and
+    batched Gauss-Newton; equal to 1e-9 g), for batches of many boards.
+
+    readings: (D, P, 3) pose means in ``units``; references: (D, P, 3) or (P, 3)
+    expected output in g (required for 6/12/15, ignored by 9); noise: optional
+    (D, P, 3) standard error of each mean in ``units``.  counts_per_g may be a
+    scalar or one value per board; for model 9 it may be None (estimated).
+    """
+    model = check_model(model)
+    check_units(units)
+    x = np.asarray(readings, dtype=float)
+    if x.ndim != 3 or x.shape[-1] != 3:
+        raise DataError(f"readings must have shape (boards, poses, 3); got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise DataError("readings contain NaN or infinity")
+    D = x.shape[0]
+    scale = _input_per_g(x, model, units, counts_per_g, gravity_mps2)
+    gf = x / scale[:, None, None]
+    if model != "9":
+        check_plausible_g(gf, units)
+    nz = None
+    if noise is not None:
+        nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]
+    determined, _ = assess_batch(gf, model)  # from the distinct orientations, before any solver runs
+    if D == 1 and not determined[0]:
+        raise UnderdeterminedError(assess(gf[0], model).reason)
+    gf_fit = gf
+    if model != "9" and references is not None:
+        # a board with an absurd reading (1e308) is fitted on its references instead, so it
+        # cannot overflow the stack, and is then refused with the reading named
+        bad = np.array([bool(w) for w in absurd_readings(gf)])
+        if bad.any():
+            ref = np.broadcast_to(np.asarray(references, dtype=float), gf.shape)
+            gf_fit = np.where(bad[:, None, None], ref, gf)
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            res = _fit_stack(gf_fit, references, x, model, nz, fast)
+    except np.linalg.LinAlgError:
+        raise DataError("the readings cannot be fitted (numerically singular or overflowing: "
+                        "a reading far beyond the sensor's range?)") from None
+    for d in np.flatnonzero(~determined):
+        res.ok[d] = False
+        res.messages[d] = assess(gf[d], model).reason
+    res.input_units = units
+    res.input_per_g = scale
+    _refuse_absurd(res, gf)
+    return res
+
+
+def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, model: str, nz: np.ndarray | None,
+               fast: bool = False) -> BatchFit:
+    if model == "9":
+        res = fit_stacked(gf, None, "9", nz) if fast else fit_norm_batch(gf, noise_g=nz)
+    else:
+        if references is None:
+            raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
+                            "model 9 needs none")
+        ref = np.asarray(references, dtype=float)
+        if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
+            raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
+        res = fit_stacked(gf, ref, model, nz) if fast else fit_linear_batch(gf, ref, model, nz)
+    return res
+
+
+def _refuse_absurd(res: BatchFit, gf: np.ndarray) -> None:
+    """Mark boards whose readings or coefficients are physically absurd as not fitted
+    (models/sanity.py): a degenerate calibration is never returned as a result."""
+    if res.model == "9":  # raw readings may carry any offset (unsigned counts): judge the output
+        why = absurd_norm_model(res.W, res.norm_error_g)
+    else:
+        why = [a or b for a, b in zip(absurd_readings(gf), absurd_coefficients(res.W, res.V), strict=True)]
+    for d, w in enumerate(why):
+        if w and res.ok[d]:
+            res.ok[d] = False
+            res.messages[d] = w
+            if res.status:
+                res.status[d] = "failed"
+
+
+def fit(readings: ArrayLike, references: ArrayLike | None = None, model: str | int = "12", *, units: str = "g",
+        counts_per_g: ArrayLike | None = None, gravity_mps2: float | None = None,
+        noise: ArrayLike | None = None) -> FitResult:
+    """Fit one board: readings (P, 3) in ``units``; returns a FitResult.
+
+    Raises UnderdeterminedError, naming what is missing, when the poses cannot
+    determine the model; never returns NaN coefficients.
+    """
+    x = np.asarray(readings, dtype=float)
+    if x.ndim != 2 or x.shape[-1] != 3:
+        raise DataError(f"readings must have shape (poses, 3); got {x.shape}")
+    ref = None if references is None else np.asarray(references, dtype=float)[None]
+    nz = None if noise is None else np.asarray(noise, dtype=float)[None]
+    b = fit_batch(x[None], ref, model, units=units, counts_per_g=counts_per_g,
+                  gravity_mps2=gravity_mps2, noise=nz)
+    if not b.ok[0]:
+        raise UnderdeterminedError(b.messages[0])
+    return b.result(0)
+
+
+def fit_session(session: Session, model: str | int = "12") -> FitResult:
+    """Fit a Session (references from the session; std/n give the noise)."""
+    if len(session) == 0:
+        raise DataError("the session has no poses")
+    noise = session.noise()  # input units: works for scale-less counts (model 9) too
+    return fit(session.readings, session.references_g if str(model) != "9" else None, model,
+               units=session.units, counts_per_g=session.counts_per_g,
+               gravity_mps2=session.gravity_mps2, noise=noise)
+
+
+def fit_temperature(session: Session, model: str | int = "12", method: str = "linear",
+                    tolerance_c: float = 2.0) -> tuple[Calibration, list[tuple[float, FitResult]]]:
+    """Fit at each calibration temperature and build a temperature table (AN4399 section 9).
+
+    Poses are grouped by temp_c (within ``tolerance_c``); each group is fitted on its own
+    and every parameter is then interpolated ``linear``-ly or by a ``quadratic``.
+    """
+    groups = session.by_temperature(tolerance_c)
+    if len(groups) < 2:
+        raise UnderdeterminedError(
+            f"temperature calibration needs poses at two or more temperatures; found {len(groups)} "
+            f"(grouping within {tolerance_c:g} C)")
+    fits = []
+    for t, sub in groups:
+        try:
+            fits.append((t, fit_session(sub, model)))
+        except UnderdeterminedError as e:
+            raise UnderdeterminedError(f"at {t:g} C: {e}") from None
+    first = fits[0][1].calibration
+    # model 9 on counts estimates input_per_g per group: bring every group's W and Gamma
+    # to the first group's scale, since the table is applied with that one scale
+    ratio = [first.input_per_g / f.calibration.input_per_g for _, f in fits]
+    table = TemperatureTable([t for t, _ in fits], [f.W * r for (_, f), r in zip(fits, ratio, strict=True)],
+                             [f.V for _, f in fits], [f.Gamma * r**3 for (_, f), r in zip(fits, ratio, strict=True)],
+                             method)
+    cal = Calibration(str(model), table.W[0], table.V[0], table.Gamma[0], first.input_units,
+                      first.input_per_g, temperature=table)
+    return cal, fits
+
+
+__all__ = ["MODELS", "BatchFit", "FitResult", "check_model", "fit", "fit_batch", "fit_session",
+           "fit_temperature", "six_param_six_face", "six_param_two_pose"]

@@ -1,0 +1,389 @@
+"""The station: calibrate one board end to end (DESIGN.md, "The flow of one board").
+
+identify -> plan poses -> for each pose: jig.present, gated capture -> fit -> judge ->
+closed-loop verify (fresh captures, calibration applied in software) -> judge again ->
+burn NVM (A/B slot, read-back) -> re-verify through the calibration read back from
+NVM -> record everything in the store.  A board that fails is never written.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from contextlib import ExitStack
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..acceptance.reasons import Reason, codes
+from ..acceptance.rules import judge
+from ..calibration import Calibration
+from ..drivers.base import Driver, Identity
+from ..drivers.factory import make_driver
+from ..errors import AccelcalError, ConfigError, UnderdeterminedError
+from ..fixtures.base import Jig, LiveReading, PoseSpec
+from ..fixtures.designs import get_design
+from ..fixtures.factory import board_of, make_jig
+from ..fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
+from ..models.fitting import fit_session
+from ..nvm.writer import BurnError, CalibrationWriter
+from ..session import PoseRecord, Session
+from ..store.runs import Store
+from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
+from .report import RunReport, fit_figures
+from .settings import StationConfig
+
+if TYPE_CHECKING:
+    from ..drivers.simulated import SimulatedBoard
+
+# a verification capture: (mean counts, expected output in g, temperature)
+Check = tuple[np.ndarray, np.ndarray, float | None]
+
+
+class CaptureProgress:
+    """A progress bar (stderr) for any capture that takes longer than a moment of wall time.
+
+    Virtual-clock captures finish in milliseconds and never show one; a real board at
+    100 Hz averaging for seconds does.
+    """
+
+    def __init__(self, label: str, after_s: float = 0.5) -> None:
+        self.label, self.after_s = label, after_s
+        self.t0 = time.monotonic()
+        self.bar: Any = None  # a click progress bar once shown
+        self.done = 0
+
+    def __call__(self, fraction: float) -> None:
+        if self.bar is None:
+            if time.monotonic() - self.t0 < self.after_s:
+                return
+            import click
+
+            self.bar = click.progressbar(length=1000, label=self.label, file=sys.stderr)
+            self.bar.__enter__()
+        step = int(1000 * min(max(fraction, 0.0), 1.0)) - self.done
+        if step > 0:
+            self.bar.update(step)
+            self.done += step
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+            self.bar = None
+
+
+class Station:
+    """Runs the flow for one board at a time."""
+
+    def __init__(self, config: StationConfig, *, operator: str | None = None, serial: str | None = None,
+                 lot: str | None = None, echo: Callable[[str], None] = print,
+                 progress: Callable[[str, float], None] | None = None, driver: Driver | None = None) -> None:
+        self.cfg = config
+        self.driver = driver  # default: built from the config's device section at run()
+        self.operator = operator
+        self.serial_override = serial
+        self.lot = lot
+        self.echo = echo
+        self.progress = progress
+        self.samples_read = 0
+        self.samples_used = 0
+        self.operator_wait_s = 0.0
+        # records each burn step in the store as it happens (set by run(); a panel's boards have none)
+        self._burn_log: Callable[[str, dict[str, Any]], None] | None = None
+
+    # -- pieces -----------------------------------------------------------------------
+    def _live(self, driver: Driver, gate: StillnessGate) -> LiveReading:
+        n = max(8, int(round(0.2 * driver.odr_hz)))
+
+        def live() -> tuple[np.ndarray, bool]:
+            counts, t, _ = driver.read_samples(n)
+            self.samples_read += len(counts)
+            still = gate.update(counts.astype(float), float(t[-1]))
+            return counts.mean(axis=0) / driver.counts_per_g, still
+        return live
+
+    def _capture_pose(self, driver: Driver, jig: Jig, pose: PoseSpec, floor: np.ndarray | None,
+                      report: RunReport) -> tuple[GatedCapture, int]:
+        """Present and capture one pose; operator jigs retry a wrong pose, others fail."""
+        s = self.cfg.capture
+        attempts = 0
+        while True:
+            attempts += 1
+            jig.present(pose, self._live(driver, StillnessGate(s, floor)) if isinstance(jig, OperatorJig) else None)
+            bar = CaptureProgress(f"  capturing {pose.name}")
+            try:
+                gc = gated_capture(driver, s, pose.reference_g, floor, progress=bar)
+            except WrongPose as e:
+                report.events.append(f"{pose.name}: {e}")
+                if not isinstance(jig, OperatorJig) or attempts > s.max_recaptures:
+                    raise
+                self.echo(f"  refused: {e}")
+                continue
+            finally:
+                bar.close()
+            self.samples_read += gc.samples_read
+            self.samples_used += gc.capture.n
+            for ev in gc.events:
+                report.events.append(f"{pose.name}: {ev}")
+                self.echo(f"  {ev}")
+            return gc, attempts - 1
+
+    # -- the run ---------------------------------------------------------------------
+    def run(self) -> RunReport:
+        cfg = self.cfg
+        rep = RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
+        wall0 = time.perf_counter()
+        design = get_design(cfg.design)
+        if self.driver is None:
+            self.driver = make_driver(cfg.raw["device"])
+        driver = self.driver
+        with Store(cfg.store_file) as store:
+            store.mark_stale_interrupted()
+            if cfg.limits.defaults_line():
+                self.echo(cfg.limits.defaults_line())
+                rep.events.append(cfg.limits.defaults_line())
+            with ExitStack() as stack:
+                ident = self._open_device(stack, driver, store)
+                rep.serial = self.serial_override or ident.serial
+                rep.chip = ident.chip
+                board = board_of(driver)
+                clock0 = board.clock.now() if board is not None else None
+                run_id = store.start_run(device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id,
+                                         operator=self.operator, lot=self.lot, config_text=cfg.text,
+                                         model=cfg.model, units="counts", counts_per_g=driver.counts_per_g)
+                rep.run_id = run_id
+                self._burn_log = lambda kind, data, r=run_id: store.record_burn(r, kind, data)
+                records: list[PoseRecord] = []
+                retries: list[int] = []
+                session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
+                self._calibrate(store, run_id, driver, design, session, retries, rep)
+                rep.timing = self._timing(driver, board, clock0, wall0)
+                self._finish(store, run_id, session, retries, rep)
+        return rep
+
+    def _open_device(self, stack: ExitStack, driver: Driver, store: Store) -> Identity:
+        """Open, identify and configure the device (closed when ``stack`` is); one that fails is recorded."""
+        try:
+            stack.enter_context(driver)  # opening a port that nobody answers on is recorded too
+            ident = driver.identify()
+            dev = self.cfg.raw["device"]
+            driver.configure(dev.get("range_g"), dev.get("odr_hz"))
+        except AccelcalError as e:
+            self._record_unreachable(store, e)
+            raise
+        return ident
+
+    def _calibrate(self, store: Store, run_id: int, driver: Driver, design: list[PoseSpec], session: Session,
+                   retries: list[int], rep: RunReport) -> None:
+        """Poses, fit, verdict, verification and burn with the configured jig; an error or Ctrl-C
+        closes the run (interrupted or error) with the poses captured so far, then propagates."""
+        records = session.poses
+        try:
+            with make_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, driver, self.echo) as jig:
+                try:
+                    self._run_poses(driver, jig, design, records, retries, rep)
+                    self._fit_judge_write(driver, jig, session, rep)
+                finally:
+                    self.operator_wait_s = float(getattr(jig, "wait_s", 0.0))
+        except (AccelcalError, KeyboardInterrupt) as e:
+            why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else str(e)
+            store.interrupt_run(run_id, why, session=session if records else None,
+                                status="interrupted" if isinstance(e, (OperatorAbort, KeyboardInterrupt))
+                                else "error", retries=retries if records else None,
+                                nvm_outcome=rep.nvm)
+            raise
+
+    def _finish(self, store: Store, run_id: int, session: Session, retries: list[int], rep: RunReport) -> None:
+        """Record the finished run: poses, calibration, verdict, NVM outcome and the figures."""
+        cfg = self.cfg
+        try:
+            store.finish_run(run_id, session=session, calibration=rep.calibration,
+                             verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
+                             fit_summary={**fit_figures(rep.fit), "reason_codes": codes(rep.reasons),
+                                          "measured": rep.measured,
+                                          "verify_error_max_mg": rep.verify_error_max_mg,
+                                          "offset_trim_lsb": rep.offset_trim_lsb,
+                                          "design": cfg.design, "skipped": rep.skipped,
+                                          "timing": rep.timing, "nvm_verified": rep.nvm_verified},
+                             model=cfg.model, retries=retries)
+        except AccelcalError as e:
+            # never leave the run 'running': record it as an error (finish_run rolled back)
+            store.interrupt_run(run_id, f"could not record the result: {e}", status="error",
+                                nvm_outcome=rep.nvm)
+            raise
+
+    def _record_unreachable(self, store: Store, err: AccelcalError) -> None:
+        """A device that does not answer still leaves a record: status error, with the reason."""
+        cfg = self.cfg
+        rid = store.start_run(device_serial=self.serial_override, station_id=cfg.station_id,
+                              operator=self.operator, lot=self.lot, config_text=cfg.text, model=cfg.model)
+        store.interrupt_run(rid, f"device: {err}", status="error")
+
+    def _run_poses(self, driver: Driver, jig: Jig, design: list[PoseSpec], records: list[PoseRecord],
+                   retries: list[int], rep: RunReport) -> None:
+        floor = None
+        for i, pose in enumerate(design):
+            self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
+            try:
+                gc, tries = self._capture_pose(driver, jig, pose, floor, rep)
+            except PoseSkipped:
+                rep.skipped.append(pose.name)
+                self.echo("  skipped")
+                continue
+            floor = gc.floor_counts
+            c = gc.capture
+            records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, pose.reference_g,
+                                      pose.pitch_deg, pose.roll_deg, c.temp_c, c.dropped, c.t_start, c.t_end))
+            retries.append(tries + gc.recaptures)
+            sem_mg = c.sem_counts / driver.counts_per_g * 1e3
+            rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
+                              "sem_mg": sem_mg.tolist(), "retries": tries + gc.recaptures,
+                              "reached_target": gc.reached_target})
+            self.echo(f"  n={c.n} sem={np.max(sem_mg):.3f} mg" + ("" if gc.reached_target else " (time limit)"))
+            if self.progress:
+                self.progress("poses", (i + 1) / len(design))
+
+    def _fit_judge_write(self, driver: Driver, jig: Jig, session: Session, rep: RunReport) -> None:
+        cal = self._fit_judge(driver, session, rep)
+        if cal is None:
+            return
+        checks = self._verify_captures(driver, jig, rep)
+        if self._judge_verified(cal, checks, rep):
+            self._burn(driver, cal, checks, rep)
+
+    def _fit_judge(self, driver: Driver, session: Session, rep: RunReport) -> Calibration | None:
+        """Fit and judge before any verification capture; the calibration to verify, or None (FAIL)."""
+        cfg = self.cfg
+        try:
+            fit = fit_session(session, cfg.model)
+        except UnderdeterminedError as e:
+            rep.verdict, rep.reasons = "FAIL", [Reason("fit", str(e))]
+            return None
+        rep.fit = fit
+        rep.calibration = fit.calibration
+        planned = len(get_design(cfg.design))
+        verdict = judge(fit, cfg.limits, planned_poses=planned)
+        rep.measured = verdict.measured
+        if not verdict.passed:
+            rep.verdict, rep.reasons = "FAIL", verdict.reasons
+            self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
+            return None
+        cal = fit.calibration
+        if cfg.offset_trim:
+            cal = rep.calibration = self._trim_offsets(driver, cal, rep)
+        return cal
+
+    def _judge_verified(self, cal: Calibration, checks: list[Check], rep: RunReport) -> bool:
+        """Judge again with the verification captures (when there are any); True: PASS so far."""
+        if checks:
+            assert rep.fit is not None, "verification captures are judged after the fit"
+            err = self._verify_error(cal, checks)
+            rep.verify_error_max_mg = err
+            verdict = judge(rep.fit, self.cfg.limits, err, planned_poses=len(get_design(self.cfg.design)))
+            rep.measured = verdict.measured
+            if not verdict.passed:
+                rep.verdict, rep.reasons = "FAIL", verdict.reasons
+                return False
+        rep.verdict, rep.reasons = "PASS", []
+        return True
+
+    def _burn(self, driver: Driver, cal: Calibration, checks: list[Check], rep: RunReport) -> None:
+        """Burn NVM, read back, and check the calibration read back does what the fitted one did."""
+        cfg = self.cfg
+        if not cfg.nvm_write:
+            return
+        nvm = driver.nvm
+        if nvm is None:
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "the device has no NVM to write; set nvm.write: false")]
+            return
+        writer = CalibrationWriter(nvm, cfg.slot_size)
+        log = getattr(self, "_burn_log", None) or (lambda kind, data: None)
+        try:
+            # recorded (committed) before the first byte: a crash mid-burn still says what may be on the board
+            outcome = writer.burn(cal, rep.serial, cfg.station_id,
+                                  before_write=lambda o: log("nvm_burning", o.to_dict()))
+        except BurnError as e:
+            rep.nvm = e.outcome.to_dict()
+            log("nvm_burn_failed", rep.nvm)
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
+            return
+        rep.nvm = outcome.to_dict()
+        log("nvm_burned", rep.nvm)
+        # closed loop through NVM: the calibration read back must do what the fitted one did
+        back = writer.read_newest(rep.serial)
+        if back is None:
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "no valid calibration readable after writing")]
+            return
+        stored = back[0]
+        if checks:
+            same = all(np.allclose(stored.apply(c, units="counts", temp_c=t), cal.apply(c, units="counts", temp_c=t),
+                                   atol=1e-9) for c, _, t in checks)
+        else:
+            same = np.allclose(stored.W, cal.W) and np.allclose(stored.V, cal.V)
+        rep.nvm_verified = bool(same)
+        if not same:
+            rep.verdict, rep.reasons = "FAIL", [
+                Reason("nvm", "calibration read back from NVM differs from the fitted one")]
+        self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
+
+    def _trim_offsets(self, driver: Driver, cal: Calibration, rep: RunReport) -> Calibration:
+        """Move the zero-g offset into the chip's offset registers and shift V to match.
+
+        The trimmed output is G_f' = G_f + t, so G = W (G_f' - t) + V: V' = V - W t.
+        The registers are volatile: the trim is reported (and recorded) so the device
+        config's ``offset_trim_lsb`` can restore it at power-up.
+        """
+        lsb_g = getattr(driver, "offset_trim_lsb_g", None)
+        if lsb_g is None or not hasattr(driver, "set_offset_trim"):
+            raise ConfigError(f"nvm.offset_trim: the {driver.name} driver has no offset-trim registers; "
+                              "set nvm.offset_trim: false")
+        offset_g = -np.linalg.solve(cal.W, cal.V)  # zero-g output of the untrimmed chip
+        old = np.asarray(driver.get_offset_trim(), dtype=float) if hasattr(driver, "get_offset_trim") else 0.0
+        total = np.clip(np.round(old - offset_g / lsb_g), -128, 127).astype(int)
+        driver.set_offset_trim(tuple(int(v) for v in total))
+        t = (total - old) * lsb_g
+        rep.offset_trim_lsb = total.tolist()
+        self.echo(f"offset trim {total.tolist()} LSB ({lsb_g * 1e3:.2f} mg each): "
+                  "add device.offset_trim_lsb to the config to restore it at power-up")
+        return Calibration(cal.model, cal.W, cal.V - cal.W @ t, cal.Gamma, cal.input_units, cal.input_per_g,
+                           cal.temperature, dict(cal.metadata, offset_trim_lsb=total.tolist()))
+
+    def _verify_captures(self, driver: Driver, jig: Jig, rep: RunReport) -> list[Check]:
+        """Fresh captures at the verification poses: (mean counts, expected g, temp)."""
+        n = self.cfg.verify_poses
+        if n == 0:
+            return []
+        poses = get_design(self.cfg.verify_design) if self.cfg.verify_design else get_design(self.cfg.design)
+        out = []
+        for pose in poses[:n]:
+            self.echo(f"verify {pose.name}")
+            gc, _ = self._capture_pose(driver, jig, pose, None, rep)
+            out.append((gc.capture.mean_counts, pose.reference_g, gc.capture.temp_c))
+        return out
+
+    def _verify_error(self, cal: Calibration, checks: list[Check]) -> float:
+        errs = [np.max(np.abs(cal.apply(c, units="counts", temp_c=t if cal.temperature is not None else None) - ref))
+                for c, ref, t in checks]
+        return float(np.max(errs)) * 1e3
+
+    def _timing(self, driver: Driver, board: SimulatedBoard | None, clock0: float | None,
+                wall0: float) -> dict[str, float]:
+        odr = driver.odr_hz
+        t = {
+            "odr_hz": odr,
+            "samples_averaged": self.samples_used,
+            "samples_read": self.samples_read,
+            "sampling_floor_s": self.samples_used / odr,
+            "sampling_s": self.samples_read / odr,
+            "wall_s": time.perf_counter() - wall0,
+        }
+        t["operator_wait_s"] = self.operator_wait_s
+        # host compute: wall time not spent waiting for the operator (nor, on a real-time
+        # board, sleeping through sampling and moves)
+        t["host_compute_s"] = max(0.0, t["wall_s"] - self.operator_wait_s)
+        # a panel's board that opened but did not identify has no start time: no device time
+        if board is not None and clock0 is not None:
+            t["device_time_s"] = board.clock.now() - clock0  # moves, waits, EEPROM cycles, sampling
+            t["board_time_s"] = t["device_time_s"] + (0.0 if board.clock.realtime else t["host_compute_s"])
+        return t
+

@@ -1,0 +1,176 @@
+"""Gated capture: wait until the board is still, then average until precise enough.
+
+Stillness is judged per block of samples against the measured noise floor (the
+smallest per-axis block standard deviation seen so far, seeded from the first
+blocks), with a hold time before averaging starts and hysteresis so a board at
+the edge of the threshold does not flicker between still and moving:
+
+  enter still:  block std <= k_enter * floor  and  |block mean - previous| <= k_enter * floor * sqrt(2 / n_block)
+                for hold_s seconds (k_enter = 4.5: a still board of 3 axes fails a block ~2e-5 of the time)
+  leave still:  either quantity beyond k_leave * (same bound)     (k_leave > k_enter)
+
+Averaging is adaptive: it stops once every axis's standard error of the mean is
+below ``target_sem_mg`` (and at least ``min_samples`` are in), or at ``max_s``.
+Motion while averaging discards the average and starts over (a re-capture).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..conventions import angle_deg, nearest_face
+from ..drivers.base import Capture, Driver
+from ..errors import DeviceError
+
+
+@dataclass
+class CaptureSettings:
+    block_s: float = 0.1
+    k_enter: float = 4.5
+    k_leave: float = 7.0
+    hold_s: float = 0.3
+    target_sem_mg: float = 0.05
+    min_samples: int = 32
+    max_s: float = 20.0
+    settle_timeout_s: float = 30.0
+    pose_tolerance_deg: float = 12.0
+    max_recaptures: int = 3
+
+
+@dataclass
+class GatedCapture:
+    """A capture plus how it was gated."""
+
+    capture: Capture
+    recaptures: int
+    waited_s: float
+    reached_target: bool
+    floor_counts: np.ndarray
+    samples_read: int = 0
+    events: list[str] = field(default_factory=list)
+
+
+@lru_cache(maxsize=64)
+def _chi_quartile(n: int) -> float:
+    """25th percentile of s / sigma for n samples: chi with n - 1 dof, by the
+    Wilson-Hilferty cube-root approximation (within 0.7 % for n >= 4; no scipy import in the capture loop)."""
+    k = n - 1
+    z = -0.6744897501960817  # standard normal 25th percentile
+    return float(np.sqrt((1.0 - 2.0 / (9 * k) + z * np.sqrt(2.0 / (9 * k))) ** 3))
+
+
+class StillnessGate:
+    """Tracks the noise floor and the still/moving state block by block (with hysteresis).
+
+    The floor is the 25th percentile of the last 64 blocks' per-axis std, divided by
+    that percentile of the chi distribution for the block size: unbiased on still data
+    and unmoved by motion in up to three blocks of four.  A floor carried over from the
+    previous pose is used until eight blocks of this one are in.
+    """
+
+    def __init__(self, settings: CaptureSettings, floor_counts: np.ndarray | None = None):
+        self.s = settings
+        self.seed = None if floor_counts is None else np.asarray(floor_counts, dtype=float)
+        # counts per axis; without a seed it is measured from the first block on (nan until then)
+        self.floor: np.ndarray = self.seed if self.seed is not None else np.full(3, np.nan)
+        self.history: list[np.ndarray] = []
+        self.prev_mean: np.ndarray | None = None
+        self.still = False
+        self.still_since: float | None = None
+
+    def update(self, block: np.ndarray, t_end: float) -> bool:
+        n = len(block)
+        std = block.std(axis=0, ddof=1)
+        mean = block.mean(axis=0)
+        self.history = (self.history + [std])[-64:]
+        q = _chi_quartile(n)
+        est = np.percentile(np.array(self.history), 25, axis=0) / q
+        if self.seed is None or len(self.history) >= 8:
+            # quantisation can make a quiet axis read std 0: never let the floor reach zero
+            self.floor = np.maximum(est, 0.3)
+        jump = np.zeros(3) if self.prev_mean is None else np.abs(mean - self.prev_mean)
+        self.prev_mean = mean
+        k = self.s.k_leave if self.still else self.s.k_enter
+        ok = bool(np.all(std <= k * self.floor) and np.all(jump <= k * self.floor * np.sqrt(2.0 / n) + 1.0))
+        if ok and not self.still:
+            if self.still_since is None:
+                self.still_since = t_end
+            if t_end - self.still_since >= self.s.hold_s:
+                self.still = True
+        elif not ok:
+            self.still = False
+            self.still_since = None
+        return self.still
+
+
+def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndarray | None = None,
+                  floor_counts: np.ndarray | None = None, keep: bool = False,
+                  progress: Callable[[float], None] | None = None) -> GatedCapture:
+    """Capture one pose: wait for stillness, average adaptively, re-capture on motion.
+
+    expected_g: the planned pose's expected output; a measured direction further than
+    ``pose_tolerance_deg`` from it is refused, naming the face the board is actually on.
+    """
+    s = settings
+    block_n = max(4, int(round(s.block_s * driver.odr_hz)))
+    gate = StillnessGate(s, floor_counts)
+    target = s.target_sem_mg * 1e-3 * driver.counts_per_g
+    events: list[str] = []
+    recaptures = 0
+    waited = 0.0
+    t_first = None
+    acc: list[np.ndarray] = []
+    ts: list[np.ndarray] = []
+    dropped = 0
+    read = 0
+    while True:
+        counts, t, d = driver.read_samples(block_n)
+        read += len(counts)
+        if t_first is None:
+            t_first = float(t[0])
+        still = gate.update(counts.astype(float), float(t[-1]))
+        if not still:
+            if acc:
+                recaptures += 1
+                events.append(f"moved during capture at t={t[-1] - t_first:.2f} s: average discarded")
+                acc, ts, dropped = [], [], 0
+                if recaptures > s.max_recaptures:
+                    raise DeviceError(f"board kept moving: {recaptures} captures discarded (max {s.max_recaptures})")
+            waited = float(t[-1]) - t_first
+            if waited > s.settle_timeout_s:
+                raise DeviceError(f"board not still after {s.settle_timeout_s:g} s "
+                                  f"(noise floor {np.round(gate.floor, 1).tolist()} counts)")
+            continue
+        acc.append(counts)
+        ts.append(t)
+        dropped += d
+        n = sum(len(a) for a in acc)
+        allc = np.concatenate(acc)
+        sem = allc.std(axis=0, ddof=1) / np.sqrt(n)
+        elapsed = float(ts[-1][-1] - ts[0][0])
+        if progress is not None:
+            progress(min(1.0, max(elapsed / s.max_s, float(np.min(target / np.maximum(sem, 1e-12))) ** 2)))
+        reached = bool(np.all(sem <= target)) and n >= s.min_samples
+        if reached or elapsed >= s.max_s:
+            cap = Capture.from_samples(allc, np.concatenate(ts), dropped, driver.temperature_c(), keep)
+            if expected_g is not None:
+                ang = angle_deg(cap.mean_counts, expected_g)
+                if ang > s.pose_tolerance_deg:
+                    raise WrongPose(expected_g, cap.mean_counts, ang)
+            return GatedCapture(cap, recaptures, waited, reached, gate.floor.copy(), read, events)
+
+
+class WrongPose(DeviceError):
+    """The board is not in the planned pose; names the face it is actually on."""
+
+    def __init__(self, expected_g: ArrayLike, measured: ArrayLike, angle: float) -> None:
+        self.expected_g = np.asarray(expected_g, dtype=float)
+        self.measured = np.asarray(measured, dtype=float)
+        self.angle = angle
+        super().__init__(
+            f"board is {angle:.0f} deg from the planned pose: it is on '{nearest_face(measured)}', "
+            f"the plan wants '{nearest_face(expected_g)}'")

@@ -1,0 +1,64 @@
+"""Who and what a run is about: the operator (required when the config says so) and the
+board's serial number, scanned with a barcode reader (it types the serial and Enter)."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any, Protocol
+
+import click
+
+from ..config.checks import check_keys
+from ..errors import ConfigError, DataError
+from ..fixtures.operator_jig import OperatorAbort
+
+IDENTITY_KEYS = ("scan_serial", "require_operator")
+SERIAL_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._:/-]{0,63}")
+
+
+def identity_options(raw: dict[str, Any]) -> dict[str, bool]:
+    """station.scan_serial and station.require_operator, checked (both default false)."""
+    st = raw.get("station") or {}
+    check_keys(st, ("id", *IDENTITY_KEYS), "station")
+    out = {}
+    for k in IDENTITY_KEYS:
+        v = st.get(k, False)
+        if not isinstance(v, bool):
+            raise ConfigError(f"station.{k}: {v!r}; allowed: true, false")
+        out[k] = v
+    return out
+
+
+def check_serial(text: str, where: str) -> str:
+    s = text.strip()
+    if not SERIAL_RE.fullmatch(s):
+        raise DataError(f"{where}: {s[:40]!r} is not a serial number; allowed: 1-64 letters, digits and . _ : / -, "
+                        "starting with a letter or digit")
+    return s
+
+
+class RunConfig(Protocol):
+    """What the identity rules read of a station config (settings.StationConfig)."""
+
+    raw: dict[str, Any]
+    path: Path
+
+
+def ask_run_identity(cfg: RunConfig, operator: str | None, serial: str | None) -> tuple[str | None, str | None]:
+    """Apply the config's identity rules; prompts (stderr) for a serial scan when asked to."""
+    opts = identity_options(cfg.raw)
+    if opts["require_operator"] and not (operator or "").strip():
+        raise ConfigError(f"--operator: required (station.require_operator: true in {cfg.path.name})")
+    if serial is not None:
+        return operator, check_serial(serial, "--serial")
+    if not opts["scan_serial"]:
+        return operator, None
+    while True:
+        try:
+            text = click.prompt("Scan the board's serial number", err=True)
+        except (click.exceptions.Abort, EOFError, KeyboardInterrupt):
+            raise OperatorAbort("operator aborted at the serial-number scan") from None
+        try:
+            return operator, check_serial(text, "scanned serial")
+        except DataError as e:
+            click.echo(f"  {e}; scan again", err=True)

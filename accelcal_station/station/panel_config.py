@@ -1,0 +1,107 @@
+"""A panel's configuration: the per-board device sections of ``device.boards``, each board's
+own spread of simulated offsets and gains, how a board sits in its slot, and which thread
+reads it.
+
+A ``device:`` section without ``boards`` is a panel of one.  With ``boards``::
+
+    device:
+      driver: simulated          # every key here is shared by all boards ...
+      simulator: {...}
+      boards: 16                 # N boards: seed + i, serial SERIAL-01.., or a list of
+                                 # mappings, each merged over the shared keys
+      spread: {offset_mg: 20, gain: 0.01}   # simulated boards: each its own offsets/gains
+"""
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import numpy as np
+
+from ..config.checks import check_keys, number
+from ..errors import ConfigError
+from ..sim.sensor_model import rotation_matrix
+
+MAX_BOARDS = 64
+PANEL_KEYS = ("boards", "spread", "mux")
+# simulated boards only: how the board really sits in its slot (rotation vector, degrees); a
+# board seated upside down reads the opposite face at every pose
+SEAT_KEY = "seated_deg"
+
+
+def _spread(section: dict[str, Any], spread: Any, rng: np.random.Generator, path: str) -> dict[str, Any]:
+    """Draw this board's own offsets and gains around the shared simulator's (simulated boards)."""
+    sp = check_keys(spread, ("offset_mg", "gain"), path)
+    off_sd = number(sp, "offset_mg", path, 0.0, 0.0, 1000.0)
+    gain_sd = number(sp, "gain", path, 0.0, 0.0, 0.5)
+    sim = section.get("simulator")
+    if not isinstance(sim, dict):  # the effects sit in the simulator mapping, or in the section itself
+        sim = section
+    eff = sim.setdefault("effects", {})
+    if not isinstance(eff, dict):
+        raise ConfigError(f"{path}: needs an inline simulator effects mapping to spread")
+    off = np.asarray((eff.get("offset") or {}).get("offset_mg", [0.0] * 3), dtype=float)
+    gain = np.asarray((eff.get("gain") or {}).get("gain", [1.0] * 3), dtype=float)
+    eff["offset"] = {**(eff.get("offset") or {}), "offset_mg": (off + rng.normal(0, off_sd, 3)).tolist()}
+    eff["gain"] = {**(eff.get("gain") or {}), "gain": (gain * (1 + rng.normal(0, gain_sd, 3))).tolist()}
+    return section
+
+
+def _simulated(section: dict[str, Any]) -> bool:
+    """A simulated board, or a driver on an emulated bus or port (these take a seed)."""
+    return section.get("driver") == "simulated" or "emulated" in (section.get("bus"), section.get("port"))
+
+
+def panel_sections(device: Any, path: str = "device") -> list[tuple[dict[str, Any], str]]:
+    """Per-board device sections and their key paths; a device without ``boards`` is a panel of one."""
+    if not isinstance(device, dict):
+        raise ConfigError(f"{path}: must be a mapping with a 'driver' key")
+    boards = device.get("boards")
+    base = {k: v for k, v in device.items() if k not in ("boards", "spread")}
+    if boards is None:
+        if "spread" in device:
+            raise ConfigError(f"{path}.spread: only used with {path}.boards")
+        return [(base, path)]
+    if isinstance(boards, bool) or not isinstance(boards, (int, list)):
+        raise ConfigError(f"{path}.boards: {boards!r}; allowed: a count 1..{MAX_BOARDS} or a list of mappings")
+    n = boards if isinstance(boards, int) else len(boards)
+    if not 1 <= n <= MAX_BOARDS:
+        raise ConfigError(f"{path}.boards: {n} boards; allowed: 1..{MAX_BOARDS}")
+    seed = number(device, "seed", path, 1, 0, 2**32 - 1, integer=True) if _simulated(device) else 0
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        where = f"{path}.boards[{i}]"
+        over = boards[i] if isinstance(boards, list) else {}
+        if not isinstance(over, dict):
+            raise ConfigError(f"{where}: {over!r}; allowed: a mapping of device keys")
+        sec = copy.deepcopy(base)
+        if _simulated(device) or _simulated(over):
+            sec["seed"] = seed * 1000 + i  # each board its own draws unless its mapping says otherwise
+        if device.get("driver") == "simulated":
+            sec["serial"] = f"{device.get('serial') or 'PANEL'}-{i + 1:02d}"
+        sec.update(copy.deepcopy(over))
+        if device.get("spread") is not None:
+            sec = _spread(sec, device["spread"], rng, f"{path}.spread")
+        out.append((sec, where))
+    return out
+
+
+def group_of(section: dict[str, Any], index: int) -> str:
+    """The thread a board is read by: its serial port, else its own.
+
+    Boards behind a multiplexer each have their own thread too: their transactions are
+    serialised on the bus (MuxBus.lock), so they are read in turn, transaction by
+    transaction, within each sample period rather than one whole capture after another.
+    """
+    if section.get("driver") == "mpu6050" and section.get("port") not in (None, "emulated"):
+        return f"serial:{section['port']}"
+    return f"board:{index}"
+
+
+def seat_rotation(seat: Any, path: str) -> np.ndarray:
+    """The rotation of a board's ``seated_deg`` (an [x, y, z] rotation vector in degrees)."""
+    if not (isinstance(seat, list) and len(seat) == 3 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in seat)):
+        raise ConfigError(f"{path}.{SEAT_KEY}: {seat!r}; allowed: [x, y, z] rotation vector in degrees")
+    return rotation_matrix(seat)

@@ -1,0 +1,279 @@
+"""A thermal plan over a panel: every board of the panel captured at each pose at each set point.
+
+The panel sits in one chamber on one jig (panel.py builds the boards, the jig and captures
+a pose on every board at once; thermal.py gives the plan, the soak rule and each board's
+fit, temperature table, verdicts, burn and read-back).  At each set point the soak holds
+when every board's temperature (its die's; the chamber air for a chip without a sensor)
+is stable (thermal.soak_until); then the pose design runs once for the whole panel.  Each
+board gets its own per-temperature fits and table, verified at the unused set points, its
+own burn with read-back and its own run in the store, all sharing one ``panel_id``.
+
+A board that fails (a NACK, a wrong face, its temperature leaving the capture band, a fit
+beyond its limits) is named with its own reason and dropped; it never stops the others.
+A chamber fault (set point not reached, alarm, door opened) ends every board's run with a
+recorded FAIL verdict and the reason; nothing is burned (burning comes after the last set
+point).  Simulated boards each keep their own clock (captures run at once); the chamber
+runs on the first board's clock and every clock is brought to the latest after each step.
+"""
+from __future__ import annotations
+
+import contextlib
+import time
+from typing import Any
+
+import numpy as np
+
+from ..acceptance.reasons import Reason
+from ..drivers.base import Clock
+from ..errors import AccelcalError
+from ..fixtures.base import Jig, PoseSpec
+from ..fixtures.factory import board_of
+from ..fixtures.operator_jig import OperatorAbort
+from ..instruments.chamber import Chamber, ChamberStatus
+from ..instruments.factory import couple, make_chamber
+from ..session import PoseRecord, Session
+from ..store.runs import Store
+from .capture import GatedCapture
+from .panel import PanelBoard, PanelStation, make_panel_jig
+from .report import RunReport
+from .settings import StationConfig
+from .thermal import Groups, SetPointResult, ThermalRunReport, ThermalStation
+from .thermal_plan import ChamberFault, ThermalPlan, WallClock, soak_until
+
+
+class ThermalPanelStation(PanelStation):
+    """Runs a thermal plan for every board of the configured panel (module docstring)."""
+
+    board_station = ThermalStation
+    board_report = ThermalRunReport
+
+    def __init__(self, config: StationConfig, **kw: Any) -> None:
+        super().__init__(config, **kw)
+        ThermalStation(config)  # the same checks as a single board: thermal: and chamber:, no offset trim
+        self.plan = ThermalPlan.from_config(config.raw["thermal"], config.model)
+        self.soak_s = 0.0
+        self.floor_s = 0.0  # the panel's sampling floor: per pose, the longest board's averaged samples / ODR
+        self.groups: dict[int, Groups] = {}
+
+    # -- the run ---------------------------------------------------------------------
+    def run(self) -> list[RunReport]:
+        cfg = self.cfg
+        wall0 = time.perf_counter()
+        boards = self.boards = self._boards()
+        with Store(cfg.store_file) as store:
+            store.mark_stale_interrupted()
+            try:
+                for b in boards:
+                    self._open(b, store)
+                    self.groups[b.index] = {}
+                live = [b for b in boards if b.active]
+                clock = self._clock(live)
+                t0 = clock.now()
+                if live:
+                    self._in_chamber(live, clock)
+            except (AccelcalError, KeyboardInterrupt) as e:
+                self._interrupted(store, boards, e)
+                self._close(boards)
+                raise
+            self._close(boards)
+            self._timing_thermal(boards, clock, t0, wall0)
+            for b in boards:
+                self._record(store, b)
+        return [b.rep for b in boards]
+
+    def _in_chamber(self, live: list[PanelBoard], clock: Clock) -> None:
+        sims = [board_of(b.driver) for b in live]
+        with make_chamber(self.cfg.raw["chamber"], sims[0]) as chamber, \
+                (self.jig or make_panel_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, live,
+                                            self.echo)) as jig:
+            emu = getattr(chamber, "emulator", None)
+            for s in sims[1:]:
+                if emu is not None and s is not None:
+                    couple(s, emu)  # every board of the panel sits in the same chamber air
+            try:
+                self._visit_all(live, chamber, jig, clock)
+            except ChamberFault as e:
+                self._chamber_fault(live, chamber, e)
+                return
+            except BaseException:
+                _standby(chamber)
+                raise
+        for b in live:
+            if b.active:
+                _station(b)._fit_table_burn(b.driver, self.groups[b.index], b.rep)
+                b.cal = b.rep.calibration
+
+    def _chamber_fault(self, live: list[PanelBoard], chamber: Chamber, e: ChamberFault) -> None:
+        _standby(chamber)
+        self.echo(f"FAIL: chamber: {e} (every board; nothing burned)")
+        for b in live:
+            b.rep.verdict = "FAIL"
+            b.rep.reasons.append(Reason("chamber", str(e)))
+
+    def _interrupted(self, store: Store, boards: list[PanelBoard], e: BaseException) -> None:
+        why = "operator aborted" if isinstance(e, OperatorAbort) else (
+            "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
+        stopped = isinstance(e, (OperatorAbort, KeyboardInterrupt))
+        for b in boards:
+            if b.rep.run_id is None:
+                continue
+            session = None
+            if b.records:  # the calibration poses it had are kept, as for a single board
+                session = Session(b.records, units="counts", counts_per_g=b.driver.counts_per_g,
+                                  device=b.rep.serial)
+            store.interrupt_run(b.rep.run_id, f"{why} ({_where(b)})", session=session,
+                                status="interrupted" if stopped else "error",
+                                retries=b.retries if b.records else None, nvm_outcome=b.rep.nvm)
+
+    # -- set points ------------------------------------------------------------------------
+    def _clock(self, live: list[PanelBoard]) -> Clock:
+        sim = next((board_of(b.driver) for b in live if board_of(b.driver) is not None), None)
+        return sim.clock if sim is not None else WallClock()
+
+    def _sync(self, boards: list[PanelBoard]) -> None:
+        """Bring every simulated board's clock to the latest: the panel shares one chamber's time."""
+        clocks = {id(s.clock): s.clock for s in (board_of(b.driver) for b in boards) if s is not None}
+        if clocks:
+            t = max(c.now() for c in clocks.values())
+            for c in clocks.values():
+                c.advance_to(t)
+
+    def _visit_all(self, live: list[PanelBoard], chamber: Chamber, jig: Jig, clock: Clock) -> None:
+        visits = self.plan.visits()
+        for i, (sp, role) in enumerate(visits):
+            active = [b for b in live if b.active]
+            if not active:
+                break
+            self.echo(f"[set point {i + 1}/{len(visits)}] {sp:g} C ({role}), {len(active)} boards")
+            res = {b.index: SetPointResult(sp, role, t_start_s=clock.now()) for b in active}
+            for b in active:
+                _station(b).results.append(res[b.index])
+            chamber.set_point(sp)
+            self._soak(active, chamber, clock, res)
+            poses = _station(active[0])._poses_for(role)
+            self._capture_set_point(active, chamber, jig, clock, poses, res)
+        _standby(chamber)
+
+    def _soak(self, active: list[PanelBoard], chamber: Chamber, clock: Clock,
+              res: dict[int, SetPointResult]) -> None:
+        """Every board soaked together: the rule holds over all their temperatures (thermal_plan.soak_until)."""
+        die = {b.index: b.driver.temperature_c() is not None for b in active}
+        for b in active:
+            res[b.index].temp_source = "die" if die[b.index] else "chamber_air"
+
+        def read(st: ChamberStatus) -> np.ndarray:
+            return np.array([b.driver.temperature_c() if die[b.index] else st.air_c for b in active])
+
+        sp = next(iter(res.values())).set_point_c
+        try:
+            soak_s, temps, air_c, now = soak_until(self.plan.soak, sp, chamber, clock, read,
+                                                   _station(active[0])._check_alarms, self.echo)
+        except ChamberFault as e:
+            self._soaked(active, res, e.soak_s)  # a soak that timed out still counts as soak time
+            raise
+        self._soaked(active, res, soak_s, temps, air_c, now)
+        self.echo(f"  soaked in {soak_s:.0f} s: boards {temps.min():.2f}..{temps.max():.2f} C, air {air_c:.1f} C")
+
+    def _soaked(self, active: list[PanelBoard], res: dict[int, SetPointResult], soak_s: float,
+                temps: np.ndarray | None = None, air_c: float | None = None, now: float | None = None) -> None:
+        """Record a soak (ended or timed out) for the panel and each board, and bring the clocks together."""
+        self.soak_s += soak_s
+        for k, b in enumerate(active):
+            r = res[b.index]
+            _station(b).soak_s += soak_s
+            r.soak_s, r.air_temp_c, r.t_soaked_s = soak_s, air_c, now
+            r.board_temp_c = None if temps is None else float(temps[k])
+        self._sync(active)
+
+    def _capture_set_point(self, active: list[PanelBoard], chamber: Chamber, jig: Jig, clock: Clock,
+                           poses: list[PoseSpec], res: dict[int, SetPointResult]) -> None:
+        sp = next(iter(res.values())).set_point_c
+        t0 = clock.now()
+        for k, pose in enumerate(poses):
+            self.echo(f"  [{k + 1}/{len(poses)}] {pose.name}")
+            todo = [b for b in active if b.active]
+            caps = self._present_and_capture(todo, jig, pose, {b.index: b.floor for b in todo})
+            self._sync(todo)
+            st = chamber.status()
+            _station(todo[0])._check_alarms(st, f"during the capture of {pose.name} at {sp:g} C; "
+                                            "the capture is discarded")
+            if caps:
+                self.floor_s += max(gc.capture.n / todo[0].driver.odr_hz for gc in caps.values())
+            for b in todo:
+                if b.index in caps:
+                    self._keep(b, pose, caps[b.index], st, res[b.index])
+        for b in active:
+            r = res[b.index]
+            r.sampling_floor_s = sum(p["n"] for p in b.rep.poses if p["set_point_c"] == sp) / b.driver.odr_hz
+            r.t_end_s = clock.now()
+            r.poses_s = r.t_end_s - t0
+
+    def _keep(self, b: PanelBoard, pose: PoseSpec, gc: GatedCapture, st: ChamberStatus, res: SetPointResult) -> None:
+        """One board's capture at one pose and set point; its temperature leaving the band fails that board."""
+        sp, c = res.set_point_c, gc.capture
+        temp = res.pose_temp_c(c.temp_c, st.air_c)
+        band = self.plan.capture_band_c
+        if res.moved_c(temp) > band:
+            b.fail(Reason("temperature", f"board temperature {temp:.2f} C during {pose.name} at {sp:g} C "
+                          f"left the band +-{band:g} C around {res.board_temp_c:.2f} C"))
+            self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
+            return
+        b.floor = gc.floor_counts
+        rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, pose.reference_g,
+                         pose.pitch_deg, pose.roll_deg, temp, c.dropped, c.t_start, c.t_end)
+        self.groups[b.index].setdefault(sp, []).append(rec)
+        if res.role == "calibrate":  # the run's session: calibration poses, kept if the run is interrupted
+            b.records.append(rec)
+            b.retries.append(gc.recaptures)
+        b.station.samples_read += gc.samples_read
+        b.station.samples_used += c.n
+        b.rep.poses.append({"pose": rec.name, "set_point_c": sp, "role": res.role, "temp_c": temp, "n": c.n,
+                            "sem_mg": (c.sem_counts / b.driver.counts_per_g * 1e3).tolist(),
+                            "retries": gc.recaptures})
+        res.poses += 1
+
+    # -- report ----------------------------------------------------------------------------
+    def _timing_thermal(self, boards: list[PanelBoard], clock: Clock, t0: float, wall0: float) -> None:
+        """Each board's split as a single board reports it, and the panel's: the boards share the soak
+        and are captured at once, so the per-board figure is the panel's time / boards."""
+        opened = [b for b in boards if b.open_]
+        self._sync(opened)  # the burns ran on each board's own clock (own EEPROM): the panel waits for the last
+        for b in opened:
+            st, rep = _station(b), _report(b)
+            rep.timing = st._thermal_timing(b.driver, clock, t0, wall0)
+            rep.timing["boards"] = len(boards)
+            rep.thermal = {**st._summary(rep), "panel": {"panel_id": self.panel_id, "boards": len(boards)}}
+            rep.events.extend(st.report_events)
+        total = clock.now() - t0
+        n = len(boards)
+        split = {"soak_s": self.soak_s, "sampling_floor_s": self.floor_s,
+                 "rest_s": total - self.soak_s - self.floor_s, "board_time_s": total}
+        self.timing = {"boards": n, "panel_time_s": total, **split,
+                       "per_board": {k: v / n for k, v in split.items()},
+                       "clock": "real" if getattr(clock, "realtime", False) else "virtual",
+                       "host_compute_s": time.perf_counter() - wall0}
+        self.timing["per_board_s"] = total / n
+
+
+def _standby(chamber: Chamber) -> None:
+    with contextlib.suppress(AccelcalError):
+        chamber.standby()  # leave the chamber safe; the original error is what matters
+
+
+def _station(b: PanelBoard) -> ThermalStation:
+    """A board's own station: a ThermalStation (ThermalPanelStation.board_station)."""
+    assert isinstance(b.station, ThermalStation)
+    return b.station
+
+
+def _report(b: PanelBoard) -> ThermalRunReport:
+    """A board's report: a ThermalRunReport (ThermalPanelStation.board_report)."""
+    assert isinstance(b.rep, ThermalRunReport)
+    return b.rep
+
+
+def _where(b: PanelBoard) -> str:
+    res = getattr(b.station, "results", [])
+    if not res:
+        return "before the first set point"
+    return f"at set point {res[-1].set_point_c:g} C, {sum(r.poses for r in res)} poses captured"

@@ -1,0 +1,39 @@
+"""Where a results store is: the store of a station config, a store the user names (a file
+path or a URL) and a store's identity (what makes two targets the same store).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ..config.checks import check_keys
+from ..errors import ConfigError
+from .database import describe_target, is_url
+
+DEFAULT_STORE = "accelcal-runs.sqlite"
+
+
+def store_path(config: dict[str, Any], base_dir: str | Path = ".") -> Path | str:
+    """The store of a station config: ``store: {path: FILE or URL}`` (default DEFAULT_STORE),
+    a relative path taken from ``base_dir`` (the config file's folder); a URL
+    (``postgresql://...``, ``sqlite:///...``) is returned as it is."""
+    section = check_keys(config.get("store"), ("path",), "store")
+    p = section.get("path", DEFAULT_STORE)
+    if not isinstance(p, str) or not p.strip():
+        raise ConfigError(f"store.path: {p!r}; allowed: a file path, sqlite:///PATH or postgresql://...")
+    return store_target(p, base_dir)
+
+
+def store_target(p: str | Path, base_dir: str | Path = ".") -> Path | str:
+    """A store given by the user: a URL as it is, a path taken from ``base_dir``."""
+    if is_url(p):
+        return str(p)
+    return Path(base_dir) / Path(p).expanduser()
+
+
+def store_identity(target: str | Path) -> str:
+    """A store's identity: the resolved file of an SQLite store, the URL of a server store."""
+    if is_url(target) and not str(target).startswith("sqlite:///"):
+        return describe_target(target)
+    p = str(target)[len("sqlite:///"):] if str(target).startswith("sqlite:///") else target
+    return str(Path(p).resolve())

@@ -1,0 +1,148 @@
+"""A stored run as Python values: ``RunRecord`` (rebuilds the captured Session), the
+conversions between column values and Python values (times, typed reasons, JSON columns,
+pose rows) and ``StoreError``.
+
+Times are unix seconds (REAL); ``iso`` gives ISO 8601 UTC for exports.  A JSON column that
+does not parse is damaged: its row is shown as damaged, never fatal.
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+
+from ..acceptance.reasons import Reason, codes
+from ..calibration import Calibration
+from ..errors import DataError
+from ..session import PoseRecord, Session
+from .database import Row
+
+AXES = "xyz"
+
+
+class StoreError(DataError):
+    """The results store cannot be opened, read or written."""
+
+
+def iso(t: float | None) -> str | None:
+    """Unix seconds as ISO 8601 UTC."""
+    return None if t is None else datetime.fromtimestamp(t, UTC).isoformat(timespec="milliseconds")
+
+
+def timestamp(value: object, what: str = "time") -> float | None:
+    """Unix seconds from unix seconds, a datetime or an ISO 8601 string (naive = local time)."""
+    if value is None or (isinstance(value, (int, float)) and not isinstance(value, bool)):
+        return None if value is None else float(value)
+    if isinstance(value, str):
+        try:
+            value = datetime.fromisoformat(value)
+        except ValueError:
+            raise DataError(f"{what} {value!r}: not a date; allowed ISO 8601 like 2024-05-01 or "
+                            "2024-05-01T13:30") from None
+    if isinstance(value, datetime):
+        return value.timestamp()
+    raise DataError(f"{what} {value!r}: not a time")
+
+
+def is_damaged(text: str | None) -> bool:
+    """A JSON column that does not parse: the row is shown as damaged, the listing goes on."""
+    if text is None:
+        return False
+    try:
+        json.loads(text)
+    except (TypeError, ValueError):
+        return True
+    return False
+
+
+def load_or(text: str | None, default: Any) -> Any:
+    """A JSON column's value, or ``default`` when it is empty or damaged."""
+    return default if text is None or is_damaged(text) else json.loads(text)
+
+
+def to_json(x: Any) -> str | None:
+    """A JSON column's text (None stays NULL); NaN and infinity are refused."""
+    return None if x is None else json.dumps(x, allow_nan=False)
+
+
+def opt(x: Any, cast: Callable[[Any], Any] = float) -> Any:
+    """``cast(x)``, None kept as None."""
+    return None if x is None else cast(x)
+
+
+def stored_reasons(text: str | None) -> list[Reason]:
+    """The typed reasons of a ``reasons`` column ([] when empty or damaged)."""
+    value = load_or(text, [])
+    return [Reason.from_dict(x) for x in value] if isinstance(value, list) else []
+
+
+def pose_record(p: Row) -> PoseRecord:
+    """A ``poses`` row as the PoseRecord that was captured."""
+    def vec(c: str) -> np.ndarray | None:
+        return None if p[f"{c}_x"] is None else np.array([p[f"{c}_{a}"] for a in AXES], dtype=float)
+
+    return PoseRecord(p["name"], np.array([p[f"mean_{a}"] for a in AXES], dtype=float), vec("std"), p["n"],
+                      vec("ref"), p["pitch_deg"], p["roll_deg"], p["temp_c"], p["dropped"], p["t_start"], p["t_end"])
+
+
+@dataclass
+class RunRecord:
+    """One stored run; ``session()`` rebuilds the captured Session."""
+
+    id: int
+    started_at: float
+    finished_at: float | None
+    status: str
+    status_reason: str | None
+    device_serial: str | None
+    chip: str | None
+    station_id: str | None
+    operator: str | None
+    lot: str | None
+    config_hash: str | None
+    config_text: str | None
+    model: str | None
+    units: str | None
+    counts_per_g: float | None
+    gravity_mps2: float | None
+    verdict: str | None
+    reasons: list[Reason]
+    nvm_status: str | None
+    nvm_outcome: dict[str, Any] | None
+    calibration: dict[str, Any] | None
+    fit_summary: dict[str, Any] | None
+    host: str | None
+    pid: int | None
+    panel_id: str | None = None  # the boards calibrated together on one jig
+    poses: list[PoseRecord] = field(default_factory=list)
+    retries: list[int] = field(default_factory=list)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    damaged: list[str] = field(default_factory=list)  # JSON columns that did not parse (shown, not fatal)
+
+    def session(self) -> Session:
+        return Session(list(self.poses), self.units or "counts", self.counts_per_g, self.gravity_mps2,
+                       self.device_serial, {"run_id": self.id, "station_id": self.station_id, "lot": self.lot,
+                                            "chip": self.chip, "started_at": iso(self.started_at)})
+
+    def calibration_object(self) -> Calibration | None:
+        return None if self.calibration is None else Calibration.from_dict(self.calibration, f"run {self.id}")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["started_at_iso"], d["finished_at_iso"] = iso(self.started_at), iso(self.finished_at)
+        d["poses"] = [_pose_dict(p, r) for p, r in zip(self.poses, self.retries, strict=True)]
+        d["reasons"], d["reason_codes"] = [str(r) for r in self.reasons], codes(self.reasons)
+        return d
+
+
+def _pose_dict(p: PoseRecord, retries: int) -> dict[str, Any]:
+    def arr(a: np.ndarray | None) -> list[Any] | None:
+        return None if a is None else np.asarray(a).tolist()
+
+    return {"name": p.name, "pitch_deg": p.pitch_deg, "roll_deg": p.roll_deg, "reference_g": arr(p.reference_g),
+            "mean": arr(p.mean), "std": arr(p.std), "n": p.n, "dropped": p.dropped, "temp_c": p.temp_c,
+            "t_start": p.t_start, "t_end": p.t_end, "retries": retries}

@@ -1,0 +1,424 @@
+"""The results store's ``Store``: every station run in one database, an SQLite file (the
+default) or a line's shared PostgreSQL server (``postgresql://...``; database.py).
+
+A run is committed as ``running`` when it starts, so a crash leaves a record; its
+poses, calibration, verdict and NVM outcome are then written in ONE transaction by
+``finish_run`` (or ``interrupt_run``), never half.  ``mark_stale_interrupted`` turns
+runs whose station process died into ``interrupted``.
+
+Journal mode is SQLite's default rollback journal, not WAL: the store stays one
+file (WAL keeps -wal/-shm files beside it and does not work on network shares),
+and a station commits a few times per board, so WAL's writer/reader overlap buys
+nothing; readers wait out a commit through the busy timeout.  synchronous stays
+FULL (the default): a committed run survives power loss.  Foreign keys are on.
+
+Opening a store upgrades its schema (schema.py) under one transaction.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import socket
+import time as _time
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ..acceptance.reasons import Reason, codes
+from ..calibration import Calibration
+from ..errors import DataError
+from ..session import Session
+from . import exports, schema
+from .database import Database, Row, describe_target, is_url
+from .location import store_identity
+from .records import RunRecord, StoreError, is_damaged, iso, opt, pose_record, stored_reasons, timestamp, to_json
+
+if TYPE_CHECKING:
+    from sqlalchemy.exc import SQLAlchemyError
+
+
+def _sqlerror() -> type[SQLAlchemyError]:
+    """SQLAlchemy's error class, imported when a store is used (not when the CLI starts)."""
+    from sqlalchemy.exc import SQLAlchemyError
+    return SQLAlchemyError
+
+
+def _msg(e: BaseException) -> str:
+    """The driver's own first line of a database error (SQLAlchemy wraps it in a long text)."""
+    orig = getattr(e, "orig", None)
+    return (str(orig if orig is not None else e).strip().splitlines() or [type(e).__name__])[0]
+
+
+class Store:
+    """The results store at ``path``: a file path or ``sqlite:///PATH`` (an SQLite file, created
+    with its parent folder when missing unless ``create`` is False) or ``postgresql://...``
+    (a server database; the schema is created in it when missing).  Use as a context
+    manager; one Store per thread.  ``path`` is the file (SQLite) or the URL without its
+    password (PostgreSQL), as messages name it.
+    """
+
+    def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True):
+        SQLError = _sqlerror()
+        name = describe_target(path)
+        try:
+            self._db = Database(str(path) if is_url(path) else Path(path), timeout_s, create)
+        except FileNotFoundError:
+            raise StoreError(f"{name}: no results store there") from None
+        except ValueError as e:
+            raise StoreError(str(e)) from None
+        except (OSError, SQLError) as e:
+            raise StoreError(f"{name}: cannot open results store ({_msg(e)})") from None
+        db_path = self._db.path  # set for SQLite only
+        self.path: Path | str = db_path if db_path is not None else self._db.name
+        try:
+            self._migrate(create)
+        except SQLError as e:
+            self._db.close()
+            raise StoreError(f"{self.path}: not a usable results store ({_msg(e)})") from None
+        except BaseException:
+            self._db.close()
+            raise
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._db.close()
+
+    @property
+    def identity(self) -> str:
+        """What makes two Store objects the same store: the resolved file, or the URL."""
+        return store_identity(self.path)
+
+    @property
+    def dialect(self) -> str:
+        return self._db.dialect
+
+    @contextmanager
+    def _tx(self, what: str) -> Iterator[Database]:
+        """One write transaction (IMMEDIATE on SQLite): all of it is committed or none of it."""
+        SQLError = _sqlerror()
+        try:
+            self._db.begin()
+        except SQLError as e:
+            raise StoreError(f"{self.path}: cannot {what} ({_msg(e)})") from None
+        try:
+            yield self._db
+            self._db.commit()
+        except BaseException as e:
+            if self._db.in_transaction:
+                self._db.rollback()
+            if isinstance(e, SQLError):
+                raise StoreError(f"{self.path}: cannot {what} ({_msg(e)}); nothing was recorded") from None
+            raise
+
+    @contextmanager
+    def _snapshot(self) -> Iterator[None]:
+        """One read transaction, so queries spanning tables see one committed state."""
+        if self._db.in_transaction:
+            yield
+            return
+        try:
+            self._db.begin(write=False)
+            yield
+        except _sqlerror() as e:
+            raise StoreError(f"{self.path}: cannot read runs ({_msg(e)})") from None
+        finally:
+            if self._db.in_transaction:
+                try:
+                    self._db.commit()
+                except _sqlerror() as e:  # a damaged page can surface only here
+                    raise StoreError(f"{self.path}: cannot read runs ({_msg(e)})") from None
+
+    def _migrate(self, create: bool = True) -> None:
+        version = self._db.schema_version()
+        if version == 0 and not create:  # a reader never writes a schema into a file it only reads
+            raise StoreError(f"{self.path}: not an accelcal results store (no schema); nothing was written")
+        target = schema.SCHEMA_VERSION  # read at each open, so a test can stop at an older version
+        if version > target:
+            raise StoreError(f"{self.path}: results store schema version {version} is newer than this "
+                             f"station's {target}; upgrade accelcal-station")
+        if version == target:
+            return
+        with self._tx("upgrade the schema") as db:
+            db.lock_schema()
+            version = db.schema_version()  # another process may have won
+            if version == 0 and db.foreign_content():
+                kind = "an SQLite file" if db.dialect == "sqlite" else "a database with runs/poses/events tables"
+                raise StoreError(f"{self.path}: {kind} that is not an accelcal results store")
+            for v in range(version, target):
+                step = schema.MIGRATIONS[v]
+                if callable(step):
+                    step(db)
+                    db.set_schema_version(v + 1)
+                    continue
+                for stmt in step.split(";"):
+                    if stmt.strip():
+                        db.raw(db.ddl(stmt))
+                db.set_schema_version(v + 1)
+
+    @property
+    def schema_version(self) -> int:
+        return self._db.schema_version()
+
+    # -- recording ----------------------------------------------------------------------
+    def start_run(self, *, device_serial: str | None, chip: str | None = None, station_id: str | None = None,
+                  operator: str | None = None, lot: str | None = None, config_text: str | None = None,
+                  config_hash: str | None = None, model: str | None = None, units: str | None = None,
+                  counts_per_g: float | None = None, gravity_mps2: float | None = None,
+                  started_at: float | None = None, panel_id: str | None = None) -> int:
+        """Commit a ``running`` row now (a crash leaves it recorded) and return its id.
+
+        ``config_hash`` defaults to the SHA-256 of ``config_text``; ``panel_id`` ties the runs
+        of the boards calibrated together on one jig.
+        """
+        if config_hash is None and config_text is not None:
+            config_hash = hashlib.sha256(config_text.encode()).hexdigest()
+        with self._tx("start a run") as db:
+            cur = db.execute(
+                "INSERT INTO runs (started_at, status, device_serial, chip, station_id, operator, lot, config_hash,"
+                " config_text, model, units, counts_per_g, gravity_mps2, host, pid, panel_id)"
+                " VALUES (?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
+                (_time.time() if started_at is None else float(started_at), device_serial, chip, station_id,
+                 operator, lot, config_hash, config_text, opt(model, str), units, opt(counts_per_g),
+                 opt(gravity_mps2), socket.gethostname(), os.getpid(), panel_id))
+            return int(cur.scalar())
+
+    def _running(self, db: Database, run_id: int) -> None:
+        row = db.execute("SELECT status FROM runs WHERE id = ?", (run_id,)).fetchone()
+        if row is None:
+            raise StoreError(f"{self.path}: no run {run_id}")
+        if row["status"] != "running":
+            raise StoreError(f"{self.path}: run {run_id} is already {row['status']}; a run is closed once")
+
+    def _insert_poses(self, db: Database, run_id: int, session: Session, retries: Sequence[int] | None) -> None:
+        if retries is not None and len(retries) != len(session):
+            raise DataError(f"retries has {len(retries)} entries for {len(session)} poses")
+        rows: list[tuple[Any, ...]] = []
+        for i, p in enumerate(session.poses):
+            ref = [None] * 3 if p.reference_g is None else [float(v) for v in p.reference_g]
+            std = [None] * 3 if p.std is None else [float(v) for v in p.std]
+            rows.append((run_id, i, p.name, opt(p.pitch_deg), opt(p.roll_deg), *ref, *map(float, p.mean), *std,
+                         opt(p.n, int), int(p.dropped), opt(p.temp_c), opt(p.t_start), opt(p.t_end),
+                         0 if retries is None else int(retries[i])))
+        db.executemany(f"INSERT INTO poses (run_id, {', '.join(schema.POSE_COLS)})"
+                       f" VALUES ({', '.join('?' * 20)})", rows)
+        db.execute("UPDATE runs SET units = ?, counts_per_g = ?, gravity_mps2 = ? WHERE id = ?",
+                   (session.units, opt(session.counts_per_g), opt(session.gravity_mps2), run_id))
+
+    def finish_run(self, run_id: int, *, session: Session, calibration: Calibration | None, verdict: str | None,
+                   reasons: Iterable[Reason] = (), nvm_outcome: Any = None, fit_summary: dict[str, Any] | None = None,
+                   model: str | None = None, retries: Sequence[int] | None = None,
+                   finished_at: float | None = None) -> None:
+        """Record poses, calibration, verdict and NVM outcome of a run as ``complete``, atomically.
+
+        ``nvm_outcome``: a writer.BurnOutcome, its dict, or None when nothing was burned;
+        ``reasons``: Reason objects (a plain string is kept with code "").
+        """
+        if verdict is not None and verdict not in schema.VERDICTS:
+            raise DataError(f"verdict {verdict!r}; allowed: PASS, FAIL")
+        if nvm_outcome is not None and hasattr(nvm_outcome, "to_dict"):
+            nvm_outcome = nvm_outcome.to_dict()
+        nvm_status = "none" if nvm_outcome is None else ("written" if nvm_outcome.get("ok") else "failed")
+        with self._tx(f"record run {run_id}") as db:
+            self._running(db, run_id)
+            self._insert_poses(db, run_id, session, retries)
+            cal = None if calibration is None else calibration.to_dict()
+            try:
+                texts = [to_json([Reason.from_dict(r).to_dict() for r in reasons]), to_json(nvm_outcome),
+                         to_json(cal), to_json(fit_summary)]
+            except (TypeError, ValueError) as e:
+                raise DataError(f"run {run_id}: result is not JSON-serialisable ({e})") from None
+            db.execute(
+                "UPDATE runs SET status = 'complete', finished_at = ?, verdict = ?, reasons = ?, nvm_status = ?,"
+                " nvm_outcome = ?, calibration = ?, fit_summary = ?, model = coalesce(?, model) WHERE id = ?",
+                (_time.time() if finished_at is None else float(finished_at), verdict, texts[0], nvm_status,
+                 *texts[1:], opt(model or (calibration.model if calibration else None), str), run_id))
+
+    def interrupt_run(self, run_id: int, reason: str, *, session: Session | None = None,
+                      status: str = "interrupted", retries: Sequence[int] | None = None,
+                      nvm_outcome: Any = None) -> None:
+        """Close a run as ``interrupted`` (or ``error``) with the poses captured so far, atomically."""
+        if status not in ("interrupted", "error"):
+            raise DataError(f"status {status!r}; allowed: interrupted, error")
+        if nvm_outcome is not None and hasattr(nvm_outcome, "to_dict"):
+            nvm_outcome = nvm_outcome.to_dict()
+        with self._tx(f"record run {run_id}") as db:
+            self._running(db, run_id)
+            if session is not None:
+                self._insert_poses(db, run_id, session, retries)
+            # no outcome given: keep what record_burn wrote (a burn cut short stays 'burning')
+            db.execute("UPDATE runs SET status = ?, status_reason = ?, finished_at = ?,"
+                       " nvm_status = coalesce(?, nvm_status), nvm_outcome = coalesce(?, nvm_outcome) WHERE id = ?",
+                       (status, str(reason), _time.time(),
+                        None if nvm_outcome is None else ("written" if nvm_outcome.get("ok") else "failed"),
+                        to_json(nvm_outcome), run_id))
+
+    def record_burn(self, run_id: int, kind: str, outcome: dict[str, Any]) -> None:
+        """A burn as it happens, committed at once: ``nvm_burning`` (slot, generation, blob CRC)
+        sets the run's nvm_status to ``burning`` before the first byte; ``nvm_burned`` /
+        ``nvm_burn_failed`` to ``burned`` / ``failed`` (finish_run then records the outcome)."""
+        status = {"nvm_burning": "burning", "nvm_burned": "burned", "nvm_burn_failed": "failed"}[kind]
+        crc = outcome.get("crc32")
+        with self._tx(f"record the burn of run {run_id}") as db:
+            db.execute("INSERT INTO events (run_id, t, kind, message, data) VALUES (?, ?, ?, ?, ?)",
+                       (run_id, _time.time(), kind, f"slot {outcome.get('slot')}, generation "
+                        f"{outcome.get('generation')}, CRC-32 {crc if crc is None else f'0x{crc:08x}'}",
+                        to_json(outcome)))
+            db.execute("UPDATE runs SET nvm_status = ?, nvm_outcome = ? WHERE id = ?",
+                       (status, to_json(outcome), run_id))
+
+    def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None) -> None:
+        """Append an event (a rejected capture, an operator prompt, ...), committed at once."""
+        with self._tx(f"log an event of run {run_id}") as db:
+            db.execute("INSERT INTO events (run_id, t, kind, message, data) VALUES (?, ?, ?, ?, ?)",
+                       (run_id, _time.time(), kind, message, to_json(data)))
+
+    def mark_stale_interrupted(self, max_age_s: float | None = None) -> list[int]:
+        """Mark ``running`` runs whose station process is gone as interrupted; returns their ids.
+
+        A run is stale when it was started on this host by a process that no longer
+        exists, or (any host) when ``max_age_s`` is given and it started longer ago.
+        """
+        host, now = socket.gethostname(), _time.time()
+        stale: list[int] = []
+        with self._tx("mark stale runs") as db:
+            for r in db.execute("SELECT id, host, pid, started_at FROM runs WHERE status = 'running'").fetchall():
+                old = max_age_s is not None and now - r["started_at"] > max_age_s
+                if old or (r["host"] == host and r["pid"] is not None and not _alive(r["pid"])):
+                    stale.append(r["id"])
+            db.executemany("UPDATE runs SET status = 'interrupted', finished_at = ?, status_reason = ?"
+                           " WHERE id = ?", [(now, "station stopped during the run", i) for i in stale])
+        return stale
+
+    # -- queries ------------------------------------------------------------------------
+    def _where(self, device: Any = None, station: Any = None, lot: Any = None, operator: Any = None,
+               since: Any = None, until: Any = None, verdict: Any = None, status: Any = None, model: Any = None,
+               run_ids: Iterable[int] | None = None) -> tuple[str, list[Any]]:
+        clauses: list[str] = []
+        args: list[Any] = []
+        for col, v in (("device_serial", device), ("station_id", station), ("lot", lot), ("operator", operator),
+                       ("verdict", verdict), ("status", status), ("model", model)):
+            if v is not None:
+                vals = [v] if isinstance(v, (str, int)) else list(v)
+                clauses.append(f"{col} IN ({', '.join('?' * len(vals))})")
+                args += [str(x) for x in vals]
+        for op, v, what in ((">=", since, "since"), ("<", until, "until")):
+            t = timestamp(v, what)
+            if t is not None:
+                clauses.append(f"started_at {op} ?")
+                args.append(t)
+        if run_ids is not None:
+            ids = [int(i) for i in run_ids]
+            clauses.append(f"id IN ({', '.join('?' * len(ids))})")
+            args += ids
+        return (" WHERE " + " AND ".join(clauses)) if clauses else "", args
+
+    def _runs(self, filters: dict[str, Any], limit: int | None = None) -> list[Row]:
+        where, args = self._where(**filters)
+        sql = f"SELECT * FROM runs{where} ORDER BY started_at, id"
+        if limit is not None:
+            sql += f" LIMIT {int(limit)}"
+        try:
+            return self._db.execute(sql, args).fetchall()
+        except _sqlerror() as e:
+            raise StoreError(f"{self.path}: cannot read runs ({_msg(e)})") from None
+
+    def list_runs(self, limit: int | None = None, **filters: Any) -> list[dict[str, Any]]:
+        """Run summaries (no poses) matching filters: device, station, lot, operator, since,
+        until, verdict, status, model (a value or a list of values), run_ids."""
+        with self._snapshot():
+            per_run = self._db.execute("SELECT run_id, count(*) FROM poses GROUP BY run_id").fetchall()
+            counts: dict[int, int] = dict(per_run)
+            rows = self._runs(filters, limit)
+        out = []
+        for r in rows:
+            damaged = [c for c in ("fit_summary", "reasons") if is_damaged(r[c])]
+            fit = {} if "fit_summary" in damaged else (json.loads(r["fit_summary"]) if r["fit_summary"] else {})
+            reasons = stored_reasons(r["reasons"])
+            out.append({"id": r["id"], "started_at": iso(r["started_at"]), "finished_at": iso(r["finished_at"]),
+                        "status": r["status"], "status_reason": r["status_reason"],
+                        "device_serial": r["device_serial"], "chip": r["chip"], "station_id": r["station_id"],
+                        "operator": r["operator"], "lot": r["lot"], "model": r["model"], "verdict": r["verdict"],
+                        "reasons": [str(x) for x in reasons], "reason_codes": codes(reasons),
+                        "nvm_status": r["nvm_status"], "pose_count": counts.get(r["id"], 0),
+                        "panel_id": r["panel_id"],
+                        "residual_rms_g": fit.get("residual_rms_g") if isinstance(fit, dict) else None,
+                        **({"damaged": damaged} if damaged else {})})
+        return out
+
+    def _record(self, r: Row) -> RunRecord:
+        cols = ("reasons", "nvm_outcome", "calibration", "fit_summary")  # JSON columns
+        damaged = [k for k in cols if is_damaged(r[k])]
+
+        def load(k: str) -> Any:
+            return None if r[k] is None or k in damaged else json.loads(r[k])
+
+        rec = RunRecord(**{k: r[k] for k in r.keys() if k not in cols},  # noqa: SIM118 - a Row iterates its values
+                        reasons=stored_reasons(r["reasons"]), nvm_outcome=load("nvm_outcome"),
+                        calibration=load("calibration"), fit_summary=load("fit_summary"), damaged=damaged)
+        for p in self._db.execute("SELECT * FROM poses WHERE run_id = ? ORDER BY idx", (r["id"],)):
+            rec.poses.append(pose_record(p))
+            rec.retries.append(p["retries"])
+        rec.events = [{"t": e["t"], "kind": e["kind"], "message": e["message"],
+                       "data": None if e["data"] is None else json.loads(e["data"])}
+                      for e in self._db.execute("SELECT * FROM events WHERE run_id = ? ORDER BY id", (r["id"],))]
+        return rec
+
+    def get_run(self, run_id: int) -> RunRecord:
+        with self._snapshot():
+            rows = self._runs({"run_ids": [run_id]})
+            if not rows:
+                raise StoreError(f"{self.path}: no run {run_id}")
+            return self._record(rows[0])
+
+    def runs(self, **filters: Any) -> list[RunRecord]:
+        """Full records (poses, events) of the matching runs."""
+        with self._snapshot():
+            return [self._record(r) for r in self._runs(filters)]
+
+    def sessions_for_batch(self, **filters: Any) -> list[Session]:
+        """Sessions of complete runs with poses (for batch recalibration of a lot)."""
+        filters.setdefault("status", "complete")
+        return [rec.session() for rec in self.runs(**filters) if rec.poses]
+
+    # -- exports and summaries ----------------------------------------------------------
+    def export_json(self, path: str | Path | None = None, **filters: Any) -> list[dict[str, Any]]:
+        """Every matching run in full; written atomically to ``path`` when given."""
+        data = [rec.to_dict() for rec in self.runs(**filters)]
+        if path is not None:
+            exports.write_export(path, exports.runs_json(data))
+        return data
+
+    def export_csv(self, path: str | Path | None = None, kind: str = "runs", **filters: Any) -> str:
+        """CSV of runs (one row per run, calibration flattened) or poses (one row per pose).
+
+        Returns the text; written atomically to ``path`` when given.
+        """
+        table = exports.csv_table(kind)
+        text = table(self.runs(**filters))
+        if path is not None:
+            exports.write_export(path, text)
+        return text
+
+    def lot_summary(self, **filters: Any) -> dict[str, Any]:
+        """Counts, pass rate, failure reasons and parameter distributions of the matching runs
+        (exports.summarize)."""
+        return exports.summarize(self._runs(filters))
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
