@@ -1,1 +1,127 @@
-"""The library face (in progress)."""
+"""The library face, for engineers in notebooks and for the command line alike.
+
+``from accelcal_station import load, fit, simulate, diagnose, Calibration``: read a pose table
+or raw log, fit a calibration, run a pose design on a simulated board, diagnose the sim-to-real
+gap. `accelcal fit`, `accelcal simulate` and `accelcal diagnose` call these same functions, so a
+notebook gets exactly what the command prints. docs/python-api.md has a runnable example.
+
+Layer: above the flows (station, lot, diagnosis) and the parts below them; only the CLI
+imports this module.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .calibration import Calibration
+from .data.loader import Loaded, load
+from .data.rawlog import check_rate
+from .diagnosis.engine import diagnose as _diagnose
+from .diagnosis.loading import load_data, load_simulator
+from .diagnosis.result import Diagnosis
+from .errors import AccelcalError, DataError, UnitsError
+from .fixtures.designs import get_design
+from .fixtures.simulated_run import SimulatedRun, run_design, simulated_board
+from .models.fitting import fit_session, fit_temperature
+from .models.result import FitResult
+from .session import Session
+
+TEMP_METHODS = ("linear", "quadratic")
+
+
+@dataclass
+class Fit:
+    """A calibration fitted to a session: ``calibration`` (to apply, save and burn) and, per
+    calibration temperature (``None`` for a session at one temperature), the fit behind it."""
+
+    calibration: Calibration
+    model: str
+    fits: list[tuple[float | None, FitResult]]
+    sessions: list[Session] = field(default_factory=list)
+    temp_method: str | None = None
+
+    @property
+    def result(self) -> FitResult:
+        """The one fit of a single-temperature session (residuals, covariance, cross-validation)."""
+        if len(self.fits) != 1:
+            raise DataError(f"this calibration has {len(self.fits)} temperatures; take .fits[i] for one of them")
+        return self.fits[0][1]
+
+
+def check_temp_method(method: str) -> None:
+    """Interpolation between calibration temperatures: linear or quadratic (AN4399 section 9)."""
+    if method not in TEMP_METHODS:
+        raise DataError(f"--temp-method {method!r}; allowed: linear, quadratic")
+
+
+def _as_loaded(data: str | Path | Loaded | Session, model: str | None) -> tuple[Session, Loaded | None, str]:
+    if isinstance(data, Session):
+        return data, None, "the data"
+    if isinstance(data, Loaded):
+        return data.session, data, str(data.log.source) if data.log is not None else "the data"
+    loaded = load(data, references=model != "9")
+    return loaded.session, loaded, str(data)
+
+
+def fit(data: str | Path | Loaded | Session, model: str | int | None = None, *, temp_method: str = "linear",
+        source: str | None = None) -> Fit:
+    """Fit model 6, 9, 12 or 15 (AN4399 Eqn 46; the 9-parameter gravity norm) to a pose table's
+    path, a loaded file or a Session; with poses at two or more temperatures, one fit per
+    temperature and a table interpolated between them (AN4399 section 9).
+
+    The default model is 12, or 9 for a raw log (it has no references). ``source`` names the data in
+    error messages (default: the path).
+    """
+    m = str(model) if model is not None else None
+    session, loaded, name = _as_loaded(data, m)
+    is_raw = loaded is not None and loaded.log is not None
+    m = m or ("9" if is_raw else "12")
+    name = source or name
+    check_temp_method(temp_method)
+    if m != "9" and session.units == "counts" and session.counts_per_g is None:
+        raise UnitsError(f"{name}: readings are counts with no counts_per_g; model {m} needs --counts-per-g N "
+                         "or a '# counts_per_g: N' line (only model 9 can estimate it)")
+    have_t = [p.temp_c is not None for p in session.poses]
+    if any(have_t) and not all(have_t):
+        raise DataError(f"{name}: pose {session.names[have_t.index(False)]!r} has no temp_c while others do; "
+                        "give temp_c for every pose or for none")
+    temps = session.by_temperature() if any(have_t) else []
+    try:
+        if len(temps) >= 2:
+            cal, by_t = fit_temperature(session, m, temp_method)
+            return Fit(cal, m, [(t, f) for t, f in by_t], [sub for _, sub in temps], temp_method)
+        fr = fit_session(session, m)
+    except AccelcalError as e:
+        found = f" (found {len(session)} static intervals in the raw log)" if is_raw else ""
+        raise type(e)(f"{name}: {e}{found}") from None
+    return Fit(fr.calibration, m, [(None, fr)], [session])
+
+
+def simulate(design: str, *, config: str | None = None, seed: int | None = None, samples: int = 1000,
+             temps_c: Sequence[float] | None = None, move_s: float = 2.0, raw: bool = False) -> SimulatedRun:
+    """Run pose design ``design`` (six-face, an4399-8, optimal-N, ...) on the simulated board of a
+    station config (default: an ideal MMA8451) at each of ``temps_c``: the pose means as a Session
+    in counts, the raw samples when ``raw``, and the board's ground truth (``.truth()``)."""
+    get_design(design)  # an unknown design is refused before the board is built
+    board = simulated_board(config, seed)
+    return run_design(board, design, samples=samples, temps=list(temps_c) if temps_c else None, move_s=move_s,
+                      raw=raw)
+
+
+def diagnose(files: Sequence[str | Path], *, config: str | Path | None = None, raw: bool = False,
+             units: str | None = None, counts_per_g: float | None = None, gravity_mps2: float | None = None,
+             columns: str | None = None, skip_rows: int | None = None, rate_hz: float | None = None,
+             samples: int | None = None, norm_only: bool = False) -> Diagnosis:
+    """The sim-to-real gap of ``files`` (pose tables, or raw logs with ``raw``) against the simulated
+    device of ``config`` (default configs/sim.yaml): which catalog effect explains it, judged on
+    held-out residuals (DESIGN.md, the diagnosis). ``.to_json()`` is `accelcal diagnose --json`."""
+    check_rate(rate_hz)
+    sim = load_simulator(config)
+    data = load_data(list(files), raw, units, counts_per_g, gravity_mps2, columns, skip_rows, rate_hz, samples,
+                     norm_only)
+    return _diagnose(data, sim)
+
+
+__all__ = ["Calibration", "Diagnosis", "Fit", "FitResult", "Loaded", "Session", "SimulatedRun", "diagnose", "fit",
+           "load", "simulate"]

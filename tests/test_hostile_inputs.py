@@ -13,7 +13,7 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-from accelcal_station.station.settings import default_config_path
+from accelcal_station.config.sections import default_config_path
 
 
 def one_line_error(r, code=2):

@@ -21,7 +21,7 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-from accelcal_station.station.settings import default_config_path
+from accelcal_station.config.sections import default_config_path
 
 REPO = Path(__file__).resolve().parents[1]
 

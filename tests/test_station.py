@@ -11,10 +11,11 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
+from accelcal_station.config.sections import default_config_path
 from accelcal_station.drivers.factory import make_driver
 from accelcal_station.nvm.writer import CalibrationWriter
 from accelcal_station.station.board import Station
-from accelcal_station.station.settings import StationConfig, default_config_path
+from accelcal_station.station.settings import StationConfig
 
 
 def sim_config(tmp_path, **changes) -> str:

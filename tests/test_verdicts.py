@@ -11,7 +11,7 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
-from accelcal_station.station.settings import default_config_path
+from accelcal_station.config.sections import default_config_path
 
 FACES = np.array([[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0.0]])
 

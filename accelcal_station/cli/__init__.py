@@ -1,11 +1,16 @@
 """The `accelcal` command line.  Each command lives in its own module here and
-exposes a click command named ``command``; they are discovered automatically."""
+exposes a click command named ``command``; they are discovered automatically.
+
+The top layer: may import every package below it (``api``, the flows, the parts, the
+models, the foundation); only ``accelcal_station.__main__`` imports the CLI.
+"""
 from __future__ import annotations
 
 import importlib
 import os
 import pkgutil
 import sys
+from typing import Any
 
 import click
 
@@ -23,7 +28,7 @@ class StationGroup(JsonGroup):
         ctx.meta["accelcal.json"] = wants_json(args)
         return super().parse_args(ctx, args)
 
-    def invoke(self, ctx: click.Context):
+    def invoke(self, ctx: click.Context) -> Any:
         try:
             return super().invoke(ctx)
         except AccelcalError as e:

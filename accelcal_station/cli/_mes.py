@@ -54,5 +54,6 @@ class JsonGroup(click.Group):
 
         self.callback = functools.update_wrapper(callback, cb)
 
-    def describe(self, ctx: click.Context) -> dict[str, Any]:
+    def describe(self, ctx: click.Context) -> dict[str, Any] | list[dict[str, Any]]:
+        """What the bare group prints under --json (a subclass may list something else)."""
         return commands_doc(self, ctx)

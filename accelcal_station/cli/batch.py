@@ -8,13 +8,16 @@ from __future__ import annotations
 
 import json
 import sys
+from contextlib import AbstractContextManager
 from pathlib import Path
+from typing import Any, Protocol
 
 import click
 
 from ..errors import DataError
 from ..lot.batch import (
     BatchReport,
+    Source,
     expand_paths,
     recalibrate,
     record_in_store,
@@ -32,7 +35,13 @@ from ._common import parse_number as _number
 PROGRESS_MIN_BOARDS = 10  # below this a progress bar is noise
 
 
-def _bar(show: bool, length: int, label: str):
+class _Progress(Protocol):
+    """What the commands use of a progress bar: advance it by n steps."""
+
+    def update(self, n: int, /) -> None: ...
+
+
+def _bar(show: bool, length: int, label: str) -> AbstractContextManager[_Progress]:
     """A click progress bar on stderr (stdout stays the report), or a no-op."""
     if not show:
         return _NoBar()
@@ -40,21 +49,24 @@ def _bar(show: bool, length: int, label: str):
 
 
 class _NoBar:
-    def __enter__(self):
+    """A progress bar that shows nothing."""
+
+    def __enter__(self) -> _NoBar:
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         return None
 
     def update(self, n: int) -> None:
         pass
 
 
-def _mg(v) -> str:
+def _mg(v: float | None) -> str:
     return "n/a" if v is None else f"{v * 1e3:.3f} mg"
 
 
-def _text(report: BatchReport, outputs: dict, list_all: bool) -> list[str]:
+def _text(report: BatchReport, outputs: dict[str, Any], list_all: bool) -> list[str]:
+    """The human report: skipped boards (every board with ``list_all``), the tally, the outputs."""
     lines = []
     for r in report.results:
         who = r.source + (f" ({r.serial})" if r.serial else "")
@@ -64,7 +76,8 @@ def _text(report: BatchReport, outputs: dict, list_all: bool) -> list[str]:
             lines.append(click.style("ok   ", fg="green") + f"{who}: {r.pose_count} poses, residual RMS "
                          f"{_mg(r.residual_rms_g)}, leave-one-out {_mg(r.crossval_rms_g)}")
     n, ok = len(report.results), len(report.fitted)
-    rms = sorted(r.residual_rms_g for r in report.fitted)
+    # a fitted board always has its residual RMS
+    rms = sorted(r.residual_rms_g for r in report.fitted if r.residual_rms_g is not None)
     med = f", median residual RMS {_mg(rms[len(rms) // 2])}" if rms else ""
     colour = "green" if ok == n else ("yellow" if ok else "red")
     lines.append(click.style(f"{ok} of {n} boards recalibrated with model {report.model}", fg=colour, bold=True)
@@ -80,7 +93,9 @@ def _text(report: BatchReport, outputs: dict, list_all: bool) -> list[str]:
     return lines
 
 
-def _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path, chunk_boards, as_json, other) -> None:
+def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str | None, cpg: float | None,
+              grav: float | None, out: str | None, config_path: str | None, chunk_boards: int, as_json: bool,
+              other: list[str]) -> None:
     """accelcal batch LOT --out RESULTS: stream a lot file into one results table."""
     from ..acceptance.rules import Limits
     from ..config.checks import load_yaml
@@ -142,8 +157,11 @@ def _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path, chunk_board
               help="Lot file mode: boards read, fitted and written per chunk (bounds memory).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @click.pass_context
-def command(ctx, paths, from_store, lot, device, station, since, until, run_ids, model, units, counts_per_g,
-            gravity, out_dir, csv_path, to_store, out, config_path, chunk_boards, as_json) -> None:
+def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, lot: str | None,
+            device: tuple[str, ...], station: str | None, since: str | None, until: str | None,
+            run_ids: tuple[str, ...], model: str, units: str | None, counts_per_g: str | None, gravity: str | None,
+            out_dir: str | None, csv_path: str | None, to_store: str | None, out: str | None,
+            config_path: str | None, chunk_boards: str, as_json: bool) -> None:
     """Recalibrate many boards with one model (vectorised); unfittable boards are reported and skipped.
 
     A lot file (one CSV or Parquet table of every pose, with a serial column) is
@@ -153,28 +171,54 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
     """
     check_model_units(model, units)
     cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
-    if out is None and config_path is None and \
-            ctx.get_parameter_source("chunk_boards") is not click.core.ParameterSource.DEFAULT:
-        raise DataError(f"--chunk-boards {chunk_boards}: applies to lot file mode only; add --out FILE "
-                        "(a results table) or remove --chunk-boards")
+    _check_chunk_boards(ctx, out, config_path, chunk_boards)
     if out is not None or config_path is not None:
         _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path,
                   parse_int(chunk_boards, "--chunk-boards") or 0, as_json,
                   [k for k, v in (("--from-store", from_store), ("--out-dir", out_dir), ("--csv", csv_path),
                                   ("--to-store", to_store)) if v is not None])
         return
+    store_filters = _store_filters(from_store, lot, device, station, since, until, run_ids)
+    _check_inputs(paths, from_store, csv_path)
+    report = _fit_boards(paths, from_store, store_filters, model, units, cpg, grav, as_json)
+    outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store)
+    _print_report(report, outputs, written, as_json)
+    if report.skipped:
+        ctx.exit(1)
+
+
+def _check_chunk_boards(ctx: click.Context, out: str | None, config_path: str | None, chunk_boards: str) -> None:
+    """Refuse --chunk-boards given outside lot file mode (neither --out nor --config)."""
+    if out is None and config_path is None and \
+            ctx.get_parameter_source("chunk_boards") is not click.core.ParameterSource.DEFAULT:
+        raise DataError(f"--chunk-boards {chunk_boards}: applies to lot file mode only; add --out FILE "
+                        "(a results table) or remove --chunk-boards")
+
+
+def _store_filters(from_store: str | None, lot: str | None, device: tuple[str, ...], station: str | None,
+                   since: str | None, until: str | None, run_ids: tuple[str, ...]) -> dict[str, Any]:
+    """The --from-store filters as keyword arguments of sessions_from_store; refused without --from-store."""
     store_filters = {"lot": lot, "device": list(device) or None, "station": station, "since": since,
                      "until": until, "run_ids": [parse_int(i, "--run") for i in run_ids] or None}
     if from_store is None and any(v is not None for v in store_filters.values()):
         flag = next(k for k, v in store_filters.items() if v is not None).replace("run_ids", "run").replace("_", "-")
         raise DataError(f"--{flag} filters runs of a results store; add --from-store FILE")
+    return store_filters
+
+
+def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str | None) -> None:
+    """Refuse, before any work, a call with no boards or a --csv file in a folder that does not exist."""
     if not paths and from_store is None:
         raise DataError("no boards given; pass pose tables, directories or globs, or --from-store FILE")
     for p in (csv_path,):
         if p is not None and not Path(p).resolve().parent.is_dir():
             raise DataError(f"--csv {p}: cannot write (no such directory {Path(p).parent})")
 
-    sources = []
+
+def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: dict[str, Any], model: str,
+                units: str | None, cpg: float | None, grav: float | None, as_json: bool) -> BatchReport:
+    """Read the boards (store runs, then pose tables) and fit them all, with progress bars on a big batch."""
+    sources: list[Source] = []
     if from_store is not None:
         with Store(store_target(from_store), create=False) as st:
             sources += sessions_from_store(st, **store_filters)
@@ -185,10 +229,15 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
     if not sources:
         raise DataError(f"{from_store}: no complete runs with poses match the filters")
     with _bar(show, len(sources), f"fitting model {model}") as bar:
-        report = recalibrate(sources, model, progress=bar.update)
+        return recalibrate(sources, model, progress=bar.update)
 
-    outputs: dict = {}
-    written: dict = {}
+
+def _write_outputs(report: BatchReport, out_dir: str | None, csv_path: str | None, to_store: str | None,
+                   from_store: str | None) -> tuple[dict[str, Any], dict[str, Path]]:
+    """Write the calibrations, the summary CSV and the store records asked for: (what was written
+    where, the calibration file of each board source)."""
+    outputs: dict[str, Any] = {}
+    written: dict[str, Path] = {}
     if out_dir is not None:
         written = write_calibrations(report, out_dir)
         outputs.update(out_dir=str(out_dir), calibrations=len(written))
@@ -198,7 +247,11 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
     if to_store is not None:
         with Store(store_target(to_store)) as st:
             outputs["store"] = {"path": str(to_store), **record_in_store(report, st, source_store=from_store)}
+    return outputs, written
 
+
+def _print_report(report: BatchReport, outputs: dict[str, Any], written: dict[str, Path], as_json: bool) -> None:
+    """The report on stdout: one JSON object, or the human lines."""
     if as_json:
         doc = report.to_dict()
         doc["outputs"] = outputs
@@ -207,5 +260,3 @@ def command(ctx, paths, from_store, lot, device, station, since, until, run_ids,
         click.echo(json.dumps(_clean(doc), allow_nan=False))
     else:
         click.echo("\n".join(_text(report, outputs, list_all=not outputs)))
-    if report.skipped:
-        ctx.exit(1)

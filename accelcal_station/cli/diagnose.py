@@ -5,11 +5,9 @@ import json
 
 import click
 
+from ..api import diagnose
 from ..data.rawlog import check_rate
-from ..diagnosis.engine import diagnose
-from ..diagnosis.loading import load_data, load_simulator
 from ..diagnosis.report import check_report_dir, selftest_lines, summary_lines, write_report
-from ..diagnosis.result import to_json
 from ..diagnosis.selftest import selftest as run_selftest
 from ..errors import DataError
 from ._common import jsonable as _clean
@@ -44,8 +42,10 @@ from ._text import clean
                    "(exit 1 if a case fails).")
 @click.option("--seed", type=click.IntRange(0, None), default=1, show_default=True, help="Self-test seed.")
 @click.pass_context
-def command(ctx, files, config, raw, units, counts_per_g, gravity, columns, skip_rows, rate, samples, norm_only,
-            as_json, report_dir, selftest, seed) -> None:
+def command(ctx: click.Context, files: tuple[str, ...], config: str | None, raw: bool, units: str | None,
+            counts_per_g: str | None, gravity: str | None, columns: str | None, skip_rows: str | None,
+            rate: str | None, samples: str | None, norm_only: bool, as_json: bool, report_dir: str | None,
+            selftest: bool, seed: int) -> None:
     """Diagnose the sim-to-real gap of real data against the simulator configuration."""
     if selftest:
         if files or report_dir:
@@ -58,12 +58,11 @@ def command(ctx, files, config, raw, units, counts_per_g, gravity, columns, skip
     out_dir = check_report_dir(report_dir) if report_dir else None
     rate_hz = _number(rate, "--rate")
     check_rate(rate_hz)
-    sim = load_simulator(config)
-    data = load_data(list(files), raw, units, _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity"),
-                     columns, parse_int(skip_rows, "--skip-rows", positive=False), rate_hz,
-                     parse_int(samples, "--samples"), norm_only)
-    d = diagnose(data, sim)
-    js = _clean(to_json(d))
+    d = diagnose(files, config=config, raw=raw, units=units, counts_per_g=_number(counts_per_g, "--counts-per-g"),
+                 gravity_mps2=_number(gravity, "--gravity"), columns=columns,
+                 skip_rows=parse_int(skip_rows, "--skip-rows", positive=False), rate_hz=rate_hz,
+                 samples=parse_int(samples, "--samples"), norm_only=norm_only)
+    js = _clean(d.to_json())
     if out_dir is not None:
         written = write_report(d, out_dir, js)
         js["report"] = [str(p) for p in written]

@@ -8,11 +8,18 @@ from __future__ import annotations
 import json
 import signal
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 import click
 
 from ..drivers.mpu6050_emulator import MPU6050BridgeEmulator, board_config_from_file
 from ..drivers.simulated import SimulatedBoard
+
+if TYPE_CHECKING:
+    from ..drivers.mpu6050_simavr import SimavrBridge
+    from ..fixtures.jig_emulator import JigEmulator
 
 KINDS = ("mpu6050-bridge", "motor-jig", "chamber")
 
@@ -60,55 +67,80 @@ def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool
         return
     from ..fixtures.jig_emulator import JigEmulator
 
-    emus: list = []
-    ports: dict[str, str] = {}
-    board = None
-    if kind == "mpu6050-bridge":
-        board_cfg, cfg_seed = board_config_from_file(config_path) if config_path else (None, None)
-        board = SimulatedBoard.from_config(board_cfg, chip="mpu6050", seed=seed if seed is not None else cfg_seed,
-                                           path=f"{config_path}: device" if config_path else "simulator")
-        if on_avr:
-            from ..drivers.mpu6050_simavr import SimavrBridge
-
-            bridge = SimavrBridge(board)
-        else:
-            bridge = MPU6050BridgeEmulator(board)
-        emus.append(bridge)
+    board, bridge = _bridge(config_path, seed, on_avr) if kind == "mpu6050-bridge" else (None, None)
+    jig: JigEmulator | None = None
     if kind == "motor-jig" or with_jig:
         jig = JigEmulator(board=board, speed_deg_s=jig_speed, accel_deg_s2=jig_speed * 4,
-                          board_lock=emus[0].lock if emus else None)
-        emus.append(jig)
-    done = threading.Event()
-    previous = {s: signal.signal(s, lambda *_: done.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        for e in emus:
-            started = e.start()
-            ports["jig_port" if isinstance(e, JigEmulator) else "port"] = e.port if started is e else started
-        if as_json:
-            click.echo(json.dumps({"emulator": kind, **ports, "seed": None if board is None else board.seed}))
-        else:
-            if "port" in ports:
-                what = "bridge firmware in simavr" if on_avr else "bridge emulator"
-                click.echo(f"MPU6050 {what} on {ports['port']} (seed {board.seed}; Ctrl-C to stop)")
-            if "jig_port" in ports:
-                click.echo(f"motorized jig emulator on {ports['jig_port']}")
-            if "port" in ports and "jig_port" in ports:
-                click.echo(f"try: accelcal run --config configs/mpu6050.yaml --port {ports['port']} "
-                           f"--jig-port {ports['jig_port']}")
-            elif "port" in ports:
-                click.echo(f"try: accelcal probe --config configs/mpu6050.yaml --port {ports['port']}")
-        while not done.wait(0.2):
-            pass
-    finally:
-        for e in emus:
-            e.stop()
-        for s, h in previous.items():
-            signal.signal(s, h)
+                          board_lock=bridge.lock if bridge is not None else None)
+    _serve(kind, bridge, jig, None if board is None else board.seed, on_avr, as_json)
+
+
+def _serve(kind: str, bridge: SimavrBridge | MPU6050BridgeEmulator | None, jig: JigEmulator | None,
+           seed: int | None, on_avr: bool, as_json: bool) -> None:
+    """Start the bridge and/or the jig, print their ports, answer until Ctrl-C or SIGTERM, stop them."""
+    with _stop_signals() as done:
+        try:
+            ports: dict[str, str] = {}
+            if bridge is not None:
+                ports["port"] = bridge.start()
+            if jig is not None:
+                ports["jig_port"] = jig.start().port
+            _announce(kind, ports, seed, on_avr, as_json)
+            while not done.wait(0.2):
+                pass
+        finally:
+            for e in (bridge, jig):
+                if e is not None:
+                    e.stop()
     if not as_json:
         click.echo("emulator stopped", err=True)
 
 
-def _chamber(speed, start_c, air_tau_s, min_air_c, alarm_at_s, door_open_at_s, as_json) -> None:
+def _bridge(config_path: str | None, seed: int | None,
+            on_avr: bool) -> tuple[SimulatedBoard, SimavrBridge | MPU6050BridgeEmulator]:
+    """The simulated board (from --config, --seed) and the bridge serving it: simavr firmware or Python."""
+    board_cfg, cfg_seed = board_config_from_file(config_path) if config_path else (None, None)
+    board = SimulatedBoard.from_config(board_cfg, chip="mpu6050", seed=seed if seed is not None else cfg_seed,
+                                       path=f"{config_path}: device" if config_path else "simulator")
+    if on_avr:
+        from ..drivers.mpu6050_simavr import SimavrBridge
+
+        return board, SimavrBridge(board)
+    return board, MPU6050BridgeEmulator(board)
+
+
+@contextmanager
+def _stop_signals() -> Iterator[threading.Event]:
+    """An event that Ctrl-C (SIGINT) or SIGTERM sets; the previous handlers come back on leaving."""
+    done = threading.Event()
+    previous = {s: signal.signal(s, lambda *_: done.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield done
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+def _announce(kind: str, ports: dict[str, str], seed: int | None, on_avr: bool, as_json: bool) -> None:
+    """Print the emulators' ports (one JSON object, or lines saying what to try)."""
+    if as_json:
+        click.echo(json.dumps({"emulator": kind, **ports, "seed": seed}))
+        return
+    if "port" in ports:
+        what = "bridge firmware in simavr" if on_avr else "bridge emulator"
+        click.echo(f"MPU6050 {what} on {ports['port']} (seed {seed}; Ctrl-C to stop)")
+    if "jig_port" in ports:
+        click.echo(f"motorized jig emulator on {ports['jig_port']}")
+    if "port" in ports and "jig_port" in ports:
+        click.echo(f"try: accelcal run --config configs/mpu6050.yaml --port {ports['port']} "
+                   f"--jig-port {ports['jig_port']}")
+    elif "port" in ports:
+        click.echo(f"try: accelcal probe --config configs/mpu6050.yaml --port {ports['port']}")
+
+
+def _chamber(speed: float, start_c: float, air_tau_s: float, min_air_c: float | None, alarm_at_s: float | None,
+             door_open_at_s: float | None, as_json: bool) -> None:
+    """The chamber emulator, with the faults asked for, until Ctrl-C or SIGTERM."""
     from ..instruments.chamber_emulator import AcceleratedClock, ChamberEmulator, ChamberPhysics
 
     emu = ChamberEmulator(ChamberPhysics(AcceleratedClock(speed), start_c, air_tau_s=air_tau_s))
@@ -118,20 +150,18 @@ def _chamber(speed, start_c, air_tau_s, min_air_c, alarm_at_s, door_open_at_s, a
         emu.alarm_at(alarm_at_s, 3)
     if door_open_at_s is not None:
         emu.open_door(door_open_at_s, 60.0)
-    done = threading.Event()
-    previous = {s: signal.signal(s, lambda *_: done.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        port = emu.start()
-        if as_json:
-            click.echo(json.dumps({"emulator": "chamber", "chamber_port": port, "speed": speed}))
-        else:
-            click.echo(f"chamber emulator on {port} (clock x{speed:g}; Ctrl-C to stop)")
-            click.echo(f"try: accelcal chamber set --temp-c -20 --port {port}; accelcal chamber status --port {port}")
-        while not done.wait(0.2):
-            pass
-    finally:
-        emu.stop()
-        for s, h in previous.items():
-            signal.signal(s, h)
+    with _stop_signals() as done:
+        try:
+            port = emu.start()
+            if as_json:
+                click.echo(json.dumps({"emulator": "chamber", "chamber_port": port, "speed": speed}))
+            else:
+                click.echo(f"chamber emulator on {port} (clock x{speed:g}; Ctrl-C to stop)")
+                click.echo(f"try: accelcal chamber set --temp-c -20 --port {port}; "
+                           f"accelcal chamber status --port {port}")
+            while not done.wait(0.2):
+                pass
+        finally:
+            emu.stop()
     if not as_json:
         click.echo("emulator stopped", err=True)

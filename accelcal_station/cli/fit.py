@@ -2,16 +2,19 @@
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import click
 import numpy as np
+from numpy.typing import ArrayLike
 
+from ..api import Fit, check_temp_method, fit
 from ..calibration import Calibration
 from ..data.loader import Loaded, load
+from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
-from ..errors import AccelcalError, DataError, UnitsError
+from ..errors import AccelcalError, DataError
 from ..identifiability import assess, worst_parameter
-from ..models.fitting import fit_session, fit_temperature
 from ..models.handplaced import norm_faces, opposite_face
 from ..models.result import FitResult
 from ..session import Session
@@ -21,14 +24,15 @@ from ._common import parse_number as _number
 from ._text import clean
 
 
-def _load(path: str, raw: bool, model: str, units, cpg, gravity, columns, skip_rows, rate) -> Loaded:
+def _load(path: str, raw: bool, model: str, units: str | None, cpg: float | None, gravity: float | None,
+          columns: str | None, skip_rows: int | None, rate: float | None) -> Loaded:
     if rate is not None and not raw:
         raise DataError(f"--rate is for raw sample logs; add --raw to read {path} as one")
     return load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, columns=columns,
                 skip_rows=skip_rows, rate_hz=rate, references=model != "9")
 
 
-def _vec(v, fmt: str = "+.6f") -> str:
+def _vec(v: ArrayLike, fmt: str = "+.6f") -> str:
     return "[" + " ".join(f"{x:{fmt}}" for x in np.asarray(v, dtype=float)) + "]"
 
 
@@ -57,7 +61,7 @@ def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
     w = max(4, *(len(n) for n in names))
     out.append(f"{'pose':<{w}}  {'x_g':>9} {'y_g':>9} {'z_g':>9}  {'res_x_mg':>9} {'res_y_mg':>9} "
                f"{'res_z_mg':>9}  {'norm_err_mg':>11}")
-    for n, g, r, e in zip(names, fit.readings_g, fit.residuals_g * 1e3, fit.norm_error_g * 1e3):
+    for n, g, r, e in zip(names, fit.readings_g, fit.residuals_g * 1e3, fit.norm_error_g * 1e3, strict=True):
         out.append(f"{n:<{w}}  {g[0]:+9.5f} {g[1]:+9.5f} {g[2]:+9.5f}  {r[0]:+9.3f} {r[1]:+9.3f} {r[2]:+9.3f}  "
                    f"{e:+11.3f}")
     return out
@@ -77,9 +81,11 @@ def _barely_text(fit: FitResult) -> list[str]:
             "add poses in new orientations"]
 
 
-def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dict, list[str], Calibration]:
+def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dict[str, Any], list[str], Calibration]:
     """The norm fit of hand-placed faces against the opposite-face estimate (handplaced module)."""
     x, ref = fr.readings_g, session.references_g
+    if ref is None:  # model 6 was fitted, so references exist; say so plainly if that ever changes
+        raise DataError("--hand-placed needs the faces' references (an 'axis up' pose table)")
     try:
         norm, classic = norm_faces(x, ref), opposite_face(x, ref)
     except AccelcalError as e:
@@ -92,6 +98,7 @@ def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dic
         held = {m: float(np.sqrt(np.mean([f(np.delete(x, i, 0), np.delete(ref, i, 0)).norm_error_g(x[i:i + 1])[0]
                                           ** 2 for i in range(len(x))])))
                 for m, f in (("norm", norm_faces), ("opposite_face", opposite_face))}
+    tilt = norm.misplacement_deg if norm.misplacement_deg is not None else np.full(len(x), np.nan)  # norm fit: always
     lines = [f"hand-placed faces: {len(x)} poses, {norm.distinct} distinct orientations",
              f"  opposite-face: gain {_vec(classic.gain)}  offset {_vec(classic.offset_g * 1e3, '+.3f')} mg",
              f"  norm fit:      gain {_vec(norm.gain)}  offset {_vec(norm.offset_g * 1e3, '+.3f')} mg",
@@ -99,7 +106,7 @@ def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dic
              (f"norm fit {held['norm'] * 1e3:.3f} mg, opposite-face {held['opposite_face'] * 1e3:.3f} mg" if held
               else f"cannot hold poses out: face{'s' if len(once) > 1 else ''} {', '.join(once)} "
                    f"{'have' if len(once) > 1 else 'has'} one pose (revisit every face to check the fits)"),
-             "  misplacement (deg): " + ", ".join(f"{n} {m:.2f}" for n, m in zip(session.names, norm.misplacement_deg)),
+             "  misplacement (deg): " + ", ".join(f"{n} {m:.2f}" for n, m in zip(session.names, tilt, strict=True)),
              f"  note: {norm.note}"]
     W, V = norm.as_an4399()
     out = Calibration("6", W, V, np.zeros(3), cal.input_units, cal.input_per_g, metadata=dict(cal.metadata))
@@ -109,13 +116,13 @@ def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dic
     return js, lines, out
 
 
-def _segmentation(log, det: StaticDetection, names: list[str]) -> tuple[dict, list[str]]:
+def _segmentation(log: RawLog, det: StaticDetection, names: list[str]) -> tuple[dict[str, Any], list[str]]:
     rate = f"{log.rate_hz:.6g} Hz" if log.rate_hz else "unknown rate (give --rate HZ for times in seconds)"
     lines = [f"raw log {log.source}: {len(log)} samples at {rate}; noise floor sigma {_vec(det.noise_sigma, '.4g')} "
              f"per sample; found {len(det.segments)} static intervals of {det.min_samples}+ samples "
              f"({int(det.still.sum())} samples used):"]
     segs = []
-    for n, s in zip(names, det.segments):
+    for n, s in zip(names, det.segments, strict=True):
         parts = ", ".join(f"{a}-{b - 1}" for a, b in s.ranges)
         span = f", t {log.t[s.start]:.2f}-{log.t[s.stop - 1]:.2f} s" if log.rate_hz else ""
         lines.append(f"  {n}: samples {parts} ({s.n} used{span})")
@@ -126,6 +133,54 @@ def _segmentation(log, det: StaticDetection, names: list[str]) -> tuple[dict, li
             "noise_sigma": det.noise_sigma, "threshold": det.threshold, "min_samples": det.min_samples,
             "count": len(det.segments), "segments": segs}
     return info, lines
+
+
+def _table_report(path: str, session: Session, result: Fit) -> tuple[dict[str, Any], list[str]]:
+    """The JSON and lines of a fit at several temperatures (one table, AN4399 section 9)."""
+    fits, subs, cal, model = result.fits, result.sessions, result.calibration, result.model
+    allres = np.concatenate([f.residuals_g for _, f in fits])
+    cvs = [f.crossval_rms_g for _, f in fits]
+    known = [c for c in cvs if c is not None]
+    report: dict[str, Any] = {
+        "model": model, "pose_count": len(session), "W": cal.W, "V": cal.V, "Gamma": cal.Gamma,
+        "P": np.sum([f.P for _, f in fits], axis=0),
+        "residual_rms_g": float(np.sqrt(np.mean(allres**2))), "residual_max_g": float(np.max(np.abs(allres))),
+        "crossval_rms_g": None if len(known) < len(cvs) else float(np.sqrt(np.mean(np.square(known)))),
+        "temperature_method": result.temp_method, "calibration": cal.to_dict(),
+        "temperatures": [dict(temp_c=t, **f.to_json_dict(s.names)) for (t, f), s in zip(fits, subs, strict=True)],
+        "poses": [dict(temp_c=t, **p) for (t, f), s in zip(fits, subs, strict=True)
+                  for p in f.to_json_dict(s.names)["poses"]],
+    }
+    text = [f"{path}: model {model}, {len(session)} poses at {len(fits)} temperatures "
+            f"({', '.join(f'{t:g}' for t, _ in fits)} C), {result.temp_method} interpolation, "
+            f"{_scale_text(session, fits[0][1])}"]
+    for (t, f), s in zip(fits, subs, strict=True):
+        text.append(f"-- at {t:g} C: {len(s)} poses")
+        text += _fit_text(f, s.names)
+    return report, text
+
+
+def _report(path: str, loaded: Loaded, result: Fit) -> tuple[dict[str, Any], list[str]]:
+    """What `accelcal fit` prints: what reading the file inferred, its static intervals (raw logs), the fit."""
+    session = loaded.session
+    result.calibration.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
+    report: dict[str, Any] = {"inferred": loaded.to_json()}
+    text = [f"read {path}: " + "; ".join(loaded.inferred)]
+    if loaded.log is not None and loaded.detection is not None:
+        report["segmentation"], seg_lines = _segmentation(loaded.log, loaded.detection, session.names)
+        text += seg_lines
+    if len(result.fits) == 1:
+        fr = result.result
+        report.update(fr.to_json_dict(session.names))
+        text.append(f"{path}: model {result.model}, {len(session)} poses, {_scale_text(session, fr)}")
+        text += _fit_text(fr, session.names)
+    else:
+        more, lines = _table_report(path, session, result)
+        report.update(more)
+        text += lines
+    report["source"] = str(path)
+    report["units"] = session.units
+    return report, text
 
 
 @click.command("fit")
@@ -150,76 +205,26 @@ def _segmentation(log, det: StaticDetection, names: list[str]) -> tuple[dict, li
                    "-o writes the norm fit.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the summary.")
 @click.option("-o", "--output", default=None, metavar="FILE", help="Write the calibration JSON here (atomically).")
-def command(path, raw, model, units, counts_per_g, gravity, temp_method, columns, skip_rows, rate, hand_placed,
-            as_json, output) -> None:
+def command(path: str, raw: bool, model: str | None, units: str | None, counts_per_g: str | None,
+            gravity: str | None, temp_method: str, columns: str | None, skip_rows: str | None, rate: str | None,
+            hand_placed: bool, as_json: bool, output: str | None) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
     model = model if model is not None else ("6" if hand_placed else "9" if raw else "12")
     check_model_units(model, units)
-    if temp_method not in ("linear", "quadratic"):
-        raise DataError(f"--temp-method {temp_method!r}; allowed: linear, quadratic")
+    check_temp_method(temp_method)
     cpg = _number(counts_per_g, "--counts-per-g")
     grav = _number(gravity, "--gravity")
     loaded = _load(path, raw, model, units, cpg, grav, columns,
                    parse_int(skip_rows, "--skip-rows", positive=False), _number(rate, "--rate"))
-    session = loaded.session
-    rawinfo = (loaded.log, loaded.detection) if loaded.log is not None else None
-    if model != "9" and session.units == "counts" and session.counts_per_g is None:
-        raise UnitsError(f"{path}: readings are counts with no counts_per_g; model {model} needs --counts-per-g N "
-                         "or a '# counts_per_g: N' line (only model 9 can estimate it)")
-    have_t = [p.temp_c is not None for p in session.poses]
-    if any(have_t) and not all(have_t):
-        raise DataError(f"{path}: pose {session.names[have_t.index(False)]!r} has no temp_c while others do; "
-                        "give temp_c for every pose or for none")
-    temps = session.by_temperature() if any(have_t) else []
-    try:
-        if len(temps) >= 2:
-            cal, fits = fit_temperature(session, model, temp_method)
-            subs = [sub for _, sub in temps]
-        else:
-            fits = [(None, fit_session(session, model))]
-            cal, subs = fits[0][1].calibration, [session]
-    except AccelcalError as e:
-        found = f" (found {len(session)} static intervals in the raw log)" if rawinfo else ""
-        raise type(e)(f"{path}: {e}{found}") from None
-
-    cal.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
-    report: dict = {}
-    text: list[str] = []
-    report["inferred"] = loaded.to_json()
-    text += [f"read {path}: " + "; ".join(loaded.inferred)]
-    if rawinfo is not None:
-        report["segmentation"], seg_lines = _segmentation(*rawinfo, session.names)
-        text += seg_lines
-    if len(fits) == 1:
-        fr = fits[0][1]
-        report.update(fr.to_json_dict(session.names))
-        text.append(f"{path}: model {model}, {len(session)} poses, {_scale_text(session, fr)}")
-        text += _fit_text(fr, session.names)
-    else:
-        allres = np.concatenate([f.residuals_g for _, f in fits])
-        cvs = [f.crossval_rms_g for _, f in fits]
-        report.update({
-            "model": model, "pose_count": len(session), "W": cal.W, "V": cal.V, "Gamma": cal.Gamma,
-            "P": np.sum([f.P for _, f in fits], axis=0),
-            "residual_rms_g": float(np.sqrt(np.mean(allres**2))), "residual_max_g": float(np.max(np.abs(allres))),
-            "crossval_rms_g": None if any(c is None for c in cvs) else float(np.sqrt(np.mean(np.square(cvs)))),
-            "temperature_method": temp_method, "calibration": cal.to_dict(),
-            "temperatures": [dict(temp_c=t, **f.to_json_dict(s.names)) for (t, f), s in zip(fits, subs)],
-            "poses": [dict(temp_c=t, **p) for (t, f), s in zip(fits, subs) for p in f.to_json_dict(s.names)["poses"]],
-        })
-        text.append(f"{path}: model {model}, {len(session)} poses at {len(fits)} temperatures "
-                    f"({', '.join(f'{t:g}' for t, _ in fits)} C), {temp_method} interpolation, "
-                    f"{_scale_text(session, fits[0][1])}")
-        for (t, f), s in zip(fits, subs):
-            text.append(f"-- at {t:g} C: {len(s)} poses")
-            text += _fit_text(f, s.names)
-    report["source"] = str(path)
-    report["units"] = session.units
+    result = fit(loaded, model, temp_method=temp_method, source=path)
+    report, text = _report(path, loaded, result)
     if hand_placed:
-        if len(fits) != 1 or model != "6":
+        if len(result.fits) != 1 or model != "6":
             raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")
-        report["hand_placed"], hp_lines, cal = _hand_placed(session, fits[0][1], cal)
+        report["hand_placed"], hp_lines, cal = _hand_placed(loaded.session, result.result, result.calibration)
         text += hp_lines
+    else:
+        cal = result.calibration
     if output:
         cal.save(output)
         report["output"] = str(output)

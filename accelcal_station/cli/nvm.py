@@ -17,13 +17,16 @@ from __future__ import annotations
 import json
 import re
 import time as _time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any, TypeVar
 
 import click
 import numpy as np
 
 from ..config.sections import device_section
+from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import DeviceError, NVMError
 from ..nvm.writer import CalibrationWriter, SlotStatus
@@ -33,15 +36,17 @@ from ._mes import JsonGroup
 
 STATE_COLOUR = {"valid": "green", "empty": "yellow", "corrupt": "red"}
 
+F = TypeVar("F", bound=Callable[..., Any])
+
 
 @contextmanager
-def _device(ctx: click.Context, config_path: str | None):
+def _device(ctx: click.Context, config_path: str | None) -> Iterator[tuple[Driver, CalibrationWriter]]:
     """(driver, board serial, CalibrationWriter) of the device in ``ctx.obj['driver']`` or the config."""
     injected = (ctx.obj or {}).get("driver") if isinstance(ctx.obj, dict) else None
     if injected is not None:
         dev = injected
     else:
-        from ..station.settings import default_config_path
+        from ..config.sections import default_config_path
 
         dev = make_driver(device_section(config_path or str(default_config_path())))
     try:
@@ -54,7 +59,7 @@ def _device(ctx: click.Context, config_path: str | None):
         raise DeviceError(f"{getattr(dev, 'name', 'device')}: {e.strerror or e}") from None
 
 
-def _serial(dev, given: str | None) -> str | None:
+def _serial(dev: Driver, given: str | None) -> str | None:
     """The board's serial: --serial, else the device's identity (None when it has none)."""
     return given or dev.identify().serial or None
 
@@ -70,11 +75,11 @@ def auto_backup_path(folder: Path, serial: str | None) -> Path:
     return path
 
 
-def _snapshot(dev, writer: CalibrationWriter, serial: str | None) -> dict:
+def _snapshot(dev: Driver, writer: CalibrationWriter, serial: str | None) -> dict[str, Any]:
     """Identity, slot status and the newest valid calibration (None when neither slot is valid)."""
     ident = dev.identify()
     newest = writer.read_newest()
-    doc = {"device": {"chip": ident.chip, "interface": ident.interface, "serial": ident.serial},
+    doc: dict[str, Any] = {"device": {"chip": ident.chip, "interface": ident.interface, "serial": ident.serial},
            "board_serial": serial, "slot_size": writer.slot_size, "base_addr": writer.base_addr,
            "slots": [s.to_dict() for s in writer.status()], "newest": None}
     if newest is not None:
@@ -99,7 +104,7 @@ def _slot_line(s: dict) -> str:
     return f"slot {s['slot']}  {state} {detail}".rstrip()
 
 
-def _vec(v) -> str:
+def _vec(v: Any) -> str:
     return "[" + " ".join(f"{x:+.6f}" for x in np.asarray(v, float)) + "]"
 
 
@@ -131,12 +136,12 @@ def _emit(as_json: bool, doc: dict, lines: list[str]) -> None:
         click.echo("\n".join(lines))
 
 
-def _config_option(f):
+def _config_option(f: F) -> F:
     return click.option("--config", "config_path", default=None, type=click.Path(dir_okay=False),
                         help="Station YAML with a device: section (default configs/sim.yaml).")(f)
 
 
-def _json_option(f):
+def _json_option(f: F) -> F:
     return click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")(f)
 
 
@@ -150,7 +155,7 @@ def command() -> None:
 @click.option("--serial", default=None, metavar="SN", help="The board's serial (default: the device's own).")
 @_json_option
 @click.pass_context
-def read_cmd(ctx, config_path, serial, as_json):
+def read_cmd(ctx: click.Context, config_path: str | None, serial: str | None, as_json: bool) -> None:
     """Slot status and the newest valid calibration."""
     with _device(ctx, config_path) as (dev, writer):
         doc = _snapshot(dev, writer, _serial(dev, serial))
@@ -163,7 +168,7 @@ def read_cmd(ctx, config_path, serial, as_json):
               help="Backup file (never overwritten; default nvm-backup-SERIAL-UTCSTAMP.json here).")
 @_json_option
 @click.pass_context
-def backup_cmd(ctx, config_path, out, as_json):
+def backup_cmd(ctx: click.Context, config_path: str | None, out: str | None, as_json: bool) -> None:
     """Save both slots' raw image (with CRC-32) to a JSON file."""
     with _device(ctx, config_path) as (dev, writer):
         path = Path(out) if out else auto_backup_path(Path("."), _serial(dev, None))
@@ -184,7 +189,8 @@ def backup_cmd(ctx, config_path, out, as_json):
               help="Restore an image whose calibration is bound to another board's serial.")
 @_json_option
 @click.pass_context
-def restore_cmd(ctx, image, config_path, serial, backup_to, any_serial, as_json):
+def restore_cmd(ctx: click.Context, image: str, config_path: str | None, serial: str | None, backup_to: str | None,
+                any_serial: bool, as_json: bool) -> None:
     """Write a backup IMAGE back to the NVM (after backing up what is there) and verify it."""
     with _device(ctx, config_path) as (dev, writer):
         sn = _serial(dev, serial)
@@ -203,7 +209,7 @@ def restore_cmd(ctx, image, config_path, serial, backup_to, any_serial, as_json)
 @click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
 @_json_option
 @click.pass_context
-def erase_cmd(ctx, config_path, backup_to, yes, as_json):
+def erase_cmd(ctx: click.Context, config_path: str | None, backup_to: str | None, yes: bool, as_json: bool) -> None:
     """Erase both calibration slots (after a backup); asks first unless --yes."""
     with _device(ctx, config_path) as (dev, writer):
         sn = _serial(dev, None)

@@ -55,7 +55,7 @@ def command(name: str, model: str | None, noise_mg: float, as_json: bool) -> Non
         return
     click.echo(f"design {name}: {description}")
     click.echo("pose        pitch_deg  roll_deg     x_g      y_g      z_g   (expected output, AN4399 z down)")
-    for p, r in zip(poses, _clean(np.round(ref, 4)), strict=True):
+    for p, r in zip(poses, [_clean(row) for row in np.round(ref, 4)], strict=True):
         click.echo(f"{p.name:<10} {p.pitch_deg:10.2f} {p.roll_deg:9.2f}  {r[0]:+.4f}  {r[1]:+.4f}  {r[2]:+.4f}")
     click.echo(f"minimum channel separation: {sep:.4f} g (AN4399 section 5)")
     click.echo(f"predicted standard errors, model {model}, noise {noise_mg:g} mg per axis on each pose mean:")

@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
 import click
 
@@ -15,8 +17,11 @@ from ..store.schema import STATUSES, VERDICTS
 from ._mes import JsonGroup
 from ._text import clean
 
+F = TypeVar("F", bound=Callable[..., Any])
 
-def _filter_options(f):
+
+def _filter_options(f: F) -> F:
+    """The options that choose runs (and the store they are in)."""
     opts = [
         click.option("--db", default=None, metavar="FILE|URL",
                      help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB; default: "
@@ -37,7 +42,7 @@ def _filter_options(f):
     return f
 
 
-def _open(db, config_path) -> Store:
+def _open(db: str | None, config_path: str | None) -> Store:
     """--db, else the store of --config, else that of the default station (as `accelcal run`);
     `accelcal report --db F SUBCOMMAND` gives the subcommand that store too."""
     ctx = click.get_current_context(silent=True)
@@ -46,13 +51,15 @@ def _open(db, config_path) -> Store:
     config_path = config_path if config_path is not None else group.get("config_path")
     if db is not None:
         return Store(store_target(db), create=False)
-    from ..station.settings import default_config_path
+    from ..config.sections import default_config_path
 
     # relative store paths are taken from the current directory, as `accelcal run` does
     return Store(store_path(load_yaml(config_path or default_config_path()), Path.cwd()), create=False)
 
 
-def _filters(device, lot, station, operator, verdict, status, since, until) -> dict:
+def _filters(device: tuple[str, ...], lot: str | None, station: str | None, operator: str | None,
+             verdict: str | None, status: str | None, since: str | None, until: str | None) -> dict[str, Any]:
+    """The filter options as keyword arguments of the store's queries; a bad verdict or status refused."""
     if verdict is not None and verdict.upper() not in VERDICTS:
         raise DataError(f"--verdict {verdict!r}; allowed: PASS, FAIL")
     if status is not None and status not in STATUSES:
@@ -64,7 +71,7 @@ def _filters(device, lot, station, operator, verdict, status, since, until) -> d
 class ReportGroup(JsonGroup):
     """`accelcal report [--db F] --json` lists the runs, as `report list --json` does."""
 
-    def describe(self, ctx: click.Context):
+    def describe(self, ctx: click.Context) -> list[dict[str, Any]]:
         with _open(ctx.params.get("db"), ctx.params.get("config_path")) as store:
             return store.list_runs()
 
@@ -72,7 +79,7 @@ class ReportGroup(JsonGroup):
 @click.group("report", cls=ReportGroup)
 @click.option("--db", default=None, metavar="FILE", help="With --json and no subcommand: the store to list.")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
-def command(db, config_path) -> None:
+def command(db: str | None, config_path: str | None) -> None:
     """List, show, export and summarise recorded runs."""
 
 
@@ -80,7 +87,9 @@ def command(db, config_path) -> None:
 @_filter_options
 @click.option("--limit", default=None, type=click.IntRange(1), help="At most this many runs.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-def list_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, limit, as_json):
+def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None, station: str | None,
+             operator: str | None, verdict: str | None, status: str | None, since: str | None, until: str | None,
+             limit: int | None, as_json: bool) -> None:
     """Runs matching the filters, oldest first."""
     with _open(db, config_path) as store:
         runs = store.list_runs(limit, **_filters(device, lot, station, operator, verdict, status, since, until))
@@ -104,7 +113,7 @@ def list_cmd(db, config_path, device, lot, station, operator, verdict, status, s
 @click.option("--db", default=None, metavar="FILE|URL", help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB.")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-def show_cmd(run_id, db, config_path, as_json):
+def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool) -> None:
     """Everything recorded for one run."""
     with _open(db, config_path) as store:
         rec = store.get_run(run_id).to_dict()
@@ -131,7 +140,7 @@ def show_cmd(run_id, db, config_path, as_json):
         click.echo(f"{'event':16} {e['kind']}: {clean(e['message'] or '')}")
 
 
-def _fit_lines(fit: dict) -> list[str]:
+def _fit_lines(fit: dict[str, Any]) -> list[str]:
     """Residuals, cross-validation, verification error and timing of a recorded run."""
     out = []
     for key, label in (("residual_rms_g", "residual rms"), ("residual_max_g", "residual max"),
@@ -157,8 +166,10 @@ def _fit_lines(fit: dict) -> list[str]:
               help="Output format (default: from the file name, else csv).")
 @click.option("--poses", is_flag=True, help="CSV: one row per pose instead of one per run.")
 @click.option("--json", "as_json", is_flag=True, help="With -o, print a JSON line saying what was written.")
-def export_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, output, fmt,
-               poses, as_json):
+def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None,
+               station: str | None, operator: str | None, verdict: str | None, status: str | None,
+               since: str | None, until: str | None, output: str | None, fmt: str | None, poses: bool,
+               as_json: bool) -> None:
     """Export runs as CSV (one row per run, calibration flattened; or per pose) or JSON (everything)."""
     if fmt is None:  # --json without -o means JSON on stdout
         fmt = "json" if (output and output.lower().endswith(".json")) or (as_json and output is None) else "csv"
@@ -186,8 +197,9 @@ def export_cmd(db, config_path, device, lot, station, operator, verdict, status,
 @click.option("--html", "html_file", default=None, metavar="FILE",
               help="Also write a lot report (histograms vs limits, pass rate and reasons over time, control "
                    "charts) as one HTML file with embedded PNGs.")
-def summary_cmd(db, config_path, device, lot, station, operator, verdict, status, since, until, as_json,
-                html_file):
+def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None,
+                station: str | None, operator: str | None, verdict: str | None, status: str | None,
+                since: str | None, until: str | None, as_json: bool, html_file: str | None) -> None:
     """Lot summary: counts, pass rate, failure reasons, parameter distributions."""
     flt = _filters(device, lot, station, operator, verdict, status, since, until)
     with _open(db, config_path) as store:
@@ -224,7 +236,7 @@ def summary_cmd(db, config_path, device, lot, station, operator, verdict, status
 @click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("-o", "--output", default=None, metavar="FILE.png", help="Figure file (default run-ID-residuals.png).")
-def plot_cmd(run_id, db, config_path, output):
+def plot_cmd(run_id: int, db: str | None, config_path: str | None, output: str | None) -> None:
     """Draw one run's residuals per pose and axis (PNG)."""
     from ..lot.report import residual_figure
 

@@ -2,11 +2,14 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
+from typing import Any
 
 import click
 
 from ..station.board import Station
 from ..station.identity import ask_run_identity
+from ..station.report import RunReport
 from ..station.settings import StationConfig
 from ._common import jsonable
 
@@ -23,7 +26,8 @@ from ._common import jsonable
 @click.option("--port", default=None, help="Override the device's serial port (or the MMA8451's I2C bus).")
 @click.option("--jig-port", default=None, help="Override the motorized jig's serial port.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (human lines go to stderr).")
-def command(config_path, serial, operator, lot, store_file, port, jig_port, as_json):
+def command(config_path: str | None, serial: str | None, operator: str | None, lot: str | None,
+            store_file: str | None, port: str | None, jig_port: str | None, as_json: bool) -> None:
     """Calibrate one board: identify, present each pose, capture, fit, judge, write NVM, verify, record.
 
     Exit status: 0 PASS, 1 FAIL, 2 bad input or configuration, 3 device error,
@@ -39,6 +43,7 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
     if isinstance(cfg.raw["device"], dict) and "boards" in cfg.raw["device"]:
         _run_panel(cfg, operator, serial, lot, as_json, echo)
         return
+    rep: RunReport
     if "thermal" in cfg.raw or "chamber" in cfg.raw:  # ThermalStation refuses one without the other
         from ..station.thermal import ThermalStation
 
@@ -48,34 +53,39 @@ def command(config_path, serial, operator, lot, store_file, port, jig_port, as_j
     if as_json:
         click.echo(json.dumps(jsonable(rep.to_dict()), indent=2, allow_nan=False))
     else:
-        t = rep.timing
-        f = rep.fit
-        if f is not None:
-            click.echo(f"fit: model {rep.model}, {f.pose_count} poses, residual RMS {f.residual_rms_g * 1e3:.3f} mg"
-                       + ("" if f.crossval_rms_g is None else f", cross-validated {f.crossval_rms_g * 1e3:.3f} mg"))
-        table = (getattr(rep, "thermal", None) or {}).get("table")
-        if table:
-            click.echo(f"table: {len(table['temps_c'])} temperatures ("
-                       + ", ".join(f"{t:.1f}" for t in table["temps_c"]) + f" C), {table['method']}; "
-                       "the fit above is the one at the temperature nearest "
-                       f"{cfg.raw['thermal'].get('reference_c', 25)} C")
-        if rep.verify_error_max_mg is not None:
-            click.echo(f"verify: max error {rep.verify_error_max_mg:.3f} mg after calibration")
-        colour = "green" if rep.verdict == "PASS" else "red"
-        click.secho(f"{rep.verdict} board {rep.serial} (run {rep.run_id}, store {rep.store})", fg=colour, bold=True)
-        for r in rep.reasons:
-            click.secho(f"  - {r}", fg=colour)
-        if t and "soak_s" in t:
-            click.echo(f"time per board: soak {t['soak_s']:.0f} s, sampling floor {t['sampling_floor_s']:.1f} s, "
-                       f"rest {t['rest_s']:.1f} s of {t['board_time_s']:.0f} s ({t['clock']} clock)")
-        else:
-            for line in timing_lines(t):
-                click.echo(line)
+        _print_board(rep, cfg)
     if rep.verdict != "PASS":
         raise click.exceptions.Exit(1)
 
 
-def timing_lines(t: dict) -> list[str]:
+def _print_board(rep: RunReport, cfg: StationConfig) -> None:
+    """One board's run for the operator: the fit, the thermal table, the verdict and its reasons, the timing."""
+    t = rep.timing
+    f = rep.fit
+    if f is not None:
+        click.echo(f"fit: model {rep.model}, {f.pose_count} poses, residual RMS {f.residual_rms_g * 1e3:.3f} mg"
+                   + ("" if f.crossval_rms_g is None else f", cross-validated {f.crossval_rms_g * 1e3:.3f} mg"))
+    table = (getattr(rep, "thermal", None) or {}).get("table")
+    if table:
+        click.echo(f"table: {len(table['temps_c'])} temperatures ("
+                   + ", ".join(f"{t:.1f}" for t in table["temps_c"]) + f" C), {table['method']}; "
+                   "the fit above is the one at the temperature nearest "
+                   f"{cfg.raw['thermal'].get('reference_c', 25)} C")
+    if rep.verify_error_max_mg is not None:
+        click.echo(f"verify: max error {rep.verify_error_max_mg:.3f} mg after calibration")
+    colour = "green" if rep.verdict == "PASS" else "red"
+    click.secho(f"{rep.verdict} board {rep.serial} (run {rep.run_id}, store {rep.store})", fg=colour, bold=True)
+    for r in rep.reasons:
+        click.secho(f"  - {r}", fg=colour)
+    if t and "soak_s" in t:
+        click.echo(f"time per board: soak {t['soak_s']:.0f} s, sampling floor {t['sampling_floor_s']:.1f} s, "
+                   f"rest {t['rest_s']:.1f} s of {t['board_time_s']:.0f} s ({t['clock']} clock)")
+    else:
+        for line in timing_lines(t):
+            click.echo(line)
+
+
+def timing_lines(t: dict[str, Any]) -> list[str]:
     """Timing a reader can trust: samples at the nominal ODR, operator waiting, host compute,
     each on its own (never a 'floor' compared with a wall time it need not be below)."""
     if not t:
@@ -91,7 +101,8 @@ def timing_lines(t: dict) -> list[str]:
     return out
 
 
-def _run_panel(cfg: StationConfig, operator, serial, lot, as_json: bool, echo) -> None:
+def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None, as_json: bool,
+               echo: Callable[[str], None]) -> None:
     """A panel: one line per board; exit 1 when any board failed."""
     from ..errors import ConfigError
     from ..station.panel import PanelStation, panel_dict

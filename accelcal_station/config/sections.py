@@ -1,8 +1,21 @@
 """Station-config sections that the data commands read (the measurements themselves: loader.py)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 from ..errors import ConfigError
 from .checks import load_yaml
+
+
+def default_config_path() -> Path:
+    """configs/sim.yaml, wherever the package is installed (an editable checkout or site-packages).
+
+    Resolved, so a checkout names the file where it lies (``configs/sim.yaml``), not through the
+    package's link to that folder.
+    """
+    from .. import configs
+
+    return Path(configs.__file__).resolve().parent / "sim.yaml"
 
 
 def device_section(path: str) -> dict:

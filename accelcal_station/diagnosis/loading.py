@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config.sections import device_section
+from ..config.sections import default_config_path, device_section
 from ..data.loader import load
 from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection, static_session
@@ -67,16 +67,9 @@ class Simulator:
         return self.model.chip.code_limits[1] * frac / self.counts_per_g
 
 
-def _default_config() -> Path:
-    """configs/sim.yaml, wherever the package is installed (an editable checkout or site-packages)."""
-    from .. import configs
-
-    return Path(configs.__file__).parent / "sim.yaml"
-
-
 def load_simulator(path: str | Path | None = None) -> Simulator:
     """The simulated board of a station config (default configs/sim.yaml)."""
-    path = Path(path) if path is not None else _default_config()
+    path = Path(path) if path is not None else default_config_path()
     if not path.is_file():
         raise ConfigError(f"{path}: no such simulator configuration (give --config FILE with a device: section, "
                           "driver: simulated)")

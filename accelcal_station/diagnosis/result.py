@@ -48,6 +48,10 @@ class Diagnosis:
     def gap_after(self) -> float:
         return self.final.gap
 
+    def to_json(self) -> dict[str, Any]:
+        """The JSON of `accelcal diagnose --json`."""
+        return to_json(self)
+
 
 def to_json(d: Diagnosis) -> dict[str, Any]:
     """The JSON of `accelcal diagnose --json` (key order is the output's)."""

@@ -9,7 +9,7 @@ from typing import Any
 from ..acceptance.rules import Limits
 from ..calibration import MODELS
 from ..config.checks import check_keys, choice, load_yaml, number
-from ..config.sections import with_port
+from ..config.sections import default_config_path, with_port
 from ..errors import AccelcalError, ConfigError
 from ..fixtures.designs import get_design
 from ..models.fitting import check_model
@@ -20,13 +20,6 @@ from .identity import IDENTITY_KEYS, identity_options
 TOP_KEYS = ("station", "store", "device", "jig", "plan", "capture", "acceptance", "nvm", "verify",
             "thermal", "chamber")  # thermal plans: station/thermal.py
 JIG_TYPES = ("simulated", "operator", "motorized")
-
-
-def default_config_path() -> Path:
-    """configs/sim.yaml, wherever the package is installed."""
-    from .. import configs
-
-    return Path(configs.__file__).parent / "sim.yaml"
 
 
 @dataclass
