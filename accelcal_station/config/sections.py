@@ -1,6 +1,7 @@
 """Station-config sections that the data commands read (the measurements themselves: loader.py)."""
 from __future__ import annotations
 
+from importlib.resources import files
 from pathlib import Path
 
 from ..errors import ConfigError
@@ -13,9 +14,7 @@ def default_config_path() -> Path:
     Resolved, so a checkout names the file where it lies (``configs/sim.yaml``), not through the
     package's link to that folder.
     """
-    from .. import configs
-
-    return Path(configs.__file__).resolve().parent / "sim.yaml"
+    return Path(str(files("accelcal_station.configs").joinpath("sim.yaml"))).resolve()
 
 
 def device_section(path: str) -> dict:
