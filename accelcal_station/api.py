@@ -10,6 +10,7 @@ imports this module.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -98,12 +99,26 @@ def fit(data: str | Path | Loaded | Session, model: str | int | None = None, *, 
     return Fit(fr.calibration, m, [(None, fr)], [session])
 
 
+def _check_run(samples: int, temps_c: Sequence[float] | None, move_s: float) -> None:
+    """The limits `accelcal simulate` puts on its options, for callers that skip the command line."""
+    if not (isinstance(samples, int) and 2 <= samples <= 10**7):
+        raise DataError(f"samples={samples!r}; allowed: a whole number from 2 to 10000000 (a pose's std needs 2)")
+    temps = list(temps_c or [])
+    if not all(isinstance(t, (int, float)) and math.isfinite(t) and -60.0 <= t <= 150.0 for t in temps):
+        raise DataError(f"temps_c={temps!r}; allowed: temperatures in C between -60 and 150")
+    if len(set(temps)) != len(temps):
+        raise DataError(f"temps_c={temps!r}: a temperature repeats; each must be distinct")
+    if not (math.isfinite(move_s) and 0.0 <= move_s <= 3600.0):
+        raise DataError(f"move_s={move_s!r}; allowed: 0 to 3600 seconds")
+
+
 def simulate(design: str, *, config: str | None = None, seed: int | None = None, samples: int = 1000,
              temps_c: Sequence[float] | None = None, move_s: float = 2.0, raw: bool = False) -> SimulatedRun:
     """Run pose design ``design`` (six-face, an4399-8, optimal-N, ...) on the simulated board of a
     station config (default: an ideal MMA8451) at each of ``temps_c``: the pose means as a Session
     in counts, the raw samples when ``raw``, and the board's ground truth (``.truth()``)."""
     get_design(design)  # an unknown design is refused before the board is built
+    _check_run(samples, temps_c, move_s)
     board = simulated_board(config, seed)
     return run_design(board, design, samples=samples, temps=list(temps_c) if temps_c else None, move_s=move_s,
                       raw=raw)

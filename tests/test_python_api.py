@@ -87,3 +87,16 @@ def test_fit_refuses_counts_without_a_scale_naming_the_data():
     with pytest.raises(UnitsError, match="the data: readings are counts with no counts_per_g; model 12"):
         fit(run.session, model=12)
     assert isinstance(fit(run.session, model=9).calibration, Calibration)  # model 9 estimates the scale
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    ({"temps_c": [float("nan")]}, "temps_c=[nan]; allowed: temperatures in C between -60 and 150"),
+    ({"temps_c": [25.0, 25.0]}, "a temperature repeats"),
+    ({"samples": 1}, "samples=1; allowed: a whole number from 2"),
+    ({"move_s": float("inf")}, "move_s=inf; allowed: 0 to 3600 seconds"),
+])
+def test_simulate_refuses_what_the_command_refuses(kwargs, words):
+    """A notebook gets the command's limits as one typed error, not a NaN std or a board at nan C."""
+    from accelcal_station.errors import DataError
+    with pytest.raises(DataError, match=re.escape(words)):
+        simulate("six-face", **kwargs)

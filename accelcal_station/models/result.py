@@ -1,6 +1,7 @@
 """Fit results: one object per fit (scipy.optimize style), one per batch of boards."""
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -91,7 +92,7 @@ class FitResult:
         }
 
 
-class LazyCovariance:
+class LazyCovariance(ABC):
     """A (D, ...) covariance stored as a few arrays and formed per board on indexing (the
     stacked fitters' BatchFit.covariance); the arrays are named in ``_fields``, which the
     lot assembler copies."""
@@ -101,9 +102,9 @@ class LazyCovariance:
     def __len__(self) -> int:
         return len(getattr(self, self._fields[0]))
 
+    @abstractmethod
     def __getitem__(self, d: Any) -> np.ndarray:
-        """The covariance of board(s) ``d``."""
-        raise NotImplementedError
+        """The covariance of board(s) ``d``, formed from the stored arrays (each fitter's own form)."""
 
 
 @dataclass

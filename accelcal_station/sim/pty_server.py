@@ -9,10 +9,11 @@ from __future__ import annotations
 import os
 import threading
 import tty
+from abc import ABC, abstractmethod
 from typing import Self
 
 
-class PtyServer:
+class PtyServer(ABC):
     """Mixin: ``start()`` opens a raw pty and runs ``self._run`` on a thread; ``stop()`` closes it.
 
     The subclass sets ``_thread = None``, ``_stop = threading.Event()``, ``_master = _slave = -1``
@@ -27,9 +28,9 @@ class PtyServer:
     _slave: int
     port: str | None
 
+    @abstractmethod
     def _run(self) -> None:
-        """Answer on ``self._master`` until ``self._stop`` is set (the subclass's server loop)."""
-        raise NotImplementedError
+        """Answer on ``self._master`` until ``self._stop`` is set (each emulator's own server loop)."""
 
     def start(self) -> str:
         """Open a new pseudo-terminal, start answering on it, return the slave's path."""
