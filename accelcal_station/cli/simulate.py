@@ -17,7 +17,7 @@ import click
 import numpy as np
 
 from ..api import simulate
-from ..atomic import atomic_write_text
+from ..atomic import atomic_write
 from ..data.posetable import write_pose_table
 from ..errors import DataError
 from ..fixtures.designs import get_design
@@ -53,7 +53,7 @@ def _write_raw_log(run: SimulatedRun, out: str) -> None:
     buf.write("t,x,y,z" + (",temp_c\n" if multi else "\n"))
     fmt = "%d" if np.issubdtype(cols[1].dtype, np.integer) else "%.6f"
     np.savetxt(buf, np.column_stack(cols), fmt=["%.6f", fmt, fmt, fmt] + (["%g"] if multi else []), delimiter=",")
-    atomic_write_text(out, buf.getvalue())
+    atomic_write(out, buf.getvalue())
 
 
 def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> tuple[dict[str, Any], str]:
@@ -99,6 +99,6 @@ def command(config: str | None, design: str, out: str, raw: bool, seed: int | No
     else:
         write_pose_table(run.session, out, run.metadata)
     if truth_out is not None:
-        atomic_write_text(truth_out, json.dumps(run.truth().to_dict(), indent=2) + "\n")
+        atomic_write(truth_out, json.dumps(run.truth().to_dict(), indent=2) + "\n")
     summary, line = _summary(run, out, raw, truth_out)
     click.echo(json.dumps(summary) if as_json else line)

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from ..atomic import atomic_write_text
+from ..atomic import atomic_write
 from ..conventions import an4399_reference, check_units
 from ..errors import DataError, UnitsError
 from ..session import PoseRecord, Session
@@ -287,7 +287,7 @@ def write_pose_table(session: Session, path: str | Path, metadata: dict[str, Any
         if bad:
             raise DataError(f"{path}: pose {p.name!r}: {bad[0]} is not finite; a pose table holds finite numbers")
         w.writerow([vals[c] for c in cols])
-    atomic_write_text(path, buf.getvalue())
+    atomic_write(path, buf.getvalue())
 
 
 __all__ = ["COLUMNS", "read_pose_table", "table_metadata", "write_pose_table"]

@@ -27,7 +27,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from ..atomic import atomic_write_text
+from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES, Calibration, param_vector
 from ..data.loader import load_pose_table
 from ..errors import AccelcalError, DataError
@@ -355,7 +355,7 @@ def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
                     "" if r.condition_number is None else repr(r.condition_number), *map(str, params)])
     text = buf.getvalue()
     if path is not None:
-        atomic_write_text(Path(path), text)
+        atomic_write(Path(path), text)
     return text
 
 

@@ -283,7 +283,7 @@ class CalibrationWriter:
         try:
             atomic_write(path, json.dumps(doc, indent=1) + "\n")
         except OSError as e:
-            raise NVMError(f"{path}: cannot write backup ({e.strerror})") from None
+            raise NVMError(f"{path}: cannot write the backup ({e.strerror})") from None
         return {k: v for k, v in doc.items() if k != "image_base64"}
 
     def load_image(self, path: str | Path) -> tuple[bytes, dict[str, Any]]:
