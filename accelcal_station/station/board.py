@@ -20,13 +20,13 @@ from ..acceptance.rules import judge
 from ..calibration import Calibration
 from ..drivers.base import Driver, Identity
 from ..drivers.factory import make_driver
-from ..errors import AccelcalError, ConfigError, UnderdeterminedError
+from ..errors import AccelcalError, ConfigError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import board_of, make_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
 from ..models.fitting import fit_session
-from ..nvm.writer import BurnError, CalibrationWriter
+from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
 from ..store.runs import Store
 from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
@@ -309,21 +309,27 @@ class Station:
             return
         rep.nvm = outcome.to_dict()
         log("nvm_burned", rep.nvm)
-        # closed loop through NVM: the calibration read back must do what the fitted one did
-        back = writer.read_newest(rep.serial)
-        if back is None:
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "no valid calibration readable after writing")]
-            return
-        stored = back[0]
-        if checks:
-            same = all(np.allclose(stored.apply(c, units="counts", temp_c=t), cal.apply(c, units="counts", temp_c=t),
-                                   atol=1e-9) for c, _, t in checks)
+        # closed loop through NVM: the calibration read back (two reads alike) must do what the fitted one did
+        try:
+            back = writer.read_newest(rep.serial, settled=True)
+        except NVMError as e:
+            back, why = None, str(e)
         else:
-            same = np.allclose(stored.W, cal.W) and np.allclose(stored.V, cal.V)
-        rep.nvm_verified = bool(same)
-        if not same:
-            rep.verdict, rep.reasons = "FAIL", [
-                Reason("nvm", "calibration read back from NVM differs from the fitted one")]
+            why = "no valid calibration readable after writing"
+        stored = None if back is None else back[0]
+        same = False
+        if stored is not None:
+            why = "calibration read back from NVM differs from the fitted one"
+            same = bool(all(np.allclose(stored.apply(c, units="counts", temp_c=t),
+                                        cal.apply(c, units="counts", temp_c=t), atol=1e-9) for c, _, t in checks)
+                        if checks else np.allclose(stored.W, cal.W) and np.allclose(stored.V, cal.V))
+        rep.nvm_verified = same
+        if not rep.nvm_verified:  # a FAIL never leaves the unverified calibration as the board's newest
+            writer.revert(outcome)
+            rep.nvm = outcome.to_dict()
+            log("nvm_reverted", rep.nvm)
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", f"{why}; {holds_text(outcome)}")]
+            return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
 
     def _trim_offsets(self, driver: Driver, cal: Calibration, rep: RunReport) -> Calibration:

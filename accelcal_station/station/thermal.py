@@ -33,7 +33,7 @@ from ..instruments.chamber import Chamber, ChamberStatus
 from ..instruments.factory import make_chamber
 from ..models.fitting import fit_session
 from ..models.result import FitResult
-from ..nvm.writer import BurnError, CalibrationWriter
+from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
 from ..store.runs import Store
 from .board import Station
@@ -358,9 +358,12 @@ class ThermalStation(Station):
             rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
             return
         rep.nvm = outcome.to_dict()
-        back = writer.read_newest(rep.serial)
+        back = writer.read_newest(rep.serial, settled=True)
         if back is None or back[0].temperature is None:
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "no temperature table readable after writing")]
+            writer.revert(outcome)  # a FAIL never leaves the unverified table as the board's newest
+            rep.nvm = outcome.to_dict()
+            rep.verdict, rep.reasons = "FAIL", [
+                Reason("nvm", f"no temperature table readable after writing; {holds_text(outcome)}")]
             return
         stored, table = back[0], back[0].temperature
         assert cal.temperature is not None, "a thermal plan's calibration carries its table"
@@ -370,8 +373,11 @@ class ThermalStation(Station):
                            atol=1e-9) and np.allclose(table.temps_c, cal.temperature.temps_c)
         rep.nvm_verified = bool(same)
         if not same:
+            writer.revert(outcome)
+            rep.nvm = outcome.to_dict()
             rep.verdict, rep.reasons = "FAIL", [
-                Reason("nvm", "the table read back from NVM differs from the fitted one")]
+                Reason("nvm", f"the table read back from NVM differs from the fitted one; {holds_text(outcome)}")]
+            return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, "
                   f"{len(table.temps_c)}-temperature table read back"
                   + (" and verified" if same else " DIFFERS"))
