@@ -160,8 +160,9 @@ def _table_report(path: str, session: Session, result: Fit) -> tuple[dict[str, A
     return report, text
 
 
-def _report(path: str, loaded: Loaded, result: Fit) -> tuple[dict[str, Any], list[str]]:
-    """What `accelcal fit` prints: what reading the file inferred, its static intervals (raw logs), the fit."""
+def _report(path: str, loaded: Loaded, result: Fit, as_json: bool = True) -> tuple[dict[str, Any], list[str]]:
+    """What `accelcal fit` prints: what reading the file inferred, its static intervals (raw logs), the fit.
+    Without ``as_json`` the per-pose JSON rows are not built (a 100,000-pose table: memory)."""
     session = loaded.session
     result.calibration.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
     report: dict[str, Any] = {"inferred": loaded.to_json()}
@@ -171,7 +172,8 @@ def _report(path: str, loaded: Loaded, result: Fit) -> tuple[dict[str, Any], lis
         text += seg_lines
     if len(result.fits) == 1:
         fr = result.result
-        report.update(fr.to_json_dict(session.names))
+        if as_json:
+            report.update(fr.to_json_dict(session.names))
         text.append(f"{path}: model {result.model}, {len(session)} poses, {_scale_text(session, fr)}")
         text += _fit_text(fr, session.names)
     else:
@@ -217,7 +219,7 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
     loaded = _load(path, raw, model, units, cpg, grav, columns,
                    parse_int(skip_rows, "--skip-rows", positive=False), _number(rate, "--rate"))
     result = fit(loaded, model, temp_method=temp_method, source=path)
-    report, text = _report(path, loaded, result)
+    report, text = _report(path, loaded, result, as_json)
     if hand_placed:
         if len(result.fits) != 1 or model != "6":
             raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")

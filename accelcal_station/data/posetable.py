@@ -23,7 +23,7 @@ import csv
 import io
 import math
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std
 COLUMNS = ("pose", "pitch_deg", "roll_deg", "x", "y", "z", "ref_x", "ref_y", "ref_z", "temp_c", "n",
            "std_x", "std_y", "std_z")
 META_KEYS = ("units", "counts_per_g", "gravity", "device")
+_LINE_RE = re.compile(r"([^\r\n]*)(?:\r\n|[\r\n]|$)")
 _META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
 
 
@@ -185,20 +186,28 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
                       None if angles is None else float(angles[1]), temp)
 
 
-def _rows(path: Path, lines: list[str], header_at: int, header: list[str], references: bool) -> list[PoseRecord]:
-    """The poses of the table body (blank and ``#`` rows skipped)."""
+def _lines(text: str) -> Iterator[str]:
+    """The lines of ``text`` (as ``str.splitlines``: \\n, \\r\\n or \\r end a line), one at a time."""
+    yield from (m.group(1) for m in _LINE_RE.finditer(text))
+
+
+def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], references: bool
+          ) -> list[PoseRecord]:
+    """The poses of the table body after the header (blank and ``#`` rows skipped), parsed row
+    by row: memory is the poses, not a second copy of the table as lists of strings."""
+    reader = csv.reader(lines)
+    poses: list[PoseRecord] = []
     try:
-        table = list(csv.reader(io.StringIO("\n".join(lines[header_at + 1:]))))
+        for cells in reader:
+            line = header_at + 1 + reader.line_num
+            if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
+                continue
+            if len(cells) != len(header):
+                raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
+            row = _Row(path, line, {c: v.strip() for c, v in zip(header, cells, strict=True)})
+            poses.append(_pose(row, references))
     except csv.Error as e:  # e.g. a cell longer than the csv module's field limit
         raise DataError(f"{path}: not a readable CSV table ({e}); allowed: a pose table of numbers") from None
-    poses: list[PoseRecord] = []
-    for k, cells in enumerate(table):
-        line = header_at + 2 + k
-        if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
-            continue
-        if len(cells) != len(header):
-            raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
-        poses.append(_pose(_Row(path, line, {c: v.strip() for c, v in zip(header, cells, strict=True)}), references))
     return poses
 
 
@@ -210,10 +219,11 @@ def read_pose_table(path: str | Path, units: str | None = None, counts_per_g: fl
     ref columns), as models 6, 12 and 15 need; errors then name the row.
     """
     path = Path(path)
-    lines = _read_text(path).splitlines()
-    meta, meta_line, header_at, _ = read_preamble(lines, path, f"{','.join(COLUMNS[:6])} (and optional columns)")
+    lines = _lines(_read_text(path))  # one line at a time: no list of 100,000 strings beside the poses
+    meta, meta_line, header_at, header_text = read_preamble(lines, path,
+                                                            f"{','.join(COLUMNS[:6])} (and optional columns)")
     hline = header_at + 1
-    header = _header(path, lines[header_at], hline)
+    header = _header(path, header_text, hline)
     units = units if units is not None else meta.get("units", "counts")
     try:
         check_units(units)

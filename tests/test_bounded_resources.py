@@ -1,0 +1,69 @@
+"""Bounded resources (issue 26): `fit` memory linear in the pose count; `simulate --raw` streams.
+
+The full-size figures (fit on 100,000 rows, simulate --raw of 1e7 samples, peak RSS in a child)
+are measured by benchmarks/bench_resources.py; these tests are the fast, scaled versions.
+"""
+from __future__ import annotations
+
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+from accelcal_station import api
+from accelcal_station.conventions import an4399_reference
+from accelcal_station.identifiability import first_of_orientation
+
+
+def write_table(path: Path, n: int, seed: int = 1) -> Path:
+    """n poses in random orientations of a sensor with gain/cross-axis/offset errors and noise."""
+    rng = np.random.default_rng(seed)
+    pitch, roll = rng.uniform(-89, 89, n), rng.uniform(-180, 180, n)
+    th, ph = np.radians(pitch), np.radians(roll)
+    ref = np.column_stack([-np.sin(th), np.cos(th) * np.sin(ph), np.cos(th) * np.cos(ph)])
+    assert np.allclose(ref[0], an4399_reference(pitch[0], roll[0]))  # the convention, checked once
+    K = np.eye(3) + rng.normal(0, 0.01, (3, 3))
+    counts = (ref @ K.T + 0.02) * 4096 + rng.normal(0, 2, (n, 3))
+    body = np.column_stack([pitch, roll, counts, ref])
+    lines = ["# units: counts", "# counts_per_g: 4096",
+             "pose,pitch_deg,roll_deg,x,y,z,ref_x,ref_y,ref_z,n,std_x,std_y,std_z"]
+    lines += [f"p{i}," + ",".join(repr(float(v)) for v in row) + ",100,5,5,5" for i, row in enumerate(body)]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def fit_peak_mb(path: Path) -> float:
+    """Peak traced memory (MB) of loading and fitting a pose table, beyond what was held before."""
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        tracemalloc.reset_peak()
+        res = api.fit(path)
+        peak = tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+    assert res.result.pose_count > 0 and res.result.residual_rms_g < 2e-3
+    return peak / 1e6
+
+
+def test_fit_memory_is_linear_in_the_pose_count(tmp_path):
+    """5,000 and 20,000 rows: the peak grows ~4x (a P x P cosine matrix made it 16x, 3.2 GB at 20,000),
+    and 20,000 rows stay under 40 MB, i.e. under 200 MB at 100,000 when scaled linearly."""
+    small = fit_peak_mb(write_table(tmp_path / "p5k.csv", 5_000))
+    big = fit_peak_mb(write_table(tmp_path / "p20k.csv", 20_000))
+    assert big < 40.0, big
+    assert big < 5.0 * small, (small, big)
+
+
+def test_first_of_orientation_large_table_matches_the_pairwise_definition():
+    """The cell-grid search for large tables gives exactly the all-pairs answer (revisits, a dense cluster)."""
+    rng = np.random.default_rng(4)
+    P = 3000
+    u = rng.normal(size=(P, 3))
+    u[::3] = u[: len(u[::3])]  # revisits of earlier orientations
+    u[1::7] = np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.02, (len(u[1::7]), 3))  # a dense cluster
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    got = first_of_orientation(u[None])[0]
+    close = (u @ u.T) > np.cos(np.radians(5.0))  # the definition: no earlier pose within 5 degrees
+    want = ~np.any(np.tril(close, k=-1), axis=1)
+    assert np.array_equal(got, want) and 100 < want.sum() < P
