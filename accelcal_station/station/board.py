@@ -20,7 +20,7 @@ from ..acceptance.rules import judge
 from ..calibration import Calibration
 from ..drivers.base import Driver, Identity
 from ..drivers.factory import make_driver
-from ..errors import AccelcalError, ConfigError, NVMError, UnderdeterminedError
+from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import board_of, make_jig
@@ -185,6 +185,13 @@ class Station:
                     self._fit_judge_write(driver, jig, session, rep)
                 finally:
                     self.operator_wait_s = float(getattr(jig, "wait_s", 0.0))
+        except (DeviceError, NVMError) as e:
+            # a port that closed, a NACK storm, reads that do not settle: the run ends FAIL with the
+            # typed reason and the poses captured so far (recorded by _finish), exit 1, never 'running'
+            code = getattr(e, "reason_code", "nvm")
+            rep.verdict, rep.reasons = "FAIL", [Reason(code, str(e))]
+            rep.events.append(f"run ended by a {code} fault after {len(records)} poses: {e}")
+            self.echo(f"FAIL: {e} ({len(records)} poses captured)")
         except (AccelcalError, KeyboardInterrupt) as e:
             why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else str(e)
             store.interrupt_run(run_id, why, session=session if records else None,
