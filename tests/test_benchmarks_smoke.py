@@ -168,3 +168,11 @@ def test_thermal_time_split(capsys):
         assert soak + floor + rest == pytest.approx(total, abs=2.0) and soak > floor > 0
     # two boards share one soak: per board, the panel's soak is about half one board's
     assert number(by[keys[0]][0]) / number(by[keys[0]][2]) == pytest.approx(2.0, rel=0.05)
+
+
+def test_resources_prints_peaks_under_the_limit(capsys):
+    out = run(capsys, "bench_resources", "--small")
+    (rows,) = tables(out)
+    assert [r[0] for r in rows] == ["fit TABLE (rows)"] * 2 + ["simulate six-face --raw (samples)"] * 2
+    # every command succeeded and its own peak (a fresh Python with numpy: tens of MB) was measured
+    assert all(r[-1] == "0" and 20 < number(r[2]) < 200 and r[3] == "under 200" for r in rows), rows

@@ -39,6 +39,7 @@ GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std
 COLUMNS = ("pose", "pitch_deg", "roll_deg", "x", "y", "z", "ref_x", "ref_y", "ref_z", "temp_c", "n",
            "std_x", "std_y", "std_z")
 META_KEYS = ("units", "counts_per_g", "gravity", "device")
+MAX_POSE_ROWS = 200_000  # fit memory is linear: ~1.8 kB a pose (under 200 MB at 100,000 rows, benchmarks/)
 _LINE_RE = re.compile(r"([^\r\n]*)(?:\r\n|[\r\n]|$)")
 _META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
 
@@ -165,7 +166,7 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
     if not name:
         raise DataError(f"{row.where('pose')}: empty; every row needs a pose name")
     mean = np.array([row.number(c) for c in "xyz"])
-    angles = row.group(GROUPS[0])
+    angles = row.group(GROUPS[0], lo=-360.0, hi=360.0)  # a pitch of -1e308 is no orientation
     ref = row.group(GROUPS[1], lo=-10.0, hi=10.0)
     if ref is not None and not np.any(ref):
         raise DataError(f"{row.where('ref_x')}: the reference is (0, 0, 0); allowed: the expected output in g")
@@ -204,6 +205,9 @@ def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], r
                 continue
             if len(cells) != len(header):
                 raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
+            if len(poses) >= MAX_POSE_ROWS:
+                raise DataError(f"{path}: line {line}: more than {MAX_POSE_ROWS} pose rows; allowed: at most "
+                                f"{MAX_POSE_ROWS} (a calibration needs tens; split a lot into boards: accelcal batch)")
             row = _Row(path, line, {c: v.strip() for c, v in zip(header, cells, strict=True)})
             poses.append(_pose(row, references))
     except csv.Error as e:  # e.g. a cell longer than the csv module's field limit
