@@ -179,3 +179,36 @@ def test_a_burn_on_a_lying_bus_keeps_the_previous_calibration_and_records_what_n
             assert "nothing was written" in str(res) or "reads disagree" in str(res)
     # the sweep exercised every path (fixed seeds: deterministic)
     assert {"ok", "burn-failed"} <= set(kinds), kinds
+
+
+def test_station_run_on_a_lying_bus_keeps_the_previous_calibration_and_records_it(tmp_path):
+    """A whole station run (emulated MMA8451, simulated jig) whose EEPROM reads are mostly corrupted
+    when it burns: the run is FAIL with an nvm reason, the board still holds its previous calibration,
+    and the run's NVM outcome names exactly that (slot, generation, CRC-32)."""
+    from accelcal_station.station.board import Station
+    from accelcal_station.station.settings import StationConfig
+
+    doc = yaml.safe_load((REPO / "configs" / "mma8451-emulated.yaml").read_text())
+    doc["jig"] = {"type": "simulated", "move_time_s": 0.0}
+    doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    (tmp_path / "st.yaml").write_text(yaml.safe_dump(doc))
+    cfg = StationConfig.load(tmp_path / "st.yaml")
+    dev = make_driver(device_section(str(tmp_path / "st.yaml")))
+    with dev:
+        before = CalibrationWriter(dev.nvm).burn(cal(1), SERIAL, "old-station")
+        emu = dev.dev.smbus
+    emu.corrupt_reads(0.9, seed=2)  # nine read messages in ten come back with a flipped bit
+    rep = Station(cfg, driver=dev, echo=lambda s: None).run()
+    emu.corrupt_reads(0.0)
+    with dev:
+        truth = CalibrationWriter(dev.nvm).holds()
+        got = CalibrationWriter(dev.nvm).read_newest(SERIAL)
+    assert rep.verdict == "FAIL" and rep.reasons[0].code == "nvm"
+    assert "no previous calibration" not in rep.reasons[0]
+    assert truth == {"slot": "A", "generation": 1, "crc32": before.crc32, "serial": SERIAL}
+    assert np.array_equal(got[0].W, cal(1).W)
+    assert rep.nvm["previous"] == truth and rep.nvm["nvm_after"] == truth and not rep.nvm["verified"]
+    import sqlite3
+
+    row = sqlite3.connect(tmp_path / "runs.sqlite").execute("SELECT status, verdict FROM runs").fetchone()
+    assert row == ("complete", "FAIL")
