@@ -7,11 +7,13 @@ from typing import Any
 
 import click
 
+from ..fixtures.operator_ui import OperatorUI
 from ..station.board import Station
 from ..station.identity import ask_run_identity
 from ..station.report import RunReport
 from ..station.settings import StationConfig
 from ._common import jsonable
+from .operator_terminal import TerminalOperator
 
 
 @click.command("run")
@@ -34,22 +36,25 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     4 NVM error, 5 operator abort.
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
-    operator, serial = ask_run_identity(cfg, operator, serial)
+    # identity questions and their retries always on stderr (stdout may be the JSON object)
+    operator, serial = ask_run_identity(cfg, operator, serial, TerminalOperator(lambda t: click.echo(t, err=True)))
 
     def echo(text: str) -> None:
         click.echo(text, err=as_json)
 
+    ui = TerminalOperator(echo)
+
     echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}")
     if isinstance(cfg.raw["device"], dict) and "boards" in cfg.raw["device"]:
-        _run_panel(cfg, operator, serial, lot, as_json, echo)
+        _run_panel(cfg, operator, serial, lot, as_json, echo, ui)
         return
     rep: RunReport
     if "thermal" in cfg.raw or "chamber" in cfg.raw:  # ThermalStation refuses one without the other
         from ..station.thermal import ThermalStation
 
-        rep = ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
+        rep = ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui).run()
     else:
-        rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
+        rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui).run()
     if as_json:
         click.echo(json.dumps(jsonable(rep.to_dict()), indent=2, allow_nan=False))
     else:
@@ -102,7 +107,7 @@ def timing_lines(t: dict[str, Any]) -> list[str]:
 
 
 def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None, as_json: bool,
-               echo: Callable[[str], None]) -> None:
+               echo: Callable[[str], None], ui: OperatorUI) -> None:
     """A panel: one line per board; exit 1 when any board failed."""
     from ..errors import ConfigError
     from ..station.panel import PanelStation, panel_dict
@@ -112,7 +117,7 @@ def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot
                           "(or set device.boards[i].serial)")
     if "thermal" in cfg.raw or "chamber" in cfg.raw:  # a thermal plan over the panel (thermal_panel.py)
         from ..station.thermal_panel import ThermalPanelStation as PanelStation
-    station = PanelStation(cfg, operator=operator, lot=lot, echo=echo)
+    station = PanelStation(cfg, operator=operator, lot=lot, echo=echo, ui=ui)
     reports = station.run()
     if as_json:
         click.echo(json.dumps(jsonable(panel_dict(station.panel_id, reports, station)), indent=2, allow_nan=False))
