@@ -4,8 +4,8 @@ from __future__ import annotations
 import click
 
 from ..errors import ConfigError
-from ..store.location import store_target
 from ..station.settings import StationConfig
+from ..store.location import store_target
 
 
 def require_web() -> None:

@@ -63,14 +63,13 @@ def board_context(store: Store, serial: str) -> dict[str, Any]:
     """Every run of one board (newest first) with its residual chart and the NVM history."""
     recs = store.runs(device=serial)
     runs = []
-    nvm = []
+    nvm: list[dict[str, Any]] = []
     for rec in reversed(recs):
         runs.append({"rec": rec, "started": iso(rec.started_at), "chart": _residuals(rec),
                      "reasons": [r.to_dict() for r in rec.reasons],
                      "figures": (rec.fit_summary or {}).get("measured") or {}})
-        for e in rec.events:
-            if str(e["kind"]).startswith("nvm_"):
-                nvm.append({"run": rec.id, "t": iso(e["t"]), "kind": e["kind"], "message": e["message"]})
+        nvm.extend({"run": rec.id, "t": iso(e["t"]), "kind": e["kind"], "message": e["message"]}
+                   for e in rec.events if str(e["kind"]).startswith("nvm_"))
         if rec.nvm_status and rec.nvm_status != "none":
             o = rec.nvm_outcome or {}
             nvm.append({"run": rec.id, "t": iso(rec.finished_at), "kind": f"run {rec.nvm_status}",
@@ -89,7 +88,7 @@ def lot_context(store: Store, lot: str) -> dict[str, Any]:
     if summ["runs"]:
         recs = [r for r in store.runs(lot=lot, status="complete") if r.calibration and not r.damaged]
         lim = limits_from_text(recs[-1].config_text) if recs else {}
-        vals = np.array([param_vector(r.calibration) for r in recs]) if recs else np.zeros((0, 12))
+        vals = np.array([param_vector(r.calibration or {}) for r in recs]) if recs else np.zeros((0, 12))
         for name, idx, scale, key, centre in PARAMS:
             x = vals[:, idx] * scale if len(vals) else np.zeros(0)
             lk = lim.get(key)

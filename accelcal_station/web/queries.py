@@ -45,11 +45,12 @@ def shift_label(bucket: int) -> str:
 
 def summary(row: dict[str, Any]) -> dict[str, Any]:
     """A run row (SUMMARY_COLS) as the API and pages show it: typed reasons, the fit figures."""
-    fit = load_or(row.get("fit_summary"), {})
-    fit = fit if isinstance(fit, dict) else {}
+    loaded = load_or(row.get("fit_summary"), {})
+    fit: dict[str, Any] = loaded if isinstance(loaded, dict) else {}
     reasons = stored_reasons(row.get("reasons"))
     out = {k: row[k] for k in row if k not in ("reasons", "fit_summary")}
-    measured = fit.get("measured") if isinstance(fit.get("measured"), dict) else {}
+    m = fit.get("measured")
+    measured: dict[str, Any] = m if isinstance(m, dict) else {}
     out.update(reasons=[r.to_dict() for r in reasons], reason_codes=codes(reasons),
                residual_rms_mg=measured.get("residual_rms_mg"), measured=measured)
     return out
