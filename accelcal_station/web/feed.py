@@ -76,6 +76,8 @@ def advance(cursor: Cursor, rows: list[dict[str, Any]], now_s: float, limit: int
         done.add(r["id"])
         low = r["id"] + 1 if blocked_at is None else min(blocked_at, r["id"] + 1)
         low = max(low, cursor.low)
+        while low in done and (blocked_at is None or low < blocked_at):
+            low += 1  # delivered earlier, out of order: the cursor passes over them
         steps.append(Step(r["id"], Cursor(low, frozenset(d for d in done if d >= low))))
     return steps
 
