@@ -69,8 +69,9 @@ def control_chart(title: str, unit: str, values: list[float], labels: list[str],
     for i, (v, lab) in enumerate(zip(x, labels, strict=True)):
         out = v < lcl or v > ucl or (limit is not None and v > limit) or (limit_lo is not None and v < limit_lo)
         chart.points.append((PAD_L + i * step, _y(float(v), lo, hi), bool(out), f"{lab}: {v:.4g} {unit}"))
-    chart.lines = [Line(_y(c, lo, hi), f"mean {c:.3g}", "centre"), Line(_y(lcl, lo, hi), "-3σ", "sigma"),
-                   Line(_y(ucl, lo, hi), "+3σ", "sigma")]
+    yc = _y(c, lo, hi)
+    chart.lines = [Line(yc, f"mean {c:.3g}", "centre")] + [  # 3-sigma lines on the mean are not drawn twice
+        Line(_y(v, lo, hi), name, "sigma") for v, name in ((lcl, "-3σ"), (ucl, "+3σ")) if abs(_y(v, lo, hi) - yc) > 12]
     for v in (limit, limit_lo):
         if v is not None:
             chart.lines.append(Line(_y(v, lo, hi), f"limit {v:g}", "limit"))
