@@ -9,7 +9,6 @@ import time
 
 import numpy as np
 import pytest
-
 from webtools import live_server
 
 httpx = pytest.importorskip("httpx")
@@ -137,11 +136,12 @@ def test_openapi_schema_is_served_and_valid_and_errors_are_json(tmp_path):
 
 
 def test_operator_api_abort_needs_the_configured_token():
+    from webtools import free_port
+
     from accelcal_station.fixtures.base import PoseSpec
     from accelcal_station.web.operator import WebOperator
     from accelcal_station.web.operator_app import create_operator_app
     from accelcal_station.web.server import BackgroundServer
-    from webtools import free_port
 
     answers: list[str] = []
     for token in (None, "s3cret-token-0123456789"):

@@ -15,19 +15,18 @@ import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
-
 from webtools import chromium, free_port, live_server, no_alert, screenshot
 
 pytest.importorskip("fastapi")
 pytest.importorskip("selenium")
-from selenium.webdriver.common.by import By  # noqa: E402
-from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support.ui import WebDriverWait
 
-from accelcal_station.cli import cli  # noqa: E402
-from accelcal_station.config.sections import default_config_path  # noqa: E402
-from accelcal_station.station.board import Station  # noqa: E402
-from accelcal_station.station.settings import StationConfig  # noqa: E402
-from accelcal_station.store.runs import Store  # noqa: E402
+from accelcal_station.cli import cli
+from accelcal_station.config.sections import default_config_path
+from accelcal_station.station.board import Station
+from accelcal_station.station.settings import StationConfig
+from accelcal_station.store.runs import Store
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 HOSTILE = "<script>alert(1)</script>"

@@ -35,8 +35,9 @@ def free_port() -> int:
 def live_server(store: str, **settings):
     """`accelcal serve`'s application over ``store`` on a free localhost port; yields its base URL."""
     pytest.importorskip("fastapi")
-    from accelcal_station.web.app import WebSettings, create_app
+    from accelcal_station.web.app import create_app
     from accelcal_station.web.server import BackgroundServer
+    from accelcal_station.web.settings import WebSettings
 
     port = free_port()
     server = BackgroundServer(create_app(WebSettings(str(store), **settings)), "127.0.0.1", port)
@@ -84,7 +85,7 @@ def no_alert(drv) -> bool:
     from selenium.common.exceptions import NoAlertPresentException
 
     try:
-        drv.switch_to.alert
+        _ = drv.switch_to.alert
     except NoAlertPresentException:
         return True
     return False

@@ -40,8 +40,9 @@ def command(db: str | None, configs: tuple[str, ...], host: str, port: int) -> N
     limits = dict(cfgs[0].limits.values) if cfgs else {}
     token = next((c.web_token for c in cfgs if c.web_token), None)
     require_web()
-    from ..web.app import WebSettings, create_app
+    from ..web.app import create_app
     from ..web.server import serve_forever
+    from ..web.settings import WebSettings
 
     app = create_app(WebSettings(str(store), limits, token))
     click.echo(f"serving {store} on http://{host}:{port}/ (Ctrl-C stops)", err=True)

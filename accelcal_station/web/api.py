@@ -18,10 +18,12 @@ from pydantic import BaseModel
 
 from ..errors import DataError
 from . import queries
+from .errors import ApiError
 from .feed import Cursor, Step, advance, head
+from .settings import open_store
 
 if TYPE_CHECKING:
-    from .app import WebSettings
+    from .settings import WebSettings
 
 
 class Reason(BaseModel):
@@ -71,8 +73,6 @@ class YieldSummary(BaseModel):
 
 
 def _rows(settings: WebSettings, sql_filters: dict[str, Any], limit: int) -> list[dict[str, Any]]:
-    from .app import open_store
-
     with open_store(settings) as st:
         ids = [r["id"] for r in st.list_runs(limit=limit, **sql_filters)]
         return queries.summaries(st, ids)
@@ -80,8 +80,6 @@ def _rows(settings: WebSettings, sql_filters: dict[str, Any], limit: int) -> lis
 
 def _feed(settings: WebSettings, cursor: Cursor, limit: int) -> tuple[list[Step], list[dict[str, Any]]]:
     """The next steps of the feed after ``cursor`` and their runs (one store open, read only)."""
-    from .app import open_store
-
     with open_store(settings) as st:
         steps = advance(cursor, queries.feed_rows(st, cursor.low), time.time(), limit)
         runs = queries.summaries(st, [s.run_id for s in steps])
@@ -108,8 +106,6 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
 
     @r.get("/runs/{run_id}", summary="One run with its calibration, reasons, poses and events")
     def one_run(run_id: int) -> dict[str, Any]:
-        from .app import ApiError, open_store
-
         with open_store(settings) as st:
             try:
                 rec = st.get_run(run_id)
@@ -119,8 +115,6 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
 
     @r.get("/yield", response_model=YieldSummary, summary="Yield and first-pass yield per station and shift")
     def yields() -> dict[str, Any]:
-        from .app import open_store
-
         with open_store(settings) as st:
             t0 = queries.window_start(st)
             if t0 is None:
@@ -157,8 +151,6 @@ def _feed_routes(r: APIRouter, settings: WebSettings) -> None:
 
     @r.get("/events/head", summary="The cursor at the present end of the feed (skip the past)")
     def events_head() -> dict[str, str]:
-        from .app import open_store
-
         with open_store(settings) as st:
             return {"next": head(*queries.head_rows(st)).text()}
 

@@ -15,7 +15,7 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from pydantic import BaseModel, Field
 
 from . import assets
-from .app import ApiError, _install_errors
+from .errors import ApiError, install_errors
 from .operator import WebOperator
 
 
@@ -32,7 +32,7 @@ def _json_only(request: Request) -> None:
 def create_operator_app(ui: WebOperator, token: str | None) -> FastAPI:
     app = FastAPI(title="accelcal operator station", version="v1", openapi_url="/openapi.json",
                   docs_url=None, redoc_url=None)
-    _install_errors(app)
+    install_errors(app)
     app.include_router(assets.router)
 
     @app.get("/", response_class=HTMLResponse, include_in_schema=False)
