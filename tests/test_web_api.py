@@ -177,3 +177,21 @@ def test_operator_api_abort_needs_the_configured_token():
 
 def _ask_or_abort(ui, prompt) -> str:
     return ui.ask(prompt, None)
+
+
+def test_serve_and_web_token_refusals_are_one_line(tmp_path):
+    import yaml
+    from click.testing import CliRunner
+
+    from accelcal_station.cli import cli
+    from accelcal_station.config.sections import default_config_path
+
+    r = CliRunner().invoke(cli, ["serve"])
+    assert r.exit_code == 2 and r.stderr.strip() == "error: --db or --config: name the results store to serve"
+    cfg = yaml.safe_load(default_config_path().read_text())
+    for token, message in (("short", "web.token: allowed: a string of 16-200"), (None, "web.tokn: unknown key")):
+        cfg["web"] = {"token": token} if token else {"tokn": "x" * 20}
+        p = tmp_path / "station.yaml"
+        p.write_text(yaml.safe_dump(cfg))
+        r = CliRunner().invoke(cli, ["serve", "--config", str(p)])
+        assert r.exit_code == 2 and message in r.stderr and r.stderr.count("\n") == 1, r.output
