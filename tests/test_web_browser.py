@@ -19,7 +19,9 @@ from webtools import chromium, free_port, live_server, no_alert, screenshot
 
 pytest.importorskip("fastapi")
 pytest.importorskip("selenium")
+from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
+from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import WebDriverWait
 
 from accelcal_station.cli import cli
@@ -174,7 +176,10 @@ def test_operator_page_calibrates_the_emulated_board_by_clicks_like_the_terminal
                         WebDriverWait(drv, 5).until(lambda d: "READY" in d.find_element(By.ID, "ready").text)
                         screenshot(drv, "operator.png")
                         shot = True
-                    button.click()
+                    if clicks % 2:  # every other pose by the key instead of the button
+                        ActionChains(drv).send_keys(Keys.ENTER).perform()
+                    else:
+                        button.click()
                     clicks += 1
                 time.sleep(0.1)
             assert drv.find_element(By.ID, "result-verdict").text == "PASS"
@@ -195,3 +200,32 @@ def test_operator_page_calibrates_the_emulated_board_by_clicks_like_the_terminal
     # (noise ~0.1 mg per pose at the capture's target): the fits agree to that, not bit for bit
     np.testing.assert_allclose(a["W"], b["W"], atol=2e-3)
     np.testing.assert_allclose(a["V"], b["V"], atol=2e-3)
+
+
+def test_abort_on_the_operator_page_exits_5_and_records_the_run_interrupted(tmp_path):
+    web = _emulated_config(tmp_path, "abort", "line1-mma8451")
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "accelcal_station", "run", "--config", str(web), "--ui", "web",
+                             "--ui-port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        with chromium() as drv:
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 20:
+                try:
+                    drv.get(f"http://127.0.0.1:{port}/")
+                    break
+                except Exception:
+                    time.sleep(0.2)
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "b-abort").is_enabled())
+            ActionChains(drv).send_keys("a").perform()
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "result").is_displayed())
+            assert drv.find_element(By.ID, "result-verdict").text == "ABORTED"
+            assert "operator aborted at pose" in drv.find_element(By.ID, "result-reasons").text
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 5 and "error: operator aborted at pose x+1g" in err, err
+    with Store(tmp_path / "abort.sqlite") as st:
+        (run,) = st.list_runs()
+    assert run["status"] == "interrupted" and "operator aborted" in run["status_reason"]
