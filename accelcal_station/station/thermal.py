@@ -25,7 +25,7 @@ from ..acceptance.reasons import Reason, wrap
 from ..acceptance.rules import judge
 from ..calibration import Calibration, TemperatureTable
 from ..drivers.base import Clock, Driver
-from ..errors import AccelcalError, ConfigError, UnderdeterminedError
+from ..errors import AccelcalError, ConfigError, NVMError, PortLostError, UnderdeterminedError
 from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import board_of, make_jig
@@ -146,6 +146,10 @@ class ThermalStation(Station):
                     if isinstance(e, ChamberFault):
                         rep.verdict, rep.reasons = "FAIL", [Reason("chamber", str(e))]
                         self.echo(f"FAIL: chamber: {e} (nothing burned)")
+                    elif isinstance(e, (PortLostError, NVMError)):  # a lost sensor/jig port, unsettled NVM reads
+                        code = getattr(e, "reason_code", "nvm")
+                        rep.verdict, rep.reasons = "FAIL", [Reason(code, f"{e} ({self._where()})")]
+                        self.echo(f"FAIL: {e} ({len(records)} poses captured)")
                     else:
                         where = self._where()
                         why = "interrupted" if isinstance(e, KeyboardInterrupt) else str(e)
