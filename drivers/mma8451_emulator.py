@@ -202,7 +202,7 @@ class MMA8451Emulator:
         self.clock = _Clock(self)
         self._grid0 = 0.0
         self._boot_until = -np.inf
-        self._nacks: list[list[Any]] = []  # [remaining, address or None, register or None]
+        self._nacks: list[list[Any]] = []  # [remaining, address or None, register or None, from transaction]
         self._nack_every = 0
         self._overrun, self._overrun_at = 0, 0
         self.samples_produced = 0
@@ -269,9 +269,11 @@ class MMA8451Emulator:
         return int(self.board.eeprom.page_size)
 
     # --- faults ---------------------------------------------------------------------------
-    def nack_next(self, k: int = 1, register: int | None = None, address: int | None = None) -> None:
-        """NACK the next k transactions (to ``address``, touching ``register`` when given)."""
-        self._nacks.append([int(k), address, register])
+    def nack_next(self, k: int = 1, register: int | None = None, address: int | None = None,
+                  after: int = 0) -> None:
+        """NACK the next k transactions (to ``address``, touching ``register`` when given), from
+        ``after`` more transactions on (a NACK storm mid-run)."""
+        self._nacks.append([int(k), address, register, self.transactions + int(after)])
 
     def nack_every(self, n: int) -> None:
         """NACK every n-th transaction (0: never)."""
@@ -357,7 +359,8 @@ class MMA8451Emulator:
         if self._nack_every and self.transactions % self._nack_every == 0:
             return True
         for rule in self._nacks:
-            if rule[0] > 0 and rule[1] in (None, addr) and rule[2] in (None, register):
+            if rule[0] > 0 and rule[1] in (None, addr) and rule[2] in (None, register) \
+                    and self.transactions > rule[3]:
                 rule[0] -= 1
                 return True
         return False

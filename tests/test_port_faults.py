@@ -102,3 +102,30 @@ def test_lost_ports_are_typed_at_the_driver_boundary():
             link.send(1)
             time.sleep(0.01)
     link.close()
+
+
+def test_nack_storm_mid_run_is_a_recorded_fail(tmp_path):
+    """The emulated MMA8451 NACKs every transaction from ~1/3 of the way through a run (a whole run
+    is ~5,800 transactions): the run is FAIL with reason code 'device', its poses so far recorded."""
+    import sqlite3 as sq
+
+    from accelcal_station.config.sections import device_section
+    from accelcal_station.drivers.factory import make_driver
+    from accelcal_station.station.board import Station
+    from accelcal_station.station.settings import StationConfig
+
+    doc = yaml.safe_load((CONFIGS / "mma8451-emulated.yaml").read_text())
+    doc["jig"] = {"type": "simulated", "move_time_s": 0.0}
+    doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    (tmp_path / "st.yaml").write_text(yaml.safe_dump(doc))
+    dev = make_driver(device_section(str(tmp_path / "st.yaml")))
+    with dev:
+        emu = dev.dev.smbus
+    emu.nack_next(k=100_000, address=emu.address, after=2_000)
+    rep = Station(StationConfig.load(tmp_path / "st.yaml"), driver=dev, echo=lambda s: None).run()
+    assert rep.verdict == "FAIL" and rep.reasons[0].code == "device" and emu.nacked >= 3  # retried, then gave up
+    (status, verdict, reasons), = sq.connect(tmp_path / "runs.sqlite").execute(
+        "SELECT status, verdict, reasons FROM runs").fetchall()
+    assert (status, verdict) == ("complete", "FAIL") and json.loads(reasons)[0]["code"] == "device"
+    n = sq.connect(tmp_path / "runs.sqlite").execute("SELECT COUNT(*) FROM poses").fetchone()[0]
+    assert 1 <= n < 6 and n == len(rep.poses)
