@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config.checks import check_keys, number
+from ..config.schema import AcceptanceSection, validate
 from ..models.result import FitResult
 from ..models.sanity import distinct_directions, distinct_directions_batch, poses_needed
 from .reasons import Reason
@@ -41,8 +41,8 @@ class Limits:
 
     @classmethod
     def from_config(cls, d: dict | None, path: str = "acceptance") -> Limits:
-        d = check_keys(d or {}, LIMIT_KEYS, path)
-        values = {k: number(d, k, path, lo=0.0) for k in d}
+        checked = validate(d or {}, AcceptanceSection, path).model_dump(exclude_none=True)
+        values = {k: float(v) for k, v in checked.items()}
         missing = [k for k in DEFAULT_LIMITS if k not in values]
         return cls({**values, **{k: DEFAULT_LIMITS[k] for k in missing}}, missing)
 

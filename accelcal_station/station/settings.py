@@ -9,6 +9,7 @@ from typing import Any
 from ..acceptance.rules import Limits
 from ..calibration import MODELS
 from ..config.checks import check_keys, choice, load_yaml, number
+from ..config.schema import validate_station
 from ..config.sections import default_config_path, with_port
 from ..errors import AccelcalError, ConfigError
 from ..fixtures.designs import get_design
@@ -48,6 +49,7 @@ class StationConfig:
         port (or MMA8451 bus) and the motorized jig's port."""
         p = default_config_path() if path is None else Path(path)
         raw = _read_with_ports(p, port, jig_port)
+        validate_station(raw)  # the declared schema: keys, types, finite numbers in range
         # the checks run in this order: a config with several errors names the same one first
         st = _check_sections(raw, p)
         design, model = _plan(raw)
