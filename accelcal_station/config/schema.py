@@ -21,7 +21,8 @@ MAX_BOARDS = 64
 class Section(BaseModel):
     """A config section: unknown keys refused, numbers finite."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    # strict: a quoted "5" or YAML 1.1's 1e300 (a string: no dot) is not taken for a number
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 def _f(default: Any, desc: str, ge: float | None = None, le: float | None = None, gt: float | None = None) -> Any:
@@ -88,8 +89,8 @@ class VerifySection(Section):
 class HandSection(Section):
     """A simulated operator's hand (operator jig in CI)."""
 
-    wrong_face: StrictBool = _f(False, "present a wrong face first")
-    bump: StrictBool = _f(False, "bump the board during a capture")
+    wrong_face: list[str | int] = _f([], "poses (names or 1-based numbers) first presented on a wrong face")
+    bump: list[str | int] = _f([], "poses (names or 1-based numbers) bumped during the capture")
     bump_after_s: float = _f(1.5, "bump this long into the capture, s", ge=0, le=60)
     bump_s: float = _f(0.5, "bump length, s", ge=0.01, le=10)
     bump_deg: float = _f(15.0, "bump tilt, deg", ge=0.1, le=90)
@@ -101,7 +102,8 @@ class JigSection(Section):
     move_time_s: float = _f(2.0, "simulated: time between poses on the virtual clock, s", ge=0, le=120)
     tolerance_deg: float | None = _f(None, "operator: pose tolerance, deg (12); motorized: position "
                                      "tolerance, deg (0.02)", ge=1e-4, le=45)
-    hand: HandSection | None = _f(None, "operator: a simulated hand instead of a person (CI)")
+    hand: HandSection | Literal[True] | None = _f(None, "operator: a simulated hand instead of a person (CI); "
+                                                  "true for the default hand")
     port: str | None = _f(None, "motorized: serial port (or 'emulated')")
     baud: int = _f(115200, "motorized: serial baud rate", ge=300, le=4_000_000)
     timeout_s: float = _f(0.5, "motorized: reply timeout, s", ge=0.01, le=60)
@@ -132,6 +134,16 @@ class SimulatorSection(Section):
         None, "effects of the catalog (sim/sensor_model.py EFFECTS), each with its parameters")
 
 
+class BusEmulatorSection(Section):
+    """mma8451 ``bus: emulated``: the register-level emulator's faults."""
+
+    chip_id: int = _f(0x1A, "WHO_AM_I value the emulated chip answers", ge=0, le=255)
+    nack_every: int = _f(0, "NACK every Nth bus transaction (0: never)", ge=0, le=1000)
+    never_ready: StrictBool = _f(False, "the data-ready flag never sets")
+    present: StrictBool = _f(True, "the chip answers on the bus at all")
+    bus_hz: float = _f(400_000.0, "I2C clock of the emulated bus, Hz", ge=10_000, le=3_400_000)
+
+
 class MuxSection(Section):
     address: int = _f(0x70, "TCA9548A I2C address", ge=0x70, le=0x77)
 
@@ -155,7 +167,9 @@ class DeviceSection(Section):
     ambient_c: float = _f(25.0, "simulated: board temperature, C", ge=-60, le=150)
     self_heating_c: float = _f(0.0, "simulated: warm-up of the board, C", ge=0, le=50)
     eeprom: EepromSection | None = _f(None, "the board's calibration EEPROM")
-    simulator: SimulatorSection | None = _f(None, "simulated/emulated: the forward sensor model")
+    simulator: SimulatorSection | DeviceSection | str | None = _f(
+        None, "simulated: the forward sensor model ({effects: ...}); emulated mpu6050: a board mapping "
+        "(these keys) or the path of a simulator YAML file")
     effects: dict[str, dict[str, Any] | None] | None = _f(None, "simulated: effects (as simulator.effects)")
     bus: int | str | None = _f(None, "mma8451: I2C bus number, /dev/i2c-N or 'emulated'")
     address: int | None = _f(None, "mma8451: I2C address (0x1c or 0x1d)", ge=0, le=0x7F)
@@ -163,13 +177,12 @@ class DeviceSection(Section):
     retries: int | None = _f(None, "mma8451/mpu6050: retries of a bus or serial transaction", ge=0, le=20)
     timeout_s: float | None = _f(None, "mma8451/mpu6050: transaction timeout, s", ge=0.001, le=60)
     offset_trim_lsb: float | None = _f(None, "mma8451: offset register LSB, mg", gt=0, le=100)
-    emulator: dict[str, Any] | None = _f(None, "mma8451 emulated bus: chip_id, nack_every, never_ready, "
-                                         "present, bus_hz")
+    emulator: BusEmulatorSection | None = _f(None, "mma8451 bus: emulated: the emulator's faults")
     port: str | None = _f(None, "mpu6050: serial port of the bridge (or 'emulated')")
     baud: int | None = _f(None, "mpu6050: serial baud rate", ge=1200, le=4_000_000)
     boot_wait_s: float | None = _f(None, "mpu6050: wait for the bridge to boot, s", ge=0, le=30)
-    boards: int | list[dict[str, Any]] | None = _f(None, f"panel: a count 1..{MAX_BOARDS} or a list of "
-                                                   "per-board device mappings")
+    boards: int | list[DeviceSection] | None = _f(None, f"panel: a count 1..{MAX_BOARDS} or a list of "
+                                                  "per-board device mappings (these keys, overriding the panel's)")
     spread: SpreadSection | None = _f(None, "panel, simulated: per-board spread of offset and gain")
     mux: MuxSection | None = _f(None, "panel on one I2C bus: a TCA9548A multiplexer")
     channel: int | None = _f(None, "panel board: multiplexer channel", ge=0, le=7)
@@ -239,13 +252,21 @@ class StationConfigSchema(Section):
     chamber: ChamberSection | None = _f(None, "the thermal chamber (thermal plans)")
 
 
+def _models_in(ann: Any) -> list[type[BaseModel]]:
+    """The section models inside a field's annotation (``X | None``, ``list[X]``, ...)."""
+    if isinstance(ann, type) and issubclass(ann, BaseModel):
+        return [ann]
+    return [m for a in getattr(ann, "__args__", ()) for m in _models_in(a)]
+
+
 def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:
     """The section model a validation error's location (without its last key) points into."""
     for part in loc:
-        if not isinstance(part, str) or part not in model.model_fields:
-            return None if not isinstance(part, int) else model
-        ann = model.model_fields[part].annotation
-        nested = [a for a in getattr(ann, "__args__", (ann,)) if isinstance(a, type) and issubclass(a, BaseModel)]
+        if isinstance(part, int):
+            continue  # an item of a list of sections
+        if part not in model.model_fields:
+            return None
+        nested = _models_in(model.model_fields[part].annotation)
         if not nested:
             return None
         model = nested[0]
@@ -260,32 +281,60 @@ def _path(where: str, loc: tuple[Any, ...]) -> str:
 
 
 def _range(model: type[BaseModel] | None, key: Any) -> str:
+    """``0 to 64``, ``above 0 to 60`` (exclusive lower bound), or '' when unbounded."""
     if model is None or key not in model.model_fields:
         return ""
-    lo = hi = None
+    ge = gt = le = None
     for m in model.model_fields[key].metadata:
-        lo = getattr(m, "ge", None) if getattr(m, "ge", None) is not None else (
-            getattr(m, "gt", None) if getattr(m, "gt", None) is not None else lo)
-        hi = getattr(m, "le", None) if getattr(m, "le", None) is not None else hi
-    return "" if lo is None and hi is None else f"{'-inf' if lo is None else f'{lo:g}'} to " \
-        f"{'inf' if hi is None else f'{hi:g}'}"
+        ge = getattr(m, "ge", None) if getattr(m, "ge", None) is not None else ge
+        gt = getattr(m, "gt", None) if getattr(m, "gt", None) is not None else gt
+        le = getattr(m, "le", None) if getattr(m, "le", None) is not None else le
+    if ge is None and gt is None and le is None:
+        return ""
+    lo = _num(ge) if ge is not None else (f"above {_num(gt)}" if gt is not None else "-inf")
+    return f"{lo} to {'inf' if le is None else _num(le)}"
+
+
+def _num(v: float) -> str:
+    return str(v) if isinstance(v, int) else f"{v:g}"
+
+
+def _choices(model: type[BaseModel] | None, key: Any) -> str:
+    """A Literal field's allowed values, as people write them (``6, 9, 12, 15``)."""
+    if model is None or key not in model.model_fields:
+        return ""
+    args = getattr(model.model_fields[key].annotation, "__args__", ())
+    vals = [a for a in args if isinstance(a, (str, int))]
+    return ", ".join(dict.fromkeys(str(v) for v in vals))
 
 
 def error_line(err: dict[str, Any], root: type[BaseModel], where: str = "") -> str:
     """One line for a pydantic error: key path, value, what is allowed."""
-    loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and p.startswith(("function-", "list[", "int",
-                                                                                     "dict[", "str", "float"))))
+    loc = tuple(p for p in err["loc"] if isinstance(p, int) or not _is_tag(p))
     path, kind, value = _path(where, loc), err["type"], err.get("input")
     parent = _model_at(root, loc[:-1]) if loc else root
+    key = loc[-1] if loc else None
     if kind == "extra_forbidden":
         allowed = ", ".join(parent.model_fields) if parent is not None else ""
         return f"{path}: unknown key; allowed: {allowed}"
     if kind == "missing":
         return f"{path}: required"
-    rng = _range(parent, loc[-1] if loc else None)
-    if kind in ("finite_number", "greater_than_equal", "less_than_equal", "greater_than", "less_than"):
-        return f"{path}: {value!r} out of range; allowed: a finite number {rng}".rstrip()
-    return f"{path}: {value!r}; allowed: {err['msg'].lower()}" + (f" ({rng})" if rng else "")
+    rng = _range(parent, key)
+    if kind == "finite_number":
+        return f"{path}: {value!r} is not a finite number; allowed: {rng or 'a finite number'}"
+    if kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
+        return f"{path}: {value!r} out of range; allowed: {rng}"
+    if kind.startswith("int_"):
+        return f"{path}: {value!r}; allowed: a whole number" + (f" {rng}" if rng else "")
+    if kind == "literal_error":
+        return f"{path}: {value!r}; allowed: {_choices(parent, key)}"
+    return f"{path}: {value!r}; allowed: {err['msg'].removeprefix('Input should be ')}" + (f" ({rng})" if rng else "")
+
+
+def _is_tag(part: str) -> bool:
+    """pydantic's union-member tags in a location (``int``, ``list[...]``, ``function-...``)."""
+    return part.startswith(("function-", "list[", "dict[", "literal[")) or part in ("int", "str", "float", "bool") \
+        or part[:1].isupper()
 
 
 def validate(data: Any, model: type[BaseModel], where: str = "") -> BaseModel:
@@ -293,7 +342,12 @@ def validate(data: Any, model: type[BaseModel], where: str = "") -> BaseModel:
     try:
         return model.model_validate(data)
     except ValidationError as e:
-        raise ConfigError(error_line(dict(e.errors()[0]), model, where)) from None
+        # a union (``boards: 5`` or a list of mappings) reports every member's error: the one
+        # reaching deepest into the data says what is wrong
+        # (an unknown key before a missing one at the same depth: the typo is the likelier cause)
+        errs = sorted(e.errors(), key=lambda x: (-len([p for p in x["loc"] if isinstance(p, int) or not _is_tag(p)]),
+                                                 x["type"] != "extra_forbidden"))
+        raise ConfigError(error_line(dict(errs[0]), model, where)) from None
 
 
 def validate_station(raw: dict[str, Any]) -> StationConfigSchema:
