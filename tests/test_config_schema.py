@@ -132,3 +132,18 @@ def test_huge_config_numbers_are_one_line(tmp_path: Path, section: str, key: str
     rj = CliRunner().invoke(cli, ["run", "--config", p, "--json"])
     assert rj.exit_code == 2
     assert json.loads(rj.stdout)["error"] == line.removeprefix("error: ")
+
+
+def test_a_chamber_without_pyvisa_is_one_line_naming_the_extra(tmp_path: Path) -> None:
+    """pyvisa is the optional ``chamber`` extra: a thermal plan without it is refused before any
+    emulator or port opens (pyvisa hidden from a real interpreter by a None sys.modules entry)."""
+    import subprocess
+    import sys
+    code = ("import sys; sys.modules['pyvisa'] = None; sys.modules['pyvisa_py'] = None\n"
+            "from accelcal_station.cli import main\n"
+            f"sys.argv = ['accelcal', 'run', '--config', {str(REPO / 'configs' / 'thermal-sim.yaml')!r}]\n"
+            "main()\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert "pyvisa" in lines[0] and "accelcal-station[chamber]" in lines[0], lines[0]

@@ -9,6 +9,7 @@ from these models (``python -m accelcal_station.config.docs``).
 """
 from __future__ import annotations
 
+import math
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
@@ -186,6 +187,8 @@ class DeviceSection(Section):
     spread: SpreadSection | None = _f(None, "panel, simulated: per-board spread of offset and gain")
     mux: MuxSection | None = _f(None, "panel on one I2C bus: a TCA9548A multiplexer")
     channel: int | None = _f(None, "panel board: multiplexer channel", ge=0, le=7)
+    seated_deg: list[float] | None = _f(None, "simulated panel board: how it really sits in its slot, an [x, y, z] "
+                                        "rotation vector in degrees")
 
 
 class SoakSection(Section):
@@ -226,7 +229,7 @@ class ChamberEmulator(Section):
 
 
 class ChamberSection(Section):
-    driver: str = _f("emulated", "chamber driver (docs/chamber-protocol.md)")
+    driver: Literal["ascii"] = _f("ascii", "chamber protocol (docs/chamber-protocol.md)")
     port: str | None = _f(None, "serial port, or 'emulated'")
     baud: int = _f(9600, "serial baud rate", ge=300, le=1_000_000)
     timeout_s: float = _f(1.0, "reply timeout, s", ge=0.01, le=60)
@@ -324,6 +327,8 @@ def error_line(err: dict[str, Any], root: type[BaseModel], where: str = "") -> s
         return f"{path}: {value!r} is not a finite number; allowed: {rng or 'a finite number'}"
     if kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
         return f"{path}: {value!r} out of range; allowed: {rng}"
+    if kind.startswith("int_") and isinstance(value, float) and not math.isfinite(value):
+        return f"{path}: {value!r} is not a finite number; allowed: a whole number" + (f" {rng}" if rng else "")
     if kind.startswith("int_"):
         return f"{path}: {value!r}; allowed: a whole number" + (f" {rng}" if rng else "")
     if kind == "literal_error":

@@ -23,7 +23,6 @@ from ..errors import ConfigError
 from ..sim.sensor_model import rotation_matrix
 
 MAX_BOARDS = 64
-PANEL_KEYS = ("boards", "spread", "mux")
 # simulated boards only: how the board really sits in its slot (rotation vector, degrees); a
 # board seated upside down reads the opposite face at every pose
 SEAT_KEY = "seated_deg"
