@@ -147,3 +147,10 @@ def test_a_chamber_without_pyvisa_is_one_line_naming_the_extra(tmp_path: Path) -
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1, r.stderr
     assert "pyvisa" in lines[0] and "accelcal-station[chamber]" in lines[0], lines[0]
+
+
+def test_paths_named_in_the_shipped_configs_exist() -> None:
+    import re
+    for config in sorted((REPO / "configs").glob("*.yaml")):
+        for name in re.findall(r"[\w./-]+/[\w.-]+\.(?:md|py)\b", config.read_text()):
+            assert (REPO / name).exists(), f"{config.name} names {name}, which is not in the repository"
