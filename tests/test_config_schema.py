@@ -23,7 +23,6 @@ from accelcal_station.fixtures.simulated_hand import HAND_KEYS
 from accelcal_station.instruments.chamber_emulator import EMULATOR_KEYS, FAULT_KEYS
 from accelcal_station.station.capture import CaptureSettings
 from accelcal_station.station.identity import IDENTITY_KEYS
-from accelcal_station.station.settings import TOP_KEYS
 from accelcal_station.station.thermal_plan import PLAN_KEYS, SOAK_KEYS
 
 REPO = Path(__file__).resolve().parents[1]
@@ -34,10 +33,24 @@ def test_docs_config_md_is_generated_from_the_schema() -> None:
         "regenerate: python -m accelcal_station.config.docs > docs/config.md"
 
 
+def _sections_read() -> tuple[str, ...]:
+    """Every top-level section the package reads from a raw config (``raw["x"]``, ``raw.get("x")``)."""
+    import re
+    found = {m for f in (REPO / "accelcal_station").rglob("*.py")
+             for m in re.findall(r"\braw(?:\[|\.get\()\"(\w+)\"", f.read_text())}
+    assert {"device", "jig", "thermal", "chamber"} <= found, found  # the scan itself works
+    return tuple(sorted(found))
+
+
+def test_capture_defaults_are_the_capture_settings_defaults() -> None:
+    from accelcal_station.config.schema import CaptureSection
+    assert CaptureSection().model_dump() == CaptureSettings().__dict__
+
+
 def test_every_key_the_code_reads_is_in_the_schema() -> None:
     # the key lists the sections' own code checks against (drivers, jigs, station, chamber)
     code: dict[str, tuple[str, ...]] = {
-        "": TOP_KEYS, "acceptance": tuple(LIMIT_KEYS), "capture": tuple(CaptureSettings.__dataclass_fields__),
+        "": _sections_read(), "acceptance": tuple(LIMIT_KEYS), "capture": tuple(CaptureSettings.__dataclass_fields__),
         "station": ("id", *IDENTITY_KEYS), "thermal": PLAN_KEYS, "thermal.soak": SOAK_KEYS,
         "device": BOARD_KEYS + MMA8451.CONFIG_KEYS + MPU6050Bridge.CONFIG_KEYS + ("driver", "boards", "spread", "mux"),
         "device.eeprom": EEPROM_KEYS, "jig": MotorizedJig.CONFIG_KEYS + ("type", "move_time_s", "hand"),
