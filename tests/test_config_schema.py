@@ -23,7 +23,7 @@ from accelcal_station.fixtures.simulated_hand import HAND_KEYS
 from accelcal_station.instruments.chamber_emulator import EMULATOR_KEYS, FAULT_KEYS
 from accelcal_station.station.capture import CaptureSettings
 from accelcal_station.station.identity import IDENTITY_KEYS
-from accelcal_station.station.thermal_plan import PLAN_KEYS, SOAK_KEYS
+from accelcal_station.station.thermal_plan import SoakRule, ThermalPlan
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -42,16 +42,18 @@ def _sections_read() -> tuple[str, ...]:
     return tuple(sorted(found))
 
 
-def test_capture_defaults_are_the_capture_settings_defaults() -> None:
-    from accelcal_station.config.schema import CaptureSection
+def test_schema_defaults_are_the_settings_defaults() -> None:
+    from accelcal_station.config.schema import CaptureSection, SoakSection
     assert CaptureSection().model_dump() == CaptureSettings().__dict__
+    assert SoakSection().model_dump() == SoakRule().__dict__
 
 
 def test_every_key_the_code_reads_is_in_the_schema() -> None:
     # the key lists the sections' own code checks against (drivers, jigs, station, chamber)
     code: dict[str, tuple[str, ...]] = {
         "": _sections_read(), "acceptance": tuple(LIMIT_KEYS), "capture": tuple(CaptureSettings.__dataclass_fields__),
-        "station": ("id", *IDENTITY_KEYS), "thermal": PLAN_KEYS, "thermal.soak": SOAK_KEYS,
+        "station": ("id", *IDENTITY_KEYS), "thermal": tuple(ThermalPlan.__dataclass_fields__),
+        "thermal.soak": tuple(SoakRule.__dataclass_fields__),
         "device": BOARD_KEYS + MMA8451.CONFIG_KEYS + MPU6050Bridge.CONFIG_KEYS + ("driver", "boards", "spread", "mux"),
         "device.eeprom": EEPROM_KEYS, "jig": MotorizedJig.CONFIG_KEYS + ("type", "move_time_s", "hand"),
         "jig.hand": HAND_KEYS, "chamber.emulator": EMULATOR_KEYS, "chamber.emulator.faults": FAULT_KEYS,

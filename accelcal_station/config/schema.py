@@ -10,7 +10,7 @@ from these models (``python -m accelcal_station.config.docs``).
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 
@@ -199,9 +199,13 @@ class SoakSection(Section):
     poll_s: float = _f(10.0, "temperature poll interval, s", ge=0.01, le=3600)
 
 
+TempC = Annotated[float, Field(ge=-70, le=180)]
+
+
 class ThermalSection(Section):
-    set_points_c: list[float] = _f(..., "calibration temperatures, C (-70 to 180)")
-    verify_set_points_c: list[float] = _f([], "verification temperatures not used in the fit, C")
+    set_points_c: list[TempC] = _f(..., "calibration temperatures, C (-70 to 180 each; 3 or more, 5 C apart)")
+    verify_set_points_c: list[TempC] = _f(..., "verification temperatures not used in the fit, C (between the "
+                                          "calibration set points, 2.5 C or more from each)")
     method: Literal["linear", "quadratic"] = _f("linear", "interpolation of every parameter in temperature")
     soak: SoakSection | None = _f(None, "when a set point is reached")
     capture_band_c: float = _f(1.0, "board temperature during a capture within this of the set point, C",
