@@ -20,7 +20,6 @@ from accelcal_station.drivers.mpu6050 import MPU6050Bridge
 from accelcal_station.drivers.simulated import BOARD_KEYS, EEPROM_KEYS
 from accelcal_station.fixtures.motorized_jig import MotorizedJig
 from accelcal_station.fixtures.simulated_hand import HAND_KEYS
-from accelcal_station.instruments.chamber_emulator import EMULATOR_KEYS, FAULT_KEYS
 from accelcal_station.station.capture import CaptureSettings
 from accelcal_station.station.identity import IDENTITY_KEYS
 from accelcal_station.station.thermal_plan import SoakRule, ThermalPlan
@@ -56,7 +55,7 @@ def test_every_key_the_code_reads_is_in_the_schema() -> None:
         "thermal.soak": tuple(SoakRule.__dataclass_fields__),
         "device": BOARD_KEYS + MMA8451.CONFIG_KEYS + MPU6050Bridge.CONFIG_KEYS + ("driver", "boards", "spread", "mux"),
         "device.eeprom": EEPROM_KEYS, "jig": MotorizedJig.CONFIG_KEYS + ("type", "move_time_s", "hand"),
-        "jig.hand": HAND_KEYS, "chamber.emulator": EMULATOR_KEYS, "chamber.emulator.faults": FAULT_KEYS,
+        "jig.hand": HAND_KEYS,
         "plan": ("design", "model"), "nvm": ("write", "slot_size", "offset_trim"), "verify": ("poses", "design"),
         "store": ("path",),
     }

@@ -213,7 +213,7 @@ class ThermalSection(Section):
     reference_c: float = _f(25.0, "temperature of the reported single calibration, C", ge=-70, le=180)
 
 
-class ChamberFaults(Section):
+class ChamberFaultsSection(Section):
     min_air_c: float = _f(-75.0, "coldest air the emulated chamber reaches, C", ge=-100, le=200)
     max_air_c: float = _f(180.0, "hottest air, C", ge=-100, le=300)
     alarm_at_s: float | None = _f(None, "raise an alarm at this time, s", ge=0, le=1e7)
@@ -223,13 +223,13 @@ class ChamberFaults(Section):
     stall_at_s: float | None = _f(None, "stop answering at this time, s", ge=0, le=1e7)
 
 
-class ChamberEmulator(Section):
+class ChamberEmulatorSection(Section):
     start_c: float = _f(25.0, "air and board temperature at start, C", ge=-70, le=150)
     room_c: float = _f(25.0, "room temperature, C", ge=-20, le=50)
     air_tau_s: float = _f(180.0, "air time constant, s", ge=1, le=1e5)
     board_tau_s: float = _f(300.0, "board time constant, s", ge=1, le=1e5)
     door_tau_s: float = _f(60.0, "time constant with the door open, s", ge=1, le=1e5)
-    faults: ChamberFaults | None = _f(None, "faults injected into the emulated chamber")
+    faults: ChamberFaultsSection | None = _f(None, "faults injected into the emulated chamber")
 
 
 class ChamberSection(Section):
@@ -240,7 +240,7 @@ class ChamberSection(Section):
     retries: int = _f(2, "retries of a command", ge=0, le=10)
     min_c: float = _f(-70.0, "lowest set point allowed, C", ge=-100, le=200)
     max_c: float = _f(180.0, "highest set point allowed, C", ge=-100, le=300)
-    emulator: ChamberEmulator | None = _f(None, "the emulated chamber's physics and faults")
+    emulator: ChamberEmulatorSection | None = _f(None, "the emulated chamber's physics and faults")
 
 
 class StationConfigSchema(Section):
