@@ -19,7 +19,6 @@ from ..errors import DataError, UnderdeterminedError, UnitsError
 from ..identifiability import assess, assess_batch
 from ..session import Session
 from .gravity_norm import nominal_scale
-from .linear import six_param_six_face, six_param_two_pose
 from .result import BatchFit, FitResult
 from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
 from .stacked import fit_stacked
@@ -198,6 +197,3 @@ def fit_temperature(session: Session, model: str | int = "12", method: str = "li
                       first.input_per_g, temperature=table)
     return cal, fits
 
-
-__all__ = ["MODELS", "BatchFit", "FitResult", "check_model", "fit", "fit_batch", "fit_session",
-           "fit_temperature", "six_param_six_face", "six_param_two_pose"]
