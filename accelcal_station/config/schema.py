@@ -243,6 +243,13 @@ class ChamberSection(Section):
     emulator: ChamberEmulatorSection | None = _f(None, "the emulated chamber's physics and faults")
 
 
+class WebSection(Section):
+    """``accelcal serve`` and ``accelcal run --ui web``."""
+
+    token: str | None = _f(None, "shared secret that starting or aborting a run over the web API needs: "
+                           "16-200 printable characters, no spaces")
+
+
 class StationConfigSchema(Section):
     """A station configuration file (configs/*.yaml)."""
 
@@ -257,6 +264,7 @@ class StationConfigSchema(Section):
     verify: VerifySection | None = _f(None, "closed-loop verification after the burn")
     thermal: ThermalSection | None = _f(None, "a thermal plan: a calibration at each set point")
     chamber: ChamberSection | None = _f(None, "the thermal chamber (thermal plans)")
+    web: WebSection | None = _f(None, "the web pages and API (accelcal serve, accelcal run --ui web)")
 
 
 def _models_in(ann: Any) -> list[type[BaseModel]]:

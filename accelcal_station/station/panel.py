@@ -35,6 +35,7 @@ from ..fixtures.designs import get_design
 from ..fixtures.factory import board_seat, clock_of
 from ..fixtures.factory import make_panel_jig as panel_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig
+from ..fixtures.operator_ui import OperatorUI
 from ..session import PoseRecord, Session
 from ..store.runs import Store
 from .board import Check, Station
@@ -88,10 +89,10 @@ def new_panel_id(station_id: str) -> str:
     return f"{station_id}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.urandom(3).hex()}"
 
 
-def make_panel_jig(cfg: dict[str, Any], boards: list[PanelBoard], echo: Callable[[str], None]) -> Jig:
+def make_panel_jig(cfg: dict[str, Any], boards: list[PanelBoard], ui: OperatorUI | None) -> Jig:
     """The configured jig for the whole panel, from the jig factory."""
     live = [b for b in boards if b.driver is not None]
-    return panel_jig(cfg, [b.driver for b in live], [b.seat for b in live], echo)
+    return panel_jig(cfg, [b.driver for b in live], [b.seat for b in live], ui)
 
 
 class PanelStation:
@@ -103,8 +104,9 @@ class PanelStation:
 
     def __init__(self, config: StationConfig, *, operator: str | None = None, lot: str | None = None,
                  echo: Callable[[str], None] = print, drivers: list[Driver] | None = None,
-                 panel_id: str | None = None, jig: Jig | None = None) -> None:
+                 panel_id: str | None = None, jig: Jig | None = None, ui: OperatorUI | None = None) -> None:
         self.cfg = config
+        self.ui = ui  # the operator's front end, for an operator jig
         self.operator, self.lot, self.echo = operator, lot, echo
         self.drivers = drivers  # default: built from the config's device section
         self.panel_id = panel_id or new_panel_id(config.station_id)
@@ -250,7 +252,7 @@ class PanelStation:
                 live = [b for b in boards if b.active]
                 if live:
                     with (self.jig or make_panel_jig(cfg.raw.get("jig") or {"type": "simulated"}, live,
-                                                     self.echo)) as jig:
+                                                     self.ui)) as jig:
                         self._poses(boards, jig, design)
                         self._fit_all(boards)
                         self._verify_all(boards, jig)
