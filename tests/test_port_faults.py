@@ -31,7 +31,8 @@ def rig(tmp_path: Path):
     board = SimulatedBoard.from_config(sim, chip="mpu6050", seed=3)
     bridge = MPU6050BridgeEmulator(board)
     port = bridge.start()
-    jig = JigEmulator(board=board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock).start()
+    jig = JigEmulator(board=board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock)
+    jig.start()
     cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
     cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
     cfg["jig"].update(settle_s=0.0, speed_deg_s=4000, accel_deg_s2=1e5)  # fast axes: a quick test
