@@ -28,6 +28,10 @@ class StoreError(DataError):
     """The results store cannot be opened, read or written."""
 
 
+class StoreUnreachable(StoreError):
+    """The store's database server cannot be reached, or the connection to it was lost."""
+
+
 def iso(t: float | None) -> str | None:
     """Unix seconds as ISO 8601 UTC."""
     return None if t is None else datetime.fromtimestamp(t, UTC).isoformat(timespec="milliseconds")
