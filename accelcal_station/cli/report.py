@@ -42,7 +42,7 @@ def _filter_options(f: F) -> F:
     return f
 
 
-def _open(db: str | None, config_path: str | None) -> Store:
+def _open(db: str | None, config_path: str | None, upgrade: bool = True) -> Store:
     """--db, else the store of --config, else that of the default station (as `accelcal run`);
     `accelcal report --db F SUBCOMMAND` gives the subcommand that store too."""
     ctx = click.get_current_context(silent=True)
@@ -50,11 +50,18 @@ def _open(db: str | None, config_path: str | None) -> Store:
     db = db if db is not None else group.get("db")
     config_path = config_path if config_path is not None else group.get("config_path")
     if db is not None:
-        return Store(store_target(db), create=False)
+        return Store(store_target(db), create=False, upgrade=upgrade)
     from ..config.sections import default_config_path
 
     # relative store paths are taken from the current directory, as `accelcal run` does
-    return Store(store_path(load_yaml(config_path or default_config_path()), Path.cwd()), create=False)
+    return Store(store_path(load_yaml(config_path or default_config_path()), Path.cwd()), create=False,
+                 upgrade=upgrade)
+
+
+def _name_damage(damage: list[dict[str, Any]]) -> None:
+    """One line on stderr per damaged value read (the output goes on; `report check` lists all)."""
+    for d in damage:
+        click.echo(clean(f"damaged_row: {d['table']} {d['id']} {d['column']}: {d['problem']}"), err=True)
 
 
 def _filters(device: tuple[str, ...], lot: str | None, station: str | None, operator: str | None,
@@ -106,6 +113,7 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
                    + clean(f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
                    + (f"  DAMAGED ({', '.join(r['damaged'])} unreadable)" if r.get("damaged") else ""))
     click.echo(f"{len(runs)} run(s)")
+    _name_damage([d for r in runs for d in r.get("damage", [])])
 
 
 @command.command("show")
@@ -123,8 +131,8 @@ def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool
     for k in ("id", "status", "status_reason", "started_at_iso", "finished_at_iso", "device_serial", "chip",
               "station_id", "operator", "lot", "config_hash", "model", "verdict", "nvm_status"):
         click.echo(f"{k:16} {rec[k] if rec[k] is not None else ''}")
-    if rec.get("damaged"):
-        click.echo(f"{'DAMAGED':16} {', '.join(rec['damaged'])} unreadable in the store")
+    for d in rec["damage"]:
+        click.echo(clean(f"{'DAMAGED':16} {d['table']} {d['id']} {d['column']}: {d['problem']}"))
     for reason in rec["reasons"]:
         click.echo(f"{'reason':16} {clean(reason)}")
     if rec["calibration"]:
@@ -137,7 +145,7 @@ def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool
         click.echo(f"  {clean(p['name']):10} mean {[round(x, 2) for x in p['mean']]}  n {p['n']}  "
                    f"retries {p['retries']}")
     for e in rec.get("events") or []:
-        click.echo(f"{'event':16} {e['kind']}: {clean(e['message'] or '')}")
+        click.echo(f"{'event':16} {clean(e['kind'] or '')}: {clean(e['message'] or '')}")
 
 
 def _fit_lines(fit: dict[str, Any]) -> list[str]:
@@ -183,6 +191,7 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
             text = json.dumps({"schema": "accelcal.runs", "version": 1, "runs": data}, indent=1)
         else:
             text = store.export_csv(output, kind="poses" if poses else "runs", **flt)
+        _name_damage([d for r in store.list_runs(**flt) for d in r.get("damage", [])])
     if output is None:
         click.echo(text.rstrip("\n"))
     elif as_json:
@@ -212,6 +221,7 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
     if as_json:
         click.echo(json.dumps(s, indent=1))
         return
+    _name_damage(s["damaged_rows"])
     rate = "n/a" if s["pass_rate"] is None else f"{100 * s['pass_rate']:.1f} %"
     click.echo(f"runs {s['runs']} ({', '.join(f'{k} {v}' for k, v in s['by_status'].items())}), "
                f"devices {s['devices']}, {s['first_started'] or '-'} .. {s['last_started'] or '-'}")
@@ -229,6 +239,28 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
             click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")
     for name, d in s["fit"].items():
         click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")
+
+
+@command.command("check")
+@click.option("--db", default=None, metavar="FILE|URL", help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB.")
+@click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@click.pass_context
+def check_cmd(ctx: click.Context, db: str | None, config_path: str | None, as_json: bool) -> None:
+    """List every damaged row (table, id, column, what is wrong); exit 1 when any. Nothing is modified."""
+    with _open(db, config_path, upgrade=False) as store:
+        found = [d.to_dict() for d in store.check()]
+        where = str(store.path)
+    if as_json:
+        click.echo(json.dumps({"store": where, "damaged": found}, indent=1))
+    else:
+        for d in found:
+            click.echo(clean(f"{d['table']:7} {d['id']:>12}  {d['column']:14} {d['problem']}"))
+        rows = len({(d["table"], d["id"]) for d in found})
+        click.echo(f"{len(found)} damaged value(s) in {rows} row(s) of {where}" if found
+                   else f"no damaged rows in {where}")
+    if found:
+        ctx.exit(1)
 
 
 @command.command("plot")

@@ -17,7 +17,6 @@ Opening a store upgrades its schema (schema.py) under one transaction.
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import socket
 import time as _time
@@ -28,25 +27,15 @@ from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import func, insert, select, update
 
-from ..acceptance.reasons import Reason, codes
+from ..acceptance.reasons import Reason
 from ..calibration import Calibration
 from ..errors import DataError
 from ..session import Session
 from . import exports, migrate, schema
-from .database import Database, Row, describe_target, is_url
+from .database import Database, describe_target, is_url
 from .location import store_identity
-from .records import (
-    RunRecord,
-    StoreError,
-    StoreUnreachable,
-    is_damaged,
-    iso,
-    opt,
-    pose_record,
-    stored_reasons,
-    timestamp,
-    to_json,
-)
+from .records import RunRecord, StoreError, StoreUnreachable, build_record, opt, run_summary, timestamp, to_json
+from .rowcheck import DamagedRow, check_row
 from .tables import events, poses, runs
 
 if TYPE_CHECKING:
@@ -84,7 +73,7 @@ class Store:
     password (PostgreSQL), as messages name it.
     """
 
-    def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True):
+    def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True, upgrade: bool = True):
         SQLError = _sqlerror()
         name = describe_target(path)
         try:
@@ -99,7 +88,7 @@ class Store:
         db_path = self._db.path  # set for SQLite only
         self.path: Path | str = db_path if db_path is not None else self._db.name
         try:
-            self._migrate(create)
+            self._migrate(create, upgrade)
         except SQLError as e:
             self._db.close()
             raise store_error(e, f"{self.path}: not a usable results store ({_msg(e)})", self._server) from None
@@ -167,8 +156,9 @@ class Store:
                 except SQLError as e:  # a damaged page can surface only here
                     raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
 
-    def _migrate(self, create: bool = True) -> None:
-        """Bring the schema to schema.SCHEMA_VERSION by Alembic (migrate.py), in one transaction."""
+    def _migrate(self, create: bool = True, upgrade: bool = True) -> None:
+        """Bring the schema to schema.SCHEMA_VERSION by Alembic (migrate.py), in one transaction;
+        ``upgrade`` False: write nothing and refuse a store at another version."""
         self._db.begin(write=False)
         try:
             version, adopted = migrate.current_version(self._db), migrate.stamped(self._db)
@@ -180,8 +170,11 @@ class Store:
         if version > target:
             raise StoreError(f"{self.path}: results store schema version {version} is newer than this "
                              f"station's {target}; upgrade accelcal-station")
-        if version == target and adopted:
+        if version == target and (adopted or not upgrade):
             return
+        if not upgrade:
+            raise StoreError(f"{self.path}: results store schema version {version}, this station reads {target}; "
+                             "any other `accelcal report` command upgrades it (nothing was written)")
         with self._tx("upgrade the schema") as db:
             migrate.upgrade(db, str(self.path), target)
 
@@ -317,7 +310,7 @@ class Store:
                              .where(runs.c.status == "running")):
                 old = max_age_s is not None and isinstance(r["started_at"], (int, float)) \
                     and now - r["started_at"] > max_age_s
-                if old or (r["host"] == host and isinstance(r["pid"], int) and not _alive(r["pid"])):
+                if old or (r["host"] == host and isinstance(r["pid"], int) and r["pid"] > 0 and not _alive(r["pid"])):
                     stale.append(r["id"])
             if stale:
                 db.execute(update(runs).where(runs.c.id.in_(stale)).values(
@@ -343,72 +336,57 @@ class Store:
             clauses.append(runs.c.id.in_([int(i) for i in run_ids]))
         return clauses
 
-    def _runs(self, filters: dict[str, Any], limit: int | None = None) -> list[Row]:
+    def _runs(self, filters: dict[str, Any], limit: int | None = None) -> list[tuple[dict[str, Any], list[DamagedRow]]]:
+        """The matching ``runs`` rows, each checked (rowcheck.check_row) with what is damaged in it."""
         stmt = select(runs).where(*self._where(**filters)).order_by(runs.c.started_at, runs.c.id)
         if limit is not None:
             stmt = stmt.limit(int(limit))
         try:
-            return self._db.rows(stmt)
+            return [check_row("runs", r) for r in self._db.rows(stmt)]
         except _sqlerror() as e:
             raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
 
     def list_runs(self, limit: int | None = None, **filters: Any) -> list[dict[str, Any]]:
         """Run summaries (no poses) matching filters: device, station, lot, operator, since,
-        until, verdict, status, model (a value or a list of values), run_ids."""
+        until, verdict, status, model (a value or a list of values), run_ids.  A run whose row
+        is damaged has ``damaged`` (its columns) and ``damage`` (typed ``damaged_row`` reasons)."""
         with self._snapshot():
             per_run = self._db.rows(select(poses.c.run_id, func.count().label("n")).group_by(poses.c.run_id))
-            counts: dict[int, int] = {r["run_id"]: r["n"] for r in per_run}
+            counts: dict[Any, int] = {r["run_id"]: r["n"] for r in per_run}
             rows = self._runs(filters, limit)
-        out = []
-        for r in rows:
-            damaged = [c for c in ("fit_summary", "reasons") if is_damaged(r[c])]
-            fit = {} if "fit_summary" in damaged else (json.loads(r["fit_summary"]) if r["fit_summary"] else {})
-            reasons = stored_reasons(r["reasons"])
-            out.append({"id": r["id"], "started_at": iso(r["started_at"]), "finished_at": iso(r["finished_at"]),
-                        "status": r["status"], "status_reason": r["status_reason"],
-                        "device_serial": r["device_serial"], "chip": r["chip"], "station_id": r["station_id"],
-                        "operator": r["operator"], "lot": r["lot"], "model": r["model"], "verdict": r["verdict"],
-                        "reasons": [str(x) for x in reasons], "reason_codes": codes(reasons),
-                        "nvm_status": r["nvm_status"], "pose_count": counts.get(r["id"], 0),
-                        "panel_id": r["panel_id"],
-                        "residual_rms_g": fit.get("residual_rms_g") if isinstance(fit, dict) else None,
-                        **({"damaged": damaged} if damaged else {})})
-        return out
+        return [run_summary(r, damage, counts.get(r["id"], 0)) for r, damage in rows]
 
-    def _record(self, r: Row) -> RunRecord:
-        cols = schema.JSON_COLUMNS
-        damaged = [k for k in cols if is_damaged(r[k])]
-
-        def load(k: str) -> Any:
-            return None if r[k] is None or k in damaged else json.loads(r[k])
-
-        rec = RunRecord(**{k: r[k] for k in r if k not in cols},
-                        reasons=stored_reasons(r["reasons"]), nvm_outcome=load("nvm_outcome"),
-                        calibration=load("calibration"), fit_summary=load("fit_summary"), damaged=damaged)
-        for p in self._db.rows(select(poses).where(poses.c.run_id == r["id"]).order_by(poses.c.idx)):
-            rec.poses.append(pose_record(p))
-            rec.retries.append(p["retries"])
-        rec.events = [{"t": e["t"], "kind": e["kind"], "message": e["message"],
-                       "data": None if e["data"] is None else json.loads(e["data"])}
-                      for e in self._db.rows(select(events).where(events.c.run_id == r["id"]).order_by(events.c.id))]
-        return rec
+    def _record(self, r: dict[str, Any], damage: list[DamagedRow]) -> RunRecord:
+        rid = r["id"]
+        pose_rows = self._db.rows(select(poses).where(poses.c.run_id == rid).order_by(poses.c.idx))
+        event_rows = self._db.rows(select(events).where(events.c.run_id == rid).order_by(events.c.id))
+        return build_record(r, damage, pose_rows, event_rows)
 
     def get_run(self, run_id: int) -> RunRecord:
         with self._snapshot():
             rows = self._runs({"run_ids": [run_id]})
             if not rows:
                 raise StoreError(f"{self.path}: no run {run_id}")
-            return self._record(rows[0])
+            return self._record(*rows[0])
 
     def runs(self, **filters: Any) -> list[RunRecord]:
         """Full records (poses, events) of the matching runs."""
         with self._snapshot():
-            return [self._record(r) for r in self._runs(filters)]
+            return [self._record(r, damage) for r, damage in self._runs(filters)]
 
     def sessions_for_batch(self, **filters: Any) -> list[Session]:
         """Sessions of complete runs with poses (for batch recalibration of a lot)."""
         filters.setdefault("status", "complete")
-        return [rec.session() for rec in self.runs(**filters) if rec.poses]
+        return [rec.session() for rec in self.runs(**filters) if rec.poses and not rec.damage]
+
+    def check(self) -> list[DamagedRow]:
+        """Every damaged value of every row (runs, poses, events; rowcheck.check_row); nothing is written."""
+        found: list[DamagedRow] = []
+        with self._snapshot():
+            for table in (runs, poses, events):
+                for row in self._db.execute(select(table)).mappings():
+                    found += check_row(table.name, dict(row))[1]
+        return found
 
     # -- exports and summaries ----------------------------------------------------------
     def export_json(self, path: str | Path | None = None, **filters: Any) -> list[dict[str, Any]]:
@@ -439,7 +417,7 @@ class Store:
 def _alive(pid: int) -> bool:
     try:
         os.kill(int(pid), 0)
-    except ProcessLookupError:
+    except (ProcessLookupError, OverflowError, ValueError):  # gone, or not a pid at all (a damaged row)
         return False
     except PermissionError:
         return True
