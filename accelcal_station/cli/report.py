@@ -107,10 +107,11 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
                f"{'nvm':7}  poses  {'rms mg':>7}  reasons")
     for r in runs:
         rms = "" if r["residual_rms_g"] is None else f"{r['residual_rms_g'] * 1e3:7.3f}"
-        click.echo(f"{r['id']:>5}  {r['started_at'][:16].replace('T', ' '):16}  {r['status']:11}  "
-                   f"{r['device_serial'] or '':14}  {r['lot'] or '':8}  {r['verdict'] or '':7}  "
-                   f"{r['nvm_status'] or '':7}  {r['pose_count']:5}  {rms:>7}  "
-                   + clean(f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
+        started = (r["started_at"] or "?")[:16].replace("T", " ")
+        click.echo(clean(f"{r['id']:>5}  {started:16}  {r['status'] or '?':11}  "
+                         f"{r['device_serial'] or '':14}  {r['lot'] or '':8}  {r['verdict'] or '':7}  "
+                         f"{r['nvm_status'] or '':7}  {r['pose_count']:5}  {rms:>7}  "
+                         f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
                    + (f"  DAMAGED ({', '.join(r['damaged'])} unreadable)" if r.get("damaged") else ""))
     click.echo(f"{len(runs)} run(s)")
     _name_damage([d for r in runs for d in r.get("damage", [])])
@@ -132,7 +133,7 @@ def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool
               "station_id", "operator", "lot", "config_hash", "model", "verdict", "nvm_status"):
         click.echo(f"{k:16} {rec[k] if rec[k] is not None else ''}")
     for d in rec["damage"]:
-        click.echo(clean(f"{'DAMAGED':16} {d['table']} {d['id']} {d['column']}: {d['problem']}"))
+        click.echo(clean(f"{'damaged_row':16} {d['table']} {d['id']} {d['column']}: {d['problem']}"))
     for reason in rec["reasons"]:
         click.echo(f"{'reason':16} {clean(reason)}")
     if rec["calibration"]:
