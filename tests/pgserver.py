@@ -75,6 +75,15 @@ class PgServer:
             c.execute(f"CREATE DATABASE {name}")
         return self.url(name)
 
+    def halt(self) -> None:
+        """Stop the server at once (``pg_ctl stop -m immediate``: as a crash or a pulled cable
+        looks to the clients); ``resume`` starts it again on the same data."""
+        self._run([self.pg_ctl, "-D", self.data, "-m", "immediate", "-w", "stop"])
+
+    def resume(self) -> None:
+        self._run([self.pg_ctl, "-D", self.data, "-w", "-t", "30", "-l", os.path.join(self.root, "log"),
+                   "-o", f"-k {self.sock} -c listen_addresses='' -p 5432 -c fsync=off", "start"])
+
     def stop(self) -> None:
         subprocess.run(self.user_prefix + [self.pg_ctl, "-D", self.data, "-m", "immediate", "stop"],
                        capture_output=True, timeout=60)

@@ -264,6 +264,46 @@ def check_cmd(ctx: click.Context, db: str | None, config_path: str | None, as_js
         ctx.exit(1)
 
 
+@command.command("sync")
+@click.option("--db", default=None, metavar="URL", help="The line database (postgresql://...); default: the "
+              "store of --config or of the default station.")
+@click.option("--config", "config_path", default=None, metavar="FILE",
+              help="Station config (store.path, store.outbox).")
+@click.option("--outbox", default=None, metavar="FILE",
+              help="The local outbox (default: the config's store.outbox, else "
+                   "$XDG_STATE_HOME/accelcal/outbox.sqlite).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def sync_cmd(db: str | None, config_path: str | None, outbox: str | None, as_json: bool) -> None:
+    """Replay the runs kept in the local outbox while the line database was unreachable (each once)."""
+    from ..config.sections import default_config_path
+    from ..store.location import outbox_of
+    from ..store.outbox import default_outbox, sync
+
+    cfg = load_yaml(config_path or default_config_path()) if db is None or outbox is None else {}
+    target = store_target(db) if db is not None else store_path(cfg, Path.cwd())
+    box = Path(outbox) if outbox is not None else (outbox_of(cfg) or default_outbox())
+    with Store(target, create=False) as server:
+        if not box.is_file():
+            res = None
+        else:
+            with Store(box, create=False) as local:
+                res = sync(server, local)
+        where = str(server.path)
+    done = {"store": where, "outbox": str(box), "replayed": [] if res is None else [s for _, s in res.replayed],
+            "already_there": [] if res is None else [s for _, s in res.unchanged],
+            "still_running": [] if res is None else res.running}
+    if as_json:
+        click.echo(json.dumps(done))
+        return
+    if res is None or not (res.replayed or res.unchanged or res.running):
+        click.echo(f"nothing to replay: no run waiting in {box}")
+        return
+    click.echo(f"replayed {len(res.replayed)} run(s) from {box} into {where}"
+               + (f" (runs {', '.join(str(s) for _, s in res.replayed)})" if res.replayed else "")
+               + (f"; {len(res.unchanged)} already there in full" if res.unchanged else "")
+               + (f"; {len(res.running)} still running locally, not replayed" if res.running else ""))
+
+
 @command.command("plot")
 @click.argument("run_id", type=int)
 @click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")

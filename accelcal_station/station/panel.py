@@ -36,6 +36,8 @@ from ..fixtures.designs import get_design
 from ..fixtures.factory import board_of, make_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig
 from ..session import PoseRecord, Session
+from ..store.location import outbox_of
+from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import Check, Station
 from .capture import GatedCapture, WrongPose, gated_capture
@@ -291,7 +293,7 @@ class PanelStation:
         wall0 = time.perf_counter()
         design = get_design(cfg.design)
         boards = self.boards = self._boards()
-        with Store(cfg.store_file) as store:
+        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
             store.mark_stale_interrupted()
             try:
                 for b in boards:

@@ -31,7 +31,7 @@ from ..acceptance.reasons import Reason
 from ..calibration import Calibration
 from ..errors import DataError
 from ..session import Session
-from . import exports, migrate, schema
+from . import exports, migrate, replay, schema
 from .database import Database, describe_target, is_url
 from .location import store_identity
 from .records import RunRecord, StoreError, StoreUnreachable, build_record, opt, run_summary, timestamp, to_json
@@ -378,6 +378,12 @@ class Store:
         """Sessions of complete runs with poses (for batch recalibration of a lot)."""
         filters.setdefault("status", "complete")
         return [rec.session() for rec in self.runs(**filters) if rec.poses and not rec.damage]
+
+    def replay_run(self, rec: RunRecord, server_run_id: int | None = None, note: str = "") -> tuple[int, bool]:
+        """Write a run recorded in another store (the outbox) into this one, once (replay.py):
+        (its id here, whether anything was written)."""
+        with self._tx(f"replay run {rec.id}") as db:
+            return replay.replay_run(db, rec, server_run_id, note)
 
     def check(self) -> list[DamagedRow]:
         """Every damaged value of every row (runs, poses, events; rowcheck.check_row); nothing is written."""
