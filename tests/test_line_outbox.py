@@ -11,12 +11,12 @@ import sys
 
 import pytest
 from click.testing import CliRunner
+from conftest import REPO
 from sqlalchemy import event
 from sqlalchemy.engine import Engine
 
 from accelcal_station.cli import cli
 from accelcal_station.store.runs import Store
-from conftest import REPO
 
 # where the server stops: (name, SQL start, a value in its parameters); None: before the run
 STOPS = [

@@ -135,8 +135,10 @@ class LineStore(Store):
         if self._primary is not None:
             self._primary.close()
             self._primary = None
-        self._db = self._outbox()._db
-        self._why = str(e)
+        try:
+            self._db = self._outbox()._db
+        except StoreError as o:
+            raise StoreError(f"{e}; and the local outbox cannot keep the results ({o})") from None
 
     def _replay_waiting(self) -> None:
         """At open, server reachable: replay what an earlier run left in the outbox."""
