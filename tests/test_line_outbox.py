@@ -136,3 +136,17 @@ def test_next_run_replays_the_outbox_and_says_so(line):
             ("SN-3", "complete", 8), ("SN-4", "complete", 8)]
     s = CliRunner().invoke(cli, ["report", "sync", "--db", url])
     assert s.exit_code == 0 and "nothing to replay" in s.output
+
+
+def test_no_server_and_no_outbox_is_one_line(line, tmp_path, monkeypatch):
+    pg, url = line
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the outbox folder would be\n")
+    monkeypatch.setenv("XDG_STATE_HOME", str(blocker))
+    pg.halt()
+    try:
+        r = _run(url, "SN-5")
+    finally:
+        pg.resume()
+    assert r.exit_code == 2 and "local outbox cannot keep the results" in r.stdout, r.output[-1000:]
+    assert "Traceback" not in r.output
