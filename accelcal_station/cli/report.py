@@ -133,7 +133,7 @@ def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool
               "station_id", "operator", "lot", "config_hash", "model", "verdict", "nvm_status"):
         click.echo(f"{k:16} {rec[k] if rec[k] is not None else ''}")
     for d in rec["damage"]:
-        click.echo(clean(f"{'damaged_row':16} {d['table']} {d['id']} {d['column']}: {d['problem']}"))
+        click.echo(clean(f"{'DAMAGED':16} damaged_row: {d['table']} {d['id']} {d['column']}: {d['problem']}"))
     for reason in rec["reasons"]:
         click.echo(f"{'reason':16} {clean(reason)}")
     if rec["calibration"]:
