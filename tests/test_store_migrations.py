@@ -29,6 +29,11 @@ def _columns(path) -> dict[str, list[tuple]]:
         return {t: [r[1:] for r in c.execute(f"PRAGMA table_info({t})")] for t in TABLES}
 
 
+def _objects(path) -> set[tuple[str, str]]:
+    with sqlite3.connect(path) as c:  # tables and indexes by name
+        return set(c.execute("SELECT type, name FROM sqlite_master"))
+
+
 def test_todays_sqlite_store_is_adopted_with_its_contents_unchanged(tmp_path):
     db = tmp_path / "v3.sqlite"
     shutil.copy(DATA / "legacy_store_v3.sqlite", db)
@@ -67,6 +72,8 @@ def test_schema_2_sqlite_store_is_upgraded_by_alembic(tmp_path):
     fresh = tmp_path / "fresh.sqlite"
     Store(fresh).close()
     assert _columns(db) == _columns(fresh) == _columns(DATA / "legacy_store_v3.sqlite")
+    assert _objects(db) == _objects(fresh) == _objects(DATA / "legacy_store_v3.sqlite") | {
+        ("table", "alembic_version"), ("index", "sqlite_autoindex_alembic_version_1")}
 
 
 def _no_drift(url: str) -> None:
