@@ -31,7 +31,9 @@ STOPS = [
 @pytest.fixture
 def line(pg_server, tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))  # the default outbox goes there
-    return pg_server, pg_server.new_database()
+    yield pg_server, pg_server.new_database()
+    if pg_server.halted:  # a failed test never leaves the shared server down for the next ones
+        pg_server.resume()
 
 
 def _stop_at(pg, sql: str, value: str | None):
