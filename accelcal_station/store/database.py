@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING, Any, TypeGuard
 if TYPE_CHECKING:
     from sqlalchemy import Connection, CursorResult, Engine, Executable, RootTransaction
 
-SCHEMES = ("sqlite:///", "postgresql://", "postgresql+psycopg://")
 Row = Mapping[str, Any]  # a result row by column name (SQLAlchemy's RowMapping, or a checked dict)
 
 
@@ -50,8 +49,9 @@ def _sqlite_events(engine: Engine) -> None:
 
     @event.listens_for(engine, "begin")
     def _begin(conn: Connection) -> None:
-        write = conn.get_execution_options().get("accelcal_write", True)
-        conn.exec_driver_sql("BEGIN IMMEDIATE" if write else "BEGIN")
+        opts = conn.get_execution_options()
+        if opts.get("accelcal_tx"):  # a statement outside Database.begin runs on its own (autocommit)
+            conn.exec_driver_sql("BEGIN IMMEDIATE" if opts.get("accelcal_write", True) else "BEGIN")
 
 
 class Database:
@@ -94,6 +94,7 @@ class Database:
             _sqlite_events(self.engine)
         self._tx: RootTransaction | None = None
         self.conn = self.engine.connect()
+        self._idle()
 
     @property
     def in_transaction(self) -> bool:
@@ -125,20 +126,40 @@ class Database:
         got = self.rows(stmt)
         return next(iter(got[0].values())) if got else None
 
+    def _idle(self) -> None:
+        """Between transactions the connection autocommits: a statement run on it directly (the
+        web layer's read-only queries) never leaves a transaction open that would hold SQLite's
+        lock or a PostgreSQL snapshot."""
+        if self.dialect == "postgresql":
+            self.conn.execution_options(isolation_level="AUTOCOMMIT")
+        else:
+            self.conn.execution_options(accelcal_tx=False)
+
     def begin(self, write: bool = True) -> None:
-        self.conn.execution_options(accelcal_write=write)
+        if self.conn.in_transaction():  # an autobegun, autocommitting statement's: nothing to keep
+            self.conn.commit()
+        if self.dialect == "postgresql":
+            self.conn.execution_options(isolation_level="READ COMMITTED")
+        else:
+            self.conn.execution_options(accelcal_tx=True, accelcal_write=write)
         self._tx = self.conn.begin()
 
     def commit(self) -> None:
         tx, self._tx = self._tx, None
-        if tx is not None:
-            tx.commit()
+        try:
+            if tx is not None:
+                tx.commit()
+        finally:
+            with contextlib.suppress(Exception):  # a connection lost with its transaction
+                self._idle()
 
     def rollback(self) -> None:
         tx, self._tx = self._tx, None
         with contextlib.suppress(Exception):  # a lost server or SQLite's own rollback (disk full)
             if tx is not None:
                 tx.rollback()
+        with contextlib.suppress(Exception):
+            self._idle()
 
     def close(self) -> None:
         try:
