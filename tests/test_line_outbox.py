@@ -152,3 +152,21 @@ def test_no_server_and_no_outbox_is_one_line(line, tmp_path, monkeypatch):
         pg.resume()
     assert r.exit_code == 2 and "local outbox cannot keep the results" in r.stdout, r.output[-1000:]
     assert "Traceback" not in r.output
+
+
+def test_the_config_names_the_outbox_and_report_sync_finds_it(line, tmp_path):
+    pg, url = line
+    cfg = tmp_path / "line.yaml"
+    box = tmp_path / "box" / "outbox.sqlite"
+    text = (REPO / "configs" / "sim.yaml").read_text()
+    cfg.write_text(text.replace("  path: accelcal-runs.sqlite", f"  path: '{url}'\n  outbox: '{box}'", 1))
+    with Store(url) as st:
+        st.mark_stale_interrupted()
+    pg.halt()
+    r = CliRunner().invoke(cli, ["run", "--config", str(cfg), "--serial", "SN-6", "--json"])
+    assert r.exit_code == 0 and box.is_file(), r.output[-1000:]
+    pg.resume()
+    s = CliRunner().invoke(cli, ["report", "sync", "--config", str(cfg), "--json"])
+    assert s.exit_code == 0 and len(json.loads(s.stdout)["replayed"]) == 1, s.output
+    with Store(url, create=False) as st:
+        assert [(x.device_serial, len(x.poses)) for x in st.runs()] == [("SN-6", 8)]
