@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from twin_lots import CUBIC_SHARE, write_line_lot
 
 from accelcal_station.acceptance.rules import Limits
 from accelcal_station.config.sections import default_config_path
 from accelcal_station.lot.streaming import recalibrate_lot
-from twin_lots import CUBIC_SHARE, write_line_lot
 
 ACCELCAL = [sys.executable, "-m", "accelcal_station"]
 BOARDS = 20_000

@@ -44,11 +44,10 @@ def fit_cmd(source: str, out: str, components: int, as_json: bool) -> None:
                       + yaml.safe_dump(tw.config, sort_keys=False))
     d = {**tw.to_dict(), "out": out}
     lines = [f"{source}: {stats.boards} boards, model {stats.model}; {len(d['components'])} component(s) by BIC"]
-    for c in d["components"]:
-        lines.append(f"  weight {c['weight']:.4f}" + (f", carries {', '.join(c['carries'])}" if c["carries"] else ""))
-    for ch in d["changes"]:
-        lines.append(f"  {ch['kind']} in {ch['quantity']} at board {ch['at_board']} "
-                     f"({ch['interval'][0]}-{ch['interval'][1]}), size {ch['size']:.4g}")
+    lines += [f"  weight {c['weight']:.4f}" + (f", carries {', '.join(c['carries'])}" if c["carries"] else "")
+              for c in d["components"]]
+    lines += [f"  {ch['kind']} in {ch['quantity']} at board {ch['at_board']} "
+              f"({ch['interval'][0]}-{ch['interval'][1]}), size {ch['size']:.4g}" for ch in d["changes"]]
     lines.append(f"wrote {out}")
     _emit(as_json, d, lines)
 

@@ -182,7 +182,7 @@ def base_value(effects: dict[str, dict[str, Any]], q: Quantity) -> float:
 def _vector(d: Any, names: list[str], path: str, fill: np.ndarray, lo: float | None = None) -> np.ndarray:
     check_keys(d, names, path)
     out = fill.copy()
-    for k, v in (d or {}).items():
+    for k in d or {}:
         out[names.index(k)] = number(d, k, path, lo=lo)
     return out
 

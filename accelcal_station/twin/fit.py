@@ -46,7 +46,6 @@ class Twin:
         for c in self.population.components:
             eff = {n: {"mean": float(m), "sd": float(s)} for n, m, s in zip(names, c.mean, c.sd, strict=True)}
             scale = np.maximum(main.sd, 1e-12)
-            differs = [n for n, m0, m in zip(names, main.mean, c.mean, strict=True)]
             differs = [n for n, d in zip(names, np.abs(c.mean - main.mean) / scale > DIFFERS_SD, strict=True) if d]
             comps.append({"weight": float(c.weight), "dof": c.dof, "effects": eff,
                           "carries": sorted({n.split(".")[0] for n in differs}), "differs_in": differs})

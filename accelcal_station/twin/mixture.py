@@ -110,7 +110,8 @@ def _kmeanspp(Z: np.ndarray, K: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def fit_mixture(X: np.ndarray, max_components: int = 4, seed: int = 0, heavy: bool = True,
-                iters: int = 150, tol: float = 1e-7, restarts: int = 2, max_rows: int = 8000) -> tuple[Mixture, list[dict[str, float]]]:
+                iters: int = 150, tol: float = 1e-7,
+                restarts: int = 2, max_rows: int = 8000) -> tuple[Mixture, list[dict[str, float]]]:
     """The BIC-best mixture of 1..max_components components of rows X (n, p), and every
     candidate's K, log-likelihood and BIC."""
     X = np.asarray(X, dtype=float)

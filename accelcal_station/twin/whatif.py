@@ -65,8 +65,8 @@ def whatif(config: str, like: LotStats, limits: Limits, boards: int = 20_000, se
     y, lo, hi = interval(int(ok1.sum()), boards, like.boards)
     yf, lof, hif = interval(int((ok1 | ok2).sum()), boards, like.boards)
     now, grow = _reason_rates(base), _reason_rates(first)
-    grows = sorted(({"reason": k, "before": now.get(k, 0.0), "after": v} for k, v in grow.items()
-                    if v > now.get(k, 0.0)), key=lambda d: -(d["after"] - d["before"]))
+    grows = [{"reason": k, "before": now.get(k, 0.0), "after": v}
+             for k, v in sorted(grow.items(), key=lambda kv: now.get(kv[0], 0.0) - kv[1]) if v > now.get(k, 0.0)]
     return {"config": config, "simulated_boards": boards, "real_boards": like.boards, "limits": limits.values,
             "first_pass_yield": {"value": y, "interval": [lo, hi]},
             "yield_after_one_retest": {"value": yf, "interval": [lof, hif]},
