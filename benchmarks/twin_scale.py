@@ -26,7 +26,8 @@ r = subprocess.run([sys.executable, "-m", "accelcal_station", "twin", "fit", sys
                    capture_output=True, text=True)
 dt = time.perf_counter() - t
 peak_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-print(json.dumps({"rc": r.returncode, "s": dt, "peak_mb": peak_kb / 1024, "out": r.stdout[-2000:], "err": r.stderr[-500:]}))
+print(json.dumps({"rc": r.returncode, "s": dt, "peak_mb": peak_kb / 1024, "out": r.stdout,
+                  "err": r.stderr[-500:]}))
 """
 
 

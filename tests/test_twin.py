@@ -132,3 +132,35 @@ def test_population_errors_are_one_line(tmp_path: Path) -> None:
     err = json.loads(r.stdout)
     assert "offset has no parameter 'bogus'" in err["error"] and "\n" not in err["error"]
     assert not (tmp_path / "l.csv").exists()
+
+
+def test_fit_from_a_store_matches_the_lot_file(tmp_path: Path) -> None:
+    """The same 120 boards recorded in a SQLite store (one complete run each) and read back with
+    --db give the same population as the lot file (same fits, same EM seed)."""
+    from accelcal_station.data.lotfile import open_lot
+    from accelcal_station.session import PoseRecord, Session
+    from accelcal_station.store.runs import Store
+
+    lot = write_line_lot(tmp_path / "small.csv", 120, step_at=None, seed=11)
+    _, chunks = open_lot(lot)
+    with Store(tmp_path / "runs.sqlite") as st:
+        for ch in chunks:
+            c = ch.cols
+            for b, serial in enumerate(ch.serials):
+                rows = range(ch.starts[b], ch.starts[b + 1])
+                s = Session([PoseRecord(str(ch.names[r]), np.array([c["x"][r], c["y"][r], c["z"][r]]),
+                                        np.array([c["std_x"][r], c["std_y"][r], c["std_z"][r]]), int(c["n"][r]),
+                                        pitch_deg=float(c["pitch_deg"][r]), roll_deg=float(c["roll_deg"][r]))
+                             for r in rows], "counts", 4096.0, device=serial)
+                rid = st.start_run(device_serial=serial, station_id="line-1", units="counts", counts_per_g=4096.0)
+                st.finish_run(rid, session=s, calibration=None, verdict=None)
+    a = run("twin", "fit", str(lot), "-o", str(tmp_path / "a.yaml"), "--json")
+    b = run("twin", "fit", "--db", str(tmp_path / "runs.sqlite"), "--station", "line-1", "-o",
+            str(tmp_path / "b.yaml"), "--json")
+    assert a.returncode == 0 and b.returncode == 0, a.stdout + b.stdout + b.stderr
+    ja, jb = json.loads(a.stdout), json.loads(b.stdout)
+    assert jb["source_boards"] == 120 and jb["model"] == "15"
+    assert [round(c["weight"], 6) for c in ja["components"]] == [round(c["weight"], 6) for c in jb["components"]]
+    r = run("twin", "fit", "--db", str(tmp_path / "runs.sqlite"), "--station", "nowhere", "-o",
+            str(tmp_path / "c.yaml"), "--json")
+    assert r.returncode == 2 and "no complete runs" in json.loads(r.stdout)["error"]

@@ -137,7 +137,7 @@ class LotStats:
             q = np.concatenate([self._carry, q])
         nb = len(q) // self.block
         self._carry = q[nb * self.block:]
-        self._add_blocks(q[:nb * self.block].reshape(nb, self.block, -1))
+        self._add_blocks(q[:nb * self.block].reshape(nb, self.block, q.shape[1]))
 
     def _add_blocks(self, qb: np.ndarray) -> None:
         have = np.isfinite(qb)
