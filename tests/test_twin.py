@@ -87,7 +87,7 @@ def test_check_before_flags_the_cubic_after_flags_nothing(line: dict[str, Path])
                                     ("gain_error_max=0.02",), ("offset_max_mg=70", "cubic_max=0.012")])
 def test_whatif_predicts_the_real_yield(line: dict[str, Path], limits: tuple[str, ...]) -> None:
     args = [a for lim in limits for a in ("--limit", lim)]
-    r = run("twin", "whatif", str(line["lot"]), "--config", str(line["twin"]), "--boards", "8000", "--json", *args)
+    r = run("twin", "whatif", str(line["lot"]), "--config", str(line["twin"]), "--boards", "4000", "--json", *args)
     assert r.returncode == 0, r.stdout + r.stderr
     d = json.loads(r.stdout)
     # the real lot's own yield, by the batch path (not the twin's code)
@@ -103,6 +103,8 @@ def test_whatif_predicts_the_real_yield(line: dict[str, Path], limits: tuple[str
 def test_simulate_lot_and_run_draw_from_a_population(tmp_path: Path) -> None:
     cfg = yaml.safe_load(default_config_path().read_text())
     cfg["store"]["path"] = str(tmp_path / "runs.sqlite")
+    cfg["capture"]["target_sem_mg"] = 0.2  # a quicker run: fewer samples per pose, one verification pose, no burn
+    cfg["verify"]["poses"], cfg["nvm"]["write"] = 1, False
     cfg["device"]["simulator"]["population"] = {
         "quantities": ["offset.offset_mg[0]"],
         "components": [{"weight": 1.0, "sd": {"offset.offset_mg[0]": 20.0}}]}
@@ -164,3 +166,43 @@ def test_fit_from_a_store_matches_the_lot_file(tmp_path: Path) -> None:
     r = run("twin", "fit", "--db", str(tmp_path / "runs.sqlite"), "--station", "nowhere", "-o",
             str(tmp_path / "c.yaml"), "--json")
     assert r.returncode == 2 and "no complete runs" in json.loads(r.stdout)["error"]
+
+
+def test_fit_carries_the_heavy_tails(line: dict[str, Path]) -> None:
+    """The line's offsets are Student-t (nu = 4: excess kurtosis infinite, sample values ~3-6 at
+    20,000 boards); the twin's population must be heavy-tailed there too, not Gaussian (0)."""
+    from scipy.stats import kurtosis
+
+    from accelcal_station.sim.population import parse_population
+    from accelcal_station.sim.sensor_model import SensorModel
+
+    cfg = yaml.safe_load(line["twin"].read_text())
+    sim = cfg["device"]["simulator"]
+    pop = parse_population(sim["population"], SensorModel.from_config(sim["effects"]).effects)
+    x = pop.draw(np.arange(100_000), np.random.default_rng(5))
+    k = kurtosis(x[:, pop.names.index("offset.offset_mg[1]")])
+    assert k > 1.0, k  # a Gaussian's sample excess kurtosis at 100,000 draws: 0 +- 0.015
+
+
+def test_trend_is_told_from_a_step(tmp_path: Path) -> None:
+    """A population with a linear trend in the y gain (drawn by sim/population.py, fitted by the
+    twin's stream and CUSUM): found as a trend, its slope within 30 %."""
+    from accelcal_station.lot.synthetic import write_population_lot
+    from accelcal_station.sim.population import parse_population
+    from accelcal_station.twin.changes import find_changes
+    from accelcal_station.twin.fit import lot_stats
+    from twin_lots import default_model
+
+    model = default_model()
+    slope = 2e-6  # per board: 0.6 % over 3,000 boards against a spread of 0.2 %
+    pop = parse_population({"quantities": ["gain.gain[1]"],
+                            "components": [{"weight": 1.0, "mean": {"gain.gain[1]": 0.99},
+                                            "sd": {"gain.gain[1]": 0.002}}],
+                            "changes": [{"quantity": "gain.gain[1]", "kind": "trend", "at_board": 0,
+                                         "size": slope}]}, model.effects)
+    lot = write_population_lot(tmp_path / "t.csv", 3000, "an4399-8", model, pop, seed=4)
+    stats, _ = lot_stats(lot)
+    found = [f for f in find_changes(stats.block_stats(), stats.quantities, stats.block)
+             if f.quantity == "gain.gain[1]"]
+    assert found and found[0].kind == "trend"
+    assert abs(found[0].size - slope) < 0.3 * slope
