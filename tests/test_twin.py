@@ -206,3 +206,10 @@ def test_trend_is_told_from_a_step(tmp_path: Path) -> None:
              if f.quantity == "gain.gain[1]"]
     assert found and found[0].kind == "trend"
     assert abs(found[0].size - slope) < 0.3 * slope
+
+
+def test_too_few_boards_is_one_line(tmp_path: Path) -> None:
+    lot = write_line_lot(tmp_path / "few.csv", 40, step_at=None)
+    r = run("twin", "fit", str(lot), "-o", str(tmp_path / "t.yaml"), "--json")
+    assert r.returncode == 2 and "needs at least 85" in json.loads(r.stdout)["error"]
+    assert not (tmp_path / "t.yaml").exists()

@@ -131,8 +131,10 @@ def fit_twin(stats: LotStats, per_g: float | None, max_components: int = 4, seed
     """The twin of a streamed lot (module docstring)."""
     names = stats.quantities
     good = np.all(np.isfinite(stats.rows[:, 1:1 + len(names)]), axis=1) if stats.rows.size else np.zeros(0, bool)
-    if good.sum() < 20:
-        raise DataError(f"twin fit: {int(good.sum())} fitted boards; a population needs at least 20")
+    need = 5 * (len(names) + 2)  # fit_mixture's smallest sample for one component
+    if good.sum() < need:
+        raise DataError(f"twin fit: {int(good.sum())} fitted boards; a population of {len(names)} parameters "
+                        f"(model {stats.model}) needs at least {need}")
     changes = find_changes(stats.block_stats(), names, stats.block)
     X = _unshift(stats.rows[good], names, changes)
     mix, table = fit_mixture(X, max_components=max_components, seed=seed)
