@@ -187,11 +187,12 @@ def test_fit_carries_the_heavy_tails(line: dict[str, Path]) -> None:
 def test_trend_is_told_from_a_step(tmp_path: Path) -> None:
     """A population with a linear trend in the y gain (drawn by sim/population.py, fitted by the
     twin's stream and CUSUM): found as a trend, its slope within 30 %."""
+    from twin_lots import default_model
+
     from accelcal_station.lot.synthetic import write_population_lot
     from accelcal_station.sim.population import parse_population
     from accelcal_station.twin.changes import find_changes
     from accelcal_station.twin.fit import lot_stats
-    from twin_lots import default_model
 
     model = default_model()
     slope = 2e-6  # per board: 0.6 % over 3,000 boards against a spread of 0.2 %
