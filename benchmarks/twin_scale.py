@@ -51,11 +51,11 @@ def one(boards: int, d: Path) -> dict:
             "changes": [(c["quantity"], c["at_board"]) for c in found.get("changes", [])]}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--sizes", default="100000,1000000")
-    ap.add_argument("--dir", default=None)
-    a = ap.parse_args()
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="100000,1000000", help="comma-separated lot sizes (boards)")
+    ap.add_argument("--dir", default=None, help="folder for the temporary lot files")
+    a = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(dir=a.dir) as tmp:
         rows = [one(int(n), Path(tmp)) for n in a.sizes.split(",")]
     for r in rows:
@@ -64,7 +64,8 @@ def main() -> None:
     if len(rows) >= 2:
         print(f"peak memory ratio {rows[-1]['boards']} / {rows[0]['boards']} boards: "
               f"{rows[-1]['peak_mb'] / rows[0]['peak_mb']:.2f}x (target <= 1.3x, and < 1024 MB)")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
