@@ -25,7 +25,8 @@ from ..sim.population import Change, Component, Population, parse_quantity
 from ..sim.sensor_model import SensorModel
 from .changes import Found, find_changes
 from .mixture import NU_MAX, Mixture, fit_mixture
-from .stream import LotStats, collect
+from .simlot import fixed_board_stats
+from .stream import LotStats, collect, richest_model
 
 DIFFERS_SD = 3.0  # a component carries an effect when a quantity's mean is this many sd from the main one's
 
@@ -44,7 +45,10 @@ class Twin:
         main = self.population.components[0]
         comps = []
         for c in self.population.components:
-            eff = {n: {"mean": float(m), "sd": float(s)} for n, m, s in zip(names, c.mean, c.sd, strict=True)}
+            # a t component's sd is its scale times sqrt(nu / (nu - 2)); none (null) for nu <= 2
+            k = 1.0 if c.dof is None else (float(np.sqrt(c.dof / (c.dof - 2))) if c.dof > 2 else None)
+            eff = {n: {"mean": float(m), "sd": None if k is None else float(s) * k, "scale": float(s)}
+                   for n, m, s in zip(names, c.mean, c.sd, strict=True)}
             scale = np.maximum(main.sd, 1e-12)
             differs = [n for n, d in zip(names, np.abs(c.mean - main.mean) / scale > DIFFERS_SD, strict=True) if d]
             comps.append({"weight": float(c.weight), "dof": c.dof, "effects": eff,
@@ -64,7 +68,6 @@ def lot_stats(path: str | Path, limits: Limits | None = None, reservoir: int = 5
     first = next(chunks, None)
     if first is None:
         raise DataError(f"{path}: no boards (no rows after the header)")
-    from .stream import richest_model  # the model decides lot_scale's needs
     m = model or richest_model(first)
     units, per_g = lot_scale(meta, path, None, None, None, m)
 
@@ -154,7 +157,6 @@ def _fit_noise_cov(cfg: dict[str, Any], mix: Mixture, stats: LotStats, seed: int
     """The covariance the fit's own noise adds to every board's quantities: one fixed board (the
     main component's mean) measured ``boards`` times at the lot's poses and samples, fitted.
     A component's covariance minus this is the spread of the boards themselves (deconvolution)."""
-    from .simlot import fixed_board_stats  # one direction: simlot imports stream only
     names = stats.quantities
     q = fixed_board_stats(cfg, stats, mix.means[0], boards, seed)
     X = q[np.all(np.isfinite(q), axis=1)]
