@@ -49,10 +49,10 @@ def line_draw(step_at: int | None, step_mg: float = 5.0):
     return draw
 
 
-def write_line_lot(path: Path, boards: int, step_at: int | None = 12_000, seed: int = 7, samples: int = 1000
-                   ) -> Path:
+def write_line_lot(path: Path, boards: int, step_at: int | None = 12_000, seed: int = 7, samples: int = 1000,
+                   forward: bool = False) -> Path:
     model = default_model()
     qs = [parse_quantity(n, "test") for n in NAMES]
     shape = Population(qs, [Component(1.0, np.zeros(len(qs)), np.zeros(len(qs)), np.eye(len(qs)))])
-    return write_population_lot(path, boards, "an4399-8", model, shape, seed=seed, samples=samples,
+    return write_population_lot(path, boards, "an4399-8", model, shape, seed=seed, samples=samples, forward=forward,
                                 draw=line_draw(step_at))
