@@ -7,7 +7,6 @@ NVM -> record everything in the store.  A board that fails is never written.
 """
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -25,6 +24,7 @@ from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import board_of, make_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
+from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
 from ..models.fitting import fit_session
 from ..nvm.writer import BurnError, CalibrationWriter
 from ..session import PoseRecord, Session
@@ -40,45 +40,15 @@ if TYPE_CHECKING:
 Check = tuple[np.ndarray, np.ndarray, float | None]
 
 
-class CaptureProgress:
-    """A progress bar (stderr) for any capture that takes longer than a moment of wall time.
-
-    Virtual-clock captures finish in milliseconds and never show one; a real board at
-    100 Hz averaging for seconds does.
-    """
-
-    def __init__(self, label: str, after_s: float = 0.5) -> None:
-        self.label, self.after_s = label, after_s
-        self.t0 = time.monotonic()
-        self.bar: Any = None  # a click progress bar once shown
-        self.done = 0
-
-    def __call__(self, fraction: float) -> None:
-        if self.bar is None:
-            if time.monotonic() - self.t0 < self.after_s:
-                return
-            import click
-
-            self.bar = click.progressbar(length=1000, label=self.label, file=sys.stderr)
-            self.bar.__enter__()
-        step = int(1000 * min(max(fraction, 0.0), 1.0)) - self.done
-        if step > 0:
-            self.bar.update(step)
-            self.done += step
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(None, None, None)
-            self.bar = None
-
-
 class Station:
     """Runs the flow for one board at a time."""
 
     def __init__(self, config: StationConfig, *, operator: str | None = None, serial: str | None = None,
                  lot: str | None = None, echo: Callable[[str], None] = print,
-                 progress: Callable[[str, float], None] | None = None, driver: Driver | None = None) -> None:
+                 progress: Callable[[str, float], None] | None = None, driver: Driver | None = None,
+                 ui: OperatorUI | None = None) -> None:
         self.cfg = config
+        self.ui = ui  # the operator's front end (terminal or browser), for an operator jig
         self.driver = driver  # default: built from the config's device section at run()
         self.operator = operator
         self.serial_override = serial
@@ -92,6 +62,10 @@ class Station:
         self._burn_log: Callable[[str, dict[str, Any]], None] | None = None
 
     # -- pieces -----------------------------------------------------------------------
+    def _capture_sink(self, label: str) -> CaptureSink:
+        """Where a capture's progress goes: the operator's front end, or nowhere."""
+        return NoCaptureProgress() if self.ui is None else self.ui.capture(label)
+
     def _live(self, driver: Driver, gate: StillnessGate) -> LiveReading:
         n = max(8, int(round(0.2 * driver.odr_hz)))
 
@@ -110,7 +84,7 @@ class Station:
         while True:
             attempts += 1
             jig.present(pose, self._live(driver, StillnessGate(s, floor)) if isinstance(jig, OperatorJig) else None)
-            bar = CaptureProgress(f"  capturing {pose.name}")
+            bar = self._capture_sink(f"  capturing {pose.name}")
             try:
                 gc = gated_capture(driver, s, pose.reference_g, floor, progress=bar)
             except WrongPose as e:
@@ -179,7 +153,7 @@ class Station:
         closes the run (interrupted or error) with the poses captured so far, then propagates."""
         records = session.poses
         try:
-            with make_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, driver, self.echo) as jig:
+            with make_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, driver, self.ui) as jig:
                 try:
                     self._run_poses(driver, jig, design, records, retries, rep)
                     self._fit_judge_write(driver, jig, session, rep)

@@ -35,6 +35,7 @@ from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import board_of, make_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig
+from ..fixtures.operator_ui import OperatorUI
 from ..session import PoseRecord, Session
 from ..store.runs import Store
 from .board import Check, Station
@@ -115,7 +116,7 @@ class PanelSimulatedJig(Jig):
             b.set_pose(pose, rotation=seat @ R)
 
 
-def make_panel_jig(cfg: dict[str, Any], boards: list[PanelBoard], echo: Callable[[str], None]) -> Jig:
+def make_panel_jig(cfg: dict[str, Any], boards: list[PanelBoard], ui: OperatorUI | None) -> Jig:
     """The configured jig for the whole panel (operator and motorized jigs move the fixture)."""
     kind = cfg.get("type", "simulated")
     if kind == "simulated" and len(boards) > 1:
@@ -128,7 +129,7 @@ def make_panel_jig(cfg: dict[str, Any], boards: list[PanelBoard], echo: Callable
         return PanelSimulatedJig(sims, number(cfg, "move_time_s", "jig", 2.0, 0.0, 120.0),
                                  [b.seat for b in boards if b.driver is not None])
     first = next((b.driver for b in boards if b.driver is not None), None)
-    return make_jig(cfg, first, echo)
+    return make_jig(cfg, first, ui)
 
 
 class PanelStation:
@@ -140,8 +141,9 @@ class PanelStation:
 
     def __init__(self, config: StationConfig, *, operator: str | None = None, lot: str | None = None,
                  echo: Callable[[str], None] = print, drivers: list[Driver] | None = None,
-                 panel_id: str | None = None, jig: Jig | None = None) -> None:
+                 panel_id: str | None = None, jig: Jig | None = None, ui: OperatorUI | None = None) -> None:
         self.cfg = config
+        self.ui = ui  # the operator's front end, for an operator jig
         self.operator, self.lot, self.echo = operator, lot, echo
         self.drivers = drivers  # default: built from the config's device section
         self.panel_id = panel_id or new_panel_id(config.station_id)
@@ -299,7 +301,7 @@ class PanelStation:
                 live = [b for b in boards if b.active]
                 if live:
                     with (self.jig or make_panel_jig(cfg.raw.get("jig") or {"type": "simulated"}, live,
-                                                     self.echo)) as jig:
+                                                     self.ui)) as jig:
                         self._poses(boards, jig, design)
                         self._fit_all(boards)
                         self._verify_all(boards, jig)

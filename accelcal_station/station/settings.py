@@ -18,7 +18,7 @@ from .capture import CaptureSettings
 from .identity import IDENTITY_KEYS, identity_options
 
 TOP_KEYS = ("station", "store", "device", "jig", "plan", "capture", "acceptance", "nvm", "verify",
-            "thermal", "chamber")  # thermal plans: station/thermal.py
+            "thermal", "chamber", "web")  # thermal plans: station/thermal.py; web: `accelcal serve`, --ui web
 JIG_TYPES = ("simulated", "operator", "motorized")
 
 
@@ -40,6 +40,7 @@ class StationConfig:
     verify_poses: int
     verify_design: str | None
     store_file: Path | str  # a file, or a store URL (postgresql://...)
+    web_token: str | None = None  # web.token: what starting or aborting a run over the web API needs
 
     @classmethod
     def load(cls, path: str | Path | None = None, store_override: str | Path | None = None,
@@ -65,7 +66,7 @@ class StationConfig:
         verify_poses = _verify_poses(ver, limits)
         return cls(raw, p.read_text(), p, str(st.get("id", "station-1")), design, model, settings,
                    limits, write, slot, trim, verify_poses,
-                   None if vdesign is None else str(vdesign), store_file)
+                   None if vdesign is None else str(vdesign), store_file, _web_token(raw))
 
 
 def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> dict[str, Any]:
@@ -147,3 +148,14 @@ def _verify_poses(ver: dict[str, Any], limits: Limits) -> int:
         raise ConfigError("acceptance.verify_error_max_mg: needs verification captures (verify.poses: 0); "
                           "allowed: verify.poses of 1 or more, or remove the limit")
     return verify_poses
+
+
+def _web_token(raw: dict[str, Any]) -> str | None:
+    """web.token: a shared secret of 16-200 printable characters (no spaces), or absent."""
+    web = check_keys(raw.get("web"), ["token"], "web")
+    token = web.get("token")
+    if token is None:
+        return None
+    if not isinstance(token, str) or not 16 <= len(token) <= 200 or not token.isprintable() or " " in token:
+        raise ConfigError("web.token: allowed: a string of 16-200 printable characters without spaces")
+    return token

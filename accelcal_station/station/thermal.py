@@ -140,7 +140,7 @@ class ThermalStation(Station):
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
                 try:
                     with make_chamber(cfg.raw["chamber"], board) as chamber, \
-                            make_jig(cfg.raw.get("jig") or {"type": "simulated"}, driver, self.echo) as jig:
+                            make_jig(cfg.raw.get("jig") or {"type": "simulated"}, driver, self.ui) as jig:
                         self._plan(driver, chamber, jig, clock, records, retries, rep)
                 except (AccelcalError, KeyboardInterrupt) as e:
                     if isinstance(e, ChamberFault):

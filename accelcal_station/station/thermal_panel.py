@@ -85,7 +85,7 @@ class ThermalPanelStation(PanelStation):
         sims = [board_of(b.driver) for b in live]
         with make_chamber(self.cfg.raw["chamber"], sims[0]) as chamber, \
                 (self.jig or make_panel_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, live,
-                                            self.echo)) as jig:
+                                            self.ui)) as jig:
             emu = getattr(chamber, "emulator", None)
             for s in sims[1:]:
                 if emu is not None and s is not None:
