@@ -40,7 +40,7 @@ def parse_limits(items: tuple[str, ...], base: Limits) -> Limits:
 
 def interval(passed: int, n_sim: int, n_real: int) -> tuple[float, float, float]:
     p = (passed + 0.5) / (n_sim + 1.0)
-    half = Z * np.sqrt(p * (1 - p) * (1.0 / n_sim + 1.0 / max(n_real, 1)))
+    half = float(Z * np.sqrt(p * (1 - p) * (1.0 / n_sim + 1.0 / max(n_real, 1))))
     return passed / n_sim, max(0.0, p - half), min(1.0, p + half)
 
 
