@@ -158,6 +158,8 @@ def _fit_noise_cov(cfg: dict[str, Any], mix: Mixture, stats: LotStats, seed: int
     main component's mean) measured ``boards`` times at the lot's poses and samples, fitted.
     A component's covariance minus this is the spread of the boards themselves (deconvolution)."""
     names = stats.quantities
+    if stats.refs is None:  # no pose references (model 9): nothing to simulate the fit's scatter at
+        return np.zeros((len(names), len(names)))
     q = fixed_board_stats(cfg, stats, mix.means[0], boards, seed)
     X = q[np.all(np.isfinite(q), axis=1)]
     return np.cov(X.T) if len(X) > len(names) else np.zeros((len(names), len(names)))
