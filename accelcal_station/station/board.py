@@ -10,19 +10,19 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..acceptance.reasons import Reason, codes
 from ..acceptance.rules import judge
 from ..calibration import Calibration
-from ..drivers.base import Driver, Identity
+from ..drivers.base import Clock, Driver, Identity
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
-from ..fixtures.factory import board_of, make_jig
+from ..fixtures.factory import clock_of, make_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
 from ..models.fitting import fit_session
@@ -32,9 +32,6 @@ from ..store.runs import Store
 from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
 from .report import RunReport, fit_figures
 from .settings import StationConfig
-
-if TYPE_CHECKING:
-    from ..drivers.simulated import SimulatedBoard
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
@@ -120,8 +117,8 @@ class Station:
                 ident = self._open_device(stack, driver, store)
                 rep.serial = self.serial_override or ident.serial
                 rep.chip = ident.chip
-                board = board_of(driver)
-                clock0 = board.clock.now() if board is not None else None
+                clock = clock_of(driver)
+                clock0 = clock.now() if clock is not None else None
                 run_id = store.start_run(device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id,
                                          operator=self.operator, lot=self.lot, config_text=cfg.text,
                                          model=cfg.model, units="counts", counts_per_g=driver.counts_per_g)
@@ -131,7 +128,7 @@ class Station:
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
                 self._calibrate(store, run_id, driver, design, session, retries, rep)
-                rep.timing = self._timing(driver, board, clock0, wall0)
+                rep.timing = self._timing(driver, clock, clock0, wall0)
                 self._finish(store, run_id, session, retries, rep)
         return rep
 
@@ -340,7 +337,7 @@ class Station:
                 for c, ref, t in checks]
         return float(np.max(errs)) * 1e3
 
-    def _timing(self, driver: Driver, board: SimulatedBoard | None, clock0: float | None,
+    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None,
                 wall0: float) -> dict[str, float]:
         odr = driver.odr_hz
         t = {
@@ -356,8 +353,9 @@ class Station:
         # board, sleeping through sampling and moves)
         t["host_compute_s"] = max(0.0, t["wall_s"] - self.operator_wait_s)
         # a panel's board that opened but did not identify has no start time: no device time
-        if board is not None and clock0 is not None:
-            t["device_time_s"] = board.clock.now() - clock0  # moves, waits, EEPROM cycles, sampling
-            t["board_time_s"] = t["device_time_s"] + (0.0 if board.clock.realtime else t["host_compute_s"])
+        if clock is not None and clock0 is not None:
+            t["device_time_s"] = clock.now() - clock0  # moves, waits, EEPROM cycles, sampling
+            realtime = bool(getattr(clock, "realtime", False))
+            t["board_time_s"] = t["device_time_s"] + (0.0 if realtime else t["host_compute_s"])
         return t
 
