@@ -101,7 +101,7 @@ class LotStats:
 
     def add(self, chunk: LotChunk, per_g: float | None, units: str, limits: Limits | None) -> None:
         res = fit_chunk(chunk, self.model, per_g, units)
-        verdicts, reasons = judge_chunk(res, limits)
+        verdicts, reasons = judge_chunk(res, limits, self.model)
         B = len(chunk.serials)
         if self.refs is None:
             self._keep_design(chunk, per_g)
@@ -110,7 +110,7 @@ class LotStats:
         meas = np.concatenate([res["W"].reshape(B, 9), res["V"], res["Gamma"],
                                1e3 * res["residual_rms_g"][:, None], 1e3 * res["crossval_rms_g"][:, None]], axis=1)
         rows = np.concatenate([idx[:, None].astype(float), eq, meas], axis=1)
-        keys = [(v, tuple(sorted({_code(r) for r in rs}))) for v, rs in zip(verdicts, reasons, strict=True)]
+        keys = [(v, tuple(sorted({r.code for r in rs}))) for v, rs in zip(verdicts, reasons, strict=True)]
         for v, rs in keys:
             self.verdicts[v or "UNJUDGED"] += 1
             self.reasons.update(rs)
@@ -172,13 +172,6 @@ class LotStats:
 
     def column(self, name: str) -> np.ndarray:
         return self.rows[:, self.columns.index(name)]
-
-
-def _code(reason: str) -> str:
-    """A reason's code: the limit key before its value (judge_chunk's wording), or 'unfitted'."""
-    if reason.startswith("unfitted"):
-        return "unfitted"
-    return reason.split(" ", 1)[0].rstrip(":")
 
 
 def collect(chunks: Iterator[LotChunk], model: str | None, per_g: float | None, units: str,
