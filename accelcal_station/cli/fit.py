@@ -57,7 +57,8 @@ def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
             f"leave-one-pose-out RMS {cv}; condition number {fit.condition_number:.3g}"]
     if fit.message:
         out.append(f"note: {fit.message}")
-    out += _barely_text(fit)
+    out += [f"held: {h.text}" for h in fit.held]
+    out += _barely_text(fit) if not fit.held else []
     w = max(4, *(len(n) for n in names))
     out.append(f"{'pose':<{w}}  {'x_g':>9} {'y_g':>9} {'z_g':>9}  {'res_x_mg':>9} {'res_y_mg':>9} "
                f"{'res_z_mg':>9}  {'norm_err_mg':>11}")
@@ -163,7 +164,10 @@ def _table_report(path: str, session: Session, result: Fit) -> tuple[dict[str, A
 def _report(path: str, loaded: Loaded, result: Fit) -> tuple[dict[str, Any], list[str]]:
     """What `accelcal fit` prints: what reading the file inferred, its static intervals (raw logs), the fit."""
     session = loaded.session
+    held = result.calibration.metadata.get("held")
     result.calibration.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
+    if held:
+        result.calibration.metadata["held"] = held
     report: dict[str, Any] = {"inferred": loaded.to_json()}
     text = [f"read {path}: " + "; ".join(loaded.inferred)]
     if loaded.log is not None and loaded.detection is not None:
