@@ -49,8 +49,8 @@ def _norm_residual(p, x):
 def _unconstrained_loo(x):
     """Leave-one-pose-out RMS norm error of the free 9-parameter norm fit (scipy, trust region)."""
     p0 = np.array([1, 1, 1, 0, 0, 0, 0, 0, 0], dtype=float)
-    e = [_norm_residual(least_squares(_norm_residual, p0, args=(np.delete(x, i, 0),), xtol=1e-15,
-                                      ftol=1e-15, gtol=1e-15).x, x[i:i + 1])[0] for i in range(len(x))]
+    e = [_norm_residual(least_squares(_norm_residual, p0, args=(np.delete(x, i, 0),), xtol=1e-12,
+                                      ftol=1e-12, gtol=1e-12, method="lm").x, x[i:i + 1])[0] for i in range(len(x))]
     return float(np.sqrt(np.mean(np.square(e))))
 
 

@@ -172,6 +172,10 @@ def _covariance(J: np.ndarray, r: np.ndarray, noise_g: ArrayLike | None, ok: np.
         s2 = np.sum(r**2, axis=1) / dof
     JtJ = np.einsum("dpi,dpj->dij", J, J)
     cov = np.linalg.pinv(JtJ) * np.where(np.isfinite(s2), s2, 0.0)[:, None, None]
+    if k < 9:  # held parameters (zero Jacobian columns): exactly zero variance, not pinv's round-off
+        held = ~np.any(JtJ != 0, axis=(0, 1))
+        cov[:, held, :] = 0.0
+        cov[:, :, held] = 0.0
     return cov, np.isfinite(s2) & ok
 
 
