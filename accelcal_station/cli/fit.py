@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from typing import Any
 
 import click
@@ -15,6 +16,7 @@ from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
 from ..errors import AccelcalError, DataError
 from ..identifiability import assess, worst_parameter
+from ..models.choice import ModelChoice, choose_model
 from ..models.handplaced import norm_faces, opposite_face
 from ..models.result import FitResult
 from ..session import Session
@@ -24,12 +26,12 @@ from ._common import parse_number as _number
 from ._text import clean
 
 
-def _load(path: str, raw: bool, model: str, units: str | None, cpg: float | None, gravity: float | None,
+def _load(path: str, raw: bool, model: str | None, units: str | None, cpg: float | None, gravity: float | None,
           columns: str | None, skip_rows: int | None, rate: float | None) -> Loaded:
     if rate is not None and not raw:
         raise DataError(f"--rate is for raw sample logs; add --raw to read {path} as one")
     return load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, columns=columns,
-                skip_rows=skip_rows, rate_hz=rate, references=model != "9")
+                skip_rows=skip_rows, rate_hz=rate, references=None if model is None else model != "9")
 
 
 def _vec(v: ArrayLike, fmt: str = "+.6f") -> str:
@@ -191,7 +193,8 @@ def _report(path: str, loaded: Loaded, result: Fit) -> tuple[dict[str, Any], lis
 @click.argument("path", metavar="FILE")
 @click.option("--raw", is_flag=True, help="FILE is a raw sample log: find its static poses automatically.")
 @click.option("--model", default=None, metavar="6|9|12|15",
-              help="Parameters to fit (default 12 for a pose table, 9 for a raw log, which has no references).")
+              help="Parameters to fit (default: the richest model the poses determine: 15 or 12 with references; "
+                   "without, the hand-placed faces' norm fit or 9).")
 @click.option("--units", default=None, metavar="counts|g|mps2",
               help="Units of the readings (default: the table's '# units:' line, else counts).")
 @click.option("--counts-per-g", "counts_per_g", default=None, metavar="N",
@@ -213,15 +216,24 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
             gravity: str | None, temp_method: str, columns: str | None, skip_rows: str | None, rate: str | None,
             hand_placed: bool, as_json: bool, output: str | None) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
-    model = model if model is not None else ("6" if hand_placed else "9" if raw else "12")
-    check_model_units(model, units)
+    model = "6" if model is None and hand_placed else model
+    check_model_units(model or "12", units)  # no --model: the units still checked first
     check_temp_method(temp_method)
     cpg = _number(counts_per_g, "--counts-per-g")
     grav = _number(gravity, "--gravity")
     loaded = _load(path, raw, model, units, cpg, grav, columns,
                    parse_int(skip_rows, "--skip-rows", positive=False), _number(rate, "--rate"))
+    choice = None
+    if model is None:
+        loaded, choice = _choose(path, loaded)
+        model, hand_placed = choice.model, choice.faces is not None
     result = fit(loaded, model, temp_method=temp_method, source=path)
     report, text = _report(path, loaded, result)
+    if choice is not None:
+        report["model_choice"] = choice.to_json()
+        if choice.faces is not None:
+            report["faces"] = [{"pose": n, "face": f, "angle_deg": float(a)} for n, f, a in
+                               zip(loaded.session.names, choice.faces.names, choice.faces.angle_deg, strict=True)]
     if hand_placed:
         if len(result.fits) != 1 or model != "6":
             raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")
@@ -237,3 +249,24 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         click.echo(json.dumps(_clean(report), allow_nan=False))
     else:
         click.echo("\n".join(clean(t) for t in text))  # pose names from the file: never raw escapes
+
+
+def _choose(path: str, loaded: Loaded) -> tuple[Loaded, ModelChoice]:
+    """No --model: the richest model the data determine (models/choice.py), said on the read line;
+    hand-placed faces become the session's references."""
+    session = loaded.session
+    try:
+        choice = choose_model(session)
+    except AccelcalError as e:
+        raise type(e)(f"{path}: {e}") from None
+    inferred = list(loaded.inferred)
+    if choice.faces is not None:
+        f = choice.faces
+        inferred.append(f"{f.text}: " + ", ".join(f"{n} {face}" for n, face in zip(session.names, f.names,
+                                                                                    strict=True))
+                        + "; taken as references")
+        poses = [replace(p, reference_g=r) for p, r in zip(session.poses, f.references_g, strict=True)]
+        session = Session(poses, session.units, session.counts_per_g, session.gravity_mps2, session.device,
+                          dict(session.metadata))
+    inferred.append(f"model: {choice.method} ({choice.reason}; --model N to choose)")
+    return replace(loaded, session=session, inferred=inferred), choice
