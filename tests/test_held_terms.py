@@ -100,3 +100,12 @@ def test_a_pose_between_x_and_y_holds_nothing(tmp_path):
     js = _fit_json(write_log(tmp_path / "eleven.csv", FACES + TILTS + XY))
     assert js["model"] == "9" and js["held"] == []
     assert js["W"][0][1] != 0.0 and js["stderr"]["W"][0][1] > 0  # the hint, followed, determines it
+
+
+def test_the_acceptance_verdict_carries_what_was_held(ten):
+    from accelcal_station.acceptance.rules import Limits, judge
+    from accelcal_station.api import fit, load
+
+    v = judge(fit(load(ten, True)).result, Limits.from_config({"residual_rms_mg": 5.0}))
+    assert v.held == ["x-y non-orthogonality held at 0: no pose tilts x and y together; "
+                      "add a pose between +x and +y to determine it"]

@@ -54,6 +54,7 @@ class Verdict:
     passed: bool
     reasons: list[Reason]
     measured: dict[str, float]
+    held: list[str] = field(default_factory=list)  # terms fitted at nominal (models/held.py), in words
 
     @property
     def label(self) -> str:
@@ -104,4 +105,4 @@ def judge(fit: FitResult, limits: Limits, verify_error_max_mg: float | None = No
             reasons.append(Reason(key, f"not measurable for this fit (limit {lim:g})"))
         elif not m[key] <= lim:
             reasons.append(Reason(key, f"{m[key]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})", " "))
-    return Verdict(not reasons, reasons, m)
+    return Verdict(not reasons, reasons, m, [h.text for h in fit.held])
