@@ -30,8 +30,12 @@ def _load(path: str, raw: bool, model: str | None, units: str | None, cpg: float
           columns: str | None, skip_rows: int | None, rate: float | None) -> Loaded:
     if rate is not None and not raw:
         raise DataError(f"--rate is for raw sample logs; add --raw to read {path} as one")
-    return load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, columns=columns,
-                skip_rows=skip_rows, rate_hz=rate, references=None if model is None else model != "9")
+    loaded = load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, columns=columns,
+                  skip_rows=skip_rows, rate_hz=rate, references=model is not None and model != "9")
+    have = [p.reference_g is not None for p in loaded.session.poses]
+    if model is None and any(have) and not all(have):  # some rows give references: the reader names the row
+        load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, references=True)
+    return loaded
 
 
 def _vec(v: ArrayLike, fmt: str = "+.6f") -> str:

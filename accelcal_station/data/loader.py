@@ -127,7 +127,7 @@ def _apply(session: Session, j: UnitsJudgement, gravity_mps2: float | None) -> S
 
 
 def load_pose_table(path: str | Path, units: str | None = None, counts_per_g: float | None = None,
-                    gravity_mps2: float | None = None, references: bool | None = False) -> Loaded:
+                    gravity_mps2: float | None = None, references: bool = False) -> Loaded:
     """A pose table with its units judged as every command judges them."""
     meta = table_metadata(path)
     session = read_pose_table(path, units or meta.get("units") or "counts", counts_per_g, gravity_mps2,
@@ -187,7 +187,7 @@ def _inferred(log: RawLog, j: UnitsJudgement) -> list[str]:
 
 def load(path: str | Path, raw: bool = False, *, units: str | None = None, counts_per_g: float | None = None,
          gravity_mps2: float | None = None, columns: str | list[str] | None = None, skip_rows: int | None = None,
-         rate_hz: float | None = None, references: bool | None = False) -> Loaded:
+         rate_hz: float | None = None, references: bool = False) -> Loaded:
     """A pose table, or with ``raw`` a raw log (the options that only raw logs take are refused otherwise)."""
     if raw:
         return load_raw_log(path, units, counts_per_g, gravity_mps2, columns, skip_rows, rate_hz)

@@ -208,20 +208,17 @@ def _rows(path: Path, lines: list[str], header_at: int, header: list[str], refer
 
 
 def read_pose_table(path: str | Path, units: str | None = None, counts_per_g: float | None = None,
-                    gravity_mps2: float | None = None, *, references: bool | None = False) -> Session:
+                    gravity_mps2: float | None = None, *, references: bool = False) -> Session:
     """Read a pose table into a Session; arguments override the file's metadata.
 
     ``references=True`` makes every row give its expected output (pitch/roll or
-    ref columns), as models 6, 12 and 15 need; errors then name the row.  ``None``: when the
-    header has reference columns (no --model: a table with them is meant to have them).
+    ref columns), as models 6, 12 and 15 need; errors then name the row.
     """
     path = Path(path)
     lines = _read_text(path).splitlines()
     meta, meta_line, header_at, _ = read_preamble(lines, path, f"{','.join(COLUMNS[:6])} (and optional columns)")
     hline = header_at + 1
     header = _header(path, lines[header_at], hline)
-    if references is None:
-        references = any(c in header for c in ("pitch_deg", "roll_deg", "ref_x", "ref_y", "ref_z"))
     units = units if units is not None else meta.get("units", "counts")
     try:
         check_units(units)
