@@ -16,7 +16,7 @@ from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
 from ..errors import AccelcalError, DataError
 from ..identifiability import assess, worst_parameter
-from ..models.choice import ModelChoice, choose_model
+from ..models.choice import ModelChoice, choose_model, with_face_references
 from ..models.handplaced import norm_faces, opposite_face
 from ..models.result import FitResult
 from ..session import Session
@@ -269,8 +269,6 @@ def _choose(path: str, loaded: Loaded) -> tuple[Loaded, ModelChoice]:
         inferred.append(f"{f.text}: " + ", ".join(f"{n} {face}" for n, face in zip(session.names, f.names,
                                                                                     strict=True))
                         + "; taken as references")
-        poses = [replace(p, reference_g=r) for p, r in zip(session.poses, f.references_g, strict=True)]
-        session = Session(poses, session.units, session.counts_per_g, session.gravity_mps2, session.device,
-                          dict(session.metadata))
+        session = with_face_references(session, f)
     inferred.append(f"model: {choice.method} ({choice.reason}; --model N to choose)")
     return replace(loaded, session=session, inferred=inferred), choice

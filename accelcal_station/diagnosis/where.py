@@ -1,6 +1,6 @@
 """Where the baseline's held-out gap lies (engine's module doc, step 2): by pose, axis, input level,
-temperature and acquisition order in the static view, by time in capture in the time view, the noise against the simulator's,
-and the Allan deviation of the longest capture."""
+temperature and acquisition order in the static view, by time in capture in the time view, the noise
+against the simulator's, and the Allan deviation of the longest capture."""
 from __future__ import annotations
 
 from typing import Any

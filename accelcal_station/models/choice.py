@@ -14,7 +14,7 @@ or more away from every axis (45 in the nine-position designs), so the two canno
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -87,6 +87,13 @@ def axis_faces(session: Session, tol_deg: float = FACE_TOL_DEG) -> Faces | None:
     return Faces(ref, names, angle)
 
 
+def with_face_references(session: Session, faces: Faces) -> Session:
+    """The session with each pose's face as its reference (the hand-placed norm fit's input)."""
+    poses = [replace(p, reference_g=r) for p, r in zip(session.poses, faces.references_g, strict=True)]
+    return Session(poses, session.units, session.counts_per_g, session.gravity_mps2, session.device,
+                   dict(session.metadata))
+
+
 def _with_references(session: Session) -> ModelChoice:
     groups = session.by_temperature() if all(p.temp_c is not None for p in session.poses) else [(None, session)]
     fifteen = all(assess(sub.readings_g(), "15").determined for _, sub in groups)
@@ -103,8 +110,8 @@ def choose_model(session: Session) -> ModelChoice:
         return _with_references(session)
     faces = axis_faces(session)
     if faces is not None:
-        return ModelChoice("6", "no references and every pose an axis-up face: gain and offset per axis by the gravity norm",
-                           faces)
+        return ModelChoice("6", "no references and every pose an axis-up face: gain and offset per axis by the "
+                                "gravity norm", faces)
     g = _unit_readings(session)
     try:
         held = hold_plan(g, "9")
@@ -118,4 +125,4 @@ def choose_model(session: Session) -> ModelChoice:
     return ModelChoice("9", why, None, held)
 
 
-__all__ = ["FACE_TOL_DEG", "Faces", "ModelChoice", "axis_faces", "choose_model"]
+__all__ = ["FACE_TOL_DEG", "Faces", "ModelChoice", "axis_faces", "choose_model", "with_face_references"]
