@@ -109,3 +109,18 @@ def test_the_acceptance_verdict_carries_what_was_held(ten):
     v = judge(fit(load(ten, True)).result, Limits.from_config({"residual_rms_mg": 5.0}))
     assert v.held == ["x-y non-orthogonality held at 0: no pose tilts x and y together; "
                       "add a pose between +x and +y to determine it"]
+
+
+def test_model_15_on_faces_holds_the_cubic_and_fits_the_rest():
+    """Six faces (every reading about +-1 g or 0) cannot tell a cubic from the gain: --model 15 keeps
+    model 12's determined terms and holds the cubic at 0, named, instead of refusing."""
+    from pathlib import Path
+
+    table = Path(__file__).parent / "data" / "nine_position_paper_faces.csv"
+    r15 = CliRunner().invoke(cli, ["fit", str(table), "--model", "15", "--json"])
+    r12 = CliRunner().invoke(cli, ["fit", str(table), "--model", "12", "--json"])
+    j15, j12 = json.loads(r15.stdout), json.loads(r12.stdout)
+    assert j15["model"] == "15" and [h["term"] for h in j15["held"]] == ["Gamma_xx", "Gamma_yy", "Gamma_zz"]
+    assert j15["Gamma"] == [0.0, 0.0, 0.0] and j15["stderr"]["Gamma"] == [0.0, 0.0, 0.0]
+    np.testing.assert_allclose(j15["W"], j12["W"], rtol=0, atol=1e-12)
+    assert "intermediate tilts" in j15["held"][0]["hint"]

@@ -19,7 +19,7 @@ from ..errors import DataError, UnderdeterminedError, UnitsError
 from ..identifiability import assess, assess_batch
 from ..session import Session
 from .gravity_norm import PARAM_NAMES, fit_norm_batch, nominal_scale
-from .held import Held, free_mask, hold_plan
+from .held import Held, cubic_held, free_mask, hold_plan
 from .linear import fit_linear_batch, six_param_six_face, six_param_two_pose
 from .result import BatchFit, FitResult
 from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
@@ -120,15 +120,22 @@ def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, mode
         res.held = list(held)
     elif model == "9":
         res = fit_stacked(gf, None, "9", nz) if fast else fit_norm_batch(gf, noise_g=nz)
+    elif model == "15" and held:  # the cubic held at 0: model 12's fit, stated as model 15
+        res = cubic_held(fit_linear_batch(gf, _references(references, x, model), "12", nz), held)
     else:
-        if references is None:
-            raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
-                            "model 9 needs none")
-        ref = np.asarray(references, dtype=float)
-        if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
-            raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
+        ref = _references(references, x, model)
         res = fit_stacked(gf, ref, model, nz) if fast else fit_linear_batch(gf, ref, model, nz)
     return res
+
+
+def _references(references: ArrayLike | None, x: np.ndarray, model: str) -> np.ndarray:
+    if references is None:
+        raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
+                        "model 9 needs none")
+    ref = np.asarray(references, dtype=float)
+    if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
+        raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
+    return ref
 
 
 def _refuse_absurd(res: BatchFit, gf: np.ndarray) -> None:

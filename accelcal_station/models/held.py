@@ -18,6 +18,10 @@ and look again.  When the weak direction is led by a gain (M_xx..M_zz) or an off
 (B_x..B_z) the model is refused: those have no nominal value a calibration could keep.
 Holding all three non-orthogonalities leaves a diagonal M: that is the hand-placed faces'
 norm fit (models/handplaced.py), which the caller uses instead.
+
+Model 15 whose cubic the poses cannot tell from the gain (every reading about +-1 g or 0)
+while model 12 is determined: the three cubic terms are held at 0 (the fit is model 12's,
+stated as model 15 with Gamma = 0 and zero variance).
 """
 from __future__ import annotations
 
@@ -28,7 +32,10 @@ import numpy as np
 from ..errors import UnderdeterminedError
 from ..identifiability import REL_SV_MIN, _design, assess, first_of_orientation
 from .gravity_norm import PARAM_NAMES
+from .linear import param_names
+from .result import BatchFit
 
+AXES = "xyz"
 # parameter index -> (axes in words, the pose that determines it)
 HOLDABLE_9 = {3: ("x", "y"), 4: ("x", "z"), 5: ("y", "z")}
 
@@ -60,6 +67,25 @@ FACES_ONLY = ("every pose is an axis-up face, so no pose determines any non-orth
               "fit with no --model for the hand-placed faces' norm fit, or add tilted poses")
 
 
+def _held_cubic(axis: str, why: str) -> Held:
+    return Held(f"Gamma_{axis}{axis}", 0.0, f"{axis} cubic held at 0: {why.split(';')[0]}",
+                "add intermediate tilts (e.g. the an4399-8 design) to determine it")
+
+
+def cubic_held(res: BatchFit, held: list[Held]) -> BatchFit:
+    """A model-12 fit stated as model 15 with every cubic held at 0 (zero value, zero variance)."""
+    D = len(res)
+    res.model = "15"
+    res.params = np.concatenate([res.params, np.zeros((D, 3))], axis=1)
+    res.param_names = param_names("15")
+    if isinstance(res.covariance, np.ndarray) and res.covariance.ndim == 4:  # (D, 3, 4, 4) per channel
+        cov = np.zeros(res.covariance.shape[:2] + (5, 5))
+        cov[..., :4, :4] = res.covariance
+        res.covariance = cov
+    res.held = list(held)
+    return res
+
+
 def _weakest(Xn: np.ndarray, free: np.ndarray) -> tuple[float, np.ndarray]:
     """Smallest relative singular value of the free columns and its singular vector (over all 9)."""
     _, s, vt = np.linalg.svd(Xn[:, free], full_matrices=False)
@@ -75,6 +101,8 @@ def hold_plan(gf: np.ndarray, model: str) -> list[Held]:
     identifiability reason) when a gain or offset is weak or holding cannot help.
     """
     ident = assess(gf, model)
+    if model == "15" and not ident.determined and assess(gf, "12").determined:
+        return [_held_cubic(a, ident.reason) for a in AXES]
     if model != "9":
         if ident.determined:
             return []
@@ -107,4 +135,4 @@ def free_mask(held: list[Held], names: list[str]) -> np.ndarray:
     return np.array([n not in terms for n in names])
 
 
-__all__ = ["HOLDABLE_9", "Held", "free_mask", "hold_plan"]
+__all__ = ["HOLDABLE_9", "Held", "cubic_held", "free_mask", "hold_plan"]
