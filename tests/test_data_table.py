@@ -19,7 +19,7 @@ def _rows() -> list[tuple[str, bool, str, str]]:
     table = text[text.index("## Every data set here"):]
     out = []
     for line in table.splitlines():
-        m = re.match(r"\| `([\w.]+\.csv)`( \(`--raw`\))? \| [^|]+ \| ([^|]+) \| ([^|]+) \|", line)
+        m = re.match(r"\| file ([\w.]+\.csv)( \(--raw\))? \| [^|]+ \| ([^|]+) \| ([^|]+) \|", line)
         if m:
             out.append((m.group(1), bool(m.group(2)), m.group(3).strip(), m.group(4).strip()))
     return out
