@@ -20,7 +20,6 @@ from ..identifiability import assess, assess_batch
 from ..session import Session
 from .gravity_norm import PARAM_NAMES, fit_norm_batch, nominal_scale
 from .held import Held, cubic_held, free_mask, hold_plan
-from .linear import fit_linear_batch, six_param_six_face, six_param_two_pose
 from .result import BatchFit, FitResult
 from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
 from .stacked import fit_stacked
@@ -59,11 +58,10 @@ def _input_per_g(x: np.ndarray, model: str, units: str, counts_per_g: ArrayLike 
 
 def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: str | int = "12", *,
               units: str = "g", counts_per_g: ArrayLike | None = None, gravity_mps2: float | None = None,
-              noise: ArrayLike | None = None, fast: bool = False) -> BatchFit:
-    """Fit D boards at once.
-
-    ``fast``: the stacked fitters of models/stacked.py (same estimators, closed forms and
-    batched Gauss-Newton; equal to 1e-9 g), for batches of many boards.
+              noise: ArrayLike | None = None) -> BatchFit:
+    """Fit D boards at once with the one estimator per model: the stacked fitters of
+    models/stacked.py (closed forms for 6/12/15, batched Gauss-Newton for 9), which lot
+    files, pose tables, the store and single boards all go through.
 
     readings: (D, P, 3) pose means in ``units``; references: (D, P, 3) or (P, 3)
     expected output in g (required for 6/12/15, ignored by 9); noise: optional
@@ -100,7 +98,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
             gf_fit = np.where(bad[:, None, None], ref, gf)
     try:
         with np.errstate(over="ignore", invalid="ignore"):
-            res = _fit_stack(gf_fit, references, x, model, nz, fast, held)
+            res = _fit_stack(gf_fit, references, x, model, nz, held)
     except np.linalg.LinAlgError:
         raise DataError("the readings cannot be fitted (numerically singular or overflowing: "
                         "a reading far beyond the sensor's range?)") from None
@@ -113,18 +111,17 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     return res
 
 
-def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, model: str, nz: np.ndarray | None,
-               fast: bool = False, held: list[Held] | None = None) -> BatchFit:
+def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, model: str,
+               nz: np.ndarray | None, held: list[Held] | None = None) -> BatchFit:
     if model == "9" and held:  # a constrained solve: the held terms stay at nominal (models/held.py)
         res = fit_norm_batch(gf, noise_g=nz, free=free_mask(held, PARAM_NAMES))
         res.held = list(held)
     elif model == "9":
-        res = fit_stacked(gf, None, "9", nz) if fast else fit_norm_batch(gf, noise_g=nz)
+        res = fit_stacked(gf, None, "9", nz)
     elif model == "15" and held:  # the cubic held at 0: model 12's fit, stated as model 15
-        res = cubic_held(fit_linear_batch(gf, _references(references, x, model), "12", nz), held)
+        res = cubic_held(fit_stacked(gf, _references(references, x, model), "12", nz), held)
     else:
-        ref = _references(references, x, model)
-        res = fit_stacked(gf, ref, model, nz) if fast else fit_linear_batch(gf, ref, model, nz)
+        res = fit_stacked(gf, _references(references, x, model), model, nz)
     return res
 
 
@@ -215,6 +212,3 @@ def fit_temperature(session: Session, model: str | int = "12", method: str = "li
                       first.input_per_g, temperature=table)
     return cal, fits
 
-
-__all__ = ["MODELS", "BatchFit", "FitResult", "check_model", "fit", "fit_batch", "fit_session",
-           "fit_temperature", "six_param_six_face", "six_param_two_pose"]
