@@ -39,6 +39,9 @@ class StationSection(Section):
 class StoreSection(Section):
     path: str = _f("accelcal-runs.sqlite", "results store: a SQLite file (relative to the current directory) "
                    "or a postgresql:// URL")
+    outbox: str | None = _f(None, "local SQLite file keeping runs while a postgresql:// store is unreachable "
+                            "(replayed by the next run or `accelcal report sync`); default "
+                            "$XDG_STATE_HOME/accelcal/outbox.sqlite")
 
 
 class PlanSection(Section):
