@@ -176,3 +176,10 @@ def test_resources_prints_peaks_under_the_limit(capsys):
     assert [r[0] for r in rows] == ["fit TABLE (rows)"] * 2 + ["simulate six-face --raw (samples)"] * 2
     # every command succeeded and its own peak (a fresh Python with numpy: tens of MB) was measured
     assert all(r[-1] == "0" and 20 < number(r[2]) < 200 and r[3] == "under 200" for r in rows), rows
+
+
+def test_twin_scale_prints_time_memory_and_ratio(capsys):
+    out = run(capsys, "twin_scale", "--sizes", "300,600")
+    assert re.search(r"300 boards: twin fit [0-9.]+ s, peak [0-9]+ MB", out)
+    m = re.search(r"peak memory ratio 600 / 300 boards: ([0-9.]+)x", out)
+    assert m and 0.5 < float(m.group(1)) < 2.0
