@@ -6,8 +6,9 @@ Each command runs in its own child process, started by a small helper process (r
 survives exec, and a child forked from a large process would start with its pages), and the
 helper prints the command's own peak resident set (``os.wait4``'s ru_maxrss) and wall time.
 
-1. ``accelcal fit TABLE`` (model 12, text output) on tables of random orientations (issue 26:
-   12,000 rows reached 1.34 GB, 100,000 asked for 74.5 GiB; the limit is 200 MB).
+1. ``accelcal fit TABLE --model 12`` and ``accelcal fit TABLE`` (the model chosen from the data:
+   15 for these tables), text output, on tables of random orientations (issue 26: 12,000 rows
+   reached 1.34 GB, 100,000 asked for 74.5 GiB; the limit is 200 MB).
 2. ``accelcal simulate --poses six-face --raw --samples N`` (issue 26: 10,000,000 took 108 s and
    7.3 GB; the limit is 200 MB).  The raw log (six poses of N samples, ~23 bytes a sample) is
    written to a temporary folder and removed.
@@ -85,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
         work = Path(d)
         for n in fit_rows:
             table = write_table(work / f"poses-{n}.csv", n)
-            row("fit TABLE (rows)", n, *measure(["fit", str(table)]))
+            row("fit TABLE --model 12 (rows)", n, *measure(["fit", str(table), "--model", "12"]))
+            row("fit TABLE, model chosen (rows)", n, *measure(["fit", str(table)]))
             table.unlink()
         for n in raw_samples:
             out = work / f"raw-{n}.csv"

@@ -254,7 +254,8 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
     if as_json:
         click.echo(json.dumps(_clean(report), allow_nan=False))
     else:
-        click.echo("\n".join(clean(t) for t in text))  # pose names from the file: never raw escapes
+        for i in range(0, len(text), 1000):  # a block at a time: a 100,000-pose table is not one string
+            click.echo("\n".join(clean(t) for t in text[i:i + 1000]))  # pose names from the file: no raw escapes
 
 
 def _choose(path: str, loaded: Loaded) -> tuple[Loaded, ModelChoice]:

@@ -45,7 +45,6 @@ COLUMNS = ("pose", "pitch_deg", "roll_deg", "x", "y", "z", "ref_x", "ref_y", "re
            "std_x", "std_y", "std_z")
 META_KEYS = ("units", "counts_per_g", "gravity", "device")
 MAX_POSE_ROWS = 200_000  # fit memory is linear: ~1.8 kB a pose (under 200 MB at 100,000 rows, benchmarks/)
-_LINE_RE = re.compile(r"([^\r\n]*)(?:\r\n|[\r\n]|$)")
 _META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
 
 
@@ -192,9 +191,20 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
                       None if angles is None else float(angles[1]), temp)
 
 
-def _lines(text: str) -> Iterator[str]:
-    """The lines of ``text`` (as ``str.splitlines``: \\n, \\r\\n or \\r end a line), one at a time."""
-    yield from (m.group(1) for m in _LINE_RE.finditer(text))
+def _file_lines(path: Path) -> Iterator[str]:
+    """The lines of a regular text file (UTF-8, BOM dropped; \\n, \\r\\n or \\r end a line), read one
+    at a time; an unreadable or non-text file is one DataError, as ``read_text_file`` gives."""
+    from .rawlog import _check_file  # a FIFO or device would block: regular files only
+
+    _check_file(path)
+    try:
+        with path.open(encoding="utf-8-sig", newline="") as f:
+            for line in f:
+                yield line.rstrip("\r\n")
+    except OSError as e:
+        raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a text file (expected a CSV pose table)") from None
 
 
 def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], references: bool
@@ -228,7 +238,7 @@ def read_pose_table(path: str | Path, units: str | None = None, counts_per_g: fl
     ref columns), as models 6, 12 and 15 need; errors then name the row.
     """
     path = Path(path)
-    lines = _lines(_read_text(path))  # one line at a time: no list of 100,000 strings beside the poses
+    lines = _file_lines(path)  # read as parsed: neither the whole text nor a list of lines beside the poses
     meta, meta_line, header_at, header_text = read_preamble(lines, path,
                                                             f"{','.join(COLUMNS[:6])} (and optional columns)")
     hline = header_at + 1
