@@ -167,6 +167,13 @@ def _table_report(path: str, session: Session, result: Fit) -> tuple[dict[str, A
     return report, text
 
 
+def _echo_lines(text: list[str]) -> None:
+    """Print the lines a block at a time (a 100,000-pose table is never one string); pose names come
+    from the file: never raw escapes."""
+    for i in range(0, len(text), 1000):
+        click.echo("\n".join(clean(t) for t in text[i:i + 1000]))
+
+
 def _report(path: str, loaded: Loaded, result: Fit, as_json: bool = True) -> tuple[dict[str, Any], list[str]]:
     """What `accelcal fit` prints: what reading the file inferred, its static intervals (raw logs), the fit.
     Without ``as_json`` the per-pose JSON rows are not built (a 100,000-pose table: memory)."""
@@ -254,8 +261,7 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
     if as_json:
         click.echo(json.dumps(_clean(report), allow_nan=False))
     else:
-        for i in range(0, len(text), 1000):  # a block at a time: a 100,000-pose table is not one string
-            click.echo("\n".join(clean(t) for t in text[i:i + 1000]))  # pose names from the file: no raw escapes
+        _echo_lines(text)
 
 
 def _choose(path: str, loaded: Loaded) -> tuple[Loaded, ModelChoice]:
