@@ -3,13 +3,14 @@ registered as a command)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..calibration import MODELS
 from ..conventions import check_units
-from ..errors import DataError, UnitsError
+from ..errors import AccelcalError, DataError, UnitsError
 
 
 def parse_number(value: str | None, flag: str, positive: bool = True) -> float | None:
@@ -31,6 +32,30 @@ def _parse(value: str, flag: str, integer: bool, positive: bool) -> float:
         kind = "whole number" if integer else "number"
         raise DataError(f"{flag} {value!r}; allowed: a {'positive' if positive else 'non-negative'} {kind}")
     return v
+
+
+def store_file(target: str | Path | None) -> Path | None:
+    """The file of an SQLite store (a path or ``sqlite:///PATH``), to compare outputs with; None for a
+    server URL (postgresql://...: no local file an output could overwrite)."""
+    if target is None:
+        return None
+    t = str(target)
+    if t.startswith("sqlite:///"):
+        return Path(t[len("sqlite:///"):])
+    return None if "://" in t else Path(t)
+
+
+def config_store_file(config_path: str | Path | None) -> Path | None:
+    """The SQLite store file a station config (default: the default station's) records into, so that
+    no output replaces it; None when the config cannot say (reading it reports why, later)."""
+    from ..config.checks import load_yaml
+    from ..config.sections import default_config_path
+    from ..store.location import store_path
+
+    try:
+        return store_file(store_path(load_yaml(config_path or default_config_path()), Path.cwd()))
+    except AccelcalError:
+        return None
 
 
 def jsonable(o: Any) -> Any:

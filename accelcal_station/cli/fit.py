@@ -14,6 +14,7 @@ from ..data.loader import Loaded, load
 from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
 from ..errors import AccelcalError, DataError
+from ..fileguard.identity import refuse_overwrite
 from ..identifiability import assess, worst_parameter
 from ..models.handplaced import norm_faces, opposite_face
 from ..models.result import FitResult
@@ -210,6 +211,7 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
             hand_placed: bool, as_json: bool, output: str | None) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
     model = model if model is not None else ("6" if hand_placed else "9" if raw else "12")
+    refuse_overwrite([("-o", output)], [("FILE", path)])
     check_model_units(model, units)
     check_temp_method(temp_method)
     cpg = _number(counts_per_g, "--counts-per-g")

@@ -7,11 +7,13 @@ from typing import Any
 
 import click
 
+from ..fileguard.identity import refuse_overwrite
 from ..station.board import Station
 from ..station.identity import ask_run_identity
 from ..station.report import RunReport
 from ..station.settings import StationConfig
 from ._common import jsonable
+from ._common import store_file as store_file_of
 
 
 @click.command("run")
@@ -34,6 +36,11 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     4 NVM error, 5 operator abort.
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
+    eeprom = cfg.raw["device"].get("eeprom") if isinstance(cfg.raw.get("device"), dict) else None
+    image = eeprom.get("image") if isinstance(eeprom, dict) and isinstance(eeprom.get("image"), str) else None
+    # what a run writes (the store, the simulated board's EEPROM image) is never its own config
+    refuse_overwrite([("the store", store_file_of(cfg.store_file)), ("device.eeprom.image", image)],
+                     [("--config", str(cfg.path))])
     operator, serial = ask_run_identity(cfg, operator, serial)
 
     def echo(text: str) -> None:

@@ -20,8 +20,10 @@ from ..api import simulate
 from ..atomic import atomic_write_text
 from ..data.posetable import write_pose_table
 from ..errors import DataError
+from ..fileguard.identity import refuse_overwrite
 from ..fixtures.designs import get_design
 from ..fixtures.simulated_run import SimulatedRun
+from ._common import config_store_file
 
 
 def parse_temps(text: str | None) -> list[float] | None:
@@ -88,6 +90,8 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
 def command(config: str | None, design: str, out: str, raw: bool, seed: int | None, temps: str | None, samples: int,
             move_s: float, truth_out: str | None, as_json: bool) -> None:
     """Simulate a calibration run and write its pose table (or raw log) and ground truth."""
+    refuse_overwrite([("--out", out), ("--truth-out", truth_out)],
+                     [("--config", config), ("the store", config_store_file(config) if config else None)])
     get_design(design)
     temp_list = parse_temps(temps)
     for path in (out, truth_out):  # refuse before writing anything, so no file is left alone

@@ -39,13 +39,17 @@ GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std
 COLUMNS = ("pose", "pitch_deg", "roll_deg", "x", "y", "z", "ref_x", "ref_y", "ref_z", "temp_c", "n",
            "std_x", "std_y", "std_z")
 META_KEYS = ("units", "counts_per_g", "gravity", "device")
+MAX_TABLE_BYTES = 8 << 20  # a run has tens of poses (a few kB); 8 MiB is some 60,000 rows
+MAX_ABS_STD = 1e9  # as a reading (rawlog.MAX_ABS_READING): beyond any ADC or unit
+MAX_SAMPLES = 1e15  # samples averaged into one pose: years at any rate
 _META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
 
 
 def _read_text(path: Path) -> str:
     from .rawlog import read_text_file  # regular files only: a FIFO or device would block
 
-    return read_text_file(path, "a CSV pose table")
+    return read_text_file(path, "a CSV pose table", MAX_TABLE_BYTES,
+                          "a pose table holds one run's static poses; a lot of boards is a lot file")
 
 
 def table_metadata(path: str | Path) -> dict[str, str]:
@@ -164,15 +168,15 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
     if not name:
         raise DataError(f"{row.where('pose')}: empty; every row needs a pose name")
     mean = np.array([row.number(c) for c in "xyz"])
-    angles = row.group(GROUPS[0])
+    angles = row.group(GROUPS[0], lo=-360.0, hi=360.0)
     ref = row.group(GROUPS[1], lo=-10.0, hi=10.0)
     if ref is not None and not np.any(ref):
         raise DataError(f"{row.where('ref_x')}: the reference is (0, 0, 0); allowed: the expected output in g")
-    std = row.group(GROUPS[2], lo=0.0)
+    std = row.group(GROUPS[2], lo=0.0, hi=MAX_ABS_STD)
     temp = None if row.empty("temp_c") else row.number("temp_c", -273.15, 1000.0)
     n: int | None = None
     if not row.empty("n"):
-        count = row.number("n", 1)
+        count = row.number("n", 1, MAX_SAMPLES)
         if count != int(count):
             raise DataError(f"{row.where('n')}: {row.cells['n']!r}; allowed: a whole number of samples >= 1")
         n = int(count)
