@@ -11,8 +11,8 @@ from ..diagnosis.report import REPORT_FILES, check_report_dir, selftest_lines, s
 from ..diagnosis.selftest import selftest as run_selftest
 from ..errors import DataError
 from ..fileguard.identity import refuse_overwrite
+from ._common import MAX_SEED, Whole, parse_int
 from ._common import jsonable as _clean
-from ._common import parse_int
 from ._common import parse_number as _number
 from ._text import clean
 
@@ -41,7 +41,7 @@ from ._text import clean
               help="Forward-physics boards with each catalog effect withheld from the configuration, "
                    "off-catalog effects, two-effect cases and null boards: check what the diagnosis names "
                    "(exit 1 if a case fails).")
-@click.option("--seed", type=click.IntRange(0, None), default=1, show_default=True, help="Self-test seed.")
+@click.option("--seed", type=Whole(0, MAX_SEED), default=1, show_default=True, help="Self-test seed.")
 @click.pass_context
 def command(ctx: click.Context, files: tuple[str, ...], config: str | None, raw: bool, units: str | None,
             counts_per_g: str | None, gravity: str | None, columns: str | None, skip_rows: str | None,

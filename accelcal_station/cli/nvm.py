@@ -214,6 +214,16 @@ def restore_cmd(ctx: click.Context, image: str, config_path: str | None, serial:
                          *_snapshot_text(doc)])
 
 
+def _confirm(ctx: click.Context, question: str) -> bool:
+    """The operator's yes; no answer at all (end of input, Ctrl-C) is a no with its reason, never a bare 'Aborted!'."""
+    try:
+        return click.confirm(question, err=True)
+    except click.exceptions.Abort:
+        click.echo("\nno confirmation (end of input): nothing erased", err=True)
+        ctx.exit(1)
+        raise  # not reached: ctx.exit raises
+
+
 @command.command("erase")
 @_config_option
 @click.option("--backup-to", default=None, type=click.Path(dir_okay=False),
@@ -230,9 +240,8 @@ def erase_cmd(ctx: click.Context, config_path: str | None, backup_to: str | None
         if backup.exists():
             raise NVMError(f"{backup}: backup file exists; choose another name (backups are never overwritten)")
         valid = sum(s.state == "valid" for s in writer.status())
-        if not yes and not click.confirm(f"Erase both calibration slots of {sn or 'this board'} "
-                                         f"({valid} valid calibration(s)); backup to {backup} first?",
-                                         err=True):
+        if not yes and not _confirm(ctx, f"Erase both calibration slots of {sn or 'this board'} "
+                                         f"({valid} valid calibration(s)); backup to {backup} first?"):
             click.echo("erase cancelled; nothing was written", err=True)
             ctx.exit(1)
         slots: list[SlotStatus] = writer.erase(backup_to=backup)

@@ -15,7 +15,7 @@ from ..fileguard.identity import refuse_overwrite
 from ..store.location import store_path, store_target
 from ..store.runs import Store
 from ..store.schema import STATUSES, VERDICTS
-from ._common import store_file
+from ._common import MAX_ID, Whole, store_file
 from ._mes import JsonGroup
 from ._text import clean
 
@@ -98,7 +98,7 @@ def command(db: str | None, config_path: str | None) -> None:
 
 @command.command("list")
 @_filter_options
-@click.option("--limit", default=None, type=click.IntRange(1), help="At most this many runs.")
+@click.option("--limit", default=None, type=Whole(1, 10**9), help="At most this many runs.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None, station: str | None,
              operator: str | None, verdict: str | None, status: str | None, since: str | None, until: str | None,
@@ -122,7 +122,7 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
 
 
 @command.command("show")
-@click.argument("run_id", type=int)
+@click.argument("run_id", type=Whole(0, MAX_ID))
 @click.option("--db", default=None, metavar="FILE|URL", help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB.")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
@@ -245,7 +245,7 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
 
 
 @command.command("plot")
-@click.argument("run_id", type=int)
+@click.argument("run_id", type=Whole(0, MAX_ID))
 @click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("-o", "--output", default=None, metavar="FILE.png", help="Figure file (default run-ID-residuals.png).")

@@ -23,7 +23,7 @@ from ..errors import DataError
 from ..fileguard.identity import refuse_overwrite
 from ..fixtures.designs import get_design
 from ..fixtures.simulated_run import SimulatedRun
-from ._common import config_store_file
+from ._common import MAX_SEED, Finite, Whole, config_store_file
 
 
 def parse_temps(text: str | None) -> list[float] | None:
@@ -77,12 +77,12 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
 @click.option("--poses", "design", required=True, help="Pose design: six-face, an4399-8, nine-position, optimal-N, ...")
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="Pose table (or raw log) to write.")
 @click.option("--raw", is_flag=True, help="Write a raw sample log t,x,y,z (counts) with motion between poses.")
-@click.option("--seed", type=click.IntRange(0, None), default=None,
+@click.option("--seed", type=Whole(0, MAX_SEED), default=None,
               help="Random seed (default: the config's, else fresh; the seed used is printed and kept in the output).")
 @click.option("--temps", default=None, help="Comma-separated temperatures in C to run the design at (e.g. 0,25,50).")
 @click.option("--samples", type=click.IntRange(2, 10**7), default=1000, show_default=True,
               help="Samples averaged (or logged) per pose.")
-@click.option("--move-s", "move_s", type=click.FloatRange(0.0, 3600.0), default=2.0, show_default=True,
+@click.option("--move-s", "move_s", type=Finite(0.0, 3600.0), default=2.0, show_default=True,
               help="Seconds the jig takes to move between poses (virtual time).")
 @click.option("--truth-out", type=click.Path(dir_okay=False), default=None,
               help="Write the simulator's ground-truth calibration (W, V, Gamma) as JSON.")
