@@ -8,7 +8,7 @@ a row without a serial is refused, never made into a board called "None".
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -20,6 +20,7 @@ from .lotchunk import COLUMNS, TEXT, LotChunk, arrays_chunk, missing_serial
 
 MAX_ROW_GROUP_BYTES = 1 << 30  # one row group's columns are decoded at once: at most 1 GiB of them
 REQUIRED = ("serial", "pose", "x", "y", "z")
+Where = Callable[[int], str]  # data row n (1-based) -> where it is, for errors: "line 13" or "data row 12"
 
 
 def arrow_available() -> bool:
@@ -93,27 +94,32 @@ def _closing(f: BinaryIO, chunks: Iterator[LotChunk]) -> Iterator[LotChunk]:
 
 
 def _guarded(batches: Iterable[Any], names: list[str], path: Path, what: str,
-             bad_row: list[str] | None = None) -> Iterator[LotChunk]:
+             bad_row: list[str] | None = None, where: Where | None = None) -> Iterator[LotChunk]:
     """Chunks of whole boards; an Arrow error while decoding is one DataError (``bad_row``: a CSV row
     of the wrong width, recorded by the reader, named instead)."""
     import pyarrow as pa
 
     try:
-        yield from _arrow_chunks(batches, names, path)
+        yield from _arrow_chunks(batches, names, path, where or _data_row)
     except (pa.ArrowException, OSError) as e:
         if bad_row:
             raise DataError(bad_row[0]) from None
         raise DataError(f"{path}: damaged {what} ({e})") from None
 
 
-def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path) -> Iterator[LotChunk]:
-    """Whole-board chunks from Arrow record batches (a board may span two batches)."""
+def _data_row(n: int) -> str:
+    return f"data row {n}"
+
+
+def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: Where) -> Iterator[LotChunk]:
+    """Whole-board chunks from Arrow record batches (a board may span two batches); ``where`` names
+    data row n (1-based) in errors."""
     tail: dict[str, np.ndarray] | None = None
     row0 = 0
     for batch in batches:
         bad_rows: dict[int, str] = {}
         first = row0 + (len(tail["serial"]) if tail else 0)
-        d = {c: _arrow_column(batch.column(c), c, path, first, bad_rows) for c in names}
+        d = {c: _arrow_column(batch.column(c), c, path, first, bad_rows, where) for c in names}
         d["_bad"] = np.zeros(len(d["serial"]), dtype=object)
         for i, msg in bad_rows.items():
             d["_bad"][i] = msg
@@ -130,7 +136,7 @@ def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path) -> Itera
         yield arrays_chunk(tail, row0)
 
 
-def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str]) -> np.ndarray:
+def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str], where: Where) -> np.ndarray:
     """An Arrow column as numpy: text columns as str (a null serial refused), numeric ones as float (NaN for null)."""
     import pyarrow as pa
     import pyarrow.compute as pc
@@ -139,7 +145,7 @@ def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
         text = pc.utf8_trim_whitespace(col.cast(pa.string()))
         empty = pc.fill_null(pc.equal(text, ""), True)
         if name == "serial" and pc.any(empty).as_py():
-            raise missing_serial(path, f"data row {row0 + int(np.argmax(empty.to_numpy(zero_copy_only=False))) + 1}")
+            raise missing_serial(path, where(row0 + int(np.argmax(empty.to_numpy(zero_copy_only=False))) + 1))
         return np.asarray(text.fill_null("").to_numpy(zero_copy_only=False)).astype(str)
     if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
         try:
@@ -184,6 +190,23 @@ class _RowCheck:
         return "error"
 
 
+def _data_line(path: Path, skip: int, n: int) -> str:
+    """The file line of data row ``n`` of a CSV lot whose first ``skip`` lines are the preamble and
+    header (an error path: the file is read once more; blank and '#' lines are not rows)."""
+    try:
+        with open_regular(path, "a CSV lot file") as f:
+            rows = 0
+            for i, raw in enumerate(f, 1):
+                s = raw.strip()
+                if i > skip and s and not s.startswith(b"#"):
+                    rows += 1
+                    if rows == n:
+                        return f"line {i}"
+    except (DataError, OSError):
+        pass
+    return f"data row {n}"
+
+
 def _line_of(path: Path, text: str) -> str:
     """The file line holding ``text`` (an error path: the file is read once more, line by line)."""
     try:
@@ -211,5 +234,5 @@ def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int) 
                                    convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True))
         except (pa.ArrowException, OSError) as e:
             raise DataError(check.bad[0] if check.bad else f"{path}: unreadable CSV ({e})") from None
-        yield from _guarded(reader, header, path, "CSV", check.bad)
+        yield from _guarded(reader, header, path, "CSV", check.bad, lambda n: _data_line(path, skip, n))
 
