@@ -94,8 +94,8 @@ def pose_tables(draw: st.DrawFn) -> bytes:
             rows[r][draw(st.integers(0, len(rows[r]) - 1))] = draw(NUMBER_TEXT)
         elif kind == 3:  # a row of the wrong width
             rows[r] = rows[r][:draw(st.integers(0, 7))]
-        elif kind == 4:  # every pose the same orientation (a degenerate design)
-            rows = [[row[0], rows[r][1], rows[r][2], *row[3:]] for row in rows]
+        elif kind == 4 and len(rows[r]) >= 3:  # every pose the same orientation (a degenerate design)
+            rows = [[row[0], rows[r][1], rows[r][2], *row[3:]] if len(row) >= 3 else row for row in rows]
         elif kind == 5:  # a pose repeated many times
             rows += [list(rows[r]) for _ in range(draw(st.integers(1, 40)))]
         elif kind == 6:
