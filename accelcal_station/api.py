@@ -15,13 +15,15 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from .calibration import Calibration
 from .data.loader import Loaded, load
 from .data.rawlog import check_rate
 from .diagnosis.engine import diagnose as _diagnose
 from .diagnosis.loading import load_data, load_simulator
 from .diagnosis.result import Diagnosis
-from .errors import AccelcalError, DataError, UnitsError
+from .errors import AccelcalError, DataError, UnderdeterminedError, UnitsError
 from .fixtures.designs import get_design
 from .fixtures.simulated_run import SimulatedRun, run_design, simulated_board
 from .models.fitting import fit_session, fit_temperature
@@ -96,14 +98,30 @@ def fit(data: str | Path | Loaded | Session, model: str | int | None = None, *, 
     except AccelcalError as e:
         found = f" (found {len(session)} static intervals in the raw log)" if is_raw else ""
         raise type(e)(f"{name}: {e}{found}") from None
+    except np.linalg.LinAlgError as e:  # a design so degenerate the eigen/SVD solvers do not converge
+        raise UnderdeterminedError(f"{name}: the {len(session)} poses are numerically degenerate for model {m} "
+                                   f"({e}); allowed: poses spread over distinct orientations") from None
     return Fit(fr.calibration, m, [(None, fr)], [session])
 
 
-def _check_run(samples: int, temps_c: Sequence[float] | None, move_s: float) -> None:
-    """The limits `accelcal simulate` puts on its options, for callers that skip the command line."""
-    if not (isinstance(samples, int) and 2 <= samples <= 10**7):
-        raise DataError(f"samples={samples!r}; allowed: a whole number from 2 to 10000000 (a pose's std needs 2)")
+MAX_SAMPLES_PER_POSE = 10**6  # a pose's samples are drawn at once: some 60 MB per million
+MAX_SIM_SAMPLES = 10**7  # every pose at every temperature: about two seconds of simulation
+MAX_RAW_SAMPLES = 10**6  # a raw log of 32 MiB at most, the largest `accelcal fit --raw` reads
+
+
+def _check_run(samples: int, temps_c: Sequence[float] | None, move_s: float, poses: int = 1,
+               raw: bool = False) -> None:
+    """The limits `accelcal simulate` puts on its options, for callers that skip the command line; the
+    total (samples x poses x temperatures) is bounded before any is drawn."""
+    if not (isinstance(samples, int) and 2 <= samples <= MAX_SAMPLES_PER_POSE):
+        raise DataError(f"samples={samples!r}; allowed: a whole number from 2 to {MAX_SAMPLES_PER_POSE} (a pose's "
+                        "std needs 2)")
     temps = list(temps_c or [])
+    total, most = samples * poses * max(1, len(temps)), MAX_RAW_SAMPLES if raw else MAX_SIM_SAMPLES
+    if total > most:
+        raise DataError(f"samples {samples} x {poses} poses x {max(1, len(temps))} temperature(s) = {total} samples; "
+                        f"allowed: at most {most}" + (" in a raw log (the largest accelcal fit --raw reads)" if raw
+                                                      else " per simulation"))
     if not all(isinstance(t, (int, float)) and math.isfinite(t) and -60.0 <= t <= 150.0 for t in temps):
         raise DataError(f"temps_c={temps!r}; allowed: temperatures in C between -60 and 150")
     if len(set(temps)) != len(temps):
@@ -117,8 +135,8 @@ def simulate(design: str, *, config: str | None = None, seed: int | None = None,
     """Run pose design ``design`` (six-face, an4399-8, optimal-N, ...) on the simulated board of a
     station config (default: an ideal MMA8451) at each of ``temps_c``: the pose means as a Session
     in counts, the raw samples when ``raw``, and the board's ground truth (``.truth()``)."""
-    get_design(design)  # an unknown design is refused before the board is built
-    _check_run(samples, temps_c, move_s)
+    poses = len(get_design(design))  # an unknown design is refused before the board is built
+    _check_run(samples, temps_c, move_s, poses, raw)
     board = simulated_board(config, seed)
     return run_design(board, design, samples=samples, temps=list(temps_c) if temps_c else None, move_s=move_s,
                       raw=raw)

@@ -16,7 +16,7 @@ from typing import Any
 import click
 import numpy as np
 
-from ..api import simulate
+from ..api import MAX_RAW_SAMPLES, MAX_SAMPLES_PER_POSE, MAX_SIM_SAMPLES, simulate
 from ..atomic import atomic_write_text
 from ..data.posetable import write_pose_table
 from ..errors import DataError
@@ -80,8 +80,9 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
 @click.option("--seed", type=Whole(0, MAX_SEED), default=None,
               help="Random seed (default: the config's, else fresh; the seed used is printed and kept in the output).")
 @click.option("--temps", default=None, help="Comma-separated temperatures in C to run the design at (e.g. 0,25,50).")
-@click.option("--samples", type=click.IntRange(2, 10**7), default=1000, show_default=True,
-              help="Samples averaged (or logged) per pose.")
+@click.option("--samples", type=Whole(2, MAX_SAMPLES_PER_POSE), default=1000, show_default=True,
+              help=f"Samples averaged (or logged) per pose; at most {MAX_SIM_SAMPLES} in all ({MAX_RAW_SAMPLES} "
+                   "with --raw).")
 @click.option("--move-s", "move_s", type=Finite(0.0, 3600.0), default=2.0, show_default=True,
               help="Seconds the jig takes to move between poses (virtual time).")
 @click.option("--truth-out", type=click.Path(dir_okay=False), default=None,
