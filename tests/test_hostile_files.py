@@ -233,3 +233,26 @@ def test_nvm_erase_at_end_of_input_says_why(tmp_path, monkeypatch):
     r = CliRunner().invoke(cli, ["nvm", "erase"], input="")
     assert r.exit_code == 1 and "no confirmation (end of input): nothing erased" in r.output
     assert "Aborted!" not in r.output and not list(tmp_path.glob("nvm-backup-*"))
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5, 6])
+def test_optimal_designs_looked_up_are_the_ones_computed(n):
+    """The table (benchmarks/make_optimal_table.py) holds what optimal_design computes, to the digit."""
+    from accelcal_station.fixtures.designs import get_design, optimal_design
+
+    assert get_design(f"optimal-{n}") == list(optimal_design(n))
+
+
+def test_poses_and_simulate_at_their_limits_are_fast_or_refused(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for args in (["poses", "optimal-24"], ["simulate", "--poses", "optimal-24", "--samples", "2", "--out", "s.csv"]):
+        t0 = time.perf_counter()
+        r = CliRunner().invoke(cli, args)
+        assert time.perf_counter() - t0 < 5.0 and r.exit_code in (0, 2), r.output
+    assert "optimal-N (2 <= N <= 24)" in one_line(CliRunner().invoke(cli, ["poses", "optimal-25"]))
+    line = one_line(CliRunner().invoke(cli, ["simulate", "--poses", "optimal-24", "--samples", "1000000",
+                                             "--out", "s.csv"]))
+    assert "24000000 samples; allowed: at most 10000000" in line
+    line = one_line(CliRunner().invoke(cli, ["simulate", "--poses", "six-face", "--samples", "200000", "--raw",
+                                             "--out", "s.csv"]))
+    assert "in a raw log" in line
