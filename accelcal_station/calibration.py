@@ -260,7 +260,7 @@ class Calibration:
         """A calibration JSON file (a regular file of at most MAX_FILE_BYTES); errors name the file."""
         from .fileguard.jsondoc import read_json
 
-        d = read_json(path, "a calibration JSON", MAX_FILE_BYTES, "a calibration with a table of 100 "
+        d = read_json(path, "an accelcal calibration", MAX_FILE_BYTES, "a calibration with a table of 100 "
                       "temperatures is some 50 kB")
         return cls.from_dict(d, str(path))
 

@@ -195,7 +195,9 @@ def cases(tmp: Path, n: int, seed: int = 25) -> Iterator[Case]:
         elif kind == 8:
             yield _number_case(rng, k), [tmp / "sim.yaml"], False
         else:
-            yield _output_case(rng, k, tmp), [tmp / "sim.yaml", tmp / "runs.sqlite"], False
+            args = _output_case(rng, k, tmp)
+            reads = [tmp / "runs.sqlite"] + ([] if args[0] == "report" else [tmp / "sim.yaml"])  # its inputs
+            yield args, reads, False
 
 
 def _number_case(rng: np.random.Generator, k: int) -> list[str]:
@@ -212,7 +214,8 @@ def _number_case(rng: np.random.Generator, k: int) -> list[str]:
 
 
 def _output_case(rng: np.random.Generator, k: int, tmp: Path) -> list[str]:
-    """Outputs named after the config or the store, by name, ./ or a hard link."""
+    """Outputs named after the config or the store, by name, ./ or a hard link (`report --db` reads no
+    config: writing over sim.yaml is then allowed, and the campaign protects only the store)."""
     target = str(rng.choice(["sim.yaml", "runs.sqlite"]))
     if not (tmp / "runs.sqlite").exists():
         from accelcal_station.store.runs import Store

@@ -178,7 +178,7 @@ def test_pose_table_value_out_of_range_is_refused_with_its_row(tmp_path, cell, c
 
 
 @pytest.mark.parametrize("text,words", [("[" * 100_000, "nested 100000 levels"), ("1" * 5000, "unreadable JSON"),
-                                        ("\xff\xfe", "not UTF-8"), ('{"schema": 1}', "not an NVM backup")])
+                                        ("\xff\xfe", "not a text file"), ('{"schema": 1}', "not an NVM backup")])
 def test_nvm_backup_files_that_are_not_are_one_line(tmp_path, text, words):
     p = tmp_path / "img.json"
     p.write_bytes(text.encode("latin-1"))

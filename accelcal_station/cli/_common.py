@@ -52,7 +52,6 @@ def parse_int(value: str | None, flag: str, positive: bool = True) -> int | None
 OPTION_MAX = {
     "--counts-per-g": 1e9,  # the most sensitive accelerometer has some 1e6 counts per g
     "--gravity": 1e3,  # m/s^2: a centrifuge at 100 g
-    "--rate": 1e7,  # Hz (data.rawlog.RATE_LIMITS_HZ)
     "--skip-rows": 1e9,  # more lines than any log the readers take
     "--samples": 1e7,  # samples per pose, as `simulate --samples`
     "--chunk-boards": 1e6,  # boards held in memory at once (a chunk of 8 poses is ~1 GB there)

@@ -8,7 +8,7 @@ from typing import Any, Literal, TypeVar, overload
 import yaml
 
 from ..errors import ConfigError
-from ..fileguard.regular import read_text
+from ..fileguard.regular import read_bytes
 from .safe_yaml import MAX_BYTES, HostileYAML, safe_load
 
 T = TypeVar("T")
@@ -18,7 +18,11 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping; errors name the file and line."""
     p = Path(path)
     # a regular file only (a FIFO, device or /proc entry would block or never end), sized before it is read
-    text = read_text(p, "a configuration", MAX_BYTES, "a station config is a few kB", ConfigError)
+    raw = read_bytes(p, "a configuration", MAX_BYTES, "a station config is a few kB", ConfigError)
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: not a text file (expected a YAML configuration)") from None
     try:
         data = safe_load(text)
     except HostileYAML as e:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import AccelcalError, DataError
-from .regular import read_text
+from .regular import read_bytes
 
 MAX_DEPTH = 64  # every document the station writes nests under 6 levels
 _STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.S)
@@ -29,19 +29,24 @@ def nesting_depth(text: str) -> int:
 
 
 def parse_json(text: str, source: str, what: str, error: type[AccelcalError] = DataError) -> Any:
-    """``text`` parsed, or one ``error`` naming ``source``: not JSON (with the line), too deep, a bad number."""
+    """``text`` parsed, or one ``error``: "SOURCE: not WHAT (not JSON, line N: ...)", too deep, a bad number."""
     depth = nesting_depth(text)
     if depth > MAX_DEPTH:
-        raise error(f"{source}: nested {depth} levels deep; {what} nests at most {MAX_DEPTH}")
+        raise error(f"{source}: not {what} (nested {depth} levels deep; at most {MAX_DEPTH})")
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:
-        raise error(f"{source}: not JSON (line {e.lineno}: {e.msg}); expected {what}") from None
+        raise error(f"{source}: not {what} (not JSON, line {e.lineno}: {e.msg})") from None
     except (ValueError, RecursionError) as e:  # e.g. an integer of more digits than Python converts
-        raise error(f"{source}: unreadable JSON ({str(e)[:80]}); expected {what}") from None
+        raise error(f"{source}: not {what} (unreadable JSON: {str(e)[:80]})") from None
 
 
 def read_json(path: str | Path, what: str, limit_bytes: int, why: str,
               error: type[AccelcalError] = DataError) -> Any:
-    """A JSON document from a regular file of at most ``limit_bytes`` (regular.read_text)."""
-    return parse_json(read_text(path, what, limit_bytes, why, error), str(path), what, error)
+    """A JSON document from a regular file of at most ``limit_bytes`` (regular.read_bytes)."""
+    data = read_bytes(path, what, limit_bytes, why, error)
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise error(f"{path}: not {what} (not a text file)") from None
+    return parse_json(text, str(path), what, error)

@@ -100,10 +100,11 @@ def read_bytes(path: str | Path, what: str, limit_bytes: int, why: str,
 
 def read_text(path: str | Path, what: str, limit_bytes: int, why: str,
               error: type[AccelcalError] = DataError) -> str:
-    """``read_bytes`` decoded as UTF-8 (a leading BOM dropped); other bytes are one line naming the offset."""
+    """``read_bytes`` decoded as UTF-8 (a leading BOM dropped); other bytes are one line."""
     data = read_bytes(path, what, limit_bytes, why, error)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as e:
         line = data.count(b"\n", 0, e.start) + 1
-        raise error(f"{path}: line {line}: byte 0x{data[e.start]:02x} is not UTF-8 text; expected {what}") from None
+        raise error(f"{path}: not a text file (expected {what}; line {line} has byte 0x{data[e.start]:02x}, "
+                    "not UTF-8)") from None

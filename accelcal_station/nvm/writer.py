@@ -297,7 +297,7 @@ class CalibrationWriter:
     def load_image(self, path: str | Path) -> tuple[bytes, dict[str, Any]]:
         """Image bytes and document of a backup file, checked against its CRC and this layout."""
         path = Path(path)
-        doc = read_json(path, "an NVM backup, JSON", MAX_BACKUP_BYTES,
+        doc = read_json(path, "an NVM backup", MAX_BACKUP_BYTES,
                         "a backup holds two slots of a small EEPROM, base64", NVMError)
         if not isinstance(doc, dict) or doc.get("schema") != IMAGE_SCHEMA:
             raise NVMError(f"{path}: not an NVM backup (missing schema {IMAGE_SCHEMA!r})")
