@@ -32,6 +32,7 @@ from ..store.runs import Store
 from ._common import check_model_units, parse_int, store_file
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
+from ._text import clean, error_text
 
 PROGRESS_MIN_BOARDS = 10  # below this a progress bar is noise
 
@@ -72,9 +73,9 @@ def _text(report: BatchReport, outputs: dict[str, Any], list_all: bool) -> list[
     for r in report.results:
         who = r.source + (f" ({r.serial})" if r.serial else "")
         if not r.ok:
-            lines.append(click.style("SKIP ", fg="red", bold=True) + f"{who}: {r.message}")
+            lines.append(click.style("SKIP ", fg="red", bold=True) + error_text(f"{who}: {r.message}"))
         elif list_all:
-            lines.append(click.style("ok   ", fg="green") + f"{who}: {r.pose_count} poses, residual RMS "
+            lines.append(click.style("ok   ", fg="green") + f"{clean(who)}: {r.pose_count} poses, residual RMS "
                          f"{_mg(r.residual_rms_g)}, leave-one-out {_mg(r.crossval_rms_g)}")
     n, ok = len(report.results), len(report.fitted)
     # a fitted board always has its residual RMS
@@ -118,7 +119,7 @@ def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str
         click.echo(json.dumps(_clean({**summary.to_dict(), "out": str(out)}), allow_nan=False))
     else:
         for serial, reason in summary.unfitted_examples:
-            click.echo(click.style("SKIP ", fg="red", bold=True) + f"{serial}: {reason}")
+            click.echo(click.style("SKIP ", fg="red", bold=True) + error_text(f"{serial}: {reason}"))
         n, ok = summary.boards, summary.fitted
         verdicts = f"; PASS {summary.passed}, FAIL {summary.failed}" if limits is not None else ""
         click.echo(click.style(f"{ok} of {n} boards recalibrated with model {model}",
