@@ -9,7 +9,8 @@ _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
 
 MAX_QUOTED_CHARS = 80  # a value quoted from a file or option, shown in full up to this
 MAX_ERROR_CHARS = 1000  # one error line: what, where, what is allowed; never a file's worth
-_QUOTED = re.compile(r"(['\"])([^'\"]{" + str(MAX_QUOTED_CHARS + 1) + r",})\1")
+# a quoted value: a quote not closing a word, then no quote, then a quote not opening one
+_QUOTED = re.compile(r"(?<![\w'\"])(['\"])([^'\"]{" + str(MAX_QUOTED_CHARS + 1) + r",})\1(?![\w'\"])")
 
 
 def error_text(text: str) -> str:
