@@ -9,7 +9,7 @@ import importlib
 from typing import Any
 
 from ..errors import ConfigError
-from .base import NVM, Capture, Driver, Identity
+from .base import Driver
 
 # name -> "module:Class"; imported lazily so a missing optional library only
 # matters for the driver that needs it
@@ -26,13 +26,26 @@ EMULATED = {
 }
 
 
-def make_driver(config: dict[str, Any], path: str = "device") -> Driver:
-    """Build the driver named by ``config['driver']`` from the rest of the section."""
+# a board behind a TCA9548A multiplexer: bus: emulated -> the emulated mux, else the real one
+MUXED = {True: "accelcal_station.drivers.emulated:emulated_muxed_mma8451",
+         False: "accelcal_station.drivers.tca9548a:muxed_mma8451"}
+
+
+def make_driver(config: dict[str, Any], path: str = "device", buses: dict[Any, Any] | None = None) -> Driver:
+    """Build the driver named by ``config['driver']`` from the rest of the section.
+
+    A section with ``mux`` is an MMA8451 behind a TCA9548A channel; ``buses`` (one per panel)
+    shares one multiplexed bus among the boards on it."""
     if not isinstance(config, dict):
         raise ConfigError(f"{path}: must be a mapping with a 'driver' key")
     name = config.get("driver")
     if name not in DRIVERS:
         raise ConfigError(f"{path}.driver: {name!r}; allowed: {', '.join(DRIVERS)}")
+    if config.get("mux") is not None:
+        if name != "mma8451":
+            raise ConfigError(f"{path}.mux: a TCA9548A multiplexer holds I2C boards (driver: mma8451)")
+        module, fn = MUXED[config.get("bus") == "emulated"].split(":")
+        return getattr(importlib.import_module(module), fn)(config, path, {} if buses is None else buses)
     rest = {k: v for k, v in config.items() if k != "driver"}
     if name in EMULATED and rest.get(EMULATED[name][0]) == "emulated":
         # the emulated bus/port is built here and handed to the driver (python-can's `virtual`)
@@ -42,5 +55,3 @@ def make_driver(config: dict[str, Any], path: str = "device") -> Driver:
     driver_cls = getattr(importlib.import_module(module), cls)
     return driver_cls.from_config(rest, path=path)
 
-
-__all__ = ["NVM", "Capture", "Driver", "Identity", "DRIVERS", "make_driver"]

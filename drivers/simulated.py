@@ -214,11 +214,6 @@ class SimulatedBoard:
         """Unit vector of the true ideal output (positive along gravity)."""
         return self._dir.copy()
 
-    @property
-    def true_force_g(self) -> np.ndarray:
-        """True specific force in standard g (sensor frame)."""
-        return self._f.copy()
-
     def pose_error_rotation(self) -> np.ndarray:
         """R_err = R_jig R_scatter for one presentation (a fresh scatter draw)."""
         if not self.model.has("pose_error"):

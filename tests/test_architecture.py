@@ -55,6 +55,13 @@ def _copy_with(tmp_path: Path, module: str, line: str) -> Path:
      "accelcal_station.drivers.mma8451 is not allowed to import accelcal_station.drivers.mma8451_emulator"),
     ("lot/batch.py", "import tests.conftest  # deliberately wrong",
      "accelcal_station.lot.batch -> tests"),
+    # allowed by the layers (station is above sim and fixtures): only the station contract stops these
+    ("station/thermal.py", "from ..sim.sensor_model import SensorModel  # deliberately wrong",
+     "accelcal_station.station.thermal -> accelcal_station.sim.sensor_model"),
+    ("station/panel.py", "from ..fixtures.simulated_panel import PanelSimulatedJig  # deliberately wrong",
+     "accelcal_station.station.panel -> accelcal_station.fixtures.simulated_panel"),
+    ("station/board.py", "from ..drivers.mma8451_emulator import MMA8451Emulator  # deliberately wrong",
+     "accelcal_station.station.board -> accelcal_station.drivers.mma8451_emulator"),
 ])
 def test_a_wrong_import_breaks_a_contract(tmp_path, module, line, broken):
     """The same contracts on a copy with one wrong import: lint-imports fails and names it."""
@@ -64,6 +71,8 @@ def test_a_wrong_import_breaks_a_contract(tmp_path, module, line, broken):
     out = " ".join(r.stdout.split())
     assert r.returncode == 1, r.stdout[-3000:] + r.stderr[-2000:]
     assert broken in out, out[-3000:]
+    if module.startswith("station/") and "cli" not in line:
+        assert "The station flows import no simulation, emulator or CLI code" in out and "BROKEN" in out, out[-3000:]
 
 
 def _python_files() -> list[Path]:

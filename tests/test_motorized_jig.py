@@ -30,7 +30,8 @@ class ManualClock:
 
 @pytest.fixture
 def emu():
-    e = JigEmulator(**FAST).start()
+    e = JigEmulator(**FAST)
+    e.start()
     yield e
     e.stop()
 
@@ -346,7 +347,8 @@ def test_emulator_shuts_down_cleanly():
     before = set(threading.enumerate())
     fds = len(os.listdir("/proc/self/fd"))
     for _ in range(3):
-        e = JigEmulator(**FAST).start()
+        e = JigEmulator(**FAST)
+        e.start()
         with jig_for(e) as jig:
             jig.present(PoseSpec("p", 5.0, 5.0))
         e.stop()

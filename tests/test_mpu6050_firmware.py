@@ -293,7 +293,8 @@ def test_probe_cli_on_the_port(bridge):
 
 
 def test_whole_run_with_motorized_jig(bridge, tmp_path):
-    jig = JigEmulator(board=bridge.board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock).start()
+    jig = JigEmulator(board=bridge.board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock)
+    jig.start()
     try:
         cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
         cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}

@@ -90,7 +90,8 @@ def test_two_mpu6050_bridges_on_two_ptys_with_the_motorized_jig(tmp_path):
     bridges = [MPU6050BridgeEmulator(b) for b in boards]
     ports = [br.start() for br in bridges]
     jig = JigEmulator(board=FixtureBoards(boards, [br.lock for br in bridges]), speed_deg_s=4000,
-                      accel_deg_s2=1e5).start()
+                      accel_deg_s2=1e5)
+    jig.start()
     try:
         cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
         cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}

@@ -162,8 +162,8 @@ def test_config_errors_name_the_key(tmp_path, changes, message):
 
 
 def test_a_long_capture_shows_a_progress_bar_and_a_virtual_one_does_not(capsys):
+    from accelcal_station.cli.operator_terminal import CaptureProgress
     from accelcal_station.drivers.simulated import SimulatedBoard, SimulatedDriver
-    from accelcal_station.station.board import CaptureProgress
     from accelcal_station.station.capture import CaptureSettings, gated_capture
 
     settings = CaptureSettings(target_sem_mg=0.12, hold_s=0.1, min_samples=32)

@@ -26,7 +26,8 @@ def test_mpu6050_bridge_with_motorized_jig_end_to_end(tmp_path):
     board = SimulatedBoard.from_config(sim, chip="mpu6050", seed=3)
     bridge = MPU6050BridgeEmulator(board)
     port = bridge.start()
-    jig = JigEmulator(board=board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock).start()
+    jig = JigEmulator(board=board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock)
+    jig.start()
     try:
         cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
         cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}

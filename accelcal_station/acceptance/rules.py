@@ -1,13 +1,18 @@
-"""Acceptance: configurable limits on a fit, giving PASS or FAIL with every reason."""
+"""Acceptance: configurable limits on a fit, giving PASS or FAIL with every reason.
+
+One rule table (``MEASURES`` and the distinct-poses rule) judged by ``judge_all`` over B
+boards at once: the station and pose-table batch judge stacks of their fits, a lot file
+each chunk, so a board gets the same verdict and reasons whichever path it came by."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config.checks import check_keys, number
+from ..config.schema import AcceptanceSection, validate
 from ..models.result import FitResult
-from ..models.sanity import distinct_directions, poses_needed
+from ..models.sanity import distinct_directions, distinct_directions_batch, poses_needed
 from .reasons import Reason
 
 LIMIT_KEYS = {
@@ -36,8 +41,8 @@ class Limits:
 
     @classmethod
     def from_config(cls, d: dict | None, path: str = "acceptance") -> Limits:
-        d = check_keys(d or {}, LIMIT_KEYS, path)
-        values = {k: number(d, k, path, lo=0.0) for k in d}
+        checked = validate(d or {}, AcceptanceSection, path).model_dump(exclude_none=True)
+        values = {k: float(v) for k, v in checked.items()}
         missing = [k for k in DEFAULT_LIMITS if k not in values]
         return cls({**values, **{k: DEFAULT_LIMITS[k] for k in missing}}, missing)
 
@@ -60,48 +65,107 @@ class Verdict:
         return "PASS" if self.passed else "FAIL"
 
 
+@dataclass
+class FitFigures:
+    """What the rules measure, for B boards at once (NaN: not measurable for that board).
+
+    One board from the station or a pose table is B = 1 (``from_fits``); a lot-file chunk
+    fills the arrays from its stacked fit directly."""
+
+    model: str
+    W: np.ndarray  # (B, 3, 3)
+    V: np.ndarray  # (B, 3) in g
+    Gamma: np.ndarray  # (B, 3) in 1/g^2
+    residual_rms_g: np.ndarray  # (B,)
+    residual_max_g: np.ndarray  # (B,)
+    crossval_rms_g: np.ndarray  # (B,)
+    stderr_V_max_g: np.ndarray  # (B,)
+    stderr_W_max: np.ndarray  # (B,)
+    distinct_poses: np.ndarray  # (B,) distinct pose directions the fit rests on
+
+    @classmethod
+    def from_fits(cls, fits: list[FitResult]) -> FitFigures:
+        """Stack single-board fits (all of one model)."""
+        nan = float("nan")
+        return cls(fits[0].model, np.array([f.W for f in fits]), np.array([f.V for f in fits]),
+                   np.array([f.Gamma for f in fits]), np.array([f.residual_rms_g for f in fits]),
+                   np.array([f.residual_max_g for f in fits]),
+                   np.array([nan if f.crossval_rms_g is None else f.crossval_rms_g for f in fits]),
+                   np.array([nan if f.stderr is None else np.max(f.stderr["V"]) for f in fits]),
+                   np.array([nan if f.stderr is None else np.max(f.stderr["W"]) for f in fits]),
+                   distinct_directions_batch(np.array([f.readings_g for f in fits]))
+                   if len({len(f.readings_g) for f in fits}) == 1
+                   else np.array([distinct_directions(f.readings_g) for f in fits]))
+
+
+def _off_diagonal(W: np.ndarray) -> np.ndarray:
+    return W * (1.0 - np.eye(3))
+
+
+# The rule table: each limit key's measure over B boards, (B,) values in the key's unit.
+# verify_error_max_mg is measured by the station's verification capture, not from the fit.
+MEASURES: dict[str, Callable[[FitFigures], np.ndarray]] = {
+    "residual_rms_mg": lambda f: f.residual_rms_g * 1e3,
+    "residual_max_mg": lambda f: f.residual_max_g * 1e3,
+    "crossval_rms_mg": lambda f: f.crossval_rms_g * 1e3,
+    "gain_error_max": lambda f: np.max(np.abs(np.diagonal(f.W, axis1=1, axis2=2) - 1.0), axis=1),
+    "cross_axis_max": lambda f: np.max(np.abs(_off_diagonal(f.W)).reshape(-1, 9), axis=1),
+    "offset_max_mg": lambda f: np.max(np.abs(f.V), axis=1) * 1e3,
+    "cubic_max": lambda f: np.max(np.abs(f.Gamma), axis=1),
+    "stderr_offset_max_mg": lambda f: f.stderr_V_max_g * 1e3,
+    "stderr_gain_max": lambda f: f.stderr_W_max,
+}
+
+
+def measure_all(figs: FitFigures) -> dict[str, np.ndarray]:
+    """Every rule's measure over the boards (NaN: not measurable)."""
+    return {k: np.asarray(fn(figs), dtype=float) for k, fn in MEASURES.items()}
+
+
 def measure(fit: FitResult) -> dict[str, float]:
-    W = fit.W
-    off = W - np.diag(np.diag(W))
-    m = {
-        "residual_rms_mg": fit.residual_rms_g * 1e3,
-        "residual_max_mg": fit.residual_max_g * 1e3,
-        "gain_error_max": float(np.max(np.abs(np.diag(W) - 1.0))),
-        "cross_axis_max": float(np.max(np.abs(off))),
-        "offset_max_mg": float(np.max(np.abs(fit.V))) * 1e3,
-        "cubic_max": float(np.max(np.abs(fit.Gamma))),
-    }
-    if fit.crossval_rms_g is not None:
-        m["crossval_rms_mg"] = fit.crossval_rms_g * 1e3
-    if fit.stderr is not None:
-        m["stderr_offset_max_mg"] = float(np.max(fit.stderr["V"])) * 1e3
-        m["stderr_gain_max"] = float(np.max(fit.stderr["W"]))
-    return m
+    """One board's measures (the keys that are measurable for it)."""
+    return {k: float(v[0]) for k, v in measure_all(FitFigures.from_fits([fit])).items() if not np.isnan(v[0])}
+
+
+def _pose_reasons(have: np.ndarray, model: str, planned_poses: int) -> list[list[Reason]]:
+    need = poses_needed(model)
+    out: list[list[Reason]] = [[] for _ in range(len(have))]
+    for b in np.flatnonzero(have < need):
+        out[b].append(Reason("distinct_poses", f"{have[b]} < {need} needed by model {model} (its unknowns "
+                             "per axis plus one, so cross-validation is measurable)", " "))
+    for b in np.flatnonzero((have >= need) & (have < planned_poses)):
+        out[b].append(Reason("distinct_poses", f"{have[b]} < {planned_poses} planned (a pose was skipped or "
+                             "repeated)", " "))
+    return out
+
+
+def judge_all(figs: FitFigures, limits: Limits, verify_error_max_mg: np.ndarray | None = None,
+              planned_poses: int = 0) -> list[Verdict]:
+    """The verdict of each of B boards: PASS only if the fit rests on enough distinct poses
+    (the model's unknowns per axis plus one, and every pose the plan has) and every
+    configured limit holds; a limit that cannot be measured fails.  ``verify_error_max_mg``
+    (B,) is judged when given (after verification)."""
+    m = measure_all(figs)
+    if verify_error_max_mg is not None:
+        m["verify_error_max_mg"] = np.asarray(verify_error_max_mg, dtype=float)
+    have = np.asarray(figs.distinct_poses, dtype=int)
+    reasons = _pose_reasons(have, figs.model, planned_poses)
+    for key, lim in limits.values.items():
+        if key not in m:  # verify_error_max_mg before verification
+            continue
+        v = m[key]
+        unmeasurable = np.isnan(v)
+        for b in np.flatnonzero(unmeasurable):
+            reasons[b].append(Reason(key, f"not measurable for this fit (limit {lim:g})"))
+        for b in np.flatnonzero(~unmeasurable & ~(v <= lim)):
+            reasons[b].append(Reason(key, f"{v[b]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})", " "))
+    return [Verdict(not r, r, {**{k: float(v[b]) for k, v in m.items() if not np.isnan(v[b])},
+                               "distinct_poses": float(have[b])})
+            for b, r in enumerate(reasons)]
 
 
 def judge(fit: FitResult, limits: Limits, verify_error_max_mg: float | None = None,
           planned_poses: int = 0) -> Verdict:
-    """PASS only if every configured limit holds; a limit that cannot be measured fails.
-
-    The fit must also rest on enough distinct poses: the model's unknowns per axis plus
-    one, and every pose the plan has (a skipped pose fails the run)."""
-    m = measure(fit)
-    if verify_error_max_mg is not None:
-        m["verify_error_max_mg"] = verify_error_max_mg
-    reasons = []
-    have, need = distinct_directions(fit.readings_g), poses_needed(fit.model)
-    m["distinct_poses"] = float(have)
-    if have < need:
-        reasons.append(Reason("distinct_poses", f"{have} < {need} needed by model {fit.model} (its unknowns "
-                              "per axis plus one, so cross-validation is measurable)", " "))
-    elif have < planned_poses:
-        reasons.append(Reason("distinct_poses", f"{have} < {planned_poses} planned (a pose was skipped or "
-                              "repeated)", " "))
-    for key, lim in limits.values.items():
-        if key not in m:
-            if key == "verify_error_max_mg" and verify_error_max_mg is None:
-                continue  # judged after verification
-            reasons.append(Reason(key, f"not measurable for this fit (limit {lim:g})"))
-        elif not m[key] <= lim:
-            reasons.append(Reason(key, f"{m[key]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})", " "))
-    return Verdict(not reasons, reasons, m)
+    """One board's verdict: ``judge_all`` on a stack of one."""
+    verify = None if verify_error_max_mg is None else np.array([verify_error_max_mg])
+    return judge_all(FitFigures.from_fits([fit]), limits, verify, planned_poses)[0]

@@ -5,7 +5,7 @@ import json
 
 import click
 
-from ..instruments.chamber import AsciiChamber
+from ..instruments.chamber import AsciiChamber, require_pyvisa
 from ._common import Finite
 
 
@@ -20,6 +20,7 @@ def command(action: str, temp_c: float | None, port: str, baud: int, timeout_s: 
     """Chamber status, set point (`set --temp-c C`: constant mode at C), standby, or clear latched alarms."""
     if (action == "set") != (temp_c is not None):
         raise click.UsageError("give --temp-c with `set` only: accelcal chamber set --temp-c -20 --port P")
+    require_pyvisa("accelcal chamber")
     with AsciiChamber(port, baud, timeout_s) as ch:
         if temp_c is not None:  # action == "set": checked above
             ch.set_point(temp_c)

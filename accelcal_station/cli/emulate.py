@@ -85,7 +85,7 @@ def _serve(kind: str, bridge: SimavrBridge | MPU6050BridgeEmulator | None, jig: 
             if bridge is not None:
                 ports["port"] = bridge.start()
             if jig is not None:
-                ports["jig_port"] = jig.start().port
+                ports["jig_port"] = jig.start()
             _announce(kind, ports, seed, on_avr, as_json)
             while not done.wait(0.2):
                 pass

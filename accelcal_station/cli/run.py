@@ -8,12 +8,14 @@ from typing import Any
 import click
 
 from ..fileguard.identity import refuse_overwrite
+from ..fixtures.operator_ui import OperatorUI
 from ..station.board import Station
 from ..station.identity import ask_run_identity
 from ..station.report import RunReport
 from ..station.settings import StationConfig
 from ._common import jsonable
 from ._common import store_file as store_file_of
+from .operator_terminal import TerminalOperator
 
 
 @click.command("run")
@@ -28,35 +30,61 @@ from ._common import store_file as store_file_of
 @click.option("--port", default=None, help="Override the device's serial port (or the MMA8451's I2C bus).")
 @click.option("--jig-port", default=None, help="Override the motorized jig's serial port.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (human lines go to stderr).")
+@click.option("--ui", "ui_kind", type=click.Choice(["terminal", "web"]), default="terminal", show_default=True,
+              help="The operator's front end: prompts here, or a page in a browser (needs the web extra).")
+@click.option("--ui-host", default="127.0.0.1", show_default=True, help="With --ui web: the address to listen on.")
+@click.option("--ui-port", default=8751, show_default=True, type=click.IntRange(1, 65535),
+              help="With --ui web: the port of the operator page.")
 def command(config_path: str | None, serial: str | None, operator: str | None, lot: str | None,
-            store_file: str | None, port: str | None, jig_port: str | None, as_json: bool) -> None:
+            store_file: str | None, port: str | None, jig_port: str | None, as_json: bool,
+            ui_kind: str, ui_host: str, ui_port: int) -> None:
     """Calibrate one board: identify, present each pose, capture, fit, judge, write NVM, verify, record.
 
     Exit status: 0 PASS, 1 FAIL, 2 bad input or configuration, 3 device error,
-    4 NVM error, 5 operator abort.
+    4 NVM error, 5 operator abort (the same with --ui web).
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
-    eeprom = cfg.raw["device"].get("eeprom") if isinstance(cfg.raw.get("device"), dict) else None
-    image = eeprom.get("image") if isinstance(eeprom, dict) and isinstance(eeprom.get("image"), str) else None
-    # what a run writes (the store, the simulated board's EEPROM image) is never its own config
-    refuse_overwrite([("the store", store_file_of(cfg.store_file)), ("device.eeprom.image", image)],
-                     [("--config", str(cfg.path))])
-    operator, serial = ask_run_identity(cfg, operator, serial)
+    _refuse_over_config(cfg)
 
     def echo(text: str) -> None:
         click.echo(text, err=as_json)
 
+    if ui_kind == "web":
+        from ._operator_web import finish_reports, web_operator
+
+        with web_operator(cfg, echo, ui_host, ui_port) as web:
+            _run(cfg, operator, serial, lot, as_json, echo, web, web, lambda reports: finish_reports(web, reports))
+        return
+    # identity questions and their retries always on stderr (stdout may be the JSON object)
+    _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True)),
+         TerminalOperator(echo), lambda reports: None)
+
+
+def _refuse_over_config(cfg: StationConfig) -> None:
+    """What a run writes (the store, the simulated board's EEPROM image) is never its own config."""
+    eeprom = cfg.raw["device"].get("eeprom") if isinstance(cfg.raw.get("device"), dict) else None
+    image = eeprom.get("image") if isinstance(eeprom, dict) and isinstance(eeprom.get("image"), str) else None
+    refuse_overwrite([("the store", store_file_of(cfg.store_file)), ("device.eeprom.image", image)],
+                     [("--config", str(cfg.path))])
+
+
+def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None, as_json: bool,
+         echo: Callable[[str], None], ident_ui: OperatorUI, ui: OperatorUI,
+         on_done: Callable[[list[RunReport]], None]) -> None:
+    """Identity, then one board, a panel or a thermal plan; ``on_done`` sees the reports before they print."""
+    operator, serial = ask_run_identity(cfg, operator, serial, ident_ui)
     echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}")
     if isinstance(cfg.raw["device"], dict) and "boards" in cfg.raw["device"]:
-        _run_panel(cfg, operator, serial, lot, as_json, echo)
+        _run_panel(cfg, operator, serial, lot, as_json, echo, ui, on_done)
         return
     rep: RunReport
     if "thermal" in cfg.raw or "chamber" in cfg.raw:  # ThermalStation refuses one without the other
         from ..station.thermal import ThermalStation
 
-        rep = ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
+        rep = ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui).run()
     else:
-        rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo).run()
+        rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui).run()
+    on_done([rep])
     if as_json:
         click.echo(json.dumps(jsonable(rep.to_dict()), indent=2, allow_nan=False))
     else:
@@ -109,7 +137,7 @@ def timing_lines(t: dict[str, Any]) -> list[str]:
 
 
 def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None, as_json: bool,
-               echo: Callable[[str], None]) -> None:
+               echo: Callable[[str], None], ui: OperatorUI, on_done: Callable[[list[RunReport]], None]) -> None:
     """A panel: one line per board; exit 1 when any board failed."""
     from ..errors import ConfigError
     from ..station.panel import PanelStation, panel_dict
@@ -119,8 +147,9 @@ def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot
                           "(or set device.boards[i].serial)")
     if "thermal" in cfg.raw or "chamber" in cfg.raw:  # a thermal plan over the panel (thermal_panel.py)
         from ..station.thermal_panel import ThermalPanelStation as PanelStation
-    station = PanelStation(cfg, operator=operator, lot=lot, echo=echo)
+    station = PanelStation(cfg, operator=operator, lot=lot, echo=echo, ui=ui)
     reports = station.run()
+    on_done(reports)
     if as_json:
         click.echo(json.dumps(jsonable(panel_dict(station.panel_id, reports, station)), indent=2, allow_nan=False))
     else:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from .checks import load_yaml
+from .schema import DeviceSection, validate
 
 
 def default_config_path() -> Path:
@@ -24,6 +25,7 @@ def device_section(path: str) -> dict:
     if not isinstance(section, dict):
         raise ConfigError(f"{path}: no 'device' section; allowed: a mapping with 'driver: simulated, mma8451 "
                           "or mpu6050'")
+    validate(section, DeviceSection, "device")
     return dict(section)
 
 

@@ -89,10 +89,6 @@ def _stochastic(data: GapData, floor: Floor, final: Evaluation, td: TimeData | N
     return out, passed
 
 
-def final_effects(ev: Evaluation) -> set[str]:
-    return {k.split(":", 1)[0] for k in ev.params if ":" in k}
-
-
 def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     """Floor, gap, where, which (deterministic, stochastic), verdict (module doc)."""
     _check_sim(data, sim)

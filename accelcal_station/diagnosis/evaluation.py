@@ -55,11 +55,6 @@ class Evaluation:
         return float(np.sqrt(np.mean(r**2)))
 
     @property
-    def expected_rms_g(self) -> float:
-        _, v = self._rows()
-        return float(np.sqrt(np.mean(v)))
-
-    @property
     def score(self) -> float:
         return float(np.mean(np.sum(self.nll_unit, axis=1)))
 

@@ -112,6 +112,16 @@ def visa_resource(port: str) -> str:
                       "host:port, a VISA resource name, or 'emulated'")
 
 
+def require_pyvisa(where: str = "chamber") -> None:
+    """pyvisa and pyvisa-py are the optional ``chamber`` extra: refuse in one line, naming it."""
+    try:
+        import pyvisa  # noqa: F401
+        import pyvisa_py  # noqa: F401
+    except ImportError:
+        raise ConfigError(f"{where}: the thermal chamber needs pyvisa and pyvisa-py, not installed; install the "
+                          "extra: pip install 'accelcal-station[chamber]'") from None
+
+
 class AsciiChamber(Chamber):
     """An ESPEC-style ASCII chamber over pyvisa (serial or TCP)."""
 

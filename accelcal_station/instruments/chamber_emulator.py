@@ -26,13 +26,10 @@ import select
 import threading
 from typing import Any
 
-from ..config.checks import check_keys, number
+from ..config.schema import ChamberEmulatorSection, ChamberFaultsSection, validate
 from ..errors import ConfigError
 from ..sim.pty_server import PtyServer
 from .chamber import DOOR_OPEN
-
-EMULATOR_KEYS = ("start_c", "room_c", "air_tau_s", "board_tau_s", "door_tau_s", "faults")
-FAULT_KEYS = ("min_air_c", "max_air_c", "alarm_at_s", "alarm_code", "door_open_at_s", "door_open_s", "stall_at_s")
 
 
 class ChamberPhysics:
@@ -125,28 +122,23 @@ class ChamberEmulator(PtyServer):
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any] | None, clock: Any, path: str = "chamber.emulator") -> ChamberEmulator:
-        cfg = check_keys(cfg or {}, EMULATOR_KEYS, path)
-        start = number(cfg, "start_c", path, 25.0, -70.0, 150.0)
-        phys = ChamberPhysics(clock, start, number(cfg, "room_c", path, 25.0, -20.0, 50.0),
-                              number(cfg, "air_tau_s", path, 180.0, 1.0, 1e5),
-                              number(cfg, "board_tau_s", path, 300.0, 1.0, 1e5),
-                              number(cfg, "door_tau_s", path, 60.0, 1.0, 1e5))
-        emu = cls(phys)
-        f = check_keys(cfg.get("faults"), FAULT_KEYS, f"{path}.faults")
-        fp = f"{path}.faults"
-        if "min_air_c" in f or "max_air_c" in f:
-            emu.limit_air(number(f, "min_air_c", fp, -75.0, -100.0, 200.0),
-                          number(f, "max_air_c", fp, 180.0, -100.0, 300.0))
-        if "alarm_at_s" in f:
-            emu.alarm_at(number(f, "alarm_at_s", fp, lo=0.0), number(f, "alarm_code", fp, 3, 1, 99, integer=True))
-        elif "alarm_code" in f:
+        c = validate(cfg or {}, ChamberEmulatorSection, path)  # keys, types, ranges: config/schema.py
+        assert isinstance(c, ChamberEmulatorSection)
+        emu = cls(ChamberPhysics(clock, c.start_c, c.room_c, c.air_tau_s, c.board_tau_s, c.door_tau_s))
+        f, fp = c.faults or ChamberFaultsSection(), f"{path}.faults"
+        given = f.model_fields_set
+        if given & {"min_air_c", "max_air_c"}:
+            emu.limit_air(f.min_air_c, f.max_air_c)
+        if f.alarm_at_s is not None:
+            emu.alarm_at(f.alarm_at_s, f.alarm_code)
+        elif "alarm_code" in given:
             raise ConfigError(f"{fp}.alarm_code: needs alarm_at_s (when the alarm goes off, clock seconds)")
-        if "door_open_at_s" in f:
-            emu.open_door(number(f, "door_open_at_s", fp, lo=0.0), number(f, "door_open_s", fp, 60.0, 0.0, 1e5))
-        if "stall_at_s" in f:
-            emu.stall_at_s = number(f, "stall_at_s", fp, lo=0.0)
-        if "door_open_s" in f and "door_open_at_s" not in f:
+        if f.door_open_at_s is not None:
+            emu.open_door(f.door_open_at_s, f.door_open_s)
+        elif "door_open_s" in given:
             raise ConfigError(f"{fp}.door_open_s: needs door_open_at_s (when the door opens, clock seconds)")
+        if f.stall_at_s is not None:
+            emu.stall_at_s = f.stall_at_s
         return emu
 
     # --- faults ------------------------------------------------------------------------

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import ConfigError
-from .chamber import AsciiChamber, Chamber, ChamberError, ChamberStatus
+from .chamber import AsciiChamber, Chamber, require_pyvisa
 
 DRIVERS = ("ascii",)
 
@@ -22,6 +22,7 @@ def make_chamber(config: dict[str, Any], board: Any = None, path: str = "chamber
     name = config.get("driver", "ascii")
     if name not in DRIVERS:
         raise ConfigError(f"{path}.driver: {name!r}; allowed: {', '.join(DRIVERS)}")
+    require_pyvisa(path)  # an optional extra: say so before an emulator or port is opened
     if config.get("port") != "emulated":
         if "emulator" in config:
             raise ConfigError(f"{path}.emulator: only used with port: emulated")
@@ -42,5 +43,3 @@ def couple(board: Any, emulator: Any) -> None:
     """Put the simulated board in the emulated chamber: its temperature follows the chamber's physics."""
     board.environment = emulator.physics
 
-
-__all__ = ["AsciiChamber", "Chamber", "ChamberError", "ChamberStatus", "make_chamber", "couple"]

@@ -27,6 +27,8 @@ from typing import Any, cast
 
 import numpy as np
 
+from ..acceptance.reasons import Reason
+from ..acceptance.rules import FitFigures, Limits, Verdict, judge_all
 from ..atomic import atomic_write_text
 from ..calibration import PARAM_NAMES, Calibration, param_vector
 from ..data.loader import load_pose_table
@@ -63,6 +65,7 @@ class BoardResult:
     run_id: int | None = None
     fit: FitResult | None = field(default=None, repr=False)  # single-temperature fits
     session: Session | None = field(default=None, repr=False)
+    verdict: Verdict | None = None  # judged when recalibrate is given limits
 
     @property
     def fitted_calibration(self) -> Calibration:
@@ -81,7 +84,9 @@ class BoardResult:
                 "crossval_rms_g": self.crossval_rms_g, "condition_number": self.condition_number,
                 "temperatures_c": self.temperatures_c,
                 "input_units": None if cal is None else cal.input_units,
-                "input_per_g": None if cal is None else cal.input_per_g}
+                "input_per_g": None if cal is None else cal.input_per_g,
+                "verdict": None if self.verdict is None else self.verdict.label,
+                "reasons": None if self.verdict is None else [r.to_dict() for r in self.verdict.reasons]}
 
     def fit_summary(self) -> dict[str, Any]:
         """The fit figures the results store summarises (store/exports.py _FIT_SCALARS names)."""
@@ -263,9 +268,24 @@ def _screen_all(sessions: Sequence[Source],
     return skipped, list(groups.values()), multi_temp
 
 
+def _judge(results: list[BoardResult], limits: Limits) -> None:
+    """Each board's verdict by the one acceptance rule table (acceptance.judge_all over all
+    single-temperature fits at once); a board that could not be fitted FAILs ``unfitted``,
+    as in a lot file.  Boards fitted over temperature keep no verdict (no single fit)."""
+    fitted = [r for r in results if r.ok and r.fit is not None]
+    if fitted:
+        for r, v in zip(fitted, judge_all(FitFigures.from_fits([cast(FitResult, r.fit) for r in fitted]), limits),
+                        strict=True):
+            r.verdict = v
+    for r in results:
+        if not r.ok:
+            r.verdict = Verdict(False, [Reason("unfitted", r.message)], {})
+
+
 def recalibrate(sessions: Sequence[Source], model: str | int = "12", *, chunk_size: int = 256,
-                progress: Callable[[int], None] | None = None) -> BatchReport:
-    """Fit every board of ``sessions`` ((source, Session or read error) pairs) with ``model``.
+                progress: Callable[[int], None] | None = None, limits: Limits | None = None) -> BatchReport:
+    """Fit every board of ``sessions`` ((source, Session or read error) pairs) with ``model``;
+    with ``limits``, judge each board (``BoardResult.verdict``).
 
     Results come back in input order; ``progress(n)`` is called as n more boards are done.
     """
@@ -297,6 +317,8 @@ def recalibrate(sessions: Sequence[Source], model: str | int = "12", *, chunk_si
             r.fitted_calibration.metadata = {"source": r.source, "serial": r.serial, "run_id": r.run_id,
                                              "pose_count": r.pose_count, "recalibrated_by": "accelcal batch",
                                              "recalibrated_at": iso(_time.time())}
+    if limits is not None:
+        _judge(ordered, limits)
     return BatchReport(model, ordered, calls, _time.perf_counter() - t0)
 
 

@@ -15,13 +15,14 @@ from typing import Any
 
 import numpy as np
 
-from ..acceptance.rules import LIMIT_KEYS, Limits
+from ..acceptance.reasons import Reason
+from ..acceptance.rules import FitFigures, Limits, judge_all
 from ..data.lotfile import LotChunk, board_arrays, lot_scale, open_lot
 from ..data.results_table import ResultsWriter
 from ..errors import AccelcalError, DataError
-from ..models.fitting import check_model
+from ..models.fitting import check_model, fit_batch
 from ..models.gravity_norm import nominal_scale
-from ..models.stacked import fit_stacked
+from ..models.sanity import distinct_directions_batch
 
 
 @dataclass
@@ -55,7 +56,8 @@ def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> d
            "Gamma": np.full((B, 3), np.nan), "residual_rms_g": np.full(B, np.nan),
            "residual_max_g": np.full(B, np.nan), "crossval_rms_g": np.full(B, np.nan),
            "condition_number": np.full(B, np.nan), "stderr_V_max": np.full(B, np.nan),
-           "stderr_W_max": np.full(B, np.nan), "input_per_g": np.full(B, np.nan), "pose_count": sizes}
+           "stderr_W_max": np.full(B, np.nan), "input_per_g": np.full(B, np.nan), "pose_count": sizes,
+           "distinct_poses": np.zeros(B, int)}
     can = np.array([r is None for r in reasons], bool)
     has_noise = np.zeros(B, bool)
     if noise is not None and B:
@@ -93,7 +95,9 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
     nz = None if noise is None else noise[rows] / scale[:, None, None]
     try:
         # ref is None only when board_arrays gave every board a reason (models 6/12/15 need one)
-        b = fit_stacked(gf, None if model == "9" or ref is None else ref[rows], model, nz)
+        # the one front of every path (models.fitting.fit_batch): identifiability, absurd
+        # readings and coefficients, then the stacked estimator; readings already in g here
+        b = fit_batch(gf, None if model == "9" or ref is None else ref[rows], model, units="g", noise=nz)
     except AccelcalError as e:
         for i in idx:
             reasons[i] = str(e)
@@ -112,43 +116,34 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
     out["stderr_V_max"][sel] = np.where(se, np.max(b.stderr_V[ok], axis=1), np.nan)
     out["stderr_W_max"][sel] = np.where(se, np.max(b.stderr_W[ok].reshape(-1, 9), axis=1), np.nan)
     out["input_per_g"][sel] = scale[ok]
+    out["distinct_poses"][sel] = distinct_directions_batch(gf[ok])
 
 
-def measures(res: dict[str, Any]) -> dict[str, np.ndarray]:
-    """acceptance.measure for a chunk: every limit key's value per board (NaN: not measurable)."""
-    W = res["W"]
-    diag = np.diagonal(W, axis1=1, axis2=2)
-    off = W * (1 - np.eye(3))
-    return {"residual_rms_mg": res["residual_rms_g"] * 1e3, "residual_max_mg": res["residual_max_g"] * 1e3,
-            "crossval_rms_mg": res["crossval_rms_g"] * 1e3,
-            "gain_error_max": np.max(np.abs(diag - 1.0), axis=1),
-            "cross_axis_max": np.max(np.abs(off).reshape(-1, 9), axis=1),
-            "offset_max_mg": np.max(np.abs(res["V"]), axis=1) * 1e3,
-            "cubic_max": np.max(np.abs(res["Gamma"]), axis=1),
-            "stderr_offset_max_mg": res["stderr_V_max"] * 1e3, "stderr_gain_max": res["stderr_W_max"]}
+def figures(res: dict[str, Any], model: str) -> FitFigures:
+    """The acceptance rules' inputs for a chunk's boards (NaN where a board was not fitted)."""
+    return FitFigures(model, res["W"], res["V"], res["Gamma"], res["residual_rms_g"], res["residual_max_g"],
+                      res["crossval_rms_g"], res["stderr_V_max"], res["stderr_W_max"], res["distinct_poses"])
 
 
-def judge_chunk(res: dict[str, Any], limits: Limits | None) -> tuple[list[str], list[list[str]]]:
-    """Verdict and reasons per board, as acceptance.judge words them ("" verdict: no limits given).
+def judge_chunk(res: dict[str, Any], limits: Limits | None, model: str) -> tuple[list[str], list[list[Reason]]]:
+    """Verdict and reasons per board by acceptance.judge_all ("" verdict: no limits given).
 
     A board that could not be fitted FAILs with reason ``unfitted: <why>``; verify_error_max_mg
     needs a verification capture and is not judged here.
     """
-    B = len(res["ok"])
-    reasons: list[list[str]] = [[] for _ in range(B)]
-    for b in np.flatnonzero(~res["ok"]):
-        reasons[b].append(f"unfitted: {res['message'][b]}")
+    ok = res["ok"]
+    B = len(ok)
+    reasons: list[list[Reason]] = [[] for _ in range(B)]
+    for b in np.flatnonzero(~ok):
+        reasons[b].append(Reason("unfitted", res["message"][b]))
     if limits is None:
-        return ["" if res["ok"][b] else "FAIL" for b in range(B)], reasons
-    m = measures(res)
-    for key, lim in limits.values.items():
-        if key == "verify_error_max_mg":
-            continue
-        v = m[key]
-        for b in np.flatnonzero(res["ok"] & np.isnan(v)):
-            reasons[b].append(f"{key}: not measurable for this fit (limit {lim:g})")
-        for b in np.flatnonzero(res["ok"] & ~(v <= lim) & ~np.isnan(v)):
-            reasons[b].append(f"{key} {v[b]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})")
+        return ["" if ok[b] else "FAIL" for b in range(B)], reasons
+    fitted = np.flatnonzero(ok)
+    if fitted.size:
+        sub = {k: res[k][fitted] for k in ("W", "V", "Gamma", "residual_rms_g", "residual_max_g",
+                                           "crossval_rms_g", "stderr_V_max", "stderr_W_max", "distinct_poses")}
+        for b, v in zip(fitted, judge_all(figures(sub, model), limits), strict=True):
+            reasons[b] = list(v.reasons)
     return ["FAIL" if r else "PASS" for r in reasons], reasons
 
 
@@ -167,7 +162,7 @@ def recalibrate_lot(path: str | Path, out: str | Path, model: str = "12", *, uni
     with ResultsWriter(out) as w:
         for chunk in chunks:
             res = fit_chunk(chunk, model, per_g, units)
-            verdicts, reasons = judge_chunk(res, limits)
+            verdicts, reasons = judge_chunk(res, limits, model)
             w.write_chunk(chunk, res, model, units, verdicts, reasons)
             n = len(chunk.serials)
             summary.boards += n

@@ -18,8 +18,7 @@ from ..conventions import check_units, units_per_g
 from ..errors import DataError, UnderdeterminedError, UnitsError
 from ..identifiability import assess, assess_batch
 from ..session import Session
-from .gravity_norm import fit_norm_batch, nominal_scale
-from .linear import fit_linear_batch, six_param_six_face, six_param_two_pose
+from .gravity_norm import nominal_scale
 from .result import BatchFit, FitResult
 from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
 from .stacked import fit_stacked
@@ -58,11 +57,10 @@ def _input_per_g(x: np.ndarray, model: str, units: str, counts_per_g: ArrayLike 
 
 def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: str | int = "12", *,
               units: str = "g", counts_per_g: ArrayLike | None = None, gravity_mps2: float | None = None,
-              noise: ArrayLike | None = None, fast: bool = False) -> BatchFit:
-    """Fit D boards at once.
-
-    ``fast``: the stacked fitters of models/stacked.py (same estimators, closed forms and
-    batched Gauss-Newton; equal to 1e-9 g), for batches of many boards.
+              noise: ArrayLike | None = None) -> BatchFit:
+    """Fit D boards at once with the one estimator per model: the stacked fitters of
+    models/stacked.py (closed forms for 6/12/15, batched Gauss-Newton for 9), which lot
+    files, pose tables, the store and single boards all go through.
 
     readings: (D, P, 3) pose means in ``units``; references: (D, P, 3) or (P, 3)
     expected output in g (required for 6/12/15, ignored by 9); noise: optional
@@ -97,7 +95,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
             gf_fit = np.where(bad[:, None, None], ref, gf)
     try:
         with np.errstate(over="ignore", invalid="ignore"):
-            res = _fit_stack(gf_fit, references, x, model, nz, fast)
+            res = _fit_stack(gf_fit, references, x, model, nz)
     except np.linalg.LinAlgError:
         raise DataError("the readings cannot be fitted (numerically singular or overflowing: "
                         "a reading far beyond the sensor's range?)") from None
@@ -110,10 +108,10 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     return res
 
 
-def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, model: str, nz: np.ndarray | None,
-               fast: bool = False) -> BatchFit:
+def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, model: str,
+               nz: np.ndarray | None) -> BatchFit:
     if model == "9":
-        res = fit_stacked(gf, None, "9", nz) if fast else fit_norm_batch(gf, noise_g=nz)
+        res = fit_stacked(gf, None, "9", nz)
     else:
         if references is None:
             raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
@@ -121,7 +119,7 @@ def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, mode
         ref = np.asarray(references, dtype=float)
         if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
             raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
-        res = fit_stacked(gf, ref, model, nz) if fast else fit_linear_batch(gf, ref, model, nz)
+        res = fit_stacked(gf, ref, model, nz)
     return res
 
 
@@ -199,6 +197,3 @@ def fit_temperature(session: Session, model: str | int = "12", method: str = "li
                       first.input_per_g, temperature=table)
     return cal, fits
 
-
-__all__ = ["MODELS", "BatchFit", "FitResult", "check_model", "fit", "fit_batch", "fit_session",
-           "fit_temperature", "six_param_six_face", "six_param_two_pose"]

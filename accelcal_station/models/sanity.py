@@ -35,6 +35,22 @@ def distinct_directions(readings_g: np.ndarray, tol_deg: float = DISTINCT_DEG) -
     return len(reps)
 
 
+def distinct_directions_batch(readings_g: np.ndarray, tol_deg: float = DISTINCT_DEG) -> np.ndarray:
+    """``distinct_directions`` of each of B boards' (B, P, 3) readings, the same greedy
+    clustering stepped over the poses for all boards at once; (B,) counts."""
+    x = np.asarray(readings_g, dtype=float)
+    n = np.linalg.norm(x, axis=-1, keepdims=True)
+    u = x / np.where(n > 0, n, 1.0)
+    cos = np.cos(np.radians(tol_deg))
+    B, P, _ = u.shape
+    is_rep = np.zeros((B, P), bool)
+    for p in range(P):
+        dots = np.einsum("bqk,bk->bq", u[:, :p], u[:, p])
+        near = np.any(is_rep[:, :p] & (dots >= cos), axis=1)
+        is_rep[:, p] = ~near
+    return is_rep.sum(axis=1)
+
+
 def poses_needed(model: str) -> int:
     """Distinct poses a judged run needs: the model's unknowns per axis plus one, so that
     leaving any one pose out still determines it (cross-validation is always measurable)."""

@@ -1,8 +1,8 @@
 """The emulator side of a serial line: a raw pseudo-terminal answered by a background thread.
 
-Emulated instruments (the MPU6050 bridge, the thermal chamber) are reached through pyserial on
-the slave side exactly as real ones are on /dev/ttyUSB*, so the host code under test is the
-code that runs on the line.
+Emulated instruments (the MPU6050 bridge, the thermal chamber, the motorized jig) are reached
+through pyserial on the slave side exactly as real ones are on /dev/ttyUSB*, so the host code
+under test is the code that runs on the line.
 """
 from __future__ import annotations
 

@@ -161,7 +161,7 @@ class Param:
 
 
 @dataclass(frozen=True)
-class Effect:
+class EffectSpec:
     name: str
     doc: str
     params: tuple[Param, ...] = ()
@@ -173,50 +173,50 @@ class Effect:
 _V0 = [0.0, 0.0, 0.0]
 _M0 = [[0.0] * 3 for _ in range(3)]
 
-EFFECTS: dict[str, Effect] = {e.name: e for e in (
-    Effect("offset", "zero-g offset per axis, added to the reading", (
+EFFECTS: dict[str, EffectSpec] = {e.name: e for e in (
+    EffectSpec("offset", "zero-g offset per axis, added to the reading", (
         Param("offset_mg", "mg", "zero-g offset at t_ref_c", _V0, (3,), -2000.0, 2000.0),)),
-    Effect("gain", "sensitivity per axis relative to the chip's nominal counts_per_g", (
+    EffectSpec("gain", "sensitivity per axis relative to the chip's nominal counts_per_g", (
         Param("gain", "1", "reading per unit specific force (1 = nominal)", [1.0, 1.0, 1.0], (3,), 0.5, 1.5),)),
-    Effect("cross_axis", "off-diagonal coupling C and package rotation: K = diag(gain) (I + C) R_pkg^T", (
+    EffectSpec("cross_axis", "off-diagonal coupling C and package rotation: K = diag(gain) (I + C) R_pkg^T", (
         Param("coupling", "1", "C[i][j]: fraction of axis j's force read on axis i; diagonal must be 0",
               _M0, (3, 3), -0.2, 0.2),
         Param("rotation_deg", "deg", "package rotation vector (axis * angle) of the chip on the board",
               _V0, (3,), -10.0, 10.0))),
-    Effect("cubic", "odd nonlinearity per axis: f = K^-1 (G - o) - c G^3 (AN4399 Eqn 67, Gamma = -c)", (
+    EffectSpec("cubic", "odd nonlinearity per axis: f = K^-1 (G - o) - c G^3 (AN4399 Eqn 67, Gamma = -c)", (
         Param("cubic_per_g2", "1/g^2", "c: cubic coefficient of the reading G (g)", _V0, (3,), -0.05, 0.05),)),
-    Effect("quadratic", "even nonlinearity per axis: f = K^-1 (G - o) - q G^2 (no model inverts it)", (
+    EffectSpec("quadratic", "even nonlinearity per axis: f = K^-1 (G - o) - q G^2 (no model inverts it)", (
         Param("quadratic_per_g", "1/g", "q: square coefficient of the reading G (g)", _V0, (3,), -0.05, 0.05),)),
-    Effect("temperature", "offset and gain linear and quadratic in (T - t_ref_c)", (
+    EffectSpec("temperature", "offset and gain linear and quadratic in (T - t_ref_c)", (
         Param("t_ref_c", "C", "temperature at which offset and gain take their configured values",
               25.0, (), -40.0, 125.0),
         Param("offset_mg_per_c", "mg/C", "linear offset coefficient", _V0, (3,), -10.0, 10.0),
         Param("offset_mg_per_c2", "mg/C^2", "quadratic offset coefficient", _V0, (3,), -1.0, 1.0),
         Param("gain_ppm_per_c", "ppm/C", "linear gain coefficient", _V0, (3,), -2000.0, 2000.0),
         Param("gain_ppm_per_c2", "ppm/C^2", "quadratic gain coefficient", _V0, (3,), -100.0, 100.0))),
-    Effect("pose_error", "the jig's true orientation differs from the commanded one: R_err = R_jig R_scatter", (
+    EffectSpec("pose_error", "the jig's true orientation differs from the commanded one: R_err = R_jig R_scatter", (
         Param("jig_rotation_deg", "deg", "fixed rotation vector of the jig relative to its nominal frame",
               _V0, (3,), -20.0, 20.0),
         Param("scatter_deg", "deg", "rms per-axis rotation drawn afresh at every pose presentation",
               0.0, (), 0.0, 10.0))),
-    Effect("gravity", "local gravity differs from standard gravity: |f| = local_mps2 / 9.80665 standard g", (
+    EffectSpec("gravity", "local gravity differs from standard gravity: |f| = local_mps2 / 9.80665 standard g", (
         Param("local_mps2", "m/s^2", "local gravity", STANDARD_GRAVITY_MPS2, (), 9.7, 9.9),)),
-    Effect("noise", "white noise, per-sample sigma = density * sqrt(ENBW)", (
+    EffectSpec("noise", "white noise, per-sample sigma = density * sqrt(ENBW)", (
         Param("density_ug_per_rthz", "ug/sqrt(Hz)", "noise density per axis (default: the chip's datasheet)",
               CHIP_DEFAULT, (3,), 0.0, 1e5),)),
-    Effect("quantization", "round to integer counts, in steps of lsb_counts", (
+    EffectSpec("quantization", "round to integer counts, in steps of lsb_counts", (
         Param("lsb_counts", "counts", "quantization step (1 = the chip's full resolution)", 1, (), 1, 2**12,
               integer=True),)),
-    Effect("saturation", "clip at the chip's output code range", (
+    EffectSpec("saturation", "clip at the chip's output code range", (
         Param("full_scale_fraction", "1", "fraction of the code range at which the output clips",
               1.0, (), 0.01, 1.0),)),
-    Effect("drift", "offset random walk plus exponential warm-up since power-up", (
+    EffectSpec("drift", "offset random walk plus exponential warm-up since power-up", (
         Param("random_walk_ug_per_rts", "ug/sqrt(s)", "offset random walk: std after t seconds is this * sqrt(t)",
               _V0, (3,), 0.0, 1e5),
         Param("warmup_mg", "mg", "warm-up offset reached as t -> infinity: A (1 - exp(-t / tau))",
               _V0, (3,), -500.0, 500.0),
         Param("warmup_tau_s", "s", "warm-up time constant", 60.0, (), 1e-3, 1e6))),
-    Effect("settling", "transient after each change of the true force, decaying exponentially", (
+    EffectSpec("settling", "transient after each change of the true force, decaying exponentially", (
         Param("fraction", "1", "transient amplitude as a fraction of the step (> 0 overshoot, < 0 lag)",
               0.0, (), -1.0, 1.0),
         Param("tau_s", "s", "decay time constant", 0.2, (), 1e-4, 1e3))),

@@ -7,24 +7,24 @@ NVM -> record everything in the store.  A board that fails is never written.
 """
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..acceptance.reasons import Reason, codes
 from ..acceptance.rules import judge
 from ..calibration import Calibration
-from ..drivers.base import Driver, Identity
+from ..drivers.base import Clock, Driver, Identity
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
-from ..fixtures.factory import board_of, make_jig
+from ..fixtures.factory import clock_of, make_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
+from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
 from ..models.fitting import fit_session
 from ..nvm.writer import BurnError, CalibrationWriter
 from ..session import PoseRecord, Session
@@ -33,43 +33,8 @@ from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
 from .report import RunReport, fit_figures
 from .settings import StationConfig
 
-if TYPE_CHECKING:
-    from ..drivers.simulated import SimulatedBoard
-
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
-
-
-class CaptureProgress:
-    """A progress bar (stderr) for any capture that takes longer than a moment of wall time.
-
-    Virtual-clock captures finish in milliseconds and never show one; a real board at
-    100 Hz averaging for seconds does.
-    """
-
-    def __init__(self, label: str, after_s: float = 0.5) -> None:
-        self.label, self.after_s = label, after_s
-        self.t0 = time.monotonic()
-        self.bar: Any = None  # a click progress bar once shown
-        self.done = 0
-
-    def __call__(self, fraction: float) -> None:
-        if self.bar is None:
-            if time.monotonic() - self.t0 < self.after_s:
-                return
-            import click
-
-            self.bar = click.progressbar(length=1000, label=self.label, file=sys.stderr)
-            self.bar.__enter__()
-        step = int(1000 * min(max(fraction, 0.0), 1.0)) - self.done
-        if step > 0:
-            self.bar.update(step)
-            self.done += step
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(None, None, None)
-            self.bar = None
 
 
 class Station:
@@ -77,8 +42,10 @@ class Station:
 
     def __init__(self, config: StationConfig, *, operator: str | None = None, serial: str | None = None,
                  lot: str | None = None, echo: Callable[[str], None] = print,
-                 progress: Callable[[str, float], None] | None = None, driver: Driver | None = None) -> None:
+                 progress: Callable[[str, float], None] | None = None, driver: Driver | None = None,
+                 ui: OperatorUI | None = None) -> None:
         self.cfg = config
+        self.ui = ui  # the operator's front end (terminal or browser), for an operator jig
         self.driver = driver  # default: built from the config's device section at run()
         self.operator = operator
         self.serial_override = serial
@@ -92,6 +59,10 @@ class Station:
         self._burn_log: Callable[[str, dict[str, Any]], None] | None = None
 
     # -- pieces -----------------------------------------------------------------------
+    def _capture_sink(self, label: str) -> CaptureSink:
+        """Where a capture's progress goes: the operator's front end, or nowhere."""
+        return NoCaptureProgress() if self.ui is None else self.ui.capture(label)
+
     def _live(self, driver: Driver, gate: StillnessGate) -> LiveReading:
         n = max(8, int(round(0.2 * driver.odr_hz)))
 
@@ -110,7 +81,7 @@ class Station:
         while True:
             attempts += 1
             jig.present(pose, self._live(driver, StillnessGate(s, floor)) if isinstance(jig, OperatorJig) else None)
-            bar = CaptureProgress(f"  capturing {pose.name}")
+            bar = self._capture_sink(f"  capturing {pose.name}")
             try:
                 gc = gated_capture(driver, s, pose.reference_g, floor, progress=bar)
             except WrongPose as e:
@@ -146,8 +117,8 @@ class Station:
                 ident = self._open_device(stack, driver, store)
                 rep.serial = self.serial_override or ident.serial
                 rep.chip = ident.chip
-                board = board_of(driver)
-                clock0 = board.clock.now() if board is not None else None
+                clock = clock_of(driver)
+                clock0 = clock.now() if clock is not None else None
                 run_id = store.start_run(device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id,
                                          operator=self.operator, lot=self.lot, config_text=cfg.text,
                                          model=cfg.model, units="counts", counts_per_g=driver.counts_per_g)
@@ -157,7 +128,7 @@ class Station:
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
                 self._calibrate(store, run_id, driver, design, session, retries, rep)
-                rep.timing = self._timing(driver, board, clock0, wall0)
+                rep.timing = self._timing(driver, clock, clock0, wall0)
                 self._finish(store, run_id, session, retries, rep)
         return rep
 
@@ -179,7 +150,7 @@ class Station:
         closes the run (interrupted or error) with the poses captured so far, then propagates."""
         records = session.poses
         try:
-            with make_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, driver, self.echo) as jig:
+            with make_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, driver, self.ui) as jig:
                 try:
                     self._run_poses(driver, jig, design, records, retries, rep)
                     self._fit_judge_write(driver, jig, session, rep)
@@ -366,7 +337,7 @@ class Station:
                 for c, ref, t in checks]
         return float(np.max(errs)) * 1e3
 
-    def _timing(self, driver: Driver, board: SimulatedBoard | None, clock0: float | None,
+    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None,
                 wall0: float) -> dict[str, float]:
         odr = driver.odr_hz
         t = {
@@ -382,8 +353,9 @@ class Station:
         # board, sleeping through sampling and moves)
         t["host_compute_s"] = max(0.0, t["wall_s"] - self.operator_wait_s)
         # a panel's board that opened but did not identify has no start time: no device time
-        if board is not None and clock0 is not None:
-            t["device_time_s"] = board.clock.now() - clock0  # moves, waits, EEPROM cycles, sampling
-            t["board_time_s"] = t["device_time_s"] + (0.0 if board.clock.realtime else t["host_compute_s"])
+        if clock is not None and clock0 is not None:
+            t["device_time_s"] = clock.now() - clock0  # moves, waits, EEPROM cycles, sampling
+            realtime = bool(getattr(clock, "realtime", False))
+            t["board_time_s"] = t["device_time_s"] + (0.0 if realtime else t["host_compute_s"])
         return t
 

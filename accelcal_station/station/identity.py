@@ -6,11 +6,9 @@ import re
 from pathlib import Path
 from typing import Any, Protocol
 
-import click
-
 from ..config.checks import check_keys
 from ..errors import ConfigError, DataError
-from ..fixtures.operator_jig import OperatorAbort
+from ..fixtures.operator_ui import OperatorUI
 
 IDENTITY_KEYS = ("scan_serial", "require_operator")
 SERIAL_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._:/-]{0,63}")
@@ -44,8 +42,10 @@ class RunConfig(Protocol):
     path: Path
 
 
-def ask_run_identity(cfg: RunConfig, operator: str | None, serial: str | None) -> tuple[str | None, str | None]:
-    """Apply the config's identity rules; prompts (stderr) for a serial scan when asked to."""
+def ask_run_identity(cfg: RunConfig, operator: str | None, serial: str | None,
+                     ui: OperatorUI) -> tuple[str | None, str | None]:
+    """Apply the config's identity rules; asks the operator (``ui``) for a serial scan when
+    the config wants one (OperatorAbort on end of input)."""
     opts = identity_options(cfg.raw)
     if opts["require_operator"] and not (operator or "").strip():
         raise ConfigError(f"--operator: required (station.require_operator: true in {cfg.path.name})")
@@ -54,11 +54,8 @@ def ask_run_identity(cfg: RunConfig, operator: str | None, serial: str | None) -
     if not opts["scan_serial"]:
         return operator, None
     while True:
-        try:
-            text = click.prompt("Scan the board's serial number", err=True)
-        except (click.exceptions.Abort, EOFError, KeyboardInterrupt):
-            raise OperatorAbort("operator aborted at the serial-number scan") from None
+        text = ui.ask_serial("Scan the board's serial number")
         try:
             return operator, check_serial(text, "scanned serial")
         except DataError as e:
-            click.echo(f"  {e}; scan again", err=True)
+            ui.say(f"  {e}; scan again")

@@ -21,31 +21,29 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..acceptance.reasons import Reason
 from ..calibration import Calibration
-from ..config.checks import check_keys, number
 from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError
-from ..fixtures.base import Jig, LiveReading, PoseSpec
+from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.designs import get_design
-from ..fixtures.factory import board_of, make_jig
+from ..fixtures.factory import board_seat, clock_of
+from ..fixtures.factory import make_panel_jig as panel_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig
+from ..fixtures.operator_ui import OperatorUI
 from ..session import PoseRecord, Session
 from ..store.runs import Store
 from .board import Check, Station
 from .capture import GatedCapture, WrongPose, gated_capture
 from .jig_pose import JigPoseEstimate, estimate_jig_poses
-from .panel_config import SEAT_KEY, group_of, panel_sections, seat_rotation
+from .panel_config import group_of, panel_sections
 from .report import RunReport
 from .settings import StationConfig
-
-if TYPE_CHECKING:
-    from ..drivers.simulated import SimulatedBoard
 
 
 @dataclass
@@ -91,44 +89,10 @@ def new_panel_id(station_id: str) -> str:
     return f"{station_id}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.urandom(3).hex()}"
 
 
-class PanelSimulatedJig(Jig):
-    """The simulated jig holding every simulated board of a panel: one true orientation per pose.
-
-    The jig's error R_err (the ``pose_error`` effect of the first board's simulator: a fixed
-    rotation and a per-pose scatter) is drawn once per pose and applied to every board.
-    """
-
-    name = "simulated"
-
-    def __init__(self, boards: list[SimulatedBoard], move_time_s: float = 2.0,
-                 seats: list[np.ndarray] | None = None) -> None:
-        self.boards = boards
-        self.move_time_s = float(move_time_s)
-        self.seats = seats or [np.eye(3)] * len(boards)
-
-    def present(self, pose: PoseSpec, live: LiveReading | None = None) -> None:
-        R = self.boards[0].pose_error_rotation()
-        clocks = {id(b.clock): b.clock for b in self.boards}
-        for c in clocks.values():
-            c.sleep(self.move_time_s)
-        for b, seat in zip(self.boards, self.seats, strict=True):
-            b.set_pose(pose, rotation=seat @ R)
-
-
-def make_panel_jig(cfg: dict[str, Any], boards: list[PanelBoard], echo: Callable[[str], None]) -> Jig:
-    """The configured jig for the whole panel (operator and motorized jigs move the fixture)."""
-    kind = cfg.get("type", "simulated")
-    if kind == "simulated" and len(boards) > 1:
-        check_keys({k: v for k, v in cfg.items() if k != "type"}, ["move_time_s"], "jig")
-        found = [board_of(b.driver) for b in boards if b.driver is not None]
-        sims = [s for s in found if s is not None]
-        if not sims or len(sims) < len(found):
-            raise ConfigError("jig.type: simulated needs simulated or emulated devices; "
-                              "use operator or motorized with real hardware")
-        return PanelSimulatedJig(sims, number(cfg, "move_time_s", "jig", 2.0, 0.0, 120.0),
-                                 [b.seat for b in boards if b.driver is not None])
-    first = next((b.driver for b in boards if b.driver is not None), None)
-    return make_jig(cfg, first, echo)
+def make_panel_jig(cfg: dict[str, Any], boards: list[PanelBoard], ui: OperatorUI | None) -> Jig:
+    """The configured jig for the whole panel, from the jig factory."""
+    live = [b for b in boards if b.driver is not None]
+    return panel_jig(cfg, [b.driver for b in live], [b.seat for b in live], ui)
 
 
 class PanelStation:
@@ -140,8 +104,9 @@ class PanelStation:
 
     def __init__(self, config: StationConfig, *, operator: str | None = None, lot: str | None = None,
                  echo: Callable[[str], None] = print, drivers: list[Driver] | None = None,
-                 panel_id: str | None = None, jig: Jig | None = None) -> None:
+                 panel_id: str | None = None, jig: Jig | None = None, ui: OperatorUI | None = None) -> None:
         self.cfg = config
+        self.ui = ui  # the operator's front end, for an operator jig
         self.operator, self.lot, self.echo = operator, lot, echo
         self.drivers = drivers  # default: built from the config's device section
         self.panel_id = panel_id or new_panel_id(config.station_id)
@@ -162,24 +127,12 @@ class PanelStation:
             st = self.board_station(cfg, operator=self.operator, lot=self.lot, echo=_quiet)
             rep = self.board_report(station_id=cfg.station_id, model=cfg.model, design=cfg.design,
                                     store=str(cfg.store_file))
-            seat = sec.pop(SEAT_KEY, None)
-            rotation = np.eye(3) if seat is None else seat_rotation(seat, path)
-            driver = self.drivers[i] if self.drivers is not None else self._make_driver(sec, path)
+            rotation = board_seat(sec, path)
+            driver = self.drivers[i] if self.drivers is not None else make_driver(sec, path, self._buses)
             out.append(PanelBoard(i, sec, path, group_of(sec, i), st, rep, driver, seat=rotation))
             st.driver = driver
             rep.serial = str(sec.get("serial") or "")
         return out
-
-    def _make_driver(self, sec: dict[str, Any], path: str) -> Driver:
-        if sec.get("mux") is not None:
-            if sec.get("driver") != "mma8451":
-                raise ConfigError(f"{path}.mux: a TCA9548A multiplexer holds I2C boards (driver: mma8451)")
-            if sec.get("bus") == "emulated":
-                from ..drivers.emulated import emulated_muxed_mma8451 as muxed
-            else:
-                from ..drivers.tca9548a import muxed_mma8451 as muxed
-            return muxed(sec, path, self._buses)
-        return make_driver(sec, path)
 
     def _open(self, b: PanelBoard, store: Store) -> None:
         """Open, identify, configure one board and start its run; a device error fails that board only."""
@@ -190,8 +143,8 @@ class PanelStation:
             b.rep.serial = ident.serial or b.rep.serial
             b.rep.chip = ident.chip
             b.driver.configure(b.section.get("range_g"), b.section.get("odr_hz"))
-            sim = board_of(b.driver)
-            b.clock0 = sim.clock.now() if sim is not None else None
+            clock = clock_of(b.driver)
+            b.clock0 = clock.now() if clock is not None else None
         except AccelcalError as e:
             b.fail(Reason("device", str(e)))
         b.rep.run_id = store.start_run(
@@ -299,7 +252,7 @@ class PanelStation:
                 live = [b for b in boards if b.active]
                 if live:
                     with (self.jig or make_panel_jig(cfg.raw.get("jig") or {"type": "simulated"}, live,
-                                                     self.echo)) as jig:
+                                                     self.ui)) as jig:
                         self._poses(boards, jig, design)
                         self._fit_all(boards)
                         self._verify_all(boards, jig)
@@ -381,7 +334,7 @@ class PanelStation:
         for b in boards:
             if b.driver is None or not b.open_:
                 continue
-            b.rep.timing = b.station._timing(b.driver, board_of(b.driver), b.clock0, wall0)
+            b.rep.timing = b.station._timing(b.driver, clock_of(b.driver), b.clock0, wall0)
             if "device_time_s" in b.rep.timing:
                 dev.append(b.rep.timing["device_time_s"])
         self.timing = {"boards": len(boards), "host_compute_s": host}

@@ -1,6 +1,6 @@
-"""A panel's configuration: the per-board device sections of ``device.boards``, each board's
-own spread of simulated offsets and gains, how a board sits in its slot, and which thread
-reads it.
+"""A panel's configuration: the per-board device sections of ``device.boards`` and which
+thread reads each board (a simulated board's own spread of offsets and gains and how it sits
+in its slot are the simulated panel's: fixtures/simulated_panel.py, through fixtures/factory.py).
 
 A ``device:`` section without ``boards`` is a panel of one.  With ``boards``::
 
@@ -18,35 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from ..config.checks import check_keys, number
+from ..config.checks import number
 from ..errors import ConfigError
-from ..sim.sensor_model import rotation_matrix
+from ..fixtures.factory import spread_board
 
 MAX_BOARDS = 64
-PANEL_KEYS = ("boards", "spread", "mux")
-# simulated boards only: how the board really sits in its slot (rotation vector, degrees); a
-# board seated upside down reads the opposite face at every pose
-SEAT_KEY = "seated_deg"
-
-
-def _spread(section: dict[str, Any], spread: Any, rng: np.random.Generator, path: str) -> dict[str, Any]:
-    """Draw this board's own offsets and gains around the shared simulator's (simulated boards)."""
-    sp = check_keys(spread, ("offset_mg", "gain"), path)
-    off_sd = number(sp, "offset_mg", path, 0.0, 0.0, 1000.0)
-    gain_sd = number(sp, "gain", path, 0.0, 0.0, 0.5)
-    sim = section.get("simulator")
-    if not isinstance(sim, dict):  # the effects sit in the simulator mapping, or in the section itself
-        sim = section
-    eff = sim.setdefault("effects", {})
-    if not isinstance(eff, dict):
-        raise ConfigError(f"{path}: needs an inline simulator effects mapping to spread")
-    off = np.asarray((eff.get("offset") or {}).get("offset_mg", [0.0] * 3), dtype=float)
-    gain = np.asarray((eff.get("gain") or {}).get("gain", [1.0] * 3), dtype=float)
-    eff["offset"] = {**(eff.get("offset") or {}), "offset_mg": (off + rng.normal(0, off_sd, 3)).tolist()}
-    eff["gain"] = {**(eff.get("gain") or {}), "gain": (gain * (1 + rng.normal(0, gain_sd, 3))).tolist()}
-    return section
-
-
 def _simulated(section: dict[str, Any]) -> bool:
     """A simulated board, or a driver on an emulated bus or port (these take a seed)."""
     return section.get("driver") == "simulated" or "emulated" in (section.get("bus"), section.get("port"))
@@ -82,7 +58,7 @@ def panel_sections(device: Any, path: str = "device") -> list[tuple[dict[str, An
             sec["serial"] = f"{device.get('serial') or 'PANEL'}-{i + 1:02d}"
         sec.update(copy.deepcopy(over))
         if device.get("spread") is not None:
-            sec = _spread(sec, device["spread"], rng, f"{path}.spread")
+            sec = spread_board(sec, device["spread"], rng, f"{path}.spread")
         out.append((sec, where))
     return out
 
@@ -97,11 +73,3 @@ def group_of(section: dict[str, Any], index: int) -> str:
     if section.get("driver") == "mpu6050" and section.get("port") not in (None, "emulated"):
         return f"serial:{section['port']}"
     return f"board:{index}"
-
-
-def seat_rotation(seat: Any, path: str) -> np.ndarray:
-    """The rotation of a board's ``seated_deg`` (an [x, y, z] rotation vector in degrees)."""
-    if not (isinstance(seat, list) and len(seat) == 3 and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in seat)):
-        raise ConfigError(f"{path}.{SEAT_KEY}: {seat!r}; allowed: [x, y, z] rotation vector in degrees")
-    return rotation_matrix(seat)

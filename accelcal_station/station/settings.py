@@ -7,19 +7,22 @@ from pathlib import Path
 from typing import Any
 
 from ..acceptance.rules import Limits
-from ..calibration import MODELS
-from ..config.checks import check_keys, choice, load_yaml, number
+from ..config.checks import load_yaml
+from ..config.schema import (
+    CaptureSection,
+    NvmSection,
+    PlanSection,
+    StationSection,
+    VerifySection,
+    validate_station,
+)
 from ..config.sections import default_config_path, with_port
-from ..errors import AccelcalError, ConfigError
+from ..errors import ConfigError
 from ..fixtures.designs import get_design
 from ..models.fitting import check_model
 from ..store.location import store_path, store_target
 from .capture import CaptureSettings
-from .identity import IDENTITY_KEYS, identity_options
-
-TOP_KEYS = ("station", "store", "device", "jig", "plan", "capture", "acceptance", "nvm", "verify",
-            "thermal", "chamber")  # thermal plans: station/thermal.py
-JIG_TYPES = ("simulated", "operator", "motorized")
+from .identity import identity_options
 
 
 @dataclass
@@ -40,6 +43,7 @@ class StationConfig:
     verify_poses: int
     verify_design: str | None
     store_file: Path | str  # a file, or a store URL (postgresql://...)
+    web_token: str | None = None  # web.token: what starting or aborting a run over the web API needs
 
     @classmethod
     def load(cls, path: str | Path | None = None, store_override: str | Path | None = None,
@@ -48,24 +52,30 @@ class StationConfig:
         port (or MMA8451 bus) and the motorized jig's port."""
         p = default_config_path() if path is None else Path(path)
         raw = _read_with_ports(p, port, jig_port)
-        # the checks run in this order: a config with several errors names the same one first
-        st = _check_sections(raw, p)
-        design, model = _plan(raw)
-        settings = _capture_settings(raw)
-        write, slot, trim = _nvm_options(raw, model)
-        ver = check_keys(raw.get("verify"), ["poses", "design"], "verify")
-        vdesign = ver.get("design")
-        if vdesign is not None:
-            get_design(str(vdesign))
-        _check_jig(raw)
+        # the declared schema (config/schema.py): every key, type, finite number and range
+        sc = validate_station(raw)
+        # then what depends on more than one key, in this order (a config with several errors
+        # names the same one first)
+        if "device" not in raw:
+            raise ConfigError(f"{p}: device: required (a mapping with a 'driver' key)")
+        identity_options(raw)
+        design, model = _plan(sc.plan or PlanSection())
+        settings = _capture_settings(sc.capture or CaptureSection())
+        nvm = sc.nvm or NvmSection()
+        if nvm.offset_trim and model == "15":
+            raise ConfigError("nvm.offset_trim: the 15-parameter model's cubic term cannot be moved into "
+                              "offset registers; allowed with models 6, 9, 12")
+        ver = sc.verify or VerifySection()
+        if ver.design is not None:
+            get_design(ver.design)
         # a relative store path is taken from the current directory: the station's
         # working folder, never the (possibly installed, read-only) config folder
         store_file = store_target(store_override) if store_override else store_path(raw, Path.cwd())
         limits = Limits.from_config(raw.get("acceptance"))
-        verify_poses = _verify_poses(ver, limits)
-        return cls(raw, p.read_text(), p, str(st.get("id", "station-1")), design, model, settings,
-                   limits, write, slot, trim, verify_poses,
-                   None if vdesign is None else str(vdesign), store_file)
+        verify_poses = _verify_poses(ver.poses, limits)
+        return cls(raw, p.read_text(), p, (sc.station or StationSection()).id, design, model, settings,
+                   limits, nvm.write, nvm.slot_size, nvm.offset_trim, verify_poses, ver.design, store_file,
+                   _web_token(raw))
 
 
 def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> dict[str, Any]:
@@ -81,69 +91,34 @@ def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> dict[st
     return raw
 
 
-def _check_sections(raw: dict[str, Any], p: Path) -> dict[str, Any]:
-    """Known top-level sections, a device section, and the station section (returned)."""
-    check_keys(raw, TOP_KEYS, str(p.name))
-    if "device" not in raw:
-        raise ConfigError(f"{p}: device: required (a mapping with a 'driver' key)")
-    st = check_keys(raw.get("station"), ["id", *IDENTITY_KEYS], "station")
-    identity_options(raw)
-    return st
+def _plan(plan: PlanSection) -> tuple[str, str]:
+    """plan.design and plan.model: an unknown design fails now, not mid-run."""
+    get_design(plan.design)
+    return plan.design, check_model(plan.model)
 
 
-def _plan(raw: dict[str, Any]) -> tuple[str, str]:
-    """plan.design and plan.model, checked: unknown names fail now, not mid-run."""
-    plan = check_keys(raw.get("plan"), ["design", "model"], "plan")
-    design = str(plan.get("design", "an4399-8"))
-    get_design(design)
-    try:
-        model = check_model(plan.get("model", "12"))
-    except AccelcalError:
-        raise ConfigError(f"plan.model: {plan.get('model')!r}; allowed: {', '.join(MODELS)}") from None
-    return design, model
-
-
-def _capture_settings(raw: dict[str, Any]) -> CaptureSettings:
-    """capture:, over the CaptureSettings defaults (positive times and counts, k_leave >= k_enter)."""
-    cap = check_keys(raw.get("capture"), CaptureSettings.__dataclass_fields__, "capture")
-    defaults = CaptureSettings()
-    values: dict[str, Any] = {
-        k: number(cap, k, "capture", getattr(defaults, k), lo=0.0,
-                  integer=isinstance(getattr(defaults, k), int)) for k in cap}
-    settings = CaptureSettings(**values)
-    for k in ("block_s", "max_s", "settle_timeout_s", "min_samples"):
-        if getattr(settings, k) <= 0:
-            raise ConfigError(f"capture.{k}: {getattr(settings, k)!r}; allowed: a positive number")
+def _capture_settings(cap: CaptureSection) -> CaptureSettings:
+    """capture: (ranges from the schema; its defaults are CaptureSettings', a test keeps them equal)."""
+    settings = CaptureSettings(**cap.model_dump())
     if settings.k_leave < settings.k_enter:
         raise ConfigError("capture.k_leave must be >= capture.k_enter (hysteresis)")
     return settings
 
 
-def _nvm_options(raw: dict[str, Any], model: str) -> tuple[bool, int | None, bool]:
-    """nvm.write, nvm.slot_size and nvm.offset_trim (not with model 15's cubic term)."""
-    nvm = check_keys(raw.get("nvm"), ["write", "slot_size", "offset_trim"], "nvm")
-    write, trim = nvm.get("write", True), nvm.get("offset_trim", False)
-    for key, v in (("write", write), ("offset_trim", trim)):
-        if not isinstance(v, bool):
-            raise ConfigError(f"nvm.{key}: {v!r}; allowed: true, false")
-    if trim and model == "15":
-        raise ConfigError("nvm.offset_trim: the 15-parameter model's cubic term cannot be moved into "
-                          "offset registers; allowed with models 6, 9, 12")
-    slot = None if nvm.get("slot_size") is None else number(nvm, "slot_size", "nvm", lo=64, integer=True)
-    return write, slot, trim
-
-
-def _check_jig(raw: dict[str, Any]) -> None:
-    jig = raw.get("jig") or {"type": "simulated"}
-    check_keys(jig, list(jig), "jig")
-    choice(jig, "type", "jig", JIG_TYPES)
-
-
-def _verify_poses(ver: dict[str, Any], limits: Limits) -> int:
+def _verify_poses(verify_poses: int, limits: Limits) -> int:
     """verify.poses (0..64, default 3); 0 only when no limit needs the verification captures."""
-    verify_poses = number(ver, "poses", "verify", 3, 0, 64, integer=True)
     if verify_poses == 0 and "verify_error_max_mg" in limits.values:
         # without verification captures this limit would never be judged: a board would pass unchecked
         raise ConfigError("acceptance.verify_error_max_mg: needs verification captures (verify.poses: 0); "
                           "allowed: verify.poses of 1 or more, or remove the limit")
     return verify_poses
+
+
+def _web_token(raw: dict[str, Any]) -> str | None:
+    """web.token: a shared secret of 16-200 printable characters (no spaces), or absent."""
+    token = (raw.get("web") or {}).get("token")  # keys and type: the schema's
+    if token is None:
+        return None
+    if not isinstance(token, str) or not 16 <= len(token) <= 200 or not token.isprintable() or " " in token:
+        raise ConfigError("web.token: allowed: a string of 16-200 printable characters without spaces")
+    return token

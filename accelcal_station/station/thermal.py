@@ -28,7 +28,7 @@ from ..drivers.base import Clock, Driver
 from ..errors import AccelcalError, ConfigError, UnderdeterminedError
 from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.designs import get_design
-from ..fixtures.factory import board_of, make_jig
+from ..fixtures.factory import board_of, clock_of, make_jig
 from ..instruments.chamber import Chamber, ChamberStatus
 from ..instruments.factory import make_chamber
 from ..models.fitting import fit_session
@@ -128,8 +128,7 @@ class ThermalStation(Station):
                 rep.serial, rep.chip = self.serial_override or ident.serial, ident.chip
                 dev = cfg.raw["device"]
                 driver.configure(dev.get("range_g"), dev.get("odr_hz"))
-                board = board_of(driver)
-                clock = board.clock if board is not None else WallClock()
+                clock = clock_of(driver) or WallClock()  # the device's clock, from the factory
                 t0 = clock.now()
                 run_id = rep.run_id = store.start_run(
                     device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id, operator=self.operator,
@@ -139,8 +138,8 @@ class ThermalStation(Station):
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
                 try:
-                    with make_chamber(cfg.raw["chamber"], board) as chamber, \
-                            make_jig(cfg.raw.get("jig") or {"type": "simulated"}, driver, self.echo) as jig:
+                    with make_chamber(cfg.raw["chamber"], board_of(driver)) as chamber, \
+                            make_jig(cfg.raw.get("jig") or {"type": "simulated"}, driver, self.ui) as jig:
                         self._plan(driver, chamber, jig, clock, records, retries, rep)
                 except (AccelcalError, KeyboardInterrupt) as e:
                     if isinstance(e, ChamberFault):

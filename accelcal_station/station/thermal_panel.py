@@ -27,7 +27,7 @@ from ..acceptance.reasons import Reason
 from ..drivers.base import Clock
 from ..errors import AccelcalError
 from ..fixtures.base import Jig, PoseSpec
-from ..fixtures.factory import board_of
+from ..fixtures.factory import board_of, clock_of, sync_clocks
 from ..fixtures.operator_jig import OperatorAbort
 from ..instruments.chamber import Chamber, ChamberStatus
 from ..instruments.factory import couple, make_chamber
@@ -85,7 +85,7 @@ class ThermalPanelStation(PanelStation):
         sims = [board_of(b.driver) for b in live]
         with make_chamber(self.cfg.raw["chamber"], sims[0]) as chamber, \
                 (self.jig or make_panel_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, live,
-                                            self.echo)) as jig:
+                                            self.ui)) as jig:
             emu = getattr(chamber, "emulator", None)
             for s in sims[1:]:
                 if emu is not None and s is not None:
@@ -127,16 +127,11 @@ class ThermalPanelStation(PanelStation):
 
     # -- set points ------------------------------------------------------------------------
     def _clock(self, live: list[PanelBoard]) -> Clock:
-        sim = next((board_of(b.driver) for b in live if board_of(b.driver) is not None), None)
-        return sim.clock if sim is not None else WallClock()
+        return next((c for c in (clock_of(b.driver) for b in live) if c is not None), None) or WallClock()
 
     def _sync(self, boards: list[PanelBoard]) -> None:
         """Bring every simulated board's clock to the latest: the panel shares one chamber's time."""
-        clocks = {id(s.clock): s.clock for s in (board_of(b.driver) for b in boards) if s is not None}
-        if clocks:
-            t = max(c.now() for c in clocks.values())
-            for c in clocks.values():
-                c.advance_to(t)
+        sync_clocks([b.driver for b in boards])
 
     def _visit_all(self, live: list[PanelBoard], chamber: Chamber, jig: Jig, clock: Clock) -> None:
         visits = self.plan.visits()

@@ -14,13 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from ..config.checks import check_keys, choice, number
+from ..config.schema import SoakSection, ThermalSection, validate
 from ..drivers.base import Clock
 from ..errors import AccelcalError, ConfigError
 from ..instruments.chamber import Chamber, ChamberStatus
-
-SOAK_KEYS = ("tolerance_c", "band_c", "hold_s", "timeout_s", "poll_s")
-PLAN_KEYS = ("set_points_c", "verify_set_points_c", "method", "soak", "capture_band_c", "reference_c")
 
 
 class ChamberFault(AccelcalError):
@@ -56,13 +53,16 @@ class ThermalPlan:
 
     @classmethod
     def from_config(cls, d: Any, model: str, path: str = "thermal") -> ThermalPlan:
-        d = check_keys(d, PLAN_KEYS, path)
-        sps = _temps(d, "set_points_c", path, required=True)
+        """Keys, types and ranges from the schema (config/schema.py ThermalSection); here what
+        depends on several values."""
+        t = validate(d, ThermalSection, path)
+        assert isinstance(t, ThermalSection)
+        sps = _temps(t.set_points_c, "set_points_c", path)
         if len(sps) < 3:
             raise ConfigError(f"{path}.set_points_c: {len(sps)} set points; allowed: 3 or more")
         if min(np.diff(sorted(sps))) < 5.0:
             raise ConfigError(f"{path}.set_points_c: {sps}; set points must be 5 C or more apart")
-        ver = _temps(d, "verify_set_points_c", path, required=True)
+        ver = _temps(t.verify_set_points_c, "verify_set_points_c", path)
         for v in ver:
             if not sps[0] < v < sps[-1] or min(abs(v - s) for s in sps) < 2.5:
                 raise ConfigError(f"{path}.verify_set_points_c: {v:g} C; allowed: between {sps[0]:g} and "
@@ -70,32 +70,21 @@ class ThermalPlan:
         if model == "9":
             raise ConfigError(f"{path}: model 9 has no pose references to verify against; "
                               "allowed plan.model: 6, 12, 15")
-        s = check_keys(d.get("soak"), SOAK_KEYS, f"{path}.soak")
-        sp = f"{path}.soak"
-        soak = SoakRule(number(s, "tolerance_c", sp, 0.2, 0.001, 10.0), number(s, "band_c", sp, 2.0, 0.01, 20.0),
-                        number(s, "hold_s", sp, 300.0, 0.0, 86400.0), number(s, "timeout_s", sp, 5400.0, 1.0, 604800.0),
-                        number(s, "poll_s", sp, 10.0, 0.01, 3600.0))
-        return cls(tuple(sps), tuple(ver), choice(d, "method", path, ("linear", "quadratic"), "linear"), soak,
-                   number(d, "capture_band_c", path, 1.0, 0.01, 20.0),
-                   number(d, "reference_c", path, 25.0, -70.0, 180.0))
+        soak = SoakRule(**(t.soak or SoakSection()).model_dump())
+        return cls(tuple(sps), tuple(ver), t.method, soak, t.capture_band_c, t.reference_c)
 
     def visits(self) -> list[tuple[float, str]]:
         """(set point, 'calibrate' | 'verify') in ascending temperature: the chamber travels one way."""
         return sorted([(t, "calibrate") for t in self.set_points_c] + [(t, "verify") for t in self.verify_set_points_c])
 
 
-def _temps(d: dict[str, Any], key: str, path: str, required: bool) -> list[float]:
-    v = d.get(key)
-    if v is None:
-        if required:
-            raise ConfigError(f"{path}.{key}: required (a list of temperatures in C)")
-        return []
-    if not isinstance(v, list) or not v:
+def _temps(v: list[float], key: str, path: str) -> list[float]:
+    """A list of temperatures, each once, ascending (their ranges: the schema's)."""
+    if not v:
         raise ConfigError(f"{path}.{key}: {v!r}; allowed: a list of temperatures in C")
-    out = [number({key: x}, key, f"{path}.{key}", lo=-70.0, hi=180.0) for x in v]
-    if len(set(out)) != len(out):
+    if len(set(v)) != len(v):
         raise ConfigError(f"{path}.{key}: {v}; each temperature once")
-    return sorted(out)
+    return sorted(float(x) for x in v)
 
 
 def soak_until(rule: SoakRule, sp: float, chamber: Chamber, clock: Clock,

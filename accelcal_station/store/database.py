@@ -25,7 +25,6 @@ from typing import TYPE_CHECKING, Any, TypeGuard
 if TYPE_CHECKING:
     from sqlalchemy import Connection, CursorResult, Engine
 
-SCHEMES = ("sqlite:///", "postgresql://", "postgresql+psycopg://")
 _PG_LOCK_KEY = 0x61636361  # advisory lock id of schema migrations ("acca")
 
 

@@ -1,4 +1,4 @@
-"""The Effect protocol of the diagnosis: one small class per catalog effect.
+"""The GapEffect protocol of the diagnosis: one small class per catalog effect.
 
 Deterministic effects contribute design columns to the static view (pose means) or the
 time view (block means within raw captures) and are judged by held-out residuals
@@ -36,7 +36,7 @@ class Signature:
                 "reason": self.reason, **self.evidence}
 
 
-class Effect(Protocol):
+class GapEffect(Protocol):
     """One catalog effect as the diagnosis sees it."""
 
     name: str

@@ -1,7 +1,7 @@
-"""The diagnosis's catalog: one module per effect (see base.Effect)."""
+"""The diagnosis's catalog: one module per effect (see base.GapEffect)."""
 from __future__ import annotations
 
-from .base import DeterministicEffect, Effect, Signature, StochasticEffect
+from .base import DeterministicEffect, StochasticEffect
 from .cross_axis import CrossAxis
 from .cubic import Cubic
 from .drift import Drift
@@ -22,7 +22,3 @@ DETERMINISTIC: dict[str, DeterministicEffect] = {e.name: e for e in (
     CrossAxis(), Gain(), Offset(), Cubic(), Quadratic(), Temperature(), Drift(), Gravity(), Settling(), Saturation())}
 # drift is in both: a warm-up and trend fitted, and a random walk judged by its signature
 STOCHASTIC: dict[str, StochasticEffect] = {e.name: e for e in (Noise(), PoseError(), Quantization(), RandomWalk())}
-
-__all__ = ["DETERMINISTIC", "STOCHASTIC", "DeterministicEffect", "Effect", "Signature", "StochasticEffect",
-           "CrossAxis", "Cubic", "Drift", "Gain", "Gravity", "Noise", "Offset", "PoseError", "Quadratic",
-           "Quantization", "RandomWalk", "Saturation", "Settling", "Temperature"]

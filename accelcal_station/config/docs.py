@@ -1,0 +1,74 @@
+"""docs/config.md from the declared schema: ``python -m accelcal_station.config.docs > docs/config.md``.
+
+A test compares the committed file with this output, so the key reference cannot drift
+from what the station accepts."""
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from pydantic import BaseModel
+from pydantic_core import PydanticUndefined
+
+from .schema import StationConfigSchema, _models_in, _range
+
+HEADER = """# Station configuration keys
+
+Generated from `accelcal_station/config/schema.py` by
+`python -m accelcal_station.config.docs > docs/config.md`; do not edit by hand.
+
+A station config (`accelcal run --config F`, configs/*.yaml) is a YAML mapping of the
+sections below. Every key is checked before anything touches a board: an unknown key,
+a wrong type, a number that is not finite or out of its range gives one line naming the
+key path, the value and what is allowed, and exit 2.
+"""
+
+
+def _type(ann: Any) -> str:
+    text = str(ann).replace("typing.", "").replace("accelcal_station.config.schema.", "")
+    for a, b in (("<class '", ""), ("'>", ""), ("NoneType", "None"), ("Literal[True]", "true")):
+        text = text.replace(a, b)
+    return text.replace("|", "\\|")
+
+
+def _default(field: Any) -> str:
+    d = field.default
+    if d is PydanticUndefined:
+        return "required"
+    if d is None:
+        return "-"
+    return f"`{str(d).lower() if isinstance(d, bool) else d}`"
+
+
+def section_rows(model: type[BaseModel], path: str) -> list[tuple[str, type[BaseModel]]]:
+    """(key path, model) of ``model`` and every section nested in it, depth first."""
+    out = [(path, model)]
+    for name, field in model.model_fields.items():
+        for sub in dict.fromkeys(_models_in(field.annotation)):
+            if sub is not model:
+                out += section_rows(sub, f"{path}.{name}" if path else name)
+    return out
+
+
+def keys(model: type[BaseModel] = StationConfigSchema, path: str = "") -> list[str]:
+    """Every key path the schema accepts (``capture.block_s``, ``device.eeprom.size_bytes``, ...)."""
+    return [f"{p}.{k}" if p else k for p, m in section_rows(model, path) for k in m.model_fields]
+
+
+def render() -> str:
+    """The whole reference, one table per section."""
+    parts = [HEADER]
+    for path, model in section_rows(StationConfigSchema, ""):
+        title = path or "top level"
+        doc = (model.__doc__ or "").strip().splitlines()[0] if model.__doc__ and path else ""
+        parts.append(f"\n## `{title}`\n" + (f"\n{doc}\n" if doc else ""))
+        parts.append("\n| key | type | default | allowed range | meaning |\n|---|---|---|---|---|")
+        for name, field in model.model_fields.items():
+            rng = _range(model, name) or "-"
+            parts.append(f"| `{name}` | {_type(field.annotation)} | {_default(field)} | {rng} | "
+                         f"{(field.description or '').replace('|', '/')} |")
+    return "\n".join(parts) + "\n"
+
+
+if __name__ == "__main__":  # pragma: no cover - the command line form of render()
+    sys.stdout.write(render())

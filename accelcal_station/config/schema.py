@@ -1,0 +1,372 @@
+"""The station configuration's declared schema: every section and key, its type, range,
+default and meaning, in one place (pydantic v2 models).
+
+``validate_station`` checks a whole config before any section is used: an unknown key in
+any section, a wrong type, a number that is not finite or out of its range gives one line
+(key path, value, what is allowed).  The sections' own code keeps the checks that depend
+on other keys (a driver's own keys, k_leave >= k_enter, ...).  docs/config.md is generated
+from these models (``python -m accelcal_station.config.docs``).
+"""
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
+
+from ..errors import ConfigError
+
+MAX_BOARDS = 64
+
+
+class Section(BaseModel):
+    """A config section: unknown keys refused, numbers finite."""
+
+    # strict: a quoted "5" or YAML 1.1's 1e300 (a string: no dot) is not taken for a number
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+def _f(default: Any, desc: str, ge: float | None = None, le: float | None = None, gt: float | None = None) -> Any:
+    return Field(default, description=desc, ge=ge, le=le, gt=gt)
+
+
+class StationSection(Section):
+    id: str = _f("station-1", "station id recorded with every run")
+    scan_serial: StrictBool = _f(False, "ask the operator to scan each board's serial")
+    require_operator: StrictBool = _f(False, "refuse to run without --operator")
+
+
+class StoreSection(Section):
+    path: str = _f("accelcal-runs.sqlite", "results store: a SQLite file (relative to the current directory) "
+                   "or a postgresql:// URL")
+
+
+class PlanSection(Section):
+    design: str = _f("an4399-8", "pose design (accelcal poses NAME shows it)")
+    model: Literal[6, 9, 12, 15, "6", "9", "12", "15"] = _f(12, "calibration model: 6, 9, 12 or 15 parameters")
+
+
+class CaptureSection(Section):
+    block_s: float = _f(0.1, "length of one stillness block, s", gt=0, le=60)
+    k_enter: float = _f(4.5, "still: block std and mean change within k_enter x the noise floor", ge=0, le=1000)
+    k_leave: float = _f(7.0, "moving again beyond k_leave x the floor (hysteresis; >= k_enter)", ge=0, le=1000)
+    hold_s: float = _f(0.3, "the board must be still this long before averaging starts, s", ge=0, le=600)
+    target_sem_mg: float = _f(0.05, "stop averaging when every axis's standard error is below this, mg",
+                              ge=0, le=1000)
+    min_samples: int = _f(32, "fewest samples averaged per pose", gt=0, le=10_000_000)
+    max_s: float = _f(20.0, "longest averaging per pose, s", gt=0, le=86_400)
+    settle_timeout_s: float = _f(30.0, "longest wait for the board to be still, s", gt=0, le=86_400)
+    pose_tolerance_deg: float = _f(12.0, "measured gravity direction vs the planned pose, deg", ge=0, le=180)
+    max_recaptures: int = _f(3, "captures repeated when the board moved during one", ge=0, le=100)
+
+
+class AcceptanceSection(Section):
+    """PASS only if every limit given holds (acceptance/rules.py); crossval_rms_mg defaults to 10."""
+
+    residual_rms_mg: float | None = _f(None, "RMS of per-pose per-axis residuals, mg", ge=0, le=1e6)
+    residual_max_mg: float | None = _f(None, "largest per-pose per-axis residual, mg", ge=0, le=1e6)
+    crossval_rms_mg: float | None = _f(None, "leave-one-pose-out RMS, mg (10 when not set)", ge=0, le=1e6)
+    gain_error_max: float | None = _f(None, "largest |W_ii - 1|, fraction", ge=0, le=100)
+    cross_axis_max: float | None = _f(None, "largest |W_ij|, i != j, fraction", ge=0, le=100)
+    offset_max_mg: float | None = _f(None, "largest |V_i|, mg", ge=0, le=1e6)
+    cubic_max: float | None = _f(None, "largest |Gamma_ii|, 1/g^2", ge=0, le=1e6)
+    stderr_offset_max_mg: float | None = _f(None, "largest standard error of V, mg", ge=0, le=1e6)
+    stderr_gain_max: float | None = _f(None, "largest standard error of W, fraction", ge=0, le=100)
+    verify_error_max_mg: float | None = _f(None, "closed-loop verification: largest |calibrated - expected|, mg",
+                                           ge=0, le=1e6)
+
+
+class NvmSection(Section):
+    write: StrictBool = _f(True, "burn the calibration to the board's EEPROM (A/B slots, CRC-32)")
+    slot_size: int | None = _f(None, "bytes per calibration slot (default: the blob's size)", ge=64, le=65536)
+    offset_trim: StrictBool = _f(False, "also move the offset into the chip's offset registers (not model 15)")
+
+
+class VerifySection(Section):
+    poses: int = _f(3, "poses re-measured with the calibration applied (0: none)", ge=0, le=64)
+    design: str | None = _f(None, "pose design to verify on (default: the plan's)")
+
+
+class HandSection(Section):
+    """A simulated operator's hand (operator jig in CI)."""
+
+    wrong_face: list[str | int] = _f([], "poses (names or 1-based numbers) first presented on a wrong face")
+    bump: list[str | int] = _f([], "poses (names or 1-based numbers) bumped during the capture")
+    bump_after_s: float = _f(1.5, "bump this long into the capture, s", ge=0, le=60)
+    bump_s: float = _f(0.5, "bump length, s", ge=0.01, le=10)
+    bump_deg: float = _f(15.0, "bump tilt, deg", ge=0.1, le=90)
+    move_time_s: float = _f(2.0, "time the hand takes between poses, s", ge=0, le=60)
+
+
+class JigSection(Section):
+    type: Literal["simulated", "operator", "motorized"] = _f("simulated", "simulated | operator | motorized")
+    move_time_s: float = _f(2.0, "simulated: time between poses on the virtual clock, s", ge=0, le=120)
+    tolerance_deg: float | None = _f(None, "operator: pose tolerance, deg (12); motorized: position "
+                                     "tolerance, deg (0.02)", ge=1e-4, le=45)
+    hand: HandSection | Literal[True] | None = _f(None, "operator: a simulated hand instead of a person (CI); "
+                                                  "true for the default hand")
+    port: str | None = _f(None, "motorized: serial port (or 'emulated')")
+    baud: int = _f(115200, "motorized: serial baud rate", ge=300, le=4_000_000)
+    timeout_s: float = _f(0.5, "motorized: reply timeout, s", ge=0.01, le=60)
+    retries: int = _f(2, "motorized: retries of a command", ge=0, le=10)
+    speed_deg_s: float | None = _f(None, "motorized: axis speed, deg/s", gt=0, le=1e4)
+    accel_deg_s2: float | None = _f(None, "motorized: axis acceleration, deg/s^2", gt=0, le=1e6)
+    home_on_open: StrictBool = _f(True, "motorized: home the axes when the port opens")
+    move_margin_s: float = _f(2.0, "motorized: extra time allowed for a move, s", ge=0, le=600)
+    settle_s: float = _f(0.0, "motorized: wait after a move, s", ge=0, le=60)
+    poll_s: float = _f(0.01, "motorized: status poll interval, s", ge=0.001, le=5)
+    axis_sign: list[int] | None = _f(None, "motorized: sign of each axis [pitch, roll]")
+    axis_offset_deg: list[float] | None = _f(None, "motorized: zero offset of each axis [pitch, roll], deg")
+
+
+class EepromSection(Section):
+    size_bytes: int = _f(4096, "simulated: EEPROM size, bytes", ge=1, le=2**20)
+    page_bytes: int = _f(32, "simulated: page size, bytes", ge=1, le=4096)
+    write_cycle_ms: float = _f(5.0, "write cycle time, ms", ge=0, le=1000)
+    fail_at_write: int | None = _f(None, "simulated: fail at this write (power-loss tests)", ge=1, le=2**31)
+    image: str | None = _f(None, "simulated: keep the EEPROM in this file between commands")
+    address: int = _f(0x50, "mma8451: EEPROM I2C address", ge=0x50, le=0x57)
+    size: int = _f(4096, "mma8451: EEPROM size, bytes", ge=4096, le=65536)
+    page_size: int = _f(32, "mma8451: page size, bytes", ge=8, le=256)
+
+
+class SimulatorSection(Section):
+    effects: dict[str, dict[str, Any] | None] | None = _f(
+        None, "effects of the catalog (sim/sensor_model.py EFFECTS), each with its parameters")
+
+
+class BusEmulatorSection(Section):
+    """mma8451 ``bus: emulated``: the register-level emulator's faults."""
+
+    chip_id: int = _f(0x1A, "WHO_AM_I value the emulated chip answers", ge=0, le=255)
+    nack_every: int = _f(0, "NACK every Nth bus transaction (0: never)", ge=0, le=1000)
+    never_ready: StrictBool = _f(False, "the data-ready flag never sets")
+    present: StrictBool = _f(True, "the chip answers on the bus at all")
+    bus_hz: float = _f(400_000.0, "I2C clock of the emulated bus, Hz", ge=10_000, le=3_400_000)
+
+
+class MuxSection(Section):
+    address: int = _f(0x70, "TCA9548A I2C address", ge=0x70, le=0x77)
+
+
+class SpreadSection(Section):
+    offset_mg: float = _f(0.0, "panel: per-board offset spread (standard deviation), mg", ge=0, le=1000)
+    gain: float = _f(0.0, "panel: per-board gain spread (standard deviation), fraction", ge=0, le=0.5)
+
+
+class DeviceSection(Section):
+    """The board's driver and its settings (each driver accepts its own keys, named below)."""
+
+    driver: Literal["simulated", "mma8451", "mpu6050"] = _f("simulated", "simulated | mma8451 | mpu6050")
+    chip: str | None = _f(None, "simulated: chip (mma8451, mpu6050)")
+    range_g: Literal[2, 4, 8, 16] = _f(2, "full scale, g")
+    odr_hz: float | None = _f(None, "output data rate, Hz", gt=0, le=10_000)
+    dlpf: int | None = _f(None, "simulated/mpu6050: digital low-pass filter setting", ge=0, le=6)
+    seed: int | None = _f(None, "simulated/emulated: random seed (default: fresh, recorded)", ge=0, le=2**63 - 1)
+    serial: str | None = _f(None, "board serial number")
+    realtime: StrictBool = _f(False, "simulated: sleep the wall time as the virtual clock runs")
+    ambient_c: float = _f(25.0, "simulated: board temperature, C", ge=-60, le=150)
+    self_heating_c: float = _f(0.0, "simulated: warm-up of the board, C", ge=0, le=50)
+    eeprom: EepromSection | None = _f(None, "the board's calibration EEPROM")
+    simulator: SimulatorSection | DeviceSection | str | None = _f(
+        None, "simulated: the forward sensor model ({effects: ...}); emulated mpu6050: a board mapping "
+        "(these keys) or the path of a simulator YAML file")
+    effects: dict[str, dict[str, Any] | None] | None = _f(None, "simulated: effects (as simulator.effects)")
+    bus: int | str | None = _f(None, "mma8451: I2C bus number, /dev/i2c-N or 'emulated'")
+    address: int | None = _f(None, "mma8451: I2C address (0x1c or 0x1d)", ge=0, le=0x7F)
+    oversampling: str | None = _f(None, "mma8451: oversampling mode")
+    retries: int | None = _f(None, "mma8451/mpu6050: retries of a bus or serial transaction", ge=0, le=20)
+    timeout_s: float | None = _f(None, "mma8451/mpu6050: transaction timeout, s", ge=0.001, le=60)
+    offset_trim_lsb: float | None = _f(None, "mma8451: offset register LSB, mg", gt=0, le=100)
+    emulator: BusEmulatorSection | None = _f(None, "mma8451 bus: emulated: the emulator's faults")
+    port: str | None = _f(None, "mpu6050: serial port of the bridge (or 'emulated')")
+    baud: int | None = _f(None, "mpu6050: serial baud rate", ge=1200, le=4_000_000)
+    boot_wait_s: float | None = _f(None, "mpu6050: wait for the bridge to boot, s", ge=0, le=30)
+    boards: int | list[DeviceSection] | None = _f(None, f"panel: a count 1..{MAX_BOARDS} or a list of "
+                                                  "per-board device mappings (these keys, overriding the panel's)")
+    spread: SpreadSection | None = _f(None, "panel, simulated: per-board spread of offset and gain")
+    mux: MuxSection | None = _f(None, "panel on one I2C bus: a TCA9548A multiplexer")
+    channel: int | None = _f(None, "panel board: multiplexer channel", ge=0, le=7)
+    seated_deg: list[float] | None = _f(None, "simulated panel board: how it really sits in its slot, an [x, y, z] "
+                                        "rotation vector in degrees")
+
+
+class SoakSection(Section):
+    tolerance_c: float = _f(0.2, "board temperature stable within this, C", ge=0.001, le=10)
+    band_c: float = _f(2.0, "board within this of the set point, C", ge=0.01, le=20)
+    hold_s: float = _f(300.0, "stable for this long, s", ge=0, le=86_400)
+    timeout_s: float = _f(5400.0, "give up soaking after this long, s", ge=1, le=604_800)
+    poll_s: float = _f(10.0, "temperature poll interval, s", ge=0.01, le=3600)
+
+
+TempC = Annotated[float, Field(ge=-70, le=180)]
+
+
+class ThermalSection(Section):
+    set_points_c: list[TempC] = _f(..., "calibration temperatures, C (-70 to 180 each; 3 or more, 5 C apart)")
+    verify_set_points_c: list[TempC] = _f(..., "verification temperatures not used in the fit, C (between the "
+                                          "calibration set points, 2.5 C or more from each)")
+    method: Literal["linear", "quadratic"] = _f("linear", "interpolation of every parameter in temperature")
+    soak: SoakSection | None = _f(None, "when a set point is reached")
+    capture_band_c: float = _f(1.0, "board temperature during a capture within this of the set point, C",
+                               ge=0.01, le=20)
+    reference_c: float = _f(25.0, "temperature of the reported single calibration, C", ge=-70, le=180)
+
+
+class ChamberFaultsSection(Section):
+    min_air_c: float = _f(-75.0, "coldest air the emulated chamber reaches, C", ge=-100, le=200)
+    max_air_c: float = _f(180.0, "hottest air, C", ge=-100, le=300)
+    alarm_at_s: float | None = _f(None, "raise an alarm at this time, s", ge=0, le=1e7)
+    alarm_code: int = _f(3, "alarm code raised", ge=1, le=99)
+    door_open_at_s: float | None = _f(None, "open the door at this time, s", ge=0, le=1e7)
+    door_open_s: float = _f(60.0, "door open this long, s", ge=0, le=1e5)
+    stall_at_s: float | None = _f(None, "stop answering at this time, s", ge=0, le=1e7)
+
+
+class ChamberEmulatorSection(Section):
+    start_c: float = _f(25.0, "air and board temperature at start, C", ge=-70, le=150)
+    room_c: float = _f(25.0, "room temperature, C", ge=-20, le=50)
+    air_tau_s: float = _f(180.0, "air time constant, s", ge=1, le=1e5)
+    board_tau_s: float = _f(300.0, "board time constant, s", ge=1, le=1e5)
+    door_tau_s: float = _f(60.0, "time constant with the door open, s", ge=1, le=1e5)
+    faults: ChamberFaultsSection | None = _f(None, "faults injected into the emulated chamber")
+
+
+class ChamberSection(Section):
+    driver: Literal["ascii"] = _f("ascii", "chamber protocol (docs/chamber-protocol.md)")
+    port: str | None = _f(None, "serial port, or 'emulated'")
+    baud: int = _f(9600, "serial baud rate", ge=300, le=1_000_000)
+    timeout_s: float = _f(1.0, "reply timeout, s", ge=0.01, le=60)
+    retries: int = _f(2, "retries of a command", ge=0, le=10)
+    min_c: float = _f(-70.0, "lowest set point allowed, C", ge=-100, le=200)
+    max_c: float = _f(180.0, "highest set point allowed, C", ge=-100, le=300)
+    emulator: ChamberEmulatorSection | None = _f(None, "the emulated chamber's physics and faults")
+
+
+class WebSection(Section):
+    """``accelcal serve`` and ``accelcal run --ui web``."""
+
+    token: str | None = _f(None, "shared secret that starting or aborting a run over the web API needs: "
+                           "16-200 printable characters, no spaces")
+
+
+class StationConfigSchema(Section):
+    """A station configuration file (configs/*.yaml)."""
+
+    station: StationSection | None = _f(None, "the station's identity and operator rules")
+    store: StoreSection | None = _f(None, "where runs are recorded")
+    device: DeviceSection = _f(..., "the board (or panel of boards) and its driver")
+    jig: JigSection | None = _f(None, "the fixture that holds the board")
+    plan: PlanSection | None = _f(None, "pose design and model")
+    capture: CaptureSection | None = _f(None, "stillness gating and averaging at each pose")
+    acceptance: AcceptanceSection | None = _f(None, "limits for PASS")
+    nvm: NvmSection | None = _f(None, "burning the calibration")
+    verify: VerifySection | None = _f(None, "closed-loop verification after the burn")
+    thermal: ThermalSection | None = _f(None, "a thermal plan: a calibration at each set point")
+    chamber: ChamberSection | None = _f(None, "the thermal chamber (thermal plans)")
+    web: WebSection | None = _f(None, "the web pages and API (accelcal serve, accelcal run --ui web)")
+
+
+def _models_in(ann: Any) -> list[type[BaseModel]]:
+    """The section models inside a field's annotation (``X | None``, ``list[X]``, ...)."""
+    if isinstance(ann, type) and issubclass(ann, BaseModel):
+        return [ann]
+    return [m for a in getattr(ann, "__args__", ()) for m in _models_in(a)]
+
+
+def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The section model a validation error's location (without its last key) points into."""
+    for part in loc:
+        if isinstance(part, int):
+            continue  # an item of a list of sections
+        if part not in model.model_fields:
+            return None
+        nested = _models_in(model.model_fields[part].annotation)
+        if not nested:
+            return None
+        model = nested[0]
+    return model
+
+
+def _path(where: str, loc: tuple[Any, ...]) -> str:
+    out = where
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def _range(model: type[BaseModel] | None, key: Any) -> str:
+    """``0 to 64``, ``above 0 to 60`` (exclusive lower bound), or '' when unbounded."""
+    if model is None or key not in model.model_fields:
+        return ""
+    ge = gt = le = None
+    for m in model.model_fields[key].metadata:
+        ge = getattr(m, "ge", None) if getattr(m, "ge", None) is not None else ge
+        gt = getattr(m, "gt", None) if getattr(m, "gt", None) is not None else gt
+        le = getattr(m, "le", None) if getattr(m, "le", None) is not None else le
+    if ge is None and gt is None and le is None:
+        return ""
+    lo = _num(ge) if ge is not None else (f"above {_num(gt)}" if gt is not None else "-inf")
+    return f"{lo} to {'inf' if le is None else _num(le)}"
+
+
+def _num(v: float) -> str:
+    return str(v) if isinstance(v, int) else f"{v:g}"
+
+
+def _choices(model: type[BaseModel] | None, key: Any) -> str:
+    """A Literal field's allowed values, as people write them (``6, 9, 12, 15``)."""
+    if model is None or key not in model.model_fields:
+        return ""
+    args = getattr(model.model_fields[key].annotation, "__args__", ())
+    vals = [a for a in args if isinstance(a, (str, int))]
+    return ", ".join(dict.fromkeys(str(v) for v in vals))
+
+
+def error_line(err: dict[str, Any], root: type[BaseModel], where: str = "") -> str:
+    """One line for a pydantic error: key path, value, what is allowed."""
+    loc = tuple(p for p in err["loc"] if isinstance(p, int) or not _is_tag(p))
+    path, kind, value = _path(where, loc), err["type"], err.get("input")
+    parent = _model_at(root, loc[:-1]) if loc else root
+    key = loc[-1] if loc else None
+    if kind == "extra_forbidden":
+        allowed = ", ".join(parent.model_fields) if parent is not None else ""
+        return f"{path}: unknown key; allowed: {allowed}"
+    if kind == "missing":
+        return f"{path}: required"
+    rng = _range(parent, key)
+    if kind == "finite_number":
+        return f"{path}: {value!r} is not a finite number; allowed: {rng or 'a finite number'}"
+    if kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
+        return f"{path}: {value!r} out of range; allowed: {rng}"
+    if kind.startswith("int_") and isinstance(value, float) and not math.isfinite(value):
+        return f"{path}: {value!r} is not a finite number; allowed: a whole number" + (f" {rng}" if rng else "")
+    if kind.startswith("int_"):
+        return f"{path}: {value!r}; allowed: a whole number" + (f" {rng}" if rng else "")
+    if kind == "literal_error":
+        return f"{path}: {value!r}; allowed: {_choices(parent, key)}"
+    return f"{path}: {value!r}; allowed: {err['msg'].removeprefix('Input should be ')}" + (f" ({rng})" if rng else "")
+
+
+def _is_tag(part: str) -> bool:
+    """pydantic's union-member tags in a location (``int``, ``list[...]``, ``function-...``)."""
+    return part.startswith(("function-", "list[", "dict[", "literal[")) or part in ("int", "str", "float", "bool") \
+        or part[:1].isupper()
+
+
+def validate(data: Any, model: type[BaseModel], where: str = "") -> BaseModel:
+    """``model`` checked from ``data``; the first error as one ConfigError line."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as e:
+        # a union (``boards: 5`` or a list of mappings) reports every member's error: the one
+        # reaching deepest into the data says what is wrong
+        # (an unknown key before a missing one at the same depth: the typo is the likelier cause)
+        errs = sorted(e.errors(), key=lambda x: (-len([p for p in x["loc"] if isinstance(p, int) or not _is_tag(p)]),
+                                                 x["type"] != "extra_forbidden"))
+        raise ConfigError(error_line(dict(errs[0]), model, where)) from None
+
+
+def validate_station(raw: dict[str, Any]) -> StationConfigSchema:
+    """A whole station config against the schema (ConfigError: one line)."""
+    return validate(raw, StationConfigSchema)  # type: ignore[return-value]

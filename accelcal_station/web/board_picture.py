@@ -1,0 +1,101 @@
+"""The board drawn in a pose: a box in the board's axes, turned so that the pose's expected
+gravity direction points down the screen, seen from the front, above and to the right.
+
+The turn is the smallest rotation taking the pose's expected output direction ``r``
+(AN4399: positive along gravity, so ``r`` is "down" in board axes) onto world down,
+by Rodrigues' formula R = I + [k]x sin t + [k]x^2 (1 - cos t).  Faces are drawn back to
+front (painter's algorithm on a convex box); the axis arrows show where x, y, z point.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+HALF_MM = np.array([34.0, 22.0, 3.0])  # board half-sizes along x, y, z
+DOWN = np.array([0.0, 0.0, -1.0])  # world z up
+VIEW_AZ_DEG, VIEW_EL_DEG = 35.0, 22.0
+SCALE = 2.6
+FACES = [("x+", 0, 1), ("x-", 0, -1), ("y+", 1, 1), ("y-", 1, -1), ("z+", 2, 1), ("z-", 2, -1)]
+
+
+def rotation_to_down(ref_g: np.ndarray) -> np.ndarray:
+    """The smallest rotation R with R @ (ref/|ref|) = world down (Rodrigues)."""
+    a = np.asarray(ref_g, dtype=float)
+    a = a / np.linalg.norm(a)
+    k = np.cross(a, DOWN)
+    s, c = float(np.linalg.norm(k)), float(a @ DOWN)
+    if s < 1e-9:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])  # already down, or a half turn about x
+    k = k / s
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + K * s + K @ K * (1 - c)
+
+
+def _camera() -> np.ndarray:
+    """Rows: screen right, screen up, towards the viewer (world coordinates)."""
+    az, el = np.radians(VIEW_AZ_DEG), np.radians(VIEW_EL_DEG)
+    toward = np.array([np.cos(el) * np.sin(az), -np.cos(el) * np.cos(az), np.sin(el)])
+    right = np.cross(np.array([0.0, 0.0, 1.0]), toward)
+    right /= np.linalg.norm(right)
+    up = np.cross(toward, right)
+    return np.vstack([right, up, toward])
+
+
+def _xy(cam: np.ndarray, p: np.ndarray, cx: float, cy: float) -> tuple[float, float]:
+    v = cam @ p
+    return cx + SCALE * float(v[0]), cy - SCALE * float(v[1])
+
+
+def picture(ref_g: np.ndarray, size: float = 320.0) -> dict[str, Any]:
+    """Polygons (faces, back to front) and arrows (axes, gravity) in a ``size`` square viewBox."""
+    R, cam = rotation_to_down(ref_g), _camera()
+    cx = cy = size / 2
+    faces: list[dict[str, Any]] = []
+    lowest = cy
+    for face, axis, sign in FACES:
+        normal = np.zeros(3)
+        normal[axis] = sign
+        n_world = R @ normal
+        depth = float(cam[2] @ n_world)
+        if depth <= 1e-6:
+            continue  # facing away
+        others = [i for i in range(3) if i != axis]
+        corners = []
+        for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+            p = normal * HALF_MM
+            p[others[0]] = su * HALF_MM[others[0]]
+            p[others[1]] = sv * HALF_MM[others[1]]
+            corners.append(_xy(cam, R @ p, cx, cy))
+            lowest = max(lowest, corners[-1][1])
+        faces.append({"face": face, "depth": depth, "shade": round(0.55 + 0.45 * depth, 3),
+                      "points": " ".join(f"{x:.1f},{y:.1f}" for x, y in corners)})
+    faces.sort(key=lambda f: float(f["depth"]))
+    arrows: list[dict[str, Any]] = []
+    for i, name in enumerate("xyz"):
+        tip = R @ (np.eye(3)[i] * (HALF_MM[i] + 26.0))
+        x1, y1 = _xy(cam, np.zeros(3), cx, cy)
+        x2, y2 = _xy(cam, tip, cx, cy)
+        arrows.append({"axis": name, "x1": x1, "y1": y1, "x2": x2, "y2": y2,
+                       "front": bool(cam[2] @ tip >= -1e-9)})
+    gx, gy1 = size - 26.0, 40.0
+    return {"size": size, "faces": faces, "arrows": arrows,
+            "gravity": {"x1": gx, "y1": gy1, "x2": gx, "y2": gy1 + 70.0},
+            "ground_y": lowest + 6}
+
+
+def level_xy(reading_g: np.ndarray, ref_g: np.ndarray, full_scale_deg: float = 30.0) -> tuple[float, float]:
+    """Where the bubble sits: the reading's tilt from the pose, in a plane across the pose's
+    direction, scaled so ``full_scale_deg`` reaches the rim (clipped to the rim)."""
+    r = np.asarray(ref_g, dtype=float) / np.linalg.norm(ref_g)
+    g = np.asarray(reading_g, dtype=float)
+    g = g / max(float(np.linalg.norm(g)), 1e-12)
+    u = np.cross(r, [0.0, 0.0, 1.0] if abs(r[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(r, u)
+    d = g - (g @ r) * r  # the part of the reading across the pose's direction
+    ang = float(np.degrees(np.arctan2(np.linalg.norm(d), g @ r)))
+    if np.linalg.norm(d) < 1e-12:
+        return 0.0, 0.0
+    frac = min(ang / full_scale_deg, 1.0) / float(np.linalg.norm(d))
+    return float(d @ u) * frac, float(d @ v) * frac

@@ -1,0 +1,65 @@
+"""The operator page's application (served by `accelcal run --ui web` beside the station).
+
+``GET /`` the page; ``GET /operator/state`` what to show now; ``POST /operator/answer``
+the operator's button or key (JSON only, so another site's form cannot press it);
+``POST /api/v1/station/abort`` aborts the run for the MES, with the config's web.token
+as a bearer token (refused without one: the API is read-only by default).
+"""
+from __future__ import annotations
+
+import hmac
+from typing import Any, Literal
+
+from fastapi import FastAPI, Header, Request
+from fastapi.responses import HTMLResponse, JSONResponse
+from pydantic import BaseModel, Field
+
+from . import assets
+from .errors import ApiError, install_errors
+from .operator import WebOperator
+
+
+class AnswerIn(BaseModel):
+    answer: Literal["accept", "replace", "skip", "abort", "serial"]
+    serial: str | None = Field(None, max_length=200)
+
+
+def _json_only(request: Request) -> None:
+    if request.headers.get("content-type", "").split(";")[0].strip() != "application/json":
+        raise ApiError(415, "unsupported_media_type", "send the answer as application/json")
+
+
+def create_operator_app(ui: WebOperator, token: str | None) -> FastAPI:
+    app = FastAPI(title="accelcal operator station", version="v1", openapi_url="/openapi.json",
+                  docs_url=None, redoc_url=None)
+    install_errors(app)
+    app.include_router(assets.router)
+
+    @app.get("/", response_class=HTMLResponse, include_in_schema=False)
+    def page() -> HTMLResponse:
+        return assets.render("operator.html", title=f"Operator · {ui.state['station']}", page="operator",
+                             station=ui.state["station"])
+
+    @app.get("/operator/state", summary="What the operator page shows now")
+    def state() -> JSONResponse:
+        return JSONResponse(ui.snapshot(), headers={"Cache-Control": "no-store"})
+
+    @app.post("/operator/answer", summary="The operator's answer at the current question")
+    def answer(body: AnswerIn, request: Request) -> dict[str, Any]:
+        _json_only(request)
+        if not ui.answer(body.answer, body.serial):
+            raise ApiError(409, "not_asked", f"{body.answer}: nothing is being asked that this answers now")
+        return {"ok": True}
+
+    @app.post("/api/v1/station/abort", summary="Abort the run at its current question (needs web.token)")
+    def abort(authorization: str | None = Header(None)) -> dict[str, Any]:
+        if token is None:
+            raise ApiError(403, "read_only", "this station has no web.token in its config: the API is read-only")
+        given = (authorization or "").removeprefix("Bearer ").strip()
+        if not hmac.compare_digest(given.encode(), token.encode()):
+            raise ApiError(401, "unauthorized", "Authorization: Bearer <web.token> required")
+        if not ui.answer("abort"):
+            raise ApiError(409, "not_asked", "the station is not waiting for the operator; abort at the next question")
+        return {"ok": True}
+
+    return app

@@ -1,0 +1,39 @@
+"""Running an application with uvicorn: in the foreground (`accelcal serve`) or in a thread
+beside a station (`accelcal run --ui web`)."""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import uvicorn
+
+
+def _config(app: Any, host: str, port: int) -> uvicorn.Config:
+    # h11 and asyncio only: the same on every machine, no optional C speedups needed
+    return uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
+                          http="h11", loop="asyncio", lifespan="off", timeout_graceful_shutdown=2)
+
+
+def serve_forever(app: Any, host: str, port: int) -> None:
+    uvicorn.Server(_config(app, host, port)).run()
+
+
+class BackgroundServer:
+    """A uvicorn server on a daemon thread; ``stop()`` ends it."""
+
+    def __init__(self, app: Any, host: str, port: int) -> None:
+        self.server = uvicorn.Server(_config(app, host, port))
+        self.thread = threading.Thread(target=self.server.run, name="web-ui", daemon=True)
+
+    def start(self, timeout_s: float = 10.0) -> None:
+        self.thread.start()
+        t0 = time.monotonic()
+        while not self.server.started:
+            if not self.thread.is_alive() or time.monotonic() - t0 > timeout_s:
+                raise OSError("the web server did not start (is the port in use?)")
+            time.sleep(0.02)
+
+    def stop(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=5)

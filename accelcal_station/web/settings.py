@@ -1,0 +1,25 @@
+"""What a web server reads: the store, the limits to draw, the token; and the store for one request."""
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+from ..store.runs import Store
+
+
+@dataclass
+class WebSettings:
+    """What a server reads: the store, the acceptance limits to draw, the token for writes."""
+
+    store: str
+    limits: dict[str, float] = field(default_factory=dict)
+    token: str | None = None
+    poll_s: float = 0.5  # how often the events stream looks for finished runs
+
+
+@contextmanager
+def open_store(settings: WebSettings) -> Iterator[Store]:
+    """The store for one request, read-only (never created by a reader)."""
+    with Store(settings.store, create=False) as st:
+        yield st

@@ -1,0 +1,170 @@
+"""The declared station-config schema: docs/config.md generated from it, every key the code
+reads declared in it, one line for an unknown key in any section or a number out of range."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from accelcal_station.acceptance.rules import LIMIT_KEYS
+from accelcal_station.cli import cli
+from accelcal_station.config.docs import keys, render, section_rows
+from accelcal_station.config.schema import StationConfigSchema, validate_station
+from accelcal_station.config.sections import default_config_path
+from accelcal_station.drivers.mma8451 import MMA8451
+from accelcal_station.drivers.mpu6050 import MPU6050Bridge
+from accelcal_station.drivers.simulated import BOARD_KEYS, EEPROM_KEYS
+from accelcal_station.fixtures.motorized_jig import MotorizedJig
+from accelcal_station.fixtures.simulated_hand import HAND_KEYS
+from accelcal_station.station.capture import CaptureSettings
+from accelcal_station.station.identity import IDENTITY_KEYS
+from accelcal_station.station.thermal_plan import SoakRule, ThermalPlan
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_docs_config_md_is_generated_from_the_schema() -> None:
+    assert (REPO / "docs" / "config.md").read_text() == render(), \
+        "regenerate: python -m accelcal_station.config.docs > docs/config.md"
+
+
+def _sections_read() -> tuple[str, ...]:
+    """Every top-level section the package reads from a raw config (``raw["x"]``, ``raw.get("x")``)."""
+    import re
+    found = {m for f in (REPO / "accelcal_station").rglob("*.py")
+             for m in re.findall(r"\braw(?:\[|\.get\()\"(\w+)\"", f.read_text())}
+    assert {"device", "jig", "thermal", "chamber"} <= found, found  # the scan itself works
+    return tuple(sorted(found))
+
+
+def test_schema_defaults_are_the_settings_defaults() -> None:
+    from accelcal_station.config.schema import CaptureSection, SoakSection
+    assert CaptureSection().model_dump() == CaptureSettings().__dict__
+    assert SoakSection().model_dump() == SoakRule().__dict__
+
+
+def test_every_key_the_code_reads_is_in_the_schema() -> None:
+    # the key lists the sections' own code checks against (drivers, jigs, station, chamber)
+    code: dict[str, tuple[str, ...]] = {
+        "": _sections_read(), "acceptance": tuple(LIMIT_KEYS), "capture": tuple(CaptureSettings.__dataclass_fields__),
+        "station": ("id", *IDENTITY_KEYS), "thermal": tuple(ThermalPlan.__dataclass_fields__),
+        "thermal.soak": tuple(SoakRule.__dataclass_fields__),
+        "device": BOARD_KEYS + MMA8451.CONFIG_KEYS + MPU6050Bridge.CONFIG_KEYS + ("driver", "boards", "spread", "mux"),
+        "device.eeprom": EEPROM_KEYS, "jig": MotorizedJig.CONFIG_KEYS + ("type", "move_time_s", "hand"),
+        "jig.hand": HAND_KEYS,
+        "plan": ("design", "model"), "nvm": ("write", "slot_size", "offset_trim"), "verify": ("poses", "design"),
+        "store": ("path",),
+    }
+    declared = set(keys())
+    missing = [f"{s}.{k}" if s else k for s, ks in code.items() for k in ks if (f"{s}.{k}" if s else k) not in declared]
+    assert not missing, missing
+    doc = (REPO / "docs" / "config.md").read_text()
+    for path, model in section_rows(StationConfigSchema, ""):
+        assert f"## `{path or 'top level'}`" in doc
+        assert all(f"| `{k}` |" in doc for k in model.model_fields)
+
+
+def _leaves(d: Any, path: str = "") -> list[str]:
+    if not isinstance(d, dict):
+        return [path.rstrip(".")]
+    return [p for k, v in d.items() for p in ([path + k] if k == "effects" else _leaves(v, f"{path}{k}."))]
+
+
+@pytest.mark.parametrize("config", sorted((REPO / "configs").glob("*.yaml")), ids=lambda p: p.name)
+def test_shipped_configs_validate_and_use_declared_keys(config: Path) -> None:
+    raw = yaml.safe_load(config.read_text())
+    validate_station(raw)
+    declared = set(keys())
+    # an emulated mpu6050's device.simulator is a board mapping: the device keys again
+    undeclared = [p for p in _leaves(raw) if p not in declared and p.replace("device.simulator.", "device.")
+                  not in declared]
+    assert not undeclared, undeclared
+
+
+def _put(cfg: dict, path: str, key: str, value: Any) -> None:
+    node = cfg
+    for part in [p for p in path.split(".") if p]:
+        nxt = node.get(part)
+        if not isinstance(nxt, dict):
+            nxt = {} if part != "boards" else {}
+            node[part] = nxt
+        node = nxt
+    node[key] = value
+
+
+def _write(tmp_path: Path, cfg: dict) -> str:
+    p = tmp_path / "station.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    return str(p)
+
+
+def _one_line(r: Any) -> str:
+    assert r.exit_code == 2, r.output
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    return lines[0]
+
+
+SECTIONS = [p for p, _ in section_rows(StationConfigSchema, "") if ".boards" not in p]
+
+
+@pytest.mark.parametrize("section", SECTIONS, ids=lambda s: s or "top")
+def test_an_unknown_key_in_any_section_is_one_line_naming_the_allowed_keys(tmp_path: Path, section: str) -> None:
+    cfg = yaml.safe_load(default_config_path().read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    _put(cfg, section, "bogus_key", 1)
+    r = CliRunner().invoke(cli, ["run", "--config", _write(tmp_path, cfg)])
+    line = _one_line(r)
+    model = dict(section_rows(StationConfigSchema, ""))[section]
+    where = f"{section}.bogus_key" if section else "bogus_key"
+    assert line.startswith(f"error: {where}: unknown key; allowed: "), line
+    assert line.endswith(", ".join(model.model_fields)), line
+
+
+@pytest.mark.parametrize(("section", "key", "text", "shown"), [
+    ("capture", "block_s", "1.0e+300", "1e+300"),
+    ("capture", "target_sem_mg", "1e300", "'1e300'"),  # YAML 1.1: no dot, a string
+    ("device", "odr_hz", str(2**64), str(2**64)),
+    ("acceptance", "residual_rms_mg", "1.0e+300", "1e+300"),
+    ("device.eeprom", "size_bytes", str(2**64), str(2**64)),
+])
+def test_huge_config_numbers_are_one_line(tmp_path: Path, section: str, key: str, text: str, shown: str) -> None:
+    cfg = yaml.safe_load(default_config_path().read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    _put(cfg, section, key, "@@")
+    p = _write(tmp_path, cfg)
+    Path(p).write_text(Path(p).read_text().replace("'@@'", text))
+    r = CliRunner().invoke(cli, ["run", "--config", p])
+    line = _one_line(r)
+    assert line.startswith(f"error: {section}.{key}: {shown}"), line
+    assert "allowed:" in line and " to " in line, line
+    # under --json the same line is one JSON object on stdout
+    rj = CliRunner().invoke(cli, ["run", "--config", p, "--json"])
+    assert rj.exit_code == 2
+    assert json.loads(rj.stdout)["error"] == line.removeprefix("error: ")
+
+
+def test_a_chamber_without_pyvisa_is_one_line_naming_the_extra(tmp_path: Path) -> None:
+    """pyvisa is the optional ``chamber`` extra: a thermal plan without it is refused before any
+    emulator or port opens (pyvisa hidden from a real interpreter by a None sys.modules entry)."""
+    import subprocess
+    import sys
+    code = ("import sys; sys.modules['pyvisa'] = None; sys.modules['pyvisa_py'] = None\n"
+            "from accelcal_station.cli import main\n"
+            f"sys.argv = ['accelcal', 'run', '--config', {str(REPO / 'configs' / 'thermal-sim.yaml')!r}]\n"
+            "main()\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert "pyvisa" in lines[0] and "accelcal-station[chamber]" in lines[0], lines[0]
+
+
+def test_paths_named_in_the_shipped_configs_exist() -> None:
+    import re
+    for config in sorted((REPO / "configs").glob("*.yaml")):
+        for name in re.findall(r"[\w./-]+/[\w.-]+\.(?:md|py)\b", config.read_text()):
+            assert (REPO / name).exists(), f"{config.name} names {name}, which is not in the repository"
