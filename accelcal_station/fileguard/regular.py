@@ -51,7 +51,7 @@ def check_regular(path: str | Path, what: str, error: type[AccelcalError] = Data
     try:
         st = os.stat(p)
     except (OSError, ValueError) as e:  # ValueError: a NUL byte in the name
-        raise error(f"{p}: cannot read ({getattr(e, 'strerror', None) or e}); expected {what}") from None
+        raise error(f"{p}: cannot read ({getattr(e, 'strerror', None) or e})") from None
     if not stat.S_ISREG(st.st_mode):
         raise error(f"{p}: {_kind(st.st_mode)}; allowed: a regular file ({what})")
     if _on_pseudo_fs(p, st):
@@ -66,7 +66,7 @@ def open_regular(path: str | Path, what: str, error: type[AccelcalError] = DataE
     try:
         fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
     except OSError as e:
-        raise error(f"{p}: cannot read ({e.strerror or e}); expected {what}") from None
+        raise error(f"{p}: cannot read ({e.strerror or e})") from None
     try:
         now = os.fstat(fd)
         if not stat.S_ISREG(now.st_mode) or (now.st_dev, now.st_ino) != (st.st_dev, st.st_ino):
@@ -92,7 +92,7 @@ def read_bytes(path: str | Path, what: str, limit_bytes: int, why: str,
         try:
             data = f.read(limit_bytes + 1)
         except OSError as e:
-            raise error(f"{p}: cannot read ({e.strerror or e}); expected {what}") from None
+            raise error(f"{p}: cannot read ({e.strerror or e})") from None
     if len(data) > limit_bytes:  # grew while read
         raise error(f"{p}: more than {_size_text(limit_bytes)}; {what} is at most that ({why})")
     return data
