@@ -26,7 +26,9 @@ from .diagnosis.result import Diagnosis
 from .errors import AccelcalError, DataError, UnderdeterminedError, UnitsError
 from .fixtures.designs import get_design
 from .fixtures.simulated_run import SimulatedRun, run_design, simulated_board
+from .models.choice import choose_model, with_face_references
 from .models.fitting import fit_session, fit_temperature
+from .models.handplaced import norm_faces
 from .models.result import FitResult
 from .session import Session
 
@@ -63,7 +65,7 @@ def _as_loaded(data: str | Path | Loaded | Session, model: str | None) -> tuple[
         return data, None, "the data"
     if isinstance(data, Loaded):
         return data.session, data, str(data.log.source) if data.log is not None else "the data"
-    loaded = load(data, references=model != "9")
+    loaded = load(data, references=model is not None and model != "9")
     return loaded.session, loaded, str(data)
 
 
@@ -73,14 +75,16 @@ def fit(data: str | Path | Loaded | Session, model: str | int | None = None, *, 
     path, a loaded file or a Session; with poses at two or more temperatures, one fit per
     temperature and a table interpolated between them (AN4399 section 9).
 
-    The default model is 12, or 9 for a raw log (it has no references). ``source`` names the data in
-    error messages (default: the path).
+    With no ``model``, the richest model the poses determine (models/choice.py: 15 or 12 with
+    references; without, the hand-placed faces' norm fit or 9), as `accelcal fit` chooses it.
+    ``source`` names the data in error messages (default: the path).
     """
     m = str(model) if model is not None else None
     session, loaded, name = _as_loaded(data, m)
     is_raw = loaded is not None and loaded.log is not None
-    m = m or ("9" if is_raw else "12")
     name = source or name
+    if m is None:
+        return _fit_chosen(session, name, temp_method, is_raw)
     check_temp_method(temp_method)
     if m != "9" and session.units == "counts" and session.counts_per_g is None:
         raise UnitsError(f"{name}: readings are counts with no counts_per_g; model {m} needs --counts-per-g N "
@@ -102,6 +106,25 @@ def fit(data: str | Path | Loaded | Session, model: str | int | None = None, *, 
         raise UnderdeterminedError(f"{name}: the {len(session)} poses are numerically degenerate for model {m} "
                                    f"({e}); allowed: poses spread over distinct orientations") from None
     return Fit(fr.calibration, m, [(None, fr)], [session])
+
+
+def _fit_chosen(session: Session, name: str, temp_method: str, is_raw: bool) -> Fit:
+    """No model given: choose it from the data; hand-placed faces get the norm fit's gain and offset."""
+    try:
+        choice = choose_model(session)
+    except AccelcalError as e:
+        raise type(e)(f"{name}: {e}") from None
+    if choice.faces is None:
+        return fit(session, choice.model, temp_method=temp_method, source=name)
+    faced = with_face_references(session, choice.faces)
+    result = fit(faced, "6", temp_method=temp_method, source=name)
+    if len(result.fits) == 1:
+        x = result.result.readings_g
+        W, V = norm_faces(x, choice.faces.references_g).as_an4399()
+        c = result.calibration
+        result.calibration = Calibration("6", W, V, np.zeros(3), c.input_units, c.input_per_g,
+                                         metadata={**c.metadata, "method": "hand-placed norm fit"})
+    return result
 
 
 MAX_SAMPLES_PER_POSE = 10**6  # a pose's samples are drawn at once: some 60 MB per million

@@ -45,6 +45,7 @@ class PgServer:
         if not (self.initdb and self.pg_ctl):
             unavailable("PostgreSQL server binaries (initdb, pg_ctl) not found; apt-get install postgresql")
         self.user_prefix: list[str] = []
+        self.halted = False
         self.root = tempfile.mkdtemp(prefix="accelcal-pg-")
         if os.geteuid() == 0:
             try:
@@ -74,6 +75,17 @@ class PgServer:
         with psycopg.connect(host=self.sock, port=5432, user="accelcal", dbname="postgres", autocommit=True) as c:
             c.execute(f"CREATE DATABASE {name}")
         return self.url(name)
+
+    def halt(self) -> None:
+        """Stop the server at once (``pg_ctl stop -m immediate``: as a crash or a pulled cable
+        looks to the clients); ``resume`` starts it again on the same data."""
+        self._run([self.pg_ctl, "-D", self.data, "-m", "immediate", "-w", "stop"])
+        self.halted = True
+
+    def resume(self) -> None:
+        self._run([self.pg_ctl, "-D", self.data, "-w", "-t", "30", "-l", os.path.join(self.root, "log"),
+                   "-o", f"-k {self.sock} -c listen_addresses='' -p 5432 -c fsync=off", "start"])
+        self.halted = False
 
     def stop(self) -> None:
         subprocess.run(self.user_prefix + [self.pg_ctl, "-D", self.data, "-m", "immediate", "stop"],

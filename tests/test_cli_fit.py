@@ -174,7 +174,7 @@ def test_bad_input_is_one_line_and_non_zero(tmp_path, an4399):
         (["fit", good, "--model", "7"], "--model '7'; allowed: 6, 9, 12, 15"),
         (["fit", good, "--counts-per-g", "-4096"], "--counts-per-g '-4096'; allowed: a positive number"),
         (["fit", good, "--temp-method", "cubic"], "--temp-method 'cubic'; allowed: linear, quadratic"),
-        (["fit", _bad(tmp_path, "pose,pitch_deg,roll_deg,x,y,z\np,,,1,2,3\n", "r.csv")],
+        (["fit", _bad(tmp_path, "pose,pitch_deg,roll_deg,x,y,z\np,,,1,2,3\n", "r.csv"), "--model", "12"],
          "r.csv: line 2, column pitch_deg: pose 'p' has no reference"),
         (["fit", good, "--units", "g"], "readings in g have a median norm of"),
         (["fit", good, "-o", tmp_path / "no" / "such" / "dir.json"], "dir.json: cannot write (No such file"),

@@ -8,10 +8,12 @@ import sys
 
 import pytest
 from click.testing import CliRunner
+from sqlalchemy import select
 
 from accelcal_station.cli import cli
 from accelcal_station.data.posetable import write_pose_table
 from accelcal_station.store.runs import Store
+from accelcal_station.store.tables import runs
 
 ACCELCAL = [sys.executable, "-m", "accelcal_station"]
 
@@ -111,8 +113,8 @@ def test_reasons_stored_as_text_are_typed_once_by_the_migration(store_url, monke
             st.finish_run(rid, session=s, calibration=fit.calibration, verdict="FAIL",
                           fit_summary={"residual_rms_g": 0.001, **({"reason_codes": typed} if typed else {})})
             with st._tx("write a schema-2 row") as db:
-                db.execute("UPDATE runs SET reasons = ? WHERE id = ?",
-                           (text if isinstance(text, str) else json.dumps(text), rid))
+                db.execute(runs.update().where(runs.c.id == rid).values(
+                    reasons=text if isinstance(text, str) else json.dumps(text)))
     monkeypatch.undo()
     with Store(store_url) as st:
         assert st.schema_version == store_mod.SCHEMA_VERSION == 3
@@ -132,6 +134,6 @@ def test_reasons_stored_as_text_are_typed_once_by_the_migration(store_url, monke
         st.finish_run(rid, session=s, calibration=fit.calibration, verdict="FAIL",
                       reasons=[Reason.of("verify_error_max_mg", "verify at 70 C: 3.2 mg > limit 2")])
         with st._snapshot():
-            raw = st._db.execute("SELECT reasons FROM runs WHERE id = ?", (rid,)).fetchone()[0]
+            raw = st._db.scalar(select(runs.c.reasons).where(runs.c.id == rid))
         assert st.lot_summary(lot="NEW")["failure_reasons"] == {"verify_error_max_mg": 1}
     assert json.loads(raw) == [{"code": "verify_error_max_mg", "message": "verify at 70 C: 3.2 mg > limit 2"}]

@@ -208,12 +208,18 @@ def test_batch_flags_unfittable_boards_without_dropping_them(an4399):
 @pytest.mark.parametrize("readings,ref,model,match", [
     (np.eye(3), np.eye(3), "12", "needs at least 4 poses"),
     (np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0.0]]), np.eye(4, 3), "12", "channel z has no spread"),
-    (np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1.0]]),
-     np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1.0]]), "15", "cubic"),
 ])
 def test_underdetermined_pose_sets_say_what_is_missing(readings, ref, model, match):
     with pytest.raises(UnderdeterminedError, match=match):
         fit(readings, ref, model)
+
+
+def test_an_undetermined_cubic_is_held_and_named():
+    """Six exact faces: model 15's cubic cannot be told from the gain, model 12's terms can (models/held.py)."""
+    faces = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1.0]])
+    r = fit(faces, faces, "15")
+    assert [h.term for h in r.held] == ["Gamma_xx", "Gamma_yy", "Gamma_zz"] and "cubic" in r.held[0].reason
+    np.testing.assert_array_equal(r.Gamma, 0.0)
 
 
 def test_planar_poses_are_refused():

@@ -59,6 +59,7 @@ class Verdict:
     passed: bool
     reasons: list[Reason]
     measured: dict[str, float]
+    held: list[str] = field(default_factory=list)  # terms fitted at nominal (models/held.py), in words
 
     @property
     def label(self) -> str:
@@ -168,4 +169,6 @@ def judge(fit: FitResult, limits: Limits, verify_error_max_mg: float | None = No
           planned_poses: int = 0) -> Verdict:
     """One board's verdict: ``judge_all`` on a stack of one."""
     verify = None if verify_error_max_mg is None else np.array([verify_error_max_mg])
-    return judge_all(FitFigures.from_fits([fit]), limits, verify, planned_poses)[0]
+    v = judge_all(FitFigures.from_fits([fit]), limits, verify, planned_poses)[0]
+    v.held = [h.text for h in fit.held]  # terms fitted at nominal (models/held.py), in words
+    return v

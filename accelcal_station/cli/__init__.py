@@ -16,6 +16,7 @@ import click
 
 from .. import __version__
 from ..errors import AccelcalError
+from ._extras import extra_for, missing_text
 from ._mes import JsonGroup, emit_error, wants_json
 from ._text import clean
 
@@ -55,6 +56,16 @@ class StationGroup(JsonGroup):
         except OSError as e:  # a file or device error no layer below turned into words
             where = f" ({e.filename})" if getattr(e, "filename", None) else ""
             emit_error(ctx, clean(f"{e.strerror or e}{where}"), 2, "os")
+            ctx.exit(2)
+        except ModuleNotFoundError as e:
+            extra = extra_for(e.name)
+            if extra is None and not os.environ.get("ACCELCAL_DEBUG"):
+                emit_error(ctx, f"internal error (please report): ModuleNotFoundError: {clean(str(e))}", 70,
+                           "internal")
+                ctx.exit(70)
+            if extra is None:
+                raise
+            emit_error(ctx, missing_text(str(e.name)), 2, "missing_extra")  # an optional part not installed
             ctx.exit(2)
         except Exception as e:
             # a bug: still one line for the operator; the traceback on request

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from typing import Any
 
 import click
@@ -16,6 +17,7 @@ from ..data.static_poses import StaticDetection
 from ..errors import AccelcalError, DataError
 from ..fileguard.identity import refuse_overwrite
 from ..identifiability import assess, worst_parameter
+from ..models.choice import ModelChoice, choose_model, with_face_references
 from ..models.handplaced import norm_faces, opposite_face
 from ..models.result import FitResult
 from ..session import Session
@@ -25,12 +27,16 @@ from ._common import parse_number as _number
 from ._text import clean
 
 
-def _load(path: str, raw: bool, model: str, units: str | None, cpg: float | None, gravity: float | None,
+def _load(path: str, raw: bool, model: str | None, units: str | None, cpg: float | None, gravity: float | None,
           columns: str | None, skip_rows: int | None, rate: float | None) -> Loaded:
     if rate is not None and not raw:
         raise DataError(f"--rate is for raw sample logs; add --raw to read {path} as one")
-    return load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, columns=columns,
-                skip_rows=skip_rows, rate_hz=rate, references=model != "9")
+    loaded = load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, columns=columns,
+                  skip_rows=skip_rows, rate_hz=rate, references=model is not None and model != "9")
+    have = [p.reference_g is not None for p in loaded.session.poses]
+    if model is None and any(have) and not all(have):  # some rows give references: the reader names the row
+        load(path, raw, units=units, counts_per_g=cpg, gravity_mps2=gravity, references=True)
+    return loaded
 
 
 def _vec(v: ArrayLike, fmt: str = "+.6f") -> str:
@@ -58,7 +64,8 @@ def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
             f"leave-one-pose-out RMS {cv}; condition number {fit.condition_number:.3g}"]
     if fit.message:
         out.append(f"note: {fit.message}")
-    out += _barely_text(fit)
+    out += [f"held: {h.text}" for h in fit.held]
+    out += _barely_text(fit) if not fit.held else []
     w = max(4, *(len(n) for n in names))
     out.append(f"{'pose':<{w}}  {'x_g':>9} {'y_g':>9} {'z_g':>9}  {'res_x_mg':>9} {'res_y_mg':>9} "
                f"{'res_z_mg':>9}  {'norm_err_mg':>11}")
@@ -164,7 +171,10 @@ def _table_report(path: str, session: Session, result: Fit) -> tuple[dict[str, A
 def _report(path: str, loaded: Loaded, result: Fit) -> tuple[dict[str, Any], list[str]]:
     """What `accelcal fit` prints: what reading the file inferred, its static intervals (raw logs), the fit."""
     session = loaded.session
+    held = result.calibration.metadata.get("held")
     result.calibration.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
+    if held:
+        result.calibration.metadata["held"] = held
     report: dict[str, Any] = {"inferred": loaded.to_json()}
     text = [f"read {path}: " + "; ".join(loaded.inferred)]
     if loaded.log is not None and loaded.detection is not None:
@@ -188,7 +198,8 @@ def _report(path: str, loaded: Loaded, result: Fit) -> tuple[dict[str, Any], lis
 @click.argument("path", metavar="FILE")
 @click.option("--raw", is_flag=True, help="FILE is a raw sample log: find its static poses automatically.")
 @click.option("--model", default=None, metavar="6|9|12|15",
-              help="Parameters to fit (default 12 for a pose table, 9 for a raw log, which has no references).")
+              help="Parameters to fit (default: the richest model the poses determine: 15 or 12 with references; "
+                   "without, the hand-placed faces' norm fit or 9).")
 @click.option("--units", default=None, metavar="counts|g|mps2",
               help="Units of the readings (default: the table's '# units:' line, else counts).")
 @click.option("--counts-per-g", "counts_per_g", default=None, metavar="N",
@@ -210,16 +221,25 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
             gravity: str | None, temp_method: str, columns: str | None, skip_rows: str | None, rate: str | None,
             hand_placed: bool, as_json: bool, output: str | None) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
-    model = model if model is not None else ("6" if hand_placed else "9" if raw else "12")
     refuse_overwrite([("-o", output)], [("FILE", path)])
-    check_model_units(model, units)
+    model = "6" if model is None and hand_placed else model
+    check_model_units(model or "12", units)  # no --model: the units still checked first
     check_temp_method(temp_method)
     cpg = _number(counts_per_g, "--counts-per-g")
     grav = _number(gravity, "--gravity")
     loaded = _load(path, raw, model, units, cpg, grav, columns,
                    parse_int(skip_rows, "--skip-rows", positive=False), _number(rate, "--rate"))
+    choice = None
+    if model is None:
+        loaded, choice = _choose(path, loaded)
+        model, hand_placed = choice.model, choice.faces is not None
     result = fit(loaded, model, temp_method=temp_method, source=path)
     report, text = _report(path, loaded, result)
+    if choice is not None:
+        report["model_choice"] = choice.to_json()
+        if choice.faces is not None:
+            report["faces"] = [{"pose": n, "face": f, "angle_deg": float(a)} for n, f, a in
+                               zip(loaded.session.names, choice.faces.names, choice.faces.angle_deg, strict=True)]
     if hand_placed:
         if len(result.fits) != 1 or model != "6":
             raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")
@@ -235,3 +255,22 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         click.echo(json.dumps(_clean(report), allow_nan=False))
     else:
         click.echo("\n".join(clean(t) for t in text))  # pose names from the file: never raw escapes
+
+
+def _choose(path: str, loaded: Loaded) -> tuple[Loaded, ModelChoice]:
+    """No --model: the richest model the data determine (models/choice.py), said on the read line;
+    hand-placed faces become the session's references."""
+    session = loaded.session
+    try:
+        choice = choose_model(session)
+    except AccelcalError as e:
+        raise type(e)(f"{path}: {e}") from None
+    inferred = list(loaded.inferred)
+    if choice.faces is not None:
+        f = choice.faces
+        inferred.append(f"{f.text}: " + ", ".join(f"{n} {face}" for n, face in zip(session.names, f.names,
+                                                                                    strict=True))
+                        + "; taken as references")
+        session = with_face_references(session, f)
+    inferred.append(f"model: {choice.method} ({choice.reason}; --model N to choose)")
+    return replace(loaded, session=session, inferred=inferred), choice

@@ -61,13 +61,20 @@ def _target(db: str | None, config_path: str | None) -> tuple[Path | str, str | 
     return store_path(load_yaml(cfg), Path.cwd()), cfg
 
 
-def _open(db: str | None, config_path: str | None, output: tuple[str, str | None] | None = None) -> Store:
+def _open(db: str | None, config_path: str | None, output: tuple[str, str | None] | None = None,
+          upgrade: bool = True) -> Store:
     """The store to read; ``output`` (its option, its file), when given, is refused first if it is the
     store's own file or the config's (never overwritten, nothing written)."""
     target, cfg = _target(db, config_path)
     if output is not None:
         refuse_overwrite([output], [("the store", store_file(target)), ("--config", cfg)])
-    return Store(target, create=False)
+    return Store(target, create=False, upgrade=upgrade)
+
+
+def _name_damage(damage: list[dict[str, Any]]) -> None:
+    """One line on stderr per damaged value read (the output goes on; `report check` lists all)."""
+    for d in damage:
+        click.echo(clean(f"damaged_row: {d['table']} {d['id']} {d['column']}: {d['problem']}"), err=True)
 
 
 def _filters(device: tuple[str, ...], lot: str | None, station: str | None, operator: str | None,
@@ -113,12 +120,14 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
                f"{'nvm':7}  poses  {'rms mg':>7}  reasons")
     for r in runs:
         rms = "" if r["residual_rms_g"] is None else f"{r['residual_rms_g'] * 1e3:7.3f}"
-        click.echo(f"{r['id']:>5}  {r['started_at'][:16].replace('T', ' '):16}  {r['status']:11}  "
-                   f"{r['device_serial'] or '':14}  {r['lot'] or '':8}  {r['verdict'] or '':7}  "
-                   f"{r['nvm_status'] or '':7}  {r['pose_count']:5}  {rms:>7}  "
-                   + clean(f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
+        started = (r["started_at"] or "?")[:16].replace("T", " ")
+        click.echo(clean(f"{r['id']:>5}  {started:16}  {r['status'] or '?':11}  "
+                         f"{r['device_serial'] or '':14}  {r['lot'] or '':8}  {r['verdict'] or '':7}  "
+                         f"{r['nvm_status'] or '':7}  {r['pose_count']:5}  {rms:>7}  "
+                         f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
                    + (f"  DAMAGED ({', '.join(r['damaged'])} unreadable)" if r.get("damaged") else ""))
     click.echo(f"{len(runs)} run(s)")
+    _name_damage([d for r in runs for d in r.get("damage", [])])
 
 
 @command.command("show")
@@ -136,8 +145,8 @@ def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool
     for k in ("id", "status", "status_reason", "started_at_iso", "finished_at_iso", "device_serial", "chip",
               "station_id", "operator", "lot", "config_hash", "model", "verdict", "nvm_status"):
         click.echo(f"{k:16} {rec[k] if rec[k] is not None else ''}")
-    if rec.get("damaged"):
-        click.echo(f"{'DAMAGED':16} {', '.join(rec['damaged'])} unreadable in the store")
+    for d in rec["damage"]:
+        click.echo(clean(f"{'DAMAGED':16} damaged_row: {d['table']} {d['id']} {d['column']}: {d['problem']}"))
     for reason in rec["reasons"]:
         click.echo(f"{'reason':16} {clean(reason)}")
     if rec["calibration"]:
@@ -150,7 +159,7 @@ def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool
         click.echo(f"  {clean(p['name']):10} mean {[round(x, 2) for x in p['mean']]}  n {p['n']}  "
                    f"retries {p['retries']}")
     for e in rec.get("events") or []:
-        click.echo(f"{'event':16} {e['kind']}: {clean(e['message'] or '')}")
+        click.echo(f"{'event':16} {clean(e['kind'] or '')}: {clean(e['message'] or '')}")
 
 
 def _fit_lines(fit: dict[str, Any]) -> list[str]:
@@ -196,6 +205,7 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
             text = json.dumps({"schema": "accelcal.runs", "version": 1, "runs": data}, indent=1)
         else:
             text = store.export_csv(output, kind="poses" if poses else "runs", **flt)
+        _name_damage([d for r in store.list_runs(**flt) for d in r.get("damage", [])])
     if output is None:
         click.echo(text.rstrip("\n"))
     elif as_json:
@@ -225,6 +235,7 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
     if as_json:
         click.echo(json.dumps(s, indent=1))
         return
+    _name_damage(s["damaged_rows"])
     rate = "n/a" if s["pass_rate"] is None else f"{100 * s['pass_rate']:.1f} %"
     click.echo(f"runs {s['runs']} ({', '.join(f'{k} {v}' for k, v in s['by_status'].items())}), "
                f"devices {s['devices']}, {s['first_started'] or '-'} .. {s['last_started'] or '-'}")
@@ -242,6 +253,68 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
             click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")
     for name, d in s["fit"].items():
         click.echo(f"{name:14} {d['mean']:12.6g} {d['std']:12.6g} {d['min']:12.6g} {d['max']:12.6g}")
+
+
+@command.command("check")
+@click.option("--db", default=None, metavar="FILE|URL", help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB.")
+@click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@click.pass_context
+def check_cmd(ctx: click.Context, db: str | None, config_path: str | None, as_json: bool) -> None:
+    """List every damaged row (table, id, column, what is wrong); exit 1 when any. Nothing is modified."""
+    with _open(db, config_path, upgrade=False) as store:
+        found = [d.to_dict() for d in store.check()]
+        where = str(store.path)
+    if as_json:
+        click.echo(json.dumps({"store": where, "damaged": found}, indent=1))
+    else:
+        for d in found:
+            click.echo(clean(f"{d['table']:7} {d['id']:>12}  {d['column']:14} {d['problem']}"))
+        rows = len({(d["table"], d["id"]) for d in found})
+        click.echo(f"{len(found)} damaged value(s) in {rows} row(s) of {where}" if found
+                   else f"no damaged rows in {where}")
+    if found:
+        ctx.exit(1)
+
+
+@command.command("sync")
+@click.option("--db", default=None, metavar="URL", help="The line database (postgresql://...); default: the "
+              "store of --config or of the default station.")
+@click.option("--config", "config_path", default=None, metavar="FILE",
+              help="Station config (store.path, store.outbox).")
+@click.option("--outbox", default=None, metavar="FILE",
+              help="The local outbox (default: the config's store.outbox, else "
+                   "$XDG_STATE_HOME/accelcal/outbox.sqlite).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def sync_cmd(db: str | None, config_path: str | None, outbox: str | None, as_json: bool) -> None:
+    """Replay the runs kept in the local outbox while the line database was unreachable (each once)."""
+    from ..config.sections import default_config_path
+    from ..store.location import outbox_of
+    from ..store.outbox import default_outbox, sync
+
+    cfg = load_yaml(config_path or default_config_path()) if db is None or outbox is None else {}
+    target = store_target(db) if db is not None else store_path(cfg, Path.cwd())
+    box = Path(outbox) if outbox is not None else (outbox_of(cfg) or default_outbox())
+    with Store(target, create=False) as server:
+        if not box.is_file():
+            res = None
+        else:
+            with Store(box, create=False) as local:
+                res = sync(server, local)
+        where = str(server.path)
+    done = {"store": where, "outbox": str(box), "replayed": [] if res is None else [s for _, s in res.replayed],
+            "already_there": [] if res is None else [s for _, s in res.unchanged],
+            "still_running": [] if res is None else res.running}
+    if as_json:
+        click.echo(json.dumps(done))
+        return
+    if res is None or not (res.replayed or res.unchanged or res.running):
+        click.echo(f"nothing to replay: no run waiting in {box}")
+        return
+    click.echo(f"replayed {len(res.replayed)} run(s) from {box} into {where}"
+               + (f" (runs {', '.join(str(s) for _, s in res.replayed)})" if res.replayed else "")
+               + (f"; {len(res.unchanged)} already there in full" if res.unchanged else "")
+               + (f"; {len(res.running)} still running locally, not replayed" if res.running else ""))
 
 
 @command.command("plot")

@@ -39,6 +39,9 @@ class StationSection(Section):
 class StoreSection(Section):
     path: str = _f("accelcal-runs.sqlite", "results store: a SQLite file (relative to the current directory) "
                    "or a postgresql:// URL")
+    outbox: str | None = _f(None, "local SQLite file keeping runs while a postgresql:// store is unreachable "
+                            "(replayed by the next run or `accelcal report sync`); default "
+                            "$XDG_STATE_HOME/accelcal/outbox.sqlite")
 
 
 class PlanSection(Section):
@@ -133,6 +136,9 @@ class EepromSection(Section):
 class SimulatorSection(Section):
     effects: dict[str, dict[str, Any] | None] | None = _f(
         None, "effects of the catalog (sim/sensor_model.py EFFECTS), each with its parameters")
+    population: dict[str, Any] | None = _f(
+        None, "the population boards are drawn from: quantities, components, changes "
+        "(validated by sim/population.py parse_population, one-line errors)")
 
 
 class BusEmulatorSection(Section):

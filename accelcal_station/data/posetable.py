@@ -16,6 +16,11 @@ std in the table's units).  ``# key: value`` lines before the header carry
 metadata; ``units``, ``counts_per_g``, ``gravity`` (m/s^2) and ``device`` are
 used when the matching argument is not given, other keys are kept as strings in
 ``Session.metadata``.  Blank lines and ``#`` lines after the header are skipped.
+
+Row order is acquisition order: the rows are the poses in the order they were taken
+(the station and ``accelcal simulate`` write them so).  ``accelcal diagnose`` reads a
+change over the session (an offset relaxing after mounting) from it and says when an
+effect it names could be that change instead (diagnosis/order.py).
 """
 from __future__ import annotations
 

@@ -18,7 +18,10 @@
    only the variance of what is left: each is judged by its own signature
    (diagnosis/effects) and reported under ``stochastic``; they never move the gap.
 5. Verdict.  explained / partly explained / unexplained / nothing to explain (verdict), with the
-   shape of what is left (shape).
+   shape of what is left (shape), read from every view: axis, input level, temperature and
+   acquisition order.  A selected effect whose columns follow acquisition order (order: R^2 of
+   its columns on a cubic in row number above 0.8) is confounded with a change over the session:
+   the verdict says so and is never "explained" (``confounded_with`` in the JSON).
 
 The record and its JSON are in result; the self-check is in selftest; loading in loading.
 """
@@ -38,6 +41,7 @@ from .gap_data import GapData, TimeData, time_data
 from .gap_effects import evaluate
 from .loading import Simulator
 from .noise_floor import Floor, sigma_from_within
+from .order import confounded_with_order
 from .result import Diagnosis
 from .selection import ALPHA, select
 from .shape import leftover_shape
@@ -121,6 +125,8 @@ def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     d = Diagnosis(data, sim, floor, base, final, ranking, steps, selected + [p for p in passed if p not in selected],
                   why, static_ok, static_why, where, alpha, stoch, tried)
     d.leftover = leftover_shape(data, final, td, alpha)
+    # drift and settling are functions of time themselves: only static terms can be confounded with it
+    d.confounded_with = confounded_with_order(data, [s for s in selected if s not in ("drift", "settling")])
     d.verdict, d.verdict_text = verdict(d)
     d.identifiability = describe_design(data, sim.baseline + tuple(selected))
     return d

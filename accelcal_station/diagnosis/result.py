@@ -39,6 +39,7 @@ class Diagnosis:
     verdict_text: str = ""
     leftover: dict[str, Any] = field(default_factory=dict)
     identifiability: dict[str, Any] = field(default_factory=dict)
+    confounded_with: dict[str, dict[str, Any]] = field(default_factory=dict)  # diagnosis/order.py
 
     @property
     def gap_before(self) -> float:
@@ -58,7 +59,7 @@ def to_json(d: Diagnosis) -> dict[str, Any]:
     data, fl = d.data, d.floor
     floor_rms = [float(np.sqrt(np.mean(x))) for x in (d.base.floor_static, d.base.floor_time) if x is not None]
     return {
-        "verdict": d.verdict, "verdict_text": d.verdict_text,
+        "verdict": d.verdict, "verdict_text": d.verdict_text, "confounded_with": d.confounded_with,
         "gap_before": d.gap_before, "gap_after": d.gap_after,
         "rms_mg_before": 1e3 * d.base.rms_g, "rms_mg_after": 1e3 * d.final.rms_g,
         "floor_mg": 1e3 * float(np.sqrt(np.mean(np.square(floor_rms)))),

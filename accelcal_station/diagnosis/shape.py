@@ -1,5 +1,6 @@
 """The shape of what the diagnosis leaves unexplained: odd or even in g, a product of axes,
-fixed per orientation, dependent on the approach direction, time-varying; and where it is."""
+fixed per orientation, dependent on the approach direction, time-varying, changing with
+temperature or with acquisition order on an axis; and where it is."""
 from __future__ import annotations
 
 from typing import Any
@@ -9,6 +10,7 @@ import numpy as np
 from .effects.pose_error import revisits
 from .evaluation import Evaluation
 from .gap_data import GapData, TimeData
+from .order import order_basis
 
 SHAPES = ("odd in g", "even in g", "product of axes", "approach direction", "fixed per orientation")
 
@@ -68,6 +70,54 @@ def _static_shapes(data: GapData, r: np.ndarray, v: np.ndarray, alpha: float) ->
     return out
 
 
+def _temperature_basis(data: GapData) -> np.ndarray | None:
+    """A leftover that changes with temperature: dT g and dT^2 g (any gain or cross-axis term linear or
+    quadratic in T), dT and dT^2 (an offset), dT = T - mean T; None below two temperatures."""
+    if data.temp_c is None or data.n_temps < 2:
+        return None
+    dT = (data.temp_c - np.mean(data.temp_c)) / 25.0
+    return np.column_stack([dT[:, None] * data.g, (dT**2)[:, None] * data.g, dT, dT**2])
+
+
+def _temperature_phrase(data: GapData, r: np.ndarray, v: np.ndarray) -> str:
+    """How one axis' leftover moves with temperature, from its gap per temperature (the by_temperature view)."""
+    assert data.temp_c is not None
+    tk = np.round(data.temp_c / 2.0)
+    ts = [(float(np.mean(data.temp_c[tk == t])), float(np.sqrt(np.mean(r[tk == t] ** 2 / v[tk == t]))))
+          for t in np.unique(tk)]
+    lo, hi = int(np.argmin([g for _, g in ts])), int(np.argmax([g for _, g in ts]))
+    gaps = ", ".join(f"{g:.2g} at {t:g} C" for t, g in ts)
+    if 0 < lo < len(ts) - 1:
+        return f"grows with |T - {ts[lo][0]:g} C| (gap {gaps})"
+    if 0 < hi < len(ts) - 1:
+        return f"changes with |T - {ts[hi][0]:g} C|, largest there (gap {gaps})"
+    return f"grows as the temperature {'rises' if lo == 0 else 'falls'} (gap {gaps})"
+
+
+def _axis_trends(data: GapData, r: np.ndarray, v: np.ndarray, alpha: float) -> tuple[list[str], dict[str, Any]]:
+    """Per axis: does the leftover follow temperature or acquisition order (the where views as shapes)?
+    A channel counts when the basis removes over a quarter of its sum of squares at p < alpha / 3."""
+    from scipy import stats
+
+    views = {"temperature": _temperature_basis(data), "acquisition order": order_basis(data, intercepts=False)}
+    words: list[str] = []
+    js: dict[str, Any] = {}
+    for view, X in views.items():
+        if X is None or r.shape[1] != 3:
+            continue
+        for c, a in enumerate("xyz"):
+            total = float(np.sum(r[:, c] ** 2 / v[:, c]))
+            red = _reduction(r[:, c], 1.0 / v[:, c], X)
+            p = float(stats.chi2.sf(red, X.shape[1]))
+            share = red / total if total > 0 else 0.0
+            js.setdefault(view, {})[a] = {"share": share, "p_value": p}
+            if p < alpha / 3 and share > 0.25:
+                words.append(f"temperature-dependent on {a}: {_temperature_phrase(data, r[:, c], v[:, c])}"
+                             if view == "temperature"
+                             else f"trends with acquisition order on {a}")
+    return words, js
+
+
 def leftover_shape(data: GapData, ev: Evaluation, td: TimeData | None, alpha: float) -> dict[str, Any]:
     """Where the final model's held-out residual lies and which shape it has (module doc)."""
     from scipy import stats
@@ -87,7 +137,9 @@ def leftover_shape(data: GapData, ev: Evaluation, td: TimeData | None, alpha: fl
         sig = [(n, s) for n, s in shapes.items() if s["p_value"] < alpha and s["share"] > 0.25]
         if "fixed per orientation" in shapes and not shapes["fixed per orientation"].get("repeats_on_revisit"):
             sig = [(n, s) for n, s in sig if n != "fixed per orientation"]
-        names += [n for n, _ in sorted(sig, key=lambda x: -x[1]["share"])]
+        trends, tj = _axis_trends(data, r, v, alpha)
+        out["shapes"].update({f"by {k}": x for k, x in tj.items()})
+        names += trends + [n for n, _ in sorted(sig, key=lambda x: -x[1]["share"])]
     if ev.r_time is not None and ev.v_time is not None:
         N = ev.r_time.size
         x = float(np.sum(ev.r_time**2 / ev.v_time))

@@ -6,6 +6,7 @@ import numpy as np
 
 from .effects.catalog import STOCHASTIC
 from .evaluation import Evaluation
+from .order import order_words
 from .result import Diagnosis
 from .selection import ALPHA
 
@@ -20,7 +21,16 @@ def at_floor(e: Evaluation, alpha: float = ALPHA) -> bool:
 
 
 def verdict(d: Diagnosis) -> tuple[str, str]:
-    """explained / partly explained / unexplained / nothing to explain (module doc)."""
+    """explained / partly explained / unexplained / nothing to explain (module doc); a selected effect
+    confounded with acquisition order (diagnosis/order.py) is never "explained", and the text says why."""
+    word, text = _verdict(d)
+    if d.confounded_with:
+        word = "partly explained" if word == "explained" else word
+        text += "; but " + order_words(d.confounded_with)
+    return word, text
+
+
+def _verdict(d: Diagnosis) -> tuple[str, str]:
     base_ok, final_ok = at_floor(d.base, d.alpha), at_floor(d.final, d.alpha)
     stoch = [n for n in d.selected if n in STOCHASTIC]
     shape = d.leftover.get("summary", "")

@@ -1,6 +1,6 @@
-"""Where the baseline's held-out gap lies (engine's module doc, step 2): by pose, axis, input level and
-temperature in the static view, by time in capture in the time view, the noise against the simulator's,
-and the Allan deviation of the longest capture."""
+"""Where the baseline's held-out gap lies (engine's module doc, step 2): by pose, axis, input level,
+temperature and acquisition order in the static view, by time in capture in the time view, the noise
+against the simulator's, and the Allan deviation of the longest capture."""
 from __future__ import annotations
 
 from typing import Any
@@ -11,6 +11,7 @@ from .evaluation import Evaluation
 from .gap_data import Capture, GapData, TimeData
 from .loading import Simulator
 from .noise_floor import Floor, random_var
+from .order import order_position
 
 LEVEL_EDGES_G = np.array([-1.5, -0.6, -0.2, 0.2, 0.6, 1.5])  # input-level bins of the by_level breakdown
 
@@ -49,6 +50,19 @@ def _by_level(data: GapData, r: np.ndarray, v: np.ndarray) -> list[dict[str, Any
     return lv
 
 
+ORDER_BLOCKS = 8  # the order view: poses in eight blocks of acquisition order
+
+
+def _by_order(data: GapData, r: np.ndarray, v: np.ndarray) -> list[dict[str, Any]]:
+    """Gap and mean residual per axis in blocks of acquisition order (row order within each file: a
+    pose table's rows are taken in that order, docs/pose-table.md)."""
+    s = order_position(data)
+    blk = np.minimum(((s + 1) / 2 * ORDER_BLOCKS).astype(int), ORDER_BLOCKS - 1)
+    return [{"block": int(k), "position": [float(k / ORDER_BLOCKS), float((k + 1) / ORDER_BLOCKS)],
+             "poses": int(np.sum(blk == k)), "gap": _ratio(r[blk == k], v[blk == k]),
+             "mean_residual_mg": (1e3 * r[blk == k].mean(axis=0)).tolist()} for k in np.unique(blk)]
+
+
 def _static_where(data: GapData, r: np.ndarray, v: np.ndarray) -> dict[str, Any]:
     """The static view's gap by pose (the five worst), axis, input level and temperature."""
     w: dict[str, Any] = {}
@@ -58,6 +72,7 @@ def _static_where(data: GapData, r: np.ndarray, v: np.ndarray) -> dict[str, Any]
     if not data.norm_only:
         w["by_axis"] = {a: _ratio(r[:, c], v[:, c]) for c, a in enumerate("xyz")}
     w["by_level"] = _by_level(data, r, v)
+    w["by_order"] = _by_order(data, r, v)
     if data.temp_c is not None and data.n_temps >= 2:
         tk = np.round(data.temp_c / 2.0)
         w["by_temperature"] = [{"temp_c": float(np.mean(data.temp_c[tk == t])), "gap": _ratio(r[tk == t], v[tk == t]),

@@ -18,7 +18,8 @@ from ..conventions import check_units, units_per_g
 from ..errors import DataError, UnderdeterminedError, UnitsError
 from ..identifiability import assess, assess_batch
 from ..session import Session
-from .gravity_norm import nominal_scale
+from .gravity_norm import PARAM_NAMES, fit_norm_batch, nominal_scale
+from .held import Held, cubic_held, free_mask, hold_plan
 from .result import BatchFit, FitResult
 from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
 from .stacked import fit_stacked
@@ -83,8 +84,10 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     if noise is not None:
         nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]
     determined, _ = assess_batch(gf, model)  # from the distinct orientations, before any solver runs
+    held: list[Held] = []
     if D == 1 and not determined[0]:
-        raise UnderdeterminedError(assess(gf[0], model).reason)
+        held = hold_plan(gf[0], model)  # raises with the reason when a gain or an offset is weak
+        determined[0] = True
     gf_fit = gf
     if model != "9" and references is not None:
         # a board with an absurd reading (1e308) is fitted on its references instead, so it
@@ -95,7 +98,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
             gf_fit = np.where(bad[:, None, None], ref, gf)
     try:
         with np.errstate(over="ignore", invalid="ignore"):
-            res = _fit_stack(gf_fit, references, x, model, nz)
+            res = _fit_stack(gf_fit, references, x, model, nz, held)
     except np.linalg.LinAlgError:
         raise DataError("the readings cannot be fitted (numerically singular or overflowing: "
                         "a reading far beyond the sensor's range?)") from None
@@ -109,18 +112,27 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
 
 
 def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, model: str,
-               nz: np.ndarray | None) -> BatchFit:
-    if model == "9":
+               nz: np.ndarray | None, held: list[Held] | None = None) -> BatchFit:
+    if model == "9" and held:  # a constrained solve: the held terms stay at nominal (models/held.py)
+        res = fit_norm_batch(gf, noise_g=nz, free=free_mask(held, PARAM_NAMES))
+        res.held = list(held)
+    elif model == "9":
         res = fit_stacked(gf, None, "9", nz)
+    elif model == "15" and held:  # the cubic held at 0: model 12's fit, stated as model 15
+        res = cubic_held(fit_stacked(gf, _references(references, x, model), "12", nz), held)
     else:
-        if references is None:
-            raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
-                            "model 9 needs none")
-        ref = np.asarray(references, dtype=float)
-        if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
-            raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
-        res = fit_stacked(gf, ref, model, nz)
+        res = fit_stacked(gf, _references(references, x, model), model, nz)
     return res
+
+
+def _references(references: ArrayLike | None, x: np.ndarray, model: str) -> np.ndarray:
+    if references is None:
+        raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
+                        "model 9 needs none")
+    ref = np.asarray(references, dtype=float)
+    if ref.shape[-2:] != x.shape[-2:] or not np.all(np.isfinite(ref)):
+        raise DataError(f"references must match readings' shape {x.shape[-2:]} and be finite")
+    return ref
 
 
 def _refuse_absurd(res: BatchFit, gf: np.ndarray) -> None:
@@ -155,7 +167,10 @@ def fit(readings: ArrayLike, references: ArrayLike | None = None, model: str | i
                   gravity_mps2=gravity_mps2, noise=nz)
     if not b.ok[0]:
         raise UnderdeterminedError(b.messages[0])
-    return b.result(0)
+    fr = b.result(0)
+    if fr.held:  # the stored calibration says what it did not estimate (zero variance: held, not fitted)
+        fr.calibration.metadata["held"] = [h.to_json() for h in fr.held]
+    return fr
 
 
 def fit_session(session: Session, model: str | int = "12") -> FitResult:

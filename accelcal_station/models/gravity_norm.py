@@ -76,13 +76,24 @@ def _residual_jacobian(p: np.ndarray, gf: np.ndarray) -> tuple[np.ndarray, np.nd
     return n - 1.0, J
 
 
-def levenberg_marquardt(gf: np.ndarray, p0: np.ndarray, max_iter: int = 200, tol: float = 1e-15
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Vectorised LM over boards; returns params (D, 9), nfev (D,), converged (D,)."""
+def _held_jacobian(p: np.ndarray, gf: np.ndarray, free: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """``_residual_jacobian`` with the held parameters' columns zeroed: a step never moves them
+    (models/held.py), and their covariance rows come out zero."""
+    r, J = _residual_jacobian(p, gf)
+    if free is not None:
+        J[..., ~free] = 0.0
+    return r, J
+
+
+def levenberg_marquardt(gf: np.ndarray, p0: np.ndarray, max_iter: int = 200, tol: float = 1e-15,
+                        free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vectorised LM over boards; returns params (D, 9), nfev (D,), converged (D,).
+
+    ``free`` (9,) bool: parameters not free stay at their value in ``p0`` (held at nominal)."""
     p = p0.copy()
     D = p.shape[0]
     lam = np.full(D, 1e-3)
-    r, J = _residual_jacobian(p, gf)
+    r, J = _held_jacobian(p, gf, free)
     cost = np.sum(r**2, axis=1)
     nfev = np.ones(D, dtype=int)
     active = np.ones(D, dtype=bool)
@@ -100,7 +111,7 @@ def levenberg_marquardt(gf: np.ndarray, p0: np.ndarray, max_iter: int = 200, tol
         except np.linalg.LinAlgError:
             step = np.stack([np.linalg.lstsq(Ai, -gi, rcond=None)[0] for Ai, gi in zip(A, g, strict=True)])
         pn = p[ia] + step
-        rn, Jn = _residual_jacobian(pn, gf[ia])
+        rn, Jn = _held_jacobian(pn, gf[ia], free)
         cn = np.sum(rn**2, axis=1)
         nfev[ia] += 1
         better = np.isfinite(cn) & (cn <= cost[ia])
@@ -115,10 +126,11 @@ def levenberg_marquardt(gf: np.ndarray, p0: np.ndarray, max_iter: int = 200, tol
     return p, nfev, ~active
 
 
-def _fit_core(gf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sphere start then LM: params (D, 9) on the positive-definite branch, nfev (D,), converged (D,)."""
+def _fit_core(gf: np.ndarray, free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sphere start then LM: params (D, 9) on the positive-definite branch, nfev (D,), converged (D,).
+    The sphere start has M diagonal, so held non-orthogonalities stay at 0."""
     p0 = _sphere_start(gf)
-    p, nfev, conv = levenberg_marquardt(gf, p0)
+    p, nfev, conv = levenberg_marquardt(gf, p0, free=free)
     M, B = _unpack(p)
     # |M u| = |-M u|: keep the physical, positive-definite branch
     flip = np.trace(M, axis1=1, axis2=2) < 0
@@ -147,12 +159,12 @@ def _refusals(gf: np.ndarray, cond: np.ndarray, conv: np.ndarray) -> tuple[np.nd
     return ok, messages
 
 
-def _covariance(J: np.ndarray, r: np.ndarray, noise_g: ArrayLike | None, ok: np.ndarray
+def _covariance(J: np.ndarray, r: np.ndarray, noise_g: ArrayLike | None, ok: np.ndarray, k: int = 9
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Newton covariance ``(J^T J)^-1 s^2`` (D, 9, 9) and where it holds (D,): s^2 is the
-    measured noise when known (see linear.py), else RSS / (P - 9)."""
+    measured noise when known (see linear.py), else RSS / (P - k), k free parameters."""
     D, P = r.shape
-    dof = P - 9
+    dof = P - k  # k: the free parameters
     s2 = np.full(D, np.nan)
     if noise_g is not None:
         s2 = np.mean(np.asarray(noise_g) ** 2, axis=(1, 2))
@@ -160,6 +172,10 @@ def _covariance(J: np.ndarray, r: np.ndarray, noise_g: ArrayLike | None, ok: np.
         s2 = np.sum(r**2, axis=1) / dof
     JtJ = np.einsum("dpi,dpj->dij", J, J)
     cov = np.linalg.pinv(JtJ) * np.where(np.isfinite(s2), s2, 0.0)[:, None, None]
+    if k < 9:  # held parameters (zero Jacobian columns): exactly zero variance, not pinv's round-off
+        held = ~np.any(JtJ != 0, axis=(0, 1))
+        cov[:, held, :] = 0.0
+        cov[:, :, held] = 0.0
     return cov, np.isfinite(s2) & ok
 
 
@@ -182,13 +198,13 @@ def _stderr_an4399(M: np.ndarray, B: np.ndarray, cov: np.ndarray) -> tuple[np.nd
     return sW, sV
 
 
-def _crossval(gf: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _crossval(gf: np.ndarray, ok: np.ndarray, free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Leave each pose out, refit on the rest, score the left-out pose's norm error
     ``|M (v_i - B)| - 1``: RMS per board (D,) and where it holds (D,)."""
     D, P, _ = gf.shape
     idx = np.array([np.delete(np.arange(P), i) for i in range(P)])  # (P, P-1)
     sub = gf[:, idx, :].reshape(D * P, P - 1, 3)
-    ps, _, convs = _fit_core(sub)
+    ps, _, convs = _fit_core(sub, free)
     Ms, Bs = _unpack(ps)
     left = gf.reshape(D * P, 3)  # board d, left-out pose i sits at row d * P + i
     a = np.einsum("dij,dj->di", Ms, left - Bs)
@@ -198,16 +214,20 @@ def _crossval(gf: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.where(cv_ok, cv, np.nan), cv_ok
 
 
-def fit_norm_batch(gf: np.ndarray, noise_g: ArrayLike | None = None, crossval: bool = True) -> BatchFit:
-    """Fit model 9 to a stack of boards' static readings gf (D, P, 3) in (nominal) g."""
+def fit_norm_batch(gf: np.ndarray, noise_g: ArrayLike | None = None, crossval: bool = True,
+                   free: np.ndarray | None = None) -> BatchFit:
+    """Fit model 9 to a stack of boards' static readings gf (D, P, 3) in (nominal) g.
+
+    ``free`` (9,) bool: fit only these parameters, hold the others at nominal (models/held.py);
+    the condition number is then that of the free columns and the held ones have zero variance."""
     D, P, _ = gf.shape
     if P < 9:
         from ..errors import UnderdeterminedError
         raise UnderdeterminedError(f"model 9 needs at least 9 poses (it has 9 parameters); got {P}")
-    p, nfev, conv = _fit_core(gf)
+    p, nfev, conv = _fit_core(gf, free)
     M, B = _unpack(p)
-    r, J = _residual_jacobian(p, gf)
-    s = np.linalg.svd(J, compute_uv=False)
+    r, J = _held_jacobian(p, gf, free)
+    s = np.linalg.svd(J if free is None else J[..., free], compute_uv=False)
     cond = s[:, 0] / np.maximum(s[:, -1], 1e-300)
     ok, messages = _refusals(gf, cond, conv)
     W = M  # AN4399 form: W = M, V = -M B, Gamma = 0
@@ -215,12 +235,12 @@ def fit_norm_batch(gf: np.ndarray, noise_g: ArrayLike | None = None, crossval: b
     cal = np.einsum("dij,dpj->dpi", W, gf) + V[:, None, :]
     nrm = np.linalg.norm(cal, axis=-1)
     resid = cal / np.maximum(nrm, 1e-300)[..., None] - cal  # unit-sphere point minus calibrated
-    cov, se_ok = _covariance(J, r, noise_g, ok)
+    cov, se_ok = _covariance(J, r, noise_g, ok, 9 if free is None else int(free.sum()))
     sW, sV = _stderr_an4399(M, B, cov)
     cv = np.full(D, np.nan)
     cv_ok = np.zeros(D, dtype=bool)
     if crossval and P >= 10:
-        cv, cv_ok = _crossval(gf, ok)
+        cv, cv_ok = _crossval(gf, ok, free)
     return BatchFit(
         model="9", W=W, V=V, Gamma=np.zeros((D, 3)), residuals_g=resid, norm_error_g=nrm - 1.0,
         P=np.sum(resid**2, axis=1), residual_rms_g=np.sqrt(np.mean(r**2, axis=1)),

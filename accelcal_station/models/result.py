@@ -47,6 +47,11 @@ class FitResult:
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
+    def held(self) -> list[Any]:
+        """Terms held at nominal because the poses do not determine them (models/held.Held)."""
+        return list(self.extra.get("held", []))
+
+    @property
     def W(self) -> np.ndarray:
         return self.calibration.W
 
@@ -88,6 +93,7 @@ class FitResult:
             "nfev": self.nfev,
             "input_units": self.calibration.input_units,
             "input_per_g": self.calibration.input_per_g,
+            "held": [h.to_json() for h in self.held],
             "poses": poses,
         }
 
@@ -136,6 +142,7 @@ class BatchFit:
     input_per_g: np.ndarray | float = 1.0
     nfev: np.ndarray | None = None
     status: list[str] | None = None
+    held: list[Any] = field(default_factory=list)  # models/held.Held, one board's fit (D == 1) only
 
     def __len__(self) -> int:
         return len(self.ok)
@@ -169,4 +176,5 @@ class BatchFit:
             status=self.status[d] if self.status else ("ok" if self.ok[d] else "failed"),
             message=self.messages[d],
             nfev=int(self.nfev[d]) if self.nfev is not None else 1,
+            extra={"held": list(self.held)} if self.held else {},
         )

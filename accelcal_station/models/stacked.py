@@ -272,7 +272,7 @@ class _Assembler:
     each part is copied into arrays allocated at the first part as soon as it is fitted, while
     it is still in cache (and no list of parts is kept to concatenate afterwards)."""
 
-    _SHARED = ("model", "param_names", "input_units")
+    _SHARED = ("model", "param_names", "input_units", "held")  # held: a one-board fit's (models/held.py)
 
     def __init__(self, D: int, gf: np.ndarray):
         self.D, self.gf = D, gf

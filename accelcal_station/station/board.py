@@ -28,6 +28,8 @@ from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
 from ..models.fitting import fit_session
 from ..nvm.writer import BurnError, CalibrationWriter
 from ..session import PoseRecord, Session
+from ..store.location import outbox_of
+from ..store.outbox import open_store
 from ..store.runs import Store
 from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
 from .report import RunReport, fit_figures
@@ -108,7 +110,7 @@ class Station:
         if self.driver is None:
             self.driver = make_driver(cfg.raw["device"])
         driver = self.driver
-        with Store(cfg.store_file) as store:
+        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
             store.mark_stale_interrupted()
             if cfg.limits.defaults_line():
                 self.echo(cfg.limits.defaults_line())

@@ -37,6 +37,8 @@ from ..fixtures.factory import make_panel_jig as panel_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig
 from ..fixtures.operator_ui import OperatorUI
 from ..session import PoseRecord, Session
+from ..store.location import outbox_of
+from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import Check, Station
 from .capture import GatedCapture, WrongPose, gated_capture
@@ -244,7 +246,7 @@ class PanelStation:
         wall0 = time.perf_counter()
         design = get_design(cfg.design)
         boards = self.boards = self._boards()
-        with Store(cfg.store_file) as store:
+        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
             store.mark_stale_interrupted()
             try:
                 for b in boards:

@@ -35,6 +35,8 @@ from ..models.fitting import fit_session
 from ..models.result import FitResult
 from ..nvm.writer import BurnError, CalibrationWriter
 from ..session import PoseRecord, Session
+from ..store.location import outbox_of
+from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import Station
 from .report import RunReport
@@ -121,7 +123,7 @@ class ThermalStation(Station):
         if self.driver is None:
             self.driver = make_driver(cfg.raw["device"])
         driver = self.driver
-        with Store(cfg.store_file) as store:
+        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
             store.mark_stale_interrupted()
             with driver:
                 ident = driver.identify()

@@ -32,6 +32,8 @@ from ..fixtures.operator_jig import OperatorAbort
 from ..instruments.chamber import Chamber, ChamberStatus
 from ..instruments.factory import couple, make_chamber
 from ..session import PoseRecord, Session
+from ..store.location import outbox_of
+from ..store.outbox import open_store
 from ..store.runs import Store
 from .capture import GatedCapture
 from .panel import PanelBoard, PanelStation, make_panel_jig
@@ -60,7 +62,7 @@ class ThermalPanelStation(PanelStation):
         cfg = self.cfg
         wall0 = time.perf_counter()
         boards = self.boards = self._boards()
-        with Store(cfg.store_file) as store:
+        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
             store.mark_stale_interrupted()
             try:
                 for b in boards:

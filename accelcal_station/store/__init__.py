@@ -1,9 +1,12 @@
 """The results store: every station run in one database, an SQLite file (the default) or a
-line's PostgreSQL server.  ``runs`` holds the ``Store`` (recording, queries), ``schema``
-the migrations, statuses and columns, ``records`` a stored run as Python values
-(``RunRecord``, conversions, ``StoreError``), ``exports`` the JSON/CSV exports and the lot
-summary, ``location`` where a store is (config path, URL, identity) and ``database`` the
-connection over SQLAlchemy.
+line's PostgreSQL server.  ``runs`` holds the ``Store`` (recording, queries), ``tables``
+the SQLAlchemy Core tables, ``schema`` the statuses, columns and schema version,
+``migrate`` the Alembic upgrade run at open (revisions in ``migrations/versions``, package
+data), ``records`` a stored run as Python values (``RunRecord``, conversions,
+``StoreError``), ``rowcheck`` the checks every read row passes (``damaged_row``),
+``exports`` the JSON/CSV exports and the lot summary, ``outbox`` and ``replay`` the local
+outbox of a line store whose server went away, ``location`` where a store is (config path,
+URL, identity) and ``database`` the connection over SQLAlchemy.
 
 May import ``acceptance`` (typed reasons), ``config`` and the foundation (calibration,
 session, errors, atomic); never the station, the lot flows or the CLI.

@@ -3,29 +3,25 @@ shared server), both through SQLAlchemy Core; PostgreSQL through psycopg.
 
 A store target is a file path, ``sqlite:///PATH`` or ``postgresql://USER@HOST:PORT/DB``
 (``postgresql+psycopg://`` too; ``?host=/socket/dir`` for a unix socket).  Statements are
-written once with ``?`` placeholders (the store's SQL is plain SQL-92 plus RETURNING) and
-sent as SQLAlchemy ``text()``.  Transactions are explicit: ``BEGIN IMMEDIATE`` on SQLite
-(one writer; others wait out the busy timeout), ``BEGIN`` on PostgreSQL (MVCC: many
-stations insert at once; identity ids never collide).
-
-Schema versions: SQLite keeps its version in ``PRAGMA user_version`` (unchanged from
-earlier stores); PostgreSQL in the one-row table ``accelcal_schema``, read and raised under
-a transaction-scoped advisory lock so two stations starting at once migrate once.  DDL
-is translated for PostgreSQL: ``INTEGER PRIMARY KEY`` becomes an identity column and
-``REAL`` (single precision there) ``DOUBLE PRECISION``.
+SQLAlchemy Core expressions on the tables of schema.py.  Transactions are SQLAlchemy's
+(``Connection.begin``): on SQLite a write transaction starts ``BEGIN IMMEDIATE`` (one
+writer; others wait out the busy timeout), emitted by the ``begin`` event as SQLAlchemy's
+documentation prescribes for pysqlite, whose own transaction handling defers BEGIN and
+cannot run DDL in a transaction; PostgreSQL runs at READ COMMITTED (MVCC: many stations
+insert at once; identity ids never collide).
 """
 from __future__ import annotations
 
 import contextlib
 import re
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeGuard
 
 if TYPE_CHECKING:
-    from sqlalchemy import Connection, CursorResult, Engine
+    from sqlalchemy import Connection, CursorResult, Engine, Executable, RootTransaction
 
-_PG_LOCK_KEY = 0x61636361  # advisory lock id of schema migrations ("acca")
+Row = Mapping[str, Any]  # a result row by column name (SQLAlchemy's RowMapping, or a checked dict)
 
 
 def is_url(target: object) -> TypeGuard[str]:
@@ -41,67 +37,21 @@ def describe_target(target: str | Path) -> str:
     return redact(target) if is_url(target) else str(target)
 
 
-class Row(tuple):
-    """A result row: by position (``row[0]``) or by column name (``row["id"]``), like sqlite3.Row."""
+def _sqlite_events(engine: Engine) -> None:
+    """Foreign keys on (off by default in SQLite); the driver's own transactions off and a
+    write transaction begun IMMEDIATE (the writer lock taken at once, not at the first write)."""
+    from sqlalchemy import event
 
-    _index: dict[str, int]
+    @event.listens_for(engine, "connect")
+    def _connect(dbapi_conn: Any, _rec: Any) -> None:
+        dbapi_conn.isolation_level = None
+        dbapi_conn.execute("PRAGMA foreign_keys = ON")
 
-    def __new__(cls, values: Iterable[Any], index: dict[str, int]) -> Row:
-        r = super().__new__(cls, values)
-        r._index = index
-        return r
-
-    def __getitem__(self, k: Any) -> Any:
-        if isinstance(k, str):
-            return tuple.__getitem__(self, self._index[k])
-        return tuple.__getitem__(self, k)
-
-    def keys(self) -> list[str]:
-        return list(self._index)
-
-
-class Result:
-    """The rows of one statement (none for a statement that returns no rows)."""
-
-    def __init__(self, res: CursorResult[Any]):
-        self._res = res
-        self._index: dict[str, int] | None = None
-        if res is not None and res.returns_rows:
-            self._index = {k: i for i, k in enumerate(res.keys())}
-
-    def fetchone(self) -> Row | None:
-        if self._index is None:
-            return None
-        r = self._res.fetchone()
-        return None if r is None else Row(tuple(r), self._index)
-
-    def fetchall(self) -> list[Row]:
-        index = self._index
-        return [] if index is None else [Row(tuple(r), index) for r in self._res.fetchall()]
-
-    def scalar(self) -> Any:
-        """The first value of a statement that returns one row (a count, a pragma, RETURNING id)."""
-        row = self.fetchone()
-        if row is None:
-            raise ValueError("the statement returned no row")
-        return row[0]
-
-    def __iter__(self) -> Iterator[Row]:
-        return iter(self.fetchall())
-
-
-_QMARK = re.compile(r"\?")
-
-
-def _named(sql: str) -> tuple[str, int]:
-    """``?`` placeholders as ``:p0, :p1, ...`` (the store's SQL has no '?' in literals)."""
-    n = [0]
-
-    def sub(_m: re.Match[str]) -> str:
-        n[0] += 1
-        return f":p{n[0] - 1}"
-
-    return _QMARK.sub(sub, sql), n[0]
+    @event.listens_for(engine, "begin")
+    def _begin(conn: Connection) -> None:
+        opts = conn.get_execution_options()
+        if opts.get("accelcal_tx"):  # a statement outside Database.begin runs on its own (autocommit)
+            conn.exec_driver_sql("BEGIN IMMEDIATE" if opts.get("accelcal_write", True) else "BEGIN")
 
 
 class Database:
@@ -114,7 +64,7 @@ class Database:
     conn: Connection
 
     def __init__(self, target: str | Path, timeout_s: float = 10.0, create: bool = True):
-        from sqlalchemy import create_engine, event
+        from sqlalchemy import create_engine
         from sqlalchemy.pool import NullPool
 
         self.target = target
@@ -138,85 +88,82 @@ class Database:
                 raise FileNotFoundError(f"{self.path}: no results store there")
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._url = "sqlite:///" + str(self.path)
-        args = {"timeout": timeout_s, "isolation_level": None} if self.dialect == "sqlite" \
-            else {"connect_timeout": max(1, int(timeout_s))}
+        args = {"timeout": timeout_s} if self.dialect == "sqlite" else {"connect_timeout": max(1, int(timeout_s))}
         self.engine = create_engine(self._url, poolclass=NullPool, connect_args=args)
         if self.dialect == "sqlite":
-            @event.listens_for(self.engine, "connect")
-            def _fk(dbapi_conn: Any, _rec: Any) -> None:  # foreign keys are off by default in SQLite
-                dbapi_conn.execute("PRAGMA foreign_keys = ON")
-        self.conn = self.engine.connect().execution_options(isolation_level="AUTOCOMMIT")
-        self.in_transaction = False
+            _sqlite_events(self.engine)
+        self._tx: RootTransaction | None = None
+        self.conn = self.engine.connect()
+        self._idle()
+
+    @property
+    def in_transaction(self) -> bool:
+        return self._tx is not None
 
     # -- statements -----------------------------------------------------------------------
-    def execute(self, sql: str, params: Sequence[Any] = ()) -> Result:
-        from sqlalchemy import text
-        s, n = _named(sql)
-        if n != len(params):
-            raise ValueError(f"{n} placeholders, {len(params)} parameters")
-        return Result(self.conn.execute(text(s), {f"p{i}": v for i, v in enumerate(params)}))
+    def execute(self, stmt: Executable, params: Any = None) -> CursorResult[Any]:
+        """Run a Core statement inside the open transaction (``params``: a dict, or a list of
+        dicts for executemany); never autobegun, so no transaction is left open by accident."""
+        if self._tx is None:
+            raise RuntimeError("Database.execute outside a transaction")
+        return self.conn.execute(stmt, params)
 
-    def executemany(self, sql: str, rows: Iterable[Sequence[Any]]) -> None:
-        from sqlalchemy import text
-        batch = list(rows)
-        if batch:
-            s, _ = _named(sql)
-            self.conn.execute(text(s), [{f"p{i}": v for i, v in enumerate(r)} for r in batch])
+    def rows(self, stmt: Executable) -> list[Row]:
+        """The rows of a SELECT by column name (in a read transaction of its own when none is open)."""
+        if self._tx is not None:
+            return [dict(m) for m in self.conn.execute(stmt).mappings()]
+        self.begin(write=False)
+        try:
+            out: list[Row] = [dict(m) for m in self.conn.execute(stmt).mappings()]
+        except BaseException:
+            self.rollback()
+            raise
+        self.commit()
+        return out
 
-    def raw(self, sql: str) -> None:
-        self.conn.exec_driver_sql(sql)
+    def scalar(self, stmt: Executable) -> Any:
+        """The first value of the first row (None when there is no row)."""
+        got = self.rows(stmt)
+        return next(iter(got[0].values())) if got else None
+
+    def _idle(self) -> None:
+        """Between transactions the connection autocommits: a statement run on it directly (the
+        web layer's read-only queries) never leaves a transaction open that would hold SQLite's
+        lock or a PostgreSQL snapshot."""
+        if self.dialect == "postgresql":
+            self.conn.execution_options(isolation_level="AUTOCOMMIT")
+        else:
+            self.conn.execution_options(accelcal_tx=False)
 
     def begin(self, write: bool = True) -> None:
-        self.raw("BEGIN IMMEDIATE" if self.dialect == "sqlite" and write else "BEGIN")
-        self.in_transaction = True
+        if self.conn.in_transaction():  # an autobegun, autocommitting statement's: nothing to keep
+            self.conn.commit()
+        if self.dialect == "postgresql":
+            self.conn.execution_options(isolation_level="READ COMMITTED")
+        else:
+            self.conn.execution_options(accelcal_tx=True, accelcal_write=write)
+        self._tx = self.conn.begin()
 
     def commit(self) -> None:
-        self.in_transaction = False
-        self.raw("COMMIT")
+        tx, self._tx = self._tx, None
+        try:
+            if tx is not None:
+                tx.commit()
+        finally:
+            with contextlib.suppress(Exception):  # a connection lost with its transaction
+                self._idle()
 
     def rollback(self) -> None:
-        self.in_transaction = False
-        with contextlib.suppress(Exception):  # SQLite may already have rolled back by itself (disk full)
-            self.raw("ROLLBACK")
+        tx, self._tx = self._tx, None
+        with contextlib.suppress(Exception):  # a lost server or SQLite's own rollback (disk full)
+            if tx is not None:
+                tx.rollback()
+        with contextlib.suppress(Exception):
+            self._idle()
 
     def close(self) -> None:
         try:
-            self.conn.close()
+            with contextlib.suppress(Exception):  # closing a connection to a server that went away
+                self.conn.close()
         finally:
             self.engine.dispose()
-
-    # -- schema ---------------------------------------------------------------------------
-    def ddl(self, stmt: str) -> str:
-        """A migration statement for this dialect."""
-        if self.dialect == "sqlite":
-            return stmt
-        stmt = re.sub(r"\bINTEGER PRIMARY KEY\b", "BIGINT GENERATED BY DEFAULT AS IDENTITY PRIMARY KEY", stmt)
-        return re.sub(r"\bREAL\b", "DOUBLE PRECISION", stmt)
-
-    def schema_version(self) -> int:
-        if self.dialect == "sqlite":
-            return int(self.execute("PRAGMA user_version").scalar())
-        if not self.execute("SELECT to_regclass('accelcal_schema') IS NOT NULL").scalar():
-            return 0
-        row = self.execute("SELECT version FROM accelcal_schema").fetchone()
-        return 0 if row is None else int(row[0])
-
-    def lock_schema(self) -> None:
-        """Inside a transaction: serialise schema migrations between processes."""
-        if self.dialect == "postgresql":
-            self.execute(f"SELECT pg_advisory_xact_lock({_PG_LOCK_KEY})")
-            self.raw("CREATE TABLE IF NOT EXISTS accelcal_schema (version INTEGER NOT NULL)")
-
-    def set_schema_version(self, v: int) -> None:
-        if self.dialect == "sqlite":
-            self.raw(f"PRAGMA user_version = {int(v)}")
-        else:
-            self.raw("DELETE FROM accelcal_schema")
-            self.execute("INSERT INTO accelcal_schema (version) VALUES (?)", (int(v),))
-
-    def foreign_content(self) -> bool:
-        """At version 0: does the database already hold tables of ours (or, SQLite, any)?"""
-        if self.dialect == "sqlite":
-            return bool(self.execute("SELECT count(*) FROM sqlite_master").scalar())
-        return bool(self.execute("SELECT count(*) FROM information_schema.tables WHERE table_schema = "
-                                 "current_schema() AND table_name IN ('runs', 'poses', 'events')").scalar())

@@ -20,8 +20,8 @@ from ..acceptance.reasons import codes
 from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES, param_vector
 from ..errors import DataError
-from .database import Row
-from .records import RunRecord, StoreError, iso, load_or, stored_reasons
+from .records import RunRecord, StoreError, iso, reasons_of
+from .rowcheck import DamagedRow
 from .schema import POSE_COLS, STATUSES
 
 _RUN_CSV_COLS = ("id", "started_at", "finished_at", "status", "status_reason", "device_serial", "chip",
@@ -94,30 +94,32 @@ def _stats(values: np.ndarray) -> dict[str, Any]:
             "min": v.min(axis=0).tolist(), "max": v.max(axis=0).tolist()}
 
 
-def _distributions(done: Sequence[Row]) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+def _distributions(done: Sequence[dict[str, Any]]) -> tuple[dict[str, Any] | None, dict[str, Any]]:
     """Parameter and fit-figure statistics over complete runs (those with a calibration / fit)."""
-    cals = [c for c in (load_or(r["calibration"], None) for r in done) if c]
+    cals = [c for c in (r["calibration"] for r in done) if c]
     params = None
     if cals:
         s = _stats(np.array([param_vector(c) for c in cals]))
         params = {name: {k: (v if k == "n" else v[i]) for k, v in s.items()} for i, name in enumerate(PARAM_NAMES)}
-    fits = [f for f in (load_or(r["fit_summary"], None) for r in done) if isinstance(f, dict)]
+    fits = [f for f in (r["fit_summary"] for r in done) if isinstance(f, dict)]
     fit_stats = {}
     for k in _FIT_SCALARS:
-        vals = [f[k] for f in fits if isinstance(f.get(k), (int, float))]
+        vals = [f[k] for f in fits if isinstance(f.get(k), (int, float)) and not isinstance(f.get(k), bool)]
         if vals:
             fit_stats[k] = _stats(np.array(vals))
     return params, fit_stats
 
 
-def summarize(rows: Sequence[Row]) -> dict[str, Any]:
-    """Counts, pass rate, failure reasons and parameter distributions of run rows.
+def summarize(checked: Sequence[tuple[dict[str, Any], list[DamagedRow]]]) -> dict[str, Any]:
+    """Counts, pass rate, failure reasons and parameter distributions of checked run rows
+    (rowcheck.check_row: JSON parsed, damaged values None; ``damaged_rows`` names them).
 
     pass_rate = PASS / (PASS + FAIL) over complete runs (None when there are none);
     failure_reasons counts FAIL runs per reason code; parameters (W, V, Gamma
     elements, PARAM_NAMES) and fit figures give mean, sample std (ddof=1), min,
     max over complete runs with a calibration.
     """
+    rows = [r for r, _ in checked]
     by_status = Counter(r["status"] for r in rows)
     done = [r for r in rows if r["status"] == "complete"]
     verdicts = Counter(r["verdict"] for r in done if r["verdict"])
@@ -125,9 +127,9 @@ def summarize(rows: Sequence[Row]) -> dict[str, Any]:
     fail_reasons: Counter[str] = Counter()
     for r in done:
         if r["verdict"] == "FAIL":
-            fail_reasons.update(set(codes(stored_reasons(r["reasons"]))))
+            fail_reasons.update(set(codes(reasons_of(r["reasons"]))))
     params, fit_stats = _distributions(done)
-    starts = [r["started_at"] for r in rows]
+    starts = [r["started_at"] for r in rows if r["started_at"] is not None]
     return {
         "runs": len(rows),
         "by_status": {s: by_status.get(s, 0) for s in STATUSES},
@@ -143,4 +145,5 @@ def summarize(rows: Sequence[Row]) -> dict[str, Any]:
         "last_started": iso(max(starts)) if starts else None,
         "parameters": params,
         "fit": fit_stats,
+        "damaged_rows": [d.to_dict() for _, damage in checked for d in damage],
     }

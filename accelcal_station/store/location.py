@@ -17,7 +17,7 @@ def store_path(config: dict[str, Any], base_dir: str | Path = ".") -> Path | str
     """The store of a station config: ``store: {path: FILE or URL}`` (default DEFAULT_STORE),
     a relative path taken from ``base_dir`` (the config file's folder); a URL
     (``postgresql://...``, ``sqlite:///...``) is returned as it is."""
-    section = check_keys(config.get("store"), ("path",), "store")
+    section = check_keys(config.get("store"), ("path", "outbox"), "store")
     p = section.get("path", DEFAULT_STORE)
     if not isinstance(p, str) or not p.strip():
         raise ConfigError(f"store.path: {p!r}; allowed: a file path, sqlite:///PATH or postgresql://...")
@@ -37,3 +37,15 @@ def store_identity(target: str | Path) -> str:
         return describe_target(target)
     p = str(target)[len("sqlite:///"):] if str(target).startswith("sqlite:///") else target
     return str(Path(p).resolve())
+
+
+def outbox_of(config: dict[str, Any], base_dir: str | Path = ".") -> Path | None:
+    """``store: {outbox: FILE}``: where a station keeps results while its line database is
+    unreachable (outbox.py; default None: outbox.default_outbox())."""
+    section = check_keys(config.get("store"), ("path", "outbox"), "store")
+    p = section.get("outbox")
+    if p is None:
+        return None
+    if not isinstance(p, str) or not p.strip() or is_url(p):
+        raise ConfigError(f"store.outbox: {p!r}; allowed: a file path (a local SQLite file)")
+    return Path(base_dir) / Path(p).expanduser()

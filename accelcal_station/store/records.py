@@ -20,12 +20,17 @@ from ..calibration import Calibration
 from ..errors import DataError
 from ..session import PoseRecord, Session
 from .database import Row
+from .rowcheck import DamagedRow, check_row, parse_json
 
 AXES = "xyz"
 
 
 class StoreError(DataError):
     """The results store cannot be opened, read or written."""
+
+
+class StoreUnreachable(StoreError):
+    """The store's database server cannot be reached, or the connection to it was lost."""
 
 
 def iso(t: float | None) -> str | None:
@@ -49,19 +54,23 @@ def timestamp(value: object, what: str = "time") -> float | None:
 
 
 def is_damaged(text: str | None) -> bool:
-    """A JSON column that does not parse: the row is shown as damaged, the listing goes on."""
+    """A JSON column that does not parse within the limits (rowcheck.parse_json): the row is
+    shown as damaged, the listing goes on."""
     if text is None:
         return False
     try:
-        json.loads(text)
-    except (TypeError, ValueError):
+        parse_json(text)
+    except ValueError:
         return True
     return False
 
 
 def load_or(text: str | None, default: Any) -> Any:
     """A JSON column's value, or ``default`` when it is empty or damaged."""
-    return default if text is None or is_damaged(text) else json.loads(text)
+    try:
+        return default if text is None else parse_json(text)
+    except ValueError:
+        return default
 
 
 def to_json(x: Any) -> str | None:
@@ -76,7 +85,11 @@ def opt(x: Any, cast: Callable[[Any], Any] = float) -> Any:
 
 def stored_reasons(text: str | None) -> list[Reason]:
     """The typed reasons of a ``reasons`` column ([] when empty or damaged)."""
-    value = load_or(text, [])
+    return reasons_of(load_or(text, []))
+
+
+def reasons_of(value: Any) -> list[Reason]:
+    """The typed reasons of a checked (parsed) ``reasons`` value ([] when None)."""
     return [Reason.from_dict(x) for x in value] if isinstance(value, list) else []
 
 
@@ -121,7 +134,8 @@ class RunRecord:
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
     events: list[dict[str, Any]] = field(default_factory=list)
-    damaged: list[str] = field(default_factory=list)  # JSON columns that did not parse (shown, not fatal)
+    damaged: list[str] = field(default_factory=list)  # columns of the run's row that are damaged (shown as None)
+    damage: list[DamagedRow] = field(default_factory=list)  # every damaged value of the run, its poses and events
 
     def session(self) -> Session:
         return Session(list(self.poses), self.units or "counts", self.counts_per_g, self.gravity_mps2,
@@ -136,7 +150,45 @@ class RunRecord:
         d["started_at_iso"], d["finished_at_iso"] = iso(self.started_at), iso(self.finished_at)
         d["poses"] = [_pose_dict(p, r) for p, r in zip(self.poses, self.retries, strict=True)]
         d["reasons"], d["reason_codes"] = [str(r) for r in self.reasons], codes(self.reasons)
+        d["damage"] = [x.to_dict() for x in self.damage]
         return d
+
+
+def build_record(run: dict[str, Any], damage: list[DamagedRow], pose_rows: list[Row],
+                 event_rows: list[Row]) -> RunRecord:
+    """A RunRecord from a checked ``runs`` row and its raw pose and event rows (checked here:
+    a damaged pose is left out of the session, a damaged event keeps what is readable)."""
+    damage = list(damage)
+    rec = RunRecord(**{k: v for k, v in run.items() if k != "reasons"}, reasons=reasons_of(run["reasons"]),
+                    damaged=sorted({d.column for d in damage}))
+    for raw in pose_rows:
+        p, bad = check_row("poses", raw)
+        damage += bad
+        if not bad:
+            rec.poses.append(pose_record(p))
+            rec.retries.append(p["retries"])
+    for raw in event_rows:
+        e, bad = check_row("events", raw)
+        damage += bad
+        rec.events.append({"t": e["t"], "kind": e["kind"], "message": e["message"], "data": e["data"]})
+    rec.damage = damage
+    return rec
+
+
+def run_summary(r: dict[str, Any], damage: list[DamagedRow], pose_count: int) -> dict[str, Any]:
+    """The listing entry of a checked ``runs`` row (no poses)."""
+    reasons = reasons_of(r["reasons"])
+    fit = r["fit_summary"] if isinstance(r["fit_summary"], dict) else {}
+    rms = fit.get("residual_rms_g")
+    return {"id": r["id"], "started_at": iso(r["started_at"]), "finished_at": iso(r["finished_at"]),
+            "status": r["status"], "status_reason": r["status_reason"], "device_serial": r["device_serial"],
+            "chip": r["chip"], "station_id": r["station_id"], "operator": r["operator"], "lot": r["lot"],
+            "model": r["model"], "verdict": r["verdict"], "reasons": [str(x) for x in reasons],
+            "reason_codes": codes(reasons), "nvm_status": r["nvm_status"], "pose_count": pose_count,
+            "panel_id": r["panel_id"],
+            "residual_rms_g": rms if isinstance(rms, (int, float)) and not isinstance(rms, bool) else None,
+            **({"damaged": sorted({d.column for d in damage}), "damage": [d.to_dict() for d in damage]}
+               if damage else {})}
 
 
 def _pose_dict(p: PoseRecord, retries: int) -> dict[str, Any]:

@@ -17,7 +17,6 @@ Opening a store upgrades its schema (schema.py) under one transaction.
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import socket
 import time as _time
@@ -26,23 +25,48 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..acceptance.reasons import Reason, codes
+from ..acceptance.reasons import Reason
 from ..calibration import Calibration
 from ..errors import DataError
 from ..session import Session
 from . import exports, schema
-from .database import Database, Row, describe_target, is_url
+from .database import Database, describe_target, is_url
 from .location import store_identity
-from .records import RunRecord, StoreError, is_damaged, iso, opt, pose_record, stored_reasons, timestamp, to_json
+from .records import RunRecord, StoreError, StoreUnreachable, build_record, opt, run_summary, timestamp, to_json
+from .rowcheck import DamagedRow, check_row
 
 if TYPE_CHECKING:
+    from sqlalchemy import ColumnElement, func, insert, select, update
     from sqlalchemy.exc import SQLAlchemyError
+
+    from . import migrate, replay
+    from .tables import events, poses, runs
+
+
+def _load_sql() -> None:
+    """SQLAlchemy, the tables, the migrations and replay, imported when a store is first opened,
+    not when the CLI starts (importing SQLAlchemy takes about 0.4 s)."""
+    global func, insert, select, update, migrate, replay, events, poses, runs
+    from sqlalchemy import func, insert, select, update
+
+    from . import migrate, replay
+    from .tables import events, poses, runs
 
 
 def _sqlerror() -> type[SQLAlchemyError]:
     """SQLAlchemy's error class, imported when a store is used (not when the CLI starts)."""
     from sqlalchemy.exc import SQLAlchemyError
     return SQLAlchemyError
+
+
+def store_error(e: BaseException, message: str, server: bool) -> StoreError:
+    """``message`` as a StoreError; StoreUnreachable when the database server (``server``: not
+    an SQLite file) could not be reached or the connection to it was lost."""
+    from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError, PendingRollbackError
+
+    lost = isinstance(e, (OperationalError, InterfaceError, PendingRollbackError)) or (
+        isinstance(e, DBAPIError) and e.connection_invalidated)
+    return StoreUnreachable(message) if lost and server else StoreError(message)
 
 
 def _msg(e: BaseException) -> str:
@@ -59,7 +83,8 @@ class Store:
     password (PostgreSQL), as messages name it.
     """
 
-    def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True):
+    def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True, upgrade: bool = True):
+        _load_sql()
         SQLError = _sqlerror()
         name = describe_target(path)
         try:
@@ -69,14 +94,15 @@ class Store:
         except ValueError as e:
             raise StoreError(str(e)) from None
         except (OSError, SQLError) as e:
-            raise StoreError(f"{name}: cannot open results store ({_msg(e)})") from None
+            raise store_error(e, f"{name}: cannot open results store ({_msg(e)})",
+                              is_url(path) and not str(path).startswith("sqlite")) from None
         db_path = self._db.path  # set for SQLite only
         self.path: Path | str = db_path if db_path is not None else self._db.name
         try:
-            self._migrate(create)
+            self._migrate(create, upgrade)
         except SQLError as e:
             self._db.close()
-            raise StoreError(f"{self.path}: not a usable results store ({_msg(e)})") from None
+            raise store_error(e, f"{self.path}: not a usable results store ({_msg(e)})", self._server) from None
         except BaseException:
             self._db.close()
             raise
@@ -99,6 +125,10 @@ class Store:
     def dialect(self) -> str:
         return self._db.dialect
 
+    @property
+    def _server(self) -> bool:
+        return self._db.dialect != "sqlite"
+
     @contextmanager
     def _tx(self, what: str) -> Iterator[Database]:
         """One write transaction (IMMEDIATE on SQLite): all of it is committed or none of it."""
@@ -106,7 +136,7 @@ class Store:
         try:
             self._db.begin()
         except SQLError as e:
-            raise StoreError(f"{self.path}: cannot {what} ({_msg(e)})") from None
+            raise store_error(e, f"{self.path}: cannot {what} ({_msg(e)})", self._server) from None
         try:
             yield self._db
             self._db.commit()
@@ -114,7 +144,8 @@ class Store:
             if self._db.in_transaction:
                 self._db.rollback()
             if isinstance(e, SQLError):
-                raise StoreError(f"{self.path}: cannot {what} ({_msg(e)}); nothing was recorded") from None
+                why = f"{self.path}: cannot {what} ({_msg(e)}); nothing was recorded"
+                raise store_error(e, why, self._server) from None
             raise
 
     @contextmanager
@@ -123,48 +154,45 @@ class Store:
         if self._db.in_transaction:
             yield
             return
+        SQLError = _sqlerror()
         try:
             self._db.begin(write=False)
             yield
-        except _sqlerror() as e:
-            raise StoreError(f"{self.path}: cannot read runs ({_msg(e)})") from None
+        except SQLError as e:
+            raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
         finally:
             if self._db.in_transaction:
                 try:
                     self._db.commit()
-                except _sqlerror() as e:  # a damaged page can surface only here
-                    raise StoreError(f"{self.path}: cannot read runs ({_msg(e)})") from None
+                except SQLError as e:  # a damaged page can surface only here
+                    raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
 
-    def _migrate(self, create: bool = True) -> None:
-        version = self._db.schema_version()
+    def _migrate(self, create: bool = True, upgrade: bool = True) -> None:
+        """Bring the schema to schema.SCHEMA_VERSION by Alembic (migrate.py), in one transaction;
+        ``upgrade`` False: write nothing and refuse a store at another version."""
+        self._db.begin(write=False)
+        try:
+            version, adopted = migrate.current_version(self._db), migrate.stamped(self._db)
+        finally:
+            self._db.rollback()
         if version == 0 and not create:  # a reader never writes a schema into a file it only reads
             raise StoreError(f"{self.path}: not an accelcal results store (no schema); nothing was written")
         target = schema.SCHEMA_VERSION  # read at each open, so a test can stop at an older version
         if version > target:
             raise StoreError(f"{self.path}: results store schema version {version} is newer than this "
                              f"station's {target}; upgrade accelcal-station")
-        if version == target:
+        if version == target and (adopted or not upgrade):
             return
+        if not upgrade:
+            raise StoreError(f"{self.path}: results store schema version {version}, this station reads {target}; "
+                             "any other `accelcal report` command upgrades it (nothing was written)")
         with self._tx("upgrade the schema") as db:
-            db.lock_schema()
-            version = db.schema_version()  # another process may have won
-            if version == 0 and db.foreign_content():
-                kind = "an SQLite file" if db.dialect == "sqlite" else "a database with runs/poses/events tables"
-                raise StoreError(f"{self.path}: {kind} that is not an accelcal results store")
-            for v in range(version, target):
-                step = schema.MIGRATIONS[v]
-                if callable(step):
-                    step(db)
-                    db.set_schema_version(v + 1)
-                    continue
-                for stmt in step.split(";"):
-                    if stmt.strip():
-                        db.raw(db.ddl(stmt))
-                db.set_schema_version(v + 1)
+            migrate.upgrade(db, str(self.path), target)
 
     @property
     def schema_version(self) -> int:
-        return self._db.schema_version()
+        with self._snapshot():
+            return migrate.current_version(self._db)
 
     # -- recording ----------------------------------------------------------------------
     def start_run(self, *, device_serial: str | None, chip: str | None = None, station_id: str | None = None,
@@ -180,36 +208,38 @@ class Store:
         if config_hash is None and config_text is not None:
             config_hash = hashlib.sha256(config_text.encode()).hexdigest()
         with self._tx("start a run") as db:
-            cur = db.execute(
-                "INSERT INTO runs (started_at, status, device_serial, chip, station_id, operator, lot, config_hash,"
-                " config_text, model, units, counts_per_g, gravity_mps2, host, pid, panel_id)"
-                " VALUES (?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
-                (_time.time() if started_at is None else float(started_at), device_serial, chip, station_id,
-                 operator, lot, config_hash, config_text, opt(model, str), units, opt(counts_per_g),
-                 opt(gravity_mps2), socket.gethostname(), os.getpid(), panel_id))
-            return int(cur.scalar())
+            cur = db.execute(insert(runs).values(
+                started_at=_time.time() if started_at is None else float(started_at), status="running",
+                device_serial=device_serial, chip=chip, station_id=station_id, operator=operator, lot=lot,
+                config_hash=config_hash, config_text=config_text, model=opt(model, str), units=units,
+                counts_per_g=opt(counts_per_g), gravity_mps2=opt(gravity_mps2), host=socket.gethostname(),
+                pid=os.getpid(), panel_id=panel_id))
+            key = cur.inserted_primary_key
+            assert key is not None  # an INSERT of one row
+            return int(key[0])
 
     def _running(self, db: Database, run_id: int) -> None:
-        row = db.execute("SELECT status FROM runs WHERE id = ?", (run_id,)).fetchone()
-        if row is None:
+        got = db.rows(select(runs.c.status).where(runs.c.id == run_id))
+        if not got:
             raise StoreError(f"{self.path}: no run {run_id}")
-        if row["status"] != "running":
-            raise StoreError(f"{self.path}: run {run_id} is already {row['status']}; a run is closed once")
+        if got[0]["status"] != "running":
+            raise StoreError(f"{self.path}: run {run_id} is already {got[0]['status']}; a run is closed once")
 
     def _insert_poses(self, db: Database, run_id: int, session: Session, retries: Sequence[int] | None) -> None:
         if retries is not None and len(retries) != len(session):
             raise DataError(f"retries has {len(retries)} entries for {len(session)} poses")
-        rows: list[tuple[Any, ...]] = []
+        rows: list[dict[str, Any]] = []
         for i, p in enumerate(session.poses):
             ref = [None] * 3 if p.reference_g is None else [float(v) for v in p.reference_g]
             std = [None] * 3 if p.std is None else [float(v) for v in p.std]
-            rows.append((run_id, i, p.name, opt(p.pitch_deg), opt(p.roll_deg), *ref, *map(float, p.mean), *std,
-                         opt(p.n, int), int(p.dropped), opt(p.temp_c), opt(p.t_start), opt(p.t_end),
-                         0 if retries is None else int(retries[i])))
-        db.executemany(f"INSERT INTO poses (run_id, {', '.join(schema.POSE_COLS)})"
-                       f" VALUES ({', '.join('?' * 20)})", rows)
-        db.execute("UPDATE runs SET units = ?, counts_per_g = ?, gravity_mps2 = ? WHERE id = ?",
-                   (session.units, opt(session.counts_per_g), opt(session.gravity_mps2), run_id))
+            values = (i, p.name, opt(p.pitch_deg), opt(p.roll_deg), *ref, *map(float, p.mean), *std,
+                      opt(p.n, int), int(p.dropped), opt(p.temp_c), opt(p.t_start), opt(p.t_end),
+                      0 if retries is None else int(retries[i]))
+            rows.append({"run_id": run_id, **dict(zip(schema.POSE_COLS, values, strict=True))})
+        if rows:
+            db.execute(insert(poses), rows)
+        db.execute(update(runs).where(runs.c.id == run_id).values(
+            units=session.units, counts_per_g=opt(session.counts_per_g), gravity_mps2=opt(session.gravity_mps2)))
 
     def finish_run(self, run_id: int, *, session: Session, calibration: Calibration | None, verdict: str | None,
                    reasons: Iterable[Reason] = (), nvm_outcome: Any = None, fit_summary: dict[str, Any] | None = None,
@@ -234,11 +264,11 @@ class Store:
                          to_json(cal), to_json(fit_summary)]
             except (TypeError, ValueError) as e:
                 raise DataError(f"run {run_id}: result is not JSON-serialisable ({e})") from None
-            db.execute(
-                "UPDATE runs SET status = 'complete', finished_at = ?, verdict = ?, reasons = ?, nvm_status = ?,"
-                " nvm_outcome = ?, calibration = ?, fit_summary = ?, model = coalesce(?, model) WHERE id = ?",
-                (_time.time() if finished_at is None else float(finished_at), verdict, texts[0], nvm_status,
-                 *texts[1:], opt(model or (calibration.model if calibration else None), str), run_id))
+            model = opt(model or (calibration.model if calibration else None), str)
+            db.execute(update(runs).where(runs.c.id == run_id).values(
+                status="complete", finished_at=_time.time() if finished_at is None else float(finished_at),
+                verdict=verdict, reasons=texts[0], nvm_status=nvm_status, nvm_outcome=texts[1],
+                calibration=texts[2], fit_summary=texts[3], **({} if model is None else {"model": model})))
 
     def interrupt_run(self, run_id: int, reason: str, *, session: Session | None = None,
                       status: str = "interrupted", retries: Sequence[int] | None = None,
@@ -248,36 +278,35 @@ class Store:
             raise DataError(f"status {status!r}; allowed: interrupted, error")
         if nvm_outcome is not None and hasattr(nvm_outcome, "to_dict"):
             nvm_outcome = nvm_outcome.to_dict()
+        # no outcome given: keep what record_burn wrote (a burn cut short stays 'burning')
+        nvm = {} if nvm_outcome is None else {"nvm_status": "written" if nvm_outcome.get("ok") else "failed",
+                                              "nvm_outcome": to_json(nvm_outcome)}
         with self._tx(f"record run {run_id}") as db:
             self._running(db, run_id)
             if session is not None:
                 self._insert_poses(db, run_id, session, retries)
-            # no outcome given: keep what record_burn wrote (a burn cut short stays 'burning')
-            db.execute("UPDATE runs SET status = ?, status_reason = ?, finished_at = ?,"
-                       " nvm_status = coalesce(?, nvm_status), nvm_outcome = coalesce(?, nvm_outcome) WHERE id = ?",
-                       (status, str(reason), _time.time(),
-                        None if nvm_outcome is None else ("written" if nvm_outcome.get("ok") else "failed"),
-                        to_json(nvm_outcome), run_id))
+            db.execute(update(runs).where(runs.c.id == run_id).values(
+                status=status, status_reason=str(reason), finished_at=_time.time(), **nvm))
 
-    def record_burn(self, run_id: int, kind: str, outcome: dict[str, Any]) -> None:
+    def record_burn(self, run_id: int, kind: str, outcome: dict[str, Any], t: float | None = None) -> None:
         """A burn as it happens, committed at once: ``nvm_burning`` (slot, generation, blob CRC)
         sets the run's nvm_status to ``burning`` before the first byte; ``nvm_burned`` /
         ``nvm_burn_failed`` to ``burned`` / ``failed`` (finish_run then records the outcome)."""
         status = {"nvm_burning": "burning", "nvm_burned": "burned", "nvm_burn_failed": "failed"}[kind]
         crc = outcome.get("crc32")
         with self._tx(f"record the burn of run {run_id}") as db:
-            db.execute("INSERT INTO events (run_id, t, kind, message, data) VALUES (?, ?, ?, ?, ?)",
-                       (run_id, _time.time(), kind, f"slot {outcome.get('slot')}, generation "
-                        f"{outcome.get('generation')}, CRC-32 {crc if crc is None else f'0x{crc:08x}'}",
-                        to_json(outcome)))
-            db.execute("UPDATE runs SET nvm_status = ?, nvm_outcome = ? WHERE id = ?",
-                       (status, to_json(outcome), run_id))
+            db.execute(insert(events).values(
+                run_id=run_id, t=_time.time() if t is None else float(t), kind=kind,
+                message=f"slot {outcome.get('slot')}, generation {outcome.get('generation')}, CRC-32 "
+                        f"{crc if crc is None else f'0x{crc:08x}'}", data=to_json(outcome)))
+            db.execute(update(runs).where(runs.c.id == run_id).values(nvm_status=status,
+                                                                      nvm_outcome=to_json(outcome)))
 
-    def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None) -> None:
+    def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None, t: float | None = None) -> None:
         """Append an event (a rejected capture, an operator prompt, ...), committed at once."""
         with self._tx(f"log an event of run {run_id}") as db:
-            db.execute("INSERT INTO events (run_id, t, kind, message, data) VALUES (?, ?, ?, ?, ?)",
-                       (run_id, _time.time(), kind, message, to_json(data)))
+            db.execute(insert(events).values(run_id=run_id, t=_time.time() if t is None else float(t), kind=kind,
+                                             message=message, data=to_json(data)))
 
     def mark_stale_interrupted(self, max_age_s: float | None = None) -> list[int]:
         """Mark ``running`` runs whose station process is gone as interrupted; returns their ids.
@@ -288,104 +317,93 @@ class Store:
         host, now = socket.gethostname(), _time.time()
         stale: list[int] = []
         with self._tx("mark stale runs") as db:
-            for r in db.execute("SELECT id, host, pid, started_at FROM runs WHERE status = 'running'").fetchall():
-                old = max_age_s is not None and now - r["started_at"] > max_age_s
-                if old or (r["host"] == host and r["pid"] is not None and not _alive(r["pid"])):
+            for r in db.rows(select(runs.c.id, runs.c.host, runs.c.pid, runs.c.started_at)
+                             .where(runs.c.status == "running")):
+                old = max_age_s is not None and isinstance(r["started_at"], (int, float)) \
+                    and now - r["started_at"] > max_age_s
+                if old or (r["host"] == host and isinstance(r["pid"], int) and r["pid"] > 0 and not _alive(r["pid"])):
                     stale.append(r["id"])
-            db.executemany("UPDATE runs SET status = 'interrupted', finished_at = ?, status_reason = ?"
-                           " WHERE id = ?", [(now, "station stopped during the run", i) for i in stale])
+            if stale:
+                db.execute(update(runs).where(runs.c.id.in_(stale)).values(
+                    status="interrupted", finished_at=now, status_reason="station stopped during the run"))
         return stale
 
     # -- queries ------------------------------------------------------------------------
     def _where(self, device: Any = None, station: Any = None, lot: Any = None, operator: Any = None,
                since: Any = None, until: Any = None, verdict: Any = None, status: Any = None, model: Any = None,
-               run_ids: Iterable[int] | None = None) -> tuple[str, list[Any]]:
-        clauses: list[str] = []
-        args: list[Any] = []
-        for col, v in (("device_serial", device), ("station_id", station), ("lot", lot), ("operator", operator),
-                       ("verdict", verdict), ("status", status), ("model", model)):
+               run_ids: Iterable[int] | None = None) -> list[ColumnElement[bool]]:
+        clauses: list[ColumnElement[bool]] = []
+        for col, v in ((runs.c.device_serial, device), (runs.c.station_id, station), (runs.c.lot, lot),
+                       (runs.c.operator, operator), (runs.c.verdict, verdict), (runs.c.status, status),
+                       (runs.c.model, model)):
             if v is not None:
                 vals = [v] if isinstance(v, (str, int)) else list(v)
-                clauses.append(f"{col} IN ({', '.join('?' * len(vals))})")
-                args += [str(x) for x in vals]
+                clauses.append(col.in_([str(x) for x in vals]))
         for op, v, what in ((">=", since, "since"), ("<", until, "until")):
             t = timestamp(v, what)
             if t is not None:
-                clauses.append(f"started_at {op} ?")
-                args.append(t)
+                clauses.append(runs.c.started_at >= t if op == ">=" else runs.c.started_at < t)
         if run_ids is not None:
-            ids = [int(i) for i in run_ids]
-            clauses.append(f"id IN ({', '.join('?' * len(ids))})")
-            args += ids
-        return (" WHERE " + " AND ".join(clauses)) if clauses else "", args
+            clauses.append(runs.c.id.in_([int(i) for i in run_ids]))
+        return clauses
 
-    def _runs(self, filters: dict[str, Any], limit: int | None = None) -> list[Row]:
-        where, args = self._where(**filters)
-        sql = f"SELECT * FROM runs{where} ORDER BY started_at, id"
+    def _runs(self, filters: dict[str, Any], limit: int | None = None) -> list[tuple[dict[str, Any], list[DamagedRow]]]:
+        """The matching ``runs`` rows, each checked (rowcheck.check_row) with what is damaged in it."""
+        stmt = select(runs).where(*self._where(**filters)).order_by(runs.c.started_at, runs.c.id)
         if limit is not None:
-            sql += f" LIMIT {int(limit)}"
+            stmt = stmt.limit(int(limit))
         try:
-            return self._db.execute(sql, args).fetchall()
+            return [check_row("runs", r) for r in self._db.rows(stmt)]
         except _sqlerror() as e:
-            raise StoreError(f"{self.path}: cannot read runs ({_msg(e)})") from None
+            raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
 
     def list_runs(self, limit: int | None = None, **filters: Any) -> list[dict[str, Any]]:
         """Run summaries (no poses) matching filters: device, station, lot, operator, since,
-        until, verdict, status, model (a value or a list of values), run_ids."""
+        until, verdict, status, model (a value or a list of values), run_ids.  A run whose row
+        is damaged has ``damaged`` (its columns) and ``damage`` (typed ``damaged_row`` reasons)."""
         with self._snapshot():
-            per_run = self._db.execute("SELECT run_id, count(*) FROM poses GROUP BY run_id").fetchall()
-            counts: dict[int, int] = dict(per_run)
+            per_run = self._db.rows(select(poses.c.run_id, func.count().label("n")).group_by(poses.c.run_id))
+            counts: dict[Any, int] = {r["run_id"]: r["n"] for r in per_run}
             rows = self._runs(filters, limit)
-        out = []
-        for r in rows:
-            damaged = [c for c in ("fit_summary", "reasons") if is_damaged(r[c])]
-            fit = {} if "fit_summary" in damaged else (json.loads(r["fit_summary"]) if r["fit_summary"] else {})
-            reasons = stored_reasons(r["reasons"])
-            out.append({"id": r["id"], "started_at": iso(r["started_at"]), "finished_at": iso(r["finished_at"]),
-                        "status": r["status"], "status_reason": r["status_reason"],
-                        "device_serial": r["device_serial"], "chip": r["chip"], "station_id": r["station_id"],
-                        "operator": r["operator"], "lot": r["lot"], "model": r["model"], "verdict": r["verdict"],
-                        "reasons": [str(x) for x in reasons], "reason_codes": codes(reasons),
-                        "nvm_status": r["nvm_status"], "pose_count": counts.get(r["id"], 0),
-                        "panel_id": r["panel_id"],
-                        "residual_rms_g": fit.get("residual_rms_g") if isinstance(fit, dict) else None,
-                        **({"damaged": damaged} if damaged else {})})
-        return out
+        return [run_summary(r, damage, counts.get(r["id"], 0)) for r, damage in rows]
 
-    def _record(self, r: Row) -> RunRecord:
-        cols = ("reasons", "nvm_outcome", "calibration", "fit_summary")  # JSON columns
-        damaged = [k for k in cols if is_damaged(r[k])]
-
-        def load(k: str) -> Any:
-            return None if r[k] is None or k in damaged else json.loads(r[k])
-
-        rec = RunRecord(**{k: r[k] for k in r.keys() if k not in cols},  # noqa: SIM118 - a Row iterates its values
-                        reasons=stored_reasons(r["reasons"]), nvm_outcome=load("nvm_outcome"),
-                        calibration=load("calibration"), fit_summary=load("fit_summary"), damaged=damaged)
-        for p in self._db.execute("SELECT * FROM poses WHERE run_id = ? ORDER BY idx", (r["id"],)):
-            rec.poses.append(pose_record(p))
-            rec.retries.append(p["retries"])
-        rec.events = [{"t": e["t"], "kind": e["kind"], "message": e["message"],
-                       "data": None if e["data"] is None else json.loads(e["data"])}
-                      for e in self._db.execute("SELECT * FROM events WHERE run_id = ? ORDER BY id", (r["id"],))]
-        return rec
+    def _record(self, r: dict[str, Any], damage: list[DamagedRow]) -> RunRecord:
+        rid = r["id"]
+        pose_rows = self._db.rows(select(poses).where(poses.c.run_id == rid).order_by(poses.c.idx))
+        event_rows = self._db.rows(select(events).where(events.c.run_id == rid).order_by(events.c.id))
+        return build_record(r, damage, pose_rows, event_rows)
 
     def get_run(self, run_id: int) -> RunRecord:
         with self._snapshot():
             rows = self._runs({"run_ids": [run_id]})
             if not rows:
                 raise StoreError(f"{self.path}: no run {run_id}")
-            return self._record(rows[0])
+            return self._record(*rows[0])
 
     def runs(self, **filters: Any) -> list[RunRecord]:
         """Full records (poses, events) of the matching runs."""
         with self._snapshot():
-            return [self._record(r) for r in self._runs(filters)]
+            return [self._record(r, damage) for r, damage in self._runs(filters)]
 
     def sessions_for_batch(self, **filters: Any) -> list[Session]:
         """Sessions of complete runs with poses (for batch recalibration of a lot)."""
         filters.setdefault("status", "complete")
-        return [rec.session() for rec in self.runs(**filters) if rec.poses]
+        return [rec.session() for rec in self.runs(**filters) if rec.poses and not rec.damage]
+
+    def replay_run(self, rec: RunRecord, server_run_id: int | None = None, note: str = "") -> tuple[int, bool]:
+        """Write a run recorded in another store (the outbox) into this one, once (replay.py):
+        (its id here, whether anything was written)."""
+        with self._tx(f"replay run {rec.id}") as db:
+            return replay.replay_run(db, rec, server_run_id, note)
+
+    def check(self) -> list[DamagedRow]:
+        """Every damaged value of every row (runs, poses, events; rowcheck.check_row); nothing is written."""
+        found: list[DamagedRow] = []
+        with self._snapshot():
+            for table in (runs, poses, events):
+                for row in self._db.execute(select(table)).mappings():
+                    found += check_row(table.name, dict(row))[1]
+        return found
 
     # -- exports and summaries ----------------------------------------------------------
     def export_json(self, path: str | Path | None = None, **filters: Any) -> list[dict[str, Any]]:
@@ -409,13 +427,14 @@ class Store:
     def lot_summary(self, **filters: Any) -> dict[str, Any]:
         """Counts, pass rate, failure reasons and parameter distributions of the matching runs
         (exports.summarize)."""
-        return exports.summarize(self._runs(filters))
+        with self._snapshot():
+            return exports.summarize(self._runs(filters))
 
 
 def _alive(pid: int) -> bool:
     try:
         os.kill(int(pid), 0)
-    except ProcessLookupError:
+    except (ProcessLookupError, OverflowError, ValueError):  # gone, or not a pid at all (a damaged row)
         return False
     except PermissionError:
         return True
