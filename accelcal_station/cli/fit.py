@@ -225,8 +225,7 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
     model = "6" if model is None and hand_placed else model
     check_model_units(model or "12", units)  # no --model: the units still checked first
     check_temp_method(temp_method)
-    cpg = _number(counts_per_g, "--counts-per-g")
-    grav = _number(gravity, "--gravity")
+    cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
     loaded = _load(path, raw, model, units, cpg, grav, columns,
                    parse_int(skip_rows, "--skip-rows", positive=False), _number(rate, "--rate"))
     choice = None
