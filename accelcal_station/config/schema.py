@@ -136,6 +136,9 @@ class EepromSection(Section):
 class SimulatorSection(Section):
     effects: dict[str, dict[str, Any] | None] | None = _f(
         None, "effects of the catalog (sim/sensor_model.py EFFECTS), each with its parameters")
+    population: dict[str, Any] | None = _f(
+        None, "the population boards are drawn from: quantities, components, changes "
+        "(validated by sim/population.py parse_population, one-line errors)")
 
 
 class BusEmulatorSection(Section):
