@@ -161,3 +161,21 @@ def test_the_stacked_held_fit_equals_the_constrained_levenberg_marquardt(boards)
     assert np.allclose(b.params, a.params, rtol=0, atol=1e-9) and np.all(b.params[:, 3] == 0.0)
     assert np.allclose(b.stderr_W, a.stderr_W, rtol=1e-6, atol=1e-12)
     assert np.allclose(b.crossval_rms_g, a.crossval_rms_g, rtol=1e-3)  # one-step LOO against exact refits
+
+
+def test_a_station_run_whose_design_leaves_the_cubic_weak_stores_what_it_held(tmp_path):
+    """Model 15 on the six-face design: the station fits model 12's terms, holds the cubic at 0 and the
+    run's stored calibration (a real SQLite store) and `report show` say so."""
+    from test_station import sim_config
+
+    r = CliRunner().invoke(cli, ["run", "--config", sim_config(tmp_path, plan__model=15, plan__design="six-face"),
+                                 "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.output[r.output.index("{"):])
+    assert [h["term"] for h in out["held"]] == ["Gamma_xx", "Gamma_yy", "Gamma_zz"] and out["Gamma"] == [0.0] * 3
+    with sqlite3.connect(tmp_path / "runs.sqlite") as con:
+        (cal,) = con.execute("SELECT calibration FROM runs").fetchone()
+    assert [h["term"] for h in json.loads(cal)["metadata"]["held"]] == ["Gamma_xx", "Gamma_yy", "Gamma_zz"]
+    shown = CliRunner().invoke(cli, ["report", "show", "1", "--db", str(tmp_path / "runs.sqlite")])
+    assert shown.exit_code == 0, shown.output
+    assert "Gamma_zz = 0.0: z cubic held at 0: a cubic cannot be told from the gain" in shown.output
