@@ -179,3 +179,24 @@ def test_a_station_run_whose_design_leaves_the_cubic_weak_stores_what_it_held(tm
     shown = CliRunner().invoke(cli, ["report", "show", "1", "--db", str(tmp_path / "runs.sqlite")])
     assert shown.exit_code == 0, shown.output
     assert "Gamma_zz = 0.0: z cubic held at 0: a cubic cannot be told from the gain" in shown.output
+
+
+def test_a_stack_mixing_held_and_free_model_15_boards_gives_each_its_own_fit():
+    """One fit_batch call over a six-face board (the cubic not determined: held) and a nine-position board
+    (determined: fitted) gives each exactly what fitting it alone gives."""
+    from accelcal_station.fixtures.designs import get_design, references
+    from accelcal_station.models.fitting import fit, fit_batch
+
+    faces = references(get_design("six-face"))
+    refs = np.stack([np.vstack([faces, faces[:3]]), references(get_design("nine-position"))])  # (2, 9, 3)
+    rng = np.random.default_rng(11)  # forward physics: gain/cross-axis, offset, a cubic, 0.2 mg noise
+    K = np.eye(3) + rng.normal(0, 0.01, (2, 3, 3))
+    x = np.einsum("dij,dpj->dpi", K, refs) + 0.02 + 0.003 * refs**3 + rng.normal(0, 2e-4, refs.shape)
+    both = fit_batch(x, refs, "15")
+    assert both.ok.all() and [[h.term for h in hs] for hs in both.held] == [["Gamma_xx", "Gamma_yy", "Gamma_zz"], []]
+    for d in range(2):
+        alone = fit(x[d], refs[d], "15")
+        assert np.allclose(both.params[d], alone.params, rtol=0, atol=1e-12)
+        assert [h.term for h in alone.held] == [h.term for h in both.held[d]]
+    assert np.all(both.Gamma[0] == 0.0) and np.all(both.Gamma[1] != 0.0)
+    assert both.result(0).covariance.shape == both.result(1).covariance.shape == (3, 5, 5)
