@@ -26,6 +26,7 @@ stated as model 15 with Gamma = 0 and zero variance).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
@@ -57,6 +58,7 @@ class Held:
         return {"term": self.term, "value": self.value, "reason": self.reason, "hint": self.hint}
 
 
+@cache  # frozen: one instance per term serves every board of a lot
 def _held_9(k: int) -> Held:
     a, b = HOLDABLE_9[k]
     return Held(PARAM_NAMES[k], 0.0, f"{a}-{b} non-orthogonality held at 0: no pose tilts {a} and {b} together",
@@ -96,7 +98,12 @@ class HoldPlan:
 
     def free(self, names: list[str]) -> np.ndarray:
         """(D, k) bool: the parameters fitted (not held) of each board."""
-        return np.array([free_mask(h, names) for h in self.held]).reshape(len(self.held), len(names))
+        masks: dict[tuple[str, ...], np.ndarray] = {}  # a lot has one or a few distinct held sets
+        for h in self.held:
+            key = tuple(t.term for t in h)
+            if key not in masks:
+                masks[key] = free_mask(h, names)
+        return np.array([masks[tuple(t.term for t in h)] for h in self.held]).reshape(len(self.held), len(names))
 
 
 def _plan9(gf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -104,13 +111,16 @@ def _plan9(gf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     code (D,) int (0 fitted, 1 the identifiability reason, 2 FACES_ONLY): the module doc's
     rule for D boards at once.
 
-    The held columns are zeroed rather than removed, so every board keeps one (n, 9) design:
-    a zero column adds a zero singular value (the last ones) and leaves the others and their
-    singular vectors those of the reduced design; the weakest free direction of a board with
-    h held terms is then singular value 8 - h."""
+    Each board's Gram matrix G = X^T X of the unnormalised design over its distinct orientations
+    is formed once; a held term's row and column are zeroed and its diagonal set to the mean free
+    diagonal (as stacked_norm._held does), which lies between the free block's extreme
+    eigenvalues and so leaves them, the free block's singular values squared, unchanged:
+    one 9 x 9 symmetric eigenproblem per board and round (np.linalg.eigh, far cheaper than an
+    SVD of the design) gives the weakest free direction and the largest singular value."""
     D = len(gf)
     first = first_of_orientation(gf)
     X = _design(gf, "9")[:, 0] * first[..., None]  # repeats zeroed: distinct orientations only
+    G = np.einsum("dpi,dpj->dij", X, X)
     distinct = first.sum(axis=1)
     free = np.ones((D, 9))
     order = np.full((D, 2), -1)
@@ -119,9 +129,13 @@ def _plan9(gf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     for nh in range(3):  # every active board has nh terms held
         if not active.size:
             break
-        _, s, vt = np.linalg.svd(X[active] * free[active][:, None, :], full_matrices=False)
-        rel = s[:, 8 - nh] / np.maximum(s[:, 0], 1e-300)
-        k = np.argmax(np.abs(vt[:, 8 - nh]), axis=1)
+        f = free[active]
+        Ga = G[active] * f[:, :, None] * f[:, None, :]
+        fill = np.einsum("dkk->d", Ga) / f.sum(axis=1)
+        Ga[:, np.arange(9), np.arange(9)] += (1.0 - f) * fill[:, None]
+        w, V = np.linalg.eigh(Ga)  # ascending
+        rel = np.sqrt(np.maximum(w[:, 0], 0.0) / np.maximum(w[:, -1], 1e-300))
+        k = np.argmax(np.abs(V[:, :, 0]), axis=1)
         weak = rel < REL_SV_MIN
         holdable = np.isin(k, list(HOLDABLE_9))
         code[active[weak & ~holdable]] = 1
