@@ -260,5 +260,5 @@ def test_poses_and_simulate_at_their_limits_are_fast_or_refused(tmp_path, monkey
                                              "--out", "s.csv"]))
     assert "240000000 samples; allowed: at most 100000000" in line
     line = one_line(CliRunner().invoke(cli, ["simulate", "--poses", "six-face", "--samples", "10000000", "--raw",
-                                             "--temps", "0,25", "--out", "s.csv"]))
-    assert "120000000 samples; allowed: at most 100000000" in line and not (tmp_path / "s.csv").exists()
+                                             "--temps", "0,25", "--out", "big.csv"]))
+    assert "120000000 samples; allowed: at most 100000000" in line and not (tmp_path / "big.csv").exists()

@@ -29,7 +29,7 @@ import io
 import math
 import os
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -52,23 +52,18 @@ MAX_SAMPLES = 1e15  # samples averaged into one pose: years at any rate
 _META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
 
 
-def _read_text(path: Path) -> str:
-    from .rawlog import read_text_file  # regular files only: a FIFO or device would block
-
-    return read_text_file(path, "a CSV pose table", MAX_TABLE_BYTES,
-                          "a pose table holds one run's static poses; a lot of boards is a lot file")
-
-
 def table_metadata(path: str | Path) -> dict[str, str]:
     """The ``# key: value`` lines before a pose table's header."""
     meta: dict[str, str] = {}
-    for raw in _read_text(Path(path)).splitlines():
+    lines = _file_lines(Path(path))  # up to the header only: never the whole table in memory
+    for raw in lines:
         s = raw.strip()
         if s and not s.startswith("#"):
             break
         m = _META_RE.match(s)
         if m:
             meta[m.group(1)] = m.group(2)
+    lines.close()
     return meta
 
 
@@ -196,7 +191,7 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
                       None if angles is None else float(angles[1]), temp)
 
 
-def _file_lines(path: Path) -> Iterator[str]:
+def _file_lines(path: Path) -> Generator[str, None, None]:
     """The lines of a regular text file of at most MAX_TABLE_BYTES (UTF-8, BOM dropped; \\n, \\r\\n or \\r
     end a line), read one at a time; an unreadable, oversized or non-text file is one DataError, as
     ``read_text_file`` gives (a FIFO or device would block: fileguard opens regular files only)."""
