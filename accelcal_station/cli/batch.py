@@ -76,7 +76,8 @@ def _text(report: BatchReport, outputs: dict[str, Any], list_all: bool) -> list[
             lines.append(click.style("SKIP ", fg="red", bold=True) + error_text(f"{who}: {r.message}"))
         elif list_all:
             lines.append(click.style("ok   ", fg="green") + f"{clean(who)}: {r.pose_count} poses, residual RMS "
-                         f"{_mg(r.residual_rms_g)}, leave-one-out {_mg(r.crossval_rms_g)}")
+                         f"{_mg(r.residual_rms_g)}, leave-one-out {_mg(r.crossval_rms_g)}"
+                         + "".join(f"; held: {h.text}" for h in r.held))
     n, ok = len(report.results), len(report.fitted)
     # a fitted board always has its residual RMS
     rms = sorted(r.residual_rms_g for r in report.fitted if r.residual_rms_g is not None)
@@ -84,6 +85,11 @@ def _text(report: BatchReport, outputs: dict[str, Any], list_all: bool) -> list[
     colour = "green" if ok == n else ("yellow" if ok else "red")
     lines.append(click.style(f"{ok} of {n} boards recalibrated with model {report.model}", fg=colour, bold=True)
                  + f"{med}; {n - ok} skipped; {report.fit_calls} fit call(s), {report.elapsed_s:.2f} s")
+    held = [r for r in report.fitted if r.held]
+    if held:  # what the poses did not determine, said even when the boards are not listed
+        terms = sorted({h.term for r in held for h in r.held})
+        lines.append(f"held at nominal on {len(held)} board(s): {', '.join(terms)} "
+                     f"({held[0].held[0].text})")
     if "out_dir" in outputs:
         lines.append(f"calibrations: {outputs['calibrations']} file(s) in {outputs['out_dir']}")
     if "csv" in outputs:
