@@ -180,7 +180,7 @@ class DeviceSection(Section):
     oversampling: str | None = _f(None, "mma8451: oversampling mode")
     retries: int | None = _f(None, "mma8451/mpu6050: retries of a bus or serial transaction", ge=0, le=20)
     timeout_s: float | None = _f(None, "mma8451/mpu6050: transaction timeout, s", ge=0.001, le=60)
-    offset_trim_lsb: float | None = _f(None, "mma8451: offset register LSB, mg", gt=0, le=100)
+    offset_trim_lsb: list[int] | None = _f(None, "mma8451: offset registers [x, y, z], whole numbers -128..127")
     emulator: BusEmulatorSection | None = _f(None, "mma8451 bus: emulated: the emulator's faults")
     port: str | None = _f(None, "mpu6050: serial port of the bridge (or 'emulated')")
     baud: int | None = _f(None, "mpu6050: serial baud rate", ge=1200, le=4_000_000)
