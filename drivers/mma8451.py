@@ -265,7 +265,7 @@ class MMA8451(Driver):
             raise ConfigError(f"{path}.offset_trim_lsb: {trim!r}; allowed: [x, y, z] whole numbers -128..127")
         # absent: the default EEPROM; false or null: none
         e = I2cEepromSection() if "eeprom" not in cfg else m.eeprom
-        odr_index(m.odr_hz, f"{path}.odr_hz")
+        odr_index(cfg.get("odr_hz", m.odr_hz), f"{path}.odr_hz")  # as written: 3, not 3.0
         kw = {
             "address": m.address, "range_g": m.range_g, "odr_hz": m.odr_hz, "oversampling": m.oversampling,
             "retries": m.retries, "timeout_s": m.timeout_s, "serial": str(m.serial or ""),

@@ -9,9 +9,9 @@ wherever it is found.  docs/config.md lists these tables too.
 """
 from __future__ import annotations
 
-from typing import Any, Literal, TypeVar
+from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import BaseModel, StrictBool
+from pydantic import BaseModel, Field, StrictBool
 
 from .schema import BusEmulatorSection, HandSection, Section, _f, validate
 
@@ -153,8 +153,10 @@ class MotorizedJigSection(Section):
     move_margin_s: float = _f(2.0, "extra time allowed for a move, s", ge=0, le=600)
     settle_s: float = _f(0.0, "wait after a move, s", ge=0, le=60)
     poll_s: float = _f(0.01, "status poll interval, s", ge=0.001, le=5)
-    axis_sign: tuple[Literal[1, -1], Literal[1, -1]] = _f((1, 1), "sign of each axis [pitch, roll]: 1 or -1")
-    axis_offset_deg: tuple[float, float] = _f((0.0, 0.0), "zero offset of each axis [pitch, roll], deg")
+    axis_sign: Annotated[list[Literal[1, -1]], Field(min_length=2, max_length=2)] = _f(
+        [1, 1], "sign of each axis [pitch, roll]: 1 or -1")
+    axis_offset_deg: Annotated[list[float], Field(min_length=2, max_length=2)] = _f(
+        [0.0, 0.0], "zero offset of each axis [pitch, roll], deg")
 
 
 PARTS: list[tuple[str, type[BaseModel]]] = [

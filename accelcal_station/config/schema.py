@@ -347,7 +347,12 @@ def error_line(err: dict[str, Any], root: type[BaseModel], where: str = "") -> s
     if kind.startswith("int_"):
         return f"{path}: {value!r}; allowed: a whole number" + (f" {rng}" if rng else "")
     if kind == "literal_error":
-        return f"{path}: {value!r}; allowed: {_choices(parent, key)}"
+        expected = str(err.get("ctx", {}).get("expected", "")).replace(" or ", ", ")
+        return f"{path}: {value!r}; allowed: {_choices(parent, key) or expected}"
+    if kind == "bool_type":
+        return f"{path}: {value!r}; allowed: true, false"
+    if kind in ("list_type", "too_short", "too_long") and parent is not None and key in parent.model_fields:
+        return f"{path}: {value!r}; allowed: a list ({parent.model_fields[key].description})"
     return f"{path}: {value!r}; allowed: {err['msg'].removeprefix('Input should be ')}" + (f" ({rng})" if rng else "")
 
 
