@@ -1,16 +1,15 @@
-"""Configuration checking: every error names the key path and what is allowed."""
+"""Reading a configuration file: size, encoding and YAML errors as one line naming the file.
+
+The keys themselves are checked by the declared models (schema.py, parts.py)."""
 from __future__ import annotations
 
-from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Literal, TypeVar, overload
+from typing import Any
 
 import yaml
 
 from ..errors import ConfigError
 from .safe_yaml import MAX_BYTES, HostileYAML, safe_load
-
-T = TypeVar("T")
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
@@ -39,85 +38,3 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: must be a YAML mapping at top level")
     return data
-
-
-def check_keys(d: Any, allowed: Iterable[str], path: str) -> dict[str, Any]:
-    """Refuse unknown keys (typos must not be silently ignored)."""
-    if d is None:
-        return {}
-    if not isinstance(d, dict):
-        raise ConfigError(f"{path}: must be a mapping")
-    allowed = list(allowed)
-    for k in d:
-        if k not in allowed:
-            raise ConfigError(f"{path}.{k}: unknown key; allowed: {', '.join(allowed)}")
-    return d
-
-
-@overload
-def number(d: dict[str, Any], key: str, path: str, default: float | None = None, lo: float | None = None,
-           hi: float | None = None, integer: Literal[False] = False) -> float: ...
-
-
-@overload
-def number(d: dict[str, Any], key: str, path: str, default: int | None = None, lo: float | None = None,
-           hi: float | None = None, *, integer: Literal[True]) -> int: ...
-
-
-@overload
-def number(d: dict[str, Any], key: str, path: str, default: float | None = None, lo: float | None = None,
-           hi: float | None = None, integer: bool = False) -> int | float: ...
-
-
-def number(d: dict[str, Any], key: str, path: str, default: float | None = None, lo: float | None = None,
-           hi: float | None = None, integer: bool = False) -> float:
-    """A number within [lo, hi]; ``default`` when absent (None means required)."""
-    if key not in d or d[key] is None:
-        if default is None:
-            raise ConfigError(f"{path}.{key}: required")
-        return default
-    v = d[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise ConfigError(f"{path}.{key}: {v!r} is not a number")
-    if v != v or v in (float("inf"), float("-inf")):
-        raise ConfigError(f"{path}.{key}: {v!r} is not a finite number")
-    if integer and int(v) != v:
-        raise ConfigError(f"{path}.{key}: {v!r} must be a whole number")
-    if (lo is not None and v < lo) or (hi is not None and v > hi):
-        rng = f"{'-inf' if lo is None else lo} to {'inf' if hi is None else hi}"
-        raise ConfigError(f"{path}.{key}: {v!r} out of range; allowed {rng}")
-    return int(v) if integer else float(v)
-
-
-def choice(d: dict[str, Any], key: str, path: str, choices: Iterable[T], default: T | None = None) -> T:
-    """One of ``choices``; ``default`` when absent (None means required)."""
-    choices = list(choices)
-    if key not in d or d[key] is None:
-        if default is None:
-            raise ConfigError(f"{path}.{key}: required; allowed: {', '.join(map(str, choices))}")
-        return default
-    v = d[key]
-    if v not in choices:
-        raise ConfigError(f"{path}.{key}: {v!r}; allowed: {', '.join(map(str, choices))}")
-    return v
-
-
-def vector3(d: dict[str, Any], key: str, path: str, default: Iterable[float] | None = None, lo: float | None = None,
-            hi: float | None = None) -> list[float]:
-    """A per-axis triple [x, y, z] (a scalar is taken for all three axes)."""
-    if key not in d or d[key] is None:
-        if default is None:
-            raise ConfigError(f"{path}.{key}: required (a number or [x, y, z])")
-        return list(default)
-    v = d[key]
-    vals = [v, v, v] if isinstance(v, (int, float)) and not isinstance(v, bool) else v
-    if not isinstance(vals, (list, tuple)) or len(vals) != 3:
-        raise ConfigError(f"{path}.{key}: {v!r}; allowed: a number or a list [x, y, z]")
-    out = []
-    for i, x in enumerate(vals):
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or x != x:
-            raise ConfigError(f"{path}.{key}[{i}]: {x!r} is not a number")
-        if (lo is not None and x < lo) or (hi is not None and x > hi):
-            raise ConfigError(f"{path}.{key}[{i}]: {x!r} out of range; allowed {lo} to {hi}")
-        out.append(float(x))
-    return out
