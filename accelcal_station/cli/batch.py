@@ -168,10 +168,8 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
     """Recalibrate many boards with one model (vectorised); unfittable boards are reported and skipped.
 
     A lot file (one CSV or Parquet table of every pose, with a serial column) is
-    streamed in chunks into one results table: accelcal batch LOT.csv --out results.csv
-
-    With --config STATION.yaml every fitted board is judged PASS/FAIL against that
-    station's acceptance limits (the same rules as accelcal run and lot files).
+    streamed in chunks into one results table: accelcal batch LOT.csv --out results.csv.
+    --config F: each board judged PASS/FAIL by that station's acceptance limits.
 
     Exit status 0: all boards fitted; 1: some skipped; 2: bad input.
     """
