@@ -159,6 +159,25 @@ class MotorizedJigSection(Section):
         [0.0, 0.0], "zero offset of each axis [pitch, roll], deg")
 
 
+DEVICE_MODELS: dict[str, type[Section]] = {"simulated": SimulatedBoardSection, "mma8451": Mma8451Section,
+                                            "mpu6050": Mpu6050Section}
+JIG_MODELS: dict[str, type[Section]] = {"simulated": SimulatedJigSection, "operator": OperatorJigSection,
+                                        "motorized": MotorizedJigSection}
+PANEL_KEYS = ("driver", "boards", "spread", "mux", "channel", "seated_deg")  # the panel's, not the driver's
+
+
+def check_kinds(raw: dict[str, Any]) -> None:
+    """The ``device`` keys its driver accepts and the ``jig`` keys its type accepts (after
+    validate_station): a key of another driver or jig type is one line naming the allowed keys."""
+    device = raw.get("device")
+    if isinstance(device, dict):
+        parse({k: v for k, v in device.items() if k not in PANEL_KEYS},
+              DEVICE_MODELS[device.get("driver", "simulated")], "device")
+    jig = raw.get("jig")
+    if isinstance(jig, dict):
+        parse({k: v for k, v in jig.items() if k != "type"}, JIG_MODELS[jig.get("type", "simulated")], "jig")
+
+
 PARTS: list[tuple[str, type[BaseModel]]] = [
     ("device (driver: simulated)", SimulatedBoardSection), ("device.eeprom (driver: simulated)", SimEepromSection),
     ("device (driver: mma8451)", Mma8451Section), ("device.eeprom (driver: mma8451)", I2cEepromSection),

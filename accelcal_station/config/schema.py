@@ -400,4 +400,8 @@ def validate(data: Any, model: type[BaseModel], where: str = "") -> BaseModel:
 
 def validate_station(raw: dict[str, Any]) -> StationConfigSchema:
     """A whole station config against the schema (ConfigError: one line)."""
-    return validate(raw, StationConfigSchema)  # type: ignore[return-value]
+    checked = validate(raw, StationConfigSchema)
+    from .parts import check_kinds  # parts builds on this module's Section
+
+    check_kinds(raw)  # each driver's and jig type's own keys (config/parts.py)
+    return checked  # type: ignore[return-value]
