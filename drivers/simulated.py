@@ -39,10 +39,12 @@ from ..calibration import Calibration
 from ..config.checks import load_yaml
 from ..config.parts import SimEepromSection, SimulatedBoardSection, SimulatorFileSection, parse
 from ..errors import ConfigError, DeviceError
+from ..sim.population import parse_population
 from ..sim.sensor_model import SensorModel, get_chip, rotation_matrix
 from .base import Driver, Identity
 from .eeprom import EEPROM24
 
+POPULATION_STREAM = 0x7091  # the population draw's own random stream (beside noise, drift, pose)
 BOARD_KEYS = tuple(SimulatedBoardSection.model_fields)
 EEPROM_KEYS = tuple(SimEepromSection.model_fields)
 
@@ -85,17 +87,32 @@ class VirtualClock:
 
 def load_sensor_config(cfg: dict[str, Any], path: str) -> tuple[Any, str]:
     """The ``effects`` mapping named by a board config, and the key path for its errors."""
+    effects, where, _ = load_simulator(cfg, path)
+    return effects, where
+
+
+def load_simulator(cfg: dict[str, Any], path: str) -> tuple[Any, str, Any]:
+    """The ``effects`` mapping, its key path and the ``population`` mapping (or None) of a board config."""
     if "simulator" in cfg and "effects" in cfg:
         raise ConfigError(f"{path}: give either simulator or effects, not both")
     if "effects" in cfg:
-        return cfg["effects"], f"{path}.effects"
+        return cfg["effects"], f"{path}.effects", None
     sim = cfg.get("simulator")
     if sim is None:
-        return None, f"{path}.simulator"
+        return None, f"{path}.simulator", None
     where = f"{path}.simulator"
     if isinstance(sim, str):
         sim, where = load_yaml(sim), f"{path}.simulator({sim})"
-    return parse(sim, SimulatorFileSection, where).effects or {}, f"{where}.effects"
+    m = parse(sim, SimulatorFileSection, where)
+    return m.effects or {}, f"{where}.effects", m.population
+
+
+def draw_board(model: SensorModel, population: Any, seed: int, path: str) -> SensorModel:
+    """The board this seed draws from a population (sim/population.py): board index 0 of the lot,
+    its parameters from a random stream of its own (the noise streams are unchanged)."""
+    pop = parse_population(population, model.effects, path)
+    x = pop.draw(np.zeros(1, np.int64), np.random.default_rng([seed, POPULATION_STREAM]))[0]
+    return SensorModel(model.chip, pop.apply(model.effects, x), model.path, model.forward)
 
 
 class SimulatedBoard:
@@ -141,10 +158,13 @@ class SimulatedBoard:
         cfg = dict(cfg or {})
         m = parse(cfg, SimulatedBoardSection, path)
         spec = get_chip(chip or m.chip or "mma8451", f"{path}.chip")
-        effects, epath = load_sensor_config(cfg, path)
+        effects, epath, population = load_simulator(cfg, path)
         model = SensorModel.from_config(effects, spec, epath)
         if seed is None:
             seed = m.seed
+        if population is not None:
+            seed = int(cast(int, np.random.SeedSequence(seed).entropy))  # fixed here: the draw depends on it
+            model = draw_board(model, population, seed, epath.rsplit(".", 1)[0] + ".population")
         e, ep = m.eeprom or SimEepromSection(), f"{path}.eeprom"
         if e.size_bytes % e.page_bytes:
             raise ConfigError(f"{ep}.size_bytes: {e.size_bytes} must be a multiple of page_bytes ({e.page_bytes})")

@@ -168,3 +168,10 @@ def test_thermal_time_split(capsys):
         assert soak + floor + rest == pytest.approx(total, abs=2.0) and soak > floor > 0
     # two boards share one soak: per board, the panel's soak is about half one board's
     assert number(by[keys[0]][0]) / number(by[keys[0]][2]) == pytest.approx(2.0, rel=0.05)
+
+
+def test_twin_scale_prints_time_memory_and_ratio(capsys):
+    out = run(capsys, "twin_scale", "--sizes", "300,600")
+    assert re.search(r"300 boards: twin fit [0-9.]+ s, peak [0-9]+ MB", out)
+    m = re.search(r"peak memory ratio 600 / 300 boards: ([0-9.]+)x", out)
+    assert m and 0.5 < float(m.group(1)) < 2.0

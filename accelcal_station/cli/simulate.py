@@ -18,10 +18,13 @@ import numpy as np
 
 from ..api import simulate
 from ..atomic import atomic_write_text
+from ..config.sections import default_config_path
 from ..data.posetable import write_pose_table
 from ..errors import DataError
 from ..fixtures.designs import get_design
 from ..fixtures.simulated_run import SimulatedRun
+from ..lot.synthetic import write_population_lot
+from ..twin.simlot import load_device
 
 
 def parse_temps(text: str | None) -> list[float] | None:
@@ -72,7 +75,10 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
 @click.option("--config", "config", type=click.Path(dir_okay=False), default=None,
               help="Station YAML whose device: section has driver: simulated (e.g. configs/sim.yaml). "
                    "Default: an ideal MMA8451 (datasheet noise, quantization and saturation only).")
-@click.option("--poses", "design", required=True, help="Pose design: six-face, an4399-8, nine-position, optimal-N, ...")
+@click.option("--poses", "--design", "design", required=True,
+              help="Pose design: six-face, an4399-8, nine-position, optimal-N, ...")
+@click.option("--lot", "lot", type=click.IntRange(1, 10**8), default=None,
+              help="Write a lot file of this many boards drawn from the config's population (accelcal batch reads it).")
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="Pose table (or raw log) to write.")
 @click.option("--raw", is_flag=True, help="Write a raw sample log t,x,y,z (counts) with motion between poses.")
 @click.option("--seed", type=click.IntRange(0, None), default=None,
@@ -85,10 +91,13 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
 @click.option("--truth-out", type=click.Path(dir_okay=False), default=None,
               help="Write the simulator's ground-truth calibration (W, V, Gamma) as JSON.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary.")
-def command(config: str | None, design: str, out: str, raw: bool, seed: int | None, temps: str | None, samples: int,
-            move_s: float, truth_out: str | None, as_json: bool) -> None:
+def command(config: str | None, design: str, lot: int | None, out: str, raw: bool, seed: int | None,
+            temps: str | None, samples: int, move_s: float, truth_out: str | None, as_json: bool) -> None:
     """Simulate a calibration run and write its pose table (or raw log) and ground truth."""
     get_design(design)
+    if lot is not None:
+        _write_lot(config, design, lot, out, seed, samples, as_json)
+        return
     temp_list = parse_temps(temps)
     for path in (out, truth_out):  # refuse before writing anything, so no file is left alone
         if path is not None and not Path(path).resolve().parent.is_dir():
@@ -102,3 +111,19 @@ def command(config: str | None, design: str, out: str, raw: bool, seed: int | No
         atomic_write_text(truth_out, json.dumps(run.truth().to_dict(), indent=2) + "\n")
     summary, line = _summary(run, out, raw, truth_out)
     click.echo(json.dumps(summary) if as_json else line)
+
+
+def _write_lot(config: str | None, design: str, boards: int, out: str, seed: int | None, samples: int,
+               as_json: bool) -> None:
+    """--lot: a lot file of boards drawn from the config's population (sim/population.py)."""
+    if not Path(out).resolve().parent.is_dir():
+        raise DataError(f"{out}: cannot write (no such directory {Path(out).parent})")
+    cfg = config or str(default_config_path())
+    model, pop, range_g, _ = load_device(cfg)
+    seed = 0 if seed is None else seed
+    write_population_lot(out, boards, design, model, pop, seed=seed, samples=samples, range_g=range_g)
+    summary = {"out": out, "boards": boards, "design": design, "seed": seed, "samples_per_pose": samples,
+               "population": pop is not None, "config": cfg}
+    click.echo(json.dumps(summary) if as_json else
+               f"wrote lot file {out}: {boards} boards x {design} ({samples} samples per pose, seed {seed}, "
+               f"{'drawn from the population' if pop is not None else 'one fixed board'} of {cfg})")

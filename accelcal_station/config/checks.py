@@ -1,10 +1,12 @@
 """Reading a configuration file: size, encoding and YAML errors as one line naming the file.
 
-The keys themselves are checked by the declared models (schema.py, parts.py)."""
+The keys themselves are checked by the declared models (schema.py, parts.py); ``check_keys``
+and ``number`` remain for sim/population.py, whose keys are the quantities a population names."""
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, overload
 
 import yaml
 
@@ -38,3 +40,46 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: must be a YAML mapping at top level")
     return data
+
+
+def check_keys(d: Any, allowed: Iterable[str], path: str) -> dict[str, Any]:
+    """Refuse unknown keys (typos must not be silently ignored)."""
+    if d is None:
+        return {}
+    if not isinstance(d, dict):
+        raise ConfigError(f"{path}: must be a mapping")
+    allowed = list(allowed)
+    for k in d:
+        if k not in allowed:
+            raise ConfigError(f"{path}.{k}: unknown key; allowed: {', '.join(allowed)}")
+    return d
+
+
+@overload
+def number(d: dict[str, Any], key: str, path: str, default: float | None = None, lo: float | None = None,
+           hi: float | None = None, integer: Literal[False] = False) -> float: ...
+
+
+@overload
+def number(d: dict[str, Any], key: str, path: str, default: int | None = None, lo: float | None = None,
+           hi: float | None = None, *, integer: Literal[True]) -> int: ...
+
+
+def number(d: dict[str, Any], key: str, path: str, default: float | None = None, lo: float | None = None,
+           hi: float | None = None, integer: bool = False) -> float:
+    """A number within [lo, hi]; ``default`` when absent (None means required)."""
+    if key not in d or d[key] is None:
+        if default is None:
+            raise ConfigError(f"{path}.{key}: required")
+        return default
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ConfigError(f"{path}.{key}: {v!r} is not a number")
+    if v != v or v in (float("inf"), float("-inf")):
+        raise ConfigError(f"{path}.{key}: {v!r} is not a finite number")
+    if integer and int(v) != v:
+        raise ConfigError(f"{path}.{key}: {v!r} must be a whole number")
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        rng = f"{'-inf' if lo is None else lo} to {'inf' if hi is None else hi}"
+        raise ConfigError(f"{path}.{key}: {v!r} out of range; allowed {rng}")
+    return int(v) if integer else float(v)

@@ -54,6 +54,7 @@ class SimulatorFileSection(Section):
     """A simulator file or mapping: ``{effects: ...}``."""
 
     effects: dict[str, Any] | None = _f(None, "effects of the catalog (sim/sensor_model.py EFFECTS)")
+    population: dict[str, Any] | None = _f(None, "the population boards are drawn from (sim/population.py)")
 
 
 class I2cEepromSection(Section):

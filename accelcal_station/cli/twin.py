@@ -1,0 +1,120 @@
+"""`accelcal twin fit | check | whatif`: the population twin of a lot (accelcal_station/twin/)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import click
+import yaml
+
+from ..acceptance.rules import Limits
+from ..atomic import atomic_write_text
+from ..config.sections import default_config_path
+from ..errors import DataError
+from ..twin.check import check
+from ..twin.fit import fit_twin, lot_stats
+from ..twin.simlot import load_device
+from ..twin.store_source import store_stats
+from ..twin.whatif import parse_limits, whatif
+from ._mes import JsonGroup
+
+
+def _emit(as_json: bool, data: dict[str, Any], lines: list[str]) -> None:
+    click.echo(json.dumps(data, default=float) if as_json else "\n".join(lines))
+
+
+@click.group("twin", cls=JsonGroup)
+def command() -> None:
+    """The population twin: fit a lot's population, check it against the lot, predict yield."""
+
+
+def _stats(source: str | None, db: str | None, since: str | None, station: str | None,
+           limits: Limits | None) -> tuple[Any, float | None]:
+    """A lot file, or with --db the store's complete runs (--since, --station)."""
+    if (source is None) == (db is None):
+        raise DataError("give a lot file (SOURCE) or --db FILE|URL, one of them")
+    if db is None and (since or station):
+        raise DataError("--since and --station filter a store's runs; add --db FILE|URL")
+    if db is not None:
+        return store_stats(db, limits, since=since, station=station)
+    assert source is not None
+    return lot_stats(source, limits)
+
+
+def _source_options(f: Any) -> Any:
+    f = click.option("--station", default=None, help="--db: only runs of this station.")(f)
+    f = click.option("--since", default=None, help="--db: only runs started at or after (ISO 8601).")(f)
+    f = click.option("--db", "db", default=None, help="A results store (file, sqlite:///FILE, postgresql://...) "
+                     "instead of a lot file.")(f)
+    return click.argument("source", required=False, type=click.Path(dir_okay=False))(f)
+
+
+@command.command("fit")
+@_source_options
+@click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False), help="Twin config YAML to write.")
+@click.option("--components", type=click.IntRange(1, 8), default=4, show_default=True,
+              help="Most mixture components BIC may choose.")
+@click.option("--json", "as_json", is_flag=True, help="Print what was found as JSON.")
+def fit_cmd(source: str | None, db: str | None, since: str | None, station: str | None, out: str, components: int,
+            as_json: bool) -> None:
+    """Fit the population of lot file SOURCE (or --db); write the default config with population: replaced."""
+    if not Path(out).resolve().parent.is_dir():
+        raise DataError(f"{out}: cannot write (no such directory {Path(out).parent})")
+    stats, per_g = _stats(source, db, since, station, None)
+    source = source or db
+    tw = fit_twin(stats, per_g, max_components=components)
+    atomic_write_text(out, "# twin of " + str(source) + " (accelcal twin fit)\n"
+                      + yaml.safe_dump(tw.config, sort_keys=False))
+    d = {**tw.to_dict(), "out": out}
+    lines = [f"{source}: {stats.boards} boards, model {stats.model}; {len(d['components'])} component(s) by BIC"]
+    lines += [f"  weight {c['weight']:.4f}" + (f", carries {', '.join(c['carries'])}" if c["carries"] else "")
+              for c in d["components"]]
+    lines += [f"  {ch['kind']} in {ch['quantity']} at board {ch['at_board']} "
+              f"({ch['interval'][0]}-{ch['interval'][1]}), size {ch['size']:.4g}" for ch in d["changes"]]
+    lines.append(f"wrote {out}")
+    _emit(as_json, d, lines)
+
+
+@command.command("check")
+@_source_options
+@click.option("--config", "config", required=True, type=click.Path(dir_okay=False), help="Twin config to check.")
+@click.option("--before", "before", type=click.Path(dir_okay=False), default=None,
+              help="Config for the gap before (default: the default simulator config).")
+@click.option("--seed", type=click.IntRange(0, None), default=1, show_default=True)
+@click.option("--json", "as_json", is_flag=True, help="Print every test as JSON.")
+def check_cmd(source: str | None, db: str | None, since: str | None, station: str | None, config: str,
+              before: str | None, seed: int, as_json: bool) -> None:
+    """Simulate a lot like SOURCE from --config and test it against SOURCE, quantity by quantity."""
+    limits = load_device(config)[3]
+    stats, _ = _stats(source, db, since, station, limits)
+    source = source or db
+    r = check(stats, config, before or str(default_config_path()), seed, limits)
+    lines = [f"{source}: {stats.boards} boards; {r['method']}",
+             f"before ({r['before']['config']}): {r['before']['verdict']}"
+             + (f" in {', '.join(r['before']['gaps'])}" if r["before"]["gaps"] else ""),
+             f"after ({config}): {r['verdict']}" + (f" in {', '.join(r['gaps'])}" if r["gaps"] else "")]
+    _emit(as_json, r, lines)
+
+
+@command.command("whatif")
+@_source_options
+@click.option("--config", "config", required=True, type=click.Path(dir_okay=False), help="Twin config.")
+@click.option("--limit", "limits", multiple=True, help="NAME=VALUE: an acceptance limit changed (repeatable).")
+@click.option("--boards", type=click.IntRange(100, 10**6), default=20_000, show_default=True,
+              help="Boards to simulate.")
+@click.option("--json", "as_json", is_flag=True, help="Print the prediction as JSON.")
+def whatif_cmd(source: str | None, db: str | None, since: str | None, station: str | None, config: str,
+               limits: tuple[str, ...], boards: int, as_json: bool) -> None:
+    """Predicted yield of a lot like SOURCE under changed acceptance limits, with an interval."""
+    base: Limits = load_device(config)[3]
+    lim = parse_limits(limits, base)
+    stats, _ = _stats(source, db, since, station, lim)
+    r = whatif(config, stats, lim, boards)
+    y = r["first_pass_yield"]
+    r["real_yield"] = stats.verdicts.get("PASS", 0) / max(stats.boards, 1)
+    lines = [f"first-pass yield {y['value']:.4f} (interval {y['interval'][0]:.4f}-{y['interval'][1]:.4f}); "
+             f"now {r['yield_now']:.4f}; after one retest {r['yield_after_one_retest']['value']:.4f}",
+             f"the real lot under these limits: {r['real_yield']:.4f}"]
+    lines += [f"  {g['reason']}: {g['before']:.4f} -> {g['after']:.4f}" for g in r["reasons_grow"]]
+    _emit(as_json, r, lines)

@@ -1,0 +1,165 @@
+"""`twin fit`: a lot's population (mixture + changes along the lot) written as a simulator config.
+
+Steps: one streaming pass (stream.collect); changes of each effect quantity's mean along the
+lot (changes.find_changes) on the block sums; the reservoir's quantities with the changes
+taken out (each board back to the lot's start); a Student-t mixture by EM with the number of
+components chosen by BIC (mixture.fit_mixture); the default simulator config with its
+``population:`` replaced (package rotation folded into the coupling, noise from the lot's
+per-sample std).
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..acceptance.rules import Limits
+from ..config.checks import load_yaml
+from ..config.sections import default_config_path
+from ..data.lotfile import lot_scale, open_lot
+from ..errors import DataError
+from ..sim.population import Change, Component, Population, parse_quantity
+from ..sim.sensor_model import SensorModel
+from .changes import Found, find_changes
+from .mixture import NU_MAX, Mixture, fit_mixture
+from .simlot import fixed_board_stats
+from .stream import LotStats, collect, richest_model
+
+DIFFERS_SD = 3.0  # a component carries an effect when a quantity's mean is this many sd from the main one's
+
+
+@dataclass
+class Twin:
+    stats: LotStats
+    population: Population
+    mixture: Mixture
+    criterion: list[dict[str, float]]
+    changes: list[Found]
+    config: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        names = self.population.names
+        main = self.population.components[0]
+        comps = []
+        for c in self.population.components:
+            # a t component's sd is its scale times sqrt(nu / (nu - 2)); none (null) for nu <= 2
+            k = 1.0 if c.dof is None else (float(np.sqrt(c.dof / (c.dof - 2))) if c.dof > 2 else None)
+            eff = {n: {"mean": float(m), "sd": None if k is None else float(s) * k, "scale": float(s)}
+                   for n, m, s in zip(names, c.mean, c.sd, strict=True)}
+            scale = np.maximum(main.sd, 1e-12)
+            differs = [n for n, d in zip(names, np.abs(c.mean - main.mean) / scale > DIFFERS_SD, strict=True) if d]
+            comps.append({"weight": float(c.weight), "dof": c.dof, "effects": eff,
+                          "carries": sorted({n.split(".")[0] for n in differs}), "differs_in": differs})
+        return {"source_boards": self.stats.boards, "model": self.stats.model, "skipped": self.stats.skipped,
+                "criterion": {"name": "BIC", "candidates": self.criterion},
+                "components": comps,
+                "changes": [{"quantity": f.quantity, "kind": f.kind, "at_board": f.at_board,
+                             "interval": [f.lo_board, f.hi_board], "size": f.size, "p_value": f.p_value}
+                            for f in self.changes]}
+
+
+def lot_stats(path: str | Path, limits: Limits | None = None, reservoir: int = 50_000, chunk_boards: int = 4096,
+              model: str | None = None) -> tuple[LotStats, float | None]:
+    """One streaming pass over a lot file; returns the stats and its input units per g."""
+    meta, chunks = open_lot(path, chunk_boards)
+    first = next(chunks, None)
+    if first is None:
+        raise DataError(f"{path}: no boards (no rows after the header)")
+    m = model or richest_model(first)
+    units, per_g = lot_scale(meta, path, None, None, None, m)
+
+    def all_chunks() -> Any:
+        yield first
+        yield from chunks
+
+    return collect(all_chunks(), m, per_g, units, limits, reservoir), per_g
+
+
+def _unshift(rows: np.ndarray, names: list[str], changes: list[Found]) -> np.ndarray:
+    """The quantities with every change taken out (each board as at the lot's start)."""
+    q = rows[:, 1:1 + len(names)].copy()
+    board = rows[:, 0]
+    for f in changes:
+        after = board >= f.at_board
+        shift = f.size if f.kind == "step" else f.size * (board - f.at_board)
+        q[:, names.index(f.quantity)] -= np.where(after, shift, 0.0)
+    return q
+
+
+def _population(names: list[str], mix: Mixture, changes: list[Found]) -> Population:
+    comps = []
+    for k in range(mix.K):
+        sd = np.sqrt(np.clip(np.diag(mix.covs[k]), 0.0, None))
+        s = np.where(sd > 0, sd, 1.0)
+        R = np.where(np.outer(sd > 0, sd > 0), mix.covs[k] / np.outer(s, s), 0.0)
+        np.fill_diagonal(R, 1.0)
+        R = _nearest_psd(R)
+        d = np.sqrt(np.diag(R))
+        R = np.clip(R / np.outer(d, d), -1.0, 1.0)
+        nu = float(mix.dof[k])
+        # a t component's covariance is Sigma nu / (nu - 2): sd reports the scale matrix's
+        comps.append(Component(float(mix.weights[k]), mix.means[k].copy(), sd, R,
+                               None if nu >= 0.99 * NU_MAX else round(nu, 3)))
+    total = sum(c.weight for c in comps)
+    comps = [Component(c.weight / total, c.mean, c.sd, c.correlation, c.dof) for c in comps]
+    qs = [parse_quantity(n, "population") for n in names]
+    ch = [Change(qs[names.index(f.quantity)], f.kind, f.at_board, f.size) for f in changes]
+    return Population(qs, comps, ch)
+
+
+def twin_config(pop: Population, stats: LotStats, per_g: float | None, base: dict[str, Any] | None = None
+                ) -> dict[str, Any]:
+    """The default simulator config with ``population:`` replaced (module docstring)."""
+    cfg = copy.deepcopy(base if base is not None else load_yaml(default_config_path()))
+    dev = cfg.setdefault("device", {})
+    sim = dev.setdefault("simulator", {})
+    eff = sim.setdefault("effects", {})
+    if isinstance(eff.get("cross_axis"), dict):
+        eff["cross_axis"]["rotation_deg"] = [0.0, 0.0, 0.0]  # K = diag(gain) (I + C): C carries it
+    if stats.noise and per_g:
+        model = SensorModel.from_config(eff, dev.get("chip", "mma8451"))
+        enbw = model.chip.enbw_hz(float(dev.get("odr_hz", model.chip.default_odr_hz)), model.chip.default_dlpf)
+        lsb = float(eff.get("quantization", {}).get("lsb_counts", 1)) if "quantization" in eff else 0.0
+        sd_counts = np.sqrt(max(float(np.median(stats.noise)) ** 2 - lsb**2 / 12.0, 0.0))
+        eff["noise"] = {"density_ug_per_rthz": [round(float(sd_counts / per_g / np.sqrt(enbw) * 1e6), 4)] * 3}
+    sim["population"] = pop.to_config()
+    return cfg
+
+
+def fit_twin(stats: LotStats, per_g: float | None, max_components: int = 4, seed: int = 0,
+             base: dict[str, Any] | None = None) -> Twin:
+    """The twin of a streamed lot (module docstring)."""
+    names = stats.quantities
+    good = np.all(np.isfinite(stats.rows[:, 1:1 + len(names)]), axis=1) if stats.rows.size else np.zeros(0, bool)
+    need = 5 * (len(names) + 2)  # fit_mixture's smallest sample for one component
+    if good.sum() < need:
+        raise DataError(f"twin fit: {int(good.sum())} fitted boards; a population of {len(names)} parameters "
+                        f"(model {stats.model}) needs at least {need}")
+    changes = find_changes(stats.block_stats(), names, stats.block)
+    X = _unshift(stats.rows[good], names, changes)
+    mix, table = fit_mixture(X, max_components=max_components, seed=seed)
+    cfg0 = twin_config(_population(names, mix, changes), stats, per_g, base)
+    noise_cov = _fit_noise_cov(cfg0, mix, stats, seed)
+    mix.covs = np.array([_nearest_psd(S - noise_cov) for S in mix.covs])
+    pop = _population(names, mix, changes)
+    return Twin(stats, pop, mix, table, changes, twin_config(pop, stats, per_g, base))
+
+
+def _nearest_psd(S: np.ndarray) -> np.ndarray:
+    w, v = np.linalg.eigh((S + S.T) / 2)
+    return (v * np.clip(w, 0.0, None)) @ v.T
+
+
+def _fit_noise_cov(cfg: dict[str, Any], mix: Mixture, stats: LotStats, seed: int, boards: int = 2000) -> np.ndarray:
+    """The covariance the fit's own noise adds to every board's quantities: one fixed board (the
+    main component's mean) measured ``boards`` times at the lot's poses and samples, fitted.
+    A component's covariance minus this is the spread of the boards themselves (deconvolution)."""
+    names = stats.quantities
+    if stats.refs is None:  # no pose references (model 9): nothing to simulate the fit's scatter at
+        return np.zeros((len(names), len(names)))
+    q = fixed_board_stats(cfg, stats, mix.means[0], boards, seed)
+    X = q[np.all(np.isfinite(q), axis=1)]
+    return np.cov(X.T) if len(X) > len(names) else np.zeros((len(names), len(names)))

@@ -1,0 +1,91 @@
+"""A simulated lot shaped like a real one: the same poses, samples per pose and size, drawn
+from a station config's simulated device (its population, or its one fixed board), handed
+over as lot chunks so the real and the simulated lot go through the same fitting and judging."""
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from ..acceptance.rules import Limits
+from ..config.checks import load_yaml
+from ..config.parts import SimulatedBoardSection, parse
+from ..data.lotfile import LotChunk
+from ..drivers.simulated import load_simulator
+from ..errors import ConfigError
+from ..sim.lot_physics import pose_means
+from ..sim.population import Population, parse_population
+from ..sim.sensor_model import SensorModel, get_chip
+from .stream import LotStats, collect
+
+
+def load_device(path: str) -> tuple[SensorModel, Population | None, int, Limits]:
+    """The simulated device (fixed effects, population or None, range) and limits of a config."""
+    cfg = load_yaml(path)
+    dev = cfg.get("device")
+    if not isinstance(dev, dict) or dev.get("driver") != "simulated":
+        raise ConfigError(f"{path}: device.driver must be simulated (a twin simulates the lot)")
+    effects, epath, pop_spec = load_simulator(dev, f"{path}: device")
+    chip = get_chip(dev.get("chip", "mma8451"), f"{path}: device.chip")
+    model = SensorModel.from_config(effects, chip, epath)
+    pop = None if pop_spec is None else parse_population(pop_spec, model.effects, epath.rsplit(".", 1)[0]
+                                                         + ".population")
+    range_g = parse({"range_g": dev.get("range_g")}, SimulatedBoardSection, f"{path}: device").range_g \
+        or chip.default_range_g
+    return model, pop, range_g, Limits.from_config(cfg.get("acceptance"), f"{path}: acceptance")
+
+
+def _chunk(a: int, mean: np.ndarray, std: np.ndarray, samples: int, like: LotStats) -> LotChunk:
+    D, P, _ = mean.shape
+    cols: dict[str, np.ndarray] = {"x": mean[..., 0].ravel(), "y": mean[..., 1].ravel(), "z": mean[..., 2].ravel(),
+                                   "n": np.full(D * P, float(samples)), "std_x": std[..., 0].ravel(),
+                                   "std_y": std[..., 1].ravel(), "std_z": std[..., 2].ravel()}
+    if like.pose_angles:
+        cols.update({k: np.tile(v, D) for k, v in like.pose_angles.items()})
+    elif like.refs is not None:
+        cols.update({f"ref_{c}": np.tile(like.refs[:, i], D) for i, c in enumerate("xyz")})
+    serials = [f"S{a + d:08d}" for d in range(D)]
+    return LotChunk(serials, np.arange(D + 1) * P, cols, np.tile([f"p{i + 1}" for i in range(P)], D),
+                    [None] * D, np.arange(D) * P + 1)
+
+
+def sim_chunks(model: SensorModel, pop: Population | None, boards: int, like: LotStats, range_g: int,
+               seed: int, chunk: int = 4096, x: np.ndarray | None = None) -> Iterator[LotChunk]:
+    """Chunks of a simulated lot of ``boards`` boards at ``like``'s poses and samples per pose
+    (``x``: given parameter vectors, e.g. the same boards measured again)."""
+    if like.refs is None:
+        raise ConfigError("twin: the real lot has no pose references; a simulated lot needs its poses")
+    rng = np.random.default_rng(seed)
+    samples = int(np.median(like.samples)) if like.samples else 1000
+    for a in range(0, boards, chunk):
+        idx = np.arange(a, min(a + chunk, boards))
+        mean, std, _ = pose_means(model, pop, idx, like.refs, samples, rng, range_g=range_g,
+                                  x=None if x is None else x[idx])
+        yield _chunk(a, mean, std, samples, like)
+
+
+def simulate_like(config: str, like: LotStats, boards: int, seed: int, limits: Limits | None = None
+                  ) -> tuple[LotStats, dict[str, Any]]:
+    """Fit and judge a simulated lot like ``like`` from a config; its stats and what was simulated."""
+    model, pop, range_g, cfg_limits = load_device(config)
+    lim = limits if limits is not None else cfg_limits
+    cpg = model.chip.counts_per_g(range_g)
+    stats = collect(sim_chunks(model, pop, boards, like, range_g, seed), like.model, cpg, "counts", lim,
+                    reservoir=like.reservoir, seed=seed)
+    return stats, {"config": config, "boards": boards, "population": pop is not None}
+
+
+def fixed_board_stats(cfg: dict[str, Any], like: LotStats, x: np.ndarray, boards: int, seed: int) -> np.ndarray:
+    """Effect quantities (boards, Q) fitted from one board with parameters ``x`` (the population's
+    quantities) measured ``boards`` times like ``like``: the fit's own scatter."""
+    dev = cfg["device"]
+    effects, epath, pop_spec = load_simulator(dev, "device")
+    chip = get_chip(dev.get("chip", "mma8451"))
+    model = SensorModel.from_config(effects, chip, epath)
+    pop = parse_population(pop_spec, model.effects)
+    range_g = int(dev.get("range_g", chip.default_range_g))
+    xs = np.broadcast_to(x, (boards, len(x)))
+    stats = collect(sim_chunks(model, pop, boards, like, range_g, seed, x=xs), like.model,
+                    chip.counts_per_g(range_g), "counts", None, reservoir=boards, seed=seed)
+    return stats.rows[:, 1:1 + len(like.quantities)]
