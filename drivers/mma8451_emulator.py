@@ -235,6 +235,11 @@ class MMA8451Emulator:
         emu = cls(board, address=address, eeprom_address=eeprom_address, chip_id=e.chip_id, bus_hz=e.bus_hz,
                   never_ready=e.never_ready, present=e.present)
         emu.nack_every(e.nack_every)
+        c = e.corrupt_reads
+        if c is not None:
+            if not hasattr(emu, "corrupt_reads"):  # the fault itself is h26's (fault handling)
+                raise ConfigError(f"{path}.emulator.corrupt_reads: not supported by this emulator")
+            emu.corrupt_reads(c.rate, c.seed, c.address if c.address is not None else (eeprom_address or 0x50))
         return emu
 
     @property
