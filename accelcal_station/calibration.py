@@ -242,9 +242,9 @@ class Calibration:
 
     def save(self, path: str | Path) -> None:
         """Write JSON atomically (temporary file then rename): never a half-written file."""
-        from .atomic import atomic_write_text
+        from .atomic import atomic_write
 
-        atomic_write_text(Path(path), json.dumps(self.to_dict(), indent=2) + "\n")
+        atomic_write(Path(path), json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:

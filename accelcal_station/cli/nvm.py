@@ -172,7 +172,7 @@ def backup_cmd(ctx: click.Context, config_path: str | None, out: str | None, as_
     """Save both slots' raw image (with CRC-32) to a JSON file."""
     with _device(ctx, config_path) as (dev, writer):
         path = Path(out) if out else auto_backup_path(Path("."), _serial(dev, None))
-        doc = writer.backup(path)
+        doc = writer.backup(path, chip=dev.identify().chip)
     doc["path"] = str(path)
     states = ", ".join(f"slot {s['slot']} {s['state']}" for s in doc["slots"])
     _emit(as_json, doc, [click.style(f"backup written to {path}", fg="green") +
@@ -195,7 +195,7 @@ def restore_cmd(ctx: click.Context, image: str, config_path: str | None, serial:
     with _device(ctx, config_path) as (dev, writer):
         sn = _serial(dev, serial)
         backup = Path(backup_to) if backup_to else auto_backup_path(Path(image).resolve().parent, sn)
-        writer.restore(image, serial=sn, allow_other_serial=any_serial, backup_to=backup)
+        writer.restore(image, serial=sn, allow_other_serial=any_serial, backup_to=backup, chip=dev.identify().chip)
         doc = _snapshot(dev, writer, sn)
     doc.update(restored=str(image), backup=str(backup))
     _emit(as_json, doc, [click.style(f"restored {image}", fg="green") + f" (previous contents saved to {backup})",
@@ -222,7 +222,7 @@ def erase_cmd(ctx: click.Context, config_path: str | None, backup_to: str | None
                                          err=True):
             click.echo("erase cancelled; nothing was written", err=True)
             ctx.exit(1)
-        slots: list[SlotStatus] = writer.erase(backup_to=backup)
+        slots: list[SlotStatus] = writer.erase(backup_to=backup, chip=dev.identify().chip)
         doc = _snapshot(dev, writer, sn)
     doc["backup"] = str(backup)
     _emit(as_json, doc, [click.style("erased both slots", fg="green") + f" (previous contents saved to {backup})",

@@ -28,13 +28,13 @@ import csv
 import io
 import math
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..atomic import atomic_write_text
+from ..atomic import atomic_write
 from ..conventions import an4399_reference, check_units
 from ..errors import DataError, UnitsError
 from ..session import PoseRecord, Session
@@ -44,6 +44,7 @@ GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std
 COLUMNS = ("pose", "pitch_deg", "roll_deg", "x", "y", "z", "ref_x", "ref_y", "ref_z", "temp_c", "n",
            "std_x", "std_y", "std_z")
 META_KEYS = ("units", "counts_per_g", "gravity", "device")
+MAX_POSE_ROWS = 200_000  # fit memory is linear: ~1.8 kB a pose (under 200 MB at 100,000 rows, benchmarks/)
 _META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
 
 
@@ -169,7 +170,7 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
     if not name:
         raise DataError(f"{row.where('pose')}: empty; every row needs a pose name")
     mean = np.array([row.number(c) for c in "xyz"])
-    angles = row.group(GROUPS[0])
+    angles = row.group(GROUPS[0], lo=-360.0, hi=360.0)  # a pitch of -1e308 is no orientation
     ref = row.group(GROUPS[1], lo=-10.0, hi=10.0)
     if ref is not None and not np.any(ref):
         raise DataError(f"{row.where('ref_x')}: the reference is (0, 0, 0); allowed: the expected output in g")
@@ -190,20 +191,42 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
                       None if angles is None else float(angles[1]), temp)
 
 
-def _rows(path: Path, lines: list[str], header_at: int, header: list[str], references: bool) -> list[PoseRecord]:
-    """The poses of the table body (blank and ``#`` rows skipped)."""
+def _file_lines(path: Path) -> Iterator[str]:
+    """The lines of a regular text file (UTF-8, BOM dropped; \\n, \\r\\n or \\r end a line), read one
+    at a time; an unreadable or non-text file is one DataError, as ``read_text_file`` gives."""
+    from .rawlog import _check_file  # a FIFO or device would block: regular files only
+
+    _check_file(path)
     try:
-        table = list(csv.reader(io.StringIO("\n".join(lines[header_at + 1:]))))
+        with path.open(encoding="utf-8-sig", newline="") as f:
+            for line in f:
+                yield line.rstrip("\r\n")
+    except OSError as e:
+        raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a text file (expected a CSV pose table)") from None
+
+
+def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], references: bool
+          ) -> list[PoseRecord]:
+    """The poses of the table body after the header (blank and ``#`` rows skipped), parsed row
+    by row: memory is the poses, not a second copy of the table as lists of strings."""
+    reader = csv.reader(lines)
+    poses: list[PoseRecord] = []
+    try:
+        for cells in reader:
+            line = header_at + 1 + reader.line_num
+            if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
+                continue
+            if len(cells) != len(header):
+                raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
+            if len(poses) >= MAX_POSE_ROWS:
+                raise DataError(f"{path}: line {line}: more than {MAX_POSE_ROWS} pose rows; allowed: at most "
+                                f"{MAX_POSE_ROWS} (a calibration needs tens; split a lot into boards: accelcal batch)")
+            row = _Row(path, line, {c: v.strip() for c, v in zip(header, cells, strict=True)})
+            poses.append(_pose(row, references))
     except csv.Error as e:  # e.g. a cell longer than the csv module's field limit
         raise DataError(f"{path}: not a readable CSV table ({e}); allowed: a pose table of numbers") from None
-    poses: list[PoseRecord] = []
-    for k, cells in enumerate(table):
-        line = header_at + 2 + k
-        if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
-            continue
-        if len(cells) != len(header):
-            raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
-        poses.append(_pose(_Row(path, line, {c: v.strip() for c, v in zip(header, cells, strict=True)}), references))
     return poses
 
 
@@ -215,10 +238,11 @@ def read_pose_table(path: str | Path, units: str | None = None, counts_per_g: fl
     ref columns), as models 6, 12 and 15 need; errors then name the row.
     """
     path = Path(path)
-    lines = _read_text(path).splitlines()
-    meta, meta_line, header_at, _ = read_preamble(lines, path, f"{','.join(COLUMNS[:6])} (and optional columns)")
+    lines = _file_lines(path)  # read as parsed: neither the whole text nor a list of lines beside the poses
+    meta, meta_line, header_at, header_text = read_preamble(lines, path,
+                                                            f"{','.join(COLUMNS[:6])} (and optional columns)")
     hline = header_at + 1
-    header = _header(path, lines[header_at], hline)
+    header = _header(path, header_text, hline)
     units = units if units is not None else meta.get("units", "counts")
     try:
         check_units(units)
@@ -292,7 +316,7 @@ def write_pose_table(session: Session, path: str | Path, metadata: dict[str, Any
         if bad:
             raise DataError(f"{path}: pose {p.name!r}: {bad[0]} is not finite; a pose table holds finite numbers")
         w.writerow([vals[c] for c in cols])
-    atomic_write_text(path, buf.getvalue())
+    atomic_write(path, buf.getvalue())
 
 
 __all__ = ["COLUMNS", "read_pose_table", "table_metadata", "write_pose_table"]

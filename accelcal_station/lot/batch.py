@@ -29,7 +29,7 @@ import numpy as np
 
 from ..acceptance.reasons import Reason
 from ..acceptance.rules import FitFigures, Limits, Verdict, judge_all
-from ..atomic import atomic_write_text
+from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES, Calibration, param_vector
 from ..data.loader import load_pose_table
 from ..errors import AccelcalError, DataError
@@ -377,7 +377,7 @@ def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
                     "" if r.condition_number is None else repr(r.condition_number), *map(str, params)])
     text = buf.getvalue()
     if path is not None:
-        atomic_write_text(Path(path), text)
+        atomic_write(Path(path), text)
     return text
 
 
