@@ -39,7 +39,7 @@ from ..calibration import Calibration
 from ..config.checks import check_keys, load_yaml, number
 from ..errors import ConfigError, DeviceError
 from ..sim.population import parse_population
-from ..sim.sensor_model import SensorModel, get_chip, rotation_matrix
+from ..sim.sensor_model import PHYSICS, SensorModel, get_chip, rotation_matrix
 from .base import Driver, Identity
 from .eeprom import EEPROM24
 
@@ -103,8 +103,21 @@ def load_simulator(cfg: dict[str, Any], path: str) -> tuple[Any, str, Any]:
     where = f"{path}.simulator"
     if isinstance(sim, str):
         sim, where = load_yaml(sim), f"{path}.simulator({sim})"
-    check_keys(sim, ["effects", "population"], where)
+    check_keys(sim, ["effects", "population", "physics"], where)
     return sim.get("effects") or {}, f"{where}.effects", sim.get("population")
+
+
+def load_physics(cfg: dict[str, Any], path: str) -> bool:
+    """True when a board config's ``simulator.physics`` is ``forward`` (sensor_model.PHYSICS);
+    ``implicit`` (the default, also for ``effects:`` given directly) is False."""
+    sim = cfg.get("simulator")
+    where = f"{path}.simulator"
+    if isinstance(sim, str):
+        sim, where = load_yaml(sim), f"{path}.simulator({sim})"
+    value = sim.get("physics", PHYSICS[0]) if isinstance(sim, dict) else PHYSICS[0]
+    if value not in PHYSICS:
+        raise ConfigError(f"{where}.physics: {value!r}; allowed: {', '.join(PHYSICS)}")
+    return bool(value == "forward")
 
 
 def draw_board(model: SensorModel, population: Any, seed: int, path: str) -> SensorModel:
@@ -158,7 +171,7 @@ class SimulatedBoard:
         cfg = dict(check_keys(cfg, BOARD_KEYS, path))
         spec = get_chip(chip or cfg.get("chip", "mma8451"), f"{path}.chip")
         effects, epath, population = load_simulator(cfg, path)
-        model = SensorModel.from_config(effects, spec, epath)
+        model = SensorModel.from_config(effects, spec, epath, forward=load_physics(cfg, path))
         if seed is None and cfg.get("seed") is not None:
             seed = number(cfg, "seed", path, lo=0, integer=True)
         if population is not None:

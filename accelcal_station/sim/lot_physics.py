@@ -101,15 +101,17 @@ def response_g(prm: dict[str, dict[str, np.ndarray]], on: set[str], f: np.ndarra
 
 def pose_means(model: SensorModel, pop: Population | None, boards: np.ndarray, ref: np.ndarray, samples: int,
                rng: np.random.Generator, *, range_g: int = 2, odr_hz: float | None = None, temp_c: float = 25.0,
-               forward: bool = False, x: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               forward: bool | None = None, x: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pose means (D, P, 3) and per-sample std (D, P, 3) in counts of the boards with these lot
-    indices, and their parameter vectors (D, Q) (drawn from ``pop`` unless ``x`` is given)."""
+    indices, and their parameter vectors (D, Q) (drawn from ``pop`` unless ``x`` is given).
+    ``forward``: the nonlinearity's physics (response_g); None = the model's (simulator.physics)."""
     D = len(boards)
     on = enabled_effects(model, pop)
     if pop is not None and x is None:
         x = pop.draw(boards, rng)
     prm = board_parameters(model, pop, x, D)
-    G = response_g(prm, on, true_force_g(prm, on, ref, rng), temp_c, forward)
+    G = response_g(prm, on, true_force_g(prm, on, ref, rng), temp_c, model.forward if forward is None else forward)
     chip = model.chip
     cpg = chip.counts_per_g(range_g)
     enbw = chip.enbw_hz(odr_hz or chip.default_odr_hz, chip.default_dlpf)

@@ -223,6 +223,8 @@ EFFECTS: dict[str, EffectSpec] = {e.name: e for e in (
 )}
 
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
+# simulator.physics: how stage 3's nonlinearity acts (SensorModel.forward); the first is the default
+PHYSICS = ("implicit", "forward")
 DEFAULT_EFFECTS = ("noise", "quantization", "saturation")  # an ideal chip: datasheet behaviour only
 
 
@@ -315,11 +317,11 @@ class SensorModel:
 
     @classmethod
     def from_config(cls, effects: Any, chip: ChipSpec | str = "mma8451",
-                    path: str = "simulator.effects") -> SensorModel:
+                    path: str = "simulator.effects", forward: bool = False) -> SensorModel:
         chip = get_chip(chip) if isinstance(chip, str) else chip
         if effects is None:
             effects = {n: {} for n in DEFAULT_EFFECTS}
-        return cls(chip, parse_effects(effects, chip, path), path)
+        return cls(chip, parse_effects(effects, chip, path), path, forward)
 
     def to_config(self) -> dict[str, dict[str, Any]]:
         """The YAML ``effects:`` mapping of this model (round-trips through from_config)."""
@@ -330,11 +332,11 @@ class SensorModel:
         """A copy with ``name`` enabled (parameters as in YAML; missing ones default)."""
         cfg = self.to_config()
         cfg[name] = {**cfg.get(name, {}), **params}
-        return SensorModel.from_config(cfg, self.chip, self.path)
+        return SensorModel.from_config(cfg, self.chip, self.path, self.forward)
 
     def without(self, *names: str) -> SensorModel:
         return SensorModel.from_config({n: p for n, p in self.to_config().items() if n not in names},
-                                       self.chip, self.path)
+                                       self.chip, self.path, self.forward)
 
     @property
     def enabled(self) -> tuple[str, ...]:
