@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from .population import Population
-from .sensor_model import EFFECTS, SensorModel, rotation_matrix
+from .sensor_model import CHIP_DEFAULT, EFFECTS, SensorModel, rotation_matrix
 
 TIMED = ("drift", "settling")
 
@@ -31,7 +31,10 @@ def board_parameters(model: SensorModel, pop: Population | None, x: np.ndarray |
         for p in eff.params:
             if p.integer:
                 continue
-            v = np.asarray(model._p(name, p.name), dtype=float)
+            v = model._p(name, p.name)
+            # a disabled effect's datasheet default (noise density "chip"): the chip's figure
+            v = np.asarray([model.chip.noise_ug_per_rthz] * 3 if isinstance(v, str) and v == CHIP_DEFAULT else v,
+                           dtype=float)
             out[name][p.name] = np.broadcast_to(v, (D,) + v.shape).copy()
     if pop is not None and x is not None:
         for k, q in enumerate(pop.quantities):
