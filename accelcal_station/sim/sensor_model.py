@@ -15,7 +15,9 @@ The sensor chain, in order (each stage only when its effect is enabled):
    (``gain``, ``cross_axis``: coupling ``C`` and package rotation ``R_pkg``)
 3. nonlinearity         the reading ``G`` solves ``f = K^-1 (G - o(T)) - q G^2 - c G^3``
    per axis (``quadratic`` q, ``cubic`` c): the inverse of AN4399 Eqn 67 with
-   ``Gamma = -c``, so model 15 inverts ``cubic`` exactly
+   ``Gamma = -c``, so model 15 inverts ``cubic`` exactly; with ``simulator.physics:
+   forward`` (``SensorModel.forward``) instead ``G = o + u + q u^2 + c u^3``, u = K f
+   (a sensor's own response, which model 15 only approximates)
 4. offset               ``o(T)`` in step 3 (``offset``); ``temperature`` makes offset and
    gain linear + quadratic in ``T - t_ref_c``
 5. drift                + offset random walk and exponential warm-up (time since power-up)
@@ -447,7 +449,8 @@ class SensorModel:
         """The AN4399 calibration that inverts offset, gain, cross_axis and cubic at temp_c.
 
         From step 3, ``f = K^-1 G - K^-1 o - c G^3``, so ``W = K^-1``, ``V = -K^-1 o``,
-        ``Gamma = -c`` (AN4399 Eqn 67) -- exact, not an approximation.  The
+        ``Gamma = -c`` (AN4399 Eqn 67) -- exact, not an approximation (with ``forward`` physics
+        the same W, V, Gamma, of which model 15's fit is then an approximation).  The
         ``quadratic`` term has no AN4399 counterpart and is left out; the output is in
         standard g (the ``gravity`` effect is not inverted); drift, settling, noise,
         saturation and quantization are not part of a calibration.
