@@ -27,10 +27,10 @@ from ..sim.lot_physics import board_parameters, enabled_effects, response_g, tru
 from ..sim.population import Component, Population, parse_quantity
 from ..sim.sensor_model import PHYSICS, SensorModel
 from .compare import anderson
-from .simlot import _chunk, fixed_board_stats, twin_model
+from .simlot import fixed_board_stats, lot_chunk, twin_model
 from .stream import LotStats, effect_quantities
 
-PLUGIN_BOARDS = 3000  # boards re-simulated per physics: A-D on residuals then separates p ~ 1e-100
+PLUGIN_BOARDS = 3000  # boards re-simulated per physics: the wrong one measured at p ~ 1e-32 (10 % cubic boards)
 INVERT_STEPS = 4
 
 
@@ -53,7 +53,7 @@ def fitted_noise_free(model: SensorModel, names: list[str], theta: np.ndarray, l
         x = theta[a:a + chunk]
         prm = board_parameters(model, pop, x, len(x))
         G = response_g(prm, on, true_force_g(prm, on, like.refs, rng), 25.0, model.forward)
-        res = fit_chunk(_chunk(a, G * cpg, np.ones_like(G), 1000, like), like.model, cpg, "counts")
+        res = fit_chunk(lot_chunk(a, G * cpg, np.ones_like(G), 1000, like), like.model, cpg, "counts")
         out[a:a + chunk] = effect_quantities(res["W"], res["V"], res["Gamma"], like.model)
     return out
 

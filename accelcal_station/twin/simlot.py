@@ -34,7 +34,7 @@ def load_device(path: str) -> tuple[SensorModel, Population | None, int, Limits]
     return model, pop, range_g, Limits.from_config(cfg.get("acceptance"), f"{path}: acceptance")
 
 
-def _chunk(a: int, mean: np.ndarray, std: np.ndarray, samples: int, like: LotStats) -> LotChunk:
+def lot_chunk(a: int, mean: np.ndarray, std: np.ndarray, samples: int, like: LotStats) -> LotChunk:
     D, P, _ = mean.shape
     cols: dict[str, np.ndarray] = {"x": mean[..., 0].ravel(), "y": mean[..., 1].ravel(), "z": mean[..., 2].ravel(),
                                    "n": np.full(D * P, float(samples)), "std_x": std[..., 0].ravel(),
@@ -60,7 +60,7 @@ def sim_chunks(model: SensorModel, pop: Population | None, boards: int, like: Lo
         idx = np.arange(a, min(a + chunk, boards))
         mean, std, _ = pose_means(model, pop, idx, like.refs, samples, rng, range_g=range_g,
                                   x=None if x is None else x[idx])
-        yield _chunk(a, mean, std, samples, like)
+        yield lot_chunk(a, mean, std, samples, like)
 
 
 def simulate_like(config: str, like: LotStats, boards: int, seed: int, limits: Limits | None = None
