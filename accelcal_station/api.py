@@ -11,7 +11,7 @@ imports this module.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,9 +23,10 @@ from .data.rawlog import check_rate
 from .diagnosis.engine import diagnose as _diagnose
 from .diagnosis.loading import load_data, load_simulator
 from .diagnosis.result import Diagnosis
-from .errors import AccelcalError, DataError, UnitsError
+from .drivers.simulated import SimulatedBoard
+from .errors import AccelcalError, DataError, UnderdeterminedError, UnitsError
 from .fixtures.designs import get_design
-from .fixtures.simulated_run import SimulatedRun, run_design, simulated_board
+from .fixtures.simulated_run import SimulatedRun, Sink, run_design, simulated_board
 from .models.choice import choose_model, with_face_references
 from .models.fitting import fit_session, fit_temperature
 from .models.handplaced import norm_faces
@@ -102,6 +103,9 @@ def fit(data: str | Path | Loaded | Session, model: str | int | None = None, *, 
     except AccelcalError as e:
         found = f" (found {len(session)} static intervals in the raw log)" if is_raw else ""
         raise type(e)(f"{name}: {e}{found}") from None
+    except np.linalg.LinAlgError as e:  # a design so degenerate the eigen/SVD solvers do not converge
+        raise UnderdeterminedError(f"{name}: the {len(session)} poses are numerically degenerate for model {m} "
+                                   f"({e}); allowed: poses spread over distinct orientations") from None
     return Fit(fr.calibration, m, [(None, fr)], [session])
 
 
@@ -124,11 +128,24 @@ def _fit_chosen(session: Session, name: str, temp_method: str, is_raw: bool) -> 
     return result
 
 
-def _check_run(samples: int, temps_c: Sequence[float] | None, move_s: float) -> None:
-    """The limits `accelcal simulate` puts on its options, for callers that skip the command line."""
-    if not (isinstance(samples, int) and 2 <= samples <= 10**7):
-        raise DataError(f"samples={samples!r}; allowed: a whole number from 2 to 10000000 (a pose's std needs 2)")
+MAX_TEMPS = 16  # set points of one simulated run
+MAX_SAMPLES_PER_POSE = 10**7  # drawn and written in chunks (streamed), so bounded by time, not memory
+MAX_TOTAL_SAMPLES = 10**8  # poses x set points x samples: about a minute of simulation and 2 GB of raw log
+
+
+def _check_run(samples: int, temps_c: Sequence[float] | None, move_s: float, poses: int = 1) -> None:
+    """The limits `accelcal simulate` puts on its options, for callers that skip the command line
+    (checked before any sample is made: they bound its time and its output)."""
+    if not (isinstance(samples, int) and 2 <= samples <= MAX_SAMPLES_PER_POSE):
+        raise DataError(f"samples={samples!r}; allowed: a whole number from 2 to {MAX_SAMPLES_PER_POSE} "
+                        "(a pose's std needs 2)")
     temps = list(temps_c or [])
+    if len(temps) > MAX_TEMPS:
+        raise DataError(f"temps_c: {len(temps)} temperatures; allowed: at most {MAX_TEMPS}")
+    total = samples * poses * max(1, len(temps))
+    if total > MAX_TOTAL_SAMPLES:
+        raise DataError(f"samples={samples} x {poses} poses x {max(1, len(temps))} temperatures = {total} samples; "
+                        f"allowed: at most {MAX_TOTAL_SAMPLES} in one run (fewer samples, poses or temperatures)")
     if not all(isinstance(t, (int, float)) and math.isfinite(t) and -60.0 <= t <= 150.0 for t in temps):
         raise DataError(f"temps_c={temps!r}; allowed: temperatures in C between -60 and 150")
     if len(set(temps)) != len(temps):
@@ -138,15 +155,20 @@ def _check_run(samples: int, temps_c: Sequence[float] | None, move_s: float) -> 
 
 
 def simulate(design: str, *, config: str | None = None, seed: int | None = None, samples: int = 1000,
-             temps_c: Sequence[float] | None = None, move_s: float = 2.0, raw: bool = False) -> SimulatedRun:
+             temps_c: Sequence[float] | None = None, move_s: float = 2.0, raw: bool = False,
+             sink: Sink | None = None, on_board: Callable[[SimulatedBoard], None] | None = None) -> SimulatedRun:
     """Run pose design ``design`` (six-face, an4399-8, optimal-N, ...) on the simulated board of a
     station config (default: an ideal MMA8451) at each of ``temps_c``: the pose means as a Session
-    in counts, the raw samples when ``raw``, and the board's ground truth (``.truth()``)."""
+    in counts, the raw samples when ``raw`` (handed chunk by chunk to ``sink`` when given, not
+    kept), and the board's ground truth (``.truth()``).  ``on_board`` sees the board before any
+    sample is taken (e.g. to write a raw log's header: ``run_metadata``)."""
     get_design(design)  # an unknown design is refused before the board is built
-    _check_run(samples, temps_c, move_s)
+    _check_run(samples, temps_c, move_s, len(get_design(design)))
     board = simulated_board(config, seed)
-    return run_design(board, design, samples=samples, temps=list(temps_c) if temps_c else None, move_s=move_s,
-                      raw=raw)
+    temps = list(temps_c) if temps_c else None
+    if on_board is not None:
+        on_board(board)
+    return run_design(board, design, samples=samples, temps=temps, move_s=move_s, raw=raw, sink=sink)
 
 
 def diagnose(files: Sequence[str | Path], *, config: str | Path | None = None, raw: bool = False,

@@ -5,6 +5,8 @@ prints ``str(err)`` on one line and exits non-zero, never a traceback.
 """
 from __future__ import annotations
 
+import termios
+
 
 class AccelcalError(Exception):
     """Base class: a problem with the user's input, configuration or device."""
@@ -35,6 +37,18 @@ class DeviceError(AccelcalError):
     """The device did not answer, answered wrongly, or is not the expected chip."""
 
     exit_code = 3
+    reason_code = "device"  # the typed reason a run records when this ends it
+
+
+class PortLostError(DeviceError):
+    """A serial port closed or vanished while in use (the driver boundary maps PORT_FAULTS to it)."""
+
+    reason_code = "port_lost"
+
+
+# what a lost port raises below the drivers: OSError (pyserial's SerialException is one, as is
+# EIO from a hung-up pty) and termios.error (tcflush/tcsetattr on a vanished tty), not an OSError
+PORT_FAULTS: tuple[type[BaseException], ...] = (OSError, termios.error)
 
 
 class TemperatureRangeError(AccelcalError):

@@ -73,13 +73,56 @@ def _centre(gf: np.ndarray) -> np.ndarray:
     return np.where(far, mid, 0.0)
 
 
+BLOCK_ELEMS = 1 << 19  # pose-pair cosines held at once (4 MB of float64): memory stays linear in P
+WINDOWED_FROM = 2048  # poses per board from which pairs are looked for in a sorted window only
+
+
 def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG) -> np.ndarray:
-    """(D, P) bool: pose p is the first of its orientation (no earlier pose within ``tol_deg``)."""
+    """(D, P) bool: pose p is the first of its orientation (no earlier pose q < p with
+    u_p . u_q > cos(tol_deg), u the unit directions).  The P x P cosines are formed a block of
+    rows at a time, so memory is O(D P), not O(D P^2) (a 100,000-pose table); a large table
+    compares each pose only with those in neighbouring cubes of the chord 2 sin(tol/2)."""
     x = gf - _centre(gf)[..., None, :]
     u = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
-    close = np.einsum("dpi,dqi->dpq", u, u) > math.cos(math.radians(tol_deg))
-    earlier = np.tril(close, k=-1)
-    return ~np.any(earlier, axis=-1)
+    D, P = u.shape[:2]
+    cos = math.cos(math.radians(tol_deg))
+    if P >= WINDOWED_FROM:
+        return np.stack([_first_windowed(ub, cos, 2 * math.sin(math.radians(tol_deg) / 2)) for ub in u])
+    first = np.ones((D, P), dtype=bool)
+    step = max(1, BLOCK_ELEMS // max(1, D * P))
+    for a in range(1, P, step):
+        b = min(P, a + step)
+        close = (u[:, a:b] @ np.swapaxes(u[:, :b - 1], -1, -2)) > cos  # (D, rows, earlier candidates)
+        close &= np.arange(b - 1)[None, :] < np.arange(a, b)[:, None]  # only earlier poses count
+        first[:, a:b] = ~np.any(close, axis=-1)
+    return first
+
+
+def _first_windowed(u: np.ndarray, cos: float, chord: float) -> np.ndarray:
+    """``first_of_orientation`` of one board's (P, 3) unit directions, comparing each pose only
+    with the poses in its own and the 26 neighbouring cubes of side ``chord`` (a closer pair
+    cannot be further apart), a block of rows at a time."""
+    P = len(u)
+    cell = np.floor(u / chord).astype(np.int64) + int(1 / chord) + 2  # |u| <= 1: 0 < cell < 2**20
+    key = (cell[:, 0] << 40) | (cell[:, 1] << 20) | cell[:, 2]
+    order = np.argsort(key, kind="stable")
+    skey, us = key[order], u[order]
+    cells, starts = np.unique(skey, return_index=True)
+    ends = np.append(starts[1:], P)
+    near = [(dx << 40) + (dy << 20) + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)]
+    first = np.ones(P, dtype=bool)
+    for c, a0, b0 in zip(cells.tolist(), starts.tolist(), ends.tolist(), strict=True):
+        lo = np.searchsorted(cells, [c + d for d in near])
+        hit = lo[(lo < len(cells)) & (cells[np.minimum(lo, len(cells) - 1)] == np.array(near) + c)]
+        cand = np.concatenate([np.arange(starts[j], ends[j]) for j in hit])
+        uc, ic = us[cand], order[cand]
+        step = max(1, BLOCK_ELEMS // max(1, len(cand)))
+        for a in range(a0, b0, step):
+            b = min(b0, a + step)
+            close = (us[a:b] @ uc.T) > cos
+            close &= ic[None, :] < order[a:b, None]  # earlier in the table
+            first[order[a:b]] = ~np.any(close, axis=1)
+    return first
 
 
 def _design(gf: np.ndarray, model: str) -> np.ndarray:

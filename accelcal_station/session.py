@@ -15,7 +15,7 @@ from .conventions import check_units, units_per_g
 from .errors import DataError
 
 
-@dataclass
+@dataclass(slots=True)  # no per-pose __dict__: a 100,000-pose table stays small
 class PoseRecord:
     """One static pose.
 
@@ -38,11 +38,17 @@ class PoseRecord:
     t_end: float | None = None
 
     def __post_init__(self) -> None:
-        self.mean = np.asarray(self.mean, dtype=float).reshape(3)
+        self.mean = _vec3(self.mean)
         if self.std is not None:
-            self.std = np.asarray(self.std, dtype=float).reshape(3)
+            self.std = _vec3(self.std)
         if self.reference_g is not None:
-            self.reference_g = np.asarray(self.reference_g, dtype=float).reshape(3)
+            self.reference_g = _vec3(self.reference_g)
+
+
+def _vec3(v: Any) -> np.ndarray:
+    """A (3,) float array; one already in that form is kept as it is (no view per pose: memory)."""
+    a = np.asarray(v, dtype=float)
+    return a if a.shape == (3,) else a.reshape(3)
 
 
 @dataclass

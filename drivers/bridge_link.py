@@ -13,12 +13,13 @@ import errno
 import time
 from collections import deque
 from collections.abc import Callable
+from contextlib import suppress
 from dataclasses import dataclass, field
 from typing import TypeVar
 
 import serial
 
-from ..errors import DeviceError
+from ..errors import PORT_FAULTS, DeviceError, PortLostError
 from . import bridge_protocol as bp
 
 RETRYABLE_NAKS = (bp.ERR_I2C, bp.ERR_NVM)
@@ -107,15 +108,16 @@ class BridgeLink:
             if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK):
                 raise DeviceError(f"serial port {self.port} is in use by another program") from None
             raise DeviceError(f"cannot open serial port {self.port}: {e}") from None
-        except (OSError, ValueError) as e:
+        except PORT_FAULTS + (ValueError,) as e:
             raise DeviceError(f"cannot open serial port {self.port}: {e}") from None
         self._ser = ser
-        ser.reset_input_buffer()
+        self._io(lambda p: p.reset_input_buffer())
 
     def close(self) -> None:
         if self._ser is not None:
             try:
-                self._ser.close()
+                with suppress(*PORT_FAULTS):  # a port that is gone has nothing left to release
+                    self._ser.close()
             finally:
                 self._ser = None
 
@@ -129,8 +131,8 @@ class BridgeLink:
             raise DeviceError(f"serial port {self.port} is not open; use `with driver:` or open()")
         try:
             return fn(self._ser)
-        except (serial.SerialException, OSError) as e:
-            raise DeviceError(f"lost serial port {self.port}: {e}") from None
+        except PORT_FAULTS as e:  # SerialException, EIO of a hung-up pty, termios.error
+            raise PortLostError(f"lost serial port {self.port}: {e}") from None
 
     def send(self, type_: int, payload: bytes = b"") -> int:
         """Send one command frame; returns its seq."""

@@ -21,7 +21,9 @@ cleared by reading that axis's MSB; 14-bit left-justified output with the OFF_X/
 change the noise, which is the simulator's ``noise`` effect.
 
 Faults for tests: :meth:`nack_next`, :meth:`nack_every`, ``never_ready``, :meth:`force_overrun`,
-``chip_id`` (another part), ``present=False`` (nothing at the address).
+``chip_id`` (another part), ``present=False`` (nothing at the address), and a lying bus,
+:meth:`corrupt_reads` (``emulator.corrupt_reads: {rate, seed, address}`` in a config): each read
+message to that address comes back, with probability ``rate``, with one bit flipped.
 """
 from __future__ import annotations
 
@@ -200,12 +202,14 @@ class MMA8451Emulator:
         self.clock = _Clock(self)
         self._grid0 = 0.0
         self._boot_until = -np.inf
-        self._nacks: list[list[Any]] = []  # [remaining, address or None, register or None]
+        self._nacks: list[list[Any]] = []  # [remaining, address or None, register or None, from transaction]
         self._nack_every = 0
         self._overrun, self._overrun_at = 0, 0
         self.samples_produced = 0
         self.transactions = 0
         self.nack_log: list[tuple[int, int | None]] = []  # (address, register) of every NACKed transaction
+        self._corrupt: tuple[float, int | None, np.random.Generator] | None = None  # rate, address, rng
+        self.corrupted = 0  # read messages returned with a flipped bit
         self.chip = _Chip(self, chip_id)
 
     # --- construction from a device config section ----------------------------------------
@@ -229,8 +233,8 @@ class MMA8451Emulator:
             raise ConfigError(f"{path}.simulator: {sim!r}; allowed: a mapping or the path of a simulator YAML file")
         seed = number(cfg, "seed", path, 0, 0, 2**63 - 1, integer=True) if cfg.get("seed") is not None else None
         board = SimulatedBoard.from_config(sim, chip="mma8451", seed=seed, path=where)
-        e = check_keys(cfg.get("emulator"), ("chip_id", "nack_every", "never_ready", "present", "bus_hz"),
-                       f"{path}.emulator")
+        e = check_keys(cfg.get("emulator"), ("chip_id", "nack_every", "never_ready", "present", "bus_hz",
+                                             "corrupt_reads"), f"{path}.emulator")
         ep = f"{path}.emulator"
         for k in ("never_ready", "present"):
             if not isinstance(e.get(k, False), bool):
@@ -240,6 +244,12 @@ class MMA8451Emulator:
                   bus_hz=number(e, "bus_hz", ep, 400_000.0, 10_000.0, 3_400_000.0),
                   never_ready=e.get("never_ready", False), present=e.get("present", True))
         emu.nack_every(number(e, "nack_every", ep, 0, 0, 1000, integer=True))
+        if e.get("corrupt_reads") is not None:
+            cp = f"{ep}.corrupt_reads"
+            c = check_keys(e["corrupt_reads"], ("rate", "seed", "address"), cp)
+            emu.corrupt_reads(number(c, "rate", cp, 0.0, 0.0, 1.0),
+                              number(c, "seed", cp, 0, 0, 2**63 - 1, integer=True),
+                              number(c, "address", cp, eeprom_address or 0x50, 0, 0x7F, integer=True))
         return emu
 
     @property
@@ -259,13 +269,31 @@ class MMA8451Emulator:
         return int(self.board.eeprom.page_size)
 
     # --- faults ---------------------------------------------------------------------------
-    def nack_next(self, k: int = 1, register: int | None = None, address: int | None = None) -> None:
-        """NACK the next k transactions (to ``address``, touching ``register`` when given)."""
-        self._nacks.append([int(k), address, register])
+    def nack_next(self, k: int = 1, register: int | None = None, address: int | None = None,
+                  after: int = 0) -> None:
+        """NACK the next k transactions (to ``address``, touching ``register`` when given), from
+        ``after`` more transactions on (a NACK storm mid-run)."""
+        self._nacks.append([int(k), address, register, self.transactions + int(after)])
 
     def nack_every(self, n: int) -> None:
         """NACK every n-th transaction (0: never)."""
         self._nack_every = int(n)
+
+    def corrupt_reads(self, rate: float, seed: int = 0, address: int | None = 0x50) -> None:
+        """A lying bus: each read message to ``address`` (None: any) has one bit flipped with
+        probability ``rate`` (0 turns it off); the device itself is unchanged."""
+        self._corrupt = (float(rate), address, np.random.default_rng(seed)) if rate > 0 else None
+
+    def _lie(self, addr: int, data: bytes) -> bytes:
+        if self._corrupt is None or not data:
+            return data
+        rate, only, rng = self._corrupt
+        if only not in (None, addr) or rng.random() >= rate:
+            return data
+        out = bytearray(data)
+        out[int(rng.integers(len(out)))] ^= 1 << int(rng.integers(8))
+        self.corrupted += 1
+        return bytes(out)
 
     def force_overrun(self, n: int = 1, after: int = 0) -> None:
         """After ``after`` more samples, the host misses n: they are produced and overwritten unread (ZYXOW)."""
@@ -318,7 +346,7 @@ class MMA8451Emulator:
                 raise _nack(a)
             try:  # device models NACK by raising OSError(EREMOTEIO), e.g. an EEPROM in its write cycle
                 if is_read:
-                    out.append(dev.i2c_read(d))
+                    out.append(self._lie(a, dev.i2c_read(d)))
                 else:
                     dev.i2c_write(bytes(d))
                     out.append(b"")
@@ -331,7 +359,8 @@ class MMA8451Emulator:
         if self._nack_every and self.transactions % self._nack_every == 0:
             return True
         for rule in self._nacks:
-            if rule[0] > 0 and rule[1] in (None, addr) and rule[2] in (None, register):
+            if rule[0] > 0 and rule[1] in (None, addr) and rule[2] in (None, register) \
+                    and self.transactions > rule[3]:
                 rule[0] -= 1
                 return True
         return False

@@ -170,6 +170,15 @@ def test_thermal_time_split(capsys):
     assert number(by[keys[0]][0]) / number(by[keys[0]][2]) == pytest.approx(2.0, rel=0.05)
 
 
+def test_resources_prints_peaks_under_the_limit(capsys):
+    out = run(capsys, "bench_resources", "--small")
+    (rows,) = tables(out)
+    assert [r[0] for r in rows] == ["fit TABLE --model 12 (rows)", "fit TABLE, model chosen (rows)"] * 2 + [
+        "simulate six-face --raw (samples)"] * 2
+    # every command succeeded and its own peak (a fresh Python with numpy: tens of MB) was measured
+    assert all(r[-1] == "0" and 20 < number(r[2]) < 200 and r[3] == "under 200" for r in rows), rows
+
+
 def test_twin_scale_prints_time_memory_and_ratio(capsys):
     out = run(capsys, "twin_scale", "--sizes", "300,600")
     assert re.search(r"300 boards: twin fit [0-9.]+ s, peak [0-9]+ MB", out)

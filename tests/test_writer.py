@@ -11,7 +11,7 @@ from accelcal_station.calibration import Calibration, TemperatureTable
 from accelcal_station.drivers.base import NVM
 from accelcal_station.drivers.eeprom import EEPROM24
 from accelcal_station.errors import NVMError
-from accelcal_station.nvm.blob import blob_size, encode
+from accelcal_station.nvm.blob import blob_size, decode, encode
 from accelcal_station.nvm.writer import BurnError, CalibrationWriter
 
 SERIAL, STATION = "SN-0001", "station-1"
@@ -66,7 +66,9 @@ def test_layout_and_alternating_slots(eeprom):
         assert same(got, cal(i)) and (h.generation, h.time, s) == (i + 1, 1000 + i, slot)
     st = w.status()
     assert [s.generation for s in st] == [3, 4] and [s.newest for s in st] == [False, True]
-    assert out.previous == {"slot": "A", "generation": 3, "serial": SERIAL}
+    prev_crc = decode(eeprom.read(0, 2048))[1].crc32
+    assert out.previous == {"slot": "A", "generation": 3, "crc32": prev_crc, "serial": SERIAL}
+    assert out.nvm_after == {"slot": "B", "generation": 4, "crc32": out.crc32, "serial": SERIAL}
 
 
 @pytest.mark.parametrize("history", [1, 2])  # target slot blank / target slot holds an older blob
@@ -147,7 +149,8 @@ def test_read_back_mismatch_is_a_failed_burn():
     w.burn(cal(1), SERIAL, STATION)
     payload = encode(cal(2), SERIAL, STATION, 2, 5)
     assert payload[100] != 0, "the test needs a non-zero byte at the stuck cell"
-    with pytest.raises(BurnError, match=r"read-back differs at address 612 .*slot A, generation 1\) is untouched") as e:
+    want = r"read-back differs at address 612 .*slot A, generation 1\) is untouched .*CRC-32 0x[0-9a-f]{8}"
+    with pytest.raises(BurnError, match=want) as e:
         w.burn(cal(2), SERIAL, STATION, time=5)
     assert e.value.outcome.ok is False and not e.value.outcome.verified
     got, h, s = w.read_newest()
@@ -264,7 +267,7 @@ def test_burn_through_a_driver_nvm_survives_power_loss(driver):
             w.burn(cal(2), serial, STATION)
         got, h, s = CalibrationWriter(dev.nvm).read_newest(serial)
         assert same(got, cal(1)) and (h.generation, s) == (1, "A")
-        assert CalibrationWriter(dev.nvm).status()[1].state == "corrupt"
+        assert CalibrationWriter(dev.nvm).status()[1].state == "empty"  # the torn slot's header was erased
         assert w.burn(cal(2), serial, STATION).verified
         assert same(CalibrationWriter(dev.nvm).read_newest(serial)[0], cal(2))
 
@@ -290,7 +293,9 @@ def test_a_readback_error_after_the_blob_landed_says_so():
     nvm.armed = True
     with pytest.raises(BurnError) as e:
         w.burn(cal(2), "SN1", "st")
-    assert "did land and is the newest valid one, but it was not verified" in str(e.value)
-    assert not e.value.outcome.ok
+    # the new blob landed but was not verified: it is invalidated, the previous one is the newest again
+    assert "previous calibration (slot A, generation 1" in str(e.value) and "is untouched" in str(e.value)
+    assert not e.value.outcome.ok and e.value.outcome.nvm_after["slot"] == "A"
+    assert e.value.outcome.nvm_after == {**e.value.outcome.previous}
     c, h, slot = w.read_newest("SN1")
-    assert h.generation == 2 and slot == "B"
+    assert h.generation == 1 and slot == "A" and same(c, cal(1))

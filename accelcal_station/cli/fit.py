@@ -15,6 +15,7 @@ from ..data.loader import Loaded, load
 from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
 from ..errors import AccelcalError, DataError
+from ..fileguard.identity import refuse_overwrite
 from ..identifiability import assess, worst_parameter
 from ..models.choice import ModelChoice, choose_model, with_face_references
 from ..models.handplaced import norm_faces, opposite_face
@@ -167,8 +168,16 @@ def _table_report(path: str, session: Session, result: Fit) -> tuple[dict[str, A
     return report, text
 
 
-def _report(path: str, loaded: Loaded, result: Fit) -> tuple[dict[str, Any], list[str]]:
-    """What `accelcal fit` prints: what reading the file inferred, its static intervals (raw logs), the fit."""
+def _echo_lines(text: list[str]) -> None:
+    """Print the lines a block at a time (a 100,000-pose table is never one string); pose names come
+    from the file: never raw escapes."""
+    for i in range(0, len(text), 1000):
+        click.echo("\n".join(clean(t) for t in text[i:i + 1000]))
+
+
+def _report(path: str, loaded: Loaded, result: Fit, as_json: bool = True) -> tuple[dict[str, Any], list[str]]:
+    """What `accelcal fit` prints: what reading the file inferred, its static intervals (raw logs), the fit.
+    Without ``as_json`` the per-pose JSON rows are not built (a 100,000-pose table: memory)."""
     session = loaded.session
     held = result.calibration.metadata.get("held")
     result.calibration.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
@@ -181,7 +190,8 @@ def _report(path: str, loaded: Loaded, result: Fit) -> tuple[dict[str, Any], lis
         text += seg_lines
     if len(result.fits) == 1:
         fr = result.result
-        report.update(fr.to_json_dict(session.names))
+        if as_json:
+            report.update(fr.to_json_dict(session.names))
         text.append(f"{path}: model {result.model}, {len(session)} poses, {_scale_text(session, fr)}")
         text += _fit_text(fr, session.names)
     else:
@@ -220,11 +230,11 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
             gravity: str | None, temp_method: str, columns: str | None, skip_rows: str | None, rate: str | None,
             hand_placed: bool, as_json: bool, output: str | None) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
+    refuse_overwrite([("-o", output)], [("FILE", path)])
     model = "6" if model is None and hand_placed else model
     check_model_units(model or "12", units)  # no --model: the units still checked first
     check_temp_method(temp_method)
-    cpg = _number(counts_per_g, "--counts-per-g")
-    grav = _number(gravity, "--gravity")
+    cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
     loaded = _load(path, raw, model, units, cpg, grav, columns,
                    parse_int(skip_rows, "--skip-rows", positive=False), _number(rate, "--rate"))
     choice = None
@@ -232,7 +242,7 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         loaded, choice = _choose(path, loaded)
         model, hand_placed = choice.model, choice.faces is not None
     result = fit(loaded, model, temp_method=temp_method, source=path)
-    report, text = _report(path, loaded, result)
+    report, text = _report(path, loaded, result, as_json)
     if choice is not None:
         report["model_choice"] = choice.to_json()
         if choice.faces is not None:
@@ -252,7 +262,7 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
     if as_json:
         click.echo(json.dumps(_clean(report), allow_nan=False))
     else:
-        click.echo("\n".join(clean(t) for t in text))  # pose names from the file: never raw escapes
+        _echo_lines(text)
 
 
 def _choose(path: str, loaded: Loaded) -> tuple[Loaded, ModelChoice]:

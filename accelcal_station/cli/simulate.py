@@ -8,23 +8,25 @@ ground truth as a calibration JSON (``W``, ``V``, ``Gamma`` at the top level, as
 """
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import click
 import numpy as np
 
-from ..api import simulate
-from ..atomic import atomic_write_text
+from ..api import MAX_SAMPLES_PER_POSE, MAX_TOTAL_SAMPLES, simulate
+from ..atomic import atomic_write
 from ..config.sections import default_config_path
 from ..data.posetable import write_pose_table
+from ..drivers.simulated import SimulatedBoard
 from ..errors import DataError
+from ..fileguard.identity import refuse_overwrite
 from ..fixtures.designs import get_design
-from ..fixtures.simulated_run import SimulatedRun
+from ..fixtures.simulated_run import SimulatedRun, run_metadata
 from ..lot.synthetic import write_population_lot
 from ..twin.simlot import load_device
+from ._common import MAX_SEED, Finite, Whole, config_store_file
 
 
 def parse_temps(text: str | None) -> list[float] | None:
@@ -45,18 +47,24 @@ def parse_temps(text: str | None) -> list[float] | None:
     return out
 
 
-def _write_raw_log(run: SimulatedRun, out: str) -> None:
-    """The raw log: its provenance as ``# key: value`` lines, then t,x,y,z (and temp_c) in counts."""
-    buf = io.StringIO()
-    head = {"units": "counts", "counts_per_g": f"{run.board.counts_per_g:g}", "device": run.board.chip.name,
-            **run.metadata}
-    for k, v in head.items():
-        buf.write(f"# {k}: {v}\n")
-    cols, multi = run.raw_table()
-    buf.write("t,x,y,z" + (",temp_c\n" if multi else "\n"))
-    fmt = "%d" if np.issubdtype(cols[1].dtype, np.integer) else "%.6f"
-    np.savetxt(buf, np.column_stack(cols), fmt=["%.6f", fmt, fmt, fmt] + (["%g"] if multi else []), delimiter=",")
-    atomic_write_text(out, buf.getvalue())
+class _RawLog:
+    """The raw log, streamed: its provenance as ``# key: value`` lines, then t,x,y,z (and temp_c)
+    in counts, a chunk at a time into the atomic writer's temporary file (memory stays bounded)."""
+
+    def __init__(self, f: IO[str], design: str, multi: bool) -> None:
+        self.f, self.design, self.multi = f, design, multi
+
+    def header(self, board: SimulatedBoard) -> None:
+        head = {"units": "counts", "counts_per_g": f"{board.counts_per_g:g}", "device": board.chip.name,
+                **run_metadata(board, self.design)}
+        self.f.write("".join(f"# {k}: {v}\n" for k, v in head.items()))
+        self.f.write("t,x,y,z" + (",temp_c\n" if self.multi else "\n"))
+
+    def chunk(self, counts: np.ndarray, t: np.ndarray, temp: float) -> None:
+        whole = np.issubdtype(np.asarray(counts).dtype, np.integer)
+        row = "%.6f," + (",".join(["%d" if whole else "%.6f"] * 3)) + (",%g" if self.multi else "") + "\n"
+        cols = [t, *np.asarray(counts).T] + ([np.full(len(t), temp)] if self.multi else [])
+        self.f.write((row * len(t)) % tuple(np.column_stack(cols).ravel().tolist()))
 
 
 def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> tuple[dict[str, Any], str]:
@@ -81,12 +89,13 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
               help="Write a lot file of this many boards drawn from the config's population (accelcal batch reads it).")
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="Pose table (or raw log) to write.")
 @click.option("--raw", is_flag=True, help="Write a raw sample log t,x,y,z (counts) with motion between poses.")
-@click.option("--seed", type=click.IntRange(0, None), default=None,
+@click.option("--seed", type=Whole(0, MAX_SEED), default=None,
               help="Random seed (default: the config's, else fresh; the seed used is printed and kept in the output).")
 @click.option("--temps", default=None, help="Comma-separated temperatures in C to run the design at (e.g. 0,25,50).")
-@click.option("--samples", type=click.IntRange(2, 10**7), default=1000, show_default=True,
-              help="Samples averaged (or logged) per pose.")
-@click.option("--move-s", "move_s", type=click.FloatRange(0.0, 3600.0), default=2.0, show_default=True,
+@click.option("--samples", type=Whole(2, MAX_SAMPLES_PER_POSE), default=1000, show_default=True,
+              help=f"Samples averaged (or logged) per pose; at most {MAX_TOTAL_SAMPLES} in all (poses x "
+                   "temperatures x samples).")
+@click.option("--move-s", "move_s", type=Finite(0.0, 3600.0), default=2.0, show_default=True,
               help="Seconds the jig takes to move between poses (virtual time).")
 @click.option("--truth-out", type=click.Path(dir_okay=False), default=None,
               help="Write the simulator's ground-truth calibration (W, V, Gamma) as JSON.")
@@ -94,6 +103,8 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
 def command(config: str | None, design: str, lot: int | None, out: str, raw: bool, seed: int | None,
             temps: str | None, samples: int, move_s: float, truth_out: str | None, as_json: bool) -> None:
     """Simulate a calibration run and write its pose table (or raw log) and ground truth."""
+    refuse_overwrite([("--out", out), ("--truth-out", truth_out)],
+                     [("--config", config), ("the store", config_store_file(config) if config else None)])
     get_design(design)
     if lot is not None:
         _write_lot(config, design, lot, out, seed, samples, as_json)
@@ -102,13 +113,16 @@ def command(config: str | None, design: str, lot: int | None, out: str, raw: boo
     for path in (out, truth_out):  # refuse before writing anything, so no file is left alone
         if path is not None and not Path(path).resolve().parent.is_dir():
             raise DataError(f"{path}: cannot write (no such directory {Path(path).parent})")
-    run = simulate(design, config=config, seed=seed, samples=samples, temps_c=temp_list, move_s=move_s, raw=raw)
     if raw:
-        _write_raw_log(run, out)
+        with atomic_write(out) as f:
+            log = _RawLog(f, design, temp_list is not None and len(temp_list) > 1)
+            run = simulate(design, config=config, seed=seed, samples=samples, temps_c=temp_list, move_s=move_s,
+                           raw=True, sink=log.chunk, on_board=log.header)
     else:
+        run = simulate(design, config=config, seed=seed, samples=samples, temps_c=temp_list, move_s=move_s)
         write_pose_table(run.session, out, run.metadata)
     if truth_out is not None:
-        atomic_write_text(truth_out, json.dumps(run.truth().to_dict(), indent=2) + "\n")
+        atomic_write(truth_out, json.dumps(run.truth().to_dict(), indent=2) + "\n")
     summary, line = _summary(run, out, raw, truth_out)
     click.echo(json.dumps(summary) if as_json else line)
 

@@ -9,14 +9,9 @@ import click
 import yaml
 
 from ..acceptance.rules import Limits
-from ..atomic import atomic_write_text
+from ..atomic import atomic_write
 from ..config.sections import default_config_path
 from ..errors import DataError
-from ..twin.check import check
-from ..twin.fit import fit_twin, lot_stats
-from ..twin.simlot import load_device
-from ..twin.store_source import store_stats
-from ..twin.whatif import parse_limits, whatif
 from ._mes import JsonGroup
 
 
@@ -32,6 +27,8 @@ def command() -> None:
 def _stats(source: str | None, db: str | None, since: str | None, station: str | None,
            limits: Limits | None) -> tuple[Any, float | None]:
     """A lot file, or with --db the store's complete runs (--since, --station)."""
+    from ..twin.fit import lot_stats  # twin/ on first use: it brings scipy (tens of MB) to every command
+    from ..twin.store_source import store_stats
     if (source is None) == (db is None):
         raise DataError("give a lot file (SOURCE) or --db FILE|URL, one of them")
     if db is None and (since or station):
@@ -61,10 +58,12 @@ def fit_cmd(source: str | None, db: str | None, since: str | None, station: str 
     """Fit the population of lot file SOURCE (or --db); write the default config with population: replaced."""
     if not Path(out).resolve().parent.is_dir():
         raise DataError(f"{out}: cannot write (no such directory {Path(out).parent})")
+    from ..twin.fit import fit_twin
+
     stats, per_g = _stats(source, db, since, station, None)
     source = source or db
     tw = fit_twin(stats, per_g, max_components=components)
-    atomic_write_text(out, "# twin of " + str(source) + " (accelcal twin fit)\n"
+    atomic_write(out, "# twin of " + str(source) + " (accelcal twin fit)\n"
                       + yaml.safe_dump(tw.config, sort_keys=False))
     d = {**tw.to_dict(), "out": out}
     lines = [f"{source}: {stats.boards} boards, model {stats.model}; {len(d['components'])} component(s) by BIC"]
@@ -86,6 +85,9 @@ def fit_cmd(source: str | None, db: str | None, since: str | None, station: str 
 def check_cmd(source: str | None, db: str | None, since: str | None, station: str | None, config: str,
               before: str | None, seed: int, as_json: bool) -> None:
     """Simulate a lot like SOURCE from --config and test it against SOURCE, quantity by quantity."""
+    from ..twin.check import check
+    from ..twin.simlot import load_device
+
     limits = load_device(config)[3]
     stats, _ = _stats(source, db, since, station, limits)
     source = source or db
@@ -107,6 +109,9 @@ def check_cmd(source: str | None, db: str | None, since: str | None, station: st
 def whatif_cmd(source: str | None, db: str | None, since: str | None, station: str | None, config: str,
                limits: tuple[str, ...], boards: int, as_json: bool) -> None:
     """Predicted yield of a lot like SOURCE under changed acceptance limits, with an interval."""
+    from ..twin.simlot import load_device
+    from ..twin.whatif import parse_limits, whatif
+
     base: Limits = load_device(config)[3]
     lim = parse_limits(limits, base)
     stats, _ = _stats(source, db, since, station, lim)

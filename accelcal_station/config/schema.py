@@ -145,6 +145,14 @@ class SimulatorSection(Section):
         "response, which model 15 only approximates)")
 
 
+class CorruptReadsSection(Section):
+    """A lying bus: read messages to one address come back with one bit flipped."""
+
+    rate: float = _f(0.0, "probability that a read message is corrupted", ge=0, le=1)
+    seed: int = _f(0, "seed of the corruption's random draws", ge=0, le=2**63 - 1)
+    address: int = _f(0x50, "I2C address whose reads are corrupted (the EEPROM's)", ge=0, le=0x7F)
+
+
 class BusEmulatorSection(Section):
     """mma8451 ``bus: emulated``: the register-level emulator's faults."""
 
@@ -153,6 +161,7 @@ class BusEmulatorSection(Section):
     never_ready: StrictBool = _f(False, "the data-ready flag never sets")
     present: StrictBool = _f(True, "the chip answers on the bus at all")
     bus_hz: float = _f(400_000.0, "I2C clock of the emulated bus, Hz", ge=10_000, le=3_400_000)
+    corrupt_reads: CorruptReadsSection | None = _f(None, "a lying bus: reads corrupted at random (tests)")
 
 
 class MuxSection(Section):

@@ -27,14 +27,15 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 import re
-from collections.abc import Iterable
+from collections.abc import Generator, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..atomic import atomic_write_text
+from ..atomic import atomic_write
 from ..conventions import an4399_reference, check_units
 from ..errors import DataError, UnitsError
 from ..session import PoseRecord, Session
@@ -44,25 +45,25 @@ GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std
 COLUMNS = ("pose", "pitch_deg", "roll_deg", "x", "y", "z", "ref_x", "ref_y", "ref_z", "temp_c", "n",
            "std_x", "std_y", "std_z")
 META_KEYS = ("units", "counts_per_g", "gravity", "device")
+MAX_POSE_ROWS = 200_000  # fit memory is linear: ~1.8 kB a pose (under 200 MB at 100,000 rows, benchmarks/)
+MAX_TABLE_BYTES = 64 << 20  # MAX_POSE_ROWS rows of every column at full precision (~300 B a row) fit in 64 MiB
+MAX_ABS_STD = 1e9  # as a reading (rawlog.MAX_ABS_READING): beyond any ADC or unit
+MAX_SAMPLES = 1e15  # samples averaged into one pose: years at any rate
 _META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
-
-
-def _read_text(path: Path) -> str:
-    from .rawlog import read_text_file  # regular files only: a FIFO or device would block
-
-    return read_text_file(path, "a CSV pose table")
 
 
 def table_metadata(path: str | Path) -> dict[str, str]:
     """The ``# key: value`` lines before a pose table's header."""
     meta: dict[str, str] = {}
-    for raw in _read_text(Path(path)).splitlines():
+    lines = _file_lines(Path(path))  # up to the header only: never the whole table in memory
+    for raw in lines:
         s = raw.strip()
         if s and not s.startswith("#"):
             break
         m = _META_RE.match(s)
         if m:
             meta[m.group(1)] = m.group(2)
+    lines.close()
     return meta
 
 
@@ -169,15 +170,15 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
     if not name:
         raise DataError(f"{row.where('pose')}: empty; every row needs a pose name")
     mean = np.array([row.number(c) for c in "xyz"])
-    angles = row.group(GROUPS[0])
+    angles = row.group(GROUPS[0], lo=-360.0, hi=360.0)  # a pitch of -1e308 is no orientation
     ref = row.group(GROUPS[1], lo=-10.0, hi=10.0)
     if ref is not None and not np.any(ref):
         raise DataError(f"{row.where('ref_x')}: the reference is (0, 0, 0); allowed: the expected output in g")
-    std = row.group(GROUPS[2], lo=0.0)
+    std = row.group(GROUPS[2], lo=0.0, hi=MAX_ABS_STD)
     temp = None if row.empty("temp_c") else row.number("temp_c", -273.15, 1000.0)
     n: int | None = None
     if not row.empty("n"):
-        count = row.number("n", 1)
+        count = row.number("n", 1, MAX_SAMPLES)
         if count != int(count):
             raise DataError(f"{row.where('n')}: {row.cells['n']!r}; allowed: a whole number of samples >= 1")
         n = int(count)
@@ -190,20 +191,48 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
                       None if angles is None else float(angles[1]), temp)
 
 
-def _rows(path: Path, lines: list[str], header_at: int, header: list[str], references: bool) -> list[PoseRecord]:
-    """The poses of the table body (blank and ``#`` rows skipped)."""
+def _file_lines(path: Path) -> Generator[str, None, None]:
+    """The lines of a regular text file of at most MAX_TABLE_BYTES (UTF-8, BOM dropped; \\n, \\r\\n or \\r
+    end a line), read one at a time; an unreadable, oversized or non-text file is one DataError, as
+    ``read_text_file`` gives (a FIFO or device would block: fileguard opens regular files only)."""
+    from ..fileguard.regular import open_regular
+
+    raw = open_regular(path, "a CSV pose table")
+    size = os.fstat(raw.fileno()).st_size
+    if size > MAX_TABLE_BYTES:
+        raw.close()
+        raise DataError(f"{path}: {size} bytes; allowed: at most {MAX_TABLE_BYTES} for a CSV pose table (a pose "
+                        "table holds one run's static poses; a lot of boards is a lot file)")
     try:
-        table = list(csv.reader(io.StringIO("\n".join(lines[header_at + 1:]))))
+        with io.TextIOWrapper(raw, encoding="utf-8-sig", newline="") as f:
+            for line in f:
+                yield line.rstrip("\r\n")
+    except OSError as e:
+        raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a text file (expected a CSV pose table)") from None
+
+
+def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], references: bool
+          ) -> list[PoseRecord]:
+    """The poses of the table body after the header (blank and ``#`` rows skipped), parsed row
+    by row: memory is the poses, not a second copy of the table as lists of strings."""
+    reader = csv.reader(lines)
+    poses: list[PoseRecord] = []
+    try:
+        for cells in reader:
+            line = header_at + 1 + reader.line_num
+            if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
+                continue
+            if len(cells) != len(header):
+                raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
+            if len(poses) >= MAX_POSE_ROWS:
+                raise DataError(f"{path}: line {line}: more than {MAX_POSE_ROWS} pose rows; allowed: at most "
+                                f"{MAX_POSE_ROWS} (a calibration needs tens; split a lot into boards: accelcal batch)")
+            row = _Row(path, line, {c: v.strip() for c, v in zip(header, cells, strict=True)})
+            poses.append(_pose(row, references))
     except csv.Error as e:  # e.g. a cell longer than the csv module's field limit
         raise DataError(f"{path}: not a readable CSV table ({e}); allowed: a pose table of numbers") from None
-    poses: list[PoseRecord] = []
-    for k, cells in enumerate(table):
-        line = header_at + 2 + k
-        if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
-            continue
-        if len(cells) != len(header):
-            raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
-        poses.append(_pose(_Row(path, line, {c: v.strip() for c, v in zip(header, cells, strict=True)}), references))
     return poses
 
 
@@ -215,10 +244,11 @@ def read_pose_table(path: str | Path, units: str | None = None, counts_per_g: fl
     ref columns), as models 6, 12 and 15 need; errors then name the row.
     """
     path = Path(path)
-    lines = _read_text(path).splitlines()
-    meta, meta_line, header_at, _ = read_preamble(lines, path, f"{','.join(COLUMNS[:6])} (and optional columns)")
+    lines = _file_lines(path)  # read as parsed: neither the whole text nor a list of lines beside the poses
+    meta, meta_line, header_at, header_text = read_preamble(lines, path,
+                                                            f"{','.join(COLUMNS[:6])} (and optional columns)")
     hline = header_at + 1
-    header = _header(path, lines[header_at], hline)
+    header = _header(path, header_text, hline)
     units = units if units is not None else meta.get("units", "counts")
     try:
         check_units(units)
@@ -292,7 +322,7 @@ def write_pose_table(session: Session, path: str | Path, metadata: dict[str, Any
         if bad:
             raise DataError(f"{path}: pose {p.name!r}: {bad[0]} is not finite; a pose table holds finite numbers")
         w.writerow([vals[c] for c in cols])
-    atomic_write_text(path, buf.getvalue())
+    atomic_write(path, buf.getvalue())
 
 
 __all__ = ["COLUMNS", "read_pose_table", "table_metadata", "write_pose_table"]

@@ -17,11 +17,13 @@ import io
 import json
 import os
 from collections.abc import Sequence
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES
 from ..errors import DataError
 
@@ -77,7 +79,7 @@ class ResultsWriter:
             except ImportError:
                 raise DataError(f"--out {self.path}: Parquet needs pyarrow; pip install "
                                 "'accelcal-station[parquet]', or write .csv / .jsonl") from None
-        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self._cm: AbstractContextManager[IO[Any]] | None = None
         self._f: IO[Any] | None = None
         self._pq: Any = None  # pyarrow's CSV or Parquet writer, once the first chunk is written
         self._arrow_csv: bool | None = None
@@ -86,9 +88,10 @@ class ResultsWriter:
             self._arrow_csv = arrow_available()  # pyarrow's CSV writer: formats floats ~10x faster
 
     def __enter__(self) -> ResultsWriter:
+        binary = bool(self.fmt == "parquet" or self._arrow_csv)
+        self._cm = atomic_write(self.path, binary=binary)  # a private temp beside the output, renamed when whole
         try:
-            binary = self.fmt == "parquet" or self._arrow_csv
-            self._f = open(self.tmp, "wb" if binary else "w", newline="" if self.fmt == "csv" and not binary else None)
+            self._f = self._cm.__enter__()
         except OSError as e:
             raise DataError(f"--out {self.path}: cannot write ({e.strerror})") from None
         if self.fmt == "csv" and not self._arrow_csv:
@@ -148,25 +151,18 @@ class ResultsWriter:
             self._pq = pq.ParquetWriter(self._out, table.schema)
         self._pq.write_table(table)
 
-    def __exit__(self, exc_type: type[BaseException] | None, *rest: object) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: Any) -> None:
+        assert self._cm is not None, "__exit__ after __enter__"
         try:
             if self._pq is not None:
                 self._pq.close()
-            if exc_type is None:
-                self._out.flush()
-                os.fsync(self._out.fileno())
-            self._out.close()
-            if exc_type is None:
-                os.replace(self.tmp, self.path)
-                dfd = os.open(self.path.parent, os.O_RDONLY)
-                try:
-                    os.fsync(dfd)
-                finally:
-                    os.close(dfd)
+        except BaseException as e:
+            self._cm.__exit__(type(e), e, e.__traceback__)
+            raise
+        try:
+            self._cm.__exit__(exc_type, exc, tb)
         except OSError as e:
             raise DataError(f"--out {self.path}: cannot write ({e.strerror})") from None
-        finally:
-            self.tmp.unlink(missing_ok=True)
 
 
 def _arrow_table(cols: dict[str, Any], csv: bool = False) -> Any:

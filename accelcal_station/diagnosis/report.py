@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..atomic import atomic_write, atomic_write_text
+from ..atomic import atomic_write
 from ..errors import AccelcalError, DataError
 from .evaluation import Evaluation
 from .gap_data import time_data
@@ -251,6 +251,9 @@ def is_system_dir(p: Path) -> bool:
                                               "/lib", "/usr"))
 
 
+REPORT_FILES = ("sphere.png", "level.png", "temperature.png", "time.png", "allan.png", "summary.md")  # what it writes
+
+
 def check_report_dir(path: str | Path) -> Path:
     """The report directory, checked before any analysis runs (write_report creates it, so a
     run that fails leaves no empty directory behind)."""
@@ -445,6 +448,6 @@ def _write_summary(d: Diagnosis, out: Path, json_obj: dict[str, Any], files: lis
     for f in files:
         title = FIGURES.get(f.stem, "noise: Allan deviation")
         md += [f"## {title[0].upper() + title[1:]}", "", f"![{title}]({f.name})", ""]
-    atomic_write_text(out / "summary.md", "\n".join(md) + "\n")
+    atomic_write(out / "summary.md", "\n".join(md) + "\n")
     files.append(out / "summary.md")
 

@@ -92,7 +92,7 @@ def diagnose_underdetermined(gf: np.ndarray, model: str) -> str:
         # opposite pairs (p, -p): the four odd columns g_x, g_y, g_z, g_c^3 take only
         # (number of pairs) independent values, so the cubic is lost among gain and cross-axis
         d = gf / np.linalg.norm(gf, axis=1, keepdims=True)
-        paired = np.all(np.min(np.linalg.norm(d[:, None, :] + d[None, :, :], axis=-1), axis=1) < 0.1)
+        paired = _all_paired(d)
         if paired and P // 2 < 4:
             return (f"the {P} poses are {P // 2} opposite pairs: the cubic terms cannot be told from gain and "
                     "cross-axis; model 15 needs at least 4 directions that are not opposite, e.g. an4399-8")
@@ -102,6 +102,20 @@ def diagnose_underdetermined(gf: np.ndarray, model: str) -> str:
                 return (f"the cubic term of channel {AXES[c]} cannot be told from its gain with these poses "
                         f"(channel {AXES[c]} only near 0 and +-1 g): model 15 needs intermediate tilts, e.g. an4399-8")
     return f"the poses do not determine model {model} (the design is numerically singular)"
+
+
+def _all_paired(d: np.ndarray, block: int = 1 << 21) -> bool:
+    """Every unit direction d_p has an opposite: min_q |d_p + d_q| < 0.1.  Rows a block at a time,
+    so memory stays linear in the pose count."""
+    P = len(d)
+    step = max(1, block // max(1, P))
+    sq = np.sum(d * d, axis=1)
+    for a in range(0, P, step):
+        # |d_p + d_q|^2 = |d_p|^2 + |d_q|^2 + 2 d_p . d_q
+        near = np.min(sq[a:a + step, None] + sq[None, :] + 2 * d[a:a + step] @ d.T, axis=1)
+        if not np.all(near < 0.01):
+            return False
+    return True
 
 
 def residual_variance(noise_g: ArrayLike | None, rss: np.ndarray, D: int, P: int, dof: int) -> np.ndarray:

@@ -28,11 +28,13 @@ def distinct_directions(readings_g: np.ndarray, tol_deg: float = DISTINCT_DEG) -
     n = np.linalg.norm(x, axis=-1, keepdims=True)
     u = x / np.where(n > 0, n, 1.0)
     cos = np.cos(np.radians(tol_deg))
-    reps: list[np.ndarray] = []
+    reps = np.empty((len(u), 3))  # the representatives found so far, in place: O(P) memory
+    k = 0
     for v in u:
-        if not reps or np.max(np.array(reps) @ v) < cos:
-            reps.append(v)
-    return len(reps)
+        if k == 0 or np.max(reps[:k] @ v) < cos:
+            reps[k] = v
+            k += 1
+    return k
 
 
 def distinct_directions_batch(readings_g: np.ndarray, tol_deg: float = DISTINCT_DEG) -> np.ndarray:

@@ -21,15 +21,25 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..atomic import atomic_write
 from ..calibration import Calibration
 from ..drivers.base import NVM
 from ..errors import AccelcalError, NVMError
+from ..fileguard.jsondoc import read_json
 from .blob import GENERATION_MOD, HEADER_SIZE, BlobError, BlobHeader, blob_length, blob_size, decode, encode, newer
 
 SLOTS = ("A", "B")
 IMAGE_SCHEMA = "accelcal.nvm-image"
 IMAGE_VERSION = 1
+MAX_BACKUP_BYTES = 1 << 20  # two slots of a 64 KiB EEPROM in base64 are 90 kB
+
+
+def _short(v: Any) -> str:
+    """A value from a backup file, quoted short (a hostile file's value may be huge)."""
+    r = repr(v)
+    return r if len(r) <= 40 else r[:40] + "..."
 
 
 @dataclass
@@ -71,10 +81,13 @@ class BurnOutcome:
     serial: str
     station_id: str
     time: int
-    previous: dict[str, Any] | None  # newest valid blob before the burn: slot, generation, serial
+    previous: dict[str, Any] | None  # newest valid blob before the burn: slot, generation, CRC-32, serial
     verified: bool = False  # read back byte for byte and decoded as the newest
     backup: str | None = None
     error: str | None = None
+    # the newest valid blob after the burn (slot, generation, CRC-32, serial); {"slot": None}: no valid
+    # calibration; None: not read (or reads did not settle)
+    nvm_after: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -91,6 +104,25 @@ class BurnError(NVMError):
 
 def _first_difference(a: bytes, b: bytes) -> int:
     return next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), min(len(a), len(b)))
+
+
+def _identity(slot: str, h: BlobHeader) -> dict[str, Any]:
+    return {"slot": slot, "generation": h.generation, "crc32": h.crc32, "serial": h.serial}
+
+
+def holds_text(outcome: BurnOutcome) -> str:
+    """What the NVM holds after a failed burn, against what it held before, in words."""
+    after, prev = outcome.nvm_after, outcome.previous
+    if after is None:
+        return "what the NVM holds now could not be read (reads disagree)"
+    if after.get("slot") is None:
+        return "the NVM holds no valid calibration" + (", as before the burn" if prev is None else
+                                                         f" (it held slot {prev['slot']}, generation "
+                                                         f"{prev['generation']} before the burn)")
+    here, crc = f"slot {after['slot']}, generation {after['generation']}", f"CRC-32 0x{after['crc32']:08x}"
+    if prev is not None and (after["slot"], after["crc32"]) == (prev["slot"], prev["crc32"]):
+        return f"previous calibration ({here}) is untouched and is the newest valid one ({crc})"
+    return f"the NVM holds {here} ({crc}) as the newest valid calibration"
 
 
 class CalibrationWriter:
@@ -175,14 +207,15 @@ class CalibrationWriter:
     def status(self) -> list[SlotStatus]:
         return [st for st, _, _ in self._scan()]
 
-    def read_newest(self, serial: str | None = None, allow_other_serial: bool = False
+    def read_newest(self, serial: str | None = None, allow_other_serial: bool = False, settled: bool = False
                     ) -> tuple[Calibration, BlobHeader, str] | None:
         """(calibration, header, slot) of the newest valid slot, or None when neither is valid.
 
         With ``serial``, a blob bound to another device serial is refused unless
-        ``allow_other_serial``: a calibration belongs to one board.
+        ``allow_other_serial``: a calibration belongs to one board.  ``settled``: read the slots
+        until two reads agree (``settled_image``) rather than once.
         """
-        scan = self._scan()
+        scan = self._scan(self.settled_image() if settled else None)
         i = self._newest(scan)
         if i is None:
             return None
@@ -211,18 +244,22 @@ class CalibrationWriter:
              before_write: Callable[[BurnOutcome], None] | None = None) -> BurnOutcome:
         """Write ``calibration`` to the slot not holding the newest valid blob, with generation + 1.
 
-        Refuses a blob larger than a slot before writing anything.  A newest blob bound
-        to another serial does not stop a burn (the board is being recalibrated; the
-        outcome's ``previous`` records it).  Raises BurnError
-        (outcome attached) when the write or its read-back verification fails; the
-        previous calibration is then still the newest valid one.
+        The slots are read until two reads agree byte for byte (``settled_image``), so a bus that
+        corrupts reads cannot make a valid previous calibration look absent and get overwritten.
+        Refuses a blob larger than a slot before writing anything.  A newest blob bound to another
+        serial does not stop a burn (the outcome's ``previous`` records it).  When the write or its
+        read-back fails, the new slot is invalidated (``revert``) so the previous calibration is
+        the newest valid one again, and BurnError carries an outcome whose ``nvm_after`` says what
+        the NVM holds afterwards (slot, generation, CRC-32).
         """
         try:
-            scan = self._scan()
-        except OSError as e:
-            raise NVMError(f"reading the NVM before the burn failed ({e.strerror or e}); nothing was written") from None
+            scan = self._scan(self.settled_image())
+        except (AccelcalError, OSError) as e:
+            raise NVMError(f"reading the NVM before the burn failed ({getattr(e, 'strerror', None) or e}); "
+                           "nothing was written") from None
         prev = self._newest(scan)
-        target = 0 if prev is None else 1 - prev
+        # no valid blob: write over an erased slot rather than a corrupt one (it may be evidence)
+        target = (1 if [st.state for st, _, _ in scan] == ["corrupt", "empty"] else 0) if prev is None else 1 - prev
         gen = 1 if prev is None else (self._valid(scan, prev)[1].generation + 1) % GENERATION_MOD
         now = _time.time() if time is None else time
         blob = encode(calibration, serial, station_id, gen, now)
@@ -230,51 +267,83 @@ class CalibrationWriter:
             raise NVMError(f"calibration blob is {len(blob)} bytes; an NVM slot holds {self.slot_size}; "
                            "nothing was written (fewer temperature points or a larger slot)")
         _, h = decode(blob)
-        previous = None if prev is None else {
-            "slot": SLOTS[prev], "generation": self._valid(scan, prev)[1].generation,
-            "serial": self._valid(scan, prev)[1].serial}
+        previous = None if prev is None else _identity(SLOTS[prev], self._valid(scan, prev)[1])
         outcome = BurnOutcome(False, SLOTS[target], self.slot_addr(target), gen, len(blob), h.crc32,
                               h.serial, h.station_id, h.time, previous)
         if backup_to is not None:
             self.backup(backup_to)
             outcome.backup = str(backup_to)
-        kept = "no previous calibration" if previous is None else \
-            f"previous calibration (slot {previous['slot']}, generation {previous['generation']}) is untouched"
         if before_write is not None:  # e.g. the store records slot, generation and CRC before any byte
             before_write(outcome)
         try:
             self._write_verified(outcome.addr, blob, f"burn of NVM slot {SLOTS[target]}")
-            newest = self._newest(self._scan())
-            if newest != target:
+            outcome.nvm_after = self.holds()
+            if outcome.nvm_after is None or outcome.nvm_after.get("slot") != SLOTS[target] \
+                    or outcome.nvm_after.get("crc32") != h.crc32:
                 raise NVMError(f"burn of NVM slot {SLOTS[target]}: slot is not the newest valid after writing")
         except (AccelcalError, OSError) as e:
-            # say what the board really holds now: an error after the last byte landed
-            # (or in the read-back) may leave the new blob as the newest valid one
-            try:
-                now_newest = self._newest(self._scan())
-            except (AccelcalError, OSError):
-                now_newest = None
-            if now_newest == target:
-                kept = (f"the new calibration (slot {SLOTS[target]}, generation {gen}) did land and is the "
-                        "newest valid one, but it was not verified")
-            raise BurnError(f"{e}; {kept}", outcome) from None
+            self.revert(outcome)
+            raise BurnError(f"{e}; {holds_text(outcome)}", outcome) from None
         outcome.ok = outcome.verified = True
         return outcome
+
+    def settled_image(self, tries: int = 5) -> bytes:
+        """Raw bytes of both slots, every byte read alike at least twice (up to ``tries`` reads).
+
+        A bus that corrupts reads at random does not corrupt the same byte alike twice; a bus
+        that corrupts every read the same way cannot be told from a corrupt slot by reading.
+        """
+        reads = [np.frombuffer(self.image(), np.uint8)]
+        out, agreed = reads[0].copy(), np.zeros(len(reads[0]), bool)
+        for _ in range(tries - 1):
+            new = np.frombuffer(self.image(), np.uint8)
+            for old in reads:
+                same = (old == new) & ~agreed
+                out[same], agreed = new[same], agreed | same
+            if agreed.all():
+                return out.tobytes()
+            reads.append(new)
+        raise NVMError(f"NVM reads disagree ({tries} reads of {len(out)} bytes, {int((~agreed).sum())} bytes "
+                       "never read alike twice): the bus corrupts what it reads")
+
+    def holds(self) -> dict[str, Any] | None:
+        """What the NVM holds now: the newest valid blob's slot, generation, CRC-32 and serial
+        (``{"slot": None}`` when no slot is valid), or None when reads do not settle."""
+        try:
+            scan = self._scan(self.settled_image())
+        except (AccelcalError, OSError):
+            return None
+        i = self._newest(scan)
+        return {"slot": None} if i is None else _identity(SLOTS[i], self._valid(scan, i)[1])
+
+    def revert(self, outcome: BurnOutcome, tries: int = 3) -> None:
+        """Invalidate the slot a failed burn wrote (erase its header), so the previous calibration,
+        if any, is the newest valid one again; sets ``outcome.nvm_after`` to what the NVM holds."""
+        for _ in range(tries):
+            try:
+                self._write_verified(outcome.addr, b"\xff" * HEADER_SIZE, f"revert of NVM slot {outcome.slot}")
+                break
+            except (AccelcalError, OSError):
+                continue
+        outcome.verified = False
+        outcome.nvm_after = self.holds()
+
 
     # -- service: backup, restore, erase ---------------------------------------------
     def image(self) -> bytes:
         """Raw bytes of both slots."""
         return bytes(self.nvm.read(self.base_addr, 2 * self.slot_size))
 
-    def backup(self, path: str | Path, overwrite: bool = False) -> dict[str, Any]:
-        """Save both slots' raw image with its CRC-32 and slot status to a JSON file (atomically)."""
+    def backup(self, path: str | Path, overwrite: bool = False, chip: str | None = None) -> dict[str, Any]:
+        """Save both slots' raw image (read until two reads agree), its CRC-32, slot status and the
+        chip it came from to a JSON file (atomically)."""
         path = Path(path)
         if path.exists() and not overwrite:
             raise NVMError(f"{path}: backup file exists; choose another name (backups are never overwritten)")
-        img = self.image()
+        img = self.settled_image()
         doc = {
             "schema": IMAGE_SCHEMA, "version": IMAGE_VERSION, "created": _time.time(),
-            "nvm_size": int(self.nvm.size), "page_size": self.page_size,
+            "nvm_size": int(self.nvm.size), "page_size": self.page_size, "chip": chip,
             "base_addr": self.base_addr, "slot_size": self.slot_size,
             "length": len(img), "crc32": zlib.crc32(img),
             "slots": [st.to_dict() for st, _, _ in self._scan(img)],
@@ -283,27 +352,22 @@ class CalibrationWriter:
         try:
             atomic_write(path, json.dumps(doc, indent=1) + "\n")
         except OSError as e:
-            raise NVMError(f"{path}: cannot write backup ({e.strerror})") from None
+            raise NVMError(f"{path}: cannot write the backup ({e.strerror})") from None
         return {k: v for k, v in doc.items() if k != "image_base64"}
 
     def load_image(self, path: str | Path) -> tuple[bytes, dict[str, Any]]:
         """Image bytes and document of a backup file, checked against its CRC and this layout."""
         path = Path(path)
-        try:
-            doc = json.loads(path.read_text())
-        except OSError as e:
-            raise NVMError(f"{path}: cannot read ({e.strerror})") from None
-        except UnicodeDecodeError:
-            raise NVMError(f"{path}: not an NVM backup (not a text file)") from None
-        except json.JSONDecodeError as e:
-            raise NVMError(f"{path}: not an NVM backup (not JSON, line {e.lineno}: {e.msg})") from None
+        doc = read_json(path, "an NVM backup", MAX_BACKUP_BYTES,
+                        "a backup holds two slots of a small EEPROM, base64", NVMError)
         if not isinstance(doc, dict) or doc.get("schema") != IMAGE_SCHEMA:
             raise NVMError(f"{path}: not an NVM backup (missing schema {IMAGE_SCHEMA!r})")
         if doc.get("version") != IMAGE_VERSION:
-            raise NVMError(f"{path}: backup version {doc.get('version')!r}; this station reads {IMAGE_VERSION}")
+            raise NVMError(f"{path}: backup version {_short(doc.get('version'))}; this station reads {IMAGE_VERSION}")
         if (doc.get("base_addr"), doc.get("slot_size")) != (self.base_addr, self.slot_size):
-            raise NVMError(f"{path}: image is for slots of {doc.get('slot_size')} bytes at {doc.get('base_addr')}; "
-                           f"this NVM has slots of {self.slot_size} bytes at {self.base_addr}")
+            raise NVMError(f"{path}: image is for slots of {_short(doc.get('slot_size'))} bytes at "
+                           f"{_short(doc.get('base_addr'))}; this NVM has slots of {self.slot_size} bytes "
+                           f"at {self.base_addr}")
         try:
             img = base64.b64decode(doc["image_base64"], validate=True)
         except (KeyError, TypeError, ValueError):
@@ -312,28 +376,45 @@ class CalibrationWriter:
             raise NVMError(f"{path}: image is {len(img)} bytes; expected {2 * self.slot_size}")
         if zlib.crc32(img) != doc.get("crc32"):
             raise NVMError(f"{path}: image CRC-32 0x{zlib.crc32(img):08x} does not match the recorded "
-                           f"{doc.get('crc32')!r}; the backup is damaged")
+                           f"{_short(doc.get('crc32'))}; the backup is damaged")
         return img, doc
 
     def restore(self, path: str | Path, *, serial: str | None = None, allow_other_serial: bool = False,
-                backup_to: str | Path | None = None) -> list[SlotStatus]:
+                backup_to: str | Path | None = None, chip: str | None = None) -> list[SlotStatus]:
         """Write a backup image back and read it back.
 
-        With ``serial``, refuses an image whose newest calibration is bound to another
-        board.  Slots are written in the order ``_order`` gives, so an interruption
-        during either write leaves a valid calibration (old or restored) whenever the two slots allow it.
+        Before any byte is written the image is checked: its CRC-32 and layout, at least one
+        slot holding a valid calibration (blob CRC), distinct generations, the chip it was taken
+        from (when both it and ``chip`` are known) and, with ``serial``, the board its newest
+        calibration is bound to.  Slots are written in the order ``_restore_plan`` gives, so an
+        interruption leaves a valid calibration (old or restored); the end result is read back.
         """
-        img, _ = self.load_image(path)
+        img, doc = self.load_image(path)
         image_scan = self._scan(img)
         i = self._newest(image_scan)
-        bound_to = None if i is None else self._valid(image_scan, i)[1].serial
-        if serial is not None and bound_to is not None and bound_to != serial and not allow_other_serial:
+        if i is None:
+            why = "; ".join(f"slot {st.slot} {st.state}" + (f" ({st.error})" if st.error else "")
+                            for st, _, _ in image_scan)
+            raise NVMError(f"{path}: the backup holds no valid calibration ({why}); nothing was written")
+        gens = [st.generation for st, _, _ in image_scan if st.state == "valid"]
+        if len(gens) == 2 and gens[0] == gens[1]:
+            raise NVMError(f"{path}: both slots claim generation {gens[0]}; the newest cannot be told; "
+                           "nothing was written")
+        if chip is not None and doc.get("chip") not in (None, chip):
+            raise NVMError(f"{path}: the backup was taken from a {doc['chip']} chip, this board is a {chip}; "
+                           "nothing was written")
+        bound_to = self._valid(image_scan, i)[1].serial
+        if serial is not None and bound_to != serial and not allow_other_serial:
             raise NVMError(f"{path}: image holds a calibration bound to serial {bound_to!r}, "
                            f"not this board's {serial!r}; allow another serial (--any-serial) to restore it")
         if backup_to is not None:
-            self.backup(backup_to)
-        for j, content in self._restore_plan(self.image(), img):
+            self.backup(backup_to, chip=chip)
+        for j, content in self._restore_plan(self.settled_image(), img):
             self._write_verified(self.slot_addr(j), content, f"restore of NVM slot {SLOTS[j]}")
+        want = _identity(SLOTS[i], self._valid(image_scan, i)[1])
+        if self.holds() != want:
+            raise NVMError(f"restore: the NVM does not read back the backup's newest calibration "
+                           f"(slot {want['slot']}, generation {want['generation']})")
         return self.status()
 
     def _newest_id(self, image: bytes) -> tuple[int, int, str] | None:
@@ -370,10 +451,10 @@ class CalibrationWriter:
         raise NVMError("restore: no write order keeps a valid calibration through a power loss; "
                        "erase the NVM first (nvm erase) and restore again")
 
-    def erase(self, backup_to: str | Path | None = None) -> list[SlotStatus]:
+    def erase(self, backup_to: str | Path | None = None, chip: str | None = None) -> list[SlotStatus]:
         """Erase both slots to 0xFF (the EEPROM's blank state) and verify."""
         if backup_to is not None:
-            self.backup(backup_to)
+            self.backup(backup_to, chip=chip)
         for j in self._order():
             self._write_verified(self.slot_addr(j), b"\xff" * self.slot_size, f"erase of NVM slot {SLOTS[j]}")
         return self.status()

@@ -19,14 +19,14 @@ from ..acceptance.rules import judge
 from ..calibration import Calibration
 from ..drivers.base import Clock, Driver, Identity
 from ..drivers.factory import make_driver
-from ..errors import AccelcalError, ConfigError, UnderdeterminedError
+from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import clock_of, make_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
 from ..models.fitting import fit_session
-from ..nvm.writer import BurnError, CalibrationWriter
+from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
 from ..store.location import outbox_of
 from ..store.outbox import open_store
@@ -158,6 +158,13 @@ class Station:
                     self._fit_judge_write(driver, jig, session, rep)
                 finally:
                     self.operator_wait_s = float(getattr(jig, "wait_s", 0.0))
+        except (DeviceError, NVMError) as e:
+            # a port that closed, a NACK storm, reads that do not settle: the run ends FAIL with the
+            # typed reason and the poses captured so far (recorded by _finish), exit 1, never 'running'
+            code = getattr(e, "reason_code", "nvm")
+            rep.verdict, rep.reasons = "FAIL", [Reason(code, str(e))]
+            rep.events.append(f"run ended by a {code} fault after {len(records)} poses: {e}")
+            self.echo(f"FAIL: {e} ({len(records)} poses captured)")
         except (AccelcalError, KeyboardInterrupt) as e:
             why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else str(e)
             store.interrupt_run(run_id, why, session=session if records else None,
@@ -282,21 +289,27 @@ class Station:
             return
         rep.nvm = outcome.to_dict()
         log("nvm_burned", rep.nvm)
-        # closed loop through NVM: the calibration read back must do what the fitted one did
-        back = writer.read_newest(rep.serial)
-        if back is None:
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "no valid calibration readable after writing")]
-            return
-        stored = back[0]
-        if checks:
-            same = all(np.allclose(stored.apply(c, units="counts", temp_c=t), cal.apply(c, units="counts", temp_c=t),
-                                   atol=1e-9) for c, _, t in checks)
+        # closed loop through NVM: the calibration read back (two reads alike) must do what the fitted one did
+        try:
+            back = writer.read_newest(rep.serial, settled=True)
+        except NVMError as e:
+            back, why = None, str(e)
         else:
-            same = np.allclose(stored.W, cal.W) and np.allclose(stored.V, cal.V)
-        rep.nvm_verified = bool(same)
-        if not same:
-            rep.verdict, rep.reasons = "FAIL", [
-                Reason("nvm", "calibration read back from NVM differs from the fitted one")]
+            why = "no valid calibration readable after writing"
+        stored = None if back is None else back[0]
+        same = False
+        if stored is not None:
+            why = "calibration read back from NVM differs from the fitted one"
+            same = bool(all(np.allclose(stored.apply(c, units="counts", temp_c=t),
+                                        cal.apply(c, units="counts", temp_c=t), atol=1e-9) for c, _, t in checks)
+                        if checks else np.allclose(stored.W, cal.W) and np.allclose(stored.V, cal.V))
+        rep.nvm_verified = same
+        if not rep.nvm_verified:  # a FAIL never leaves the unverified calibration as the board's newest
+            writer.revert(outcome)
+            rep.nvm = outcome.to_dict()
+            log("nvm_reverted", rep.nvm)
+            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", f"{why}; {holds_text(outcome)}")]
+            return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
 
     def _trim_offsets(self, driver: Driver, cal: Calibration, rep: RunReport) -> Calibration:

@@ -25,7 +25,7 @@ from ..acceptance.reasons import Reason, wrap
 from ..acceptance.rules import judge
 from ..calibration import Calibration, TemperatureTable
 from ..drivers.base import Clock, Driver
-from ..errors import AccelcalError, ConfigError, UnderdeterminedError
+from ..errors import AccelcalError, ConfigError, NVMError, PortLostError, UnderdeterminedError
 from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import board_of, clock_of, make_jig
@@ -33,7 +33,7 @@ from ..instruments.chamber import Chamber, ChamberStatus
 from ..instruments.factory import make_chamber
 from ..models.fitting import fit_session
 from ..models.result import FitResult
-from ..nvm.writer import BurnError, CalibrationWriter
+from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
 from ..store.location import outbox_of
 from ..store.outbox import open_store
@@ -147,6 +147,10 @@ class ThermalStation(Station):
                     if isinstance(e, ChamberFault):
                         rep.verdict, rep.reasons = "FAIL", [Reason("chamber", str(e))]
                         self.echo(f"FAIL: chamber: {e} (nothing burned)")
+                    elif isinstance(e, (PortLostError, NVMError)):  # a lost sensor/jig port, unsettled NVM reads
+                        code = getattr(e, "reason_code", "nvm")
+                        rep.verdict, rep.reasons = "FAIL", [Reason(code, f"{e} ({self._where()})")]
+                        self.echo(f"FAIL: {e} ({len(records)} poses captured)")
                     else:
                         where = self._where()
                         why = "interrupted" if isinstance(e, KeyboardInterrupt) else str(e)
@@ -359,9 +363,12 @@ class ThermalStation(Station):
             rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
             return
         rep.nvm = outcome.to_dict()
-        back = writer.read_newest(rep.serial)
+        back = writer.read_newest(rep.serial, settled=True)
         if back is None or back[0].temperature is None:
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "no temperature table readable after writing")]
+            writer.revert(outcome)  # a FAIL never leaves the unverified table as the board's newest
+            rep.nvm = outcome.to_dict()
+            rep.verdict, rep.reasons = "FAIL", [
+                Reason("nvm", f"no temperature table readable after writing; {holds_text(outcome)}")]
             return
         stored, table = back[0], back[0].temperature
         assert cal.temperature is not None, "a thermal plan's calibration carries its table"
@@ -371,8 +378,11 @@ class ThermalStation(Station):
                            atol=1e-9) and np.allclose(table.temps_c, cal.temperature.temps_c)
         rep.nvm_verified = bool(same)
         if not same:
+            writer.revert(outcome)
+            rep.nvm = outcome.to_dict()
             rep.verdict, rep.reasons = "FAIL", [
-                Reason("nvm", "the table read back from NVM differs from the fitted one")]
+                Reason("nvm", f"the table read back from NVM differs from the fitted one; {holds_text(outcome)}")]
+            return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, "
                   f"{len(table.temps_c)}-temperature table read back"
                   + (" and verified" if same else " DIFFERS"))

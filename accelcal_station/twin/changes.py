@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import kstwobign
 
 ALPHA = 1e-3  # family-wise false-alarm rate of the change search (per lot, over all quantities)
 HALF_CHI2_95 = 3.841 / 2
@@ -50,6 +49,8 @@ def _cusum(n: np.ndarray, s: np.ndarray, sigma: float) -> tuple[int, float, np.n
     T = np.max(np.abs(dev)) / (sigma * np.sqrt(N))
     with np.errstate(divide="ignore", invalid="ignore"):
         lr = np.where((cn > 0) & (cn < N), dev**2 * N / (cn * (N - cn)) / sigma**2 / 2, 0.0)
+    from scipy.stats import kstwobign  # on first use: scipy.stats is ~50 MB and a second at start-up
+
     return int(np.argmax(lr)) + 1, float(kstwobign.sf(T)), lr
 
 

@@ -18,7 +18,6 @@ import warnings
 from typing import Any
 
 import numpy as np
-from scipy.stats import anderson_ksamp, chi2_contingency
 
 FAMILY_ALPHA = 0.01
 _SIG = np.array([0.25, 0.1, 0.05, 0.025, 0.01, 0.005, 0.001])
@@ -37,6 +36,8 @@ def anderson(real: np.ndarray, sim: np.ndarray) -> tuple[float, float]:
         return 0.0, 1.0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # scipy warns that its p-value is floored or capped
+        from scipy.stats import anderson_ksamp  # on first use: scipy.stats is ~50 MB and a second at start-up
+
         r = anderson_ksamp([real, sim])
     stat, crit = float(r.statistic), np.asarray(r.critical_values, dtype=float)
     if stat <= crit[-1]:
@@ -84,6 +85,8 @@ def counts_test(real: dict[str, int], sim: dict[str, int]) -> tuple[float, float
     table = table[:, table.sum(axis=0) > 0]
     if table.shape[1] < 2 or np.any(table.sum(axis=1) == 0):
         return 0.0, 1.0
+    from scipy.stats import chi2_contingency  # on first use, as above
+
     chi2, p, _, _ = chi2_contingency(table)
     return float(chi2), float(p)
 
