@@ -40,7 +40,7 @@ from ..config.checks import load_yaml
 from ..config.parts import SimEepromSection, SimulatedBoardSection, SimulatorFileSection, parse
 from ..errors import ConfigError, DeviceError
 from ..sim.population import parse_population
-from ..sim.sensor_model import SensorModel, get_chip, rotation_matrix
+from ..sim.sensor_model import PHYSICS, SensorModel, get_chip, rotation_matrix
 from .base import Driver, Identity
 from .eeprom import EEPROM24
 
@@ -107,6 +107,19 @@ def load_simulator(cfg: dict[str, Any], path: str) -> tuple[Any, str, Any]:
     return m.effects or {}, f"{where}.effects", m.population
 
 
+def load_physics(cfg: dict[str, Any], path: str) -> bool:
+    """True when a board config's ``simulator.physics`` is ``forward`` (sensor_model.PHYSICS);
+    ``implicit`` (the default, also for ``effects:`` given directly) is False."""
+    sim = cfg.get("simulator")
+    where = f"{path}.simulator"
+    if isinstance(sim, str):
+        sim, where = load_yaml(sim), f"{path}.simulator({sim})"
+    value = sim.get("physics", PHYSICS[0]) if isinstance(sim, dict) else PHYSICS[0]
+    if value not in PHYSICS:
+        raise ConfigError(f"{where}.physics: {value!r}; allowed: {', '.join(PHYSICS)}")
+    return bool(value == "forward")
+
+
 def draw_board(model: SensorModel, population: Any, seed: int, path: str) -> SensorModel:
     """The board this seed draws from a population (sim/population.py): board index 0 of the lot,
     its parameters from a random stream of its own (the noise streams are unchanged)."""
@@ -159,7 +172,7 @@ class SimulatedBoard:
         m = parse(cfg, SimulatedBoardSection, path)
         spec = get_chip(chip or m.chip or "mma8451", f"{path}.chip")
         effects, epath, population = load_simulator(cfg, path)
-        model = SensorModel.from_config(effects, spec, epath)
+        model = SensorModel.from_config(effects, spec, epath, forward=load_physics(cfg, path))
         if seed is None:
             seed = m.seed
         if population is not None:

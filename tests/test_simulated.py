@@ -142,6 +142,32 @@ def test_cubic_is_odd_and_follows_its_coefficient():
     assert up - 1.0 == pytest.approx(0.0103, abs=5e-4)  # about +c at 1 g
 
 
+def test_physics_forward_is_the_sensors_response_and_the_lot_chain_agrees(tmp_path):
+    """simulator.physics: forward gives G = o + u + c u^3 (u = K f); the default stays implicit
+    (f = G - c G^3); the lot chain (sim/lot_physics.py, vectorised) gives the one board's reading."""
+    from accelcal_station.sim.lot_physics import board_parameters, enabled_effects, response_g
+
+    eff = {"offset": {"offset_mg": [20.0, -10.0, 40.0]}, "gain": {"gain": [1.02, 1.0, 0.99]},
+           "cubic": {"cubic_per_g2": [0.015, 0.0, 0.01]}}
+    fwd = SimulatedBoard.from_config({"simulator": {"effects": eff, "physics": "forward"}}, seed=0)
+    imp = SimulatedBoard.from_config({"simulator": {"effects": eff}}, seed=0)
+    assert fwd.model.forward and not imp.model.forward
+    u = 1.02
+    assert reading_g(fwd, X_UP)[0] == pytest.approx(0.020 + u + 0.015 * u**3, abs=1e-12)
+    G = reading_g(imp, X_UP)[0]
+    f_x = (G - 0.020) / 1.02 - 0.015 * G**3  # the implicit chain, unchanged
+    assert f_x == pytest.approx(1.0, abs=1e-12)
+    f = np.array([[1.0, 0.0, 0.0], [0.0, 0.6, -0.8]])
+    for model in (fwd.model, imp.model):
+        prm = board_parameters(model, None, None, 1)
+        lot = response_g(prm, enabled_effects(model, None), f[None], 25.0, model.forward)[0]
+        np.testing.assert_allclose(lot, model.response_g(f), atol=1e-13)
+    with pytest.raises(ConfigError, match=r"^dev\.simulator\.physics: 'inverse'; allowed: implicit, forward$"):
+        SimulatedBoard.from_config({"simulator": {"physics": "inverse"}}, path="dev")
+    (tmp_path / "s.yaml").write_text("effects: {cubic: {cubic_per_g2: [0.01, 0, 0]}}\nphysics: forward\n")
+    assert SimulatedBoard.from_config({"simulator": str(tmp_path / "s.yaml")}).model.forward
+
+
 def test_quadratic_is_even():
     b = board({"quadratic": {"quadratic_per_g": [0.008, 0, 0]}})
     up, down = reading_g(b, X_UP)[0], reading_g(b, X_DOWN)[0]

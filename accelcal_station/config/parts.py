@@ -55,6 +55,7 @@ class SimulatorFileSection(Section):
 
     effects: dict[str, Any] | None = _f(None, "effects of the catalog (sim/sensor_model.py EFFECTS)")
     population: dict[str, Any] | None = _f(None, "the population boards are drawn from (sim/population.py)")
+    physics: Literal["implicit", "forward"] = _f("implicit", "the cubic's physics (sim/sensor_model.py PHYSICS)")
 
 
 class I2cEepromSection(Section):

@@ -139,6 +139,10 @@ class SimulatorSection(Section):
     population: dict[str, Any] | None = _f(
         None, "the population boards are drawn from: quantities, components, changes "
         "(validated by sim/population.py parse_population, one-line errors)")
+    physics: Literal["implicit", "forward"] = _f(
+        "implicit", "the cubic/quadratic nonlinearity: implicit (the reading G solves f = K^-1 (G - o) - q G^2 - "
+        "c G^3, which model 15 inverts exactly) or forward (G = o + u + q u^2 + c u^3, u = K f: a sensor's own "
+        "response, which model 15 only approximates)")
 
 
 class CorruptReadsSection(Section):

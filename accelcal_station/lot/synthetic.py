@@ -79,12 +79,13 @@ def _rows(a: int, D: int, P: int, names: np.ndarray, pitch: np.ndarray, roll: np
 
 def write_population_lot(path: str | Path, boards: int, design: str, model: SensorModel,
                          pop: Population | None, *, seed: int = 0, samples: int = 1000, range_g: int = 2,
-                         chunk: int = 20_000, forward: bool = False, prefix: str = "B",
+                         chunk: int = 20_000, forward: bool | None = None, prefix: str = "B",
                          draw: Callable[[np.ndarray, np.random.Generator], np.ndarray] | None = None) -> Path:
     """A lot of ``boards`` boards drawn from a population (or all the one fixed board), each
     measured at the design's poses by the vectorised sensor chain (sim/lot_physics.py).
 
-    ``draw(board_indices, rng)``, when given, replaces ``pop.draw`` (a generator of its own).
+    ``draw(board_indices, rng)``, when given, replaces ``pop.draw`` (a generator of its own);
+    ``forward``: the nonlinearity's physics, None = the model's (``simulator.physics``).
     Written to a temporary file renamed over ``path`` at the end; memory is one chunk's."""
     poses = get_design(design)
     ref = references(poses)

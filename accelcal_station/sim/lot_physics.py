@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from .population import Population
-from .sensor_model import EFFECTS, SensorModel, rotation_matrix
+from .sensor_model import CHIP_DEFAULT, EFFECTS, SensorModel, rotation_matrix
 
 TIMED = ("drift", "settling")
 
@@ -31,7 +31,10 @@ def board_parameters(model: SensorModel, pop: Population | None, x: np.ndarray |
         for p in eff.params:
             if p.integer:
                 continue
-            v = np.asarray(model._p(name, p.name), dtype=float)
+            v = model._p(name, p.name)
+            # a disabled effect's datasheet default (noise density "chip"): the chip's figure
+            v = np.asarray([model.chip.noise_ug_per_rthz] * 3 if isinstance(v, str) and v == CHIP_DEFAULT else v,
+                           dtype=float)
             out[name][p.name] = np.broadcast_to(v, (D,) + v.shape).copy()
     if pop is not None and x is not None:
         for k, q in enumerate(pop.quantities):
@@ -101,15 +104,17 @@ def response_g(prm: dict[str, dict[str, np.ndarray]], on: set[str], f: np.ndarra
 
 def pose_means(model: SensorModel, pop: Population | None, boards: np.ndarray, ref: np.ndarray, samples: int,
                rng: np.random.Generator, *, range_g: int = 2, odr_hz: float | None = None, temp_c: float = 25.0,
-               forward: bool = False, x: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               forward: bool | None = None, x: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pose means (D, P, 3) and per-sample std (D, P, 3) in counts of the boards with these lot
-    indices, and their parameter vectors (D, Q) (drawn from ``pop`` unless ``x`` is given)."""
+    indices, and their parameter vectors (D, Q) (drawn from ``pop`` unless ``x`` is given).
+    ``forward``: the nonlinearity's physics (response_g); None = the model's (simulator.physics)."""
     D = len(boards)
     on = enabled_effects(model, pop)
     if pop is not None and x is None:
         x = pop.draw(boards, rng)
     prm = board_parameters(model, pop, x, D)
-    G = response_g(prm, on, true_force_g(prm, on, ref, rng), temp_c, forward)
+    G = response_g(prm, on, true_force_g(prm, on, ref, rng), temp_c, model.forward if forward is None else forward)
     chip = model.chip
     cpg = chip.counts_per_g(range_g)
     enbw = chip.enbw_hz(odr_hz or chip.default_odr_hz, chip.default_dlpf)

@@ -15,7 +15,9 @@ The sensor chain, in order (each stage only when its effect is enabled):
    (``gain``, ``cross_axis``: coupling ``C`` and package rotation ``R_pkg``)
 3. nonlinearity         the reading ``G`` solves ``f = K^-1 (G - o(T)) - q G^2 - c G^3``
    per axis (``quadratic`` q, ``cubic`` c): the inverse of AN4399 Eqn 67 with
-   ``Gamma = -c``, so model 15 inverts ``cubic`` exactly
+   ``Gamma = -c``, so model 15 inverts ``cubic`` exactly; with ``simulator.physics:
+   forward`` (``SensorModel.forward``) instead ``G = o + u + q u^2 + c u^3``, u = K f
+   (a sensor's own response, which model 15 only approximates)
 4. offset               ``o(T)`` in step 3 (``offset``); ``temperature`` makes offset and
    gain linear + quadratic in ``T - t_ref_c``
 5. drift                + offset random walk and exponential warm-up (time since power-up)
@@ -226,6 +228,8 @@ EFFECTS: dict[str, EffectSpec] = {e.name: e for e in (
 )}
 
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
+# simulator.physics: how stage 3's nonlinearity acts (SensorModel.forward); the first is the default
+PHYSICS = ("implicit", "forward")
 DEFAULT_EFFECTS = ("noise", "quantization", "saturation")  # an ideal chip: datasheet behaviour only
 
 
@@ -329,11 +333,11 @@ class SensorModel:
 
     @classmethod
     def from_config(cls, effects: Any, chip: ChipSpec | str = "mma8451",
-                    path: str = "simulator.effects") -> SensorModel:
+                    path: str = "simulator.effects", forward: bool = False) -> SensorModel:
         chip = get_chip(chip) if isinstance(chip, str) else chip
         if effects is None:
             effects = {n: {} for n in DEFAULT_EFFECTS}
-        return cls(chip, parse_effects(effects, chip, path), path)
+        return cls(chip, parse_effects(effects, chip, path), path, forward)
 
     def to_config(self) -> dict[str, dict[str, Any]]:
         """The YAML ``effects:`` mapping of this model (round-trips through from_config)."""
@@ -344,11 +348,11 @@ class SensorModel:
         """A copy with ``name`` enabled (parameters as in YAML; missing ones default)."""
         cfg = self.to_config()
         cfg[name] = {**cfg.get(name, {}), **params}
-        return SensorModel.from_config(cfg, self.chip, self.path)
+        return SensorModel.from_config(cfg, self.chip, self.path, self.forward)
 
     def without(self, *names: str) -> SensorModel:
         return SensorModel.from_config({n: p for n, p in self.to_config().items() if n not in names},
-                                       self.chip, self.path)
+                                       self.chip, self.path, self.forward)
 
     @property
     def enabled(self) -> tuple[str, ...]:
@@ -459,7 +463,8 @@ class SensorModel:
         """The AN4399 calibration that inverts offset, gain, cross_axis and cubic at temp_c.
 
         From step 3, ``f = K^-1 G - K^-1 o - c G^3``, so ``W = K^-1``, ``V = -K^-1 o``,
-        ``Gamma = -c`` (AN4399 Eqn 67) -- exact, not an approximation.  The
+        ``Gamma = -c`` (AN4399 Eqn 67) -- exact, not an approximation (with ``forward`` physics
+        the same W, V, Gamma, of which model 15's fit is then an approximation).  The
         ``quadratic`` term has no AN4399 counterpart and is left out; the output is in
         standard g (the ``gravity`` effect is not inverted); drift, settling, noise,
         saturation and quantization are not part of a calibration.

@@ -10,7 +10,7 @@ per-sample std).
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,12 +22,14 @@ from ..config.sections import default_config_path
 from ..data.lotfile import lot_scale, open_lot
 from ..errors import DataError
 from ..sim.population import Change, Component, Population, parse_quantity
-from ..sim.sensor_model import SensorModel
+from ..sim.sensor_model import PHYSICS, SensorModel
 from .changes import Found, find_changes
 from .mixture import NU_MAX, Mixture, fit_mixture
+from .physics import CRITERION, board_rows, choose_physics, population_shape
 from .simlot import fixed_board_stats
 from .stream import LotStats, collect, richest_model
 
+MIXTURE_ROWS = 8000  # rows EM fits (mixture.fit_mixture's max_rows)
 DIFFERS_SD = 3.0  # a component carries an effect when a quantity's mean is this many sd from the main one's
 
 
@@ -39,6 +41,8 @@ class Twin:
     criterion: list[dict[str, float]]
     changes: list[Found]
     config: dict[str, Any]
+    physics: str = PHYSICS[0]
+    physics_candidates: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         names = self.population.names
@@ -55,6 +59,7 @@ class Twin:
                           "carries": sorted({n.split(".")[0] for n in differs}), "differs_in": differs})
         return {"source_boards": self.stats.boards, "model": self.stats.model, "skipped": self.stats.skipped,
                 "criterion": {"name": "BIC", "candidates": self.criterion},
+                "physics": {"chosen": self.physics, "criterion": CRITERION, "candidates": self.physics_candidates},
                 "components": comps,
                 "changes": [{"quantity": f.quantity, "kind": f.kind, "at_board": f.at_board,
                              "interval": [f.lo_board, f.hi_board], "size": f.size, "p_value": f.p_value}
@@ -110,8 +115,8 @@ def _population(names: list[str], mix: Mixture, changes: list[Found]) -> Populat
     return Population(qs, comps, ch)
 
 
-def twin_config(pop: Population, stats: LotStats, per_g: float | None, base: dict[str, Any] | None = None
-                ) -> dict[str, Any]:
+def twin_config(pop: Population, stats: LotStats, per_g: float | None, base: dict[str, Any] | None = None,
+                physics: str = PHYSICS[0]) -> dict[str, Any]:
     """The default simulator config with ``population:`` replaced (module docstring)."""
     cfg = copy.deepcopy(base if base is not None else load_yaml(default_config_path()))
     dev = cfg.setdefault("device", {})
@@ -126,6 +131,7 @@ def twin_config(pop: Population, stats: LotStats, per_g: float | None, base: dic
         sd_counts = np.sqrt(max(float(np.median(stats.noise)) ** 2 - lsb**2 / 12.0, 0.0))
         eff["noise"] = {"density_ug_per_rthz": [round(float(sd_counts / per_g / np.sqrt(enbw) * 1e6), 4)] * 3}
     sim["population"] = pop.to_config()
+    sim["physics"] = physics
     return cfg
 
 
@@ -140,12 +146,17 @@ def fit_twin(stats: LotStats, per_g: float | None, max_components: int = 4, seed
                         f"(model {stats.model}) needs at least {need}")
     changes = find_changes(stats.block_stats(), names, stats.block)
     X = _unshift(stats.rows[good], names, changes)
-    mix, table = fit_mixture(X, max_components=max_components, seed=seed)
-    cfg0 = twin_config(_population(names, mix, changes), stats, per_g, base)
-    noise_cov = _fit_noise_cov(cfg0, mix, stats, seed)
+    physics, candidates = choose_physics(twin_config(population_shape(names), stats, per_g, base), stats, seed)
+    if physics != PHYSICS[0]:
+        if len(X) > MIXTURE_ROWS:  # fit_mixture's own subsample, taken before the (costlier) inversion
+            X = X[np.random.default_rng(seed).choice(len(X), MIXTURE_ROWS, replace=False)]
+        X = board_rows(twin_config(population_shape(names), stats, per_g, base, physics), physics, stats, X)
+    mix, table = fit_mixture(X, max_components=max_components, seed=seed, max_rows=MIXTURE_ROWS)
+    cfg0 = twin_config(_population(names, mix, changes), stats, per_g, base, physics)
+    noise_cov = _fit_noise_cov(cfg0, mix, stats, seed, physics)
     mix.covs = np.array([_nearest_psd(S - noise_cov) for S in mix.covs])
     pop = _population(names, mix, changes)
-    return Twin(stats, pop, mix, table, changes, twin_config(pop, stats, per_g, base))
+    return Twin(stats, pop, mix, table, changes, twin_config(pop, stats, per_g, base, physics), physics, candidates)
 
 
 def _nearest_psd(S: np.ndarray) -> np.ndarray:
@@ -153,7 +164,8 @@ def _nearest_psd(S: np.ndarray) -> np.ndarray:
     return (v * np.clip(w, 0.0, None)) @ v.T
 
 
-def _fit_noise_cov(cfg: dict[str, Any], mix: Mixture, stats: LotStats, seed: int, boards: int = 2000) -> np.ndarray:
+def _fit_noise_cov(cfg: dict[str, Any], mix: Mixture, stats: LotStats, seed: int, physics: str,
+                   boards: int = 2000) -> np.ndarray:
     """The covariance the fit's own noise adds to every board's quantities: one fixed board (the
     main component's mean) measured ``boards`` times at the lot's poses and samples, fitted.
     A component's covariance minus this is the spread of the boards themselves (deconvolution)."""
@@ -161,5 +173,5 @@ def _fit_noise_cov(cfg: dict[str, Any], mix: Mixture, stats: LotStats, seed: int
     if stats.refs is None:  # no pose references (model 9): nothing to simulate the fit's scatter at
         return np.zeros((len(names), len(names)))
     q = fixed_board_stats(cfg, stats, mix.means[0], boards, seed)
-    X = q[np.all(np.isfinite(q), axis=1)]
+    X = board_rows(cfg, physics, stats, q[np.all(np.isfinite(q), axis=1)])  # in the population's terms
     return np.cov(X.T) if len(X) > len(names) else np.zeros((len(names), len(names)))

@@ -12,7 +12,7 @@ from ..acceptance.rules import Limits
 from ..config.checks import load_yaml
 from ..config.parts import SimulatedBoardSection, parse
 from ..data.lotfile import LotChunk
-from ..drivers.simulated import load_simulator
+from ..drivers.simulated import load_physics, load_simulator
 from ..errors import ConfigError
 from ..sim.lot_physics import pose_means
 from ..sim.population import Population, parse_population
@@ -28,7 +28,7 @@ def load_device(path: str) -> tuple[SensorModel, Population | None, int, Limits]
         raise ConfigError(f"{path}: device.driver must be simulated (a twin simulates the lot)")
     effects, epath, pop_spec = load_simulator(dev, f"{path}: device")
     chip = get_chip(dev.get("chip", "mma8451"), f"{path}: device.chip")
-    model = SensorModel.from_config(effects, chip, epath)
+    model = SensorModel.from_config(effects, chip, epath, forward=load_physics(dev, f"{path}: device"))
     pop = None if pop_spec is None else parse_population(pop_spec, model.effects, epath.rsplit(".", 1)[0]
                                                          + ".population")
     range_g = parse({"range_g": dev.get("range_g")}, SimulatedBoardSection, f"{path}: device").range_g \
@@ -36,7 +36,7 @@ def load_device(path: str) -> tuple[SensorModel, Population | None, int, Limits]
     return model, pop, range_g, Limits.from_config(cfg.get("acceptance"), f"{path}: acceptance")
 
 
-def _chunk(a: int, mean: np.ndarray, std: np.ndarray, samples: int, like: LotStats) -> LotChunk:
+def lot_chunk(a: int, mean: np.ndarray, std: np.ndarray, samples: int, like: LotStats) -> LotChunk:
     D, P, _ = mean.shape
     cols: dict[str, np.ndarray] = {"x": mean[..., 0].ravel(), "y": mean[..., 1].ravel(), "z": mean[..., 2].ravel(),
                                    "n": np.full(D * P, float(samples)), "std_x": std[..., 0].ravel(),
@@ -62,7 +62,7 @@ def sim_chunks(model: SensorModel, pop: Population | None, boards: int, like: Lo
         idx = np.arange(a, min(a + chunk, boards))
         mean, std, _ = pose_means(model, pop, idx, like.refs, samples, rng, range_g=range_g,
                                   x=None if x is None else x[idx])
-        yield _chunk(a, mean, std, samples, like)
+        yield lot_chunk(a, mean, std, samples, like)
 
 
 def simulate_like(config: str, like: LotStats, boards: int, seed: int, limits: Limits | None = None
@@ -76,16 +76,25 @@ def simulate_like(config: str, like: LotStats, boards: int, seed: int, limits: L
     return stats, {"config": config, "boards": boards, "population": pop is not None}
 
 
-def fixed_board_stats(cfg: dict[str, Any], like: LotStats, x: np.ndarray, boards: int, seed: int) -> np.ndarray:
-    """Effect quantities (boards, Q) fitted from one board with parameters ``x`` (the population's
-    quantities) measured ``boards`` times like ``like``: the fit's own scatter."""
+def twin_model(cfg: dict[str, Any], forward: bool | None = None) -> tuple[SensorModel, int]:
+    """The simulated device of a config mapping and its range (``forward``: override its physics)."""
     dev = cfg["device"]
-    effects, epath, pop_spec = load_simulator(dev, "device")
+    effects, epath, _ = load_simulator(dev, "device")
     chip = get_chip(dev.get("chip", "mma8451"))
-    model = SensorModel.from_config(effects, chip, epath)
-    pop = parse_population(pop_spec, model.effects)
-    range_g = int(dev.get("range_g", chip.default_range_g))
-    xs = np.broadcast_to(x, (boards, len(x)))
+    fwd = load_physics(dev, "device") if forward is None else forward
+    return SensorModel.from_config(effects, chip, epath, forward=fwd), int(dev.get("range_g", chip.default_range_g))
+
+
+def fixed_board_stats(cfg: dict[str, Any], like: LotStats, x: np.ndarray, boards: int, seed: int,
+                      columns: tuple[str, ...] | None = None) -> np.ndarray:
+    """Effect quantities (boards, Q) fitted from one board with parameters ``x`` (the population's
+    quantities) measured ``boards`` times like ``like``: the fit's own scatter.  ``x`` (boards, Q):
+    given boards, each measured once; ``columns``: these stats columns instead."""
+    model, range_g = twin_model(cfg)
+    pop = parse_population(cfg["device"]["simulator"]["population"], model.effects)
+    xs = np.broadcast_to(x, (boards, x.shape[-1]))
     stats = collect(sim_chunks(model, pop, boards, like, range_g, seed, x=xs), like.model,
-                    chip.counts_per_g(range_g), "counts", None, reservoir=boards, seed=seed)
+                    model.chip.counts_per_g(range_g), "counts", None, reservoir=boards, seed=seed)
+    if columns is not None:
+        return stats.rows[:, [stats.columns.index(c) for c in columns]]
     return stats.rows[:, 1:1 + len(like.quantities)]
