@@ -37,7 +37,7 @@ import numpy as np
 from ..atomic import atomic_write
 from ..conventions import an4399_reference, check_units
 from ..errors import DataError, UnitsError
-from ..session import PoseRecord, Session
+from ..session import PoseColumns, PoseRecord, Session
 
 REQUIRED = ("pose", "x", "y", "z")
 GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std_y", "std_z"))
@@ -208,11 +208,11 @@ def _file_lines(path: Path) -> Iterator[str]:
 
 
 def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], references: bool
-          ) -> list[PoseRecord]:
+          ) -> PoseColumns:
     """The poses of the table body after the header (blank and ``#`` rows skipped), parsed row
-    by row: memory is the poses, not a second copy of the table as lists of strings."""
+    by row into columns: memory is the poses, not a second copy of the table as lists of strings."""
     reader = csv.reader(lines)
-    poses: list[PoseRecord] = []
+    poses = PoseColumns()
     try:
         for cells in reader:
             line = header_at + 1 + reader.line_num
