@@ -207,6 +207,11 @@ def _file_lines(path: Path) -> Iterator[str]:
         raise DataError(f"{path}: not a text file (expected a CSV pose table)") from None
 
 
+# a table of this many rows or more stays columns (session.PoseColumns: ~170 bytes a pose, not ~700;
+# its poses are read-only records); a smaller one is a list of PoseRecords
+COLUMNS_FROM_ROWS = 10_000
+
+
 def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], references: bool
           ) -> PoseColumns:
     """The poses of the table body after the header (blank and ``#`` rows skipped), parsed row
@@ -257,6 +262,8 @@ def read_pose_table(path: str | Path, units: str | None = None, counts_per_g: fl
     if not poses:
         raise DataError(f"{path}: no pose rows after the header (line {hline})")
     extra = {k: v for k, v in meta.items() if k not in META_KEYS}
+    if len(poses) < COLUMNS_FROM_ROWS:  # a small table: PoseRecords one can change, as every Session has
+        return Session(list(poses), units, counts_per_g, gravity_mps2, meta.get("device") or None, extra)
     return Session(poses, units, counts_per_g, gravity_mps2, meta.get("device") or None, extra)
 
 
