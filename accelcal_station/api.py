@@ -24,7 +24,7 @@ from .diagnosis.engine import diagnose as _diagnose
 from .diagnosis.loading import load_data, load_simulator
 from .diagnosis.result import Diagnosis
 from .drivers.simulated import SimulatedBoard
-from .errors import AccelcalError, DataError, UnitsError
+from .errors import AccelcalError, DataError, UnderdeterminedError, UnitsError
 from .fixtures.designs import get_design
 from .fixtures.simulated_run import SimulatedRun, Sink, run_design, simulated_board
 from .models.choice import choose_model, with_face_references
@@ -103,6 +103,9 @@ def fit(data: str | Path | Loaded | Session, model: str | int | None = None, *, 
     except AccelcalError as e:
         found = f" (found {len(session)} static intervals in the raw log)" if is_raw else ""
         raise type(e)(f"{name}: {e}{found}") from None
+    except np.linalg.LinAlgError as e:  # a design so degenerate the eigen/SVD solvers do not converge
+        raise UnderdeterminedError(f"{name}: the {len(session)} poses are numerically degenerate for model {m} "
+                                   f"({e}); allowed: poses spread over distinct orientations") from None
     return Fit(fr.calibration, m, [(None, fr)], [session])
 
 
@@ -126,14 +129,16 @@ def _fit_chosen(session: Session, name: str, temp_method: str, is_raw: bool) -> 
 
 
 MAX_TEMPS = 16  # set points of one simulated run
+MAX_SAMPLES_PER_POSE = 10**7  # drawn and written in chunks (streamed), so bounded by time, not memory
 MAX_TOTAL_SAMPLES = 10**8  # poses x set points x samples: about a minute of simulation and 2 GB of raw log
 
 
 def _check_run(samples: int, temps_c: Sequence[float] | None, move_s: float, poses: int = 1) -> None:
     """The limits `accelcal simulate` puts on its options, for callers that skip the command line
     (checked before any sample is made: they bound its time and its output)."""
-    if not (isinstance(samples, int) and 2 <= samples <= 10**7):
-        raise DataError(f"samples={samples!r}; allowed: a whole number from 2 to 10000000 (a pose's std needs 2)")
+    if not (isinstance(samples, int) and 2 <= samples <= MAX_SAMPLES_PER_POSE):
+        raise DataError(f"samples={samples!r}; allowed: a whole number from 2 to {MAX_SAMPLES_PER_POSE} "
+                        "(a pose's std needs 2)")
     temps = list(temps_c or [])
     if len(temps) > MAX_TEMPS:
         raise DataError(f"temps_c: {len(temps)} temperatures; allowed: at most {MAX_TEMPS}")

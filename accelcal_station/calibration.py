@@ -22,6 +22,8 @@ from .errors import DataError, TemperatureRangeError, UnitsError
 SCHEMA = "accelcal.calibration"
 SCHEMA_VERSION = 1
 MODELS = ("6", "9", "12", "15")
+MAX_FILE_BYTES = 1 << 20
+MAX_TEMPERATURES = 1000  # calibration temperatures of one table: a chamber visits tens
 
 
 @dataclass(init=False)
@@ -40,15 +42,22 @@ class TemperatureTable:
 
     def __init__(self, temps_c: ArrayLike, W: ArrayLike, V: ArrayLike, Gamma: ArrayLike, method: str = "linear"):
         temps = np.asarray(temps_c, dtype=float)
+        k = temps.size
+        if temps.ndim != 1 or not 0 < k <= MAX_TEMPERATURES:
+            raise DataError(f"temperature table temps_c: shape {temps.shape}; allowed: a list of 2 to "
+                            f"{MAX_TEMPERATURES} temperatures")
+        arrays = {n: np.asarray(a, dtype=float) for n, a in (("W", W), ("V", V), ("Gamma", Gamma))}
+        for n, shape in (("W", (k, 3, 3)), ("V", (k, 3)), ("Gamma", (k, 3))):
+            if arrays[n].shape != shape:
+                raise DataError(f"temperature table {n}: shape {arrays[n].shape}; allowed {shape}, one per temperature")
+        if not all(np.all(np.isfinite(a)) for a in (temps, *arrays.values())):
+            raise DataError("temperature table: NaN or infinity among its temperatures or coefficients")
         order = np.argsort(temps)
         self.temps_c = temps[order]
-        self.W = np.asarray(W, dtype=float)[order]
-        self.V = np.asarray(V, dtype=float)[order]
-        self.Gamma = np.asarray(Gamma, dtype=float)[order]
+        self.W, self.V, self.Gamma = (arrays[n][order] for n in ("W", "V", "Gamma"))
         self.method = method
         if self.method not in ("linear", "quadratic"):
             raise DataError(f"temperature method {self.method!r}; allowed: linear, quadratic")
-        k = len(self.temps_c)
         if k < 2:
             raise DataError("a temperature table needs calibrations at two or more temperatures")
         if np.any(np.diff(self.temps_c) <= 0):
@@ -248,13 +257,11 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
-        path = Path(path)
-        try:
-            d = json.loads(path.read_text())
-        except OSError as e:
-            raise DataError(f"{path}: cannot read ({e.strerror})") from None
-        except json.JSONDecodeError as e:
-            raise DataError(f"{path}: not JSON (line {e.lineno}: {e.msg})") from None
+        """A calibration JSON file (a regular file of at most MAX_FILE_BYTES); errors name the file."""
+        from .fileguard.jsondoc import read_json
+
+        d = read_json(path, "an accelcal calibration", MAX_FILE_BYTES, "a calibration with a table of 100 "
+                      "temperatures is some 50 kB")
         return cls.from_dict(d, str(path))
 
 

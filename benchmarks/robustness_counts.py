@@ -1,6 +1,12 @@
-"""Issue 12 closing figures: bad inputs tried / refused cleanly, faults injected / survived.
+"""Issue 12 and 25 closing figures: bad inputs tried / refused cleanly, faults injected / survived,
+and issue 25's campaign of hostile files through the real command line, counted by class.
 
-    python benchmarks/robustness_counts.py
+    python benchmarks/robustness_counts.py [--cases N] [--campaign-only]
+
+The campaign (benchmarks/hostile_campaign.py: generated pose tables, raw logs, CSV and Parquet lots,
+YAML configs, NVM backups, special files, edge numbers, outputs named after inputs; each run in a
+subprocess with 2 GiB of address space) prints its classes: clean, internal error, hang (60 s wall or
+10 s CPU), input overwritten, messy (no single error line).  The target is 0 of every class but clean.
 
 A bad input is clean when the command exits non-zero but not 70 (internal error), prints no
 traceback and exactly one error line (under --json: one JSON object on stdout and nothing
@@ -16,6 +22,7 @@ import os
 import re
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +31,7 @@ from click.testing import CliRunner
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
 from accelcal_station.cli import cli  # noqa: E402
 from accelcal_station.station.settings import default_config_path  # noqa: E402
@@ -251,6 +259,25 @@ def _simulate_poses_diagnose_cases(tmp: Path, files: list, good: Path):
 
 
 def main() -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--cases", type=int, default=400, help="cases in the subprocess campaign (default 400)")
+    ap.add_argument("--campaign-only", action="store_true", help="only the subprocess campaign")
+    a = ap.parse_args()
+    if not a.campaign_only:
+        in_process()
+    from hostile_campaign import campaign
+
+    t0 = time.perf_counter()
+    c = campaign(a.cases, verbose=bool(os.environ.get("VERBOSE")))
+    print(f"campaign through the CLI ({a.cases} cases, {time.perf_counter() - t0:.0f} s): clean {c['clean']}, "
+          f"internal error {c['internal']}, hang {c['hang']}, input overwritten {c['overwritten']}, "
+          f"messy {c['messy']}")
+
+
+def in_process() -> None:
+    """The issue 12 counts (in-process CliRunner) and the power-loss sweep."""
     rng = np.random.default_rng(12)
     runner = CliRunner()
     tried = ok = 0

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NVMError
+from ..fileguard.regular import read_bytes
 from .base import NVM, Clock
 
 
@@ -75,7 +76,7 @@ class EEPROM24(NVM):
         # now and saved (whole, atomically) after every page write, as a real part keeps them
         self.image_path = None if image_path is None else Path(image_path)
         if self.image_path is not None and self.image_path.exists():
-            data = self.image_path.read_bytes()
+            data = read_bytes(self.image_path, "an EEPROM image", self.size, "the size of this EEPROM", NVMError)
             if len(data) != self.size:
                 raise NVMError(f"{self.image_path}: EEPROM image is {len(data)} bytes; this EEPROM has {self.size}")
             self.cells[:] = np.frombuffer(data, dtype=np.uint8)

@@ -128,7 +128,7 @@ def test_fifo_device_and_directory_are_refused(tmp_path):
                        (("diagnose", "--raw", fifo, "--rate", "100"), "a FIFO"),
                        (("fit", "--raw", "/dev/zero"), "a device"), (("fit", "/dev/zero"), "a device"),
                        (("fit", "--raw", tmp_path), "a directory")]:
-        _one_line_error(_run(*args), what, "allowed: a log file")
+        _one_line_error(_run(*args), what, "allowed: a regular file")
 
 
 def test_huge_field_huge_reading_and_tiny_rate_are_refused(tmp_path, log12):

@@ -27,7 +27,11 @@ class StationGroup(JsonGroup):
 
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
         ctx.meta["accelcal.json"] = wants_json(args)
-        return super().parse_args(ctx, args)
+        try:
+            return super().parse_args(ctx, args)
+        except click.UsageError as e:  # `accelcal --bogus`: the same one line as every other error
+            emit_error(ctx, f"{e.format_message()} (see accelcal --help)", e.exit_code, "usage")
+            ctx.exit(e.exit_code)
 
     def invoke(self, ctx: click.Context) -> Any:
         try:

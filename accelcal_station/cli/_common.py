@@ -3,13 +3,39 @@ registered as a command)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
+import click
 import numpy as np
 
 from ..calibration import MODELS
 from ..conventions import check_units
-from ..errors import DataError, UnitsError
+from ..errors import AccelcalError, DataError, UnitsError
+
+MAX_SEED = 2**128 - 1  # numpy's SeedSequence takes any; the seeds the station prints are at most 128-bit
+MAX_ID = 2**63 - 1  # a run id is a 64-bit integer in every store
+
+
+class Finite(click.FloatRange):
+    """A float option that is finite and within [lo, hi] (click's FloatRange lets NaN through, and
+    infinity when a bound is open): the one number type of every float option."""
+
+    name = "finite number"
+
+    def __init__(self, lo: float, hi: float) -> None:
+        super().__init__(lo, hi)
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        v = super().convert(value, param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number; allowed: {self.min:g} to {self.max:g}", param, ctx)
+        return v
+
+
+def Whole(lo: int, hi: int) -> click.IntRange:
+    """A whole-number option within [lo, hi] (never unbounded: a count becomes an allocation)."""
+    return click.IntRange(lo, hi)
 
 
 def parse_number(value: str | None, flag: str, positive: bool = True) -> float | None:
@@ -22,15 +48,52 @@ def parse_int(value: str | None, flag: str, positive: bool = True) -> int | None
     return None if value is None else int(_parse(value, flag, True, positive))
 
 
+# The largest value each option parsed here takes, and why: beyond it a value is a typo or an attack.
+OPTION_MAX = {
+    "--counts-per-g": 1e9,  # the most sensitive accelerometer has some 1e6 counts per g
+    "--gravity": 1e3,  # m/s^2: a centrifuge at 100 g
+    "--skip-rows": 1e9,  # more lines than any log the readers take
+    "--samples": 1e7,  # samples per pose, as `simulate --samples`
+    "--chunk-boards": 1e6,  # boards held in memory at once (a chunk of 8 poses is ~1 GB there)
+    "--run": float(MAX_ID),
+}
+
+
 def _parse(value: str, flag: str, integer: bool, positive: bool) -> float:
     try:
         v = float(int(value)) if integer else float(value)
     except (ValueError, OverflowError):
         v = math.nan
-    if not math.isfinite(v) or (v <= 0 if positive else v < 0):
+    hi = OPTION_MAX.get(flag, math.inf)
+    if not math.isfinite(v) or (v <= 0 if positive else v < 0) or v > hi:
         kind = "whole number" if integer else "number"
-        raise DataError(f"{flag} {value!r}; allowed: a {'positive' if positive else 'non-negative'} {kind}")
+        most = f" up to {hi:g}" if math.isfinite(hi) else ""
+        raise DataError(f"{flag} {value!r}; allowed: a {'positive' if positive else 'non-negative'} {kind}{most}")
     return v
+
+
+def store_file(target: str | Path | None) -> Path | None:
+    """The file of an SQLite store (a path or ``sqlite:///PATH``), to compare outputs with; None for a
+    server URL (postgresql://...: no local file an output could overwrite)."""
+    if target is None:
+        return None
+    t = str(target)
+    if t.startswith("sqlite:///"):
+        return Path(t[len("sqlite:///"):])
+    return None if "://" in t else Path(t)
+
+
+def config_store_file(config_path: str | Path | None) -> Path | None:
+    """The SQLite store file a station config (default: the default station's) records into, so that
+    no output replaces it; None when the config cannot say (reading it reports why, later)."""
+    from ..config.checks import load_yaml
+    from ..config.sections import default_config_path
+    from ..store.location import store_path
+
+    try:
+        return store_file(store_path(load_yaml(config_path or default_config_path()), Path.cwd()))
+    except AccelcalError:
+        return None
 
 
 def jsonable(o: Any) -> Any:

@@ -9,6 +9,8 @@ from typing import Any
 
 import click
 
+from ._text import error_text
+
 
 def wants_json(args: Iterable[str]) -> bool:
     """--json anywhere on the command line before a bare '--'."""
@@ -21,7 +23,9 @@ def wants_json(args: Iterable[str]) -> bool:
 
 
 def emit_error(ctx: click.Context, message: str, code: int, kind: str) -> None:
-    """One line: red on stderr, or under --json one JSON object on stdout (nothing else there)."""
+    """One line: red on stderr, or under --json one JSON object on stdout (nothing else there).
+    The one place errors are printed: control characters escaped, long quoted values cut (_text.error_text)."""
+    message = error_text(message)
     if ctx.meta.get("accelcal.json"):
         click.echo(json.dumps({"error": message, "code": code, "kind": kind}))
     else:

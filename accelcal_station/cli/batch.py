@@ -15,6 +15,7 @@ from typing import Any, Protocol
 import click
 
 from ..errors import DataError
+from ..fileguard.identity import refuse_overwrite
 from ..lot.batch import (
     BatchReport,
     Source,
@@ -28,9 +29,10 @@ from ..lot.batch import (
 )
 from ..store.location import store_target
 from ..store.runs import Store
-from ._common import check_model_units, parse_int
+from ._common import check_model_units, parse_int, store_file
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
+from ._text import clean, error_text
 
 PROGRESS_MIN_BOARDS = 10  # below this a progress bar is noise
 
@@ -71,9 +73,9 @@ def _text(report: BatchReport, outputs: dict[str, Any], list_all: bool) -> list[
     for r in report.results:
         who = r.source + (f" ({r.serial})" if r.serial else "")
         if not r.ok:
-            lines.append(click.style("SKIP ", fg="red", bold=True) + f"{who}: {r.message}")
+            lines.append(click.style("SKIP ", fg="red", bold=True) + error_text(f"{who}: {r.message}"))
         elif list_all:
-            lines.append(click.style("ok   ", fg="green") + f"{who}: {r.pose_count} poses, residual RMS "
+            lines.append(click.style("ok   ", fg="green") + f"{clean(who)}: {r.pose_count} poses, residual RMS "
                          f"{_mg(r.residual_rms_g)}, leave-one-out {_mg(r.crossval_rms_g)}")
     n, ok = len(report.results), len(report.fitted)
     # a fitted board always has its residual RMS
@@ -107,6 +109,7 @@ def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str
         raise DataError(f"--out writes a lot file's results table; {', '.join(other)} cannot be combined with it")
     if len(paths) != 1:
         raise DataError(f"--out takes one lot file; got {len(paths)} path(s)")
+    refuse_overwrite([("--out", out)], [("the lot file", paths[0]), ("--config", config_path)])
     limits = None
     if config_path is not None:
         limits = Limits.from_config(load_yaml(config_path).get("acceptance"))
@@ -116,7 +119,7 @@ def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str
         click.echo(json.dumps(_clean({**summary.to_dict(), "out": str(out)}), allow_nan=False))
     else:
         for serial, reason in summary.unfitted_examples:
-            click.echo(click.style("SKIP ", fg="red", bold=True) + f"{serial}: {reason}")
+            click.echo(click.style("SKIP ", fg="red", bold=True) + error_text(f"{serial}: {reason}"))
         n, ok = summary.boards, summary.fitted
         verdicts = f"; PASS {summary.passed}, FAIL {summary.failed}" if limits is not None else ""
         click.echo(click.style(f"{ok} of {n} boards recalibrated with model {model}",
@@ -179,7 +182,7 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
                                   ("--to-store", to_store)) if v is not None])
         return
     store_filters = _store_filters(from_store, lot, device, station, since, until, run_ids)
-    _check_inputs(paths, from_store, csv_path)
+    _check_inputs(paths, from_store, csv_path, to_store)
     report = _fit_boards(paths, from_store, store_filters, model, units, cpg, grav, as_json)
     outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store)
     _print_report(report, outputs, written, as_json)
@@ -206,10 +209,14 @@ def _store_filters(from_store: str | None, lot: str | None, device: tuple[str, .
     return store_filters
 
 
-def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str | None) -> None:
-    """Refuse, before any work, a call with no boards or a --csv file in a folder that does not exist."""
+def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str | None, to_store: str | None) -> None:
+    """Refuse, before any work, a call with no boards, a --csv file in a folder that does not exist, or
+    an output that is one of the inputs (a pose table, the source store)."""
     if not paths and from_store is None:
         raise DataError("no boards given; pass pose tables, directories or globs, or --from-store FILE")
+    inputs = [("input", str(p)) for p in expand_paths(paths)] if paths else []
+    refuse_overwrite([("--csv", csv_path)], [*inputs, ("--from-store", store_file(from_store))])
+    refuse_overwrite([("--to-store", store_file(to_store))], [*inputs, ("--csv", csv_path)])  # may be --from-store
     for p in (csv_path,):
         if p is not None and not Path(p).resolve().parent.is_dir():
             raise DataError(f"--csv {p}: cannot write (no such directory {Path(p).parent})")

@@ -7,11 +7,12 @@ import click
 
 from ..api import diagnose
 from ..data.rawlog import check_rate
-from ..diagnosis.report import check_report_dir, selftest_lines, summary_lines, write_report
+from ..diagnosis.report import REPORT_FILES, check_report_dir, selftest_lines, summary_lines, write_report
 from ..diagnosis.selftest import selftest as run_selftest
 from ..errors import DataError
+from ..fileguard.identity import refuse_overwrite
+from ._common import MAX_SEED, Whole, parse_int
 from ._common import jsonable as _clean
-from ._common import parse_int
 from ._common import parse_number as _number
 from ._text import clean
 
@@ -40,7 +41,7 @@ from ._text import clean
               help="Forward-physics boards with each catalog effect withheld from the configuration, "
                    "off-catalog effects, two-effect cases and null boards: check what the diagnosis names "
                    "(exit 1 if a case fails).")
-@click.option("--seed", type=click.IntRange(0, None), default=1, show_default=True, help="Self-test seed.")
+@click.option("--seed", type=Whole(0, MAX_SEED), default=1, show_default=True, help="Self-test seed.")
 @click.pass_context
 def command(ctx: click.Context, files: tuple[str, ...], config: str | None, raw: bool, units: str | None,
             counts_per_g: str | None, gravity: str | None, columns: str | None, skip_rows: str | None,
@@ -56,6 +57,9 @@ def command(ctx: click.Context, files: tuple[str, ...], config: str | None, raw:
             ctx.exit(1)
         return
     out_dir = check_report_dir(report_dir) if report_dir else None
+    if out_dir is not None:
+        refuse_overwrite([("--report file", out_dir / n) for n in REPORT_FILES],
+                         [*(("FILE", f) for f in files), ("--config", config)])
     rate_hz = _number(rate, "--rate")
     check_rate(rate_hz)
     d = diagnose(files, config=config, raw=raw, units=units, counts_per_g=_number(counts_per_g, "--counts-per-g"),

@@ -16,6 +16,7 @@ import click
 
 from ..drivers.mpu6050_emulator import MPU6050BridgeEmulator, board_config_from_file
 from ..drivers.simulated import SimulatedBoard
+from ._common import MAX_SEED, Finite, Whole
 
 if TYPE_CHECKING:
     from ..drivers.mpu6050_simavr import SimavrBridge
@@ -26,28 +27,28 @@ KINDS = ("mpu6050-bridge", "motor-jig", "chamber")
 
 @click.command("emulate")
 @click.argument("kind", type=click.Choice(KINDS))
-@click.option("--seed", type=click.IntRange(0, None), default=None,
+@click.option("--seed", type=Whole(0, MAX_SEED), default=None,
               help="Seed of the simulated board (any seed it prints, which may be 128-bit).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="Simulated board YAML (e.g. configs/sim.yaml); its chip becomes an MPU6050.")
 @click.option("--motor-jig", "with_jig", is_flag=True,
               help="mpu6050-bridge: also start a motorized jig emulator that turns the same board.")
-@click.option("--jig-speed", type=click.FloatRange(1.0, 1e5), default=180.0, show_default=True,
+@click.option("--jig-speed", type=Finite(1.0, 1e5), default=180.0, show_default=True,
               help="Jig axis speed in deg/s (motion runs in real time).")
 @click.option("--firmware", "on_avr", is_flag=True,
               help="mpu6050-bridge: run the real bridge firmware on a simulated ATmega328P (simavr; built "
                    "by make -C firmware) instead of the Python emulator.")
-@click.option("--speed", type=click.FloatRange(0.01, 1e6), default=60.0, show_default=True,
+@click.option("--speed", type=Finite(0.01, 1e6), default=60.0, show_default=True,
               help="chamber: its clock runs this many times faster than the wall clock.")
-@click.option("--start-c", type=click.FloatRange(-70, 150), default=25.0, show_default=True,
+@click.option("--start-c", type=Finite(-70, 150), default=25.0, show_default=True,
               help="chamber: air temperature at start, C.")
-@click.option("--air-tau-s", type=click.FloatRange(1, 1e5), default=240.0, show_default=True,
+@click.option("--air-tau-s", type=Finite(1, 1e5), default=240.0, show_default=True,
               help="chamber: air time constant toward the set point, s (chamber clock).")
-@click.option("--min-air-c", type=click.FloatRange(-100, 300), default=None,
+@click.option("--min-air-c", type=Finite(-100, 300), default=None,
               help="chamber fault: the air never gets colder than this (set points below are never reached).")
-@click.option("--alarm-at-s", type=click.FloatRange(0, None), default=None,
+@click.option("--alarm-at-s", type=Finite(0, 1e9), default=None,
               help="chamber fault: refrigeration alarm (code 3) at this chamber-clock time, s.")
-@click.option("--door-open-at-s", type=click.FloatRange(0, None), default=None,
+@click.option("--door-open-at-s", type=Finite(0, 1e9), default=None,
               help="chamber fault: the door opens at this chamber-clock time for 60 s.")
 @click.option("--json", "as_json", is_flag=True, help="Print the port(s) as one JSON object.")
 def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool, jig_speed: float,

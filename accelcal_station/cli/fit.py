@@ -15,6 +15,7 @@ from ..data.loader import Loaded, load
 from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
 from ..errors import AccelcalError, DataError
+from ..fileguard.identity import refuse_overwrite
 from ..identifiability import assess, worst_parameter
 from ..models.choice import ModelChoice, choose_model, with_face_references
 from ..models.handplaced import norm_faces, opposite_face
@@ -229,11 +230,11 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
             gravity: str | None, temp_method: str, columns: str | None, skip_rows: str | None, rate: str | None,
             hand_placed: bool, as_json: bool, output: str | None) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
+    refuse_overwrite([("-o", output)], [("FILE", path)])
     model = "6" if model is None and hand_placed else model
     check_model_units(model or "12", units)  # no --model: the units still checked first
     check_temp_method(temp_method)
-    cpg = _number(counts_per_g, "--counts-per-g")
-    grav = _number(gravity, "--gravity")
+    cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
     loaded = _load(path, raw, model, units, cpg, grav, columns,
                    parse_int(skip_rows, "--skip-rows", positive=False), _number(rate, "--rate"))
     choice = None

@@ -29,8 +29,10 @@ from ..config.sections import device_section
 from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import DeviceError, NVMError
+from ..fileguard.identity import refuse_overwrite
 from ..nvm.writer import CalibrationWriter, SlotStatus
 from ..store.records import iso
+from ._common import config_store_file
 from ._common import jsonable as _clean
 from ._mes import JsonGroup
 
@@ -49,6 +51,9 @@ def _device(ctx: click.Context, config_path: str | None) -> Iterator[tuple[Drive
         from ..config.sections import default_config_path
 
         dev = make_driver(device_section(config_path or str(default_config_path())))
+    image = getattr(dev.nvm, "image_path", None)
+    ctx.meta["accelcal.nvm_inputs"] = [("--config", config_path), ("the board's EEPROM image", image),
+                                       ("the store", config_store_file(config_path))]
     try:
         with dev:
             if dev.nvm is None:
@@ -57,6 +62,11 @@ def _device(ctx: click.Context, config_path: str | None) -> Iterator[tuple[Drive
             yield dev, CalibrationWriter(dev.nvm)
     except OSError as e:  # a driver should not let one escape; if it does, still one line
         raise DeviceError(f"{getattr(dev, 'name', 'device')}: {e.strerror or e}") from None
+
+
+def _refuse_over_inputs(ctx: click.Context, output: tuple[str, Path], *inputs: tuple[str, str | None]) -> None:
+    """A backup never replaces the config, the board's EEPROM image, the store or the restored image."""
+    refuse_overwrite([output], [*ctx.meta.get("accelcal.nvm_inputs", []), *inputs])
 
 
 def _serial(dev: Driver, given: str | None) -> str | None:
@@ -172,6 +182,7 @@ def backup_cmd(ctx: click.Context, config_path: str | None, out: str | None, as_
     """Save both slots' raw image (with CRC-32) to a JSON file."""
     with _device(ctx, config_path) as (dev, writer):
         path = Path(out) if out else auto_backup_path(Path("."), _serial(dev, None))
+        _refuse_over_inputs(ctx, ("--out", path))
         doc = writer.backup(path, chip=dev.identify().chip)
     doc["path"] = str(path)
     states = ", ".join(f"slot {s['slot']} {s['state']}" for s in doc["slots"])
@@ -195,11 +206,22 @@ def restore_cmd(ctx: click.Context, image: str, config_path: str | None, serial:
     with _device(ctx, config_path) as (dev, writer):
         sn = _serial(dev, serial)
         backup = Path(backup_to) if backup_to else auto_backup_path(Path(image).resolve().parent, sn)
+        _refuse_over_inputs(ctx, ("--backup-to", backup), ("IMAGE", image))
         writer.restore(image, serial=sn, allow_other_serial=any_serial, backup_to=backup, chip=dev.identify().chip)
         doc = _snapshot(dev, writer, sn)
     doc.update(restored=str(image), backup=str(backup))
     _emit(as_json, doc, [click.style(f"restored {image}", fg="green") + f" (previous contents saved to {backup})",
                          *_snapshot_text(doc)])
+
+
+def _confirm(ctx: click.Context, question: str) -> bool:
+    """The operator's yes; no answer at all (end of input, Ctrl-C) is a no with its reason, never a bare 'Aborted!'."""
+    try:
+        return click.confirm(question, err=True)
+    except click.exceptions.Abort:
+        click.echo("\nno confirmation (end of input): nothing erased", err=True)
+        ctx.exit(1)
+        raise  # not reached: ctx.exit raises
 
 
 @command.command("erase")
@@ -214,12 +236,12 @@ def erase_cmd(ctx: click.Context, config_path: str | None, backup_to: str | None
     with _device(ctx, config_path) as (dev, writer):
         sn = _serial(dev, None)
         backup = Path(backup_to) if backup_to else auto_backup_path(Path("."), sn)
+        _refuse_over_inputs(ctx, ("--backup-to", backup))
         if backup.exists():
             raise NVMError(f"{backup}: backup file exists; choose another name (backups are never overwritten)")
         valid = sum(s.state == "valid" for s in writer.status())
-        if not yes and not click.confirm(f"Erase both calibration slots of {sn or 'this board'} "
-                                         f"({valid} valid calibration(s)); backup to {backup} first?",
-                                         err=True):
+        if not yes and not _confirm(ctx, f"Erase both calibration slots of {sn or 'this board'} "
+                                         f"({valid} valid calibration(s)); backup to {backup} first?"):
             click.echo("erase cancelled; nothing was written", err=True)
             ctx.exit(1)
         slots: list[SlotStatus] = writer.erase(backup_to=backup, chip=dev.identify().chip)

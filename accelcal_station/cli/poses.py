@@ -34,8 +34,8 @@ def command(name: str, model: str | None, noise_mg: float, as_json: bool) -> Non
     or optimal-N.  Standard errors scale linearly with --noise-mg.
     """
     poses = get_design(name)
-    if not np.isfinite(noise_mg) or noise_mg <= 0:
-        raise DataError(f"--noise-mg {noise_mg:g}: must be a positive number of mg")
+    if not np.isfinite(noise_mg) or noise_mg <= 0 or noise_mg > 1e6:  # click's float lets nan and inf through
+        raise DataError(f"--noise-mg {noise_mg:g}: must be a positive number of mg, at most 1e+06")
     model = model or design_model(name)
     pred = predict_stderr(name, model, noise_mg * 1e-3)
     ref = references(poses)

@@ -11,9 +11,11 @@ import click
 from ..calibration import PARAM_NAMES
 from ..config.checks import load_yaml
 from ..errors import DataError
+from ..fileguard.identity import refuse_overwrite
 from ..store.location import store_path, store_target
 from ..store.runs import Store
 from ..store.schema import STATUSES, VERDICTS
+from ._common import MAX_ID, Whole, store_file
 from ._mes import JsonGroup
 from ._text import clean
 
@@ -42,20 +44,31 @@ def _filter_options(f: F) -> F:
     return f
 
 
-def _open(db: str | None, config_path: str | None, upgrade: bool = True) -> Store:
+def _target(db: str | None, config_path: str | None) -> tuple[Path | str, str | None]:
     """--db, else the store of --config, else that of the default station (as `accelcal run`);
-    `accelcal report --db F SUBCOMMAND` gives the subcommand that store too."""
+    `accelcal report --db F SUBCOMMAND` gives the subcommand that store too.  Returns the store
+    target and the config file read (None when --db named the store)."""
     ctx = click.get_current_context(silent=True)
     group = ctx.parent.params if ctx is not None and ctx.parent is not None else {}
     db = db if db is not None else group.get("db")
     config_path = config_path if config_path is not None else group.get("config_path")
     if db is not None:
-        return Store(store_target(db), create=False, upgrade=upgrade)
+        return store_target(db), None
     from ..config.sections import default_config_path
 
     # relative store paths are taken from the current directory, as `accelcal run` does
-    return Store(store_path(load_yaml(config_path or default_config_path()), Path.cwd()), create=False,
-                 upgrade=upgrade)
+    cfg = str(config_path or default_config_path())
+    return store_path(load_yaml(cfg), Path.cwd()), cfg
+
+
+def _open(db: str | None, config_path: str | None, output: tuple[str, str | None] | None = None,
+          upgrade: bool = True) -> Store:
+    """The store to read; ``output`` (its option, its file), when given, is refused first if it is the
+    store's own file or the config's (never overwritten, nothing written)."""
+    target, cfg = _target(db, config_path)
+    if output is not None:
+        refuse_overwrite([output], [("the store", store_file(target)), ("--config", cfg)])
+    return Store(target, create=False, upgrade=upgrade)
 
 
 def _name_damage(damage: list[dict[str, Any]]) -> None:
@@ -92,7 +105,7 @@ def command(db: str | None, config_path: str | None) -> None:
 
 @command.command("list")
 @_filter_options
-@click.option("--limit", default=None, type=click.IntRange(1), help="At most this many runs.")
+@click.option("--limit", default=None, type=Whole(1, 10**9), help="At most this many runs.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None, station: str | None,
              operator: str | None, verdict: str | None, status: str | None, since: str | None, until: str | None,
@@ -118,7 +131,7 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
 
 
 @command.command("show")
-@click.argument("run_id", type=int)
+@click.argument("run_id", type=Whole(0, MAX_ID))
 @click.option("--db", default=None, metavar="FILE|URL", help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB.")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
@@ -185,7 +198,7 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
     if fmt not in ("csv", "json"):
         raise DataError(f"--format {fmt!r}; allowed: csv, json")
     flt = _filters(device, lot, station, operator, verdict, status, since, until)
-    with _open(db, config_path) as store:
+    with _open(db, config_path, ("-o", output)) as store:
         n = len(store.list_runs(**flt))
         if fmt == "json":
             data = store.export_json(output, **flt)
@@ -212,7 +225,7 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
                 since: str | None, until: str | None, as_json: bool, html_file: str | None) -> None:
     """Lot summary: counts, pass rate, failure reasons, parameter distributions."""
     flt = _filters(device, lot, station, operator, verdict, status, since, until)
-    with _open(db, config_path) as store:
+    with _open(db, config_path, ("--html", html_file)) as store:
         s = store.lot_summary(**flt)
         if html_file is not None:
             from ..lot.report import write_lot_html
@@ -305,7 +318,7 @@ def sync_cmd(db: str | None, config_path: str | None, outbox: str | None, as_jso
 
 
 @command.command("plot")
-@click.argument("run_id", type=int)
+@click.argument("run_id", type=Whole(0, MAX_ID))
 @click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("-o", "--output", default=None, metavar="FILE.png", help="Figure file (default run-ID-residuals.png).")
@@ -313,8 +326,8 @@ def plot_cmd(run_id: int, db: str | None, config_path: str | None, output: str |
     """Draw one run's residuals per pose and axis (PNG)."""
     from ..lot.report import residual_figure
 
-    with _open(db, config_path) as store:
-        rec = store.get_run(run_id)
     out = output or f"run-{run_id}-residuals.png"
+    with _open(db, config_path, ("-o", out)) as store:
+        rec = store.get_run(run_id)
     residual_figure(rec, out)
     click.echo(f"residuals of run {run_id} drawn in {out}")

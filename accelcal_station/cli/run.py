@@ -7,12 +7,14 @@ from typing import Any
 
 import click
 
+from ..fileguard.identity import refuse_overwrite
 from ..fixtures.operator_ui import OperatorUI
 from ..station.board import Station
 from ..station.identity import ask_run_identity
 from ..station.report import RunReport
 from ..station.settings import StationConfig
 from ._common import jsonable
+from ._common import store_file as store_file_of
 from .operator_terminal import TerminalOperator
 
 
@@ -42,6 +44,7 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     4 NVM error, 5 operator abort (the same with --ui web).
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
+    _refuse_over_config(cfg)
 
     def echo(text: str) -> None:
         click.echo(text, err=as_json)
@@ -55,6 +58,14 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     # identity questions and their retries always on stderr (stdout may be the JSON object)
     _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True)),
          TerminalOperator(echo), lambda reports: None)
+
+
+def _refuse_over_config(cfg: StationConfig) -> None:
+    """What a run writes (the store, the simulated board's EEPROM image) is never its own config."""
+    eeprom = cfg.raw["device"].get("eeprom") if isinstance(cfg.raw.get("device"), dict) else None
+    image = eeprom.get("image") if isinstance(eeprom, dict) and isinstance(eeprom.get("image"), str) else None
+    refuse_overwrite([("the store", store_file_of(cfg.store_file)), ("device.eeprom.image", image)],
+                     [("--config", str(cfg.path))])
 
 
 def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None, as_json: bool,

@@ -15,16 +15,18 @@ from typing import IO, Any
 import click
 import numpy as np
 
-from ..api import simulate
+from ..api import MAX_SAMPLES_PER_POSE, MAX_TOTAL_SAMPLES, simulate
 from ..atomic import atomic_write
 from ..config.sections import default_config_path
 from ..data.posetable import write_pose_table
 from ..drivers.simulated import SimulatedBoard
 from ..errors import DataError
+from ..fileguard.identity import refuse_overwrite
 from ..fixtures.designs import get_design
 from ..fixtures.simulated_run import SimulatedRun, run_metadata
 from ..lot.synthetic import write_population_lot
 from ..twin.simlot import load_device
+from ._common import MAX_SEED, Finite, Whole, config_store_file
 
 
 def parse_temps(text: str | None) -> list[float] | None:
@@ -87,12 +89,13 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
               help="Write a lot file of this many boards drawn from the config's population (accelcal batch reads it).")
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="Pose table (or raw log) to write.")
 @click.option("--raw", is_flag=True, help="Write a raw sample log t,x,y,z (counts) with motion between poses.")
-@click.option("--seed", type=click.IntRange(0, None), default=None,
+@click.option("--seed", type=Whole(0, MAX_SEED), default=None,
               help="Random seed (default: the config's, else fresh; the seed used is printed and kept in the output).")
 @click.option("--temps", default=None, help="Comma-separated temperatures in C to run the design at (e.g. 0,25,50).")
-@click.option("--samples", type=click.IntRange(2, 10**7), default=1000, show_default=True,
-              help="Samples averaged (or logged) per pose.")
-@click.option("--move-s", "move_s", type=click.FloatRange(0.0, 3600.0), default=2.0, show_default=True,
+@click.option("--samples", type=Whole(2, MAX_SAMPLES_PER_POSE), default=1000, show_default=True,
+              help=f"Samples averaged (or logged) per pose; at most {MAX_TOTAL_SAMPLES} in all (poses x "
+                   "temperatures x samples).")
+@click.option("--move-s", "move_s", type=Finite(0.0, 3600.0), default=2.0, show_default=True,
               help="Seconds the jig takes to move between poses (virtual time).")
 @click.option("--truth-out", type=click.Path(dir_okay=False), default=None,
               help="Write the simulator's ground-truth calibration (W, V, Gamma) as JSON.")
@@ -100,6 +103,8 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
 def command(config: str | None, design: str, lot: int | None, out: str, raw: bool, seed: int | None,
             temps: str | None, samples: int, move_s: float, truth_out: str | None, as_json: bool) -> None:
     """Simulate a calibration run and write its pose table (or raw log) and ground truth."""
+    refuse_overwrite([("--out", out), ("--truth-out", truth_out)],
+                     [("--config", config), ("the store", config_store_file(config) if config else None)])
     get_design(design)
     if lot is not None:
         _write_lot(config, design, lot, out, seed, samples, as_json)

@@ -8,6 +8,7 @@ from typing import Any, Literal, TypeVar, overload
 import yaml
 
 from ..errors import ConfigError
+from ..fileguard.regular import read_bytes
 from .safe_yaml import MAX_BYTES, HostileYAML, safe_load
 
 T = TypeVar("T")
@@ -16,14 +17,10 @@ T = TypeVar("T")
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping; errors name the file and line."""
     p = Path(path)
+    # a regular file only (a FIFO, device or /proc entry would block or never end), sized before it is read
+    raw = read_bytes(p, "a configuration", MAX_BYTES, "a station config is a few kB", ConfigError)
     try:
-        size = p.stat().st_size
-        if p.is_file() and size > MAX_BYTES:  # refused by its size before a byte is read
-            raise ConfigError(f"{p}: {size} bytes; a configuration is at most {MAX_BYTES} bytes")
-        with open(p, encoding="utf-8") as f:
-            text = f.read(MAX_BYTES + 1)  # a FIFO or device is never read without end
-    except OSError as e:
-        raise ConfigError(f"{p}: cannot read ({e.strerror})") from None
+        text = raw.decode("utf-8")
     except UnicodeDecodeError:
         raise ConfigError(f"{p}: not a text file (expected a YAML configuration)") from None
     try:

@@ -31,6 +31,17 @@ COUNTS_MIN = 20.0  # counts per g of any real accelerometer exceed this
 POW2_TOL = 0.05
 OFFSET_BINARY_BITS = (8, 10, 12, 14, 16, 20, 24, 32)
 MPS2_PER_G = 9.80665
+# one fit's poses, as data.posetable.MAX_POSE_ROWS: fit memory is linear in their count
+# (benchmarks/bench_resources.py: under 200 MB at 100,000)
+MAX_POSES = 200_000
+
+
+def check_pose_count(session: Session, path: str | Path) -> None:
+    """Refuse more poses than one fit takes (MAX_POSES), before any fit allocates for them."""
+    if len(session) > MAX_POSES:
+        raise DataError(f"{path}: {len(session)} poses; one fit takes at most {MAX_POSES} (its fit "
+                        "takes time and memory with the pose count; a run has tens); fit a lot of boards with "
+                        "accelcal batch LOT --out RESULTS")
 
 
 @dataclass(frozen=True)
@@ -138,6 +149,7 @@ def load_pose_table(path: str | Path, units: str | None = None, counts_per_g: fl
     meta = table_metadata(path)
     session = read_pose_table(path, units or meta.get("units") or "counts", counts_per_g, gravity_mps2,
                               references=references)
+    check_pose_count(session, path)
     big = np.argwhere(np.abs(session.readings) > MAX_ABS_READING)
     if big.size:
         p, a = big[0]
@@ -163,6 +175,7 @@ def load_raw_log(path: str | Path, units: str | None = None, counts_per_g: float
         log.xyz = log.xyz / 1000.0
         info.units_hint = "g"
     session, det = static_session(log, units or info.units_hint or "counts", counts_per_g, gravity_mps2)
+    check_pose_count(session, path)
     stated = units or info.units_hint
     by = "--units" if units else f"named in the header ({info.axis_names.get('x')!r})"
     try:

@@ -20,48 +20,39 @@ poses at several temperatures, too few or degenerate poses) is returned with
 from __future__ import annotations
 
 import csv
+import io
 import math
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from ..conventions import an4399_reference, check_units, units_per_g
 from ..errors import DataError, UnitsError
+from ..fileguard.regular import check_regular, open_regular
+from .lotarrow import arrow_available, read_csv_arrow, read_parquet_chunks
+from .lotchunk import COLUMNS, NUMERIC, LotChunk, missing_serial
 from .posetable import COLUMNS as POSE_COLUMNS
 from .posetable import read_preamble
+from .rawlog import MAX_ABS_READING
 
-COLUMNS = ("serial",) + POSE_COLUMNS
-NUMERIC = tuple(c for c in POSE_COLUMNS if c != "pose")
+__all__ = ["COLUMNS", "LotChunk", "arrow_available", "board_arrays", "lot_scale", "open_lot"]
+
 TEMP_TOLERANCE_C = 2.0  # as models.fit_temperature groups poses
-
-
-@dataclass
-class LotChunk:
-    """Whole boards read from a lot file: rows as column arrays, boards as row ranges.
-
-    ``bad[b]`` is the reason board b's rows cannot be used (a cell that is not a
-    number), or None.  ``first_row`` is each board's first data row (1-based, after the header).
-    """
-
-    serials: list[str]
-    starts: np.ndarray  # (B + 1,) row offsets
-    cols: dict[str, np.ndarray]  # numeric columns (rows,), NaN where empty
-    names: np.ndarray  # pose names (rows,)
-    bad: list[str | None]
-    first_row: np.ndarray
+MAX_LINE_CHARS = 1 << 20  # a lot row is under 200 characters; a longer line is not a lot row
 
 
 def _header(lines_iter: Iterable[str], path: Path) -> tuple[list[str], dict[str, str], int]:
     """The header's columns, the metadata before it and its line number; errors name the line."""
     meta, _, index, s = read_preamble(lines_iter, path, f"serial,{','.join(POSE_COLUMNS[:6])}")
     line_no = index + 1
-    header = [c.strip() for c in next(csv.reader([s]))]
+    try:
+        header = [c.strip() for c in next(csv.reader([s]))]
+    except csv.Error as e:
+        raise DataError(f"{path}: line {line_no}: not a readable CSV header ({e})") from None
     for c in header:
         if c not in COLUMNS:
-            raise DataError(f"{path}: line {line_no}: unknown column {c!r}; allowed: {', '.join(COLUMNS)}")
+            raise DataError(f"{path}: line {line_no}: unknown column {c[:40]!r}; allowed: {', '.join(COLUMNS)}")
     if len(set(header)) != len(header):
         raise DataError(f"{path}: line {line_no}: a column appears twice in the header")
     for c in ("serial", "pose", "x", "y", "z"):
@@ -69,6 +60,15 @@ def _header(lines_iter: Iterable[str], path: Path) -> tuple[list[str], dict[str,
             raise DataError(f"{path}: line {line_no}: missing column {c!r}; a lot file needs "
                             "serial,pose,x,y,z (and pitch_deg,roll_deg or ref_x,ref_y,ref_z for models 6/12/15)")
     return header, meta, line_no
+
+
+def _lines(f: Iterable[str], path: Path) -> Iterator[str]:
+    """The file's lines, each refused when longer than MAX_LINE_CHARS (never held whole in memory)."""
+    for n, line in enumerate(f, 1):
+        if len(line) >= MAX_LINE_CHARS and not line.endswith("\n"):
+            raise DataError(f"{path}: line {n}: longer than {MAX_LINE_CHARS} characters; a lot file's rows are "
+                            "short lines of numbers")
+        yield line
 
 
 def _floats(cells: list[str], col: str, lines: np.ndarray, path: Path, bad_rows: dict[int, str]) -> np.ndarray:
@@ -83,19 +83,14 @@ def _floats(cells: list[str], col: str, lines: np.ndarray, path: Path, bad_rows:
                 out[i] = float(v) if v.strip() else math.nan
             except ValueError:
                 out[i] = math.nan
-                bad_rows.setdefault(i, f"{path}: line {lines[i]}, column {col}: {v!r} is not a number")
+                bad_rows.setdefault(i, f"{path}: line {lines[i]}, column {col}: {v[:40]!r} is not a number")
         return out
 
 
 def _chunk(rows: list[list[str]], lines: list[int], header: list[str], path: Path, row0: int) -> LotChunk:
-    """Whole boards from CSV rows (their file lines given); a row of the wrong width marks its board bad."""
+    """Whole boards from CSV rows of the header's width (their file lines given)."""
     n_rows = len(rows)
     bad_rows: dict[int, str] = {}
-    width = len(header)
-    for i, r in enumerate(rows):
-        if len(r) != width:
-            bad_rows[i] = f"{path}: line {lines[i]}: {len(r)} fields; the header has {width}"
-            rows[i] = (r + [""] * width)[:width]
     line_arr = np.asarray(lines)
     by_col = dict(zip(header, zip(*rows, strict=True), strict=True)) if rows else dict.fromkeys(header, ())
     cols = {c: _floats(list(by_col[c]), c, line_arr, path, bad_rows) for c in NUMERIC if c in by_col}
@@ -111,181 +106,68 @@ def _chunk(rows: list[list[str]], lines: list[int], header: list[str], path: Pat
     return LotChunk([str(serial[s]) for s in starts[:-1]], starts, cols, names, bad, row0 + starts[:-1] + 1)
 
 
+def _csv_rows(f: Iterable[str], path: Path, header: list[str], line0: int) -> Iterator[tuple[int, list[str]]]:
+    """(file line, fields) of each data row; a row of the wrong width or without a serial is refused
+    by its line (its fields cannot be given to columns, or to a board)."""
+    s_idx = header.index("serial")
+    reader = csv.reader(_lines(f, path))
+    try:
+        for r in reader:
+            line = line0 + reader.line_num
+            if not r or (r[0].lstrip().startswith("#")) or not any(c.strip() for c in r):
+                continue
+            if len(r) != len(header):
+                raise DataError(f"{path}: line {line}: {len(r)} fields; the header has {len(header)}")
+            if not r[s_idx].strip():
+                raise missing_serial(path, f"line {line}")
+            yield line, r
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise DataError(f"{path}: line {line0 + reader.line_num}: unreadable ({e})") from None
+
+
 def read_csv_chunks(path: str | Path, chunk_boards: int = 4096) -> tuple[dict[str, str], Iterator[LotChunk]]:
     """The lot file's ``# key: value`` metadata, and its boards in chunks of about ``chunk_boards``."""
     path = Path(path)
+    f = io.TextIOWrapper(open_regular(path, "a CSV lot file"), encoding="utf-8-sig", newline="")
     try:
-        f = open(path, newline="", encoding="utf-8-sig")  # noqa: SIM115 - the chunk generator closes it (with f)
-    except OSError as e:
-        raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
-    try:
-        header, meta, line_no = _header(f, path)
+        header, meta, line_no = _header(_lines(f, path), path)
     except UnicodeDecodeError:
         f.close()
         raise DataError(f"{path}: not a text file (expected a CSV lot file)") from None
     except BaseException:
         f.close()
         raise
-    s_idx = header.index("serial")
     if arrow_available():
         f.close()
         return meta, read_csv_arrow(path, header, line_no, chunk_boards)
 
     def gen() -> Iterator[LotChunk]:
-        nonlocal line_no
         rows: list[list[str]] = []
         lines: list[int] = []
         boards = row0 = 0
         last: str | None = None
         with f:
-            reader = csv.reader(f)
-            try:
-                for r in reader:
-                    line_no += 1
-                    if not r or (r[0].lstrip().startswith("#")) or not any(c.strip() for c in r):
-                        continue
-                    s = r[s_idx].strip() if len(r) > s_idx else ""
-                    if s != last:
-                        if boards >= chunk_boards:
-                            yield _chunk(rows, lines, header, path, row0)
-                            row0 += len(rows)
-                            rows, lines, boards = [], [], 0
-                        boards += 1
-                        last = s
-                    rows.append(r)
-                    lines.append(line_no)
-            except (UnicodeDecodeError, csv.Error) as e:
-                raise DataError(f"{path}: line {line_no}: unreadable ({e})") from None
+            for line, r in _csv_rows(f, path, header, line_no):
+                s = r[header.index("serial")].strip()
+                if s != last:
+                    if boards >= chunk_boards:
+                        yield _chunk(rows, lines, header, path, row0)
+                        row0 += len(rows)
+                        rows, lines, boards = [], [], 0
+                    boards += 1
+                    last = s
+                rows.append(r)
+                lines.append(line)
             if rows:
                 yield _chunk(rows, lines, header, path, row0)
 
     return meta, gen()
 
 
-def arrow_available() -> bool:
-    try:
-        import pyarrow.csv  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-def read_parquet_chunks(path: str | Path, chunk_boards: int = 4096) -> tuple[dict[str, str], Iterator[LotChunk]]:
-    """A Parquet lot file (needs pyarrow: pip install 'accelcal-station[parquet]')."""
-    try:
-        import pyarrow.parquet as pq
-    except ImportError:
-        raise DataError(f"{path}: reading Parquet needs pyarrow; pip install 'accelcal-station[parquet]'") from None
-    path = Path(path)
-    try:
-        pf = pq.ParquetFile(path)
-    except (OSError, Exception) as e:  # pyarrow raises its own ArrowInvalid for a non-Parquet file
-        raise DataError(f"{path}: not a readable Parquet file ({e})") from None
-    names = pf.schema_arrow.names
-    for c in names:
-        if c not in COLUMNS:
-            raise DataError(f"{path}: unknown column {c!r}; allowed: {', '.join(COLUMNS)}")
-    meta = {k.decode(): v.decode() for k, v in (pf.schema_arrow.metadata or {}).items()
-            if k.decode() in ("units", "counts_per_g", "gravity")}
-
-    return meta, _arrow_chunks(pf.iter_batches(batch_size=chunk_boards * 16), names, path)
-
-
-def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path) -> Iterator[LotChunk]:
-    """Whole-board chunks from Arrow record batches (a board may span two batches)."""
-    tail: dict[str, np.ndarray] | None = None
-    row0 = 0
-    for batch in batches:
-        bad_rows: dict[int, str] = {}
-        d = {c: _arrow_column(batch.column(c), c, path, row0 + (len(tail["serial"]) if tail else 0), bad_rows)
-             for c in names}
-        d["_bad"] = np.zeros(len(d["serial"]), dtype=object)
-        for i, msg in bad_rows.items():
-            d["_bad"][i] = msg
-        if tail is not None:
-            d = {c: np.concatenate([tail[c], d[c]]) for c in d}
-        serial = d["serial"].astype(str)
-        change = np.flatnonzero(serial[1:] != serial[:-1]) + 1
-        cut = int(change[-1]) if len(change) else 0  # the last board may continue in the next batch
-        tail = {c: d[c][cut:] for c in d}
-        if cut:
-            yield _arrays_chunk({c: d[c][:cut] for c in d}, row0)
-            row0 += cut
-    if tail is not None and len(tail["serial"]):
-        yield _arrays_chunk(tail, row0)
-
-
-def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str]) -> np.ndarray:
-    """An Arrow column as numpy: text columns as str, numeric ones as float (NaN for null)."""
-    import pyarrow as pa
-    import pyarrow.compute as pc
-    if name in ("serial", "pose"):
-        return np.asarray(pc.utf8_trim_whitespace(col.cast(pa.string())).to_numpy(zero_copy_only=False)).astype(str)
-    if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
-        try:
-            col = pc.cast(pc.utf8_trim_whitespace(col), pa.float64())
-        except pa.ArrowInvalid:  # mark the rows with a bad cell; their boards are reported, not fitted
-            out = np.full(len(col), np.nan)
-            for i, v in enumerate(col.to_pylist()):
-                if v is None or not v.strip():
-                    continue
-                if _is_float(v):
-                    out[i] = float(v)
-                else:
-                    bad_rows.setdefault(i, f"{path}: data row {row0 + i + 1}, column {name}: {v!r} is not a number")
-            return out
-    return col.cast(pa.float64()).to_numpy(zero_copy_only=False)
-
-
-def _is_float(v: str) -> bool:
-    try:
-        float(v)
-        return True
-    except ValueError:
-        return False
-
-
-def _comment_row(row: Any) -> str:
-    """pyarrow: a '#' line after the header is skipped (as pose tables allow); other bad rows fail."""
-    return "skip" if (row.text or "").lstrip().startswith("#") else "error"
-
-
-def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int) -> Iterator[LotChunk]:
-    """The CSV body through pyarrow's streaming reader (several times faster than csv)."""
-    import pyarrow as pa
-    import pyarrow.csv as pcsv
-    types = {c: pa.string() for c in header}
-    reader = pcsv.open_csv(path, read_options=pcsv.ReadOptions(skip_rows=skip, column_names=header,
-                                                               block_size=1 << 20),
-                           parse_options=pcsv.ParseOptions(ignore_empty_lines=True, invalid_row_handler=_comment_row),
-                           convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True))
-    try:
-        yield from _arrow_chunks(reader, header, path)
-    except pa.ArrowInvalid as e:
-        raise DataError(f"{path}: unreadable CSV ({e})") from None
-
-
-def _arrays_chunk(d: dict[str, np.ndarray], row0: int) -> LotChunk:
-    """Whole boards from column arrays (``_bad``: a reason per row, 0 where none)."""
-    serial = d["serial"].astype(str)
-    n = len(serial)
-    change = np.flatnonzero(serial[1:] != serial[:-1]) + 1
-    starts = np.concatenate([[0], change, [n]]).astype(np.int64)
-    cols = {c: np.asarray(d[c], dtype=float) for c in NUMERIC if c in d}
-    bad: list[str | None] = [None] * (len(starts) - 1)
-    if "_bad" in d:
-        for i in np.flatnonzero(d["_bad"] != 0):
-            b = int(np.searchsorted(starts, i, side="right") - 1)
-            bad[b] = bad[b] or d["_bad"][i]
-    return LotChunk([str(serial[s]) for s in starts[:-1]], starts, cols, np.asarray(d["pose"]).astype(str),
-                    bad, row0 + starts[:-1] + 1)
-
-
 def open_lot(path: str | Path, chunk_boards: int = 4096) -> tuple[dict[str, str], Iterator[LotChunk]]:
-    """Metadata and chunks of a lot file, CSV or Parquet by its extension."""
+    """Metadata and chunks of a lot file (a regular file), CSV or Parquet by its extension."""
     p = Path(path)
-    if not p.is_file():
-        raise DataError(f"{p}: no such lot file")
+    check_regular(p, "a lot file (CSV or Parquet)")
     if p.suffix.lower() in (".parquet", ".pq"):
         return read_parquet_chunks(p, chunk_boards)
     return read_csv_chunks(p, chunk_boards)
@@ -316,6 +198,22 @@ def lot_scale(meta: dict[str, str], path: str | Path, units: str | None, counts_
     return units, units_per_g(units, counts_per_g, gravity_mps2)
 
 
+def _range_checks(c: dict[str, np.ndarray]) -> list[tuple[np.ndarray, str]]:
+    """Rows with a value no pose can have (as a pose table refuses them): a reading beyond
+    MAX_ABS_READING, an angle beyond +-360 deg, a reference beyond +-10 g, a negative std, n below 1."""
+    with np.errstate(invalid="ignore"):
+        out = []
+        for cols, lo, hi, what in ((("x", "y", "z"), -MAX_ABS_READING, MAX_ABS_READING, "reading"),
+                                   (("pitch_deg", "roll_deg"), -360.0, 360.0, "angle (deg)"),
+                                   (("ref_x", "ref_y", "ref_z"), -10.0, 10.0, "reference (g)"),
+                                   (("std_x", "std_y", "std_z"), 0.0, MAX_ABS_READING, "std"),
+                                   (("n",), 1.0, 1e15, "sample count n")):
+            v = np.stack([c[k] for k in cols if k in c], axis=1) if any(k in c for k in cols) else None
+            if v is not None:
+                out.append((np.any((v < lo) | (v > hi), axis=1), f"{what} out of range; allowed {lo:g} to {hi:g}"))
+    return out
+
+
 def board_arrays(chunk: LotChunk, model: str
                  ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, list[str | None]]:
     """Per-row readings (rows, 3), references (rows, 3) or None, noise (rows, 3) or None, and
@@ -335,7 +233,7 @@ def board_arrays(chunk: LotChunk, model: str
     B = len(starts) - 1
     reasons = list(chunk.bad)
     row_bad_x = ~np.all(np.isfinite(x), axis=1)
-    checks = [(row_bad_x, "reading is empty, NaN or infinite")]
+    checks = [(row_bad_x, "reading is empty, NaN or infinite")] + _range_checks(c)
     if model != "9":
         no_ref = np.ones(len(x), bool) if ref is None else ~np.all(np.isfinite(ref), axis=1)
         checks.append((no_ref, f"has no reference; model {model} needs pitch_deg/roll_deg or ref_x/ref_y/ref_z "

@@ -27,8 +27,9 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -45,25 +46,24 @@ COLUMNS = ("pose", "pitch_deg", "roll_deg", "x", "y", "z", "ref_x", "ref_y", "re
            "std_x", "std_y", "std_z")
 META_KEYS = ("units", "counts_per_g", "gravity", "device")
 MAX_POSE_ROWS = 200_000  # fit memory is linear: ~1.8 kB a pose (under 200 MB at 100,000 rows, benchmarks/)
+MAX_TABLE_BYTES = 64 << 20  # MAX_POSE_ROWS rows of every column at full precision (~300 B a row) fit in 64 MiB
+MAX_ABS_STD = 1e9  # as a reading (rawlog.MAX_ABS_READING): beyond any ADC or unit
+MAX_SAMPLES = 1e15  # samples averaged into one pose: years at any rate
 _META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
-
-
-def _read_text(path: Path) -> str:
-    from .rawlog import read_text_file  # regular files only: a FIFO or device would block
-
-    return read_text_file(path, "a CSV pose table")
 
 
 def table_metadata(path: str | Path) -> dict[str, str]:
     """The ``# key: value`` lines before a pose table's header."""
     meta: dict[str, str] = {}
-    for raw in _read_text(Path(path)).splitlines():
+    lines = _file_lines(Path(path))  # up to the header only: never the whole table in memory
+    for raw in lines:
         s = raw.strip()
         if s and not s.startswith("#"):
             break
         m = _META_RE.match(s)
         if m:
             meta[m.group(1)] = m.group(2)
+    lines.close()
     return meta
 
 
@@ -174,11 +174,11 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
     ref = row.group(GROUPS[1], lo=-10.0, hi=10.0)
     if ref is not None and not np.any(ref):
         raise DataError(f"{row.where('ref_x')}: the reference is (0, 0, 0); allowed: the expected output in g")
-    std = row.group(GROUPS[2], lo=0.0)
+    std = row.group(GROUPS[2], lo=0.0, hi=MAX_ABS_STD)
     temp = None if row.empty("temp_c") else row.number("temp_c", -273.15, 1000.0)
     n: int | None = None
     if not row.empty("n"):
-        count = row.number("n", 1)
+        count = row.number("n", 1, MAX_SAMPLES)
         if count != int(count):
             raise DataError(f"{row.where('n')}: {row.cells['n']!r}; allowed: a whole number of samples >= 1")
         n = int(count)
@@ -191,14 +191,20 @@ def _pose(row: _Row, references: bool) -> PoseRecord:
                       None if angles is None else float(angles[1]), temp)
 
 
-def _file_lines(path: Path) -> Iterator[str]:
-    """The lines of a regular text file (UTF-8, BOM dropped; \\n, \\r\\n or \\r end a line), read one
-    at a time; an unreadable or non-text file is one DataError, as ``read_text_file`` gives."""
-    from .rawlog import _check_file  # a FIFO or device would block: regular files only
+def _file_lines(path: Path) -> Generator[str, None, None]:
+    """The lines of a regular text file of at most MAX_TABLE_BYTES (UTF-8, BOM dropped; \\n, \\r\\n or \\r
+    end a line), read one at a time; an unreadable, oversized or non-text file is one DataError, as
+    ``read_text_file`` gives (a FIFO or device would block: fileguard opens regular files only)."""
+    from ..fileguard.regular import open_regular
 
-    _check_file(path)
+    raw = open_regular(path, "a CSV pose table")
+    size = os.fstat(raw.fileno()).st_size
+    if size > MAX_TABLE_BYTES:
+        raw.close()
+        raise DataError(f"{path}: {size} bytes; allowed: at most {MAX_TABLE_BYTES} for a CSV pose table (a pose "
+                        "table holds one run's static poses; a lot of boards is a lot file)")
     try:
-        with path.open(encoding="utf-8-sig", newline="") as f:
+        with io.TextIOWrapper(raw, encoding="utf-8-sig", newline="") as f:
             for line in f:
                 yield line.rstrip("\r\n")
     except OSError as e:

@@ -251,6 +251,9 @@ def is_system_dir(p: Path) -> bool:
                                               "/lib", "/usr"))
 
 
+REPORT_FILES = ("sphere.png", "level.png", "temperature.png", "time.png", "allan.png", "summary.md")  # what it writes
+
+
 def check_report_dir(path: str | Path) -> Path:
     """The report directory, checked before any analysis runs (write_report creates it, so a
     run that fails leaves no empty directory behind)."""

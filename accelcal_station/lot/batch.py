@@ -33,6 +33,7 @@ from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES, Calibration, param_vector
 from ..data.loader import load_pose_table
 from ..errors import AccelcalError, DataError
+from ..fileguard.identity import refuse_overwrite
 from ..models.fitting import check_model, check_plausible_g, fit_batch, fit_temperature
 from ..models.result import FitResult
 from ..session import Session
@@ -343,7 +344,7 @@ def write_calibrations(report: BatchReport, out_dir: str | Path) -> dict[str, Pa
     except OSError as e:
         raise DataError(f"--out-dir {d}: cannot create ({e.strerror})") from None
     taken: set[str] = set()
-    out: dict[str, Path] = {}
+    plan: list[tuple[BoardResult, Path]] = []
     for r in report.fitted:
         stem = base = _file_stem(r)
         n = 1
@@ -351,7 +352,11 @@ def write_calibrations(report: BatchReport, out_dir: str | Path) -> dict[str, Pa
             n += 1
             stem = f"{base}-{n}"
         taken.add(stem)
-        path = d / f"{stem}.json"
+        plan.append((r, d / f"{stem}.json"))
+    # a calibration never replaces a board's own input (a pose table named like the JSON it would get)
+    refuse_overwrite([("--out-dir file", p) for _, p in plan], [("input", r.source) for r in report.results])
+    out: dict[str, Path] = {}
+    for r, path in plan:
         try:
             r.fitted_calibration.save(path)
         except AccelcalError as e:

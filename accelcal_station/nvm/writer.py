@@ -27,11 +27,19 @@ from ..atomic import atomic_write
 from ..calibration import Calibration
 from ..drivers.base import NVM
 from ..errors import AccelcalError, NVMError
+from ..fileguard.jsondoc import read_json
 from .blob import GENERATION_MOD, HEADER_SIZE, BlobError, BlobHeader, blob_length, blob_size, decode, encode, newer
 
 SLOTS = ("A", "B")
 IMAGE_SCHEMA = "accelcal.nvm-image"
 IMAGE_VERSION = 1
+MAX_BACKUP_BYTES = 1 << 20  # two slots of a 64 KiB EEPROM in base64 are 90 kB
+
+
+def _short(v: Any) -> str:
+    """A value from a backup file, quoted short (a hostile file's value may be huge)."""
+    r = repr(v)
+    return r if len(r) <= 40 else r[:40] + "..."
 
 
 @dataclass
@@ -350,21 +358,16 @@ class CalibrationWriter:
     def load_image(self, path: str | Path) -> tuple[bytes, dict[str, Any]]:
         """Image bytes and document of a backup file, checked against its CRC and this layout."""
         path = Path(path)
-        try:
-            doc = json.loads(path.read_text())
-        except OSError as e:
-            raise NVMError(f"{path}: cannot read ({e.strerror})") from None
-        except UnicodeDecodeError:
-            raise NVMError(f"{path}: not an NVM backup (not a text file)") from None
-        except json.JSONDecodeError as e:
-            raise NVMError(f"{path}: not an NVM backup (not JSON, line {e.lineno}: {e.msg})") from None
+        doc = read_json(path, "an NVM backup", MAX_BACKUP_BYTES,
+                        "a backup holds two slots of a small EEPROM, base64", NVMError)
         if not isinstance(doc, dict) or doc.get("schema") != IMAGE_SCHEMA:
             raise NVMError(f"{path}: not an NVM backup (missing schema {IMAGE_SCHEMA!r})")
         if doc.get("version") != IMAGE_VERSION:
-            raise NVMError(f"{path}: backup version {doc.get('version')!r}; this station reads {IMAGE_VERSION}")
+            raise NVMError(f"{path}: backup version {_short(doc.get('version'))}; this station reads {IMAGE_VERSION}")
         if (doc.get("base_addr"), doc.get("slot_size")) != (self.base_addr, self.slot_size):
-            raise NVMError(f"{path}: image is for slots of {doc.get('slot_size')} bytes at {doc.get('base_addr')}; "
-                           f"this NVM has slots of {self.slot_size} bytes at {self.base_addr}")
+            raise NVMError(f"{path}: image is for slots of {_short(doc.get('slot_size'))} bytes at "
+                           f"{_short(doc.get('base_addr'))}; this NVM has slots of {self.slot_size} bytes "
+                           f"at {self.base_addr}")
         try:
             img = base64.b64decode(doc["image_base64"], validate=True)
         except (KeyError, TypeError, ValueError):
@@ -373,7 +376,7 @@ class CalibrationWriter:
             raise NVMError(f"{path}: image is {len(img)} bytes; expected {2 * self.slot_size}")
         if zlib.crc32(img) != doc.get("crc32"):
             raise NVMError(f"{path}: image CRC-32 0x{zlib.crc32(img):08x} does not match the recorded "
-                           f"{doc.get('crc32')!r}; the backup is damaged")
+                           f"{_short(doc.get('crc32'))}; the backup is damaged")
         return img, doc
 
     def restore(self, path: str | Path, *, serial: str | None = None, allow_other_serial: bool = False,

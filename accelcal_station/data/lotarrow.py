@@ -1,0 +1,238 @@
+"""Lot files through pyarrow (the ``parquet`` extra): Parquet lots, and the CSV body of a lot
+when pyarrow is installed (several times faster than the csv module).
+
+Hostile files are refused before any cast: a Parquet schema's every column is checked
+against what the lot format allows (text columns: strings or integers; numeric columns:
+integers, floats or decimals), a row of the wrong width in a CSV lot is named by its line,
+a row without a serial is refused, never made into a board called "None".
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from ..errors import DataError
+from ..fileguard.regular import open_regular
+from .lotchunk import COLUMNS, TEXT, LotChunk, arrays_chunk, missing_serial
+
+MAX_ROW_GROUP_BYTES = 1 << 30  # one row group's columns are decoded at once: at most 1 GiB of them
+REQUIRED = ("serial", "pose", "x", "y", "z")
+Where = Callable[[int], str]  # data row n (1-based) -> where it is, for errors: "line 13" or "data row 12"
+
+
+def arrow_available() -> bool:
+    try:
+        import pyarrow.csv  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _type_allowed(name: str, t: Any) -> bool:
+    """Text columns: strings, integers or a dictionary of them; numeric ones: integers, floats, decimals, null."""
+    import pyarrow as pa
+
+    if name in TEXT:
+        if pa.types.is_dictionary(t):
+            t = t.value_type
+        return bool(pa.types.is_string(t) or pa.types.is_large_string(t) or pa.types.is_integer(t))
+    return bool(pa.types.is_integer(t) or pa.types.is_floating(t) or pa.types.is_decimal(t) or pa.types.is_null(t))
+
+
+def check_schema(schema: Any, path: Path) -> list[str]:
+    """The column names of a Parquet lot whose every column is known, once, and of an allowed type."""
+    names = list(schema.names)
+    for field in schema:
+        if field.name not in COLUMNS:
+            raise DataError(f"{path}: unknown column {field.name!r}; allowed: {', '.join(COLUMNS)}")
+        if names.count(field.name) > 1:
+            raise DataError(f"{path}: column {field.name!r} appears twice")
+        if not _type_allowed(field.name, field.type):
+            allowed = "strings or integers" if field.name in TEXT else "numbers (integer, float or decimal)"
+            raise DataError(f"{path}: column {field.name!r} is of type {field.type}; allowed: {allowed}")
+    for c in REQUIRED:
+        if c not in names:
+            raise DataError(f"{path}: missing column {c!r}; a lot file needs {', '.join(REQUIRED)}")
+    return names
+
+
+def read_parquet_chunks(path: str | Path, chunk_boards: int = 4096) -> tuple[dict[str, str], Iterator[LotChunk]]:
+    """A Parquet lot file (needs pyarrow: pip install 'accelcal-station[parquet]')."""
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError:
+        raise DataError(f"{path}: reading Parquet needs pyarrow; pip install 'accelcal-station[parquet]'") from None
+    path = Path(path)
+    f = open_regular(path, "a Parquet lot file")
+    try:
+        pf = pq.ParquetFile(f)
+        names = check_schema(pf.schema_arrow, path)
+        for i in range(pf.metadata.num_row_groups):
+            size = pf.metadata.row_group(i).total_byte_size
+            if size > MAX_ROW_GROUP_BYTES:
+                raise DataError(f"{path}: row group {i} holds {size} bytes; allowed: at most "
+                                f"{MAX_ROW_GROUP_BYTES >> 20} MiB per row group (each is decoded in memory at once)")
+        meta = {k.decode(errors="replace"): v.decode(errors="replace")
+                for k, v in (pf.schema_arrow.metadata or {}).items()}
+    except (pa.ArrowException, OSError) as e:  # not Parquet, or a damaged footer
+        f.close()
+        raise DataError(f"{path}: not a readable Parquet file ({e})") from None
+    except BaseException:
+        f.close()
+        raise
+    meta = {k: v for k, v in meta.items() if k in ("units", "counts_per_g", "gravity")}
+    return meta, _closing(f, _guarded(pf.iter_batches(batch_size=chunk_boards * 16), names, path, "Parquet data"))
+
+
+def _closing(f: BinaryIO, chunks: Iterator[LotChunk]) -> Iterator[LotChunk]:
+    with f:
+        yield from chunks
+
+
+def _guarded(batches: Iterable[Any], names: list[str], path: Path, what: str,
+             bad_row: list[str] | None = None, where: Where | None = None) -> Iterator[LotChunk]:
+    """Chunks of whole boards; an Arrow error while decoding is one DataError (``bad_row``: a CSV row
+    of the wrong width, recorded by the reader, named instead)."""
+    import pyarrow as pa
+
+    try:
+        yield from _arrow_chunks(batches, names, path, where or _data_row)
+    except (pa.ArrowException, OSError) as e:
+        if bad_row:
+            raise DataError(bad_row[0]) from None
+        raise DataError(f"{path}: damaged {what} ({e})") from None
+
+
+def _data_row(n: int) -> str:
+    return f"data row {n}"
+
+
+def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: Where) -> Iterator[LotChunk]:
+    """Whole-board chunks from Arrow record batches (a board may span two batches); ``where`` names
+    data row n (1-based) in errors."""
+    tail: dict[str, np.ndarray] | None = None
+    row0 = 0
+    for batch in batches:
+        bad_rows: dict[int, str] = {}
+        first = row0 + (len(tail["serial"]) if tail else 0)
+        d = {c: _arrow_column(batch.column(c), c, path, first, bad_rows, where) for c in names}
+        d["_bad"] = np.zeros(len(d["serial"]), dtype=object)
+        for i, msg in bad_rows.items():
+            d["_bad"][i] = msg
+        if tail is not None:
+            d = {c: np.concatenate([tail[c], d[c]]) for c in d}
+        serial = d["serial"].astype(str)
+        change = np.flatnonzero(serial[1:] != serial[:-1]) + 1
+        cut = int(change[-1]) if len(change) else 0  # the last board may continue in the next batch
+        tail = {c: d[c][cut:] for c in d}
+        if cut:
+            yield arrays_chunk({c: d[c][:cut] for c in d}, row0)
+            row0 += cut
+    if tail is not None and len(tail["serial"]):
+        yield arrays_chunk(tail, row0)
+
+
+def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str], where: Where) -> np.ndarray:
+    """An Arrow column as numpy: text columns as str (a null serial refused), numeric ones as float (NaN for null)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if name in TEXT:
+        text = pc.utf8_trim_whitespace(col.cast(pa.string()))
+        empty = pc.fill_null(pc.equal(text, ""), True)
+        if name == "serial" and pc.any(empty).as_py():
+            raise missing_serial(path, where(row0 + int(np.argmax(empty.to_numpy(zero_copy_only=False))) + 1))
+        return np.asarray(text.fill_null("").to_numpy(zero_copy_only=False)).astype(str)
+    if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
+        try:
+            col = pc.cast(pc.utf8_trim_whitespace(col), pa.float64())
+        except pa.ArrowInvalid:  # mark the rows with a bad cell; their boards are reported, not fitted
+            out = np.full(len(col), np.nan)
+            for i, v in enumerate(col.to_pylist()):
+                if v is None or not v.strip():
+                    continue
+                if _is_float(v):
+                    out[i] = float(v)
+                else:
+                    bad_rows.setdefault(i, f"{path}: data row {row0 + i + 1}, column {name}: {v[:40]!r} "
+                                           "is not a number")
+            return out
+    # integers beyond 2**53 and wide decimals lose digits as floats: a calibration number never has them
+    return np.asarray(pc.cast(col, pa.float64(), safe=False).to_numpy(zero_copy_only=False), dtype=float)
+
+
+def _is_float(v: str) -> bool:
+    try:
+        float(v)
+        return True
+    except ValueError:
+        return False
+
+
+class _RowCheck:
+    """pyarrow's invalid-row handler: a '#' line after the header is skipped (as pose tables allow);
+    a row of the wrong width is recorded, to be named by its line, and stops the read."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.bad: list[str] = []
+
+    def __call__(self, row: Any) -> str:
+        text = row.text or ""
+        if text.lstrip().startswith("#"):
+            return "skip"
+        self.bad.append(f"{self.path}: line {_line_of(self.path, text)}: {row.actual_columns} fields; the header has "
+                        f"{row.expected_columns}")
+        return "error"
+
+
+def _data_line(path: Path, skip: int, n: int) -> str:
+    """The file line of data row ``n`` of a CSV lot whose first ``skip`` lines are the preamble and
+    header (an error path: the file is read once more; blank and '#' lines are not rows)."""
+    try:
+        with open_regular(path, "a CSV lot file") as f:
+            rows = 0
+            for i, raw in enumerate(f, 1):
+                s = raw.strip()
+                if i > skip and s and not s.startswith(b"#"):
+                    rows += 1
+                    if rows == n:
+                        return f"line {i}"
+    except (DataError, OSError):
+        pass
+    return f"data row {n}"
+
+
+def _line_of(path: Path, text: str) -> str:
+    """The file line holding ``text`` (an error path: the file is read once more, line by line)."""
+    try:
+        with open_regular(path, "a CSV lot file") as f:
+            for i, raw in enumerate(f, 1):
+                if raw.decode("utf-8", "replace").rstrip("\r\n") == text:
+                    return str(i)
+    except (DataError, OSError):
+        pass
+    return "?"
+
+
+def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int) -> Iterator[LotChunk]:
+    """The CSV body through pyarrow's streaming reader."""
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+
+    types = {c: pa.string() for c in header}
+    check = _RowCheck(path)
+    with open_regular(path, "a CSV lot file") as f:
+        try:
+            reader = pcsv.open_csv(f, read_options=pcsv.ReadOptions(skip_rows=skip, column_names=header,
+                                                                    block_size=1 << 20),
+                                   parse_options=pcsv.ParseOptions(ignore_empty_lines=True, invalid_row_handler=check),
+                                   convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True))
+        except (pa.ArrowException, OSError) as e:
+            raise DataError(check.bad[0] if check.bad else f"{path}: unreadable CSV ({e})") from None
+        yield from _guarded(reader, header, path, "CSV", check.bad, lambda n: _data_line(path, skip, n))
+
