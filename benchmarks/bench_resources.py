@@ -8,8 +8,8 @@ helper prints the command's own peak resident set (``os.wait4``'s ru_maxrss) and
 
 1. ``accelcal fit TABLE --model 12``, ``accelcal fit TABLE`` (the model chosen from the data:
    15 for these tables) and ``accelcal fit TABLE --json`` (chosen too), on tables of random
-   orientations (issue 26: 12,000 rows
-   reached 1.34 GB, 100,000 asked for 74.5 GiB; the limit is 200 MB).
+   orientations (issue 26: 12,000 rows reached 1.34 GB, 100,000 asked for 74.5 GiB; the limit
+   is 200 MB).
 2. ``accelcal simulate --poses six-face --raw --samples N`` (issue 26: 10,000,000 took 108 s and
    7.3 GB; the limit is 200 MB).  The raw log (six poses of N samples, ~23 bytes a sample) is
    written to a temporary folder and removed.
