@@ -31,7 +31,7 @@ import smbus2
 from numpy.typing import ArrayLike
 from smbus2 import i2c_msg
 
-from ..config.checks import check_keys, choice, number
+from ..config.parts import I2cEepromSection, Mma8451Section, parse
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError
 from .base import NVM, Clock, Driver, Identity
 
@@ -239,8 +239,7 @@ class MMA8451(Driver):
         self._range_g, self._odr_hz, self._mods = 2, 800.0, "normal"  # power-on defaults
 
     # --- construction ---------------------------------------------------------------------
-    CONFIG_KEYS = ("bus", "address", "range_g", "odr_hz", "oversampling", "retries", "timeout_s", "serial",
-                   "offset_trim_lsb", "eeprom", "simulator", "seed", "emulator")
+    CONFIG_KEYS = tuple(Mma8451Section.model_fields)
 
     @classmethod
     def parse_config(cls, cfg: dict[str, Any], path: str = "device") -> tuple[Any, dict[str, Any]]:
@@ -249,45 +248,28 @@ class MMA8451(Driver):
         ``bus: emulated`` is checked here but built by the factory (drivers/emulated.py), which
         hands the emulated bus in: this module never imports its emulator.
         """
-        cfg = check_keys(cfg, cls.CONFIG_KEYS, path)
-        bus = cfg.get("bus", 1)
+        m = parse(cfg, Mma8451Section, path)
+        bus = m.bus
         emulated = bus == "emulated"
-        if not emulated and not (isinstance(bus, int) and not isinstance(bus, bool) and bus >= 0) \
+        if not emulated and not (isinstance(bus, int) and bus >= 0) \
                 and not (isinstance(bus, str) and bus.startswith("/dev/")):
             raise ConfigError(f"{path}.bus: {bus!r}; allowed: a bus number (1 for /dev/i2c-1), "
                               "a /dev/i2c-N path, or 'emulated'")
         for k in ("simulator", "seed", "emulator"):
             if k in cfg and not emulated:
                 raise ConfigError(f"{path}.{k}: only used with bus: emulated")
-        address = cfg.get("address", 0x1D)
-        if address not in ADDRESSES or isinstance(address, bool):
-            shown = f"0x{address:02x}" if isinstance(address, int) else repr(address)
-            raise ConfigError(f"{path}.address: {shown}; allowed: 0x1c (SA0 low), 0x1d (SA0 high)")
-        trim = cfg.get("offset_trim_lsb")
-        if trim is not None and (not isinstance(trim, (list, tuple)) or len(trim) != 3 or not all(
-                isinstance(v, int) and not isinstance(v, bool) and -128 <= v <= 127 for v in trim)):
+        if m.address not in ADDRESSES:
+            raise ConfigError(f"{path}.address: 0x{m.address:02x}; allowed: 0x1c (SA0 low), 0x1d (SA0 high)")
+        trim = m.offset_trim_lsb
+        if trim is not None and (len(trim) != 3 or not all(-128 <= v <= 127 for v in trim)):
             raise ConfigError(f"{path}.offset_trim_lsb: {trim!r}; allowed: [x, y, z] whole numbers -128..127")
-        eeprom = cfg.get("eeprom", {})
-        if eeprom not in (None, False):
-            e = check_keys(eeprom, ("address", "size", "page_size", "write_cycle_ms"), f"{path}.eeprom")
-            eeprom = {"address": number(e, "address", f"{path}.eeprom", 0x50, 0x50, 0x57, integer=True),
-                      # 24C32 and up: smaller 24Cxx take a 1-byte word address, which this driver does not send
-                      "size": number(e, "size", f"{path}.eeprom", 4096, 4096, 65536, integer=True),
-                      "page_size": number(e, "page_size", f"{path}.eeprom", 32, 8, 256, integer=True),
-                      "write_cycle_ms": number(e, "write_cycle_ms", f"{path}.eeprom", 5.0, 0.1, 100.0)}
-        else:
-            eeprom = None
-        odr = cfg.get("odr_hz", 100.0)
-        odr_index(odr, f"{path}.odr_hz")
+        # absent: the default EEPROM; false or null: none
+        e = I2cEepromSection() if "eeprom" not in cfg else m.eeprom
+        odr_index(cfg.get("odr_hz", m.odr_hz), f"{path}.odr_hz")  # as written: 3, not 3.0
         kw = {
-            "address": address,
-            "range_g": choice(cfg, "range_g", path, tuple(COUNTS_PER_G), default=2),
-            "odr_hz": float(odr),
-            "oversampling": choice(cfg, "oversampling", path, tuple(MODS), default="high_resolution"),
-            "retries": number(cfg, "retries", path, 3, 0, 20, integer=True),
-            "timeout_s": number(cfg, "timeout_s", path, 1.0, 0.001, 60.0),
-            "serial": str(cfg.get("serial") or ""),
-            "offset_trim_lsb": trim, "eeprom": eeprom,
+            "address": m.address, "range_g": m.range_g, "odr_hz": m.odr_hz, "oversampling": m.oversampling,
+            "retries": m.retries, "timeout_s": m.timeout_s, "serial": str(m.serial or ""),
+            "offset_trim_lsb": trim, "eeprom": e.model_dump() if e else None,
         }
         return bus, kw
 

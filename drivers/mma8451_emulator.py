@@ -36,7 +36,9 @@ from typing import Any, Protocol
 import numpy as np
 from smbus2.smbus2 import I2C_M_RD
 
-from ..config.checks import check_keys, load_yaml, number
+from ..config.checks import load_yaml
+from ..config.parts import EmulatedSeedSection, parse
+from ..config.schema import BusEmulatorSection
 from ..errors import ConfigError
 from .eeprom import EEPROM24
 from .mma8451 import (
@@ -231,25 +233,16 @@ class MMA8451Emulator:
                 sim, where = {k: v for k, v in sim["device"].items() if k != "driver"}, f"{where}: device"
         elif sim is not None and not isinstance(sim, dict):
             raise ConfigError(f"{path}.simulator: {sim!r}; allowed: a mapping or the path of a simulator YAML file")
-        seed = number(cfg, "seed", path, 0, 0, 2**63 - 1, integer=True) if cfg.get("seed") is not None else None
+        seed = parse({"seed": cfg.get("seed")}, EmulatedSeedSection, path).seed
         board = SimulatedBoard.from_config(sim, chip="mma8451", seed=seed, path=where)
-        e = check_keys(cfg.get("emulator"), ("chip_id", "nack_every", "never_ready", "present", "bus_hz",
-                                             "corrupt_reads"), f"{path}.emulator")
-        ep = f"{path}.emulator"
-        for k in ("never_ready", "present"):
-            if not isinstance(e.get(k, False), bool):
-                raise ConfigError(f"{ep}.{k}: {e[k]!r}; allowed: true, false")
-        emu = cls(board, address=address, eeprom_address=eeprom_address,
-                  chip_id=number(e, "chip_id", ep, CHIP_ID, 0, 255, integer=True),
-                  bus_hz=number(e, "bus_hz", ep, 400_000.0, 10_000.0, 3_400_000.0),
-                  never_ready=e.get("never_ready", False), present=e.get("present", True))
-        emu.nack_every(number(e, "nack_every", ep, 0, 0, 1000, integer=True))
-        if e.get("corrupt_reads") is not None:
-            cp = f"{ep}.corrupt_reads"
-            c = check_keys(e["corrupt_reads"], ("rate", "seed", "address"), cp)
-            emu.corrupt_reads(number(c, "rate", cp, 0.0, 0.0, 1.0),
-                              number(c, "seed", cp, 0, 0, 2**63 - 1, integer=True),
-                              number(c, "address", cp, eeprom_address or 0x50, 0, 0x7F, integer=True))
+        e = parse(cfg.get("emulator"), BusEmulatorSection, f"{path}.emulator")
+        emu = cls(board, address=address, eeprom_address=eeprom_address, chip_id=e.chip_id, bus_hz=e.bus_hz,
+                  never_ready=e.never_ready, present=e.present)
+        emu.nack_every(e.nack_every)
+        c = e.corrupt_reads
+        if c is not None:
+            given = "address" in c.model_fields_set  # default: the EEPROM's address
+            emu.corrupt_reads(c.rate, c.seed, c.address if given else (eeprom_address or 0x50))
         return emu
 
     @property

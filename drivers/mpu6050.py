@@ -28,7 +28,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..config.checks import check_keys, choice, number
+from ..config.parts import Mpu6050Section, parse
 from ..errors import ConfigError, DeviceError, NVMError
 from . import bridge_protocol as bp
 from .base import NVM, Capture, Driver, Identity
@@ -136,8 +136,7 @@ class MPU6050Bridge(Driver):
     """MPU6050 through the serial bridge.  ``port``: /dev/ttyUSB0, /dev/ttyACM0, a pty, COM3."""
 
     name = "mpu6050"
-    CONFIG_KEYS = ("port", "baud", "range_g", "odr_hz", "dlpf", "timeout_s", "retries", "boot_wait_s",
-                   "simulator", "seed")
+    CONFIG_KEYS = tuple(Mpu6050Section.model_fields)
 
     def __init__(self, port: str, baud: int = bp.DEFAULT_BAUD, range_g: int = 2, odr_hz: float = 100.0,
                  dlpf: int = 3, timeout_s: float = 0.5, retries: int = 3, boot_wait_s: float = 2.0,
@@ -170,23 +169,16 @@ class MPU6050Bridge(Driver):
     @classmethod
     def parse_config(cls, cfg: dict[str, Any], path: str = "device") -> tuple[str, dict[str, Any]]:
         """Check a ``device:`` section: (port, constructor keywords)."""
-        cfg = check_keys(cfg, cls.CONFIG_KEYS, path)
-        port = cfg.get("port")
-        if not isinstance(port, str) or not port:
+        m = parse(cfg, Mpu6050Section, path)
+        port = m.port
+        if not port:
             raise ConfigError(f"{path}.port: {port!r}; allowed: a serial port such as /dev/ttyUSB0, "
                               "or 'emulated'")
         for k in ("simulator", "seed"):
             if k in cfg and port != "emulated":
                 raise ConfigError(f"{path}.{k}: only used with port: emulated")
-        dlpf = number(cfg, "dlpf", path, 3, 0, 6, integer=True)
-        odr = number(cfg, "odr_hz", path, 100.0, 0.0, ACCEL_RATE_HZ)
-        smplrt_div_for(odr, dlpf, f"{path}.odr_hz")
-        kw = {"baud": number(cfg, "baud", path, bp.DEFAULT_BAUD, 1200, 4_000_000, integer=True),
-              "range_g": choice(cfg, "range_g", path, tuple(COUNTS_PER_G), default=2),
-              "odr_hz": odr, "dlpf": dlpf,
-              "timeout_s": number(cfg, "timeout_s", path, 0.5, 0.01, 60.0),
-              "retries": number(cfg, "retries", path, 3, 0, 20, integer=True),
-              "boot_wait_s": number(cfg, "boot_wait_s", path, 2.0, 0.0, 30.0)}
+        smplrt_div_for(m.odr_hz, m.dlpf, f"{path}.odr_hz")
+        kw = m.model_dump(include={"baud", "range_g", "odr_hz", "dlpf", "timeout_s", "retries", "boot_wait_s"})
         return port, kw
 
     # --- lifecycle ------------------------------------------------------------------------

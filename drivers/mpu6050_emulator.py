@@ -33,7 +33,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..config.checks import check_keys, load_yaml, number
+from ..config.checks import load_yaml
+from ..config.parts import Mpu6050SimSection, parse
 from ..errors import ConfigError
 from ..sim.pty_server import PtyServer
 from . import bridge_protocol as bp
@@ -111,7 +112,8 @@ class MPU6050BridgeEmulator(PtyServer):
             sim, file_seed = board_config_from_file(sim)
         elif sim is not None and not isinstance(sim, dict):
             raise ConfigError(f"{path}.simulator: {sim!r}; allowed: a mapping or the path of a simulator YAML file")
-        seed = number(cfg, "seed", path, 0, 0, 2**32 - 1, integer=True) if cfg.get("seed") is not None else file_seed
+        seed = parse({"seed": cfg.get("seed")}, Mpu6050SimSection, path).seed
+        seed = file_seed if seed is None else seed
         return cls(SimulatedBoard.from_config(sim, chip="mpu6050", seed=seed, path=f"{path}.simulator"))
 
     # --- faults ---------------------------------------------------------------------------
@@ -397,11 +399,9 @@ def board_config_from_file(path: str) -> tuple[dict[str, Any] | None, int | None
         raise ConfigError(f"{where}: must be a mapping")
     driver = dev.get("driver")
     if driver == "mpu6050":
-        check_keys({k: v for k, v in dev.items() if k in ("simulator", "seed")}, ("simulator", "seed"), where)
-        sim = dev.get("simulator")
-        sim = load_yaml(sim) if isinstance(sim, str) else sim
-        seed = number(dev, "seed", where, 0, 0, 2**32 - 1, integer=True) if dev.get("seed") is not None else None
-        return sim, seed
+        m = parse({k: v for k, v in dev.items() if k in ("simulator", "seed")}, Mpu6050SimSection, where)
+        sim = load_yaml(m.simulator) if isinstance(m.simulator, str) else m.simulator
+        return sim, m.seed
     if driver not in (None, "simulated"):
         raise ConfigError(f"{where}.driver: {driver!r}; --config takes a simulated board (driver: simulated, "
                           "e.g. configs/sim.yaml) or an mpu6050 device with a simulator section")

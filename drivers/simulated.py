@@ -36,7 +36,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..calibration import Calibration
-from ..config.checks import check_keys, load_yaml, number
+from ..config.checks import load_yaml
+from ..config.parts import SimEepromSection, SimulatedBoardSection, SimulatorFileSection, parse
 from ..errors import ConfigError, DeviceError
 from ..sim.population import parse_population
 from ..sim.sensor_model import SensorModel, get_chip, rotation_matrix
@@ -44,9 +45,8 @@ from .base import Driver, Identity
 from .eeprom import EEPROM24
 
 POPULATION_STREAM = 0x7091  # the population draw's own random stream (beside noise, drift, pose)
-BOARD_KEYS = ("chip", "range_g", "odr_hz", "dlpf", "seed", "serial", "realtime", "ambient_c",
-              "self_heating_c", "eeprom", "simulator", "effects")
-EEPROM_KEYS = ("size_bytes", "page_bytes", "write_cycle_ms", "fail_at_write", "image")
+BOARD_KEYS = tuple(SimulatedBoardSection.model_fields)
+EEPROM_KEYS = tuple(SimEepromSection.model_fields)
 
 
 class Pose(Protocol):
@@ -103,8 +103,8 @@ def load_simulator(cfg: dict[str, Any], path: str) -> tuple[Any, str, Any]:
     where = f"{path}.simulator"
     if isinstance(sim, str):
         sim, where = load_yaml(sim), f"{path}.simulator({sim})"
-    check_keys(sim, ["effects", "population"], where)
-    return sim.get("effects") or {}, f"{where}.effects", sim.get("population")
+    m = parse(sim, SimulatorFileSection, where)
+    return m.effects or {}, f"{where}.effects", m.population
 
 
 def draw_board(model: SensorModel, population: Any, seed: int, path: str) -> SensorModel:
@@ -155,39 +155,27 @@ class SimulatedBoard:
         ``cfg=None`` is an ideal chip of its datasheet: noise, quantization and
         saturation only (configs/sim.yaml is the realistic default board).
         """
-        cfg = dict(check_keys(cfg, BOARD_KEYS, path))
-        spec = get_chip(chip or cfg.get("chip", "mma8451"), f"{path}.chip")
+        cfg = dict(cfg or {})
+        m = parse(cfg, SimulatedBoardSection, path)
+        spec = get_chip(chip or m.chip or "mma8451", f"{path}.chip")
         effects, epath, population = load_simulator(cfg, path)
         model = SensorModel.from_config(effects, spec, epath)
-        if seed is None and cfg.get("seed") is not None:
-            seed = number(cfg, "seed", path, lo=0, integer=True)
+        if seed is None:
+            seed = m.seed
         if population is not None:
             seed = int(cast(int, np.random.SeedSequence(seed).entropy))  # fixed here: the draw depends on it
             model = draw_board(model, population, seed, epath.rsplit(".", 1)[0] + ".population")
-        realtime = cfg.get("realtime", False)
-        if not isinstance(realtime, bool):
-            raise ConfigError(f"{path}.realtime: {realtime!r}; allowed: true, false")
-        serial = cfg.get("serial")
-        if serial is not None and not isinstance(serial, (str, int)):
-            raise ConfigError(f"{path}.serial: {serial!r}; allowed: a string")
-        e = check_keys(cfg.get("eeprom"), EEPROM_KEYS, f"{path}.eeprom")
-        ep = f"{path}.eeprom"
-        page = number(e, "page_bytes", ep, 32, 1, 4096, integer=True)
-        size = number(e, "size_bytes", ep, 4096, page, 2**20, integer=True)
-        if size % page:
-            raise ConfigError(f"{ep}.size_bytes: {size} must be a multiple of page_bytes ({page})")
-        fail = e.get("fail_at_write")
-        image = e.get("image")
-        if image is not None and (not isinstance(image, str) or not image.strip()):
-            raise ConfigError(f"{ep}.image: {image!r}; allowed: a file path (relative: the current directory)")
-        if image is not None:
-            _check_image_path(image, f"{ep}.image")
-        eeprom = EEPROM24(size, page, number(e, "write_cycle_ms", ep, 5.0, 0.0, 1000.0) / 1000.0,
-                          fail_at_write=None if fail is None else number(e, "fail_at_write", ep, lo=1, integer=True),
-                          image_path=image)
-        board = cls(model, seed, None if serial is None else str(serial), realtime,
-                    number(cfg, "ambient_c", path, 25.0, -60.0, 150.0),
-                    number(cfg, "self_heating_c", path, 0.0, 0.0, 50.0), eeprom)
+        e, ep = m.eeprom or SimEepromSection(), f"{path}.eeprom"
+        if e.size_bytes % e.page_bytes:
+            raise ConfigError(f"{ep}.size_bytes: {e.size_bytes} must be a multiple of page_bytes ({e.page_bytes})")
+        if e.image is not None and not e.image.strip():
+            raise ConfigError(f"{ep}.image: {e.image!r}; allowed: a file path (relative: the current directory)")
+        if e.image is not None:
+            _check_image_path(e.image, f"{ep}.image")
+        eeprom = EEPROM24(e.size_bytes, e.page_bytes, e.write_cycle_ms / 1000.0, fail_at_write=e.fail_at_write,
+                          image_path=e.image)
+        board = cls(model, seed, None if m.serial is None else str(m.serial), m.realtime, m.ambient_c,
+                    m.self_heating_c, eeprom)
         board.configure(cfg.get("range_g", spec.default_range_g), cfg.get("odr_hz", spec.default_odr_hz),
                         cfg.get("dlpf"), path)
         return board

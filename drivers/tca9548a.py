@@ -15,7 +15,8 @@ from typing import Any
 
 import smbus2
 
-from ..config.checks import check_keys, number
+from ..config.parts import MuxChannelSection, parse
+from ..config.schema import MuxSection
 from ..errors import ConfigError, DeviceError
 from .mma8451 import MMA8451
 
@@ -83,11 +84,10 @@ class MuxChannel:
 
 def mux_settings(section: dict[str, Any], path: str) -> tuple[int, int, dict[str, Any]]:
     """(mux address, channel, the device section without the mux keys) of a board behind a mux."""
-    m = check_keys(section.get("mux"), ("address",), f"{path}.mux")
-    address = number(m, "address", f"{path}.mux", 0x70, 0x70, 0x77, integer=True)
+    address = parse(section.get("mux"), MuxSection, f"{path}.mux").address
     if "channel" not in section:
         raise ConfigError(f"{path}.channel: required behind a mux; allowed: 0..7")
-    channel = number(section, "channel", path, 0, 0, 7, integer=True)
+    channel = parse({"channel": section["channel"]}, MuxChannelSection, path).channel
     rest = {k: v for k, v in section.items() if k not in ("mux", "channel", "driver")}
     return address, channel, rest
 

@@ -239,3 +239,45 @@ def test_bad_input_is_one_line(lot, tmp_path):
     assert "since 'May': not a date" in one_error_line(batch("--from-store", db, "--since", "May"))
     rep = json.loads(batch("--from-store", db, "--run", "1", "--json").stdout)
     assert [x["run_id"] for x in rep["results"]] == [1]
+
+
+def test_pose_table_batch_judges_boards_against_a_station_configs_limits(tmp_path):
+    """`accelcal batch TABLES --config STATION.yaml`: each board's verdict by the station's
+    limits, the same as judging its own single fit (acceptance.judge), and right against the
+    boards' true offsets (V ~ N(0, 20 mg) per axis; the limit 30 mg splits them)."""
+    from accelcal_station.acceptance.rules import Limits, judge
+
+    d = tmp_path / "tables"
+    d.mkdir()
+    truth = {}
+    for i in range(40):
+        s, _, V = make_board(1000 + i)
+        write_pose_table(s, d / f"b{i:02d}.csv")
+        truth[str(d / f"b{i:02d}.csv")] = np.abs(V).max() * 1e3  # mg
+    cfg = tmp_path / "station.yaml"
+    cfg.write_text("acceptance:\n  offset_max_mg: 30\n  residual_rms_mg: 5\n")
+    r = batch(d, "--config", cfg, "--json")
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.stdout)
+    limits = Limits.from_config({"offset_max_mg": 30, "residual_rms_mg": 5})
+    labels = []
+    for res in rep["results"]:
+        one = judge(fit_session(read_pose_table(res["source"], references=True), "12"), limits)
+        assert (res["verdict"], res["reasons"]) == (one.label, [x.to_dict() for x in one.reasons])
+        labels.append(res["verdict"])
+        # the fitted offset is within ~1 mg of the truth (0.2 mg noise, 8 poses): boards clear of
+        # the limit by 2 mg are judged by their true offset (no false failure at this margin)
+        off = truth[res["source"]]
+        if abs(off - 30) > 2:
+            assert res["verdict"] == ("FAIL" if off > 30 else "PASS"), (res, off)
+            assert (res["verdict"] == "FAIL") == any(x["code"] == "offset_max_mg" for x in res["reasons"])
+    assert 5 < labels.count("PASS") < 35  # a mix: both branches are tested
+    text = batch(d, "--config", cfg)
+    assert text.exit_code == 0 and f"verdicts: PASS {labels.count('PASS')}, FAIL {labels.count('FAIL')}" in text.stdout
+    failed = [ln for ln in text.stdout.splitlines() if ln.startswith("FAIL ")]
+    assert len(failed) == labels.count("FAIL") and all("offset_max_mg" in ln for ln in failed)  # with reasons
+    # without --config: no verdicts; a bad limit is one line, exit 2
+    assert all(x["verdict"] is None for x in json.loads(batch(d, "--json").stdout)["results"])
+    cfg.write_text("acceptance:\n  offset_max_mg: -1\n")
+    line = one_error_line(batch(d, "--config", cfg))
+    assert "acceptance.offset_max_mg: -1 out of range; allowed: 0 to 1e+06" in line

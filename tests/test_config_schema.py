@@ -168,3 +168,30 @@ def test_paths_named_in_the_shipped_configs_exist() -> None:
     for config in sorted((REPO / "configs").glob("*.yaml")):
         for name in re.findall(r"[\w./-]+/[\w.-]+\.(?:md|py)\b", config.read_text()):
             assert (REPO / name).exists(), f"{config.name} names {name}, which is not in the repository"
+
+
+@pytest.mark.parametrize(("section", "patch", "where", "model"), [
+    ("device", {"driver": "simulated", "bus": 1}, "device.bus", "SimulatedBoardSection"),
+    ("device", {"driver": "mma8451", "dlpf": 3}, "device.dlpf", "Mma8451Section"),
+    ("device", {"driver": "mpu6050", "port": "emulated", "oversampling": "normal"}, "device.oversampling",
+     "Mpu6050Section"),
+    ("jig", {"type": "operator", "port": "/dev/ttyUSB0"}, "jig.port", "OperatorJigSection"),
+    ("jig", {"type": "simulated", "tolerance_deg": 5}, "jig.tolerance_deg", "SimulatedJigSection"),
+])
+def test_a_key_of_another_driver_or_jig_type_is_one_line_naming_this_ones_keys(
+        tmp_path: Path, section: str, patch: dict, where: str, model: str) -> None:
+    """The per-driver and per-jig-type key sets (config/parts.py) are checked when the config is
+    loaded, before any board or port is opened; docs/config.md lists each of them."""
+    from accelcal_station.config import parts
+    cfg = yaml.safe_load(default_config_path().read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    cfg[section] = {**({} if section == "jig" else cfg[section]), **patch}
+    if section == "device":  # keys the simulated board has and the others do not
+        for k in ("simulator", "effects", "chip", "realtime", "ambient_c", "self_heating_c", "eeprom"):
+            if patch["driver"] != "simulated":
+                cfg[section].pop(k, None)
+    line = _one_line(CliRunner().invoke(cli, ["run", "--config", _write(tmp_path, cfg)]))
+    allowed = ", ".join(getattr(parts, model).model_fields)
+    assert line == f"error: {where}: unknown key; allowed: {allowed}", line
+    title = {m.__name__: t for t, m in parts.PARTS}.get(model)
+    assert title is not None and f"## `{title}`" in (REPO / "docs" / "config.md").read_text()

@@ -328,7 +328,7 @@ def test_config_errors():
     with pytest.raises(ConfigError, match=r"device.simulator.effects.offse: unknown key"):
         make_driver({"driver": "mma8451", "bus": "emulated", "simulator": {"effects": {"offse": {}}}})
     # a 24C16 or smaller takes a 1-byte word address: the driver's 2-byte addresses would write garbage
-    with pytest.raises(ConfigError, match=r"device.eeprom.size: 2048 out of range; allowed 4096 to 65536"):
+    with pytest.raises(ConfigError, match=r"device.eeprom.size: 2048 out of range; allowed: 4096 to 65536"):
         make_driver({"driver": "mma8451", "eeprom": {"size": 2048, "page_size": 16}})
 
 

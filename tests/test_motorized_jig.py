@@ -393,7 +393,8 @@ def test_from_config():
     ({"port": "/dev/x", "timeout_s": -1}, r"^station\.jig\.timeout_s: -1 out of range"),
     ({"port": "/dev/x", "home_on_open": "yes"}, r"^station\.jig\.home_on_open: 'yes'; allowed: true, false"),
     ({"port": "/dev/x", "axis_sign": [1, 2]}, r"^station\.jig\.axis_sign\[1\]: 2; allowed: 1, -1"),
-    ({"port": "/dev/x", "axis_offset_deg": 3}, r"^station\.jig\.axis_offset_deg: 3; allowed: a list \[a, b\]"),
+    ({"port": "/dev/x", "axis_offset_deg": 3},
+     r"^station\.jig\.axis_offset_deg: 3; allowed: a list \(zero offset of each axis \[pitch, roll\]"),
     ({"port": "/dev/x", "speed_deg_s": 0}, r"^station\.jig\.speed_deg_s: 0 out of range"),
 ])
 def test_bad_config_names_the_key(cfg, message):

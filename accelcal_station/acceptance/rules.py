@@ -83,6 +83,7 @@ class FitFigures:
     stderr_V_max_g: np.ndarray  # (B,)
     stderr_W_max: np.ndarray  # (B,)
     distinct_poses: np.ndarray  # (B,) distinct pose directions the fit rests on
+    held: list[list[str]] | None = None  # (B,) terms each fit holds at nominal (models/held.py), in words
 
     @classmethod
     def from_fits(cls, fits: list[FitResult]) -> FitFigures:
@@ -96,7 +97,8 @@ class FitFigures:
                    np.array([nan if f.stderr is None else np.max(f.stderr["W"]) for f in fits]),
                    distinct_directions_batch(np.array([f.readings_g for f in fits]))
                    if len({len(f.readings_g) for f in fits}) == 1
-                   else np.array([distinct_directions(f.readings_g) for f in fits]))
+                   else np.array([distinct_directions(f.readings_g) for f in fits]),
+                   [[h.text for h in f.held] for f in fits])
 
 
 def _off_diagonal(W: np.ndarray) -> np.ndarray:
@@ -145,7 +147,8 @@ def judge_all(figs: FitFigures, limits: Limits, verify_error_max_mg: np.ndarray 
     """The verdict of each of B boards: PASS only if the fit rests on enough distinct poses
     (the model's unknowns per axis plus one, and every pose the plan has) and every
     configured limit holds; a limit that cannot be measured fails.  ``verify_error_max_mg``
-    (B,) is judged when given (after verification)."""
+    (B,) is judged when given (after verification).  Each verdict names the terms its fit
+    held at nominal (``figs.held``): held, not failed."""
     m = measure_all(figs)
     if verify_error_max_mg is not None:
         m["verify_error_max_mg"] = np.asarray(verify_error_max_mg, dtype=float)
@@ -160,8 +163,9 @@ def judge_all(figs: FitFigures, limits: Limits, verify_error_max_mg: np.ndarray 
             reasons[b].append(Reason(key, f"not measurable for this fit (limit {lim:g})"))
         for b in np.flatnonzero(~unmeasurable & ~(v <= lim)):
             reasons[b].append(Reason(key, f"{v[b]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})", " "))
+    held = figs.held or [[] for _ in reasons]
     return [Verdict(not r, r, {**{k: float(v[b]) for k, v in m.items() if not np.isnan(v[b])},
-                               "distinct_poses": float(have[b])})
+                               "distinct_poses": float(have[b])}, list(held[b]))
             for b, r in enumerate(reasons)]
 
 
@@ -169,6 +173,4 @@ def judge(fit: FitResult, limits: Limits, verify_error_max_mg: float | None = No
           planned_poses: int = 0) -> Verdict:
     """One board's verdict: ``judge_all`` on a stack of one."""
     verify = None if verify_error_max_mg is None else np.array([verify_error_max_mg])
-    v = judge_all(FitFigures.from_fits([fit]), limits, verify, planned_poses)[0]
-    v.held = [h.text for h in fit.held]  # terms fitted at nominal (models/held.py), in words
-    return v
+    return judge_all(FitFigures.from_fits([fit]), limits, verify, planned_poses)[0]

@@ -14,6 +14,8 @@ from typing import Any, Protocol
 
 import click
 
+from ..acceptance.rules import Limits
+from ..config.checks import load_yaml
 from ..errors import DataError
 from ..fileguard.identity import refuse_overwrite
 from ..lot.batch import (
@@ -72,11 +74,15 @@ def _text(report: BatchReport, outputs: dict[str, Any], list_all: bool) -> list[
     lines = []
     for r in report.results:
         who = r.source + (f" ({r.serial})" if r.serial else "")
-        if not r.ok:
+        if r.ok and r.verdict is not None and (list_all or not r.verdict.passed):
+            lines.append(click.style(f"{r.verdict.label} ", fg="green" if r.verdict.passed else "red", bold=True)
+                         + clean(who) + (f": {'; '.join(r.verdict.reasons)}" if r.verdict.reasons else ""))
+        elif not r.ok:
             lines.append(click.style("SKIP ", fg="red", bold=True) + error_text(f"{who}: {r.message}"))
         elif list_all:
             lines.append(click.style("ok   ", fg="green") + f"{clean(who)}: {r.pose_count} poses, residual RMS "
-                         f"{_mg(r.residual_rms_g)}, leave-one-out {_mg(r.crossval_rms_g)}")
+                         f"{_mg(r.residual_rms_g)}, leave-one-out {_mg(r.crossval_rms_g)}"
+                         + "".join(f"; held: {h.text}" for h in r.held))
     n, ok = len(report.results), len(report.fitted)
     # a fitted board always has its residual RMS
     rms = sorted(r.residual_rms_g for r in report.fitted if r.residual_rms_g is not None)
@@ -84,6 +90,14 @@ def _text(report: BatchReport, outputs: dict[str, Any], list_all: bool) -> list[
     colour = "green" if ok == n else ("yellow" if ok else "red")
     lines.append(click.style(f"{ok} of {n} boards recalibrated with model {report.model}", fg=colour, bold=True)
                  + f"{med}; {n - ok} skipped; {report.fit_calls} fit call(s), {report.elapsed_s:.2f} s")
+    held = [r for r in report.fitted if r.held]
+    if held:  # what the poses did not determine, said even when the boards are not listed
+        terms = sorted({h.term for r in held for h in r.held})
+        lines.append(f"held at nominal on {len(held)} board(s): {', '.join(terms)} "
+                     f"({held[0].held[0].text})")
+    judged = [r.verdict.passed for r in report.results if r.ok and r.verdict is not None]
+    if judged:
+        lines.append(f"verdicts: PASS {sum(judged)}, FAIL {len(judged) - sum(judged)}")
     if "out_dir" in outputs:
         lines.append(f"calibrations: {outputs['calibrations']} file(s) in {outputs['out_dir']}")
     if "csv" in outputs:
@@ -96,23 +110,17 @@ def _text(report: BatchReport, outputs: dict[str, Any], list_all: bool) -> list[
 
 
 def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str | None, cpg: float | None,
-              grav: float | None, out: str | None, config_path: str | None, chunk_boards: int, as_json: bool,
+              grav: float | None, out: str, config_path: str | None, chunk_boards: int, as_json: bool,
               other: list[str]) -> None:
     """accelcal batch LOT --out RESULTS: stream a lot file into one results table."""
-    from ..acceptance.rules import Limits
-    from ..config.checks import load_yaml
     from ..lot.streaming import recalibrate_lot
 
-    if out is None:
-        raise DataError("--config judges a lot file's boards; add --out RESULTS.csv (or .parquet, .jsonl)")
     if other:
         raise DataError(f"--out writes a lot file's results table; {', '.join(other)} cannot be combined with it")
     if len(paths) != 1:
         raise DataError(f"--out takes one lot file; got {len(paths)} path(s)")
     refuse_overwrite([("--out", out)], [("the lot file", paths[0]), ("--config", config_path)])
-    limits = None
-    if config_path is not None:
-        limits = Limits.from_config(load_yaml(config_path).get("acceptance"))
+    limits = _limits(config_path)
     summary = recalibrate_lot(paths[0], out, model, units=units, counts_per_g=cpg, gravity_mps2=grav,
                               limits=limits, chunk_boards=chunk_boards)
     if as_json:
@@ -155,7 +163,8 @@ def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str
 @click.option("--out", "out", default=None, metavar="FILE",
               help="Lot file mode: write one results table (.csv, .parquet or .jsonl), a row per board.")
 @click.option("--config", "config_path", default=None, metavar="YAML",
-              help="Lot file mode: judge boards against this station config's acceptance limits.")
+              help="Judge every board against this station config's acceptance limits (pose tables, "
+                   "--from-store and lot files).")
 @click.option("--chunk-boards", "chunk_boards", default="4096", show_default=True, metavar="N",
               help="Lot file mode: boards read, fitted and written per chunk (bounds memory).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
@@ -168,14 +177,15 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
     """Recalibrate many boards with one model (vectorised); unfittable boards are reported and skipped.
 
     A lot file (one CSV or Parquet table of every pose, with a serial column) is
-    streamed in chunks into one results table: accelcal batch LOT.csv --out results.csv
+    streamed in chunks into one results table: accelcal batch LOT.csv --out results.csv.
+    --config F: each board judged PASS/FAIL by that station's acceptance limits.
 
     Exit status 0: all boards fitted; 1: some skipped; 2: bad input.
     """
     check_model_units(model, units)
     cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
     _check_chunk_boards(ctx, out, config_path, chunk_boards)
-    if out is not None or config_path is not None:
+    if out is not None:
         _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path,
                   parse_int(chunk_boards, "--chunk-boards") or 0, as_json,
                   [k for k, v in (("--from-store", from_store), ("--out-dir", out_dir), ("--csv", csv_path),
@@ -183,7 +193,8 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
         return
     store_filters = _store_filters(from_store, lot, device, station, since, until, run_ids)
     _check_inputs(paths, from_store, csv_path, to_store)
-    report = _fit_boards(paths, from_store, store_filters, model, units, cpg, grav, as_json)
+    report = _fit_boards(paths, from_store, store_filters, model, units, cpg, grav, as_json,
+                         _limits(config_path))
     outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store)
     _print_report(report, outputs, written, as_json)
     if report.skipped:
@@ -191,8 +202,8 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
 
 
 def _check_chunk_boards(ctx: click.Context, out: str | None, config_path: str | None, chunk_boards: str) -> None:
-    """Refuse --chunk-boards given outside lot file mode (neither --out nor --config)."""
-    if out is None and config_path is None and \
+    """Refuse --chunk-boards given outside lot file mode (no --out)."""
+    if out is None and \
             ctx.get_parameter_source("chunk_boards") is not click.core.ParameterSource.DEFAULT:
         raise DataError(f"--chunk-boards {chunk_boards}: applies to lot file mode only; add --out FILE "
                         "(a results table) or remove --chunk-boards")
@@ -222,8 +233,16 @@ def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str 
             raise DataError(f"--csv {p}: cannot write (no such directory {Path(p).parent})")
 
 
+def _limits(config_path: str | None) -> Limits | None:
+    """The acceptance limits of a station config (--config), checked by the schema; None without one."""
+    if config_path is None:
+        return None
+    return Limits.from_config(load_yaml(config_path).get("acceptance"))
+
+
 def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: dict[str, Any], model: str,
-                units: str | None, cpg: float | None, grav: float | None, as_json: bool) -> BatchReport:
+                units: str | None, cpg: float | None, grav: float | None, as_json: bool,
+                limits: Limits | None = None) -> BatchReport:
     """Read the boards (store runs, then pose tables) and fit them all, with progress bars on a big batch."""
     sources: list[Source] = []
     if from_store is not None:
@@ -236,7 +255,7 @@ def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: d
     if not sources:
         raise DataError(f"{from_store}: no complete runs with poses match the filters")
     with _bar(show, len(sources), f"fitting model {model}") as bar:
-        return recalibrate(sources, model, progress=bar.update)
+        return recalibrate(sources, model, progress=bar.update, limits=limits)
 
 
 def _write_outputs(report: BatchReport, out_dir: str | None, csv_path: str | None, to_store: str | None,

@@ -1,17 +1,18 @@
-"""Configuration checking: every error names the key path and what is allowed."""
+"""Reading a configuration file: size, encoding and YAML errors as one line naming the file.
+
+The keys themselves are checked by the declared models (schema.py, parts.py); ``check_keys``
+and ``number`` remain for sim/population.py, whose keys are the quantities a population names."""
 from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Literal, TypeVar, overload
+from typing import Any, Literal, overload
 
 import yaml
 
 from ..errors import ConfigError
 from ..fileguard.regular import read_bytes
 from .safe_yaml import MAX_BYTES, HostileYAML, safe_load
-
-T = TypeVar("T")
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
@@ -61,11 +62,6 @@ def number(d: dict[str, Any], key: str, path: str, default: int | None = None, l
            hi: float | None = None, *, integer: Literal[True]) -> int: ...
 
 
-@overload
-def number(d: dict[str, Any], key: str, path: str, default: float | None = None, lo: float | None = None,
-           hi: float | None = None, integer: bool = False) -> int | float: ...
-
-
 def number(d: dict[str, Any], key: str, path: str, default: float | None = None, lo: float | None = None,
            hi: float | None = None, integer: bool = False) -> float:
     """A number within [lo, hi]; ``default`` when absent (None means required)."""
@@ -84,37 +80,3 @@ def number(d: dict[str, Any], key: str, path: str, default: float | None = None,
         rng = f"{'-inf' if lo is None else lo} to {'inf' if hi is None else hi}"
         raise ConfigError(f"{path}.{key}: {v!r} out of range; allowed {rng}")
     return int(v) if integer else float(v)
-
-
-def choice(d: dict[str, Any], key: str, path: str, choices: Iterable[T], default: T | None = None) -> T:
-    """One of ``choices``; ``default`` when absent (None means required)."""
-    choices = list(choices)
-    if key not in d or d[key] is None:
-        if default is None:
-            raise ConfigError(f"{path}.{key}: required; allowed: {', '.join(map(str, choices))}")
-        return default
-    v = d[key]
-    if v not in choices:
-        raise ConfigError(f"{path}.{key}: {v!r}; allowed: {', '.join(map(str, choices))}")
-    return v
-
-
-def vector3(d: dict[str, Any], key: str, path: str, default: Iterable[float] | None = None, lo: float | None = None,
-            hi: float | None = None) -> list[float]:
-    """A per-axis triple [x, y, z] (a scalar is taken for all three axes)."""
-    if key not in d or d[key] is None:
-        if default is None:
-            raise ConfigError(f"{path}.{key}: required (a number or [x, y, z])")
-        return list(default)
-    v = d[key]
-    vals = [v, v, v] if isinstance(v, (int, float)) and not isinstance(v, bool) else v
-    if not isinstance(vals, (list, tuple)) or len(vals) != 3:
-        raise ConfigError(f"{path}.{key}: {v!r}; allowed: a number or a list [x, y, z]")
-    out = []
-    for i, x in enumerate(vals):
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or x != x:
-            raise ConfigError(f"{path}.{key}[{i}]: {x!r} is not a number")
-        if (lo is not None and x < lo) or (hi is not None and x > hi):
-            raise ConfigError(f"{path}.{key}[{i}]: {x!r} out of range; allowed {lo} to {hi}")
-        out.append(float(x))
-    return out

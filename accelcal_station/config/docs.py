@@ -10,6 +10,7 @@ from typing import Any
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
+from .parts import PARTS
 from .schema import StationConfigSchema, _models_in, _range
 
 HEADER = """# Station configuration keys
@@ -21,6 +22,11 @@ A station config (`accelcal run --config F`, configs/*.yaml) is a YAML mapping o
 sections below. Every key is checked before anything touches a board: an unknown key,
 a wrong type, a number that is not finite or out of its range gives one line naming the
 key path, the value and what is allowed, and exit 2.
+
+The `device` and `jig` tables list every key of any driver or jig type; the tables
+at the end (`device (driver: mma8451)`, `jig (type: motorized)`, ...) say which keys each
+driver or jig type accepts, with its own defaults and ranges: a key of another driver is
+refused in one line naming that driver's keys.
 """
 
 
@@ -58,7 +64,7 @@ def keys(model: type[BaseModel] = StationConfigSchema, path: str = "") -> list[s
 def render() -> str:
     """The whole reference, one table per section."""
     parts = [HEADER]
-    for path, model in section_rows(StationConfigSchema, ""):
+    for path, model in section_rows(StationConfigSchema, "") + PARTS:
         title = path or "top level"
         doc = (model.__doc__ or "").strip().splitlines()[0] if model.__doc__ and path else ""
         parts.append(f"\n## `{title}`\n" + (f"\n{doc}\n" if doc else ""))

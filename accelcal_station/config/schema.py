@@ -192,7 +192,7 @@ class DeviceSection(Section):
     oversampling: str | None = _f(None, "mma8451: oversampling mode")
     retries: int | None = _f(None, "mma8451/mpu6050: retries of a bus or serial transaction", ge=0, le=20)
     timeout_s: float | None = _f(None, "mma8451/mpu6050: transaction timeout, s", ge=0.001, le=60)
-    offset_trim_lsb: float | None = _f(None, "mma8451: offset register LSB, mg", gt=0, le=100)
+    offset_trim_lsb: list[int] | None = _f(None, "mma8451: offset registers [x, y, z], whole numbers -128..127")
     emulator: BusEmulatorSection | None = _f(None, "mma8451 bus: emulated: the emulator's faults")
     port: str | None = _f(None, "mpu6050: serial port of the bridge (or 'emulated')")
     baud: int | None = _f(None, "mpu6050: serial baud rate", ge=1200, le=4_000_000)
@@ -320,9 +320,24 @@ def _range(model: type[BaseModel] | None, key: Any) -> str:
         gt = getattr(m, "gt", None) if getattr(m, "gt", None) is not None else gt
         le = getattr(m, "le", None) if getattr(m, "le", None) is not None else le
     if ge is None and gt is None and le is None:
+        ge, gt, le = _bounds_in(model.model_fields[key].annotation)
+    if ge is None and gt is None and le is None:
         return ""
     lo = _num(ge) if ge is not None else (f"above {_num(gt)}" if gt is not None else "-inf")
     return f"{lo} to {'inf' if le is None else _num(le)}"
+
+
+def _bounds_in(ann: Any) -> tuple[Any, Any, Any]:
+    """(ge, gt, le) of the numbers inside a list or union annotation (a per-axis [x, y, z])."""
+    metas = [x for m in getattr(ann, "__metadata__", ()) for x in (m, *getattr(m, "metadata", ()))]
+    found = {k: getattr(m, k) for m in metas for k in ("ge", "gt", "le") if getattr(m, k, None) is not None}
+    if found:
+        return found.get("ge"), found.get("gt"), found.get("le")
+    for a in getattr(ann, "__args__", ()):
+        inner = _bounds_in(a)
+        if any(v is not None for v in inner):
+            return inner
+    return None, None, None
 
 
 def _num(v: float) -> str:
@@ -342,8 +357,10 @@ def error_line(err: dict[str, Any], root: type[BaseModel], where: str = "") -> s
     """One line for a pydantic error: key path, value, what is allowed."""
     loc = tuple(p for p in err["loc"] if isinstance(p, int) or not _is_tag(p))
     path, kind, value = _path(where, loc), err["type"], err.get("input")
-    parent = _model_at(root, loc[:-1]) if loc else root
-    key = loc[-1] if loc else None
+    # the key the error is about: the last name (a list item's error is about its list's key)
+    k = max((i for i, p in enumerate(loc) if not isinstance(p, int)), default=None)
+    parent = _model_at(root, loc[:k]) if k is not None else root
+    key = loc[k] if k is not None else None
     if kind == "extra_forbidden":
         allowed = ", ".join(parent.model_fields) if parent is not None else ""
         return f"{path}: unknown key; allowed: {allowed}"
@@ -359,13 +376,23 @@ def error_line(err: dict[str, Any], root: type[BaseModel], where: str = "") -> s
     if kind.startswith("int_"):
         return f"{path}: {value!r}; allowed: a whole number" + (f" {rng}" if rng else "")
     if kind == "literal_error":
-        return f"{path}: {value!r}; allowed: {_choices(parent, key)}"
+        expected = str(err.get("ctx", {}).get("expected", "")).replace(" or ", ", ")
+        return f"{path}: {value!r}; allowed: {_choices(parent, key) or expected}"
+    if kind in ("float_type", "float_parsing"):
+        return f"{path}: {value!r} is not a number" + (f"; allowed: {rng}" if rng else "")
+    if kind in ("model_type", "dict_type"):
+        return f"{path}: {value!r}; allowed: a mapping"
+    if kind == "bool_type":
+        return f"{path}: {value!r}; allowed: true, false"
+    if kind in ("list_type", "too_short", "too_long") and parent is not None and key in parent.model_fields:
+        return f"{path}: {value!r}; allowed: a list ({parent.model_fields[key].description})"
     return f"{path}: {value!r}; allowed: {err['msg'].removeprefix('Input should be ')}" + (f" ({rng})" if rng else "")
 
 
 def _is_tag(part: str) -> bool:
     """pydantic's union-member tags in a location (``int``, ``list[...]``, ``function-...``)."""
-    return part.startswith(("function-", "list[", "dict[", "literal[")) or part in ("int", "str", "float", "bool") \
+    return part.startswith(("function-", "list[", "dict[", "literal[", "constrained-")) \
+        or part in ("int", "str", "float", "bool") \
         or part[:1].isupper()
 
 
@@ -377,8 +404,9 @@ def validate(data: Any, model: type[BaseModel], where: str = "") -> BaseModel:
         # a union (``boards: 5`` or a list of mappings) reports every member's error: the one
         # reaching deepest into the data says what is wrong
         # (an unknown key before a missing one at the same depth: the typo is the likelier cause)
+        # and a value of the wrong type for one member (a list for a number) says less than the other's
         errs = sorted(e.errors(), key=lambda x: (-len([p for p in x["loc"] if isinstance(p, int) or not _is_tag(p)]),
-                                                 x["type"] != "extra_forbidden"))
+                                                 x["type"] != "extra_forbidden", x["type"].endswith("_type")))
         raise ConfigError(error_line(dict(errs[0]), model, where)) from None
 
 

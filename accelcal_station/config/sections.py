@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from .checks import load_yaml
+from .parts import check_kinds
 from .schema import DeviceSection, validate
 
 
@@ -26,6 +27,7 @@ def device_section(path: str) -> dict:
         raise ConfigError(f"{path}: no 'device' section; allowed: a mapping with 'driver: simulated, mma8451 "
                           "or mpu6050'")
     validate(section, DeviceSection, "device")
+    check_kinds({"device": section})
     return dict(section)
 
 

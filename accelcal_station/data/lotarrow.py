@@ -85,7 +85,8 @@ def read_parquet_chunks(path: str | Path, chunk_boards: int = 4096) -> tuple[dic
         f.close()
         raise
     meta = {k: v for k, v in meta.items() if k in ("units", "counts_per_g", "gravity")}
-    return meta, _closing(f, _guarded(pf.iter_batches(batch_size=chunk_boards * 16), names, path, "Parquet data"))
+    return meta, _closing(f, _guarded(pf.iter_batches(batch_size=chunk_boards * 16, use_threads=False), names, path,
+                                              "Parquet data"))
 
 
 def _closing(f: BinaryIO, chunks: Iterator[LotChunk]) -> Iterator[LotChunk]:
@@ -226,13 +227,18 @@ def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int) 
 
     types = {c: pa.string() for c in header}
     check = _RowCheck(path)
+    # One thread, and the reader closed before the file: a background read-ahead thread of Arrow's
+    # reading a Python file object that an abandoned generator has already closed crashes the process.
     with open_regular(path, "a CSV lot file") as f:
         try:
             reader = pcsv.open_csv(f, read_options=pcsv.ReadOptions(skip_rows=skip, column_names=header,
-                                                                    block_size=1 << 20),
+                                                                    block_size=1 << 20, use_threads=False),
                                    parse_options=pcsv.ParseOptions(ignore_empty_lines=True, invalid_row_handler=check),
                                    convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True))
         except (pa.ArrowException, OSError) as e:
             raise DataError(check.bad[0] if check.bad else f"{path}: unreadable CSV ({e})") from None
-        yield from _guarded(reader, header, path, "CSV", check.bad, lambda n: _data_line(path, skip, n))
+        try:
+            yield from _guarded(reader, header, path, "CSV", check.bad, lambda n: _data_line(path, skip, n))
+        finally:
+            reader.close()
 

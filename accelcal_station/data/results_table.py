@@ -3,9 +3,11 @@
 Columns (RESULT_COLUMNS): serial, first_row (the board's first data row, 1-based), ok,
 model, pose_count, input_units, input_per_g, W00..W22, V0..V2, Gamma0..Gamma2 (AN4399
 form: calibrated_g = W reading/input_per_g + V + Gamma (reading/input_per_g)^3),
-residual_rms_mg, residual_max_mg, crossval_rms_mg, condition_number, verdict,
-reasons ("; "-joined, each starting with its code) and message (why a board was not
-fitted).  Empty cells (null in JSON/Parquet) where a value does not exist.
+residual_rms_mg, residual_max_mg, crossval_rms_mg, condition_number, held (the terms the
+fit held at nominal because the board's poses do not determine them, e.g. ``M_xy``,
+models/held.py; "; "-joined, a list in JSON lines), verdict, reasons ("; "-joined, each
+starting with its code) and message (why a board was not fitted).  Empty cells (null in
+JSON/Parquet) where a value does not exist.
 
 The table is written to a temporary file beside the output, flushed and fsynced once
 per chunk, and renamed over the output when complete: it is whole or absent.
@@ -32,8 +34,8 @@ if TYPE_CHECKING:
 
 FLOAT_COLUMNS = ("input_per_g", *PARAM_NAMES, "residual_rms_mg", "residual_max_mg", "crossval_rms_mg",
                  "condition_number")
-RESULT_COLUMNS = ("serial", "first_row", "ok", "model", "pose_count", "input_units", *FLOAT_COLUMNS, "verdict",
-                  "reasons", "message")
+RESULT_COLUMNS = ("serial", "first_row", "ok", "model", "pose_count", "input_units", *FLOAT_COLUMNS, "held",
+                  "verdict", "reasons", "message")
 FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet", ".jsonl": "jsonl", ".ndjson": "jsonl"}
 
 
@@ -49,6 +51,7 @@ def _columns(chunk: LotChunk, res: dict[str, Any], model: str, units: str, verdi
         cols[name] = params[:, j]
     cols.update(residual_rms_mg=res["residual_rms_g"] * 1e3, residual_max_mg=res["residual_max_g"] * 1e3,
                 crossval_rms_mg=res["crossval_rms_g"] * 1e3, condition_number=res["condition_number"],
+                held=["; ".join(h.term for h in hs) for hs in res.get("held", [[]] * B)],
                 verdict=verdicts, reasons=["; ".join(r) for r in reasons], message=res["message"])
     return cols
 
@@ -129,6 +132,7 @@ class ResultsWriter:
                     if row[c] != row[c]:  # NaN: no value
                         row[c] = None
                 row["reasons"] = list(reasons[b])
+                row["held"] = [h.term for h in res.get("held", [[]] * B)[b]]
                 lines.append(json.dumps(row, allow_nan=False))
             self._out.write("\n".join(lines) + "\n")
         else:

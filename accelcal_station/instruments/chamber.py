@@ -16,7 +16,8 @@ from contextlib import suppress
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
 
-from ..config.checks import check_keys, number
+from ..config.parts import parse
+from ..config.schema import ChamberSection
 from ..errors import ConfigError, DeviceError
 
 if TYPE_CHECKING:
@@ -138,14 +139,11 @@ class AsciiChamber(Chamber):
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any], path: str = "chamber", port: str | None = None) -> AsciiChamber:
-        check_keys(cfg, ("driver", "port", "baud", "timeout_s", "retries", "min_c", "max_c", "emulator"), path)
-        port = port or cfg.get("port")
+        m = parse(cfg, ChamberSection, path)
+        port = port or m.port
         if not isinstance(port, str) or not port:
             raise ConfigError(f"{path}.port: required (a serial device, host:port, a VISA resource, or emulated)")
-        return cls(port, number(cfg, "baud", path, 9600, 300, 1_000_000, integer=True),
-                   number(cfg, "timeout_s", path, 1.0, 0.01, 60.0),
-                   number(cfg, "retries", path, 2, 0, 10, integer=True),
-                   number(cfg, "min_c", path, -70.0, -100.0, 200.0), number(cfg, "max_c", path, 180.0, -100.0, 300.0))
+        return cls(port, m.baud, m.timeout_s, m.retries, m.min_c, m.max_c)
 
     def open(self) -> None:
         import pyvisa  # lazily: only stations with a chamber need it

@@ -4,7 +4,9 @@ Boards are grouped by what one stacked fit must share (pose count, units, whethe
 counts_per_g and per-pose noise are known, local gravity); each group of up to
 ``chunk_size`` boards is ONE ``models.fit_batch`` call on (D, P, 3) arrays, which
 gives every board exactly what fitting it alone gives (AN4399 Eqn 46 per board,
-or the model 9 gravity-norm fit).  A board that cannot be fitted (unreadable,
+or the model 9 gravity-norm fit), holding at nominal the terms its poses leave weak
+exactly as `accelcal fit` does (models/held.py: ``BoardResult.held``, in the calibration's
+metadata, the summary CSV and the verdict).  A board that cannot be fitted (unreadable,
 no or too few poses, NaN, implausible units, an underdetermined pose set) stays
 in the report with its reason: it is skipped, never silently dropped.  Boards
 with poses at two or more temperatures are fitted one at a time by
@@ -35,6 +37,7 @@ from ..data.loader import load_pose_table
 from ..errors import AccelcalError, DataError
 from ..fileguard.identity import refuse_overwrite
 from ..models.fitting import check_model, check_plausible_g, fit_batch, fit_temperature
+from ..models.held import Held
 from ..models.result import FitResult
 from ..session import Session
 from ..store.location import store_identity
@@ -66,6 +69,7 @@ class BoardResult:
     fit: FitResult | None = field(default=None, repr=False)  # single-temperature fits
     session: Session | None = field(default=None, repr=False)
     verdict: Verdict | None = None  # judged when recalibrate is given limits
+    held: list[Held] = field(default_factory=list)  # terms held at nominal (models/held.py), as `accelcal fit`
 
     @property
     def fitted_calibration(self) -> Calibration:
@@ -85,6 +89,7 @@ class BoardResult:
                 "temperatures_c": self.temperatures_c,
                 "input_units": None if cal is None else cal.input_units,
                 "input_per_g": None if cal is None else cal.input_per_g,
+                "held": [h.to_json() for h in self.held],
                 "verdict": None if self.verdict is None else self.verdict.label,
                 "reasons": None if self.verdict is None else [r.to_dict() for r in self.verdict.reasons]}
 
@@ -229,7 +234,7 @@ def _fit_stack(members: list[tuple[str, Session]], model: str) -> list[BoardResu
         fr = b.result(d)
         out.append(BoardResult(src, board_serial(s), True, fr.message, model, len(s), fr.calibration,
                                fr.residual_rms_g, fr.residual_max_g, fr.crossval_rms_g, fr.condition_number,
-                               run_id=s.metadata.get("run_id"), fit=fr, session=s))
+                               run_id=s.metadata.get("run_id"), fit=fr, session=s, held=fr.held))
     return out
 
 
@@ -316,7 +321,8 @@ def recalibrate(sessions: Sequence[Source], model: str | int = "12", *, chunk_si
         if r.ok:
             r.fitted_calibration.metadata = {"source": r.source, "serial": r.serial, "run_id": r.run_id,
                                              "pose_count": r.pose_count, "recalibrated_by": "accelcal batch",
-                                             "recalibrated_at": iso(_time.time())}
+                                             "recalibrated_at": iso(_time.time()),
+                                             **({"held": [h.to_json() for h in r.held]} if r.held else {})}
     if limits is not None:
         _judge(ordered, limits)
     return BatchReport(model, ordered, calls, _time.perf_counter() - t0)
@@ -366,7 +372,7 @@ def write_calibrations(report: BatchReport, out_dir: str | Path) -> dict[str, Pa
 
 
 CSV_COLUMNS = ("source", "serial", "run_id", "ok", "message", "model", "pose_count", "residual_rms_mg",
-               "residual_max_mg", "crossval_rms_mg", "condition_number", *PARAM_NAMES)
+               "residual_max_mg", "crossval_rms_mg", "condition_number", "held", *PARAM_NAMES)
 
 
 def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
@@ -379,7 +385,8 @@ def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
         params = param_vector(r.fitted_calibration.to_dict()).tolist() if r.ok else [""] * len(PARAM_NAMES)
         w.writerow([r.source, r.serial or "", "" if r.run_id is None else r.run_id, int(r.ok), r.message, r.model,
                     r.pose_count, mg(r.residual_rms_g), mg(r.residual_max_g), mg(r.crossval_rms_g),
-                    "" if r.condition_number is None else repr(r.condition_number), *map(str, params)])
+                    "" if r.condition_number is None else repr(r.condition_number),
+                    "; ".join(h.term for h in r.held), *map(str, params)])
     text = buf.getvalue()
     if path is not None:
         atomic_write(Path(path), text)

@@ -57,7 +57,7 @@ def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> d
            "residual_max_g": np.full(B, np.nan), "crossval_rms_g": np.full(B, np.nan),
            "condition_number": np.full(B, np.nan), "stderr_V_max": np.full(B, np.nan),
            "stderr_W_max": np.full(B, np.nan), "input_per_g": np.full(B, np.nan), "pose_count": sizes,
-           "distinct_poses": np.zeros(B, int)}
+           "distinct_poses": np.zeros(B, int), "held": [[] for _ in range(B)]}
     can = np.array([r is None for r in reasons], bool)
     has_noise = np.zeros(B, bool)
     if noise is not None and B:
@@ -117,12 +117,15 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
     out["stderr_W_max"][sel] = np.where(se, np.max(b.stderr_W[ok].reshape(-1, 9), axis=1), np.nan)
     out["input_per_g"][sel] = scale[ok]
     out["distinct_poses"][sel] = distinct_directions_batch(gf[ok])
+    for k in np.flatnonzero(ok):  # terms held at nominal: the same decision as `accelcal fit` (models/held.py)
+        out["held"][idx[k]] = b.held[k]
 
 
 def figures(res: dict[str, Any], model: str) -> FitFigures:
     """The acceptance rules' inputs for a chunk's boards (NaN where a board was not fitted)."""
     return FitFigures(model, res["W"], res["V"], res["Gamma"], res["residual_rms_g"], res["residual_max_g"],
-                      res["crossval_rms_g"], res["stderr_V_max"], res["stderr_W_max"], res["distinct_poses"])
+                      res["crossval_rms_g"], res["stderr_V_max"], res["stderr_W_max"], res["distinct_poses"],
+                      [[h.text for h in hs] for hs in res["held"]])
 
 
 def judge_chunk(res: dict[str, Any], limits: Limits | None, model: str) -> tuple[list[str], list[list[Reason]]]:
@@ -142,6 +145,7 @@ def judge_chunk(res: dict[str, Any], limits: Limits | None, model: str) -> tuple
     if fitted.size:
         sub = {k: res[k][fitted] for k in ("W", "V", "Gamma", "residual_rms_g", "residual_max_g",
                                            "crossval_rms_g", "stderr_V_max", "stderr_W_max", "distinct_poses")}
+        sub["held"] = [res["held"][b] for b in fitted]
         for b, v in zip(fitted, judge_all(figures(sub, model), limits), strict=True):
             reasons[b] = list(v.reasons)
     return ["FAIL" if r else "PASS" for r in reasons], reasons

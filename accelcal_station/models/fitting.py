@@ -16,13 +16,12 @@ from numpy.typing import ArrayLike
 from ..calibration import MODELS, Calibration, TemperatureTable
 from ..conventions import check_units, units_per_g
 from ..errors import DataError, UnderdeterminedError, UnitsError
-from ..identifiability import assess, assess_batch
 from ..session import Session
-from .gravity_norm import PARAM_NAMES, fit_norm_batch, nominal_scale
-from .held import Held, cubic_held, free_mask, hold_plan
+from .gravity_norm import PARAM_NAMES, nominal_scale
+from .held import HoldPlan, cubic_held, hold_plans
 from .result import BatchFit, FitResult
 from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
-from .stacked import fit_stacked
+from .stacked import assemble, fit_stacked
 
 
 def check_model(model: str | int) -> str:
@@ -75,7 +74,6 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
         raise DataError(f"readings must have shape (boards, poses, 3); got {x.shape}")
     if not np.all(np.isfinite(x)):
         raise DataError("readings contain NaN or infinity")
-    D = x.shape[0]
     scale = _input_per_g(x, model, units, counts_per_g, gravity_mps2)
     gf = x / scale[:, None, None]
     if model != "9":
@@ -83,11 +81,11 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     nz = None
     if noise is not None:
         nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]
-    determined, _ = assess_batch(gf, model)  # from the distinct orientations, before any solver runs
-    held: list[Held] = []
-    if D == 1 and not determined[0]:
-        held = hold_plan(gf[0], model)  # raises with the reason when a gain or an offset is weak
-        determined[0] = True
+    # from the distinct orientations, before any solver runs: what each board determines, and
+    # the weak terms held at nominal (models/held.py; refused when a gain or an offset is weak)
+    plan = hold_plans(gf, model)
+    if len(gf) == 1 and plan.refused[0]:  # one board: its reason, before a solver says less
+        raise UnderdeterminedError(plan.refused[0])
     gf_fit = gf
     if model != "9" and references is not None:
         # a board with an absurd reading (1e308) is fitted on its references instead, so it
@@ -98,13 +96,15 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
             gf_fit = np.where(bad[:, None, None], ref, gf)
     try:
         with np.errstate(over="ignore", invalid="ignore"):
-            res = _fit_stack(gf_fit, references, x, model, nz, held)
+            res = _fit_stack(gf_fit, references, x, model, nz, plan)
     except np.linalg.LinAlgError:
         raise DataError("the readings cannot be fitted (numerically singular or overflowing: "
                         "a reading far beyond the sensor's range?)") from None
-    for d in np.flatnonzero(~determined):
-        res.ok[d] = False
-        res.messages[d] = assess(gf[d], model).reason
+    for d, why in enumerate(plan.refused):
+        if why:
+            res.ok[d] = False
+            res.messages[d] = why
+            res.held[d] = []
     res.input_units = units
     res.input_per_g = scale
     _refuse_absurd(res, gf)
@@ -112,16 +112,27 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
 
 
 def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, model: str,
-               nz: np.ndarray | None, held: list[Held] | None = None) -> BatchFit:
-    if model == "9" and held:  # a constrained solve: the held terms stay at nominal (models/held.py)
-        res = fit_norm_batch(gf, noise_g=nz, free=free_mask(held, PARAM_NAMES))
-        res.held = list(held)
-    elif model == "9":
-        res = fit_stacked(gf, None, "9", nz)
-    elif model == "15" and held:  # the cubic held at 0: model 12's fit, stated as model 15
-        res = cubic_held(fit_stacked(gf, _references(references, x, model), "12", nz), held)
+               nz: np.ndarray | None, plan: HoldPlan) -> BatchFit:
+    """The one stacked estimator (models/stacked.py) for every board, with each board's held
+    terms at nominal: model 9 by the constrained Gauss-Newton (a free mask per board), model
+    15 with the cubic held by model 12's fit of those boards, stated as model 15."""
+    held = [bool(h) for h in plan.held]
+    if model == "9":
+        free = plan.free(PARAM_NAMES) if any(held) else None
+        res = fit_stacked(gf, None, "9", nz, free=free)
+    elif model == "15" and any(held):
+        ref = np.broadcast_to(_references(references, x, model), gf.shape)
+        rows = np.flatnonzero(held)
+        nz_h = None if nz is None else nz[rows]
+        as15 = cubic_held(fit_stacked(gf[rows], ref[rows], "12", nz_h), [plan.held[d] for d in rows])
+        if len(rows) == len(gf):
+            return as15
+        rest = np.flatnonzero(~np.array(held))
+        res = assemble(len(gf), gf, [(rest, fit_stacked(gf[rest], ref[rest], "15", None if nz is None else nz[rest])),
+                                     (rows, as15)])
     else:
         res = fit_stacked(gf, _references(references, x, model), model, nz)
+    res.held = [list(h) for h in plan.held]
     return res
 
 

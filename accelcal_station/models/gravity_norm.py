@@ -80,8 +80,8 @@ def _held_jacobian(p: np.ndarray, gf: np.ndarray, free: np.ndarray | None) -> tu
     """``_residual_jacobian`` with the held parameters' columns zeroed: a step never moves them
     (models/held.py), and their covariance rows come out zero."""
     r, J = _residual_jacobian(p, gf)
-    if free is not None:
-        J[..., ~free] = 0.0
+    if free is not None:  # (9,) shared or (D, 9) per board
+        J *= free[:, None, :] if free.ndim == 2 else free
     return r, J
 
 
@@ -89,7 +89,7 @@ def levenberg_marquardt(gf: np.ndarray, p0: np.ndarray, max_iter: int = 200, tol
                         free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vectorised LM over boards; returns params (D, 9), nfev (D,), converged (D,).
 
-    ``free`` (9,) bool: parameters not free stay at their value in ``p0`` (held at nominal)."""
+    ``free`` (9,) or (D, 9) bool: parameters not free stay at their value in ``p0`` (held at nominal)."""
     p = p0.copy()
     D = p.shape[0]
     lam = np.full(D, 1e-3)
@@ -111,7 +111,7 @@ def levenberg_marquardt(gf: np.ndarray, p0: np.ndarray, max_iter: int = 200, tol
         except np.linalg.LinAlgError:
             step = np.stack([np.linalg.lstsq(Ai, -gi, rcond=None)[0] for Ai, gi in zip(A, g, strict=True)])
         pn = p[ia] + step
-        rn, Jn = _held_jacobian(pn, gf[ia], free)
+        rn, Jn = _held_jacobian(pn, gf[ia], free if free is None or free.ndim == 1 else free[ia])
         cn = np.sum(rn**2, axis=1)
         nfev[ia] += 1
         better = np.isfinite(cn) & (cn <= cost[ia])

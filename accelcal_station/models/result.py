@@ -146,7 +146,11 @@ class BatchFit:
     input_per_g: np.ndarray | float = 1.0
     nfev: np.ndarray | None = None
     status: list[str] | None = None
-    held: list[Any] = field(default_factory=list)  # models/held.Held, one board's fit (D == 1) only
+    held: list[list[Any]] = field(default_factory=list)  # (D,) each board's models/held.Held terms
+
+    def __post_init__(self) -> None:
+        if not self.held:  # the fitters leave it empty: nothing held on any board
+            self.held = [[] for _ in range(len(self.ok))]
 
     def __len__(self) -> int:
         return len(self.ok)
@@ -180,5 +184,5 @@ class BatchFit:
             status=self.status[d] if self.status else ("ok" if self.ok[d] else "failed"),
             message=self.messages[d],
             nfev=int(self.nfev[d]) if self.nfev is not None else 1,
-            extra={"held": list(self.held)} if self.held else {},
+            extra={"held": list(self.held[d])} if self.held[d] else {},
         )

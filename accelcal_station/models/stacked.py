@@ -272,7 +272,7 @@ class _Assembler:
     each part is copied into arrays allocated at the first part as soon as it is fitted, while
     it is still in cache (and no list of parts is kept to concatenate afterwards)."""
 
-    _SHARED = ("model", "param_names", "input_units", "held")  # held: a one-board fit's (models/held.py)
+    _SHARED = ("model", "param_names", "input_units")
 
     def __init__(self, D: int, gf: np.ndarray):
         self.D, self.gf = D, gf
@@ -308,6 +308,8 @@ class _Assembler:
             return self.gf
         if name in ("messages", "status"):
             return None if v0 is None else [""] * D
+        if name == "held":  # (D,) lists of models/held.Held
+            return [[] for _ in range(D)]
         if isinstance(v0, LazyCovariance):
             return type(v0)(*(np.empty((D,) + getattr(v0, f).shape[1:]) for f in v0._fields))
         if v0 is None or np.ndim(v0) == 0:
@@ -320,6 +322,15 @@ class _Assembler:
         if self.kw is None:
             raise UnderdeterminedError("no boards to fit")
         return BatchFit(**self.kw)
+
+
+def assemble(D: int, gf: np.ndarray, parts: list[tuple[np.ndarray, BatchFit]]) -> BatchFit:
+    """One BatchFit of D boards from fits of board subsets (rows, fit), as fit_stacked's blocks
+    are put together; every part must be of one model with the same fields."""
+    out = _Assembler(D, gf)
+    for rows, b in parts:
+        out.add(rows, b)
+    return out.result()
 
 
 def _reference_groups(ref: np.ndarray) -> list[tuple[np.ndarray | slice, np.ndarray]]:
@@ -347,12 +358,14 @@ Job = tuple[np.ndarray | slice, np.ndarray | None]  # boards of one block, their
 
 
 def fit_stacked(gf: ArrayLike, ref: ArrayLike | None, model: str, noise_g: ArrayLike | None = None,
-                workers: int | None = None) -> BatchFit:
+                workers: int | None = None, free: np.ndarray | None = None) -> BatchFit:
     """The fast fitter of ``model`` on (D, P, 3) readings in g (references in g for 6/12/15),
     in blocks of BLOCK[model] boards, fitted by ``workers`` threads (default: one per CPU);
     model 12 per group of boards sharing their references.  Blocks are independent, so the
     result does not depend on the number of threads.  Sets glibc's heap thresholds for the
-    process (heap.keep_block_memory) so each block reuses the previous block's memory."""
+    process (heap.keep_block_memory) so each block reuses the previous block's memory.
+    ``free`` (D, 9) bool, model 9 only: the parameters fitted; the others are held at nominal
+    (models/held.py, stacked_norm.fit9)."""
     keep_block_memory()
     gf = np.asarray(gf, dtype=float)
     D, P, _ = gf.shape
@@ -371,7 +384,7 @@ def fit_stacked(gf: ArrayLike, ref: ArrayLike | None, model: str, noise_g: Array
         sel, gref = job  # gref: model 12 the block's shared (P, 3) references, 6 and 15 all (D, P, 3)
         n = None if nz is None else nz[sel]
         if model == "9":
-            return sel, fit9(gf[sel], n)
+            return sel, fit9(gf[sel], n, free=None if free is None else free[sel])
         if gref is None:  # fitting.fit_batch says so first; a direct caller gets the same words
             raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
                             "model 9 needs none")

@@ -154,6 +154,26 @@ def _normal(J: np.ndarray) -> np.ndarray:
     return np.einsum("apn,bpn->abn", J, J)
 
 
+_DIAG = np.arange(9)
+
+
+def _held(J: np.ndarray, fm: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """J with the held parameters' columns zeroed and A = J^T J with the held diagonal set to
+    the mean free diagonal (``fm`` (9, N): 1 free, 0 held at nominal, models/held.py).
+
+    A is then block diagonal: the free block is the constrained problem's J_f^T J_f, and the
+    held block c I gives a zero step (its gradient is zero) and leaves the extreme eigenvalues
+    those of the free block (each free diagonal entry lies between them, so their mean does):
+    one 9 x 9 boardwise algebra serves held and free fits alike.  None: every parameter free."""
+    if fm is None:
+        return J, _normal(J)
+    J = J * fm[:, None, :]
+    A = _normal(J)
+    fill = np.einsum("kkn->kn", A).sum(axis=0) / np.maximum(fm.sum(axis=0), 1.0)
+    A[_DIAG, _DIAG] += (1.0 - fm) * fill
+    return J, A
+
+
 @dataclass
 class _Linearised:
     """Each board's last Gauss-Newton evaluation: J (9, P, N), A = J^T J (9, 9, N) and its
@@ -168,7 +188,7 @@ class _Linearised:
         self.chol.L[:, :, rows], self.chol.inv_diag[:, rows], self.chol.ok[rows] = chol.L, chol.inv_diag, chol.ok
 
 
-def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10
+def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10, fm: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, _Linearised]:
     """Plain batched Gauss-Newton (no line search: the caller sends the boards that do not
     settle to the damped fit) on readings g (3, P, N) from p (9, N).
@@ -177,7 +197,8 @@ def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10
     contraction of its steps (q = |s_k| / |s_k-1| < 1/2: left <= |s_k| q / (1 - q)), is below
     ``tol`` relative to its parameters, or once a step itself is; it is then no longer
     evaluated.  The linearisation returned is each board's last evaluation, before its last
-    step (a 1e-7 relative change of J at most on optimal-12 lots).
+    step (a 1e-7 relative change of J at most on optimal-12 lots).  ``fm`` (9, N): the free
+    parameters (_held); held ones never move from p.
     Returns (params (9, N), settled (N,), _Linearised)."""
     p = p.copy()
     N = p.shape[1]
@@ -188,7 +209,7 @@ def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10
     for _ in range(iters):
         whole = act.size == N
         ra, Ja = _resid_jac(p if whole else p[:, act], g if whole else g[:, :, act])
-        Aa = _normal(Ja)
+        Ja, Aa = _held(Ja, None if fm is None else (fm if whole else fm[:, act]))
         chol = bw.cholesky(Aa)
         step = bw.solve(chol, -np.einsum("kpn,pn->kn", Ja, ra))
         pd = chol.ok & np.all(np.isfinite(step), axis=0)
@@ -218,30 +239,40 @@ def _gauss_newton(g: np.ndarray, p: np.ndarray, iters: int, tol: float = 1e-10
     return p, settled, lin
 
 
-def fit9(gf: ArrayLike, noise_g: ArrayLike | None = None, gn_iters: int = 8) -> BatchFit:
+def fit9(gf: ArrayLike, noise_g: ArrayLike | None = None, gn_iters: int = 8,
+         free: ArrayLike | None = None) -> BatchFit:
     """Model 9 for a stack of boards (D, P, 3) in nominal g; same results as
-    gravity_norm.fit_norm_batch (leave-one-out to the tolerance stated in _loo9)."""
+    gravity_norm.fit_norm_batch (leave-one-out to the tolerance stated in _loo9).
+
+    ``free`` (D, 9) or (9,) bool: fit only these parameters and hold the others at nominal
+    (0: the held non-orthogonalities of models/held.py), with zero variance; None: all free."""
     gf = np.asarray(gf, dtype=float)
     D, P, _ = gf.shape
     if P < 9:
         raise UnderdeterminedError(f"model 9 needs at least 9 poses (it has 9 parameters); got {P}")
+    fm = None if free is None else np.ascontiguousarray(np.broadcast_to(np.asarray(free, bool), (D, 9)).T, float)
+    if fm is not None and fm.all():
+        fm = None
     g = np.ascontiguousarray(gf.transpose(2, 1, 0))  # (3, P, D)
     p0, ell = _ellipsoid_start(g)
     if not ell.all():
         p0[:, ~ell] = _sphere_start(gf[~ell]).T
-    p, conv, lin = _gauss_newton(g, p0, gn_iters)
+    if fm is not None:
+        p0 *= fm  # held terms at nominal (0); only non-orthogonalities are ever held
+    p, conv, lin = _gauss_newton(g, p0, gn_iters, fm=fm)
     lm = np.flatnonzero(~conv)
-    if lm.size:  # the damped fit only where Gauss-Newton did not settle, from the sphere start
-        p_lm, _, conv[lm] = gn.levenberg_marquardt(gf[lm], _sphere_start(gf[lm]))
+    if lm.size:  # the damped fit only where Gauss-Newton did not settle, from the sphere start (M diagonal)
+        p_lm, _, conv[lm] = gn.levenberg_marquardt(gf[lm], _sphere_start(gf[lm]),
+                                                   free=None if fm is None else fm[:, lm].T > 0)
         p[:, lm] = p_lm.T
     flip = np.flatnonzero(p[0] + p[1] + p[2] < 0)
     if flip.size:  # |M u| = |-M u|: keep the positive-definite branch, as gravity_norm does
         _flip_branch(p, lin, flip)
     if lm.size:
         _, J_lm = _resid_jac(p[:, lm], g[:, :, lm])
-        A_lm = _normal(J_lm)
+        J_lm, A_lm = _held(J_lm, None if fm is None else fm[:, lm])
         lin.put(lm, J_lm, A_lm, bw.cholesky(A_lm))
-    return _finish9(gf, g, p, conv, noise_g, lin)
+    return _finish9(gf, g, p, conv, noise_g, lin, fm)
 
 
 def _flip_branch(p: np.ndarray, lin: _Linearised, rows: np.ndarray) -> None:
@@ -289,9 +320,10 @@ def _judge(gf: np.ndarray, cond: np.ndarray, conv: np.ndarray) -> tuple[np.ndarr
 
 
 def _finish9(gf: np.ndarray, g: np.ndarray, p: np.ndarray, conv: np.ndarray, noise_g: ArrayLike | None,
-             lin: _Linearised) -> BatchFit:
+             lin: _Linearised, fm: np.ndarray | None = None) -> BatchFit:
     """Everything gravity_norm.fit_norm_batch reports, from the fitted parameters p (9, N)
-    and each board's last linearisation."""
+    and each board's last linearisation; held parameters (``fm`` 0) get zero variance and
+    the residual variance is RSS / (P - free parameters)."""
     D, P, _ = gf.shape
     cond, lam_min = _condition(lin.A)
     ok, messages = _judge(gf, cond, conv)
@@ -303,15 +335,19 @@ def _finish9(gf: np.ndarray, g: np.ndarray, p: np.ndarray, conv: np.ndarray, noi
     s2 = np.full(D, np.nan)
     if noise_g is not None:
         s2 = np.mean(np.asarray(noise_g) ** 2, axis=(1, 2))
-    elif P > 9:
-        s2 = np.einsum("pn,pn->n", r, r) / (P - 9)
+    else:
+        k = np.full(D, 9.0) if fm is None else fm.sum(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s2 = np.where(k < P, np.einsum("pn,pn->n", r, r) / (P - k), np.nan)
     good = ok & (lam_min > 0) & lin.chol.ok
     Ainv = np.where(good, bw.inverse(lin.chol), 0.0)  # (9, 9, N)
+    if fm is not None:  # the held block of the inverse is 1 / fill (_held): held terms have no variance
+        Ainv *= fm[:, None, :] * fm[None, :, :]
     s2z = np.where(np.isfinite(s2), s2, 0.0)
     sW, sV = _propagate9(Ainv, s2z, p)
     cv, cv_ok = np.full(D, np.nan), np.zeros(D, dtype=bool)
     if P >= 10:
-        e = _loo9(g, p, r, lin.J, Ainv)
+        e = _loo9(g, p, r, lin.J, Ainv, fm)
         cv_ok = ok & np.all(np.isfinite(Ainv), axis=(0, 1)) & np.all(np.isfinite(e), axis=0)
         cv = np.where(cv_ok, np.sqrt(np.mean(e**2, axis=0)), np.nan)
     params = p.T
@@ -329,7 +365,8 @@ def _finish9(gf: np.ndarray, g: np.ndarray, p: np.ndarray, conv: np.ndarray, noi
 LOO_REFIT = 0.1  # a held-out fit is refitted when its one-step change |dp|^2 exceeds this x the residual RMS
 
 
-def _loo9(g: np.ndarray, p: np.ndarray, r: np.ndarray, J: np.ndarray, Ainv: np.ndarray) -> np.ndarray:
+def _loo9(g: np.ndarray, p: np.ndarray, r: np.ndarray, J: np.ndarray, Ainv: np.ndarray,
+          fm: np.ndarray | None = None) -> np.ndarray:
     """Held-out residuals (P, N) of model 9: pose i's residual under the fit without pose i.
 
     First one Gauss-Newton step from the full fit p (J (9, P, N) at p), in closed form for
@@ -340,7 +377,8 @@ def _loo9(g: np.ndarray, p: np.ndarray, r: np.ndarray, J: np.ndarray, Ainv: np.n
     LOO_REFIT times the board's residual RMS (high-leverage poses: designs with few poses
     beyond 9, or much noise) the held-out fit is refitted to convergence from there
     (_refit_held_out).  Against today's exact refits: within 1e-5 g and 0.5 % of the
-    cross-validated RMS at 1 mg noise (tests/test_lot.py)."""
+    cross-validated RMS at 1 mg noise (tests/test_lot.py).  Held parameters (``fm`` 0) have zero
+    columns in J and zero rows in Ainv, so no held-out fit moves them."""
     U = np.einsum("kln,lpn->kpn", Ainv, J)  # u_i (9, P, N)
     h = np.einsum("kpn,kpn->pn", U, J)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -352,21 +390,24 @@ def _loo9(g: np.ndarray, p: np.ndarray, r: np.ndarray, J: np.ndarray, Ainv: np.n
     rms = np.sqrt(np.mean(r * r, axis=0))
     pose, board = np.nonzero(np.einsum("kpn,kpn->pn", step, step) > LOO_REFIT * rms)
     if pose.size:
-        ps[:, pose, board] = _refit_held_out(g, ps[:, pose, board], pose, board)
+        ps[:, pose, board] = _refit_held_out(g, ps[:, pose, board], pose, board,
+                                             None if fm is None else fm[:, board])
     return _norm(_calibrated(ps, g)) - 1.0
 
 
-def _refit_held_out(g: np.ndarray, ps: np.ndarray, pose: np.ndarray, board: np.ndarray) -> np.ndarray:
+def _refit_held_out(g: np.ndarray, ps: np.ndarray, pose: np.ndarray, board: np.ndarray,
+                    fm: np.ndarray | None = None) -> np.ndarray:
     """Parameters (9, K) of K held-out fits (board ``board[k]`` without pose ``pose[k]``), by
     Gauss-Newton from ps (9, K), and the damped fit for those it does not settle (as today's
     fitter refits every held-out pose); NaN where neither converges."""
     P = g.shape[1]
     keep = np.array([np.delete(np.arange(P), i) for i in range(P)])[pose]  # (K, P - 1)
     sub = np.ascontiguousarray(g[:, keep.T, board[None, :]])  # (3, P - 1, K)
-    out, settled, _ = _gauss_newton(sub, ps, 8)
+    out, settled, _ = _gauss_newton(sub, ps, 8, fm=fm)
     lm = np.flatnonzero(~settled)
     if lm.size:
-        p_lm, _, conv = gn.levenberg_marquardt(sub[:, :, lm].transpose(2, 1, 0), ps[:, lm].T)
+        p_lm, _, conv = gn.levenberg_marquardt(sub[:, :, lm].transpose(2, 1, 0), ps[:, lm].T,
+                                               free=None if fm is None else fm[:, lm].T > 0)
         out[:, lm] = np.where(conv, p_lm.T, np.nan)
     return out
 

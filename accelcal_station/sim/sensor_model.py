@@ -33,13 +33,16 @@ catalog, its YAML schema, the chip datasheet defaults and the stateless physics.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from functools import cache
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from pydantic import Field, StrictBool, create_model
 
 from ..calibration import Calibration
-from ..config.checks import check_keys, number, vector3
+from ..config.parts import parse
+from ..config.schema import Section
 from ..conventions import STANDARD_GRAVITY_MPS2
 from ..errors import ConfigError
 
@@ -226,19 +229,36 @@ EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
 DEFAULT_EFFECTS = ("noise", "quantization", "saturation")  # an ideal chip: datasheet behaviour only
 
 
-def _matrix3(v: Any, path: str, lo: float | None, hi: float | None) -> list[list[float]]:
-    if not (isinstance(v, (list, tuple)) and len(v) == 3 and all(isinstance(r, (list, tuple)) and len(r) == 3
-                                                                  for r in v)):
-        raise ConfigError(f"{path}: {v!r}; allowed: a 3x3 list [[.., .., ..], [..], [..]]")
-    out = []
-    for i, row in enumerate(v):
-        for j, x in enumerate(row):
-            if isinstance(x, bool) or not isinstance(x, (int, float)) or x != x:
-                raise ConfigError(f"{path}[{i}][{j}]: {x!r} is not a number")
-            if (lo is not None and x < lo) or (hi is not None and x > hi):
-                raise ConfigError(f"{path}[{i}][{j}]: {x!r} out of range; allowed {lo} to {hi}")
-        out.append([float(x) for x in row])
-    return out
+def _param_type(p: Param) -> Any:
+    """A parameter's declared type: a number in [lo, hi]; per axis, one number for all three or
+    [x, y, z]; a 3x3 list of rows."""
+    # built at run time from the catalog: values, not names mypy can check as types
+    num: Any = Annotated[int if p.integer else float, Field(ge=p.lo, le=p.hi)]
+    triple: Any = Annotated[list[num], Field(min_length=3, max_length=3)]
+    if p.shape == (3,):
+        return num | triple
+    if p.shape == (3, 3):
+        return Annotated[list[triple], Field(min_length=3, max_length=3)]
+    return num
+
+
+_SHAPE_TEXT = {(): "", (3,): "; a number or [x, y, z]", (3, 3): "; a 3x3 list [[.., .., ..], [..], [..]]"}
+
+
+@cache
+def effect_model(name: str) -> type[Section]:
+    """The declared parameters of one effect of the catalog (config/schema.py's Section: one-line errors)."""
+    fields: dict[str, Any] = {"enabled": (StrictBool, Field(True, description="false: the effect is off"))}
+    for p in EFFECTS[name].params:
+        fields[p.name] = (_param_type(p) | None, Field(None, description=f"{p.doc}, {p.unit}{_SHAPE_TEXT[p.shape]}"))
+    return create_model(f"Effect_{name}", __base__=Section, __doc__=EFFECTS[name].doc, **fields)
+
+
+@cache
+def effects_model() -> type[Section]:
+    """An ``effects:`` mapping: each effect of the catalog, its parameters, or true/false (on/off)."""
+    fields: dict[str, Any] = {n: (effect_model(n) | StrictBool | None, None) for n in EFFECT_NAMES}
+    return create_model("Effects", __base__=Section, **fields)
 
 
 def parse_effect(name: str, spec: Any, chip: ChipSpec, path: str) -> dict[str, Any] | None:
@@ -250,22 +270,16 @@ def parse_effect(name: str, spec: Any, chip: ChipSpec, path: str) -> dict[str, A
         spec = {}
     if spec is False:
         return None
-    check_keys(spec, ["enabled"] + [p.name for p in eff.params], path)
-    enabled = spec.get("enabled", True)
-    if not isinstance(enabled, bool):
-        raise ConfigError(f"{path}.enabled: {enabled!r}; allowed: true, false")
+    m = spec if isinstance(spec, Section) else parse(spec, effect_model(name), path)
+    enabled = m.enabled  # type: ignore[attr-defined]
     out: dict[str, Any] = {}
     for p in eff.params:
-        default = p.default
-        if default == CHIP_DEFAULT:
-            default = [chip.noise_ug_per_rthz] * 3
-        if p.shape == (3, 3):
-            v = spec.get(p.name)
-            out[p.name] = np.array(default if v is None else _matrix3(v, f"{path}.{p.name}", p.lo, p.hi))
-        elif p.shape == (3,):
-            out[p.name] = np.array(vector3(spec, p.name, path, default, p.lo, p.hi))
-        else:
-            out[p.name] = number(spec, p.name, path, default, p.lo, p.hi, p.integer)
+        v = getattr(m, p.name)
+        if v is None:
+            v = [chip.noise_ug_per_rthz] * 3 if p.default == CHIP_DEFAULT else p.default
+        if p.shape == (3,) and not isinstance(v, list):
+            v = [v] * 3  # one number for all three axes
+        out[p.name] = np.array(v, dtype=float) if p.shape else (int(v) if p.integer else float(v))
     if name == "cross_axis" and np.any(np.diag(out["coupling"]) != 0):
         raise ConfigError(f"{path}.coupling: diagonal entries must be 0 (sensitivity is the gain effect)")
     return out if enabled else None
@@ -278,9 +292,9 @@ def parse_effects(effects: Any, chip: ChipSpec, path: str = "simulator.effects")
     ``enabled: false`` or ``name: false`` switches it off.  Unknown effects, unknown
     parameters and out-of-range values raise ConfigError naming the key path.
     """
-    check_keys(effects, EFFECT_NAMES, path)
-    parsed = {n: parse_effect(n, (effects or {})[n], chip, f"{path}.{n}") for n in EFFECT_NAMES
-              if n in (effects or {})}
+    m = parse(effects, effects_model(), path)
+    given = m.model_fields_set
+    parsed = {n: parse_effect(n, getattr(m, n), chip, f"{path}.{n}") for n in EFFECT_NAMES if n in given}
     return {n: v for n, v in parsed.items() if v is not None}
 
 

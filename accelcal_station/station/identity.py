@@ -6,7 +6,8 @@ import re
 from pathlib import Path
 from typing import Any, Protocol
 
-from ..config.checks import check_keys
+from ..config.parts import parse
+from ..config.schema import StationSection
 from ..errors import ConfigError, DataError
 from ..fixtures.operator_ui import OperatorUI
 
@@ -16,15 +17,8 @@ SERIAL_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._:/-]{0,63}")
 
 def identity_options(raw: dict[str, Any]) -> dict[str, bool]:
     """station.scan_serial and station.require_operator, checked (both default false)."""
-    st = raw.get("station") or {}
-    check_keys(st, ("id", *IDENTITY_KEYS), "station")
-    out = {}
-    for k in IDENTITY_KEYS:
-        v = st.get(k, False)
-        if not isinstance(v, bool):
-            raise ConfigError(f"station.{k}: {v!r}; allowed: true, false")
-        out[k] = v
-    return out
+    st = parse(raw.get("station"), StationSection, "station")
+    return {k: getattr(st, k) for k in IDENTITY_KEYS}
 
 
 def check_serial(text: str, where: str) -> str:

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config.checks import number
+from ..config.parts import PanelSeedSection, parse
 from ..errors import ConfigError
 from ..fixtures.factory import spread_board
 
@@ -43,7 +43,8 @@ def panel_sections(device: Any, path: str = "device") -> list[tuple[dict[str, An
     n = boards if isinstance(boards, int) else len(boards)
     if not 1 <= n <= MAX_BOARDS:
         raise ConfigError(f"{path}.boards: {n} boards; allowed: 1..{MAX_BOARDS}")
-    seed = number(device, "seed", path, 1, 0, 2**32 - 1, integer=True) if _simulated(device) else 0
+    given = {"seed": device["seed"]} if device.get("seed") is not None else {}
+    seed = parse(given, PanelSeedSection, path).seed if _simulated(device) else 0
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n):

@@ -45,6 +45,7 @@ class RunReport:
             "Gamma": None if c is None else c.Gamma.tolist(),
             "residual_rms_mg": None if f is None else f.residual_rms_g * 1e3,
             "crossval_rms_mg": None if f is None or f.crossval_rms_g is None else f.crossval_rms_g * 1e3,
+            "held": [] if f is None else [h.to_json() for h in f.held],  # terms at nominal (models/held.py)
             "measured": self.measured, "verify_error_max_mg": self.verify_error_max_mg,
             "nvm": self.nvm, "nvm_verified": self.nvm_verified, "offset_trim_lsb": self.offset_trim_lsb,
             "poses": self.poses, "skipped": self.skipped,

@@ -8,6 +8,7 @@ from typing import Any
 
 from ..acceptance.rules import Limits
 from ..config.checks import load_yaml
+from ..config.parts import check_kinds
 from ..config.schema import (
     CaptureSection,
     NvmSection,
@@ -54,6 +55,7 @@ class StationConfig:
         raw = _read_with_ports(p, port, jig_port)
         # the declared schema (config/schema.py): every key, type, finite number and range
         sc = validate_station(raw)
+        check_kinds(raw)  # and the keys of its driver and jig type (config/parts.py)
         # then what depends on more than one key, in this order (a config with several errors
         # names the same one first)
         if "device" not in raw:

@@ -6,7 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..config.checks import check_keys
+from ..config.parts import parse
+from ..config.schema import StoreSection
 from ..errors import ConfigError
 from .database import describe_target, is_url
 
@@ -17,9 +18,8 @@ def store_path(config: dict[str, Any], base_dir: str | Path = ".") -> Path | str
     """The store of a station config: ``store: {path: FILE or URL}`` (default DEFAULT_STORE),
     a relative path taken from ``base_dir`` (the config file's folder); a URL
     (``postgresql://...``, ``sqlite:///...``) is returned as it is."""
-    section = check_keys(config.get("store"), ("path", "outbox"), "store")
-    p = section.get("path", DEFAULT_STORE)
-    if not isinstance(p, str) or not p.strip():
+    p = parse(config.get("store"), StoreSection, "store").path
+    if not p.strip():
         raise ConfigError(f"store.path: {p!r}; allowed: a file path, sqlite:///PATH or postgresql://...")
     return store_target(p, base_dir)
 
@@ -42,10 +42,9 @@ def store_identity(target: str | Path) -> str:
 def outbox_of(config: dict[str, Any], base_dir: str | Path = ".") -> Path | None:
     """``store: {outbox: FILE}``: where a station keeps results while its line database is
     unreachable (outbox.py; default None: outbox.default_outbox())."""
-    section = check_keys(config.get("store"), ("path", "outbox"), "store")
-    p = section.get("outbox")
+    p = parse(config.get("store"), StoreSection, "store").outbox
     if p is None:
         return None
-    if not isinstance(p, str) or not p.strip() or is_url(p):
+    if not p.strip() or is_url(p):
         raise ConfigError(f"store.outbox: {p!r}; allowed: a file path (a local SQLite file)")
     return Path(base_dir) / Path(p).expanduser()

@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 
 from ..acceptance.rules import Limits
-from ..config.checks import load_yaml, number
+from ..config.checks import load_yaml
+from ..config.parts import SimulatedBoardSection, parse
 from ..data.lotfile import LotChunk
 from ..drivers.simulated import load_simulator
 from ..errors import ConfigError
@@ -30,7 +31,8 @@ def load_device(path: str) -> tuple[SensorModel, Population | None, int, Limits]
     model = SensorModel.from_config(effects, chip, epath)
     pop = None if pop_spec is None else parse_population(pop_spec, model.effects, epath.rsplit(".", 1)[0]
                                                          + ".population")
-    range_g = int(number(dev, "range_g", f"{path}: device", chip.default_range_g))
+    range_g = parse({"range_g": dev.get("range_g")}, SimulatedBoardSection, f"{path}: device").range_g \
+        or chip.default_range_g
     return model, pop, range_g, Limits.from_config(cfg.get("acceptance"), f"{path}: acceptance")
 
 
