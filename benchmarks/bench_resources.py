@@ -6,9 +6,10 @@ Each command runs in its own child process, started by a small helper process (r
 survives exec, and a child forked from a large process would start with its pages), and the
 helper prints the command's own peak resident set (``os.wait4``'s ru_maxrss) and wall time.
 
-1. ``accelcal fit TABLE --model 12`` and ``accelcal fit TABLE`` (the model chosen from the data:
-   15 for these tables), text output, on tables of random orientations (issue 26: 12,000 rows
-   reached 1.34 GB, 100,000 asked for 74.5 GiB; the limit is 200 MB).
+1. ``accelcal fit TABLE --model 12``, ``accelcal fit TABLE`` (the model chosen from the data:
+   15 for these tables) and ``accelcal fit TABLE --json`` (chosen too), on tables of random
+   orientations (issue 26: 12,000 rows reached 1.34 GB, 100,000 asked for 74.5 GiB; the limit
+   is 200 MB).
 2. ``accelcal simulate --poses six-face --raw --samples N`` (issue 26: 10,000,000 took 108 s and
    7.3 GB; the limit is 200 MB).  The raw log (six poses of N samples, ~23 bytes a sample) is
    written to a temporary folder and removed.
@@ -65,7 +66,7 @@ def measure(args: list[str]) -> tuple[int, float, float]:
 
 def row(what: str, n: int, status: int, dt: float, mb: float) -> None:
     verdict = "under" if mb < LIMIT_MB else "OVER"
-    print(f"{what:<34}  {n:>12,}  {mb:>9.0f}  {verdict + ' ' + format(LIMIT_MB, '.0f'):>9}  {dt:>7.1f}  {status:>4}")
+    print(f"{what:<38}  {n:>12,}  {mb:>9.0f}  {verdict + ' ' + format(LIMIT_MB, '.0f'):>9}  {dt:>7.1f}  {status:>4}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,14 +81,15 @@ def main(argv: list[str] | None = None) -> int:
     raw_samples = [int(s) for s in a.raw_samples.split(",") if s.strip()]
     print(f"bench_resources: {os.cpu_count()} CPU(s), load average at start {os.getloadavg()[0]:.1f}; "
           f"peak RSS of each command in its own process (limit {LIMIT_MB:.0f} MB)")
-    print(f"{'command':<34}  {'size':>12}  {'peak MB':>9}  {'limit':>9}  {'wall s':>7}  {'exit':>4}")
-    print(f"{'-' * 34}  {'-' * 12}  {'-' * 9}  {'-' * 9}  {'-' * 7}  {'-' * 4}")
+    print(f"{'command':<38}  {'size':>12}  {'peak MB':>9}  {'limit':>9}  {'wall s':>7}  {'exit':>4}")
+    print(f"{'-' * 38}  {'-' * 12}  {'-' * 9}  {'-' * 9}  {'-' * 7}  {'-' * 4}")
     with tempfile.TemporaryDirectory(prefix="accelcal-bench-resources-") as d:
         work = Path(d)
         for n in fit_rows:
             table = write_table(work / f"poses-{n}.csv", n)
             row("fit TABLE --model 12 (rows)", n, *measure(["fit", str(table), "--model", "12"]))
             row("fit TABLE, model chosen (rows)", n, *measure(["fit", str(table)]))
+            row("fit TABLE --json, model chosen (rows)", n, *measure(["fit", str(table), "--json"]))
             table.unlink()
         for n in raw_samples:
             out = work / f"raw-{n}.csv"

@@ -173,7 +173,8 @@ def test_thermal_time_split(capsys):
 def test_resources_prints_peaks_under_the_limit(capsys):
     out = run(capsys, "bench_resources", "--small")
     (rows,) = tables(out)
-    assert [r[0] for r in rows] == ["fit TABLE --model 12 (rows)", "fit TABLE, model chosen (rows)"] * 2 + [
+    assert [r[0] for r in rows] == ["fit TABLE --model 12 (rows)", "fit TABLE, model chosen (rows)",
+                                    "fit TABLE --json, model chosen (rows)"] * 2 + [
         "simulate six-face --raw (samples)"] * 2
     # every command succeeded and its own peak (a fresh Python with numpy: tens of MB) was measured
     assert all(r[-1] == "0" and 20 < number(r[2]) < 200 and r[3] == "under 200" for r in rows), rows

@@ -190,8 +190,8 @@ def _report(path: str, loaded: Loaded, result: Fit, as_json: bool = True) -> tup
         text += seg_lines
     if len(result.fits) == 1:
         fr = result.result
-        if as_json:
-            report.update(fr.to_json_dict(session.names))
+        if as_json:  # the per-pose rows are written a block at a time by _echo_json
+            report.update(fr.to_json_dict(session.names, poses=_POSES))
         text.append(f"{path}: model {result.model}, {len(session)} poses, {_scale_text(session, fr)}")
         text += _fit_text(fr, session.names)
     else:
@@ -260,9 +260,30 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         report["output"] = str(output)
         text.append(f"calibration written to {output}")
     if as_json:
-        click.echo(json.dumps(_clean(report), allow_nan=False))
+        _echo_json(report, result.result if len(result.fits) == 1 else None, loaded.session.names)
     else:
         _echo_lines(text)
+
+
+# stands for a fit's per-pose rows in the report until they are written, a block at a time: a
+# 100,000-pose table's rows as Python dicts would be ~70 MB, twice over with their JSON-safe copy
+_POSES = "\x00accelcal-poses\x00"
+_BLOCK = 2000
+
+
+def _echo_json(report: dict[str, Any], fr: FitResult | None, names: list[str]) -> None:
+    """The report as one JSON line, exactly ``json.dumps(report)`` with the rows in place of _POSES."""
+    text = json.dumps(_clean(report), allow_nan=False)
+    key = '"poses": ' + json.dumps(_POSES)  # a quote inside a JSON string is escaped: found only as the key
+    if fr is None or key not in text:
+        click.echo(text)
+        return
+    head, tail = text.split(key, 1)
+    click.echo(head + '"poses": [', nl=False)
+    for i in range(0, fr.pose_count, _BLOCK):
+        rows = json.dumps(_clean(fr.pose_rows(names, i, i + _BLOCK)), allow_nan=False)
+        click.echo((", " if i else "") + rows[1:-1], nl=False)
+    click.echo("]" + tail)
 
 
 def _choose(path: str, loaded: Loaded) -> tuple[Loaded, ModelChoice]:

@@ -11,6 +11,7 @@ sensitivities are powers of two), else the radius itself; the fit's W absorbs th
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import AccelcalError, DataError
 from ..models.gravity_norm import nominal_scale
-from ..session import Session
+from ..session import PoseColumns, PoseRecord, Session
 from .posetable import read_pose_table, table_metadata
 from .rawlog import MAX_ABS_READING, LogInfo, RawLog, read_raw_log, read_text_file
 from .static_poses import StaticDetection, static_session
@@ -130,11 +131,16 @@ def judge_units(readings: ArrayLike, units: str | None = None, counts_per_g: flo
 
 
 def _apply(session: Session, j: UnitsJudgement, gravity_mps2: float | None) -> Session:
-    poses = [replace(p, mean=p.mean - j.offset_counts) for p in session.poses] if j.offset_counts else session.poses
+    poses: Sequence[PoseRecord]
+    if isinstance(session.poses, PoseColumns):  # a large table stays columns (session.py)
+        poses = session.poses.shifted(j.offset_counts) if j.offset_counts else session.poses
+    else:
+        poses = list([replace(p, mean=p.mean - j.offset_counts) for p in session.poses] if j.offset_counts
+                     else session.poses)
     grav = session.gravity_mps2 if session.gravity_mps2 is not None else gravity_mps2
     if j.units == "mps2" and grav is None:
         grav = MPS2_PER_G
-    return Session(list(poses), j.units, j.counts_per_g, grav, session.device, dict(session.metadata))
+    return Session(poses, j.units, j.counts_per_g, grav, session.device, dict(session.metadata))
 
 
 def load_pose_table(path: str | Path, units: str | None = None, counts_per_g: float | None = None,

@@ -38,7 +38,7 @@ import numpy as np
 from ..atomic import atomic_write
 from ..conventions import an4399_reference, check_units
 from ..errors import DataError, UnitsError
-from ..session import PoseRecord, Session
+from ..session import PoseColumns, PoseRecord, Session
 
 REQUIRED = ("pose", "x", "y", "z")
 GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std_y", "std_z"))
@@ -213,12 +213,17 @@ def _file_lines(path: Path) -> Generator[str, None, None]:
         raise DataError(f"{path}: not a text file (expected a CSV pose table)") from None
 
 
+# a table of this many rows or more stays columns (session.PoseColumns: ~170 bytes a pose, not ~700;
+# its poses are read-only records); a smaller one is a list of PoseRecords
+COLUMNS_FROM_ROWS = 10_000
+
+
 def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], references: bool
-          ) -> list[PoseRecord]:
+          ) -> PoseColumns:
     """The poses of the table body after the header (blank and ``#`` rows skipped), parsed row
-    by row: memory is the poses, not a second copy of the table as lists of strings."""
+    by row into columns: memory is the poses, not a second copy of the table as lists of strings."""
     reader = csv.reader(lines)
-    poses: list[PoseRecord] = []
+    poses = PoseColumns()
     try:
         for cells in reader:
             line = header_at + 1 + reader.line_num
@@ -263,6 +268,8 @@ def read_pose_table(path: str | Path, units: str | None = None, counts_per_g: fl
     if not poses:
         raise DataError(f"{path}: no pose rows after the header (line {hline})")
     extra = {k: v for k, v in meta.items() if k not in META_KEYS}
+    if len(poses) < COLUMNS_FROM_ROWS:  # a small table: PoseRecords one can change, as every Session has
+        return Session(list(poses), units, counts_per_g, gravity_mps2, meta.get("device") or None, extra)
     return Session(poses, units, counts_per_g, gravity_mps2, meta.get("device") or None, extra)
 
 

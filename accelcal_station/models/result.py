@@ -63,14 +63,18 @@ class FitResult:
     def Gamma(self) -> np.ndarray:
         return self.calibration.Gamma
 
-    def to_json_dict(self, pose_names: list[str] | None = None) -> dict[str, Any]:
+    def pose_rows(self, pose_names: list[str] | None = None, start: int = 0, stop: int | None = None
+                  ) -> list[dict[str, Any]]:
+        """The JSON rows of poses ``start:stop`` (a large table is written a block of rows at a time)."""
         names = pose_names or [str(i) for i in range(self.pose_count)]
-        poses = [{
-            "pose": names[i],
-            "reading_g": self.readings_g[i].tolist(),
-            "residual_g": self.residuals_g[i].tolist(),
-            "norm_error_g": float(self.norm_error_g[i]),
-        } for i in range(self.pose_count)]
+        r, e, n = self.readings_g[start:stop].tolist(), self.residuals_g[start:stop].tolist(), \
+            self.norm_error_g[start:stop].tolist()
+        return [{"pose": names[start + i], "reading_g": r[i], "residual_g": e[i], "norm_error_g": n[i]}
+                for i in range(len(n))]
+
+    def to_json_dict(self, pose_names: list[str] | None = None, poses: Any = None) -> dict[str, Any]:
+        """The fit as JSON; ``poses`` given stands for the per-pose rows (``pose_rows``), else they are built."""
+        poses = self.pose_rows(pose_names) if poses is None else poses
         se = None
         if self.stderr is not None:
             se = {k: np.asarray(v).tolist() for k, v in self.stderr.items()}

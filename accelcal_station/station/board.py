@@ -151,6 +151,7 @@ class Station:
         """Poses, fit, verdict, verification and burn with the configured jig; an error or Ctrl-C
         closes the run (interrupted or error) with the poses captured so far, then propagates."""
         records = session.poses
+        assert isinstance(records, list), "a station's session is the list its poses are captured into"
         try:
             with make_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, driver, self.ui) as jig:
                 try:

@@ -29,7 +29,7 @@ from ..acceptance.reasons import Reason
 from ..calibration import Calibration
 from ..drivers.base import Driver
 from ..drivers.factory import make_driver
-from ..errors import AccelcalError, ConfigError
+from ..errors import AccelcalError, ConfigError, DeviceError, NVMError
 from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import board_seat, clock_of
@@ -215,7 +215,7 @@ class PanelStation:
             if b.index in errors:
                 e = errors[b.index]
                 b.fail(Reason("pose", f"{pose.name}: {e}", sep=" ") if isinstance(e, WrongPose)
-                       else Reason("device", f"{pose.name}: {e}"))
+                       else Reason(getattr(e, "reason_code", "device"), f"{pose.name}: {e}"))
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
         return caps
 
@@ -261,6 +261,8 @@ class PanelStation:
                 for b in boards:
                     if b.active and b.cal is not None:
                         b.station._burn(b.driver, b.cal, b.checks, b.rep)
+            except (DeviceError, NVMError) as e:
+                self.fault(boards, e)  # a lost jig port, a NACK storm on the shared bus: FAIL, recorded below
             except (AccelcalError, KeyboardInterrupt) as e:
                 why = "operator aborted" if isinstance(e, OperatorAbort) else (
                     "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
@@ -276,6 +278,18 @@ class PanelStation:
             for b in boards:
                 self._record(store, b)
         return [b.rep for b in boards]
+
+    def fault(self, boards: list[PanelBoard], e: DeviceError | NVMError) -> None:
+        """A device or port fault that ends the panel's flow: every board still in it fails with the typed
+        reason (``port_lost``, ``device``, ``nvm``); each run is then recorded FAIL with the poses its board
+        captured (``_record``), so the command exits 1 and no run is left 'running'."""
+        code = getattr(e, "reason_code", "nvm")
+        for b in boards:
+            if b.active:
+                b.fail(Reason(code, str(e)))
+                b.cal = None  # nothing is burned after the fault
+                b.rep.events.append(f"run ended by a {code} fault after {len(b.records)} poses: {e}")
+        self.echo(f"FAIL: {e} (every board still in the flow)")
 
     def _close(self, boards: list[PanelBoard]) -> None:
         for b in boards:

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..acceptance.reasons import Reason
 from ..drivers.base import Clock
-from ..errors import AccelcalError
+from ..errors import AccelcalError, NVMError, PortLostError
 from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.factory import board_of, clock_of, sync_clocks
 from ..fixtures.operator_jig import OperatorAbort
@@ -73,6 +73,8 @@ class ThermalPanelStation(PanelStation):
                 t0 = clock.now()
                 if live:
                     self._in_chamber(live, clock)
+            except (PortLostError, NVMError) as e:
+                self.fault(boards, e)  # as the thermal station: a lost port or unsettled NVM is a recorded FAIL
             except (AccelcalError, KeyboardInterrupt) as e:
                 self._interrupted(store, boards, e)
                 self._close(boards)
