@@ -32,12 +32,13 @@ class Reason(BaseModel):
 
 
 class RunSummary(BaseModel):
-    """A run without its poses."""
+    """A run without its poses; a damaged stored value reads as null and is named in ``damage``
+    (table, id, column, problem: the store's ``damaged_row``)."""
 
     id: int
-    started_at: float
+    started_at: float | None
     finished_at: float | None
-    status: str
+    status: str | None
     status_reason: str | None
     device_serial: str | None
     chip: str | None
@@ -51,6 +52,7 @@ class RunSummary(BaseModel):
     nvm_status: str | None
     residual_rms_mg: float | None
     measured: dict[str, float]
+    damage: list[dict[str, str]] = []
 
 
 class Event(BaseModel):

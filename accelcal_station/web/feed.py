@@ -62,7 +62,7 @@ def advance(cursor: Cursor, rows: list[dict[str, Any]], now_s: float, limit: int
     blocked_at = running[0] if running else None  # the cursor stops below a running run
     expected = cursor.low
     for r in rows:  # the first hole that may still fill (a young gap in the ids)
-        if r["id"] > expected and now_s - float(r["started_at"]) < GAP_S:
+        if r["id"] > expected and now_s - float(r["started_at"] or 0.0) < GAP_S:
             blocked_at = expected if blocked_at is None else min(blocked_at, expected)
             break
         expected = r["id"] + 1

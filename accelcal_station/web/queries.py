@@ -8,12 +8,14 @@ Shifts are 8 h from 06:00 UTC (A 06-14, B 14-22, C 22-06).
 from __future__ import annotations
 
 import json
+import math
 from collections import Counter
 from datetime import UTC, datetime
 from typing import Any
 
 from ..acceptance.reasons import codes
 from ..store.records import load_or, stored_reasons
+from ..store.rowcheck import SPECS, check_row
 from ..store.runs import Store
 
 SHIFT_S = 8 * 3600.0
@@ -23,12 +25,32 @@ SUMMARY_COLS = ("id, started_at, finished_at, status, status_reason, device_seri
                 "lot, model, verdict, reasons, nvm_status, fit_summary")
 
 
+# runs columns checked on every read as the store's own reads check them (store/rowcheck.py); the
+# JSON columns stay text here and go through load_or / stored_reasons, which bound them alike
+_JSON_COLS = ("reasons", "nvm_outcome", "calibration", "fit_summary")
+_SCALAR_COLS = frozenset(SPECS["runs"]) - set(_JSON_COLS)
+# a stored time a page can show (year 1970 to 9999): a damaged one is left out of the aggregates
+SANE_T = "(started_at BETWEEN 0 AND 253402300799)"
+
+
 def select(store: Store, sql: str, **params: Any) -> list[dict[str, Any]]:
-    """Rows of one read-only statement (named ``:params``) as dicts, on the store's connection."""
+    """Rows of one read-only statement (named ``:params``) as dicts, on the store's connection; a
+    damaged value of a runs column (wrong type, time out of range) reads as None, named in
+    ``damage`` (as ``report list`` names it), never an exception in a page."""
     from sqlalchemy import text
 
     conn = store._db.conn  # the one place the web layer touches the store's connection
-    return [dict(r) for r in conn.execute(text(sql), params).mappings().all()]
+    out = []
+    for r in conn.execute(text(sql), params).mappings().all():
+        row = dict(r)
+        scalars = {k: v for k, v in row.items() if k in _SCALAR_COLS}
+        if scalars:
+            checked, damage = check_row("runs", scalars)
+            row.update(checked)
+            if damage:
+                row["damage"] = [d.to_dict() for d in damage]
+        out.append(row)
+    return out
 
 
 def _bucket(store: Store) -> str:
@@ -50,14 +72,15 @@ def summary(row: dict[str, Any]) -> dict[str, Any]:
     reasons = stored_reasons(row.get("reasons"))
     out = {k: row[k] for k in row if k not in ("reasons", "fit_summary")}
     m = fit.get("measured")
-    measured: dict[str, Any] = m if isinstance(m, dict) else {}
+    measured = {str(k): float(v) for k, v in (m.items() if isinstance(m, dict) else ())
+                if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)}
     out.update(reasons=[r.to_dict() for r in reasons], reason_codes=codes(reasons),
                residual_rms_mg=measured.get("residual_rms_mg"), measured=measured)
     return out
 
 
 def window_start(store: Store) -> float | None:
-    row = select(store, "SELECT max(started_at) AS t FROM runs")
+    row = select(store, f"SELECT max(started_at) AS t FROM runs WHERE {SANE_T}")
     return None if row[0]["t"] is None else float(row[0]["t"]) - WINDOW_S
 
 
@@ -91,7 +114,8 @@ def _yields(store: Store, t0: float, by_shift: bool) -> list[dict[str, Any]]:
                   " sum(CASE WHEN verdict = 'PASS' THEN 1 ELSE 0 END) AS pass,"
                   f" sum(CASE WHEN {first} THEN 1 ELSE 0 END) AS first_n,"
                   f" sum(CASE WHEN verdict = 'PASS' AND {first} THEN 1 ELSE 0 END) AS first_pass"
-                  f" FROM runs r WHERE status = 'complete' AND started_at >= :t0 GROUP BY station_id{group}"
+                  f" FROM runs r WHERE status = 'complete' AND started_at >= :t0 AND {SANE_T}"
+                  f" GROUP BY station_id{group}"
                   f" ORDER BY station_id{group}", t0=t0)
 
 
@@ -152,12 +176,12 @@ def summaries(store: Store, ids: list[int]) -> list[dict[str, Any]]:
 def serials_like(store: Store, text: str, limit: int = 20) -> list[str]:
     rows = select(store, "SELECT DISTINCT device_serial FROM runs WHERE device_serial LIKE :p ORDER BY device_serial"
                   " LIMIT :n", p=text.replace("%", "").replace("_", "") + "%", n=int(limit))
-    return [r["device_serial"] for r in rows]
+    return [r["device_serial"] for r in rows if r["device_serial"] is not None]
 
 
 def lots(store: Store, limit: int = 50) -> list[dict[str, Any]]:
     return select(store, "SELECT lot, count(*) AS runs, max(started_at) AS last FROM runs WHERE lot IS NOT NULL"
-                  " GROUP BY lot ORDER BY max(started_at) DESC LIMIT :n", n=int(limit))
+                  f" AND {SANE_T} GROUP BY lot ORDER BY max(started_at) DESC LIMIT :n", n=int(limit))
 
 
 def dumps(x: Any) -> str:
