@@ -134,7 +134,7 @@ def test_fit_on_dev_zero_returns_at_once():
 
 @pytest.mark.parametrize("path", ["/proc/kmsg", "/proc/self/status", "/sys/kernel/mm/transparent_hugepage/enabled"])
 def test_fit_on_kernel_files_returns_at_once(path):
-    if not os.path.lexists(path):
+    if path.startswith("/sys/") and not os.path.lexists(path):  # an optional kernel feature; /proc is always there
         pytest.skip(f"{path} does not exist on this kernel")
     took, line = _within(5.0, ["fit", path, "--raw"])  # a regression would block on read: fail, not hang
     assert took < 1.0 and ("kernel file" in line or "cannot read" in line), line

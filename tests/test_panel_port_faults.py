@@ -13,26 +13,20 @@ from pathlib import Path
 
 import yaml
 from click.testing import CliRunner
+from test_port_faults import rig
 
 from accelcal_station.cli import cli
-from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
-from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.fixtures.jig_emulator import JigEmulator
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def panel_rig(tmp_path: Path):
-    """A panel (device.boards) of one MPU6050 bridge on a pty, moved by a jig emulator on another pty."""
-    sim = yaml.safe_load((CONFIGS / "sim.yaml").read_text())["device"]["simulator"]
-    board = SimulatedBoard.from_config(sim, chip="mpu6050", seed=3)
-    bridge = MPU6050BridgeEmulator(board)
-    port = bridge.start()
-    jig = JigEmulator(board=board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock)
-    jig.start()
-    cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
-    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
-    cfg["jig"].update(port=jig.port, settle_s=0.0, speed_deg_s=4000, accel_deg_s2=1e5)
+    """A panel (device.boards) of one MPU6050 bridge on a pty, moved by a jig emulator on another pty:
+    test_port_faults' rig, with the bridge as the panel's one board and the jig's port in the config."""
+    bridge, port, jig, single = rig(tmp_path)
+    cfg = yaml.safe_load(single.read_text())
+    cfg["jig"]["port"] = jig.port
     cfg["device"]["boards"] = [{"port": port}]
     p = tmp_path / "panel.yaml"
     p.write_text(yaml.safe_dump(cfg))
