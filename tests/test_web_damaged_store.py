@@ -40,3 +40,14 @@ def test_the_api_names_a_damaged_run_column(tmp_path, item):
     assert list(damaged) == [2], runs  # _damage writes into run 2 only
     assert [d["column"] for d in damaged[2]] == [item[1]] and damaged[2][0]["table"] == "runs"
     assert next(r for r in runs if r["id"] == 2)[item[1]] is None
+
+
+def test_serve_on_a_store_that_is_not_there_is_one_line(tmp_path):
+    from click.testing import CliRunner
+
+    from accelcal_station.cli import cli
+
+    r = CliRunner().invoke(cli, ["serve", "--db", str(tmp_path / "none.sqlite"), "--port", "8799"])
+    assert r.exit_code == 2 and r.output.strip().count("\n") == 0, r.output
+    assert "none.sqlite" in r.output and "no results store" in r.output
+    assert not (tmp_path / "none.sqlite").exists()

@@ -42,8 +42,11 @@ def command(db: str | None, configs: tuple[str, ...], host: str, port: int) -> N
     require_web()
     from ..web.app import create_app
     from ..web.server import serve_forever
-    from ..web.settings import WebSettings
+    from ..web.settings import WebSettings, open_store
 
-    app = create_app(WebSettings(str(store), limits, token))
+    settings = WebSettings(str(store), limits, token)
+    with open_store(settings):  # a wrong path or an unreachable server is one line now, not a page error later
+        pass
+    app = create_app(settings)
     click.echo(f"serving {store} on http://{host}:{port}/ (Ctrl-C stops)", err=True)
     serve_forever(app, host, port)
