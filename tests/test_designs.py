@@ -15,7 +15,6 @@ from accelcal_station.fixtures.designs import (
     DESIGNS,
     get_design,
     min_separation,
-    optimal_design,
     predict_stderr,
     references,
 )
@@ -113,7 +112,8 @@ def test_optimal_is_deterministic_and_cached():
     a.pop()  # the caller's copy, not the cache
     b = get_design("optimal-5")
     assert len(b) == 5 and a == b[:4]
-    assert list(optimal_design.__wrapped__(5)) == b  # recomputed from scratch: the same design
+    assert get_design("optimal-5") is not get_design("optimal-5")  # a fresh list each time
+    # a recomputation agrees with the table up to the design's symmetries: tests/test_design_symmetry.py
 
 
 @pytest.mark.parametrize("bad", ["foo", "optimal-1", "optimal-0", "optimal-08", "optimal-65", "optimal-x",
