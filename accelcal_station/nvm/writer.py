@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import base64
 import json
+import logging
 import time as _time
 import zlib
 from collections.abc import Callable
@@ -34,6 +35,7 @@ SLOTS = ("A", "B")
 IMAGE_SCHEMA = "accelcal.nvm-image"
 IMAGE_VERSION = 1
 MAX_BACKUP_BYTES = 1 << 20  # two slots of a 64 KiB EEPROM in base64 are 90 kB
+log = logging.getLogger(__name__)
 
 
 def _short(v: Any) -> str:
@@ -275,6 +277,8 @@ class CalibrationWriter:
             outcome.backup = str(backup_to)
         if before_write is not None:  # e.g. the store records slot, generation and CRC before any byte
             before_write(outcome)
+        log.info("burning %s: slot %s, generation %d, %d bytes, CRC-32 %08x", serial, SLOTS[target], gen, len(blob),
+                 h.crc32)
         try:
             self._write_verified(outcome.addr, blob, f"burn of NVM slot {SLOTS[target]}")
             outcome.nvm_after = self.holds()
@@ -283,8 +287,10 @@ class CalibrationWriter:
                 raise NVMError(f"burn of NVM slot {SLOTS[target]}: slot is not the newest valid after writing")
         except (AccelcalError, OSError) as e:
             self.revert(outcome)
+            log.error("burn of %s failed: %s; %s", serial, e, holds_text(outcome))
             raise BurnError(f"{e}; {holds_text(outcome)}", outcome) from None
         outcome.ok = outcome.verified = True
+        log.info("burned %s: slot %s, generation %d, read back and verified", serial, SLOTS[target], gen)
         return outcome
 
     def settled_image(self, tries: int = 5) -> bytes:
