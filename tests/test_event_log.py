@@ -5,6 +5,7 @@ store is refused in one line before any work."""
 from __future__ import annotations
 
 import json
+import logging
 import re
 import sqlite3
 from pathlib import Path
@@ -14,16 +15,18 @@ from click.testing import CliRunner
 from test_port_faults import rig
 
 from accelcal_station.cli import cli
+from accelcal_station.drivers.mma8451 import MMA8451, WHO_AM_I
+from accelcal_station.drivers.mma8451_emulator import MMA8451Emulator
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 LINE = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} (DEBUG|INFO|WARNING|ERROR) (accelcal_station[\w.]*): (.*)$")
 
 
-def _config(tmp_path: Path, logging: dict | None, base: str = "sim.yaml") -> Path:
+def _config(tmp_path: Path, section: dict | None, base: str = "sim.yaml") -> Path:
     cfg = yaml.safe_load((CONFIGS / base).read_text())
     cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
-    if logging is not None:
-        cfg["logging"] = logging
+    if section is not None:
+        cfg["logging"] = section
     p = tmp_path / "station.yaml"
     p.write_text(yaml.safe_dump(cfg))
     return p
@@ -116,3 +119,21 @@ def test_the_level_and_keys_are_checked(tmp_path):
     for bad in ({"level": "LOUD"}, {"file": 3}, {"rotate": True}):
         r = CliRunner().invoke(cli, ["run", "--config", str(_config(tmp_path, bad))])
         assert r.exit_code == 2 and "logging." in r.output and len(r.output.strip().splitlines()) == 1, r.output
+
+
+def test_i2c_retries_are_logged_as_the_bus_nacked(caplog):
+    """An MMA8451 driver on its register-level emulator (handed in as its SMBus): each NACK the
+    emulator records is one INFO line naming bus, address and register, numbered."""
+    emu = MMA8451Emulator.from_config({"driver": "mma8451", "bus": "emulated", "seed": 7}, "device", address=0x1D,
+                                      eeprom_address=None)
+    drv = MMA8451(emu, clock=emu.clock, bus_label="emulated")
+    emu.nack_next(2, register=WHO_AM_I)  # within the driver's 3 retries
+    with caplog.at_level(logging.INFO, logger="accelcal_station"), drv:
+        pass
+    tries = [r for r in caplog.records if r.name == "accelcal_station.drivers.mma8451"]
+    assert len(tries) == emu.nack_log.count((0x1D, WHO_AM_I)) == 2
+    pattern = re.compile(r"^read i2c bus emulated address 0x1d register 0x0D \(WHO_AM_I\): "
+                         r".*Remote I/O error.* \(try (\d)\)$")
+    matched = [pattern.match(r.getMessage()) for r in tries]
+    assert all(matched) and [int(m.group(1)) for m in matched if m] == [1, 2], [r.getMessage() for r in tries]
+    assert all(r.levelno == logging.INFO for r in tries)
