@@ -134,3 +134,18 @@ def test_readme_names_the_system_parts_ci_installs():
     for pkgs in lists:
         for pkg in pkgs.split():
             assert pkg in section, f".ci/run installs {pkg}; README's tests section does not say so"
+
+
+def test_the_get_going_commands_work(tmp_path):
+    """The README's first commands, as a newcomer types them (after `pip install .`), in a folder of
+    their own with the repository's example: each exits 0 (PASS for the simulated board)."""
+    blocks = re.findall(r"```\n(.*?)```", _section("Install and get going"), flags=re.S)
+    commands = [c.split("&&")[-1].strip() for b in blocks for c in b.strip().splitlines()]
+    assert [c.split()[:2] for c in commands] == [["accelcal", "run"], ["accelcal", "fit"]], commands
+    (tmp_path / "examples").mkdir()
+    (tmp_path / "examples" / "poses.csv").write_bytes((ROOT / "examples" / "poses.csv").read_bytes())
+    for c in commands:
+        r = subprocess.run([sys.executable, "-m", "accelcal_station", *c.split()[1:]], cwd=tmp_path,
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, f"{c}: {r.stdout[-1500:]}{r.stderr[-1500:]}"
+    assert (tmp_path / "accelcal-runs.sqlite").is_file()  # the run recorded where the README says
