@@ -137,3 +137,22 @@ def test_i2c_retries_are_logged_as_the_bus_nacked(caplog):
     matched = [pattern.match(r.getMessage()) for r in tries]
     assert all(matched) and [int(m.group(1)) for m in matched if m] == [1, 2], [r.getMessage() for r in tries]
     assert all(r.levelno == logging.INFO for r in tries)
+
+
+def test_capture_retries_are_logged_as_the_store_counts_them(tmp_path):
+    """The simulated hand bumps the board during pose p3's averaging: each discarded capture is one
+    INFO line, as many as the retries the store records for the run's poses."""
+    cfg = yaml.safe_load((CONFIGS / "sim.yaml").read_text())
+    cfg["device"]["seed"] = 7  # the bump lands inside the averaging (tests/test_station.py)
+    cfg["jig"] = {"type": "operator", "hand": {"bump": ["p3"], "bump_after_s": 1.5}}
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    cfg["logging"] = {"file": str(tmp_path / "station.log")}
+    (tmp_path / "station.yaml").write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", str(tmp_path / "station.yaml")], input="\n" * 11)
+    assert r.exit_code == 0, r.output
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    stored = db.execute("SELECT SUM(retries) FROM poses").fetchone()[0]
+    retried = [m for lvl, name, m in _events(tmp_path / "station.log")
+               if name == "accelcal_station.station.capture" and m.startswith("capture retried (")]
+    assert stored >= 1 and len(retried) == stored, (stored, retried)
+    assert all("moved during capture" in m for m in retried)
