@@ -116,3 +116,24 @@ def test_a_version_no_accelcal_wrote_is_refused(tmp_path, version):
     with pytest.raises(DataError, match="calibration version") as e:
         Calibration.from_dict(d, "cal.json")
     assert "\n" not in str(e.value)
+
+
+def test_an_nvm_backup_from_a_newer_accelcal_is_one_clear_line(tmp_path):
+    """`accelcal nvm restore` of a backup file whose format is newer than this accelcal reads: one
+    line naming both versions, nothing written (the board's NVM read back unchanged)."""
+    from click.testing import CliRunner
+
+    from accelcal_station.cli import cli
+    from accelcal_station.nvm.writer import IMAGE_VERSION
+
+    backup = tmp_path / "b.json"
+    r = CliRunner().invoke(cli, ["nvm", "backup", "--out", str(backup)])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(backup.read_text())
+    doc["version"] = IMAGE_VERSION + 1
+    backup.write_text(json.dumps(doc))
+    r = CliRunner().invoke(cli, ["nvm", "restore", str(backup), "--backup-to", str(tmp_path / "before.json")])
+    assert r.exit_code != 0 and len(r.output.strip().splitlines()) == 1, r.output
+    assert f"written by a newer accelcal (NVM backup format version {IMAGE_VERSION + 1})" in r.output
+    assert f"reads up to version {IMAGE_VERSION}" in r.output
+    assert not (tmp_path / "before.json").exists()  # refused before anything was read or written

@@ -368,8 +368,12 @@ class CalibrationWriter:
                         "a backup holds two slots of a small EEPROM, base64", NVMError)
         if not isinstance(doc, dict) or doc.get("schema") != IMAGE_SCHEMA:
             raise NVMError(f"{path}: not an NVM backup (missing schema {IMAGE_SCHEMA!r})")
-        if doc.get("version") != IMAGE_VERSION:
-            raise NVMError(f"{path}: backup version {_short(doc.get('version'))}; this station reads {IMAGE_VERSION}")
+        v = doc.get("version")
+        if type(v) is int and v > IMAGE_VERSION:  # the one line a calibration file from a newer accelcal gets
+            raise NVMError(f"{path}: written by a newer accelcal (NVM backup format version {v}); this accelcal "
+                           f"reads up to version {IMAGE_VERSION}: restore it with a newer accelcal-station")
+        if v != IMAGE_VERSION:
+            raise NVMError(f"{path}: backup version {_short(v)}; this station reads {IMAGE_VERSION}")
         if (doc.get("base_addr"), doc.get("slot_size")) != (self.base_addr, self.slot_size):
             raise NVMError(f"{path}: image is for slots of {_short(doc.get('slot_size'))} bytes at "
                            f"{_short(doc.get('base_addr'))}; this NVM has slots of {self.slot_size} bytes "
