@@ -10,12 +10,16 @@ asked for, so ``accelcal`` and ``import accelcal_station.drivers`` stay light.
 """
 from __future__ import annotations
 
+import logging
 from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
     from .api import Calibration, Fit, diagnose, fit, load, simulate
+
+# a library adds no handler but this: the command line configures the event log (config/event_log.py)
+logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 _API = ("Calibration", "Fit", "diagnose", "fit", "load", "simulate")
 

@@ -9,6 +9,7 @@ are interpolated to the temperature of the data.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,9 @@ from .conventions import check_units, units_per_g
 from .errors import DataError, TemperatureRangeError, UnitsError
 
 SCHEMA = "accelcal.calibration"
+# The format version this writes. Every version ever shipped keeps a reader in _READERS (as imucal
+# keeps its legacy loaders), so a file from any older accelcal still loads; a newer one is refused
+# in one line naming both versions. Shipped: 1 (since the first release; still current).
 SCHEMA_VERSION = 1
 MODELS = ("6", "9", "12", "15")
 MAX_FILE_BYTES = 1 << 20
@@ -231,19 +235,12 @@ class Calibration:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "calibration") -> Calibration:
+        """A calibration from its JSON object, in any format version up to SCHEMA_VERSION."""
         if not isinstance(d, dict) or d.get("schema") != SCHEMA:
             raise DataError(f"{source}: not an accelcal calibration (missing schema {SCHEMA!r})")
-        v = d.get("version")
-        if v != SCHEMA_VERSION:
-            raise DataError(f"{source}: calibration version {v!r}; this station reads version {SCHEMA_VERSION}")
+        reader = _READERS[format_version(d, source)]  # only versions with a reader come back
         try:
-            temp = d.get("temperature")
-            return cls(
-                model=d["model"], W=d["W"], V=d["V"], Gamma=d.get("Gamma", [0, 0, 0]),
-                input_units=d["input_units"], input_per_g=float(d["input_per_g"]),
-                temperature=None if temp is None else TemperatureTable.from_dict(temp),
-                metadata=d.get("metadata", {}),
-            )
+            return reader(d)
         except KeyError as e:
             raise DataError(f"{source}: missing key {e.args[0]!r}") from None
         except (TypeError, ValueError) as e:
@@ -263,6 +260,35 @@ class Calibration:
         d = read_json(path, "an accelcal calibration", MAX_FILE_BYTES, "a calibration with a table of 100 "
                       "temperatures is some 50 kB")
         return cls.from_dict(d, str(path))
+
+
+def format_version(d: dict[str, Any], source: str = "calibration") -> int:
+    """The file's format version, checked: newer than this accelcal reads is one clear line."""
+    v = d.get("version")
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise DataError(f"{source}: calibration version {v!r}; allowed: a whole number 1 to {SCHEMA_VERSION}")
+    if v > SCHEMA_VERSION:
+        raise DataError(f"{source}: written by a newer accelcal (calibration format version {v}); this accelcal "
+                        f"reads up to version {SCHEMA_VERSION}: read it with a newer accelcal-station")
+    if v not in _READERS:
+        raise DataError(f"{source}: calibration version {v}; no accelcal wrote it (versions 1 to {SCHEMA_VERSION})")
+    return v
+
+
+def _read_v1(d: dict[str, Any]) -> Calibration:
+    """Format 1: W (3 x 3), V, Gamma (absent: zeros), input units and per-g scale, an optional
+    AN4399 section 9 table, metadata."""
+    temp = d.get("temperature")
+    return Calibration(
+        model=d["model"], W=d["W"], V=d["V"], Gamma=d.get("Gamma", [0, 0, 0]),
+        input_units=d["input_units"], input_per_g=float(d["input_per_g"]),
+        temperature=None if temp is None else TemperatureTable.from_dict(temp),
+        metadata=d.get("metadata", {}),
+    )
+
+
+# one reader per format version ever shipped; a new version adds its reader and keeps the old ones
+_READERS: dict[int, Callable[[dict[str, Any]], Calibration]] = {1: _read_v1}
 
 
 PARAM_NAMES = ([f"W{i}{j}" for i in range(3) for j in range(3)] + [f"V{i}" for i in range(3)]

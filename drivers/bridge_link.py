@@ -10,6 +10,7 @@ MCU timestamps become seconds that never go back (:class:`_McuClock`).
 from __future__ import annotations
 
 import errno
+import logging
 import time
 from collections import deque
 from collections.abc import Callable
@@ -22,6 +23,7 @@ import serial
 from ..errors import PORT_FAULTS, DeviceError, PortLostError
 from . import bridge_protocol as bp
 
+log = logging.getLogger(__name__)
 RETRYABLE_NAKS = (bp.ERR_I2C, bp.ERR_NVM)
 PERMISSION_HINT = "add the user to the dialout group (sudo usermod -aG dialout $USER) and log in again"
 
@@ -132,6 +134,7 @@ class BridgeLink:
         try:
             return fn(self._ser)
         except PORT_FAULTS as e:  # SerialException, EIO of a hung-up pty, termios.error
+            log.error("lost serial port %s: %s", self.port, e)
             raise PortLostError(f"lost serial port {self.port}: {e}") from None
 
     def send(self, type_: int, payload: bytes = b"") -> int:
@@ -174,6 +177,7 @@ class BridgeLink:
         for attempt in range(attempts):
             if attempt:
                 self.stats.retries += 1
+                log.info("bridge on %s: %s resent, attempt %d of %d (%s)", self.port, name, attempt + 1, attempts, why)
             seq = self.send(cmd, payload)
             deadline = time.monotonic() + timeout_s
             while (got := self.next_frame(deadline)) is not None:

@@ -20,6 +20,7 @@ Faults and what the driver does:
 from __future__ import annotations
 
 import errno
+import logging
 import os
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -34,6 +35,8 @@ from smbus2 import i2c_msg
 from ..config.parts import I2cEepromSection, Mma8451Section, parse
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError
 from .base import NVM, Clock, Driver, Identity
+
+log = logging.getLogger(__name__)
 
 # --- register map (data sheet table 11) -------------------------------------------------
 STATUS = 0x00
@@ -143,6 +146,7 @@ class I2CTarget:
                 return fn(*args)
             except OSError as e:
                 last = e
+                log.info("%s %s: %s (try %d)", op, self.where(register), _os_reason(e), attempt + 1)
                 if attempt < self.retries:
                     self.clock.sleep(self.retry_delay_s)
         raise error(f"{op} {self.where(register, what)} failed after {self.retries + 1} attempts: "

@@ -114,16 +114,16 @@ def test_every_subpackage_says_what_it_holds_and_may_import():
         assert len(doc) > 80 and "import" in doc, f"{init.relative_to(ROOT)}: docstring {doc!r}"
 
 
-def _readme_layout() -> list[str]:
-    text = (ROOT / "README.md").read_text()
+def _layout_block() -> list[str]:
+    text = (ROOT / "docs" / "architecture.md").read_text()
     section = text.split("\n## Layout\n", 1)[1].split("\n## ", 1)[0]
     return section.split("```", 2)[1].splitlines()
 
 
-def test_readme_layout_names_exactly_the_folders_there_are():
-    """The README's layout block: every tracked top-level folder, every subpackage and top-level
+def test_layout_block_names_exactly_the_folders_there_are():
+    """docs/architecture.md's layout block: every tracked top-level folder, every subpackage and top-level
     module of the package, and the links, no more and no fewer."""
-    lines = _readme_layout()
+    lines = _layout_block()
     top = {m.group(1) for ln in lines if (m := re.match(r"^([\w.-]+)/\s", ln))}
     sub = {m.group(1) for ln in lines if (m := re.match(r"^  (\w+)/\s", ln))}
     mods = {m.group(1) for ln in lines if (m := re.match(r"^  (\w+\.py)\s", ln))}
@@ -134,9 +134,9 @@ def test_readme_layout_names_exactly_the_folders_there_are():
     else:  # not a git checkout (an unpacked source tree): the folders on disk
         folders = {p.name for p in ROOT.iterdir() if p.is_dir() and not p.name.startswith((".", "build"))
                    and not p.name.endswith(".egg-info")}
-    assert top == folders, f"README layout {sorted(top)} vs folders {sorted(folders)}"
+    assert top == folders, f"docs/architecture.md layout {sorted(top)} vs folders {sorted(folders)}"
     real = {p.name for p in PKG.iterdir() if p.is_dir() and not p.is_symlink() and (p / "__init__.py").is_file()}
-    assert sub == real, f"README layout {sorted(sub)} vs subpackages {sorted(real)}"
+    assert sub == real, f"docs/architecture.md layout {sorted(sub)} vs subpackages {sorted(real)}"
     assert mods == {p.name for p in PKG.glob("*.py")} - {"__init__.py", "__main__.py"}
     on_disk = {p.name: os.readlink(p).strip("./") for p in PKG.iterdir() if p.is_symlink()}
-    assert links == on_disk, f"README links {links} vs package links {on_disk}"
+    assert links == on_disk, f"docs/architecture.md links {links} vs package links {on_disk}"

@@ -15,6 +15,7 @@ from typing import Any
 import click
 
 from .. import __version__
+from ..config import event_log
 from ..errors import AccelcalError
 from ._extras import extra_for, missing_text
 from ._mes import JsonGroup, emit_error, wants_json
@@ -80,6 +81,7 @@ class StationGroup(JsonGroup):
 @click.version_option(__version__, prog_name="accelcal")
 def cli() -> None:
     """accelcal: calibration station for three-axis MEMS accelerometers."""
+    event_log.configure(None)  # the outbox's notices on stderr; `run` applies its config's logging:
 
 
 for _m in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):

@@ -7,6 +7,7 @@ from typing import Any
 
 import click
 
+from ..config import event_log
 from ..fileguard.identity import refuse_overwrite
 from ..fixtures.operator_ui import OperatorUI
 from ..station.board import Station
@@ -45,6 +46,7 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
     _refuse_over_config(cfg)
+    event_log.configure(cfg.event_log, avoid=(cfg.path, cfg.store_file))  # logging: (docs/logging.md)
 
     def echo(text: str) -> None:
         click.echo(text, err=as_json)

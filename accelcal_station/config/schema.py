@@ -269,6 +269,16 @@ class WebSection(Section):
                            "16-200 printable characters, no spaces")
 
 
+class LoggingSection(Section):
+    """The station's event log (docs/logging.md)."""
+
+    level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = _f(
+        "INFO", "least severe event logged: INFO (runs, burns, retries), WARNING (outbox), ERROR (lost ports, "
+        "failed burns)")
+    file: str | None = _f(None, "append the events to this file (relative to the current directory; a regular "
+                          "file, never through a symlink); default: stderr")
+
+
 class StationConfigSchema(Section):
     """A station configuration file (configs/*.yaml)."""
 
@@ -284,6 +294,7 @@ class StationConfigSchema(Section):
     thermal: ThermalSection | None = _f(None, "a thermal plan: a calibration at each set point")
     chamber: ChamberSection | None = _f(None, "the thermal chamber (thermal plans)")
     web: WebSection | None = _f(None, "the web pages and API (accelcal serve, accelcal run --ui web)")
+    logging: LoggingSection | None = _f(None, "the station's event log: port losses, retries, burns, outbox")
 
 
 def _models_in(ann: Any) -> list[type[BaseModel]]:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import base64
 import json
+import logging
 import time as _time
 import zlib
 from collections.abc import Callable
@@ -34,6 +35,7 @@ SLOTS = ("A", "B")
 IMAGE_SCHEMA = "accelcal.nvm-image"
 IMAGE_VERSION = 1
 MAX_BACKUP_BYTES = 1 << 20  # two slots of a 64 KiB EEPROM in base64 are 90 kB
+log = logging.getLogger(__name__)
 
 
 def _short(v: Any) -> str:
@@ -275,6 +277,8 @@ class CalibrationWriter:
             outcome.backup = str(backup_to)
         if before_write is not None:  # e.g. the store records slot, generation and CRC before any byte
             before_write(outcome)
+        log.info("burning %s: slot %s, generation %d, %d bytes, CRC-32 %08x", serial, SLOTS[target], gen, len(blob),
+                 h.crc32)
         try:
             self._write_verified(outcome.addr, blob, f"burn of NVM slot {SLOTS[target]}")
             outcome.nvm_after = self.holds()
@@ -283,8 +287,10 @@ class CalibrationWriter:
                 raise NVMError(f"burn of NVM slot {SLOTS[target]}: slot is not the newest valid after writing")
         except (AccelcalError, OSError) as e:
             self.revert(outcome)
+            log.error("burn of %s failed: %s; %s", serial, e, holds_text(outcome))
             raise BurnError(f"{e}; {holds_text(outcome)}", outcome) from None
         outcome.ok = outcome.verified = True
+        log.info("burned %s: slot %s, generation %d, read back and verified", serial, SLOTS[target], gen)
         return outcome
 
     def settled_image(self, tries: int = 5) -> bytes:
@@ -362,8 +368,12 @@ class CalibrationWriter:
                         "a backup holds two slots of a small EEPROM, base64", NVMError)
         if not isinstance(doc, dict) or doc.get("schema") != IMAGE_SCHEMA:
             raise NVMError(f"{path}: not an NVM backup (missing schema {IMAGE_SCHEMA!r})")
-        if doc.get("version") != IMAGE_VERSION:
-            raise NVMError(f"{path}: backup version {_short(doc.get('version'))}; this station reads {IMAGE_VERSION}")
+        v = doc.get("version")
+        if type(v) is int and v > IMAGE_VERSION:  # the one line a calibration file from a newer accelcal gets
+            raise NVMError(f"{path}: written by a newer accelcal (NVM backup format version {v}); this accelcal "
+                           f"reads up to version {IMAGE_VERSION}: restore it with a newer accelcal-station")
+        if v != IMAGE_VERSION:
+            raise NVMError(f"{path}: backup version {_short(v)}; this station reads {IMAGE_VERSION}")
         if (doc.get("base_addr"), doc.get("slot_size")) != (self.base_addr, self.slot_size):
             raise NVMError(f"{path}: image is for slots of {_short(doc.get('slot_size'))} bytes at "
                            f"{_short(doc.get('base_addr'))}; this NVM has slots of {self.slot_size} bytes "

@@ -15,6 +15,7 @@ Motion while averaging discards the average and starts over (a re-capture).
 """
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -25,6 +26,8 @@ from numpy.typing import ArrayLike
 from ..conventions import angle_deg, nearest_face
 from ..drivers.base import Capture, Driver
 from ..errors import DeviceError
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -137,6 +140,7 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
             if acc:
                 recaptures += 1
                 events.append(f"moved during capture at t={t[-1] - t_first:.2f} s: average discarded")
+                log.info("capture retried (%d of %d): %s", recaptures, s.max_recaptures, events[-1])
                 acc, ts, dropped = [], [], 0
                 if recaptures > s.max_recaptures:
                     raise DeviceError(f"board kept moving: {recaptures} captures discarded (max {s.max_recaptures})")

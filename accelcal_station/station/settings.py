@@ -11,6 +11,7 @@ from ..config.checks import load_yaml
 from ..config.parts import check_kinds
 from ..config.schema import (
     CaptureSection,
+    LoggingSection,
     NvmSection,
     PlanSection,
     StationSection,
@@ -45,6 +46,7 @@ class StationConfig:
     verify_design: str | None
     store_file: Path | str  # a file, or a store URL (postgresql://...)
     web_token: str | None = None  # web.token: what starting or aborting a run over the web API needs
+    event_log: LoggingSection | None = None  # logging: (config/event_log.py)
 
     @classmethod
     def load(cls, path: str | Path | None = None, store_override: str | Path | None = None,
@@ -77,7 +79,7 @@ class StationConfig:
         verify_poses = _verify_poses(ver.poses, limits)
         return cls(raw, p.read_text(), p, (sc.station or StationSection()).id, design, model, settings,
                    limits, nvm.write, nvm.slot_size, nvm.offset_trim, verify_poses, ver.design, store_file,
-                   _web_token(raw))
+                   _web_token(raw), sc.logging)
 
 
 def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> dict[str, Any]:

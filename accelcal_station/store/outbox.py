@@ -28,7 +28,7 @@ from .location import store_identity
 from .records import StoreError, StoreUnreachable
 from .runs import Store
 
-log = logging.getLogger("accelcal_station.store")
+log = logging.getLogger(__name__)
 
 
 def default_outbox() -> Path:

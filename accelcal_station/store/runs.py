@@ -17,6 +17,7 @@ Opening a store upgrades its schema (schema.py) under one transaction.
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import socket
 import time as _time
@@ -41,6 +42,8 @@ if TYPE_CHECKING:
 
     from . import migrate, replay
     from .tables import events, poses, runs
+
+log = logging.getLogger(__name__)
 
 
 def _load_sql() -> None:
@@ -216,7 +219,8 @@ class Store:
                 pid=os.getpid(), panel_id=panel_id))
             key = cur.inserted_primary_key
             assert key is not None  # an INSERT of one row
-            return int(key[0])
+        log.info("run %d started: board %s, station %s, lot %s", key[0], device_serial, station_id, lot)
+        return int(key[0])
 
     def _running(self, db: Database, run_id: int) -> None:
         got = db.rows(select(runs.c.status).where(runs.c.id == run_id))
@@ -269,6 +273,7 @@ class Store:
                 status="complete", finished_at=_time.time() if finished_at is None else float(finished_at),
                 verdict=verdict, reasons=texts[0], nvm_status=nvm_status, nvm_outcome=texts[1],
                 calibration=texts[2], fit_summary=texts[3], **({} if model is None else {"model": model})))
+        log.info("run %d complete: %s, NVM %s", run_id, verdict or "no verdict", nvm_status)
 
     def interrupt_run(self, run_id: int, reason: str, *, session: Session | None = None,
                       status: str = "interrupted", retries: Sequence[int] | None = None,
@@ -287,6 +292,7 @@ class Store:
                 self._insert_poses(db, run_id, session, retries)
             db.execute(update(runs).where(runs.c.id == run_id).values(
                 status=status, status_reason=str(reason), finished_at=_time.time(), **nvm))
+        log.warning("run %d %s: %s", run_id, status, reason)
 
     def record_burn(self, run_id: int, kind: str, outcome: dict[str, Any], t: float | None = None) -> None:
         """A burn as it happens, committed at once: ``nvm_burning`` (slot, generation, blob CRC)

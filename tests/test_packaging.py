@@ -1,0 +1,81 @@
+"""The distribution as a user gets it: the wheel carries py.typed (PEP 561), so a user's mypy sees
+the library's own types (fit() returns Fit, not Any); the version has one source, which the
+wheel's metadata, `accelcal --version` and `accelcal_station.__version__` all show."""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+import accelcal_station
+
+ROOT = Path(__file__).resolve().parent.parent
+# what the build reads: the package (its links drivers/, fixtures/, configs/ point at the top folders)
+SOURCES = ("pyproject.toml", "README.md", "accelcal_station", "drivers", "fixtures", "configs")
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`pip wheel --no-deps` of a copy of the sources (the checkout is left as it was: no build/
+    or egg-info written into it by this test)."""
+    tmp = tmp_path_factory.mktemp("wheel")
+    src = tmp / "src"
+    src.mkdir()
+    for name in SOURCES:
+        p = ROOT / name
+        if p.is_dir():
+            shutil.copytree(p, src / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy2(p, src / name)
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(tmp / "dist"), str(src)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    (whl,) = (tmp / "dist").glob("accelcal_station-*.whl")
+    return whl
+
+
+def test_wheel_ships_py_typed(wheel: Path):
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "accelcal_station/py.typed" in names
+    assert "accelcal_station/api.py" in names and "accelcal_station/drivers/base.py" in names
+
+
+def test_a_users_mypy_sees_fits_return_type(wheel: Path, tmp_path: Path):
+    """A user script checked by mypy against the installed wheel (not the source tree: only an
+    installed package needs py.typed): reveal_type(fit(...)) is the library's Fit, not Any."""
+    site = tmp_path / "site"
+    r = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site), str(wheel)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "script.py").write_text(
+        "from accelcal_station import fit as top_fit\n"
+        "from accelcal_station.api import fit\n\n"
+        'reveal_type(fit("poses.csv"))\n'
+        'reveal_type(top_fit("poses.csv").calibration)\n'
+    )
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    r = subprocess.run([sys.executable, "-m", "mypy", "--no-incremental", "script.py"], cwd=user, env=env,
+                       capture_output=True, text=True, timeout=600)
+    revealed = re.findall(r'Revealed type is "([^"]+)"', r.stdout)
+    assert revealed == ["accelcal_station.api.Fit", "accelcal_station.calibration.Calibration"], r.stdout
+    assert r.returncode == 0, r.stdout  # no "missing library stubs or py.typed marker"
+
+
+def test_one_version_source(wheel: Path):
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert "version" not in project and "version" in project["dynamic"]
+    meta = zipfile.ZipFile(wheel).read(next(n for n in zipfile.ZipFile(wheel).namelist()
+                                            if n.endswith(".dist-info/METADATA"))).decode()
+    assert re.search(r"^Version: (\S+)$", meta, re.M).group(1) == accelcal_station.__version__
+    r = subprocess.run([sys.executable, "-m", "accelcal_station", "--version"], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0 and r.stdout.split() == ["accelcal,", "version", accelcal_station.__version__], r.stdout
