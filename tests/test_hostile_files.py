@@ -105,9 +105,13 @@ def _timed(args: list[str], code: int = 2) -> tuple[float, str]:
     return time.perf_counter() - t0, one_line(r, code)
 
 
+# A hang guard, not a speed claim (no wall-clock thresholds in unit tests): a blocked open or read of
+# a FIFO or kernel file, or a parse that goes quadratic, raises instead of hanging the suite.
+HANG_S = 10.0
+
+
 def _within(limit_s: float, args: list[str], code: int = 2) -> tuple[float, str]:
-    """``_timed`` in this thread, interrupted by SIGALRM after ``limit_s`` (a blocked open or read of a
-    FIFO or kernel file raises instead of hanging the suite)."""
+    """``_timed`` in this thread, interrupted by SIGALRM after ``limit_s``."""
     def expire(signum: int, frame: object) -> None:
         raise TimeoutError(f"{args} did not return within {limit_s} s")
 
@@ -123,21 +127,21 @@ def _within(limit_s: float, args: list[str], code: int = 2) -> tuple[float, str]
 def test_fit_on_a_fifo_returns_at_once_without_opening_it(tmp_path):
     fifo = tmp_path / "pipe.csv"
     os.mkfifo(fifo)
-    took, line = _within(5.0, ["fit", str(fifo)])
-    assert took < 1.0 and "a FIFO" in line
+    _, line = _within(HANG_S, ["fit", str(fifo)])
+    assert "a FIFO" in line
 
 
 def test_fit_on_dev_zero_returns_at_once():
-    took, line = _within(5.0, ["fit", "/dev/zero"])
-    assert took < 1.0 and "a device" in line
+    _, line = _within(HANG_S, ["fit", "/dev/zero"])
+    assert "a device" in line
 
 
 @pytest.mark.parametrize("path", ["/proc/kmsg", "/proc/self/status", "/sys/kernel/mm/transparent_hugepage/enabled"])
 def test_fit_on_kernel_files_returns_at_once(path):
     if path.startswith("/sys/") and not os.path.lexists(path):  # an optional kernel feature; /proc is always there
         pytest.skip(f"{path} does not exist on this kernel")
-    took, line = _within(5.0, ["fit", path, "--raw"])  # a regression would block on read: fail, not hang
-    assert took < 1.0 and ("kernel file" in line or "cannot read" in line), line
+    _, line = _within(HANG_S, ["fit", path, "--raw"])  # a regression would block on read: fail, not hang
+    assert "kernel file" in line or "cannot read" in line, line
 
 
 @pytest.mark.parametrize("args", [["fit", "{f}"], ["fit", "{f}", "--raw"], ["batch", "{f}", "--out", "{o}"],
@@ -146,8 +150,8 @@ def test_every_reader_refuses_a_fifo(tmp_path, args):
     fifo = tmp_path / "pipe"
     os.mkfifo(fifo)
     args = [a.format(f=fifo, o=tmp_path / "r.csv") for a in args]
-    took, line = _within(5.0, args, 4 if args[0] == "nvm" else 2)  # NVMError: 4
-    assert took < 1.0 and "FIFO" in line, line
+    _, line = _within(HANG_S, args, 4 if args[0] == "nvm" else 2)  # NVMError: 4
+    assert "FIFO" in line, line
 
 
 def test_sexagesimal_yaml_is_a_string_and_refused_fast(tmp_path):
@@ -155,8 +159,7 @@ def test_sexagesimal_yaml_is_a_string_and_refused_fast(tmp_path):
     text = default_config_path().read_text().replace("max_s: 20", "max_s: 1" + ":0" * 200_000)
     p = tmp_path / "sexa.yaml"
     p.write_text(text)
-    took, line = _within(10.0, ["run", "--config", str(p)])
-    assert took < 1.0, took
+    _, line = _within(HANG_S, ["run", "--config", str(p)])  # the quadratic parse took 12.8 s then exit 70
     assert "capture.max_s" in line and "characters)" in line and len(line) < 400  # the value is cut short
 
 
@@ -251,12 +254,19 @@ def test_optimal_designs_looked_up_are_the_tabled_ones(n):
     assert [(p.pitch_deg, p.roll_deg) for p in get_design(f"optimal-{n}")] == list(OPTIMAL[n])
 
 
-def test_poses_and_simulate_at_their_limits_are_fast_or_refused(tmp_path, monkeypatch):
+def test_poses_and_simulate_at_their_limits_are_looked_up_or_refused(tmp_path, monkeypatch):
+    """optimal-24 is looked up, never searched for (a search takes some 10 s of CPU): a tripwire in
+    the search fails the test if a command falls back to it (machine-independent, no clock)."""
+    from accelcal_station.fixtures import designs
+
+    def no_search(u0: object) -> object:
+        raise AssertionError("optimal-24 was searched for instead of looked up")
+
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(designs, "_polish", no_search)
     for args in (["poses", "optimal-24"], ["simulate", "--poses", "optimal-24", "--samples", "2", "--out", "s.csv"]):
-        t0 = time.perf_counter()
         r = CliRunner().invoke(cli, args)
-        assert time.perf_counter() - t0 < 5.0 and r.exit_code in (0, 2), r.output
+        assert r.exit_code in (0, 2) and r.exception is None or isinstance(r.exception, SystemExit), r.output
     assert "optimal-N (2 <= N <= 24)" in one_line(CliRunner().invoke(cli, ["poses", "optimal-25"]))
     line = one_line(CliRunner().invoke(cli, ["simulate", "--poses", "optimal-24", "--samples", "10000000",
                                              "--out", "s.csv"]))
