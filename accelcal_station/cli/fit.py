@@ -9,8 +9,7 @@ import click
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..api import Fit, check_temp_method, fit
-from ..calibration import Calibration
+from ..api import Fit, check_temp_method, fit, hand_placed_fit
 from ..data.loader import Loaded, load
 from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
@@ -89,7 +88,7 @@ def _barely_text(fit: FitResult) -> list[str]:
             "add poses in new orientations"]
 
 
-def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dict[str, Any], list[str], Calibration]:
+def _hand_placed(session: Session, fr: FitResult) -> tuple[dict[str, Any], list[str]]:
     """The norm fit of hand-placed faces against the opposite-face estimate (handplaced module)."""
     x, ref = fr.readings_g, session.references_g
     if ref is None:  # model 6 was fitted, so references exist; say so plainly if that ever changes
@@ -116,12 +115,10 @@ def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dic
                    f"{'have' if len(once) > 1 else 'has'} one pose (revisit every face to check the fits)"),
              "  misplacement (deg): " + ", ".join(f"{n} {m:.2f}" for n, m in zip(session.names, tilt, strict=True)),
              f"  note: {norm.note}"]
-    W, V = norm.as_an4399()
-    out = Calibration("6", W, V, np.zeros(3), cal.input_units, cal.input_per_g, metadata=dict(cal.metadata))
     js = {"opposite_face": {"gain": classic.gain, "offset_g": classic.offset_g},
           "norm": {"gain": norm.gain, "offset_g": norm.offset_g, "misplacement_deg": norm.misplacement_deg},
           "held_out_norm_rms_g": held, "distinct_orientations": norm.distinct, "note": norm.note}
-    return js, lines, out
+    return js, lines
 
 
 def _segmentation(log: RawLog, det: StaticDetection, names: list[str]) -> tuple[dict[str, Any], list[str]]:
@@ -242,6 +239,11 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         loaded, choice = _choose(path, loaded)
         model, hand_placed = choice.model, choice.faces is not None
     result = fit(loaded, model, temp_method=temp_method, source=path)
+    if hand_placed:
+        if len(result.fits) != 1 or model != "6":
+            raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")
+        hp = _hand_placed(loaded.session, result.result)
+        result = hand_placed_fit(result, loaded.session)  # one calibration object: printed is saved
     report, text = _report(path, loaded, result, as_json)
     if choice is not None:
         report["model_choice"] = choice.to_json()
@@ -249,12 +251,9 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
             report["faces"] = [{"pose": n, "face": f, "angle_deg": float(a)} for n, f, a in
                                zip(loaded.session.names, choice.faces.names, choice.faces.angle_deg, strict=True)]
     if hand_placed:
-        if len(result.fits) != 1 or model != "6":
-            raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")
-        report["hand_placed"], hp_lines, cal = _hand_placed(loaded.session, result.result, result.calibration)
+        report["hand_placed"], hp_lines = hp
         text += hp_lines
-    else:
-        cal = result.calibration
+    cal = result.calibration
     if output:
         cal.save(output)
         report["output"] = str(output)

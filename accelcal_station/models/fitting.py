@@ -83,7 +83,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
         nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]
     # from the distinct orientations, before any solver runs: what each board determines, and
     # the weak terms held at nominal (models/held.py; refused when a gain or an offset is weak)
-    plan = hold_plans(gf, model)
+    plan = hold_plans(gf, model, nz)
     if len(gf) == 1 and plan.refused[0]:  # one board: its reason, before a solver says less
         raise UnderdeterminedError(plan.refused[0])
     gf_fit = gf
