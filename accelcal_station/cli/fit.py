@@ -55,12 +55,10 @@ def _scale_text(session: Session, fit: FitResult) -> str:
 
 
 def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
-    cv = "n/a (a left-out pose leaves the model undetermined)" if fit.crossval_rms_g is None \
-        else f"{fit.crossval_rms_g * 1e3:.3f} mg"
     out = [f"W     = {_vec(fit.W[0])}"] + [f"        {_vec(r)}" for r in fit.W[1:]]
     out += [f"V     = {_vec(fit.V)} g", f"Gamma = {_vec(fit.Gamma)}",
             f"residual RMS {fit.residual_rms_g * 1e3:.3f} mg, max {fit.residual_max_g * 1e3:.3f} mg; "
-            f"leave-one-pose-out RMS {cv}; condition number {fit.condition_number:.3g}"]
+            f"{_crossval_text(fit)}; condition number {fit.condition_number:.3g}"]
     if fit.message:
         out.append(f"note: {fit.message}")
     out += [f"held: {h.text}" for h in fit.held]
@@ -72,6 +70,19 @@ def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
         out.append(f"{n:<{w}}  {g[0]:+9.5f} {g[1]:+9.5f} {g[2]:+9.5f}  {r[0]:+9.3f} {r[1]:+9.3f} {r[2]:+9.3f}  "
                    f"{e:+11.3f}")
     return out
+
+
+def _crossval_text(fit: FitResult) -> str:
+    """Both held-out figures, and which one acceptance judges (models/crossval.py)."""
+    def mg(v: float | None, what: str) -> str:
+        return f"n/a (a left-out {what} leaves the model undetermined)" if v is None else f"{v * 1e3:.3f} mg"
+
+    loo = f"leave-one-pose-out RMS {mg(fit.crossval_rms_g, 'pose')}"
+    if not fit.orientations_repeat:
+        return loo + " (no orientation revisited: acceptance judges this)"
+    return (f"{loo}; leave-one-orientation-out RMS {mg(fit.crossval_by_orientation_rms_g, 'orientation')} "
+            f"({fit.distinct_orientations} distinct orientations among {fit.pose_count} poses: "
+            "acceptance judges by orientation)")
 
 
 def _barely_text(fit: FitResult) -> list[str]:
