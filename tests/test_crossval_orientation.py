@@ -107,7 +107,7 @@ def test_batch_and_lot_results_carry_the_by_orientation_figure(revisits, tmp_pat
     lines = revisits.read_text().splitlines()
     body = [ln for ln in lines if not ln.startswith("#")]
     lot = tmp_path / "lot.csv"
-    lot.write_text("\n".join([ln for ln in lines if ln.startswith("# units:") or ln.startswith("# counts_per_g:")]
+    lot.write_text("\n".join([ln for ln in lines if ln.startswith(("# units:", "# counts_per_g:"))]
                              + ["serial," + body[0]] + [f"SN1,{ln}" for ln in body[1:]]) + "\n")
     res = tmp_path / "results.csv"
     r = CliRunner().invoke(cli, ["batch", str(lot), "--model", "12", "--out", str(res)])
