@@ -125,8 +125,8 @@ def judge_units(readings: ArrayLike, units: str | None = None, counts_per_g: flo
         if per_g is not None and not (0.3 <= med / per_g <= 3.0):  # models.fitting.check_plausible_g's range
             hint = ("counts given as g? use --units counts --counts-per-g N" if med / per_g > 3
                     else "readings in another unit? give --units counts|g|mps2")
-            raise UnitsError(f"readings in {units} ({stated_by or 'given'}) have a median norm of {med:.5g}, "
-                             f"about {med / per_g:.4g} g, expected about 1 g ({hint})")
+            raise UnitsError(f"readings in {units} ({stated_by or 'given'}) have a median norm of "
+                             f"{med / per_g:.4g} g, expected about 1 g ({hint})")
     cpg = counts_per_g
     if units == "counts" and cpg is None:
         cpg, how = _counts_per_g(xc)
@@ -225,7 +225,18 @@ def load(path: str | Path, raw: bool = False, *, units: str | None = None, count
     for flag, v in (("--columns", columns), ("--skip-rows", skip_rows)):
         if v is not None:
             raise DataError(f"{flag} is for raw sample logs; add --raw to read {path} as one")
-    return load_pose_table(path, units, counts_per_g, gravity_mps2, references)
+    try:
+        return load_pose_table(path, units, counts_per_g, gravity_mps2, references)
+    except DataError as e:
+        if _raw_looking(str(e)):
+            raise DataError(f"{e}; if {path} is a raw sample log, add --raw") from None
+        raise
+
+
+def _raw_looking(message: str) -> bool:
+    """A pose-table header refusal that a raw sample log gives: a number as a column name (a log with
+    no header) or a column a pose table does not have (acc_x, time, ...) with x, y, z or pose missing."""
+    return "unknown column" in message or "missing column" in message
 
 
 __all__ = ["Loaded", "UnitsJudgement", "judge_units", "load", "load_pose_table", "load_raw_log",
