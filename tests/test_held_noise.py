@@ -5,7 +5,7 @@ drivers.simulated.SimulatedBoard and the simulated jig), not from the fitted mod
 MPU-6050 (data-sheet 16384 LSB/g, 400 ug/sqrt(Hz) noise, DLPF 44 Hz) with offsets, gains and a 1 %
 x-y cross-axis coupling, placed by hand on six faces and four tilts in the x-z and y-z planes, a
 few degrees off each (so the tilts lean a little out of their planes, as a real one does:
-the x-y direction is weak in geometry, relative singular value about 0.035, below the 0.05 the geometric
+the x-y direction is weak in geometry, relative singular value 0.038, below the 0.05 the geometric
 rule held it at), 400 samples a pose.
 At the data sheet's noise the data pin M_xy to about +-0.001, far below its prior (+-0.02), so it
 is fitted freely; at 20 times the noise its standard error (about +-0.03) is above the prior, so it

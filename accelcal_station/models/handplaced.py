@@ -153,7 +153,10 @@ def norm_fit_result(x_g: ArrayLike, ref: ArrayLike, base: FitResult, noise_g: Ar
                      condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
                      crossval_rms_g=_held_out_rms(x, r_), crossval_residuals_g=None,
                      params=np.concatenate([nf.gain, V]), param_names=param_names("6"),
-                     message="hand-placed norm fit: gain and offset per axis by the gravity norm")
+                     message="hand-placed norm fit: gain and offset per axis by the gravity norm",
+                     # leaving every pose of a face out leaves its gain and offset undetermined
+                     crossval_by_orientation_rms_g=_held_out_rms(x, r_) if nf.distinct == P else None,
+                     distinct_orientations=nf.distinct)
 
 
 __all__ = ["FaceFit", "norm_faces", "norm_fit_result", "opposite_face"]
