@@ -257,22 +257,27 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         result = hand_placed_fit(result, loaded.session)  # one calibration object: printed is saved
     report, text = _report(path, loaded, result, as_json)
     if choice is not None:
-        report["model_choice"] = choice.to_json()
-        if choice.faces is not None:
-            report["faces"] = [{"pose": n, "face": f, "angle_deg": float(a)} for n, f, a in
-                               zip(loaded.session.names, choice.faces.names, choice.faces.angle_deg, strict=True)]
+        report.update(_choice_json(choice, loaded.session.names))
     if hand_placed:
         report["hand_placed"], hp_lines = hp
         text += hp_lines
-    cal = result.calibration
-    if output:
-        cal.save(output)
+    if output:  # the very calibration printed above (one object from fit to file)
+        result.calibration.save(output)
         report["output"] = str(output)
         text.append(f"calibration written to {output}")
     if as_json:
         _echo_json(report, result.result if len(result.fits) == 1 else None, loaded.session.names)
     else:
         _echo_lines(text)
+
+
+def _choice_json(choice: ModelChoice, names: list[str]) -> dict[str, Any]:
+    """The model fit chose, and the face each pose was taken as (hand-placed faces)."""
+    out: dict[str, Any] = {"model_choice": choice.to_json()}
+    if choice.faces is not None:
+        out["faces"] = [{"pose": n, "face": f, "angle_deg": float(a)} for n, f, a in
+                        zip(names, choice.faces.names, choice.faces.angle_deg, strict=True)]
+    return out
 
 
 # stands for a fit's per-pose rows in the report until they are written, a block at a time: a
