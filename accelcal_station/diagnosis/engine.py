@@ -126,9 +126,11 @@ def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     base = ev([])
     centres.append(_zero_g(base))
     final, selected, steps, ranking, tried = select(ev, data, sim, base, testable, td, alpha)
-    # drift and settling are functions of time themselves: only static terms can be confounded with it; a
-    # confounded effect is not selected (the held-out test cannot tell it from a change over the session)
-    confounded = confounded_with_order(data, [s for s in selected if s not in ("drift", "settling")])
+    # drift and settling are functions of time themselves, and temperature is measured per pose (temp_c) and
+    # stepped set point after set point by any thermal plan: only the other static terms can be confounded
+    # with order; a confounded effect is not selected (the held-out test cannot tell it from a change over
+    # the session)
+    confounded = confounded_with_order(data, [s for s in selected if s not in ORDER_EXEMPT])
     if confounded:
         selected = [s for s in selected if s not in confounded]
         final = ev(selected) if selected else base
@@ -143,6 +145,9 @@ def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     d.verdict, d.verdict_text = verdict(d)
     d.identifiability = describe_design(data, sim.baseline + tuple(selected))
     return d
+
+
+ORDER_EXEMPT = ("drift", "settling", "temperature")  # never moved to ``confounded`` (diagnose's comment)
 
 
 def _zero_g(base: Evaluation) -> np.ndarray:
