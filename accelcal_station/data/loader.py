@@ -125,8 +125,8 @@ def judge_units(readings: ArrayLike, units: str | None = None, counts_per_g: flo
         if per_g is not None and not (0.3 <= med / per_g <= 3.0):  # models.fitting.check_plausible_g's range
             hint = ("counts given as g? use --units counts --counts-per-g N" if med / per_g > 3
                     else "readings in another unit? give --units counts|g|mps2")
-            raise UnitsError(f"readings in {units} ({stated_by or 'given'}) have a median norm of "
-                             f"{med / per_g:.4g} g, expected about 1 g ({hint})")
+            raise UnitsError(f"readings in {units} have a median norm of {med / per_g:.4g} g, expected about "
+                             f"1 g ({hint}; units {stated_by or 'given'})")
     cpg = counts_per_g
     if units == "counts" and cpg is None:
         cpg, how = _counts_per_g(xc)

@@ -28,7 +28,7 @@ from .result import BatchFit
 
 MAX_FOLDS = 256  # refits per board
 MAX_POSES = 2048  # the pose-pair cosines of one board held at once
-BOARDS_AT_ONCE = 256  # boards whose pose-pair cosines are formed together
+PAIRS_AT_ONCE = 1 << 22  # pose-pair cosines formed at once (32 MB of float64): memory linear in the boards
 
 # fold_fit(rows, keep): the fit of boards ``rows`` on poses ``keep`` only, with their held terms
 FoldFit = Callable[[np.ndarray, np.ndarray], BatchFit]
@@ -71,8 +71,8 @@ def crossval_by_orientation(gf: np.ndarray, ref: np.ndarray | None, model: str, 
     if P > MAX_POSES:
         rms[rep], ok[rep] = np.nan, False
         return rms, ok, distinct
-    labels = np.concatenate([orientation_labels(gf[rep[a:a + BOARDS_AT_ONCE]])
-                             for a in range(0, len(rep), BOARDS_AT_ONCE)])
+    step = max(1, PAIRS_AT_ONCE // (P * P))
+    labels = np.concatenate([orientation_labels(gf[rep[a:a + step]]) for a in range(0, len(rep), step)])
     patterns, inverse = np.unique(labels, axis=0, return_inverse=True)
     for k, pattern in enumerate(patterns):
         rows = rep[np.asarray(inverse).reshape(-1) == k]
