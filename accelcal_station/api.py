@@ -29,7 +29,7 @@ from .fixtures.designs import get_design
 from .fixtures.simulated_run import SimulatedRun, Sink, run_design, simulated_board
 from .models.choice import choose_model, with_face_references
 from .models.fitting import fit_session, fit_temperature
-from .models.handplaced import norm_faces
+from .models.handplaced import norm_fit_result
 from .models.result import FitResult
 from .session import Session
 
@@ -118,14 +118,20 @@ def _fit_chosen(session: Session, name: str, temp_method: str, is_raw: bool) -> 
     if choice.faces is None:
         return fit(session, choice.model, temp_method=temp_method, source=name)
     faced = with_face_references(session, choice.faces)
-    result = fit(faced, "6", temp_method=temp_method, source=name)
-    if len(result.fits) == 1:
-        x = result.result.readings_g
-        W, V = norm_faces(x, choice.faces.references_g).as_an4399()
-        c = result.calibration
-        result.calibration = Calibration("6", W, V, np.zeros(3), c.input_units, c.input_per_g,
-                                         metadata={**c.metadata, "method": "hand-placed norm fit"})
-    return result
+    return hand_placed_fit(fit(faced, "6", temp_method=temp_method, source=name), faced)
+
+
+def hand_placed_fit(result: Fit, session: Session) -> Fit:
+    """A model-6 fit of hand-placed faces (``session`` with the faces as references) made the norm
+    fit (models/handplaced.py): the one FitResult that is printed, judged and saved."""
+    if len(result.fits) != 1:
+        return result
+    fr = result.result
+    ref = session.references_g
+    if ref is None:
+        raise DataError("hand-placed faces need the faces' references (an 'axis up' pose table)")
+    nf = norm_fit_result(fr.readings_g, ref, fr, session.noise_g())
+    return Fit(nf.calibration, "6", [(None, nf)], result.sessions, result.temp_method)
 
 
 MAX_TEMPS = 16  # set points of one simulated run
@@ -186,4 +192,4 @@ def diagnose(files: Sequence[str | Path], *, config: str | Path | None = None, r
 
 
 __all__ = ["Calibration", "Diagnosis", "Fit", "FitResult", "Loaded", "Session", "SimulatedRun", "diagnose", "fit",
-           "load", "simulate"]
+           "hand_placed_fit", "load", "simulate"]

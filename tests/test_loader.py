@@ -185,8 +185,8 @@ def test_units_hints_work_when_followed(tmp_path, log12):
 def test_rate_and_raw_hints_work_when_followed(tmp_path, log12):
     counts = log12[0]
     norate = _write(tmp_path / "norate.csv", "ax,ay,az", _cells(counts, ".0f"))
-    r = _run("diagnose", "--raw", norate)
-    _one_line_error(r, "no time column and no --rate")
+    r = _run("diagnose", "--raw", norate)  # read as fit reads it; the time view is what --rate adds
+    _one_line_error(r, "12 static poses found", "give --rate HZ for the time view")
     assert _run("diagnose", "--raw", norate, "--rate", "100").exit_code == 0
     r = _run("fit", norate, "--rate", "100")
     _one_line_error(r, "--rate is for raw sample logs; add --raw")

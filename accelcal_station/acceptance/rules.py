@@ -18,7 +18,7 @@ from .reasons import Reason
 LIMIT_KEYS = {
     "residual_rms_mg": "RMS of per-pose per-axis residuals, mg",
     "residual_max_mg": "largest per-pose per-axis residual, mg",
-    "crossval_rms_mg": "leave-one-pose-out RMS, mg",
+    "crossval_rms_mg": "held-out RMS, mg: leave-one-orientation-out where orientations repeat, else leave-one-pose-out",
     "gain_error_max": "largest |W_ii - 1| (W maps reading in g to g), fraction",
     "cross_axis_max": "largest |W_ij|, i != j, fraction",
     "offset_max_mg": "largest |V_i|, mg",
@@ -79,7 +79,7 @@ class FitFigures:
     Gamma: np.ndarray  # (B, 3) in 1/g^2
     residual_rms_g: np.ndarray  # (B,)
     residual_max_g: np.ndarray  # (B,)
-    crossval_rms_g: np.ndarray  # (B,)
+    crossval_rms_g: np.ndarray  # (B,) held-out RMS judged: by orientation where orientations repeat
     stderr_V_max_g: np.ndarray  # (B,)
     stderr_W_max: np.ndarray  # (B,)
     distinct_poses: np.ndarray  # (B,) distinct pose directions the fit rests on
@@ -92,7 +92,8 @@ class FitFigures:
         return cls(fits[0].model, np.array([f.W for f in fits]), np.array([f.V for f in fits]),
                    np.array([f.Gamma for f in fits]), np.array([f.residual_rms_g for f in fits]),
                    np.array([f.residual_max_g for f in fits]),
-                   np.array([nan if f.crossval_rms_g is None else f.crossval_rms_g for f in fits]),
+                   np.array([nan if f.acceptance_crossval_rms_g is None else f.acceptance_crossval_rms_g
+                             for f in fits]),
                    np.array([nan if f.stderr is None else np.max(f.stderr["V"]) for f in fits]),
                    np.array([nan if f.stderr is None else np.max(f.stderr["W"]) for f in fits]),
                    distinct_directions_batch(np.array([f.readings_g for f in fits]))

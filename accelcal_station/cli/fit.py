@@ -9,8 +9,7 @@ import click
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..api import Fit, check_temp_method, fit
-from ..calibration import Calibration
+from ..api import Fit, check_temp_method, fit, hand_placed_fit
 from ..data.loader import Loaded, load
 from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
@@ -56,12 +55,10 @@ def _scale_text(session: Session, fit: FitResult) -> str:
 
 
 def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
-    cv = "n/a (a left-out pose leaves the model undetermined)" if fit.crossval_rms_g is None \
-        else f"{fit.crossval_rms_g * 1e3:.3f} mg"
     out = [f"W     = {_vec(fit.W[0])}"] + [f"        {_vec(r)}" for r in fit.W[1:]]
     out += [f"V     = {_vec(fit.V)} g", f"Gamma = {_vec(fit.Gamma)}",
             f"residual RMS {fit.residual_rms_g * 1e3:.3f} mg, max {fit.residual_max_g * 1e3:.3f} mg; "
-            f"leave-one-pose-out RMS {cv}; condition number {fit.condition_number:.3g}"]
+            f"{_crossval_text(fit)}; condition number {fit.condition_number:.3g}"]
     if fit.message:
         out.append(f"note: {fit.message}")
     out += [f"held: {h.text}" for h in fit.held]
@@ -73,6 +70,19 @@ def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
         out.append(f"{n:<{w}}  {g[0]:+9.5f} {g[1]:+9.5f} {g[2]:+9.5f}  {r[0]:+9.3f} {r[1]:+9.3f} {r[2]:+9.3f}  "
                    f"{e:+11.3f}")
     return out
+
+
+def _crossval_text(fit: FitResult) -> str:
+    """Both held-out figures, and which one acceptance judges (models/crossval.py)."""
+    def mg(v: float | None, what: str) -> str:
+        return f"n/a (a left-out {what} leaves the model undetermined)" if v is None else f"{v * 1e3:.3f} mg"
+
+    loo = f"leave-one-pose-out RMS {mg(fit.crossval_rms_g, 'pose')}"
+    if not fit.orientations_repeat:
+        return loo + " (no orientation revisited: acceptance judges this)"
+    return (f"{loo}; leave-one-orientation-out RMS {mg(fit.crossval_by_orientation_rms_g, 'orientation')} "
+            f"({fit.distinct_orientations} distinct orientations among {fit.pose_count} poses: "
+            "acceptance judges by orientation)")
 
 
 def _barely_text(fit: FitResult) -> list[str]:
@@ -89,7 +99,7 @@ def _barely_text(fit: FitResult) -> list[str]:
             "add poses in new orientations"]
 
 
-def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dict[str, Any], list[str], Calibration]:
+def _hand_placed(session: Session, fr: FitResult) -> tuple[dict[str, Any], list[str]]:
     """The norm fit of hand-placed faces against the opposite-face estimate (handplaced module)."""
     x, ref = fr.readings_g, session.references_g
     if ref is None:  # model 6 was fitted, so references exist; say so plainly if that ever changes
@@ -116,12 +126,10 @@ def _hand_placed(session: Session, fr: FitResult, cal: Calibration) -> tuple[dic
                    f"{'have' if len(once) > 1 else 'has'} one pose (revisit every face to check the fits)"),
              "  misplacement (deg): " + ", ".join(f"{n} {m:.2f}" for n, m in zip(session.names, tilt, strict=True)),
              f"  note: {norm.note}"]
-    W, V = norm.as_an4399()
-    out = Calibration("6", W, V, np.zeros(3), cal.input_units, cal.input_per_g, metadata=dict(cal.metadata))
     js = {"opposite_face": {"gain": classic.gain, "offset_g": classic.offset_g},
           "norm": {"gain": norm.gain, "offset_g": norm.offset_g, "misplacement_deg": norm.misplacement_deg},
           "held_out_norm_rms_g": held, "distinct_orientations": norm.distinct, "note": norm.note}
-    return js, lines, out
+    return js, lines
 
 
 def _segmentation(log: RawLog, det: StaticDetection, names: list[str]) -> tuple[dict[str, Any], list[str]]:
@@ -242,27 +250,34 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         loaded, choice = _choose(path, loaded)
         model, hand_placed = choice.model, choice.faces is not None
     result = fit(loaded, model, temp_method=temp_method, source=path)
-    report, text = _report(path, loaded, result, as_json)
-    if choice is not None:
-        report["model_choice"] = choice.to_json()
-        if choice.faces is not None:
-            report["faces"] = [{"pose": n, "face": f, "angle_deg": float(a)} for n, f, a in
-                               zip(loaded.session.names, choice.faces.names, choice.faces.angle_deg, strict=True)]
     if hand_placed:
         if len(result.fits) != 1 or model != "6":
             raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")
-        report["hand_placed"], hp_lines, cal = _hand_placed(loaded.session, result.result, result.calibration)
+        hp = _hand_placed(loaded.session, result.result)
+        result = hand_placed_fit(result, loaded.session)  # one calibration object: printed is saved
+    report, text = _report(path, loaded, result, as_json)
+    if choice is not None:
+        report.update(_choice_json(choice, loaded.session.names))
+    if hand_placed:
+        report["hand_placed"], hp_lines = hp
         text += hp_lines
-    else:
-        cal = result.calibration
-    if output:
-        cal.save(output)
+    if output:  # the very calibration printed above (one object from fit to file)
+        result.calibration.save(output)
         report["output"] = str(output)
         text.append(f"calibration written to {output}")
     if as_json:
         _echo_json(report, result.result if len(result.fits) == 1 else None, loaded.session.names)
     else:
         _echo_lines(text)
+
+
+def _choice_json(choice: ModelChoice, names: list[str]) -> dict[str, Any]:
+    """The model fit chose, and the face each pose was taken as (hand-placed faces)."""
+    out: dict[str, Any] = {"model_choice": choice.to_json()}
+    if choice.faces is not None:
+        out["faces"] = [{"pose": n, "face": f, "angle_deg": float(a)} for n, f, a in
+                        zip(names, choice.faces.names, choice.faces.angle_deg, strict=True)]
+    return out
 
 
 # stands for a fit's per-pose rows in the report until they are written, a block at a time: a

@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import AccelcalError, DataError
+from ..errors import AccelcalError, DataError, UnitsError
 from ..models.gravity_norm import nominal_scale
 from ..session import PoseColumns, PoseRecord, Session
-from .posetable import read_pose_table, table_metadata
+from .posetable import read_pose_table, stated_scale, table_metadata
 from .rawlog import MAX_ABS_READING, LogInfo, RawLog, read_raw_log, read_text_file
 from .static_poses import StaticDetection, static_session
 
@@ -121,6 +121,12 @@ def judge_units(readings: ArrayLike, units: str | None = None, counts_per_g: flo
                             "(more than 20); give --units counts|g|mps2")
     else:
         why = f"{units} ({stated_by or 'given'})"
+        per_g = {"g": 1.0, "mps2": MPS2_PER_G}.get(units)
+        if per_g is not None and not (0.3 <= med / per_g <= 3.0):  # models.fitting.check_plausible_g's range
+            hint = ("counts given as g? use --units counts --counts-per-g N" if med / per_g > 3
+                    else "readings in another unit? give --units counts|g|mps2")
+            raise UnitsError(f"readings in {units} have a median norm of {med / per_g:.4g} g, expected about "
+                             f"1 g ({hint}; units {stated_by or 'given'})")
     cpg = counts_per_g
     if units == "counts" and cpg is None:
         cpg, how = _counts_per_g(xc)
@@ -171,13 +177,19 @@ def load_raw_log(path: str | Path, units: str | None = None, counts_per_g: float
     """A raw log: data block, rate, columns and units found, static poses segmented."""
     log = read_raw_log(path, columns, skip_rows, rate_hz)
     info = log.info
+    # "# units:" / "# counts_per_g:" / "# gravity:" lines honoured or refused as a pose table's are
+    said, counts_per_g, gravity_mps2 = stated_scale(path, info.stated, info.stated_line, units, counts_per_g,
+                                                    gravity_mps2)
+    in_file = units is None and said is not None
+    units = said
     if info.units_hint == "mg" and units is None:  # milli-g: g after / 1000
         log.xyz = log.xyz / 1000.0
         info.units_hint = "g"
     session, det = static_session(log, units or info.units_hint or "counts", counts_per_g, gravity_mps2)
     check_pose_count(session, path)
     stated = units or info.units_hint
-    by = "--units" if units else f"named in the header ({info.axis_names.get('x')!r})"
+    by = ("stated in the file ('# units:')" if in_file else "--units") if units \
+        else f"named in the header ({info.axis_names.get('x')!r})"
     try:
         j = judge_units(session.readings, stated, counts_per_g, by)
     except AccelcalError as e:
@@ -213,7 +225,18 @@ def load(path: str | Path, raw: bool = False, *, units: str | None = None, count
     for flag, v in (("--columns", columns), ("--skip-rows", skip_rows)):
         if v is not None:
             raise DataError(f"{flag} is for raw sample logs; add --raw to read {path} as one")
-    return load_pose_table(path, units, counts_per_g, gravity_mps2, references)
+    try:
+        return load_pose_table(path, units, counts_per_g, gravity_mps2, references)
+    except DataError as e:
+        if _raw_looking(str(e)):
+            raise DataError(f"{e}; if {path} is a raw sample log, add --raw") from None
+        raise
+
+
+def _raw_looking(message: str) -> bool:
+    """A pose-table header refusal that a raw sample log gives: a number as a column name (a log with
+    no header) or a column a pose table does not have (acc_x, time, ...) with x, y, z or pose missing."""
+    return "unknown column" in message or "missing column" in message
 
 
 __all__ = ["Loaded", "UnitsJudgement", "judge_units", "load", "load_pose_table", "load_raw_log",

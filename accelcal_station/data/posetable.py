@@ -49,7 +49,7 @@ MAX_POSE_ROWS = 200_000  # fit memory is linear: ~1.8 kB a pose (under 200 MB at
 MAX_TABLE_BYTES = 64 << 20  # MAX_POSE_ROWS rows of every column at full precision (~300 B a row) fit in 64 MiB
 MAX_ABS_STD = 1e9  # as a reading (rawlog.MAX_ABS_READING): beyond any ADC or unit
 MAX_SAMPLES = 1e15  # samples averaged into one pose: years at any rate
-_META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
+_META_RE = META_RE = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")  # "# key: value"
 
 
 def table_metadata(path: str | Path) -> dict[str, str]:
@@ -79,6 +79,29 @@ def _meta_number(path: Path, line: int, key: str, value: str) -> float:
     if not (math.isfinite(v) and v > 0):
         raise UnitsError(f"{path}: line {line}: {key}: {value!r}; allowed: a positive number")
     return v
+
+
+Scale = tuple[str | None, float | None, float | None]  # units, counts per g, gravity in m/s^2
+
+
+def stated_scale(path: str | Path, meta: dict[str, str], meta_line: dict[str, int], units: str | None,
+                 counts_per_g: float | None, gravity_mps2: float | None) -> Scale:
+    """The units, counts per g and gravity (m/s^2) a file states on its ``# units:``, ``# counts_per_g:``
+    and ``# gravity:`` lines (``meta`` with their 1-based ``meta_line``), each overridden by the command
+    line's value when given; a stated value that is not allowed is refused with its line.  The one
+    rule of every reader: pose tables, raw logs, lot files.  Units None: neither states them."""
+    units = units if units is not None else meta.get("units")
+    if units is not None:
+        try:
+            check_units(units)
+        except UnitsError as e:
+            where = f"line {meta_line['units']}: " if "units" in meta and units == meta["units"] else ""
+            raise UnitsError(f"{path}: {where}{e}") from None
+    if counts_per_g is None and meta.get("counts_per_g"):
+        counts_per_g = _meta_number(Path(path), meta_line["counts_per_g"], "counts_per_g", meta["counts_per_g"])
+    if gravity_mps2 is None and meta.get("gravity"):
+        gravity_mps2 = _meta_number(Path(path), meta_line["gravity"], "gravity", meta["gravity"])
+    return units, counts_per_g, gravity_mps2
 
 
 class _Row:
@@ -224,9 +247,15 @@ def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], r
     by row into columns: memory is the poses, not a second copy of the table as lists of strings."""
     reader = csv.reader(lines)
     poses = PoseColumns()
+    last = 0
     try:
         for cells in reader:
             line = header_at + 1 + reader.line_num
+            if reader.line_num - last > 1:  # a quoted cell ran over a line break: "24<LF>14" would read 2414
+                raise DataError(f"{path}: line {line - (reader.line_num - last) + 1}: a quoted cell spans "
+                                f"{reader.line_num - last} lines (a line break inside a cell); allowed: one row "
+                                "per line, numbers without line breaks")
+            last = reader.line_num
             if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
                 continue
             if len(cells) != len(header):
@@ -254,16 +283,9 @@ def read_pose_table(path: str | Path, units: str | None = None, counts_per_g: fl
                                                             f"{','.join(COLUMNS[:6])} (and optional columns)")
     hline = header_at + 1
     header = _header(path, header_text, hline)
-    units = units if units is not None else meta.get("units", "counts")
-    try:
-        check_units(units)
-    except UnitsError as e:
-        where = f"line {meta_line['units']}: " if "units" in meta and units == meta["units"] else ""
-        raise UnitsError(f"{path}: {where}{e}") from None
-    if counts_per_g is None and meta.get("counts_per_g"):
-        counts_per_g = _meta_number(path, meta_line["counts_per_g"], "counts_per_g", meta["counts_per_g"])
-    if gravity_mps2 is None and meta.get("gravity"):
-        gravity_mps2 = _meta_number(path, meta_line["gravity"], "gravity", meta["gravity"])
+    stated_units, counts_per_g, gravity_mps2 = stated_scale(path, meta, meta_line, units, counts_per_g,
+                                                            gravity_mps2)
+    units = stated_units or "counts"
     poses = _rows(path, lines, header_at, header, references)
     if not poses:
         raise DataError(f"{path}: no pose rows after the header (line {hline})")
@@ -332,4 +354,4 @@ def write_pose_table(session: Session, path: str | Path, metadata: dict[str, Any
     atomic_write(path, buf.getvalue())
 
 
-__all__ = ["COLUMNS", "read_pose_table", "table_metadata", "write_pose_table"]
+__all__ = ["COLUMNS", "META_RE", "read_pose_table", "stated_scale", "table_metadata", "write_pose_table"]

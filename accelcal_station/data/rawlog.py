@@ -21,6 +21,7 @@ import numpy as np
 
 from ..errors import DataError
 from ..fileguard.regular import read_text
+from .posetable import META_RE
 
 MIN_LOG_SAMPLES = 10
 
@@ -62,6 +63,8 @@ class LogInfo:
     units_hint: str | None = None  # units named in the x, y, z column names: g, mg, mps2, counts
     stated_rate_hz: float | None = None
     time_unit_judged: bool = False  # the time unit was guessed from the step alone
+    stated: dict[str, str] = field(default_factory=dict)  # "# key: value" lines before the data (posetable.META_RE)
+    stated_line: dict[str, int] = field(default_factory=dict)  # their 1-based line numbers
 
 
 
@@ -196,6 +199,10 @@ def _stated_rate(key: str, value: str) -> float | None:
 def _preamble(skipped: Rows, info: LogInfo) -> None:
     """Key/value lines before the data (``Fs,100``, ``# rate: 100``, ``Sample rate: 100 Hz``)."""
     for ln, s in skipped:
+        m = META_RE.match(s)
+        if m:  # "# units: g", "# counts_per_g: 4096": the pose table's metadata lines, read by the same rule
+            info.stated[m.group(1)] = m.group(2)
+            info.stated_line[m.group(1)] = ln
         body = s.lstrip("#").strip()
         parts = re.split(r"\s*[,;:=\t]\s*", body, maxsplit=1)
         key, value = (parts + [""])[:2]

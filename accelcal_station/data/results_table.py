@@ -3,7 +3,9 @@
 Columns (RESULT_COLUMNS): serial, first_row (the board's first data row, 1-based), ok,
 model, pose_count, input_units, input_per_g, W00..W22, V0..V2, Gamma0..Gamma2 (AN4399
 form: calibrated_g = W reading/input_per_g + V + Gamma (reading/input_per_g)^3),
-residual_rms_mg, residual_max_mg, crossval_rms_mg, condition_number, held (the terms the
+residual_rms_mg, residual_max_mg, crossval_rms_mg, crossval_by_orientation_rms_mg (every pose of
+one distinct orientation left out at a time, models/crossval.py; the judged figure where
+orientations repeat), condition_number, held (the terms the
 fit held at nominal because the board's poses do not determine them, e.g. ``M_xy``,
 models/held.py; "; "-joined, a list in JSON lines), verdict, reasons ("; "-joined, each
 starting with its code) and message (why a board was not fitted).  Empty cells (null in
@@ -33,7 +35,7 @@ if TYPE_CHECKING:
     from .lotfile import LotChunk
 
 FLOAT_COLUMNS = ("input_per_g", *PARAM_NAMES, "residual_rms_mg", "residual_max_mg", "crossval_rms_mg",
-                 "condition_number")
+                 "crossval_by_orientation_rms_mg", "condition_number")
 RESULT_COLUMNS = ("serial", "first_row", "ok", "model", "pose_count", "input_units", *FLOAT_COLUMNS, "held",
                   "verdict", "reasons", "message")
 FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet", ".jsonl": "jsonl", ".ndjson": "jsonl"}
@@ -50,7 +52,9 @@ def _columns(chunk: LotChunk, res: dict[str, Any], model: str, units: str, verdi
     for j, name in enumerate(PARAM_NAMES):
         cols[name] = params[:, j]
     cols.update(residual_rms_mg=res["residual_rms_g"] * 1e3, residual_max_mg=res["residual_max_g"] * 1e3,
-                crossval_rms_mg=res["crossval_rms_g"] * 1e3, condition_number=res["condition_number"],
+                crossval_rms_mg=res["crossval_rms_g"] * 1e3,
+                crossval_by_orientation_rms_mg=res["crossval_by_orientation_rms_g"] * 1e3,
+                condition_number=res["condition_number"],
                 held=["; ".join(h.term for h in hs) for hs in res.get("held", [[]] * B)],
                 verdict=verdicts, reasons=["; ".join(r) for r in reasons], message=res["message"])
     return cols

@@ -17,17 +17,19 @@
 4. Which (stochastic).  noise, pose_error, quantization and a random-walk drift change
    only the variance of what is left: each is judged by its own signature
    (diagnosis/effects) and reported under ``stochastic``; they never move the gap.
-5. Verdict.  explained / partly explained / unexplained / nothing to explain (verdict), with the
+5. Verdict.  explained / partly explained / accounted for / unexplained / nothing to explain
+   (verdict: "explained" needs the held-out gap within EXPLAINED_GAP_MAX of the floor), with the
    shape of what is left (shape), read from every view: axis, input level, temperature and
-   acquisition order.  A selected effect whose columns follow acquisition order (order: R^2 of
-   its columns on a cubic in row number above 0.8) is confounded with a change over the session:
-   the verdict says so and is never "explained" (``confounded_with`` in the JSON).
+   acquisition order.  An effect the selection took whose columns follow acquisition order (order:
+   R^2 of its columns on a cubic in row number above 0.8) is confounded with a change over the
+   session: it is moved out of ``selected`` into ``confounded`` (with its R^2) and the verdict says so.
 
 The record and its JSON are in result; the self-check is in selftest; loading in loading.
 """
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -95,13 +97,19 @@ def _stochastic(data: GapData, floor: Floor, final: Evaluation, td: TimeData | N
 
 def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     """Floor, gap, where, which (deterministic, stochastic), verdict (module doc)."""
+    if data.exclude:  # fit's model for these data has no terms for them (loading.fit_ground)
+        sim = replace(sim, exclude=tuple(data.exclude))
     _check_sim(data, sim)
     td = time_data(data)
     floor = fixed_floor(data, sim, td)
     testable, why, static_ok, static_why = candidates(data, sim, td)
     if not static_ok and td is None:
-        raise UnderdeterminedError(f"nothing to diagnose: {static_why}, and there are no raw captures "
-                                   "(give references, more poses, or raw logs with --raw)")
+        raw_no_rate = any("no sample rate" in n for n in data.notes)
+        more = ("give --rate HZ for the time view within captures, or revisit the poses" if raw_no_rate
+                else "give references, more poses, or raw logs with --raw")
+        raise UnderdeterminedError(f"nothing to diagnose: {data.P} static poses found "
+                                   f"({', '.join(data.names[:12])}{' ...' if data.P > 12 else ''}), and no gap "
+                                   f"can be measured: {static_why}, and there are no raw captures ({more})")
 
     centres: list[np.ndarray | None] = [None]
 
@@ -118,6 +126,14 @@ def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     base = ev([])
     centres.append(_zero_g(base))
     final, selected, steps, ranking, tried = select(ev, data, sim, base, testable, td, alpha)
+    # drift and settling are functions of time themselves, and temperature is measured per pose (temp_c) and
+    # stepped set point after set point by any thermal plan: only the other static terms can be confounded
+    # with order; a confounded effect is not selected (the held-out test cannot tell it from a change over
+    # the session)
+    confounded = confounded_with_order(data, [s for s in selected if s not in ORDER_EXEMPT])
+    if confounded:
+        selected = [s for s in selected if s not in confounded]
+        final = ev(selected) if selected else base
     stoch, passed = _stochastic(data, floor, final, td, why, alpha, lambda: ev(selected + ["pose_error"]))
     if "pose_error" in stoch:
         stoch["pose_error"]["jig_rotation"] = jig_rotation(data, base, sim.baseline, floor.gamma, alpha)
@@ -125,11 +141,13 @@ def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     d = Diagnosis(data, sim, floor, base, final, ranking, steps, selected + [p for p in passed if p not in selected],
                   why, static_ok, static_why, where, alpha, stoch, tried)
     d.leftover = leftover_shape(data, final, td, alpha)
-    # drift and settling are functions of time themselves: only static terms can be confounded with it
-    d.confounded_with = confounded_with_order(data, [s for s in selected if s not in ("drift", "settling")])
+    d.confounded_with = confounded
     d.verdict, d.verdict_text = verdict(d)
     d.identifiability = describe_design(data, sim.baseline + tuple(selected))
     return d
+
+
+ORDER_EXEMPT = ("drift", "settling", "temperature")  # never moved to ``confounded`` (diagnose's comment)
 
 
 def _zero_g(base: Evaluation) -> np.ndarray:

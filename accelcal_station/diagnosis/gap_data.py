@@ -45,6 +45,10 @@ class GapData:
     notes: list[str] = field(default_factory=list)
     counts_per_g: list = field(default_factory=list)  # per file: counts per g used (None: not counts)
     zero_g: np.ndarray | None = None  # (3,) the zero-g reading of the baseline fit (centres cubic and square)
+    fit_model: str | None = None  # the model `accelcal fit` chooses for these data ("6" with fit_faces: hand-placed)
+    fit_faces: bool = False  # fit's choice is the hand-placed faces' norm fit (gain and offset per axis)
+    exclude: tuple[str, ...] = ()  # baseline effects fit's model has no terms for (loading.fit_ground)
+    fit_refused: str = ""  # fit's words refusing these poses: no static view (loading.fit_ground)
 
     @property
     def P(self) -> int:

@@ -13,7 +13,8 @@ from ..data.loader import load
 from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection, static_session
 from ..drivers.simulated import SimulatedBoard
-from ..errors import ConfigError, DataError, UnderdeterminedError, UnitsError
+from ..errors import AccelcalError, ConfigError, DataError, UnderdeterminedError, UnitsError
+from ..models.choice import ModelChoice, choose_model
 from ..models.fitting import check_plausible_g
 from ..models.gravity_norm import nominal_scale
 from ..session import Session
@@ -37,6 +38,7 @@ class Simulator:
     dlpf: int | None
     source: str
     device: dict = field(default_factory=dict)  # the board section (for the self-test)
+    exclude: tuple[str, ...] = ()  # effects left out of the baseline: fit's model has no terms for them
 
     @classmethod
     def from_board(cls, board: SimulatedBoard, source: str, device: dict | None = None) -> Simulator:
@@ -49,7 +51,7 @@ class Simulator:
     @property
     def baseline(self) -> tuple[str, ...]:
         """The deterministic effects the configuration enables: fitted to the data."""
-        return tuple(e for e in FITTED if e in self.enabled)
+        return tuple(e for e in FITTED if e in self.enabled and e not in self.exclude)
 
     def sigma_g(self, rate_hz: float | None) -> np.ndarray:
         """Per-sample noise sigma (g) at the data's rate (the configured ODR when unknown)."""
@@ -178,6 +180,24 @@ def _captures(log: RawLog, session: Session, det: StaticDetection) -> Part:
     return session, caps, log.source
 
 
+# effects of the baseline the chosen model has no terms for (the sim's baseline is offset, gain, cross_axis, ...)
+NOT_IN_MODEL = {"hand-placed norm fit": ("cross_axis", "cubic", "quadratic"), "6": ("cross_axis", "cubic", "quadratic"),
+                "9": ("cubic", "quadratic"), "12": ("cubic", "quadratic"), "15": ("quadratic",)}
+
+
+def fit_ground(parts: Sequence[Part]) -> tuple[ModelChoice | None, str]:
+    """The model `accelcal fit` chooses for the data (models/choice.py; the first file's for several
+    files), or fit's words refusing them ("" when none refuses)."""
+    choice = None
+    for session, _, src in parts:
+        try:
+            c = choose_model(session)
+        except AccelcalError as e:
+            return None, f"{src}: {e}"
+        choice = choice or c
+    return choice, ""
+
+
 def load_data(paths: Sequence[str | Path], raw: bool = False, units: str | None = None,
               counts_per_g: float | None = None, gravity: float | None = None, columns: str | None = None,
               skip_rows: int | None = None, rate: float | None = None, samples: int | None = None,
@@ -198,16 +218,28 @@ def load_data(paths: Sequence[str | Path], raw: bool = False, units: str | None 
         if loaded.log is None:
             parts.append((loaded.session, None, str(path)))
             continue
-        if not loaded.log.rate_hz:
-            raise DataError(f"{path}: no time column and no --rate: the diagnosis needs the sample rate "
-                            "(noise bandwidth, time within captures)")
-        rates.add(round(loaded.log.rate_hz, 6))
         assert loaded.detection is not None, "a raw log is loaded with its segmentation"
+        if not loaded.log.rate_hz:  # as fit reads it: the poses' means, std and n; no time view without times
+            inferred.append(f"{path}: no sample rate (no time column, no --rate): the poses' means, std and n "
+                            "are analysed; the time view (within captures) needs --rate HZ")
+            parts.append((loaded.session, None, str(path)))
+            continue
+        rates.add(round(loaded.log.rate_hz, 6))
         parts.append(_captures(loaded.log, loaded.session, loaded.detection))
+    choice, refused = fit_ground(parts)
+    if refused and not any(cap is not None for _, cap, _ in parts):
+        raise UnderdeterminedError(f"nothing to diagnose: {refused} (`accelcal fit` refuses these poses, so "
+                                   "there is no baseline to judge a gap by; raw logs with a rate add a time view)")
     if len(rates) > 1:
         raise DataError(f"raw logs at different rates ({', '.join(f'{r:g}' for r in sorted(rates))} Hz); "
                         "diagnose logs of one rate together")
     data = gap_data(parts, samples, norm_only, rates.pop() if rates else rate)
+    data.fit_refused = refused
+    if choice is not None and not norm_only:
+        data.fit_model, data.fit_faces = choice.model, choice.faces is not None
+        data.exclude = NOT_IN_MODEL[choice.method if choice.faces is not None else choice.model]
+        data.notes.append(f"baseline on fit's ground: {choice.method} as `accelcal fit` chooses it ({choice.reason})"
+                          + (f"; not fitted: {', '.join(data.exclude)}" if data.exclude else ""))
     data.notes[:0] = inferred  # what reading the files inferred comes first in the summary
     return data
 

@@ -59,7 +59,8 @@ def to_json(d: Diagnosis) -> dict[str, Any]:
     data, fl = d.data, d.floor
     floor_rms = [float(np.sqrt(np.mean(x))) for x in (d.base.floor_static, d.base.floor_time) if x is not None]
     return {
-        "verdict": d.verdict, "verdict_text": d.verdict_text, "confounded_with": d.confounded_with,
+        "verdict": d.verdict, "verdict_text": d.verdict_text, "confounded": d.confounded_with,
+        "confounded_with": d.confounded_with,
         "gap_before": d.gap_before, "gap_after": d.gap_after,
         "rms_mg_before": 1e3 * d.base.rms_g, "rms_mg_after": 1e3 * d.final.rms_g,
         "floor_mg": 1e3 * float(np.sqrt(np.mean(np.square(floor_rms)))),

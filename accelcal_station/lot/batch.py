@@ -64,6 +64,7 @@ class BoardResult:
     residual_max_g: float | None = None
     crossval_rms_g: float | None = None
     condition_number: float | None = None
+    crossval_by_orientation_rms_g: float | None = None  # every pose of one orientation left out (models/crossval)
     temperatures_c: list[float] | None = None
     run_id: int | None = None
     fit: FitResult | None = field(default=None, repr=False)  # single-temperature fits
@@ -85,8 +86,9 @@ class BoardResult:
                 "W": None if cal is None else cal.W.tolist(), "V": None if cal is None else cal.V.tolist(),
                 "Gamma": None if cal is None else cal.Gamma.tolist(),
                 "residual_rms_g": self.residual_rms_g, "residual_max_g": self.residual_max_g,
-                "crossval_rms_g": self.crossval_rms_g, "condition_number": self.condition_number,
-                "temperatures_c": self.temperatures_c,
+                "crossval_rms_g": self.crossval_rms_g,
+                "crossval_by_orientation_rms_g": self.crossval_by_orientation_rms_g,
+                "condition_number": self.condition_number, "temperatures_c": self.temperatures_c,
                 "input_units": None if cal is None else cal.input_units,
                 "input_per_g": None if cal is None else cal.input_per_g,
                 "held": [h.to_json() for h in self.held],
@@ -97,6 +99,7 @@ class BoardResult:
         """The fit figures the results store summarises (store/exports.py _FIT_SCALARS names)."""
         return {"model": self.model, "pose_count": self.pose_count, "residual_rms_g": self.residual_rms_g,
                 "residual_max_g": self.residual_max_g, "crossval_rms_g": self.crossval_rms_g,
+                "crossval_by_orientation_rms_g": self.crossval_by_orientation_rms_g,
                 "condition_number": self.condition_number, "temperatures_c": self.temperatures_c,
                 "source": self.source, "recalibrated_by": "accelcal batch"}
 
@@ -234,7 +237,8 @@ def _fit_stack(members: list[tuple[str, Session]], model: str) -> list[BoardResu
         fr = b.result(d)
         out.append(BoardResult(src, board_serial(s), True, fr.message, model, len(s), fr.calibration,
                                fr.residual_rms_g, fr.residual_max_g, fr.crossval_rms_g, fr.condition_number,
-                               run_id=s.metadata.get("run_id"), fit=fr, session=s, held=fr.held))
+                               fr.crossval_by_orientation_rms_g, run_id=s.metadata.get("run_id"), fit=fr,
+                               session=s, held=fr.held))
     return out
 
 
@@ -248,7 +252,7 @@ def _fit_temperature(src: str, s: Session, model: str) -> BoardResult:
     return BoardResult(src, board_serial(s), True, "", model, len(s), cal,
                        float(np.sqrt(np.mean(res**2))), float(np.max(np.abs(res))),
                        float(np.sqrt(np.mean(np.square(cvs)))) if len(cvs) == len(fits) else None,
-                       float(max(f.condition_number for _, f in fits)), [t for t, _ in fits],
+                       float(max(f.condition_number for _, f in fits)), None, [t for t, _ in fits],
                        run_id=s.metadata.get("run_id"), session=s)
 
 
@@ -372,7 +376,8 @@ def write_calibrations(report: BatchReport, out_dir: str | Path) -> dict[str, Pa
 
 
 CSV_COLUMNS = ("source", "serial", "run_id", "ok", "message", "model", "pose_count", "residual_rms_mg",
-               "residual_max_mg", "crossval_rms_mg", "condition_number", "held", *PARAM_NAMES)
+               "residual_max_mg", "crossval_rms_mg", "crossval_by_orientation_rms_mg", "condition_number", "held",
+               *PARAM_NAMES)
 
 
 def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
@@ -385,7 +390,7 @@ def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
         params = param_vector(r.fitted_calibration.to_dict()).tolist() if r.ok else [""] * len(PARAM_NAMES)
         w.writerow([r.source, r.serial or "", "" if r.run_id is None else r.run_id, int(r.ok), r.message, r.model,
                     r.pose_count, mg(r.residual_rms_g), mg(r.residual_max_g), mg(r.crossval_rms_g),
-                    "" if r.condition_number is None else repr(r.condition_number),
+                    mg(r.crossval_by_orientation_rms_g), "" if r.condition_number is None else repr(r.condition_number),
                     "; ".join(h.term for h in r.held), *map(str, params)])
     text = buf.getvalue()
     if path is not None:

@@ -55,6 +55,7 @@ def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> d
     out: dict[str, Any] = {"ok": np.zeros(B, bool), "W": np.full((B, 3, 3), np.nan), "V": np.full((B, 3), np.nan),
            "Gamma": np.full((B, 3), np.nan), "residual_rms_g": np.full(B, np.nan),
            "residual_max_g": np.full(B, np.nan), "crossval_rms_g": np.full(B, np.nan),
+           "crossval_by_orientation_rms_g": np.full(B, np.nan), "distinct_orientations": np.zeros(B, int),
            "condition_number": np.full(B, np.nan), "stderr_V_max": np.full(B, np.nan),
            "stderr_W_max": np.full(B, np.nan), "input_per_g": np.full(B, np.nan), "pose_count": sizes,
            "distinct_poses": np.zeros(B, int), "held": [[] for _ in range(B)]}
@@ -111,6 +112,11 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
     out["residual_rms_g"][sel] = b.residual_rms_g[ok]
     out["residual_max_g"][sel] = np.max(np.abs(b.residuals_g[ok]), axis=(1, 2))
     out["crossval_rms_g"][sel] = np.where(b.crossval_ok[ok], b.crossval_rms_g[ok], np.nan)
+    if b.crossval_by_orientation_rms_g is not None and b.crossval_by_orientation_ok is not None:
+        out["crossval_by_orientation_rms_g"][sel] = np.where(b.crossval_by_orientation_ok[ok],
+                                                             b.crossval_by_orientation_rms_g[ok], np.nan)
+    if b.distinct_orientations is not None:
+        out["distinct_orientations"][sel] = b.distinct_orientations[ok]
     out["condition_number"][sel] = b.condition_number[ok]
     se = b.stderr_ok[ok]
     out["stderr_V_max"][sel] = np.where(se, np.max(b.stderr_V[ok], axis=1), np.nan)
@@ -122,9 +128,12 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
 
 
 def figures(res: dict[str, Any], model: str) -> FitFigures:
-    """The acceptance rules' inputs for a chunk's boards (NaN where a board was not fitted)."""
+    """The acceptance rules' inputs for a chunk's boards (NaN where a board was not fitted); the
+    held-out figure by orientation where a board revisits an orientation (models/crossval.py)."""
+    repeat = res["distinct_orientations"] < res["pose_count"]
+    cv = np.where(repeat, res["crossval_by_orientation_rms_g"], res["crossval_rms_g"])
     return FitFigures(model, res["W"], res["V"], res["Gamma"], res["residual_rms_g"], res["residual_max_g"],
-                      res["crossval_rms_g"], res["stderr_V_max"], res["stderr_W_max"], res["distinct_poses"],
+                      cv, res["stderr_V_max"], res["stderr_W_max"], res["distinct_poses"],
                       [[h.text for h in hs] for hs in res["held"]])
 
 
@@ -144,7 +153,8 @@ def judge_chunk(res: dict[str, Any], limits: Limits | None, model: str) -> tuple
     fitted = np.flatnonzero(ok)
     if fitted.size:
         sub = {k: res[k][fitted] for k in ("W", "V", "Gamma", "residual_rms_g", "residual_max_g",
-                                           "crossval_rms_g", "stderr_V_max", "stderr_W_max", "distinct_poses")}
+                                           "crossval_rms_g", "crossval_by_orientation_rms_g", "distinct_orientations",
+                                           "pose_count", "stderr_V_max", "stderr_W_max", "distinct_poses")}
         sub["held"] = [res["held"][b] for b in fitted]
         for b, v in zip(fitted, judge_all(figures(sub, model), limits), strict=True):
             reasons[b] = list(v.reasons)

@@ -61,12 +61,17 @@ class ModelChoice:
                 "held": [h.term for h in self.held]}
 
 
-def _unit_readings(session: Session) -> np.ndarray:
-    """Readings in about g (the session's scale, or the readings' own radius when it has none)."""
+def _scale(session: Session) -> float:
+    """Input units per g: the session's, or the readings' own radius when it has none."""
     x = session.readings
     if session.units == "counts" and session.counts_per_g is None:
-        return x / nominal_scale(x[None])[0]
-    return x / session.input_per_g
+        return float(nominal_scale(x[None])[0])
+    return float(session.input_per_g)
+
+
+def _unit_readings(session: Session) -> np.ndarray:
+    """Readings in about g (the session's scale, or the readings' own radius when it has none)."""
+    return session.readings / _scale(session)
 
 
 def axis_faces(session: Session, tol_deg: float = FACE_TOL_DEG) -> Faces | None:
@@ -112,9 +117,10 @@ def choose_model(session: Session) -> ModelChoice:
     if faces is not None:
         return ModelChoice("6", "no references and every pose an axis-up face: gain and offset per axis by the "
                                 "gravity norm", faces)
-    g = _unit_readings(session)
+    scale = _scale(session)
+    noise = session.noise()
     try:
-        held = hold_plan(g, "9")
+        held = hold_plan(session.readings / scale, "9", None if noise is None else noise / scale)
     except UnderdeterminedError as e:
         raise UnderdeterminedError(
             f"no model is determined: model 9 (no references): {e}; or place the board on all six faces "

@@ -17,6 +17,7 @@ from ..calibration import MODELS, Calibration, TemperatureTable
 from ..conventions import check_units, units_per_g
 from ..errors import DataError, UnderdeterminedError, UnitsError
 from ..session import Session
+from .crossval import crossval_by_orientation
 from .gravity_norm import PARAM_NAMES, nominal_scale
 from .held import HoldPlan, cubic_held, hold_plans
 from .result import BatchFit, FitResult
@@ -83,7 +84,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
         nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]
     # from the distinct orientations, before any solver runs: what each board determines, and
     # the weak terms held at nominal (models/held.py; refused when a gain or an offset is weak)
-    plan = hold_plans(gf, model)
+    plan = hold_plans(gf, model, nz)
     if len(gf) == 1 and plan.refused[0]:  # one board: its reason, before a solver says less
         raise UnderdeterminedError(plan.refused[0])
     gf_fit = gf
@@ -100,6 +101,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     except np.linalg.LinAlgError:
         raise DataError("the readings cannot be fitted (numerically singular or overflowing: "
                         "a reading far beyond the sensor's range?)") from None
+    _crossval_orient(res, gf_fit, references, x, model, nz, plan)
     for d, why in enumerate(plan.refused):
         if why:
             res.ok[d] = False
@@ -134,6 +136,33 @@ def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, mode
         res = fit_stacked(gf, _references(references, x, model), model, nz)
     res.held = [list(h) for h in plan.held]
     return res
+
+
+def _crossval_orient(res: BatchFit, gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, model: str,
+                     nz: np.ndarray | None, plan: HoldPlan) -> None:
+    """Leave every pose of one distinct orientation out at a time (models/crossval.py), each fold
+    refitted by the one stacked estimator with the board's held terms."""
+    ref = None if model == "9" else np.broadcast_to(_references(references, x, model), gf.shape)
+
+    def fold(rows: np.ndarray, keep: np.ndarray) -> BatchFit:
+        sub = HoldPlan([plan.held[d] for d in rows], [""] * len(rows))
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            try:
+                return _fit_stack(gf[rows][:, keep], None if ref is None else ref[rows][:, keep], x[rows][:, keep],
+                                  model, None if nz is None else nz[rows][:, keep], sub)
+            except (UnderdeterminedError, DataError, np.linalg.LinAlgError):
+                return _failed(len(rows))
+
+    rms, ok, distinct = crossval_by_orientation(gf, ref, model, fold, res.crossval_rms_g, res.crossval_ok)
+    res.crossval_by_orientation_rms_g, res.crossval_by_orientation_ok, res.distinct_orientations = rms, ok, distinct
+
+
+def _failed(n: int) -> BatchFit:
+    """A fold no fit determines: every board not ok (its cross-validation is not computable)."""
+    z = np.zeros((n, 3))
+    return BatchFit("", np.zeros((n, 3, 3)), z, z, np.zeros((n, 0, 3)), np.zeros((n, 0)), z, np.zeros(n),
+                    np.zeros(n), np.zeros(n, bool), np.zeros(n), np.zeros((n, 3, 3)), z, z, np.zeros(n, bool),
+                    np.zeros((n, 0, 0)), np.zeros((n, 0)), [], np.zeros(n, bool), [""] * n, np.zeros((n, 0, 3)))
 
 
 def _references(references: ArrayLike | None, x: np.ndarray, model: str) -> np.ndarray:

@@ -21,8 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..calibration import Calibration
 from ..errors import UnderdeterminedError
 from ..identifiability import first_of_orientation
+from .linear import param_names
+from .result import FitResult
 
 GN_ITER = 20
 AXES = "xyz"
@@ -105,4 +108,55 @@ def norm_faces(x_g: ArrayLike, ref: ArrayLike) -> FaceFit:
     return FaceFit("norm", w, o, mis, distinct, note)
 
 
-__all__ = ["FaceFit", "norm_faces", "opposite_face"]
+def _held_out_rms(x: np.ndarray, ref: np.ndarray) -> float | None:
+    """Leave-one-pose-out RMS norm error of the norm fit, or None when some face has one pose (leaving
+    it out leaves that face's gain and offset undetermined)."""
+    ax, sign = _faces(ref)
+    if any(np.sum((ax == a) & (sign == s)) < 2 for a in range(3) for s in (1, -1)):
+        return None
+    e = [norm_faces(np.delete(x, i, 0), np.delete(ref, i, 0)).norm_error_g(x[i:i + 1])[0] for i in range(len(x))]
+    return float(np.sqrt(np.mean(np.square(e))))
+
+
+def norm_fit_result(x_g: ArrayLike, ref: ArrayLike, base: FitResult, noise_g: ArrayLike | None = None
+                    ) -> FitResult:
+    """The hand-placed faces' norm fit as the FitResult `accelcal fit` prints and saves (one object
+    from fit to file): W = diag(w), V = -w o; residuals as model 9's (the calibrated reading's
+    distance to the unit sphere), norm errors, leave-one-pose-out norm error, and standard errors
+    (J^T J)^-1 s^2 of r_p = |w (x_p - o)| - 1 (s^2 the mean squared per-pose noise when given, else
+    RSS / (P - 6)).  ``base``: the model-6 fit of the same poses (units, scale, metadata)."""
+    x, r_ = np.asarray(x_g, dtype=float), np.asarray(ref, dtype=float)
+    nf = norm_faces(x, r_)
+    W, V = nf.as_an4399()
+    cal = Calibration("6", W, V, np.zeros(3), base.calibration.input_units, base.calibration.input_per_g,
+                      metadata={**base.calibration.metadata, "method": "hand-placed norm fit"})
+    out = nf.apply(x)
+    n = np.linalg.norm(out, axis=1)
+    resid = out / n[:, None] - out
+    d = x - nf.offset_g
+    J = np.concatenate([out * d / n[:, None], -out * nf.gain / n[:, None]], axis=1)
+    P = len(x)
+    s2 = float(np.mean(np.square(noise_g))) if noise_g is not None else \
+        (float(np.sum((n - 1.0) ** 2)) / (P - 6) if P > 6 else None)
+    sv = np.linalg.svd(J, compute_uv=False)
+    cov = np.linalg.pinv(J.T @ J) * s2 if s2 is not None else None
+    stderr = None
+    if cov is not None:  # dV/d(w, o): V = -w o
+        se_w = np.sqrt(np.clip(np.diag(cov)[:3], 0, None))
+        G = np.concatenate([np.diag(-nf.offset_g), np.diag(-nf.gain)], axis=1)
+        se_v = np.sqrt(np.clip(np.diag(G @ cov @ G.T), 0, None))
+        stderr = {"W": np.diag(se_w), "V": se_v, "Gamma": np.zeros(3)}
+    return FitResult(model="6", calibration=cal, pose_count=P, readings_g=x, residuals_g=resid,
+                     norm_error_g=n - 1.0, P=np.sum(resid**2, axis=0),
+                     residual_rms_g=float(np.sqrt(np.mean((n - 1) ** 2))),
+                     residual_max_g=float(np.max(np.abs(resid))), stderr=stderr, covariance=cov,
+                     condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
+                     crossval_rms_g=_held_out_rms(x, r_), crossval_residuals_g=None,
+                     params=np.concatenate([nf.gain, V]), param_names=param_names("6"),
+                     message="hand-placed norm fit: gain and offset per axis by the gravity norm",
+                     # leaving every pose of a face out leaves its gain and offset undetermined
+                     crossval_by_orientation_rms_g=_held_out_rms(x, r_) if nf.distinct == P else None,
+                     distinct_orientations=nf.distinct)
+
+
+__all__ = ["FaceFit", "norm_faces", "norm_fit_result", "opposite_face"]

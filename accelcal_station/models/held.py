@@ -1,23 +1,40 @@
-"""Fit what the poses determine, hold the rest at nominal, and say so.
+"""Fit what the data determine, hold the rest at nominal, and say so.
 
 Model 9's design (identifiability.py: the norm model linearised at M = I, B = 0, one column
-per parameter over the distinct orientations; the columns are functions of unit directions,
-all of order 1, and are compared unnormalised here, since normalising would blow a column
-that is zero but for placement noise up to full size) can leave one direction
-weak while the others are well determined: six faces plus tilts only in the x-z and y-z
-planes give ``2 u_x u_y = 0`` at every pose, so the x-y non-orthogonality M_xy is not seen
-by any reading.  Fitting it freely invents a value from noise; refusing the log throws
-away well-determined gains and offsets.  So the weak direction is held at its nominal
-value (M_xy = 0, a constrained solve), named in words, and given zero variance.
+per parameter; the columns are functions of unit directions, all of order 1) can leave one
+direction weak while the others are well determined: six faces plus tilts only in the x-z and
+y-z planes give ``2 u_x u_y ~ 0`` at every pose, so the x-y non-orthogonality M_xy is seen only
+through the few degrees the tilts happen to lean out of their planes.  Whether that is enough
+depends on the noise, not on the geometry alone: at 0.1 mg per pose mean a 0.02 relative
+singular value still pins M_xy to a few 1e-3, at 20 times that noise it does not.
 
-Rule (``hold_plans``, vectorised over boards; ``hold_plan`` one board): while the smallest
-relative singular value of the free columns is below ``identifiability.REL_SV_MIN`` (0.05:
-that direction's standard error is more than 20 times the best-determined one's, so noise is
-amplified 20-fold into it), take its singular vector; when the largest component is a non-
-orthogonality term, hold that term and look again. When the weak direction is led by a gain
-(M_xx..M_zz) or an offset (B_x..B_z) the model is refused: those have no nominal value a
-calibration could keep. Holding all three non-orthogonalities leaves a diagonal M: that is
-the hand-placed faces' norm fit (models/handplaced.py), which the caller uses instead.
+Rule (``hold_plans``, vectorised over boards; ``hold_plan`` one board), per board and per
+non-orthogonality term k (M_xy, M_xz, M_yz):
+
+  se_k = sqrt([(J^T S^-1 J)^-1]_kk)      the term's predicted standard error at the data's noise
+                                          (J the linearised design over every pose, S = diag
+                                          sigma_p^2, sigma_p the noise of pose p's norm: the
+                                          per-pose std / sqrt(n) given in the data projected on
+                                          the pose's direction, else the residual scatter of the
+                                          geometric plan's fit, RSS / (P - free terms))
+  held at 0  when se_k >= PRIOR_SD_NONORTHO (0.02)
+
+0.02 is the data-sheet spread of the term: cross-axis sensitivity is +-1 % (MMA8451Q) to
++-2 % (MPU-6050 product specification, "Cross-Axis Sensitivity +-2 %"), taken as one sigma of
+the prior.  A term the data cannot pin down better than the prior would be fitted to noise and
+move the calibration more than setting it to its nominal 0 does, so it is held; one they can,
+is fitted freely (the posterior of a Gaussian prior with se_k << 0.02 is the free fit).  The
+worst term (largest se_k / prior) is held first and the others judged again without it, as
+holding one changes the others' standard errors.
+
+Refusals stay geometric: fewer than nine distinct orientations, or a weak direction
+(relative singular value below ``identifiability.REL_SV_MIN`` of the distinct orientations'
+design, unnormalised: normalising would blow a column that is zero but for placement noise up
+to full size) led by a gain (M_xx..M_zz) or an offset (B_x..B_z), which have no nominal value
+a calibration could keep; every pose an axis-up face gives FACES_ONLY (the hand-placed norm
+fit, models/handplaced.py, is that fit).  A pose table with neither std/n nor spare poses gives
+no noise to judge by: the geometric plan (hold while the weak direction is a
+non-orthogonality) is used and said so.
 
 Model 15 whose cubic the poses cannot tell from the gain (every reading about +-1 g or 0)
 while model 12 is determined: the three cubic terms are held at 0 (the fit is model 12's,
@@ -31,7 +48,7 @@ from functools import cache
 import numpy as np
 
 from ..errors import UnderdeterminedError
-from ..identifiability import REL_SV_MIN, _design, assess, assess_batch, first_of_orientation
+from ..identifiability import REL_SV_MIN, _centre, _design, assess, assess_batch, first_of_orientation
 from .gravity_norm import PARAM_NAMES
 from .linear import param_names
 from .result import BatchFit
@@ -58,10 +75,26 @@ class Held:
         return {"term": self.term, "value": self.value, "reason": self.reason, "hint": self.hint}
 
 
-@cache  # frozen: one instance per term serves every board of a lot
+PRIOR_SD_NONORTHO = 0.02  # one sigma of a non-orthogonality before the data: data-sheet cross-axis spread
+TOGETHER_MIN = 0.1  # |2 u_a u_b| below this at every pose (about 3 deg): "no pose tilts a and b together"
+
+
+@cache  # frozen: one instance per term serves every board of a lot (the geometric plan)
 def _held_9(k: int) -> Held:
     a, b = HOLDABLE_9[k]
     return Held(PARAM_NAMES[k], 0.0, f"{a}-{b} non-orthogonality held at 0: no pose tilts {a} and {b} together",
+                f"add a pose between +{a} and +{b} to determine it")
+
+
+def _held_noise(k: int, se: float, together: float) -> Held:
+    """Term k held by the noise rule (module doc): its predicted standard error ``se`` is not below
+    the prior; ``together`` the largest |2 u_a u_b| over the poses."""
+    a, b = HOLDABLE_9[k]
+    why = f"no pose tilts {a} and {b} together" if together < TOGETHER_MIN else \
+        f"the poses tilt {a} and {b} together too little for their noise"
+    sd = "not determined at all" if not np.isfinite(se) else f"+-{se:.2g}"
+    return Held(PARAM_NAMES[k], 0.0, f"{a}-{b} non-orthogonality held at 0: {why} (standard error at the data's "
+                                     f"noise {sd}, not below its prior +-{PRIOR_SD_NONORTHO:g})",
                 f"add a pose between +{a} and +{b} to determine it")
 
 
@@ -149,14 +182,118 @@ def _plan9(gf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return order, code
 
 
-def hold_plans(gf: np.ndarray, model: str) -> HoldPlan:
+def norm_sigma_g(gf: np.ndarray, noise_g: np.ndarray) -> np.ndarray:
+    """(D, P) standard error of each pose's norm in g: the per-axis standard errors of the mean
+    ``noise_g`` (D, P, 3) projected on the pose's unit direction u, sqrt(sum_c u_c^2 se_c^2)."""
+    x = gf - _centre(gf)[:, None, :]
+    u2 = x**2 / np.maximum(np.einsum("dpi,dpi->dp", x, x), 1e-300)[..., None]
+    return np.sqrt(np.einsum("dpi,dpi->dp", u2, np.asarray(noise_g, dtype=float) ** 2))
+
+
+def _stderr9(Gw: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """(D, 9) standard errors sqrt(diag (J_f^T S^-1 J_f)^-1) of the free parameters (held: 0),
+    from the weighted Gram matrices Gw (D, 9, 9); eigenvalues below 1e-13 of the largest are
+    clipped there, so a direction the data do not see gets a huge, finite, ordered error."""
+    f = free.astype(float)
+    A = Gw * f[:, :, None] * f[:, None, :]
+    fill = np.einsum("dkk->d", A) / np.maximum(f.sum(axis=1), 1.0)
+    A[:, np.arange(9), np.arange(9)] += (1.0 - f) * fill[:, None]
+    w, V = np.linalg.eigh(A)
+    w = np.maximum(w, np.maximum(w[:, -1:], 1e-300) * 1e-13)
+    return np.sqrt(np.einsum("dkj,dj->dk", V**2, 1.0 / w)) * f
+
+
+def _noise_plan9(gf: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The module doc's noise rule for D boards: the held non-orthogonalities in the order held
+    ((D, 3) int, -1 none) and each one's standard error when it was held ((D, 3)); ``sigma``
+    (D, P) the standard error of each pose's norm in g."""
+    D = len(gf)
+    X = _design(gf, "9")[:, 0]  # every pose, revisits included: they average the noise down
+    Gw = np.einsum("dpi,dp,dpj->dij", X, 1.0 / sigma**2, X)
+    free = np.ones((D, 9), dtype=bool)
+    order, se_at = np.full((D, 3), -1), np.full((D, 3), np.nan)
+    hold = np.array(sorted(HOLDABLE_9))
+    rows = np.arange(D)
+    for nh in range(3):
+        se = _stderr9(Gw[rows], free[rows])
+        ratio = np.where(free[rows][:, hold], se[:, hold] / PRIOR_SD_NONORTHO, -1.0)
+        j = np.argmax(ratio, axis=1)
+        step = ratio[np.arange(len(rows)), j] >= 1.0
+        rows, j, se = rows[step], j[step], se[step]
+        if not rows.size:
+            break
+        order[rows, nh] = hold[j]
+        se_at[rows, nh] = se[np.arange(len(rows)), hold[j]]
+        free[rows, hold[j]] = False
+    return order, se_at
+
+
+def _scatter_sigma(gf: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """(D, P) the residual scatter of the geometric plan's fit (``order`` its held terms),
+    sqrt(RSS / (P - free terms)) at every pose; NaN where no degree of freedom is left."""
+    from .stacked_norm import fit9  # the fitter: imported only when a table gives no noise
+
+    free = np.ones((len(gf), 9), dtype=bool)
+    for c in range(order.shape[1]):
+        rows = np.flatnonzero(order[:, c] >= 0)
+        free[rows, order[rows, c]] = False
+    res = fit9(gf, None, free=free)
+    P = gf.shape[1]
+    dof = P - free.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(dof > 0, np.sqrt(np.einsum("dp,dp->d", res.norm_error_g, res.norm_error_g) / dof), np.nan)
+    return np.repeat(s[:, None], P, axis=1)
+
+
+def _plan_model9(gf: np.ndarray, noise_g: np.ndarray | None, determined: np.ndarray) -> HoldPlan:
+    """Model 9's plan for D boards: geometric refusals, then the noise rule (module doc)."""
+    D = len(gf)
+    held: list[list[Held]] = [[] for _ in range(D)]
+    refused = [""] * D
+    geo, code = np.full((D, 2), -1), np.zeros(D, dtype=int)
+    und = np.flatnonzero(~determined)
+    if und.size:
+        geo[und], code[und] = _plan9(gf[und])
+        code[und[(code[und] == 0) & (geo[und, 0] < 0)]] = 1  # nothing holding could help
+    for d in np.flatnonzero(code == 1):
+        refused[d] = assess(gf[d], "9").reason
+    for d in np.flatnonzero(code == 2):
+        refused[d] = FACES_ONLY
+    if noise_g is not None:
+        sigma = norm_sigma_g(gf, noise_g)
+    else:  # the residual scatter, where the geometry leaves a decision to make
+        sigma = np.full(gf.shape[:2], np.nan)
+        rows = und[code[und] == 0]
+        if rows.size:
+            sigma[rows] = _scatter_sigma(gf[rows], geo[rows])
+    usable = (code == 0) & np.all(np.isfinite(sigma) & (sigma > 0), axis=1)
+    rows = np.flatnonzero(usable)
+    if rows.size:
+        order, se_at = _noise_plan9(gf[rows], sigma[rows])
+        x = gf[rows] - _centre(gf[rows])[:, None, :]
+        u = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
+        together = {k: np.max(np.abs(2 * u[..., "xyz".index(a)] * u[..., "xyz".index(b)]), axis=1)
+                    for k, (a, b) in HOLDABLE_9.items()}
+        for i, d in enumerate(rows):
+            held[d] = [_held_noise(int(k), float(se), float(together[int(k)][i]))
+                       for k, se in zip(order[i], se_at[i], strict=True) if k >= 0]
+    for d in np.flatnonzero((code == 0) & ~usable):  # no noise to judge by: the geometric plan
+        held[d] = [_held_9(int(k)) for k in geo[d] if k >= 0]
+    return HoldPlan(held, refused)
+
+
+def hold_plans(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None) -> HoldPlan:
     """The terms of ``model`` to hold at nominal for each of D boards' readings ``gf`` (D, P, 3)
     in about g (module doc), vectorised over boards: the one decision of the one-board fit,
-    `accelcal batch` and lot files.  A board whose gain or offset is weak, or that holding
-    cannot help, is refused with the identifiability reason."""
+    `accelcal batch` and lot files.  ``noise_g`` (D, P, 3): the standard error of each pose
+    mean in g (None: the residual scatter).  A board whose gain or offset is weak, or that
+    holding cannot help, is refused with the identifiability reason."""
     gf = np.asarray(gf, dtype=float)
     D = len(gf)
     determined, _ = assess_batch(gf, model)
+    if model == "9":
+        nz = None if noise_g is None else np.broadcast_to(np.asarray(noise_g, dtype=float), gf.shape)
+        return _plan_model9(gf, nz, determined)
     held: list[list[Held]] = [[] for _ in range(D)]
     refused = [""] * D
     und = np.flatnonzero(~determined)
@@ -171,25 +308,17 @@ def hold_plans(gf: np.ndarray, model: str) -> HoldPlan:
             else:
                 refused[d] = why
         return HoldPlan(held, refused)
-    if model != "9":
-        for d in und:
-            refused[d] = assess(gf[d], model).reason
-        return HoldPlan(held, refused)
-    order, code = _plan9(gf[und])
-    for i, d in enumerate(und):
-        if code[i] == 1 or order[i, 0] < 0:  # a weak gain or offset, or nothing holding could help
-            refused[d] = assess(gf[d], model).reason
-        elif code[i] == 2:
-            refused[d] = FACES_ONLY
-        else:
-            held[d] = [_held_9(int(k)) for k in order[i] if k >= 0]
+    for d in und:
+        refused[d] = assess(gf[d], model).reason
     return HoldPlan(held, refused)
 
 
-def hold_plan(gf: np.ndarray, model: str) -> list[Held]:
-    """One board's ``hold_plans``: the terms to hold for readings ``gf`` (P, 3); raises
-    UnderdeterminedError with the reason when the board is refused."""
-    plan = hold_plans(np.asarray(gf, dtype=float)[None], model)
+def hold_plan(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None) -> list[Held]:
+    """One board's ``hold_plans``: the terms to hold for readings ``gf`` (P, 3) with standard
+    errors ``noise_g`` (P, 3) in g or None; raises UnderdeterminedError with the reason when
+    the board is refused."""
+    plan = hold_plans(np.asarray(gf, dtype=float)[None], model,
+                      None if noise_g is None else np.asarray(noise_g, dtype=float)[None])
     if plan.refused[0]:
         raise UnderdeterminedError(plan.refused[0])
     return plan.held[0]
@@ -201,4 +330,5 @@ def free_mask(held: list[Held], names: list[str]) -> np.ndarray:
     return np.array([n not in terms for n in names])
 
 
-__all__ = ["HOLDABLE_9", "Held", "HoldPlan", "cubic_held", "free_mask", "hold_plan", "hold_plans"]
+__all__ = ["HOLDABLE_9", "PRIOR_SD_NONORTHO", "Held", "HoldPlan", "cubic_held", "free_mask", "hold_plan", "hold_plans",
+           "norm_sigma_g"]

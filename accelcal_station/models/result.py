@@ -22,6 +22,9 @@ class FitResult:
       cannot say (an exact fit with no per-pose noise given).
     crossval_rms_g: leave-one-pose-out RMS (model 9: RMS norm error of each
       left-out pose), or None when leaving a pose out leaves the model undetermined.
+    crossval_by_orientation_rms_g: the same with every pose of one distinct orientation left
+      out at a time (models/crossval.py); equal to crossval_rms_g when no orientation repeats.
+    distinct_orientations: distinct orientations among the poses (None: not counted).
     """
 
     model: str
@@ -45,6 +48,19 @@ class FitResult:
     message: str = ""
     nfev: int = 1
     extra: dict[str, Any] = field(default_factory=dict)
+    crossval_by_orientation_rms_g: float | None = None
+    distinct_orientations: int | None = None
+
+    @property
+    def orientations_repeat(self) -> bool:
+        """Some orientation is revisited: the by-orientation figure is the held-out one to judge by."""
+        return self.distinct_orientations is not None and self.distinct_orientations < self.pose_count
+
+    @property
+    def acceptance_crossval_rms_g(self) -> float | None:
+        """The held-out figure acceptance judges: by orientation where orientations repeat, else
+        leave-one-pose-out (the same figure then)."""
+        return self.crossval_by_orientation_rms_g if self.orientations_repeat else self.crossval_rms_g
 
     @property
     def held(self) -> list[Any]:
@@ -90,6 +106,8 @@ class FitResult:
             "residual_rms_g": self.residual_rms_g,
             "residual_max_g": self.residual_max_g,
             "crossval_rms_g": self.crossval_rms_g,
+            "crossval_by_orientation_rms_g": self.crossval_by_orientation_rms_g,
+            "distinct_orientations": self.distinct_orientations,
             "condition_number": self.condition_number,
             "success": self.success,
             "status": self.status,
@@ -147,6 +165,9 @@ class BatchFit:
     nfev: np.ndarray | None = None
     status: list[str] | None = None
     held: list[list[Any]] = field(default_factory=list)  # (D,) each board's models/held.Held terms
+    crossval_by_orientation_rms_g: np.ndarray | None = None  # (D,), NaN where not computable
+    crossval_by_orientation_ok: np.ndarray | None = None  # (D,) bool
+    distinct_orientations: np.ndarray | None = None  # (D,) int
 
     def __post_init__(self) -> None:
         if not self.held:  # the fitters leave it empty: nothing held on any board
@@ -185,4 +206,12 @@ class BatchFit:
             message=self.messages[d],
             nfev=int(self.nfev[d]) if self.nfev is not None else 1,
             extra={"held": list(self.held[d])} if self.held[d] else {},
+            crossval_by_orientation_rms_g=_orient(self, d),
+            distinct_orientations=None if self.distinct_orientations is None else int(self.distinct_orientations[d]),
         )
+
+
+def _orient(b: BatchFit, d: int) -> float | None:
+    if b.crossval_by_orientation_rms_g is None or b.crossval_by_orientation_ok is None:
+        return None
+    return float(b.crossval_by_orientation_rms_g[d]) if b.crossval_by_orientation_ok[d] else None

@@ -58,4 +58,5 @@ def fit_figures(fit: FitResult | None) -> dict[str, float | None]:
     if fit is None:
         return {}
     return {"residual_rms_g": fit.residual_rms_g, "residual_max_g": fit.residual_max_g,
-            "crossval_rms_g": fit.crossval_rms_g, "condition_number": fit.condition_number}
+            "crossval_rms_g": fit.crossval_rms_g, "crossval_by_orientation_rms_g": fit.crossval_by_orientation_rms_g,
+            "condition_number": fit.condition_number}

@@ -27,7 +27,8 @@ from .schema import POSE_COLS, STATUSES
 _RUN_CSV_COLS = ("id", "started_at", "finished_at", "status", "status_reason", "device_serial", "chip",
                  "station_id", "operator", "lot", "config_hash", "model", "units", "counts_per_g", "verdict",
                  "reasons", "nvm_status", "pose_count")
-_FIT_SCALARS = ("residual_rms_g", "residual_max_g", "crossval_rms_g", "condition_number")
+_FIT_SCALARS = ("residual_rms_g", "residual_max_g", "crossval_rms_g", "crossval_by_orientation_rms_g",
+                "condition_number")
 
 
 def write_export(path: str | Path, text: str) -> None:

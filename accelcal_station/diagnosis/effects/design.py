@@ -54,8 +54,10 @@ def describe_design(data: GapData, effects: Collection[str]) -> dict[str, Any]:
     return describe_terms(A, labels, ideal)
 
 
-def design_rank_ok(E: Collection[str], data: GapData, norm: bool) -> tuple[bool, float]:
-    """Whether the static terms of E are identifiable on ideal readings (g = ref, or unit readings).
+def design_rank_ok(E: Collection[str], data: GapData, norm: bool, rows: np.ndarray | None = None
+                   ) -> tuple[bool, float]:
+    """Whether the static terms of E are identifiable on ideal readings (g = ref, or unit readings),
+    from the poses ``rows`` ((P,) bool: a fold's training poses; None: all).
 
     Judged on ideal data, like designs.predict_stderr, so that noise never makes a
     degenerate term look identifiable.  Returns (ok, column-scaled condition number).
@@ -70,9 +72,9 @@ def design_rank_ok(E: Collection[str], data: GapData, norm: bool) -> tuple[bool,
     if norm:  # at the ideal solution W = I, everything else 0
         th = np.array([1.0 if det.startswith("W_") and det[2] == det[3] else 0.0 for _, det in labels])
         _, J, _ = norm_resid(A[None], b[None], d, 1.0, th[None])
-        M = J[0]
+        M = J[0] if rows is None else J[0][rows]
     else:
-        M = A.reshape(-1, A.shape[-1])
+        M = (A if rows is None else A[rows]).reshape(-1, A.shape[-1])
     sc = np.linalg.norm(M, axis=0)
     if np.any(sc == 0):
         return False, np.inf

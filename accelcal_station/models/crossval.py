@@ -1,0 +1,97 @@
+"""Cross-validation by orientation: leave out every pose of one distinct orientation at a time.
+
+Leave-one-pose-out (the fitters' ``crossval_rms_g``) is optimistic when orientations are
+revisited: the left-out pose's twins stay in the fit and pin the model where it is tested.
+Here the poses are grouped into distinct orientations (identifiability.DISTINCT_TOL_DEG: a
+pose within 5 degrees of an earlier one is a revisit of it), each group is left out in turn,
+the model is refitted on the rest with the same held terms (the fold fitter given by the
+caller, models/fitting.py) and the left-out poses are predicted:
+
+  models 6, 12, 15   reference - (W g + V + Gamma g^3), every axis   RMS over 3 x P components
+  model 9            |W g + V| - 1 g                                   RMS over P poses
+
+the same residuals and averaging as the fitters' leave-one-pose-out, so where no orientation
+repeats the two are the same figure (and it is taken from the fitters, not refitted).  Each fold
+is a refit, so boards sharing one grouping of poses (a lot's design) are refitted together, and a
+board with more than MAX_FOLDS distinct orientations among revisits, or more than MAX_POSES
+poses, is not cross-validated this way (NaN, ``ok`` False).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from ..identifiability import DISTINCT_TOL_DEG, _centre, first_of_orientation
+from .result import BatchFit
+
+MAX_FOLDS = 256  # refits per board
+MAX_POSES = 2048  # the pose-pair cosines of one board held at once
+PAIRS_AT_ONCE = 1 << 22  # pose-pair cosines formed at once (32 MB of float64): memory linear in the boards
+
+# fold_fit(rows, keep): the fit of boards ``rows`` on poses ``keep`` only, with their held terms
+FoldFit = Callable[[np.ndarray, np.ndarray], BatchFit]
+
+
+def orientation_labels(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG) -> np.ndarray:
+    """(D, P) int: each pose's orientation, the index of the first pose of it (a pose within
+    ``tol_deg`` of an earlier pose takes that pose's label; revisits of revisits chain)."""
+    x = gf - _centre(gf)[..., None, :]
+    u = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
+    D, P = u.shape[:2]
+    close = np.einsum("dpi,dqi->dpq", u, u) > math.cos(math.radians(tol_deg))
+    close &= np.tri(P, P, -1, dtype=bool)[None]  # only earlier poses
+    labels = np.tile(np.arange(P), (D, 1))
+    has = close.any(axis=2)
+    first = np.argmax(close, axis=2)
+    for p in range(P):  # earlier labels are final when p is reached
+        labels[:, p] = np.where(has[:, p], labels[np.arange(D), first[:, p]], p)
+    return labels
+
+
+def _held_out(fit: BatchFit, g: np.ndarray, ref: np.ndarray | None) -> np.ndarray:
+    """Squared held-out residuals (D, Q) summed over their components, of poses g (D, Q, 3)."""
+    out = np.einsum("dij,dqj->dqi", fit.W, g) + fit.V[:, None, :] + fit.Gamma[:, None, :] * g**3
+    if ref is None:
+        return (np.linalg.norm(out, axis=-1) - 1.0) ** 2
+    return np.sum((ref - out) ** 2, axis=-1)
+
+
+def crossval_by_orientation(gf: np.ndarray, ref: np.ndarray | None, model: str, fold_fit: FoldFit,
+                            loo_rms: np.ndarray, loo_ok: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rms (D,), ok (D,), distinct orientations (D,)) of D boards' readings gf (D, P, 3) in g
+    (module doc); ``ref`` (D, P, 3) the references of models 6/12/15 (None: model 9)."""
+    D, P, _ = gf.shape
+    rms, ok = np.array(loo_rms, dtype=float, copy=True), np.array(loo_ok, dtype=bool, copy=True)
+    distinct = first_of_orientation(gf).sum(axis=1)  # cheap, blocked: most lots revisit nothing
+    rep = np.flatnonzero(distinct < P)
+    if not rep.size:
+        return rms, ok, distinct
+    if P > MAX_POSES:
+        rms[rep], ok[rep] = np.nan, False
+        return rms, ok, distinct
+    step = max(1, PAIRS_AT_ONCE // (P * P))
+    labels = np.concatenate([orientation_labels(gf[rep[a:a + step]]) for a in range(0, len(rep), step)])
+    patterns, inverse = np.unique(labels, axis=0, return_inverse=True)
+    for k, pattern in enumerate(patterns):
+        rows = rep[np.asarray(inverse).reshape(-1) == k]
+        groups = np.unique(pattern)
+        if len(groups) > MAX_FOLDS:
+            rms[rows], ok[rows] = np.nan, False
+            continue
+        sq, good = np.zeros(len(rows)), np.ones(len(rows), dtype=bool)
+        for grp in groups:
+            out = pattern == grp
+            fit = fold_fit(rows, ~out)
+            r = None if ref is None else ref[rows][:, out]
+            with np.errstate(over="ignore", invalid="ignore"):
+                sq += _held_out(fit, gf[rows][:, out], r).sum(axis=1)
+            good &= np.asarray(fit.ok, dtype=bool)
+        n = P if ref is None else 3 * P
+        ok[rows] = good & np.isfinite(sq)
+        rms[rows] = np.where(ok[rows], np.sqrt(sq / n), np.nan)
+    return rms, ok, distinct
+
+
+__all__ = ["MAX_FOLDS", "MAX_POSES", "crossval_by_orientation", "orientation_labels"]

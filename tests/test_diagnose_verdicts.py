@@ -1,0 +1,75 @@
+"""Verdicts that keep their word (diagnosis/verdict.py): "explained" only with the held-out gap within
+EXPLAINED_GAP_MAX (1.5) of the floor, else "partly explained" with the gap left; a stochastic effect
+(pose error) "accounts for the spread; a deterministic fix cannot lower it", never "explained" with an
+unchanged residual; an effect confounded with acquisition order is in ``confounded``, not ``selected``
+(tests/test_diagnose_order.py has the z-ordered relaxation).
+
+Data from the project's forward simulator (configs/sim.yaml plus the effect named), fixed seeds.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from accelcal_station.api import diagnose
+from accelcal_station.data.posetable import write_pose_table
+from accelcal_station.diagnosis.verdict import EXPLAINED_GAP_MAX
+from accelcal_station.fixtures.designs import get_design
+from accelcal_station.fixtures.simulated_run import run_poses, simulated_board
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _config(d: Path, effects: dict, name: str) -> str:
+    cfg = yaml.safe_load((REPO / "configs" / "sim.yaml").read_text())
+    cfg["device"]["simulator"]["effects"].update(effects)
+    (d / name).write_text(yaml.safe_dump(cfg))
+    return str(d / name)
+
+
+def _raw_log(cfg: str, seed: int, path: Path) -> Path:
+    run = run_poses(simulated_board(cfg, seed), get_design("optimal-12"), "drift", samples=400, raw=True, move_s=2.0)
+    (t, c), _ = run.raw_table()
+    path.write_text("t,x,y,z\n" + "\n".join(f"{a:.5f},{int(x)},{int(y)},{int(z)}"
+                                            for a, (x, y, z) in zip(t, c, strict=True)) + "\n")
+    return path
+
+
+def _check_words(js: dict) -> None:
+    """The invariant every diagnosis keeps."""
+    if js["verdict"] == "explained":
+        assert js["gap_after"] <= EXPLAINED_GAP_MAX, js
+    assert not set(js["confounded"]) & set(js["selected"])
+
+
+@pytest.fixture(scope="module")
+def drift(tmp_path_factory):
+    d = tmp_path_factory.mktemp("verdicts")
+    cfg = _config(d, {"drift": {"random_walk_ug_per_rts": [50.0] * 3, "warmup_mg": [20.0] * 3,
+                                "warmup_tau_s": 40.0}}, "drift.yaml")
+    return [diagnose([_raw_log(cfg, s, d / f"drift{s}.csv")], raw=True).to_json() for s in (1, 2)]
+
+
+def test_drift_that_shrinks_the_gap_but_leaves_it_above_the_floor_is_partly_explained(drift):
+    for js in drift:
+        _check_words(js)
+        assert "drift" in js["selected"] and js["gap_after"] < js["gap_before"]
+        assert js["gap_after"] > EXPLAINED_GAP_MAX  # the issue's case: 19.75 -> 17.76 is not explained
+        assert js["verdict"] == "partly explained"
+        assert f"above the {EXPLAINED_GAP_MAX:g} 'explained' needs" in js["verdict_text"]
+
+
+def test_a_pose_error_accounts_for_the_spread_and_is_never_explained_with_the_residual_unchanged(tmp_path):
+    cfg = _config(tmp_path, {"pose_error": {"scatter_deg": 0.3}}, "pose.yaml")
+    for seed in (1, 2):
+        run = run_poses(simulated_board(cfg, seed), get_design("optimal-24"), "pose", samples=200)
+        write_pose_table(run.session, tmp_path / f"pose{seed}.csv")
+        js = diagnose([tmp_path / f"pose{seed}.csv"]).to_json()
+        _check_words(js)
+        assert "pose_error" in js["selected"] and js["steps"] == []  # named by its signature, no fix
+        assert js["rms_mg_after"] == js["rms_mg_before"]  # the issue's 5.42 -> 5.42 mg
+        assert js["verdict"] != "explained"
+        assert js["verdict"] == "accounted for"
+        assert "pose_error accounts for the spread; a deterministic fix cannot lower it" in js["verdict_text"]
