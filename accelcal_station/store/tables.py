@@ -74,8 +74,6 @@ Index("runs_lot", runs.c.lot, runs.c.started_at)
 Index("runs_started", runs.c.started_at)
 Index("runs_panel", runs.c.panel_id)
 Index("runs_station", runs.c.station_id, runs.c.started_at)
-Index("runs_status_started", runs.c.status, runs.c.started_at)
-Index("runs_verdict_started", runs.c.verdict, runs.c.started_at)
 
 poses = Table(
     "poses", metadata,

@@ -4,7 +4,7 @@ Every chart draws each run against the limits that run was judged by (its stored
 ``limits``; an older run: its own config's acceptance section), never the limits of the
 config ``serve`` was started with.  The line page reads a window (the day before the newest
 run, or a production day / shift picked by the engineer) with grouped SELECTs and at most
-200 runs per station per chart; the lot page groups in SQL and reads one JSON column of
+100 runs per station per chart; the lot page groups in SQL and reads one JSON column of
 the lot's runs.
 """
 from __future__ import annotations
@@ -31,7 +31,7 @@ KEY_PARAMS = [("gain_error_max", "Gain error, max |Wii − 1|", "g/g", "gain_err
 LOT_PARAMS = ([(f"W{i}{i}", 4 * i, 1.0, "g/g", "gain_error_max", 1.0) for i in range(3)]
               + [(f"V{i}", 9 + i, 1e3, "mg", "offset_max_mg", 0.0) for i in range(3)]
               + [(f"W{a}{b}", 3 * a + b, 1.0, "g/g", "cross_axis_max", 0.0) for a, b in ((0, 1), (0, 2), (1, 2))])
-LOT_CHART_RUNS = 500  # a lot chart draws the newest this many runs (the table's statistics use every run)
+LOT_CHART_RUNS = 300  # a lot chart draws the newest this many runs (the table's statistics use every run)
 SHIFTS = "ABC"
 
 

@@ -1,7 +1,7 @@
 """Schema 4: runs.limits, the acceptance limits a run was judged by (JSON ``{key: number}``),
-and the indexes the line page and the MES API read by (station, verdict, status over time).
+and an index by station over time (the line page's per-station charts and yields).
 
-Additive only: an ADD COLUMN (no table copy, even on SQLite) and new indexes.  Runs recorded
+Additive only: an ADD COLUMN (no table copy, even on SQLite) and a new index.  Runs recorded
 before keep ``limits`` NULL; readers fall back to the acceptance section of the run's own
 ``config_text`` (the config it was run with) and say so.
 
@@ -18,8 +18,9 @@ down_revision = "0003"
 branch_labels = None
 depends_on = None
 
-INDEXES = {"runs_station": ["station_id", "started_at"], "runs_status_started": ["status", "started_at"],
-           "runs_verdict_started": ["verdict", "started_at"]}
+# (status, started_at) is not indexed on purpose: SQLite would take it for the first-pass yield's
+# correlated "earlier run of this serial" lookup and scan every earlier run (runs_device serves that)
+INDEXES = {"runs_station": ["station_id", "started_at"]}
 
 
 def upgrade() -> None:
