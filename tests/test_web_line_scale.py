@@ -51,7 +51,10 @@ def _sql(path: Path, q: str, *args) -> list[tuple]:
 
 
 # -- 1. batch verdicts and limits in the store ------------------------------------------------
-def _board(seed: int, design=get_design("an4399-8")) -> tuple[Session, float]:
+DESIGN = get_design("an4399-8")
+
+
+def _board(seed: int, design=DESIGN) -> tuple[Session, float]:
     """A synthetic board in counts (readings g = W^-1 (ref - V) + noise) and its true largest |V| in mg."""
     rng = np.random.default_rng(seed)
     W = np.eye(3) + rng.normal(0, 0.01, (3, 3))
@@ -247,8 +250,10 @@ def test_lot_pages_waiting_for_their_turn_do_not_hold_up_the_line_page(big):
     one at a time, the line page and the API are answered; the lot pages all complete."""
     with live_server(str(big)) as base:
         done: list[str] = []
-        lots = [threading.Thread(target=lambda lot=lot: done.append(
-            f"{lot} {httpx.get(base + '/lot', params={'lot': lot}, timeout=120).status_code}")) for lot in ("L1", "L2", "L3")]
+        def lot_page(lot: str) -> None:
+            done.append(f"{lot} {httpx.get(base + '/lot', params={'lot': lot}, timeout=120).status_code}")
+
+        lots = [threading.Thread(target=lot_page, args=(lot,)) for lot in ("L1", "L2", "L3")]
         for t in lots:
             t.start()
         line = httpx.get(base + "/", timeout=120)
