@@ -19,7 +19,7 @@ import numpy as np
 
 from ..lot.report import control_limits
 
-W, H, PAD_L, PAD_R, PAD_T, PAD_B = 560.0, 210.0, 56.0, 12.0, 14.0, 40.0
+W, H, PAD_L, PAD_R, PAD_T, PAD_B = 560.0, 210.0, 56.0, 12.0, 22.0, 40.0
 TIME_STEPS_S = (60, 300, 900, 1800, 3600, 2 * 3600, 3 * 3600, 6 * 3600, 12 * 3600, 86400, 2 * 86400, 7 * 86400,
                 14 * 86400, 30 * 86400, 91 * 86400, 365 * 86400)
 
@@ -97,7 +97,9 @@ def tick_label(v: float, decimals: int) -> str:
 def time_axis(t0: float, t1: float, n: int = 6) -> tuple[float, float, list[tuple[float, str]]]:
     """A time axis over [t0, t1] (unix s): padded bounds and ticks on whole UTC minutes/hours/days,
     labelled HH:MM (with the date where the day changes) or YYYY-MM-DD."""
-    span = max(t1 - t0, 60.0)
+    if t1 - t0 < 1800.0:  # one run, or runs minutes apart: half an hour around them, so ticks are drawn
+        t0, t1 = (t0 + t1) / 2 - 900.0, (t0 + t1) / 2 + 900.0
+    span = t1 - t0
     step = next((s for s in TIME_STEPS_S if span / s <= n), TIME_STEPS_S[-1])
     a, b = t0 - 0.04 * span, t0 + 1.04 * span
     ticks, day = [], None
@@ -157,9 +159,10 @@ def run_chart(title: str, unit: str, runs: list[RunPoint], nonneg: bool = False)
     a, b, xt = time_axis(runs[0].t, runs[-1].t)
     xs = [_x(r.t, a, b) for r in runs]
     n_lim = n_sig = 0
+    eps = 1e-9 * max(abs(c), 1e-12)  # the mean's rounding: a constant series is in control
     for xi, r in zip(xs, runs, strict=True):
         beyond = (r.hi is not None and r.value > r.hi) or (r.lo is not None and r.value < r.lo)
-        sig = not beyond and not lcl <= r.value <= ucl
+        sig = not beyond and not lcl - eps <= r.value <= ucl + eps
         n_lim, n_sig = n_lim + beyond, n_sig + sig
         kind = "out" if beyond else ("sigma" if sig else "")
         chart.points.append((xi, _y(r.value, lo, hi), kind, f"{r.label}: {r.value:.4g} {unit}".strip()))

@@ -31,7 +31,7 @@ KEY_PARAMS = [("gain_error_max", "Gain error, max |Wii − 1|", "g/g", "gain_err
 LOT_PARAMS = ([(f"W{i}{i}", 4 * i, 1.0, "g/g", "gain_error_max", 1.0) for i in range(3)]
               + [(f"V{i}", 9 + i, 1e3, "mg", "offset_max_mg", 0.0) for i in range(3)]
               + [(f"W{a}{b}", 3 * a + b, 1.0, "g/g", "cross_axis_max", 0.0) for a, b in ((0, 1), (0, 2), (1, 2))])
-LOT_CHART_RUNS = 300  # a lot chart draws the newest this many runs (the table's statistics use every run)
+LOT_CHART_RUNS = 200  # a lot chart draws the newest this many runs (the table's statistics use every run)
 SHIFTS = "ABC"
 
 
@@ -174,7 +174,6 @@ def lot_context(store: Store, lot: str) -> dict[str, Any]:
     from ..calibration import param_vector
 
     summ = queries.lot_counts(store, lot)
-    summ["first_started"], summ["last_started"] = iso(summ["first_started"]), iso(summ["last_started"])
     charts, table = [], []
     cals = queries.lot_calibrations(store, lot) if summ["runs"] else []
     rows, vecs = [], []

@@ -36,16 +36,20 @@ SANE_T = "(started_at BETWEEN 0 AND 253402300799)"
 T_END = 253402300800.0  # an open window's end: after every time a run can have
 
 
-def select(store: Store, sql: str, **params: Any) -> list[dict[str, Any]]:
+def select(store: Store, sql: str, _check: bool = True, **params: Any) -> list[dict[str, Any]]:
     """Rows of one read-only statement (named ``:params``) as dicts, on the store's connection; a
     damaged value of a runs column (wrong type, time out of range) reads as None, named in
-    ``damage`` (as ``report list`` names it), never an exception in a page."""
+    ``damage`` (as ``report list`` names it), never an exception in a page.  ``_check`` False:
+    the statement itself keeps damaged scalars out (SANE_T; an integer primary key)."""
     from sqlalchemy import text
 
     conn = store._db.conn  # the one place the web layer touches the store's connection
     out = []
     for r in conn.execute(text(sql), params).mappings().all():
         row = dict(r)
+        if not _check:
+            out.append(row)
+            continue
         scalars = {k: v for k, v in row.items() if k in _SCALAR_COLS}
         if scalars:
             checked, damage = check_row("runs", scalars)
@@ -116,7 +120,12 @@ def fill_limits(store: Store, rows: list[dict[str, Any]]) -> None:
     """Each row's ``limits`` (parsed) and ``limits_source``: "stored" (schema 4 runs), "config" (an older
     run: the acceptance section of the config it ran with, read once per config hash) or None."""
     memo: dict[Any, dict[str, float] | None] = {}  # a line's runs share a few limits texts: each parsed once
-    own = [memo[t] if t in memo else memo.setdefault(t, stored_limits(t)) for t in (r.get("limits") for r in rows)]
+    own = []
+    for r in rows:
+        t = r.get("limits")
+        if t not in memo:
+            memo[t] = stored_limits(t)
+        own.append(memo[t])
     missing = {str(h) for r, o in zip(rows, own, strict=True) if o is None and (h := r.get("config_hash"))}
     by_hash: dict[str, dict[str, float]] = {}
     if missing:
@@ -128,7 +137,7 @@ def fill_limits(store: Store, rows: list[dict[str, Any]]) -> None:
                 by_hash[r["config_hash"]] = got
     for r, o in zip(rows, own, strict=True):
         cfg = by_hash.get(r.get("config_hash") or "")
-        r["limits"] = dict(o) if o is not None else cfg
+        r["limits"] = o if o is not None else cfg  # shared between rows: read, never changed
         r["limits_source"] = "stored" if o is not None else ("config" if cfg is not None else None)
 
 
@@ -364,9 +373,11 @@ def lot_counts(store: Store, lot: str) -> dict[str, Any]:
 def lot_calibrations(store: Store, lot: str) -> list[dict[str, Any]]:
     """The lot's complete runs with a calibration, oldest first: id, start, station, calibration (parsed)
     and the limits each was judged by."""
+    # id is the integer key; SANE_T keeps a damaged time out (text, blob, NaN and infinities compare
+    # outside the range on SQLite and PostgreSQL alike); station_id is only shown, escaped
     rows = select(store, "SELECT id, started_at, station_id, calibration, limits, config_hash FROM runs"
                   f" WHERE lot = :lot AND status = 'complete' AND calibration IS NOT NULL AND {SANE_T}"
-                  " ORDER BY started_at, id", lot=lot)
+                  " ORDER BY started_at, id", _check=False, lot=lot)
     fill_limits(store, rows)
     out = []
     for r in rows:
