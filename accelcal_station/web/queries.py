@@ -36,20 +36,21 @@ SANE_T = "(started_at BETWEEN 0 AND 253402300799)"
 T_END = 253402300800.0  # an open window's end: after every time a run can have
 
 
-def select(store: Store, sql: str, _check: bool = True, **params: Any) -> list[dict[str, Any]]:
-    """Rows of one read-only statement (named ``:params``) as dicts, on the store's connection; a
-    damaged value of a runs column (wrong type, time out of range) reads as None, named in
-    ``damage`` (as ``report list`` names it), never an exception in a page.  ``_check`` False:
-    the statement itself keeps damaged scalars out (SANE_T; an integer primary key)."""
+def select_unchecked(store: Store, sql: str, **params: Any) -> list[dict[str, Any]]:
+    """Rows of one read-only statement as dicts, with no column check: for a statement that itself
+    keeps damaged scalars out (SANE_T; the integer key) and reads JSON columns through quick_json."""
     from sqlalchemy import text
 
     conn = store._db.conn  # the one place the web layer touches the store's connection
+    return [dict(r) for r in conn.execute(text(sql), params).mappings().all()]
+
+
+def select(store: Store, sql: str, **params: Any) -> list[dict[str, Any]]:
+    """Rows of one read-only statement (named ``:params``) as dicts, on the store's connection; a
+    damaged value of a runs column (wrong type, time out of range) reads as None, named in
+    ``damage`` (as ``report list`` names it), never an exception in a page."""
     out = []
-    for r in conn.execute(text(sql), params).mappings().all():
-        row = dict(r)
-        if not _check:
-            out.append(row)
-            continue
+    for row in select_unchecked(store, sql, **params):
         scalars = {k: v for k, v in row.items() if k in _SCALAR_COLS}
         if scalars:
             checked, damage = check_row("runs", scalars)
@@ -375,9 +376,9 @@ def lot_calibrations(store: Store, lot: str) -> list[dict[str, Any]]:
     and the limits each was judged by."""
     # id is the integer key; SANE_T keeps a damaged time out (text, blob, NaN and infinities compare
     # outside the range on SQLite and PostgreSQL alike); station_id is only shown, escaped
-    rows = select(store, "SELECT id, started_at, station_id, calibration, limits, config_hash FROM runs"
-                  f" WHERE lot = :lot AND status = 'complete' AND calibration IS NOT NULL AND {SANE_T}"
-                  " ORDER BY started_at, id", _check=False, lot=lot)
+    rows = select_unchecked(store, "SELECT id, started_at, station_id, calibration, limits, config_hash FROM runs"
+                            f" WHERE lot = :lot AND status = 'complete' AND calibration IS NOT NULL AND {SANE_T}"
+                            " ORDER BY started_at, id", lot=lot)
     fill_limits(store, rows)
     out = []
     for r in rows:
