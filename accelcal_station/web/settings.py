@@ -10,7 +10,8 @@ from ..store.runs import Store
 
 @dataclass
 class WebSettings:
-    """What a server reads: the store, the acceptance limits to draw, the token for writes."""
+    """What a server reads: the store, the token for writes, the read token.  ``limits`` (the first
+    --config's) is kept for callers only: every chart draws each run against its own limits."""
 
     store: str
     limits: dict[str, float] = field(default_factory=dict)
