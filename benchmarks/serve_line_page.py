@@ -1,12 +1,15 @@
-"""`accelcal serve` at scale: the line page over a store of 100,000 runs, and the server's memory
-while the events stream delivers a line's runs.
+"""`accelcal serve` at scale: the line and lot pages over a store of 100,000 runs, the line page
+while three lot pages load, and the server's memory while the events stream delivers a line's runs.
 
 1. Builds an SQLite store of N runs (default 100,000; 8 stations, 30 days, 7 % FAIL with typed
    reasons, 4 % retests) by bulk insert (the store's schema, created by Store; rows inserted in
    one transaction: the benchmark's set-up, not the station's path), then times the line page's
    server work (the aggregate queries and the Jinja2 render, in process, best and median of 7)
    (the HTTP round trip adds the uvicorn write of about 60 kB).
-2. Starts `accelcal serve` in its own process, follows two SSE clients on /api/v1/events/stream,
+2. Starts `accelcal serve` in its own process and times over HTTP: the line page alone, a lot
+   page of 5,000 runs alone, then the line page while three lot pages load at once (issue 37:
+   a slow request must not slow the line page); prints the figures and their ratios.
+3. Follows two SSE clients on /api/v1/events/stream,
    and writes a line's runs through the store API (Store.start_run / finish_run): 8 stations,
    one run each per --run-every-s simulated seconds, for --sim-minutes simulated minutes,
    compressed into --wall-s seconds of wall time.  Prints the server's RSS at the start and the
@@ -56,14 +59,19 @@ def build(path: Path, n: int, seed: int = 1) -> None:
         reasons = [Reason("offset_max_mg", f"{measured['offset_max_mg']:.1f} > limit 30", " ").to_dict()] \
             if fail else []
         serial = f"SN{(i if rng.uniform() > 0.04 else max(0, i - 3)):07d}"
+        cal = {"schema": "accelcal.calibration", "version": 1, "model": "12", "input_units": "g",
+               "input_per_g": 1.0, "W": (np.eye(3) + rng.normal(0, 0.005, (3, 3))).tolist(),
+               "V": rng.normal(0, 0.02, 3).tolist(), "Gamma": [0.0, 0.0, 0.0], "temperature": None, "metadata": {}}
+        limits = {"offset_max_mg": 30.0 if i < n // 2 else 35.0, "crossval_rms_mg": 10.0}  # a limit change halfway
         rows.append((float(t[i]), float(t[i]) + 40, serial, STATIONS[i % 8], f"L{i // 5000}",
                      "FAIL" if fail else "PASS", json.dumps(reasons),
-                     json.dumps({"measured": measured, "reason_codes": [r["code"] for r in reasons]})))
+                     json.dumps({"measured": measured, "reason_codes": [r["code"] for r in reasons]}),
+                     json.dumps(cal), json.dumps(limits)))
     db = sqlite3.connect(path)
     with db:
         db.executemany("INSERT INTO runs (started_at, finished_at, status, device_serial, station_id, lot, verdict,"
-                       " reasons, fit_summary, model, nvm_status) VALUES (?, ?, 'complete', ?, ?, ?, ?, ?, ?, '12',"
-                       " 'written')", rows)
+                       " reasons, fit_summary, calibration, limits, model, nvm_status)"
+                       " VALUES (?, ?, 'complete', ?, ?, ?, ?, ?, ?, ?, ?, '12', 'written')", rows)
     db.close()
 
 
@@ -78,10 +86,61 @@ def time_line_page(path: Path) -> list[float]:
     for _ in range(7):
         t0 = time.perf_counter()
         with Store(path, create=False) as st:
-            ctx = pages.line_context(st, {})
+            ctx = pages.line_context(st)
         render("line.html", title="Line", page="line", **ctx)
         out.append(time.perf_counter() - t0)
     return out
+
+
+def _start_server(path: Path) -> tuple[subprocess.Popen, str]:
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    proc = subprocess.Popen([sys.executable, "-m", "accelcal_station", "serve", "--db", str(path),
+                             "--port", str(port)], stderr=subprocess.DEVNULL)
+    t0 = time.monotonic()
+    while True:
+        try:
+            httpx.get(base + "/api/v1/events/head", timeout=2)
+            return proc, base
+        except httpx.HTTPError:
+            assert time.monotonic() - t0 < 30, "server did not start"
+            time.sleep(0.2)
+
+
+def _get_s(url: str, **params: str) -> float:
+    t0 = time.perf_counter()
+    r = httpx.get(url, params=params, timeout=300)
+    assert r.status_code == 200, r.text[:200]
+    return time.perf_counter() - t0
+
+
+def pages_under_load(path: Path, repeats: int = 5) -> None:
+    """Line and lot page over HTTP, alone and the line page while three lot pages load (medians)."""
+    proc, base = _start_server(path)
+    try:
+        _get_s(base + "/"), _get_s(base + "/lot", lot="L3")  # warm
+        line = statistics.median(_get_s(base + "/") for _ in range(repeats))
+        lot = statistics.median(_get_s(base + "/lot", lot="L3") for _ in range(repeats))
+        during, lot3 = [], []
+        for _ in range(repeats):
+            out: list[float] = []
+            threads = [threading.Thread(target=lambda lot=lot_id, out=out: out.append(_get_s(base + "/lot", lot=lot)))
+                       for lot_id in ("L3", "L7", "L11")]
+            for t in threads:
+                t.start()
+            time.sleep(0.05)
+            during.append(_get_s(base + "/"))
+            for t in threads:
+                t.join()
+            lot3.append(max(out))
+        d, all3 = statistics.median(during), statistics.median(lot3)
+        print(f"HTTP, median of {repeats}: line page {line * 1e3:.0f} ms; lot page (5,000 runs) {lot * 1e3:.0f} ms; "
+              f"line page while 3 lot pages load {d * 1e3:.0f} ms ({d / line:.2f} x alone); "
+              f"the 3 lot pages all done in {all3 * 1e3:.0f} ms ({all3 / lot:.2f} x "
+              "one lot page: they take turns in one lane)")
+    finally:
+        proc.terminate()
+        proc.wait(10)
 
 
 def rss_kb(pid: int) -> int:
@@ -170,6 +229,7 @@ def main() -> None:
         times = time_line_page(path)
         print(f"line page server time (queries + render, in process): best {min(times) * 1e3:.0f} ms, "
               f"median {statistics.median(times) * 1e3:.0f} ms of 7 over {a.runs} runs")
+        pages_under_load(path)
         stream_soak(path, a.sim_minutes, a.run_every_s, a.wall_s)
 
 

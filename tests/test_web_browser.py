@@ -5,6 +5,7 @@ operator, lot and station id show as text on every page.  Screenshots go to docs
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import threading
@@ -81,7 +82,7 @@ def test_line_page_shows_two_stations_runs_within_2_s_of_each_finishing(tmp_path
         cards = set(drv.execute_script("return Array.from(document.querySelectorAll('.card.station'))"
                                        ".map(c => c.dataset.station);"))
         assert cards == {"line-A", "line-B"}
-        assert "First pass" in drv.page_source and "Control charts" in drv.page_source
+        assert "First pass" in drv.page_source and "Runs against their own limits" in drv.page_source
         reasons = drv.execute_script("return document.getElementById('reasons').textContent;")
         assert "offset_max_mg" in reasons and "2" in reasons.split("offset_max_mg")[1]
         drv.set_window_size(1400, 1900)
@@ -95,6 +96,110 @@ def test_line_page_shows_two_stations_runs_within_2_s_of_each_finishing(tmp_path
         drv.get(base + "/lot?lot=L-7")
         assert "Pass rate" in drv.page_source and len(drv.find_elements(By.CSS_SELECTOR, "figure.chart")) == 9
         screenshot(drv, "lot.png")
+
+
+def _readable_store(path: Path) -> None:
+    """Station st-1: 6 runs judged by offset <= 30 mg, then 4 by offset <= 20 mg (a limit change);
+    station st-2: a long operator name and reason, then its newest run interrupted."""
+    from accelcal_station.acceptance.reasons import Reason
+    from accelcal_station.session import PoseRecord, Session
+
+    poses = [PoseRecord(f"p{i}", np.eye(3)[i % 3], None, 10, np.eye(3)[i % 3]) for i in range(6)]
+    t0 = 1.7e9
+    with Store(path) as st:
+        for k, off in enumerate([12.0, 18.0, 25.0, 14.0, 33.0, 16.0, 12.0, 24.0, 15.0, 22.0]):
+            lim = 30.0 if k < 6 else 20.0
+            rid = st.start_run(device_serial=f"SN-{k:03d}", station_id="st-1", lot="L-9", started_at=t0 + 600 * k,
+                               operator="Ana")
+            fail = off > lim
+            st.finish_run(rid, session=Session(poses, units="g"), calibration=None, verdict="FAIL" if fail else "PASS",
+                          reasons=[Reason("offset_max_mg", f"offset_max_mg {off:g} > limit {lim:g}")] if fail else [],
+                          fit_summary={"measured": {"offset_max_mg": off, "residual_rms_mg": 0.02 + 0.001 * k,
+                                                    "gain_error_max": 0.004, "cross_axis_max": 0.002}},
+                          limits={"offset_max_mg": lim, "residual_rms_mg": 2.0}, finished_at=t0 + 600 * k + 50)
+        rid = st.start_run(device_serial="SN-LONG-SERIAL-0001", station_id="st-2", started_at=t0 + 900,
+                           operator="Maximiliane Hohenzollern-Sigmaringen")
+        st.finish_run(rid, session=Session(poses, units="g"), calibration=None, verdict="FAIL",
+                      reasons=[Reason("crossval_rms_mg", "crossval_rms_mg 12.5 > limit 10 (leave-one-pose-out)")],
+                      fit_summary={"measured": {"crossval_rms_mg": 12.5, "offset_max_mg": 8.0}},
+                      limits={"crossval_rms_mg": 10.0, "offset_max_mg": 30.0}, finished_at=t0 + 950)
+        rid = st.start_run(device_serial="SN-INT", station_id="st-2", started_at=t0 + 6000)
+        st.interrupt_run(rid, "operator aborted at pose z-1g")
+
+
+_MIDWORD = r"""
+// every word of every cell of the table on one line: no word broken across lines
+const bad = [];
+for (const td of document.querySelectorAll(arguments[0])) {
+  const walker = document.createTreeWalker(td, NodeFilter.SHOW_TEXT);
+  for (let n = walker.nextNode(); n; n = walker.nextNode()) {
+    const re = /\S+/g; let m;
+    while ((m = re.exec(n.textContent))) {
+      const r = document.createRange(); r.setStart(n, m.index); r.setEnd(n, m.index + m[0].length);
+      const tops = new Set(Array.from(r.getClientRects()).map(x => Math.round(x.top)));
+      if (tops.size > 1) bad.push(m[0]);
+    }
+  }
+}
+return bad;
+"""
+
+
+def test_pages_an_engineer_can_read(tmp_path):
+    """Issue 37 in Chromium at 1400 px: charts with a time axis and the per-run limit as a step,
+    INTERRUPTED inside its card, no word broken mid-word, the reason drill-down, the day/shift
+    picker, the board page's acceptance table and the lot page's units."""
+    db = tmp_path / "r.sqlite"
+    _readable_store(db)
+    with live_server(str(db)) as base, chromium(1400, 1000) as drv:
+        drv.get(base + "/")
+        charts = drv.execute_script("""return Array.from(document.querySelectorAll('figure.chart')).map(f => ({
+            pts: f.querySelectorAll('circle.pt').length, xt: f.querySelectorAll('line.xtick').length,
+            ys: f.querySelectorAll('text.tick').length,
+            steps: Array.from(f.querySelectorAll('polyline.limitstep')).map(p => p.getAttribute('points')),
+            title: f.querySelector('figcaption').textContent}));""")
+        assert charts and all(c["xt"] >= 2 for c in charts if c["pts"]), charts  # every drawn chart has an x axis
+        offset = next(c for c in charts if c["title"].startswith("Offset") and c["pts"] == 10)
+        ys = {round(float(p.split(",")[1]), 1) for p in offset["steps"][0].split()}
+        assert len(ys) == 2  # the limit line steps once: 30 mg, then 20 mg
+        labels = drv.execute_script("return Array.from(document.querySelectorAll('figure.chart text.tick'))"
+                                    ".map(t => t.textContent);")
+        assert all(re.fullmatch(r"-?\d+(\.\d+)?|\d\d-\d\d \d\d:\d\d|\d\d:\d\d|[a-z/²]+|run start \(UTC\)|"
+                                r"each run's own limit|[xyz]", t) for t in labels), labels
+        card = drv.execute_script("""const c = document.querySelector('.card[data-station="st-2"]');
+            const b = c.querySelector('.big'); const cr = c.getBoundingClientRect(), br = b.getBoundingClientRect();
+            return [b.textContent, br.left >= cr.left, br.right <= cr.right, b.scrollWidth <= b.clientWidth];""")
+        assert card == ["INTERRUPTED", True, True, True]
+        assert drv.execute_script(_MIDWORD, "#recent td") == []
+        assert drv.find_element(By.CSS_SELECTOR, "form.picker input[type=date]")
+        drv.set_window_size(1400, 2200)
+        screenshot(drv, "line.png")
+        # the drill-down: a reason's count links to its runs
+        link = drv.find_element(By.CSS_SELECTOR, "#reasons a")
+        n = int(link.find_element(By.XPATH, "../../td[2]").text)
+        link.click()
+        WebDriverWait(drv, 5).until(lambda d: d.find_elements(By.ID, "reason-runs"))
+        assert len(drv.find_elements(By.CSS_SELECTOR, "#reason-runs tr[data-run]")) == n
+        assert drv.execute_script(_MIDWORD, "#reason-runs td") == []
+        screenshot(drv, "reason.png")
+        # the picker: one shift of one day (2023-11-14 shift C, 22:00-06:00 UTC, holds every run here)
+        drv.get(base + "/")
+        drv.execute_script("document.querySelector('form.picker input[type=date]').value = '2023-11-14';")
+        drv.find_element(By.CSS_SELECTOR, "form.picker select option[value='C']").click()
+        drv.find_element(By.CSS_SELECTOR, "form.picker button").click()
+        WebDriverWait(drv, 5).until(lambda d: "2023-11-14 shift C" in d.find_element(By.ID, "line-body").text)
+        runs = drv.execute_script("return document.querySelector('.card[data-station=\"st-1\"] dd:nth-of-type(3)')"
+                                  ".textContent;")
+        assert runs == "10"
+        # the board page: value, limit, unit and which one failed
+        drv.set_window_size(1400, 1000)
+        drv.get(base + "/board?serial=SN-004")
+        row = drv.find_element(By.CSS_SELECTOR, "table.accept tr[data-key='offset_max_mg']")
+        cells = [c.text for c in row.find_elements(By.TAG_NAME, "td")]
+        assert cells == ["33", "≤ 30", "mg", "FAILED"] and "failed" in row.get_attribute("class")
+        ok = [c.text for c in drv.find_elements(By.CSS_SELECTOR, "table.accept tr[data-key='residual_rms_mg'] td")]
+        assert ok == ["0.024", "≤ 2", "mg", "ok"]
+        screenshot(drv, "board-acceptance.png")
 
 
 def _hostile_store(path: Path) -> None:

@@ -35,7 +35,7 @@ def test_the_api_names_a_damaged_run_column(tmp_path, item):
     path = tmp_path / "store.sqlite"
     _good_store(path)
     _damage(path, [item])
-    runs = TestClient(create_app(WebSettings(store=str(path)))).get("/api/v1/runs").json()
+    runs = TestClient(create_app(WebSettings(store=str(path)))).get("/api/v1/runs").json()["runs"]
     damaged = {r["id"]: r["damage"] for r in runs if r["damage"]}
     assert list(damaged) == [2], runs  # _damage writes into run 2 only
     assert [d["column"] for d in damaged[2]] == [item[1]] and damaged[2][0]["table"] == "runs"

@@ -94,3 +94,42 @@ def no_alert(drv) -> bool:
 def screenshot(drv, name: str) -> None:
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
     drv.save_screenshot(str(SCREENSHOTS / name))
+
+
+def bulk_store(path: Path, n: int, seed: int = 1, lot_size: int = 5000, stations: int = 8,
+               t_end: float = 1.7e9) -> None:
+    """An SQLite results store of ``n`` complete runs inserted in one transaction (the schema made by
+    Store; the test's set-up, not the station's path): ``stations`` stations, lots of ``lot_size``
+    runs (L0, L1, ...), 30 days ending at ``t_end``, ~7 % FAIL on offset; each run carries a
+    calibration and the limits it was judged by (offset 60 mg, 50 mg in the second half)."""
+    import json
+    import sqlite3
+
+    import numpy as np
+
+    from accelcal_station.store.runs import Store
+
+    Store(path).close()
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.uniform(t_end - 30 * 86400, t_end, n))
+    off = np.abs(rng.normal(40, 8, n))
+    V = rng.normal(0, 0.02, (n, 3))
+    rows = []
+    for i in range(n):
+        lim = 60.0 if i < n // 2 else 50.0
+        fail = off[i] > lim or rng.uniform() < 0.05
+        measured = {"offset_max_mg": float(off[i]), "gain_error_max": 0.01, "cross_axis_max": 0.004,
+                    "residual_rms_mg": 0.03}
+        reasons = [{"code": "offset_max_mg", "message": f"offset_max_mg {off[i]:.1f} > limit {lim:g}"}] if fail else []
+        cal = {"schema": "accelcal.calibration", "version": 1, "model": "12", "input_units": "g", "input_per_g": 1.0,
+               "W": [[1.0, 0.001, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], "V": V[i].tolist(),
+               "Gamma": [0.0, 0.0, 0.0], "temperature": None, "metadata": {}}
+        rows.append((float(t[i]), float(t[i]) + 40, f"SN{i:07d}", f"st{i % stations}", f"L{i // lot_size}",
+                     "FAIL" if fail else "PASS", json.dumps(reasons), json.dumps({"measured": measured}),
+                     json.dumps(cal), json.dumps({"offset_max_mg": lim})))
+    db = sqlite3.connect(path)
+    with db:
+        db.executemany("INSERT INTO runs (started_at, finished_at, status, device_serial, station_id, lot, verdict,"
+                       " reasons, fit_summary, calibration, limits, model, nvm_status) VALUES"
+                       " (?, ?, 'complete', ?, ?, ?, ?, ?, ?, ?, ?, '12', 'written')", rows)
+    db.close()

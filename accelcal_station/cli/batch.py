@@ -195,7 +195,7 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
     _check_inputs(paths, from_store, csv_path, to_store)
     report = _fit_boards(paths, from_store, store_filters, model, units, cpg, grav, as_json,
                          _limits(config_path))
-    outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store)
+    outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store, config_path)
     _print_report(report, outputs, written, as_json)
     if report.skipped:
         ctx.exit(1)
@@ -259,7 +259,7 @@ def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: d
 
 
 def _write_outputs(report: BatchReport, out_dir: str | None, csv_path: str | None, to_store: str | None,
-                   from_store: str | None) -> tuple[dict[str, Any], dict[str, Path]]:
+                   from_store: str | None, config_path: str | None = None) -> tuple[dict[str, Any], dict[str, Path]]:
     """Write the calibrations, the summary CSV and the store records asked for: (what was written
     where, the calibration file of each board source)."""
     outputs: dict[str, Any] = {}
@@ -272,7 +272,9 @@ def _write_outputs(report: BatchReport, out_dir: str | None, csv_path: str | Non
         outputs["csv"] = str(csv_path)
     if to_store is not None:
         with Store(store_target(to_store)) as st:
-            outputs["store"] = {"path": str(to_store), **record_in_store(report, st, source_store=from_store)}
+            config_text = None if config_path is None else Path(config_path).read_text(encoding="utf-8")
+            outputs["store"] = {"path": str(to_store), **record_in_store(report, st, source_store=from_store,
+                                                                          config_text=config_text)}
     return outputs, written
 
 

@@ -1,5 +1,12 @@
-"""`accelcal serve`: the line page, board and lot pages and the MES API over a results store."""
+"""`accelcal serve`: the line page, board and lot pages and the MES API over a results store.
+
+Listening beyond this machine is a decision, not a default: an address other than loopback
+needs a read token (``web.read_token`` in a --config; every request then sends it as
+``Authorization: Bearer TOKEN``) or ``--public``, and the start line says which.
+"""
 from __future__ import annotations
+
+import ipaddress
 
 import click
 
@@ -19,16 +26,40 @@ def require_web() -> None:
                           "pip install 'accelcal-station[web]'") from None
 
 
+def is_loopback(host: str) -> bool:
+    """Does ``host`` listen on this machine only (127.0.0.0/8, ::1, localhost)?"""
+    if host.strip().lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:  # a host name: it may resolve to any interface
+        return False
+
+
+def exposure(host: str, read_token: str | None, public: bool) -> str:
+    """What the start line says about who can read; ConfigError when a non-loopback address has neither
+    a read token nor --public."""
+    if read_token:
+        return "every request needs web.read_token (Authorization: Bearer TOKEN)"
+    if is_loopback(host):
+        return "this machine only"
+    if not public:
+        raise ConfigError(f"--host {host}: listening beyond this machine serves every run, operator and config "
+                          "to the network; set web.read_token in a --config, or pass --public to mean it")
+    return "PUBLIC: anyone who can reach this address reads every run, operator name and config (--public)"
+
+
 @click.command("serve")
 @click.option("--db", "db", default=None, metavar="FILE|URL",
               help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB "
                    "(default: the store of the first --config).")
 @click.option("--config", "configs", multiple=True, type=click.Path(dir_okay=False),
-              help="A station config (repeatable): its store, acceptance limits and web.token.")
+              help="A station config (repeatable): its store, acceptance limits, web.token and web.read_token.")
 @click.option("--host", default="127.0.0.1", show_default=True,
-              help="Address to listen on (localhost only unless told otherwise).")
+              help="Address to listen on; anything but localhost needs web.read_token or --public.")
 @click.option("--port", default=8750, show_default=True, type=click.IntRange(1, 65535))
-def command(db: str | None, configs: tuple[str, ...], host: str, port: int) -> None:
+@click.option("--public", is_flag=True, help="Serve reads to anyone who can reach --host, without a read token.")
+def command(db: str | None, configs: tuple[str, ...], host: str, port: int, public: bool) -> None:
     """Serve the line page (/), board and lot pages and the JSON API (/api/v1, schema at /openapi.json).
 
     Read-only: it reads the store the stations write and never writes it.
@@ -39,14 +70,16 @@ def command(db: str | None, configs: tuple[str, ...], host: str, port: int) -> N
     store = store_target(db) if db is not None else cfgs[0].store_file
     limits = dict(cfgs[0].limits.values) if cfgs else {}
     token = next((c.web_token for c in cfgs if c.web_token), None)
+    read_token = next((c.web_read_token for c in cfgs if c.web_read_token), None)
+    who = exposure(host, read_token, public)
     require_web()
     from ..web.app import create_app
     from ..web.server import serve_forever
     from ..web.settings import WebSettings, open_store
 
-    settings = WebSettings(str(store), limits, token)
+    settings = WebSettings(str(store), limits, token, read_token=read_token)
     with open_store(settings):  # a wrong path or an unreachable server is one line now, not a page error later
         pass
     app = create_app(settings)
-    click.echo(f"serving {store} on http://{host}:{port}/ (Ctrl-C stops)", err=True)
+    click.echo(f"serving {store} on http://{host}:{port}/ ({who}; Ctrl-C stops)", err=True)
     serve_forever(app, host, port)

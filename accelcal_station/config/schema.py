@@ -267,6 +267,9 @@ class WebSection(Section):
 
     token: str | None = _f(None, "shared secret that starting or aborting a run over the web API needs: "
                            "16-200 printable characters, no spaces")
+    read_token: str | None = _f(None, "shared secret every read of `accelcal serve` needs (sent as "
+                                "'Authorization: Bearer TOKEN'); required to listen beyond localhost "
+                                "unless --public: 16-200 printable characters, no spaces")
 
 
 class LoggingSection(Section):

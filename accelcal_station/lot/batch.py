@@ -29,7 +29,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from ..acceptance.reasons import Reason
+from ..acceptance.reasons import Reason, codes
 from ..acceptance.rules import FitFigures, Limits, Verdict, judge_all
 from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES, Calibration, param_vector
@@ -110,6 +110,7 @@ class BatchReport:
     results: list[BoardResult]
     fit_calls: int  # stacked fit_batch calls (vectorised groups) plus one-at-a-time fits
     elapsed_s: float
+    limits: dict[str, float] | None = None  # the acceptance limits the boards were judged by (None: not judged)
 
     @property
     def fitted(self) -> list[BoardResult]:
@@ -329,7 +330,8 @@ def recalibrate(sessions: Sequence[Source], model: str | int = "12", *, chunk_si
                                              **({"held": [h.to_json() for h in r.held]} if r.held else {})}
     if limits is not None:
         _judge(ordered, limits)
-    return BatchReport(model, ordered, calls, _time.perf_counter() - t0)
+    return BatchReport(model, ordered, calls, _time.perf_counter() - t0,
+                       None if limits is None else dict(limits.values))
 
 
 # -- outputs ---------------------------------------------------------------------------------
@@ -398,32 +400,39 @@ def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
     return text
 
 
-def record_in_store(report: BatchReport, store: Store, *, source_store: str | Path | None = None) -> dict[str, int]:
+def record_in_store(report: BatchReport, store: Store, *, source_store: str | Path | None = None,
+                    config_text: str | None = None) -> dict[str, int]:
     """Record the batch in ``store``; returns counts of what was recorded.
 
     A board read from this same store gets a ``recalibration`` event on its source run
     (``recalibration_skipped`` with the reason when it could not be fitted), so lot
-    summaries do not count it twice.  A fitted board from a file or another store
-    becomes a new complete run (station ``accelcal-batch``, no verdict) with its
-    poses and calibration.
+    summaries do not count it twice.  Any other board with its session becomes a new
+    complete run (station ``accelcal-batch``) as a station records one: poses, calibration,
+    verdict, reasons, the measured figures and the limits it was judged by (``config_text``:
+    the --config it came from); a board that could not be fitted is recorded only when judged
+    (FAIL, reason ``unfitted``), so the line's yield counts it.
     """
     same = source_store is not None and store_identity(source_store) == store.identity
     events = runs = 0
     for r in report.results:
+        v = r.verdict
+        measured = {} if v is None else {k: float(x) for k, x in v.measured.items() if np.isfinite(x)}
+        judged = {} if v is None else {"verdict": v.label, "reasons": [x.to_dict() for x in v.reasons],
+                                       "measured": measured, "limits": report.limits}
         if same and r.run_id is not None:
-            data = {"model": r.model,
+            data = {"model": r.model, **judged,
                     **({"calibration": r.fitted_calibration.to_dict(), **r.fit_summary()} if r.ok else {})}
             store.log_event(r.run_id, "recalibration" if r.ok else "recalibration_skipped",
                             r.message if not r.ok else f"model {r.model} by accelcal batch", data)
             events += 1
-        elif r.ok:
+        elif r.session is not None and (r.ok or v is not None):
             s = r.session
-            if s is None:  # every fitted board keeps its session
-                raise DataError(f"{r.source}: fitted without its session")
             rid = store.start_run(device_serial=r.serial, chip=s.metadata.get("chip"), station_id=BATCH_STATION,
                                   lot=s.metadata.get("lot"), model=r.model, units=s.units,
-                                  counts_per_g=s.counts_per_g, gravity_mps2=s.gravity_mps2)
-            store.finish_run(rid, session=s, calibration=r.calibration, verdict=None,
-                             fit_summary=r.fit_summary(), model=r.model)
+                                  counts_per_g=s.counts_per_g, gravity_mps2=s.gravity_mps2, config_text=config_text)
+            summary = {**r.fit_summary(), **({"measured": measured, "reason_codes": codes(v.reasons)} if v else {})}
+            store.finish_run(rid, session=s, calibration=r.calibration, verdict=None if v is None else v.label,
+                             reasons=() if v is None else v.reasons, fit_summary=summary, model=r.model,
+                             limits=report.limits if v is not None else None)
             runs += 1
     return {"events": events, "runs": runs}

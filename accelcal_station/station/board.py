@@ -186,7 +186,7 @@ class Station:
                                           "offset_trim_lsb": rep.offset_trim_lsb,
                                           "design": cfg.design, "skipped": rep.skipped,
                                           "timing": rep.timing, "nvm_verified": rep.nvm_verified},
-                             model=cfg.model, retries=retries)
+                             model=cfg.model, retries=retries, limits=cfg.limits.values)
         except AccelcalError as e:
             # never leave the run 'running': record it as an error (finish_run rolled back)
             store.interrupt_run(run_id, f"could not record the result: {e}", status="error",

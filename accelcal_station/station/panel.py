@@ -375,7 +375,7 @@ class PanelStation:
         try:
             store.finish_run(rep.run_id, session=session, calibration=rep.calibration, verdict=rep.verdict,
                              reasons=rep.reasons, nvm_outcome=rep.nvm, fit_summary=summary,
-                             model=self.cfg.model, retries=b.retries)
+                             model=self.cfg.model, retries=b.retries, limits=self.cfg.limits.values)
         except AccelcalError as e:
             store.interrupt_run(rep.run_id, f"could not record the result: {e}", status="error", nvm_outcome=rep.nvm)
             rep.verdict = "FAIL"

@@ -47,6 +47,7 @@ class StationConfig:
     store_file: Path | str  # a file, or a store URL (postgresql://...)
     web_token: str | None = None  # web.token: what starting or aborting a run over the web API needs
     event_log: LoggingSection | None = None  # logging: (config/event_log.py)
+    web_read_token: str | None = None  # web.read_token: what every read of `accelcal serve` needs
 
     @classmethod
     def load(cls, path: str | Path | None = None, store_override: str | Path | None = None,
@@ -79,7 +80,7 @@ class StationConfig:
         verify_poses = _verify_poses(ver.poses, limits)
         return cls(raw, p.read_text(), p, (sc.station or StationSection()).id, design, model, settings,
                    limits, nvm.write, nvm.slot_size, nvm.offset_trim, verify_poses, ver.design, store_file,
-                   _web_token(raw), sc.logging)
+                   _web_token(raw), sc.logging, _web_token(raw, "read_token"))
 
 
 def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> dict[str, Any]:
@@ -118,11 +119,11 @@ def _verify_poses(verify_poses: int, limits: Limits) -> int:
     return verify_poses
 
 
-def _web_token(raw: dict[str, Any]) -> str | None:
-    """web.token: a shared secret of 16-200 printable characters (no spaces), or absent."""
-    token = (raw.get("web") or {}).get("token")  # keys and type: the schema's
+def _web_token(raw: dict[str, Any], key: str = "token") -> str | None:
+    """web.token (or web.read_token): a shared secret of 16-200 printable characters (no spaces), or absent."""
+    token = (raw.get("web") or {}).get(key)  # keys and type: the schema's
     if token is None:
         return None
     if not isinstance(token, str) or not 16 <= len(token) <= 200 or not token.isprintable() or " " in token:
-        raise ConfigError("web.token: allowed: a string of 16-200 printable characters without spaces")
+        raise ConfigError(f"web.{key}: allowed: a string of 16-200 printable characters without spaces")
     return token

@@ -172,7 +172,7 @@ class ThermalStation(Station):
                          fit_summary={"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
                                       "design": self.cfg.design, "timing": rep.timing, "thermal": rep.thermal,
                                       "nvm_verified": rep.nvm_verified},
-                         model=self.cfg.model, retries=retries)
+                         model=self.cfg.model, retries=retries, limits=self.cfg.limits.values)
 
     def _where(self) -> str:
         if not self.results:

@@ -131,6 +131,7 @@ class RunRecord:
     host: str | None
     pid: int | None
     panel_id: str | None = None  # the boards calibrated together on one jig
+    limits: dict[str, float] | None = None  # the acceptance limits the run was judged by (schema 4)
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
     events: list[dict[str, Any]] = field(default_factory=list)
@@ -185,7 +186,7 @@ def run_summary(r: dict[str, Any], damage: list[DamagedRow], pose_count: int) ->
             "chip": r["chip"], "station_id": r["station_id"], "operator": r["operator"], "lot": r["lot"],
             "model": r["model"], "verdict": r["verdict"], "reasons": [str(x) for x in reasons],
             "reason_codes": codes(reasons), "nvm_status": r["nvm_status"], "pose_count": pose_count,
-            "panel_id": r["panel_id"],
+            "panel_id": r["panel_id"], "limits": r.get("limits"),
             "residual_rms_g": rms if isinstance(rms, (int, float)) and not isinstance(rms, bool) else None,
             **({"damaged": sorted({d.column for d in damage}), "damage": [d.to_dict() for d in damage]}
                if damage else {})}

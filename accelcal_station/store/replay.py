@@ -32,7 +32,7 @@ def _run_values(rec: RunRecord) -> dict[str, Any]:
     values = {c: getattr(rec, c) for c in _COPIED}
     values.update(reasons=json.dumps([Reason.from_dict(r).to_dict() for r in rec.reasons]),
                   nvm_outcome=to_json(rec.nvm_outcome), calibration=to_json(rec.calibration),
-                  fit_summary=to_json(rec.fit_summary))
+                  fit_summary=to_json(rec.fit_summary), limits=to_json(rec.limits))
     return values
 
 

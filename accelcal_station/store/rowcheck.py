@@ -175,6 +175,12 @@ def _fit_summary(value: dict[str, Any]) -> None:
         raise ValueError("fit summary 'timing' is not an object")
 
 
+def _limits(value: dict[str, Any]) -> None:
+    for k, v in value.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"limit {str(k)[:40]!r} is not a finite number")
+
+
 def _any_json(v: Any) -> Any:
     return parse_json(v)
 
@@ -190,7 +196,8 @@ SPECS: dict[str, dict[str, tuple[Callable[[Any], Any], bool]]] = {
              "counts_per_g": (_real(0, 1e12), False), "gravity_mps2": (_real(0, 1e3), False),
              "verdict": (_choice(VERDICTS), False), "reasons": (_json_of(list, _reasons), False),
              "nvm_outcome": (_json_of(dict), False), "calibration": (_json_of(dict, _calibration), False),
-             "fit_summary": (_json_of(dict, _fit_summary), False), "pid": (_int(0, 2**31 - 1), False)},
+             "fit_summary": (_json_of(dict, _fit_summary), False), "pid": (_int(0, 2**31 - 1), False),
+             "limits": (_json_of(dict, _limits), False)},
     "poses": {"run_id": (_ID, True), "idx": (_COUNT, True), "name": (_text, True),
               **{c: (_real(), True) for c in ("mean_x", "mean_y", "mean_z")},
               **{c: (_real(), False) for c in ("pitch_deg", "roll_deg", "ref_x", "ref_y", "ref_z", "std_x", "std_y",

@@ -248,11 +248,12 @@ class Store:
     def finish_run(self, run_id: int, *, session: Session, calibration: Calibration | None, verdict: str | None,
                    reasons: Iterable[Reason] = (), nvm_outcome: Any = None, fit_summary: dict[str, Any] | None = None,
                    model: str | None = None, retries: Sequence[int] | None = None,
-                   finished_at: float | None = None) -> None:
+                   finished_at: float | None = None, limits: dict[str, float] | None = None) -> None:
         """Record poses, calibration, verdict and NVM outcome of a run as ``complete``, atomically.
 
         ``nvm_outcome``: a writer.BurnOutcome, its dict, or None when nothing was burned;
-        ``reasons``: Reason objects (a plain string is kept with code "").
+        ``reasons``: Reason objects (a plain string is kept with code "");
+        ``limits``: the acceptance limits the verdict was judged by ({key: number}).
         """
         if verdict is not None and verdict not in schema.VERDICTS:
             raise DataError(f"verdict {verdict!r}; allowed: PASS, FAIL")
@@ -265,14 +266,16 @@ class Store:
             cal = None if calibration is None else calibration.to_dict()
             try:
                 texts = [to_json([Reason.from_dict(r).to_dict() for r in reasons]), to_json(nvm_outcome),
-                         to_json(cal), to_json(fit_summary)]
+                         to_json(cal), to_json(fit_summary),
+                         to_json(None if limits is None else {str(k): float(v) for k, v in limits.items()})]
             except (TypeError, ValueError) as e:
                 raise DataError(f"run {run_id}: result is not JSON-serialisable ({e})") from None
             model = opt(model or (calibration.model if calibration else None), str)
             db.execute(update(runs).where(runs.c.id == run_id).values(
                 status="complete", finished_at=_time.time() if finished_at is None else float(finished_at),
                 verdict=verdict, reasons=texts[0], nvm_status=nvm_status, nvm_outcome=texts[1],
-                calibration=texts[2], fit_summary=texts[3], **({} if model is None else {"model": model})))
+                calibration=texts[2], fit_summary=texts[3], **({} if texts[4] is None else {"limits": texts[4]}),
+                **({} if model is None else {"model": model})))
         log.info("run %d complete: %s, NVM %s", run_id, verdict or "no verdict", nvm_status)
 
     def interrupt_run(self, run_id: int, reason: str, *, session: Session | None = None,

@@ -65,6 +65,7 @@ runs = Table(
     Column("host", Text),
     Column("pid", Integer),
     Column("panel_id", Text),       # the boards calibrated together on one jig
+    Column("limits", Text),         # JSON {limit key: number}: the acceptance limits the run was judged by
     CheckConstraint("status IN ('running', 'complete', 'interrupted', 'error')"),
     CheckConstraint("verdict IN ('PASS', 'FAIL')"),
 )
@@ -72,6 +73,7 @@ Index("runs_device", runs.c.device_serial, runs.c.started_at)
 Index("runs_lot", runs.c.lot, runs.c.started_at)
 Index("runs_started", runs.c.started_at)
 Index("runs_panel", runs.c.panel_id)
+Index("runs_station", runs.c.station_id, runs.c.started_at)
 
 poses = Table(
     "poses", metadata,

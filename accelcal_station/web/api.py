@@ -3,22 +3,30 @@
 Runs (list with filters, one run with its calibration and reasons), yields per station and
 shift, and the feed of finished runs (feed.py): ``GET /events?after=CURSOR`` (JSON, long
 poll) and ``GET /events/stream`` (server-sent events; resume with the Last-Event-ID
-header).  Read-only: nothing here writes the store.  Errors are JSON ``{code, message}``.
+header).  Read-only: nothing here writes the store.  Errors are JSON ``{code, message}``
+(errors.ErrorBody), declared on every endpoint; every number is bounded by its type
+(run ids int64), so an out-of-range value is a 4xx answer, never a 500.
 """
 from __future__ import annotations
 
 import asyncio
+import base64
+import json
+import math
 import time
 from collections.abc import AsyncIterator
 from typing import TYPE_CHECKING, Any
 
 from fastapi import APIRouter, Header, Query
+from fastapi import Path as FPath
 from fastapi.responses import StreamingResponse
 from pydantic import BaseModel
 
 from ..errors import DataError
+from ..store.records import timestamp
+from ..store.rowcheck import T_MAX_S
 from . import queries
-from .errors import ApiError
+from .errors import ERROR_RESPONSES, ApiError
 from .feed import Cursor, Step, advance, head
 from .settings import open_store
 
@@ -33,7 +41,10 @@ class Reason(BaseModel):
 
 class RunSummary(BaseModel):
     """A run without its poses; a damaged stored value reads as null and is named in ``damage``
-    (table, id, column, problem: the store's ``damaged_row``)."""
+    (table, id, column, problem: the store's ``damaged_row``).  ``limits``: the acceptance limits
+    the run was judged by ({key: number}; keys and units as the config's ``acceptance`` section),
+    ``limits_source`` "stored" (recorded with the run), "config" (an older run: its own config's
+    acceptance section) or null."""
 
     id: int
     started_at: float | None
@@ -52,7 +63,57 @@ class RunSummary(BaseModel):
     nvm_status: str | None
     residual_rms_mg: float | None
     measured: dict[str, float]
+    limits: dict[str, float] | None = None
+    limits_source: str | None = None
     damage: list[dict[str, str]] = []
+
+
+class RunPage(BaseModel):
+    """One page of runs; ``next_cursor`` (null on the last page) fetches the next one in the same order."""
+
+    runs: list[RunSummary]
+    order: str
+    next_cursor: str | None
+    total: int | None = None  # the runs matching the filters, when asked for (total=true)
+
+
+class Pose(BaseModel):
+    name: str
+    pitch_deg: float | None
+    roll_deg: float | None
+    reference_g: list[float] | None
+    mean: list[float]
+    std: list[float] | None
+    n: int | None
+    dropped: int
+    temp_c: float | None
+    t_start: float | None
+    t_end: float | None
+    retries: int
+
+
+class RunEvent(BaseModel):
+    t: float | None
+    kind: str | None
+    message: str | None
+    data: Any = None
+
+
+class RunDetail(RunSummary):
+    """One run in full: its poses (session units), events, calibration (AN4399 W, V, Gamma), the fit
+    summary and NVM outcome as recorded."""
+
+    config_hash: str | None
+    config_text: str | None
+    units: str | None
+    counts_per_g: float | None
+    gravity_mps2: float | None
+    panel_id: str | None
+    nvm_outcome: dict[str, Any] | None
+    calibration: dict[str, Any] | None
+    fit_summary: dict[str, Any] | None
+    poses: list[Pose]
+    events: list[RunEvent]
 
 
 class Event(BaseModel):
@@ -67,6 +128,10 @@ class EventPage(BaseModel):
     next: str
 
 
+class EventHead(BaseModel):
+    next: str
+
+
 class YieldSummary(BaseModel):
     window_from: float | None
     stations: list[dict[str, Any]]
@@ -74,10 +139,8 @@ class YieldSummary(BaseModel):
     failure_reasons: dict[str, int]
 
 
-def _rows(settings: WebSettings, sql_filters: dict[str, Any], limit: int) -> list[dict[str, Any]]:
-    with open_store(settings) as st:
-        ids = [r["id"] for r in st.list_runs(limit=limit, **sql_filters)]
-        return queries.summaries(st, ids)
+ID_MAX = 2**63 - 1  # run ids are BIGINT (int64)
+TEXT_MAX = 200  # a station, serial or lot filter
 
 
 def _feed(settings: WebSettings, cursor: Cursor, limit: int) -> tuple[list[Step], list[dict[str, Any]]]:
@@ -89,31 +152,74 @@ def _feed(settings: WebSettings, cursor: Cursor, limit: int) -> tuple[list[Step]
 
 
 def api_router(settings: WebSettings) -> APIRouter:
-    r = APIRouter()
+    r = APIRouter(responses=ERROR_RESPONSES)
     _runs_routes(r, settings)
     _feed_routes(r, settings)
     return r
 
 
-def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
-    @r.get("/runs", response_model=list[RunSummary], summary="List runs (oldest first)")
-    def list_runs(since: str | None = Query(None, description="started at or after (ISO 8601 or unix s)"),
-                  until: str | None = None, station: str | None = None, serial: str | None = None,
-                  verdict: str | None = Query(None, pattern="^(PASS|FAIL)$"), lot: str | None = None,
-                  status: str | None = Query(None, pattern="^(running|complete|interrupted|error)$"),
-                  limit: int = Query(1000, ge=1, le=10000)) -> list[dict[str, Any]]:
-        f = {"since": _time(since), "until": _time(until), "station": station, "device": serial,
-             "verdict": verdict, "lot": lot, "status": status}
-        return _rows(settings, {k: v for k, v in f.items() if v is not None}, limit)
+def encode_cursor(order: str, last_id: int) -> str:
+    """An opaque page cursor: the order and the last id delivered (base64url of a small JSON)."""
+    return base64.urlsafe_b64encode(json.dumps({"v": 1, "o": order, "id": int(last_id)}).encode()).decode().rstrip("=")
 
-    @r.get("/runs/{run_id}", summary="One run with its calibration, reasons, poses and events")
-    def one_run(run_id: int) -> dict[str, Any]:
+
+def decode_cursor(text: str, order: str) -> int:
+    """The last id of a cursor this server sent for ``order``; ApiError 400 otherwise."""
+    try:
+        d = json.loads(base64.urlsafe_b64decode(text + "=" * (-len(text) % 4)).decode())
+        ok = isinstance(d, dict) and d.get("v") == 1 and isinstance(d.get("id"), int) and 0 <= d["id"] <= ID_MAX
+    except (ValueError, UnicodeDecodeError):
+        ok = False
+    if not ok:
+        raise ApiError(400, "invalid_cursor", f"cursor {text[:40]!r}: not a cursor this server sent; "
+                       "allowed: the next_cursor of a previous page")
+    if d.get("o") != order:
+        raise ApiError(400, "invalid_cursor", f"cursor of order={d.get('o')} given with order={order}; "
+                       "a cursor continues the order it was made for")
+    return int(d["id"])
+
+
+def _text(name: str, v: str | None) -> str | None:
+    if v is not None and any(ord(c) < 32 for c in v):
+        raise ApiError(400, "invalid_request", f"{name}: control characters are not allowed")
+    return v
+
+
+def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
+    @r.get("/runs", response_model=RunPage, summary="Runs, a page at a time (keyset on id; newest first by default)")
+    def list_runs(since: str | None = Query(None, max_length=64, description="started at or after (ISO 8601, unix s)"),
+                  until: str | None = Query(None, max_length=64, description="started before (ISO 8601 or unix s)"),
+                  station: str | None = Query(None, max_length=TEXT_MAX),
+                  serial: str | None = Query(None, max_length=TEXT_MAX),
+                  verdict: str | None = Query(None, pattern="^(PASS|FAIL)$"),
+                  lot: str | None = Query(None, max_length=TEXT_MAX),
+                  status: str | None = Query(None, pattern="^(running|complete|interrupted|error)$"),
+                  order: str = Query("desc", pattern="^(asc|desc)$", description="by id: desc newest first"),
+                  cursor: str | None = Query(None, max_length=200, description="next_cursor of the previous page"),
+                  limit: int = Query(100, ge=1, le=1000),
+                  total: bool = Query(False, description="count the runs matching the filters")) -> dict[str, Any]:
+        f = {"since": _time(since, "since"), "until": _time(until, "until"), "station": _text("station", station),
+             "serial": _text("serial", serial), "verdict": verdict, "lot": _text("lot", lot), "status": status}
+        after = None if cursor is None else decode_cursor(cursor, order)
+        with open_store(settings) as st:
+            runs = queries.run_page(st, f, order, after, limit + 1)
+            n = queries.run_count(st, f) if total else None
+        more = len(runs) > limit
+        runs = runs[:limit]
+        return {"runs": runs, "order": order, "total": n,
+                "next_cursor": encode_cursor(order, runs[-1]["id"]) if more else None}
+
+    @r.get("/runs/{run_id}", response_model=RunDetail,
+           summary="One run with its calibration, reasons, poses and events")
+    def one_run(run_id: int = FPath(ge=1, le=ID_MAX)) -> dict[str, Any]:
         with open_store(settings) as st:
             try:
                 rec = st.get_run(run_id)
             except DataError:
                 raise ApiError(404, "not_found", f"no run {run_id}") from None
-        return rec.to_dict()
+            one = queries.summaries(st, [run_id])
+        d = rec.to_dict()
+        return {**d, **(one[0] if one else {}), "events": rec.events}
 
     @r.get("/yield", response_model=YieldSummary, summary="Yield and first-pass yield per station and shift")
     def yields() -> dict[str, Any]:
@@ -126,14 +232,23 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
                     "failure_reasons": dict(queries.reason_counts(st, t0))}
 
 
-def _time(v: str | None) -> float | str | None:
-    """A number stays unix seconds; anything else the store parses as ISO 8601 (or refuses)."""
+def _time(v: str | None, what: str) -> float | None:
+    """Unix seconds from a number or ISO 8601; a time outside years 1970-9999 is refused (400)."""
     if v is None:
         return None
     try:
-        return float(v)
+        t = float(v)
     except ValueError:
-        return v
+        try:
+            t = timestamp(v, what) or math.nan
+        except DataError:
+            raise
+        except (OverflowError, OSError, ValueError):  # a date Python reads but cannot place in time
+            t = math.nan
+    if t is None or not 0.0 <= t <= T_MAX_S:  # NaN fails the comparison too
+        raise ApiError(400, "invalid_request", f"{what} {v[:40]!r}: allowed: unix seconds 0-{T_MAX_S:.0f} or "
+                       "an ISO 8601 time from 1970 to 9999")
+    return t
 
 
 def _feed_routes(r: APIRouter, settings: WebSettings) -> None:
@@ -151,7 +266,8 @@ def _feed_routes(r: APIRouter, settings: WebSettings) -> None:
         out = [{"id": s.cursor.text(), "run": by_id[s.run_id]} for s in steps if s.run_id in by_id]
         return {"events": out, "next": steps[-1].cursor.text() if steps else cursor.text()}
 
-    @r.get("/events/head", summary="The cursor at the present end of the feed (skip the past)")
+    @r.get("/events/head", response_model=EventHead,
+           summary="The cursor at the present end of the feed (skip the past)")
     def events_head() -> dict[str, str]:
         with open_store(settings) as st:
             return {"next": head(*queries.head_rows(st)).text()}

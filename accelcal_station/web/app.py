@@ -5,17 +5,28 @@ the store shows as text; scripts and styles come from this package (assets.py) b
 never from a path in the request.  Each request opens the store for itself (one Store per
 thread, as the store wants) and reads it; stations write it independently, so a slow or
 broken client holds no lock and no station waits on it.
+
+Bounded work: the lot, board and reason pages (the ones whose work grows with a lot or a
+board's history) take turns in ``settings.heavy_lanes`` lanes; a request waiting for a lane
+waits on the event loop, holding no worker thread, so the line page and the API are
+answered meanwhile.  With ``settings.read_token`` every request must carry it
+(``Authorization: Bearer TOKEN``; a browser may send it as the password of HTTP Basic).
 """
 from __future__ import annotations
 
+import asyncio
+import base64
+import hmac
+from collections.abc import Awaitable, Callable
 from typing import Any
 
-from fastapi import FastAPI, Query
+from fastapi import FastAPI, Query, Request
 from fastapi.responses import HTMLResponse, Response
+from starlette.concurrency import run_in_threadpool
 
 from . import assets, pages
 from .api import api_router
-from .errors import install_errors
+from .errors import error_response, install_errors
 from .settings import WebSettings, open_store
 
 API_VERSION = "v1"
@@ -24,42 +35,88 @@ API_VERSION = "v1"
 def create_app(settings: WebSettings) -> FastAPI:
     """The whole application over one store."""
     app = FastAPI(title="accelcal station line", version=API_VERSION,
-                  description="Runs, yields and a finished-runs event stream from the results store.",
+                  description="Runs (paged by cursor), yields and a finished-runs event stream from the results "
+                              "store. Every error is JSON {code, message}.",
                   openapi_url="/openapi.json", docs_url=None, redoc_url=None)
     app.state.settings = settings
     install_errors(app)
+    if settings.read_token:
+        _require_token(app, settings.read_token)
     app.include_router(api_router(settings), prefix=f"/api/{API_VERSION}")
     app.include_router(assets.router)
     _pages(app, settings)
     return app
 
 
+def token_of(header: str) -> str:
+    """The token an Authorization header carries: Bearer TOKEN, or Basic with TOKEN as the password."""
+    kind, _, value = header.strip().partition(" ")
+    if kind.lower() == "bearer":
+        return value.strip()
+    if kind.lower() == "basic":
+        try:
+            return base64.b64decode(value.strip(), validate=True).decode("utf-8").partition(":")[2]
+        except (ValueError, UnicodeDecodeError):
+            return ""
+    return ""
+
+
+def _require_token(app: FastAPI, token: str) -> None:
+    want = token.encode()
+
+    @app.middleware("http")
+    async def read_token(request: Request, call_next: Callable[[Request], Awaitable[Response]]) -> Response:
+        got = token_of(request.headers.get("authorization", "")).encode()
+        if hmac.compare_digest(got, want):
+            return await call_next(request)
+        return error_response(401, "unauthorized", "this server needs its read token: Authorization: Bearer TOKEN "
+                              "(web.read_token of its config)",
+                              headers={"WWW-Authenticate": 'Basic realm="accelcal (password: the read token)"'})
+
+
 def _pages(app: FastAPI, settings: WebSettings) -> None:
     render = assets.render
+    lanes = asyncio.Semaphore(max(1, settings.heavy_lanes))
+
+    async def heavy(fn: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+        async with lanes:  # waits on the loop, not in a worker thread
+            return await run_in_threadpool(fn)
+
+    def line(day: str, shift: str) -> dict[str, Any]:
+        with open_store(settings) as st:
+            return pages.line_context(st, day, shift)
+
+    day_q = Query("", max_length=10, pattern=r"^(\d{4}-\d{2}-\d{2})?$", description="production day YYYY-MM-DD")
+    shift_q = Query("", pattern="^[ABC]?$", description="shift A, B or C of that day")
 
     @app.get("/", response_class=HTMLResponse, include_in_schema=False)
-    def line_page() -> Response:
-        with open_store(settings) as st:
-            ctx = pages.line_context(st, settings.limits)
-        return render("line.html", title="Line", page="line", **ctx)
+    def line_page(day: str = day_q, shift: str = shift_q) -> Response:
+        return render("line.html", title="Line", page="line", **line(day, shift))
 
     @app.get("/fragment/line", response_class=HTMLResponse, include_in_schema=False)
-    def line_fragment() -> Response:
-        with open_store(settings) as st:
-            ctx = pages.line_context(st, settings.limits)
-        return render("line_body.html", **ctx)
+    def line_fragment(day: str = day_q, shift: str = shift_q) -> Response:
+        return render("line_body.html", **line(day, shift))
+
+    @app.get("/reason", response_class=HTMLResponse, include_in_schema=False)
+    async def reason_page(code: str = Query(..., max_length=64), day: str = day_q, shift: str = shift_q,
+                          station: str | None = Query(None, max_length=200)) -> Response:
+        def work() -> dict[str, Any]:
+            with open_store(settings) as st:
+                return pages.reason_context(st, code, day, shift, station)
+        return render("reason.html", title=f"Reason {code}", page="line", **await heavy(work))
 
     @app.get("/board", response_class=HTMLResponse, include_in_schema=False)
-    def board_page(serial: str = Query("", max_length=64)) -> Response:
-        ctx: dict[str, Any] = {"serial": serial, "runs": [], "nvm": [], "similar": []}
-        if serial:
+    async def board_page(serial: str = Query("", max_length=64)) -> Response:
+        def work() -> dict[str, Any]:
             with open_store(settings) as st:
-                ctx = pages.board_context(st, serial)
+                return pages.board_context(st, serial)
+        ctx: dict[str, Any] = await heavy(work) if serial else {"serial": serial, "runs": [], "nvm": [], "similar": []}
         return render("board.html", title=f"Board {serial}" if serial else "Board", page="board", **ctx)
 
     @app.get("/lot", response_class=HTMLResponse, include_in_schema=False)
-    def lot_page(lot: str = Query("", max_length=64)) -> Response:
-        with open_store(settings) as st:
-            ctx = pages.lot_context(st, lot) if lot else {"lot": "", "summary": None, "charts": [],
-                                                           "lots": pages.queries.lots(st)}
-        return render("lot.html", title=f"Lot {lot}" if lot else "Lots", page="lot", **ctx)
+    async def lot_page(lot: str = Query("", max_length=64)) -> Response:
+        def work() -> dict[str, Any]:
+            with open_store(settings) as st:
+                return pages.lot_context(st, lot) if lot else {"lot": "", "summary": None, "charts": [],
+                                                               "lots": pages.queries.lots(st)}
+        return render("lot.html", title=f"Lot {lot}" if lot else "Lots", page="lot", **await heavy(work))

@@ -2,6 +2,7 @@
 name from a fixed table (a request names an asset; no request path reaches the file system)."""
 from __future__ import annotations
 
+from datetime import UTC, datetime
 from functools import cache
 from importlib import resources
 from typing import Any
@@ -28,6 +29,8 @@ def environment() -> Environment:
                       trim_blocks=True, lstrip_blocks=True)
     env.filters["pct"] = lambda v: "–" if v is None else f"{100 * v:.1f} %"
     env.filters["num"] = lambda v, f=".3g": "–" if not isinstance(v, (int, float)) else format(v, f)
+    env.filters["utc"] = lambda t: "–" if not isinstance(t, (int, float)) else \
+        datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%d %H:%M:%S")
     return env
 
 

@@ -18,6 +18,7 @@ from ..errors import DataError
 
 GAP_S = 60.0  # a hole in the ids older than this is a rolled-back insert, not a late commit
 MAX_DONE = 100_000  # a cursor naming more delivered ids than this is refused (not ours)
+ID_MAX = 2**63 - 1  # run ids are int64: a larger one is no run of ours
 
 
 @dataclass(frozen=True)
@@ -42,7 +43,7 @@ class Cursor:
         except ValueError:
             raise DataError(f"event id {text[:40]!r}: not a cursor; allowed: N or N:id,id,... "
                             "as sent in an event's id") from None
-        if low < 1 or len(done) > MAX_DONE or any(d < low for d in done):
+        if low < 1 or low > ID_MAX or len(done) > MAX_DONE or any(d < low or d > ID_MAX for d in done):
             raise DataError(f"event id {text[:40]!r}: not a cursor this server sent")
         return cls(low, done)
 

@@ -1,48 +1,108 @@
-"""What the line, board and lot pages show, as plain values for the templates."""
+"""What the line, board and lot pages show, as plain values for the templates.
+
+Every chart draws each run against the limits that run was judged by (its stored
+``limits``; an older run: its own config's acceptance section), never the limits of the
+config ``serve`` was started with.  The line page reads a window (the day before the newest
+run, or a production day / shift picked by the engineer) with grouped SELECTs and at most
+100 runs per station per chart; the lot page groups in SQL and reads one JSON column of
+the lot's runs.
+"""
 from __future__ import annotations
 
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import numpy as np
 
-from ..config.safe_yaml import HostileYAML, safe_load
-from ..errors import AccelcalError
+from ..acceptance.rules import LIMIT_KEYS
+from ..errors import AccelcalError, DataError
 from ..store.records import RunRecord, iso
 from ..store.runs import Store
 from . import queries
-from .charts import Chart, control_chart, residual_chart
+from .charts import Chart, RunPoint, residual_chart, run_chart
 
-# the line page's control charts: fit_summary.measured key, title, unit, acceptance limit key
-KEY_PARAMS = [("gain_error_max", "Gain error (max |Wii - 1|)", "", "gain_error_max"),
-              ("offset_max_mg", "Offset (max |V|)", "mg", "offset_max_mg"),
-              ("cross_axis_max", "Cross-axis (max |Wij|)", "", "cross_axis_max"),
+# the line page's run charts: fit_summary.measured key, title, unit, acceptance limit key
+KEY_PARAMS = [("gain_error_max", "Gain error, max |Wii − 1|", "g/g", "gain_error_max"),
+              ("offset_max_mg", "Offset, max |Vi|", "mg", "offset_max_mg"),
+              ("cross_axis_max", "Cross-axis, max |Wij|", "g/g", "cross_axis_max"),
               ("residual_rms_mg", "Fit residual RMS", "mg", "residual_rms_mg")]
+# the lot page's parameters: name, index in calibration.param_vector, scale to the unit, unit, limit key, centre
+LOT_PARAMS = ([(f"W{i}{i}", 4 * i, 1.0, "g/g", "gain_error_max", 1.0) for i in range(3)]
+              + [(f"V{i}", 9 + i, 1e3, "mg", "offset_max_mg", 0.0) for i in range(3)]
+              + [(f"W{a}{b}", 3 * a + b, 1.0, "g/g", "cross_axis_max", 0.0) for a, b in ((0, 1), (0, 2), (1, 2))])
+LOT_CHART_RUNS = 200  # a lot chart draws the newest this many runs (the table's statistics use every run)
+SHIFTS = "ABC"
 
 
-def limits_from_text(text: str | None) -> dict[str, float]:
-    """The acceptance section of a config's text (numbers only); {} when it cannot be read."""
-    try:
-        acc = (safe_load(text or "") or {}).get("acceptance") or {}
-    except (HostileYAML, ValueError, AttributeError):  # a stored config is only advisory here
-        return {}
-    return {k: float(v) for k, v in acc.items() if isinstance(v, (int, float))} if isinstance(acc, dict) else {}
+@dataclass(frozen=True)
+class Window:
+    """The line page's window [t0, t1) in unix s and how it is named."""
+
+    t0: float
+    t1: float
+    label: str
+    day: str = ""
+    shift: str = ""
 
 
-def line_context(store: Store, limits: dict[str, float] | None) -> dict[str, Any]:
-    """Stations, yields per station and shift, reasons and control charts (aggregate queries only)."""
-    t0 = queries.window_start(store)
-    if t0 is None:
-        return {"empty": True, "stations": [], "shifts": [], "reasons": [], "recent": [], "charts": []}
-    lim = limits if limits else limits_from_text(queries.newest_config_text(store))
-    series = queries.measured_series(store)
-    charts: list[Chart] = []
+def limit_unit(key: str) -> str:
+    """The unit of a limit or measured figure, from its key (acceptance.rules.LIMIT_KEYS)."""
+    if key.endswith("_mg"):
+        return "mg"
+    if key.startswith("cubic"):
+        return "1/g²"
+    return "g/g" if key in LIMIT_KEYS else ""
+
+
+def pick_window(store: Store, day: str, shift: str) -> Window | None:
+    """The window to show: a production day (06:00 UTC to 06:00 the next day) or one of its shifts
+    (A 06-14, B 14-22, C 22-06 UTC); by default the day before the newest run.  None: no runs."""
+    if day:
+        try:
+            d = datetime.strptime(day, "%Y-%m-%d").replace(tzinfo=UTC) + timedelta(hours=6)
+        except ValueError:
+            raise DataError(f"day {day[:20]!r}: allowed a date YYYY-MM-DD") from None
+        k = SHIFTS.index(shift) if shift else 0
+        t0 = d.timestamp() + k * queries.SHIFT_S
+        t1 = t0 + (queries.SHIFT_S if shift else 3 * queries.SHIFT_S)
+        return Window(t0, t1, f"{day} shift {shift}" if shift else f"production day {day}", day, shift)
+    newest = queries.newest_start(store)
+    if newest is None:
+        return None
+    return Window(newest - queries.WINDOW_S, newest + 1e-3, "the day before the newest run")
+
+
+def station_charts(store: Store, station: str | None, w: Window) -> list[Chart]:
+    """One station's run charts over the window, each run against its own limits."""
+    series = queries.station_series(store, station, w.t0, w.t1)
+    charts = []
     for key, title, unit, lkey in KEY_PARAMS:
-        pts = [s for s in series if isinstance(s.get(key), (int, float))]
-        charts.append(control_chart(title, unit, [float(s[key]) for s in pts],
-                                    [f"run {s['id']} ({s['station_id']})" for s in pts], lim.get(lkey)))
-    return {"empty": False, "window_from": iso(t0), "stations": queries.station_rows(store, t0),
-            "shifts": queries.shift_rows(store, t0), "reasons": queries.reason_counts(store, t0),
-            "recent": queries.recent(store), "charts": charts, "limits": lim}
+        pts = [RunPoint(s["t"], s["measured"][key], s["limits"].get(lkey), None, f"run {s['id']}")
+               for s in series if key in s["measured"]]
+        charts.append(run_chart(title, unit, pts, nonneg=True))
+    return charts
+
+
+def line_context(store: Store, day: str = "", shift: str = "") -> dict[str, Any]:
+    """Stations, yields per station and shift, reasons and per-station run charts (aggregate queries only)."""
+    w = pick_window(store, day, shift)
+    if w is None:
+        return {"empty": True, "stations": [], "shifts": [], "reasons": [], "recent": [], "charts": [],
+                "window": None, "day": day, "shift": shift}
+    stations = queries.station_rows(store, w.t0, w.t1)
+    return {"empty": False, "window": w, "window_from": iso(w.t0), "window_to": iso(w.t1), "day": w.day,
+            "shift": w.shift, "stations": stations, "shifts": queries.shift_rows(store, w.t0, w.t1),
+            "reasons": queries.reason_counts(store, w.t0, w.t1), "recent": queries.recent(store),
+            "station_charts": [(s["station_id"], station_charts(store, s["station_id"], w)) for s in stations]}
+
+
+def reason_context(store: Store, code: str, day: str, shift: str, station: str | None) -> dict[str, Any]:
+    """The FAIL runs of one reason code in the line page's window (the drill-down from a reason)."""
+    w = pick_window(store, day, shift)
+    runs = [] if w is None else queries.reason_runs(store, code, w.t0, w.t1, station)
+    return {"code": code, "window": w, "runs": runs, "station": station, "day": day, "shift": shift,
+            "window_from": None if w is None else iso(w.t0), "window_to": None if w is None else iso(w.t1)}
 
 
 def _residuals(rec: RunRecord) -> Chart | None:
@@ -59,15 +119,33 @@ def _residuals(rec: RunRecord) -> Chart | None:
                           [p.name for p in rec.poses], np.asarray(fit.residuals_g) * 1e3)
 
 
+def acceptance_rows(measured: dict[str, Any], limits: dict[str, float],
+                    failed_codes: list[str]) -> list[dict[str, Any]]:
+    """The board page's acceptance table: each figure with its limit, unit and whether it failed."""
+    rows = []
+    for key in sorted(set(measured) | set(limits)):
+        v, lim = measured.get(key), limits.get(key)
+        num = isinstance(v, (int, float)) and not isinstance(v, bool)
+        failed = key in failed_codes or (num and lim is not None and float(v or 0.0) > lim)
+        rows.append({"key": key, "what": LIMIT_KEYS.get(key, "").split(",")[0], "value": v if num else None,
+                     "limit": lim, "unit": limit_unit(key), "failed": failed,
+                     "judged": lim is not None and num})
+    return rows
+
+
 def board_context(store: Store, serial: str) -> dict[str, Any]:
-    """Every run of one board (newest first) with its residual chart and the NVM history."""
+    """Every run of one board (newest first) with its acceptance table, residual chart and NVM history."""
     recs = store.runs(device=serial)
     runs = []
     nvm: list[dict[str, Any]] = []
     for rec in reversed(recs):
+        lim = rec.limits if isinstance(rec.limits, dict) else queries.limits_from_text(rec.config_text)
+        measured = (rec.fit_summary or {}).get("measured") or {}
         runs.append({"rec": rec, "started": iso(rec.started_at), "chart": _residuals(rec),
                      "reasons": [r.to_dict() for r in rec.reasons],
-                     "figures": (rec.fit_summary or {}).get("measured") or {}})
+                     "limits_source": "stored" if isinstance(rec.limits, dict) else ("config" if lim else None),
+                     "acceptance": acceptance_rows(measured if isinstance(measured, dict) else {}, lim,
+                                                   [r.code for r in rec.reasons])})
         nvm.extend({"run": rec.id, "t": iso(e["t"]), "kind": e["kind"], "message": e["message"]}
                    for e in rec.events if str(e["kind"]).startswith("nvm_"))
         if rec.nvm_status and rec.nvm_status != "none":
@@ -78,22 +156,50 @@ def board_context(store: Store, serial: str) -> dict[str, Any]:
             "similar": [] if recs else queries.serials_like(store, serial)}
 
 
-def lot_context(store: Store, lot: str) -> dict[str, Any]:
-    """The lot report's content (store.lot_summary, and control charts of the calibrations)."""
-    from ..calibration import param_vector
-    from ..lot.report import PARAMS
+def _param_table(vals: np.ndarray) -> list[dict[str, Any]]:
+    """Mean, sample std, min, max of every parameter in its unit (W and Γ as fitted, V in mg)."""
+    names = ([(f"W{a}{b}", 3 * a + b, 1.0, "g/g") for a in range(3) for b in range(3)]
+             + [(f"V{i}", 9 + i, 1e3, "mg") for i in range(3)] + [(f"Γ{i}", 12 + i, 1.0, "1/g²") for i in range(3)])
+    out = []
+    for name, idx, scale, unit in names:
+        x = vals[:, idx] * scale
+        out.append({"name": name, "unit": unit, "mean": float(x.mean()), "min": float(x.min()),
+                    "max": float(x.max()), "std": float(x.std(ddof=1)) if len(x) > 1 else None})
+    return out
 
-    summ = store.lot_summary(lot=lot)
-    charts = []
-    if summ["runs"]:
-        recs = [r for r in store.runs(lot=lot, status="complete") if r.calibration and not r.damaged]
-        lim = limits_from_text(recs[-1].config_text) if recs else {}
-        vals = np.array([param_vector(r.calibration or {}) for r in recs]) if recs else np.zeros((0, 12))
-        for name, idx, scale, key, centre in PARAMS:
-            x = vals[:, idx] * scale if len(vals) else np.zeros(0)
-            lk = lim.get(key)
-            s = 1e-3 * scale if key == "offset_max_mg" else 1.0
-            charts.append(control_chart(name, "", x.tolist(), [f"run {r.id}" for r in recs],
-                                        None if lk is None else centre + lk * s,
-                                        None if lk is None else centre - lk * s))
-    return {"lot": lot, "summary": summ, "charts": charts, "lots": queries.lots(store)}
+
+def lot_context(store: Store, lot: str) -> dict[str, Any]:
+    """The lot page: counts grouped in SQL, the parameters' statistics and run charts of the lot's
+    calibrations, each run against its own limits."""
+    summ = queries.lot_counts(store, lot)
+    charts, table = [], []
+    cals = queries.lot_calibrations(store, lot) if summ["runs"] else []
+    rows, vecs = [], []
+    for c in cals:  # W, V, Gamma as 15 numbers (calibration.param_vector's order), without a numpy call per run
+        cal = c["calibration"]
+        try:
+            w, v, g = cal["W"], cal["V"], cal.get("Gamma", [0.0, 0.0, 0.0])
+            vec = [float(x) for x in (*w[0], *w[1], *w[2], *v, *g)]
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError):
+            continue  # a damaged calibration is named on the board page and by `report check`
+        if len(vec) == 15:
+            rows.append(c)
+            vecs.append(vec)
+    keep = np.isfinite(np.array(vecs, dtype=float).reshape(-1, 15)).all(axis=1)
+    rows, vecs = [r for r, k in zip(rows, keep, strict=True) if k], [x for x, k in zip(vecs, keep, strict=True) if k]
+    if rows:
+        vals = np.array(vecs)
+        table = _param_table(vals)
+        shown = slice(max(0, len(rows) - LOT_CHART_RUNS), len(rows))
+        for name, idx, scale, unit, key, centre in LOT_PARAMS:
+            pts = []
+            for c, v in zip(rows[shown], vals[shown], strict=True):
+                lk = c["limits"].get(key)
+                s = 1e-3 * scale if key == "offset_max_mg" else 1.0
+                pts.append(RunPoint(c["t"], float(v[idx] * scale), None if lk is None else centre + lk * s,
+                                    None if lk is None else centre - lk * s, f"run {c['id']} ({c['station_id']})"))
+            ch = run_chart(name, unit, pts)
+            if len(rows) > LOT_CHART_RUNS:
+                ch.note = f"newest {LOT_CHART_RUNS} of {len(rows)} runs drawn; " + ch.note
+            charts.append(ch)
+    return {"lot": lot, "summary": summ, "charts": charts, "parameters": table, "lots": queries.lots(store)}

@@ -10,12 +10,15 @@ from ..store.runs import Store
 
 @dataclass
 class WebSettings:
-    """What a server reads: the store, the acceptance limits to draw, the token for writes."""
+    """What a server reads: the store, the token for writes, the read token.  ``limits`` (the first
+    --config's) is kept for callers only: every chart draws each run against its own limits."""
 
     store: str
     limits: dict[str, float] = field(default_factory=dict)
     token: str | None = None
     poll_s: float = 0.5  # how often the events stream looks for finished runs
+    read_token: str | None = None  # web.read_token: every request needs it (Bearer, or Basic with it as password)
+    heavy_lanes: int = 1  # lot and board pages served at once; more wait their turn (the line page never waits)
 
 
 @contextmanager
