@@ -58,7 +58,8 @@ def command(ctx: click.Context, files: tuple[str, ...], config: str | None, raw:
         return
     out_dir = check_report_dir(report_dir) if report_dir else None
     if out_dir is not None:
-        refuse_overwrite([("--report file", out_dir / n) for n in REPORT_FILES],
+        refuse_overwrite([("--report file", out_dir / n, "markdown" if n.endswith(".md") else "png")
+                          for n in REPORT_FILES],
                          [*(("FILE", f) for f in files), ("--config", config)])
     rate_hz = _number(rate, "--rate")
     check_rate(rate_hz)

@@ -15,7 +15,7 @@ from ..fileguard.identity import refuse_overwrite
 from ..store.location import store_path, store_target
 from ..store.runs import Store
 from ..store.schema import STATUSES, VERDICTS
-from ._common import MAX_ID, Whole, store_file
+from ._common import MAX_ID, Whole, force_option, store_file
 from ._mes import JsonGroup
 from ._text import clean
 
@@ -61,13 +61,13 @@ def _target(db: str | None, config_path: str | None) -> tuple[Path | str, str | 
     return store_path(load_yaml(cfg), Path.cwd()), cfg
 
 
-def _open(db: str | None, config_path: str | None, output: tuple[str, str | None] | None = None,
-          upgrade: bool = True) -> Store:
+def _open(db: str | None, config_path: str | None, output: tuple[str, str | None, str] | None = None,
+          upgrade: bool = True, force: bool = False) -> Store:
     """The store to read; ``output`` (its option, its file), when given, is refused first if it is the
     store's own file or the config's (never overwritten, nothing written)."""
     target, cfg = _target(db, config_path)
     if output is not None:
-        refuse_overwrite([output], [("the store", store_file(target)), ("--config", cfg)])
+        refuse_overwrite([output], [("the store", store_file(target)), ("--config", cfg)], force)
     return Store(target, create=False, upgrade=upgrade)
 
 
@@ -190,17 +190,18 @@ def _fit_lines(fit: dict[str, Any]) -> list[str]:
               help="Output format (default: from the file name, else csv).")
 @click.option("--poses", is_flag=True, help="CSV: one row per pose instead of one per run.")
 @click.option("--json", "as_json", is_flag=True, help="With -o, print a JSON line saying what was written.")
+@force_option
 def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None,
                station: str | None, operator: str | None, verdict: str | None, status: str | None,
                since: str | None, until: str | None, output: str | None, fmt: str | None, poses: bool,
-               as_json: bool) -> None:
+               as_json: bool, force: bool = False) -> None:
     """Export runs as CSV (one row per run, calibration flattened; or per pose) or JSON (everything)."""
     if fmt is None:  # --json without -o means JSON on stdout
         fmt = "json" if (output and output.lower().endswith(".json")) or (as_json and output is None) else "csv"
     if fmt not in ("csv", "json"):
         raise DataError(f"--format {fmt!r}; allowed: csv, json")
     flt = _filters(device, lot, station, operator, verdict, status, since, until)
-    with _open(db, config_path, ("-o", output)) as store:
+    with _open(db, config_path, ("-o", output, fmt), force=force) as store:
         n = len(store.list_runs(**flt))
         if fmt == "json":
             data = store.export_json(output, **flt)
@@ -222,12 +223,14 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
 @click.option("--html", "html_file", default=None, metavar="FILE",
               help="Also write a lot report (histograms vs limits, pass rate and reasons over time, control "
                    "charts) as one HTML file with embedded PNGs.")
+@force_option
 def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None,
                 station: str | None, operator: str | None, verdict: str | None, status: str | None,
-                since: str | None, until: str | None, as_json: bool, html_file: str | None) -> None:
+                since: str | None, until: str | None, as_json: bool, html_file: str | None,
+                force: bool = False) -> None:
     """Lot summary: counts, pass rate, failure reasons, parameter distributions."""
     flt = _filters(device, lot, station, operator, verdict, status, since, until)
-    with _open(db, config_path, ("--html", html_file)) as store:
+    with _open(db, config_path, ("--html", html_file, "html"), force=force) as store:
         s = store.lot_summary(**flt)
         if html_file is not None:
             from ..lot.report import write_lot_html
@@ -324,12 +327,13 @@ def sync_cmd(db: str | None, config_path: str | None, outbox: str | None, as_jso
 @click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("-o", "--output", default=None, metavar="FILE.png", help="Figure file (default run-ID-residuals.png).")
-def plot_cmd(run_id: int, db: str | None, config_path: str | None, output: str | None) -> None:
+@force_option
+def plot_cmd(run_id: int, db: str | None, config_path: str | None, output: str | None, force: bool = False) -> None:
     """Draw one run's residuals per pose and axis (PNG)."""
     from ..lot.report import residual_figure
 
     out = output or f"run-{run_id}-residuals.png"
-    with _open(db, config_path, ("-o", out)) as store:
+    with _open(db, config_path, ("-o", out, "png"), force=force) as store:
         rec = store.get_run(run_id)
     residual_figure(rec, out)
     click.echo(f"residuals of run {run_id} drawn in {out}")

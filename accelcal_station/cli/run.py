@@ -64,7 +64,7 @@ def _refuse_over_config(cfg: StationConfig) -> None:
     """What a run writes (the store, the simulated board's EEPROM image) is never its own config."""
     eeprom = cfg.raw["device"].get("eeprom") if isinstance(cfg.raw.get("device"), dict) else None
     image = eeprom.get("image") if isinstance(eeprom, dict) and isinstance(eeprom.get("image"), str) else None
-    refuse_overwrite([("the store", store_file_of(cfg.store_file)), ("device.eeprom.image", image)],
+    refuse_overwrite([("the store", store_file_of(cfg.store_file), "store"), ("device.eeprom.image", image)],
                      [("--config", str(cfg.path))])
 
 

@@ -12,6 +12,8 @@ from ..acceptance.rules import Limits
 from ..atomic import atomic_write
 from ..config.sections import default_config_path
 from ..errors import DataError
+from ..fileguard.identity import refuse_overwrite
+from ._common import force_option, store_file
 from ._mes import JsonGroup
 
 
@@ -53,9 +55,11 @@ def _source_options(f: Any) -> Any:
 @click.option("--components", type=click.IntRange(1, 8), default=4, show_default=True,
               help="Most mixture components BIC may choose.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was found as JSON.")
+@force_option
 def fit_cmd(source: str | None, db: str | None, since: str | None, station: str | None, out: str, components: int,
-            as_json: bool) -> None:
+            as_json: bool, force: bool = False) -> None:
     """Fit the population of lot file SOURCE (or --db); write the default config with population: replaced."""
+    refuse_overwrite([("-o", out, "yaml")], [("SOURCE", source), ("--db", store_file(db))], force)
     if not Path(out).resolve().parent.is_dir():
         raise DataError(f"{out}: cannot write (no such directory {Path(out).parent})")
     from ..twin.fit import fit_twin

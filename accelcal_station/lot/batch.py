@@ -335,7 +335,7 @@ def _file_stem(r: BoardResult) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", stem).strip("._") or "board"
 
 
-def write_calibrations(report: BatchReport, out_dir: str | Path) -> dict[str, Path]:
+def write_calibrations(report: BatchReport, out_dir: str | Path, force: bool = False) -> dict[str, Path]:
     """One calibration JSON per fitted board in ``out_dir`` (atomic writes); source -> path.
 
     Files are named for the board (pose table name, or ``runN-SERIAL``); a name taken
@@ -360,7 +360,8 @@ def write_calibrations(report: BatchReport, out_dir: str | Path) -> dict[str, Pa
         taken.add(stem)
         plan.append((r, d / f"{stem}.json"))
     # a calibration never replaces a board's own input (a pose table named like the JSON it would get)
-    refuse_overwrite([("--out-dir file", p) for _, p in plan], [("input", r.source) for r in report.results])
+    refuse_overwrite([("--out-dir file", p, "json") for _, p in plan], [("input", r.source) for r in report.results],
+                     force)
     out: dict[str, Path] = {}
     for r, path in plan:
         try:
