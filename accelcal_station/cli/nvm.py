@@ -32,7 +32,7 @@ from ..errors import DeviceError, NVMError
 from ..fileguard.identity import refuse_overwrite
 from ..nvm.writer import CalibrationWriter, SlotStatus
 from ..store.records import iso
-from ._common import config_store_file, force_option
+from ._common import config_store_file
 from ._common import jsonable as _clean
 from ._mes import JsonGroup
 
@@ -64,11 +64,11 @@ def _device(ctx: click.Context, config_path: str | None) -> Iterator[tuple[Drive
         raise DeviceError(f"{getattr(dev, 'name', 'device')}: {e.strerror or e}") from None
 
 
-def _refuse_over_inputs(ctx: click.Context, output: tuple[str, Path], *inputs: tuple[str, str | None],
-                        force: bool = False) -> None:
-    """A backup (a JSON file) never replaces the config, the board's EEPROM image, the store, the restored
-    image, an SQLite database or a file of another kind (unless ``force``: fileguard.kind)."""
-    refuse_overwrite([(*output, "json")], [*ctx.meta.get("accelcal.nvm_inputs", []), *inputs], force)
+def _refuse_over_inputs(ctx: click.Context, output: tuple[str, Path], *inputs: tuple[str, str | None]) -> None:
+    """A backup never replaces the config, the board's EEPROM image, the store, the restored image or an
+    SQLite database (exit 2, fileguard.kind); any other existing file is refused by the writer (backups
+    are never overwritten)."""
+    refuse_overwrite([output], [*ctx.meta.get("accelcal.nvm_inputs", []), *inputs])
 
 
 def _serial(dev: Driver, given: str | None) -> str | None:
@@ -179,14 +179,12 @@ def read_cmd(ctx: click.Context, config_path: str | None, serial: str | None, as
 @click.option("--out", "out", default=None, type=click.Path(dir_okay=False),
               help="Backup file (never overwritten; default nvm-backup-SERIAL-UTCSTAMP.json here).")
 @_json_option
-@force_option
 @click.pass_context
-def backup_cmd(ctx: click.Context, config_path: str | None, out: str | None, as_json: bool,
-               force: bool = False) -> None:
+def backup_cmd(ctx: click.Context, config_path: str | None, out: str | None, as_json: bool) -> None:
     """Save both slots' raw image (with CRC-32) to a JSON file."""
     with _device(ctx, config_path) as (dev, writer):
         path = Path(out) if out else auto_backup_path(Path("."), _serial(dev, None))
-        _refuse_over_inputs(ctx, ("--out", path), force=force)
+        _refuse_over_inputs(ctx, ("--out", path))
         doc = writer.backup(path, chip=dev.identify().chip)
     doc["path"] = str(path)
     states = ", ".join(f"slot {s['slot']} {s['state']}" for s in doc["slots"])

@@ -121,7 +121,8 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
     for r in runs:
         rms = "" if r["residual_rms_g"] is None else f"{r['residual_rms_g'] * 1e3:7.3f}"
         started = (r["started_at"] or "?")[:16].replace("T", " ")
-        click.echo(clean(f"{r['id']:>5}  {started:16}  {r['status'] or '?':11}  "
+        rid = "?" if r["id"] is None else r["id"]  # a damaged id: named below, the row still shown
+        click.echo(clean(f"{rid:>5}  {started:16}  {r['status'] or '?':11}  "
                          f"{r['device_serial'] or '':14}  {r['lot'] or '':8}  {r['verdict'] or '':7}  "
                          f"{r['nvm_status'] or '':7}  {r['pose_count']:5}  {rms:>7}  "
                          f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
@@ -266,19 +267,25 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @click.pass_context
 def check_cmd(ctx: click.Context, db: str | None, config_path: str | None, as_json: bool) -> None:
-    """List every damaged row (table, id, column, what is wrong); exit 1 when any. Nothing is modified."""
+    """List every damaged row (table, id, column, what is wrong) and what SQLite's integrity check
+    finds in the file (pages it cannot read); exit 1 when any. Nothing is modified."""
     with _open(db, config_path, upgrade=False) as store:
         found = [d.to_dict() for d in store.check()]
+        pages = store.integrity()
         where = str(store.path)
     if as_json:
-        click.echo(json.dumps({"store": where, "damaged": found}, indent=1))
+        click.echo(json.dumps({"store": where, "damaged": found, "integrity": pages}, indent=1))
     else:
         for d in found:
             click.echo(clean(f"{d['table']:7} {d['id']:>12}  {d['column']:14} {d['problem']}"))
+        for line in pages:
+            click.echo(clean(f"file    {line}"))
         rows = len({(d["table"], d["id"]) for d in found})
         click.echo(f"{len(found)} damaged value(s) in {rows} row(s) of {where}" if found
                    else f"no damaged rows in {where}")
-    if found:
+        if pages:
+            click.echo(f"{len(pages)} integrity problem(s) in the file (PRAGMA integrity_check)")
+    if found or pages:
         ctx.exit(1)
 
 

@@ -15,6 +15,7 @@ from ..errors import DataError
 from ..fileguard.identity import refuse_overwrite
 from ._common import force_option, store_file
 from ._mes import JsonGroup
+from ._text import error_text
 
 
 def _emit(as_json: bool, data: dict[str, Any], lines: list[str]) -> None:
@@ -36,7 +37,12 @@ def _stats(source: str | None, db: str | None, since: str | None, station: str |
     if db is None and (since or station):
         raise DataError("--since and --station filter a store's runs; add --db FILE|URL")
     if db is not None:
-        return store_stats(db, limits, since=since, station=station)
+        skips: list[tuple[str, str]] = []
+        try:
+            return store_stats(db, limits, skips=skips, since=since, station=station)
+        finally:  # named even when no run is left to fit (stderr: stdout may be the JSON object)
+            for label, why in skips:
+                click.echo(click.style("SKIP ", fg="red", bold=True) + error_text(f"{label}: {why}"), err=True)
     assert source is not None
     return lot_stats(source, limits)
 

@@ -166,8 +166,11 @@ def sessions_from_files(paths: Sequence[Path], units: str | None = None, counts_
 
 
 def sessions_from_store(store: Store, **filters: Any) -> list[Source]:
-    """(``run N``, Session) of the store's complete runs with poses (Store.sessions_for_batch filters)."""
-    return [(f"run {s.metadata['run_id']}", s) for s in store.sessions_for_batch(**filters)]
+    """(``run N``, Session) of the store's complete runs with poses (Store.sessions_for_batch filters);
+    a damaged run is (``run N``, DataError naming its damaged_row), skipped and counted by the batch."""
+    skipped: list[tuple[str, str]] = []
+    good: list[Source] = [(f"run {s.metadata['run_id']}", s) for s in store.sessions_for_batch(skipped, **filters)]
+    return [*good, *((label, DataError(why)) for label, why in skipped)]
 
 
 def board_serial(session: Session) -> str | None:

@@ -31,8 +31,19 @@ from ..errors import DataError
 from ..session import Session
 from . import exports, schema
 from .database import Database, describe_target, is_url
+from .liveness import mark_stale, pid_alive
 from .location import store_identity
-from .records import RunRecord, StoreError, StoreUnreachable, build_record, opt, run_summary, timestamp, to_json
+from .records import (
+    RunNotFound,
+    RunRecord,
+    StoreError,
+    StoreUnreachable,
+    build_record,
+    opt,
+    run_summary,
+    timestamp,
+    to_json,
+)
 from .rowcheck import DamagedRow, check_row
 
 if TYPE_CHECKING:
@@ -83,12 +94,14 @@ class Store:
     password (PostgreSQL), as messages name it.
     """
 
-    def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True, upgrade: bool = True):
+    def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True, upgrade: bool = True,
+                 read_only: bool = False):
         _load_sql()
         SQLError = _sqlerror()
         name = describe_target(path)
         try:
-            self._db = Database(str(path) if is_url(path) else Path(path), timeout_s, create)
+            self._db = Database(str(path) if is_url(path) else Path(path), timeout_s, create and not read_only,
+                                read_only)
         except FileNotFoundError:
             raise StoreError(f"{name}: no results store there") from None
         except ValueError as e:
@@ -99,7 +112,7 @@ class Store:
         db_path = self._db.path  # set for SQLite only
         self.path: Path | str = db_path if db_path is not None else self._db.name
         try:
-            self._migrate(create, upgrade)
+            self._migrate(create and not read_only, upgrade and not read_only)
         except SQLError as e:
             self._db.close()
             raise store_error(e, f"{self.path}: not a usable results store ({_msg(e)})", self._server) from None
@@ -185,7 +198,7 @@ class Store:
             return
         if not upgrade:
             raise StoreError(f"{self.path}: results store schema version {version}, this station reads {target}; "
-                             "any other `accelcal report` command upgrades it (nothing was written)")
+                             f"`accelcal report list --db {self.path}` upgrades it (nothing was written)")
         with self._tx("upgrade the schema") as db:
             migrate.upgrade(db, str(self.path), target)
 
@@ -321,7 +334,8 @@ class Store:
                              .where(runs.c.status == "running")):
                 old = max_age_s is not None and isinstance(r["started_at"], (int, float)) \
                     and now - r["started_at"] > max_age_s
-                if old or (r["host"] == host and isinstance(r["pid"], int) and r["pid"] > 0 and not _alive(r["pid"])):
+                gone = r["host"] == host and isinstance(r["pid"], int) and r["pid"] > 0 and not pid_alive(r["pid"])
+                if old or gone:
                     stale.append(r["id"])
             if stale:
                 db.execute(update(runs).where(runs.c.id.in_(stale)).values(
@@ -353,9 +367,10 @@ class Store:
         if limit is not None:
             stmt = stmt.limit(int(limit))
         try:
-            return [check_row("runs", r) for r in self._db.rows(stmt)]
+            checked = [check_row("runs", r) for r in self._db.rows(stmt)]
         except _sqlerror() as e:
             raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
+        return [(mark_stale(r), damage) for r, damage in checked]  # running, its process gone: stale
 
     def list_runs(self, limit: int | None = None, **filters: Any) -> list[dict[str, Any]]:
         """Run summaries (no poses) matching filters: device, station, lot, operator, since,
@@ -377,7 +392,7 @@ class Store:
         with self._snapshot():
             rows = self._runs({"run_ids": [run_id]})
             if not rows:
-                raise StoreError(f"{self.path}: no run {run_id}")
+                raise RunNotFound(f"{self.path}: no run {run_id}")
             return self._record(*rows[0])
 
     def runs(self, **filters: Any) -> list[RunRecord]:
@@ -385,10 +400,24 @@ class Store:
         with self._snapshot():
             return [self._record(r, damage) for r, damage in self._runs(filters)]
 
-    def sessions_for_batch(self, **filters: Any) -> list[Session]:
-        """Sessions of complete runs with poses (for batch recalibration of a lot)."""
-        filters.setdefault("status", "complete")
-        return [rec.session() for rec in self.runs(**filters) if rec.poses and not rec.damage]
+    def sessions_for_batch(self, skipped: list[tuple[str, str]] | None = None, **filters: Any) -> list[Session]:
+        """Sessions of complete runs with poses (for batch recalibration of a lot).
+
+        A matching run with a damaged value is never silently left out: it is appended to
+        ``skipped`` as ("run ID", "damaged_row: ...") whatever its status reads (a damaged status
+        included), so the caller can name and count it.
+        """
+        status = filters.pop("status", "complete")
+        out: list[Session] = []
+        for rec in self.runs(**filters):
+            if rec.damage:
+                if skipped is not None:
+                    skipped.append((f"run {rec.id if rec.id is not None else '?'}", "damaged_row: "
+                                    + "; ".join(str(d) for d in rec.damage[:3])
+                                    + (f" (+{len(rec.damage) - 3} more)" if len(rec.damage) > 3 else "")))
+            elif rec.poses and rec.status == status:
+                out.append(rec.session())
+        return out
 
     def replay_run(self, rec: RunRecord, server_run_id: int | None = None, note: str = "") -> tuple[int, bool]:
         """Write a run recorded in another store (the outbox) into this one, once (replay.py):
@@ -397,13 +426,54 @@ class Store:
             return replay.replay_run(db, rec, server_run_id, note)
 
     def check(self) -> list[DamagedRow]:
-        """Every damaged value of every row (runs, poses, events; rowcheck.check_row); nothing is written."""
+        """Every damaged value of every row (runs, poses, events; rowcheck.check_row); nothing is written.
+        A table that cannot be read to its end (a damaged page) is one DamagedRow naming how far it was read."""
         found: list[DamagedRow] = []
-        with self._snapshot():
-            for table in (runs, poses, events):
+        SQLError = _sqlerror()
+        for table in (runs, poses, events):  # a read transaction per table: a bad page ends only its own
+            n = 0
+            try:
+                self._db.begin(write=False)
                 for row in self._db.execute(select(table)).mappings():
                     found += check_row(table.name, dict(row))[1]
+                    n += 1
+            except SQLError as e:
+                found.append(DamagedRow(table.name, f"after row {n}", "*", f"cannot read on ({_msg(e)})"))
+            finally:
+                self._db.rollback()  # nothing was written: rollback never fails where commit could
         return found
+
+    def integrity(self) -> list[str]:
+        """What SQLite's ``PRAGMA integrity_check`` finds wrong in the file (pages it cannot read, broken
+        b-trees, indexes out of step), at most 100 lines; empty when the file is sound or on PostgreSQL
+        (the server keeps its own pages)."""
+        if self._server:
+            return []
+        try:
+            got = [str(r[0]) for r in self._db.conn.exec_driver_sql("PRAGMA integrity_check(100)")]
+        except _sqlerror():  # a page too broken for the whole check: each b-tree checked on its own
+            return self._integrity_per_tree()
+        return [] if got == ["ok"] else [ln for g in got for ln in g.splitlines() if ln.strip()]
+
+    def _integrity_per_tree(self) -> list[str]:
+        """Each table (with its indexes; named by its root page) checked alone, naming those that cannot be read."""
+        SQLError = _sqlerror()
+        try:
+            trees = [(str(r[0]), str(r[1]), r[2]) for r in self._db.conn.exec_driver_sql(
+                "SELECT t.type, t.name, t.rootpage || coalesce(', its indexes at pages ' || (SELECT "
+                "group_concat(i.rootpage, ', ') FROM sqlite_master i WHERE i.type = 'index' AND i.tbl_name = "
+                "t.name), '') FROM sqlite_master t WHERE t.type = 'table' AND t.rootpage > 0 ORDER BY t.rootpage")]
+        except SQLError as e:
+            return [f"the schema (page 1) cannot be read ({_msg(e)})"]
+        out: list[str] = []
+        for kind, name, root in trees:
+            try:
+                quoted = '"' + name.replace('"', '""') + '"'
+                got = [str(r[0]) for r in self._db.conn.exec_driver_sql(f"PRAGMA integrity_check({quoted})")]
+                out += [] if got == ["ok"] else [f"{kind} {name} (b-tree at page {root}): {g}" for g in got]
+            except SQLError as e:
+                out.append(f"{kind} {name} (b-tree at page {root}): cannot be read ({_msg(e)})")
+        return out
 
     # -- exports and summaries ----------------------------------------------------------
     def export_json(self, path: str | Path | None = None, **filters: Any) -> list[dict[str, Any]]:
@@ -429,15 +499,4 @@ class Store:
         (exports.summarize)."""
         with self._snapshot():
             return exports.summarize(self._runs(filters))
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(int(pid), 0)
-    except (ProcessLookupError, OverflowError, ValueError):  # gone, or not a pid at all (a damaged row)
-        return False
-    except PermissionError:
-        return True
-    return True
-
 

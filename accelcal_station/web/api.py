@@ -16,7 +16,7 @@ from fastapi import APIRouter, Header, Query
 from fastapi.responses import StreamingResponse
 from pydantic import BaseModel
 
-from ..errors import DataError
+from ..store.records import RunNotFound
 from . import queries
 from .errors import ApiError
 from .feed import Cursor, Step, advance, head
@@ -111,7 +111,7 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
         with open_store(settings) as st:
             try:
                 rec = st.get_run(run_id)
-            except DataError:
+            except RunNotFound:  # a store that cannot be read is 503 (errors.py), not a missing run
                 raise ApiError(404, "not_found", f"no run {run_id}") from None
         return rec.to_dict()
 

@@ -14,6 +14,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from ..acceptance.reasons import codes
+from ..store.liveness import mark_stale
 from ..store.records import load_or, stored_reasons
 from ..store.rowcheck import SPECS, check_row
 from ..store.runs import Store
@@ -22,7 +23,7 @@ SHIFT_S = 8 * 3600.0
 SHIFT0_S = 6 * 3600.0  # shift A starts at 06:00 UTC
 WINDOW_S = 24 * 3600.0  # the line page's yields: the day before the newest run
 SUMMARY_COLS = ("id, started_at, finished_at, status, status_reason, device_serial, chip, station_id, operator, "
-                "lot, model, verdict, reasons, nvm_status, fit_summary")
+                "lot, model, verdict, reasons, nvm_status, fit_summary, host, pid")
 
 
 # runs columns checked on every read as the store's own reads check them (store/rowcheck.py); the
@@ -49,6 +50,7 @@ def select(store: Store, sql: str, **params: Any) -> list[dict[str, Any]]:
             row.update(checked)
             if damage:
                 row["damage"] = [d.to_dict() for d in damage]
+            mark_stale(row)  # running, its station process gone: stale (store/liveness.py)
         out.append(row)
     return out
 
@@ -70,7 +72,7 @@ def summary(row: dict[str, Any]) -> dict[str, Any]:
     loaded = load_or(row.get("fit_summary"), {})
     fit: dict[str, Any] = loaded if isinstance(loaded, dict) else {}
     reasons = stored_reasons(row.get("reasons"))
-    out = {k: row[k] for k in row if k not in ("reasons", "fit_summary")}
+    out = {k: row[k] for k in row if k not in ("reasons", "fit_summary", "host", "pid")}
     m = fit.get("measured")
     measured = {str(k): float(v) for k, v in (m.items() if isinstance(m, dict) else ())
                 if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)}
