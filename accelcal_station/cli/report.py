@@ -209,7 +209,7 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
             text = json.dumps({"schema": "accelcal.runs", "version": 1, "runs": data}, indent=1)
         else:
             text = store.export_csv(output, kind="poses" if poses else "runs", **flt)
-        _name_damage([d for r in store.list_runs(**flt) for d in r.get("damage", [])])
+        _name_damage([d.to_dict() for rec in store.runs(**flt) for d in rec.damage])  # poses' and events' too
     if output is None:
         click.echo(text.rstrip("\n"))
     elif as_json:
