@@ -10,7 +10,7 @@ import click
 from ..fileguard.identity import refuse_overwrite
 from ..fixtures.operator_ui import OperatorUI
 from ..station.board import Station
-from ..station.identity import ask_run_identity
+from ..station.identity import ask_run_identity, check_run_labels
 from ..station.report import RunReport
 from ..station.settings import StationConfig
 from ._common import jsonable
@@ -45,6 +45,7 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
     _refuse_over_config(cfg)
+    operator, lot = check_run_labels(operator, lot, cfg.station_id)  # as serials are: no formula, no control
 
     def echo(text: str) -> None:
         click.echo(text, err=as_json)

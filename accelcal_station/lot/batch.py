@@ -35,6 +35,7 @@ from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES, Calibration, param_vector
 from ..data.loader import load_pose_table
 from ..errors import AccelcalError, DataError
+from ..fileguard.cells import safe_row
 from ..fileguard.identity import refuse_overwrite
 from ..models.fitting import check_model, check_plausible_g, fit_batch, fit_temperature
 from ..models.held import Held
@@ -387,10 +388,10 @@ def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
     mg = lambda v: "" if v is None else repr(v * 1e3)  # noqa: E731
     for r in report.results:
         params = param_vector(r.fitted_calibration.to_dict()).tolist() if r.ok else [""] * len(PARAM_NAMES)
-        w.writerow([r.source, r.serial or "", "" if r.run_id is None else r.run_id, int(r.ok), r.message, r.model,
-                    r.pose_count, mg(r.residual_rms_g), mg(r.residual_max_g), mg(r.crossval_rms_g),
+        w.writerow(safe_row([r.source, r.serial or "", "" if r.run_id is None else r.run_id, int(r.ok), r.message,
+                             r.model, r.pose_count, mg(r.residual_rms_g), mg(r.residual_max_g), mg(r.crossval_rms_g),
                     "" if r.condition_number is None else repr(r.condition_number),
-                    "; ".join(h.term for h in r.held), *map(str, params)])
+                    "; ".join(h.term for h in r.held), *map(str, params)]))  # no cell a formula (cells.py)
     text = buf.getvalue()
     if path is not None:
         atomic_write(Path(path), text)

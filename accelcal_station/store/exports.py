@@ -20,6 +20,7 @@ from ..acceptance.reasons import codes
 from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES, param_vector
 from ..errors import DataError
+from ..fileguard.cells import safe_row
 from .liveness import STALE
 from .records import RunRecord, StoreError, iso, reasons_of
 from .rowcheck import DamagedRow
@@ -81,7 +82,7 @@ def csv_table(kind: str) -> Callable[[Sequence[RunRecord]], str]:
 
     def text(recs: Sequence[RunRecord]) -> str:
         buf = io.StringIO()
-        csv.writer(buf, lineterminator="\n").writerows(rows(recs))
+        csv.writer(buf, lineterminator="\n").writerows(safe_row(r) for r in rows(recs))  # no cell a formula
         return buf.getvalue()
 
     return text
