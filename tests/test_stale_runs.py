@@ -100,3 +100,36 @@ def test_a_reused_pid_is_stale():
     assert "later process" in (stale_reason(row) or "")
     row["started_at"] = started + 1.0
     assert stale_reason(row) is None
+
+
+def test_a_store_that_fails_after_the_burn_keeps_the_result_and_says_what_is_where(tmp_path, monkeypatch):
+    """SQLite itself refuses the run's final write (a trigger raising as a disk I/O error would, after the
+    board's NVM was burned): the station keeps the whole result in the outbox and its one error line says
+    what was burned (slot, generation, CRC-32), what the store holds and where the result went."""
+    monkeypatch.chdir(tmp_path)
+    from accelcal_station.config.sections import default_config_path
+
+    cfg = yaml.safe_load(default_config_path().read_text())
+    cfg["store"] = {"path": "runs.sqlite", "outbox": "outbox.sqlite"}
+    cfg["device"]["seed"] = 3
+    Path("st.yaml").write_text(yaml.safe_dump(cfg))
+    with Store("runs.sqlite"):
+        pass
+    with sqlite3.connect("runs.sqlite") as c:
+        c.execute("CREATE TRIGGER fail BEFORE UPDATE OF status ON runs WHEN NEW.status = 'complete'"
+                  " BEGIN SELECT RAISE(ABORT, 'disk I/O error'); END")
+    r = CliRunner().invoke(cli, ["run", "--config", "st.yaml", "--serial", "SN7"])
+    errors = [ln for ln in r.output.splitlines() if ln.startswith("error")]
+    assert r.exit_code != 0 and r.exit_code != 70 and len(errors) == 1, r.output
+    line = errors[0]
+    with Store("outbox.sqlite", create=False) as ob:
+        (kept,) = ob.runs()
+    with Store("runs.sqlite", create=False) as st:
+        (held,) = st.runs()
+    assert kept.status == "complete" and kept.calibration and kept.device_serial == "SN7" and kept.poses
+    assert kept.nvm_status == "written" and held.status == "error" and held.calibration is None
+    burn = kept.nvm_outcome
+    where = f"slot {burn['slot']}, generation {burn['generation']}, CRC-32 0x{burn['crc32']:08x}"
+    assert f"NVM WAS written ({where}" in line, line
+    assert f"holds run {held.id} as error without a calibration" in line, line
+    assert f"kept in the outbox outbox.sqlite as run {kept.id}" in line and "disk I/O error" in line, line

@@ -390,8 +390,8 @@ def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
         params = param_vector(r.fitted_calibration.to_dict()).tolist() if r.ok else [""] * len(PARAM_NAMES)
         w.writerow(safe_row([r.source, r.serial or "", "" if r.run_id is None else r.run_id, int(r.ok), r.message,
                              r.model, r.pose_count, mg(r.residual_rms_g), mg(r.residual_max_g), mg(r.crossval_rms_g),
-                    "" if r.condition_number is None else repr(r.condition_number),
-                    "; ".join(h.term for h in r.held), *map(str, params)]))  # no cell a formula (cells.py)
+                             "" if r.condition_number is None else repr(r.condition_number),
+                             "; ".join(h.term for h in r.held), *map(str, params)]))  # no cell a formula (cells.py)
     text = buf.getvalue()
     if path is not None:
         atomic_write(Path(path), text)

@@ -157,7 +157,7 @@ class Store:
             if self._db.in_transaction:
                 self._db.rollback()
             if isinstance(e, SQLError):
-                why = f"{self.path}: cannot {what} ({_msg(e)}); nothing was recorded"
+                why = f"{self.path}: cannot {what} ({_msg(e)}); that write was rolled back"
                 raise store_error(e, why, self._server) from None
             raise
 
