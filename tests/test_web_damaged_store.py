@@ -165,3 +165,19 @@ def test_serve_reads_a_schema_2_store_without_migrating_it(tmp_path):
     assert CliRunner().invoke(cli, hint[1:]).exit_code == 0
     assert hashlib.sha256(path.read_bytes()).hexdigest() != before
     assert _client(path).get("/api/v1/runs").status_code == 200
+
+
+def test_serve_on_postgresql_reads_in_read_only_sessions(pg_server):
+    """The web server's PostgreSQL session is read-only: a write through its connection is refused by
+    the server itself, and the pages answer."""
+    import sqlalchemy
+
+    from accelcal_station.web.settings import open_store
+
+    url = pg_server.new_database()
+    _good_store(url)
+    settings = WebSettings(store=url)
+    with open_store(settings) as st, pytest.raises(sqlalchemy.exc.DBAPIError, match="read-only"):
+        st._db.conn.exec_driver_sql("UPDATE runs SET lot = 'x'")
+    client = _client(url)
+    assert client.get("/api/v1/runs").status_code == 200 and client.get("/").status_code == 200
