@@ -249,13 +249,12 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         if choice.faces is not None:
             report["faces"] = [{"pose": n, "face": f, "angle_deg": float(a)} for n, f, a in
                                zip(loaded.session.names, choice.faces.names, choice.faces.angle_deg, strict=True)]
+    cal = result.calibration
     if hand_placed:
         if len(result.fits) != 1 or model != "6":
             raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")
         report["hand_placed"], hp_lines, cal = _hand_placed(loaded.session, result.result, result.calibration)
         text += hp_lines
-    else:
-        cal = result.calibration
     if output:
         cal.save(output)
         report["output"] = str(output)

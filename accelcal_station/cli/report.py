@@ -132,7 +132,7 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
 
 
 @command.command("show")
-@click.argument("run_id", type=Whole(0, MAX_ID))
+@click.argument("run_id", type=Whole(-MAX_ID - 1, MAX_ID))  # an outbox run is numbered below 0
 @click.option("--db", default=None, metavar="FILE|URL", help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB.")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
@@ -330,7 +330,7 @@ def sync_cmd(db: str | None, config_path: str | None, outbox: str | None, as_jso
 
 
 @command.command("plot")
-@click.argument("run_id", type=Whole(0, MAX_ID))
+@click.argument("run_id", type=Whole(-MAX_ID - 1, MAX_ID))  # an outbox run is numbered below 0
 @click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("-o", "--output", default=None, metavar="FILE.png", help="Figure file (default run-ID-residuals.png).")

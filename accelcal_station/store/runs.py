@@ -29,7 +29,7 @@ from ..acceptance.reasons import Reason
 from ..calibration import Calibration
 from ..errors import DataError
 from ..session import Session
-from . import exports, schema
+from . import exports, integrity, schema
 from .database import Database, describe_target, is_url
 from .liveness import mark_stale, pid_alive
 from .location import store_identity
@@ -426,54 +426,12 @@ class Store:
             return replay.replay_run(db, rec, server_run_id, note)
 
     def check(self) -> list[DamagedRow]:
-        """Every damaged value of every row (runs, poses, events; rowcheck.check_row); nothing is written.
-        A table that cannot be read to its end (a damaged page) is one DamagedRow naming how far it was read."""
-        found: list[DamagedRow] = []
-        SQLError = _sqlerror()
-        for table in (runs, poses, events):  # a read transaction per table: a bad page ends only its own
-            n = 0
-            try:
-                self._db.begin(write=False)
-                for row in self._db.execute(select(table)).mappings():
-                    found += check_row(table.name, dict(row))[1]
-                    n += 1
-            except SQLError as e:
-                found.append(DamagedRow(table.name, f"after row {n}", "*", f"cannot read on ({_msg(e)})"))
-            finally:
-                self._db.rollback()  # nothing was written: rollback never fails where commit could
-        return found
+        """Every damaged value of every row (runs, poses, events; integrity.check_rows); nothing is written."""
+        return integrity.check_rows(self._db, (runs, poses, events))
 
     def integrity(self) -> list[str]:
-        """What SQLite's ``PRAGMA integrity_check`` finds wrong in the file (pages it cannot read, broken
-        b-trees, indexes out of step), at most 100 lines; empty when the file is sound or on PostgreSQL
-        (the server keeps its own pages)."""
-        if self._server:
-            return []
-        try:
-            got = [str(r[0]) for r in self._db.conn.exec_driver_sql("PRAGMA integrity_check(100)")]
-        except _sqlerror():  # a page too broken for the whole check: each b-tree checked on its own
-            return self._integrity_per_tree()
-        return [] if got == ["ok"] else [ln for g in got for ln in g.splitlines() if ln.strip()]
-
-    def _integrity_per_tree(self) -> list[str]:
-        """Each table (with its indexes; named by its root page) checked alone, naming those that cannot be read."""
-        SQLError = _sqlerror()
-        try:
-            trees = [(str(r[0]), str(r[1]), r[2]) for r in self._db.conn.exec_driver_sql(
-                "SELECT t.type, t.name, t.rootpage || coalesce(', its indexes at pages ' || (SELECT "
-                "group_concat(i.rootpage, ', ') FROM sqlite_master i WHERE i.type = 'index' AND i.tbl_name = "
-                "t.name), '') FROM sqlite_master t WHERE t.type = 'table' AND t.rootpage > 0 ORDER BY t.rootpage")]
-        except SQLError as e:
-            return [f"the schema (page 1) cannot be read ({_msg(e)})"]
-        out: list[str] = []
-        for kind, name, root in trees:
-            try:
-                quoted = '"' + name.replace('"', '""') + '"'
-                got = [str(r[0]) for r in self._db.conn.exec_driver_sql(f"PRAGMA integrity_check({quoted})")]
-                out += [] if got == ["ok"] else [f"{kind} {name} (b-tree at page {root}): {g}" for g in got]
-            except SQLError as e:
-                out.append(f"{kind} {name} (b-tree at page {root}): cannot be read ({_msg(e)})")
-        return out
+        """What SQLite's integrity check finds wrong in the file (integrity.file_problems); [] on PostgreSQL."""
+        return [] if self._server else integrity.file_problems(self._db)
 
     # -- exports and summaries ----------------------------------------------------------
     def export_json(self, path: str | Path | None = None, **filters: Any) -> list[dict[str, Any]]:
