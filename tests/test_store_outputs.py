@@ -169,3 +169,16 @@ def test_sniffed_kinds(tmp_path, head, kind):
     p = tmp_path / "f"
     p.write_bytes(head)
     assert sniff(p) == kind
+
+
+PG = "postgresql://station@localhost:5432/line"
+
+
+@pytest.mark.parametrize("i", range(len(_writers(PG))), ids=[" ".join(a[:2]) + f"-{i}" for i, a in
+                                                              enumerate(_writers(PG))])
+def test_no_writer_takes_a_database_url_as_its_file(here, i):
+    """A line database's URL where a file goes: refused (no file or folder named "postgresql:")."""
+    before = sorted(p.name for p in here.iterdir())
+    r = CliRunner().invoke(cli, _writers(PG)[i])
+    assert r.exit_code == 2 and sum(ln.startswith("error") for ln in r.output.splitlines()) == 1, r.output
+    assert sorted(p.name for p in here.iterdir()) == before
