@@ -36,7 +36,7 @@ COMPATIBLE: dict[str, frozenset[str]] = {
     "html": frozenset({"html"}),
     "png": frozenset({"png"}),
     "parquet": frozenset({"parquet"}),
-    "markdown": frozenset({"text", "csv"}),
+    "markdown": frozenset({"text", "csv", "yaml"}),  # prose: any text file but JSON or markup
     "store": frozenset({"sqlite"}),
 }
 DESCRIBED = {"sqlite": "an SQLite database (a results store)", "png": "a PNG image", "parquet": "a Parquet file",

@@ -31,7 +31,7 @@ from ..errors import DataError
 from ..session import Session
 from . import exports, integrity, schema
 from .database import Database, describe_target, is_url
-from .liveness import mark_stale, pid_alive
+from .liveness import mark_stale, stale_reason
 from .location import store_identity
 from .records import (
     RunNotFound,
@@ -324,18 +324,18 @@ class Store:
     def mark_stale_interrupted(self, max_age_s: float | None = None) -> list[int]:
         """Mark ``running`` runs whose station process is gone as interrupted; returns their ids.
 
-        A run is stale when it was started on this host by a process that no longer
-        exists, or (any host) when ``max_age_s`` is given and it started longer ago.
+        A run is stale when its station process on this host is gone (liveness.stale_reason: the
+        same rule every read applies), or (any host) when ``max_age_s`` is given and it started
+        longer ago.
         """
-        host, now = socket.gethostname(), _time.time()
+        now = _time.time()
         stale: list[int] = []
         with self._tx("mark stale runs") as db:
-            for r in db.rows(select(runs.c.id, runs.c.host, runs.c.pid, runs.c.started_at)
+            for r in db.rows(select(runs.c.id, runs.c.status, runs.c.host, runs.c.pid, runs.c.started_at)
                              .where(runs.c.status == "running")):
                 old = max_age_s is not None and isinstance(r["started_at"], (int, float)) \
                     and now - r["started_at"] > max_age_s
-                gone = r["host"] == host and isinstance(r["pid"], int) and r["pid"] > 0 and not pid_alive(r["pid"])
-                if old or gone:
+                if old or stale_reason(r) is not None:
                     stale.append(r["id"])
             if stale:
                 db.execute(update(runs).where(runs.c.id.in_(stale)).values(
