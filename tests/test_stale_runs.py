@@ -5,6 +5,7 @@ Nothing is written to the store by reading it."""
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import signal
 import sqlite3
@@ -62,6 +63,9 @@ def test_a_killed_station_reads_stale(tmp_path, monkeypatch):
     assert listed.exit_code == 0, listed.output
     line = next(ln for ln in listed.output.splitlines() if ln.split()[0] == str(run_id))
     assert " stale " in line and f"station process {pid}" in line and "running" not in line, listed.output
+    for status, n in (("stale", 1), ("running", 0)):  # stored as running, told apart as read
+        got = CliRunner().invoke(cli, ["report", "list", "--db", "runs.sqlite", "--status", status, "--json"])
+        assert len(json.loads(got.stdout)) == n, got.output
     summary = CliRunner().invoke(cli, ["report", "summary", "--db", "runs.sqlite", "--json"])
     assert '"stale": 1' in summary.output and '"running": 0' in summary.output, summary.output
     pytest.importorskip("fastapi")

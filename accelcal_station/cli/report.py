@@ -12,6 +12,7 @@ from ..calibration import PARAM_NAMES
 from ..config.checks import load_yaml
 from ..errors import DataError
 from ..fileguard.identity import refuse_overwrite
+from ..store.liveness import STALE
 from ..store.location import store_path, store_target
 from ..store.runs import Store
 from ..store.schema import STATUSES, VERDICTS
@@ -35,7 +36,8 @@ def _filter_options(f: F) -> F:
         click.option("--station", default=None, metavar="ID", help="Only this station."),
         click.option("--operator", default=None, metavar="NAME", help="Only this operator."),
         click.option("--verdict", default=None, metavar="PASS|FAIL", help="Only this verdict."),
-        click.option("--status", default=None, metavar="|".join(STATUSES), help="Only this run status."),
+        click.option("--status", default=None, metavar="|".join((*STATUSES, STALE)),
+                     help="Only this run status (stale: running, its station process gone)."),
         click.option("--since", default=None, metavar="TIME", help="Started at or after (ISO 8601; naive = local)."),
         click.option("--until", default=None, metavar="TIME", help="Started before (ISO 8601; naive = local)."),
     ]
@@ -82,8 +84,8 @@ def _filters(device: tuple[str, ...], lot: str | None, station: str | None, oper
     """The filter options as keyword arguments of the store's queries; a bad verdict or status refused."""
     if verdict is not None and verdict.upper() not in VERDICTS:
         raise DataError(f"--verdict {verdict!r}; allowed: PASS, FAIL")
-    if status is not None and status not in STATUSES:
-        raise DataError(f"--status {status!r}; allowed: {', '.join(STATUSES)}")
+    if status is not None and status not in (*STATUSES, STALE):
+        raise DataError(f"--status {status!r}; allowed: {', '.join((*STATUSES, STALE))}")
     return {"device": list(device) or None, "lot": lot, "station": station, "operator": operator,
             "verdict": verdict and verdict.upper(), "status": status, "since": since, "until": until}
 

@@ -31,7 +31,7 @@ from ..errors import DataError
 from ..session import Session
 from . import exports, integrity, schema
 from .database import Database, describe_target, is_url
-from .liveness import mark_stale, stale_reason
+from .liveness import STALE, mark_stale, stale_reason
 from .location import store_identity
 from .records import (
     RunNotFound,
@@ -362,7 +362,12 @@ class Store:
         return clauses
 
     def _runs(self, filters: dict[str, Any], limit: int | None = None) -> list[tuple[dict[str, Any], list[DamagedRow]]]:
-        """The matching ``runs`` rows, each checked (rowcheck.check_row) with what is damaged in it."""
+        """The matching ``runs`` rows, each checked (rowcheck.check_row) with what is damaged in it.
+        Status ``running`` or ``stale`` (both stored as running) is told apart as each row is read."""
+        wanted = filters.get("status")
+        live = wanted in ("running", STALE)
+        if live:
+            filters = {**filters, "status": "running"}
         stmt = select(runs).where(*self._where(**filters)).order_by(runs.c.started_at, runs.c.id)
         if limit is not None:
             stmt = stmt.limit(int(limit))
@@ -370,7 +375,8 @@ class Store:
             checked = [check_row("runs", r) for r in self._db.rows(stmt)]
         except _sqlerror() as e:
             raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
-        return [(mark_stale(r), damage) for r, damage in checked]  # running, its process gone: stale
+        out = [(mark_stale(r), damage) for r, damage in checked]  # running, its process gone: stale
+        return [x for x in out if x[0]["status"] == wanted] if live else out
 
     def list_runs(self, limit: int | None = None, **filters: Any) -> list[dict[str, Any]]:
         """Run summaries (no poses) matching filters: device, station, lot, operator, since,

@@ -100,7 +100,7 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
     def list_runs(since: str | None = Query(None, description="started at or after (ISO 8601 or unix s)"),
                   until: str | None = None, station: str | None = None, serial: str | None = None,
                   verdict: str | None = Query(None, pattern="^(PASS|FAIL)$"), lot: str | None = None,
-                  status: str | None = Query(None, pattern="^(running|complete|interrupted|error)$"),
+                  status: str | None = Query(None, pattern="^(running|complete|interrupted|error|stale)$"),
                   limit: int = Query(1000, ge=1, le=10000)) -> list[dict[str, Any]]:
         f = {"since": _time(since), "until": _time(until), "station": station, "device": serial,
              "verdict": verdict, "lot": lot, "status": status}
