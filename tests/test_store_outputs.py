@@ -163,7 +163,8 @@ def test_an_output_of_the_same_kind_is_replaced(here):
     (b"SQLite format 3\x00" + b"\x00" * 100, "sqlite"), (b"\x89PNG\r\n\x1a\n....", "png"),
     (b'{"model": "12"}', "json"), (b"  [1, 2]", "json"), (b"serial,pose,x\nA,1,2\n", "csv"),
     (b"# comment\nname,mean_x\n", "csv"), (b"# twin\ndevice:\n  seed: 3\n", "yaml"), (b"<!doctype html>", "html"),
-    (b"just words\n", "text"), (b"\xff\xfe\x00a", "binary"), (b"", None)])
+    (b"just words\n", "text"), (b"\xff\xfe\x00a", "binary"), (b"", None),
+    (b"serial,names\n" + "A,\u00e9\n".encode() * 2000, "csv")])  # a 2-byte character cut at 4 KiB: still text
 def test_sniffed_kinds(tmp_path, head, kind):
     """The kind each head reads as, written here from the formats' own definitions."""
     p = tmp_path / "f"

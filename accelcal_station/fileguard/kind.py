@@ -13,6 +13,7 @@ binary file.  An empty or absent file has no kind and may be written.
 """
 from __future__ import annotations
 
+import codecs
 import contextlib
 import os
 import re
@@ -83,9 +84,8 @@ def sniff(path: str | Path) -> str | None:
             return kind
     if b"\x00" in head:
         return "binary"
-    try:  # a multi-byte character cut at the end of the head is still text
-        text = head.decode("utf-8") if len(head) < HEAD_BYTES else head[:-4].decode("utf-8") + \
-            head[-4:].decode("utf-8", "ignore")
+    try:  # a multi-byte character cut at the end of the head is still text (final only for a whole file)
+        text = codecs.getincrementaldecoder("utf-8")().decode(head, final=len(head) < HEAD_BYTES)
     except UnicodeDecodeError:
         return "binary"
     return _text_kind(text)
