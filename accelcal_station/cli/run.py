@@ -44,8 +44,8 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     4 NVM error, 5 operator abort (the same with --ui web).
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
-    _refuse_over_config(cfg)
     operator, lot = check_run_labels(operator, lot, cfg.station_id)  # as serials are: no formula, no control
+    _refuse_over_config(cfg)
 
     def echo(text: str) -> None:
         click.echo(text, err=as_json)
