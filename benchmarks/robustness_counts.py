@@ -1,7 +1,9 @@
 """Issue 12 and 25 closing figures: bad inputs tried / refused cleanly, faults injected / survived,
-and issue 25's campaign of hostile files through the real command line, counted by class.
+and issue 25's campaign of hostile files through the real command line, counted by class; issue
+34's store figures (store_counts): writers pointed at a store, damaged stores read by every reader
+and by the web server, formula cells in exports, the schema-2 store served, a crashed run read.
 
-    python benchmarks/robustness_counts.py [--cases N] [--campaign-only]
+    python benchmarks/robustness_counts.py [--cases N] [--campaign-only] [--store-only]
 
 The campaign (benchmarks/hostile_campaign.py: generated pose tables, raw logs, CSV and Parquet lots,
 YAML configs, NVM backups, special files, edge numbers, outputs named after inputs; each run in a
@@ -264,9 +266,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cases", type=int, default=400, help="cases in the subprocess campaign (default 400)")
     ap.add_argument("--campaign-only", action="store_true", help="only the subprocess campaign")
+    ap.add_argument("--store-only", action="store_true", help="only issue 34's store figures")
     a = ap.parse_args()
+    from store_counts import store_counts
+
+    if a.store_only:
+        store_counts()
+        return
     if not a.campaign_only:
         in_process()
+        store_counts()
     from hostile_campaign import campaign
 
     t0 = time.perf_counter()

@@ -100,7 +100,7 @@ def test_finish_is_atomic(db):
         raw.execute("CREATE TRIGGER fail BEFORE UPDATE OF status ON runs WHEN NEW.status = 'complete'"
                     " BEGIN SELECT RAISE(ABORT, 'injected failure'); END")
         raw.commit()
-        with pytest.raises(StoreError, match="cannot record run 1 .*injected failure.*nothing was recorded"):
+        with pytest.raises(StoreError, match="cannot record run 1 .*injected failure.*rolled back"):
             store.finish_run(rid, session=s, calibration=None, verdict="FAIL")
         raw.execute("DROP TRIGGER fail")
         raw.commit()
@@ -141,14 +141,14 @@ def test_interrupted_runs_are_recorded(db, tmp_path):
     crashed = int(out.stdout)
     with Store(db) as store:
         mine = store.start_run(device_serial="SN-live")  # this process is alive: not stale
-        assert store.get_run(crashed).status == "running"
+        assert store.get_run(crashed).status == "stale"  # read as stale at once (its pid is gone: liveness.py)
         assert store.mark_stale_interrupted() == [crashed]
         rec = store.get_run(crashed)
         assert rec.status == "interrupted" and "station stopped" in rec.status_reason
         assert store.get_run(mine).status == "running"
         assert store.mark_stale_interrupted(max_age_s=-1) == [mine]
         summary = store.lot_summary()
-    assert summary["by_status"] == {"running": 0, "complete": 0, "interrupted": 3, "error": 1}
+    assert summary["by_status"] == {"running": 0, "complete": 0, "interrupted": 3, "error": 1, "stale": 0}
     assert summary["interruptions"]["station stopped during the run"] == 2
 
 

@@ -72,6 +72,23 @@ def _parse(value: str, flag: str, integer: bool, positive: bool) -> float:
     return v
 
 
+FORCE_HELP = ("Replace an existing output file of another kind, or an SQLite database that is not the store "
+              "this command reads (never the store or an input it reads).")
+
+
+def force_option(f: Any) -> Any:
+    """``--force``: the kind check of fileguard.kind.refuse_kind overridden (the identity check never is)."""
+    return click.option("--force", "force", is_flag=True, help=FORCE_HELP)(f)
+
+
+def output_kind(path: str | Path | None, default: str = "csv") -> str:
+    """The kind of file an output writes, by its extension (fileguard.kind.COMPATIBLE)."""
+    suffix = Path(str(path or "")).suffix.lower()
+    return {".json": "json", ".jsonl": "jsonl", ".ndjson": "jsonl", ".parquet": "parquet", ".pq": "parquet",
+            ".csv": "csv", ".yaml": "yaml", ".yml": "yaml", ".html": "html", ".htm": "html",
+            ".png": "png"}.get(suffix, default)
+
+
 def store_file(target: str | Path | None) -> Path | None:
     """The file of an SQLite store (a path or ``sqlite:///PATH``), to compare outputs with; None for a
     server URL (postgresql://...: no local file an output could overwrite)."""

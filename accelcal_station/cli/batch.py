@@ -31,7 +31,7 @@ from ..lot.batch import (
 )
 from ..store.location import store_target
 from ..store.runs import Store
-from ._common import check_model_units, parse_int, store_file
+from ._common import check_model_units, force_option, output_kind, parse_int, store_file
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
 from ._text import clean, error_text
@@ -111,7 +111,7 @@ def _text(report: BatchReport, outputs: dict[str, Any], list_all: bool) -> list[
 
 def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str | None, cpg: float | None,
               grav: float | None, out: str, config_path: str | None, chunk_boards: int, as_json: bool,
-              other: list[str]) -> None:
+              force: bool, other: list[str]) -> None:
     """accelcal batch LOT --out RESULTS: stream a lot file into one results table."""
     from ..lot.streaming import recalibrate_lot
 
@@ -119,7 +119,8 @@ def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str
         raise DataError(f"--out writes a lot file's results table; {', '.join(other)} cannot be combined with it")
     if len(paths) != 1:
         raise DataError(f"--out takes one lot file; got {len(paths)} path(s)")
-    refuse_overwrite([("--out", out)], [("the lot file", paths[0]), ("--config", config_path)])
+    refuse_overwrite([("--out", out, output_kind(out))], [("the lot file", paths[0]), ("--config", config_path)],
+                     force)
     limits = _limits(config_path)
     summary = recalibrate_lot(paths[0], out, model, units=units, counts_per_g=cpg, gravity_mps2=grav,
                               limits=limits, chunk_boards=chunk_boards)
@@ -168,12 +169,13 @@ def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str
 @click.option("--chunk-boards", "chunk_boards", default="4096", show_default=True, metavar="N",
               help="Lot file mode: boards read, fitted and written per chunk (bounds memory).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+@force_option
 @click.pass_context
 def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, lot: str | None,
             device: tuple[str, ...], station: str | None, since: str | None, until: str | None,
             run_ids: tuple[str, ...], model: str, units: str | None, counts_per_g: str | None, gravity: str | None,
             out_dir: str | None, csv_path: str | None, to_store: str | None, out: str | None,
-            config_path: str | None, chunk_boards: str, as_json: bool) -> None:
+            config_path: str | None, chunk_boards: str, as_json: bool, force: bool = False) -> None:
     """Recalibrate many boards with one model (vectorised); unfittable boards are reported and skipped.
 
     A lot file (one CSV or Parquet table of every pose, with a serial column) is
@@ -187,15 +189,15 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
     _check_chunk_boards(ctx, out, config_path, chunk_boards)
     if out is not None:
         _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path,
-                  parse_int(chunk_boards, "--chunk-boards") or 0, as_json,
+                  parse_int(chunk_boards, "--chunk-boards") or 0, as_json, force,
                   [k for k, v in (("--from-store", from_store), ("--out-dir", out_dir), ("--csv", csv_path),
                                   ("--to-store", to_store)) if v is not None])
         return
     store_filters = _store_filters(from_store, lot, device, station, since, until, run_ids)
-    _check_inputs(paths, from_store, csv_path, to_store)
+    _check_inputs(paths, from_store, csv_path, to_store, out_dir, force)
     report = _fit_boards(paths, from_store, store_filters, model, units, cpg, grav, as_json,
                          _limits(config_path))
-    outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store, config_path)
+    outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store, config_path, force)
     _print_report(report, outputs, written, as_json)
     if report.skipped:
         ctx.exit(1)
@@ -220,14 +222,18 @@ def _store_filters(from_store: str | None, lot: str | None, device: tuple[str, .
     return store_filters
 
 
-def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str | None, to_store: str | None) -> None:
+def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str | None, to_store: str | None,
+                  out_dir: str | None = None, force: bool = False) -> None:
     """Refuse, before any work, a call with no boards, a --csv file in a folder that does not exist, or
     an output that is one of the inputs (a pose table, the source store)."""
     if not paths and from_store is None:
         raise DataError("no boards given; pass pose tables, directories or globs, or --from-store FILE")
     inputs = [("input", str(p)) for p in expand_paths(paths)] if paths else []
-    refuse_overwrite([("--csv", csv_path)], [*inputs, ("--from-store", store_file(from_store))])
-    refuse_overwrite([("--to-store", store_file(to_store))], [*inputs, ("--csv", csv_path)])  # may be --from-store
+    refuse_overwrite([("--csv", csv_path, "csv")], [*inputs, ("--from-store", store_file(from_store))], force)
+    refuse_overwrite([("--to-store", store_file(to_store), "store")],
+                     [*inputs, ("--csv", csv_path)], force)  # may be --from-store
+    if out_dir is not None:  # the folder itself: never a store or a file (the files in it: write_calibrations)
+        refuse_overwrite([("--out-dir", out_dir, "directory")], [*inputs, ("--from-store", store_file(from_store))])
     for p in (csv_path,):
         if p is not None and not Path(p).resolve().parent.is_dir():
             raise DataError(f"--csv {p}: cannot write (no such directory {Path(p).parent})")
@@ -259,13 +265,14 @@ def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: d
 
 
 def _write_outputs(report: BatchReport, out_dir: str | None, csv_path: str | None, to_store: str | None,
-                   from_store: str | None, config_path: str | None = None) -> tuple[dict[str, Any], dict[str, Path]]:
+                   from_store: str | None, config_path: str | None = None,
+                   force: bool = False) -> tuple[dict[str, Any], dict[str, Path]]:
     """Write the calibrations, the summary CSV and the store records asked for: (what was written
     where, the calibration file of each board source)."""
     outputs: dict[str, Any] = {}
     written: dict[str, Path] = {}
     if out_dir is not None:
-        written = write_calibrations(report, out_dir)
+        written = write_calibrations(report, out_dir, force)
         outputs.update(out_dir=str(out_dir), calibrations=len(written))
     if csv_path is not None:
         summary_csv(report, csv_path)

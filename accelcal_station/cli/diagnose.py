@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import click
 
@@ -15,6 +16,8 @@ from ._common import MAX_SEED, Whole, parse_int
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
 from ._text import clean
+
+_REPORT_KIND = {".md": "markdown", ".png": "png"}  # what each report file is (fileguard.kind)
 
 
 @click.command("diagnose")
@@ -58,7 +61,7 @@ def command(ctx: click.Context, files: tuple[str, ...], config: str | None, raw:
         return
     out_dir = check_report_dir(report_dir) if report_dir else None
     if out_dir is not None:
-        refuse_overwrite([("--report file", out_dir / n) for n in REPORT_FILES],
+        refuse_overwrite([("--report file", out_dir / n, _REPORT_KIND[Path(n).suffix]) for n in REPORT_FILES],
                          [*(("FILE", f) for f in files), ("--config", config)])
     rate_hz = _number(rate, "--rate")
     check_rate(rate_hz)

@@ -20,7 +20,7 @@ from ..models.choice import ModelChoice, choose_model, with_face_references
 from ..models.handplaced import norm_faces, opposite_face
 from ..models.result import FitResult
 from ..session import Session
-from ._common import check_model_units, parse_int
+from ._common import check_model_units, force_option, parse_int
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
 from ._text import clean
@@ -234,11 +234,12 @@ def _report(path: str, loaded: Loaded, result: Fit, as_json: bool = True) -> tup
                    "-o writes the norm fit.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the summary.")
 @click.option("-o", "--output", default=None, metavar="FILE", help="Write the calibration JSON here (atomically).")
+@force_option
 def command(path: str, raw: bool, model: str | None, units: str | None, counts_per_g: str | None,
             gravity: str | None, temp_method: str, columns: str | None, skip_rows: str | None, rate: str | None,
-            hand_placed: bool, as_json: bool, output: str | None) -> None:
+            hand_placed: bool, as_json: bool, output: str | None, force: bool = False) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
-    refuse_overwrite([("-o", output)], [("FILE", path)])
+    refuse_overwrite([("-o", output, "json")], [("FILE", path)], force)
     model = "6" if model is None and hand_placed else model
     check_model_units(model or "12", units)  # no --model: the units still checked first
     check_temp_method(temp_method)

@@ -64,8 +64,10 @@ def _device(ctx: click.Context, config_path: str | None) -> Iterator[tuple[Drive
         raise DeviceError(f"{getattr(dev, 'name', 'device')}: {e.strerror or e}") from None
 
 
-def _refuse_over_inputs(ctx: click.Context, output: tuple[str, Path], *inputs: tuple[str, str | None]) -> None:
-    """A backup never replaces the config, the board's EEPROM image, the store or the restored image."""
+def _refuse_over_inputs(ctx: click.Context, output: tuple[str, str | Path], *inputs: tuple[str, str | None]) -> None:
+    """A backup never replaces the config, the board's EEPROM image, the store, the restored image or an
+    SQLite database (exit 2, fileguard.kind); any other existing file is refused by the writer (backups
+    are never overwritten)."""
     refuse_overwrite([output], [*ctx.meta.get("accelcal.nvm_inputs", []), *inputs])
 
 
@@ -182,7 +184,7 @@ def backup_cmd(ctx: click.Context, config_path: str | None, out: str | None, as_
     """Save both slots' raw image (with CRC-32) to a JSON file."""
     with _device(ctx, config_path) as (dev, writer):
         path = Path(out) if out else auto_backup_path(Path("."), _serial(dev, None))
-        _refuse_over_inputs(ctx, ("--out", path))
+        _refuse_over_inputs(ctx, ("--out", out or path))  # as given: Path() would fold a URL's "//"
         doc = writer.backup(path, chip=dev.identify().chip)
     doc["path"] = str(path)
     states = ", ".join(f"slot {s['slot']} {s['state']}" for s in doc["slots"])
@@ -206,7 +208,7 @@ def restore_cmd(ctx: click.Context, image: str, config_path: str | None, serial:
     with _device(ctx, config_path) as (dev, writer):
         sn = _serial(dev, serial)
         backup = Path(backup_to) if backup_to else auto_backup_path(Path(image).resolve().parent, sn)
-        _refuse_over_inputs(ctx, ("--backup-to", backup), ("IMAGE", image))
+        _refuse_over_inputs(ctx, ("--backup-to", backup_to or backup), ("IMAGE", image))
         writer.restore(image, serial=sn, allow_other_serial=any_serial, backup_to=backup, chip=dev.identify().chip)
         doc = _snapshot(dev, writer, sn)
     doc.update(restored=str(image), backup=str(backup))
@@ -236,7 +238,7 @@ def erase_cmd(ctx: click.Context, config_path: str | None, backup_to: str | None
     with _device(ctx, config_path) as (dev, writer):
         sn = _serial(dev, None)
         backup = Path(backup_to) if backup_to else auto_backup_path(Path("."), sn)
-        _refuse_over_inputs(ctx, ("--backup-to", backup))
+        _refuse_over_inputs(ctx, ("--backup-to", backup_to or backup))
         if backup.exists():
             raise NVMError(f"{backup}: backup file exists; choose another name (backups are never overwritten)")
         valid = sum(s.state == "valid" for s in writer.status())

@@ -12,10 +12,11 @@ from ..calibration import PARAM_NAMES
 from ..config.checks import load_yaml
 from ..errors import DataError
 from ..fileguard.identity import refuse_overwrite
+from ..store.liveness import STALE
 from ..store.location import store_path, store_target
 from ..store.runs import Store
 from ..store.schema import STATUSES, VERDICTS
-from ._common import MAX_ID, Whole, store_file
+from ._common import MAX_ID, Whole, force_option, store_file
 from ._mes import JsonGroup
 from ._text import clean
 
@@ -35,7 +36,8 @@ def _filter_options(f: F) -> F:
         click.option("--station", default=None, metavar="ID", help="Only this station."),
         click.option("--operator", default=None, metavar="NAME", help="Only this operator."),
         click.option("--verdict", default=None, metavar="PASS|FAIL", help="Only this verdict."),
-        click.option("--status", default=None, metavar="|".join(STATUSES), help="Only this run status."),
+        click.option("--status", default=None, metavar="|".join((*STATUSES, STALE)),
+                     help="Only this run status (stale: running, its station process gone)."),
         click.option("--since", default=None, metavar="TIME", help="Started at or after (ISO 8601; naive = local)."),
         click.option("--until", default=None, metavar="TIME", help="Started before (ISO 8601; naive = local)."),
     ]
@@ -61,13 +63,13 @@ def _target(db: str | None, config_path: str | None) -> tuple[Path | str, str | 
     return store_path(load_yaml(cfg), Path.cwd()), cfg
 
 
-def _open(db: str | None, config_path: str | None, output: tuple[str, str | None] | None = None,
-          upgrade: bool = True) -> Store:
+def _open(db: str | None, config_path: str | None, output: tuple[str, str | None, str] | None = None,
+          upgrade: bool = True, force: bool = False) -> Store:
     """The store to read; ``output`` (its option, its file), when given, is refused first if it is the
     store's own file or the config's (never overwritten, nothing written)."""
     target, cfg = _target(db, config_path)
     if output is not None:
-        refuse_overwrite([output], [("the store", store_file(target)), ("--config", cfg)])
+        refuse_overwrite([output], [("the store", store_file(target)), ("--config", cfg)], force)
     return Store(target, create=False, upgrade=upgrade)
 
 
@@ -82,8 +84,8 @@ def _filters(device: tuple[str, ...], lot: str | None, station: str | None, oper
     """The filter options as keyword arguments of the store's queries; a bad verdict or status refused."""
     if verdict is not None and verdict.upper() not in VERDICTS:
         raise DataError(f"--verdict {verdict!r}; allowed: PASS, FAIL")
-    if status is not None and status not in STATUSES:
-        raise DataError(f"--status {status!r}; allowed: {', '.join(STATUSES)}")
+    if status is not None and status not in (*STATUSES, STALE):
+        raise DataError(f"--status {status!r}; allowed: {', '.join((*STATUSES, STALE))}")
     return {"device": list(device) or None, "lot": lot, "station": station, "operator": operator,
             "verdict": verdict and verdict.upper(), "status": status, "since": since, "until": until}
 
@@ -121,7 +123,8 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
     for r in runs:
         rms = "" if r["residual_rms_g"] is None else f"{r['residual_rms_g'] * 1e3:7.3f}"
         started = (r["started_at"] or "?")[:16].replace("T", " ")
-        click.echo(clean(f"{r['id']:>5}  {started:16}  {r['status'] or '?':11}  "
+        rid = "?" if r["id"] is None else r["id"]  # a damaged id: named below, the row still shown
+        click.echo(clean(f"{rid:>5}  {started:16}  {r['status'] or '?':11}  "
                          f"{r['device_serial'] or '':14}  {r['lot'] or '':8}  {r['verdict'] or '':7}  "
                          f"{r['nvm_status'] or '':7}  {r['pose_count']:5}  {rms:>7}  "
                          f"{'; '.join(r['reasons']) or (r['status_reason'] or '')}")
@@ -131,7 +134,7 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
 
 
 @command.command("show")
-@click.argument("run_id", type=Whole(0, MAX_ID))
+@click.argument("run_id", type=Whole(-MAX_ID - 1, MAX_ID))  # an outbox run is numbered below 0
 @click.option("--db", default=None, metavar="FILE|URL", help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB.")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
@@ -190,24 +193,25 @@ def _fit_lines(fit: dict[str, Any]) -> list[str]:
               help="Output format (default: from the file name, else csv).")
 @click.option("--poses", is_flag=True, help="CSV: one row per pose instead of one per run.")
 @click.option("--json", "as_json", is_flag=True, help="With -o, print a JSON line saying what was written.")
+@force_option
 def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None,
                station: str | None, operator: str | None, verdict: str | None, status: str | None,
                since: str | None, until: str | None, output: str | None, fmt: str | None, poses: bool,
-               as_json: bool) -> None:
+               as_json: bool, force: bool = False) -> None:
     """Export runs as CSV (one row per run, calibration flattened; or per pose) or JSON (everything)."""
     if fmt is None:  # --json without -o means JSON on stdout
         fmt = "json" if (output and output.lower().endswith(".json")) or (as_json and output is None) else "csv"
     if fmt not in ("csv", "json"):
         raise DataError(f"--format {fmt!r}; allowed: csv, json")
     flt = _filters(device, lot, station, operator, verdict, status, since, until)
-    with _open(db, config_path, ("-o", output)) as store:
+    with _open(db, config_path, ("-o", output, fmt), force=force) as store:
         n = len(store.list_runs(**flt))
         if fmt == "json":
             data = store.export_json(output, **flt)
             text = json.dumps({"schema": "accelcal.runs", "version": 1, "runs": data}, indent=1)
         else:
             text = store.export_csv(output, kind="poses" if poses else "runs", **flt)
-        _name_damage([d for r in store.list_runs(**flt) for d in r.get("damage", [])])
+        _name_damage([d.to_dict() for rec in store.runs(**flt) for d in rec.damage])  # poses' and events' too
     if output is None:
         click.echo(text.rstrip("\n"))
     elif as_json:
@@ -222,12 +226,14 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
 @click.option("--html", "html_file", default=None, metavar="FILE",
               help="Also write a lot report (histograms vs limits, pass rate and reasons over time, control "
                    "charts) as one HTML file with embedded PNGs.")
+@force_option
 def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None,
                 station: str | None, operator: str | None, verdict: str | None, status: str | None,
-                since: str | None, until: str | None, as_json: bool, html_file: str | None) -> None:
+                since: str | None, until: str | None, as_json: bool, html_file: str | None,
+                force: bool = False) -> None:
     """Lot summary: counts, pass rate, failure reasons, parameter distributions."""
     flt = _filters(device, lot, station, operator, verdict, status, since, until)
-    with _open(db, config_path, ("--html", html_file)) as store:
+    with _open(db, config_path, ("--html", html_file, "html"), force=force) as store:
         s = store.lot_summary(**flt)
         if html_file is not None:
             from ..lot.report import write_lot_html
@@ -263,19 +269,25 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @click.pass_context
 def check_cmd(ctx: click.Context, db: str | None, config_path: str | None, as_json: bool) -> None:
-    """List every damaged row (table, id, column, what is wrong); exit 1 when any. Nothing is modified."""
+    """List every damaged row (table, id, column, what is wrong) and what SQLite's integrity check
+    finds in the file (pages it cannot read); exit 1 when any. Nothing is modified."""
     with _open(db, config_path, upgrade=False) as store:
         found = [d.to_dict() for d in store.check()]
+        pages = store.integrity()
         where = str(store.path)
     if as_json:
-        click.echo(json.dumps({"store": where, "damaged": found}, indent=1))
+        click.echo(json.dumps({"store": where, "damaged": found, "integrity": pages}, indent=1))
     else:
         for d in found:
             click.echo(clean(f"{d['table']:7} {d['id']:>12}  {d['column']:14} {d['problem']}"))
+        for line in pages:
+            click.echo(clean(f"file    {line}"))
         rows = len({(d["table"], d["id"]) for d in found})
         click.echo(f"{len(found)} damaged value(s) in {rows} row(s) of {where}" if found
                    else f"no damaged rows in {where}")
-    if found:
+        if pages:
+            click.echo(f"{len(pages)} integrity problem(s) in the file (PRAGMA integrity_check)")
+    if found or pages:
         ctx.exit(1)
 
 
@@ -320,16 +332,17 @@ def sync_cmd(db: str | None, config_path: str | None, outbox: str | None, as_jso
 
 
 @command.command("plot")
-@click.argument("run_id", type=Whole(0, MAX_ID))
+@click.argument("run_id", type=Whole(-MAX_ID - 1, MAX_ID))  # an outbox run is numbered below 0
 @click.option("--db", default=None, metavar="FILE", help="Results store (SQLite file).")
 @click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
 @click.option("-o", "--output", default=None, metavar="FILE.png", help="Figure file (default run-ID-residuals.png).")
-def plot_cmd(run_id: int, db: str | None, config_path: str | None, output: str | None) -> None:
+@force_option
+def plot_cmd(run_id: int, db: str | None, config_path: str | None, output: str | None, force: bool = False) -> None:
     """Draw one run's residuals per pose and axis (PNG)."""
     from ..lot.report import residual_figure
 
     out = output or f"run-{run_id}-residuals.png"
-    with _open(db, config_path, ("-o", out)) as store:
+    with _open(db, config_path, ("-o", out, "png"), force=force) as store:
         rec = store.get_run(run_id)
     residual_figure(rec, out)
     click.echo(f"residuals of run {run_id} drawn in {out}")

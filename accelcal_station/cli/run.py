@@ -11,7 +11,7 @@ from ..config import event_log
 from ..fileguard.identity import refuse_overwrite
 from ..fixtures.operator_ui import OperatorUI
 from ..station.board import Station
-from ..station.identity import ask_run_identity
+from ..station.identity import ask_run_identity, check_run_labels
 from ..station.report import RunReport
 from ..station.settings import StationConfig
 from ._common import jsonable
@@ -45,6 +45,7 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     4 NVM error, 5 operator abort (the same with --ui web).
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
+    operator, lot = check_run_labels(operator, lot, cfg.station_id)  # as serials are: no formula, no control
     _refuse_over_config(cfg)
     event_log.configure(cfg.event_log, avoid=(cfg.path, cfg.store_file))  # logging: (docs/logging.md)
 
@@ -66,7 +67,7 @@ def _refuse_over_config(cfg: StationConfig) -> None:
     """What a run writes (the store, the simulated board's EEPROM image) is never its own config."""
     eeprom = cfg.raw["device"].get("eeprom") if isinstance(cfg.raw.get("device"), dict) else None
     image = eeprom.get("image") if isinstance(eeprom, dict) and isinstance(eeprom.get("image"), str) else None
-    refuse_overwrite([("the store", store_file_of(cfg.store_file)), ("device.eeprom.image", image)],
+    refuse_overwrite([("the store", store_file_of(cfg.store_file), "store"), ("device.eeprom.image", image)],
                      [("--config", str(cfg.path))])
 
 

@@ -26,7 +26,7 @@ from ..fixtures.designs import get_design
 from ..fixtures.simulated_run import SimulatedRun, run_metadata
 from ..lot.synthetic import write_population_lot
 from ..twin.simlot import load_device
-from ._common import MAX_SEED, Finite, Whole, config_store_file
+from ._common import MAX_SEED, Finite, Whole, config_store_file, force_option, output_kind
 
 
 def parse_temps(text: str | None) -> list[float] | None:
@@ -100,11 +100,14 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
 @click.option("--truth-out", type=click.Path(dir_okay=False), default=None,
               help="Write the simulator's ground-truth calibration (W, V, Gamma) as JSON.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary.")
+@force_option
 def command(config: str | None, design: str, lot: int | None, out: str, raw: bool, seed: int | None,
-            temps: str | None, samples: int, move_s: float, truth_out: str | None, as_json: bool) -> None:
+            temps: str | None, samples: int, move_s: float, truth_out: str | None, as_json: bool,
+            force: bool = False) -> None:
     """Simulate a calibration run and write its pose table (or raw log) and ground truth."""
-    refuse_overwrite([("--out", out), ("--truth-out", truth_out)],
-                     [("--config", config), ("the store", config_store_file(config) if config else None)])
+    table = "parquet" if output_kind(out) == "parquet" else "csv"  # a pose table, raw log or lot
+    refuse_overwrite([("--out", out, table), ("--truth-out", truth_out, "json")],
+                     [("--config", config), ("the store", config_store_file(config) if config else None)], force)
     get_design(design)
     if lot is not None:
         _write_lot(config, design, lot, out, seed, samples, as_json)

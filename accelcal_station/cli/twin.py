@@ -12,7 +12,10 @@ from ..acceptance.rules import Limits
 from ..atomic import atomic_write
 from ..config.sections import default_config_path
 from ..errors import DataError
+from ..fileguard.identity import refuse_overwrite
+from ._common import force_option, store_file
 from ._mes import JsonGroup
+from ._text import error_text
 
 
 def _emit(as_json: bool, data: dict[str, Any], lines: list[str]) -> None:
@@ -34,7 +37,12 @@ def _stats(source: str | None, db: str | None, since: str | None, station: str |
     if db is None and (since or station):
         raise DataError("--since and --station filter a store's runs; add --db FILE|URL")
     if db is not None:
-        return store_stats(db, limits, since=since, station=station)
+        skips: list[tuple[str, str]] = []
+        try:
+            return store_stats(db, limits, skips=skips, since=since, station=station)
+        finally:  # named even when no run is left to fit (stderr: stdout may be the JSON object)
+            for label, why in skips:
+                click.echo(click.style("SKIP ", fg="red", bold=True) + error_text(f"{label}: {why}"), err=True)
     assert source is not None
     return lot_stats(source, limits)
 
@@ -53,9 +61,11 @@ def _source_options(f: Any) -> Any:
 @click.option("--components", type=click.IntRange(1, 8), default=4, show_default=True,
               help="Most mixture components BIC may choose.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was found as JSON.")
+@force_option
 def fit_cmd(source: str | None, db: str | None, since: str | None, station: str | None, out: str, components: int,
-            as_json: bool) -> None:
+            as_json: bool, force: bool = False) -> None:
     """Fit the population of lot file SOURCE (or --db); write the default config with population: replaced."""
+    refuse_overwrite([("-o", out, "yaml")], [("SOURCE", source), ("--db", store_file(db))], force)
     if not Path(out).resolve().parent.is_dir():
         raise DataError(f"{out}: cannot write (no such directory {Path(out).parent})")
     from ..twin.fit import fit_twin

@@ -30,6 +30,7 @@ import numpy as np
 from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES
 from ..errors import DataError
+from ..fileguard.cells import safe_text
 
 if TYPE_CHECKING:
     from .lotfile import LotChunk
@@ -38,6 +39,7 @@ FLOAT_COLUMNS = ("input_per_g", *PARAM_NAMES, "residual_rms_mg", "residual_max_m
                  "crossval_by_orientation_rms_mg", "condition_number")
 RESULT_COLUMNS = ("serial", "first_row", "ok", "model", "pose_count", "input_units", *FLOAT_COLUMNS, "held",
                   "verdict", "reasons", "message")
+TEXT_COLUMNS = ("serial", "model", "input_units", "held", "verdict", "reasons", "message")
 FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet", ".jsonl": "jsonl", ".ndjson": "jsonl"}
 
 
@@ -116,6 +118,8 @@ class ResultsWriter:
                     reasons: Sequence[Sequence[str]]) -> None:
         """Append one chunk's rows, flushed and fsynced."""
         cols = _columns(chunk, res, model, units, verdicts, reasons)
+        if self.fmt == "csv":  # a spreadsheet opens it: no text cell may be a formula (fileguard/cells.py)
+            cols.update({c: [safe_text(str(v)) for v in cols[c]] for c in TEXT_COLUMNS})
         if self.fmt == "csv" and self._arrow_csv:
             self._write_arrow_csv(cols)
         elif self.fmt == "csv":

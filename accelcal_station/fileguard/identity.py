@@ -14,8 +14,11 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from ..errors import DataError
+from .kind import refuse_kind
 
 Named = tuple[str, str | Path | None]  # (what it is: "--out", "input", "the store"; its path or None)
+# an output may also say what it writes: (label, path, kind), kind as in kind.COMPATIBLE
+Output = Named | tuple[str, str | Path | None, str | None]
 
 
 def _keys(p: str | Path) -> list[tuple[object, ...]]:
@@ -34,24 +37,27 @@ def same_file(a: str | Path, b: str | Path) -> bool:
     return bool(set(_keys(a)) & set(_keys(b)))
 
 
-def refuse_overwrite(outputs: Iterable[Named], inputs: Iterable[Named]) -> None:
-    """One DataError (exit 2) when an output is an input, the store or another output.
+def refuse_overwrite(outputs: Iterable[Output], inputs: Iterable[Named], force: bool = False) -> None:
+    """One DataError (exit 2) when an output is an input, the store or another output, or (unless
+    ``force``) an existing SQLite database or a file of another kind than it writes (kind.refuse_kind).
 
-    ``outputs`` and ``inputs``: (label, path) pairs; a None path is skipped (option not given).
-    Each file is looked at once: a batch of thousands of boards is checked in linear time.
+    ``outputs``: (label, path) or (label, path, kind); ``inputs``: (label, path); a None path is
+    skipped (option not given).  Each file is looked at once: a batch of thousands of boards is
+    checked in linear time.
     """
     seen: dict[tuple[object, ...], tuple[str, str | Path]] = {}
     for label, p in inputs:
         if p is not None:
             for k in _keys(p):
                 seen.setdefault(k, (label, p))
-    for label, out in outputs:
+    for label, out, *kind in outputs:
         if out is None or str(out) == "-":
             continue
         keys = _keys(out)
         hit = next((seen[k] for k in keys if k in seen), None)
-        if hit is not None:
+        if hit is not None:  # never allowed, --force or not: the command reads it
             raise DataError(f"{label} {out}: the same file as {hit[0]} {hit[1]}; refusing to overwrite "
                             "it (nothing written); choose another output file")
+        refuse_kind(label, out, kind[0] if kind else None, force)
         for k in keys:
             seen.setdefault(k, (label, out))

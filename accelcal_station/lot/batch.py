@@ -35,6 +35,7 @@ from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES, Calibration, param_vector
 from ..data.loader import load_pose_table
 from ..errors import AccelcalError, DataError
+from ..fileguard.cells import safe_row
 from ..fileguard.identity import refuse_overwrite
 from ..models.fitting import check_model, check_plausible_g, fit_batch, fit_temperature
 from ..models.held import Held
@@ -170,8 +171,11 @@ def sessions_from_files(paths: Sequence[Path], units: str | None = None, counts_
 
 
 def sessions_from_store(store: Store, **filters: Any) -> list[Source]:
-    """(``run N``, Session) of the store's complete runs with poses (Store.sessions_for_batch filters)."""
-    return [(f"run {s.metadata['run_id']}", s) for s in store.sessions_for_batch(**filters)]
+    """(``run N``, Session) of the store's complete runs with poses (Store.sessions_for_batch filters);
+    a damaged run is (``run N``, DataError naming its damaged_row), skipped and counted by the batch."""
+    skipped: list[tuple[str, str]] = []
+    good: list[Source] = [(f"run {s.metadata['run_id']}", s) for s in store.sessions_for_batch(skipped, **filters)]
+    return [*good, *((label, DataError(why)) for label, why in skipped)]
 
 
 def board_serial(session: Session) -> str | None:
@@ -341,7 +345,7 @@ def _file_stem(r: BoardResult) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", stem).strip("._") or "board"
 
 
-def write_calibrations(report: BatchReport, out_dir: str | Path) -> dict[str, Path]:
+def write_calibrations(report: BatchReport, out_dir: str | Path, force: bool = False) -> dict[str, Path]:
     """One calibration JSON per fitted board in ``out_dir`` (atomic writes); source -> path.
 
     Files are named for the board (pose table name, or ``runN-SERIAL``); a name taken
@@ -366,7 +370,8 @@ def write_calibrations(report: BatchReport, out_dir: str | Path) -> dict[str, Pa
         taken.add(stem)
         plan.append((r, d / f"{stem}.json"))
     # a calibration never replaces a board's own input (a pose table named like the JSON it would get)
-    refuse_overwrite([("--out-dir file", p) for _, p in plan], [("input", r.source) for r in report.results])
+    refuse_overwrite([("--out-dir file", p, "json") for _, p in plan], [("input", r.source) for r in report.results],
+                     force)
     out: dict[str, Path] = {}
     for r, path in plan:
         try:
@@ -390,10 +395,11 @@ def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
     mg = lambda v: "" if v is None else repr(v * 1e3)  # noqa: E731
     for r in report.results:
         params = param_vector(r.fitted_calibration.to_dict()).tolist() if r.ok else [""] * len(PARAM_NAMES)
-        w.writerow([r.source, r.serial or "", "" if r.run_id is None else r.run_id, int(r.ok), r.message, r.model,
-                    r.pose_count, mg(r.residual_rms_g), mg(r.residual_max_g), mg(r.crossval_rms_g),
-                    mg(r.crossval_by_orientation_rms_g), "" if r.condition_number is None else repr(r.condition_number),
-                    "; ".join(h.term for h in r.held), *map(str, params)])
+        w.writerow(safe_row([r.source, r.serial or "", "" if r.run_id is None else r.run_id, int(r.ok), r.message,
+                             r.model, r.pose_count, mg(r.residual_rms_g), mg(r.residual_max_g), mg(r.crossval_rms_g),
+                             mg(r.crossval_by_orientation_rms_g),
+                             "" if r.condition_number is None else repr(r.condition_number),
+                             "; ".join(h.term for h in r.held), *map(str, params)]))  # no cell a formula (cells.py)
     text = buf.getvalue()
     if path is not None:
         atomic_write(Path(path), text)

@@ -23,6 +23,7 @@ from ..atomic import atomic_write
 from ..calibration import param_vector
 from ..config.safe_yaml import HostileYAML, safe_load
 from ..errors import AccelcalError, DataError
+from ..fileguard.cells import safe_text
 from ..store.records import RunRecord, iso
 
 if TYPE_CHECKING:
@@ -143,7 +144,9 @@ def lot_html(recs: list[RunRecord], title: str) -> str:
     cals = [r.calibration for r in done if r.calibration and not r.damaged]
     limits = _limits(done)
     n_pass = sum(r.verdict == "PASS" for r in done)
-    e = html.escape
+    def e(text: str) -> str:  # escaped for HTML, and inert in a spreadsheet that imports the page
+        return html.escape(safe_text(text))
+
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{e(title)}</title></head><body>",
              f"<h1>{e(title)}</h1>",
              f"<p>{len(recs)} runs, {len(done)} complete: PASS {n_pass}, FAIL {len(done) - n_pass} "

@@ -32,6 +32,7 @@ from ..store.location import outbox_of
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
+from .recording import record_result, start_args
 from .report import RunReport, fit_figures
 from .settings import StationConfig
 
@@ -177,21 +178,19 @@ class Station:
     def _finish(self, store: Store, run_id: int, session: Session, retries: list[int], rep: RunReport) -> None:
         """Record the finished run: poses, calibration, verdict, NVM outcome and the figures."""
         cfg = self.cfg
-        try:
-            store.finish_run(run_id, session=session, calibration=rep.calibration,
-                             verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
-                             fit_summary={**fit_figures(rep.fit), "reason_codes": codes(rep.reasons),
-                                          "measured": rep.measured,
-                                          "verify_error_max_mg": rep.verify_error_max_mg,
-                                          "offset_trim_lsb": rep.offset_trim_lsb,
-                                          "design": cfg.design, "skipped": rep.skipped,
-                                          "timing": rep.timing, "nvm_verified": rep.nvm_verified},
-                             model=cfg.model, retries=retries, limits=cfg.limits.values)
-        except AccelcalError as e:
-            # never leave the run 'running': record it as an error (finish_run rolled back)
-            store.interrupt_run(run_id, f"could not record the result: {e}", status="error",
-                                nvm_outcome=rep.nvm)
-            raise
+        finish = {"session": session, "calibration": rep.calibration,
+                  "verdict": rep.verdict, "reasons": rep.reasons, "nvm_outcome": rep.nvm,
+                  "fit_summary": {**fit_figures(rep.fit), "reason_codes": codes(rep.reasons),
+                                  "measured": rep.measured,
+                                  "verify_error_max_mg": rep.verify_error_max_mg,
+                                  "offset_trim_lsb": rep.offset_trim_lsb,
+                                  "design": cfg.design, "skipped": rep.skipped,
+                                  "timing": rep.timing, "nvm_verified": rep.nvm_verified},
+                  "model": cfg.model, "retries": retries, "limits": cfg.limits.values}
+        # a store that fails now: the run closed as error where it can, the result kept in the outbox,
+        # and one error saying what was burned and what was recorded (recording.py)
+        record_result(store, run_id, start_args(cfg, rep, self.operator, self.lot, session.counts_per_g), finish,
+                      outbox_of(cfg.raw))
 
     def _record_unreachable(self, store: Store, err: AccelcalError) -> None:
         """A device that does not answer still leaves a record: status error, with the reason."""

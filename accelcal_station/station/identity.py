@@ -13,6 +13,9 @@ from ..fixtures.operator_ui import OperatorUI
 
 IDENTITY_KEYS = ("scan_serial", "require_operator")
 SERIAL_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._:/-]{0,63}")
+# a person's name: letters of any script, digits, space . ' -; starting with a letter or digit (never
+# =, +, -, @ that a spreadsheet runs, never a control character)
+NAME_RE = re.compile(r"[^\W_][^\W_ .'-]*(?:[ .'-]+[^\W_]+)*[.]?")
 
 
 def identity_options(raw: dict[str, Any]) -> dict[str, bool]:
@@ -27,6 +30,24 @@ def check_serial(text: str, where: str) -> str:
         raise DataError(f"{where}: {s[:40]!r} is not a serial number; allowed: 1-64 letters, digits and . _ : / -, "
                         "starting with a letter or digit")
     return s
+
+
+def check_name(text: str, where: str) -> str:
+    """An operator name as recorded: 1-64 letters (any script), digits, spaces and . ' -, starting
+    with a letter or digit; else one DataError naming what is allowed."""
+    s = " ".join(text.split())
+    if len(s) > 64 or not NAME_RE.fullmatch(s):
+        raise DataError(f"{where}: {s[:40]!r} is not a name; allowed: 1-64 letters, digits, spaces and . ' -, "
+                        "starting with a letter or digit")
+    return s
+
+
+def check_run_labels(operator: str | None, lot: str | None, station_id: str | None) -> tuple[str | None, str | None]:
+    """--operator (check_name), --lot and the config's station.id (check_serial) as a run records them."""
+    if station_id is not None:
+        check_serial(station_id, "station.id")
+    return (None if operator is None or not operator.strip() else check_name(operator, "--operator"),
+            None if lot is None or not lot.strip() else check_serial(lot, "--lot"))
 
 
 class RunConfig(Protocol):

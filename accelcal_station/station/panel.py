@@ -44,6 +44,7 @@ from .board import Check, Station
 from .capture import GatedCapture, WrongPose, gated_capture
 from .jig_pose import JigPoseEstimate, estimate_jig_poses
 from .panel_config import group_of, panel_sections
+from .recording import record_result, start_args
 from .report import RunReport
 from .settings import StationConfig
 
@@ -372,12 +373,15 @@ class PanelStation:
         thermal = getattr(rep, "thermal", None)  # a thermal plan's report (thermal_panel.py)
         if thermal is not None:
             summary["thermal"] = thermal
-        try:
-            store.finish_run(rep.run_id, session=session, calibration=rep.calibration, verdict=rep.verdict,
-                             reasons=rep.reasons, nvm_outcome=rep.nvm, fit_summary=summary,
-                             model=self.cfg.model, retries=b.retries, limits=self.cfg.limits.values)
+        finish = {"session": session, "calibration": rep.calibration, "verdict": rep.verdict,
+                  "reasons": list(rep.reasons), "nvm_outcome": rep.nvm, "fit_summary": summary,
+                  "model": self.cfg.model, "retries": b.retries,
+                  "limits": self.cfg.limits.values}
+        start = start_args(self.cfg, rep, self.operator, self.lot, session.counts_per_g, panel_id=self.panel_id)
+        start["device_serial"] = rep.serial or b.path
+        try:  # a store that fails: kept in the outbox, the reason says what was burned and recorded
+            record_result(store, rep.run_id, start, finish, outbox_of(self.cfg.raw))
         except AccelcalError as e:
-            store.interrupt_run(rep.run_id, f"could not record the result: {e}", status="error", nvm_outcome=rep.nvm)
             rep.verdict = "FAIL"
             rep.reasons.append(Reason("store", str(e)))
 

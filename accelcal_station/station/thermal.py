@@ -39,6 +39,7 @@ from ..store.location import outbox_of
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import Station
+from .recording import record_result, start_args
 from .report import RunReport
 from .settings import StationConfig
 from .thermal_plan import ChamberFault, ThermalPlan, WallClock, soak_until
@@ -166,13 +167,16 @@ class ThermalStation(Station):
 
     def _record_run(self, store: Store, run_id: int, session: Session, retries: list[int],
                     rep: ThermalRunReport) -> None:
-        """Record the finished run with the plan's summary."""
-        store.finish_run(run_id, session=session, calibration=rep.calibration,
-                         verdict=rep.verdict, reasons=rep.reasons, nvm_outcome=rep.nvm,
-                         fit_summary={"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
-                                      "design": self.cfg.design, "timing": rep.timing, "thermal": rep.thermal,
-                                      "nvm_verified": rep.nvm_verified},
-                         model=self.cfg.model, retries=retries, limits=self.cfg.limits.values)
+        """Record the finished run with the plan's summary (or keep it in the outbox: recording.py)."""
+        finish = {"session": session, "calibration": rep.calibration,
+                  "verdict": rep.verdict, "reasons": rep.reasons, "nvm_outcome": rep.nvm,
+                  "fit_summary": {"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
+                                  "design": self.cfg.design, "timing": rep.timing, "thermal": rep.thermal,
+                                  "nvm_verified": rep.nvm_verified},
+                  "model": self.cfg.model, "retries": retries,
+                  "limits": self.cfg.limits.values}
+        record_result(store, run_id, start_args(self.cfg, rep, self.operator, self.lot, session.counts_per_g),
+                      finish, outbox_of(self.cfg.raw))
 
     def _where(self) -> str:
         if not self.results:

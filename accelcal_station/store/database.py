@@ -18,6 +18,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeGuard
 
+from .celltext import decode_text
+
 if TYPE_CHECKING:
     from sqlalchemy import Connection, CursorResult, Engine, Executable, RootTransaction
 
@@ -45,6 +47,7 @@ def _sqlite_events(engine: Engine) -> None:
     @event.listens_for(engine, "connect")
     def _connect(dbapi_conn: Any, _rec: Any) -> None:
         dbapi_conn.isolation_level = None
+        dbapi_conn.text_factory = decode_text  # a bad byte damages its cell, not the query (celltext.py)
         dbapi_conn.execute("PRAGMA foreign_keys = ON")
 
     @event.listens_for(engine, "begin")
@@ -63,7 +66,9 @@ class Database:
     engine: Engine
     conn: Connection
 
-    def __init__(self, target: str | Path, timeout_s: float = 10.0, create: bool = True):
+    def __init__(self, target: str | Path, timeout_s: float = 10.0, create: bool = True, read_only: bool = False):
+        """``read_only``: an SQLite file opened ``mode=ro`` (SQLite refuses every write; nothing, not
+        even a journal, is created), a PostgreSQL session set ``default_transaction_read_only``."""
         from sqlalchemy import create_engine
         from sqlalchemy.pool import NullPool
 
@@ -84,11 +89,19 @@ class Database:
             self.dialect = "sqlite"
             self.path = Path(target)
             self.name = str(self.path)
-            if not create and not self.path.is_file():
+            if (read_only or not create) and not self.path.is_file():
                 raise FileNotFoundError(f"{self.path}: no results store there")
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._url = "sqlite:///" + str(self.path)
-        args = {"timeout": timeout_s} if self.dialect == "sqlite" else {"connect_timeout": max(1, int(timeout_s))}
+            if read_only:  # SQLite's URI form; the path percent-quoted so '?' or '#' in a name stay the name
+                from urllib.parse import quote
+
+                self._url = f"sqlite:///file:{quote(str(self.path.resolve()))}?mode=ro&uri=true"
+            else:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self._url = "sqlite:///" + str(self.path)
+        args: dict[str, Any] = {"timeout": timeout_s} if self.dialect == "sqlite" else \
+            {"connect_timeout": max(1, int(timeout_s))}
+        if read_only and self.dialect == "postgresql":
+            args["options"] = "-c default_transaction_read_only=on"
         self.engine = create_engine(self._url, poolclass=NullPool, connect_args=args)
         if self.dialect == "sqlite":
             _sqlite_events(self.engine)

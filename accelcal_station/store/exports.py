@@ -20,6 +20,8 @@ from ..acceptance.reasons import codes
 from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES, param_vector
 from ..errors import DataError
+from ..fileguard.cells import safe_row
+from .liveness import STALE
 from .records import RunRecord, StoreError, iso, reasons_of
 from .rowcheck import DamagedRow
 from .schema import POSE_COLS, STATUSES
@@ -81,7 +83,7 @@ def csv_table(kind: str) -> Callable[[Sequence[RunRecord]], str]:
 
     def text(recs: Sequence[RunRecord]) -> str:
         buf = io.StringIO()
-        csv.writer(buf, lineterminator="\n").writerows(rows(recs))
+        csv.writer(buf, lineterminator="\n").writerows(safe_row(r) for r in rows(recs))  # no cell a formula
         return buf.getvalue()
 
     return text
@@ -133,7 +135,7 @@ def summarize(checked: Sequence[tuple[dict[str, Any], list[DamagedRow]]]) -> dic
     starts = [r["started_at"] for r in rows if r["started_at"] is not None]
     return {
         "runs": len(rows),
-        "by_status": {s: by_status.get(s, 0) for s in STATUSES},
+        "by_status": {s: by_status.get(s, 0) for s in (*STATUSES, STALE)},  # stale: running, process gone
         "pass": verdicts["PASS"], "fail": verdicts["FAIL"],
         "pass_rate": verdicts["PASS"] / decided if decided else None,
         "failure_reasons": dict(fail_reasons.most_common()),

@@ -29,6 +29,10 @@ class StoreError(DataError):
     """The results store cannot be opened, read or written."""
 
 
+class RunNotFound(StoreError):
+    """No run of that id in the store (the store itself was read)."""
+
+
 class StoreUnreachable(StoreError):
     """The store's database server cannot be reached, or the connection to it was lost."""
 

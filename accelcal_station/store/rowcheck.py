@@ -28,6 +28,7 @@ import numpy as np
 from ..acceptance.reasons import Reason
 from ..calibration import Calibration, param_vector
 from ..errors import DataError
+from .celltext import BadText
 from .schema import STATUSES, VERDICTS
 
 JSON_MAX_DEPTH = 64
@@ -185,7 +186,7 @@ def _any_json(v: Any) -> Any:
     return parse_json(v)
 
 
-_ID = _int(1, 2**63 - 1)
+_ID = _int(-(2**63), 2**63 - 1)  # any 64-bit id: the outbox numbers runs not yet on the server below 0
 _COUNT = _int(0, 2**62)
 _OPT_TEXT = ("status_reason", "device_serial", "chip", "station_id", "operator", "lot", "config_hash",
              "config_text", "model", "units", "nvm_status", "host", "panel_id")
@@ -224,6 +225,8 @@ def check_row(table: str, row: Mapping[str, Any]) -> tuple[dict[str, Any], list[
             continue
         v = row[col]
         try:
+            if isinstance(v, BadText):
+                raise ValueError(v.problem)
             if v is None:
                 if required:
                     raise ValueError("empty where a value is required")

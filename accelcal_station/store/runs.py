@@ -30,10 +30,21 @@ from ..acceptance.reasons import Reason
 from ..calibration import Calibration
 from ..errors import DataError
 from ..session import Session
-from . import exports, schema
+from . import exports, integrity, schema
 from .database import Database, describe_target, is_url
+from .liveness import STALE, mark_stale, stale_reason
 from .location import store_identity
-from .records import RunRecord, StoreError, StoreUnreachable, build_record, opt, run_summary, timestamp, to_json
+from .records import (
+    RunNotFound,
+    RunRecord,
+    StoreError,
+    StoreUnreachable,
+    build_record,
+    opt,
+    run_summary,
+    timestamp,
+    to_json,
+)
 from .rowcheck import DamagedRow, check_row
 
 if TYPE_CHECKING:
@@ -86,12 +97,14 @@ class Store:
     password (PostgreSQL), as messages name it.
     """
 
-    def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True, upgrade: bool = True):
+    def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True, upgrade: bool = True,
+                 read_only: bool = False):
         _load_sql()
         SQLError = _sqlerror()
         name = describe_target(path)
         try:
-            self._db = Database(str(path) if is_url(path) else Path(path), timeout_s, create)
+            self._db = Database(str(path) if is_url(path) else Path(path), timeout_s, create and not read_only,
+                                read_only)
         except FileNotFoundError:
             raise StoreError(f"{name}: no results store there") from None
         except ValueError as e:
@@ -102,7 +115,7 @@ class Store:
         db_path = self._db.path  # set for SQLite only
         self.path: Path | str = db_path if db_path is not None else self._db.name
         try:
-            self._migrate(create, upgrade)
+            self._migrate(create and not read_only, upgrade and not read_only)
         except SQLError as e:
             self._db.close()
             raise store_error(e, f"{self.path}: not a usable results store ({_msg(e)})", self._server) from None
@@ -147,7 +160,7 @@ class Store:
             if self._db.in_transaction:
                 self._db.rollback()
             if isinstance(e, SQLError):
-                why = f"{self.path}: cannot {what} ({_msg(e)}); nothing was recorded"
+                why = f"{self.path}: cannot {what} ({_msg(e)}); that write was rolled back"
                 raise store_error(e, why, self._server) from None
             raise
 
@@ -188,7 +201,7 @@ class Store:
             return
         if not upgrade:
             raise StoreError(f"{self.path}: results store schema version {version}, this station reads {target}; "
-                             "any other `accelcal report` command upgrades it (nothing was written)")
+                             f"`accelcal report list --db {self.path}` upgrades it (nothing was written)")
         with self._tx("upgrade the schema") as db:
             migrate.upgrade(db, str(self.path), target)
 
@@ -320,17 +333,18 @@ class Store:
     def mark_stale_interrupted(self, max_age_s: float | None = None) -> list[int]:
         """Mark ``running`` runs whose station process is gone as interrupted; returns their ids.
 
-        A run is stale when it was started on this host by a process that no longer
-        exists, or (any host) when ``max_age_s`` is given and it started longer ago.
+        A run is stale when its station process on this host is gone (liveness.stale_reason: the
+        same rule every read applies), or (any host) when ``max_age_s`` is given and it started
+        longer ago.
         """
-        host, now = socket.gethostname(), _time.time()
+        now = _time.time()
         stale: list[int] = []
         with self._tx("mark stale runs") as db:
-            for r in db.rows(select(runs.c.id, runs.c.host, runs.c.pid, runs.c.started_at)
+            for r in db.rows(select(runs.c.id, runs.c.status, runs.c.host, runs.c.pid, runs.c.started_at)
                              .where(runs.c.status == "running")):
                 old = max_age_s is not None and isinstance(r["started_at"], (int, float)) \
                     and now - r["started_at"] > max_age_s
-                if old or (r["host"] == host and isinstance(r["pid"], int) and r["pid"] > 0 and not _alive(r["pid"])):
+                if old or stale_reason(r) is not None:
                     stale.append(r["id"])
             if stale:
                 db.execute(update(runs).where(runs.c.id.in_(stale)).values(
@@ -357,14 +371,21 @@ class Store:
         return clauses
 
     def _runs(self, filters: dict[str, Any], limit: int | None = None) -> list[tuple[dict[str, Any], list[DamagedRow]]]:
-        """The matching ``runs`` rows, each checked (rowcheck.check_row) with what is damaged in it."""
+        """The matching ``runs`` rows, each checked (rowcheck.check_row) with what is damaged in it.
+        Status ``running`` or ``stale`` (both stored as running) is told apart as each row is read."""
+        wanted = filters.get("status")
+        live = wanted in ("running", STALE)
+        if live:
+            filters = {**filters, "status": "running"}
         stmt = select(runs).where(*self._where(**filters)).order_by(runs.c.started_at, runs.c.id)
         if limit is not None:
             stmt = stmt.limit(int(limit))
         try:
-            return [check_row("runs", r) for r in self._db.rows(stmt)]
+            checked = [check_row("runs", r) for r in self._db.rows(stmt)]
         except _sqlerror() as e:
             raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
+        out = [(mark_stale(r), damage) for r, damage in checked]  # running, its process gone: stale
+        return [x for x in out if x[0]["status"] == wanted] if live else out
 
     def list_runs(self, limit: int | None = None, **filters: Any) -> list[dict[str, Any]]:
         """Run summaries (no poses) matching filters: device, station, lot, operator, since,
@@ -386,7 +407,7 @@ class Store:
         with self._snapshot():
             rows = self._runs({"run_ids": [run_id]})
             if not rows:
-                raise StoreError(f"{self.path}: no run {run_id}")
+                raise RunNotFound(f"{self.path}: no run {run_id}")
             return self._record(*rows[0])
 
     def runs(self, **filters: Any) -> list[RunRecord]:
@@ -394,10 +415,24 @@ class Store:
         with self._snapshot():
             return [self._record(r, damage) for r, damage in self._runs(filters)]
 
-    def sessions_for_batch(self, **filters: Any) -> list[Session]:
-        """Sessions of complete runs with poses (for batch recalibration of a lot)."""
-        filters.setdefault("status", "complete")
-        return [rec.session() for rec in self.runs(**filters) if rec.poses and not rec.damage]
+    def sessions_for_batch(self, skipped: list[tuple[str, str]] | None = None, **filters: Any) -> list[Session]:
+        """Sessions of complete runs with poses (for batch recalibration of a lot).
+
+        A matching run with a damaged value is never silently left out: it is appended to
+        ``skipped`` as ("run ID", "damaged_row: ...") whatever its status reads (a damaged status
+        included), so the caller can name and count it.
+        """
+        status = filters.pop("status", "complete")
+        out: list[Session] = []
+        for rec in self.runs(**filters):
+            if rec.damage:
+                if skipped is not None:
+                    skipped.append((f"run {rec.id if rec.id is not None else '?'}", "damaged_row: "
+                                    + "; ".join(str(d) for d in rec.damage[:3])
+                                    + (f" (+{len(rec.damage) - 3} more)" if len(rec.damage) > 3 else "")))
+            elif rec.poses and rec.status == status:
+                out.append(rec.session())
+        return out
 
     def replay_run(self, rec: RunRecord, server_run_id: int | None = None, note: str = "") -> tuple[int, bool]:
         """Write a run recorded in another store (the outbox) into this one, once (replay.py):
@@ -406,13 +441,12 @@ class Store:
             return replay.replay_run(db, rec, server_run_id, note)
 
     def check(self) -> list[DamagedRow]:
-        """Every damaged value of every row (runs, poses, events; rowcheck.check_row); nothing is written."""
-        found: list[DamagedRow] = []
-        with self._snapshot():
-            for table in (runs, poses, events):
-                for row in self._db.execute(select(table)).mappings():
-                    found += check_row(table.name, dict(row))[1]
-        return found
+        """Every damaged value of every row (runs, poses, events; integrity.check_rows); nothing is written."""
+        return integrity.check_rows(self._db, (runs, poses, events))
+
+    def integrity(self) -> list[str]:
+        """What SQLite's integrity check finds wrong in the file (integrity.file_problems); [] on PostgreSQL."""
+        return [] if self._server else integrity.file_problems(self._db)
 
     # -- exports and summaries ----------------------------------------------------------
     def export_json(self, path: str | Path | None = None, **filters: Any) -> list[dict[str, Any]]:
@@ -438,15 +472,4 @@ class Store:
         (exports.summarize)."""
         with self._snapshot():
             return exports.summarize(self._runs(filters))
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(int(pid), 0)
-    except (ProcessLookupError, OverflowError, ValueError):  # gone, or not a pid at all (a damaged row)
-        return False
-    except PermissionError:
-        return True
-    return True
-
 

@@ -37,10 +37,14 @@ def _chunk(sessions: list[Session]) -> LotChunk:
 
 
 def store_stats(db: str, limits: Limits | None, reservoir: int = 50_000, chunk_boards: int = 4096,
-                **filters: Any) -> tuple[LotStats, float | None]:
-    """One pass over the store's matching runs; returns the stats and the runs' input units per g."""
+                skips: list[tuple[str, str]] | None = None, **filters: Any) -> tuple[LotStats, float | None]:
+    """One pass over the store's matching runs; returns the stats and the runs' input units per g.
+    A damaged run is appended to ``skips`` ("run ID", "damaged_row: ...") and counted in ``skipped``."""
+    damaged: list[tuple[str, str]] = []
     with Store(store_target(Path(db) if "://" not in db else db), create=False) as st:
-        sessions = st.sessions_for_batch(**{k: v for k, v in filters.items() if v is not None})
+        sessions = st.sessions_for_batch(damaged, **{k: v for k, v in filters.items() if v is not None})
+    if skips is not None:
+        skips += damaged
     sessions = [s for s in sessions if s.units == "counts" and s.counts_per_g]
     if not sessions:
         raise DataError(f"{db}: no complete runs with poses in counts match (try without --since/--station)")
@@ -62,5 +66,5 @@ def store_stats(db: str, limits: Limits | None, reservoir: int = 50_000, chunk_b
         yield from it
 
     stats = collect(all_chunks(), model, per_g, "counts", limits, reservoir)
-    stats.skipped += len(sessions) - len(same)  # another pose count or scale than the first run's
+    stats.skipped += len(sessions) - len(same) + len(damaged)  # another pose count or scale; damaged runs
     return stats, per_g

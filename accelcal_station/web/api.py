@@ -23,7 +23,7 @@ from fastapi.responses import StreamingResponse
 from pydantic import BaseModel
 
 from ..errors import DataError
-from ..store.records import timestamp
+from ..store.records import RunNotFound, timestamp
 from ..store.rowcheck import T_MAX_S
 from . import queries
 from .errors import ERROR_RESPONSES, ApiError
@@ -193,7 +193,7 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
                   serial: str | None = Query(None, max_length=TEXT_MAX),
                   verdict: str | None = Query(None, pattern="^(PASS|FAIL)$"),
                   lot: str | None = Query(None, max_length=TEXT_MAX),
-                  status: str | None = Query(None, pattern="^(running|complete|interrupted|error)$"),
+                  status: str | None = Query(None, pattern="^(running|complete|interrupted|error|stale)$"),
                   order: str = Query("desc", pattern="^(asc|desc)$", description="by id: desc newest first"),
                   cursor: str | None = Query(None, max_length=200, description="next_cursor of the previous page"),
                   limit: int = Query(100, ge=1, le=1000),
@@ -215,7 +215,7 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
         with open_store(settings) as st:
             try:
                 rec = st.get_run(run_id)
-            except DataError:
+            except RunNotFound:  # a store that cannot be read is 503 (errors.py), not a missing run
                 raise ApiError(404, "not_found", f"no run {run_id}") from None
             one = queries.summaries(st, [run_id])
         d = rec.to_dict()

@@ -1,16 +1,24 @@
 """The web layer's errors: every one answered as JSON ``{code, message}`` (``ErrorBody``), and
-declared so in the OpenAPI schema of every endpoint (``ERROR_RESPONSES``)."""
+declared so in the OpenAPI schema of every endpoint (``ERROR_RESPONSES``).
+
+A store the server cannot read (a table dropped, a column renamed, a damaged page, a schema
+to migrate) is ``503 store_unreadable`` naming the damage: JSON under /api, one short HTML
+page elsewhere; never a 500 with a traceback.
+"""
 from __future__ import annotations
 
+import html
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import HTMLResponse, JSONResponse, Response
 from pydantic import BaseModel
+from sqlalchemy.exc import SQLAlchemyError
 from starlette.exceptions import HTTPException
 
 from ..errors import AccelcalError
+from ..store.records import StoreError
 
 
 class ErrorBody(BaseModel):
@@ -39,7 +47,33 @@ def error_response(status: int, code: str, message: str, headers: dict[str, str]
     return JSONResponse({"code": code, "message": message}, status_code=status, headers=headers)
 
 
+def _driver_line(e: BaseException) -> str:
+    """The database driver's own first line (SQLAlchemy wraps it with the statement)."""
+    orig = getattr(e, "orig", None)
+    return (str(orig if orig is not None else e).strip().splitlines() or [type(e).__name__])[0]
+
+
+def store_unreadable(request: Request, message: str) -> Response:
+    """503 naming why the store cannot be read: JSON for the API, a one-paragraph page for a browser."""
+    if request.url.path.startswith("/api/") or "text/html" not in request.headers.get("accept", "text/html"):
+        return error_response(503, "store_unreadable", message)
+    body = (f"<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>Store unreadable</title>"
+            f"</head><body><h1>The results store cannot be read</h1><p>{html.escape(message)}</p></body></html>")
+    return HTMLResponse(body, status_code=503)
+
+
 def install_errors(app: FastAPI) -> None:
+    @app.exception_handler(StoreError)
+    async def store_error(r: Request, e: StoreError) -> Response:
+        return store_unreadable(r, str(e))
+
+    @app.exception_handler(SQLAlchemyError)
+    async def store_damaged(r: Request, e: SQLAlchemyError) -> Response:
+        store = getattr(r.app.state, "settings", None)
+        where = f"{store.store}: " if store is not None else ""
+        return store_unreadable(r, f"{where}cannot read the results store ({_driver_line(e)}); "
+                                   "`accelcal report check` names the damage")
+
     @app.exception_handler(ApiError)
     async def api_error(_r: Request, e: ApiError) -> JSONResponse:
         return error_response(e.status, e.code, e.message)

@@ -16,6 +16,7 @@ from typing import Any
 from ..acceptance.reasons import codes
 from ..acceptance.rules import DEFAULT_LIMITS
 from ..config.safe_yaml import HostileYAML, safe_load
+from ..store.liveness import mark_stale
 from ..store.records import load_or, stored_reasons
 from ..store.rowcheck import JSON_MAX_DEPTH, SPECS, check_row
 from ..store.runs import Store
@@ -24,7 +25,7 @@ SHIFT_S = 8 * 3600.0
 SHIFT0_S = 6 * 3600.0  # shift A starts at 06:00 UTC
 WINDOW_S = 24 * 3600.0  # the line page's yields: the day before the newest run
 SUMMARY_COLS = ("id, started_at, finished_at, status, status_reason, device_serial, chip, station_id, operator, "
-                "lot, model, verdict, reasons, nvm_status, fit_summary, limits, config_hash")
+                "lot, model, verdict, reasons, nvm_status, fit_summary, limits, config_hash, host, pid")
 
 
 # runs columns checked on every read as the store's own reads check them (store/rowcheck.py); the
@@ -57,6 +58,7 @@ def select(store: Store, sql: str, **params: Any) -> list[dict[str, Any]]:
             row.update(checked)
             if damage:
                 row["damage"] = [d.to_dict() for d in damage]
+            mark_stale(row)  # running, its station process gone: stale (store/liveness.py)
         out.append(row)
     return out
 
@@ -148,7 +150,7 @@ def summary(row: dict[str, Any]) -> dict[str, Any]:
     loaded = quick_json(row.get("fit_summary"), {})
     fit: dict[str, Any] = loaded if isinstance(loaded, dict) else {}
     reasons = stored_reasons(row.get("reasons"))
-    out = {k: row[k] for k in row if k not in ("reasons", "fit_summary", "config_hash")}
+    out = {k: row[k] for k in row if k not in ("reasons", "fit_summary", "config_hash", "host", "pid")}
     if "limits_source" not in out:  # not filled: what the row itself holds
         lim = stored_limits(row.get("limits"))
         out.update(limits=lim, limits_source="stored" if lim is not None else None)

@@ -23,6 +23,7 @@ class WebSettings:
 
 @contextmanager
 def open_store(settings: WebSettings) -> Iterator[Store]:
-    """The store for one request, read-only (never created by a reader)."""
-    with Store(settings.store, create=False) as st:
+    """The store for one request, read-only: never created, migrated or written (SQLite opened
+    ``mode=ro``; a store at another schema version is one error naming the command that upgrades it)."""
+    with Store(settings.store, create=False, upgrade=False, read_only=True) as st:
         yield st

@@ -1,0 +1,75 @@
+"""Whether a ``running`` run's station process is still there: a run whose process is gone reads
+``stale``, so a run killed with SIGKILL (or a power cut) is not shown as running until the next
+run on that host marks it interrupted (Store.mark_stale_interrupted).
+
+A run row holds the host name and pid of the process that started it (Store.start_run).  On
+the host that wrote it, the run is stale when that pid does not exist, or when the process that
+has the pid now started after the run did (the pid was reused; Linux: /proc/PID/stat field 22,
+clock ticks after boot, plus /proc/stat btime).  A run started on another host cannot be
+judged from here and keeps its stored status.  Nothing is written: reading never changes the store.
+"""
+from __future__ import annotations
+
+import os
+import socket
+from collections.abc import Mapping
+from functools import cache
+from typing import Any
+
+STALE = "stale"
+PID_START_SLACK_S = 2.0  # /proc start times are whole clock ticks and btime whole seconds
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists (one we may not signal exists too)."""
+    try:
+        os.kill(int(pid), 0)
+    except (ProcessLookupError, OverflowError, ValueError):  # gone, or not a pid at all (a damaged row)
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+@cache
+def _boot_time_s() -> float | None:
+    try:
+        with open("/proc/stat") as f:
+            return next(float(ln.split()[1]) for ln in f if ln.startswith("btime "))
+    except (OSError, StopIteration, ValueError, IndexError):
+        return None
+
+
+def process_started_at(pid: int) -> float | None:
+    """Unix time the process ``pid`` started (Linux /proc); None where it cannot be told."""
+    boot = _boot_time_s()
+    try:
+        with open(f"/proc/{int(pid)}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()  # the command name may hold spaces and ')'
+        return None if boot is None else boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def stale_reason(row: Mapping[str, Any], host: str | None = None) -> str | None:
+    """Why the checked ``runs`` row ``row`` (status running) has no live station process; None when it
+    may be alive or cannot be judged here (module doc)."""
+    pid, started = row.get("pid"), row.get("started_at")
+    if row.get("status") != "running" or row.get("host") != (host or socket.gethostname()):
+        return None
+    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
+        return None
+    if not pid_alive(pid):
+        return f"station process {pid} on {row['host']} is gone"
+    t0 = process_started_at(pid)
+    if t0 is not None and isinstance(started, (int, float)) and t0 > started + PID_START_SLACK_S:
+        return f"station process {pid} on {row['host']} is gone (the pid now belongs to a later process)"
+    return None
+
+
+def mark_stale(row: dict[str, Any]) -> dict[str, Any]:
+    """``row`` with status ``stale`` and the reason when its station process is gone (stale_reason)."""
+    why = stale_reason(row)
+    if why is not None:
+        row["status"], row["status_reason"] = STALE, why
+    return row
