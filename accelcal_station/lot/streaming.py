@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..acceptance.reasons import Reason
-from ..acceptance.rules import FitFigures, Limits, judge_all
+from ..acceptance.rules import FitFigures, Limits, limit_reasons, measure_all
 from ..data.lotfile import LotChunk, board_arrays, lot_scale, open_lot
 from ..data.results_table import ResultsWriter
 from ..errors import AccelcalError, DataError
@@ -146,8 +146,12 @@ def judge_chunk(res: dict[str, Any], limits: Limits | None, model: str) -> tuple
         sub = {k: res[k][fitted] for k in ("W", "V", "Gamma", "residual_rms_g", "residual_max_g",
                                            "crossval_rms_g", "stderr_V_max", "stderr_W_max", "distinct_poses")}
         sub["held"] = [res["held"][b] for b in fitted]
-        for b, v in zip(fitted, judge_all(figures(sub, model), limits), strict=True):
-            reasons[b] = list(v.reasons)
+        figs = figures(sub, model)
+        # the verdict's reasons over the whole chunk (limit_reasons, as judge_all gives them),
+        # with no per-board Verdict built: a lot row keeps only the label and the reasons
+        failing = limit_reasons(measure_all(figs), np.asarray(figs.distinct_poses, dtype=int), model, limits)
+        for k in np.flatnonzero([bool(r) for r in failing]):
+            reasons[fitted[k]] = failing[k]
     return ["FAIL" if r else "PASS" for r in reasons], reasons
 
 

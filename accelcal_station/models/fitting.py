@@ -90,7 +90,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     if model != "9" and references is not None:
         # a board with an absurd reading (1e308) is fitted on its references instead, so it
         # cannot overflow the stack, and is then refused with the reading named
-        bad = np.array([bool(w) for w in absurd_readings(gf)])
+        bad = absurd_readings(gf).mask
         if bad.any():
             ref = np.broadcast_to(np.asarray(references, dtype=float), gf.shape)
             gf_fit = np.where(bad[:, None, None], ref, gf)
@@ -132,7 +132,7 @@ def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, mode
                                      (rows, as15)])
     else:
         res = fit_stacked(gf, _references(references, x, model), model, nz)
-    res.held = [list(h) for h in plan.held]
+    res.held = plan.held  # the plan's own (D,) lists, made for this fit
     return res
 
 
@@ -148,17 +148,19 @@ def _references(references: ArrayLike | None, x: np.ndarray, model: str) -> np.n
 
 def _refuse_absurd(res: BatchFit, gf: np.ndarray) -> None:
     """Mark boards whose readings or coefficients are physically absurd as not fitted
-    (models/sanity.py): a degenerate calibration is never returned as a result."""
+    (models/sanity.py, over the whole stack): a degenerate calibration is never returned."""
     if res.model == "9":  # raw readings may carry any offset (unsigned counts): judge the output
-        why = absurd_norm_model(res.W, res.norm_error_g)
+        checks = [absurd_norm_model(res.W, res.norm_error_g)]
     else:
-        why = [a or b for a, b in zip(absurd_readings(gf), absurd_coefficients(res.W, res.V), strict=True)]
-    for d, w in enumerate(why):
-        if w and res.ok[d]:
+        checks = [absurd_readings(gf), absurd_coefficients(res.W, res.V)]
+    taken = np.zeros(len(res), bool)
+    for check in checks:  # the first check that refuses a board names its reason
+        for d in np.flatnonzero(check.mask & ~taken & res.ok):
             res.ok[d] = False
-            res.messages[d] = w
+            res.messages[d] = check.why(d)
             if res.status:
                 res.status[d] = "failed"
+        taken |= check.mask
 
 
 def fit(readings: ArrayLike, references: ArrayLike | None = None, model: str | int = "12", *, units: str = "g",
