@@ -70,7 +70,7 @@ class Refusal:
     mask: np.ndarray  # (D,) bool
     _words: Callable[[int], str]
 
-    def why(self, d: int) -> str:
+    def why(self, d: int | np.integer) -> str:
         """'' or the reason board ``d`` is refused."""
         return self._words(int(d)) if self.mask[d] else ""
 
@@ -129,7 +129,7 @@ def condition_numbers(W: np.ndarray) -> np.ndarray:
     return np.where(finite, cond, np.inf)
 
 
-def _first_code(*conds: np.ndarray) -> np.ndarray:
+def _first_code(*conds: np.ndarray | np.bool_) -> np.ndarray:
     """(D,) 0 where no condition holds, else 1 + the index of the first that does."""
     stack = np.stack(conds)  # (k, D)
     return np.where(stack.any(axis=0), np.argmax(stack, axis=0) + 1, 0)
