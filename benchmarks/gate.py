@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import reference_lot  # noqa: E402 - the yardstick beside this file
+import reference_lot  # the yardstick beside this file
 
 # floor: the lowest ratio (reference time / project time) CI accepts, with the figure it was set
 # from (median ratio of `python benchmarks/gate.py` on the 2-core development machine, shared with
@@ -143,7 +143,8 @@ def batch_gates(boards: int, reps: int) -> list[Gate]:
         s = fit_stacked(x, r, model)
         assert np.array_equal(b.ok, s.ok) and np.allclose(b.W, s.W, rtol=0, atol=1e-12), \
             f"model {model}: fit_batch and fit_stacked disagree on these boards"
-        tp, tr = interleaved(lambda: fit_batch(x, r, model), lambda: fit_stacked(x, r, model), reps)
+        tp, tr = interleaved(lambda x=x, r=r, m=model: fit_batch(x, r, m),
+                             lambda x=x, r=r, m=model: fit_stacked(x, r, m), reps)
         out.append(Gate(f"batch-{model}", tp, tr, f"{boards} boards: fit_batch {boards / tp:,.0f} fits/s, "
                                                   f"fit_stacked {boards / tr:,.0f} fits/s; {int(b.ok.sum())} fitted"))
     return out
