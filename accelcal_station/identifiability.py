@@ -68,9 +68,19 @@ class Identifiability:
 
 def _centre(gf: np.ndarray) -> np.ndarray:
     """Directions are taken about 0 unless the data sit far off it (unsigned counts)."""
-    mid = 0.5 * (gf.max(axis=-2) + gf.min(axis=-2))
-    far = np.linalg.norm(mid, axis=-1, keepdims=True) > 0.5
+    if gf.ndim == 3 and gf.shape[1] <= SMALL_P:  # a few poses: P - 1 elementwise steps beat a short-axis reduction
+        hi, lo = gf[:, 0].copy(), gf[:, 0].copy()
+        for p in range(1, gf.shape[1]):
+            np.maximum(hi, gf[:, p], out=hi)
+            np.minimum(lo, gf[:, p], out=lo)
+        mid = 0.5 * (hi + lo)
+    else:
+        mid = 0.5 * (gf.max(axis=-2) + gf.min(axis=-2))
+    far = np.sqrt(np.einsum("...k,...k->...", mid, mid))[..., None] > 0.5
     return np.where(far, mid, 0.0)
+
+
+SMALL_P = 32  # poses per board up to which the P x P cosines of a block of boards are formed at once
 
 
 BLOCK_ELEMS = 1 << 19  # pose-pair cosines held at once (4 MB of float64): memory stays linear in P
@@ -83,9 +93,17 @@ def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG) -> n
     rows at a time, so memory is O(D P), not O(D P^2) (a 100,000-pose table); a large table
     compares each pose only with those in neighbouring cubes of the chord 2 sin(tol/2)."""
     x = gf - _centre(gf)[..., None, :]
-    u = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
+    u = x / np.maximum(np.sqrt(np.einsum("...k,...k->...", x, x)), 1e-12)[..., None]
     D, P = u.shape[:2]
     cos = math.cos(math.radians(tol_deg))
+    if P <= SMALL_P:  # whole P x P blocks of boards: a few large numpy calls, not one per row block
+        earlier = np.tri(P, k=-1, dtype=bool)  # [p, q]: q < p
+        first = np.empty((D, P), dtype=bool)
+        nb = max(1, BLOCK_ELEMS // (P * P))
+        for a in range(0, D, nb):
+            ub = u[a:a + nb]
+            first[a:a + nb] = ~np.any((ub @ ub.swapaxes(-1, -2) > cos) & earlier, axis=-1)
+        return first
     if P >= WINDOWED_FROM:
         return np.stack([_first_windowed(ub, cos, 2 * math.sin(math.radians(tol_deg) / 2)) for ub in u])
     first = np.ones((D, P), dtype=bool)

@@ -2,7 +2,7 @@
 
 Peak memory is one chunk's (``chunk_boards`` boards) whatever the lot size.  Each
 chunk's results are appended to a temporary file beside the output, which is
-flushed and fsynced once per chunk and renamed over the output at the end: the
+flushed once per chunk, fsynced and renamed over the output at the end: the
 results file is whole or absent after a crash, never half written.
 """
 from __future__ import annotations
@@ -117,7 +117,8 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
     out["stderr_W_max"][sel] = np.where(se, np.max(b.stderr_W[ok].reshape(-1, 9), axis=1), np.nan)
     out["input_per_g"][sel] = scale[ok]
     out["distinct_poses"][sel] = distinct_directions_batch(gf[ok])
-    for k in np.flatnonzero(ok):  # terms held at nominal: the same decision as `accelcal fit` (models/held.py)
+    held = np.flatnonzero([bool(h) for h in b.held] & ok)  # terms held at nominal (models/held.py), as `accelcal fit`
+    for k in held:
         out["held"][idx[k]] = b.held[k]
 
 
@@ -125,7 +126,7 @@ def figures(res: dict[str, Any], model: str) -> FitFigures:
     """The acceptance rules' inputs for a chunk's boards (NaN where a board was not fitted)."""
     return FitFigures(model, res["W"], res["V"], res["Gamma"], res["residual_rms_g"], res["residual_max_g"],
                       res["crossval_rms_g"], res["stderr_V_max"], res["stderr_W_max"], res["distinct_poses"],
-                      [[h.text for h in hs] for hs in res["held"]])
+                      [[h.text for h in hs] for hs in res["held"]] if any(res["held"]) else None)
 
 
 def judge_chunk(res: dict[str, Any], limits: Limits | None, model: str) -> tuple[list[str], list[list[Reason]]]:
