@@ -11,6 +11,8 @@ a 20x regression (a per-board Python loop put back) does.
   batch-M    models.fitting.fit_batch (the front every lot path uses: identifiability, held terms,
              sanity checks, then the stacked fitter) vs models.stacked.fit_stacked alone, model M
   cli        `accelcal --version` in a subprocess vs `python -c "import click"`
+  fit        `accelcal fit TABLE --model 12 --json` on a 14-pose table vs benchmarks/reference_fit.py
+             (the same parse and solve in plain numpy), both in subprocesses, asserted to agree
 
   python benchmarks/gate.py            # the CI run (~30 s): exit 1 when a ratio is below its floor
   python benchmarks/gate.py --quick    # tiny sizes, one repetition: checks the gate runs and agrees
@@ -47,6 +49,7 @@ FLOORS: dict[str, tuple[float, str]] = {
     "batch-12": (0.2, "measured 0.40-0.55 (fit_stacked 12 is ~5 us a board: the front's fixed costs weigh)"),
     "batch-15": (0.3, "measured 0.65-0.80"),
     "cli": (0.5, "measured 0.75-0.85 (`accelcal --version` 1.2-1.3x `python -c 'import click'`)"),
+    "fit": (0.3, "measured 0.5-0.6 (`accelcal fit` 1.7-2x the plain numpy script)"),
 }
 
 # the limits the lot gate judges (keys the reference implements); tight enough that some boards FAIL
@@ -152,8 +155,7 @@ def batch_gates(boards: int, reps: int) -> list[Gate]:
 
 def cli_gate(reps: int) -> Gate:
     """`accelcal --version` (the installed entry point) against `python -c "import click"`."""
-    exe = Path(sys.executable).with_name("accelcal")
-    accelcal = [str(exe)] if exe.exists() else [sys.executable, "-m", "accelcal_station"]
+    accelcal = _accelcal()
     run = lambda cmd: subprocess.run(cmd, stdout=subprocess.DEVNULL, check=True)  # noqa: E731
     version = subprocess.run([*accelcal, "--version"], capture_output=True, text=True, check=True).stdout
     tp, tr = interleaved(lambda: run([*accelcal, "--version"]), lambda: run([sys.executable, "-c", "import click"]),
@@ -162,12 +164,48 @@ def cli_gate(reps: int) -> Gate:
                                f"{tp * 1e3:.0f} ms, import click {tr * 1e3:.0f} ms")
 
 
+def _accelcal() -> list[str]:
+    exe = Path(sys.executable).with_name("accelcal")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "accelcal_station"]
+
+
+def write_pose_table(path: Path, poses: int = 14, seed: int = 35) -> Path:
+    """A pose table in counts: ``poses`` random orientations of a board with gain, cross-axis and offset."""
+    rng = np.random.default_rng(seed)
+    pitch, roll = rng.uniform(-80, 80, poses), rng.uniform(-180, 180, poses)
+    th, ph = np.radians(pitch), np.radians(roll)
+    ref = np.column_stack([-np.sin(th), np.cos(th) * np.sin(ph), np.cos(th) * np.cos(ph)])
+    counts = (ref @ (np.eye(3) + rng.normal(0, 0.01, (3, 3))).T + 0.02) * 4096 + rng.normal(0, 2, (poses, 3))
+    rows = [f"p{i}," + ",".join(repr(float(v)) for v in (pitch[i], roll[i], *counts[i])) for i in range(poses)]
+    path.write_text("# units: counts\n# counts_per_g: 4096\npose,pitch_deg,roll_deg,x,y,z\n" + "\n".join(rows) + "\n")
+    return path
+
+
+def fit_gate(reps: int, tmp: Path) -> Gate:
+    """`accelcal fit` on a 14-pose table against the plain numpy script, both as subprocesses."""
+    import json
+
+    table = write_pose_table(tmp / "poses14.csv")
+    project = [*_accelcal(), "fit", str(table), "--model", "12", "--json"]
+    reference = [sys.executable, str(Path(__file__).resolve().parent / "reference_fit.py"), str(table)]
+    a = json.loads(subprocess.run(project, capture_output=True, text=True, check=True).stdout)
+    b = json.loads(subprocess.run(reference, capture_output=True, text=True, check=True).stdout)
+    for key in ("W", "V", "residual_rms_g"):
+        gap = np.max(np.abs(np.subtract(a[key], b[key])))
+        assert gap < 1e-9, f"accelcal fit and the numpy script differ in {key} by {gap:.3g}"
+    run = lambda cmd: subprocess.run(cmd, stdout=subprocess.DEVNULL, check=True)  # noqa: E731
+    tp, tr = interleaved(lambda: run(project), lambda: run(reference), reps)
+    return Gate("fit", tp, tr, f"14 poses: accelcal fit {tp * 1e3:.0f} ms, numpy script {tr * 1e3:.0f} ms; "
+                               "W, V, RMS agree")
+
+
 def run_gates(quick: bool = False) -> list[Gate]:
     """Every gate; ``quick``: tiny sizes and one repetition (the gate's own test)."""
     with tempfile.TemporaryDirectory(prefix="accelcal-gate-") as tmp:
         gates = [lot_gate(300 if quick else 20_000, 1 if quick else 5, Path(tmp))]
-    gates += batch_gates(200 if quick else 20_000, 1 if quick else 5)
-    gates.append(cli_gate(1 if quick else 9))
+        gates += batch_gates(200 if quick else 20_000, 1 if quick else 5)
+        gates.append(cli_gate(1 if quick else 9))
+        gates.append(fit_gate(1 if quick else 7, Path(tmp)))
     return gates
 
 
