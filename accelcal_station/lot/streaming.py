@@ -57,7 +57,7 @@ def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> d
            "residual_max_g": np.full(B, np.nan), "crossval_rms_g": np.full(B, np.nan),
            "condition_number": np.full(B, np.nan), "stderr_V_max": np.full(B, np.nan),
            "stderr_W_max": np.full(B, np.nan), "input_per_g": np.full(B, np.nan), "pose_count": sizes,
-           "distinct_poses": np.zeros(B, int), "held": [[] for _ in range(B)]}
+           "distinct_poses": np.zeros(B, int), "held": [[]] * B}  # replaced per board, never appended
     can = np.array([r is None for r in reasons], bool)
     has_noise = np.zeros(B, bool)
     if noise is not None and B:

@@ -157,7 +157,7 @@ def hold_plans(gf: np.ndarray, model: str) -> HoldPlan:
     gf = np.asarray(gf, dtype=float)
     D = len(gf)
     determined, _ = assess_batch(gf, model)
-    held: list[list[Held]] = [[] for _ in range(D)]
+    held: list[list[Held]] = [[]] * D  # shared empty list: a board's terms replace it, never appended
     refused = [""] * D
     und = np.flatnonzero(~determined)
     if not und.size:
@@ -192,7 +192,7 @@ def hold_plan(gf: np.ndarray, model: str) -> list[Held]:
     plan = hold_plans(np.asarray(gf, dtype=float)[None], model)
     if plan.refused[0]:
         raise UnderdeterminedError(plan.refused[0])
-    return plan.held[0]
+    return list(plan.held[0])  # its own list (the plan shares one empty list among boards)
 
 
 def free_mask(held: list[Held], names: list[str]) -> np.ndarray:
