@@ -147,7 +147,11 @@ def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
         empty = pc.fill_null(pc.equal(text, ""), True)
         if name == "serial" and pc.any(empty).as_py():
             raise missing_serial(path, where(row0 + int(np.argmax(empty.to_numpy(zero_copy_only=False))) + 1))
-        return np.asarray(text.fill_null("").to_numpy(zero_copy_only=False)).astype(str)
+        # through a dictionary: a Python str per distinct value (a serial per board, a few pose names),
+        # not one per row, then numpy's fixed-width text by indexing
+        enc = pc.dictionary_encode(text.fill_null(""))
+        values = np.array(enc.dictionary.to_pylist(), dtype=str)
+        return values[np.asarray(enc.indices.to_numpy(zero_copy_only=False), dtype=np.intp)]
     if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
         try:  # a clean column casts as it is (no trimmed copy of every cell); else trimmed, else cell by cell
             col = pc.cast(col, pa.float64())
