@@ -1,7 +1,7 @@
 """Peak memory of `accelcal fit` on large pose tables and `accelcal simulate --raw` of many samples.
 
     python benchmarks/bench_resources.py [--fit-rows 12000,100000,200000] [--raw-samples 1000000,10000000]
-                                         [--twin-boards 10000,100000] [--small]
+                                         [--twin-boards 10000,100000] [--lot-boards 50000,200000] [--small]
 
 Each command runs in its own child process, started by a small helper process (ru_maxrss
 survives exec, and a child forked from a large process would start with its pages), and the
@@ -17,6 +17,9 @@ helper prints the command's own peak resident set (``os.wait4``'s ru_maxrss) and
 3. ``accelcal twin fit LOT`` on lots of 10,000 and 100,000 boards (tests/twin_lots.py's generator,
    as benchmarks/twin_scale.py), against the 254 MB stated for 100,000 boards (issue 35 measured
    319-326 MB, growing by 53 MB from 10k to 100k).
+4. ``accelcal batch LOT --out R.csv --model 12`` on lots of 50,000 and 200,000 boards
+   (lot.synthetic.write_lot, an4399-8): memory flat in the lot size (issue 35: the two peaks
+   within 10 %), with the wall time.
 """
 from __future__ import annotations
 
@@ -79,10 +82,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fit-rows", default="12000,100000,200000", help="pose table sizes, comma separated")
     ap.add_argument("--raw-samples", default="1000000,10000000", help="simulate --samples values")
     ap.add_argument("--twin-boards", default="10000,100000", help="twin fit lot sizes, comma separated")
+    ap.add_argument("--lot-boards", default="50000,200000", help="accelcal batch lot sizes, comma separated")
     ap.add_argument("--small", action="store_true", help="a quick run (smoke test sizes)")
     a = ap.parse_args(argv)
     if a.small:
-        a.fit_rows, a.raw_samples, a.twin_boards = "500,2000", "2000,20000", "2000"
+        a.fit_rows, a.raw_samples, a.twin_boards, a.lot_boards = "500,2000", "2000,20000", "2000", "2000"
     fit_rows = [int(s) for s in a.fit_rows.split(",") if s.strip()]
     raw_samples = [int(s) for s in a.raw_samples.split(",") if s.strip()]
     print(f"bench_resources: {os.cpu_count()} CPU(s), load average at start {os.getloadavg()[0]:.1f}; "
@@ -111,6 +115,17 @@ def main(argv: list[str] | None = None) -> int:
             row("twin fit LOT (boards)", n, *measure(["twin", "fit", str(lot), "-o", str(work / "twin.yaml")]),
                 limit=TWIN_LIMIT_MB)
             Path(lot).unlink()
+        peaks = []
+        for n in [int(s) for s in a.lot_boards.split(",") if s.strip()]:
+            from accelcal_station.lot.synthetic import write_lot
+
+            lot = write_lot(work / f"lot-{n}.csv", n, "an4399-8", seed=35)
+            status, dt, mb = measure(["batch", str(lot), "--out", str(work / "r.csv"), "--model", "12"])
+            row("batch LOT --out R.csv (boards)", n, status, dt, mb)
+            peaks.append(mb)
+            lot.unlink()
+        if len(peaks) > 1:
+            print(f"batch LOT peak RSS, largest / smallest lot: {max(peaks) / min(peaks):.3f}")
     print(f"load average at end {os.getloadavg()[0]:.1f}")
     return 0
 
