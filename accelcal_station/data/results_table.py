@@ -52,7 +52,8 @@ def _columns(chunk: LotChunk, res: dict[str, Any], model: str, units: str, verdi
         cols[name] = params[:, j]
     cols.update(residual_rms_mg=res["residual_rms_g"] * 1e3, residual_max_mg=res["residual_max_g"] * 1e3,
                 crossval_rms_mg=res["crossval_rms_g"] * 1e3, condition_number=res["condition_number"],
-                held=["; ".join(h.term for h in hs) for hs in res.get("held", [[]] * B)],
+                held=(["; ".join(h.term for h in hs) for hs in res["held"]] if any(res.get("held", ()))
+                      else [""] * B),  # a lot where no board holds a term: no per-board join
                 verdict=verdicts, reasons=["; ".join(r) for r in reasons], message=res["message"])
     return cols
 
