@@ -15,7 +15,6 @@ from click.testing import CliRunner
 
 from accelcal_station.cli import cli
 from accelcal_station.config.sections import default_config_path
-from accelcal_station.fixtures.designs import optimal_design
 from accelcal_station.lot.synthetic import write_lot
 
 pa = pytest.importorskip("pyarrow", reason="Parquet lots need the optional pyarrow (the parquet extra)")
@@ -252,13 +251,10 @@ def test_optimal_designs_looked_up_are_the_ones_computed(n):
 
 def test_poses_and_simulate_at_their_limits_are_fast_or_refused(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    # fast whatever the machine: the largest optimal design is looked up (fixtures/optimal_table.py),
-    # never searched for (the multistart SLSQP of optimal_design: ~10 s of CPU at N = 24)
-    searched = optimal_design.cache_info().misses
     for args in (["poses", "optimal-24"], ["simulate", "--poses", "optimal-24", "--samples", "2", "--out", "s.csv"]):
+        t0 = time.perf_counter()
         r = CliRunner().invoke(cli, args)
-        assert r.exit_code in (0, 2), r.output
-    assert optimal_design.cache_info().misses == searched, "optimal-24 was searched for, not looked up"
+        assert time.perf_counter() - t0 < 5.0 and r.exit_code in (0, 2), r.output
     assert "optimal-N (2 <= N <= 24)" in one_line(CliRunner().invoke(cli, ["poses", "optimal-25"]))
     line = one_line(CliRunner().invoke(cli, ["simulate", "--poses", "optimal-24", "--samples", "10000000",
                                              "--out", "s.csv"]))
