@@ -14,24 +14,37 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .calibration import Calibration
 from .data.loader import Loaded, load
 from .data.rawlog import check_rate
-from .diagnosis.engine import diagnose as _diagnose
-from .diagnosis.loading import load_data, load_simulator
-from .diagnosis.result import Diagnosis
-from .drivers.simulated import SimulatedBoard
 from .errors import AccelcalError, DataError, UnderdeterminedError, UnitsError
 from .fixtures.designs import get_design
-from .fixtures.simulated_run import SimulatedRun, Sink, run_design, simulated_board
 from .models.choice import choose_model, with_face_references
 from .models.fitting import fit_session, fit_temperature
 from .models.handplaced import norm_fit_result
 from .models.result import FitResult
 from .session import Session
+
+if TYPE_CHECKING:  # the simulator and the diagnosis are imported by the calls that use them (fast `accelcal fit`)
+    from .diagnosis.result import Diagnosis
+    from .drivers.simulated import SimulatedBoard
+    from .fixtures.simulated_run import SimulatedRun, Sink
+
+_LAZY = {"Diagnosis": ".diagnosis.result", "SimulatedRun": ".fixtures.simulated_run"}
+
+
+def __getattr__(name: str) -> Any:
+    """``Diagnosis`` and ``SimulatedRun`` on first use (PEP 562), as the functions import them."""
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name], __package__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 TEMP_METHODS = ("linear", "quadratic")
 
@@ -168,6 +181,8 @@ def simulate(design: str, *, config: str | None = None, seed: int | None = None,
     in counts, the raw samples when ``raw`` (handed chunk by chunk to ``sink`` when given, not
     kept), and the board's ground truth (``.truth()``).  ``on_board`` sees the board before any
     sample is taken (e.g. to write a raw log's header: ``run_metadata``)."""
+    from .fixtures.simulated_run import run_design, simulated_board
+
     get_design(design)  # an unknown design is refused before the board is built
     _check_run(samples, temps_c, move_s, len(get_design(design)))
     board = simulated_board(config, seed)
@@ -184,6 +199,9 @@ def diagnose(files: Sequence[str | Path], *, config: str | Path | None = None, r
     """The sim-to-real gap of ``files`` (pose tables, or raw logs with ``raw``) against the simulated
     device of ``config`` (default configs/sim.yaml): which catalog effect explains it, judged on
     held-out residuals (DESIGN.md, the diagnosis). ``.to_json()`` is `accelcal diagnose --json`."""
+    from .diagnosis.engine import diagnose as _diagnose
+    from .diagnosis.loading import load_data, load_simulator
+
     check_rate(rate_hz)
     sim = load_simulator(config)
     data = load_data(list(files), raw, units, counts_per_g, gravity_mps2, columns, skip_rows, rate_hz, samples,

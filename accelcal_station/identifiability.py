@@ -68,9 +68,19 @@ class Identifiability:
 
 def _centre(gf: np.ndarray) -> np.ndarray:
     """Directions are taken about 0 unless the data sit far off it (unsigned counts)."""
-    mid = 0.5 * (gf.max(axis=-2) + gf.min(axis=-2))
-    far = np.linalg.norm(mid, axis=-1, keepdims=True) > 0.5
+    if gf.ndim == 3 and gf.shape[1] <= SMALL_P:  # a few poses: P - 1 elementwise steps beat a short-axis reduction
+        hi, lo = gf[:, 0].copy(), gf[:, 0].copy()
+        for p in range(1, gf.shape[1]):
+            np.maximum(hi, gf[:, p], out=hi)
+            np.minimum(lo, gf[:, p], out=lo)
+        mid = 0.5 * (hi + lo)
+    else:
+        mid = 0.5 * (gf.max(axis=-2) + gf.min(axis=-2))
+    far = np.sqrt(np.einsum("...k,...k->...", mid, mid))[..., None] > 0.5
     return np.where(far, mid, 0.0)
+
+
+SMALL_P = 32  # poses per board up to which the P x P cosines of a block of boards are formed at once
 
 
 BLOCK_ELEMS = 1 << 19  # pose-pair cosines held at once (4 MB of float64): memory stays linear in P
@@ -83,9 +93,17 @@ def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG) -> n
     rows at a time, so memory is O(D P), not O(D P^2) (a 100,000-pose table); a large table
     compares each pose only with those in neighbouring cubes of the chord 2 sin(tol/2)."""
     x = gf - _centre(gf)[..., None, :]
-    u = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
+    u = x / np.maximum(np.sqrt(np.einsum("...k,...k->...", x, x)), 1e-12)[..., None]
     D, P = u.shape[:2]
     cos = math.cos(math.radians(tol_deg))
+    if P <= SMALL_P:  # whole P x P blocks of boards: a few large numpy calls, not one per row block
+        earlier = np.tri(P, k=-1, dtype=bool)  # [p, q]: q < p
+        first = np.empty((D, P), dtype=bool)
+        nb = max(1, BLOCK_ELEMS // (P * P))
+        for a in range(0, D, nb):
+            ub = u[a:a + nb]
+            first[a:a + nb] = ~np.any((ub @ ub.swapaxes(-1, -2) > cos) & earlier, axis=-1)
+        return first
     if P >= WINDOWED_FROM:
         return np.stack([_first_windowed(ub, cos, 2 * math.sin(math.radians(tol_deg) / 2)) for ub in u])
     first = np.ones((D, P), dtype=bool)
@@ -144,13 +162,50 @@ def _design(gf: np.ndarray, model: str) -> np.ndarray:
     return np.concatenate([np.broadcast_to(base, (D, 3, P, 4)), cubic], axis=-1)
 
 
+def _rel_sv_floor(Gn: np.ndarray) -> np.ndarray:
+    """A lower bound (N,) on sqrt(lambda_min / lambda_max) of N symmetric (k, k) matrices Gn with unit
+    diagonal, elementwise over the boards (no LAPACK call per board): lambda_min >= 1 / tr(Gn^-1),
+    tr(Gn^-1) the squared Frobenius norm of L^-1 (Gn = L L^T, Cholesky by columns), and
+    lambda_max <= the largest absolute row sum (Gershgorin).  0 where Gn is not positive definite."""
+    A = np.ascontiguousarray(Gn.transpose(1, 2, 0))  # (k, k, N): boards last
+    k, N = A.shape[0], A.shape[2]
+    L = np.zeros_like(A)
+    ok = np.ones(N, dtype=bool)
+    for j in range(k):
+        s = A[j, j] - np.einsum("kn,kn->n", L[j, :j], L[j, :j])
+        ok &= s > 1e-12
+        r = 1.0 / np.sqrt(np.where(ok, s, 1.0))
+        L[j, j] = np.where(ok, s, 1.0) * r
+        L[j + 1:, j] = (A[j + 1:, j] - np.einsum("ikn,kn->in", L[j + 1:, :j], L[j, :j])) * r
+    Li = np.zeros_like(L)  # L^-1 by forward substitution
+    for i in range(k):
+        Li[i, i] = 1.0 / L[i, i]
+        if i:
+            Li[i, :i] = -np.einsum("kn,kjn->jn", L[i, :i], Li[:i, :i]) / L[i, i]
+    tr_inv = np.einsum("ijn,ijn->n", Li, Li)
+    lmax = np.abs(A).sum(axis=0).max(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(ok & np.isfinite(tr_inv), np.sqrt(1.0 / (tr_inv * lmax)), 0.0)
+
+
 def _rel_sv(X: np.ndarray, first: np.ndarray) -> np.ndarray:
-    """Smallest / largest singular value of the column-normalised design over distinct orientations."""
+    """Smallest / largest singular value of the column-normalised design over distinct orientations
+    (min over the solves), exact where it may fall below REL_SV_MIN; above, possibly a lower
+    bound (``_rel_sv_floor``) that already clears it, so a well-posed chunk makes no LAPACK call per board."""
     Xd = X * first[:, None, :, None]
-    norm = np.linalg.norm(Xd, axis=-2, keepdims=True)
-    Xn = Xd / np.where(norm > 0, norm, 1.0)
-    s = np.linalg.svd(Xn, compute_uv=False)  # (D, S, k)
-    return np.min(s[..., -1] / np.maximum(s[..., 0], 1e-300), axis=-1)
+    G = np.matmul(Xd.swapaxes(-1, -2), Xd)  # (D, S, k, k) Gram matrix: one BLAS-sized call, not an SVD per board
+    d = np.sqrt(np.diagonal(G, axis1=-2, axis2=-1))  # column norms
+    d = np.where(d > 0, d, 1.0)
+    k = G.shape[-1]
+    # the normalised design's singular values squared are the eigenvalues of D^-1 G D^-1; at the
+    # REL_SV_MIN threshold their ratio is ~2.5e-3, far above the Gram form's rounding (~1e-16)
+    Gn = (G / (d[..., :, None] * d[..., None, :])).reshape(-1, k, k)
+    rel = _rel_sv_floor(Gn)
+    unsure = rel < REL_SV_MIN
+    if unsure.any():
+        w = np.linalg.eigvalsh(Gn[unsure])  # ascending
+        rel[unsure] = np.sqrt(np.maximum(w[:, 0], 0.0) / np.maximum(w[:, -1], 1e-300))
+    return np.min(rel.reshape(G.shape[:-2]), axis=-1)
 
 
 def assess_batch(gf: ArrayLike, model: str) -> tuple[np.ndarray, np.ndarray]:

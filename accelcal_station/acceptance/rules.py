@@ -143,6 +143,24 @@ def _pose_reasons(have: np.ndarray, model: str, planned_poses: int) -> list[list
     return out
 
 
+def limit_reasons(m: dict[str, np.ndarray], have: np.ndarray, model: str, limits: Limits,
+                  planned_poses: int = 0) -> list[list[Reason]]:
+    """Why each of B boards fails (``[]`` when it passes), from its measured figures ``m``
+    (measure_all) and distinct poses ``have``: the limits compared over all boards at once,
+    the words formatted only for the boards that fail."""
+    reasons = _pose_reasons(have, model, planned_poses)
+    for key, lim in limits.values.items():
+        if key not in m:  # verify_error_max_mg before verification
+            continue
+        v = m[key]
+        unmeasurable = np.isnan(v)
+        for b in np.flatnonzero(unmeasurable):
+            reasons[b].append(Reason(key, f"not measurable for this fit (limit {lim:g})"))
+        for b in np.flatnonzero(~unmeasurable & ~(v <= lim)):
+            reasons[b].append(Reason(key, f"{v[b]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})", " "))
+    return reasons
+
+
 def judge_all(figs: FitFigures, limits: Limits, verify_error_max_mg: np.ndarray | None = None,
               planned_poses: int = 0) -> list[Verdict]:
     """The verdict of each of B boards: PASS only if the fit rests on enough distinct poses
@@ -154,16 +172,7 @@ def judge_all(figs: FitFigures, limits: Limits, verify_error_max_mg: np.ndarray 
     if verify_error_max_mg is not None:
         m["verify_error_max_mg"] = np.asarray(verify_error_max_mg, dtype=float)
     have = np.asarray(figs.distinct_poses, dtype=int)
-    reasons = _pose_reasons(have, figs.model, planned_poses)
-    for key, lim in limits.values.items():
-        if key not in m:  # verify_error_max_mg before verification
-            continue
-        v = m[key]
-        unmeasurable = np.isnan(v)
-        for b in np.flatnonzero(unmeasurable):
-            reasons[b].append(Reason(key, f"not measurable for this fit (limit {lim:g})"))
-        for b in np.flatnonzero(~unmeasurable & ~(v <= lim)):
-            reasons[b].append(Reason(key, f"{v[b]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})", " "))
+    reasons = limit_reasons(m, have, figs.model, limits, planned_poses)
     held = figs.held or [[] for _ in reasons]
     return [Verdict(not r, r, {**{k: float(v[b]) for k, v in m.items() if not np.isnan(v[b])},
                                "distinct_poses": float(have[b])}, list(held[b]))

@@ -1,5 +1,7 @@
-"""The `accelcal` command line.  Each command lives in its own module here and
-exposes a click command named ``command``; they are discovered automatically.
+"""The `accelcal` command line.  Each command lives in its own module here and exposes a
+click command named ``command``, listed in ``COMMANDS`` with its one-line help and loaded
+only when it is run (click's lazy group pattern): ``accelcal --version`` and ``--help``
+import click and this package's small helpers, no numpy, scipy or pydantic.
 
 The top layer: may import every package below it (``api``, the flows, the parts, the
 models, the foundation); only ``accelcal_station.__main__`` imports the CLI.
@@ -8,7 +10,6 @@ from __future__ import annotations
 
 import importlib
 import os
-import pkgutil
 import sys
 from typing import Any
 
@@ -17,12 +18,83 @@ import click
 from .. import __version__
 from ..config import event_log
 from ..errors import AccelcalError
-from ._extras import extra_for, missing_text
 from ._mes import JsonGroup, emit_error, wants_json
 from ._text import clean
 
+# name -> (module:attribute, one-line help as the command's docstring gives it); a test
+# (tests/test_cli_lazy.py) checks every module of this package with a ``command`` is listed
+# and that each help here is the command's own
+COMMANDS: dict[str, tuple[str, str]] = {
+    "batch": ("batch:command", "Recalibrate many boards with one model (vectorised); unfittable boards are "
+              "reported and skipped."),
+    "chamber": ("chamber:command", "Chamber status, set point (`set --temp-c C`: constant mode at C), standby, "
+                "or clear latched alarms."),
+    "diagnose": ("diagnose:command", "Diagnose the sim-to-real gap of real data against the simulator "
+                 "configuration."),
+    "emulate": ("emulate:command", "Start an emulated device (or jig) on a new pseudo-terminal and print its "
+                "path; Ctrl-C stops it."),
+    "fit": ("fit:command", "Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."),
+    "nvm": ("nvm:command", "Read, back up, restore or erase the calibration NVM of a board (service)."),
+    "poses": ("poses:command", "Show pose design NAME (AN4399 pitch/roll, z down) and its predicted standard "
+              "errors."),
+    "probe": ("probe:command", "Identify the device in --config and print its configuration, temperature and "
+              "averaged readings."),
+    "report": ("report:command", "List, show, export and summarise recorded runs."),
+    "run": ("run:command", "Calibrate one board: identify, present each pose, capture, fit, judge, write NVM, "
+            "verify, record."),
+    "serve": ("serve:command", "Serve the line page (/), board and lot pages and the JSON API (/api/v1, schema "
+              "at /openapi.json)."),
+    "simulate": ("simulate:command", "Simulate a calibration run and write its pose table (or raw log) and "
+                 "ground truth."),
+    "twin": ("twin:command", "The population twin: fit a lot's population, check it against the lot, predict "
+             "yield."),
+}
 
-class StationGroup(JsonGroup):
+
+class LazyGroup(JsonGroup):
+    """A group whose subcommands (``lazy_subcommands``: name -> (module:attribute, one-line help))
+    are imported when invoked or asked for by name; listing them, in --help or --json, uses the
+    help given here and imports nothing (the click documentation's LazyGroup pattern)."""
+
+    def __init__(self, *a: Any, lazy_subcommands: dict[str, tuple[str, str]] | None = None, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        self.lazy_subcommands = lazy_subcommands or {}
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*super().list_commands(ctx), *self.lazy_subcommands})
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in self.lazy_subcommands and cmd_name not in self.commands:
+            target = self.lazy_subcommands[cmd_name][0]
+            module, attr = target.split(":")
+            cmd = getattr(importlib.import_module(f"{__name__}.{module}"), attr)
+            if not isinstance(cmd, click.Command):
+                raise TypeError(f"{target} is not a click command")
+            self.commands[cmd_name] = cmd
+        return super().get_command(ctx, cmd_name)
+
+    def listed_help(self, name: str, limit: int) -> str:
+        """A subcommand's one-line help cut to ``limit`` as click cuts it, without importing it."""
+        cmd = self.commands.get(name)
+        if cmd is None:  # a stand-in with the stored help: click's own cutting, whatever its version
+            cmd = click.Command(name, help=self.lazy_subcommands[name][1])
+        return cmd.get_short_help_str(limit)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The Commands: section, as click writes it, from the stored help."""
+        names = self.list_commands(ctx)
+        if not names:
+            return
+        limit = formatter.width - 6 - max(len(n) for n in names)
+        with formatter.section("Commands"):
+            formatter.write_dl([(n, self.listed_help(n, limit)) for n in names])
+
+    def describe(self, ctx: click.Context) -> dict[str, Any] | list[dict[str, Any]]:
+        return {"command": ctx.command_path, "help": (self.help or "").strip().split("\n")[0],
+                "subcommands": [{"name": n, "help": self.listed_help(n, 200)} for n in self.list_commands(ctx)]}
+
+
+class StationGroup(LazyGroup):
     """Turns every AccelcalError into one line and its exit code: red on stderr, or under
     --json one JSON object on stdout (cli/_mes.py)."""
 
@@ -59,6 +131,8 @@ class StationGroup(JsonGroup):
             emit_error(ctx, clean(f"{e.strerror or e}{where}"), 2, "os")
             ctx.exit(2)
         except ModuleNotFoundError as e:
+            from ._extras import extra_for, missing_text  # importlib.metadata: only on this path
+
             extra = extra_for(e.name)
             if extra is None and not os.environ.get("ACCELCAL_DEBUG"):
                 emit_error(ctx, f"internal error (please report): ModuleNotFoundError: {clean(str(e))}", 70,
@@ -77,19 +151,12 @@ class StationGroup(JsonGroup):
             ctx.exit(70)
 
 
-@click.group(cls=StationGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=StationGroup, context_settings={"help_option_names": ["-h", "--help"]},
+             lazy_subcommands=COMMANDS)
 @click.version_option(__version__, prog_name="accelcal")
 def cli() -> None:
     """accelcal: calibration station for three-axis MEMS accelerometers."""
     event_log.configure(None)  # the outbox's notices on stderr; `run` applies its config's logging:
-
-
-for _m in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-    if _m.name.startswith("_"):
-        continue
-    _mod = importlib.import_module(f"{__name__}.{_m.name}")
-    if hasattr(_mod, "command"):
-        cli.add_command(_mod.command)
 
 
 def main() -> None:

@@ -147,23 +147,35 @@ def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
         empty = pc.fill_null(pc.equal(text, ""), True)
         if name == "serial" and pc.any(empty).as_py():
             raise missing_serial(path, where(row0 + int(np.argmax(empty.to_numpy(zero_copy_only=False))) + 1))
-        return np.asarray(text.fill_null("").to_numpy(zero_copy_only=False)).astype(str)
+        # through a dictionary: a Python str per distinct value (a serial per board, a few pose names),
+        # not one per row, then numpy's fixed-width text by indexing
+        enc = pc.dictionary_encode(text.fill_null(""))
+        values = np.array(enc.dictionary.to_pylist(), dtype=str)
+        return values[np.asarray(enc.indices.to_numpy(zero_copy_only=False), dtype=np.intp)]
     if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
-        try:
-            col = pc.cast(pc.utf8_trim_whitespace(col), pa.float64())
-        except pa.ArrowInvalid:  # mark the rows with a bad cell; their boards are reported, not fitted
-            out = np.full(len(col), np.nan)
-            for i, v in enumerate(col.to_pylist()):
-                if v is None or not v.strip():
-                    continue
-                if _is_float(v):
-                    out[i] = float(v)
-                else:
-                    bad_rows.setdefault(i, f"{path}: data row {row0 + i + 1}, column {name}: {v[:40]!r} "
-                                           "is not a number")
-            return out
+        try:  # a clean column casts as it is (no trimmed copy of every cell); else trimmed, else cell by cell
+            col = pc.cast(col, pa.float64())
+        except pa.ArrowInvalid:
+            try:
+                col = pc.cast(pc.utf8_trim_whitespace(col), pa.float64())
+            except pa.ArrowInvalid:
+                return _cells(col, name, path, row0, bad_rows)
     # integers beyond 2**53 and wide decimals lose digits as floats: a calibration number never has them
     return np.asarray(pc.cast(col, pa.float64(), safe=False).to_numpy(zero_copy_only=False), dtype=float)
+
+
+def _cells(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str]) -> np.ndarray:
+    """A text column with a cell that is not a number, cell by cell: the rows with a bad cell are
+    marked (their boards are reported, not fitted); blank cells are NaN."""
+    out = np.full(len(col), np.nan)
+    for i, v in enumerate(col.to_pylist()):
+        if v is None or not v.strip():
+            continue
+        if _is_float(v):
+            out[i] = float(v)
+        else:
+            bad_rows.setdefault(i, f"{path}: data row {row0 + i + 1}, column {name}: {v[:40]!r} is not a number")
+    return out
 
 
 def _is_float(v: str) -> bool:

@@ -2,7 +2,7 @@
 
 Peak memory is one chunk's (``chunk_boards`` boards) whatever the lot size.  Each
 chunk's results are appended to a temporary file beside the output, which is
-flushed and fsynced once per chunk and renamed over the output at the end: the
+flushed once per chunk, fsynced and renamed over the output at the end: the
 results file is whole or absent after a crash, never half written.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..acceptance.reasons import Reason
-from ..acceptance.rules import FitFigures, Limits, judge_all
+from ..acceptance.rules import FitFigures, Limits, limit_reasons, measure_all
 from ..data.lotfile import LotChunk, board_arrays, lot_scale, open_lot
 from ..data.results_table import ResultsWriter
 from ..errors import AccelcalError, DataError
@@ -58,7 +58,7 @@ def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> d
            "crossval_by_orientation_rms_g": np.full(B, np.nan), "distinct_orientations": np.zeros(B, int),
            "condition_number": np.full(B, np.nan), "stderr_V_max": np.full(B, np.nan),
            "stderr_W_max": np.full(B, np.nan), "input_per_g": np.full(B, np.nan), "pose_count": sizes,
-           "distinct_poses": np.zeros(B, int), "held": [[] for _ in range(B)]}
+           "distinct_poses": np.zeros(B, int), "held": [[]] * B}  # replaced per board, never appended
     can = np.array([r is None for r in reasons], bool)
     has_noise = np.zeros(B, bool)
     if noise is not None and B:
@@ -123,7 +123,8 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
     out["stderr_W_max"][sel] = np.where(se, np.max(b.stderr_W[ok].reshape(-1, 9), axis=1), np.nan)
     out["input_per_g"][sel] = scale[ok]
     out["distinct_poses"][sel] = distinct_directions_batch(gf[ok])
-    for k in np.flatnonzero(ok):  # terms held at nominal: the same decision as `accelcal fit` (models/held.py)
+    held = np.flatnonzero([bool(h) for h in b.held] & ok)  # terms held at nominal (models/held.py), as `accelcal fit`
+    for k in held:
         out["held"][idx[k]] = b.held[k]
 
 
@@ -134,7 +135,7 @@ def figures(res: dict[str, Any], model: str) -> FitFigures:
     cv = np.where(repeat, res["crossval_by_orientation_rms_g"], res["crossval_rms_g"])
     return FitFigures(model, res["W"], res["V"], res["Gamma"], res["residual_rms_g"], res["residual_max_g"],
                       cv, res["stderr_V_max"], res["stderr_W_max"], res["distinct_poses"],
-                      [[h.text for h in hs] for hs in res["held"]])
+                      [[h.text for h in hs] for hs in res["held"]] if any(res["held"]) else None)
 
 
 def judge_chunk(res: dict[str, Any], limits: Limits | None, model: str) -> tuple[list[str], list[list[Reason]]]:
@@ -156,8 +157,12 @@ def judge_chunk(res: dict[str, Any], limits: Limits | None, model: str) -> tuple
                                            "crossval_rms_g", "crossval_by_orientation_rms_g", "distinct_orientations",
                                            "pose_count", "stderr_V_max", "stderr_W_max", "distinct_poses")}
         sub["held"] = [res["held"][b] for b in fitted]
-        for b, v in zip(fitted, judge_all(figures(sub, model), limits), strict=True):
-            reasons[b] = list(v.reasons)
+        figs = figures(sub, model)
+        # the verdict's reasons over the whole chunk (limit_reasons, as judge_all gives them),
+        # with no per-board Verdict built: a lot row keeps only the label and the reasons
+        failing = limit_reasons(measure_all(figs), np.asarray(figs.distinct_poses, dtype=int), model, limits)
+        for k in np.flatnonzero([bool(r) for r in failing]):
+            reasons[fitted[k]] = failing[k]
     return ["FAIL" if r else "PASS" for r in reasons], reasons
 
 

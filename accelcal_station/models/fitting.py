@@ -21,7 +21,7 @@ from .crossval import crossval_by_orientation
 from .gravity_norm import PARAM_NAMES, nominal_scale
 from .held import HoldPlan, cubic_held, hold_plans
 from .result import BatchFit, FitResult
-from .sanity import absurd_coefficients, absurd_norm_model, absurd_readings
+from .sanity import Refusal, absurd_coefficients, absurd_norm_model, absurd_readings
 from .stacked import assemble, fit_stacked
 
 
@@ -88,10 +88,11 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     if len(gf) == 1 and plan.refused[0]:  # one board: its reason, before a solver says less
         raise UnderdeterminedError(plan.refused[0])
     gf_fit = gf
-    if model != "9" and references is not None:
+    bad_readings = absurd_readings(gf) if model != "9" else None  # judged once, used twice
+    if bad_readings is not None and references is not None:
         # a board with an absurd reading (1e308) is fitted on its references instead, so it
         # cannot overflow the stack, and is then refused with the reading named
-        bad = np.array([bool(w) for w in absurd_readings(gf)])
+        bad = bad_readings.mask
         if bad.any():
             ref = np.broadcast_to(np.asarray(references, dtype=float), gf.shape)
             gf_fit = np.where(bad[:, None, None], ref, gf)
@@ -109,7 +110,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
             res.held[d] = []
     res.input_units = units
     res.input_per_g = scale
-    _refuse_absurd(res, gf)
+    _refuse_absurd(res, bad_readings)
     return res
 
 
@@ -134,7 +135,7 @@ def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, mode
                                      (rows, as15)])
     else:
         res = fit_stacked(gf, _references(references, x, model), model, nz)
-    res.held = [list(h) for h in plan.held]
+    res.held = plan.held  # the plan's own (D,) lists, made for this fit
     return res
 
 
@@ -175,19 +176,21 @@ def _references(references: ArrayLike | None, x: np.ndarray, model: str) -> np.n
     return ref
 
 
-def _refuse_absurd(res: BatchFit, gf: np.ndarray) -> None:
+def _refuse_absurd(res: BatchFit, bad_readings: Refusal | None) -> None:
     """Mark boards whose readings or coefficients are physically absurd as not fitted
-    (models/sanity.py): a degenerate calibration is never returned as a result."""
+    (models/sanity.py, over the whole stack): a degenerate calibration is never returned."""
     if res.model == "9":  # raw readings may carry any offset (unsigned counts): judge the output
-        why = absurd_norm_model(res.W, res.norm_error_g)
+        checks = [absurd_norm_model(res.W, res.norm_error_g)]
     else:
-        why = [a or b for a, b in zip(absurd_readings(gf), absurd_coefficients(res.W, res.V), strict=True)]
-    for d, w in enumerate(why):
-        if w and res.ok[d]:
+        checks = [c for c in (bad_readings, absurd_coefficients(res.W, res.V)) if c is not None]
+    taken = np.zeros(len(res), bool)
+    for check in checks:  # the first check that refuses a board names its reason
+        for d in np.flatnonzero(check.mask & ~taken & res.ok):
             res.ok[d] = False
-            res.messages[d] = w
+            res.messages[d] = check.why(d)
             if res.status:
                 res.status[d] = "failed"
+        taken |= check.mask
 
 
 def fit(readings: ArrayLike, references: ArrayLike | None = None, model: str | int = "12", *, units: str = "g",

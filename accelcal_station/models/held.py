@@ -294,7 +294,7 @@ def hold_plans(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None) ->
     if model == "9":
         nz = None if noise_g is None else np.broadcast_to(np.asarray(noise_g, dtype=float), gf.shape)
         return _plan_model9(gf, nz, determined)
-    held: list[list[Held]] = [[] for _ in range(D)]
+    held: list[list[Held]] = [[]] * D  # shared empty list: a board's terms replace it, never appended
     refused = [""] * D
     und = np.flatnonzero(~determined)
     if not und.size:
@@ -321,7 +321,7 @@ def hold_plan(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None) -> 
                       None if noise_g is None else np.asarray(noise_g, dtype=float)[None])
     if plan.refused[0]:
         raise UnderdeterminedError(plan.refused[0])
-    return plan.held[0]
+    return list(plan.held[0])  # its own list (the plan shares one empty list among boards)
 
 
 def free_mask(held: list[Held], names: list[str]) -> np.ndarray:

@@ -171,7 +171,9 @@ class BatchFit:
 
     def __post_init__(self) -> None:
         if not self.held:  # the fitters leave it empty: nothing held on any board
-            self.held = [[] for _ in range(len(self.ok))]
+            # one shared empty list (a board's terms are replaced, never appended to): no D small
+            # objects for the garbage collector to walk on every chunk
+            self.held = [[]] * len(self.ok)
 
     def __len__(self) -> int:
         return len(self.ok)

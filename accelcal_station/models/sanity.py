@@ -6,6 +6,9 @@ never let a degenerate calibration through.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 
 from .linear import N_COEF
@@ -59,54 +62,121 @@ def poses_needed(model: str) -> int:
     return PARAMS_PER_AXIS[str(model)] + 1
 
 
-def absurd_readings(gf: np.ndarray) -> list[str]:
-    """Per board of (D, P, 3) readings in g: '' or why some pose is not a reading of gravity."""
-    with np.errstate(over="ignore"):  # 1e308 squared is inf: still refused
-        norms = np.linalg.norm(gf, axis=-1)
+@dataclass(frozen=True)
+class Refusal:
+    """Which of D boards a check refuses (``mask`` (D,) bool) and why: the words are formatted
+    only for the boards refused (``why``), so a clean chunk costs no per-board Python."""
+
+    mask: np.ndarray  # (D,) bool
+    _words: Callable[[int], str]
+
+    def why(self, d: int | np.integer) -> str:
+        """'' or the reason board ``d`` is refused."""
+        return self._words(int(d)) if self.mask[d] else ""
+
+    def reasons(self) -> list[str]:
+        """(D,) '' or the reason, per board (formats only the refused ones)."""
+        out = [""] * len(self.mask)
+        for d in np.flatnonzero(self.mask):
+            out[d] = self._words(int(d))
+        return out
+
+
+def absurd_readings(gf: np.ndarray) -> Refusal:
+    """Boards of (D, P, 3) readings in g with a pose whose norm is not a reading of gravity
+    (outside READING_NORM_G), over the whole stack at once."""
+    with np.errstate(over="ignore", invalid="ignore"):  # 1e308 squared is inf: still refused
+        norms = np.sqrt(np.einsum("dpk,dpk->dp", gf, gf))
     lo, hi = READING_NORM_G
     bad = ~((norms >= lo) & (norms <= hi))
-    out = []
-    for d in range(gf.shape[0]):
-        idx = np.flatnonzero(bad[d])
-        out.append("" if idx.size == 0 else
-                   f"pose {idx[0] + 1} reads {norms[d, idx[0]]:.4g} g; a reading of gravity is "
-                   f"{lo:g} to {hi:g} g (damaged data or a saturated axis)")
-    return out
+    first = np.argmax(bad, axis=1)
+
+    def words(d: int) -> str:
+        return (f"pose {first[d] + 1} reads {norms[d, first[d]]:.4g} g; a reading of gravity is "
+                f"{lo:g} to {hi:g} g (damaged data or a saturated axis)")
+    return Refusal(bad.any(axis=1), words)
 
 
-def absurd_coefficients(W: np.ndarray, V: np.ndarray) -> list[str]:
-    """Per board of (D, 3, 3) W and (D, 3) V: '' or why the calibration is physically absurd."""
-    out = []
-    for w, v in zip(np.asarray(W, dtype=float), np.asarray(V, dtype=float), strict=True):
-        diag = np.diag(w)
-        off = w - np.diag(diag)
-        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(v))):
-            out.append("the fit gave non-finite coefficients")
-        elif np.any((diag < GAIN_RANGE[0]) | (diag > GAIN_RANGE[1])):
-            out.append(f"gains W diagonal {np.round(diag, 4).tolist()} outside {GAIN_RANGE[0]:g} to "
-                       f"{GAIN_RANGE[1]:g}: the poses do not exercise every axis (degenerate pose set)")
-        elif np.max(np.abs(off)) > CROSS_MAX:
-            out.append(f"cross-axis term {np.max(np.abs(off)):.3g} > {CROSS_MAX:g}: degenerate pose set")
-        elif np.linalg.cond(w) > COND_MAX:
-            out.append(f"W condition number {np.linalg.cond(w):.3g} > {COND_MAX:g}: degenerate pose set")
-        elif np.max(np.abs(v)) > OFFSET_MAX_G:
-            out.append(f"offset {np.max(np.abs(v)):.3g} g > {OFFSET_MAX_G:g} g: absurd calibration")
-        else:
-            out.append("")
-    return out
+def _sym3_extreme_eigenvalues(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Largest and smallest eigenvalue of each symmetric (D, 3, 3) A in closed form (Smith 1961:
+    the trigonometric roots of the characteristic cubic of (A - q I) / p, q = tr A / 3)."""
+    a, d, f = A[:, 0, 0], A[:, 1, 1], A[:, 2, 2]
+    b, c, e = A[:, 0, 1], A[:, 0, 2], A[:, 1, 2]
+    q = (a + d + f) / 3.0
+    p = np.sqrt(((a - q) ** 2 + (d - q) ** 2 + (f - q) ** 2 + 2.0 * (b * b + c * c + e * e)) / 6.0)
+    ps = np.where(p > 0, p, 1.0)
+    a1, d1, f1, b1, c1, e1 = (a - q) / ps, (d - q) / ps, (f - q) / ps, b / ps, c / ps, e / ps
+    r = 0.5 * (a1 * (d1 * f1 - e1 * e1) - b1 * (b1 * f1 - e1 * c1) + c1 * (b1 * e1 - d1 * c1))
+    phi = np.arccos(np.clip(r, -1.0, 1.0)) / 3.0
+    return q + 2.0 * p * np.cos(phi), q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
 
 
-def absurd_norm_model(W: np.ndarray, norm_error_g: np.ndarray) -> list[str]:
-    """Model 9 (any raw offset): '' or why the fit is absurd -- a singular or non-finite W,
+def condition_numbers(W: np.ndarray) -> np.ndarray:
+    """2-norm condition number sigma_max / sigma_min of each (D, 3, 3) W (inf where singular or
+    not finite): sqrt of the extreme eigenvalues' ratio of W^T W in closed form over the stack;
+    near or above COND_MAX, where a verdict and its words depend on it, by LAPACK's SVD."""
+    W = np.asarray(W, dtype=float)
+    finite = np.isfinite(W).all(axis=(-2, -1))
+    Wf = np.where(finite[:, None, None], W, np.eye(3))
+    hi, lo = _sym3_extreme_eigenvalues(np.matmul(Wf.swapaxes(1, 2), Wf))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cond = np.sqrt(hi / lo)
+    unsure = np.flatnonzero(finite & ~((lo > 0) & (cond < 0.9 * COND_MAX)))
+    if unsure.size:
+        s = np.linalg.svd(Wf[unsure], compute_uv=False)  # (n, 3) descending
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cond[unsure] = np.where(s[:, -1] > 0, s[:, 0] / np.where(s[:, -1] > 0, s[:, -1], 1.0), np.inf)
+    return np.where(finite, cond, np.inf)
+
+
+def _first_code(*conds: np.ndarray | np.bool_) -> np.ndarray:
+    """(D,) 0 where no condition holds, else 1 + the index of the first that does."""
+    stack = np.stack(conds)  # (k, D)
+    return np.where(stack.any(axis=0), np.argmax(stack, axis=0) + 1, 0)
+
+
+def absurd_coefficients(W: np.ndarray, V: np.ndarray) -> Refusal:
+    """Boards of (D, 3, 3) W and (D, 3) V whose calibration is physically absurd: non-finite,
+    a gain outside GAIN_RANGE, a cross-axis term over CROSS_MAX, cond(W) over COND_MAX or an
+    offset over OFFSET_MAX_G (the first that applies names the reason)."""
+    W, V = np.asarray(W, dtype=float), np.asarray(V, dtype=float)
+    finite = np.isfinite(W).all(axis=(1, 2)) & np.isfinite(V).all(axis=1)
+    Wf, Vf = np.where(finite[:, None, None], W, np.eye(3)), np.where(finite[:, None], V, 0.0)
+    diag = np.diagonal(Wf, axis1=1, axis2=2)
+    cross = np.abs(Wf - diag[:, :, None] * np.eye(3)).max(axis=(1, 2))
+    # ||W - I||_F = e bounds every singular value of W within 1 +- e, so cond(W) <= (1 + e) / (1 - e):
+    # at most 9 for e <= 0.8 (every real calibration); the condition number is formed for the rest only
+    e = np.sqrt(np.einsum("dij,dij->d", Wf - np.eye(3), Wf - np.eye(3)))
+    cond = np.ones(len(Wf))
+    far = np.flatnonzero(~(e <= 0.8))
+    if far.size:
+        cond[far] = condition_numbers(Wf[far])
+    offset = np.abs(Vf).max(axis=1)
+    code = _first_code(~finite, ((diag < GAIN_RANGE[0]) | (diag > GAIN_RANGE[1])).any(axis=1),
+                       cross > CROSS_MAX, cond > COND_MAX, offset > OFFSET_MAX_G)
+
+    def words(d: int) -> str:
+        return [
+            "the fit gave non-finite coefficients",
+            f"gains W diagonal {np.round(diag[d], 4).tolist()} outside {GAIN_RANGE[0]:g} to {GAIN_RANGE[1]:g}: "
+            "the poses do not exercise every axis (degenerate pose set)",
+            f"cross-axis term {cross[d]:.3g} > {CROSS_MAX:g}: degenerate pose set",
+            f"W condition number {cond[d]:.3g} > {COND_MAX:g}: degenerate pose set",
+            f"offset {offset[d]:.3g} g > {OFFSET_MAX_G:g} g: absurd calibration"][code[d] - 1]
+    return Refusal(code > 0, words)
+
+
+def absurd_norm_model(W: np.ndarray, norm_error_g: np.ndarray) -> Refusal:
+    """Model 9 (any raw offset): boards whose fit is absurd -- a singular or non-finite W,
     or a calibrated pose whose norm is not near 1 g (the fit did not converge on gravity)."""
-    out = []
-    for w, ne in zip(np.asarray(W, dtype=float), np.asarray(norm_error_g, dtype=float), strict=True):
-        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(ne))):
-            out.append("the fit gave non-finite coefficients")
-        elif np.linalg.cond(w) > COND_MAX:
-            out.append(f"W condition number {np.linalg.cond(w):.3g} > {COND_MAX:g}: degenerate pose set")
-        elif ne.size and np.max(np.abs(ne)) > READING_NORM_G[0]:
-            out.append(f"a calibrated pose is {np.max(np.abs(ne)):.3g} g off 1 g: damaged data")
-        else:
-            out.append("")
-    return out
+    W, ne = np.asarray(W, dtype=float), np.asarray(norm_error_g, dtype=float)
+    finite = np.isfinite(W).all(axis=(1, 2)) & np.isfinite(ne).all(axis=1)
+    cond = condition_numbers(np.where(finite[:, None, None], W, np.eye(3)))
+    worst = np.abs(np.where(finite[:, None], ne, 0.0)).max(axis=1, initial=0.0)
+    code = _first_code(~finite, cond > COND_MAX, worst > READING_NORM_G[0])
+
+    def words(d: int) -> str:
+        return ["the fit gave non-finite coefficients",
+                f"W condition number {cond[d]:.3g} > {COND_MAX:g}: degenerate pose set",
+                f"a calibrated pose is {worst[d]:.3g} g off 1 g: damaged data"][code[d] - 1]
+    return Refusal(code > 0, words)

@@ -145,7 +145,7 @@ def fit_twin(stats: LotStats, per_g: float | None, max_components: int = 4, seed
         raise DataError(f"twin fit: {int(good.sum())} fitted boards; a population of {len(names)} parameters "
                         f"(model {stats.model}) needs at least {need}")
     changes = find_changes(stats.block_stats(), names, stats.block)
-    X = _unshift(stats.rows[good], names, changes)
+    X = _unshift(stats.rows[good, :1 + len(names)], names, changes)  # board and quantities: no copy of the rest
     physics, candidates = choose_physics(twin_config(population_shape(names), stats, per_g, base), stats, seed)
     if physics != PHYSICS[0]:
         if len(X) > MIXTURE_ROWS:  # fit_mixture's own subsample, taken before the (costlier) inversion

@@ -81,11 +81,12 @@ def choose_physics(cfg: dict[str, Any], like: LotStats, seed: int) -> tuple[str,
     """The physics whose re-simulated boards' residuals are nearest the lot's (module docstring),
     and every candidate's statistics."""
     Q = len(like.quantities)
-    rows = like.rows[np.all(np.isfinite(like.rows[:, 1:1 + Q]), axis=1)]
-    if like.model != "15" or like.refs is None or not len(rows):
+    keep = np.flatnonzero(np.all(np.isfinite(like.rows[:, 1:1 + Q]), axis=1))
+    if like.model != "15" or like.refs is None or not len(keep):
         return PHYSICS[0], []  # no cubic term fitted (or no poses to simulate at): the two are one
     rng = np.random.default_rng(seed)
-    rows = rows[rng.choice(len(rows), min(PLUGIN_BOARDS, len(rows)), replace=False)]
+    # the plug-in boards only are copied out of the reservoir (50,000 rows), not every finite row first
+    rows = like.rows[keep[rng.choice(len(keep), min(PLUGIN_BOARDS, len(keep)), replace=False)]]
     out: list[dict[str, Any]] = []
     for physics in PHYSICS:
         theta = board_rows(cfg, physics, like, rows[:, 1:1 + Q])

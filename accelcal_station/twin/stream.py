@@ -91,6 +91,8 @@ class LotStats:
     pose_angles: dict[str, np.ndarray] = field(default_factory=dict)
     skipped: int = 0
     _carry: np.ndarray | None = None  # a partial block's rows carried to the next chunk
+    _buf: np.ndarray | None = None  # the reservoir's storage (R rows); ``rows`` is its filled part
+    _key: dict[tuple[str, tuple[str, ...]], tuple[str, tuple[str, ...]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.rng = np.random.default_rng(self.seed)
@@ -110,7 +112,9 @@ class LotStats:
         meas = np.concatenate([res["W"].reshape(B, 9), res["V"], res["Gamma"],
                                1e3 * res["residual_rms_g"][:, None], 1e3 * res["crossval_rms_g"][:, None]], axis=1)
         rows = np.concatenate([idx[:, None].astype(float), eq, meas], axis=1)
-        keys = [(v, tuple(sorted({r.code for r in rs}))) for v, rs in zip(verdicts, reasons, strict=True)]
+        # one tuple per distinct (verdict, reason codes): a lot has a few, the reservoir holds 50,000 boards
+        keys = [self._key.setdefault(k, k) for k in
+                ((v, tuple(sorted({r.code for r in rs}))) for v, rs in zip(verdicts, reasons, strict=True))]
         for v, rs in keys:
             self.verdicts[v or "UNJUDGED"] += 1
             self.reasons.update(rs)
@@ -152,11 +156,14 @@ class LotStats:
     def _sample(self, rows: np.ndarray, keys: list[tuple[str, tuple[str, ...]]]) -> None:
         """Algorithm R: board t (1-based) replaces a random slot with probability R / t."""
         R = self.reservoir
-        if self.rows.size == 0:
-            self.rows = np.empty((0, rows.shape[1]))
-        free = max(0, R - len(self.rows))
+        if self._buf is None:  # the whole reservoir at once: filled in place (pages touched as filled),
+            self._buf = np.empty((R, rows.shape[1]))  # never regrown by concatenation (a copy per chunk)
+            self.rows = self._buf[:0]
+        filled = len(self.rows)
+        free = max(0, min(R - filled, len(rows)))
         if free:
-            self.rows = np.concatenate([self.rows, rows[:free]])
+            self._buf[filled:filled + free] = rows[:free]
+            self.rows = self._buf[:filled + free]
             self.codes.extend(keys[:free])
         t = self.boards + free + 1 + np.arange(len(rows) - free)
         j = (self.rng.random(len(t)) * t).astype(np.int64)
