@@ -298,6 +298,9 @@ def require(gf: ArrayLike, model: str) -> Identifiability:
     return a
 
 
+_TIE_REL = 1e-9  # relative: far above rounding noise (1e-16), far below the 3 digits printed
+
+
 def worst_parameter(stderr: dict[str, np.ndarray] | None, model: str) -> tuple[str, str] | None:
     """(name, standard error in the parameter's own units) of the least certain parameter.
 
@@ -320,7 +323,10 @@ def worst_parameter(stderr: dict[str, np.ndarray] | None, model: str) -> tuple[s
         cands.append((V[r], f"V_{AXES[r]}", f"{1e3 * V[r]:.3g} mg"))
         if model == "15":
             cands.append((G[r], f"Gamma_{AXES[r]}{AXES[r]}", f"{1e3 * G[r]:.3g} mg/g^3"))
-    _, name, text = max(cands, key=lambda c: c[0])
+    # symmetric designs give several parameters the same error up to float noise: the tie goes
+    # to the first in the order above (W row by row, V, Gamma), not to the machine's last digits
+    top = max(c[0] for c in cands)
+    _, name, text = next((c for c in cands if c[0] >= top * (1.0 - _TIE_REL)), max(cands, key=lambda c: c[0]))
     return name, text
 
 

@@ -7,8 +7,10 @@ optimal_design(N) is a deterministic multistart SLSQP (fixed seed) costing ~N^3 
 takes some 10 s of CPU.  The station looks the designs up in the table instead.  Every design is
 written in its canonical form (fixtures/designs.py, canonical_angles: one fixed representative of
 the 48 signed axis permutations), so a search that lands on a symmetric equivalent of the optimum
-on another machine writes the same table.  ``--from-table`` polishes each tabled design to its local
-optimum (SLSQP from the tabled angles) and canonicalises it: the same designs, no new search.
+on another machine writes the same table; distinct optima whose separations tie (within 1e-9 g)
+go to the smallest canonical angles, not to floating-point noise.  ``--from-table`` polishes each
+tabled design to its local optimum (SLSQP from the tabled angles) and canonicalises it: the same
+designs, no new search.
 """
 from __future__ import annotations
 

@@ -105,3 +105,17 @@ def test_batch_assessment_matches_one_board_at_a_time():
         assert ok.tolist() == [assess(b, model).determined for b in boards]
         assert distinct.tolist() == [6, 6, 6, 2]
     assert assess_batch(boards, "12")[0].tolist() == [True, True, True, False]
+
+
+def test_least_certain_parameter_tie_is_not_broken_by_float_noise():
+    """A symmetric design gives the three gains the same standard error up to the machine's
+    last digits: the named one must not depend on them (issue 41)."""
+    from accelcal_station.identifiability import worst_parameter
+
+    for noise in ([0.0, 2e-16, -2e-16], [3e-16, 0.0, 1e-16], [-1e-16, 4e-16, 0.0]):
+        W = np.diag(2e-3 * (1 + np.array(noise))) + 1e-4
+        got = worst_parameter({"W": W, "V": np.full(3, 1e-4), "Gamma": np.zeros(3)}, "12")
+        assert got == ("W_xx", "0.21 %")
+    # a real difference still wins: W_zz larger by 5e-4 relative is named
+    W = np.diag([2e-3, 2e-3, 2.001e-3]) + 1e-4
+    assert worst_parameter({"W": W, "V": np.full(3, 1e-4), "Gamma": np.zeros(3)}, "12")[0] == "W_zz"
