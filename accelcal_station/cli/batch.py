@@ -195,8 +195,7 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
         return
     store_filters = _store_filters(from_store, lot, device, station, since, until, run_ids)
     _check_inputs(paths, from_store, csv_path, to_store, out_dir, force)
-    report = _fit_boards(paths, from_store, store_filters, model, units, cpg, grav, as_json,
-                         _limits(config_path))
+    report = _fit_boards(paths, from_store, store_filters, model, units, cpg, grav, as_json, _limits(config_path))
     outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store, config_path, force)
     _print_report(report, outputs, written, as_json)
     if report.skipped:
