@@ -138,8 +138,10 @@ class AsciiChamber(Chamber):
         self._sp: float | None = None
 
     @classmethod
-    def from_config(cls, cfg: dict[str, Any], path: str = "chamber", port: str | None = None) -> AsciiChamber:
-        m = parse(cfg, ChamberSection, path)
+    def from_config(cls, cfg: dict[str, Any] | ChamberSection, path: str = "chamber",
+                    port: str | None = None) -> AsciiChamber:
+        """From a ``chamber`` section (validated, or a mapping checked here); ``port``: the emulator's."""
+        m = cfg if isinstance(cfg, ChamberSection) else parse(cfg, ChamberSection, path)
         port = port or m.port
         if not isinstance(port, str) or not port:
             raise ConfigError(f"{path}.port: required (a serial device, host:port, a VISA resource, or emulated)")

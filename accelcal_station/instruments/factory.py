@@ -9,14 +9,18 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..config.schema import ChamberSection, given
 from ..errors import ConfigError
 from .chamber import AsciiChamber, Chamber, require_pyvisa
 
 DRIVERS = ("ascii",)
 
 
-def make_chamber(config: dict[str, Any], board: Any = None, path: str = "chamber") -> Chamber:
-    """The configured chamber; with ``port: emulated`` the emulator is started and stopped on close."""
+def make_chamber(config: ChamberSection | dict[str, Any], board: Any = None, path: str = "chamber") -> Chamber:
+    """The configured chamber (a station's validated ``chamber`` section, or a mapping); with
+    ``port: emulated`` the emulator is started and stopped on close."""
+    if isinstance(config, ChamberSection):
+        config = given(config)
     if not isinstance(config, dict):
         raise ConfigError(f"{path}: must be a mapping (driver, port, ...)")
     name = config.get("driver", "ascii")

@@ -28,12 +28,11 @@ from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
 from ..models.fitting import fit_session
 from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
-from ..store.location import outbox_of
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
 from .report import RunReport, fit_figures
-from .settings import StationConfig
+from .settings import StationConfig, configured_rate
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
@@ -108,9 +107,9 @@ class Station:
         wall0 = time.perf_counter()
         design = get_design(cfg.design)
         if self.driver is None:
-            self.driver = make_driver(cfg.raw["device"])
+            self.driver = make_driver(cfg.device)
         driver = self.driver
-        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
+        with open_store(cfg.store_file, cfg.outbox) as store:
             store.mark_stale_interrupted()
             if cfg.limits.defaults_line():
                 self.echo(cfg.limits.defaults_line())
@@ -139,8 +138,7 @@ class Station:
         try:
             stack.enter_context(driver)  # opening a port that nobody answers on is recorded too
             ident = driver.identify()
-            dev = self.cfg.raw["device"]
-            driver.configure(dev.get("range_g"), dev.get("odr_hz"))
+            driver.configure(*configured_rate(self.cfg.device))
         except AccelcalError as e:
             self._record_unreachable(store, e)
             raise
@@ -153,7 +151,7 @@ class Station:
         records = session.poses
         assert isinstance(records, list), "a station's session is the list its poses are captured into"
         try:
-            with make_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, driver, self.ui) as jig:
+            with make_jig(self.cfg.jig, driver, self.ui) as jig:
                 try:
                     self._run_poses(driver, jig, design, records, retries, rep)
                     self._fit_judge_write(driver, jig, session, rep)

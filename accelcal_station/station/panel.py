@@ -27,6 +27,7 @@ import numpy as np
 
 from ..acceptance.reasons import Reason
 from ..calibration import Calibration
+from ..config.schema import JigSection
 from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError
@@ -37,7 +38,6 @@ from ..fixtures.factory import make_panel_jig as panel_jig
 from ..fixtures.operator_jig import OperatorAbort, OperatorJig
 from ..fixtures.operator_ui import OperatorUI
 from ..session import PoseRecord, Session
-from ..store.location import outbox_of
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import Check, Station
@@ -91,7 +91,7 @@ def new_panel_id(station_id: str) -> str:
     return f"{station_id}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.urandom(3).hex()}"
 
 
-def make_panel_jig(cfg: dict[str, Any], boards: list[PanelBoard], ui: OperatorUI | None) -> Jig:
+def make_panel_jig(cfg: JigSection, boards: list[PanelBoard], ui: OperatorUI | None) -> Jig:
     """The configured jig for the whole panel, from the jig factory."""
     live = [b for b in boards if b.driver is not None]
     return panel_jig(cfg, [b.driver for b in live], [b.seat for b in live], ui)
@@ -121,7 +121,7 @@ class PanelStation:
     # -- building -------------------------------------------------------------------
     def _boards(self) -> list[PanelBoard]:
         cfg = self.cfg
-        sections = panel_sections(cfg.raw["device"])
+        sections = panel_sections(cfg.device)
         if self.drivers is not None and len(self.drivers) != len(sections):
             raise ConfigError(f"device: {len(sections)} boards configured, {len(self.drivers)} drivers given")
         out = []
@@ -246,15 +246,14 @@ class PanelStation:
         wall0 = time.perf_counter()
         design = get_design(cfg.design)
         boards = self.boards = self._boards()
-        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
+        with open_store(cfg.store_file, cfg.outbox) as store:
             store.mark_stale_interrupted()
             try:
                 for b in boards:
                     self._open(b, store)
                 live = [b for b in boards if b.active]
                 if live:
-                    with (self.jig or make_panel_jig(cfg.raw.get("jig") or {"type": "simulated"}, live,
-                                                     self.ui)) as jig:
+                    with (self.jig or make_panel_jig(cfg.jig, live, self.ui)) as jig:
                         self._poses(boards, jig, design)
                         self._fit_all(boards)
                         self._verify_all(boards, jig)

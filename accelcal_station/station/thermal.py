@@ -35,12 +35,11 @@ from ..models.fitting import fit_session
 from ..models.result import FitResult
 from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
-from ..store.location import outbox_of
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import Station
 from .report import RunReport
-from .settings import StationConfig
+from .settings import StationConfig, configured_rate
 from .thermal_plan import ChamberFault, ThermalPlan, WallClock, soak_until
 
 # a plan's poses by set point (C), in capture order
@@ -99,13 +98,14 @@ class ThermalStation(Station):
 
     def __init__(self, config: StationConfig, **kw: Any) -> None:
         super().__init__(config, **kw)
-        raw = config.raw
-        if "thermal" not in raw or "chamber" not in raw:
+        thermal, chamber = config.schema.thermal, config.schema.chamber
+        if thermal is None or chamber is None:
             raise ConfigError(f"{config.path}: a thermal plan needs both thermal: and chamber: sections")
         if config.offset_trim:
             raise ConfigError("nvm.offset_trim: not with a thermal plan (the offset moves with temperature); "
                               "allowed: false")
-        self.plan = ThermalPlan.from_config(raw["thermal"], config.model)
+        self.plan = ThermalPlan.from_section(thermal, config.model)
+        self.chamber_section = chamber
         self.results: list[SetPointResult] = []
         self.soak_s = 0.0
         self.report_events: list[str] = []
@@ -121,15 +121,14 @@ class ThermalStation(Station):
                                store=str(cfg.store_file))
         wall0 = time.perf_counter()
         if self.driver is None:
-            self.driver = make_driver(cfg.raw["device"])
+            self.driver = make_driver(cfg.device)
         driver = self.driver
-        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
+        with open_store(cfg.store_file, cfg.outbox) as store:
             store.mark_stale_interrupted()
             with driver:
                 ident = driver.identify()
                 rep.serial, rep.chip = self.serial_override or ident.serial, ident.chip
-                dev = cfg.raw["device"]
-                driver.configure(dev.get("range_g"), dev.get("odr_hz"))
+                driver.configure(*configured_rate(cfg.device))
                 clock = clock_of(driver) or WallClock()  # the device's clock, from the factory
                 t0 = clock.now()
                 run_id = rep.run_id = store.start_run(
@@ -140,8 +139,8 @@ class ThermalStation(Station):
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
                 try:
-                    with make_chamber(cfg.raw["chamber"], board_of(driver)) as chamber, \
-                            make_jig(cfg.raw.get("jig") or {"type": "simulated"}, driver, self.ui) as jig:
+                    with make_chamber(self.chamber_section, board_of(driver)) as chamber, \
+                            make_jig(cfg.jig, driver, self.ui) as jig:
                         self._plan(driver, chamber, jig, clock, records, retries, rep)
                 except (AccelcalError, KeyboardInterrupt) as e:
                     if isinstance(e, ChamberFault):

@@ -32,7 +32,6 @@ from ..fixtures.operator_jig import OperatorAbort
 from ..instruments.chamber import Chamber, ChamberStatus
 from ..instruments.factory import couple, make_chamber
 from ..session import PoseRecord, Session
-from ..store.location import outbox_of
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .capture import GatedCapture
@@ -40,7 +39,7 @@ from .panel import PanelBoard, PanelStation, make_panel_jig
 from .report import RunReport
 from .settings import StationConfig
 from .thermal import Groups, SetPointResult, ThermalRunReport, ThermalStation
-from .thermal_plan import ChamberFault, ThermalPlan, WallClock, soak_until
+from .thermal_plan import ChamberFault, WallClock, soak_until
 
 
 class ThermalPanelStation(PanelStation):
@@ -51,8 +50,8 @@ class ThermalPanelStation(PanelStation):
 
     def __init__(self, config: StationConfig, **kw: Any) -> None:
         super().__init__(config, **kw)
-        ThermalStation(config)  # the same checks as a single board: thermal: and chamber:, no offset trim
-        self.plan = ThermalPlan.from_config(config.raw["thermal"], config.model)
+        single = ThermalStation(config)  # the same checks as a single board: thermal: and chamber:, no offset trim
+        self.plan, self.chamber_section = single.plan, single.chamber_section
         self.soak_s = 0.0
         self.floor_s = 0.0  # the panel's sampling floor: per pose, the longest board's averaged samples / ODR
         self.groups: dict[int, Groups] = {}
@@ -62,7 +61,7 @@ class ThermalPanelStation(PanelStation):
         cfg = self.cfg
         wall0 = time.perf_counter()
         boards = self.boards = self._boards()
-        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
+        with open_store(cfg.store_file, cfg.outbox) as store:
             store.mark_stale_interrupted()
             try:
                 for b in boards:
@@ -87,9 +86,8 @@ class ThermalPanelStation(PanelStation):
 
     def _in_chamber(self, live: list[PanelBoard], clock: Clock) -> None:
         sims = [board_of(b.driver) for b in live]
-        with make_chamber(self.cfg.raw["chamber"], sims[0]) as chamber, \
-                (self.jig or make_panel_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, live,
-                                            self.ui)) as jig:
+        with make_chamber(self.chamber_section, sims[0]) as chamber, \
+                (self.jig or make_panel_jig(self.cfg.jig, live, self.ui)) as jig:
             emu = getattr(chamber, "emulator", None)
             for s in sims[1:]:
                 if emu is not None and s is not None:
