@@ -260,6 +260,9 @@ class ChamberSection(Section):
     min_c: float = _f(-70.0, "lowest set point allowed, C", ge=-100, le=200)
     max_c: float = _f(180.0, "highest set point allowed, C", ge=-100, le=300)
     emulator: ChamberEmulatorSection | None = _f(None, "the emulated chamber's physics and faults")
+    visa_library: str = Field("@py", min_length=1, description=(
+        "the VISA backend pyvisa opens the port through: @py (pyvisa-py, the default), @ivi (an "
+        "installed IVI VISA such as NI-VISA or Keysight IO), @sim (pyvisa-sim), or a vendor VISA library's path"))
 
 
 class WebSection(Section):

@@ -23,7 +23,7 @@ from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, Underdet
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import clock_of, make_jig
-from ..fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
+from ..fixtures.operator_jig import OperatorAbort, PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
 from ..models.fitting import fit_session
 from ..nvm.writer import BurnError, CalibrationWriter, holds_text
@@ -81,13 +81,13 @@ class Station:
         attempts = 0
         while True:
             attempts += 1
-            jig.present(pose, self._live(driver, StillnessGate(s, floor)) if isinstance(jig, OperatorJig) else None)
+            jig.present(pose, self._live(driver, StillnessGate(s, floor)) if jig.shows_live_reading else None)
             bar = self._capture_sink(f"  capturing {pose.name}")
             try:
                 gc = gated_capture(driver, s, pose.reference_g, floor, progress=bar)
             except WrongPose as e:
                 report.events.append(f"{pose.name}: {e}")
-                if not isinstance(jig, OperatorJig) or attempts > s.max_recaptures:
+                if not jig.places_again or attempts > s.max_recaptures:
                     raise
                 self.echo(f"  refused: {e}")
                 continue
@@ -156,11 +156,11 @@ class Station:
                     self._run_poses(driver, jig, design, records, retries, rep)
                     self._fit_judge_write(driver, jig, session, rep)
                 finally:
-                    self.operator_wait_s = float(getattr(jig, "wait_s", 0.0))
+                    self.operator_wait_s = jig.wait_s
         except (DeviceError, NVMError) as e:
             # a port that closed, a NACK storm, reads that do not settle: the run ends FAIL with the
             # typed reason and the poses captured so far (recorded by _finish), exit 1, never 'running'
-            code = getattr(e, "reason_code", "nvm")
+            code = e.reason_code
             rep.verdict, rep.reasons = "FAIL", [Reason(code, str(e))]
             rep.events.append(f"run ended by a {code} fault after {len(records)} poses: {e}")
             self.echo(f"FAIL: {e} ({len(records)} poses captured)")
@@ -318,12 +318,12 @@ class Station:
         The registers are volatile: the trim is reported (and recorded) so the device
         config's ``offset_trim_lsb`` can restore it at power-up.
         """
-        lsb_g = getattr(driver, "offset_trim_lsb_g", None)
-        if lsb_g is None or not hasattr(driver, "set_offset_trim"):
+        if not driver.supports_offset_trim:
             raise ConfigError(f"nvm.offset_trim: the {driver.name} driver has no offset-trim registers; "
                               "set nvm.offset_trim: false")
         offset_g = -np.linalg.solve(cal.W, cal.V)  # zero-g output of the untrimmed chip
-        old = np.asarray(driver.get_offset_trim(), dtype=float) if hasattr(driver, "get_offset_trim") else 0.0
+        lsb_g = driver.offset_trim_lsb_g
+        old = np.asarray(driver.get_offset_trim(), dtype=float)
         total = np.clip(np.round(old - offset_g / lsb_g), -128, 127).astype(int)
         driver.set_offset_trim(tuple(int(v) for v in total))
         t = (total - old) * lsb_g
@@ -369,7 +369,6 @@ class Station:
         # a panel's board that opened but did not identify has no start time: no device time
         if clock is not None and clock0 is not None:
             t["device_time_s"] = clock.now() - clock0  # moves, waits, EEPROM cycles, sampling
-            realtime = bool(getattr(clock, "realtime", False))
-            t["board_time_s"] = t["device_time_s"] + (0.0 if realtime else t["host_compute_s"])
+            t["board_time_s"] = t["device_time_s"] + (0.0 if clock.realtime else t["host_compute_s"])
         return t
 

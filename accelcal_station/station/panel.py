@@ -35,7 +35,7 @@ from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import board_seat, clock_of
 from ..fixtures.factory import make_panel_jig as panel_jig
-from ..fixtures.operator_jig import OperatorAbort, OperatorJig
+from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import OperatorUI
 from ..session import PoseRecord, Session
 from ..store.outbox import open_store
@@ -157,14 +157,14 @@ class PanelStation:
 
     # -- capture ------------------------------------------------------------------------
     def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None
-                     ) -> tuple[GatedCapture | None, Exception | None]:
+                     ) -> tuple[GatedCapture | None, AccelcalError | None]:
         try:
             return gated_capture(b.driver, self.cfg.capture, pose.reference_g, floor), None
         except AccelcalError as e:  # WrongPose, not still, NACK...: this board's, never the panel's
             return None, e
 
     def capture_all(self, boards: list[PanelBoard], pose: PoseSpec, floors: dict[int, np.ndarray | None] | None = None
-                    ) -> tuple[dict[int, GatedCapture], dict[int, Exception]]:
+                    ) -> tuple[dict[int, GatedCapture], dict[int, AccelcalError]]:
         """Capture ``pose`` on every active board at once: one thread per group, boards of a group in turn.
 
         Returns the captures and the errors, by board index; nothing is marked failed here.
@@ -174,7 +174,7 @@ class PanelStation:
             if b.active:
                 groups.setdefault(b.group, []).append(b)
         caps: dict[int, GatedCapture] = {}
-        errors: dict[int, Exception] = {}
+        errors: dict[int, AccelcalError] = {}
         lock = threading.Lock()
 
         def run(members: list[PanelBoard]) -> None:
@@ -209,13 +209,13 @@ class PanelStation:
             if not misplaced:
                 break
             self.echo(f"  every board reads a wrong pose at {pose.name}: the panel is not in the planned pose")
-            if not isinstance(jig, OperatorJig) or attempt == self.cfg.capture.max_recaptures:
+            if not jig.places_again or attempt == self.cfg.capture.max_recaptures:
                 break
         for b in boards:
             if b.index in errors:
                 e = errors[b.index]
                 b.fail(Reason("pose", f"{pose.name}: {e}", sep=" ") if isinstance(e, WrongPose)
-                       else Reason(getattr(e, "reason_code", "device"), f"{pose.name}: {e}"))
+                       else Reason(e.reason_code, f"{pose.name}: {e}"))
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
         return caps
 
@@ -282,7 +282,7 @@ class PanelStation:
         """A device or port fault that ends the panel's flow: every board still in it fails with the typed
         reason (``port_lost``, ``device``, ``nvm``); each run is then recorded FAIL with the poses its board
         captured (``_record``), so the command exits 1 and no run is left 'running'."""
-        code = getattr(e, "reason_code", "nvm")
+        code = e.reason_code
         for b in boards:
             if b.active:
                 b.fail(Reason(code, str(e)))

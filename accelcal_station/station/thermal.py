@@ -147,7 +147,7 @@ class ThermalStation(Station):
                         rep.verdict, rep.reasons = "FAIL", [Reason("chamber", str(e))]
                         self.echo(f"FAIL: chamber: {e} (nothing burned)")
                     elif isinstance(e, (PortLostError, NVMError)):  # a lost sensor/jig port, unsettled NVM reads
-                        code = getattr(e, "reason_code", "nvm")
+                        code = e.reason_code
                         rep.verdict, rep.reasons = "FAIL", [Reason(code, f"{e} ({self._where()})")]
                         self.echo(f"FAIL: {e} ({len(records)} poses captured)")
                     else:
@@ -394,7 +394,7 @@ class ThermalStation(Station):
         return {"odr_hz": driver.odr_hz, "samples_averaged": self.samples_used, "samples_read": self.samples_read,
                 "board_time_s": total, "soak_s": self.soak_s, "sampling_floor_s": floor,
                 "sampling_s": self.samples_read / driver.odr_hz, "rest_s": total - self.soak_s - floor,
-                "boards": 1, "per_board_s": total, "clock": "real" if getattr(clock, "realtime", False) else "virtual",
+                "boards": 1, "per_board_s": total, "clock": "real" if clock.realtime else "virtual",
                 "host_compute_s": time.perf_counter() - wall0}
 
     def _summary(self, rep: RunReport) -> dict[str, Any]:

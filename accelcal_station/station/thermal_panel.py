@@ -30,7 +30,7 @@ from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.factory import board_of, clock_of, sync_clocks
 from ..fixtures.operator_jig import OperatorAbort
 from ..instruments.chamber import Chamber, ChamberStatus
-from ..instruments.factory import couple, make_chamber
+from ..instruments.factory import make_chamber
 from ..session import PoseRecord, Session
 from ..store.outbox import open_store
 from ..store.runs import Store
@@ -86,12 +86,9 @@ class ThermalPanelStation(PanelStation):
 
     def _in_chamber(self, live: list[PanelBoard], clock: Clock) -> None:
         sims = [board_of(b.driver) for b in live]
-        with make_chamber(self.chamber_section, sims[0]) as chamber, \
+        # every board of the panel sits in the same chamber air (coupled by the factory)
+        with make_chamber(self.chamber_section, sims[0], others=sims[1:]) as chamber, \
                 (self.jig or make_panel_jig(self.cfg.jig, live, self.ui)) as jig:
-            emu = getattr(chamber, "emulator", None)
-            for s in sims[1:]:
-                if emu is not None and s is not None:
-                    couple(s, emu)  # every board of the panel sits in the same chamber air
             try:
                 self._visit_all(live, chamber, jig, clock)
             except ChamberFault as e:
@@ -247,7 +244,7 @@ class ThermalPanelStation(PanelStation):
                  "rest_s": total - self.soak_s - self.floor_s, "board_time_s": total}
         self.timing = {"boards": n, "panel_time_s": total, **split,
                        "per_board": {k: v / n for k, v in split.items()},
-                       "clock": "real" if getattr(clock, "realtime", False) else "virtual",
+                       "clock": "real" if clock.realtime else "virtual",
                        "host_compute_s": time.perf_counter() - wall0}
         self.timing["per_board_s"] = total / n
 
