@@ -33,6 +33,7 @@ from ..store.runs import Store
 from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
 from .report import RunReport, fit_figures
 from .settings import StationConfig, configured_rate
+from .verdict import Stage
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
@@ -161,7 +162,7 @@ class Station:
             # a port that closed, a NACK storm, reads that do not settle: the run ends FAIL with the
             # typed reason and the poses captured so far (recorded by _finish), exit 1, never 'running'
             code = e.reason_code
-            rep.verdict, rep.reasons = "FAIL", [Reason(code, str(e))]
+            rep.record(Stage.FAULT, Reason(code, str(e)))
             rep.events.append(f"run ended by a {code} fault after {len(records)} poses: {e}")
             self.echo(f"FAIL: {e} ({len(records)} poses captured)")
         except (AccelcalError, KeyboardInterrupt) as e:
@@ -236,7 +237,7 @@ class Station:
         try:
             fit = fit_session(session, cfg.model)
         except UnderdeterminedError as e:
-            rep.verdict, rep.reasons = "FAIL", [Reason("fit", str(e))]
+            rep.record(Stage.FIT, Reason("fit", str(e)))
             return None
         rep.fit = fit
         rep.calibration = fit.calibration
@@ -244,7 +245,7 @@ class Station:
         verdict = judge(fit, cfg.limits, planned_poses=planned)
         rep.measured = verdict.measured
         if not verdict.passed:
-            rep.verdict, rep.reasons = "FAIL", verdict.reasons
+            rep.record(Stage.ACCEPTANCE, *verdict.reasons)
             self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
             return None
         cal = fit.calibration
@@ -261,9 +262,9 @@ class Station:
             verdict = judge(rep.fit, self.cfg.limits, err, planned_poses=len(get_design(self.cfg.design)))
             rep.measured = verdict.measured
             if not verdict.passed:
-                rep.verdict, rep.reasons = "FAIL", verdict.reasons
+                rep.record(Stage.ACCEPTANCE, *verdict.reasons)
                 return False
-        rep.verdict, rep.reasons = "PASS", []
+        rep.record(Stage.JUDGED)
         return True
 
     def _burn(self, driver: Driver, cal: Calibration, checks: list[Check], rep: RunReport) -> None:
@@ -273,7 +274,7 @@ class Station:
             return
         nvm = driver.nvm
         if nvm is None:
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "the device has no NVM to write; set nvm.write: false")]
+            rep.record(Stage.NVM, Reason("nvm", "the device has no NVM to write; set nvm.write: false"))
             return
         writer = CalibrationWriter(nvm, cfg.slot_size)
         log = getattr(self, "_burn_log", None) or (lambda kind, data: None)
@@ -284,7 +285,7 @@ class Station:
         except BurnError as e:
             rep.nvm = e.outcome.to_dict()
             log("nvm_burn_failed", rep.nvm)
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
+            rep.record(Stage.NVM, Reason("nvm", str(e)))
             return
         rep.nvm = outcome.to_dict()
         log("nvm_burned", rep.nvm)
@@ -307,7 +308,7 @@ class Station:
             writer.revert(outcome)
             rep.nvm = outcome.to_dict()
             log("nvm_reverted", rep.nvm)
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", f"{why}; {holds_text(outcome)}")]
+            rep.record(Stage.NVM, Reason("nvm", f"{why}; {holds_text(outcome)}"))
             return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
 

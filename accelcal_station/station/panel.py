@@ -46,6 +46,7 @@ from .jig_pose import JigPoseEstimate, estimate_jig_poses
 from .panel_config import group_of, panel_sections
 from .report import RunReport
 from .settings import StationConfig
+from .verdict import Stage
 
 
 @dataclass
@@ -71,11 +72,11 @@ class PanelBoard:
     @property
     def active(self) -> bool:
         """Still in the flow: opened and not failed yet."""
-        return self.open_ and not self.rep.reasons
+        return self.open_ and not self.rep.failed
 
-    def fail(self, reason: Reason) -> None:
-        self.rep.verdict = "FAIL"
-        self.rep.reasons.append(reason)
+    def fail(self, stage: Stage, reason: Reason) -> None:
+        """This board fails at ``stage`` (it takes no further part in the panel's flow)."""
+        self.rep.record(stage, reason)
         self.rep.events.append(reason)
 
     @property
@@ -148,7 +149,7 @@ class PanelStation:
             clock = clock_of(b.driver)
             b.clock0 = clock.now() if clock is not None else None
         except AccelcalError as e:
-            b.fail(Reason("device", str(e)))
+            b.fail(Stage.DEVICE, Reason("device", str(e)))
         b.rep.run_id = store.start_run(
             device_serial=b.rep.serial or b.path, chip=b.rep.chip or b.section.get("driver"),
             station_id=self.cfg.station_id, operator=self.operator, lot=self.lot, config_text=self.cfg.text,
@@ -214,7 +215,7 @@ class PanelStation:
         for b in boards:
             if b.index in errors:
                 e = errors[b.index]
-                b.fail(Reason("pose", f"{pose.name}: {e}", sep=" ") if isinstance(e, WrongPose)
+                b.fail(Stage.CAPTURE, Reason("pose", f"{pose.name}: {e}", sep=" ") if isinstance(e, WrongPose)
                        else Reason(e.reason_code, f"{pose.name}: {e}"))
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
         return caps
@@ -285,7 +286,7 @@ class PanelStation:
         code = e.reason_code
         for b in boards:
             if b.active:
-                b.fail(Reason(code, str(e)))
+                b.fail(Stage.FAULT, Reason(code, str(e)))
                 b.cal = None  # nothing is burned after the fault
                 b.rep.events.append(f"run ended by a {code} fault after {len(b.records)} poses: {e}")
         self.echo(f"FAIL: {e} (every board still in the flow)")
@@ -377,8 +378,7 @@ class PanelStation:
                              model=self.cfg.model, retries=b.retries)
         except AccelcalError as e:
             store.interrupt_run(rep.run_id, f"could not record the result: {e}", status="error", nvm_outcome=rep.nvm)
-            rep.verdict = "FAIL"
-            rep.reasons.append(Reason("store", str(e)))
+            rep.record(Stage.STORE, Reason("store", str(e)))
 
 
 def _session(b: PanelBoard) -> Session:

@@ -1,5 +1,6 @@
 """What one run did: the run report (the `accelcal run --json` object of a board) and the
-fit's figures as the store keeps them."""
+fit's figures as the store keeps them.  Its verdict is never set: the flow records each stage's
+outcome and the verdict is made from them in one place (verdict.py ``run_verdict``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -8,6 +9,7 @@ from typing import Any
 from ..acceptance.reasons import Reason, codes
 from ..calibration import Calibration
 from ..models.result import FitResult
+from .verdict import Outcome, RunVerdict, Stage, run_verdict
 
 
 @dataclass
@@ -18,8 +20,7 @@ class RunReport:
     serial: str = ""
     chip: str = ""
     station_id: str = ""
-    verdict: str = "FAIL"
-    reasons: list[Reason] = field(default_factory=list)
+    outcomes: list[Outcome] = field(default_factory=list)  # what decided the verdict, stage by stage
     model: str = ""
     design: str = ""
     fit: FitResult | None = None
@@ -35,11 +36,34 @@ class RunReport:
     timing: dict[str, Any] = field(default_factory=dict)  # seconds, counts; a thermal plan adds its clock
     store: str = ""
 
+    def record(self, stage: Stage, *reasons: Reason) -> None:
+        """What a stage of the run found: the reasons it fails the board (none: it passed)."""
+        self.outcomes.append(Outcome(stage, tuple(reasons)))
+
+    @property
+    def failed(self) -> bool:
+        """A stage has failed the board (it takes no further part in the flow)."""
+        return any(o.failed for o in self.outcomes)
+
+    @property
+    def final(self) -> RunVerdict:
+        """The run's verdict, made from the outcomes recorded so far (verdict.py)."""
+        return run_verdict(self.outcomes)
+
+    @property
+    def verdict(self) -> str:
+        return self.final.label
+
+    @property
+    def reasons(self) -> list[Reason]:
+        return list(self.final.reasons)
+
     def to_dict(self) -> dict[str, Any]:
         f, c = self.fit, self.calibration
+        final = self.final
         return {
             "run_id": self.run_id, "serial": self.serial, "chip": self.chip, "station_id": self.station_id,
-            "verdict": self.verdict, "reasons": [str(r) for r in self.reasons], "reason_codes": codes(self.reasons),
+            "verdict": final.label, "reasons": [str(r) for r in final.reasons], "reason_codes": codes(final.reasons),
             "model": self.model, "design": self.design,
             "W": None if c is None else c.W.tolist(), "V": None if c is None else c.V.tolist(),
             "Gamma": None if c is None else c.Gamma.tolist(),

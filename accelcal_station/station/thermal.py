@@ -41,6 +41,7 @@ from .board import Station
 from .report import RunReport
 from .settings import StationConfig, configured_rate
 from .thermal_plan import ChamberFault, ThermalPlan, WallClock, soak_until
+from .verdict import Stage
 
 # a plan's poses by set point (C), in capture order
 Groups = dict[float, list[PoseRecord]]
@@ -144,11 +145,11 @@ class ThermalStation(Station):
                         self._plan(driver, chamber, jig, clock, records, retries, rep)
                 except (AccelcalError, KeyboardInterrupt) as e:
                     if isinstance(e, ChamberFault):
-                        rep.verdict, rep.reasons = "FAIL", [Reason("chamber", str(e))]
+                        rep.record(Stage.CHAMBER, Reason("chamber", str(e)))
                         self.echo(f"FAIL: chamber: {e} (nothing burned)")
                     elif isinstance(e, (PortLostError, NVMError)):  # a lost sensor/jig port, unsettled NVM reads
                         code = e.reason_code
-                        rep.verdict, rep.reasons = "FAIL", [Reason(code, f"{e} ({self._where()})")]
+                        rep.record(Stage.FAULT, Reason(code, f"{e} ({self._where()})"))
                         self.echo(f"FAIL: {e} ({len(records)} poses captured)")
                     else:
                         where = self._where()
@@ -302,7 +303,7 @@ class ThermalStation(Station):
         cfg, plan, cpg = self.cfg, self.plan, driver.counts_per_g
         fits, reasons = self._fit_each(groups, cpg, rep)
         if len(fits) < len(plan.set_points_c):
-            rep.verdict, rep.reasons = "FAIL", reasons
+            rep.record(Stage.FIT, *reasons)
             return
         table = TemperatureTable([t for t, _ in fits], [f.W for _, f in fits], [f.V for _, f in fits],
                                  [f.Gamma for _, f in fits], plan.method)
@@ -341,33 +342,31 @@ class ThermalStation(Station):
             rep.measured["verify_error_max_mg"] = rep.verify_error_max_mg
         self.table_verdict = {"verdict": "FAIL" if reasons else "PASS", "reasons": [str(r) for r in reasons]}
         if reasons:
-            rep.verdict, rep.reasons = "FAIL", reasons
+            rep.record(Stage.ACCEPTANCE, *reasons)
             self.echo("FAIL before writing: " + "; ".join(reasons))
             return
-        rep.verdict, rep.reasons = "PASS", []
+        rep.record(Stage.JUDGED)
         if cfg.nvm_write:
             self._burn_table(driver, cal, groups, rep)
 
     def _burn_table(self, driver: Driver, cal: Calibration, groups: Groups, rep: RunReport) -> None:
         """Burn the table, read it back, and check it does what the fitted one did at the verification poses."""
         if driver.nvm is None:
-            rep.verdict, rep.reasons = "FAIL", [
-                Reason("nvm", "the device has no NVM to write; set nvm.write: false")]
+            rep.record(Stage.NVM, Reason("nvm", "the device has no NVM to write; set nvm.write: false"))
             return
         writer = CalibrationWriter(driver.nvm, self.cfg.slot_size)
         try:
             outcome = writer.burn(cal, rep.serial, self.cfg.station_id)
         except BurnError as e:
             rep.nvm = e.outcome.to_dict()
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
+            rep.record(Stage.NVM, Reason("nvm", str(e)))
             return
         rep.nvm = outcome.to_dict()
         back = writer.read_newest(rep.serial, settled=True)
         if back is None or back[0].temperature is None:
             writer.revert(outcome)  # a FAIL never leaves the unverified table as the board's newest
             rep.nvm = outcome.to_dict()
-            rep.verdict, rep.reasons = "FAIL", [
-                Reason("nvm", f"no temperature table readable after writing; {holds_text(outcome)}")]
+            rep.record(Stage.NVM, Reason("nvm", f"no temperature table readable after writing; {holds_text(outcome)}"))
             return
         stored, table = back[0], back[0].temperature
         assert cal.temperature is not None, "a thermal plan's calibration carries its table"
@@ -379,8 +378,8 @@ class ThermalStation(Station):
         if not same:
             writer.revert(outcome)
             rep.nvm = outcome.to_dict()
-            rep.verdict, rep.reasons = "FAIL", [
-                Reason("nvm", f"the table read back from NVM differs from the fitted one; {holds_text(outcome)}")]
+            rep.record(Stage.NVM, Reason("nvm", "the table read back from NVM differs from the fitted one; "
+                                         f"{holds_text(outcome)}"))
             return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, "
                   f"{len(table.temps_c)}-temperature table read back"

@@ -40,6 +40,7 @@ from .report import RunReport
 from .settings import StationConfig
 from .thermal import Groups, SetPointResult, ThermalRunReport, ThermalStation
 from .thermal_plan import ChamberFault, WallClock, soak_until
+from .verdict import Stage
 
 
 class ThermalPanelStation(PanelStation):
@@ -106,8 +107,7 @@ class ThermalPanelStation(PanelStation):
         _standby(chamber)
         self.echo(f"FAIL: chamber: {e} (every board; nothing burned)")
         for b in live:
-            b.rep.verdict = "FAIL"
-            b.rep.reasons.append(Reason("chamber", str(e)))
+            b.rep.record(Stage.CHAMBER, Reason("chamber", str(e)))
 
     def _interrupted(self, store: Store, boards: list[PanelBoard], e: BaseException) -> None:
         why = "operator aborted" if isinstance(e, OperatorAbort) else (
@@ -208,8 +208,8 @@ class ThermalPanelStation(PanelStation):
         temp = res.pose_temp_c(c.temp_c, st.air_c)
         band = self.plan.capture_band_c
         if res.moved_c(temp) > band:
-            b.fail(Reason("temperature", f"board temperature {temp:.2f} C during {pose.name} at {sp:g} C "
-                          f"left the band +-{band:g} C around {res.board_temp_c:.2f} C"))
+            b.fail(Stage.CAPTURE, Reason("temperature", f"board temperature {temp:.2f} C during {pose.name} at "
+                                         f"{sp:g} C left the band +-{band:g} C around {res.board_temp_c:.2f} C"))
             self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
             return
         b.floor = gc.floor_counts
