@@ -242,35 +242,27 @@ class PanelStation:
                 b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events]
 
     # -- the run ---------------------------------------------------------------------
+    # the faults that end the flow as a recorded FAIL of every board still in it (anything else
+    # interrupts every run); a thermal plan's panel narrows them (thermal_panel.py)
+    ending_faults: tuple[type[AccelcalError], ...] = (DeviceError, NVMError)
+
     def run(self) -> list[RunReport]:
+        """Open every board and start its run, calibrate them (``_calibrate``: at room temperature
+        here, at each set point of a thermal plan in thermal_panel.py), then time and record each."""
         cfg = self.cfg
         wall0 = time.perf_counter()
-        design = get_design(cfg.design)
         boards = self.boards = self._boards()
         with open_store(cfg.store_file, cfg.outbox) as store:
             store.mark_stale_interrupted()
             try:
                 for b in boards:
                     self._open(b, store)
-                live = [b for b in boards if b.active]
-                if live:
-                    with (self.jig or make_panel_jig(cfg.jig, live, self.ui)) as jig:
-                        self._poses(boards, jig, design)
-                        self._fit_all(boards)
-                        self._verify_all(boards, jig)
-                for b in boards:
-                    if b.active and b.cal is not None:
-                        b.station._burn(b.driver, b.cal, b.checks, b.rep)
-            except (DeviceError, NVMError) as e:
-                self.fault(boards, e)  # a lost jig port, a NACK storm on the shared bus: FAIL, recorded below
+                self._calibrate(boards)
+            except self.ending_faults as e:
+                # a lost jig port, a NACK storm on the shared bus: FAIL, recorded below
+                self.fault(boards, e)  # type: ignore[arg-type]
             except (AccelcalError, KeyboardInterrupt) as e:
-                why = "operator aborted" if isinstance(e, OperatorAbort) else (
-                    "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
-                for b in boards:  # each run closed with the poses its board captured so far
-                    if b.rep.run_id is not None:
-                        store.interrupt_run(b.rep.run_id, why, status="interrupted" if isinstance(
-                            e, (OperatorAbort, KeyboardInterrupt)) else "error", nvm_outcome=b.rep.nvm,
-                            session=_session(b) if b.records else None, retries=b.retries if b.records else None)
+                self._interrupted(store, boards, e)
                 self._close(boards)
                 raise
             self._close(boards)
@@ -278,6 +270,28 @@ class PanelStation:
             for b in boards:
                 self._record(store, b)
         return [b.rep for b in boards]
+
+    def _calibrate(self, boards: list[PanelBoard]) -> None:
+        """Poses, fits and verification on the jig, then each passing board's burn."""
+        live = [b for b in boards if b.active]
+        if live:
+            with (self.jig or make_panel_jig(self.cfg.jig, live, self.ui)) as jig:
+                self._poses(boards, jig, get_design(self.cfg.design))
+                self._fit_all(boards)
+                self._verify_all(boards, jig)
+        for b in boards:
+            if b.active and b.cal is not None:
+                b.station._burn(b.driver, b.cal, b.checks, b.rep)
+
+    def _interrupted(self, store: Store, boards: list[PanelBoard], e: BaseException) -> None:
+        """Each run closed with the poses its board captured so far."""
+        why = "operator aborted" if isinstance(e, OperatorAbort) else (
+            "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
+        for b in boards:
+            if b.rep.run_id is not None:
+                store.interrupt_run(b.rep.run_id, why, status="interrupted" if isinstance(
+                    e, (OperatorAbort, KeyboardInterrupt)) else "error", nvm_outcome=b.rep.nvm,
+                    session=_session(b) if b.records else None, retries=b.retries if b.records else None)
 
     def fault(self, boards: list[PanelBoard], e: DeviceError | NVMError) -> None:
         """A device or port fault that ends the panel's flow: every board still in it fails with the typed

@@ -32,11 +32,9 @@ from ..fixtures.operator_jig import OperatorAbort
 from ..instruments.chamber import Chamber, ChamberStatus
 from ..instruments.factory import make_chamber
 from ..session import PoseRecord, Session
-from ..store.outbox import open_store
 from ..store.runs import Store
 from .capture import GatedCapture
 from .panel import PanelBoard, PanelStation, make_panel_jig
-from .report import RunReport
 from .settings import StationConfig
 from .thermal import Groups, SetPointResult, ThermalRunReport, ThermalStation
 from .thermal_plan import ChamberFault, WallClock, soak_until
@@ -56,34 +54,23 @@ class ThermalPanelStation(PanelStation):
         self.soak_s = 0.0
         self.floor_s = 0.0  # the panel's sampling floor: per pose, the longest board's averaged samples / ODR
         self.groups: dict[int, Groups] = {}
+        self.clock: Clock = WallClock()  # the panel's clock and its start, set when the boards are open
+        self.t0 = 0.0
 
-    # -- the run ---------------------------------------------------------------------
-    def run(self) -> list[RunReport]:
-        cfg = self.cfg
-        wall0 = time.perf_counter()
-        boards = self.boards = self._boards()
-        with open_store(cfg.store_file, cfg.outbox) as store:
-            store.mark_stale_interrupted()
-            try:
-                for b in boards:
-                    self._open(b, store)
-                    self.groups[b.index] = {}
-                live = [b for b in boards if b.active]
-                clock = self._clock(live)
-                t0 = clock.now()
-                if live:
-                    self._in_chamber(live, clock)
-            except (PortLostError, NVMError) as e:
-                self.fault(boards, e)  # as the thermal station: a lost port or unsettled NVM is a recorded FAIL
-            except (AccelcalError, KeyboardInterrupt) as e:
-                self._interrupted(store, boards, e)
-                self._close(boards)
-                raise
-            self._close(boards)
-            self._timing_thermal(boards, clock, t0, wall0)
-            for b in boards:
-                self._record(store, b)
-        return [b.rep for b in boards]
+    # -- the run (PanelStation.run, with the chamber's set points as the conditions) ---------
+    ending_faults = (PortLostError, NVMError)  # as the thermal station: a lost port or unsettled NVM
+
+    def _calibrate(self, boards: list[PanelBoard]) -> None:
+        for b in boards:
+            self.groups[b.index] = {}
+        live = [b for b in boards if b.active]
+        clock = self.clock = self._clock(live)
+        self.t0 = clock.now()
+        if live:
+            self._in_chamber(live, clock)
+
+    def _timing(self, boards: list[PanelBoard], wall0: float) -> None:
+        self._timing_thermal(boards, self.clock, self.t0, wall0)
 
     def _in_chamber(self, live: list[PanelBoard], clock: Clock) -> None:
         sims = [board_of(b.driver) for b in live]
