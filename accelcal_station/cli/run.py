@@ -100,7 +100,7 @@ def _print_board(rep: RunReport, cfg: StationConfig) -> None:
     if f is not None:
         click.echo(f"fit: model {rep.model}, {f.pose_count} poses, residual RMS {f.residual_rms_g * 1e3:.3f} mg"
                    + ("" if f.crossval_rms_g is None else f", cross-validated {f.crossval_rms_g * 1e3:.3f} mg"))
-    table = (getattr(rep, "thermal", None) or {}).get("table")
+    table = (rep.plan_summary() or {}).get("table")
     if table:
         click.echo(f"table: {len(table['temps_c'])} temperatures ("
                    + ", ".join(f"{t:.1f}" for t in table["temps_c"]) + f" C), {table['method']}; "

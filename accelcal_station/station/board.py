@@ -103,23 +103,22 @@ class Station:
 
     # -- the run ---------------------------------------------------------------------
     def run(self) -> RunReport:
+        """Open the device and start its run, calibrate it (``_calibrate``: at room temperature
+        here, at each set point of a thermal plan in thermal.py), then time and record the run."""
         cfg = self.cfg
-        rep = RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
+        rep = self._new_report()
         wall0 = time.perf_counter()
-        design = get_design(cfg.design)
         if self.driver is None:
             self.driver = make_driver(cfg.device)
         driver = self.driver
         with open_store(cfg.store_file, cfg.outbox) as store:
             store.mark_stale_interrupted()
-            if cfg.limits.defaults_line():
-                self.echo(cfg.limits.defaults_line())
-                rep.events.append(cfg.limits.defaults_line())
+            self._announce(rep)
             with ExitStack() as stack:
                 ident = self._open_device(stack, driver, store)
                 rep.serial = self.serial_override or ident.serial
                 rep.chip = ident.chip
-                clock = clock_of(driver)
+                clock = self._device_clock(driver)
                 clock0 = clock.now() if clock is not None else None
                 run_id = store.start_run(device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id,
                                          operator=self.operator, lot=self.lot, config_text=cfg.text,
@@ -129,10 +128,25 @@ class Station:
                 records: list[PoseRecord] = []
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
-                self._calibrate(store, run_id, driver, design, session, retries, rep)
+                self._calibrate(store, run_id, driver, clock, session, retries, rep)
                 rep.timing = self._timing(driver, clock, clock0, wall0)
                 self._finish(store, run_id, session, retries, rep)
         return rep
+
+    def _new_report(self) -> RunReport:
+        cfg = self.cfg
+        return RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
+
+    def _announce(self, rep: RunReport) -> None:
+        """The safe default limits in use, said and kept with the run's events."""
+        line = self.cfg.limits.defaults_line()
+        if line:
+            self.echo(line)
+            rep.events.append(line)
+
+    def _device_clock(self, driver: Driver) -> Clock | None:
+        """The clock the device runs on (a simulated board's); None: the wall (hardware)."""
+        return clock_of(driver)
 
     def _open_device(self, stack: ExitStack, driver: Driver, store: Store) -> Identity:
         """Open, identify and configure the device (closed when ``stack`` is); one that fails is recorded."""
@@ -145,10 +159,11 @@ class Station:
             raise
         return ident
 
-    def _calibrate(self, store: Store, run_id: int, driver: Driver, design: list[PoseSpec], session: Session,
+    def _calibrate(self, store: Store, run_id: int, driver: Driver, clock: Clock | None, session: Session,
                    retries: list[int], rep: RunReport) -> None:
         """Poses, fit, verdict, verification and burn with the configured jig; an error or Ctrl-C
         closes the run (interrupted or error) with the poses captured so far, then propagates."""
+        design = get_design(self.cfg.design)
         records = session.poses
         assert isinstance(records, list), "a station's session is the list its poses are captured into"
         try:
@@ -277,7 +292,7 @@ class Station:
             rep.record(Stage.NVM, Reason("nvm", "the device has no NVM to write; set nvm.write: false"))
             return
         writer = CalibrationWriter(nvm, cfg.slot_size)
-        log = getattr(self, "_burn_log", None) or (lambda kind, data: None)
+        log = self._burn_log or (lambda kind, data: None)
         try:
             # recorded (committed) before the first byte: a crash mid-burn still says what may be on the board
             outcome = writer.burn(cal, rep.serial, cfg.station_id,

@@ -383,7 +383,7 @@ class PanelStation:
                    "timing": rep.timing, "nvm_verified": rep.nvm_verified, "panel_id": self.panel_id,
                    "jig_pose": None if est is None else {"estimated": est.estimated, "note": est.note,
                                                          "rotvec_deg": est.rotvec_deg.tolist()}}
-        thermal = getattr(rep, "thermal", None)  # a thermal plan's report (thermal_panel.py)
+        thermal = rep.plan_summary()  # a thermal plan's (thermal_panel.py)
         if thermal is not None:
             summary["thermal"] = thermal
         try:

@@ -58,6 +58,11 @@ class RunReport:
     def reasons(self) -> list[Reason]:
         return list(self.final.reasons)
 
+    def plan_summary(self) -> dict[str, Any] | None:
+        """The summary of a plan beyond one calibration at room temperature (a thermal plan's table
+        and set points: thermal.py ThermalRunReport), recorded with the run; None here."""
+        return None
+
     def to_dict(self) -> dict[str, Any]:
         f, c = self.fit, self.calibration
         final = self.final

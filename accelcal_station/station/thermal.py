@@ -35,11 +35,10 @@ from ..models.fitting import fit_session
 from ..models.result import FitResult
 from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
-from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import Station
 from .report import RunReport
-from .settings import StationConfig, configured_rate
+from .settings import StationConfig
 from .thermal_plan import ChamberFault, ThermalPlan, WallClock, soak_until
 from .verdict import Stage
 
@@ -90,6 +89,9 @@ class ThermalRunReport(RunReport):
 
     thermal: dict[str, Any] = field(default_factory=dict)
 
+    def plan_summary(self) -> dict[str, Any] | None:
+        return self.thermal
+
     def to_dict(self) -> dict[str, Any]:
         return {**super().to_dict(), "thermal": self.thermal}
 
@@ -113,56 +115,53 @@ class ThermalStation(Station):
         self.verify: list[dict[str, Any]] = []
         self.table_verdict: dict[str, Any] | None = None
 
-    # -- the run --------------------------------------------------------------------
-    def run(self) -> ThermalRunReport:
-        from ..drivers.factory import make_driver
-
+    # -- the run (Station.run, with the chamber's set points as the conditions) --------------
+    def _new_report(self) -> ThermalRunReport:
         cfg = self.cfg
-        rep = ThermalRunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design,
-                               store=str(cfg.store_file))
-        wall0 = time.perf_counter()
-        if self.driver is None:
-            self.driver = make_driver(cfg.device)
-        driver = self.driver
-        with open_store(cfg.store_file, cfg.outbox) as store:
-            store.mark_stale_interrupted()
-            with driver:
-                ident = driver.identify()
-                rep.serial, rep.chip = self.serial_override or ident.serial, ident.chip
-                driver.configure(*configured_rate(cfg.device))
-                clock = clock_of(driver) or WallClock()  # the device's clock, from the factory
-                t0 = clock.now()
-                run_id = rep.run_id = store.start_run(
-                    device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id, operator=self.operator,
-                    lot=self.lot, config_text=cfg.text, model=cfg.model, units="counts",
-                    counts_per_g=driver.counts_per_g)
-                records: list[PoseRecord] = []
-                retries: list[int] = []
-                session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
-                try:
-                    with make_chamber(self.chamber_section, board_of(driver)) as chamber, \
-                            make_jig(cfg.jig, driver, self.ui) as jig:
-                        self._plan(driver, chamber, jig, clock, records, retries, rep)
-                except (AccelcalError, KeyboardInterrupt) as e:
-                    if isinstance(e, ChamberFault):
-                        rep.record(Stage.CHAMBER, Reason("chamber", str(e)))
-                        self.echo(f"FAIL: chamber: {e} (nothing burned)")
-                    elif isinstance(e, (PortLostError, NVMError)):  # a lost sensor/jig port, unsettled NVM reads
-                        code = e.reason_code
-                        rep.record(Stage.FAULT, Reason(code, f"{e} ({self._where()})"))
-                        self.echo(f"FAIL: {e} ({len(records)} poses captured)")
-                    else:
-                        where = self._where()
-                        why = "interrupted" if isinstance(e, KeyboardInterrupt) else str(e)
-                        store.interrupt_run(run_id, f"{why} ({where})", session=session if records else None,
-                                            status="interrupted" if isinstance(e, KeyboardInterrupt) else "error",
-                                            retries=retries if records else None, nvm_outcome=rep.nvm)
-                        raise
-                rep.events.extend(self.report_events)
-                rep.timing = self._thermal_timing(driver, clock, t0, wall0)
-                rep.thermal = self._summary(rep)
-                self._record_run(store, run_id, session, retries, rep)
-        return rep
+        return ThermalRunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design,
+                                store=str(cfg.store_file))
+
+    def _announce(self, rep: RunReport) -> None:
+        """Nothing: a thermal plan's limits are said at each set point."""
+
+    def _device_clock(self, driver: Driver) -> Clock:
+        return clock_of(driver) or WallClock()  # the device's clock, from the factory
+
+    def _calibrate(self, store: Store, run_id: int, driver: Driver, clock: Clock | None, session: Session,
+                   retries: list[int], rep: RunReport) -> None:
+        """Every set point in the chamber, then the table, its verdict and its burn; a chamber fault or
+        a lost port ends the run FAIL (recorded), any other error or Ctrl-C interrupts it."""
+        assert clock is not None, "a thermal plan runs on its device's clock or the wall's"
+        records = session.poses
+        assert isinstance(records, list), "a station's session is the list its poses are captured into"
+        try:
+            with make_chamber(self.chamber_section, board_of(driver)) as chamber, \
+                    make_jig(self.cfg.jig, driver, self.ui) as jig:
+                self._plan(driver, chamber, jig, clock, records, retries, rep)
+        except (AccelcalError, KeyboardInterrupt) as e:
+            if isinstance(e, ChamberFault):
+                rep.record(Stage.CHAMBER, Reason("chamber", str(e)))
+                self.echo(f"FAIL: chamber: {e} (nothing burned)")
+            elif isinstance(e, (PortLostError, NVMError)):  # a lost sensor/jig port, unsettled NVM reads
+                rep.record(Stage.FAULT, Reason(e.reason_code, f"{e} ({self._where()})"))
+                self.echo(f"FAIL: {e} ({len(records)} poses captured)")
+            else:
+                why = "interrupted" if isinstance(e, KeyboardInterrupt) else str(e)
+                store.interrupt_run(run_id, f"{why} ({self._where()})", session=session if records else None,
+                                    status="interrupted" if isinstance(e, KeyboardInterrupt) else "error",
+                                    retries=retries if records else None, nvm_outcome=rep.nvm)
+                raise
+
+    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None, wall0: float) -> dict[str, Any]:
+        assert clock is not None and clock0 is not None, "a thermal plan's clock started with its run"
+        return self._thermal_timing(driver, clock, clock0, wall0)
+
+    def _finish(self, store: Store, run_id: int, session: Session, retries: list[int], rep: RunReport) -> None:
+        """Record the finished run with the plan's events and summary."""
+        assert isinstance(rep, ThermalRunReport), "a thermal plan's run report (_new_report)"
+        rep.events.extend(self.report_events)
+        rep.thermal = self._summary(rep)
+        self._record_run(store, run_id, session, retries, rep)
 
     def _record_run(self, store: Store, run_id: int, session: Session, retries: list[int],
                     rep: ThermalRunReport) -> None:

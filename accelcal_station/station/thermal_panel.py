@@ -254,7 +254,7 @@ def _report(b: PanelBoard) -> ThermalRunReport:
 
 
 def _where(b: PanelBoard) -> str:
-    res = getattr(b.station, "results", [])
+    res = _station(b).results
     if not res:
         return "before the first set point"
     return f"at set point {res[-1].set_point_c:g} C, {sum(r.poses for r in res)} poses captured"
