@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from typing import Any
 
 import click
 
@@ -11,7 +10,7 @@ from ..fileguard.identity import refuse_overwrite
 from ..fixtures.operator_ui import OperatorUI
 from ..station.board import Station
 from ..station.identity import ask_run_identity
-from ..station.report import RunReport
+from ..station.report import RunReport, Timing
 from ..station.settings import StationConfig
 from ._common import jsonable
 from ._common import store_file as store_file_of
@@ -126,7 +125,7 @@ def _reference_c(cfg: StationConfig) -> float:
     return 25.0 if thermal is None else thermal.reference_c
 
 
-def timing_lines(t: dict[str, Any]) -> list[str]:
+def timing_lines(t: Timing) -> list[str]:
     """Timing a reader can trust: samples at the nominal ODR, operator waiting, host compute,
     each on its own (never a 'floor' compared with a wall time it need not be below)."""
     if not t:

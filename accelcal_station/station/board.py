@@ -31,7 +31,7 @@ from ..session import PoseRecord, Session
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
-from .report import RunReport, fit_figures
+from .report import RunReport, Timing, fit_figures
 from .settings import StationConfig, configured_rate
 from .verdict import Stage
 
@@ -367,10 +367,9 @@ class Station:
                 for c, ref, t in checks]
         return float(np.max(errs)) * 1e3
 
-    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None,
-                wall0: float) -> dict[str, float]:
+    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None, wall0: float) -> Timing:
         odr = driver.odr_hz
-        t = {
+        t: Timing = {
             "odr_hz": odr,
             "samples_averaged": self.samples_used,
             "samples_read": self.samples_read,

@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 
@@ -47,6 +47,32 @@ from .panel_config import group_of, panel_sections
 from .report import RunReport
 from .settings import StationConfig
 from .verdict import Stage
+
+
+class PerBoardSplit(TypedDict):
+    """A thermal panel's time split divided by its boards, s."""
+
+    soak_s: float
+    sampling_floor_s: float
+    rest_s: float
+    board_time_s: float
+
+
+class PanelTiming(TypedDict, total=False):
+    """A panel's time, s: its boards run at once, so its device time is the longest board's
+    (a thermal panel's: the split of its shared soaks and captures, and that split per board)."""
+
+    boards: int
+    host_compute_s: float
+    device_time_s: float
+    panel_time_s: float
+    per_board_s: float
+    soak_s: float
+    sampling_floor_s: float
+    rest_s: float
+    board_time_s: float
+    per_board: PerBoardSplit
+    clock: Literal["real", "virtual"]
 
 
 @dataclass
@@ -116,7 +142,7 @@ class PanelStation:
         self.jig = jig  # default: built from the config's jig section
         self._buses: dict[Any, Any] = {}  # one MuxBus per (I2C bus, mux address), shared by its boards
         self.estimate: JigPoseEstimate | None = None
-        self.timing: dict[str, Any] = {}
+        self.timing: PanelTiming = {}
         self.boards: list[PanelBoard] = []
 
     # -- building -------------------------------------------------------------------

@@ -4,12 +4,48 @@ outcome and the verdict is made from them in one place (verdict.py ``run_verdict
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, TypedDict
 
 from ..acceptance.reasons import Reason, codes
 from ..calibration import Calibration
 from ..models.result import FitResult
 from .verdict import Outcome, RunVerdict, Stage, run_verdict
+
+
+class PoseSummary(TypedDict, total=False):
+    """One captured pose as the run report lists it; a thermal plan's adds its set point (C), its
+    role (calibrate or verify) and the board temperature (C) and leaves out the mean counts."""
+
+    pose: str
+    n: int  # samples averaged
+    mean_counts: list[float]
+    sem_mg: list[float]  # standard error of the mean per axis, mg
+    retries: int
+    reached_target: bool  # the SEM target was met before capture.max_s
+    set_point_c: float
+    role: str
+    temp_c: float | None
+
+
+class Timing(TypedDict, total=False):
+    """Where a board's time went, s (counts of samples; a thermal plan's split: soak, sampling floor,
+    rest; a real-time board's device time is wall time)."""
+
+    odr_hz: float
+    samples_averaged: int
+    samples_read: int
+    sampling_floor_s: float  # samples averaged / ODR
+    sampling_s: float  # samples read / ODR
+    wall_s: float
+    operator_wait_s: float
+    host_compute_s: float
+    device_time_s: float  # on the device's clock: moves, waits, EEPROM cycles, sampling
+    board_time_s: float
+    soak_s: float
+    rest_s: float
+    boards: int
+    per_board_s: float
+    clock: Literal["real", "virtual"]
 
 
 @dataclass
@@ -30,10 +66,10 @@ class RunReport:
     nvm_verified: bool = False
     offset_trim_lsb: list[int] | None = None
     calibration: Calibration | None = None  # what was (or would be) written: the fit's, trim applied
-    poses: list[dict[str, Any]] = field(default_factory=list)
+    poses: list[PoseSummary] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     events: list[str] = field(default_factory=list)
-    timing: dict[str, Any] = field(default_factory=dict)  # seconds, counts; a thermal plan adds its clock
+    timing: Timing = field(default_factory=lambda: Timing())
     store: str = ""
 
     def record(self, stage: Stage, *reasons: Reason) -> None:

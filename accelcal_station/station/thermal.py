@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -37,7 +37,7 @@ from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
 from ..store.runs import Store
 from .board import Station
-from .report import RunReport
+from .report import RunReport, Timing
 from .settings import StationConfig
 from .thermal_plan import ChamberFault, ThermalPlan, WallClock, soak_until
 from .verdict import Stage
@@ -83,6 +83,27 @@ class SetPointResult:
         return abs(temp_c - self.board_temp_c)
 
 
+class VerifyRow(TypedDict):
+    """The table checked at one verification set point: its largest error, mg, and the error of
+    the single calibration nearest the reference temperature, for comparison."""
+
+    set_point_c: float
+    board_temp_c: float
+    error_max_mg: float
+    without_table_error_max_mg: float
+    without_table_calibration_c: float
+    limit_mg: float | None
+    within_limit: bool
+    without_table_within_limit: bool
+
+
+class TableVerdict(TypedDict):
+    """The temperature table's verdict before writing (every set point's fit and the verification)."""
+
+    verdict: str
+    reasons: list[str]
+
+
 @dataclass
 class ThermalRunReport(RunReport):
     """A board's run report with its thermal plan's summary (``thermal``)."""
@@ -112,8 +133,8 @@ class ThermalStation(Station):
         self.results: list[SetPointResult] = []
         self.soak_s = 0.0
         self.report_events: list[str] = []
-        self.verify: list[dict[str, Any]] = []
-        self.table_verdict: dict[str, Any] | None = None
+        self.verify: list[VerifyRow] = []
+        self.table_verdict: TableVerdict | None = None
 
     # -- the run (Station.run, with the chamber's set points as the conditions) --------------
     def _new_report(self) -> ThermalRunReport:
@@ -152,7 +173,7 @@ class ThermalStation(Station):
                                     retries=retries if records else None, nvm_outcome=rep.nvm)
                 raise
 
-    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None, wall0: float) -> dict[str, Any]:
+    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None, wall0: float) -> Timing:
         assert clock is not None and clock0 is not None, "a thermal plan's clock started with its run"
         return self._thermal_timing(driver, clock, clock0, wall0)
 
@@ -385,7 +406,7 @@ class ThermalStation(Station):
                   + (" and verified" if same else " DIFFERS"))
 
     # -- report ----------------------------------------------------------------------------
-    def _thermal_timing(self, driver: Driver, clock: Clock, t0: float, wall0: float) -> dict[str, Any]:
+    def _thermal_timing(self, driver: Driver, clock: Clock, t0: float, wall0: float) -> Timing:
         """Time per board: soak, the sampling floor (samples averaged / ODR) and the rest (moves, gating, I/O)."""
         total = clock.now() - t0
         floor = self.samples_used / driver.odr_hz

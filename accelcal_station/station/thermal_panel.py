@@ -227,10 +227,11 @@ class ThermalPanelStation(PanelStation):
             rep.events.extend(st.report_events)
         total = clock.now() - t0
         n = len(boards)
-        split = {"soak_s": self.soak_s, "sampling_floor_s": self.floor_s,
-                 "rest_s": total - self.soak_s - self.floor_s, "board_time_s": total}
-        self.timing = {"boards": n, "panel_time_s": total, **split,
-                       "per_board": {k: v / n for k, v in split.items()},
+        rest = total - self.soak_s - self.floor_s
+        self.timing = {"boards": n, "panel_time_s": total, "soak_s": self.soak_s, "sampling_floor_s": self.floor_s,
+                       "rest_s": rest, "board_time_s": total,
+                       "per_board": {"soak_s": self.soak_s / n, "sampling_floor_s": self.floor_s / n,
+                                     "rest_s": rest / n, "board_time_s": total / n},
                        "clock": "real" if clock.realtime else "virtual",
                        "host_compute_s": time.perf_counter() - wall0}
         self.timing["per_board_s"] = total / n
