@@ -12,6 +12,9 @@ class AccelcalError(Exception):
     """Base class: a problem with the user's input, configuration or device."""
 
     exit_code = 2
+    # the typed reason a board's run records when this error ends it (a board's capture or
+    # device in a panel; subclasses name their own)
+    reason_code = "device"
 
     def __str__(self) -> str:  # one line, always
         return " ".join(super().__str__().split())
@@ -59,3 +62,4 @@ class NVMError(AccelcalError):
     """Non-volatile memory could not be written, read or verified."""
 
     exit_code = 4
+    reason_code = "nvm"

@@ -27,8 +27,6 @@ simulation and store of all N boards); per board it is that divided by N, printe
 from __future__ import annotations
 
 import argparse
-import copy
-import dataclasses
 import sys
 import tempfile
 from pathlib import Path
@@ -38,6 +36,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import table
 
+from accelcal_station.config.schema import DeviceSection
 from accelcal_station.drivers.factory import make_driver
 from accelcal_station.fixtures.designs import get_design
 from accelcal_station.station.board import Station
@@ -55,18 +54,23 @@ LABELS = {
 }
 
 
+def seeded(cfg: StationConfig, seed: int) -> DeviceSection:
+    """The config's device section with its seed set."""
+    return cfg.device.model_copy(update={"seed": seed})
+
+
 def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, dict]:
     """Mean seconds per component over ``boards`` runs, and facts of the runs.
 
     One extra board runs first and is not counted: it pays the process's one-time
     imports (scipy.stats for the capture gate), which no later board pays.
     """
-    move = float((cfg.raw.get("jig") or {}).get("move_time_s", 2.0))
+    move = cfg.jig.move_time_s
     acc = {k: [] for k in COMPONENTS + ("total", "device")}
     facts = {"verdicts": [], "samples_per_pose": []}
-    Station(cfg, echo=lambda *_: None, driver=make_driver({**cfg.raw["device"], "seed": seed - 1})).run()
+    Station(cfg, echo=lambda *_: None, driver=make_driver(seeded(cfg, seed - 1))).run()
     for i in range(boards):
-        driver = make_driver({**cfg.raw["device"], "seed": seed + i})
+        driver = make_driver(seeded(cfg, seed + i))
         rep = Station(cfg, echo=lambda *_: None, driver=driver).run()
         t = rep.timing
         odr = t["odr_hz"]
@@ -90,9 +94,8 @@ def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, dict]:
 
 def run_panel(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, list[str]]:
     """One panel of ``boards`` boards (seeds from ``seed``): the panel's timing and the verdicts."""
-    raw = copy.deepcopy(cfg.raw)
-    raw["device"] = {**raw["device"], "boards": boards, "seed": seed}
-    st = PanelStation(dataclasses.replace(cfg, raw=raw), echo=lambda *_: None)
+    panel_cfg = cfg.with_sections(device=cfg.device.model_copy(update={"boards": boards, "seed": seed}))
+    st = PanelStation(panel_cfg, echo=lambda *_: None)
     reports = st.run()
     return st.timing, [r.verdict for r in reports]
 
@@ -100,7 +103,7 @@ def run_panel(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, list[st
 def needed_samples(cfg: StationConfig) -> float:
     """(sigma / target)^2: samples one pose needs to reach the capture target, per the
     simulated chip's noise (white noise and the LSB^2/12 of quantization)."""
-    board = make_driver({**cfg.raw["device"], "seed": 0}).board
+    board = make_driver(seeded(cfg, 0)).board
     sigma = float(np.max(board.noise_sigma_counts))
     target = cfg.capture.target_sem_mg * 1e-3 * board.counts_per_g
     return (sigma**2 + 1.0 / 12.0) / target**2
@@ -121,15 +124,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     with tempfile.TemporaryDirectory(prefix="accelcal-bench-") as tmp:
         cfg = StationConfig.load(a.config, store_override=Path(tmp) / "runs.sqlite")
-        if cfg.raw["device"].get("driver") != "simulated" or (cfg.raw.get("jig") or {}).get("type", "simulated") \
-                != "simulated":
+        if cfg.device.driver != "simulated" or cfg.jig.type != "simulated":
             print("error: --config: this benchmark needs device.driver: simulated and jig.type: simulated",
                   file=sys.stderr)
             return 2
-        raw0 = copy.deepcopy(cfg.raw)
-        raw0.setdefault("jig", {"type": "simulated"})["move_time_s"] = 0.0
-        cfg0 = dataclasses.replace(cfg, raw=raw0)
-        move = float((cfg.raw.get("jig") or {}).get("move_time_s", 2.0))
+        cfg0 = cfg.with_sections(jig=cfg.jig.model_copy(update={"move_time_s": 0.0}))
         res, facts = run_boards(cfg, a.boards, a.seed)
         res0, _ = run_boards(cfg0, a.boards, a.seed)
         panel = run_panel(cfg, a.panel, a.seed) if a.panel > 0 else None
@@ -137,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     poses = len(get_design(cfg.design)) + cfg.verify_poses
     theory = poses * n_need / facts["odr_hz"]
     print(f"station time per board (virtual time: device clock + host wall compute), mean of {a.boards} simulated "
-          f"boards per column: {cfg.raw['device'].get('chip', 'mma8451')} at {facts['odr_hz']:g} Hz, design "
+          f"boards per column: {cfg.device.chip or 'mma8451'} at {facts['odr_hz']:g} Hz, design "
           f"{cfg.design} + {cfg.verify_poses} verification poses, model {cfg.model}, capture target "
           f"{cfg.capture.target_sem_mg:g} mg")
     print(f"verdicts: {', '.join(sorted(set(facts['verdicts'])))}; samples averaged per pose: mean "
@@ -150,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
                  f"{res0['total'] / floor0:.2f}", ""])
     rows.append(["ratio: total / noise-limited floor", f"{res['total'] / theory:.2f}", "",
                  f"{res0['total'] / theory:.2f}", ""])
-    print(table(["seconds per board", f"moves {move:g} s", "share", "moves 0 s", "share"], rows))
+    print(table(["seconds per board", f"moves {cfg.jig.move_time_s:g} s", "share", "moves 0 s", "share"], rows))
     print(f"noise-limited floor: {poses} poses x {n_need:.0f} samples / {facts['odr_hz']:g} Hz = {theory:.2f} s")
     if panel is not None:
         t, verdicts = panel

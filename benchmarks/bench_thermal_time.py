@@ -42,7 +42,7 @@ def single_boards(config: str, boards: int, seed: int, store: Path) -> tuple[dic
     verdicts = []
     cfg = StationConfig.load(config, store_override=store)
     for i in range(boards):
-        driver = make_driver({**cfg.raw["device"], "seed": seed + i})
+        driver = make_driver(cfg.device.model_copy(update={"seed": seed + i}))
         rep = ThermalStation(cfg, echo=lambda *_: None, driver=driver).run()
         verdicts.append(rep.verdict)
         for k in PARTS:
@@ -53,7 +53,7 @@ def single_boards(config: str, boards: int, seed: int, store: Path) -> tuple[dic
 def panel(config: str, boards: int, store: Path) -> tuple[dict[str, float], list[str]]:
     """The panel's split divided by its boards (s per board)."""
     cfg = StationConfig.load(config, store_override=store)
-    cfg.raw["device"]["boards"] = boards
+    cfg = cfg.with_sections(device=cfg.device.model_copy(update={"boards": boards}))
     station = ThermalPanelStation(cfg, echo=lambda *_: None)
     reps = station.run()
     return dict(station.timing["per_board"]), [r.verdict for r in reps]

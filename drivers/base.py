@@ -19,6 +19,9 @@ from ..errors import DeviceError
 class Clock(Protocol):
     """What a driver or a part waits on: the wall clock, or a simulated board's virtual one."""
 
+    # True when its time is the wall's (a station's board time then counts no host compute on top)
+    realtime: bool
+
     def now(self) -> float: ...
 
     def sleep(self, dt: float) -> None: ...
@@ -107,10 +110,34 @@ class NVM(ABC):
             raise DeviceError(f"NVM access {addr}..{addr + n} outside 0..{self.size}")
 
 
+class VirtualBench(Protocol):
+    """What stands behind a simulated or emulated driver (drivers/simulated.py SimulatedBoard):
+    a board with its own virtual clock, which a simulated jig moves and a chamber warms."""
+
+    clock: Any
+
+
 class Driver(ABC):
-    """One sensor.  Use as a context manager: ``with make_driver(cfg) as dev: ...``."""
+    """One sensor.  Use as a context manager: ``with make_driver(cfg) as dev: ...``.
+
+    What a driver can do beyond reading is declared here, and the station asks through these
+    (never by probing attributes): ``supports_offset_trim`` (offset registers the station may
+    trim: ``offset_trim_lsb_g``, ``get_offset_trim``, ``set_offset_trim``) and ``board`` (the
+    simulated board a simulated or emulated driver reads; None for hardware).
+    """
 
     name: str = "abstract"
+    supports_offset_trim: bool = False
+    offset_trim_lsb_g: float = 0.0  # g per offset-register LSB, when supports_offset_trim
+    board: VirtualBench | None = None
+
+    def get_offset_trim(self) -> tuple[int, int, int]:
+        """The offset registers [x, y, z] in LSB (supports_offset_trim)."""
+        raise DeviceError(f"the {self.name} driver has no offset-trim registers")
+
+    def set_offset_trim(self, lsb: Any) -> None:
+        """Write the offset registers [x, y, z] in LSB (supports_offset_trim)."""
+        raise DeviceError(f"the {self.name} driver has no offset-trim registers")
 
     def __enter__(self) -> Driver:
         self.open()

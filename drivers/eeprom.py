@@ -43,6 +43,8 @@ class PowerLossError(NVMError):
 class _WallClock:
     """Fallback clock when the EEPROM is used on its own (virtual, starts at 0)."""
 
+    realtime = False
+
     def __init__(self) -> None:
         self.t = 0.0
 

@@ -2,8 +2,10 @@
 
 A driver never imports its emulator: ``make_driver`` routes ``bus: emulated`` /
 ``port: emulated`` here, and this module builds the register-level emulator and hands it
-to the driver as its SMBus (MMA8451) or as the thing that owns its pseudo-terminal
+to the driver as its SMBus (MMA8451) or starts it on the pseudo-terminal the driver opens
 (MPU6050 bridge).  The import graph is one way: emulated -> driver, emulated -> emulator.
+The real drivers know nothing of emulation: the emulated ones below are the same drivers
+with the emulator and its simulated board beside them (``board``, declared on Driver).
 """
 from __future__ import annotations
 
@@ -18,8 +20,37 @@ from .tca9548a import MuxBus, MuxChannel, mux_settings
 from .tca9548a_emulator import TCA9548AEmulator
 
 
+class EmulatedMMA8451(MMA8451):
+    """The MMA8451 driver on an emulated bus: the real driver code, the emulator kept beside it."""
+
+    def __init__(self, emulator: MMA8451Emulator, bus: Any = None, **kw: Any) -> None:
+        super().__init__(emulator if bus is None else bus, **kw)
+        self.emulator = emulator
+        self.board = emulator.board  # what a simulated jig moves
+
+
+class EmulatedMPU6050Bridge(MPU6050Bridge):
+    """The MPU6050 bridge driver on a pseudo-terminal answered by the bridge emulator, which
+    starts when the driver opens and stops when it closes."""
+
+    def __init__(self, emulator: MPU6050BridgeEmulator, **kw: Any) -> None:
+        super().__init__("emulated", **kw)
+        self.emulator = emulator
+        self.board = emulator.board
+
+    def open(self) -> None:
+        if self.link.is_open:
+            return
+        self.port = self.link.port = self.emulator.start()
+        super().open()  # a port that fails to open closes the driver, which stops the emulator
+
+    def close(self) -> None:
+        super().close()
+        self.emulator.stop()
+
+
 def emulated_mma8451(cfg: dict[str, Any], path: str = "device", bus: Any = None, clock: Any = None,
-                     bus_label: str = "emulated") -> MMA8451:
+                     bus_label: str = "emulated") -> EmulatedMMA8451:
     """An MMA8451 driver on an emulated smbus2 bus fed by a simulated board.
 
     ``bus``: the SMBus-like object the driver talks through (default: the chip's own
@@ -33,18 +64,17 @@ def emulated_mma8451(cfg: dict[str, Any], path: str = "device", bus: Any = None,
     if eeprom:  # the emulated EEPROM's geometry is the simulated board's
         eeprom.update(size=emu.eeprom_size, page_size=emu.eeprom_page_size)
     kw["serial"] = kw["serial"] or emu.board.serial
-    drv = MMA8451(emu if bus is None else bus, clock=clock or emu.clock, bus_label=bus_label, **kw)
-    drv.emulator = emu  # its .board is what a simulated jig moves
-    return drv
+    return EmulatedMMA8451(emu, bus, clock=clock or emu.clock, bus_label=bus_label, **kw)
 
 
 def emulated_mpu6050(cfg: dict[str, Any], path: str = "device") -> MPU6050Bridge:
     """An MPU6050 bridge driver whose port is a pseudo-terminal answered by the bridge emulator."""
     _, kw = MPU6050Bridge.parse_config(cfg, path)
-    return MPU6050Bridge("emulated", emulator=MPU6050BridgeEmulator.from_config(cfg, path), **kw)
+    return EmulatedMPU6050Bridge(MPU6050BridgeEmulator.from_config(cfg, path), **kw)
 
 
-def emulated_muxed_mma8451(section: dict[str, Any], path: str, buses: dict[tuple[Any, int], MuxBus]) -> MMA8451:
+def emulated_muxed_mma8451(section: dict[str, Any], path: str,
+                           buses: dict[tuple[Any, int], MuxBus]) -> EmulatedMMA8451:
     """An emulated MMA8451 board behind channel ``section['channel']`` of a TCA9548A emulator.
 
     ``buses`` shares one emulated bus (mux emulator, MuxBus) per mux address among a panel's

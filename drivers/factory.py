@@ -8,6 +8,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from ..config.schema import DeviceSection, given
 from ..errors import ConfigError
 from .base import Driver
 
@@ -31,11 +32,15 @@ MUXED = {True: "accelcal_station.drivers.emulated:emulated_muxed_mma8451",
          False: "accelcal_station.drivers.tca9548a:muxed_mma8451"}
 
 
-def make_driver(config: dict[str, Any], path: str = "device", buses: dict[Any, Any] | None = None) -> Driver:
+def make_driver(config: DeviceSection | dict[str, Any], path: str = "device",
+                buses: dict[Any, Any] | None = None) -> Driver:
     """Build the driver named by ``config['driver']`` from the rest of the section.
 
-    A section with ``mux`` is an MMA8451 behind a TCA9548A channel; ``buses`` (one per panel)
-    shares one multiplexed bus among the boards on it."""
+    ``config``: a station's validated ``device`` section (StationConfig.device), or a mapping
+    (a command's own device file, a test).  A section with ``mux`` is an MMA8451 behind a
+    TCA9548A channel; ``buses`` (one per panel) shares one multiplexed bus among the boards on it."""
+    if isinstance(config, DeviceSection):
+        config = given(config)
     if not isinstance(config, dict):
         raise ConfigError(f"{path}: must be a mapping with a 'driver' key")
     name = config.get("driver")

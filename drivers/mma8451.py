@@ -106,6 +106,8 @@ def odr_index(odr_hz: float, path: str = "odr_hz") -> int:
 class SystemClock:
     """Wall-clock time for real hardware (the emulator supplies a virtual one)."""
 
+    realtime = True
+
     @staticmethod
     def now() -> float:
         return time.monotonic()
@@ -217,7 +219,8 @@ class MMA8451(Driver):
     """MMA8451Q over smbus2.  ``bus`` is a bus number or /dev path, or an SMBus-like object."""
 
     name = "mma8451"
-    offset_trim_lsb_g = OFF_LSB_G  # the station's optional offset-register trim uses this
+    supports_offset_trim = True  # OFF_X/Y/Z: the station's optional offset-register trim
+    offset_trim_lsb_g = OFF_LSB_G
 
     def __init__(self, bus: int | str | Any = 1, address: int = 0x1D, range_g: int = 2, odr_hz: float = 100.0,
                  oversampling: str = "high_resolution", retries: int = 3, timeout_s: float = 1.0,
@@ -238,7 +241,6 @@ class MMA8451(Driver):
         self._smbus: Any = None if self._owns_bus else bus
         self._dev: I2CTarget | None = None
         self._identified = False  # never write to a chip that is not an MMA8451
-        self.emulator: Any = None  # the MMA8451Emulator when built for ``bus: emulated``
         self._nvm: I2CEeprom | None = None
         self._range_g, self._odr_hz, self._mods = 2, 800.0, "normal"  # power-on defaults
 

@@ -182,6 +182,10 @@ class _Clock:
     def __init__(self, emu: MMA8451Emulator) -> None:
         self.emu = emu
 
+    @property
+    def realtime(self) -> bool:
+        return bool(self.emu.board.clock.realtime)
+
     def now(self) -> float:
         return self.emu.board.clock.now()
 

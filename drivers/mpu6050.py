@@ -139,8 +139,7 @@ class MPU6050Bridge(Driver):
     CONFIG_KEYS = tuple(Mpu6050Section.model_fields)
 
     def __init__(self, port: str, baud: int = bp.DEFAULT_BAUD, range_g: int = 2, odr_hz: float = 100.0,
-                 dlpf: int = 3, timeout_s: float = 0.5, retries: int = 3, boot_wait_s: float = 2.0,
-                 emulator: Any = None) -> None:
+                 dlpf: int = 3, timeout_s: float = 0.5, retries: int = 3, boot_wait_s: float = 2.0) -> None:
         if range_g not in COUNTS_PER_G:
             raise ConfigError(f"range_g: {range_g!r}; allowed: 2, 4, 8, 16")
         if dlpf not in range(len(DLPF_BANDWIDTH_HZ)):
@@ -148,7 +147,6 @@ class MPU6050Bridge(Driver):
         smplrt_div_for(odr_hz, dlpf)
         self.port = port
         self.boot_wait_s = float(boot_wait_s)
-        self.emulator = emulator
         self.link = BridgeLink(port, int(baud), float(timeout_s), int(retries))
         self._want = (int(range_g), float(odr_hz), int(dlpf))
         self._range_g, self._odr_hz, self._dlpf, self._div = 2, ACCEL_RATE_HZ, 0, 0  # power-on
@@ -185,10 +183,8 @@ class MPU6050Bridge(Driver):
     def open(self) -> None:
         if self.link.is_open:
             return
-        if self.emulator is not None:
-            self.port = self.link.port = self.emulator.start()
         try:
-            self.link.open()  # inside: a port that fails to open must still stop the emulator
+            self.link.open()  # inside: a port that fails to open is closed again
             self._bridge = self._hello()
             who = self._read(WHO_AM_I, 1)[0]
             if who != CHIP_ID:
@@ -203,8 +199,6 @@ class MPU6050Bridge(Driver):
 
     def close(self) -> None:
         self.link.close()
-        if self.emulator is not None:
-            self.emulator.stop()
 
     def _hello(self) -> BridgeIdentity:
         """IDENTIFY until answered; an Arduino reboots when the port opens (DTR), so allow boot_wait_s."""

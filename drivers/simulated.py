@@ -362,6 +362,7 @@ class SimulatedDriver(Driver):
     """The driver of a SimulatedBoard: the same interface as the hardware drivers."""
 
     name = "simulated"
+    board: SimulatedBoard
 
     def __init__(self, board: SimulatedBoard) -> None:
         self.board = board

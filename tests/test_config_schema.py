@@ -9,6 +9,7 @@ from typing import Any
 import pytest
 import yaml
 from click.testing import CliRunner
+from pydantic import BaseModel
 
 from accelcal_station.acceptance.rules import LIMIT_KEYS
 from accelcal_station.cli import cli
@@ -33,12 +34,39 @@ def test_docs_config_md_is_generated_from_the_schema() -> None:
 
 
 def _sections_read() -> tuple[str, ...]:
-    """Every top-level section the package reads from a raw config (``raw["x"]``, ``raw.get("x")``)."""
+    """Every top-level section the package reads from a station config (``cfg.schema.x``)."""
     import re
     found = {m for f in (REPO / "accelcal_station").rglob("*.py")
-             for m in re.findall(r"\braw(?:\[|\.get\()\"(\w+)\"", f.read_text())}
+             for m in re.findall(r"\b(?:cfg|config|self)\.schema\.(\w+)\b", f.read_text())} - set(dir(BaseModel))
     assert {"device", "jig", "thermal", "chamber"} <= found, found  # the scan itself works
     return tuple(sorted(found))
+
+
+def test_no_module_reads_a_raw_station_config_mapping() -> None:
+    """The config is validated once into the schema's models (StationConfig.schema): no module
+    reads sections back from the file's mapping (``.raw[...]``, ``cfg.raw``), and StationConfig
+    has no such mapping to read."""
+    import re
+
+    from accelcal_station.station.settings import StationConfig
+    assert "raw" not in StationConfig.__dataclass_fields__
+    pattern = re.compile(r"\.raw\[|\b(?:cfg|config|self\.cfg)\.raw\b")
+    readers = [f"{f.relative_to(REPO)}:{i}" for f in sorted((REPO / "accelcal_station").rglob("*.py"))
+               for i, line in enumerate(f.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not readers, readers
+
+
+def test_the_config_text_recorded_is_the_text_parsed(tmp_path: Path) -> None:
+    """A run records the very bytes its configuration was parsed from (read once): the file
+    replaced after loading does not change what is recorded."""
+    from accelcal_station.station.settings import StationConfig
+    p = tmp_path / "station.yaml"
+    text = default_config_path().read_text() + "\n# this very text\n"
+    p.write_text(text)
+    cfg = StationConfig.load(p)
+    p.write_text("device: {driver: simulated}\n")
+    assert cfg.text == text
+    assert cfg.device.driver == "simulated" and cfg.schema.plan is not None
 
 
 def test_schema_defaults_are_the_settings_defaults() -> None:

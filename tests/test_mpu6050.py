@@ -373,8 +373,10 @@ def test_port_emulated_through_make_driver():
 
 
 def test_failed_port_open_stops_the_emulator():
+    from accelcal_station.drivers.emulated import EmulatedMPU6050Bridge
+
     emu = MPU6050BridgeEmulator(seed=2)
-    d = MPU6050Bridge("emulated", baud=-5, emulator=emu, **FAST)  # pyserial refuses the baud rate
+    d = EmulatedMPU6050Bridge(emu, baud=-5, **FAST)  # pyserial refuses the baud rate
     with pytest.raises(DeviceError, match="cannot open serial port"):
         d.open()
     assert no_bridge_threads() and emu._master == -1 and emu._slave == -1  # no thread or pty left behind

@@ -253,7 +253,7 @@ def test_a_crash_during_the_burn_leaves_the_run_burning_with_the_blob_crc(tmp_pa
     from accelcal_station.station.settings import StationConfig
 
     cfg = StationConfig.load(sim_config(tmp_path))
-    driver = make_driver(cfg.raw["device"])
+    driver = make_driver(cfg.device)
 
     class Died(BaseException):
         pass

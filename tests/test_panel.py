@@ -145,7 +145,7 @@ def test_a_board_that_is_not_still_is_named_and_the_others_pass(tmp_path):
     from accelcal_station.station.panel_config import panel_sections
 
     cfg = StationConfig.load(panel_config(tmp_path, 3))
-    drivers = [make_driver(sec, path) for sec, path in panel_sections(cfg.raw["device"])]
+    drivers = [make_driver(sec, path) for sec, path in panel_sections(cfg.device)]
     for k in range(100):  # shaken through the first pose: 3 deg jolts every 0.5 s for 50 s
         drivers[1].board.disturb(after_s=1.0 + 0.5 * k, duration_s=0.4, amplitude_deg=3.0)
     lines: list[str] = []

@@ -80,7 +80,7 @@ def test_board_beyond_limits_fails_with_reasons_and_nvm_untouched(tmp_path):
 
 def test_power_loss_between_page_writes_keeps_the_previous_calibration(tmp_path):
     cfg = StationConfig.load(sim_config(tmp_path))
-    driver = make_driver(cfg.raw["device"])
+    driver = make_driver(cfg.device)
     first = Station(cfg, echo=lambda s: None, driver=driver).run()
     assert first.verdict == "PASS"
     driver.board.eeprom.inject_power_loss(at_write=2, fail_bytes=10)  # dies inside the 2nd page write

@@ -300,9 +300,10 @@ def test_the_hardware_thermal_config_is_valid():
     from accelcal_station.station.thermal_plan import ThermalPlan
 
     cfg = StationConfig.load(CONFIGS / "thermal-mpu6050.yaml")
-    plan = ThermalPlan.from_config(cfg.raw["thermal"], cfg.model)
+    assert cfg.schema.thermal is not None and cfg.schema.chamber is not None
+    plan = ThermalPlan.from_section(cfg.schema.thermal, cfg.model)
     assert plan.visits() == [(-20.0, "calibrate"), (25.0, "calibrate"), (45.0, "verify"), (70.0, "calibrate")]
-    AsciiChamber.from_config(cfg.raw["chamber"])  # every key known, port and limits accepted
+    AsciiChamber.from_config(cfg.schema.chamber)  # every key known, port and limits accepted
 
 
 

@@ -15,18 +15,8 @@ from ..models.result import FitResult
 from ..models.sanity import distinct_directions, distinct_directions_batch, poses_needed
 from .reasons import Reason
 
-LIMIT_KEYS = {
-    "residual_rms_mg": "RMS of per-pose per-axis residuals, mg",
-    "residual_max_mg": "largest per-pose per-axis residual, mg",
-    "crossval_rms_mg": "held-out RMS, mg: leave-one-orientation-out where orientations repeat, else leave-one-pose-out",
-    "gain_error_max": "largest |W_ii - 1| (W maps reading in g to g), fraction",
-    "cross_axis_max": "largest |W_ij|, i != j, fraction",
-    "offset_max_mg": "largest |V_i|, mg",
-    "cubic_max": "largest |Gamma_ii|, 1/g^2",
-    "stderr_offset_max_mg": "largest standard error of V, mg",
-    "stderr_gain_max": "largest standard error of W, fraction",
-    "verify_error_max_mg": "closed-loop verification: largest |calibrated - expected|, mg",
-}
+# each limit's meaning, as the schema declares it (a FAIL reason names it)
+LIMIT_KEYS = {k: f.description or k for k, f in AcceptanceSection.model_fields.items()}
 
 
 # limits every run is judged on even when a config leaves them out (printed when used):
@@ -41,7 +31,13 @@ class Limits:
 
     @classmethod
     def from_config(cls, d: dict | None, path: str = "acceptance") -> Limits:
-        checked = validate(d or {}, AcceptanceSection, path).model_dump(exclude_none=True)
+        """From an ``acceptance:`` mapping not yet validated (a batch's or a twin's config)."""
+        return cls.from_section(validate(d or {}, AcceptanceSection, path))  # type: ignore[arg-type]
+
+    @classmethod
+    def from_section(cls, section: AcceptanceSection | None) -> Limits:
+        """From a validated ``acceptance`` section (None: none given): the safe defaults filled in."""
+        checked = (section or AcceptanceSection()).model_dump(exclude_none=True)
         values = {k: float(v) for k, v in checked.items()}
         missing = [k for k in DEFAULT_LIMITS if k not in values]
         return cls({**values, **{k: DEFAULT_LIMITS[k] for k in missing}}, missing)

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from typing import Any
 
 import click
 
@@ -12,7 +11,7 @@ from ..fileguard.identity import refuse_overwrite
 from ..fixtures.operator_ui import OperatorUI
 from ..station.board import Station
 from ..station.identity import ask_run_identity, check_run_labels
-from ..station.report import RunReport
+from ..station.report import RunReport, Timing
 from ..station.settings import StationConfig
 from ._common import jsonable
 from ._common import store_file as store_file_of
@@ -65,8 +64,8 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
 
 def _refuse_over_config(cfg: StationConfig) -> None:
     """What a run writes (the store, the simulated board's EEPROM image) is never its own config."""
-    eeprom = cfg.raw["device"].get("eeprom") if isinstance(cfg.raw.get("device"), dict) else None
-    image = eeprom.get("image") if isinstance(eeprom, dict) and isinstance(eeprom.get("image"), str) else None
+    eeprom = cfg.device.eeprom
+    image = None if eeprom is None else eeprom.image
     refuse_overwrite([("the store", store_file_of(cfg.store_file), "store"), ("device.eeprom.image", image)],
                      [("--config", str(cfg.path))])
 
@@ -77,11 +76,11 @@ def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str 
     """Identity, then one board, a panel or a thermal plan; ``on_done`` sees the reports before they print."""
     operator, serial = ask_run_identity(cfg, operator, serial, ident_ui)
     echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}")
-    if isinstance(cfg.raw["device"], dict) and "boards" in cfg.raw["device"]:
+    if cfg.is_panel:
         _run_panel(cfg, operator, serial, lot, as_json, echo, ui, on_done)
         return
     rep: RunReport
-    if "thermal" in cfg.raw or "chamber" in cfg.raw:  # ThermalStation refuses one without the other
+    if cfg.is_thermal:  # ThermalStation refuses one without the other
         from ..station.thermal import ThermalStation
 
         rep = ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui).run()
@@ -103,12 +102,12 @@ def _print_board(rep: RunReport, cfg: StationConfig) -> None:
     if f is not None:
         click.echo(f"fit: model {rep.model}, {f.pose_count} poses, residual RMS {f.residual_rms_g * 1e3:.3f} mg"
                    + ("" if f.crossval_rms_g is None else f", cross-validated {f.crossval_rms_g * 1e3:.3f} mg"))
-    table = (getattr(rep, "thermal", None) or {}).get("table")
+    table = (rep.plan_summary() or {}).get("table")
     if table:
         click.echo(f"table: {len(table['temps_c'])} temperatures ("
                    + ", ".join(f"{t:.1f}" for t in table["temps_c"]) + f" C), {table['method']}; "
                    "the fit above is the one at the temperature nearest "
-                   f"{cfg.raw['thermal'].get('reference_c', 25)} C")
+                   f"{_reference_c(cfg):g} C")
     if rep.verify_error_max_mg is not None:
         click.echo(f"verify: max error {rep.verify_error_max_mg:.3f} mg after calibration")
     colour = "green" if rep.verdict == "PASS" else "red"
@@ -123,7 +122,13 @@ def _print_board(rep: RunReport, cfg: StationConfig) -> None:
             click.echo(line)
 
 
-def timing_lines(t: dict[str, Any]) -> list[str]:
+def _reference_c(cfg: StationConfig) -> float:
+    """thermal.reference_c: the temperature whose fit a thermal run reports."""
+    thermal = cfg.schema.thermal
+    return 25.0 if thermal is None else thermal.reference_c
+
+
+def timing_lines(t: Timing) -> list[str]:
     """Timing a reader can trust: samples at the nominal ODR, operator waiting, host compute,
     each on its own (never a 'floor' compared with a wall time it need not be below)."""
     if not t:
@@ -148,7 +153,7 @@ def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot
     if serial is not None:
         raise ConfigError("--serial: a panel's boards keep their own serials; remove --serial "
                           "(or set device.boards[i].serial)")
-    if "thermal" in cfg.raw or "chamber" in cfg.raw:  # a thermal plan over the panel (thermal_panel.py)
+    if cfg.is_thermal:  # a thermal plan over the panel (thermal_panel.py)
         from ..station.thermal_panel import ThermalPanelStation as PanelStation
     station = PanelStation(cfg, operator=operator, lot=lot, echo=echo, ui=ui)
     reports = station.run()

@@ -17,6 +17,12 @@ from .safe_yaml import MAX_BYTES, HostileYAML, safe_load
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping; errors name the file and line."""
+    return load_yaml_text(path)[0]
+
+
+def load_yaml_text(path: str | Path) -> tuple[dict[str, Any], str]:
+    """A YAML mapping and the text it was parsed from (read once: a run records the very text
+    its configuration came from, not a second read that may see another file)."""
     p = Path(path)
     # a regular file only (a FIFO, device or /proc entry would block or never end), sized before it is read
     raw = read_bytes(p, "a configuration", MAX_BYTES, "a station config is a few kB", ConfigError)
@@ -36,7 +42,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: must be a YAML mapping at top level")
-    return data
+    return data, text
 
 
 def check_keys(d: Any, allowed: Iterable[str], path: str) -> dict[str, Any]:

@@ -21,7 +21,10 @@ Generated from `accelcal_station/config/schema.py` by
 A station config (`accelcal run --config F`, configs/*.yaml) is a YAML mapping of the
 sections below. Every key is checked before anything touches a board: an unknown key,
 a wrong type, a number that is not finite or out of its range gives one line naming the
-key path, the value and what is allowed, and exit 2.
+key path, the value and what is allowed, and exit 2.  The file is read once and validated
+once into these models; the station, its factories and flows then read the typed sections,
+never the file's mapping again (docs/architecture.md, "One typed configuration"), and a run
+records the very text that was parsed.
 
 The `device` and `jig` tables list every key of any driver or jig type; the tables
 at the end (`device (driver: mma8451)`, `jig (type: motorized)`, ...) say which keys each

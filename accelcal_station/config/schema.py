@@ -68,8 +68,9 @@ class AcceptanceSection(Section):
 
     residual_rms_mg: float | None = _f(None, "RMS of per-pose per-axis residuals, mg", ge=0, le=1e6)
     residual_max_mg: float | None = _f(None, "largest per-pose per-axis residual, mg", ge=0, le=1e6)
-    crossval_rms_mg: float | None = _f(None, "leave-one-pose-out RMS, mg (10 when not set)", ge=0, le=1e6)
-    gain_error_max: float | None = _f(None, "largest |W_ii - 1|, fraction", ge=0, le=100)
+    crossval_rms_mg: float | None = _f(None, "held-out RMS, mg: leave-one-orientation-out where orientations "
+                                             "repeat, else leave-one-pose-out", ge=0, le=1e6)
+    gain_error_max: float | None = _f(None, "largest |W_ii - 1| (W maps reading in g to g), fraction", ge=0, le=100)
     cross_axis_max: float | None = _f(None, "largest |W_ij|, i != j, fraction", ge=0, le=100)
     offset_max_mg: float | None = _f(None, "largest |V_i|, mg", ge=0, le=1e6)
     cubic_max: float | None = _f(None, "largest |Gamma_ii|, 1/g^2", ge=0, le=1e6)
@@ -260,6 +261,9 @@ class ChamberSection(Section):
     min_c: float = _f(-70.0, "lowest set point allowed, C", ge=-100, le=200)
     max_c: float = _f(180.0, "highest set point allowed, C", ge=-100, le=300)
     emulator: ChamberEmulatorSection | None = _f(None, "the emulated chamber's physics and faults")
+    visa_library: str = Field("@py", min_length=1, description=(
+        "the VISA backend pyvisa opens the port through: @py (pyvisa-py, the default), @ivi (an "
+        "installed IVI VISA such as NI-VISA or Keysight IO), @sim (pyvisa-sim), or a vendor VISA library's path"))
 
 
 class WebSection(Section):
@@ -426,6 +430,12 @@ def validate(data: Any, model: type[BaseModel], where: str = "") -> BaseModel:
         errs = sorted(e.errors(), key=lambda x: (-len([p for p in x["loc"] if isinstance(p, int) or not _is_tag(p)]),
                                                  x["type"] != "extra_forbidden", x["type"].endswith("_type")))
         raise ConfigError(error_line(dict(errs[0]), model, where)) from None
+
+
+def given(section: BaseModel) -> dict[str, Any]:
+    """The keys a validated section was given in its file, nested sections too (defaults left
+    out): what a part's own code applies its own defaults to."""
+    return section.model_dump(exclude_unset=True)
 
 
 def validate_station(raw: dict[str, Any]) -> StationConfigSchema:

@@ -60,7 +60,6 @@ class Chamber(ABC):
 
     def __init__(self) -> None:
         self.on_close: list[Callable[[], None]] = []  # e.g. stop an emulator the factory started
-        self.emulator: Any = None  # the ChamberEmulator the factory started (port: emulated)
 
     @abstractmethod
     def open(self) -> None: ...
@@ -113,11 +112,13 @@ def visa_resource(port: str) -> str:
                       "host:port, a VISA resource name, or 'emulated'")
 
 
-def require_pyvisa(where: str = "chamber") -> None:
-    """pyvisa and pyvisa-py are the optional ``chamber`` extra: refuse in one line, naming it."""
+def require_pyvisa(where: str = "chamber", visa_library: str = "@py") -> None:
+    """pyvisa (and pyvisa-py for the ``@py`` backend) are the optional ``chamber`` extra: refuse
+    in one line, naming it."""
     try:
         import pyvisa  # noqa: F401
-        import pyvisa_py  # noqa: F401
+        if visa_library == "@py":
+            import pyvisa_py  # noqa: F401
     except ImportError:
         raise ConfigError(f"{where}: the thermal chamber needs pyvisa and pyvisa-py, not installed; install the "
                           "extra: pip install 'accelcal-station[chamber]'") from None
@@ -129,8 +130,9 @@ class AsciiChamber(Chamber):
     name = "ascii"
 
     def __init__(self, port: str, baud: int = 9600, timeout_s: float = 1.0, retries: int = 2,
-                 min_c: float = -70.0, max_c: float = 180.0) -> None:
+                 min_c: float = -70.0, max_c: float = 180.0, visa_library: str = "@py") -> None:
         super().__init__()
+        self.visa_library = visa_library  # pyvisa's backend (config chamber.visa_library)
         self.port, self.resource_name = port, visa_resource(port)
         self.baud, self.timeout_s, self.retries = baud, timeout_s, retries
         self.min_c, self.max_c = min_c, max_c
@@ -138,18 +140,20 @@ class AsciiChamber(Chamber):
         self._sp: float | None = None
 
     @classmethod
-    def from_config(cls, cfg: dict[str, Any], path: str = "chamber", port: str | None = None) -> AsciiChamber:
-        m = parse(cfg, ChamberSection, path)
+    def from_config(cls, cfg: dict[str, Any] | ChamberSection, path: str = "chamber",
+                    port: str | None = None) -> AsciiChamber:
+        """From a ``chamber`` section (validated, or a mapping checked here); ``port``: the emulator's."""
+        m = cfg if isinstance(cfg, ChamberSection) else parse(cfg, ChamberSection, path)
         port = port or m.port
         if not isinstance(port, str) or not port:
             raise ConfigError(f"{path}.port: required (a serial device, host:port, a VISA resource, or emulated)")
-        return cls(port, m.baud, m.timeout_s, m.retries, m.min_c, m.max_c)
+        return cls(port, m.baud, m.timeout_s, m.retries, m.min_c, m.max_c, m.visa_library)
 
     def open(self) -> None:
         import pyvisa  # lazily: only stations with a chamber need it
 
         try:
-            rm = pyvisa.ResourceManager("@py")
+            rm = pyvisa.ResourceManager(self.visa_library)
             kw: dict[str, Any] = {"baud_rate": self.baud} if self.resource_name.startswith("ASRL") else {}
             # ASRL INSTR and TCPIP SOCKET resources are message based (query, read/write terminations)
             self._res = cast("MessageBasedResource", rm.open_resource(

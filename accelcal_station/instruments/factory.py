@@ -7,22 +7,30 @@ the port to the real driver, so the emulated station runs the real protocol code
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
+from ..config.schema import ChamberSection, given
 from ..errors import ConfigError
 from .chamber import AsciiChamber, Chamber, require_pyvisa
 
 DRIVERS = ("ascii",)
 
 
-def make_chamber(config: dict[str, Any], board: Any = None, path: str = "chamber") -> Chamber:
-    """The configured chamber; with ``port: emulated`` the emulator is started and stopped on close."""
+def make_chamber(config: ChamberSection | dict[str, Any], board: Any = None, path: str = "chamber",
+                 others: Sequence[Any] = ()) -> Chamber:
+    """The configured chamber (a station's validated ``chamber`` section, or a mapping); with
+    ``port: emulated`` the emulator is started (stopped on close) around the simulated ``board``
+    (its clock) and the ``others`` of a panel: every board sits in the same chamber air."""
+    if isinstance(config, ChamberSection):
+        config = given(config)
     if not isinstance(config, dict):
         raise ConfigError(f"{path}: must be a mapping (driver, port, ...)")
     name = config.get("driver", "ascii")
     if name not in DRIVERS:
         raise ConfigError(f"{path}.driver: {name!r}; allowed: {', '.join(DRIVERS)}")
-    require_pyvisa(path)  # an optional extra: say so before an emulator or port is opened
+    # an optional extra: say so before an emulator or port is opened
+    require_pyvisa(path, str(config.get("visa_library", "@py")))
     if config.get("port") != "emulated":
         if "emulator" in config:
             raise ConfigError(f"{path}.emulator: only used with port: emulated")
@@ -32,10 +40,11 @@ def make_chamber(config: dict[str, Any], board: Any = None, path: str = "chamber
     from .chamber_emulator import ChamberEmulator
 
     emu = ChamberEmulator.from_config(config.get("emulator"), board.clock, f"{path}.emulator")
-    couple(board, emu)
+    for b in (board, *others):
+        if b is not None:
+            couple(b, emu)
     chamber = AsciiChamber.from_config(config, path, port=emu.start())
     chamber.on_close.append(emu.stop)
-    chamber.emulator = emu
     return chamber
 
 

@@ -23,18 +23,18 @@ from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, Underdet
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import clock_of, make_jig
-from ..fixtures.operator_jig import OperatorAbort, OperatorJig, PoseSkipped
+from ..fixtures.operator_jig import OperatorAbort, PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
 from ..models.fitting import fit_session
 from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
-from ..store.location import outbox_of
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
 from .recording import record_result, start_args
-from .report import RunReport, fit_figures
-from .settings import StationConfig
+from .report import RunReport, Timing, fit_figures
+from .settings import StationConfig, configured_rate
+from .verdict import Stage
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
@@ -83,13 +83,13 @@ class Station:
         attempts = 0
         while True:
             attempts += 1
-            jig.present(pose, self._live(driver, StillnessGate(s, floor)) if isinstance(jig, OperatorJig) else None)
+            jig.present(pose, self._live(driver, StillnessGate(s, floor)) if jig.shows_live_reading else None)
             bar = self._capture_sink(f"  capturing {pose.name}")
             try:
                 gc = gated_capture(driver, s, pose.reference_g, floor, progress=bar)
             except WrongPose as e:
                 report.events.append(f"{pose.name}: {e}")
-                if not isinstance(jig, OperatorJig) or attempts > s.max_recaptures:
+                if not jig.places_again or attempts > s.max_recaptures:
                     raise
                 self.echo(f"  refused: {e}")
                 continue
@@ -104,23 +104,22 @@ class Station:
 
     # -- the run ---------------------------------------------------------------------
     def run(self) -> RunReport:
+        """Open the device and start its run, calibrate it (``_calibrate``: at room temperature
+        here, at each set point of a thermal plan in thermal.py), then time and record the run."""
         cfg = self.cfg
-        rep = RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
+        rep = self._new_report()
         wall0 = time.perf_counter()
-        design = get_design(cfg.design)
         if self.driver is None:
-            self.driver = make_driver(cfg.raw["device"])
+            self.driver = make_driver(cfg.device)
         driver = self.driver
-        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
+        with open_store(cfg.store_file, cfg.outbox) as store:
             store.mark_stale_interrupted()
-            if cfg.limits.defaults_line():
-                self.echo(cfg.limits.defaults_line())
-                rep.events.append(cfg.limits.defaults_line())
+            self._announce(rep)
             with ExitStack() as stack:
                 ident = self._open_device(stack, driver, store)
                 rep.serial = self.serial_override or ident.serial
                 rep.chip = ident.chip
-                clock = clock_of(driver)
+                clock = self._device_clock(driver)
                 clock0 = clock.now() if clock is not None else None
                 run_id = store.start_run(device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id,
                                          operator=self.operator, lot=self.lot, config_text=cfg.text,
@@ -130,41 +129,56 @@ class Station:
                 records: list[PoseRecord] = []
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
-                self._calibrate(store, run_id, driver, design, session, retries, rep)
+                self._calibrate(store, run_id, driver, clock, session, retries, rep)
                 rep.timing = self._timing(driver, clock, clock0, wall0)
                 self._finish(store, run_id, session, retries, rep)
         return rep
+
+    def _new_report(self) -> RunReport:
+        cfg = self.cfg
+        return RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
+
+    def _announce(self, rep: RunReport) -> None:
+        """The safe default limits in use, said and kept with the run's events."""
+        line = self.cfg.limits.defaults_line()
+        if line:
+            self.echo(line)
+            rep.events.append(line)
+
+    def _device_clock(self, driver: Driver) -> Clock | None:
+        """The clock the device runs on (a simulated board's); None: the wall (hardware)."""
+        return clock_of(driver)
 
     def _open_device(self, stack: ExitStack, driver: Driver, store: Store) -> Identity:
         """Open, identify and configure the device (closed when ``stack`` is); one that fails is recorded."""
         try:
             stack.enter_context(driver)  # opening a port that nobody answers on is recorded too
             ident = driver.identify()
-            dev = self.cfg.raw["device"]
-            driver.configure(dev.get("range_g"), dev.get("odr_hz"))
+            driver.configure(*configured_rate(self.cfg.device))
         except AccelcalError as e:
             self._record_unreachable(store, e)
             raise
         return ident
 
-    def _calibrate(self, store: Store, run_id: int, driver: Driver, design: list[PoseSpec], session: Session,
+    def _calibrate(self, store: Store, run_id: int, driver: Driver, clock: Clock | None, session: Session,
                    retries: list[int], rep: RunReport) -> None:
         """Poses, fit, verdict, verification and burn with the configured jig; an error or Ctrl-C
         closes the run (interrupted or error) with the poses captured so far, then propagates."""
+        design = get_design(self.cfg.design)
         records = session.poses
         assert isinstance(records, list), "a station's session is the list its poses are captured into"
         try:
-            with make_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, driver, self.ui) as jig:
+            with make_jig(self.cfg.jig, driver, self.ui) as jig:
                 try:
                     self._run_poses(driver, jig, design, records, retries, rep)
                     self._fit_judge_write(driver, jig, session, rep)
                 finally:
-                    self.operator_wait_s = float(getattr(jig, "wait_s", 0.0))
+                    self.operator_wait_s = jig.wait_s
         except (DeviceError, NVMError) as e:
             # a port that closed, a NACK storm, reads that do not settle: the run ends FAIL with the
             # typed reason and the poses captured so far (recorded by _finish), exit 1, never 'running'
-            code = getattr(e, "reason_code", "nvm")
-            rep.verdict, rep.reasons = "FAIL", [Reason(code, str(e))]
+            code = e.reason_code
+            rep.record(Stage.FAULT, Reason(code, str(e)))
             rep.events.append(f"run ended by a {code} fault after {len(records)} poses: {e}")
             self.echo(f"FAIL: {e} ({len(records)} poses captured)")
         except (AccelcalError, KeyboardInterrupt) as e:
@@ -190,7 +204,7 @@ class Station:
         # a store that fails now: the run closed as error where it can, the result kept in the outbox,
         # and one error saying what was burned and what was recorded (recording.py)
         record_result(store, run_id, start_args(cfg, rep, self.operator, self.lot, session.counts_per_g), finish,
-                      outbox_of(cfg.raw))
+                      cfg.outbox)
 
     def _record_unreachable(self, store: Store, err: AccelcalError) -> None:
         """A device that does not answer still leaves a record: status error, with the reason."""
@@ -237,7 +251,7 @@ class Station:
         try:
             fit = fit_session(session, cfg.model)
         except UnderdeterminedError as e:
-            rep.verdict, rep.reasons = "FAIL", [Reason("fit", str(e))]
+            rep.record(Stage.FIT, Reason("fit", str(e)))
             return None
         rep.fit = fit
         rep.calibration = fit.calibration
@@ -245,7 +259,7 @@ class Station:
         verdict = judge(fit, cfg.limits, planned_poses=planned)
         rep.measured = verdict.measured
         if not verdict.passed:
-            rep.verdict, rep.reasons = "FAIL", verdict.reasons
+            rep.record(Stage.ACCEPTANCE, *verdict.reasons)
             self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
             return None
         cal = fit.calibration
@@ -262,9 +276,9 @@ class Station:
             verdict = judge(rep.fit, self.cfg.limits, err, planned_poses=len(get_design(self.cfg.design)))
             rep.measured = verdict.measured
             if not verdict.passed:
-                rep.verdict, rep.reasons = "FAIL", verdict.reasons
+                rep.record(Stage.ACCEPTANCE, *verdict.reasons)
                 return False
-        rep.verdict, rep.reasons = "PASS", []
+        rep.record(Stage.JUDGED)
         return True
 
     def _burn(self, driver: Driver, cal: Calibration, checks: list[Check], rep: RunReport) -> None:
@@ -274,10 +288,10 @@ class Station:
             return
         nvm = driver.nvm
         if nvm is None:
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", "the device has no NVM to write; set nvm.write: false")]
+            rep.record(Stage.NVM, Reason("nvm", "the device has no NVM to write; set nvm.write: false"))
             return
         writer = CalibrationWriter(nvm, cfg.slot_size)
-        log = getattr(self, "_burn_log", None) or (lambda kind, data: None)
+        log = self._burn_log or (lambda kind, data: None)
         try:
             # recorded (committed) before the first byte: a crash mid-burn still says what may be on the board
             outcome = writer.burn(cal, rep.serial, cfg.station_id,
@@ -285,7 +299,7 @@ class Station:
         except BurnError as e:
             rep.nvm = e.outcome.to_dict()
             log("nvm_burn_failed", rep.nvm)
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
+            rep.record(Stage.NVM, Reason("nvm", str(e)))
             return
         rep.nvm = outcome.to_dict()
         log("nvm_burned", rep.nvm)
@@ -308,7 +322,7 @@ class Station:
             writer.revert(outcome)
             rep.nvm = outcome.to_dict()
             log("nvm_reverted", rep.nvm)
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", f"{why}; {holds_text(outcome)}")]
+            rep.record(Stage.NVM, Reason("nvm", f"{why}; {holds_text(outcome)}"))
             return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
 
@@ -319,12 +333,12 @@ class Station:
         The registers are volatile: the trim is reported (and recorded) so the device
         config's ``offset_trim_lsb`` can restore it at power-up.
         """
-        lsb_g = getattr(driver, "offset_trim_lsb_g", None)
-        if lsb_g is None or not hasattr(driver, "set_offset_trim"):
+        if not driver.supports_offset_trim:
             raise ConfigError(f"nvm.offset_trim: the {driver.name} driver has no offset-trim registers; "
                               "set nvm.offset_trim: false")
         offset_g = -np.linalg.solve(cal.W, cal.V)  # zero-g output of the untrimmed chip
-        old = np.asarray(driver.get_offset_trim(), dtype=float) if hasattr(driver, "get_offset_trim") else 0.0
+        lsb_g = driver.offset_trim_lsb_g
+        old = np.asarray(driver.get_offset_trim(), dtype=float)
         total = np.clip(np.round(old - offset_g / lsb_g), -128, 127).astype(int)
         driver.set_offset_trim(tuple(int(v) for v in total))
         t = (total - old) * lsb_g
@@ -352,10 +366,9 @@ class Station:
                 for c, ref, t in checks]
         return float(np.max(errs)) * 1e3
 
-    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None,
-                wall0: float) -> dict[str, float]:
+    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None, wall0: float) -> Timing:
         odr = driver.odr_hz
-        t = {
+        t: Timing = {
             "odr_hz": odr,
             "samples_averaged": self.samples_used,
             "samples_read": self.samples_read,
@@ -370,7 +383,6 @@ class Station:
         # a panel's board that opened but did not identify has no start time: no device time
         if clock is not None and clock0 is not None:
             t["device_time_s"] = clock.now() - clock0  # moves, waits, EEPROM cycles, sampling
-            realtime = bool(getattr(clock, "realtime", False))
-            t["board_time_s"] = t["device_time_s"] + (0.0 if realtime else t["host_compute_s"])
+            t["board_time_s"] = t["device_time_s"] + (0.0 if clock.realtime else t["host_compute_s"])
         return t
 

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol
 
-from ..config.parts import parse
-from ..config.schema import StationSection
+from ..config.schema import StationConfigSchema, StationSection
 from ..errors import ConfigError, DataError
 from ..fixtures.operator_ui import OperatorUI
 
@@ -18,9 +17,9 @@ SERIAL_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._:/-]{0,63}")
 NAME_RE = re.compile(r"[^\W_][^\W_ .'-]*(?:[ .'-]+[^\W_]+)*[.]?")
 
 
-def identity_options(raw: dict[str, Any]) -> dict[str, bool]:
-    """station.scan_serial and station.require_operator, checked (both default false)."""
-    st = parse(raw.get("station"), StationSection, "station")
+def identity_options(station: StationSection | None) -> dict[str, bool]:
+    """station.scan_serial and station.require_operator (both default false)."""
+    st = station or StationSection()
     return {k: getattr(st, k) for k in IDENTITY_KEYS}
 
 
@@ -53,15 +52,18 @@ def check_run_labels(operator: str | None, lot: str | None, station_id: str | No
 class RunConfig(Protocol):
     """What the identity rules read of a station config (settings.StationConfig)."""
 
-    raw: dict[str, Any]
-    path: Path
+    @property
+    def schema(self) -> StationConfigSchema: ...
+
+    @property
+    def path(self) -> Path: ...
 
 
 def ask_run_identity(cfg: RunConfig, operator: str | None, serial: str | None,
                      ui: OperatorUI) -> tuple[str | None, str | None]:
     """Apply the config's identity rules; asks the operator (``ui``) for a serial scan when
     the config wants one (OperatorAbort on end of input)."""
-    opts = identity_options(cfg.raw)
+    opts = identity_options(cfg.schema.station)
     if opts["require_operator"] and not (operator or "").strip():
         raise ConfigError(f"--operator: required (station.require_operator: true in {cfg.path.name})")
     if serial is not None:

@@ -21,12 +21,13 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 
 from ..acceptance.reasons import Reason
 from ..calibration import Calibration
+from ..config.schema import JigSection
 from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError
@@ -34,10 +35,9 @@ from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import board_seat, clock_of
 from ..fixtures.factory import make_panel_jig as panel_jig
-from ..fixtures.operator_jig import OperatorAbort, OperatorJig
+from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import OperatorUI
 from ..session import PoseRecord, Session
-from ..store.location import outbox_of
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import Check, Station
@@ -47,6 +47,33 @@ from .panel_config import group_of, panel_sections
 from .recording import record_result, start_args
 from .report import RunReport
 from .settings import StationConfig
+from .verdict import Stage
+
+
+class PerBoardSplit(TypedDict):
+    """A thermal panel's time split divided by its boards, s."""
+
+    soak_s: float
+    sampling_floor_s: float
+    rest_s: float
+    board_time_s: float
+
+
+class PanelTiming(TypedDict, total=False):
+    """A panel's time, s: its boards run at once, so its device time is the longest board's
+    (a thermal panel's: the split of its shared soaks and captures, and that split per board)."""
+
+    boards: int
+    host_compute_s: float
+    device_time_s: float
+    panel_time_s: float
+    per_board_s: float
+    soak_s: float
+    sampling_floor_s: float
+    rest_s: float
+    board_time_s: float
+    per_board: PerBoardSplit
+    clock: Literal["real", "virtual"]
 
 
 @dataclass
@@ -72,11 +99,11 @@ class PanelBoard:
     @property
     def active(self) -> bool:
         """Still in the flow: opened and not failed yet."""
-        return self.open_ and not self.rep.reasons
+        return self.open_ and not self.rep.failed
 
-    def fail(self, reason: Reason) -> None:
-        self.rep.verdict = "FAIL"
-        self.rep.reasons.append(reason)
+    def fail(self, stage: Stage, reason: Reason) -> None:
+        """This board fails at ``stage`` (it takes no further part in the panel's flow)."""
+        self.rep.record(stage, reason)
         self.rep.events.append(reason)
 
     @property
@@ -92,7 +119,7 @@ def new_panel_id(station_id: str) -> str:
     return f"{station_id}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.urandom(3).hex()}"
 
 
-def make_panel_jig(cfg: dict[str, Any], boards: list[PanelBoard], ui: OperatorUI | None) -> Jig:
+def make_panel_jig(cfg: JigSection, boards: list[PanelBoard], ui: OperatorUI | None) -> Jig:
     """The configured jig for the whole panel, from the jig factory."""
     live = [b for b in boards if b.driver is not None]
     return panel_jig(cfg, [b.driver for b in live], [b.seat for b in live], ui)
@@ -116,13 +143,13 @@ class PanelStation:
         self.jig = jig  # default: built from the config's jig section
         self._buses: dict[Any, Any] = {}  # one MuxBus per (I2C bus, mux address), shared by its boards
         self.estimate: JigPoseEstimate | None = None
-        self.timing: dict[str, Any] = {}
+        self.timing: PanelTiming = {}
         self.boards: list[PanelBoard] = []
 
     # -- building -------------------------------------------------------------------
     def _boards(self) -> list[PanelBoard]:
         cfg = self.cfg
-        sections = panel_sections(cfg.raw["device"])
+        sections = panel_sections(cfg.device)
         if self.drivers is not None and len(self.drivers) != len(sections):
             raise ConfigError(f"device: {len(sections)} boards configured, {len(self.drivers)} drivers given")
         out = []
@@ -149,7 +176,7 @@ class PanelStation:
             clock = clock_of(b.driver)
             b.clock0 = clock.now() if clock is not None else None
         except AccelcalError as e:
-            b.fail(Reason("device", str(e)))
+            b.fail(Stage.DEVICE, Reason("device", str(e)))
         b.rep.run_id = store.start_run(
             device_serial=b.rep.serial or b.path, chip=b.rep.chip or b.section.get("driver"),
             station_id=self.cfg.station_id, operator=self.operator, lot=self.lot, config_text=self.cfg.text,
@@ -158,14 +185,14 @@ class PanelStation:
 
     # -- capture ------------------------------------------------------------------------
     def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None
-                     ) -> tuple[GatedCapture | None, Exception | None]:
+                     ) -> tuple[GatedCapture | None, AccelcalError | None]:
         try:
             return gated_capture(b.driver, self.cfg.capture, pose.reference_g, floor), None
         except AccelcalError as e:  # WrongPose, not still, NACK...: this board's, never the panel's
             return None, e
 
     def capture_all(self, boards: list[PanelBoard], pose: PoseSpec, floors: dict[int, np.ndarray | None] | None = None
-                    ) -> tuple[dict[int, GatedCapture], dict[int, Exception]]:
+                    ) -> tuple[dict[int, GatedCapture], dict[int, AccelcalError]]:
         """Capture ``pose`` on every active board at once: one thread per group, boards of a group in turn.
 
         Returns the captures and the errors, by board index; nothing is marked failed here.
@@ -175,7 +202,7 @@ class PanelStation:
             if b.active:
                 groups.setdefault(b.group, []).append(b)
         caps: dict[int, GatedCapture] = {}
-        errors: dict[int, Exception] = {}
+        errors: dict[int, AccelcalError] = {}
         lock = threading.Lock()
 
         def run(members: list[PanelBoard]) -> None:
@@ -210,13 +237,13 @@ class PanelStation:
             if not misplaced:
                 break
             self.echo(f"  every board reads a wrong pose at {pose.name}: the panel is not in the planned pose")
-            if not isinstance(jig, OperatorJig) or attempt == self.cfg.capture.max_recaptures:
+            if not jig.places_again or attempt == self.cfg.capture.max_recaptures:
                 break
         for b in boards:
             if b.index in errors:
                 e = errors[b.index]
-                b.fail(Reason("pose", f"{pose.name}: {e}", sep=" ") if isinstance(e, WrongPose)
-                       else Reason(getattr(e, "reason_code", "device"), f"{pose.name}: {e}"))
+                b.fail(Stage.CAPTURE, Reason("pose", f"{pose.name}: {e}", sep=" ") if isinstance(e, WrongPose)
+                       else Reason(e.reason_code, f"{pose.name}: {e}"))
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
         return caps
 
@@ -242,36 +269,27 @@ class PanelStation:
                 b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events]
 
     # -- the run ---------------------------------------------------------------------
+    # the faults that end the flow as a recorded FAIL of every board still in it (anything else
+    # interrupts every run); a thermal plan's panel narrows them (thermal_panel.py)
+    ending_faults: tuple[type[AccelcalError], ...] = (DeviceError, NVMError)
+
     def run(self) -> list[RunReport]:
+        """Open every board and start its run, calibrate them (``_calibrate``: at room temperature
+        here, at each set point of a thermal plan in thermal_panel.py), then time and record each."""
         cfg = self.cfg
         wall0 = time.perf_counter()
-        design = get_design(cfg.design)
         boards = self.boards = self._boards()
-        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
+        with open_store(cfg.store_file, cfg.outbox) as store:
             store.mark_stale_interrupted()
             try:
                 for b in boards:
                     self._open(b, store)
-                live = [b for b in boards if b.active]
-                if live:
-                    with (self.jig or make_panel_jig(cfg.raw.get("jig") or {"type": "simulated"}, live,
-                                                     self.ui)) as jig:
-                        self._poses(boards, jig, design)
-                        self._fit_all(boards)
-                        self._verify_all(boards, jig)
-                for b in boards:
-                    if b.active and b.cal is not None:
-                        b.station._burn(b.driver, b.cal, b.checks, b.rep)
-            except (DeviceError, NVMError) as e:
-                self.fault(boards, e)  # a lost jig port, a NACK storm on the shared bus: FAIL, recorded below
+                self._calibrate(boards)
+            except self.ending_faults as e:
+                # a lost jig port, a NACK storm on the shared bus: FAIL, recorded below
+                self.fault(boards, e)  # type: ignore[arg-type]
             except (AccelcalError, KeyboardInterrupt) as e:
-                why = "operator aborted" if isinstance(e, OperatorAbort) else (
-                    "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
-                for b in boards:  # each run closed with the poses its board captured so far
-                    if b.rep.run_id is not None:
-                        store.interrupt_run(b.rep.run_id, why, status="interrupted" if isinstance(
-                            e, (OperatorAbort, KeyboardInterrupt)) else "error", nvm_outcome=b.rep.nvm,
-                            session=_session(b) if b.records else None, retries=b.retries if b.records else None)
+                self._interrupted(store, boards, e)
                 self._close(boards)
                 raise
             self._close(boards)
@@ -280,14 +298,36 @@ class PanelStation:
                 self._record(store, b)
         return [b.rep for b in boards]
 
+    def _calibrate(self, boards: list[PanelBoard]) -> None:
+        """Poses, fits and verification on the jig, then each passing board's burn."""
+        live = [b for b in boards if b.active]
+        if live:
+            with (self.jig or make_panel_jig(self.cfg.jig, live, self.ui)) as jig:
+                self._poses(boards, jig, get_design(self.cfg.design))
+                self._fit_all(boards)
+                self._verify_all(boards, jig)
+        for b in boards:
+            if b.active and b.cal is not None:
+                b.station._burn(b.driver, b.cal, b.checks, b.rep)
+
+    def _interrupted(self, store: Store, boards: list[PanelBoard], e: BaseException) -> None:
+        """Each run closed with the poses its board captured so far."""
+        why = "operator aborted" if isinstance(e, OperatorAbort) else (
+            "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
+        for b in boards:
+            if b.rep.run_id is not None:
+                store.interrupt_run(b.rep.run_id, why, status="interrupted" if isinstance(
+                    e, (OperatorAbort, KeyboardInterrupt)) else "error", nvm_outcome=b.rep.nvm,
+                    session=_session(b) if b.records else None, retries=b.retries if b.records else None)
+
     def fault(self, boards: list[PanelBoard], e: DeviceError | NVMError) -> None:
         """A device or port fault that ends the panel's flow: every board still in it fails with the typed
         reason (``port_lost``, ``device``, ``nvm``); each run is then recorded FAIL with the poses its board
         captured (``_record``), so the command exits 1 and no run is left 'running'."""
-        code = getattr(e, "reason_code", "nvm")
+        code = e.reason_code
         for b in boards:
             if b.active:
-                b.fail(Reason(code, str(e)))
+                b.fail(Stage.FAULT, Reason(code, str(e)))
                 b.cal = None  # nothing is burned after the fault
                 b.rep.events.append(f"run ended by a {code} fault after {len(b.records)} poses: {e}")
         self.echo(f"FAIL: {e} (every board still in the flow)")
@@ -370,7 +410,7 @@ class PanelStation:
                    "timing": rep.timing, "nvm_verified": rep.nvm_verified, "panel_id": self.panel_id,
                    "jig_pose": None if est is None else {"estimated": est.estimated, "note": est.note,
                                                          "rotvec_deg": est.rotvec_deg.tolist()}}
-        thermal = getattr(rep, "thermal", None)  # a thermal plan's report (thermal_panel.py)
+        thermal = rep.plan_summary()  # a thermal plan's (thermal_panel.py)
         if thermal is not None:
             summary["thermal"] = thermal
         finish = {"session": session, "calibration": rep.calibration, "verdict": rep.verdict,
@@ -380,10 +420,9 @@ class PanelStation:
         start = start_args(self.cfg, rep, self.operator, self.lot, session.counts_per_g, panel_id=self.panel_id)
         start["device_serial"] = rep.serial or b.path
         try:  # a store that fails: kept in the outbox, the reason says what was burned and recorded
-            record_result(store, rep.run_id, start, finish, outbox_of(self.cfg.raw))
+            record_result(store, rep.run_id, start, finish, self.cfg.outbox)
         except AccelcalError as e:
-            rep.verdict = "FAIL"
-            rep.reasons.append(Reason("store", str(e)))
+            rep.record(Stage.STORE, Reason("store", str(e)))
 
 
 def _session(b: PanelBoard) -> Session:

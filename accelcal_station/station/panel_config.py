@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 
 from ..config.parts import PanelSeedSection, parse
+from ..config.schema import DeviceSection
+from ..config.schema import given as given_keys
 from ..errors import ConfigError
 from ..fixtures.factory import spread_board
 
@@ -28,8 +30,12 @@ def _simulated(section: dict[str, Any]) -> bool:
     return section.get("driver") == "simulated" or "emulated" in (section.get("bus"), section.get("port"))
 
 
-def panel_sections(device: Any, path: str = "device") -> list[tuple[dict[str, Any], str]]:
-    """Per-board device sections and their key paths; a device without ``boards`` is a panel of one."""
+def panel_sections(device: DeviceSection | dict[str, Any], path: str = "device") -> list[tuple[dict[str, Any], str]]:
+    """Per-board device sections (the keys each board is given: the panel's shared keys under its
+    own) and their key paths; a device without ``boards`` is a panel of one.  ``device``: a
+    station's validated section, or a mapping (tests)."""
+    if isinstance(device, DeviceSection):
+        device = given_keys(device)
     if not isinstance(device, dict):
         raise ConfigError(f"{path}: must be a mapping with a 'driver' key")
     boards = device.get("boards")

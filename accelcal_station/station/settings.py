@@ -1,38 +1,43 @@
-"""The station configuration: read a station config (YAML) and check every section, each
-error naming its key path, before anything touches a board."""
+"""The station configuration: read a station config (YAML) once and check every section, each
+error naming its key path, before anything touches a board.  What is checked is kept as the
+schema's typed sections (``StationConfig.schema``): the station, its factories and flows read
+those, never the file's mapping again."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from ..acceptance.rules import Limits
-from ..config.checks import load_yaml
+from ..config.checks import load_yaml_text
 from ..config.parts import check_kinds
 from ..config.schema import (
     CaptureSection,
+    DeviceSection,
+    JigSection,
     LoggingSection,
     NvmSection,
     PlanSection,
+    StationConfigSchema,
     StationSection,
     VerifySection,
+    WebSection,
     validate_station,
 )
 from ..config.sections import default_config_path, with_port
 from ..errors import ConfigError
 from ..fixtures.designs import get_design
 from ..models.fitting import check_model
-from ..store.location import store_path, store_target
+from ..store.location import outbox_of, store_path, store_target
 from .capture import CaptureSettings
-from .identity import identity_options
 
 
 @dataclass
 class StationConfig:
     """A checked station configuration (every error names its key path)."""
 
-    raw: dict[str, Any]
-    text: str
+    schema: StationConfigSchema  # every section, validated once (config/schema.py)
+    text: str  # the text that was parsed, recorded with every run
     path: Path
     station_id: str
     design: str
@@ -55,7 +60,7 @@ class StationConfig:
         """Read and check a station config; ``port``/``jig_port`` override the device's
         port (or MMA8451 bus) and the motorized jig's port."""
         p = default_config_path() if path is None else Path(path)
-        raw = _read_with_ports(p, port, jig_port)
+        raw, text = _read_with_ports(p, port, jig_port)
         # the declared schema (config/schema.py): every key, type, finite number and range
         sc = validate_station(raw)
         check_kinds(raw)  # and the keys of its driver and jig type (config/parts.py)
@@ -63,7 +68,6 @@ class StationConfig:
         # names the same one first)
         if "device" not in raw:
             raise ConfigError(f"{p}: device: required (a mapping with a 'driver' key)")
-        identity_options(raw)
         design, model = _plan(sc.plan or PlanSection())
         settings = _capture_settings(sc.capture or CaptureSection())
         nvm = sc.nvm or NvmSection()
@@ -75,17 +79,48 @@ class StationConfig:
             get_design(ver.design)
         # a relative store path is taken from the current directory: the station's
         # working folder, never the (possibly installed, read-only) config folder
-        store_file = store_target(store_override) if store_override else store_path(raw, Path.cwd())
-        limits = Limits.from_config(raw.get("acceptance"))
+        store_file = store_target(store_override) if store_override else store_path(sc.store, Path.cwd())
+        limits = Limits.from_section(sc.acceptance)
         verify_poses = _verify_poses(ver.poses, limits)
-        return cls(raw, p.read_text(), p, (sc.station or StationSection()).id, design, model, settings,
+        return cls(sc, text, p, (sc.station or StationSection()).id, design, model, settings,
                    limits, nvm.write, nvm.slot_size, nvm.offset_trim, verify_poses, ver.design, store_file,
-                   _web_token(raw), sc.logging, _web_token(raw, "read_token"))
+                   _web_token(sc.web), sc.logging,
+                   _web_token(sc.web, read=True))
+
+    def with_sections(self, **sections: Any) -> StationConfig:
+        """This configuration with some sections replaced by ones already validated (a benchmark's
+        panel of N boards, a jig without moves), each marked as given."""
+        return replace(self, schema=self.schema.model_copy(update=sections))
+
+    @property
+    def device(self) -> DeviceSection:
+        """The ``device`` section (a board, or a panel of boards with ``boards``)."""
+        return self.schema.device
+
+    @property
+    def jig(self) -> JigSection:
+        """The ``jig`` section (the simulated jig when the file has none)."""
+        return self.schema.jig or JigSection(type="simulated")
+
+    @property
+    def is_panel(self) -> bool:
+        """A panel: ``device.boards`` given (a count or a list)."""
+        return self.schema.device.boards is not None
+
+    @property
+    def is_thermal(self) -> bool:
+        """A thermal plan: ``thermal`` or ``chamber`` given (the flow refuses one without the other)."""
+        return self.schema.thermal is not None or self.schema.chamber is not None
+
+    @property
+    def outbox(self) -> Path | None:
+        """``store.outbox``, or None for the default outbox."""
+        return outbox_of(self.schema.store)
 
 
-def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> dict[str, Any]:
-    """The config file's mapping with the command line's device and jig ports applied."""
-    raw = load_yaml(p)
+def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> tuple[dict[str, Any], str]:
+    """The config file's mapping (with the command line's device and jig ports applied) and its text."""
+    raw, text = load_yaml_text(p)
     if port is not None:
         raw["device"] = with_port(dict(raw.get("device") or {}), port)
     if jig_port is not None:
@@ -93,7 +128,7 @@ def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> dict[st
         if jig.get("type") != "motorized":
             raise ConfigError(f"--jig-port {jig_port}: the config's jig is not motorized (jig.type: motorized)")
         raw["jig"] = {**jig, "port": jig_port}
-    return raw
+    return raw, text
 
 
 def _plan(plan: PlanSection) -> tuple[str, str]:
@@ -119,11 +154,19 @@ def _verify_poses(verify_poses: int, limits: Limits) -> int:
     return verify_poses
 
 
-def _web_token(raw: dict[str, Any], key: str = "token") -> str | None:
+def _web_token(web: WebSection | None, read: bool = False) -> str | None:
     """web.token (or web.read_token): a shared secret of 16-200 printable characters (no spaces), or absent."""
-    token = (raw.get("web") or {}).get(key)  # keys and type: the schema's
+    token = None if web is None else (web.read_token if read else web.token)  # keys and type: the schema's
+    key = "read_token" if read else "token"
     if token is None:
         return None
-    if not isinstance(token, str) or not 16 <= len(token) <= 200 or not token.isprintable() or " " in token:
+    if not 16 <= len(token) <= 200 or not token.isprintable() or " " in token:
         raise ConfigError(f"web.{key}: allowed: a string of 16-200 printable characters without spaces")
     return token
+
+
+def configured_rate(device: DeviceSection) -> tuple[int | None, float | None]:
+    """(range_g, odr_hz) the file set for the device; None where it left the driver's own default."""
+    given_keys = device.model_fields_set
+    return (device.range_g if "range_g" in given_keys else None,
+            device.odr_hz if "odr_hz" in given_keys else None)

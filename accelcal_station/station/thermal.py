@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -35,14 +35,13 @@ from ..models.fitting import fit_session
 from ..models.result import FitResult
 from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
-from ..store.location import outbox_of
-from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import Station
 from .recording import record_result, start_args
-from .report import RunReport
+from .report import RunReport, Timing
 from .settings import StationConfig
 from .thermal_plan import ChamberFault, ThermalPlan, WallClock, soak_until
+from .verdict import Stage
 
 # a plan's poses by set point (C), in capture order
 Groups = dict[float, list[PoseRecord]]
@@ -85,11 +84,35 @@ class SetPointResult:
         return abs(temp_c - self.board_temp_c)
 
 
+class VerifyRow(TypedDict):
+    """The table checked at one verification set point: its largest error, mg, and the error of
+    the single calibration nearest the reference temperature, for comparison."""
+
+    set_point_c: float
+    board_temp_c: float
+    error_max_mg: float
+    without_table_error_max_mg: float
+    without_table_calibration_c: float
+    limit_mg: float | None
+    within_limit: bool
+    without_table_within_limit: bool
+
+
+class TableVerdict(TypedDict):
+    """The temperature table's verdict before writing (every set point's fit and the verification)."""
+
+    verdict: str
+    reasons: list[str]
+
+
 @dataclass
 class ThermalRunReport(RunReport):
     """A board's run report with its thermal plan's summary (``thermal``)."""
 
     thermal: dict[str, Any] = field(default_factory=dict)
+
+    def plan_summary(self) -> dict[str, Any] | None:
+        return self.thermal
 
     def to_dict(self) -> dict[str, Any]:
         return {**super().to_dict(), "thermal": self.thermal}
@@ -100,70 +123,67 @@ class ThermalStation(Station):
 
     def __init__(self, config: StationConfig, **kw: Any) -> None:
         super().__init__(config, **kw)
-        raw = config.raw
-        if "thermal" not in raw or "chamber" not in raw:
+        thermal, chamber = config.schema.thermal, config.schema.chamber
+        if thermal is None or chamber is None:
             raise ConfigError(f"{config.path}: a thermal plan needs both thermal: and chamber: sections")
         if config.offset_trim:
             raise ConfigError("nvm.offset_trim: not with a thermal plan (the offset moves with temperature); "
                               "allowed: false")
-        self.plan = ThermalPlan.from_config(raw["thermal"], config.model)
+        self.plan = ThermalPlan.from_section(thermal, config.model)
+        self.chamber_section = chamber
         self.results: list[SetPointResult] = []
         self.soak_s = 0.0
         self.report_events: list[str] = []
-        self.verify: list[dict[str, Any]] = []
-        self.table_verdict: dict[str, Any] | None = None
+        self.verify: list[VerifyRow] = []
+        self.table_verdict: TableVerdict | None = None
 
-    # -- the run --------------------------------------------------------------------
-    def run(self) -> ThermalRunReport:
-        from ..drivers.factory import make_driver
-
+    # -- the run (Station.run, with the chamber's set points as the conditions) --------------
+    def _new_report(self) -> ThermalRunReport:
         cfg = self.cfg
-        rep = ThermalRunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design,
-                               store=str(cfg.store_file))
-        wall0 = time.perf_counter()
-        if self.driver is None:
-            self.driver = make_driver(cfg.raw["device"])
-        driver = self.driver
-        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
-            store.mark_stale_interrupted()
-            with driver:
-                ident = driver.identify()
-                rep.serial, rep.chip = self.serial_override or ident.serial, ident.chip
-                dev = cfg.raw["device"]
-                driver.configure(dev.get("range_g"), dev.get("odr_hz"))
-                clock = clock_of(driver) or WallClock()  # the device's clock, from the factory
-                t0 = clock.now()
-                run_id = rep.run_id = store.start_run(
-                    device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id, operator=self.operator,
-                    lot=self.lot, config_text=cfg.text, model=cfg.model, units="counts",
-                    counts_per_g=driver.counts_per_g)
-                records: list[PoseRecord] = []
-                retries: list[int] = []
-                session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
-                try:
-                    with make_chamber(cfg.raw["chamber"], board_of(driver)) as chamber, \
-                            make_jig(cfg.raw.get("jig") or {"type": "simulated"}, driver, self.ui) as jig:
-                        self._plan(driver, chamber, jig, clock, records, retries, rep)
-                except (AccelcalError, KeyboardInterrupt) as e:
-                    if isinstance(e, ChamberFault):
-                        rep.verdict, rep.reasons = "FAIL", [Reason("chamber", str(e))]
-                        self.echo(f"FAIL: chamber: {e} (nothing burned)")
-                    elif isinstance(e, (PortLostError, NVMError)):  # a lost sensor/jig port, unsettled NVM reads
-                        code = getattr(e, "reason_code", "nvm")
-                        rep.verdict, rep.reasons = "FAIL", [Reason(code, f"{e} ({self._where()})")]
-                        self.echo(f"FAIL: {e} ({len(records)} poses captured)")
-                    else:
-                        where = self._where()
-                        why = "interrupted" if isinstance(e, KeyboardInterrupt) else str(e)
-                        store.interrupt_run(run_id, f"{why} ({where})", session=session if records else None,
-                                            status="interrupted" if isinstance(e, KeyboardInterrupt) else "error",
-                                            retries=retries if records else None, nvm_outcome=rep.nvm)
-                        raise
-                rep.events.extend(self.report_events)
-                rep.timing = self._thermal_timing(driver, clock, t0, wall0)
-                rep.thermal = self._summary(rep)
-                self._record_run(store, run_id, session, retries, rep)
-        return rep
+        return ThermalRunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design,
+                                store=str(cfg.store_file))
+
+    def _announce(self, rep: RunReport) -> None:
+        """Nothing: a thermal plan's limits are said at each set point."""
+
+    def _device_clock(self, driver: Driver) -> Clock:
+        return clock_of(driver) or WallClock()  # the device's clock, from the factory
+
+    def _calibrate(self, store: Store, run_id: int, driver: Driver, clock: Clock | None, session: Session,
+                   retries: list[int], rep: RunReport) -> None:
+        """Every set point in the chamber, then the table, its verdict and its burn; a chamber fault or
+        a lost port ends the run FAIL (recorded), any other error or Ctrl-C interrupts it."""
+        assert clock is not None, "a thermal plan runs on its device's clock or the wall's"
+        records = session.poses
+        assert isinstance(records, list), "a station's session is the list its poses are captured into"
+        try:
+            with make_chamber(self.chamber_section, board_of(driver)) as chamber, \
+                    make_jig(self.cfg.jig, driver, self.ui) as jig:
+                self._plan(driver, chamber, jig, clock, records, retries, rep)
+        except (AccelcalError, KeyboardInterrupt) as e:
+            if isinstance(e, ChamberFault):
+                rep.record(Stage.CHAMBER, Reason("chamber", str(e)))
+                self.echo(f"FAIL: chamber: {e} (nothing burned)")
+            elif isinstance(e, (PortLostError, NVMError)):  # a lost sensor/jig port, unsettled NVM reads
+                rep.record(Stage.FAULT, Reason(e.reason_code, f"{e} ({self._where()})"))
+                self.echo(f"FAIL: {e} ({len(records)} poses captured)")
+            else:
+                why = "interrupted" if isinstance(e, KeyboardInterrupt) else str(e)
+                store.interrupt_run(run_id, f"{why} ({self._where()})", session=session if records else None,
+                                    status="interrupted" if isinstance(e, KeyboardInterrupt) else "error",
+                                    retries=retries if records else None, nvm_outcome=rep.nvm)
+                raise
+
+    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None, wall0: float) -> Timing:
+        assert clock is not None and clock0 is not None, "a thermal plan's clock started with its run"
+        return self._thermal_timing(driver, clock, clock0, wall0)
+
+    def _finish(self, store: Store, run_id: int, session: Session, retries: list[int], rep: RunReport) -> None:
+        """Record the finished run with the plan's events and summary."""
+        assert isinstance(rep, ThermalRunReport), "a thermal plan's run report (_new_report)"
+        rep.events.extend(self.report_events)
+        rep.thermal = self._summary(rep)
+        self._record_run(store, run_id, session, retries, rep)
 
     def _record_run(self, store: Store, run_id: int, session: Session, retries: list[int],
                     rep: ThermalRunReport) -> None:
@@ -176,7 +196,7 @@ class ThermalStation(Station):
                   "model": self.cfg.model, "retries": retries,
                   "limits": self.cfg.limits.values}
         record_result(store, run_id, start_args(self.cfg, rep, self.operator, self.lot, session.counts_per_g),
-                      finish, outbox_of(self.cfg.raw))
+                      finish, self.cfg.outbox)
 
     def _where(self) -> str:
         if not self.results:
@@ -307,7 +327,7 @@ class ThermalStation(Station):
         cfg, plan, cpg = self.cfg, self.plan, driver.counts_per_g
         fits, reasons = self._fit_each(groups, cpg, rep)
         if len(fits) < len(plan.set_points_c):
-            rep.verdict, rep.reasons = "FAIL", reasons
+            rep.record(Stage.FIT, *reasons)
             return
         table = TemperatureTable([t for t, _ in fits], [f.W for _, f in fits], [f.V for _, f in fits],
                                  [f.Gamma for _, f in fits], plan.method)
@@ -346,33 +366,31 @@ class ThermalStation(Station):
             rep.measured["verify_error_max_mg"] = rep.verify_error_max_mg
         self.table_verdict = {"verdict": "FAIL" if reasons else "PASS", "reasons": [str(r) for r in reasons]}
         if reasons:
-            rep.verdict, rep.reasons = "FAIL", reasons
+            rep.record(Stage.ACCEPTANCE, *reasons)
             self.echo("FAIL before writing: " + "; ".join(reasons))
             return
-        rep.verdict, rep.reasons = "PASS", []
+        rep.record(Stage.JUDGED)
         if cfg.nvm_write:
             self._burn_table(driver, cal, groups, rep)
 
     def _burn_table(self, driver: Driver, cal: Calibration, groups: Groups, rep: RunReport) -> None:
         """Burn the table, read it back, and check it does what the fitted one did at the verification poses."""
         if driver.nvm is None:
-            rep.verdict, rep.reasons = "FAIL", [
-                Reason("nvm", "the device has no NVM to write; set nvm.write: false")]
+            rep.record(Stage.NVM, Reason("nvm", "the device has no NVM to write; set nvm.write: false"))
             return
         writer = CalibrationWriter(driver.nvm, self.cfg.slot_size)
         try:
             outcome = writer.burn(cal, rep.serial, self.cfg.station_id)
         except BurnError as e:
             rep.nvm = e.outcome.to_dict()
-            rep.verdict, rep.reasons = "FAIL", [Reason("nvm", str(e))]
+            rep.record(Stage.NVM, Reason("nvm", str(e)))
             return
         rep.nvm = outcome.to_dict()
         back = writer.read_newest(rep.serial, settled=True)
         if back is None or back[0].temperature is None:
             writer.revert(outcome)  # a FAIL never leaves the unverified table as the board's newest
             rep.nvm = outcome.to_dict()
-            rep.verdict, rep.reasons = "FAIL", [
-                Reason("nvm", f"no temperature table readable after writing; {holds_text(outcome)}")]
+            rep.record(Stage.NVM, Reason("nvm", f"no temperature table readable after writing; {holds_text(outcome)}"))
             return
         stored, table = back[0], back[0].temperature
         assert cal.temperature is not None, "a thermal plan's calibration carries its table"
@@ -384,22 +402,22 @@ class ThermalStation(Station):
         if not same:
             writer.revert(outcome)
             rep.nvm = outcome.to_dict()
-            rep.verdict, rep.reasons = "FAIL", [
-                Reason("nvm", f"the table read back from NVM differs from the fitted one; {holds_text(outcome)}")]
+            rep.record(Stage.NVM, Reason("nvm", "the table read back from NVM differs from the fitted one; "
+                                         f"{holds_text(outcome)}"))
             return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, "
                   f"{len(table.temps_c)}-temperature table read back"
                   + (" and verified" if same else " DIFFERS"))
 
     # -- report ----------------------------------------------------------------------------
-    def _thermal_timing(self, driver: Driver, clock: Clock, t0: float, wall0: float) -> dict[str, Any]:
+    def _thermal_timing(self, driver: Driver, clock: Clock, t0: float, wall0: float) -> Timing:
         """Time per board: soak, the sampling floor (samples averaged / ODR) and the rest (moves, gating, I/O)."""
         total = clock.now() - t0
         floor = self.samples_used / driver.odr_hz
         return {"odr_hz": driver.odr_hz, "samples_averaged": self.samples_used, "samples_read": self.samples_read,
                 "board_time_s": total, "soak_s": self.soak_s, "sampling_floor_s": floor,
                 "sampling_s": self.samples_read / driver.odr_hz, "rest_s": total - self.soak_s - floor,
-                "boards": 1, "per_board_s": total, "clock": "real" if getattr(clock, "realtime", False) else "virtual",
+                "boards": 1, "per_board_s": total, "clock": "real" if clock.realtime else "virtual",
                 "host_compute_s": time.perf_counter() - wall0}
 
     def _summary(self, rep: RunReport) -> dict[str, Any]:

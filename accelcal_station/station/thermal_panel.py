@@ -30,17 +30,15 @@ from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.factory import board_of, clock_of, sync_clocks
 from ..fixtures.operator_jig import OperatorAbort
 from ..instruments.chamber import Chamber, ChamberStatus
-from ..instruments.factory import couple, make_chamber
+from ..instruments.factory import make_chamber
 from ..session import PoseRecord, Session
-from ..store.location import outbox_of
-from ..store.outbox import open_store
 from ..store.runs import Store
 from .capture import GatedCapture
 from .panel import PanelBoard, PanelStation, make_panel_jig
-from .report import RunReport
 from .settings import StationConfig
 from .thermal import Groups, SetPointResult, ThermalRunReport, ThermalStation
-from .thermal_plan import ChamberFault, ThermalPlan, WallClock, soak_until
+from .thermal_plan import ChamberFault, WallClock, soak_until
+from .verdict import Stage
 
 
 class ThermalPanelStation(PanelStation):
@@ -51,49 +49,34 @@ class ThermalPanelStation(PanelStation):
 
     def __init__(self, config: StationConfig, **kw: Any) -> None:
         super().__init__(config, **kw)
-        ThermalStation(config)  # the same checks as a single board: thermal: and chamber:, no offset trim
-        self.plan = ThermalPlan.from_config(config.raw["thermal"], config.model)
+        single = ThermalStation(config)  # the same checks as a single board: thermal: and chamber:, no offset trim
+        self.plan, self.chamber_section = single.plan, single.chamber_section
         self.soak_s = 0.0
         self.floor_s = 0.0  # the panel's sampling floor: per pose, the longest board's averaged samples / ODR
         self.groups: dict[int, Groups] = {}
+        self.clock: Clock = WallClock()  # the panel's clock and its start, set when the boards are open
+        self.t0 = 0.0
 
-    # -- the run ---------------------------------------------------------------------
-    def run(self) -> list[RunReport]:
-        cfg = self.cfg
-        wall0 = time.perf_counter()
-        boards = self.boards = self._boards()
-        with open_store(cfg.store_file, outbox_of(cfg.raw)) as store:
-            store.mark_stale_interrupted()
-            try:
-                for b in boards:
-                    self._open(b, store)
-                    self.groups[b.index] = {}
-                live = [b for b in boards if b.active]
-                clock = self._clock(live)
-                t0 = clock.now()
-                if live:
-                    self._in_chamber(live, clock)
-            except (PortLostError, NVMError) as e:
-                self.fault(boards, e)  # as the thermal station: a lost port or unsettled NVM is a recorded FAIL
-            except (AccelcalError, KeyboardInterrupt) as e:
-                self._interrupted(store, boards, e)
-                self._close(boards)
-                raise
-            self._close(boards)
-            self._timing_thermal(boards, clock, t0, wall0)
-            for b in boards:
-                self._record(store, b)
-        return [b.rep for b in boards]
+    # -- the run (PanelStation.run, with the chamber's set points as the conditions) ---------
+    ending_faults = (PortLostError, NVMError)  # as the thermal station: a lost port or unsettled NVM
+
+    def _calibrate(self, boards: list[PanelBoard]) -> None:
+        for b in boards:
+            self.groups[b.index] = {}
+        live = [b for b in boards if b.active]
+        clock = self.clock = self._clock(live)
+        self.t0 = clock.now()
+        if live:
+            self._in_chamber(live, clock)
+
+    def _timing(self, boards: list[PanelBoard], wall0: float) -> None:
+        self._timing_thermal(boards, self.clock, self.t0, wall0)
 
     def _in_chamber(self, live: list[PanelBoard], clock: Clock) -> None:
         sims = [board_of(b.driver) for b in live]
-        with make_chamber(self.cfg.raw["chamber"], sims[0]) as chamber, \
-                (self.jig or make_panel_jig(self.cfg.raw.get("jig") or {"type": "simulated"}, live,
-                                            self.ui)) as jig:
-            emu = getattr(chamber, "emulator", None)
-            for s in sims[1:]:
-                if emu is not None and s is not None:
-                    couple(s, emu)  # every board of the panel sits in the same chamber air
+        # every board of the panel sits in the same chamber air (coupled by the factory)
+        with make_chamber(self.chamber_section, sims[0], others=sims[1:]) as chamber, \
+                (self.jig or make_panel_jig(self.cfg.jig, live, self.ui)) as jig:
             try:
                 self._visit_all(live, chamber, jig, clock)
             except ChamberFault as e:
@@ -111,8 +94,7 @@ class ThermalPanelStation(PanelStation):
         _standby(chamber)
         self.echo(f"FAIL: chamber: {e} (every board; nothing burned)")
         for b in live:
-            b.rep.verdict = "FAIL"
-            b.rep.reasons.append(Reason("chamber", str(e)))
+            b.rep.record(Stage.CHAMBER, Reason("chamber", str(e)))
 
     def _interrupted(self, store: Store, boards: list[PanelBoard], e: BaseException) -> None:
         why = "operator aborted" if isinstance(e, OperatorAbort) else (
@@ -213,8 +195,8 @@ class ThermalPanelStation(PanelStation):
         temp = res.pose_temp_c(c.temp_c, st.air_c)
         band = self.plan.capture_band_c
         if res.moved_c(temp) > band:
-            b.fail(Reason("temperature", f"board temperature {temp:.2f} C during {pose.name} at {sp:g} C "
-                          f"left the band +-{band:g} C around {res.board_temp_c:.2f} C"))
+            b.fail(Stage.CAPTURE, Reason("temperature", f"board temperature {temp:.2f} C during {pose.name} at "
+                                         f"{sp:g} C left the band +-{band:g} C around {res.board_temp_c:.2f} C"))
             self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
             return
         b.floor = gc.floor_counts
@@ -245,11 +227,12 @@ class ThermalPanelStation(PanelStation):
             rep.events.extend(st.report_events)
         total = clock.now() - t0
         n = len(boards)
-        split = {"soak_s": self.soak_s, "sampling_floor_s": self.floor_s,
-                 "rest_s": total - self.soak_s - self.floor_s, "board_time_s": total}
-        self.timing = {"boards": n, "panel_time_s": total, **split,
-                       "per_board": {k: v / n for k, v in split.items()},
-                       "clock": "real" if getattr(clock, "realtime", False) else "virtual",
+        rest = total - self.soak_s - self.floor_s
+        self.timing = {"boards": n, "panel_time_s": total, "soak_s": self.soak_s, "sampling_floor_s": self.floor_s,
+                       "rest_s": rest, "board_time_s": total,
+                       "per_board": {"soak_s": self.soak_s / n, "sampling_floor_s": self.floor_s / n,
+                                     "rest_s": rest / n, "board_time_s": total / n},
+                       "clock": "real" if clock.realtime else "virtual",
                        "host_compute_s": time.perf_counter() - wall0}
         self.timing["per_board_s"] = total / n
 
@@ -272,7 +255,7 @@ def _report(b: PanelBoard) -> ThermalRunReport:
 
 
 def _where(b: PanelBoard) -> str:
-    res = getattr(b.station, "results", [])
+    res = _station(b).results
     if not res:
         return "before the first set point"
     return f"at set point {res[-1].set_point_c:g} C, {sum(r.poses for r in res)} poses captured"

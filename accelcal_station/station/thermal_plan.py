@@ -57,6 +57,11 @@ class ThermalPlan:
         depends on several values."""
         t = validate(d, ThermalSection, path)
         assert isinstance(t, ThermalSection)
+        return cls.from_section(t, model, path)
+
+    @classmethod
+    def from_section(cls, t: ThermalSection, model: str, path: str = "thermal") -> ThermalPlan:
+        """From a validated ``thermal`` section: the checks that depend on several values."""
         sps = _temps(t.set_points_c, "set_points_c", path)
         if len(sps) < 3:
             raise ConfigError(f"{path}.set_points_c: {len(sps)} set points; allowed: 3 or more")

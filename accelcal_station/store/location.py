@@ -14,11 +14,12 @@ from .database import describe_target, is_url
 DEFAULT_STORE = "accelcal-runs.sqlite"
 
 
-def store_path(config: dict[str, Any], base_dir: str | Path = ".") -> Path | str:
+def store_path(config: dict[str, Any] | StoreSection | None, base_dir: str | Path = ".") -> Path | str:
     """The store of a station config: ``store: {path: FILE or URL}`` (default DEFAULT_STORE),
     a relative path taken from ``base_dir`` (the config file's folder); a URL
-    (``postgresql://...``, ``sqlite:///...``) is returned as it is."""
-    p = parse(config.get("store"), StoreSection, "store").path
+    (``postgresql://...``, ``sqlite:///...``) is returned as it is.  ``config``: a config
+    mapping not yet validated, or its validated ``store`` section."""
+    p = _store_section(config).path
     if not p.strip():
         raise ConfigError(f"store.path: {p!r}; allowed: a file path, sqlite:///PATH or postgresql://...")
     return store_target(p, base_dir)
@@ -39,12 +40,19 @@ def store_identity(target: str | Path) -> str:
     return str(Path(p).resolve())
 
 
-def outbox_of(config: dict[str, Any], base_dir: str | Path = ".") -> Path | None:
+def outbox_of(config: dict[str, Any] | StoreSection | None, base_dir: str | Path = ".") -> Path | None:
     """``store: {outbox: FILE}``: where a station keeps results while its line database is
     unreachable (outbox.py; default None: outbox.default_outbox())."""
-    p = parse(config.get("store"), StoreSection, "store").outbox
+    p = _store_section(config).outbox
     if p is None:
         return None
     if not p.strip() or is_url(p):
         raise ConfigError(f"store.outbox: {p!r}; allowed: a file path (a local SQLite file)")
     return Path(base_dir) / Path(p).expanduser()
+
+
+def _store_section(config: dict[str, Any] | StoreSection | None) -> StoreSection:
+    """A validated ``store`` section: as given, or checked from a config mapping."""
+    if isinstance(config, StoreSection):
+        return config
+    return parse(None if config is None else config.get("store"), StoreSection, "store")
