@@ -80,6 +80,30 @@ def smplrt_div_for(odr_hz: float, dlpf: int, path: str = "odr_hz") -> int:
     return int(round(div))
 
 
+def link_frames_per_s(baud: int) -> float:
+    """SAMPLE frames per second the bridge's UART carries: 10 bit times a byte (8N1), one frame is
+    SYNC(2) + header(8) + index(4) + data(8) + CRC(2) = 24 bytes (docs/bridge-protocol.md)."""
+    return baud / 10.0 / (2 + bp.HEADER_LEN + 4 + bp.SAMPLE_BYTES + 2)
+
+
+def link_max_rate_hz(baud: int, dlpf: int = 3) -> float:
+    """The highest chip rate (1000 / (1 + k) Hz) whose every sample the link can carry."""
+    k = int(np.ceil(ACCEL_RATE_HZ / link_frames_per_s(baud) - 1.0 - 1e-9))
+    return ACCEL_RATE_HZ / (1 + max(k, 0))
+
+
+def check_link_rate(odr_hz: float, baud: int, path: str = "odr_hz") -> None:
+    """Refuse, before streaming, a sample rate the serial link cannot carry (the bridge would drop
+    samples: gaps in the index); the firmware's 1 kHz ceiling is smplrt_div_for's."""
+    if baud <= 0:
+        return  # no link to measure: pyserial refuses such a baud rate when the port opens
+    cap = link_frames_per_s(baud)
+    if odr_hz > cap:
+        raise ConfigError(f"{path}: {odr_hz:g} Hz; the bridge link at {baud} baud carries at most {cap:.0f} "
+                          f"sample frames/s (24 bytes each, 10 bits a byte); allowed: at most "
+                          f"{link_max_rate_hz(baud):g} Hz (1000 / (1 + k))")
+
+
 @dataclass
 class BridgeIdentity:
     protocol: int
@@ -146,6 +170,7 @@ class MPU6050Bridge(Driver):
         if dlpf not in range(len(DLPF_BANDWIDTH_HZ)):
             raise ConfigError(f"dlpf: {dlpf!r}; allowed: 0..6 (DLPF_CFG)")
         smplrt_div_for(odr_hz, dlpf)
+        check_link_rate(odr_hz, int(baud))
         self.port = port
         self.boot_wait_s = float(boot_wait_s)
         self.emulator = emulator
@@ -178,6 +203,7 @@ class MPU6050Bridge(Driver):
             if k in cfg and port != "emulated":
                 raise ConfigError(f"{path}.{k}: only used with port: emulated")
         smplrt_div_for(m.odr_hz, m.dlpf, f"{path}.odr_hz")
+        check_link_rate(m.odr_hz, m.baud, f"{path}.odr_hz")
         kw = m.model_dump(include={"baud", "range_g", "odr_hz", "dlpf", "timeout_s", "retries", "boot_wait_s"})
         return port, kw
 
@@ -324,6 +350,7 @@ class MPU6050Bridge(Driver):
         if d not in range(len(DLPF_BANDWIDTH_HZ)):
             raise ConfigError(f"dlpf: {d!r}; allowed: 0..6 (DLPF_CFG)")
         smplrt_div_for(o, d)
+        check_link_rate(o, self.link.baud)
         self._want = (int(r), float(o), int(d))
         self._with_recovery(lambda: self._configure(*self._want))
 

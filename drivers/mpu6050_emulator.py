@@ -9,11 +9,14 @@ SMPLRT_DIV, CONFIG, ACCEL_CONFIG, the data and TEMP_OUT registers, and
 XA/YA/ZA_OFFS whose change from the factory trim shifts the output (2048 LSB per g).
 The NVM is the MCU's 1 KiB EEPROM (an EEPROM24 model with 32-byte pages).
 
-Samples come from ``board.configure()`` / ``board.read()``; timestamps are the
-board's virtual clock since the last (emulated) MCU boot.  Streams run as fast as
-the pty takes them unless the board is ``realtime``.  Sample rates the simulated
-chip cannot produce (above 1 kHz, or DLPF_CFG 0 with a rate other than 1000 / (1 + k))
-are NAKed with ERR_BAD_ARG, where the firmware would repeat samples.
+Samples come from ``board.configure()`` / ``board.read()`` on the chip's own clock (the
+board's virtual clock); timestamps are MCU time since the last (emulated) MCU boot, which runs
+``chip_ppm`` parts per million slow against a fast chip (negative: fast), as the bridge that reads
+on the chip's DATA_RDY sees it.  The SAMPLE index counts the chip's samples: one the UART at
+``baud`` (24-byte frames, 10 bits a byte) has no room for is dropped without waiting, a gap in
+the index, as the firmware does.  Streams run as fast as the pty takes them unless the board is
+``realtime``.  Sample rates the simulated chip cannot produce (above 1 kHz, or DLPF_CFG 0 with a
+rate other than 1000 / (1 + k)) are NAKed with ERR_BAD_ARG.
 
 Faults for tests: :meth:`corrupt` (flip a bit in each of the next k bytes sent),
 :meth:`drop_frames`, :meth:`inject_garbage`, :meth:`stall` (ignore input and send
@@ -58,6 +61,7 @@ from .mpu6050 import (
 FIRMWARE = (1, 0)
 CHUNK = 32  # samples produced between looks at the input (a STOP is seen within 32 samples)
 EEPROM_WRITE_S_PER_BYTE = 0.0034  # ATmega328P EEPROM programming time per byte
+TX_BUFFER_BYTES = 63  # Arduino core HardwareSerial: a 64-byte ring holds 63
 
 
 class MPU6050BridgeEmulator(PtyServer):
@@ -68,13 +72,22 @@ class MPU6050BridgeEmulator(PtyServer):
 
     def __init__(self, board: Any = None, seed: int | None = None, who_am_i: int = CHIP_ID,
                  i2c_present: bool = True, serial: str | None = None, i2c_address: int = 0x68,
-                 factory_offsets: ArrayLike | None = None) -> None:
+                 factory_offsets: ArrayLike | None = None, chip_ppm: float = 0.0,
+                 baud: int = bp.DEFAULT_BAUD) -> None:
         if board is None:
             from .simulated import SimulatedBoard
 
             board = SimulatedBoard.from_config(None, chip="mpu6050", seed=seed)
         self.board = board
         self.who_am_i, self.i2c_present = who_am_i, i2c_present
+        if not -1e5 < float(chip_ppm) < 1e5:
+            raise ConfigError(f"chip_ppm: {chip_ppm!r}; allowed: -100000 < ppm < 100000")
+        # the board's clock is the chip's; the MCU's runs chip_ppm slower when the chip is fast
+        self.chip_ppm = float(chip_ppm)
+        # one SAMPLE frame on the UART: 24 bytes of 10 bits (8N1); the firmware drops a sample
+        # (a gap in the index) when the UART has no room for it, and never waits
+        self.uart_bytes_per_s = float(baud) / 10.0
+        self._tx_level, self._tx_t = 0.0, 0.0  # bytes in the UART's transmit buffer, and when
         serial = str(getattr(board, "serial", "EMUB0001"))[-8:] if serial is None else serial
         self.serial, self.i2c_address = serial.encode("ascii", "replace")[:8].ljust(8, b"\0"), i2c_address
         self.nvm = EEPROM24(bp.NVM_SIZE, bp.NVM_PAGE_SIZE, EEPROM_WRITE_S_PER_BYTE * bp.NVM_PAGE_SIZE,
@@ -167,9 +180,13 @@ class MPU6050BridgeEmulator(PtyServer):
         if send:
             self._send(bp.RSP_BOOT, bp.BOOT.pack(bp.PROTOCOL_VERSION, cause, *FIRMWARE))
 
-    def _ts(self, t: float | None = None) -> int:
+    def _mcu_s(self, t: float | None = None) -> float:
+        """MCU time since boot (s) at board (chip) time t."""
         t = self.board.clock.now() if t is None else t
-        return int(round((t - self._boot_t) * 1e6)) & 0xFFFFFFFF
+        return (t - self._boot_t) / (1.0 + self.chip_ppm * 1e-6)
+
+    def _ts(self, t: float | None = None) -> int:
+        return int(round(self._mcu_s(t) * 1e6)) & 0xFFFFFFFF
 
     def _write(self, data: bytes) -> None:
         view = memoryview(data)
@@ -242,7 +259,9 @@ class MPU6050BridgeEmulator(PtyServer):
             k = min(k, self._stall_after[0] - self.stream_sent)
         raw, t = self._sample(k)
         for row, ti in zip(raw.astype(">i2"), t, strict=True):
-            self._send(bp.RSP_SAMPLE, bp.SAMPLE_INDEX.pack(self.stream_sent) + row.tobytes(), float(ti))
+            # the index counts the chip's samples; one the UART has no room for is a gap (firmware)
+            if self._uart_room(self._mcu_s(float(ti))):
+                self._send(bp.RSP_SAMPLE, bp.SAMPLE_INDEX.pack(self.stream_sent) + row.tobytes(), float(ti))
             self.stream_sent += 1
         if self.stream_sent >= self.stream_n:
             self._end_stream()
@@ -263,6 +282,17 @@ class MPU6050BridgeEmulator(PtyServer):
         raw = np.column_stack([acc, np.full(k, temp)]).astype(np.int64)
         self.regs[ACCEL_XOUT_H:ACCEL_XOUT_H + 8] = raw[-1].astype(">i2").tobytes()
         return raw, t
+
+    def _uart_room(self, t_mcu: float) -> bool:
+        """Whether the Arduino core's 64-byte transmit ring (63 usable) has room for a SAMPLE frame at
+        MCU time t_mcu, draining at baud / 10 bytes/s; if so, the frame is put in."""
+        self._tx_level = max(0.0, self._tx_level - (t_mcu - self._tx_t) * self.uart_bytes_per_s)
+        self._tx_t = t_mcu
+        frame = 2 + bp.HEADER_LEN + 4 + bp.SAMPLE_BYTES + 2
+        if TX_BUFFER_BYTES - self._tx_level < frame:
+            return False
+        self._tx_level += frame
+        return True
 
     def _end_stream(self) -> None:
         self.streaming = False
@@ -338,6 +368,7 @@ class MPU6050BridgeEmulator(PtyServer):
             return self._end_stream()
         self._ack(bp.CMD_STREAM, seq, bp.STREAM_DATA.pack(n, self.period_us))
         self.streaming, self.stream_n, self.stream_sent = True, n, 0
+        self._tx_level, self._tx_t = 0.0, self._mcu_s()
 
     def _read_reg(self, seq: int, p: bytes) -> None:
         if len(p) != 2:

@@ -85,6 +85,9 @@ static const uint8_t TEST_FRAME[] = {
 #define REG_SMPLRT_DIV 0x19
 #define REG_CONFIG 0x1A
 #define REG_ACCEL_CONFIG 0x1C
+#define REG_INT_ENABLE 0x38
+#define REG_INT_STATUS 0x3A
+#define DATA_RDY 0x01               // INT_ENABLE DATA_RDY_EN / INT_STATUS DATA_RDY_INT (cleared on read)
 #define REG_ACCEL_XOUT_H 0x3B
 #define REG_PWR_MGMT_1 0x6B
 #define REG_WHO_AM_I 0x75
@@ -113,9 +116,10 @@ static uint8_t rx_need = 0;
 
 static bool streaming = false;
 static uint32_t stream_n = 0;
-static uint32_t stream_sent = 0;
+static uint32_t stream_sent = 0;     // the chip's samples since the stream began: the next SAMPLE index
 static uint32_t period_us = 1000;  // after reset: DLPF off -> 8 kHz / (1 + 0); we keep 1 kHz max
-static uint32_t next_due = 0;
+static uint32_t last_ready_us = 0;   // micros() when the previous new sample was seen
+static bool stream_first = true;
 
 uint16_t crc16(const uint8_t *data, uint16_t n) {
   uint16_t crc = CRC16_INIT;
@@ -222,11 +226,15 @@ static void do_stream(uint16_t seq, const uint8_t *p, uint8_t len) {
   uint8_t d[8];
   put_u32(d, n);
   put_u32(d + 4, period_us);
+  // samples on the chip's clock: DATA_RDY_INT tells a new sample (register map 4.15-4.17), so
+  // none is read twice; enable it and read INT_STATUS once to clear a stale flag
   send_ack(CMD_STREAM, seq, d, 8);
   streaming = true;
   stream_n = n;
   stream_sent = 0;
-  next_due = micros();
+  stream_first = true;
+  uint8_t en = DATA_RDY, st;
+  if (!i2c_write(REG_INT_ENABLE, &en, 1) || !i2c_read(REG_INT_STATUS, &st, 1)) end_stream();  // short: 0 sent
 }
 
 static void do_read_reg(uint16_t seq, const uint8_t *p, uint8_t len) {
@@ -336,19 +344,38 @@ static void rx_byte(uint8_t b) {
   }
 }
 
+// One look at the chip: INT_STATUS and the data registers in one burst (the chip holds its
+// registers still during a burst read, so status and data belong together).  The SAMPLE index
+// counts the chip's samples: a sample the bridge could not look at in time (a command being
+// handled) or could not send (the UART's buffer full: the link is slower than the sample rate)
+// is a gap in the index, never a repeated or an unnumbered sample.
 static void stream_step() {
-  uint32_t now = micros();
-  if ((int32_t)(now - next_due) < 0) return;
-  // late (host link slower than the sample rate): do not burst to catch up
-  next_due = ((int32_t)(now - next_due) > (int32_t)period_us) ? now + period_us : next_due + period_us;
-  uint8_t p[4 + SAMPLE_BYTES];
-  put_u32(p, stream_sent);
-  if (!i2c_read(REG_ACCEL_XOUT_H, p + 4, SAMPLE_BYTES)) {
+  uint8_t p[4 + SAMPLE_BYTES + 1];
+  if (!i2c_read(REG_INT_STATUS, p + 3, 1 + SAMPLE_BYTES)) {
     end_stream();  // short STREAM_END: the host sees sent < n and retries the rest
     return;
   }
-  send_frame(RSP_SAMPLE, p, sizeof(p), now);
-  if (++stream_sent >= stream_n) end_stream();
+  if (!(p[3] & DATA_RDY)) return;  // no new sample since the last look
+  uint32_t now = micros();
+  uint32_t index = 0;  // this sample's number among the chip's samples since the stream began
+  if (stream_first) {
+    stream_first = false;
+  } else {
+    uint32_t k = (now - last_ready_us + period_us / 2) / period_us;  // chip samples since the last seen
+    index = stream_sent - 1 + (k ? k : 1);
+  }
+  last_ready_us = now;
+  if (index >= stream_n) {
+    stream_sent = stream_n;
+    end_stream();
+    return;
+  }
+  put_u32(p, index);  // overwrites the INT_STATUS byte: the data follow at p + 4
+  if (Serial.availableForWrite() >= (int)(2 + HEADER_LEN + 4 + SAMPLE_BYTES + 2))
+    send_frame(RSP_SAMPLE, p, 4 + SAMPLE_BYTES, now);
+  // else: dropped here, without waiting for the UART (waiting would miss the chip's next samples)
+  stream_sent = index + 1;  // samples accounted for: sent, or skipped (a gap in the index)
+  if (stream_sent >= stream_n) end_stream();
 }
 
 void setup() {
