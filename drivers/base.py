@@ -8,12 +8,19 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import DeviceError
+
+
+@runtime_checkable
+class ReportsEvents(Protocol):
+    """A bus that keeps events for the run record (drivers/tca9548a.py MuxChannel: re-selections)."""
+
+    def take_events(self) -> list[str]: ...
 
 
 class Clock(Protocol):
@@ -162,6 +169,11 @@ class Driver(ABC):
     def nvm(self) -> NVM | None:
         """The board's non-volatile memory, or None when it has none."""
         return None
+
+    def take_events(self) -> list[str]:
+        """Link events since the last call that the run record should keep (e.g. a multiplexer that
+        had to be re-selected); none by default."""
+        return []
 
     def capture(self, n: int | None = None, seconds: float | None = None, keep: bool = False) -> Capture:
         """Average n samples (or ``seconds`` worth at the current data rate)."""

@@ -33,7 +33,7 @@ from smbus2 import i2c_msg
 
 from ..config.parts import I2cEepromSection, Mma8451Section, parse
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError
-from .base import NVM, Clock, Driver, Identity
+from .base import NVM, Clock, Driver, Identity, ReportsEvents
 
 # --- register map (data sheet table 11) -------------------------------------------------
 STATUS = 0x00
@@ -431,6 +431,10 @@ class MMA8451(Driver):
     @property
     def nvm(self) -> NVM | None:
         return self._nvm
+
+    def take_events(self) -> list[str]:
+        """The bus's events (a multiplexer channel re-selected after the mux reset) since the last call."""
+        return self._bus_spec.take_events() if isinstance(self._bus_spec, ReportsEvents) else []
 
     def identify(self) -> Identity:
         return Identity(chip="mma8451", chip_id=CHIP_ID, serial=self.serial,

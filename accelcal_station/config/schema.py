@@ -162,6 +162,9 @@ class BusEmulatorSection(Section):
     present: StrictBool = _f(True, "the chip answers on the bus at all")
     bus_hz: float = _f(400_000.0, "I2C clock of the emulated bus, Hz", ge=10_000, le=3_400_000)
     corrupt_reads: CorruptReadsSection | None = _f(None, "a lying bus: reads corrupted at random (tests)")
+    mux_reset_after: int = _f(0, "panel behind an emulated TCA9548A: the mux resets (no channel selected, as "
+                                 "after a brown-out) after this many transactions to this board (0: never)",
+                              ge=0, le=10**9)
 
 
 class MuxSection(Section):
