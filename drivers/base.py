@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import DeviceError
+from .self_test import SelfTestResult
 
 
 @runtime_checkable
@@ -169,6 +170,13 @@ class Driver(ABC):
     def nvm(self) -> NVM | None:
         """The board's non-volatile memory, or None when it has none."""
         return None
+
+    #: whether :meth:`self_test` runs the chip's built-in self-test (declared, not probed)
+    supports_self_test: bool = False
+
+    def self_test(self, n: int = 64) -> SelfTestResult:
+        """The chip's self-test: output change per axis against the data sheet (drivers/self_test.py)."""
+        raise DeviceError(f"the {self.name} driver has no self-test")
 
     def take_events(self) -> list[str]:
         """Link events since the last call that the run record should keep (e.g. a multiplexer that

@@ -33,6 +33,7 @@ from ..errors import ConfigError, DeviceError, NVMError
 from . import bridge_protocol as bp
 from .base import NVM, Capture, Driver, Identity
 from .bridge_link import BridgeLink, BridgeRefused, BridgeReset, LinkStats
+from .self_test import SelfTestResult, judge_against_trim
 
 WHO_AM_I = 0x75
 CHIP_ID = 0x68
@@ -40,6 +41,10 @@ KNOWN_CHIP_IDS = {0x70: "MPU-6500", 0x71: "MPU-9250", 0x73: "MPU-9255", 0x7C: "M
                   0x12: "ICM-20602", 0x98: "ICM-20689", 0x00: "nothing (I2C read failed)",
                   0xFF: "nothing (bus idle high)"}
 XA_OFFS_H = 0x06
+SELF_TEST_X = 0x0D  # SELF_TEST_X, _Y, _Z, _A (register map 4.1)
+SELF_TEST_TOLERANCE = 0.14  # product specification rev 3.4, 6.1: change from factory trim within +-14 %
+SELF_TEST_SOURCE = ("MPU-6050 product specification rev 3.4, 6.1 (change from factory trim -14 % to +14 %); "
+                    "register map rev 4.2, 4.1 (FT = 4096 * 0.34 * (0.92 / 0.34)^((A_TEST - 1) / 30) LSB at 8 g)")
 SMPLRT_DIV = 0x19
 CONFIG = 0x1A
 ACCEL_CONFIG = 0x1C
@@ -78,6 +83,15 @@ def smplrt_div_for(odr_hz: float, dlpf: int, path: str = "odr_hz") -> int:
         raise ConfigError(f"{path}: {odr_hz!r} Hz; allowed: 1000 / (1 + k) Hz down to {lo:g} Hz with dlpf {dlpf} "
                           "(e.g. 1000, 500, 200, 100, 50)")
     return int(round(div))
+
+
+def factory_trim_counts(regs: bytes) -> np.ndarray:
+    """The accelerometer's factory self-test trim FT per axis, LSB at +-8 g, from SELF_TEST_X/Y/Z/A
+    (register map rev 4.2, 4.1): A_TEST = bits 7:5 of SELF_TEST_X/Y/Z (high three) and two bits of
+    SELF_TEST_A (5:4 x, 3:2 y, 1:0 z); FT = 4096 * 0.34 * (0.92 / 0.34)^((A_TEST - 1) / 30), 0 when
+    A_TEST is 0."""
+    code = np.array([((regs[i] >> 5) & 7) << 2 | ((regs[3] >> (4 - 2 * i)) & 3) for i in range(3)], dtype=float)
+    return np.where(code > 0, 4096.0 * 0.34 * (0.92 / 0.34) ** ((code - 1.0) / 30.0), 0.0)
 
 
 def link_frames_per_s(baud: int) -> float:
@@ -406,6 +420,42 @@ class MPU6050Bridge(Driver):
                 "smplrt_div": self._div, "accel_offsets_lsb": self.accel_offsets().tolist(),
                 "i2c_address": f"0x{b.i2c_address:02x}" if b else None,
                 "nvm": f"bridge EEPROM, {b.nvm_size} bytes, {b.nvm_page_size}-byte pages" if b else None}
+
+    # --- self-test --------------------------------------------------------------------------
+    supports_self_test = True
+
+    def self_test(self, n: int = 64) -> SelfTestResult:
+        """The accelerometer self-test through the bridge's SELF_TEST command (register map 4.1): n
+        samples at +-8 g with XA/YA/ZA_ST off, n with them on; STR = on - off per axis, compared with
+        the factory trim FT from SELF_TEST_X/Y/Z/A: (STR - FT) / FT within +-14 % (product spec 6.1)."""
+        if not 4 <= int(n) <= bp.SELF_TEST_MAX_N:
+            raise ConfigError(f"self-test samples {n!r}; allowed: 4 to {bp.SELF_TEST_MAX_N}")
+        off, var_off, regs = self._self_test_phase(False, int(n))
+        on, var_on, _ = self._self_test_phase(True, int(n))
+        ft = factory_trim_counts(regs)
+        sem = np.sqrt((var_off + var_on) / int(n))
+        return judge_against_trim("mpu6050", on - off, sem, COUNTS_PER_G[8], ft, SELF_TEST_TOLERANCE, int(n), 8,
+                                  SELF_TEST_SOURCE)
+
+    def _self_test_phase(self, on: bool, n: int) -> tuple[np.ndarray, np.ndarray, bytes]:
+        """One SELF_TEST phase: mean and variance per axis (counts at +-8 g), the SELF_TEST registers."""
+        try:
+            d = self._call(bp.CMD_SELF_TEST, bp.SELF_TEST.pack(int(on), n))
+        except BridgeRefused as e:
+            if e.code != bp.ERR_UNKNOWN_CMD:
+                raise
+            raise DeviceError(f"{e}; the bridge firmware has no SELF_TEST: flash firmware/mpu6050_bridge "
+                              "from this release") from None
+        if len(d) != bp.SELF_TEST_DATA.size:
+            raise DeviceError(f"MPU6050 bridge on {self.port}: SELF_TEST answered {len(d)} bytes, expected "
+                              f"{bp.SELF_TEST_DATA.size}")
+        got = bp.SELF_TEST_DATA.unpack(d)
+        m, s, sq, first, regs = got[0], np.array(got[1:4], float), np.array(got[4:7], float), \
+            np.array(got[7:10], float), got[10]
+        mean = s / m
+        dev = mean - first  # mean deviation from the first sample: var = E[d^2] - E[d]^2
+        var = np.maximum(sq / m - dev * dev, 0.0) * m / max(m - 1, 1)
+        return mean, var, regs
 
     # --- data -----------------------------------------------------------------------------
     def temperature_c(self) -> float | None:

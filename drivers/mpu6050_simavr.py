@@ -61,7 +61,8 @@ class SimavrBridge:
     """The bridge firmware in simavr on a pseudo-terminal, fed by a SimulatedBoard."""
 
     def __init__(self, board: Any = None, seed: int | None = None, factory_offsets: Sequence[int] = (1001, -2000, 3),
-                 who_am_i: int = CHIP_ID, chip_ppm: float = 0.0) -> None:
+                 who_am_i: int = CHIP_ID, chip_ppm: float = 0.0, self_test_codes: Sequence[int] | None = None,
+                 self_test_share: Sequence[float] | None = None) -> None:
         if board is None:
             from .simulated import SimulatedBoard
 
@@ -72,6 +73,13 @@ class SimavrBridge:
         if not -1e5 < float(chip_ppm) < 1e5:
             raise ConfigError(f"chip_ppm: {chip_ppm!r}; allowed: -100000 < ppm < 100000")
         self.chip_ppm = float(chip_ppm)  # the chip's oscillator against the MCU's, parts per million
+        # this chip's factory self-test codes and its response as a share of the factory trim
+        # (a draw per board: the spread between parts); faults: a weak axis (share 0.3), none (0)
+        rng = np.random.default_rng(getattr(board, "seed", seed))
+        self.self_test_codes = tuple(int(c) & 31 for c in (rng.integers(8, 24, 3) if self_test_codes is None
+                                                           else self_test_codes))
+        self.self_test_share = tuple(float(v) for v in (1.0 + 0.04 * rng.standard_normal(3)
+                                                        if self_test_share is None else self_test_share))
         self.lock = threading.RLock()  # held while a sample is taken: take it to move the board
         self.port: str | None = None
         self.registers: dict[str, int] = {}  # the chip's configuration registers as last written
@@ -91,7 +99,9 @@ class SimavrBridge:
             raise DeviceError(f"cannot run the bridge firmware in simavr: {why}")
         off = ",".join(str(v) for v in self.factory_offsets)
         self._proc = subprocess.Popen([str(HARNESS), str(ELF), "-o", off, "-w", str(self.who_am_i),
-                                       "-p", repr(self.chip_ppm)],
+                                       "-p", repr(self.chip_ppm),
+                                       "-t", ",".join(str(c) for c in self.self_test_codes),
+                                       "-r", ",".join(repr(v) for v in self.self_test_share)],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
         ready: queue.Queue[str] = queue.Queue()
         self._thread = threading.Thread(target=self._serve, args=(ready,), name="simavr-bridge", daemon=True)

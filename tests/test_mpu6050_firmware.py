@@ -86,7 +86,7 @@ def dev(bridge):
 def test_identify_and_wake(bridge, dev):
     ident = dev.identify()
     assert ident.chip == "mpu6050" and ident.chip_id == 0x68
-    assert ident.firmware == f"mpu6050-bridge 1.0 (protocol {bp.PROTOCOL_VERSION})"
+    assert ident.firmware == f"mpu6050-bridge 1.1 (protocol {bp.PROTOCOL_VERSION})"
     assert dev.read_register(0x75)[0] == 0x68
     assert dev.read_register(PWR_MGMT_1)[0] == 0x01  # SLEEP cleared by the driver, PLL clock
     assert (dev.nvm.size, dev.nvm.page_size) == (1024, 32)
@@ -247,7 +247,7 @@ def test_no_chip_on_i2c(bridge, link):
 def test_reset_command_boots_with_its_cause(link):
     link.command(bp.CMD_RESET)
     boot = frames_until(link, bp.RSP_BOOT)[-1]
-    assert bp.BOOT.unpack(boot.payload) == (bp.PROTOCOL_VERSION, bp.BOOT_COMMAND, 1, 0)
+    assert bp.BOOT.unpack(boot.payload) == (bp.PROTOCOL_VERSION, bp.BOOT_COMMAND, 1, 1)
     assert len(link.command(bp.CMD_IDENTIFY)) == bp.IDENTIFY_DATA.size
 
 
@@ -334,7 +334,7 @@ def test_emulate_firmware_prints_a_port_that_probe_opens():
         r = subprocess.run([sys.executable, "-m", "accelcal_station", "probe", "--config", "configs/mpu6050.yaml",
                             "--port", port], capture_output=True, text=True, cwd=REPO, timeout=60)
         assert r.returncode == 0, r.stderr
-        assert "mpu6050 (chip id 0x68)" in r.stdout and "mpu6050-bridge 1.0" in r.stdout, r.stdout
+        assert "mpu6050 (chip id 0x68)" in r.stdout and "mpu6050-bridge 1.1" in r.stdout, r.stdout
     finally:
         p.terminate()
         p.wait(timeout=10)

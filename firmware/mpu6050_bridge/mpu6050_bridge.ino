@@ -40,6 +40,7 @@
 #define CMD_NVM_READ 0x07
 #define CMD_NVM_WRITE 0x08
 #define CMD_RESET 0x09
+#define CMD_SELF_TEST 0x0A
 
 #define RSP_BOOT 0x80
 #define RSP_ACK 0x81
@@ -62,6 +63,8 @@
 #define NVM_PAGE_SIZE 32
 #define REG_MAX_COUNT 16
 #define SAMPLE_BYTES 8        // ACCEL_XOUT_H (0x3B) .. TEMP_OUT_L (0x42), big-endian
+#define SELF_TEST_MAX_N 1024  // samples averaged per SELF_TEST phase
+#define SELF_TEST_SETTLE_MS 200
 // END PROTOCOL
 
 // Known-answer test: a SAMPLE frame (seq 0x0102, ts 12345678 us, index 7,
@@ -74,7 +77,7 @@ static const uint8_t TEST_FRAME[] = {
 
 // Board settings
 #define FW_VERSION_MAJOR 1
-#define FW_VERSION_MINOR 0
+#define FW_VERSION_MINOR 1
 #define MPU_ADDR 0x68               // AD0 low; 0x69 with AD0 high
 #define BRIDGE_SERIAL "MPUB0001"    // 8 characters, set per board before flashing
 #define I2C_CLOCK_HZ 400000UL
@@ -82,6 +85,7 @@ static const uint8_t TEST_FRAME[] = {
 #define RESET_MAGIC 0xB007
 
 // MPU6050 registers (RM-MPU-6000A-00 rev 4.2)
+#define REG_SELF_TEST_X 0x0D           // SELF_TEST_X, _Y, _Z, _A: factory trim codes (register map 4.1)
 #define REG_SMPLRT_DIV 0x19
 #define REG_CONFIG 0x1A
 #define REG_ACCEL_CONFIG 0x1C
@@ -281,6 +285,62 @@ static void do_nvm_write(uint16_t seq, const uint8_t *p, uint8_t len) {
   send_ack(CMD_NVM_WRITE, seq, p, 1);
 }
 
+// Wait for the chip's next new sample (DATA_RDY_INT) and read it: x, y, z counts.  False: I2C failed
+// or no sample within 100 ms.
+static bool next_sample(int16_t *xyz) {
+  uint8_t b[7];
+  uint32_t t0 = millis();
+  do {
+    if (!i2c_read(REG_INT_STATUS, b, 7)) return false;
+    if (b[0] & DATA_RDY) {
+      for (uint8_t i = 0; i < 3; i++) xyz[i] = (int16_t)(((uint16_t)b[1 + 2 * i] << 8) | b[2 + 2 * i]);
+      return true;
+    }
+  } while (millis() - t0 < 100);
+  return false;
+}
+
+// SELF_TEST phase (on/off), n samples at +-8 g (register map 4.1: the accelerometer self-test is
+// judged at +-8 g): ACCEL_CONFIG = XA_ST|YA_ST|ZA_ST (on) with AFS_SEL 2, settle, then the sum,
+// the sum of squared deviations from the first sample, and the first sample, per axis; and the
+// SELF_TEST_X/Y/Z/A registers.  ACCEL_CONFIG is restored afterwards, also on a failure.
+static void do_self_test(uint16_t seq, const uint8_t *p, uint8_t len) {
+  if (len != 3) return send_nak(CMD_SELF_TEST, seq, ERR_BAD_LENGTH);
+  uint8_t on = p[0];
+  uint16_t n = p[1] | ((uint16_t)p[2] << 8);
+  if (on > 1 || n < 2 || n > SELF_TEST_MAX_N) return send_nak(CMD_SELF_TEST, seq, ERR_BAD_ARG);
+  uint8_t saved, cfg = (uint8_t)((on ? 0xE0 : 0x00) | (2 << 3)), en = DATA_RDY;
+  if (!i2c_read(REG_ACCEL_CONFIG, &saved, 1)) return send_nak(CMD_SELF_TEST, seq, ERR_I2C);
+  bool ok = i2c_write(REG_ACCEL_CONFIG, &cfg, 1) && i2c_write(REG_INT_ENABLE, &en, 1);
+  for (uint16_t t = 0; ok && t < SELF_TEST_SETTLE_MS; t += 50) {
+    delay(50);
+    wdt_reset();
+  }
+  int32_t sum[3] = {0, 0, 0};
+  uint32_t sq[3] = {0, 0, 0};
+  int16_t first[3] = {0, 0, 0}, v[3];
+  for (uint16_t k = 0; ok && k < n; k++) {
+    wdt_reset();
+    if (!(ok = next_sample(v))) break;
+    if (k == 0) memcpy(first, v, sizeof(first));
+    for (uint8_t i = 0; i < 3; i++) {
+      int32_t d = (int32_t)v[i] - first[i];
+      sum[i] += v[i];
+      sq[i] += (uint32_t)d * (uint32_t)d;  // = d^2 mod 2^32, exact for |d| < 65536
+    }
+  }
+  uint8_t d[2 + 12 + 12 + 6 + 4];
+  ok = i2c_write(REG_ACCEL_CONFIG, &saved, 1) && ok && i2c_read(REG_SELF_TEST_X, d + 32, 4);
+  if (!ok) return send_nak(CMD_SELF_TEST, seq, ERR_I2C);
+  put_u16(d, n);
+  for (uint8_t i = 0; i < 3; i++) {
+    put_u32(d + 2 + 4 * i, (uint32_t)sum[i]);
+    put_u32(d + 14 + 4 * i, sq[i]);
+    put_u16(d + 26 + 2 * i, (uint16_t)first[i]);
+  }
+  send_ack(CMD_SELF_TEST, seq, d, sizeof(d));
+}
+
 static void do_reset(uint16_t seq) {
   send_ack(CMD_RESET, seq, 0, 0);
   Serial.flush();
@@ -306,6 +366,7 @@ static void handle_frame() {
     case CMD_NVM_READ: do_nvm_read(seq, p, len); break;
     case CMD_NVM_WRITE: do_nvm_write(seq, p, len); break;
     case CMD_RESET: do_reset(seq); break;
+    case CMD_SELF_TEST: do_self_test(seq, p, len); break;
     default: send_nak(type, seq, ERR_UNKNOWN_CMD); break;
   }
 }

@@ -10,7 +10,11 @@
  *   - the AVR's own 1 KiB EEPROM (simavr's model), the NVM the firmware pages;
  *   - stack painting: free RAM between the static data and the deepest stack.
  *
- * Usage: mpu6050_sim FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM]
+ * Usage: mpu6050_sim FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ]
+ *   -t: the accelerometer's factory self-test codes XA_TEST..ZA_TEST (5 bits each, in SELF_TEST_X/Y/Z/A);
+ *   -r: the chip's self-test response per axis as a share of its factory trim FT (1: exactly FT;
+ *       0: a self-test that does nothing).  FT = 4096 * 0.34 * (0.92 / 0.34)^((code - 1) / 30) LSB at
+ *       +-8 g (register map rev 4.2, 4.1), applied while ACCEL_CONFIG's XA/YA/ZA_ST bits are set.
  *
  * Side channel: stdin / stdout, one text line per message (the Python side owns both).
  *   stdout "PTY <path>"              once, when the port is ready
@@ -35,6 +39,7 @@
  */
 #define _GNU_SOURCE
 #include <errno.h>
+#include <math.h>
 #include <fcntl.h>
 #include <poll.h>
 #include <pty.h>
@@ -54,6 +59,8 @@
 
 #define MPU_ADDR 0x68
 #define REG_XA_OFFS_H 0x06
+#define REG_SELF_TEST_X 0x0D
+#define REG_SELF_TEST_A 0x10
 #define REG_SMPLRT_DIV 0x19
 #define REG_CONFIG 0x1A
 #define REG_ACCEL_CONFIG 0x1C
@@ -80,6 +87,8 @@ typedef struct { int16_t v[4]; } sample_t;  /* x, y, z counts, TEMP_OUT */
 static struct {
   uint8_t regs[0x80];
   int16_t factory[3];
+  int st_code[3];      /* factory self-test codes (5 bits) */
+  double st_share[3];  /* this chip's self-test response / FT */
   uint8_t who;
   int absent;  /* 1: nothing answers at 0x68 (unplugged breakout) */
   avr_irq_t *irq;
@@ -104,6 +113,19 @@ static void mpu_power_on_reset(void) {
   mpu.regs[REG_WHO_AM_I] = mpu.who;
   mpu.regs[REG_PWR_MGMT_1] = PWR_SLEEP;
   for (int i = 0; i < 3; i++) put_be16(mpu.regs + REG_XA_OFFS_H + 2 * i, mpu.factory[i]);
+  /* SELF_TEST_X/Y/Z bits 7:5 = A_TEST[4:2]; SELF_TEST_A bits 5:4, 3:2, 1:0 = X/Y/Z A_TEST[1:0] */
+  mpu.regs[REG_SELF_TEST_A] = 0;
+  for (int i = 0; i < 3; i++) {
+    mpu.regs[REG_SELF_TEST_X + i] = (uint8_t)(((mpu.st_code[i] >> 2) & 7) << 5);
+    mpu.regs[REG_SELF_TEST_A] |= (uint8_t)((mpu.st_code[i] & 3) << (4 - 2 * i));
+  }
+}
+
+/* The self-test force on an axis, in g: FT / 4096 LSB per g at +-8 g, times this chip's share. */
+static double self_test_g(int axis) {
+  int c = mpu.st_code[axis];
+  double ft = c ? 4096.0 * 0.34 * pow(0.92 / 0.34, (c - 1) / 30.0) : 0.0;
+  return ft / 4096.0 * mpu.st_share[axis];
 }
 
 static void side_input(int block);
@@ -168,6 +190,7 @@ static void mpu_new_sample(unsigned long long made) {
   for (int i = 0; i < 3; i++) {
     int d = (get_be16(mpu.regs + REG_XA_OFFS_H + 2 * i) & ~1) - (mpu.factory[i] & ~1);
     long v = s.v[i] + (long)d * (16384 >> afs) / OFFSET_LSB_PER_G;
+    if (mpu.regs[REG_ACCEL_CONFIG] & (0x80 >> i)) v += lround(self_test_g(i) * (16384 >> afs));
     v = v < -32768 ? -32768 : v > 32767 ? 32767 : v;
     put_be16(mpu.regs + REG_ACCEL_XOUT_H + 2 * i, (int)v);
   }
@@ -411,15 +434,22 @@ int main(int argc, char **argv) {
   elf_firmware_t fw;
   int opt, ox = 1001, oy = -2000, oz = 3, who = 0x68;
   double ppm = 0.0;
-  while ((opt = getopt(argc, argv, "o:w:p:")) != -1) {
+  mpu.st_code[0] = 14, mpu.st_code[1] = 15, mpu.st_code[2] = 13;
+  mpu.st_share[0] = mpu.st_share[1] = mpu.st_share[2] = 1.0;
+  while ((opt = getopt(argc, argv, "o:w:p:t:r:")) != -1) {
+    if (opt == 't' && sscanf(optarg, "%d,%d,%d", &mpu.st_code[0], &mpu.st_code[1], &mpu.st_code[2]) == 3) {
+      for (int i = 0; i < 3; i++) mpu.st_code[i] &= 31;
+      continue;
+    }
+    if (opt == 'r' && sscanf(optarg, "%lf,%lf,%lf", &mpu.st_share[0], &mpu.st_share[1], &mpu.st_share[2]) == 3) continue;
     if (opt == 'o' && sscanf(optarg, "%d,%d,%d", &ox, &oy, &oz) == 3) continue;
     if (opt == 'w' && sscanf(optarg, "%i", &who) == 1) continue;
     if (opt == 'p' && sscanf(optarg, "%lf", &ppm) == 1 && ppm > -1e5 && ppm < 1e5) continue;
-    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM]\n", argv[0]);
+    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ]\n", argv[0]);
     return 2;
   }
   if (optind >= argc) {
-    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM]\n", argv[0]);
+    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ]\n", argv[0]);
     return 2;
   }
   mpu.ppm = ppm;
