@@ -1,13 +1,13 @@
 """The bridge firmware on the simulated ATmega328P (simavr): stream rate and RAM, measured in one run.
 
 For each sample rate 1000 / (1 + SMPLRT_DIV) Hz, streams N samples at 115200 baud and checks
-the firmware's own timestamps (micros(), 4 us steps): the stream is drop-free when no gap
-reaches 1.5 sample periods and the delivered rate is the requested one within 0.1 %, i.e. the
-firmware read every sample the chip produced (the firmware never bursts to catch up, so a
-link too slow for the rate shows as a lower delivered rate, not as missing indices).
-A SAMPLE frame is 24 bytes = 240 bit times = 2.083 ms at 115200 baud, so the link bounds the
-rate at 480 Hz.  Then prints flash/RAM use (avr-size) and the free RAM at the deepest stack
-(stack painting and the lowest stack pointer, read back by the harness).
+the firmware's own timestamps (micros(), 4 us steps) and the SAMPLE index, which counts the
+chip's samples: the stream is drop-free when no index is missing, no gap between stamps reaches
+1.5 sample periods and the delivered rate is the requested one within 0.1 %.  A SAMPLE frame is
+24 bytes = 240 bit times = 2.083 ms at 115200 baud, so the link bounds the rate at 480 Hz; the
+driver refuses the rates above it (shown as refused).  Then prints flash/RAM use (avr-size) and
+the free RAM at the deepest stack (stack painting and the lowest stack pointer, read back by the
+harness).
 
     python benchmarks/bench_firmware.py [--n 200]
 """
@@ -21,6 +21,7 @@ import numpy as np
 
 from accelcal_station.drivers.mpu6050 import MPU6050Bridge
 from accelcal_station.drivers.mpu6050_simavr import ELF, SimavrBridge, unavailable_reason
+from accelcal_station.errors import ConfigError
 
 RATES_HZ = [1000.0 / (1 + k) for k in range(6)]
 FRAME_BITS = (2 + 8 + 12 + 2) * 10  # SAMPLE frame: sync, header, index + 8 data bytes, CRC; 10 bits a byte
@@ -29,7 +30,11 @@ FRAME_BITS = (2 + 8 + 12 + 2) * 10  # SAMPLE frame: sync, header, index + 8 data
 def stream_rates(dev: MPU6050Bridge, n: int) -> list[tuple[float, float, float, bool]]:
     rows = []
     for rate in RATES_HZ:
-        dev.configure(odr_hz=rate, dlpf=1)
+        try:
+            dev.configure(odr_hz=rate, dlpf=1)
+        except ConfigError:  # beyond what the link carries: refused before streaming
+            rows.append((rate, float("nan"), float("nan"), False))
+            continue
         cap = dev.capture(n, keep=True)
         dt = np.diff(cap.timestamps)
         got = len(dt) / (cap.timestamps[-1] - cap.timestamps[0])
@@ -58,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'requested_hz':>12}  {'delivered_hz':>12}  {'max_gap_ms':>10}  {'drop_free':>9}")
     print(f"{'-' * 12}  {'-' * 12}  {'-' * 10}  {'-' * 9}")
     for rate, got, gap, ok in rows:
-        print(f"{rate:12.1f}  {got:12.1f}  {gap:10.3f}  {str(ok):>9}")
+        row = f"{'refused':>12}" if np.isnan(got) else f"{got:12.1f}  {gap:10.3f}  {str(ok):>9}"
+        print(f"{rate:12.1f}  {row}")
     best = max((r for r, _, _, ok in rows if ok), default=0.0)
     print(f"\nhighest drop-free rate at 115200 baud: {best:.1f} Hz "
           f"(link bound {115200 / FRAME_BITS:.0f} Hz; ratio {best / (115200 / FRAME_BITS):.2f})")

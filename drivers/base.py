@@ -8,12 +8,20 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import DeviceError
+from .self_test import SelfTestResult
+
+
+@runtime_checkable
+class ReportsEvents(Protocol):
+    """A bus that keeps events for the run record (drivers/tca9548a.py MuxChannel: re-selections)."""
+
+    def take_events(self) -> list[str]: ...
 
 
 class Clock(Protocol):
@@ -189,6 +197,18 @@ class Driver(ABC):
     def nvm(self) -> NVM | None:
         """The board's non-volatile memory, or None when it has none."""
         return None
+
+    #: whether :meth:`self_test` runs the chip's built-in self-test (declared, not probed)
+    supports_self_test: bool = False
+
+    def self_test(self, n: int = 64) -> SelfTestResult:
+        """The chip's self-test: output change per axis against the data sheet (drivers/self_test.py)."""
+        raise DeviceError(f"the {self.name} driver has no self-test")
+
+    def take_events(self) -> list[str]:
+        """Link events since the last call that the run record should keep (e.g. a multiplexer that
+        had to be re-selected); none by default."""
+        return []
 
     def capture(self, n: int | None = None, seconds: float | None = None, keep: bool = False) -> Capture:
         """Average n samples (or ``seconds`` worth at the current data rate)."""

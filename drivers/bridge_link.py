@@ -55,7 +55,11 @@ class BridgeReset(DeviceError):
 
 
 class BridgeRefused(DeviceError):
-    """The bridge answered NAK with an error that retrying cannot fix."""
+    """The bridge answered NAK with an error that retrying cannot fix; ``code`` is the NAK's error code."""
+
+    def __init__(self, message: str, code: int = 0) -> None:
+        super().__init__(message)
+        self.code = code
 
 
 class _McuClock:
@@ -195,7 +199,7 @@ class BridgeLink:
                 why = f"bridge answered NAK: {bp.ERROR_TEXT.get(err, f'error 0x{err:02x}')}"
                 if err not in RETRYABLE_NAKS:
                     raise BridgeRefused(f"MPU6050 bridge on {self.port} refused {name}: "
-                                      f"{bp.ERROR_TEXT.get(err, f'error 0x{err:02x}')}")
+                                        f"{bp.ERROR_TEXT.get(err, f'error 0x{err:02x}')}", err)
                 break
             else:
                 self.stats.timeouts += 1

@@ -39,6 +39,7 @@ CMD_WRITE_REG = 0x06
 CMD_NVM_READ = 0x07
 CMD_NVM_WRITE = 0x08
 CMD_RESET = 0x09
+CMD_SELF_TEST = 0x0A
 
 # bridge -> host frames (high bit set)
 RSP_BOOT = 0x80
@@ -64,6 +65,8 @@ NVM_SIZE = 1024
 NVM_PAGE_SIZE = 32
 REG_MAX_COUNT = 16  # bytes per READ_REG/WRITE_REG (AVR Wire buffer is 32 including the register byte)
 SAMPLE_BYTES = 8  # ACCEL_XOUT_H (0x3B) .. TEMP_OUT_L (0x42), big-endian as on the chip
+SELF_TEST_MAX_N = 1024  # samples averaged per SELF_TEST phase
+SELF_TEST_SETTLE_MS = 200  # after switching the self-test, before averaging (InvenSense's reference driver)
 
 PROTOCOL_CONSTANTS = [n for n in dir() if n.isupper() and not n.startswith("_")]
 
@@ -95,7 +98,11 @@ CONFIGURE_DATA = struct.Struct("<BBBI")  # ACCEL_CONFIG, CONFIG, SMPLRT_DIV read
 STREAM = struct.Struct("<I")  # samples
 STREAM_DATA = struct.Struct("<II")  # samples, sample period us
 SAMPLE_INDEX = struct.Struct("<I")  # index in the stream, then SAMPLE_BYTES raw register bytes
-STREAM_END = struct.Struct("<I")  # samples sent
+STREAM_END = struct.Struct("<I")  # samples accounted for (sent or a gap in the index)
+SELF_TEST = struct.Struct("<BH")  # self-test on (1) / off (0), samples to average
+# n, sum x/y/z (i32), sum of squared deviations from the first sample (u32), first sample (i16),
+# SELF_TEST_X, _Y, _Z, _A registers
+SELF_TEST_DATA = struct.Struct("<H3i3I3h4s")
 
 
 def crc16(data: bytes, crc: int = CRC16_INIT) -> int:

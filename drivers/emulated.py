@@ -92,4 +92,7 @@ def emulated_muxed_mma8451(section: dict[str, Any], path: str,
     drv = emulated_mma8451(rest, path, bus=MuxChannel(mux, channel),
                            bus_label=f"emulated/mux0x{address:02x}.{channel}")
     mux.smbus.attach(channel, drv.emulator)
+    emu = rest.get("emulator")
+    if isinstance(emu, dict) and emu.get("mux_reset_after"):
+        mux.smbus.reset(after_transactions=int(emu["mux_reset_after"]), channel=channel)
     return drv

@@ -34,7 +34,8 @@ from smbus2 import i2c_msg
 
 from ..config.parts import I2cEepromSection, Mma8451Section, parse
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError
-from .base import NVM, Clock, Driver, Identity
+from .base import NVM, Clock, Driver, Identity, ReportsEvents
+from .self_test import SelfTestResult, judge_in_g
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +68,7 @@ STATUS_ZYXOW = 0x80  # new data overwrote unread data
 CTRL1_ACTIVE = 0x01
 CTRL1_F_READ = 0x02  # 8-bit fast read: must stay clear for 14-bit bursts
 CTRL1_DR_SHIFT, CTRL1_DR_MASK = 3, 0x38
+CTRL2_ST = 0x80  # self-test enable (data sheet 6.8, CTRL_REG2 bit 7; STANDBY to change)
 CTRL2_RST = 0x40
 CTRL2_MODS_MASK = 0x03
 FS_MASK = 0x03
@@ -75,6 +77,13 @@ ODR_HZ = (800.0, 400.0, 200.0, 100.0, 50.0, 12.5, 6.25, 1.5625)  # index = CTRL_
 FS_BITS = {2: 0, 4: 1, 8: 2}  # XYZ_DATA_CFG FS1:FS0
 COUNTS_PER_G = {2: 4096, 4: 2048, 8: 1024}  # 14-bit sensitivity, data sheet table 2
 MODS = {"normal": 0, "low_noise_low_power": 1, "high_resolution": 2, "low_power": 3}
+# Self-test (data sheet Rev. 10.3, Table 4): typical output change at +-4 g, 14-bit: X +181, Y +255,
+# Z +1680 LSB (2048 LSB per g).  NXP's screen for it: at least 50 LSB on every axis, at most 1000 on X
+# and Y, 6000 on Z, all positive (NXP community answer on the MMA8451Q self-test, see docs/self-test.md).
+SELF_TEST_LOW_G = np.array([50.0, 50.0, 50.0]) / 2048.0
+SELF_TEST_HIGH_G = np.array([1000.0, 1000.0, 6000.0]) / 2048.0
+SELF_TEST_SOURCE = "MMA8451Q data sheet Rev. 10.3 Table 4 (typical +181/+255/+1680 LSB at 4 g); NXP screen 50..1000 " \
+                   "(x, y), 50..6000 (z) LSB at 4 g"
 # OFF_X/Y/Z: signed 8-bit, "2 mg/LSB" in the data sheet; the LSB is exactly 1/512 g, i.e. 8/4/2
 # counts at 2/4/8 g (NXP AN4069 offset = -out_14bit/8 at 2 g; NXP's 8 g bare-metal example
 # uses /2), independent of the range
@@ -412,6 +421,35 @@ class MMA8451(Driver):
             for reg, v in zip((OFF_X, OFF_Y, OFF_Z), vals, strict=True):
                 self._write_checked(reg, v & 0xFF)
 
+    supports_self_test = True
+
+    def self_test(self, n: int = 64) -> SelfTestResult:
+        """The chip's self-test (CTRL_REG2 ST): n samples with it off, n with it on, the change per axis
+        judged against the data sheet's limits (drivers/self_test.py).  ST is cleared afterwards, also
+        on an error."""
+        if not 4 <= int(n) <= 100_000:
+            raise ConfigError(f"self-test samples {n!r}; allowed: 4 to 100000")
+        n = int(n)
+        settle = max(4, int(np.ceil(0.02 * self._odr_hz)))  # the output filter's transient, discarded
+        try:
+            self._set_self_test(False)
+            self.read_samples(settle)
+            off = self.read_samples(n)[0].astype(float)
+            self._set_self_test(True)
+            self.read_samples(settle)
+            on = self.read_samples(n)[0].astype(float)
+        finally:
+            self._set_self_test(False)
+        change = on.mean(axis=0) - off.mean(axis=0)
+        sem = np.sqrt(on.var(axis=0, ddof=1) / n + off.var(axis=0, ddof=1) / n)
+        return judge_in_g("mma8451", change, sem, self.counts_per_g, SELF_TEST_LOW_G, SELF_TEST_HIGH_G, n,
+                          self._range_g, SELF_TEST_SOURCE)
+
+    def _set_self_test(self, on: bool) -> None:
+        with self._standby():
+            ctrl2 = self.dev.read_byte(CTRL_REG2) & ~CTRL2_RST
+            self._write_checked(CTRL_REG2, (ctrl2 | CTRL2_ST) if on else (ctrl2 & ~CTRL2_ST), CTRL2_ST)
+
     def get_offset_trim(self) -> tuple[int, int, int]:
         raw = self.dev.read_block(OFF_X, 3)
         x, y, z = (int(v) for v in np.array(raw, dtype=np.uint8).view(np.int8))
@@ -437,6 +475,10 @@ class MMA8451(Driver):
     @property
     def nvm(self) -> NVM | None:
         return self._nvm
+
+    def take_events(self) -> list[str]:
+        """The bus's events (a multiplexer channel re-selected after the mux reset) since the last call."""
+        return self._bus_spec.take_events() if isinstance(self._bus_spec, ReportsEvents) else []
 
     def identify(self) -> Identity:
         return Identity(chip="mma8451", chip_id=CHIP_ID, serial=self.serial,

@@ -17,10 +17,13 @@ Chip behaviour modelled (MMA8451Q data sheet Rev. 10.3): WHO_AM_I; software rese
 defaults, NACKs while it reboots); configuration writes ignored while ACTIVE (CTRL_REG1 except the
 ACTIVE bit, XYZ_DATA_CFG, HP_FILTER_CUTOFF, CTRL_REG2 except RST, OFF_X/Y/Z); STATUS ZYXDR/ZYXOW per axis,
 cleared by reading that axis's MSB; 14-bit left-justified output with the OFF_X/Y/Z trim added
-(1/512 g per LSB) and clipped to the 14-bit range.  MODS (oversampling) is stored but does not
+(1/512 g per LSB, the data sheet's "2 mg", written here, not taken from the driver) and clipped to the
+14-bit range; CTRL_REG2 ST adds this chip's self-test response (typical +181/+255/+1680 LSB at 4 g,
+spread 10 % per chip).  MODS (oversampling) is stored but does not
 change the noise, which is the simulator's ``noise`` effect.
 
 Faults for tests: :meth:`nack_next`, :meth:`nack_every`, ``never_ready``, :meth:`force_overrun`,
+:meth:`self_test_faults` (a weak axis, a dead self-test), :meth:`trim_fault` (another trim step or sign),
 ``chip_id`` (another part), ``present=False`` (nothing at the address), and a lying bus,
 :meth:`corrupt_reads` (``emulator.corrupt_reads: {rate, seed, address}`` in a config): each read
 message to that address comes back, with probability ``rate``, with one bit flipped.
@@ -59,10 +62,16 @@ from .mma8451 import (
     STATUS_ZYXOW,
     WHO_AM_I,
     XYZ_DATA_CFG,
-    off_lsb_to_counts,
 )
 
 N_REGS = 0x32
+# The chip's own figures, from the data sheet (not from the driver, whose assumptions they check):
+# OFF_X/Y/Z, signed 8-bit, "2 mg/LSB": 1/512 g, i.e. 2 LSB at +-8 g (NXP AN4069's worked example);
+# self-test output change, typical at +-4 g, 14-bit: X +181, Y +255, Z +1680 LSB (Table 4).
+TRIM_G_PER_LSB = 1.0 / 512.0
+SELF_TEST_TYPICAL_G = np.array([181.0, 255.0, 1680.0]) / 2048.0
+SELF_TEST_SPREAD = 0.10  # board-to-board, relative standard deviation (a draw per chip)
+CTRL2_SELF_TEST = 0x80
 BOOT_S = 0.0005  # reboot after a software reset; the part NACKs meanwhile
 SYSMOD = 0x0B
 # writes ignored while ACTIVE (data sheet: "must be in Standby mode to change"; Linux mma8452.c changes
@@ -123,8 +132,10 @@ class _Chip:
         return bits | (STATUS_ZYXDR if dr.any() else 0) | (STATUS_ZYXOW if ow.any() else 0)
 
     def data_bytes(self) -> bytes:
-        trim = off_lsb_to_counts(np.array(self.regs[OFF_X:OFF_Z + 1], dtype=np.uint8).view(np.int8), self.range_g)
-        v = np.clip(self.out + trim, -8192, 8191)
+        lsb = np.array(self.regs[OFF_X:OFF_Z + 1], dtype=np.uint8).view(np.int8).astype(float)
+        counts_per_g = 8192.0 / self.range_g  # 14-bit: 4096 / 2048 / 1024 per g at 2 / 4 / 8 g
+        trim = np.rint(lsb * TRIM_G_PER_LSB * self.emu.trim_step_scale * self.emu.trim_sign * counts_per_g)
+        v = np.clip(self.out + trim.astype(np.int64), -8192, 8191)
         return (v << 2).astype(">i2").tobytes()
 
     # I2C face: a write sets the register pointer, further bytes are written with auto-increment
@@ -216,7 +227,19 @@ class MMA8451Emulator:
         self.nack_log: list[tuple[int, int | None]] = []  # (address, register) of every NACKed transaction
         self._corrupt: tuple[float, int | None, np.random.Generator] | None = None  # rate, address, rng
         self.corrupted = 0  # read messages returned with a flipped bit
+        # this chip's self-test force (the typical response, spread per chip) and trim unit; faults below
+        rng = np.random.default_rng(getattr(board, "seed", None))
+        self.self_test_g = SELF_TEST_TYPICAL_G * (1.0 + SELF_TEST_SPREAD * rng.standard_normal(3))
+        self.trim_step_scale, self.trim_sign = 1.0, 1
         self.chip = _Chip(self, chip_id)
+
+    def self_test_faults(self, scale: Sequence[float] = (1.0, 1.0, 1.0), dead: bool = False) -> None:
+        """A weak axis (``scale`` of this chip's response per axis) or a self-test bit that does nothing."""
+        self.self_test_g = self.self_test_g * np.asarray(scale, dtype=float) * (0.0 if dead else 1.0)
+
+    def trim_fault(self, step_scale: float = 1.0, sign: int = 1) -> None:
+        """OFF_X/Y/Z act with another step than 1/512 g, or with the opposite sign."""
+        self.trim_step_scale, self.trim_sign = float(step_scale), int(sign)
 
     # --- construction from a device config section ----------------------------------------
     @classmethod
@@ -243,6 +266,8 @@ class MMA8451Emulator:
         emu = cls(board, address=address, eeprom_address=eeprom_address, chip_id=e.chip_id, bus_hz=e.bus_hz,
                   never_ready=e.never_ready, present=e.present)
         emu.nack_every(e.nack_every)
+        emu.self_test_faults(e.self_test_scale, e.self_test_dead)
+        emu.trim_fault(e.trim_step_scale, e.trim_sign)
         c = e.corrupt_reads
         if c is not None:
             given = "address" in c.model_fields_set  # default: the EEPROM's address
@@ -313,7 +338,8 @@ class MMA8451Emulator:
                 k, self._overrun = k + self._overrun, 0  # forced overrun: the host stalls while these go by
             if k:
                 counts, _ = self.board.read(k)  # the board clock moves to the last grid instant
-                chip.latch(np.rint(np.asarray(counts[-1], dtype=float)).astype(np.int64), k)
+                st = self.self_test_g * (8192.0 / chip.range_g) if chip.regs[CTRL_REG2] & CTRL2_SELF_TEST else 0.0
+                chip.latch(np.rint(np.asarray(counts[-1], dtype=float) + st).astype(np.int64), k)
                 self.samples_produced += k
         clock.advance_to(max(target, clock.now()))
 

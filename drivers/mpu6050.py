@@ -33,6 +33,7 @@ from ..errors import ConfigError, DeviceError, NVMError
 from . import bridge_protocol as bp
 from .base import NVM, Capture, Driver, Identity
 from .bridge_link import BridgeLink, BridgeRefused, BridgeReset, LinkStats
+from .self_test import SelfTestResult, judge_against_trim
 
 WHO_AM_I = 0x75
 CHIP_ID = 0x68
@@ -40,6 +41,10 @@ KNOWN_CHIP_IDS = {0x70: "MPU-6500", 0x71: "MPU-9250", 0x73: "MPU-9255", 0x7C: "M
                   0x12: "ICM-20602", 0x98: "ICM-20689", 0x00: "nothing (I2C read failed)",
                   0xFF: "nothing (bus idle high)"}
 XA_OFFS_H = 0x06
+SELF_TEST_X = 0x0D  # SELF_TEST_X, _Y, _Z, _A (register map 4.1)
+SELF_TEST_TOLERANCE = 0.14  # product specification rev 3.4, 6.1: change from factory trim within +-14 %
+SELF_TEST_SOURCE = ("MPU-6050 product specification rev 3.4, 6.1 (change from factory trim -14 % to +14 %); "
+                    "register map rev 4.2, 4.1 (FT = 4096 * 0.34 * (0.92 / 0.34)^((A_TEST - 1) / 30) LSB at 8 g)")
 SMPLRT_DIV = 0x19
 CONFIG = 0x1A
 ACCEL_CONFIG = 0x1C
@@ -78,6 +83,39 @@ def smplrt_div_for(odr_hz: float, dlpf: int, path: str = "odr_hz") -> int:
         raise ConfigError(f"{path}: {odr_hz!r} Hz; allowed: 1000 / (1 + k) Hz down to {lo:g} Hz with dlpf {dlpf} "
                           "(e.g. 1000, 500, 200, 100, 50)")
     return int(round(div))
+
+
+def factory_trim_counts(regs: bytes) -> np.ndarray:
+    """The accelerometer's factory self-test trim FT per axis, LSB at +-8 g, from SELF_TEST_X/Y/Z/A
+    (register map rev 4.2, 4.1): A_TEST = bits 7:5 of SELF_TEST_X/Y/Z (high three) and two bits of
+    SELF_TEST_A (5:4 x, 3:2 y, 1:0 z); FT = 4096 * 0.34 * (0.92 / 0.34)^((A_TEST - 1) / 30), 0 when
+    A_TEST is 0."""
+    code = np.array([((regs[i] >> 5) & 7) << 2 | ((regs[3] >> (4 - 2 * i)) & 3) for i in range(3)], dtype=float)
+    return np.where(code > 0, 4096.0 * 0.34 * (0.92 / 0.34) ** ((code - 1.0) / 30.0), 0.0)
+
+
+def link_frames_per_s(baud: int) -> float:
+    """SAMPLE frames per second the bridge's UART carries: 10 bit times a byte (8N1), one frame is
+    SYNC(2) + header(8) + index(4) + data(8) + CRC(2) = 24 bytes (docs/bridge-protocol.md)."""
+    return baud / 10.0 / (2 + bp.HEADER_LEN + 4 + bp.SAMPLE_BYTES + 2)
+
+
+def link_max_rate_hz(baud: int, dlpf: int = 3) -> float:
+    """The highest chip rate (1000 / (1 + k) Hz) whose every sample the link can carry."""
+    k = int(np.ceil(ACCEL_RATE_HZ / link_frames_per_s(baud) - 1.0 - 1e-9))
+    return ACCEL_RATE_HZ / (1 + max(k, 0))
+
+
+def check_link_rate(odr_hz: float, baud: int, path: str = "odr_hz") -> None:
+    """Refuse, before streaming, a sample rate the serial link cannot carry (the bridge would drop
+    samples: gaps in the index); the firmware's 1 kHz ceiling is smplrt_div_for's."""
+    if baud <= 0:
+        return  # no link to measure: pyserial refuses such a baud rate when the port opens
+    cap = link_frames_per_s(baud)
+    if odr_hz > cap:
+        raise ConfigError(f"{path}: {odr_hz:g} Hz; the bridge link at {baud} baud carries at most {cap:.0f} "
+                          f"sample frames/s (24 bytes each, 10 bits a byte); allowed: at most "
+                          f"{link_max_rate_hz(baud):g} Hz (1000 / (1 + k))")
 
 
 @dataclass
@@ -145,6 +183,7 @@ class MPU6050Bridge(Driver):
         if dlpf not in range(len(DLPF_BANDWIDTH_HZ)):
             raise ConfigError(f"dlpf: {dlpf!r}; allowed: 0..6 (DLPF_CFG)")
         smplrt_div_for(odr_hz, dlpf)
+        check_link_rate(odr_hz, int(baud))
         self.port = port
         self.boot_wait_s = float(boot_wait_s)
         self.link = BridgeLink(port, int(baud), float(timeout_s), int(retries))
@@ -176,6 +215,7 @@ class MPU6050Bridge(Driver):
             if k in cfg and port != "emulated":
                 raise ConfigError(f"{path}.{k}: only used with port: emulated")
         smplrt_div_for(m.odr_hz, m.dlpf, f"{path}.odr_hz")
+        check_link_rate(m.odr_hz, m.baud, f"{path}.odr_hz")
         kw = m.model_dump(include={"baud", "range_g", "odr_hz", "dlpf", "timeout_s", "retries", "boot_wait_s"})
         return port, kw
 
@@ -318,6 +358,7 @@ class MPU6050Bridge(Driver):
         if d not in range(len(DLPF_BANDWIDTH_HZ)):
             raise ConfigError(f"dlpf: {d!r}; allowed: 0..6 (DLPF_CFG)")
         smplrt_div_for(o, d)
+        check_link_rate(o, self.link.baud)
         self._want = (int(r), float(o), int(d))
         self._with_recovery(lambda: self._configure(*self._want))
 
@@ -373,6 +414,42 @@ class MPU6050Bridge(Driver):
                 "smplrt_div": self._div, "accel_offsets_lsb": self.accel_offsets().tolist(),
                 "i2c_address": f"0x{b.i2c_address:02x}" if b else None,
                 "nvm": f"bridge EEPROM, {b.nvm_size} bytes, {b.nvm_page_size}-byte pages" if b else None}
+
+    # --- self-test --------------------------------------------------------------------------
+    supports_self_test = True
+
+    def self_test(self, n: int = 64) -> SelfTestResult:
+        """The accelerometer self-test through the bridge's SELF_TEST command (register map 4.1): n
+        samples at +-8 g with XA/YA/ZA_ST off, n with them on; STR = on - off per axis, compared with
+        the factory trim FT from SELF_TEST_X/Y/Z/A: (STR - FT) / FT within +-14 % (product spec 6.1)."""
+        if not 4 <= int(n) <= bp.SELF_TEST_MAX_N:
+            raise ConfigError(f"self-test samples {n!r}; allowed: 4 to {bp.SELF_TEST_MAX_N}")
+        off, var_off, regs = self._self_test_phase(False, int(n))
+        on, var_on, _ = self._self_test_phase(True, int(n))
+        ft = factory_trim_counts(regs)
+        sem = np.sqrt((var_off + var_on) / int(n))
+        return judge_against_trim("mpu6050", on - off, sem, COUNTS_PER_G[8], ft, SELF_TEST_TOLERANCE, int(n), 8,
+                                  SELF_TEST_SOURCE)
+
+    def _self_test_phase(self, on: bool, n: int) -> tuple[np.ndarray, np.ndarray, bytes]:
+        """One SELF_TEST phase: mean and variance per axis (counts at +-8 g), the SELF_TEST registers."""
+        try:
+            d = self._call(bp.CMD_SELF_TEST, bp.SELF_TEST.pack(int(on), n))
+        except BridgeRefused as e:
+            if e.code != bp.ERR_UNKNOWN_CMD:
+                raise
+            raise DeviceError(f"{e}; the bridge firmware has no SELF_TEST: flash firmware/mpu6050_bridge "
+                              "from this release") from None
+        if len(d) != bp.SELF_TEST_DATA.size:
+            raise DeviceError(f"MPU6050 bridge on {self.port}: SELF_TEST answered {len(d)} bytes, expected "
+                              f"{bp.SELF_TEST_DATA.size}")
+        got = bp.SELF_TEST_DATA.unpack(d)
+        m, s, sq, first, regs = got[0], np.array(got[1:4], float), np.array(got[4:7], float), \
+            np.array(got[7:10], float), got[10]
+        mean = s / m
+        dev = mean - first  # mean deviation from the first sample: var = E[d^2] - E[d]^2
+        var = np.maximum(sq / m - dev * dev, 0.0) * m / max(m - 1, 1)
+        return mean, var, regs
 
     # --- data -----------------------------------------------------------------------------
     def temperature_c(self) -> float | None:

@@ -9,11 +9,14 @@ SMPLRT_DIV, CONFIG, ACCEL_CONFIG, the data and TEMP_OUT registers, and
 XA/YA/ZA_OFFS whose change from the factory trim shifts the output (2048 LSB per g).
 The NVM is the MCU's 1 KiB EEPROM (an EEPROM24 model with 32-byte pages).
 
-Samples come from ``board.configure()`` / ``board.read()``; timestamps are the
-board's virtual clock since the last (emulated) MCU boot.  Streams run as fast as
-the pty takes them unless the board is ``realtime``.  Sample rates the simulated
-chip cannot produce (above 1 kHz, or DLPF_CFG 0 with a rate other than 1000 / (1 + k))
-are NAKed with ERR_BAD_ARG, where the firmware would repeat samples.
+Samples come from ``board.configure()`` / ``board.read()`` on the chip's own clock (the
+board's virtual clock); timestamps are MCU time since the last (emulated) MCU boot, which runs
+``chip_ppm`` parts per million slow against a fast chip (negative: fast), as the bridge that reads
+on the chip's DATA_RDY sees it.  The SAMPLE index counts the chip's samples: one the UART at
+``baud`` (24-byte frames, 10 bits a byte) has no room for is dropped without waiting, a gap in
+the index, as the firmware does.  Streams run as fast as the pty takes them unless the board is
+``realtime``.  Sample rates the simulated chip cannot produce (above 1 kHz, or DLPF_CFG 0 with a
+rate other than 1000 / (1 + k)) are NAKed with ERR_BAD_ARG.
 
 Faults for tests: :meth:`corrupt` (flip a bit in each of the next k bytes sent),
 :meth:`drop_frames`, :meth:`inject_garbage`, :meth:`stall` (ignore input and send
@@ -48,6 +51,7 @@ from .mpu6050 import (
     OFFSET_LSB_PER_G,
     PWR_MGMT_1,
     PWR_SLEEP,
+    SELF_TEST_X,
     SMPLRT_DIV,
     TEMP_OUT_H,
     WHO_AM_I,
@@ -55,9 +59,10 @@ from .mpu6050 import (
     rate_base_hz,
 )
 
-FIRMWARE = (1, 0)
+FIRMWARE = (1, 1)  # as firmware/mpu6050_bridge: 1.1 reads on DATA_RDY and has SELF_TEST
 CHUNK = 32  # samples produced between looks at the input (a STOP is seen within 32 samples)
 EEPROM_WRITE_S_PER_BYTE = 0.0034  # ATmega328P EEPROM programming time per byte
+TX_BUFFER_BYTES = 63  # Arduino core HardwareSerial: a 64-byte ring holds 63
 
 
 class MPU6050BridgeEmulator(PtyServer):
@@ -68,13 +73,23 @@ class MPU6050BridgeEmulator(PtyServer):
 
     def __init__(self, board: Any = None, seed: int | None = None, who_am_i: int = CHIP_ID,
                  i2c_present: bool = True, serial: str | None = None, i2c_address: int = 0x68,
-                 factory_offsets: ArrayLike | None = None) -> None:
+                 factory_offsets: ArrayLike | None = None, chip_ppm: float = 0.0,
+                 baud: int = bp.DEFAULT_BAUD, self_test_codes: ArrayLike | None = None,
+                 self_test_share: ArrayLike | None = None) -> None:
         if board is None:
             from .simulated import SimulatedBoard
 
             board = SimulatedBoard.from_config(None, chip="mpu6050", seed=seed)
         self.board = board
         self.who_am_i, self.i2c_present = who_am_i, i2c_present
+        if not -1e5 < float(chip_ppm) < 1e5:
+            raise ConfigError(f"chip_ppm: {chip_ppm!r}; allowed: -100000 < ppm < 100000")
+        # the board's clock is the chip's; the MCU's runs chip_ppm slower when the chip is fast
+        self.chip_ppm = float(chip_ppm)
+        # one SAMPLE frame on the UART: 24 bytes of 10 bits (8N1); the firmware drops a sample
+        # (a gap in the index) when the UART has no room for it, and never waits
+        self.uart_bytes_per_s = float(baud) / 10.0
+        self._tx_level, self._tx_t = 0.0, 0.0  # bytes in the UART's transmit buffer, and when
         serial = str(getattr(board, "serial", "EMUB0001"))[-8:] if serial is None else serial
         self.serial, self.i2c_address = serial.encode("ascii", "replace")[:8].ljust(8, b"\0"), i2c_address
         self.nvm = EEPROM24(bp.NVM_SIZE, bp.NVM_PAGE_SIZE, EEPROM_WRITE_S_PER_BYTE * bp.NVM_PAGE_SIZE,
@@ -99,6 +114,12 @@ class MPU6050BridgeEmulator(PtyServer):
         self._reset_after: int | None = None
         self._reset_repeat = 0
         self._rng = np.random.default_rng(rng.integers(2**32))
+        # the accelerometer's factory self-test codes (SELF_TEST_X/Y/Z/A) and this chip's response as a
+        # share of its factory trim (a draw per part; faults: a weak axis, 0: a self-test that does nothing)
+        self.self_test_codes = (rng.integers(8, 24, 3) if self_test_codes is None
+                                else np.asarray(self_test_codes, dtype=np.int64).reshape(3)) & 31
+        self.self_test_share = (1.0 + 0.04 * rng.standard_normal(3) if self_test_share is None
+                                else np.asarray(self_test_share, dtype=float).reshape(3))
         self._power_on(bp.BOOT_POWER_ON, send=False)
 
     @classmethod
@@ -157,6 +178,7 @@ class MPU6050BridgeEmulator(PtyServer):
         self.regs[WHO_AM_I] = self.who_am_i
         self.regs[PWR_MGMT_1] = PWR_SLEEP
         self.regs[XA_OFFS_H:XA_OFFS_H + 6] = self.factory_offsets.astype(">i2").tobytes()
+        self._self_test_registers()
         self.board.configure(2, ACCEL_RATE_HZ, 0)
         self.period_us = 1000
         self.seq = 0
@@ -167,9 +189,29 @@ class MPU6050BridgeEmulator(PtyServer):
         if send:
             self._send(bp.RSP_BOOT, bp.BOOT.pack(bp.PROTOCOL_VERSION, cause, *FIRMWARE))
 
-    def _ts(self, t: float | None = None) -> int:
+    def _self_test_registers(self) -> None:
+        """SELF_TEST_X/Y/Z bits 7:5 = A_TEST[4:2]; SELF_TEST_A bits 5:4, 3:2, 1:0 = A_TEST[1:0] (map 4.1)."""
+        c = [int(v) for v in self.self_test_codes]
+        for i in range(3):
+            self.regs[SELF_TEST_X + i] = ((c[i] >> 2) & 7) << 5
+        self.regs[SELF_TEST_X + 3] = ((c[0] & 3) << 4) | ((c[1] & 3) << 2) | (c[2] & 3)
+
+    def _self_test_g(self) -> np.ndarray:
+        """The self-test force per axis in g while ACCEL_CONFIG's XA/YA/ZA_ST bits are set: the factory
+        trim FT = 4096 * 0.34 * (0.92 / 0.34)^((code - 1) / 30) LSB at +-8 g (register map 4.1), this
+        chip's share of it."""
+        code = self.self_test_codes.astype(float)
+        ft = np.where(code > 0, 4096.0 * 0.34 * (0.92 / 0.34) ** ((code - 1.0) / 30.0), 0.0)
+        on = np.array([(self.regs[ACCEL_CONFIG] >> (7 - i)) & 1 for i in range(3)], dtype=float)
+        return on * ft / 4096.0 * self.self_test_share
+
+    def _mcu_s(self, t: float | None = None) -> float:
+        """MCU time since boot (s) at board (chip) time t."""
         t = self.board.clock.now() if t is None else t
-        return int(round((t - self._boot_t) * 1e6)) & 0xFFFFFFFF
+        return (t - self._boot_t) / (1.0 + self.chip_ppm * 1e-6)
+
+    def _ts(self, t: float | None = None) -> int:
+        return int(round(self._mcu_s(t) * 1e6)) & 0xFFFFFFFF
 
     def _write(self, data: bytes) -> None:
         view = memoryview(data)
@@ -242,7 +284,9 @@ class MPU6050BridgeEmulator(PtyServer):
             k = min(k, self._stall_after[0] - self.stream_sent)
         raw, t = self._sample(k)
         for row, ti in zip(raw.astype(">i2"), t, strict=True):
-            self._send(bp.RSP_SAMPLE, bp.SAMPLE_INDEX.pack(self.stream_sent) + row.tobytes(), float(ti))
+            # the index counts the chip's samples; one the UART has no room for is a gap (firmware)
+            if self._uart_room(self._mcu_s(float(ti))):
+                self._send(bp.RSP_SAMPLE, bp.SAMPLE_INDEX.pack(self.stream_sent) + row.tobytes(), float(ti))
             self.stream_sent += 1
         if self.stream_sent >= self.stream_n:
             self._end_stream()
@@ -258,11 +302,23 @@ class MPU6050BridgeEmulator(PtyServer):
         counts, t = self.board.read(k)
         off = ((np.frombuffer(bytes(self.regs[XA_OFFS_H:XA_OFFS_H + 6]), ">i2").astype(np.int64) & ~1)
                - (self.factory_offsets & ~1)) * self.board.counts_per_g / OFFSET_LSB_PER_G
-        acc = np.clip(np.round(np.asarray(counts, dtype=float) + off), -32768, 32767)
+        st = self._self_test_g() * self.board.counts_per_g
+        acc = np.clip(np.round(np.asarray(counts, dtype=float) + off + st), -32768, 32767)
         temp = np.clip(round((self.board.temperature_c - 36.53) * 340.0), -32768, 32767)
         raw = np.column_stack([acc, np.full(k, temp)]).astype(np.int64)
         self.regs[ACCEL_XOUT_H:ACCEL_XOUT_H + 8] = raw[-1].astype(">i2").tobytes()
         return raw, t
+
+    def _uart_room(self, t_mcu: float) -> bool:
+        """Whether the Arduino core's 64-byte transmit ring (63 usable) has room for a SAMPLE frame at
+        MCU time t_mcu, draining at baud / 10 bytes/s; if so, the frame is put in."""
+        self._tx_level = max(0.0, self._tx_level - (t_mcu - self._tx_t) * self.uart_bytes_per_s)
+        self._tx_t = t_mcu
+        frame = 2 + bp.HEADER_LEN + 4 + bp.SAMPLE_BYTES + 2
+        if TX_BUFFER_BYTES - self._tx_level < frame:
+            return False
+        self._tx_level += frame
+        return True
 
     def _end_stream(self) -> None:
         self.streaming = False
@@ -276,7 +332,8 @@ class MPU6050BridgeEmulator(PtyServer):
         handler = {bp.CMD_IDENTIFY: self._identify, bp.CMD_CONFIGURE: self._configure, bp.CMD_STREAM: self._stream,
                    bp.CMD_STOP: lambda seq, p: self._ack(bp.CMD_STOP, seq), bp.CMD_READ_REG: self._read_reg,
                    bp.CMD_WRITE_REG: self._write_reg, bp.CMD_NVM_READ: self._nvm_read,
-                   bp.CMD_NVM_WRITE: self._nvm_write, bp.CMD_RESET: self._reset}.get(f.type)
+                   bp.CMD_NVM_WRITE: self._nvm_write, bp.CMD_RESET: self._reset,
+                   bp.CMD_SELF_TEST: self._self_test}.get(f.type)
         if handler is None:
             return self._nak(f.type, f.seq, bp.ERR_UNKNOWN_CMD)
         handler(f.seq, f.payload)
@@ -338,6 +395,7 @@ class MPU6050BridgeEmulator(PtyServer):
             return self._end_stream()
         self._ack(bp.CMD_STREAM, seq, bp.STREAM_DATA.pack(n, self.period_us))
         self.streaming, self.stream_n, self.stream_sent = True, n, 0
+        self._tx_level, self._tx_t = 0.0, self._mcu_s()
 
     def _read_reg(self, seq: int, p: bytes) -> None:
         if len(p) != 2:
@@ -380,6 +438,30 @@ class MPU6050BridgeEmulator(PtyServer):
         if self.nvm.read(p[0] * bp.NVM_PAGE_SIZE, bp.NVM_PAGE_SIZE) != p[1:]:
             return self._nak(bp.CMD_NVM_WRITE, seq, bp.ERR_NVM)
         self._ack(bp.CMD_NVM_WRITE, seq, p[:1])
+
+    def _self_test(self, seq: int, p: bytes) -> None:
+        """SELF_TEST phase, as the firmware: +-8 g with (on) or without the ST bits, settle, n samples'
+        sum, squared deviations from the first, the first; SELF_TEST registers; ACCEL_CONFIG restored."""
+        if len(p) != bp.SELF_TEST.size:
+            return self._nak(bp.CMD_SELF_TEST, seq, bp.ERR_BAD_LENGTH)
+        on, n = bp.SELF_TEST.unpack(p)
+        if on > 1 or not 2 <= n <= bp.SELF_TEST_MAX_N:
+            return self._nak(bp.CMD_SELF_TEST, seq, bp.ERR_BAD_ARG)
+        saved = self.regs[ACCEL_CONFIG]
+        if not self._i2c_write(ACCEL_CONFIG, bytes([(0xE0 if on else 0) | (2 << 3)])):
+            return self._nak(bp.CMD_SELF_TEST, seq, bp.ERR_I2C)
+        rate = self.board.odr_hz
+        try:
+            self.board.configure(8, rate, self.board.dlpf)
+            self._sample(max(1, int(round(bp.SELF_TEST_SETTLE_MS * 1e-3 * rate))))  # settling, discarded
+            v = self._sample(n)[0][:, :3]
+        finally:
+            self._i2c_write(ACCEL_CONFIG, bytes([saved]))
+            self.board.configure((2, 4, 8, 16)[(saved >> 3) & 3], rate, self.board.dlpf)
+        d = v - v[0]
+        self._ack(bp.CMD_SELF_TEST, seq, bp.SELF_TEST_DATA.pack(
+            n, *(int(x) for x in v.sum(axis=0)), *(int(x) & 0xFFFFFFFF for x in (d * d).sum(axis=0)),
+            *(int(x) for x in v[0]), bytes(self.regs[SELF_TEST_X:SELF_TEST_X + 4])))
 
     def _reset(self, seq: int, p: bytes) -> None:
         self._ack(bp.CMD_RESET, seq)

@@ -61,7 +61,8 @@ class SimavrBridge:
     """The bridge firmware in simavr on a pseudo-terminal, fed by a SimulatedBoard."""
 
     def __init__(self, board: Any = None, seed: int | None = None, factory_offsets: Sequence[int] = (1001, -2000, 3),
-                 who_am_i: int = CHIP_ID) -> None:
+                 who_am_i: int = CHIP_ID, chip_ppm: float = 0.0, self_test_codes: Sequence[int] | None = None,
+                 self_test_share: Sequence[float] | None = None) -> None:
         if board is None:
             from .simulated import SimulatedBoard
 
@@ -69,6 +70,16 @@ class SimavrBridge:
         self.board = board
         self.factory_offsets = tuple(int(v) for v in factory_offsets)
         self.who_am_i = who_am_i
+        if not -1e5 < float(chip_ppm) < 1e5:
+            raise ConfigError(f"chip_ppm: {chip_ppm!r}; allowed: -100000 < ppm < 100000")
+        self.chip_ppm = float(chip_ppm)  # the chip's oscillator against the MCU's, parts per million
+        # this chip's factory self-test codes and its response as a share of the factory trim
+        # (a draw per board: the spread between parts); faults: a weak axis (share 0.3), none (0)
+        rng = np.random.default_rng(getattr(board, "seed", seed))
+        self.self_test_codes = tuple(int(c) & 31 for c in (rng.integers(8, 24, 3) if self_test_codes is None
+                                                           else self_test_codes))
+        self.self_test_share = tuple(float(v) for v in (1.0 + 0.04 * rng.standard_normal(3)
+                                                        if self_test_share is None else self_test_share))
         self.lock = threading.RLock()  # held while a sample is taken: take it to move the board
         self.port: str | None = None
         self.registers: dict[str, int] = {}  # the chip's configuration registers as last written
@@ -87,7 +98,10 @@ class SimavrBridge:
         if why:
             raise DeviceError(f"cannot run the bridge firmware in simavr: {why}")
         off = ",".join(str(v) for v in self.factory_offsets)
-        self._proc = subprocess.Popen([str(HARNESS), str(ELF), "-o", off, "-w", str(self.who_am_i)],
+        self._proc = subprocess.Popen([str(HARNESS), str(ELF), "-o", off, "-w", str(self.who_am_i),
+                                       "-p", repr(self.chip_ppm),
+                                       "-t", ",".join(str(c) for c in self.self_test_codes),
+                                       "-r", ",".join(repr(v) for v in self.self_test_share)],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
         ready: queue.Queue[str] = queue.Queue()
         self._thread = threading.Thread(target=self._serve, args=(ready,), name="simavr-bridge", daemon=True)
@@ -146,7 +160,7 @@ class SimavrBridge:
                 if word == "PTY":
                     ready.put(rest)
                 elif word == "NEED":
-                    self._send(self._sample_line())
+                    self._send(self._sample_line(int(rest) if rest.strip() else 1))
                 elif word == "CFG":
                     self._configured(*(int(v) for v in rest.split()))
                 elif word == "STATS":
@@ -164,11 +178,12 @@ class SimavrBridge:
         with self.lock, suppress(ConfigError):
             self.board.configure(range_g, rate, dlpf)
 
-    def _sample_line(self) -> str:
+    def _sample_line(self, k: int = 1) -> str:
+        """The newest of the k samples the chip made since the last one read: the board moves on by k."""
         with self.lock:
-            counts, _ = self.board.read(1)
+            counts, _ = self.board.read(max(1, min(int(k), 1_000_000)))
             temp_c = self.board.temperature_c
-        xyz = np.clip(np.round(np.asarray(counts, dtype=float).reshape(-1)[:3]), -32768, 32767).astype(int)
+        xyz = np.clip(np.round(np.asarray(counts, dtype=float).reshape(-1, 3)[-1]), -32768, 32767).astype(int)
         t = int(np.clip(round((temp_c - TEMP_OFFSET_C) * TEMP_LSB_PER_C), -32768, 32767))
         return f"D {xyz[0]} {xyz[1]} {xyz[2]} {t}"
 

@@ -33,9 +33,10 @@ class MuxBus:
         self.smbus, self.address, self.label = smbus, address, label
         self.selected: int | None = None
         self.lock = threading.RLock()
+        self.events: list[tuple[int, str]] = []  # (channel, what happened): re-selections after a reset
 
-    def select(self, channel: int) -> None:
-        if self.selected != channel:
+    def select(self, channel: int, force: bool = False) -> None:
+        if force or self.selected != channel:
             self.selected = None  # unknown until the write is acknowledged
             try:
                 self.smbus.write_byte(self.address, 1 << channel)
@@ -43,6 +44,15 @@ class MuxBus:
                 raise DeviceError(f"TCA9548A at bus {self.label} address 0x{self.address:02x}: cannot select "
                                   f"channel {channel}: {e.strerror or e}") from None
             self.selected = channel
+
+    def forgot(self, channel: int) -> int | None:
+        """After a NACK: the control register (SMBus receive byte) if it no longer selects ``channel``
+        (the mux was reset: brown-out, a glitch on RESET), else None (the NACK was the device's)."""
+        try:
+            control = int(self.smbus.read_byte(self.address))
+        except OSError:
+            return None  # the mux itself does not answer: nothing to re-select
+        return None if control >> channel & 1 else control
 
     def close(self) -> None:
         if hasattr(self.smbus, "close"):
@@ -58,9 +68,30 @@ class MuxChannel:
         self.mux, self.channel = mux, channel
 
     def _call(self, name: str, *args: Any) -> Any:
+        """One transaction through the channel.  The TCA9548A resets to no channel selected (data sheet:
+        power-on, RESET pin), which the remembered selection cannot know: after a NACK, read the
+        control register and, if the channel is gone, select it again and retry once (recorded)."""
         with self.mux.lock:
             self.mux.select(self.channel)
-            return getattr(self.mux.smbus, name)(*args)
+            try:
+                return getattr(self.mux.smbus, name)(*args)
+            except OSError:
+                control = self.mux.forgot(self.channel)
+                if control is None:
+                    raise
+            self.mux.select(self.channel, force=True)
+            out = getattr(self.mux.smbus, name)(*args)
+            self.mux.events.append((self.channel, f"TCA9548A 0x{self.mux.address:02x} had lost channel "
+                                                  f"{self.channel} (control read 0x{control:02x}, reset?): "
+                                                  "re-selected, transaction retried"))
+            return out
+
+    def take_events(self) -> list[str]:
+        """The mux events of this channel since the last call (for the run record)."""
+        with self.mux.lock:
+            mine = [what for ch, what in self.mux.events if ch == self.channel]
+            self.mux.events = [(ch, what) for ch, what in self.mux.events if ch != self.channel]
+        return mine
 
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         return self._call("read_byte_data", i2c_addr, register)

@@ -34,10 +34,21 @@ class TCA9548AEmulator:
         self.control = 0  # power-on: every channel disconnected
         self.channels: dict[int, Any] = {}
         self.selects = 0
+        self.resets = 0
+        self._reset_after: dict[int, int] = {}  # channel -> transactions to its device before a reset
 
     def attach(self, channel: int, device: Any) -> None:
         """Put a downstream emulated bus (e.g. an MMA8451Emulator) behind ``channel``."""
         self.channels[channel] = device
+
+    def reset(self, after_transactions: int | None = None, channel: int | None = None) -> None:
+        """Reset the mux (data sheet: the RESET pin, or power-on: no channel selected), now or after
+        ``after_transactions`` more transactions to the device behind ``channel``."""
+        if after_transactions is None:
+            self.control = 0
+            self.resets += 1
+        elif channel is not None:
+            self._reset_after[channel] = int(after_transactions)
 
     def _route(self, addr: int) -> Any:
         hits = [d for ch, d in self.channels.items() if self.control >> ch & 1 and d._device(addr) is not None]
@@ -48,7 +59,19 @@ class TCA9548AEmulator:
         return hits[0]
 
     def _on(self, addr: int, name: str, *args: Any) -> Any:
-        return getattr(self._route(addr), name)(addr, *args)
+        dev = self._route(addr)
+        self._count(dev)
+        return getattr(dev, name)(addr, *args)
+
+    def _count(self, dev: Any) -> None:
+        """A transaction to dev went through: a reset scheduled after it happens now (the next one NACKs)."""
+        for ch, left in list(self._reset_after.items()):
+            if self.channels.get(ch) is dev:
+                if left <= 1:
+                    del self._reset_after[ch]
+                    self.reset()
+                else:
+                    self._reset_after[ch] = left - 1
 
     # --- smbus2.SMBus API subset ---------------------------------------------------------
     def open(self, bus: int | str | None = None) -> None:
@@ -85,5 +108,7 @@ class TCA9548AEmulator:
         addrs = {m.addr for m in msgs}
         if len(addrs) != 1:
             raise _nack(min(addrs), ": one target per combined transaction here")
-        self._route(addrs.pop()).i2c_rdwr(*msgs)
+        dev = self._route(addrs.pop())
+        self._count(dev)
+        dev.i2c_rdwr(*msgs)
 

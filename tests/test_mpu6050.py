@@ -63,7 +63,7 @@ def test_open_identifies_wakes_and_configures(emu, dev):
     ident = dev.identify()
     assert ident.chip == "mpu6050" and ident.chip_id == 0x68
     assert ident.interface == f"serial:{emu.port}" and emu.port.startswith("/dev/")
-    assert ident.firmware.startswith("mpu6050-bridge 1.0")
+    assert ident.firmware.startswith("mpu6050-bridge 1.1")
     assert dev.read_register(0x75)[0] == 0x68
     assert dev.read_register(PWR_MGMT_1)[0] == 0x01  # SLEEP cleared, PLL clock
     assert emu.regs[PWR_MGMT_1] & 0x40 == 0

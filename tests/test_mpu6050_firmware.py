@@ -86,7 +86,7 @@ def dev(bridge):
 def test_identify_and_wake(bridge, dev):
     ident = dev.identify()
     assert ident.chip == "mpu6050" and ident.chip_id == 0x68
-    assert ident.firmware == f"mpu6050-bridge 1.0 (protocol {bp.PROTOCOL_VERSION})"
+    assert ident.firmware == f"mpu6050-bridge 1.1 (protocol {bp.PROTOCOL_VERSION})"
     assert dev.read_register(0x75)[0] == 0x68
     assert dev.read_register(PWR_MGMT_1)[0] == 0x01  # SLEEP cleared by the driver, PLL clock
     assert (dev.nvm.size, dev.nvm.page_size) == (1024, 32)
@@ -104,9 +104,11 @@ def test_stream_samples_sequence_and_timestamps(bridge, dev):
     cap = dev.capture(300, keep=True)
     assert (cap.n, cap.dropped) == (300, 0)
     assert dev.stats.lost_frames == 0 and dev.stats.parser.crc_errors == 0
-    # MCU timestamps: one sample every 5 ms (the firmware's micros() has 4 us steps)
+    # MCU timestamps: one sample every 5 ms on average, each stamped when the bridge saw the chip's
+    # DATA_RDY; a look at the chip is one 9-byte I2C burst at 400 kHz (~0.25 ms), the jitter's bound
     dt = np.diff(cap.timestamps)
-    assert np.allclose(dt, 1 / 200, atol=2e-5), (dt.min(), dt.max())
+    assert np.mean(dt) == pytest.approx(1 / 200, rel=1e-3)
+    assert np.all(np.abs(dt - 1 / 200) < 4e-4), (dt.min(), dt.max())
     # flat board, z up: +1 g at 16384 counts per g; 8 SEM tolerance
     assert abs(cap.mean_counts[2] - 16384) < 8 * 45 / np.sqrt(300) + 2
     assert cap.temp_c == pytest.approx(bridge.board.temperature_c, abs=1 / 340)
@@ -213,7 +215,10 @@ def test_a_command_ends_a_stream_with_stream_end_first(link):
     assert len(ends) == 1 and got[-1].payload == bp.ack(bp.CMD_STOP, seq)
     assert got.index(ends[0]) < len(got) - 1  # STREAM_END before the ACK
     samples = [bp.SAMPLE_INDEX.unpack_from(f.payload)[0] for f in got if f.type == bp.RSP_SAMPLE]
-    assert bp.STREAM_END.unpack(ends[0].payload)[0] == samples[-1] + 1  # count sent = last index + 1
+    # the count covers every chip sample up to the STOP: the last one sent, and any after it that
+    # the link had no room for (1 kHz after wake-up against ~480 frames/s: a gap, never a repeat)
+    assert bp.STREAM_END.unpack(ends[0].payload)[0] >= samples[-1] + 1
+    assert all(np.diff(samples) > 0)
     assert link.stats.lost_frames == 0
 
 
@@ -242,7 +247,7 @@ def test_no_chip_on_i2c(bridge, link):
 def test_reset_command_boots_with_its_cause(link):
     link.command(bp.CMD_RESET)
     boot = frames_until(link, bp.RSP_BOOT)[-1]
-    assert bp.BOOT.unpack(boot.payload) == (bp.PROTOCOL_VERSION, bp.BOOT_COMMAND, 1, 0)
+    assert bp.BOOT.unpack(boot.payload) == (bp.PROTOCOL_VERSION, bp.BOOT_COMMAND, 1, 1)
     assert len(link.command(bp.CMD_IDENTIFY)) == bp.IDENTIFY_DATA.size
 
 
@@ -269,7 +274,7 @@ def test_worn_eeprom_cell_is_nak_err_nvm(avr):
 
 def test_free_ram_at_deepest_stack(avr):
     with MPU6050Bridge(avr.port, **LINK["simavr"]) as dev:
-        dev.configure(odr_hz=500)
+        dev.configure(odr_hz=1000 / 3)  # the fastest rate the 115200-baud link carries
         dev.capture(20)
         dev.nvm.write(0, bytes(range(64)))
         dev.read_register(0x3B, 16)
@@ -329,7 +334,7 @@ def test_emulate_firmware_prints_a_port_that_probe_opens():
         r = subprocess.run([sys.executable, "-m", "accelcal_station", "probe", "--config", "configs/mpu6050.yaml",
                             "--port", port], capture_output=True, text=True, cwd=REPO, timeout=60)
         assert r.returncode == 0, r.stderr
-        assert "mpu6050 (chip id 0x68)" in r.stdout and "mpu6050-bridge 1.0" in r.stdout, r.stdout
+        assert "mpu6050 (chip id 0x68)" in r.stdout and "mpu6050-bridge 1.1" in r.stdout, r.stdout
     finally:
         p.terminate()
         p.wait(timeout=10)

@@ -163,6 +163,15 @@ class BusEmulatorSection(Section):
     present: StrictBool = _f(True, "the chip answers on the bus at all")
     bus_hz: float = _f(400_000.0, "I2C clock of the emulated bus, Hz", ge=10_000, le=3_400_000)
     corrupt_reads: CorruptReadsSection | None = _f(None, "a lying bus: reads corrupted at random (tests)")
+    self_test_scale: tuple[float, float, float] = _f(
+        (1.0, 1.0, 1.0), "self-test response per axis as a share of this chip's own (a weak axis: e.g. 0.05)")
+    self_test_dead: StrictBool = _f(False, "the self-test bit does nothing (a broken self-test circuit)")
+    trim_step_scale: float = _f(1.0, "OFF_X/Y/Z step as a share of the data sheet's 1/512 g (a chip whose "
+                                     "trim unit differs from the driver's assumption)", ge=0.5, le=2.0)
+    trim_sign: Literal[1, -1] = _f(1, "sign with which OFF_X/Y/Z act on the output (-1: a part that subtracts)")
+    mux_reset_after: int = _f(0, "panel behind an emulated TCA9548A: the mux resets (no channel selected, as "
+                                 "after a brown-out) after this many transactions to this board (0: never)",
+                              ge=0, le=10**9)
 
 
 class MuxSection(Section):

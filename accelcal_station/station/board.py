@@ -97,7 +97,7 @@ class Station:
                 bar.close()
             self.samples_read += gc.samples_read
             self.samples_used += gc.capture.n
-            for ev in gc.events:
+            for ev in gc.events + driver.take_events():
                 report.events.append(f"{pose.name}: {ev}")
                 self.echo(f"  {ev}")
             return gc, attempts - 1

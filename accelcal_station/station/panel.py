@@ -266,7 +266,7 @@ class PanelStation:
                 b.rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
                                     "sem_mg": sem_mg.tolist(), "retries": gc.recaptures,
                                     "reached_target": gc.reached_target})
-                b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events]
+                b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events + b.driver.take_events()]
 
     # -- the run ---------------------------------------------------------------------
     # the faults that end the flow as a recorded FAIL of every board still in it (anything else

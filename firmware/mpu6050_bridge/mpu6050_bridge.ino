@@ -40,6 +40,7 @@
 #define CMD_NVM_READ 0x07
 #define CMD_NVM_WRITE 0x08
 #define CMD_RESET 0x09
+#define CMD_SELF_TEST 0x0A
 
 #define RSP_BOOT 0x80
 #define RSP_ACK 0x81
@@ -62,6 +63,8 @@
 #define NVM_PAGE_SIZE 32
 #define REG_MAX_COUNT 16
 #define SAMPLE_BYTES 8        // ACCEL_XOUT_H (0x3B) .. TEMP_OUT_L (0x42), big-endian
+#define SELF_TEST_MAX_N 1024  // samples averaged per SELF_TEST phase
+#define SELF_TEST_SETTLE_MS 200
 // END PROTOCOL
 
 // Known-answer test: a SAMPLE frame (seq 0x0102, ts 12345678 us, index 7,
@@ -74,7 +77,7 @@ static const uint8_t TEST_FRAME[] = {
 
 // Board settings
 #define FW_VERSION_MAJOR 1
-#define FW_VERSION_MINOR 0
+#define FW_VERSION_MINOR 1
 #define MPU_ADDR 0x68               // AD0 low; 0x69 with AD0 high
 #define BRIDGE_SERIAL "MPUB0001"    // 8 characters, set per board before flashing
 #define I2C_CLOCK_HZ 400000UL
@@ -82,9 +85,13 @@ static const uint8_t TEST_FRAME[] = {
 #define RESET_MAGIC 0xB007
 
 // MPU6050 registers (RM-MPU-6000A-00 rev 4.2)
+#define REG_SELF_TEST_X 0x0D           // SELF_TEST_X, _Y, _Z, _A: factory trim codes (register map 4.1)
 #define REG_SMPLRT_DIV 0x19
 #define REG_CONFIG 0x1A
 #define REG_ACCEL_CONFIG 0x1C
+#define REG_INT_ENABLE 0x38
+#define REG_INT_STATUS 0x3A
+#define DATA_RDY 0x01               // INT_ENABLE DATA_RDY_EN / INT_STATUS DATA_RDY_INT (cleared on read)
 #define REG_ACCEL_XOUT_H 0x3B
 #define REG_PWR_MGMT_1 0x6B
 #define REG_WHO_AM_I 0x75
@@ -113,9 +120,10 @@ static uint8_t rx_need = 0;
 
 static bool streaming = false;
 static uint32_t stream_n = 0;
-static uint32_t stream_sent = 0;
+static uint32_t stream_sent = 0;     // the chip's samples since the stream began: the next SAMPLE index
 static uint32_t period_us = 1000;  // after reset: DLPF off -> 8 kHz / (1 + 0); we keep 1 kHz max
-static uint32_t next_due = 0;
+static uint32_t last_ready_us = 0;   // micros() when the previous new sample was seen
+static bool stream_first = true;
 
 uint16_t crc16(const uint8_t *data, uint16_t n) {
   uint16_t crc = CRC16_INIT;
@@ -222,11 +230,15 @@ static void do_stream(uint16_t seq, const uint8_t *p, uint8_t len) {
   uint8_t d[8];
   put_u32(d, n);
   put_u32(d + 4, period_us);
+  // samples on the chip's clock: DATA_RDY_INT tells a new sample (register map 4.15-4.17), so
+  // none is read twice; enable it and read INT_STATUS once to clear a stale flag
   send_ack(CMD_STREAM, seq, d, 8);
   streaming = true;
   stream_n = n;
   stream_sent = 0;
-  next_due = micros();
+  stream_first = true;
+  uint8_t en = DATA_RDY, st;
+  if (!i2c_write(REG_INT_ENABLE, &en, 1) || !i2c_read(REG_INT_STATUS, &st, 1)) end_stream();  // short: 0 sent
 }
 
 static void do_read_reg(uint16_t seq, const uint8_t *p, uint8_t len) {
@@ -273,6 +285,62 @@ static void do_nvm_write(uint16_t seq, const uint8_t *p, uint8_t len) {
   send_ack(CMD_NVM_WRITE, seq, p, 1);
 }
 
+// Wait for the chip's next new sample (DATA_RDY_INT) and read it: x, y, z counts.  False: I2C failed
+// or no sample within 100 ms.
+static bool next_sample(int16_t *xyz) {
+  uint8_t b[7];
+  uint32_t t0 = millis();
+  do {
+    if (!i2c_read(REG_INT_STATUS, b, 7)) return false;
+    if (b[0] & DATA_RDY) {
+      for (uint8_t i = 0; i < 3; i++) xyz[i] = (int16_t)(((uint16_t)b[1 + 2 * i] << 8) | b[2 + 2 * i]);
+      return true;
+    }
+  } while (millis() - t0 < 100);
+  return false;
+}
+
+// SELF_TEST phase (on/off), n samples at +-8 g (register map 4.1: the accelerometer self-test is
+// judged at +-8 g): ACCEL_CONFIG = XA_ST|YA_ST|ZA_ST (on) with AFS_SEL 2, settle, then the sum,
+// the sum of squared deviations from the first sample, and the first sample, per axis; and the
+// SELF_TEST_X/Y/Z/A registers.  ACCEL_CONFIG is restored afterwards, also on a failure.
+static void do_self_test(uint16_t seq, const uint8_t *p, uint8_t len) {
+  if (len != 3) return send_nak(CMD_SELF_TEST, seq, ERR_BAD_LENGTH);
+  uint8_t on = p[0];
+  uint16_t n = p[1] | ((uint16_t)p[2] << 8);
+  if (on > 1 || n < 2 || n > SELF_TEST_MAX_N) return send_nak(CMD_SELF_TEST, seq, ERR_BAD_ARG);
+  uint8_t saved, cfg = (uint8_t)((on ? 0xE0 : 0x00) | (2 << 3)), en = DATA_RDY;
+  if (!i2c_read(REG_ACCEL_CONFIG, &saved, 1)) return send_nak(CMD_SELF_TEST, seq, ERR_I2C);
+  bool ok = i2c_write(REG_ACCEL_CONFIG, &cfg, 1) && i2c_write(REG_INT_ENABLE, &en, 1);
+  for (uint16_t t = 0; ok && t < SELF_TEST_SETTLE_MS; t += 50) {
+    delay(50);
+    wdt_reset();
+  }
+  int32_t sum[3] = {0, 0, 0};
+  uint32_t sq[3] = {0, 0, 0};
+  int16_t first[3] = {0, 0, 0}, v[3];
+  for (uint16_t k = 0; ok && k < n; k++) {
+    wdt_reset();
+    if (!(ok = next_sample(v))) break;
+    if (k == 0) memcpy(first, v, sizeof(first));
+    for (uint8_t i = 0; i < 3; i++) {
+      int32_t d = (int32_t)v[i] - first[i];
+      sum[i] += v[i];
+      sq[i] += (uint32_t)d * (uint32_t)d;  // = d^2 mod 2^32, exact for |d| < 65536
+    }
+  }
+  uint8_t d[2 + 12 + 12 + 6 + 4];
+  ok = i2c_write(REG_ACCEL_CONFIG, &saved, 1) && ok && i2c_read(REG_SELF_TEST_X, d + 32, 4);
+  if (!ok) return send_nak(CMD_SELF_TEST, seq, ERR_I2C);
+  put_u16(d, n);
+  for (uint8_t i = 0; i < 3; i++) {
+    put_u32(d + 2 + 4 * i, (uint32_t)sum[i]);
+    put_u32(d + 14 + 4 * i, sq[i]);
+    put_u16(d + 26 + 2 * i, (uint16_t)first[i]);
+  }
+  send_ack(CMD_SELF_TEST, seq, d, sizeof(d));
+}
+
 static void do_reset(uint16_t seq) {
   send_ack(CMD_RESET, seq, 0, 0);
   Serial.flush();
@@ -298,6 +366,7 @@ static void handle_frame() {
     case CMD_NVM_READ: do_nvm_read(seq, p, len); break;
     case CMD_NVM_WRITE: do_nvm_write(seq, p, len); break;
     case CMD_RESET: do_reset(seq); break;
+    case CMD_SELF_TEST: do_self_test(seq, p, len); break;
     default: send_nak(type, seq, ERR_UNKNOWN_CMD); break;
   }
 }
@@ -336,19 +405,38 @@ static void rx_byte(uint8_t b) {
   }
 }
 
+// One look at the chip: INT_STATUS and the data registers in one burst (the chip holds its
+// registers still during a burst read, so status and data belong together).  The SAMPLE index
+// counts the chip's samples: a sample the bridge could not look at in time (a command being
+// handled) or could not send (the UART's buffer full: the link is slower than the sample rate)
+// is a gap in the index, never a repeated or an unnumbered sample.
 static void stream_step() {
-  uint32_t now = micros();
-  if ((int32_t)(now - next_due) < 0) return;
-  // late (host link slower than the sample rate): do not burst to catch up
-  next_due = ((int32_t)(now - next_due) > (int32_t)period_us) ? now + period_us : next_due + period_us;
-  uint8_t p[4 + SAMPLE_BYTES];
-  put_u32(p, stream_sent);
-  if (!i2c_read(REG_ACCEL_XOUT_H, p + 4, SAMPLE_BYTES)) {
+  uint8_t p[4 + SAMPLE_BYTES + 1];
+  if (!i2c_read(REG_INT_STATUS, p + 3, 1 + SAMPLE_BYTES)) {
     end_stream();  // short STREAM_END: the host sees sent < n and retries the rest
     return;
   }
-  send_frame(RSP_SAMPLE, p, sizeof(p), now);
-  if (++stream_sent >= stream_n) end_stream();
+  if (!(p[3] & DATA_RDY)) return;  // no new sample since the last look
+  uint32_t now = micros();
+  uint32_t index = 0;  // this sample's number among the chip's samples since the stream began
+  if (stream_first) {
+    stream_first = false;
+  } else {
+    uint32_t k = (now - last_ready_us + period_us / 2) / period_us;  // chip samples since the last seen
+    index = stream_sent - 1 + (k ? k : 1);
+  }
+  last_ready_us = now;
+  if (index >= stream_n) {
+    stream_sent = stream_n;
+    end_stream();
+    return;
+  }
+  put_u32(p, index);  // overwrites the INT_STATUS byte: the data follow at p + 4
+  if (Serial.availableForWrite() >= (int)(2 + HEADER_LEN + 4 + SAMPLE_BYTES + 2))
+    send_frame(RSP_SAMPLE, p, 4 + SAMPLE_BYTES, now);
+  // else: dropped here, without waiting for the UART (waiting would miss the chip's next samples)
+  stream_sent = index + 1;  // samples accounted for: sent, or skipped (a gap in the index)
+  if (stream_sent >= stream_n) end_stream();
 }
 
 void setup() {

@@ -2,21 +2,31 @@
  *   - UART0 on a pseudo-terminal (raw mode) that pyserial opens like /dev/ttyUSB0;
  *   - an MPU6050 register model at I2C address 0x68 on the TWI bus
  *     (RM-MPU-6000A-00 rev 4.2: WHO_AM_I, PWR_MGMT_1, SMPLRT_DIV, CONFIG, ACCEL_CONFIG,
- *     ACCEL_XOUT_H..TEMP_OUT_L at 0x3B, XA/YA/ZA_OFFS at 0x06);
+ *     INT_ENABLE, INT_STATUS, ACCEL_XOUT_H..TEMP_OUT_L at 0x3B, XA/YA/ZA_OFFS at 0x06) that
+ *     samples on its own clock: the chip's clock runs PPM parts per million fast (negative: slow)
+ *     against the MCU's, a new sample lands in the data registers every sample period of chip
+ *     time whether or not anyone reads them, and INT_STATUS.DATA_RDY_INT (with INT_ENABLE's
+ *     DATA_RDY_EN) is set by a new sample and cleared by reading INT_STATUS, as the real part;
  *   - the AVR's own 1 KiB EEPROM (simavr's model), the NVM the firmware pages;
  *   - stack painting: free RAM between the static data and the deepest stack.
  *
- * Usage: mpu6050_sim FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I]
+ * Usage: mpu6050_sim FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ]
+ *   -t: the accelerometer's factory self-test codes XA_TEST..ZA_TEST (5 bits each, in SELF_TEST_X/Y/Z/A);
+ *   -r: the chip's self-test response per axis as a share of its factory trim FT (1: exactly FT;
+ *       0: a self-test that does nothing).  FT = 4096 * 0.34 * (0.92 / 0.34)^((code - 1) / 30) LSB at
+ *       +-8 g (register map rev 4.2, 4.1), applied while ACCEL_CONFIG's XA/YA/ZA_ST bits are set.
  *
  * Side channel: stdin / stdout, one text line per message (the Python side owns both).
  *   stdout "PTY <path>"              once, when the port is ready
  *   stdout "CFG <accel_config> <config> <smplrt_div> <pwr_mgmt_1>"  after the firmware writes one
- *   stdout "NEED"                    the firmware reads the data registers and no sample is queued:
- *                                    the simulation waits (simulated time stands still) for a "D"
+ *   stdout "NEED <k>"                the data registers are read, k chip samples were made since the
+ *                                    last one fetched and no sample is queued: the simulation waits
+ *                                    (simulated time stands still) for a "D" (the newest of the k;
+ *                                    the side channel advances its board by k samples)
  *   stdout "STATS <key>=<value> ..." in answer to "S"
  *   stdin  "D <x> <y> <z> <temp>"    one sample: accelerometer counts at the configured range with
  *                                    the factory trim (int16) and TEMP_OUT (int16); queued, one per
- *                                    burst read of ACCEL_XOUT_H
+ *                                    new chip sample that is read
  *   stdin  "X"                       drop queued samples (the board was moved)
  *   stdin  "A 0" / "A 1"             the MPU6050 leaves / rejoins the bus (no ACK to its address)
  *   stdin  "E <addr> <value>"        EEPROM cell <addr> is worn: it always reads <value>
@@ -29,6 +39,7 @@
  */
 #define _GNU_SOURCE
 #include <errno.h>
+#include <math.h>
 #include <fcntl.h>
 #include <poll.h>
 #include <pty.h>
@@ -48,9 +59,14 @@
 
 #define MPU_ADDR 0x68
 #define REG_XA_OFFS_H 0x06
+#define REG_SELF_TEST_X 0x0D
+#define REG_SELF_TEST_A 0x10
 #define REG_SMPLRT_DIV 0x19
 #define REG_CONFIG 0x1A
 #define REG_ACCEL_CONFIG 0x1C
+#define REG_INT_ENABLE 0x38
+#define REG_INT_STATUS 0x3A
+#define DATA_RDY 0x01
 #define REG_ACCEL_XOUT_H 0x3B
 #define REG_TEMP_OUT_H 0x41
 #define REG_PWR_MGMT_1 0x6B
@@ -71,6 +87,8 @@ typedef struct { int16_t v[4]; } sample_t;  /* x, y, z counts, TEMP_OUT */
 static struct {
   uint8_t regs[0x80];
   int16_t factory[3];
+  int st_code[3];      /* factory self-test codes (5 bits) */
+  double st_share[3];  /* this chip's self-test response / FT */
   uint8_t who;
   int absent;  /* 1: nothing answers at 0x68 (unplugged breakout) */
   avr_irq_t *irq;
@@ -78,6 +96,13 @@ static struct {
   sample_t queue[QUEUE_LEN];
   unsigned head, tail;
   unsigned long samples_used, waits, i2c_bytes;
+  /* the chip's own clock: sample k lands at chip time epoch_us + (k - epoch_k) * period */
+  double ppm, epoch_us;
+  unsigned long long epoch_k, latched_k, status_k;
+  int burst;                 /* 1: the next byte read is the first of this transaction */
+  int burst_data;            /* 1: this transaction has read the data registers */
+  unsigned long long burst_k;  /* the chip's newest sample when this transaction's reads began */
+  unsigned long data_reads;  /* burst reads that included the data registers */
 } mpu;
 
 static void put_be16(uint8_t *p, int v) { p[0] = (uint8_t)((v >> 8) & 0xFF); p[1] = (uint8_t)(v & 0xFF); }
@@ -88,19 +113,73 @@ static void mpu_power_on_reset(void) {
   mpu.regs[REG_WHO_AM_I] = mpu.who;
   mpu.regs[REG_PWR_MGMT_1] = PWR_SLEEP;
   for (int i = 0; i < 3; i++) put_be16(mpu.regs + REG_XA_OFFS_H + 2 * i, mpu.factory[i]);
+  /* SELF_TEST_X/Y/Z bits 7:5 = A_TEST[4:2]; SELF_TEST_A bits 5:4, 3:2, 1:0 = X/Y/Z A_TEST[1:0] */
+  mpu.regs[REG_SELF_TEST_A] = 0;
+  for (int i = 0; i < 3; i++) {
+    mpu.regs[REG_SELF_TEST_X + i] = (uint8_t)(((mpu.st_code[i] >> 2) & 7) << 5);
+    mpu.regs[REG_SELF_TEST_A] |= (uint8_t)((mpu.st_code[i] & 3) << (4 - 2 * i));
+  }
+}
+
+/* The self-test force on an axis, in g: FT / 4096 LSB per g at +-8 g, times this chip's share. */
+static double self_test_g(int axis) {
+  int c = mpu.st_code[axis];
+  double ft = c ? 4096.0 * 0.34 * pow(0.92 / 0.34, (c - 1) / 30.0) : 0.0;
+  return ft / 4096.0 * mpu.st_share[axis];
 }
 
 static void side_input(int block);
 static long reset_after = -1;  /* samples until an external reset; -1: none */
 static int reset_now;
 
+/* The chip's time in us: the MCU's cycles at 16 MHz, the chip's oscillator PPM off. */
+static double chip_us(void) { return (double)avr->cycle / 16.0 * (1.0 + mpu.ppm * 1e-6); }
+
+/* Sample period in chip us: gyro rate (8 kHz with DLPF_CFG 0, else 1 kHz) / (1 + SMPLRT_DIV);
+ * the accelerometer itself samples at 1 kHz, so never shorter than 1000 us. */
+static double period_us(void) {
+  double p = ((mpu.regs[REG_CONFIG] & 7) == 0 ? 125.0 : 1000.0) * (1 + mpu.regs[REG_SMPLRT_DIV]);
+  return p < 1000.0 ? 1000.0 : p;
+}
+
+/* Index of the newest sample the chip has made (asleep: none since it fell asleep). */
+static unsigned long long chip_k(void) {
+  if (mpu.regs[REG_PWR_MGMT_1] & PWR_SLEEP) return mpu.epoch_k;
+  double dt = chip_us() - mpu.epoch_us;
+  return mpu.epoch_k + (dt > 0 ? (unsigned long long)(dt / period_us()) : 0);
+}
+
+/* A rate or power change: samples from now on are counted at the new period. */
+static void chip_new_epoch(void) {
+  mpu.epoch_k = chip_k();
+  mpu.epoch_us = chip_us();
+}
+
+static void mpu_new_sample(unsigned long long made);
+
+/* A read of the data registers: they hold the chip's newest sample, fetched when there is one. */
+static void mpu_data_read(unsigned long long k) {
+  mpu.data_reads++;
+  if (k > mpu.latched_k) {
+    mpu_new_sample(k - mpu.latched_k);  /* samples_used counts the distinct samples ever read */
+    mpu.latched_k = k;
+  }
+}
+
+/* INT_STATUS on read: DATA_RDY_INT set by every new sample since the last read, cleared by this read. */
+static uint8_t mpu_int_status(unsigned long long k) {
+  uint8_t v = (mpu.regs[REG_INT_ENABLE] & DATA_RDY) && k > mpu.status_k ? DATA_RDY : 0;
+  mpu.status_k = k;
+  return v;
+}
+
 /* One sample into the data registers: counts plus the offset registers' change from the
  * factory trim (2048 LSB per g, bit 0 reserved), scaled to the configured range. */
-static void mpu_new_sample(void) {
+static void mpu_new_sample(unsigned long long made) {
   if (mpu.regs[REG_PWR_MGMT_1] & PWR_SLEEP) return;  /* asleep: data registers hold */
   while (mpu.head == mpu.tail) {
     mpu.waits++;
-    printf("NEED\n");
+    printf("NEED %llu\n", made);
     fflush(stdout);
     side_input(1);
   }
@@ -111,6 +190,7 @@ static void mpu_new_sample(void) {
   for (int i = 0; i < 3; i++) {
     int d = (get_be16(mpu.regs + REG_XA_OFFS_H + 2 * i) & ~1) - (mpu.factory[i] & ~1);
     long v = s.v[i] + (long)d * (16384 >> afs) / OFFSET_LSB_PER_G;
+    if (mpu.regs[REG_ACCEL_CONFIG] & (0x80 >> i)) v += lround(self_test_g(i) * (16384 >> afs));
     v = v < -32768 ? -32768 : v > 32767 ? 32767 : v;
     put_be16(mpu.regs + REG_ACCEL_XOUT_H + 2 * i, (int)v);
   }
@@ -119,14 +199,16 @@ static void mpu_new_sample(void) {
 
 static void mpu_write(uint8_t reg, uint8_t v) {
   reg &= 0x7F;
+  if (reg == REG_SMPLRT_DIV || reg == REG_CONFIG || reg == REG_PWR_MGMT_1) chip_new_epoch();
   if (reg == REG_PWR_MGMT_1 && (v & PWR_DEVICE_RESET)) {
     uint8_t keep[14];
     memcpy(keep, mpu.regs + REG_ACCEL_XOUT_H, 14);
     mpu_power_on_reset();
     memcpy(mpu.regs + REG_ACCEL_XOUT_H, keep, 14);
-  } else if (reg != REG_WHO_AM_I && !(reg >= REG_ACCEL_XOUT_H && reg < REG_ACCEL_XOUT_H + 14)) {
+  } else if (reg != REG_WHO_AM_I && reg != REG_INT_STATUS && !(reg >= REG_ACCEL_XOUT_H && reg < REG_ACCEL_XOUT_H + 14)) {
     mpu.regs[reg] = v;
   }
+  if (reg == REG_PWR_MGMT_1) { mpu.epoch_us = chip_us(); mpu.latched_k = mpu.status_k = mpu.epoch_k; }
   if (reg == REG_SMPLRT_DIV || reg == REG_CONFIG || reg == REG_ACCEL_CONFIG || reg == REG_PWR_MGMT_1) {
     printf("CFG %u %u %u %u\n", mpu.regs[REG_ACCEL_CONFIG], mpu.regs[REG_CONFIG], mpu.regs[REG_SMPLRT_DIV],
            mpu.regs[REG_PWR_MGMT_1]);
@@ -146,6 +228,8 @@ static void mpu_twi_hook(avr_irq_t *irq, uint32_t value, void *param) {
   if (v.u.twi.msg & TWI_COND_START) {
     mpu.selected = 0;
     mpu.index = 0;
+    mpu.burst = 1;
+    mpu.burst_data = 0;
     if ((v.u.twi.addr >> 1) == MPU_ADDR && !mpu.absent) {
       mpu.selected = v.u.twi.addr;
       avr_raise_irq(mpu.irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_ACK, mpu.selected, 1));
@@ -163,8 +247,16 @@ static void mpu_twi_hook(avr_irq_t *irq, uint32_t value, void *param) {
     mpu.i2c_bytes++;
   }
   if (v.u.twi.msg & TWI_COND_READ) {
-    if (mpu.reg == REG_ACCEL_XOUT_H) mpu_new_sample();  /* a burst from 0x3B: the next sample */
-    avr_raise_irq(mpu.irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_READ, mpu.selected, mpu.regs[mpu.reg]));
+    /* the chip holds its registers still during a burst: status and data are of the sample
+     * that was newest when the burst began */
+    if (mpu.burst) mpu.burst_k = chip_k();
+    mpu.burst = 0;
+    if (!mpu.burst_data && mpu.reg >= REG_ACCEL_XOUT_H && mpu.reg <= REG_TEMP_OUT_H + 1) {
+      mpu.burst_data = 1;
+      mpu_data_read(mpu.burst_k);
+    }
+    uint8_t out = mpu.reg == REG_INT_STATUS ? mpu_int_status(mpu.burst_k) : mpu.regs[mpu.reg];
+    avr_raise_irq(mpu.irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_READ, mpu.selected, out));
     mpu.reg = (mpu.reg + 1) & 0x7F;
     mpu.i2c_bytes++;
   }
@@ -288,10 +380,11 @@ static void side_line(const char *s) {
     case 'S': {
       unsigned long f = free_now();
       printf("STATS cycles=%llu sim_us=%llu free_ram_now=%lu free_ram_min=%lu static_ram=%u ramend=%u "
-             "min_sp_free=%u uart_tx=%lu uart_rx=%lu uart_lost=%lu samples=%lu waits=%lu i2c_bytes=%lu\n",
+             "min_sp_free=%u uart_tx=%lu uart_rx=%lu uart_lost=%lu samples=%lu waits=%lu i2c_bytes=%lu "
+             "chip_samples=%llu data_reads=%lu\n",
              (unsigned long long)avr->cycle, (unsigned long long)(avr->cycle / (avr->frequency / 1000000)),
              f, f < min_free ? f : min_free, paint_lo - 0x100, avr->ramend, min_sp + 1 - paint_lo, uart_tx_bytes, uart_rx_bytes,
-             uart_tx_lost, mpu.samples_used, mpu.waits, mpu.i2c_bytes);
+             uart_tx_lost, mpu.samples_used, mpu.waits, mpu.i2c_bytes, chip_k(), mpu.data_reads);
       fflush(stdout);
       break;
     }
@@ -340,16 +433,26 @@ static void worn_cell(void) {
 int main(int argc, char **argv) {
   elf_firmware_t fw;
   int opt, ox = 1001, oy = -2000, oz = 3, who = 0x68;
-  while ((opt = getopt(argc, argv, "o:w:")) != -1) {
+  double ppm = 0.0;
+  mpu.st_code[0] = 14, mpu.st_code[1] = 15, mpu.st_code[2] = 13;
+  mpu.st_share[0] = mpu.st_share[1] = mpu.st_share[2] = 1.0;
+  while ((opt = getopt(argc, argv, "o:w:p:t:r:")) != -1) {
+    if (opt == 't' && sscanf(optarg, "%d,%d,%d", &mpu.st_code[0], &mpu.st_code[1], &mpu.st_code[2]) == 3) {
+      for (int i = 0; i < 3; i++) mpu.st_code[i] &= 31;
+      continue;
+    }
+    if (opt == 'r' && sscanf(optarg, "%lf,%lf,%lf", &mpu.st_share[0], &mpu.st_share[1], &mpu.st_share[2]) == 3) continue;
     if (opt == 'o' && sscanf(optarg, "%d,%d,%d", &ox, &oy, &oz) == 3) continue;
     if (opt == 'w' && sscanf(optarg, "%i", &who) == 1) continue;
-    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I]\n", argv[0]);
+    if (opt == 'p' && sscanf(optarg, "%lf", &ppm) == 1 && ppm > -1e5 && ppm < 1e5) continue;
+    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ]\n", argv[0]);
     return 2;
   }
   if (optind >= argc) {
-    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I]\n", argv[0]);
+    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ]\n", argv[0]);
     return 2;
   }
+  mpu.ppm = ppm;
   memset(&fw, 0, sizeof(fw));
   if (elf_read_firmware(argv[optind], &fw) != 0) {
     fprintf(stderr, "%s: cannot read ELF\n", argv[optind]);
