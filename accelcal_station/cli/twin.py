@@ -128,21 +128,27 @@ def _effect_line(t: dict[str, Any]) -> str:
 @click.option("--limit", "limits", multiple=True, help="NAME=VALUE: an acceptance limit changed (repeatable).")
 @click.option("--boards", type=click.IntRange(100, 10**6), default=20_000, show_default=True,
               help="Boards to simulate.")
+@click.option("--seed", type=click.IntRange(0, None), default=None,
+              help="Seed of the simulated lot (default: drawn at random; recorded in the output).")
 @click.option("--json", "as_json", is_flag=True, help="Print the prediction as JSON.")
 def whatif_cmd(source: str | None, db: str | None, since: str | None, station: str | None, config: str,
-               limits: tuple[str, ...], boards: int, as_json: bool) -> None:
-    """Predicted yield of a lot like SOURCE under changed acceptance limits, with an interval."""
+               limits: tuple[str, ...], boards: int, seed: int | None, as_json: bool) -> None:
+    """Predicted yield of a lot like SOURCE under changed acceptance limits, with an interval that
+    carries the twin's own doubt; compared with SOURCE's own yield under those limits."""
     from ..twin.simlot import load_device
     from ..twin.whatif import parse_limits, whatif
 
     base: Limits = load_device(config)[3]
     lim = parse_limits(limits, base)
     stats, _ = _stats(source, db, since, station, lim)
-    r = whatif(config, stats, lim, boards)
-    y = r["first_pass_yield"]
-    r["real_yield"] = stats.verdicts.get("PASS", 0) / max(stats.boards, 1)
-    lines = [f"first-pass yield {y['value']:.4f} (interval {y['interval'][0]:.4f}-{y['interval'][1]:.4f}); "
-             f"now {r['yield_now']:.4f}; after one retest {r['yield_after_one_retest']['value']:.4f}",
+    r = whatif(config, stats, lim, boards, seed, real_yield=stats.verdicts.get("PASS", 0) / max(stats.boards, 1))
+    y, f = r["first_pass_yield"], r["failures"]
+    lines = [f"first-pass yield {y['value']:.4f} (interval {y['interval'][0]:.4f}-{y['interval'][1]:.4f}, "
+             f"parameter sd {y['parameter_sd']:.4f}); now {r['yield_now']:.4f}; after one retest "
+             f"{r['yield_after_one_retest']['value']:.4f}; seed {r['seed']}",
+             f"failures: noise-like {f['noise_like']:.4f} (a retest recovers them), systematic {f['systematic']:.4f}",
              f"the real lot under these limits: {r['real_yield']:.4f}"]
     lines += [f"  {g['reason']}: {g['before']:.4f} -> {g['after']:.4f}" for g in r["reasons_grow"]]
+    for w in r["warnings"]:
+        click.echo(f"warning: {w}", err=True)
     _emit(as_json, r, lines)

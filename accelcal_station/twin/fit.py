@@ -2,8 +2,10 @@
 
 Steps: one streaming pass (stream.collect); changes of each effect quantity's mean along the
 lot (changes.find_changes) on the block sums; the reservoir's quantities with the changes
-taken out (each board back to the lot's start); a Student-t mixture by EM with the number of
-components chosen by BIC (mixture.fit_mixture); the default simulator config with its
+taken out (each board back to the lot's start); per-quantity Student-t marginals where a
+quantity's tail is heavy (tails.fit_tails); a mixture by EM on the quantities at Gaussian
+scale, the number of components chosen by BIC (mixture.fit_mixture: Student-t components when
+no quantity has a t marginal of its own, Gaussian ones when some do); the default simulator config with its
 ``population:`` replaced (package rotation folded into the coupling); the noise per axis
 fitted to the lot's residual and leave-one-out distributions (noise.fit_noise: the stated
 per-sample std is the start); the finished twin's residuals checked against the lot's
@@ -23,7 +25,7 @@ from ..config.checks import load_yaml
 from ..config.sections import default_config_path
 from ..data.lotfile import lot_scale, open_lot
 from ..errors import DataError
-from ..sim.population import Change, Component, Population, parse_quantity
+from ..sim.population import Change, Component, Population, Tail, parse_quantity
 from ..sim.sensor_model import PHYSICS, SensorModel
 from .changes import Found, find_changes
 from .mixture import NU_MAX, Mixture, fit_mixture
@@ -32,6 +34,7 @@ from .physics import CRITERION, board_rows, choose_physics, population_shape
 from .reproduce import residual_check
 from .simlot import fixed_board_stats, twin_model
 from .stream import LotStats, collect, richest_model
+from .tails import fit_tails, slope_at_centre, to_gauss
 
 MIXTURE_ROWS = 8000  # rows EM fits (mixture.fit_mixture's max_rows)
 DIFFERS_SD = 3.0  # a component carries an effect when a quantity's mean is this many sd from the main one's
@@ -50,6 +53,7 @@ class Twin:
     noise: dict[str, Any] = field(default_factory=dict)
     residual_tests: list[dict[str, Any]] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    tails: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         names = self.population.names
@@ -68,6 +72,9 @@ class Twin:
                 "criterion": {"name": "BIC", "candidates": self.criterion},
                 "physics": {"chosen": self.physics, "criterion": CRITERION, "candidates": self.physics_candidates},
                 "components": comps, "noise": self.noise,
+                "tails": {"quantities": self.population.to_config().get("tails", {}), "candidates": self.tails,
+                          "note": "a quantity with a tail: components hold it at Gaussian scale "
+                                  "(sim/population.py)"},
                 "residual_check": [{k: t[k] for k in ("quantity", "p_value", "detected", "real", "sim", "effect")}
                                    for t in self.residual_tests],
                 "warnings": self.warnings,
@@ -104,7 +111,7 @@ def _unshift(rows: np.ndarray, names: list[str], changes: list[Found]) -> np.nda
     return q
 
 
-def _population(names: list[str], mix: Mixture, changes: list[Found]) -> Population:
+def _population(names: list[str], mix: Mixture, changes: list[Found], tails: dict[str, Tail]) -> Population:
     comps = []
     for k in range(mix.K):
         sd = np.sqrt(np.clip(np.diag(mix.covs[k]), 0.0, None))
@@ -122,7 +129,7 @@ def _population(names: list[str], mix: Mixture, changes: list[Found]) -> Populat
     comps = [Component(c.weight / total, c.mean, c.sd, c.correlation, c.dof) for c in comps]
     qs = [parse_quantity(n, "population") for n in names]
     ch = [Change(qs[names.index(f.quantity)], f.kind, f.at_board, f.size) for f in changes]
-    return Population(qs, comps, ch)
+    return Population(qs, comps, ch, dict(tails))
 
 
 def stated_noise(stats: LotStats, base: dict[str, Any] | None = None) -> np.ndarray | None:
@@ -171,13 +178,16 @@ def fit_twin(stats: LotStats, per_g: float | None, max_components: int = 4, seed
         if len(X) > MIXTURE_ROWS:  # fit_mixture's own subsample, taken before the (costlier) inversion
             X = X[np.random.default_rng(seed).choice(len(X), MIXTURE_ROWS, replace=False)]
         X = board_rows(twin_config(population_shape(names), stats, per_g, base, physics), physics, stats, X)
-    mix, table = fit_mixture(X, max_components=max_components, seed=seed, max_rows=MIXTURE_ROWS)
-    pop0 = _population(names, mix, changes)
+    tails, tail_report = fit_tails(X, names, seed)
+    mix, table = fit_mixture(to_gauss(X, names, tails), max_components=max_components, seed=seed,
+                             heavy=not tails, max_rows=MIXTURE_ROWS)
+    pop0 = _population(names, mix, changes, tails)
     sd, noise = _lot_noise(pop0, stats, per_g, base, physics, seed)
     cfg0 = twin_config(pop0, stats, per_g, base, physics, sd)
-    noise_cov = _fit_noise_cov(cfg0, mix, stats, seed, physics)
+    J = slope_at_centre(names, tails)  # the fit's noise at Gaussian scale, to first order
+    noise_cov = _fit_noise_cov(cfg0, mix, stats, seed, physics) * np.outer(J, J)
     mix.covs = np.array([_nearest_psd(S - noise_cov) for S in mix.covs])
-    pop = _population(names, mix, changes)
+    pop = _population(names, mix, changes, tails)
     cfg = twin_config(pop, stats, per_g, base, physics, sd)
     tests, warnings = ([], []) if stats.refs is None else \
         residual_check(cfg, stats, seed + 1, Limits.from_config(cfg.get("acceptance")))
@@ -185,7 +195,7 @@ def fit_twin(stats: LotStats, per_g: float | None, max_components: int = 4, seed
         warnings.append(f"mixture: BIC chose {mix.K} components, its cap (--components {max_components}): more "
                         "might fit better, or the components stand in for a shape the mixture cannot express "
                         "(e.g. a heavy tail); BIC per candidate in criterion")
-    return Twin(stats, pop, mix, table, changes, cfg, physics, candidates, noise, tests, warnings)
+    return Twin(stats, pop, mix, table, changes, cfg, physics, candidates, noise, tests, warnings, tail_report)
 
 
 def _lot_noise(pop: Population, stats: LotStats, per_g: float | None, base: dict[str, Any] | None, physics: str,
