@@ -95,15 +95,27 @@ def test_check_before_flags_the_cubic_after_flags_nothing(line: dict[str, Path])
     d = json.loads(r.stdout)
     before = {t["quantity"]: t for t in d["before"]["tests"]}
     # the default config has no cubic boards and implicit physics: the cubic, the residuals the
-    # forward cubic leaves, and the verdicts it moves are all flagged
+    # forward cubic leaves, and the verdicts it moves are all detected
     for q in ("Gamma2", "residual_rms_mg", "crossval_rms_mg", "verdict mix"):
-        assert before[q]["p_value"] < 1e-3 and q in d["before"]["gaps"], (q, before[q]["p_value"])
+        assert before[q]["p_value"] < 1e-3 and q in d["before"]["detected"], (q, before[q]["p_value"])
+    # ... and the cubic matters: no acceptance limit judges it here (sim.yaml has no cubic_max), so
+    # its margin is a tenth of the lot's spread, and the missing 10 % subpopulation is far beyond
+    g = before["Gamma2"]["effect"]
+    assert "Gamma2" in d["before"]["gaps"] and g["wasserstein"] > 0.1 * before["Gamma2"]["real"]["sd"]
+    # the residuals the forward cubic leaves (~0.4 mg) are far inside the 1 mg / 2 mg limits: detected,
+    # and immaterial at these limits (no board crosses them either way)
+    for q in ("residual_rms_mg", "crossval_rms_mg"):
+        e = before[q]["effect"]
+        assert e["yield_change"] == 0.0 and not before[q]["gap"], (q, e)
     assert d["before"]["verdict"] == "gap"
     # a correct twin is flagged with probability <= false_alarm_rate (Bonferroni over the tests)
-    assert d["false_alarm_rate"] == 0.01
-    assert d["verdict"] == "no gap", d["gaps"]
+    assert d["false_alarm_rate"] == 0.01 and isinstance(d["seed"], int)
+    assert d["verdict"] in ("no gap", "detectable but immaterial") and not d["gaps"], d["gaps"]
     after = {t["quantity"]: t for t in d["tests"]}
     assert {"residual_rms_mg", "crossval_rms_mg", "verdict mix", "Gamma2"} <= after.keys()
+    # every check reports an effect in the quantity's own units beside its p-value
+    assert all("material" in t["effect"] for t in d["tests"])
+    assert all("wasserstein" in after[q]["effect"] for q in ("residual_rms_mg", "Gamma2", "W01"))
 
 
 # cubic_max 0.013: the middle of the lot's *fitted* cubic range (forward cubics 0.010-0.020 fit as
