@@ -102,11 +102,11 @@ def test_check_before_flags_the_cubic_after_flags_nothing(line: dict[str, Path])
     # its margin is a tenth of the lot's spread, and the missing 10 % subpopulation is far beyond
     g = before["Gamma2"]["effect"]
     assert "Gamma2" in d["before"]["gaps"] and g["wasserstein"] > 0.1 * before["Gamma2"]["real"]["sd"]
-    # the residuals the forward cubic leaves (~0.4 mg) are far inside the 1 mg / 2 mg limits: detected,
-    # and immaterial at these limits (no board crosses them either way)
+    # the residuals the forward cubic leaves (~0.4 mg) are inside the 1 mg / 2 mg limits: detected,
+    # and immaterial at these limits (a board in 10,000 crosses them, against the 0.005 margin)
     for q in ("residual_rms_mg", "crossval_rms_mg"):
         e = before[q]["effect"]
-        assert e["yield_change"] == 0.0 and not before[q]["gap"], (q, e)
+        assert abs(e["yield_change"]) < 0.001 and not before[q]["gap"], (q, e)
     assert d["before"]["verdict"] == "gap"
     # a correct twin is flagged with probability <= false_alarm_rate (Bonferroni over the tests)
     assert d["false_alarm_rate"] == 0.01 and isinstance(d["seed"], int)
@@ -303,7 +303,7 @@ def test_null_twins_checked_against_fresh_lots_find_no_material_gap(tmp_path: Pa
     check: detection <= 1 % (Bonferroni), a gap that matters below that; for 20 independent checks
     at 1 %, P(>= 2 gaps) = 1.7 % and P(>= 4 detections) = 4e-5 (the false-failure rate of this
     test for a twin that is right; seeds fixed, so a run is deterministic).  benchmarks/twin_null.py
-    is the 50-twin, 10,000-board version."""
+    is the 50-twin, 10,000-board version.  Cost: ~4 s of CPU per twin (~80 s in all on an idle core)."""
     import sys
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
