@@ -132,7 +132,7 @@ def _population(names: list[str], mix: Mixture, changes: list[Found], tails: dic
     return Population(qs, comps, ch, dict(tails))
 
 
-def stated_noise(stats: LotStats, base: dict[str, Any] | None = None) -> np.ndarray | None:
+def stated_noise(stats: LotStats) -> np.ndarray | None:
     """Per-axis per-sample sd in counts the lot states (median of its first chunk's std columns)."""
     if not stats.noise_axes:
         return None
