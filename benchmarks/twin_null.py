@@ -14,6 +14,7 @@ asks for "no material gap" in at least 49 of 50.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 import time
@@ -25,8 +26,10 @@ import yaml
 HERE = Path(__file__).resolve().parent
 
 
-def run_null(twins: int, boards: int, d: Path, seed0: int = 100) -> list[dict]:
-    """One row per twin: its check's verdict, gaps and detected tests."""
+def run_null(twins: int, boards: int, d: Path, seed0: int = 100, first: int = 0, log: Path | None = None
+             ) -> list[dict]:
+    """One row per twin (twins ``first`` .. ``first + twins - 1``): its check's verdict, gaps and
+    detected tests; each row also appended to ``log`` (JSON lines) as it is done."""
     sys.path.insert(0, str(HERE.parent / "tests"))
     from twin_lots import write_own_lot
 
@@ -37,16 +40,19 @@ def run_null(twins: int, boards: int, d: Path, seed0: int = 100) -> list[dict]:
     rows = []
     cfg = d / "twin.yaml"
     limits = None
-    nxt = lot_stats(write_own_lot(d / "lot.csv", boards, seed0), limits)
-    for i in range(twins):
+    nxt = lot_stats(write_own_lot(d / "lot.csv", boards, seed0 + first), limits)
+    for i in range(first, first + twins):
         stats, per_g = nxt
         tw = fit_twin(stats, per_g, seed=i)
         cfg.write_text(yaml.safe_dump(tw.config, sort_keys=False))
         limits = load_device(str(cfg))[3]
         nxt = lot_stats(write_own_lot(d / "lot.csv", boards, seed0 + i + 1), limits)
         r = check_config(nxt[0], str(cfg), seed=10_000 + i, limits=limits)
-        rows.append({"verdict": r["verdict"], "gaps": r["gaps"], "detected": r["detected"],
+        rows.append({"twin": i, "verdict": r["verdict"], "gaps": r["gaps"], "detected": r["detected"],
                      "noise_scale": tw.noise.get("scale"), "fit_warnings": len(tw.warnings)})
+        if log is not None:
+            with log.open("a") as f:
+                f.write(json.dumps(rows[-1]) + "\n")
     return rows
 
 
@@ -54,12 +60,19 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--twins", type=int, default=50)
     ap.add_argument("--boards", type=int, default=10_000)
+    ap.add_argument("--first", type=int, default=0, help="index of the first twin (to split a run)")
+    ap.add_argument("--log", default=None, help="append each twin's row to this JSON-lines file as it is done")
+    ap.add_argument("--from-log", default=None, help="print the table of a JSON-lines file of rows (no run)")
     ap.add_argument("--small", action="store_true", help="3 twins of 500 boards")
     a = ap.parse_args(argv)
     twins, boards = (3, 500) if a.small else (a.twins, a.boards)
     t = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
-        rows = run_null(twins, boards, Path(tmp))
+    if a.from_log:
+        rows = [json.loads(line) for line in Path(a.from_log).read_text().splitlines() if line.strip()]
+        twins = len(rows)
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            rows = run_null(twins, boards, Path(tmp), first=a.first, log=Path(a.log) if a.log else None)
     verdicts = Counter(r["verdict"] for r in rows)
     gap = verdicts.get("gap", 0)
     print(f"twin check null calibration: {twins} twins of {boards} boards, each checked against a fresh lot of "
