@@ -75,8 +75,9 @@ def main(argv: list[str] | None = None) -> int:
             rows = run_null(twins, boards, Path(tmp), first=a.first, log=Path(a.log) if a.log else None)
     verdicts = Counter(r["verdict"] for r in rows)
     gap = verdicts.get("gap", 0)
+    took = f"rows read from {a.from_log}" if a.from_log else f"{time.perf_counter() - t:.0f} s"
     print(f"twin check null calibration: {twins} twins of {boards} boards, each checked against a fresh lot of "
-          f"its own population (stated std 2.9 for a true 2.8672 counts); {time.perf_counter() - t:.0f} s")
+          f"its own population (stated std 2.9 for a true 2.8672 counts); {took}")
     print("| verdict | twins |\n|---|---|")
     for v in ("no gap", "detectable but immaterial", "gap"):
         print(f"| {v} | {verdicts.get(v, 0)} |")

@@ -300,11 +300,12 @@ NULL_TWINS, NULL_BOARDS = 20, 2000
 
 def test_null_twins_checked_against_fresh_lots_find_no_material_gap(tmp_path: Path) -> None:
     """20 twins, each fitted on a structureless lot and checked against the next (fresh) lot of the
-    same population: at most 1 says a gap matters, at most 3 detect anything.  Nominal rates per
-    check: detection <= 1 % (Bonferroni), a gap that matters below that; for 20 independent checks
-    at 1 %, P(>= 2 gaps) = 1.7 % and P(>= 4 detections) = 4e-5 (the false-failure rate of this
-    test for a twin that is right; seeds fixed, so a run is deterministic).  benchmarks/twin_null.py
-    is the 50-twin, 10,000-board version.  Cost: ~4 s of CPU per twin (~80 s in all on an idle core)."""
+    same population: at most 1 says a gap matters.  A twin is an estimate of its population, not the
+    population, so detection is above its nominal 1 %: 7 of 50 twins in benchmarks/twin_null.py
+    (50 twins of 10,000 boards; none mattered).  False-failure rate of this test for a twin as good
+    as the benchmark's: P(>= 2 gaps of 20) = 1.7 % at a 1 % gap rate; P(>= 9 detections of 20) =
+    0.1 % at a 14 % detection rate.  Seeds fixed, so a run is deterministic.  Cost: ~4 s of CPU per
+    twin (~80 s in all on an idle core)."""
     import sys
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
@@ -312,7 +313,7 @@ def test_null_twins_checked_against_fresh_lots_find_no_material_gap(tmp_path: Pa
 
     rows = run_null(NULL_TWINS, NULL_BOARDS, tmp_path, seed0=700)
     assert sum(r["verdict"] == "gap" for r in rows) <= 1, rows
-    assert sum(bool(r["detected"]) for r in rows) <= 3, rows
+    assert sum(bool(r["detected"]) for r in rows) <= 8, rows
     # the noise came from the residuals, not the stated 2.9: the true 2.8672 is 0.9887 of it; the median
     # of 20 fitted scales has a sd ~0.1 % (each ~0.4 % at 2,000 boards): 0.5 % is 5 sd
     scales = sorted(r["noise_scale"] for r in rows)
