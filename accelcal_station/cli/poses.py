@@ -59,7 +59,8 @@ def command(name: str, model: str | None, noise_mg: float, as_json: bool) -> Non
         }))
         return
     click.echo(f"design {name}: {description}")
-    click.echo("pose        pitch_deg  roll_deg     x_g      y_g      z_g   (expected output, AN4399 Eqn 22)  placement")
+    click.echo("pose        pitch_deg  roll_deg     x_g      y_g      z_g   (expected output, AN4399 Eqn 22)  "
+               "placement (that direction up)")
     for p, r in zip(poses, [_clean(row) for row in np.round(ref, 4)], strict=True):
         click.echo(f"{p.name:<10} {p.pitch_deg:10.2f} {p.roll_deg:9.2f}  {r[0]:+.4f}  {r[1]:+.4f}  {r[2]:+.4f}  "
                    f"{pose_words(p).split(' (')[0]}")
