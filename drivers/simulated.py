@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike
 from ..calibration import Calibration
 from ..config.checks import load_yaml
 from ..config.parts import SimEepromSection, SimulatedBoardSection, SimulatorFileSection, parse
-from ..conventions import WORLD_UP, attitude_for_up, pose_attitude
+from ..conventions import WORLD_UP, attitude_for_up, mount_matrix, pose_attitude
 from ..errors import ConfigError, DeviceError
 from ..sim.population import parse_population
 from ..sim.sensor_model import PHYSICS, SensorModel, get_chip, rotation_matrix
@@ -203,6 +203,9 @@ class SimulatedBoard:
                           image_path=e.image)
         board = cls(model, seed, None if m.serial is None else str(m.serial), m.realtime, m.ambient_c,
                     m.self_heating_c, eeprom)
+        if m.true_mount is not None:  # the chip sits turned on this board (the station may not know)
+            board.mount = mount_matrix(m.true_mount)
+            board.place(board.attitude)
         board.configure(cfg.get("range_g", spec.default_range_g), cfg.get("odr_hz", spec.default_odr_hz),
                         cfg.get("dlpf"), path)
         return board

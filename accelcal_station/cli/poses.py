@@ -30,8 +30,10 @@ def _clean(v: np.ndarray) -> list[float]:
               help="Per-axis standard error of each pose's averaged reading, in mg.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def command(name: str, model: str | None, noise_mg: float, as_json: bool) -> None:
-    """Show pose design NAME (AN4399 pitch/roll, expected output, how to place the board) and its
-    predicted standard errors.
+    """Show pose design NAME (AN4399 pitch/roll, where the board goes) and its predicted standard errors.
+
+    Each pose's expected output (AN4399 Eqn 22) points up: a chip reads +1 g on the axis
+    pointing away from the Earth (docs/conventions.md); --json gives it as ``up`` with ``words``.
 
     NAME: an4399-2, an4399-3, an4399-4, an4399-6, an4399-8, six-face, nine-position,
     or optimal-N.  Standard errors scale linearly with --noise-mg.
