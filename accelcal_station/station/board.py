@@ -17,7 +17,7 @@ import numpy as np
 from ..acceptance.reasons import Reason, codes
 from ..acceptance.rules import judge
 from ..calibration import Calibration
-from ..conventions import fit_mount, mount_hint, mount_matrix
+from ..conventions import fit_mount, mount_hint, mount_matrix, reference_to_angles
 from ..drivers.base import Clock, Driver, Identity
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, UnderdeterminedError
@@ -107,6 +107,14 @@ class Station:
                 report.events.append(f"{pose.name}: {ev}")
                 self.echo(f"  {ev}")
             return gc, attempts - 1
+
+    def _chip_angles(self, pose: PoseSpec) -> tuple[float, float]:
+        """The AN4399 angles of what the chip is expected to read (the pose's own unless device.mount
+        turns it), so that files and the store re-derive the same reference from them."""
+        if np.array_equal(self.mount, np.eye(3)):
+            return pose.pitch_deg, pose.roll_deg
+        pitch, roll = reference_to_angles(self.mount @ pose.reference_g)
+        return round(float(pitch), 9), round(float(roll), 9)
 
     def _mounting(self, pose: PoseSpec, e: WrongPose) -> WrongPose:
         """A wrong pose, with the mounting that fits this and the poses captured so far when it
@@ -252,8 +260,9 @@ class Station:
                 continue
             floor = gc.floor_counts
             c = gc.capture
+            pitch, roll = self._chip_angles(pose)
             records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, self.mount @ pose.reference_g,
-                                      pose.pitch_deg, pose.roll_deg, c.temp_c, c.dropped, c.t_start, c.t_end))
+                                      pitch, roll, c.temp_c, c.dropped, c.t_start, c.t_end))
             retries.append(tries + gc.recaptures)
             sem_mg = c.sem_counts / driver.counts_per_g * 1e3
             rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
