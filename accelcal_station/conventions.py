@@ -33,7 +33,7 @@ UNITS = ("counts", "g", "mps2")
 
 
 def an4399_reference(pitch_deg: ArrayLike, roll_deg: ArrayLike) -> np.ndarray:
-    """Expected output in g for AN4399 pitch/roll (AN4399 Eqn 22, z down).
+    """Expected output in g for AN4399 pitch/roll (AN4399 Eqn 22); placed physically, it points up.
 
     Vectorised: returns shape ``broadcast(pitch, roll).shape + (3,)``.
     """
