@@ -138,9 +138,13 @@ def mean_g(driver) -> np.ndarray:
     return np.asarray(c.mean_counts, float) / driver.counts_per_g
 
 
-def check_board(board, read, label: str) -> None:
+def check_board(board, read, label: str, lock=None) -> None:
     for name, (placement, reading) in PLACEMENTS.items():
-        board.place(placement)
+        if lock is None:
+            board.place(placement)
+        else:
+            with lock:  # an emulator thread samples the board under it
+                board.place(placement)
         np.testing.assert_allclose(read(), reading, atol=0.03, err_msg=f"{label} {name}")
 
 
@@ -161,7 +165,7 @@ def test_mpu6050_bridge_emulator_through_the_driver():
     emu.start()
     try:
         with MPU6050Bridge(emu.port, timeout_s=0.25, retries=3, boot_wait_s=0.3) as d:
-            check_board(emu.board, lambda: mean_g(d), "MPU6050 bridge emulator")
+            check_board(emu.board, lambda: mean_g(d), "MPU6050 bridge emulator", emu.lock)
     finally:
         emu.stop()
 
@@ -190,3 +194,27 @@ def test_motorized_jig_angles_place_the_board_as_the_data_sheets_say():
                                        atol=2e-3, err_msg=pose.name)
             got = board.read(64)[0].mean(axis=0) / board.counts_per_g
             np.testing.assert_allclose(got, reading, atol=0.03, err_msg=pose.name)
+
+
+def test_mpu6050_firmware_on_simavr_through_the_driver():
+    """The real bridge firmware on a simulated ATmega328P reads the emulated chip over TWI."""
+    import os
+
+    from accelcal_station.drivers import mpu6050_simavr
+
+    why = mpu6050_simavr.unavailable_reason()
+    if why is not None:
+        if os.environ.get("ACCELCAL_REQUIRE_SIMAVR"):
+            pytest.fail(f"ACCELCAL_REQUIRE_SIMAVR is set but {why}")
+        pytest.skip(why)
+    board = SimulatedBoard.from_config(None, chip="mpu6050", seed=6)
+    bridge = mpu6050_simavr.SimavrBridge(board)
+    bridge.start()
+    try:
+        with MPU6050Bridge(bridge.port, timeout_s=1.0, retries=2, boot_wait_s=3.0) as d:
+            for name, (placement, reading, _, _) in FACES.items():  # the faces: simulated MCU time is slow
+                with bridge.lock:
+                    board.place(placement)
+                np.testing.assert_allclose(mean_g(d), reading, atol=0.03, err_msg=f"simavr {name}")
+    finally:
+        bridge.stop()
