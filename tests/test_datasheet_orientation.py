@@ -218,3 +218,30 @@ def test_mpu6050_firmware_on_simavr_through_the_driver():
                 np.testing.assert_allclose(mean_g(d), reading, atol=0.03, err_msg=f"simavr {name}")
     finally:
         bridge.stop()
+
+
+def test_live_level_bubble_floats_to_the_raised_side_as_the_picture_shows_it():
+    """A board tilted off the pose reads more on the raised side's axis (a raised axis points more
+    up); a spirit level's bubble floats to the high side: towards that axis's arrow on screen."""
+    from accelcal_station.web.board_picture import level_xy
+
+    for name, (placement, reading, _, _) in FACES.items():
+        pic = picture(np.array(reading, float))
+        for axis in "xyz":
+            i = "xyz".index(axis)
+            if reading[i] != 0:
+                continue
+            # raise the board's +axis side by 10 deg: turn about the horizontal axis (axis in world) x up
+            axis_world = placement @ np.eye(3)[i]
+            k = np.cross(axis_world, SKY)
+            k = k / np.linalg.norm(k)
+            K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+            t = np.radians(10.0)
+            tilted = (np.eye(3) + np.sin(t) * K + (1 - np.cos(t)) * K @ K) @ placement
+            read = tilted.T @ SKY  # what the chip reads: the +axis side is high, so reads > 0 on it
+            assert read[i] > 0.15, (name, axis)
+            bx, by = level_xy(read, np.array(reading, float))
+            a = next(a for a in pic["arrows"] if a["axis"] == axis)
+            ax, ay = a["x2"] - a["x1"], a["y1"] - a["y2"]  # screen: right, up (SVG y grows down)
+            # the bubble (x right, y away from the viewer: up the screen) leans towards the arrow
+            assert bx * ax + by * ay > 0, (name, axis, (bx, by), (ax, ay))
