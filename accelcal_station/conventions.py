@@ -240,7 +240,7 @@ def fit_mount(expected_board: ArrayLike, measured: ArrayLike) -> tuple[np.ndarra
     ``expected_board`` (n, 3): the poses' expected outputs in board axes; ``measured`` (n, 3):
     what the chip read.  Each of the 24 mountings is scored by its worst angle between
     ``P @ expected`` and the reading; ties (one pose cannot tell a turn about its own axis)
-    go to the smallest turn, and ``unique`` says no other mounting fits within 30 deg.
+    go to the smallest turn among those within 30 deg, and ``unique`` says no other fits within 30 deg.
     """
     r = np.asarray(expected_board, dtype=float).reshape(-1, 3)
     m = np.asarray(measured, dtype=float).reshape(-1, 3)
@@ -249,10 +249,12 @@ def fit_mount(expected_board: ArrayLike, measured: ArrayLike) -> tuple[np.ndarra
     cosang = np.sum(pred * m[None], axis=-1) / (np.linalg.norm(pred, axis=-1) * np.linalg.norm(m, axis=-1)[None])
     worst = np.degrees(np.arccos(np.clip(cosang.min(axis=1), -1.0, 1.0)))
     turn = np.arccos(np.clip((np.trace(mounts, axis1=1, axis2=2) - 1) / 2, -1, 1))
-    order = np.lexsort((turn, np.round(worst, 6)))
-    best = int(order[0])
-    unique = int(np.sum(worst <= 30.0)) == 1
-    return mounts[best], float(worst[best]), unique
+    fits = worst <= 30.0
+    if fits.sum() > 1:  # the readings cannot tell these apart: the smallest turn among them
+        best = int(np.flatnonzero(fits)[np.lexsort((worst[fits], np.round(turn[fits], 6)))[0]])
+    else:
+        best = int(np.argmin(worst))
+    return mounts[best], float(worst[best]), bool(fits.sum() == 1)
 
 
 def _axis_name(v: ArrayLike) -> str:

@@ -113,3 +113,16 @@ def test_a_mirror_mounting_is_one_config_line(tmp_path):
     assert "Traceback" not in r.output
     with pytest.raises(ConfigError, match="true_mount"):
         SimulatedBoard.from_config({"true_mount": ["x", "y", "-z"]})
+
+
+def test_thermal_plan_reads_on_until_the_mounting_is_singled_out(tmp_path):
+    """One cube-vertex pose fits three mountings (turns about its diagonal): the plan reads the
+    next pose before naming one, and names the true one."""
+    cfg = yaml.safe_load((CONFIGS / "thermal-sim.yaml").read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    cfg["device"]["true_mount"] = ["z", "x", "y"]
+    r = _run(cfg, tmp_path)
+    assert r.exit_code != 0 and "set device.mount: [z, x, y]" in r.output, r.output
+    cfg["device"]["mount"] = ["z", "x", "y"]
+    r = _run(cfg, tmp_path)
+    assert r.exit_code == 0 and "PASS board" in r.output, r.output

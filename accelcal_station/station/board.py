@@ -108,6 +108,15 @@ class Station:
                 self.echo(f"  {ev}")
             return gc, attempts - 1
 
+    def _defer(self, jig: Jig, pose: PoseSpec, e: WrongPose, deferred: WrongPose | None) -> WrongPose:
+        """A wrong pose another mounting may explain, on a jig that cannot place again: keep its reading
+        and go on to the next pose, which may single the mounting out (a MountMismatch); else raise."""
+        if e.hint is None or jig.places_again or isinstance(e, MountMismatch):
+            raise e
+        self._seen.append((pose.reference_g, e.measured))
+        self.echo(f"  {e}")
+        return deferred or e
+
     def _chip_angles(self, pose: PoseSpec) -> tuple[float, float]:
         """The AN4399 angles of what the chip is expected to read (the pose's own unless device.mount
         turns it), so that files and the store re-derive the same reference from them."""
@@ -252,11 +261,7 @@ class Station:
                 self.echo("  skipped")
                 continue
             except WrongPose as e:
-                if e.hint is None or jig.places_again or isinstance(e, MountMismatch):
-                    raise
-                deferred = deferred or e
-                self._seen.append((pose.reference_g, e.measured))
-                self.echo(f"  {e}")
+                deferred = self._defer(jig, pose, e, deferred)
                 continue
             floor = gc.floor_counts
             c = gc.capture
