@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import BaseModel, Field, StrictBool
+from pydantic import BaseModel, Field, StrictBool, field_validator
 
-from .schema import BusEmulatorSection, HandSection, Section, _f, validate
+from .schema import BusEmulatorSection, HandSection, Section, _check_mount, _f, validate
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -48,6 +48,13 @@ class SimulatedBoardSection(Section):
     eeprom: SimEepromSection | None = _f(None, "the board's calibration EEPROM")
     simulator: dict[str, Any] | str | None = _f(None, "the forward sensor model ({effects: ...}) or a YAML file")
     effects: dict[str, Any] | None = _f(None, "effects (as simulator.effects)")
+    true_mount: list[str] | None = _f(None, "how the chip really sits on the board: the chip axes along the "
+                                      "board's x, y, z, e.g. [y, -x, z] (default [x, y, z])")
+
+    @field_validator("true_mount")
+    @classmethod
+    def _proper_turn(cls, v: list[str] | None) -> list[str] | None:
+        return _check_mount(v)
 
 
 class SimulatorFileSection(Section):
@@ -166,6 +173,7 @@ DEVICE_MODELS: dict[str, type[Section]] = {"simulated": SimulatedBoardSection, "
 JIG_MODELS: dict[str, type[Section]] = {"simulated": SimulatedJigSection, "operator": OperatorJigSection,
                                         "motorized": MotorizedJigSection}
 PANEL_KEYS = ("driver", "boards", "spread", "mux", "channel", "seated_deg")  # the panel's, not the driver's
+STATION_DEVICE_KEYS = ("mount",)  # the station's (how the chip sits on the board), every driver's board has one
 
 
 def check_kinds(raw: dict[str, Any]) -> None:
@@ -173,7 +181,7 @@ def check_kinds(raw: dict[str, Any]) -> None:
     validate_station): a key of another driver or jig type is one line naming the allowed keys."""
     device = raw.get("device")
     if isinstance(device, dict):
-        parse({k: v for k, v in device.items() if k not in PANEL_KEYS},
+        parse({k: v for k, v in device.items() if k not in PANEL_KEYS + STATION_DEVICE_KEYS},
               DEVICE_MODELS[device.get("driver", "simulated")], "device")
     jig = raw.get("jig")
     if isinstance(jig, dict):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, field_validator
 
 from ..errors import ConfigError
 
@@ -183,6 +183,15 @@ class SpreadSection(Section):
     gain: float = _f(0.0, "panel: per-board gain spread (standard deviation), fraction", ge=0, le=0.5)
 
 
+def _check_mount(v: list[str] | None) -> list[str] | None:
+    """A mounting must be one of the 24 proper rotations (conventions.mount_matrix)."""
+    if v is not None:
+        from ..conventions import mount_label, mount_matrix
+
+        return mount_label(mount_matrix(v))
+    return v
+
+
 class DeviceSection(Section):
     """The board's driver and its settings (each driver accepts its own keys, named below)."""
 
@@ -218,6 +227,16 @@ class DeviceSection(Section):
     channel: int | None = _f(None, "panel board: multiplexer channel", ge=0, le=7)
     seated_deg: list[float] | None = _f(None, "simulated panel board: how it really sits in its slot, an [x, y, z] "
                                         "rotation vector in degrees")
+    mount: list[str] | None = _f(None, "how the chip sits on the board (or the board in the jig): the chip axes "
+                                 "along the board's x, y, z, one of the 24 turns, e.g. [y, -x, z] (default [x, y, z]; "
+                                 "docs/conventions.md)")
+    true_mount: list[str] | None = _f(None, "simulated/emulated board: how its chip really sits on the board, as "
+                                      "mount (default [x, y, z]); the station's belief is mount")
+
+    @field_validator("mount", "true_mount")
+    @classmethod
+    def _proper_turn(cls, v: list[str] | None) -> list[str] | None:
+        return _check_mount(v)
 
 
 class SoakSection(Section):
