@@ -266,6 +266,40 @@ def _face_shown(drv) -> str:
     return face
 
 
+def _click_through_the_poses(drv, port: int) -> tuple[int, set[str]]:
+    """Open the operator page and accept every pose (buttons and Enter in turn) until the result shows;
+    screenshots of the first pose and of each of the six faces: (clicks, faces shown)."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 20:
+        try:
+            drv.get(f"http://127.0.0.1:{port}/")
+            break
+        except Exception:
+            time.sleep(0.2)
+    clicks, shot, faces = 0, False, set()
+    while not drv.find_element(By.ID, "result").is_displayed():
+        assert time.monotonic() - t0 < 90, drv.page_source[-2000:]
+        button = drv.find_element(By.ID, "b-accept")
+        if button.is_enabled() and "Put the board" in drv.find_element(By.ID, "instruction").text:
+            if drv.find_element(By.ID, "off").text != "–":
+                # a pose, its picture and the live level once the board has settled
+                WebDriverWait(drv, 5).until(lambda d: "READY" in d.find_element(By.ID, "ready").text)
+                if not shot:
+                    screenshot(drv, "operator.png")
+                    shot = True
+                face = _face_shown(drv)
+                if face not in faces:
+                    faces.add(face)
+                    screenshot(drv, f"operator-{face}1g.png")
+            if clicks % 2:  # every other pose by the key instead of the button
+                ActionChains(drv).send_keys(Keys.ENTER).perform()
+            else:
+                button.click()
+            clicks += 1
+        time.sleep(0.1)
+    return clicks, faces
+
+
 def test_operator_page_calibrates_the_emulated_board_by_clicks_like_the_terminal(tmp_path):
     # the terminal flow: Enter at each of the 8 prompts (6 poses, 2 verification poses)
     term = _emulated_config(tmp_path, "terminal", "line1-mma8451")
@@ -282,36 +316,7 @@ def test_operator_page_calibrates_the_emulated_board_by_clicks_like_the_terminal
                             text=True)
     try:
         with chromium(1400, 1000) as drv:
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < 20:
-                try:
-                    drv.get(f"http://127.0.0.1:{port}/")
-                    break
-                except Exception:
-                    time.sleep(0.2)
-            clicks = 0
-            shot = False
-            faces: set[str] = set()
-            while not drv.find_element(By.ID, "result").is_displayed():
-                assert time.monotonic() - t0 < 90, drv.page_source[-2000:]
-                button = drv.find_element(By.ID, "b-accept")
-                if button.is_enabled() and "Put the board" in drv.find_element(By.ID, "instruction").text:
-                    if drv.find_element(By.ID, "off").text != "–":
-                        # a pose, its picture and the live level once the board has settled
-                        WebDriverWait(drv, 5).until(lambda d: "READY" in d.find_element(By.ID, "ready").text)
-                        if not shot:
-                            screenshot(drv, "operator.png")
-                            shot = True
-                        face = _face_shown(drv)
-                        if face not in faces:
-                            faces.add(face)
-                            screenshot(drv, f"operator-{face}1g.png")
-                    if clicks % 2:  # every other pose by the key instead of the button
-                        ActionChains(drv).send_keys(Keys.ENTER).perform()
-                    else:
-                        button.click()
-                    clicks += 1
-                time.sleep(0.1)
+            clicks, faces = _click_through_the_poses(drv, port)
             assert drv.find_element(By.ID, "result-verdict").text == "PASS"
             assert "EMU-0001" in drv.find_element(By.ID, "result-board").text
             assert "line1-web" in drv.find_element(By.CLASS_NAME, "station").text and no_alert(drv)
