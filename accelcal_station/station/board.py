@@ -17,8 +17,9 @@ import numpy as np
 from ..acceptance.reasons import Reason, codes
 from ..acceptance.rules import judge
 from ..calibration import Calibration
-from ..drivers.base import Clock, Driver, Identity
+from ..drivers.base import Capture, Clock, Driver, Identity
 from ..drivers.factory import make_driver
+from ..drivers.self_test import with_limits
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
@@ -129,7 +130,8 @@ class Station:
                 records: list[PoseRecord] = []
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
-                self._calibrate(store, run_id, driver, clock, session, retries, rep)
+                if self._self_test(store, run_id, driver, rep):
+                    self._calibrate(store, run_id, driver, clock, session, retries, rep)
                 rep.timing = self._timing(driver, clock, clock0, wall0)
                 self._finish(store, run_id, session, retries, rep)
         return rep
@@ -159,6 +161,39 @@ class Station:
             self._record_unreachable(store, e)
             raise
         return ident
+
+    def _self_test(self, store: Store, run_id: int, driver: Driver, rep: RunReport) -> bool:
+        """The chip's built-in self-test, once, before the poses on the board as it sits (still, seated in the
+        fixture); judged on the data sheet's limits or the config's (acceptance.self_test_*).  A failure ends
+        the run FAIL ``self_test`` (no poses, nothing burned); a device fault ends it FAIL with its code.
+        True: the poses may follow (passed, or the driver has no self-test, or it is turned off)."""
+        lim = self.cfg.limits.self_test
+        if not (lim.run and driver.supports_self_test):
+            return True
+        self.echo("self-test")
+        try:
+            res = driver.self_test(self.cfg.capture.self_test_samples)
+        except DeviceError as e:
+            rep.record(Stage.FAULT, Reason(e.reason_code, f"during the self-test: {e}"))
+            self.echo(f"FAIL: {e} (self-test)")
+            return False
+        except (AccelcalError, KeyboardInterrupt) as e:
+            why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else f"self-test: {e}"
+            store.interrupt_run(run_id, why, status="interrupted" if isinstance(e, KeyboardInterrupt) else "error")
+            raise
+        if lim.overridden:
+            res = with_limits(res, lim.low_g, lim.high_g, lim.tolerance, "the config's acceptance section")
+        rep.self_test = res.to_json()
+        for a in res.axes:
+            self.echo(f"  {a.axis}: change {a.change_g * 1e3:+.1f} mg, {a.unit} {a.value:.4g} in "
+                      f"[{a.low:.4g}, {a.high:.4g}] {'ok' if a.ok else 'FAIL'}")
+        why = res.reason()
+        if why is not None:
+            rep.record(Stage.SELF_TEST, Reason("self_test", why))
+            self.echo(f"FAIL: {why} (no poses, nothing burned)")
+            return False
+        rep.record(Stage.SELF_TEST)
+        return True
 
     def _calibrate(self, store: Store, run_id: int, driver: Driver, clock: Clock | None, session: Session,
                    retries: list[int], rep: RunReport) -> None:
@@ -197,7 +232,8 @@ class Station:
                   "fit_summary": {**fit_figures(rep.fit), "reason_codes": codes(rep.reasons),
                                   "measured": rep.measured,
                                   "verify_error_max_mg": rep.verify_error_max_mg,
-                                  "offset_trim_lsb": rep.offset_trim_lsb,
+                                  "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim,
+                                  "self_test": rep.self_test,
                                   "design": cfg.design, "skipped": rep.skipped,
                                   "timing": rep.timing, "nvm_verified": rep.nvm_verified},
                   "model": cfg.model, "retries": retries, "limits": cfg.limits.values}
@@ -262,9 +298,12 @@ class Station:
             rep.record(Stage.ACCEPTANCE, *verdict.reasons)
             self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
             return None
-        cal = fit.calibration
+        cal: Calibration | None = fit.calibration
         if cfg.offset_trim:
-            cal = rep.calibration = self._trim_offsets(driver, cal, rep)
+            last = session.poses[-1].reference_g if session.poses else None
+            cal = self._trim_offsets(driver, fit.calibration, last, rep)
+            if cal is not None:
+                rep.calibration = cal
         return cal
 
     def _judge_verified(self, cal: Calibration, checks: list[Check], rep: RunReport) -> bool:
@@ -326,12 +365,18 @@ class Station:
             return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
 
-    def _trim_offsets(self, driver: Driver, cal: Calibration, rep: RunReport) -> Calibration:
-        """Move the zero-g offset into the chip's offset registers and shift V to match.
+    def _trim_offsets(self, driver: Driver, cal: Calibration, reference_g: np.ndarray | None,
+                      rep: RunReport) -> Calibration | None:
+        """Move the zero-g offset into the chip's offset registers and shift V by the change MEASURED.
 
-        The trimmed output is G_f' = G_f + t, so G = W (G_f' - t) + V: V' = V - W t.
-        The registers are volatile: the trim is reported (and recorded) so the device
-        config's ``offset_trim_lsb`` can restore it at power-up.
+        The trimmed output is G_f' = G_f + t, so G = W (G_f' - t) + V: V' = V - W t, with t the change
+        measured at the board's last pose (a still capture before writing, one after), not the change the
+        driver's trim unit promises.  It must agree with the promised one per axis within
+        ``acceptance.offset_trim_tolerance`` of it or 4 standard errors of the difference, whichever is
+        larger: a trim unit a little off is measured and used; a wrong sign, register or unit
+        (docs/station.md) fails ``offset_trim`` and the registers get their old values back.
+        None: FAIL.  The registers are volatile: the trim is reported so ``device.offset_trim_lsb`` can
+        restore it at power-up.
         """
         if not driver.supports_offset_trim:
             raise ConfigError(f"nvm.offset_trim: the {driver.name} driver has no offset-trim registers; "
@@ -340,13 +385,46 @@ class Station:
         lsb_g = driver.offset_trim_lsb_g
         old = np.asarray(driver.get_offset_trim(), dtype=float)
         total = np.clip(np.round(old - offset_g / lsb_g), -128, 127).astype(int)
+        cpg = driver.counts_per_g
+        before = self._still_capture(driver, reference_g, "before the offset trim")
         driver.set_offset_trim(tuple(int(v) for v in total))
-        t = (total - old) * lsb_g
+        after = self._still_capture(driver, reference_g, "after the offset trim")
+        expected_g = (total - old) * lsb_g
+        measured_g = (after.mean_counts - before.mean_counts) / cpg
+        sigma_g = np.hypot(before.sem_counts, after.sem_counts) / cpg
+        tol_g = np.maximum(self.cfg.limits.offset_trim_tolerance * np.abs(expected_g), 4.0 * sigma_g)
+        ok = np.abs(measured_g - expected_g) <= tol_g
         rep.offset_trim_lsb = total.tolist()
-        self.echo(f"offset trim {total.tolist()} LSB ({lsb_g * 1e3:.2f} mg each): "
-                  "add device.offset_trim_lsb to the config to restore it at power-up")
+        rep.offset_trim = {"lsb": total.tolist(), "previous_lsb": old.astype(int).tolist(),
+                           "lsb_mg": lsb_g * 1e3, "expected_mg": (expected_g * 1e3).tolist(),
+                           "measured_mg": (measured_g * 1e3).tolist(), "sigma_mg": (sigma_g * 1e3).tolist(),
+                           "tolerance_mg": (tol_g * 1e3).tolist(), "ok": ok.tolist()}
+        if not ok.all():
+            driver.set_offset_trim(tuple(int(v) for v in old))  # the chip as it was: nothing of this run kept
+            bad = ", ".join(f"{'xyz'[i]} measured {measured_g[i] * 1e3:+.2f} mg, expected {expected_g[i] * 1e3:+.2f}"
+                            f" +- {tol_g[i] * 1e3:.2f} mg" for i in np.flatnonzero(~ok))
+            rep.record(Stage.OFFSET_TRIM, Reason("offset_trim", f"the trim written did not do what its unit "
+                                                 f"({lsb_g * 1e3:.3f} mg per LSB) says: {bad}; registers restored"))
+            self.echo(f"FAIL: offset trim: {bad}")
+            return None
+        rep.record(Stage.OFFSET_TRIM)
+        self.echo(f"offset trim {total.tolist()} LSB ({lsb_g * 1e3:.2f} mg each), measured change "
+                  f"{np.round(measured_g * 1e3, 2).tolist()} mg: add device.offset_trim_lsb to the config to "
+                  "restore it at power-up")
+        t = measured_g
         return Calibration(cal.model, cal.W, cal.V - cal.W @ t, cal.Gamma, cal.input_units, cal.input_per_g,
-                           cal.temperature, dict(cal.metadata, offset_trim_lsb=total.tolist()))
+                           cal.temperature, dict(cal.metadata, offset_trim_lsb=total.tolist(),
+                                                 offset_trim_measured_mg=(t * 1e3).tolist()))
+
+    def _still_capture(self, driver: Driver, reference_g: np.ndarray | None, label: str) -> Capture:
+        """One gated capture of the board where it stands (its events kept with the run's)."""
+        bar = self._capture_sink(f"  capturing {label}")
+        try:
+            gc = gated_capture(driver, self.cfg.capture, reference_g, None, progress=bar)
+        finally:
+            bar.close()
+        self.samples_read += gc.samples_read
+        return gc.capture
 
     def _verify_captures(self, driver: Driver, jig: Jig, rep: RunReport) -> list[Check]:
         """Fresh captures at the verification poses: (mean counts, expected g, temp)."""

@@ -42,6 +42,7 @@ class CaptureSettings:
     settle_timeout_s: float = 30.0
     pose_tolerance_deg: float = 12.0
     max_recaptures: int = 3
+    self_test_samples: int = 64  # averaged in each self-test state (station/board.py _self_test)
 
 
 @dataclass
