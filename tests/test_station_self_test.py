@@ -12,6 +12,7 @@ Seeds are fixed; each tolerance says what it is made of.
 from __future__ import annotations
 
 import json
+import re
 import sqlite3
 from pathlib import Path
 
@@ -239,3 +240,23 @@ def test_mpu6050_emulators_apply_xa_offs_in_the_data_sheet_unit_with_a_step_faul
     finally:
         b.stop()
     np.testing.assert_allclose((c1 - c0) / 16384, d / 2048 * step, atol=1.5e-3)
+
+
+def test_board_page_shows_the_self_test_per_axis_with_the_failing_axis_marked(tmp_path):
+    pytest.importorskip("fastapi", reason="the web extra (pip install 'accelcal-station[web]')")
+    pytest.importorskip("httpx", reason="fastapi's test client needs httpx")
+    from fastapi.testclient import TestClient
+
+    from accelcal_station.web.app import create_app
+    from accelcal_station.web.settings import WebSettings
+
+    code, out = run_json(mma_config(tmp_path, emulator={"self_test_scale": [1.0, 0.05, 1.0]}))
+    assert code == 1, out
+    client = TestClient(create_app(WebSettings(store=str(tmp_path / "runs.sqlite"))))
+    html = client.get(f"/board?serial={out['serial']}").text
+    rows = re.findall(r'<tr class="(failed|)" data-axis="([xyz])">(.*?)</tr>', html)
+    assert [(c, a) for c, a, _ in rows] == [("", "x"), ("failed", "y"), ("", "z")], html[-3000:]
+    y = rows[1][2]
+    assert f"{axes(out)['y']['change_g'] * 1e3:+.1f}" in y and "FAILED" in y
+    assert f"{MMA_LOW_G * 1e3:.4g} to {MMA_HIGH_G[1] * 1e3:.4g}" in y  # the data sheet's limits, in mg
+    assert "self_test" in html

@@ -187,10 +187,10 @@ class Station:
         for a in res.axes:
             self.echo(f"  {a.axis}: change {a.change_g * 1e3:+.1f} mg, {a.unit} {a.value:.4g} in "
                       f"[{a.low:.4g}, {a.high:.4g}] {'ok' if a.ok else 'FAIL'}")
-        why = res.reason()
-        if why is not None:
-            rep.record(Stage.SELF_TEST, Reason("self_test", why))
-            self.echo(f"FAIL: {why} (no poses, nothing burned)")
+        failed = res.reason()
+        if failed is not None:
+            rep.record(Stage.SELF_TEST, Reason("self_test", failed))
+            self.echo(f"FAIL: {failed} (no poses, nothing burned)")
             return False
         rep.record(Stage.SELF_TEST)
         return True
