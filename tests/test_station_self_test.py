@@ -260,3 +260,21 @@ def test_board_page_shows_the_self_test_per_axis_with_the_failing_axis_marked(tm
     assert f"{axes(out)['y']['change_g'] * 1e3:+.1f}" in y and "FAILED" in y
     assert f"{MMA_LOW_G * 1e3:.4g} to {MMA_HIGH_G[1] * 1e3:.4g}" in y  # the data sheet's limits, in mg
     assert "self_test" in html
+
+
+def test_panel_each_board_self_tested_once_and_a_weak_one_drops_out_before_the_poses(tmp_path):
+    doc = yaml.safe_load((CONFIGS / "panel-mma8451-emulated.yaml").read_text())
+    doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    doc["device"]["boards"] = [{"channel": 0}, {"channel": 1, "emulator": {"self_test_scale": [1.0, 1.0, 0.01]}},
+                               {"channel": 2}]
+    p = tmp_path / "panel.yaml"
+    p.write_text(yaml.safe_dump(doc))
+    code, out = run_json(p)
+    boards = out["boards"]
+    assert [b["verdict"] for b in boards] == ["PASS", "FAIL", "PASS"], boards
+    weak = boards[1]
+    assert weak["reason_codes"] == ["self_test"] and weak["poses"] == [] and weak["nvm"] is None
+    assert [a["axis"] for a in weak["self_test"]["axes"] if not a["ok"]] == ["z"]
+    assert all(len(b["self_test"]["axes"]) == 3 and b["self_test"]["ok"] for b in (boards[0], boards[2]))
+    assert all(len(b["poses"]) == 8 for b in (boards[0], boards[2]))
+    assert stored(tmp_path, weak["run_id"])[1]["self_test"] == weak["self_test"]

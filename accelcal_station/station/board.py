@@ -163,16 +163,10 @@ class Station:
         return ident
 
     def _self_test(self, store: Store, run_id: int, driver: Driver, rep: RunReport) -> bool:
-        """The chip's built-in self-test, once, before the poses on the board as it sits (still, seated in the
-        fixture); judged on the data sheet's limits or the config's (acceptance.self_test_*).  A failure ends
-        the run FAIL ``self_test`` (no poses, nothing burned); a device fault ends it FAIL with its code.
-        True: the poses may follow (passed, or the driver has no self-test, or it is turned off)."""
-        lim = self.cfg.limits.self_test
-        if not (lim.run and driver.supports_self_test):
-            return True
-        self.echo("self-test")
+        """The self-test step of a run (:meth:`self_test_step`); a device fault ends the run FAIL with its code,
+        any other error or Ctrl-C interrupts it.  True: the poses may follow."""
         try:
-            res = driver.self_test(self.cfg.capture.self_test_samples)
+            return self.self_test_step(driver, rep)
         except DeviceError as e:
             rep.record(Stage.FAULT, Reason(e.reason_code, f"during the self-test: {e}"))
             self.echo(f"FAIL: {e} (self-test)")
@@ -181,6 +175,17 @@ class Station:
             why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else f"self-test: {e}"
             store.interrupt_run(run_id, why, status="interrupted" if isinstance(e, KeyboardInterrupt) else "error")
             raise
+
+    def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
+        """The chip's built-in self-test, once, before the poses on the board as it sits (still, seated in the
+        fixture); judged on the data sheet's limits or the config's (acceptance.self_test_*).  A failure is
+        recorded FAIL ``self_test`` (no poses follow, nothing is burned).  True: the poses may follow
+        (passed, or the driver has no self-test, or it is turned off).  Device errors propagate."""
+        lim = self.cfg.limits.self_test
+        if not (lim.run and driver.supports_self_test):
+            return True
+        self.echo("self-test")
+        res = driver.self_test(self.cfg.capture.self_test_samples)
         if lim.overridden:
             res = with_limits(res, lim.low_g, lim.high_g, lim.tolerance, "the config's acceptance section")
         rep.self_test = res.to_json()
