@@ -278,3 +278,31 @@ def test_panel_each_board_self_tested_once_and_a_weak_one_drops_out_before_the_p
     assert all(len(b["self_test"]["axes"]) == 3 and b["self_test"]["ok"] for b in (boards[0], boards[2]))
     assert all(len(b["poses"]) == 8 for b in (boards[0], boards[2]))
     assert stored(tmp_path, weak["run_id"])[1]["self_test"] == weak["self_test"]
+
+
+def test_trim_check_on_null_data_false_alarms_at_the_stated_rate():
+    """Calibrated on null data: two still captures of the emulated MMA8451 with no trim written between
+    them (expected change 0), as the station takes them; 200 pairs x 3 axes judged by the station's rule.
+    At 4 sigma (Gaussian, SEM honest) the false-alarm rate is 6.3e-5 per axis: 600 trials expect 0.04, and 3
+    or more happen with probability < 1e-5.  A SEM too small by 2 (correlated samples counted as
+    independent) would give 4.6 % (~27 alarms): the bound below would catch it."""
+    from accelcal_station.drivers.factory import make_driver
+    from accelcal_station.station.board import trim_change
+    from accelcal_station.station.capture import CaptureSettings, gated_capture
+
+    doc = yaml.safe_load((CONFIGS / "mma8451-emulated.yaml").read_text())["device"]
+    doc["seed"] = 42
+    settings = CaptureSettings(target_sem_mg=0.1, max_s=20, hold_s=0.0)
+    alarms, scores = 0, []
+    with make_driver(doc) as dev:
+        dev.configure(2, 100)
+        for _ in range(200):
+            a = gated_capture(dev, settings).capture
+            b = gated_capture(dev, settings).capture
+            measured, sigma, allowed, ok = trim_change(np.zeros(3), a, b, dev.counts_per_g, 0.25)
+            alarms += int(np.sum(~ok))
+            scores.extend(measured / sigma)
+    assert alarms <= 2, alarms
+    # and the scores are unit-variance: the SEM the rule divides by is honest (chi-square 599 dof, +-20 %)
+    print(f"null trim check: {alarms} alarms in 600, score std {np.std(scores):.3f}")
+    assert 0.8 < np.std(scores) < 1.2, np.std(scores)

@@ -41,6 +41,17 @@ from .verdict import Stage
 Check = tuple[np.ndarray, np.ndarray, float | None]
 
 
+def trim_change(expected_g: np.ndarray, before: Capture, after: Capture, counts_per_g: float, tolerance: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """An offset trim's change measured and judged, per axis (g): measured = (mean after - mean before) /
+    counts_per_g, sigma = hypot(SEM before, SEM after) / counts_per_g, the allowance
+    max(tolerance |expected|, 4 sigma) and ok = |measured - expected| <= allowance (docs/self-test.md)."""
+    measured = (after.mean_counts - before.mean_counts) / counts_per_g
+    sigma = np.hypot(before.sem_counts, after.sem_counts) / counts_per_g
+    allowed = np.maximum(tolerance * np.abs(expected_g), 4.0 * sigma)
+    return measured, sigma, allowed, np.abs(measured - expected_g) <= allowed
+
+
 class Station:
     """Runs the flow for one board at a time."""
 
@@ -395,10 +406,8 @@ class Station:
         driver.set_offset_trim(tuple(int(v) for v in total))
         after = self._still_capture(driver, reference_g, "after the offset trim")
         expected_g = (total - old) * lsb_g
-        measured_g = (after.mean_counts - before.mean_counts) / cpg
-        sigma_g = np.hypot(before.sem_counts, after.sem_counts) / cpg
-        tol_g = np.maximum(self.cfg.limits.offset_trim_tolerance * np.abs(expected_g), 4.0 * sigma_g)
-        ok = np.abs(measured_g - expected_g) <= tol_g
+        measured_g, sigma_g, tol_g, ok = trim_change(expected_g, before, after, cpg,
+                                                     self.cfg.limits.offset_trim_tolerance)
         rep.offset_trim_lsb = total.tolist()
         rep.offset_trim = {"lsb": total.tolist(), "previous_lsb": old.astype(int).tolist(),
                            "lsb_mg": lsb_g * 1e3, "expected_mg": (expected_g * 1e3).tolist(),
