@@ -306,3 +306,25 @@ def test_trim_check_on_null_data_false_alarms_at_the_stated_rate():
     # and the scores are unit-variance: the SEM the rule divides by is honest (chi-square 599 dof, +-20 %)
     print(f"null trim check: {alarms} alarms in 600, score std {np.std(scores):.3f}")
     assert 0.8 < np.std(scores) < 1.2, np.std(scores)
+
+
+def test_the_self_test_waits_for_a_still_board(tmp_path):
+    """The board is bumped (a 20 deg half-sine over 3 s) as the run starts: the self-test waits until it
+    is still, then reads the same response as the same chip left alone (within 6 standard errors); a tilt
+    of up to 20 deg between the two averages would move the change by up to 340 mg."""
+    from accelcal_station.drivers.factory import make_driver
+    from accelcal_station.station.board import Station
+    from accelcal_station.station.settings import StationConfig
+
+    cfg = StationConfig.load(mma_config(tmp_path))
+    out = []
+    for bump in (False, True):
+        driver = make_driver(cfg.device)
+        if bump:
+            driver.board.disturb(0.0, 3.0, 20.0)
+        rep = Station(cfg, echo=lambda s: None, driver=driver).run()
+        assert rep.verdict == "PASS", rep.reasons
+        out.append(rep.self_test)
+    for quiet, bumped in zip(out[0]["axes"], out[1]["axes"], strict=True):
+        sem = np.hypot(quiet["sem_g"], bumped["sem_g"])
+        assert abs(bumped["change_g"] - quiet["change_g"]) <= 6 * sem, (quiet, bumped)
