@@ -481,6 +481,19 @@ class MPU6050BridgeEmulator(PtyServer):
         self._power_on(bp.BOOT_COMMAND)
 
 
+def emulator_options_from_file(path: str) -> dict[str, Any]:
+    """The bridge emulator's chip and faults (``device.emulator`` of an ``driver: mpu6050`` station config,
+    BridgeEmulatorSection) as keyword arguments of MPU6050BridgeEmulator and SimavrBridge; {} when none."""
+    data = load_yaml(path)
+    dev = data.get("device", data)
+    if not isinstance(dev, dict) or dev.get("driver") != "mpu6050" or dev.get("emulator") is None:
+        return {}
+    where = f"{path}: device" if "device" in data else str(path)
+    e = parse({"emulator": dev["emulator"]}, Mpu6050SimSection, where).emulator
+    assert e is not None, "given above"
+    return {k: v for k, v in e.model_dump().items() if v is not None}
+
+
 def board_config_from_file(path: str) -> tuple[dict[str, Any] | None, int | None]:
     """A simulated board mapping and seed from a YAML file for ``accelcal emulate --config``.
 

@@ -122,7 +122,8 @@ def test_a_self_test_limit_that_is_not_three_numbers_is_one_line(tmp_path):
     assert r.exit_code == 2 and "acceptance.self_test_low_g" in r.output and "Traceback" not in r.output, r.output
 
 
-def mpu_config(tmp_path: Path, port: str = "emulated", emulator: dict | None = None, link: str = "python") -> Path:
+def mpu_config(tmp_path: Path, port: str = "emulated", emulator: dict | None = None, link: str = "python",
+               name: str = "mpu.yaml") -> Path:
     doc = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
     doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
     doc["device"].update(LINK[link], port=port, odr_hz=200)
@@ -133,7 +134,7 @@ def mpu_config(tmp_path: Path, port: str = "emulated", emulator: dict | None = N
         doc["jig"] = {"type": "simulated"}
     else:
         doc["jig"].update(settle_s=0.0, speed_deg_s=4000, accel_deg_s2=1e5)
-    p = tmp_path / "mpu.yaml"
+    p = tmp_path / name
     p.write_text(yaml.safe_dump(doc))
     return p
 
@@ -328,3 +329,43 @@ def test_the_self_test_waits_for_a_still_board(tmp_path):
     for quiet, bumped in zip(out[0]["axes"], out[1]["axes"], strict=True):
         sem = np.hypot(quiet["sem_g"], bumped["sem_g"])
         assert abs(bumped["change_g"] - quiet["change_g"]) <= 6 * sem, (quiet, bumped)
+
+
+@pytest.mark.parametrize("firmware", [False, True], ids=["python", "simavr"])
+def test_emulate_with_the_configs_fault_then_run_fails_self_test(tmp_path, firmware):
+    """Only the command line: `accelcal emulate mpu6050-bridge --motor-jig [--firmware] --config F` with
+    F's device.emulator giving the chip a weak X axis, then `accelcal run --json` on the printed ports."""
+    import subprocess
+    import sys
+
+    if firmware:
+        require_simavr()
+    link = "simavr" if firmware else "python"
+    faults = mpu_config(tmp_path, emulator={"self_test_share": [0.3, 1.0, 1.0]}, name="chip.yaml")
+    p = mpu_config(tmp_path, "/dev/null", link=link)  # the station's: device.emulator only with port: emulated
+    cmd = [sys.executable, "-m", "accelcal_station", "emulate", "mpu6050-bridge", "--motor-jig", "--jig-speed",
+           "4000", "--config", str(faults), "--seed", "9", "--json"] + (["--firmware"] if firmware else [])
+    em = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    try:
+        ports = json.loads(em.stdout.readline())
+        code, out = run_json(p, "--port", ports["port"], "--jig-port", ports["jig_port"])
+    finally:
+        em.terminate()
+        em.wait(timeout=10)
+    assert code == 1 and out["reason_codes"] == ["self_test"] and out["nvm"] is None, out
+    assert [a["axis"] for a in out["self_test"]["axes"] if not a["ok"]] == ["x"]
+    assert out["self_test"]["axes"][0]["value"] == pytest.approx(-0.7, abs=0.05)
+    r = CliRunner().invoke(cli, ["run", "--config", str(faults), "--port", "/dev/ttyUSB9"])
+    assert r.exit_code == 2 and "only used with port: emulated" in r.output, r.output
+
+
+def test_bridge_emulator_keys_only_with_an_emulated_port_and_checked():
+    from accelcal_station.drivers.factory import make_driver
+    from accelcal_station.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"device\.emulator: only used with port: emulated"):
+        make_driver({"driver": "mpu6050", "port": "/dev/ttyUSB9", "emulator": {"self_test_share": [1, 1, 1]}})
+    with pytest.raises(ConfigError, match=r"device\.emulator\.offset_step_scale"):
+        make_driver({"driver": "mpu6050", "port": "emulated", "emulator": {"offset_step_scale": 5.0}})
+    with pytest.raises(ConfigError, match=r"device\.emulator\.self_test_scale"):  # an mma8451 key on the bridge
+        make_driver({"driver": "mpu6050", "port": "emulated", "emulator": {"self_test_scale": [1, 1, 1]}})
