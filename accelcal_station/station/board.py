@@ -392,7 +392,7 @@ class Station:
         driver's trim unit promises.  It must agree with the promised one per axis within
         ``acceptance.offset_trim_tolerance`` of it or 4 standard errors of the difference, whichever is
         larger: a trim unit a little off is measured and used; a wrong sign, register or unit
-        (docs/station.md) fails ``offset_trim`` and the registers get their old values back.
+        (docs/self-test.md) fails ``offset_trim`` and the registers get their old values back.
         None: FAIL.  The registers are volatile: the trim is reported so ``device.offset_trim_lsb`` can
         restore it at power-up.
         """
@@ -427,7 +427,7 @@ class Station:
         self.echo(f"offset trim {total.tolist()} LSB ({lsb_g * 1e3:.2f} mg each), measured change "
                   f"{np.round(measured_g * 1e3, 2).tolist()} mg: add device.offset_trim_lsb to the config to "
                   "restore it at power-up")
-        t = measured_g
+        t = np.where(total != old, measured_g, 0.0)  # an axis not written did not change: its reading is noise
         return Calibration(cal.model, cal.W, cal.V - cal.W @ t, cal.Gamma, cal.input_units, cal.input_per_g,
                            cal.temperature, dict(cal.metadata, offset_trim_lsb=total.tolist(),
                                                  offset_trim_measured_mg=(t * 1e3).tolist()))
