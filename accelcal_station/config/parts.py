@@ -13,7 +13,7 @@ from typing import Annotated, Any, Literal, TypeVar
 
 from pydantic import BaseModel, Field, StrictBool, field_validator
 
-from .schema import BusEmulatorSection, HandSection, Section, _check_mount, _f, validate
+from .schema import BridgeEmulatorSection, BusEmulatorSection, HandSection, Section, _check_mount, _f, validate
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -107,13 +107,15 @@ class Mpu6050Section(Section):
     boot_wait_s: float = _f(2.0, "wait for the bridge to boot, s", ge=0, le=30)
     simulator: dict[str, Any] | str | None = _f(None, "port: emulated: the simulated board (a mapping or a file)")
     seed: int | None = _f(None, "port: emulated: random seed", ge=0, le=2**32 - 1)
+    emulator: BridgeEmulatorSection | None = _f(None, "port: emulated: the bridge emulator's chip and faults")
 
 
 class Mpu6050SimSection(Section):
-    """The ``simulator`` and ``seed`` of an emulated mpu6050 (other device keys are ignored)."""
+    """The ``simulator``, ``seed`` and ``emulator`` of an emulated mpu6050 (other device keys are ignored)."""
 
     simulator: dict[str, Any] | str | None = None
     seed: int | None = _f(None, "random seed", ge=0, le=2**32 - 1)
+    emulator: BridgeEmulatorSection | None = None
 
 
 class EmulatedSeedSection(Section):

@@ -19,6 +19,10 @@ from ..errors import ConfigError
 MAX_BOARDS = 64
 
 
+# three numbers [x, y, z] (YAML gives a list; a strict tuple would refuse it)
+Triple = Annotated[list[Annotated[float, Field(ge=0, le=1e6)]], Field(min_length=3, max_length=3)]
+
+
 class Section(BaseModel):
     """A config section: unknown keys refused, numbers finite."""
 
@@ -61,6 +65,7 @@ class CaptureSection(Section):
     settle_timeout_s: float = _f(30.0, "longest wait for the board to be still, s", gt=0, le=86_400)
     pose_tolerance_deg: float = _f(12.0, "measured gravity direction vs the planned pose, deg", ge=0, le=180)
     max_recaptures: int = _f(3, "captures repeated when the board moved during one", ge=0, le=100)
+    self_test_samples: int = _f(64, "samples averaged in each self-test state (self-test off, on)", ge=4, le=1024)
 
 
 class AcceptanceSection(Section):
@@ -78,6 +83,17 @@ class AcceptanceSection(Section):
     stderr_gain_max: float | None = _f(None, "largest standard error of W, fraction", ge=0, le=100)
     verify_error_max_mg: float | None = _f(None, "closed-loop verification: largest |calibrated - expected|, mg",
                                            ge=0, le=1e6)
+    self_test: StrictBool = _f(True, "run the chip's built-in self-test before the poses when the driver has one "
+                                     "(docs/self-test.md); a board that fails it is not calibrated nor burned")
+    self_test_low_g: Triple | None = _f(
+        None, "mma8451: smallest self-test output change per axis [x, y, z], g (default: the data sheet's)")
+    self_test_high_g: Triple | None = _f(
+        None, "mma8451: largest self-test output change per axis [x, y, z], g (default: the data sheet's)")
+    self_test_tolerance: float | None = _f(
+        None, "mpu6050: largest |(STR - FT) / FT|, fraction (default: the data sheet's 0.14)", gt=0, le=10)
+    offset_trim_tolerance: float = _f(
+        0.25, "nvm.offset_trim: largest |measured - expected| trim change as a fraction of the expected change "
+        "(or 4 standard errors, whichever is larger); beyond it: FAIL offset_trim", gt=0, le=1)
 
 
 class NvmSection(Section):
@@ -163,8 +179,8 @@ class BusEmulatorSection(Section):
     present: StrictBool = _f(True, "the chip answers on the bus at all")
     bus_hz: float = _f(400_000.0, "I2C clock of the emulated bus, Hz", ge=10_000, le=3_400_000)
     corrupt_reads: CorruptReadsSection | None = _f(None, "a lying bus: reads corrupted at random (tests)")
-    self_test_scale: tuple[float, float, float] = _f(
-        (1.0, 1.0, 1.0), "self-test response per axis as a share of this chip's own (a weak axis: e.g. 0.05)")
+    self_test_scale: Triple = _f(
+        [1.0, 1.0, 1.0], "self-test response per axis as a share of this chip's own (a weak axis: e.g. 0.05)")
     self_test_dead: StrictBool = _f(False, "the self-test bit does nothing (a broken self-test circuit)")
     trim_step_scale: float = _f(1.0, "OFF_X/Y/Z step as a share of the data sheet's 1/512 g (a chip whose "
                                      "trim unit differs from the driver's assumption)", ge=0.5, le=2.0)
@@ -172,6 +188,25 @@ class BusEmulatorSection(Section):
     mux_reset_after: int = _f(0, "panel behind an emulated TCA9548A: the mux resets (no channel selected, as "
                                  "after a brown-out) after this many transactions to this board (0: never)",
                               ge=0, le=10**9)
+
+
+class BridgeEmulatorSection(Section):
+    """mpu6050 ``port: emulated``: the bridge emulator's chip (drivers/mpu6050_emulator.py) and its faults."""
+
+    self_test_share: Triple | None = _f(
+        None, "self-test response per axis as a share of the factory trim FT (default: drawn per chip, 1 +- 4 %; "
+        "a weak axis: e.g. 0.5; 0: a self-test that does nothing)")
+    self_test_codes: Annotated[list[Annotated[int, Field(ge=1, le=31)]], Field(min_length=3, max_length=3)] | None = \
+        _f(None, "factory self-test codes XA/YA/ZA_TEST in SELF_TEST_X/Y/Z/A, 1..31 (default: drawn per chip)")
+    offset_step_scale: float = _f(1.0, "XA/YA/ZA_OFFS step as a share of 1/2048 g (a part whose offset-register "
+                                       "unit differs from the driver's assumption)", ge=0.5, le=2.0)
+    chip_ppm: float = _f(0.0, "the chip's clock against the bridge MCU's, ppm (positive: the chip is fast)",
+                         ge=-1e4, le=1e4)
+
+
+class EmulatorSection(BusEmulatorSection, BridgeEmulatorSection):
+    """``device.emulator``: every emulated chip's keys; each driver takes its own (check_kinds: mma8451
+    BusEmulatorSection, mpu6050 BridgeEmulatorSection)."""
 
 
 class MuxSection(Section):
@@ -216,7 +251,9 @@ class DeviceSection(Section):
     retries: int | None = _f(None, "mma8451/mpu6050: retries of a bus or serial transaction", ge=0, le=20)
     timeout_s: float | None = _f(None, "mma8451/mpu6050: transaction timeout, s", ge=0.001, le=60)
     offset_trim_lsb: list[int] | None = _f(None, "mma8451: offset registers [x, y, z], whole numbers -128..127")
-    emulator: BusEmulatorSection | None = _f(None, "mma8451 bus: emulated: the emulator's faults")
+    emulator: EmulatorSection | None = _f(
+        None, "emulated chips' faults: mma8451 bus: emulated (the register emulator's), mpu6050 port: emulated "
+        "(the bridge emulator's)")
     port: str | None = _f(None, "mpu6050: serial port of the bridge (or 'emulated')")
     baud: int | None = _f(None, "mpu6050: serial baud rate", ge=1200, le=4_000_000)
     boot_wait_s: float | None = _f(None, "mpu6050: wait for the bridge to boot, s", ge=0, le=30)

@@ -18,8 +18,9 @@ from ..acceptance.reasons import Reason, codes
 from ..acceptance.rules import judge
 from ..calibration import Calibration
 from ..conventions import fit_mount, mount_hint, mount_matrix, reference_to_angles
-from ..drivers.base import Clock, Driver, Identity
+from ..drivers.base import Capture, Clock, Driver, Identity
 from ..drivers.factory import make_driver
+from ..drivers.self_test import with_limits
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
@@ -31,7 +32,7 @@ from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
 from ..store.outbox import open_store
 from ..store.runs import Store
-from .capture import GatedCapture, MountMismatch, StillnessGate, WrongPose, gated_capture
+from .capture import GatedCapture, MountMismatch, StillnessGate, WrongPose, gated_capture, wait_still
 from .recording import record_result, start_args
 from .report import RunReport, Timing, fit_figures
 from .settings import StationConfig, configured_rate
@@ -39,6 +40,17 @@ from .verdict import Stage
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
+
+
+def trim_change(expected_g: np.ndarray, before: Capture, after: Capture, counts_per_g: float, tolerance: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """An offset trim's change measured and judged, per axis (g): measured = (mean after - mean before) /
+    counts_per_g, sigma = hypot(SEM before, SEM after) / counts_per_g, the allowance
+    max(tolerance |expected|, 4 sigma) and ok = |measured - expected| <= allowance (docs/self-test.md)."""
+    measured = (after.mean_counts - before.mean_counts) / counts_per_g
+    sigma = np.hypot(before.sem_counts, after.sem_counts) / counts_per_g
+    allowed = np.maximum(tolerance * np.abs(expected_g), 4.0 * sigma)
+    return measured, sigma, allowed, np.abs(measured - expected_g) <= allowed
 
 
 class Station:
@@ -163,7 +175,8 @@ class Station:
                 records: list[PoseRecord] = []
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
-                self._calibrate(store, run_id, driver, clock, session, retries, rep)
+                if self._self_test(store, run_id, driver, rep):
+                    self._calibrate(store, run_id, driver, clock, session, retries, rep)
                 rep.timing = self._timing(driver, clock, clock0, wall0)
                 self._finish(store, run_id, session, retries, rep)
         return rep
@@ -193,6 +206,46 @@ class Station:
             self._record_unreachable(store, e)
             raise
         return ident
+
+    def _self_test(self, store: Store, run_id: int, driver: Driver, rep: RunReport) -> bool:
+        """The self-test step of a run (:meth:`self_test_step`); a device fault ends the run FAIL with its code,
+        any other error or Ctrl-C interrupts it.  True: the poses may follow."""
+        try:
+            return self.self_test_step(driver, rep)
+        except DeviceError as e:
+            rep.record(Stage.FAULT, Reason(e.reason_code, f"during the self-test: {e}"))
+            self.echo(f"FAIL: {e} (self-test)")
+            return False
+        except (AccelcalError, KeyboardInterrupt) as e:
+            why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else f"self-test: {e}"
+            store.interrupt_run(run_id, why, status="interrupted" if isinstance(e, KeyboardInterrupt) else "error")
+            raise
+
+    def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
+        """The chip's built-in self-test, once, before the poses on the board as it sits (still, seated in the
+        fixture); judged on the data sheet's limits or the config's (acceptance.self_test_*).  A failure is
+        recorded FAIL ``self_test`` (no poses follow, nothing is burned).  True: the poses may follow
+        (passed, or the driver has no self-test, or it is turned off).  Device errors propagate."""
+        lim = self.cfg.limits.self_test
+        if not (lim.run and driver.supports_self_test):
+            return True
+        self.echo("self-test")
+        # on a still board: a move between the two averages would read as self-test response
+        self.samples_read += wait_still(driver, self.cfg.capture)
+        res = driver.self_test(self.cfg.capture.self_test_samples)
+        if lim.overridden:
+            res = with_limits(res, lim.low_g, lim.high_g, lim.tolerance, "the config's acceptance section")
+        rep.self_test = res.to_json()
+        for a in res.axes:
+            self.echo(f"  {a.axis}: change {a.change_g * 1e3:+.1f} mg, {a.unit} {a.value:.4g} in "
+                      f"[{a.low:.4g}, {a.high:.4g}] {'ok' if a.ok else 'FAIL'}")
+        failed = res.reason()
+        if failed is not None:
+            rep.record(Stage.SELF_TEST, Reason("self_test", failed))
+            self.echo(f"FAIL: {failed} (no poses, nothing burned)")
+            return False
+        rep.record(Stage.SELF_TEST)
+        return True
 
     def _calibrate(self, store: Store, run_id: int, driver: Driver, clock: Clock | None, session: Session,
                    retries: list[int], rep: RunReport) -> None:
@@ -232,7 +285,8 @@ class Station:
                   "fit_summary": {**fit_figures(rep.fit), "reason_codes": codes(rep.reasons),
                                   "measured": rep.measured,
                                   "verify_error_max_mg": rep.verify_error_max_mg,
-                                  "offset_trim_lsb": rep.offset_trim_lsb,
+                                  "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim,
+                                  "self_test": rep.self_test,
                                   "design": cfg.design, "skipped": rep.skipped,
                                   "timing": rep.timing, "nvm_verified": rep.nvm_verified},
                   "model": cfg.model, "retries": retries, "limits": cfg.limits.values}
@@ -304,9 +358,12 @@ class Station:
             rep.record(Stage.ACCEPTANCE, *verdict.reasons)
             self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
             return None
-        cal = fit.calibration
+        cal: Calibration | None = fit.calibration
         if cfg.offset_trim:
-            cal = rep.calibration = self._trim_offsets(driver, cal, rep)
+            last = session.poses[-1].reference_g if session.poses else None
+            cal = self._trim_offsets(driver, fit.calibration, last, rep)
+            if cal is not None:
+                rep.calibration = cal
         return cal
 
     def _judge_verified(self, cal: Calibration, checks: list[Check], rep: RunReport) -> bool:
@@ -368,12 +425,18 @@ class Station:
             return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
 
-    def _trim_offsets(self, driver: Driver, cal: Calibration, rep: RunReport) -> Calibration:
-        """Move the zero-g offset into the chip's offset registers and shift V to match.
+    def _trim_offsets(self, driver: Driver, cal: Calibration, reference_g: np.ndarray | None,
+                      rep: RunReport) -> Calibration | None:
+        """Move the zero-g offset into the chip's offset registers and shift V by the change MEASURED.
 
-        The trimmed output is G_f' = G_f + t, so G = W (G_f' - t) + V: V' = V - W t.
-        The registers are volatile: the trim is reported (and recorded) so the device
-        config's ``offset_trim_lsb`` can restore it at power-up.
+        The trimmed output is G_f' = G_f + t, so G = W (G_f' - t) + V: V' = V - W t, with t the change
+        measured at the board's last pose (a still capture before writing, one after), not the change the
+        driver's trim unit promises.  It must agree with the promised one per axis within
+        ``acceptance.offset_trim_tolerance`` of it or 4 standard errors of the difference, whichever is
+        larger: a trim unit a little off is measured and used; a wrong sign, register or unit
+        (docs/self-test.md) fails ``offset_trim`` and the registers get their old values back.
+        None: FAIL.  The registers are volatile: the trim is reported so ``device.offset_trim_lsb`` can
+        restore it at power-up.
         """
         if not driver.supports_offset_trim:
             raise ConfigError(f"nvm.offset_trim: the {driver.name} driver has no offset-trim registers; "
@@ -382,13 +445,44 @@ class Station:
         lsb_g = driver.offset_trim_lsb_g
         old = np.asarray(driver.get_offset_trim(), dtype=float)
         total = np.clip(np.round(old - offset_g / lsb_g), -128, 127).astype(int)
+        cpg = driver.counts_per_g
+        before = self._still_capture(driver, reference_g, "before the offset trim")
         driver.set_offset_trim(tuple(int(v) for v in total))
-        t = (total - old) * lsb_g
+        after = self._still_capture(driver, reference_g, "after the offset trim")
+        expected_g = (total - old) * lsb_g
+        measured_g, sigma_g, tol_g, ok = trim_change(expected_g, before, after, cpg,
+                                                     self.cfg.limits.offset_trim_tolerance)
         rep.offset_trim_lsb = total.tolist()
-        self.echo(f"offset trim {total.tolist()} LSB ({lsb_g * 1e3:.2f} mg each): "
-                  "add device.offset_trim_lsb to the config to restore it at power-up")
+        rep.offset_trim = {"lsb": total.tolist(), "previous_lsb": old.astype(int).tolist(),
+                           "lsb_mg": lsb_g * 1e3, "expected_mg": (expected_g * 1e3).tolist(),
+                           "measured_mg": (measured_g * 1e3).tolist(), "sigma_mg": (sigma_g * 1e3).tolist(),
+                           "tolerance_mg": (tol_g * 1e3).tolist(), "ok": ok.tolist()}
+        if not ok.all():
+            driver.set_offset_trim(tuple(int(v) for v in old))  # the chip as it was: nothing of this run kept
+            bad = ", ".join(f"{'xyz'[i]} measured {measured_g[i] * 1e3:+.2f} mg, expected {expected_g[i] * 1e3:+.2f}"
+                            f" +- {tol_g[i] * 1e3:.2f} mg" for i in np.flatnonzero(~ok))
+            rep.record(Stage.OFFSET_TRIM, Reason("offset_trim", f"the trim written did not do what its unit "
+                                                 f"({lsb_g * 1e3:.3f} mg per LSB) says: {bad}; registers restored"))
+            self.echo(f"FAIL: offset trim: {bad}")
+            return None
+        rep.record(Stage.OFFSET_TRIM)
+        self.echo(f"offset trim {total.tolist()} LSB ({lsb_g * 1e3:.2f} mg each), measured change "
+                  f"{np.round(measured_g * 1e3, 2).tolist()} mg: add device.offset_trim_lsb to the config to "
+                  "restore it at power-up")
+        t = np.where(total != old, measured_g, 0.0)  # an axis not written did not change: its reading is noise
         return Calibration(cal.model, cal.W, cal.V - cal.W @ t, cal.Gamma, cal.input_units, cal.input_per_g,
-                           cal.temperature, dict(cal.metadata, offset_trim_lsb=total.tolist()))
+                           cal.temperature, dict(cal.metadata, offset_trim_lsb=total.tolist(),
+                                                 offset_trim_measured_mg=(t * 1e3).tolist()))
+
+    def _still_capture(self, driver: Driver, reference_g: np.ndarray | None, label: str) -> Capture:
+        """One gated capture of the board where it stands (its events kept with the run's)."""
+        bar = self._capture_sink(f"  capturing {label}")
+        try:
+            gc = gated_capture(driver, self.cfg.capture, reference_g, None, progress=bar)
+        finally:
+            bar.close()
+        self.samples_read += gc.samples_read
+        return gc.capture
 
     def _verify_captures(self, driver: Driver, jig: Jig, rep: RunReport) -> list[Check]:
         """Fresh captures at the verification poses: (mean counts, expected g, temp)."""

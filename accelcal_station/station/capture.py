@@ -42,6 +42,7 @@ class CaptureSettings:
     settle_timeout_s: float = 30.0
     pose_tolerance_deg: float = 12.0
     max_recaptures: int = 3
+    self_test_samples: int = 64  # averaged in each self-test state (station/board.py _self_test)
 
 
 @dataclass
@@ -166,6 +167,25 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
                 if ang > s.pose_tolerance_deg:
                     raise WrongPose(expected_g, cap.mean_counts, ang)
             return GatedCapture(cap, recaptures, waited, reached, gate.floor.copy(), read, events)
+
+
+def wait_still(driver: Driver, settings: CaptureSettings) -> int:
+    """Read blocks until the board has been still for ``hold_s`` (the capture's stillness gate); the samples
+    read.  A board not still after ``settle_timeout_s`` is a DeviceError naming its noise floor."""
+    s = settings
+    block_n = max(4, int(round(s.block_s * driver.odr_hz)))
+    gate = StillnessGate(s)
+    read = 0
+    t_first = None
+    while True:
+        counts, t, _ = driver.read_samples(block_n)
+        read += len(counts)
+        t_first = float(t[0]) if t_first is None else t_first
+        if gate.update(counts.astype(float), float(t[-1])):
+            return read
+        if float(t[-1]) - t_first > s.settle_timeout_s:
+            raise DeviceError(f"board not still after {s.settle_timeout_s:g} s "
+                              f"(noise floor {np.round(gate.floor, 1).tolist()} counts)")
 
 
 class WrongPose(DeviceError):
