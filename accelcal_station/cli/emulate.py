@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ..drivers.mpu6050_emulator import MPU6050BridgeEmulator, board_config_from_file, emulator_options_from_file
+from ..drivers.emulator_files import board_config_from_file, emulator_options_from_file
+from ..drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from ..drivers.simulated import SimulatedBoard
 from ._common import MAX_SEED, Finite, Whole
 

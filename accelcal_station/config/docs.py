@@ -11,7 +11,8 @@ from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 from .parts import PARTS
-from .schema import StationConfigSchema, _models_in, _range
+from .schema import StationConfigSchema
+from .validation import _models_in, _range
 
 HEADER = """# Station configuration keys
 

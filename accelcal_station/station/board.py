@@ -17,10 +17,9 @@ import numpy as np
 from ..acceptance.reasons import Reason, codes
 from ..acceptance.rules import judge
 from ..calibration import Calibration
-from ..conventions import fit_mount, mount_hint, mount_matrix, reference_to_angles
+from ..conventions import mount_matrix, reference_to_angles
 from ..drivers.base import Capture, Clock, Driver, Identity
 from ..drivers.factory import make_driver
-from ..drivers.self_test import with_limits
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
@@ -32,25 +31,23 @@ from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
 from ..store.outbox import open_store
 from ..store.runs import Store
-from .capture import GatedCapture, MountMismatch, StillnessGate, WrongPose, gated_capture, wait_still
+from .capture import (
+    GatedCapture,
+    MountMismatch,
+    StillnessGate,
+    WrongPose,
+    gated_capture,
+    with_mounting,
+)
+from .offset_trim import trim_change, trim_failure, trim_record, trimmed
 from .recording import record_result, start_args
 from .report import RunReport, Timing, fit_figures
+from .self_test_step import self_test_step
 from .settings import StationConfig, configured_rate
 from .verdict import Stage
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
-
-
-def trim_change(expected_g: np.ndarray, before: Capture, after: Capture, counts_per_g: float, tolerance: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """An offset trim's change measured and judged, per axis (g): measured = (mean after - mean before) /
-    counts_per_g, sigma = hypot(SEM before, SEM after) / counts_per_g, the allowance
-    max(tolerance |expected|, 4 sigma) and ok = |measured - expected| <= allowance (docs/self-test.md)."""
-    measured = (after.mean_counts - before.mean_counts) / counts_per_g
-    sigma = np.hypot(before.sem_counts, after.sem_counts) / counts_per_g
-    allowed = np.maximum(tolerance * np.abs(expected_g), 4.0 * sigma)
-    return measured, sigma, allowed, np.abs(measured - expected_g) <= allowed
 
 
 class Station:
@@ -138,15 +135,8 @@ class Station:
         return round(float(pitch), 9), round(float(roll), 9)
 
     def _mounting(self, pose: PoseSpec, e: WrongPose) -> WrongPose:
-        """A wrong pose, with the mounting that fits this and the poses captured so far when it
-        is not device.mount: a MountMismatch once the readings single it out."""
-        r = np.array([o[0] for o in self._seen] + [pose.reference_g])
-        m = np.array([o[1] for o in self._seen] + [e.measured])
-        hint = mount_hint(r, m, self.mount, self.cfg.capture.pose_tolerance_deg)
-        if hint is None:
-            return e
-        unique = fit_mount(r, m)[2]
-        return (MountMismatch if unique else WrongPose)(e.expected_g, e.measured, e.angle, hint)
+        """A wrong pose, with the mounting that fits it and the poses captured so far (capture.with_mounting)."""
+        return with_mounting(self._seen, pose.reference_g, e, self.mount, self.cfg.capture.pose_tolerance_deg)
 
     # -- the run ---------------------------------------------------------------------
     def run(self) -> RunReport:
@@ -222,30 +212,11 @@ class Station:
             raise
 
     def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
-        """The chip's built-in self-test, once, before the poses on the board as it sits (still, seated in the
-        fixture); judged on the data sheet's limits or the config's (acceptance.self_test_*).  A failure is
-        recorded FAIL ``self_test`` (no poses follow, nothing is burned).  True: the poses may follow
-        (passed, or the driver has no self-test, or it is turned off).  Device errors propagate."""
-        lim = self.cfg.limits.self_test
-        if not (lim.run and driver.supports_self_test):
-            return True
-        self.echo("self-test")
-        # on a still board: a move between the two averages would read as self-test response
-        self.samples_read += wait_still(driver, self.cfg.capture)
-        res = driver.self_test(self.cfg.capture.self_test_samples)
-        if lim.overridden:
-            res = with_limits(res, lim.low_g, lim.high_g, lim.tolerance, "the config's acceptance section")
-        rep.self_test = res.to_json()
-        for a in res.axes:
-            self.echo(f"  {a.axis}: change {a.change_g * 1e3:+.1f} mg, {a.unit} {a.value:.4g} in "
-                      f"[{a.low:.4g}, {a.high:.4g}] {'ok' if a.ok else 'FAIL'}")
-        failed = res.reason()
-        if failed is not None:
-            rep.record(Stage.SELF_TEST, Reason("self_test", failed))
-            self.echo(f"FAIL: {failed} (no poses, nothing burned)")
-            return False
-        rep.record(Stage.SELF_TEST)
-        return True
+        """The chip's built-in self-test once, before the poses (station/self_test_step.py).  True: the
+        poses may follow.  Device errors propagate."""
+        ok, read = self_test_step(driver, self.cfg, rep, self.echo)
+        self.samples_read += read
+        return ok
 
     def _calibrate(self, store: Store, run_id: int, driver: Driver, clock: Clock | None, session: Session,
                    retries: list[int], rep: RunReport) -> None:
@@ -453,26 +424,18 @@ class Station:
         measured_g, sigma_g, tol_g, ok = trim_change(expected_g, before, after, cpg,
                                                      self.cfg.limits.offset_trim_tolerance)
         rep.offset_trim_lsb = total.tolist()
-        rep.offset_trim = {"lsb": total.tolist(), "previous_lsb": old.astype(int).tolist(),
-                           "lsb_mg": lsb_g * 1e3, "expected_mg": (expected_g * 1e3).tolist(),
-                           "measured_mg": (measured_g * 1e3).tolist(), "sigma_mg": (sigma_g * 1e3).tolist(),
-                           "tolerance_mg": (tol_g * 1e3).tolist(), "ok": ok.tolist()}
+        rep.offset_trim = trim_record(total, old, lsb_g, expected_g, measured_g, sigma_g, tol_g, ok)
         if not ok.all():
             driver.set_offset_trim(tuple(int(v) for v in old))  # the chip as it was: nothing of this run kept
-            bad = ", ".join(f"{'xyz'[i]} measured {measured_g[i] * 1e3:+.2f} mg, expected {expected_g[i] * 1e3:+.2f}"
-                            f" +- {tol_g[i] * 1e3:.2f} mg" for i in np.flatnonzero(~ok))
-            rep.record(Stage.OFFSET_TRIM, Reason("offset_trim", f"the trim written did not do what its unit "
-                                                 f"({lsb_g * 1e3:.3f} mg per LSB) says: {bad}; registers restored"))
-            self.echo(f"FAIL: offset trim: {bad}")
+            why = trim_failure(lsb_g, expected_g, measured_g, tol_g, ok)
+            rep.record(Stage.OFFSET_TRIM, Reason("offset_trim", why))
+            self.echo(f"FAIL: offset trim: {why}")
             return None
         rep.record(Stage.OFFSET_TRIM)
         self.echo(f"offset trim {total.tolist()} LSB ({lsb_g * 1e3:.2f} mg each), measured change "
                   f"{np.round(measured_g * 1e3, 2).tolist()} mg: add device.offset_trim_lsb to the config to "
                   "restore it at power-up")
-        t = np.where(total != old, measured_g, 0.0)  # an axis not written did not change: its reading is noise
-        return Calibration(cal.model, cal.W, cal.V - cal.W @ t, cal.Gamma, cal.input_units, cal.input_per_g,
-                           cal.temperature, dict(cal.metadata, offset_trim_lsb=total.tolist(),
-                                                 offset_trim_measured_mg=(t * 1e3).tolist()))
+        return trimmed(cal, total, old, measured_g)
 
     def _still_capture(self, driver: Driver, reference_g: np.ndarray | None, label: str) -> Capture:
         """One gated capture of the board where it stands (its events kept with the run's)."""

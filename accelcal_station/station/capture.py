@@ -23,7 +23,7 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..conventions import angle_deg, nearest_face
+from ..conventions import angle_deg, fit_mount, mount_hint, nearest_face
 from ..drivers.base import Capture, Driver
 from ..errors import DeviceError
 
@@ -204,3 +204,17 @@ class WrongPose(DeviceError):
 
 class MountMismatch(WrongPose):
     """The readings of the first poses fit one other mounting of the chip (device.mount) exactly."""
+
+
+def with_mounting(seen: list[tuple[np.ndarray, np.ndarray]], reference_g: np.ndarray, e: WrongPose,
+                  mount: np.ndarray, tolerance_deg: float) -> WrongPose:
+    """A wrong pose, with the mounting that fits this and the poses captured so far (``seen``: their
+    expected and measured readings) when it is not device.mount: a MountMismatch once the readings
+    single it out."""
+    r = np.array([o[0] for o in seen] + [reference_g])
+    m = np.array([o[1] for o in seen] + [e.measured])
+    hint = mount_hint(r, m, mount, tolerance_deg)
+    if hint is None:
+        return e
+    unique = fit_mount(r, m)[2]
+    return (MountMismatch if unique else WrongPose)(e.expected_g, e.measured, e.angle, hint)
