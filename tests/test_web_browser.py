@@ -274,9 +274,8 @@ def _face_shown(drv) -> str:
     return face
 
 
-def _click_through_the_poses(drv, port: int) -> tuple[int, set[str]]:
-    """Open the operator page and accept every pose (buttons and Enter in turn) until the result shows;
-    screenshots of the first pose and of each of the six faces: (clicks, faces shown)."""
+def _open_operator_page(drv, port: int) -> float:
+    """Load the operator page once its station answers (within 20 s); the time it started waiting."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < 20:
         try:
@@ -284,6 +283,13 @@ def _click_through_the_poses(drv, port: int) -> tuple[int, set[str]]:
             break
         except Exception:
             time.sleep(0.2)
+    return t0
+
+
+def _click_through_the_poses(drv, port: int) -> tuple[int, set[str]]:
+    """Open the operator page and accept every pose (buttons and Enter in turn) until the result shows;
+    screenshots of the first pose and of each of the six faces: (clicks, faces shown)."""
+    t0 = _open_operator_page(drv, port)
     clicks, shot, faces = 0, False, set()
     while not drv.find_element(By.ID, "result").is_displayed():
         assert time.monotonic() - t0 < 90, drv.page_source[-2000:]
@@ -353,13 +359,7 @@ def test_abort_on_the_operator_page_exits_5_and_records_the_run_interrupted(tmp_
                              "--ui-port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         with chromium() as drv:
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < 20:
-                try:
-                    drv.get(f"http://127.0.0.1:{port}/")
-                    break
-                except Exception:
-                    time.sleep(0.2)
+            _open_operator_page(drv, port)
             wait(drv, 30).until(lambda d: d.find_element(By.ID, "b-abort").is_enabled())
             ActionChains(drv).send_keys("a").perform()
             wait(drv, 30).until(lambda d: d.find_element(By.ID, "result").is_displayed())
