@@ -15,6 +15,8 @@ from ..station.report import RunReport, Timing
 from ..station.settings import StationConfig
 from ..station.shift import (
     DEVICE_WAIT_S,
+    SERIAL_PROMPT,
+    SERIAL_PROMPT_PAGE,
     BoardOutcome,
     OnBoard,
     board_station,
@@ -74,9 +76,13 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
         _shift(cfg, operator, lot, as_json, echo, TerminalOperator(echo), device_wait_s)
         return
     if ui_kind == "web":
-        from ._operator_web import finish_reports, web_operator
+        from ._operator_web import finish_outcome, finish_reports, web_operator
 
-        with web_operator(cfg, echo, ui_host, ui_port) as web:
+        with web_operator(cfg, echo, ui_host, ui_port, shift=shift) as web:
+            if shift:
+                _shift(cfg, operator, lot, as_json, echo, web, device_wait_s, web.start_board,
+                       lambda b, rep: finish_outcome(web, b, rep), web.end_shift, SERIAL_PROMPT_PAGE)
+                return
             _run(cfg, operator, serial, lot, as_json, echo, web, web, lambda reports: finish_reports(web, reports))
         return
     # identity questions and their retries always on stderr (stdout may be the JSON object)
@@ -113,7 +119,8 @@ def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str 
 
 def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: bool, echo: Callable[[str], None],
            ui: OperatorUI, device_wait_s: float, on_start: Callable[[str], None] | None = None,
-           on_board: OnBoard | None = None) -> dict[str, Any]:
+           on_board: OnBoard | None = None, on_end: Callable[[dict[str, Any]], None] | None = None,
+           prompt: str = SERIAL_PROMPT) -> None:
     """`run --shift`: each board printed as it ends (one JSON line each under --json), then the
     shift's summary (one JSON line); DeviceGone (exit 3) after the summary when the device stayed away."""
     echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}; shift started")
@@ -129,8 +136,10 @@ def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: b
         if on_board is not None:
             on_board(b, rep)
 
-    tally, gone = run_shift(cfg, operator, lot, ui, echo, board, device_wait_s, on_start)
+    tally, gone = run_shift(cfg, operator, lot, ui, echo, board, device_wait_s, on_start, prompt)
     s = tally.summary()
+    if on_end is not None:
+        on_end(s)
     if as_json:
         click.echo(json.dumps(jsonable(s), allow_nan=False))
     else:
@@ -138,7 +147,6 @@ def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: b
             click.secho(line, bold=True)
     if gone is not None:
         raise gone
-    return s
 
 
 def _print_board(rep: RunReport, cfg: StationConfig) -> None:

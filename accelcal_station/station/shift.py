@@ -150,18 +150,20 @@ def board_station(cfg: StationConfig, operator: str | None, serial: str | None, 
 # what the front end does with each board as it ends: its outcome, and its report when it finished
 OnBoard = Callable[[BoardOutcome, RunReport | None], None]
 SERIAL_PROMPT = "Board {n}: scan the serial number (end of input ends the shift)"
+SERIAL_PROMPT_PAGE = "Board {n}: scan the serial number"
 
 
 def run_shift(cfg: StationConfig, operator: str | None, lot: str | None, ui: OperatorUI,
               echo: Callable[[str], None], on_board: OnBoard, device_wait_s: float = DEVICE_WAIT_S,
-              on_start: Callable[[str], None] | None = None) -> tuple[ShiftTally, DeviceGone | None]:
+              on_start: Callable[[str], None] | None = None,
+              prompt: str = SERIAL_PROMPT) -> tuple[ShiftTally, DeviceGone | None]:
     """Board after board until the operator ends the shift; returns the tally, and the DeviceGone
     that ended it early if the device never came back.  Ctrl-C ends the shift too (the board it
     interrupts is recorded interrupted, counted aborted)."""
     tally = ShiftTally(cfg.station_id)
     while True:
         try:
-            serial = ask_serial(ui, SERIAL_PROMPT.format(n=len(tally.boards) + 1))
+            serial = ask_serial(ui, prompt.format(n=len(tally.boards) + 1))
             wait_for_device(cfg, ui.say, device_wait_s)
         except ShiftEnded:
             return tally, None

@@ -40,7 +40,8 @@ class Progress:
 class WebOperator:
     """An OperatorUI served to a browser; lines also go to ``echo`` (the terminal log)."""
 
-    def __init__(self, echo: Any, station_id: str, total_poses: int, live_every_s: float = 0.25) -> None:
+    def __init__(self, echo: Any, station_id: str, total_poses: int, live_every_s: float = 0.25,
+                 shift: bool = False) -> None:
         self.echo = echo
         self._lock = threading.Lock()
         self._answers: queue.Queue[str | None] = queue.Queue()  # None: the operator aborted
@@ -48,9 +49,12 @@ class WebOperator:
         self._level: tuple[float, dict[str, Any]] | None = None
         self.live_every_s = live_every_s
         self.lines: deque[str] = deque(maxlen=12)
-        self.final_seen = threading.Event()
+        self.final_seen = threading.Event()  # a page has shown the end (the run's verdict, or the shift's summary)
+        self._final_phase = "shift_over" if shift else "done"
+        # the station holds the state; every page (tabs, reloads, a second screen) only shows it
         self.state: dict[str, Any] = {"phase": "starting", "station": station_id, "total": total_poses,
-                                      "seq": 0, "pose": None, "capture": None, "result": None}
+                                      "seq": 0, "pose": None, "capture": None, "result": None,
+                                      "shift": shift, "board": None, "summary": None}
 
     # -- OperatorUI -----------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -116,8 +120,8 @@ class WebOperator:
         if phase == "serial" and what == "serial" and serial is not None:
             self._answers.put(serial)
             return True
-        if phase == "serial" and what == "abort":
-            self._answers.put(None)  # as end of input at the terminal's scan prompt
+        if phase == "serial" and what in ("abort", "end"):
+            self._answers.put(None)  # as end of input at the terminal's scan prompt (a shift's End shift)
             return True
         if phase == "ask" and what in ANSWER_TEXT and parse_answer(ANSWER_TEXT[what]) is not None:
             self._answers.put(ANSWER_TEXT[what])
@@ -133,7 +137,7 @@ class WebOperator:
                 if self._level is None or now - self._level[0] >= self.live_every_s:
                     self._level = (now, self._level_dict(self._live(), out["pose"]["expects_g"]))
                 out["level"] = self._level[1]
-        if out["phase"] == "done":
+        if out["phase"] == self._final_phase:
             self.final_seen.set()
         return out
 
@@ -143,6 +147,20 @@ class WebOperator:
         return {"still": st.still, "direction_ok": st.direction_ok, "off_deg": st.off_deg, "face": st.face,
                 "reads_g": [float(v) for v in st.reading_g], "bubble": [x, y], "ready": st.accepted,
                 "line": st.line()}
+
+    # -- a shift: board after board -------------------------------------------------------
+    def start_board(self, serial: str) -> None:
+        """The next board begins: the last verdict leaves every screen now, not before."""
+        with self._lock:
+            n = 1 + (self.state["board"] or {}).get("number", 0)
+            self.lines.clear()
+            self.state.update(phase="working", pose=None, capture=None, result=None,
+                              board={"serial": serial, "number": n})
+            self.state["seq"] += 1
+
+    def end_shift(self, summary: dict[str, Any]) -> None:
+        """The shift's summary, shown full-screen on every page."""
+        self.set(phase="shift_over", pose=None, capture=None, summary=summary)
 
     # -- the end --------------------------------------------------------------------------
     def finish(self, verdict: str, serial: str | None, run_id: int | None, reasons: list[dict[str, str]],

@@ -20,7 +20,7 @@ from .operator import WebOperator
 
 
 class AnswerIn(BaseModel):
-    answer: Literal["accept", "replace", "skip", "abort", "serial"]
+    answer: Literal["accept", "replace", "skip", "abort", "serial", "end"]
     serial: str | None = Field(None, max_length=200)
 
 

@@ -4,7 +4,7 @@
   "use strict";
   var NS = "http://www.w3.org/2000/svg";
   var $ = function (id) { return document.getElementById(id); };
-  var shownPose = null, phase = "", busy = false, done = false;
+  var shownPose = null, phase = "", busy = false, done = false, misses = 0;
   var KEYS = {Enter: "accept", r: "replace", R: "replace", s: "skip", S: "skip", a: "abort", A: "abort"};
 
   function el(tag, attrs, text) {
@@ -74,8 +74,25 @@
     box.hidden = false;
   }
 
+  function showSummary(s) {
+    var box = $("result");
+    box.className = "result shift";
+    $("result-verdict").textContent = "SHIFT OVER";
+    var fpy = s.first_pass_yield === null ? "–" : (100 * s.first_pass_yield).toFixed(1) + " %";
+    $("result-board").textContent = s.boards + " boards · PASS " + s.pass + " · FAIL " + s.fail +
+      (s.aborted ? " · aborted " + s.aborted : "") + (s.error ? " · error " + s.error : "") + " · first-pass yield " + fpy;
+    var items = Object.keys(s.reasons_by_code).map(function (c) {
+      var li = document.createElement("li"); li.textContent = (c || "–") + ": " + s.reasons_by_code[c]; return li;
+    });
+    $("result-reasons").replaceChildren.apply($("result-reasons"), items);
+    $("result-figures").textContent = s.started_utc + " to " + s.ended_utc + " (UTC)";
+    box.hidden = false;
+  }
+
   function render(s) {
     phase = s.phase;
+    $("board-id").textContent = s.board ? "Board " + s.board.number + " · " + s.board.serial : "";
+    if (!s.pose) { shownPose = null; }
     var total = s.total || 1, n = s.pose ? s.pose.number : 0;
     $("progress-bar").style.width = Math.min(100, 100 * Math.max(0, n - (phase === "ask" || phase === "place" ? 1 : 0)) / total) + "%";
     $("progress-text").textContent = s.pose ? "pose " + Math.min(n, total) + " of " + total : phase;
@@ -93,11 +110,18 @@
     $("capture").hidden = !cap;
     if (cap) { $("capture-label").textContent = cap.label; $("capture-bar").style.width = (100 * cap.fraction) + "%"; }
     var form = $("serial-form");
-    if (phase === "serial" && form.hidden) { form.hidden = false; $("serial-question").textContent = s.question; $("serial-input").focus(); }
-    if (phase !== "serial") { form.hidden = true; }
+    if (phase === "serial") {  // a barcode reader types into the focused field: keep it focused
+      form.hidden = false;
+      $("serial-question").textContent = s.question;
+      $("b-end").hidden = !s.shift;
+      if (document.activeElement !== $("serial-input")) { $("serial-input").focus(); }
+    } else { form.hidden = true; }
     var log = s.lines.map(function (t) { var li = document.createElement("li"); li.textContent = t; return li; });
     $("log").replaceChildren.apply($("log"), log);
-    if (phase === "done" && s.result) { done = true; showResult(s.result); }
+    // the station's verdict stays on every page until the station starts the next board
+    if (phase === "shift_over" && s.summary) { showSummary(s.summary); } else if (s.result) { showResult(s.result); }
+    else { $("result").hidden = true; }
+    done = phase === "shift_over" || (!s.shift && phase === "done");
   }
 
   function send(body) {
@@ -109,8 +133,11 @@
   }
 
   function poll() {
-    fetch("/operator/state", {cache: "no-store"}).then(function (r) { return r.json(); })
-      .then(render).catch(function () { $("progress-text").textContent = "station not answering"; });
+    fetch("/operator/state", {cache: "no-store"}).then(function (r) {
+      if (!r.ok) { throw new Error("HTTP " + r.status); }
+      return r.json();
+    }).then(function (s) { misses = 0; $("lost").hidden = true; render(s); })
+      .catch(function () { misses += 1; if (misses >= 3) { $("lost").hidden = false; } });
   }
 
   document.querySelectorAll(".buttons button").forEach(function (b) {
@@ -123,8 +150,11 @@
   });
   $("serial-form").addEventListener("submit", function (e) {
     e.preventDefault();
-    send({answer: "serial", serial: $("serial-input").value});
+    var v = $("serial-input").value.trim();
     $("serial-input").value = "";
+    if (v) { send({answer: "serial", serial: v}); }  // a blank scan is ignored, as in the terminal
   });
+  $("b-end").addEventListener("click", function () { send({answer: "end"}); });
+  // a page that lost the station keeps asking: it shows the station again as soon as it answers
   (function loop() { if (!done) { poll(); window.setTimeout(loop, 250); } }());
 }());
