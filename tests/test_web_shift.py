@@ -164,3 +164,105 @@ def test_two_screens_show_the_same_pose_and_a_lost_station_full_screen(tmp_path)
         if proc.poll() is None:
             proc.kill()
             proc.wait(timeout=30)
+
+
+PANELS = [(1024, 768), (800, 480)]  # the panel PCs factories put at a line
+
+
+def _viewport(drv, w: int, h: int) -> None:
+    drv.execute_cdp_cmd("Emulation.setDeviceMetricsOverride",
+                        {"width": w, "height": h, "deviceScaleFactor": 1, "mobile": False})
+
+
+def _inside(drv, ids: list[str], w: int, h: int) -> None:
+    """Each button wholly inside the viewport, at least 48 px each way, and the page not scrolled."""
+    assert drv.execute_script("return [window.innerWidth, window.innerHeight]") == [w, h]
+    assert drv.execute_script("return document.documentElement.scrollHeight") <= h
+    for i in ids:
+        r = drv.find_element(By.ID, i).rect
+        assert r["x"] >= 0 and r["y"] >= 0 and r["x"] + r["width"] <= w and r["y"] + r["height"] <= h, (i, r, w, h)
+        assert r["width"] >= 48 and r["height"] >= 48, (i, r)
+
+
+def _tap(drv, element_id: str) -> None:
+    """A finger on the touch screen: CDP touch events at the element's centre (no mouse)."""
+    r = drv.find_element(By.ID, element_id).rect
+    pt = {"x": r["x"] + r["width"] / 2, "y": r["y"] + r["height"] / 2}
+    drv.execute_cdp_cmd("Emulation.setTouchEmulationEnabled", {"enabled": True, "maxTouchPoints": 1})
+    drv.execute_cdp_cmd("Input.dispatchTouchEvent", {"type": "touchStart", "touchPoints": [pt]})
+    drv.execute_cdp_cmd("Input.dispatchTouchEvent", {"type": "touchEnd", "touchPoints": []})
+
+
+def test_the_operator_page_fits_panel_pcs_by_keys_and_touch(tmp_path):
+    from webtools import screenshot
+
+    cfg = _config(tmp_path)
+    port = free_port()
+    proc = _start(cfg, port, "--shift")
+    url = f"http://127.0.0.1:{port}/"
+    try:
+        with chromium(1024, 768) as drv:
+            for k, (w, h) in enumerate(PANELS):
+                _viewport(drv, w, h)
+                _open(drv, url)
+                WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "serial-input").is_displayed())
+                _inside(drv, ["serial-input", "b-serial", "b-end"], w, h)
+                drv.switch_to.active_element.send_keys(f"SN-P{k}" + Keys.ENTER)
+                WebDriverWait(drv, 30).until(lambda d: "READY" in d.find_element(By.ID, "ready").text)
+                _inside(drv, ["b-accept", "b-replace", "b-skip", "b-abort"], w, h)
+                assert drv.find_element(By.ID, "progress-text").text == "pose 1 of 6"  # the design's six poses
+                assert len(drv.find_elements(By.CSS_SELECTOR, "#strip .strip-item")) == 8
+                assert len(drv.find_elements(By.CSS_SELECTOR, "#strip .strip-item.verify")) == 2
+                screenshot(drv, f"operator-{w}x{h}.png")
+                if k == 0:  # the key
+                    drv.find_element(By.TAG_NAME, "body").send_keys(Keys.ENTER)
+                else:  # the finger
+                    _tap(drv, "b-accept")
+                WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "progress-text").text == "pose 2 of 6")
+                assert "done" in drv.find_elements(By.CSS_SELECTOR, "#strip .strip-item")[0].get_attribute("class")
+                WebDriverWait(drv, 30).until(lambda d: "READY" in d.find_element(By.ID, "ready").text)
+                _tap(drv, "b-abort") if k else drv.find_element(By.TAG_NAME, "body").send_keys("a")
+                WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "result-verdict").text == "ABORTED")
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "b-end").is_displayed())
+            _tap(drv, "b-end")
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "result-verdict").text == "SHIFT OVER")
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, cfg.with_suffix(".err").read_text()[-3000:]
+
+
+def test_the_page_says_capturing_and_labels_verify_poses(tmp_path):
+    """The real WebOperator and page, driven in process: during a capture the level says CAPTURING (the
+    level is not read then), and a verification pose is counted as such."""
+    from accelcal_station.fixtures.designs import get_design
+    from accelcal_station.fixtures.operator_jig import pose_words
+    from accelcal_station.fixtures.operator_ui import PosePrompt
+    from accelcal_station.web.operator import WebOperator
+    from accelcal_station.web.operator_app import create_operator_app
+    from accelcal_station.web.server import BackgroundServer
+
+    design = get_design("six-face")
+    ui = WebOperator(lambda t: None, "st-1", 8, plan=[(p, False) for p in design] + [(p, True) for p in design[:2]])
+    port = free_port()
+    server = BackgroundServer(create_operator_app(ui, None), "127.0.0.1", port)
+    server.start()
+    try:
+        with chromium(1024, 768) as drv:
+            _open(drv, f"http://127.0.0.1:{port}/")
+            ui.show_pose(PosePrompt(1, design[0], pose_words(design[0])))
+            bar = ui.capture("  capturing x+1g")
+            bar(0.4)
+            WebDriverWait(drv, 10).until(lambda d: d.find_element(By.ID, "still").text == "CAPTURING")
+            assert not drv.find_element(By.ID, "b-accept").is_enabled()
+            bar.close()
+            for i, p in enumerate(design[1:], start=2):
+                ui.show_pose(PosePrompt(i, p, pose_words(p)))
+            ui.show_pose(PosePrompt(7, design[0], pose_words(design[0])))  # the first verification pose
+            WebDriverWait(drv, 10).until(lambda d: d.find_element(By.ID, "progress-text").text == "verify 1 of 2")
+            items = drv.find_elements(By.CSS_SELECTOR, "#strip .strip-item")
+            assert [("done" in x.get_attribute("class")) for x in items] == [True] * 6 + [False, False]
+            assert "current" in items[6].get_attribute("class") and "verify" in items[6].text
+    finally:
+        server.stop()

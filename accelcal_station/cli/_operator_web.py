@@ -67,8 +67,10 @@ def web_operator(cfg: StationConfig, echo: Callable[[str], None], host: str, por
     from ..web.operator_app import create_operator_app
     from ..web.server import BackgroundServer
 
-    total = len(get_design(cfg.design)) + cfg.verify_poses
-    ui = WebOperator(echo, cfg.station_id, total, shift=shift)
+    design = get_design(cfg.design)
+    verify = get_design(cfg.verify_design or cfg.design)[:cfg.verify_poses]  # as Station._verify_captures
+    plan = [(p, False) for p in design] + [(p, True) for p in verify]
+    ui = WebOperator(echo, cfg.station_id, len(plan), shift=shift, plan=plan)
     server = BackgroundServer(create_operator_app(ui, cfg.web_token), host, port)
     try:
         server.start()

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import AccelcalError
+from ..fixtures.base import PoseSpec
 from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import CaptureSink, LiveStatus, PosePrompt, PoseStatus, parse_answer
 from .board_picture import level_xy, picture
@@ -41,7 +42,7 @@ class WebOperator:
     """An OperatorUI served to a browser; lines also go to ``echo`` (the terminal log)."""
 
     def __init__(self, echo: Any, station_id: str, total_poses: int, live_every_s: float = 0.25,
-                 shift: bool = False) -> None:
+                 shift: bool = False, plan: list[tuple[PoseSpec, bool]] | None = None) -> None:
         self.echo = echo
         self._lock = threading.Lock()
         self._answers: queue.Queue[str | None] = queue.Queue()  # None: the operator aborted
@@ -54,7 +55,9 @@ class WebOperator:
         # the station holds the state; every page (tabs, reloads, a second screen) only shows it
         self.state: dict[str, Any] = {"phase": "starting", "station": station_id, "total": total_poses,
                                       "seq": 0, "pose": None, "capture": None, "result": None,
-                                      "shift": shift, "board": None, "summary": None}
+                                      "shift": shift, "board": None, "summary": None,
+                                      "plan": [{"name": p.name, "verify": v, "picture": picture(p.reference_g)}
+                                               for p, v in plan or []]}
 
     # -- OperatorUI -----------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -66,10 +69,24 @@ class WebOperator:
     def show_pose(self, prompt: PosePrompt) -> None:
         self.echo(f"Pose {prompt.pose.name}: put the board {prompt.words}")
         p = prompt.pose
+        index = self._plan_index(p.name)
+        verify = bool(self.state["plan"][index]["verify"]) if index is not None else False
         self.set(phase="place", pose={"number": prompt.number, "name": p.name, "words": prompt.words,
+                                      "index": index, "verify": verify,
                                       "pitch_deg": p.pitch_deg, "roll_deg": p.roll_deg,
                                       "expects_g": [float(v) for v in p.reference_g],
                                       "picture": picture(p.reference_g)})
+
+    def _plan_index(self, name: str) -> int | None:
+        """Where this pose is in the plan: the current one again (re-placed), else the next of that name
+        (the verification poses follow the design's, some with the same names)."""
+        plan = self.state["plan"]
+        pose = self.state.get("pose")
+        cur = pose.get("index") if pose else None
+        start = 0 if cur is None else cur
+        if cur is not None and plan[cur]["name"] == name:
+            return int(cur)
+        return next((i for i in range(start, len(plan)) if plan[i]["name"] == name), None)
 
     def ask(self, prompt: PosePrompt, live: LiveStatus | None) -> str:
         with self._lock:

@@ -14,8 +14,8 @@
     return e;
   }
 
-  function drawBoard(pic) {
-    var svg = $("board");
+  function drawBoard(pic, svg) {
+    svg = svg || $("board");
     var parts = [];
     parts.push(el("line", {"class": "ground", x1: 10, x2: pic.size - 50, y1: pic.ground_y, y2: pic.ground_y}));
     var arrows = pic.arrows.filter(function (a) { return !a.front; })
@@ -46,7 +46,11 @@
   }
 
   function showLevel(lv) {
-    if (!lv) { $("ready").textContent = "–"; $("ready").className = "ready"; return; }
+    if (!lv) {
+      $("ready").textContent = "–"; $("ready").className = "ready";
+      $("still").textContent = "–"; $("off").textContent = "–"; $("face").textContent = "–";
+      return;
+    }
     $("off").textContent = lv.off_deg.toFixed(1) + "°";
     $("still").textContent = lv.still ? "STILL" : "MOVING";
     $("face").textContent = lv.direction_ok ? "right face" : "on " + lv.face;
@@ -89,13 +93,46 @@
     box.hidden = false;
   }
 
+  // the design's poses as small pictures: done, current, to do; verification poses labelled
+  var stripKey = "";
+  function drawStrip(s) {
+    var plan = s.plan || [], cur = s.pose ? s.pose.index : null;
+    var finished = !s.pose && !!s.result;
+    var key = plan.length + ":" + cur + ":" + finished;
+    if (key === stripKey) { return; }
+    stripKey = key;
+    var items = plan.map(function (p, i) {
+      var state = finished || (cur !== null && i < cur) ? "done" : (i === cur ? "current" : "todo");
+      var li = document.createElement("li");
+      li.className = "strip-item " + state + (p.verify ? " verify" : "");
+      var svg = document.createElementNS(NS, "svg");
+      svg.setAttribute("viewBox", "0 0 320 320");
+      svg.setAttribute("class", "board mini");
+      drawBoard(p.picture, svg);
+      var cap = document.createElement("span");
+      cap.textContent = (p.verify ? "verify · " : "") + p.name + (state === "done" ? " ✓" : "");
+      li.replaceChildren(svg, cap);
+      return li;
+    });
+    $("strip").replaceChildren.apply($("strip"), items);
+  }
+
+  function progressText(s) {
+    var plan = s.plan || [];
+    if (!s.pose || s.pose.index === null || s.pose.index === undefined) { return s.pose ? "pose " + s.pose.number : ""; }
+    var design = plan.filter(function (p) { return !p.verify; }).length;
+    if (s.pose.verify) { return "verify " + (s.pose.index - design + 1) + " of " + (plan.length - design); }
+    return "pose " + (s.pose.index + 1) + " of " + design;
+  }
+
   function render(s) {
     phase = s.phase;
     $("board-id").textContent = s.board ? "Board " + s.board.number + " · " + s.board.serial : "";
     if (!s.pose) { shownPose = null; }
-    var total = s.total || 1, n = s.pose ? s.pose.number : 0;
+    var total = (s.plan && s.plan.length) || s.total || 1;
+    var n = s.pose ? (s.pose.index !== null && s.pose.index !== undefined ? s.pose.index + 1 : s.pose.number) : 0;
     $("progress-bar").style.width = Math.min(100, 100 * Math.max(0, n - (phase === "ask" || phase === "place" ? 1 : 0)) / total) + "%";
-    $("progress-text").textContent = s.pose ? "pose " + Math.min(n, total) + " of " + total : phase;
+    $("progress-text").textContent = s.pose ? progressText(s) : (phase === "serial" ? "next board" : phase);
     if (s.pose && shownPose !== s.pose.number) {
       shownPose = s.pose.number;
       $("pose-number").textContent = "Pose " + s.pose.number + " · " + s.pose.name;
@@ -104,9 +141,15 @@
         "° · expects x " + s.pose.expects_g[0].toFixed(3) + "  y " + s.pose.expects_g[1].toFixed(3) + "  z " + s.pose.expects_g[2].toFixed(3) + " g";
       drawBoard(s.pose.picture);
     }
+    drawStrip(s);
     setButtons(phase === "ask");
     showLevel(phase === "ask" ? s.level : null);
     var cap = s.capture;
+    if (cap) {  // the level is not read while the station captures: say so, not a stale MOVING
+      $("still").textContent = "CAPTURING";
+      $("ready").textContent = "CAPTURING — hold still";
+      $("ready").className = "ready capturing";
+    }
     $("capture").hidden = !cap;
     if (cap) { $("capture-label").textContent = cap.label; $("capture-bar").style.width = (100 * cap.fraction) + "%"; }
     var form = $("serial-form");
