@@ -266,3 +266,41 @@ def test_the_page_says_capturing_and_labels_verify_poses(tmp_path):
             assert "current" in items[6].get_attribute("class") and "verify" in items[6].text
     finally:
         server.stop()
+
+
+def test_the_operator_page_in_german(tmp_path):
+    from webtools import screenshot
+
+    cfg = _config(tmp_path)
+    data = yaml.safe_load(cfg.read_text())
+    data["station"]["language"] = "de"
+    cfg.write_text(yaml.safe_dump(data, allow_unicode=True))
+    port = free_port()
+    proc = _start(cfg, port, "--shift")
+    try:
+        with chromium(1024, 768) as drv:
+            _viewport(drv, 1024, 768)
+            _open(drv, f"http://127.0.0.1:{port}/")
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "serial-input").is_displayed())
+            assert drv.find_element(By.ID, "serial-question").text == "Platine 1: Seriennummer scannen"
+            assert drv.find_element(By.ID, "b-end").text == "Schicht beenden"
+            drv.switch_to.active_element.send_keys("SN-DE" + Keys.ENTER)
+            WebDriverWait(drv, 30).until(lambda d: "BEREIT" in d.find_element(By.ID, "ready").text)
+            page = drv.find_element(By.TAG_NAME, "body").text
+            for german in ("Übernehmen", "Neu auflegen", "Auslassen", "Abbrechen", "Libelle", "Lage 1 von 6", "RUHIG"):
+                assert german in page, german
+            for english in ("Accept", "Re-place", "Skip", "Live level", "pose 1 of 6", "STILL", "READY"):
+                assert english not in page, english
+            assert drv.find_element(By.TAG_NAME, "html").get_attribute("lang") == "de"
+            screenshot(drv, "operator-de.png")
+            drv.find_element(By.TAG_NAME, "body").send_keys("a")
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "result-verdict").text == "ABGEBROCHEN")
+            assert "vom Bediener abgebrochen" in drv.find_element(By.ID, "result-reasons").text
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "b-end").is_displayed())
+            drv.find_element(By.ID, "b-end").click()
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "result-verdict").text == "SCHICHTENDE")
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0

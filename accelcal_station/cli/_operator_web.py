@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..fixtures.designs import get_design
+from ..i18n import language_of, translator
 from ..station.report import RunReport
 from ..station.settings import StationConfig
 from ..station.shift import BoardOutcome
@@ -70,7 +71,9 @@ def web_operator(cfg: StationConfig, echo: Callable[[str], None], host: str, por
     design = get_design(cfg.design)
     verify = get_design(cfg.verify_design or cfg.design)[:cfg.verify_poses]  # as Station._verify_captures
     plan = [(p, False) for p in design] + [(p, True) for p in verify]
-    ui = WebOperator(echo, cfg.station_id, len(plan), shift=shift, plan=plan)
+    language = language_of(cfg.schema.station)
+    ui = WebOperator(echo, cfg.station_id, len(plan), shift=shift, plan=plan, tr=translator(language),
+                     language=language)
     server = BackgroundServer(create_operator_app(ui, cfg.web_token), host, port)
     try:
         server.start()

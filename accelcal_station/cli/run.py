@@ -10,6 +10,7 @@ import click
 from ..config import event_log
 from ..fileguard.identity import refuse_overwrite
 from ..fixtures.operator_ui import OperatorUI
+from ..i18n import Translate, language_of, reason_title, translator
 from ..station.identity import ask_run_identity, check_run_labels
 from ..station.report import RunReport, Timing
 from ..station.settings import StationConfig
@@ -72,8 +73,9 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     def echo(text: str) -> None:
         click.echo(text, err=as_json)
 
+    tr = translator(language_of(cfg.schema.station))  # the operator's language (docs/language.md)
     if shift and ui_kind == "terminal":
-        _shift(cfg, operator, lot, as_json, echo, TerminalOperator(echo), device_wait_s)
+        _shift(cfg, operator, lot, as_json, echo, TerminalOperator(echo, tr), device_wait_s, tr=tr)
         return
     if ui_kind == "web":
         from ._operator_web import finish_outcome, finish_reports, web_operator
@@ -81,13 +83,13 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
         with web_operator(cfg, echo, ui_host, ui_port, shift=shift) as web:
             if shift:
                 _shift(cfg, operator, lot, as_json, echo, web, device_wait_s, web.start_board,
-                       lambda b, rep: finish_outcome(web, b, rep), web.end_shift, SERIAL_PROMPT_PAGE)
+                       lambda b, rep: finish_outcome(web, b, rep), web.end_shift, SERIAL_PROMPT_PAGE, tr)
                 return
             _run(cfg, operator, serial, lot, as_json, echo, web, web, lambda reports: finish_reports(web, reports))
         return
     # identity questions and their retries always on stderr (stdout may be the JSON object)
-    _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True)),
-         TerminalOperator(echo), lambda reports: None)
+    _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True), tr),
+         TerminalOperator(echo, tr), lambda reports: None)
 
 
 def _refuse_over_config(cfg: StationConfig) -> None:
@@ -120,7 +122,7 @@ def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str 
 def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: bool, echo: Callable[[str], None],
            ui: OperatorUI, device_wait_s: float, on_start: Callable[[str], None] | None = None,
            on_board: OnBoard | None = None, on_end: Callable[[dict[str, Any]], None] | None = None,
-           prompt: str = SERIAL_PROMPT) -> None:
+           prompt: str = SERIAL_PROMPT, tr: Translate = str) -> None:
     """`run --shift`: each board printed as it ends (one JSON line each under --json), then the
     shift's summary (one JSON line); DeviceGone (exit 3) after the summary when the device stayed away."""
     echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}; shift started")
@@ -132,25 +134,28 @@ def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: b
         elif rep is not None:
             _print_board(rep, cfg)
         else:
-            click.secho(f"{b.verdict} board {b.serial} (run {b.run_id}): " + "; ".join(b.messages), fg="yellow")
+            click.secho(f"{b.verdict} board {b.serial} (run {b.run_id}): " + "; ".join(
+                f"{reason_title(c, tr)} ({m})" for c, m in zip(b.reason_codes, b.messages, strict=True)), fg="yellow")
         if on_board is not None:
             on_board(b, rep)
 
-    tally, gone = run_shift(cfg, operator, lot, ui, echo, board, device_wait_s, on_start, prompt)
+    tally, gone = run_shift(cfg, operator, lot, ui, echo, board, device_wait_s, on_start, tr(prompt))
     s = tally.summary()
     if on_end is not None:
         on_end(s)
     if as_json:
         click.echo(json.dumps(jsonable(s), allow_nan=False))
     else:
-        for line in summary_lines(s):
+        for line in summary_lines(s, tr):
             click.secho(line, bold=True)
     if gone is not None:
         raise gone
 
 
 def _print_board(rep: RunReport, cfg: StationConfig) -> None:
-    """One board's run for the operator: the fit, the thermal table, the verdict and its reasons, the timing."""
+    """One board's run for the operator: the fit, the thermal table, the verdict and its reasons (in the
+    operator's language), the timing."""
+    tr = translator(language_of(cfg.schema.station))
     t = rep.timing
     f = rep.fit
     if f is not None:
@@ -166,8 +171,8 @@ def _print_board(rep: RunReport, cfg: StationConfig) -> None:
         click.echo(f"verify: max error {rep.verify_error_max_mg:.3f} mg after calibration")
     colour = "green" if rep.verdict == "PASS" else "red"
     click.secho(f"{rep.verdict} board {rep.serial} (run {rep.run_id}, store {rep.store})", fg=colour, bold=True)
-    for r in rep.reasons:
-        click.secho(f"  - {r}", fg=colour)
+    for r in rep.reasons:  # the operator's words for the reason, then its figures
+        click.secho(f"  - {reason_title(r.code, tr)}: {r}", fg=colour)
     if t and "soak_s" in t:
         click.echo(f"time per board: soak {t['soak_s']:.0f} s, sampling floor {t['sampling_floor_s']:.1f} s, "
                    f"rest {t['rest_s']:.1f} s of {t['board_time_s']:.0f} s ({t['clock']} clock)")

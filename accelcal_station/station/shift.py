@@ -18,6 +18,7 @@ from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, DataError, DeviceError, NVMError
 from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import OperatorUI
+from ..i18n import N_, Translate, reason_title
 from .board import Station
 from .identity import check_serial
 from .report import RunReport
@@ -85,14 +86,18 @@ def _utc(t: float) -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
 
 
-def summary_lines(s: dict[str, Any]) -> list[str]:
-    """The shift's end for the operator's terminal."""
+def summary_lines(s: dict[str, Any], tr: Translate = str) -> list[str]:
+    """The shift's end for the operator's terminal, in the operator's language (``tr``)."""
     fpy = "-" if s["first_pass_yield"] is None else f"{100 * s['first_pass_yield']:.1f} %"
-    out = [f"shift {s['station_id'] or ''} {s['started_utc']} to {s['ended_utc']} (UTC), ended by {s['ended_by']}",
-           f"  boards {s['boards']} ({s['serials']} serials): PASS {s['pass']}, FAIL {s['fail']}, "
-           f"aborted {s['aborted']}, error {s['error']}; first-pass yield {fpy}"]
+    out = [tr("shift {station} {start} to {end} (UTC), ended by {why}").format(
+               station=s["station_id"] or "", start=s["started_utc"], end=s["ended_utc"], why=tr(s["ended_by"])),
+           "  " + tr("boards {boards} ({serials} serials): PASS {passed}, FAIL {failed}, aborted {aborted}, "
+                     "error {error}; first-pass yield {fpy}").format(
+               boards=s["boards"], serials=s["serials"], passed=s["pass"], failed=s["fail"], aborted=s["aborted"],
+               error=s["error"], fpy=fpy)]
     if s["reasons_by_code"]:
-        out.append("  reasons by code: " + ", ".join(f"{c or '-'} {n}" for c, n in s["reasons_by_code"].items()))
+        out.append("  " + tr("reasons by code:") + " " + ", ".join(
+            f"{reason_title(c, tr) if c else '-'} ({c}) {n}" for c, n in s["reasons_by_code"].items()))
     return out
 
 
@@ -149,8 +154,9 @@ def board_station(cfg: StationConfig, operator: str | None, serial: str | None, 
 
 # what the front end does with each board as it ends: its outcome, and its report when it finished
 OnBoard = Callable[[BoardOutcome, RunReport | None], None]
-SERIAL_PROMPT = "Board {n}: scan the serial number (end of input ends the shift)"
-SERIAL_PROMPT_PAGE = "Board {n}: scan the serial number"
+SERIAL_PROMPT = N_("Board {n}: scan the serial number (end of input ends the shift)")
+SERIAL_PROMPT_PAGE = N_("Board {n}: scan the serial number")
+ENDED_BY = (N_("end of input"), N_("Ctrl-C"), N_("device gone"))  # ShiftTally.ended_by, English in --json
 
 
 def run_shift(cfg: StationConfig, operator: str | None, lot: str | None, ui: OperatorUI,

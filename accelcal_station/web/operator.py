@@ -20,6 +20,7 @@ from ..errors import AccelcalError
 from ..fixtures.base import PoseSpec
 from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import CaptureSink, LiveStatus, PosePrompt, PoseStatus, parse_answer
+from ..i18n import Translate, reason_title
 from .board_picture import level_xy, picture
 
 ANSWER_TEXT = {"accept": "", "replace": "r", "skip": "s", "abort": "a"}
@@ -42,8 +43,11 @@ class WebOperator:
     """An OperatorUI served to a browser; lines also go to ``echo`` (the terminal log)."""
 
     def __init__(self, echo: Any, station_id: str, total_poses: int, live_every_s: float = 0.25,
-                 shift: bool = False, plan: list[tuple[PoseSpec, bool]] | None = None) -> None:
+                 shift: bool = False, plan: list[tuple[PoseSpec, bool]] | None = None,
+                 tr: Translate = str, language: str = "en") -> None:
         self.echo = echo
+        self.tr = tr  # the operator's language (i18n/): the page's texts and the reasons' words
+        self.language = language
         self._lock = threading.Lock()
         self._answers: queue.Queue[str | None] = queue.Queue()  # None: the operator aborted
         self._live: LiveStatus | None = None
@@ -101,7 +105,7 @@ class WebOperator:
                 self.state["phase"] = "working"
 
     def ask_serial(self, text: str) -> str:
-        self.set(phase="serial", question=text)
+        self.set(phase="serial", question=self.tr(text))
         try:
             return self._wait_answer()
         except OperatorAbort:
@@ -177,11 +181,13 @@ class WebOperator:
 
     def end_shift(self, summary: dict[str, Any]) -> None:
         """The shift's summary, shown full-screen on every page."""
-        self.set(phase="shift_over", pose=None, capture=None, summary=summary)
+        titles = {c: reason_title(c, self.tr) for c in summary.get("reasons_by_code", {})}
+        self.set(phase="shift_over", pose=None, capture=None, summary={**summary, "reason_titles": titles})
 
     # -- the end --------------------------------------------------------------------------
     def finish(self, verdict: str, serial: str | None, run_id: int | None, reasons: list[dict[str, str]],
                figures: dict[str, Any]) -> None:
+        reasons = [{**r, "title": reason_title(r["code"], self.tr)} for r in reasons]  # the operator's words
         self.set(phase="done", pose=None, capture=None,
                  result={"verdict": verdict, "serial": serial, "run_id": run_id, "reasons": reasons,
                          "figures": figures})
@@ -193,4 +199,5 @@ class WebOperator:
             "interrupted (Ctrl-C)" if isinstance(err, KeyboardInterrupt) else f"{type(err).__name__}: {err}")
         self.set(phase="done", pose=None, capture=None,
                  result={"verdict": kind, "serial": None, "run_id": None,
-                         "reasons": [{"code": kind.lower(), "message": text}], "figures": {}})
+                         "reasons": [{"code": kind.lower(), "message": text,
+                                      "title": reason_title(kind.lower(), self.tr)}], "figures": {}})
