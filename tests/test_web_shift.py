@@ -304,3 +304,33 @@ def test_the_operator_page_in_german(tmp_path):
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0
+
+
+def test_a_refused_scan_is_shown_over_the_last_verdict(tmp_path):
+    """Between boards the station's line (a scan that is not a serial) shows on the page, then the
+    next good scan starts the board and clears it."""
+    cfg = _config(tmp_path)
+    port = free_port()
+    proc = _start(cfg, port, "--shift")
+    try:
+        with chromium(1024, 768) as drv:
+            _open(drv, f"http://127.0.0.1:{port}/")
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "serial-input").is_displayed())
+            drv.switch_to.active_element.send_keys("no good!" + Keys.ENTER)
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "notice").is_displayed())
+            assert "is not a serial number" in drv.find_element(By.ID, "notice").text
+            assert "scan again" in drv.find_element(By.ID, "notice").text
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "serial-input").is_displayed())
+            drv.switch_to.active_element.send_keys("SN-OK" + Keys.ENTER)
+            WebDriverWait(drv, 30).until(lambda d: "SN-OK" in d.find_element(By.ID, "board-id").text)
+            WebDriverWait(drv, 30).until(lambda d: not d.find_element(By.ID, "notice").is_displayed())
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "b-abort").is_enabled())
+            drv.find_element(By.TAG_NAME, "body").send_keys("a")
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "b-end").is_displayed())
+            drv.find_element(By.ID, "b-end").click()
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "result-verdict").text == "SHIFT OVER")
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0

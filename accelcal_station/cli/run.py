@@ -139,7 +139,7 @@ def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: b
         if on_board is not None:
             on_board(b, rep)
 
-    tally, gone = run_shift(cfg, operator, lot, ui, echo, board, device_wait_s, on_start, tr(prompt))
+    tally, gone = run_shift(cfg, operator, lot, ui, echo, board, device_wait_s, on_start, tr(prompt), tr)
     s = tally.summary()
     if on_end is not None:
         on_end(s)

@@ -101,7 +101,7 @@ def summary_lines(s: dict[str, Any], tr: Translate = str) -> list[str]:
     return out
 
 
-def ask_serial(ui: OperatorUI, text: str) -> str:
+def ask_serial(ui: OperatorUI, text: str, tr: Translate = str) -> str:
     """The next board's serial; blank answers are ignored, a bad one is said and asked again;
     ShiftEnded on end of input (OperatorAbort from the front end)."""
     while True:
@@ -114,11 +114,11 @@ def ask_serial(ui: OperatorUI, text: str) -> str:
         try:
             return check_serial(got, "scanned serial")
         except DataError as e:
-            ui.say(f"  {e}; scan again")
+            ui.say("  " + tr("{error}; scan again").format(error=e))
 
 
 def wait_for_device(cfg: StationConfig, say: Callable[[str], None], wait_s: float = DEVICE_WAIT_S,
-                    poll_s: float = POLL_S, sleep: Callable[[float], None] = time.sleep) -> None:
+                    poll_s: float = POLL_S, sleep: Callable[[float], None] = time.sleep, tr: Translate = str) -> None:
     """Open and identify the configured device; while it does not answer, say so once and retry
     every ``poll_s`` for at most ``wait_s`` (DeviceGone after that)."""
     t0 = time.monotonic()
@@ -130,14 +130,15 @@ def wait_for_device(cfg: StationConfig, say: Callable[[str], None], wait_s: floa
         except DeviceError as e:
             if first is None:
                 first = e
-                say(f"device not answering ({e}); waiting up to {wait_s:.0f} s for it to come back")
+                say(tr("device not answering ({error}); waiting up to {s} s for it to come back").format(
+                    error=e, s=f"{wait_s:.0f}"))
             if time.monotonic() - t0 >= wait_s:
                 raise DeviceGone(f"device still not answering after {wait_s:.0f} s ({e}); "
                                  "connect it and start the shift again") from None
             sleep(poll_s)
             continue
         if first is not None:
-            say(f"device back after {time.monotonic() - t0:.0f} s")
+            say(tr("device back after {s} s").format(s=f"{time.monotonic() - t0:.0f}"))
         return
 
 
@@ -162,15 +163,15 @@ ENDED_BY = (N_("end of input"), N_("Ctrl-C"), N_("device gone"))  # ShiftTally.e
 def run_shift(cfg: StationConfig, operator: str | None, lot: str | None, ui: OperatorUI,
               echo: Callable[[str], None], on_board: OnBoard, device_wait_s: float = DEVICE_WAIT_S,
               on_start: Callable[[str], None] | None = None,
-              prompt: str = SERIAL_PROMPT) -> tuple[ShiftTally, DeviceGone | None]:
+              prompt: str = SERIAL_PROMPT, tr: Translate = str) -> tuple[ShiftTally, DeviceGone | None]:
     """Board after board until the operator ends the shift; returns the tally, and the DeviceGone
     that ended it early if the device never came back.  Ctrl-C ends the shift too (the board it
     interrupts is recorded interrupted, counted aborted)."""
     tally = ShiftTally(cfg.station_id)
     while True:
         try:
-            serial = ask_serial(ui, prompt.format(n=len(tally.boards) + 1))
-            wait_for_device(cfg, ui.say, device_wait_s)
+            serial = ask_serial(ui, prompt.format(n=len(tally.boards) + 1), tr)
+            wait_for_device(cfg, ui.say, device_wait_s, tr=tr)
         except ShiftEnded:
             return tally, None
         except KeyboardInterrupt:

@@ -176,6 +176,10 @@
     } else { form.hidden = true; }
     var log = s.lines.map(function (t) { var li = document.createElement("li"); li.textContent = t; return li; });
     $("log").replaceChildren.apply($("log"), log);
+    // between boards the station's own lines (a refused scan, a device gone and back) are shown over all
+    var note = !s.pose && s.lines.length ? s.lines[s.lines.length - 1].trim() : "";
+    $("notice").hidden = !note;
+    $("notice").textContent = note;
     // the station's verdict stays on every page until the station starts the next board
     if (phase === "shift_over" && s.summary) { showSummary(s.summary); } else if (s.result) { showResult(s.result); }
     else { $("result").hidden = true; }
