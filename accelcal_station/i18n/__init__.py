@@ -4,6 +4,8 @@ reasons an operator reads) comes from gettext message catalogs, `station.languag
 English is the source text (msgid); German ships as ``locale/de/LC_MESSAGES/accelcal-operator.po``
 and its compiled ``.mo`` (``msgfmt -o ...mo ...po``; tests/test_i18n.py checks they agree).
 Engineers' output (``--json``, the event log, error lines) stays English and never passes here.
+
+Foundation layer: imports only the standard library.
 """
 from __future__ import annotations
 
