@@ -47,6 +47,13 @@ def test_wheel_ships_py_typed(wheel: Path):
     assert "accelcal_station/api.py" in names and "accelcal_station/drivers/base.py" in names
 
 
+def test_wheel_ships_the_operators_catalogs(wheel: Path):
+    """station.language: de needs the compiled catalog in an installed station (docs/language.md)."""
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "accelcal_station/i18n/locale/de/LC_MESSAGES/accelcal-operator.mo" in names
+    assert "accelcal_station/i18n/locale/de/LC_MESSAGES/accelcal-operator.po" in names
+
+
 def test_a_users_mypy_sees_fits_return_type(wheel: Path, tmp_path: Path):
     """A user script checked by mypy against the installed wheel (not the source tree: only an
     installed package needs py.typed): reveal_type(fit(...)) is the library's Fit, not Any."""

@@ -2,6 +2,7 @@
 served on localhost beside it (web/operator.py).  The run's exit status is the terminal's."""
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
@@ -9,14 +10,17 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..fixtures.designs import get_design
+from ..i18n import language_of, translator
 from ..station.report import RunReport
 from ..station.settings import StationConfig
+from ..station.shift import BoardOutcome
 from .serve import require_web
 
 if TYPE_CHECKING:
     from ..web.operator import WebOperator
 
 LINGER_S = 30.0  # after the run, wait this long at most for the page to show the verdict
+SEEN_GRACE_S = 3.0  # once one page showed it, this long more for the other screens (polling at 1 s in background)
 
 
 def finish_reports(ui: WebOperator, reports: list[RunReport]) -> None:
@@ -39,16 +43,37 @@ def finish_reports(ui: WebOperator, reports: list[RunReport]) -> None:
               reasons, figures)
 
 
+def finish_outcome(ui: WebOperator, b: BoardOutcome, rep: RunReport | None) -> None:
+    """A shift's board on every page: its verdict (or ABORTED / ERROR), until the next board starts."""
+    if rep is not None:
+        finish_reports(ui, [rep])
+        return
+    reasons = [{"code": c, "message": m} for c, m in zip(b.reason_codes, b.messages, strict=True)]
+    ui.finish(b.verdict, b.serial, b.run_id, reasons, {})
+
+
+def _linger(ui: WebOperator) -> None:
+    """Serve the end until a page has shown it, and a moment more for every other screen."""
+    if ui.final_seen.wait(LINGER_S):
+        time.sleep(SEEN_GRACE_S)
+
+
 @contextmanager
-def web_operator(cfg: StationConfig, echo: Callable[[str], None], host: str, port: int) -> Iterator[WebOperator]:
-    """Serve the operator page for the length of one run (and until the page has shown its end)."""
+def web_operator(cfg: StationConfig, echo: Callable[[str], None], host: str, port: int,
+                 shift: bool = False) -> Iterator[WebOperator]:
+    """Serve the operator page for the length of one run or a whole shift (and until a page has
+    shown its end)."""
     require_web()
     from ..web.operator import WebOperator
     from ..web.operator_app import create_operator_app
     from ..web.server import BackgroundServer
 
-    total = len(get_design(cfg.design)) + cfg.verify_poses
-    ui = WebOperator(echo, cfg.station_id, total)
+    design = get_design(cfg.design)
+    verify = get_design(cfg.verify_design or cfg.design)[:cfg.verify_poses]  # as Station._verify_captures
+    plan = [(p, False) for p in design] + [(p, True) for p in verify]
+    language = language_of(cfg.schema.station)
+    ui = WebOperator(echo, cfg.station_id, len(plan), shift=shift, plan=plan, tr=translator(language),
+                     language=language)
     server = BackgroundServer(create_operator_app(ui, cfg.web_token), host, port)
     try:
         server.start()
@@ -59,11 +84,11 @@ def web_operator(cfg: StationConfig, echo: Callable[[str], None], host: str, por
     try:
         yield ui
     except BaseException as e:
-        if ui.state["phase"] != "done":  # an abort or error: the page says so (a FAIL exit is already shown)
+        if ui.state["phase"] not in ("done", "shift_over"):  # an abort or error: the page says so
             ui.fail(e)
-        ui.final_seen.wait(LINGER_S)
+        _linger(ui)
         raise
     else:
-        ui.final_seen.wait(LINGER_S)
+        _linger(ui)
     finally:
         server.stop()

@@ -14,6 +14,7 @@ import click
 
 from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import CaptureSink, LiveStatus, PosePrompt
+from ..i18n import Translate
 
 
 class CaptureProgress:
@@ -57,24 +58,25 @@ def _prompt(text: str, **kw: Any) -> str:
 class TerminalOperator:
     """The OperatorUI of `accelcal run`: lines through ``echo``, answers typed at click prompts."""
 
-    def __init__(self, echo: Callable[[str], None]) -> None:
+    def __init__(self, echo: Callable[[str], None], tr: Translate = str) -> None:
         self.echo = echo
+        self.tr = tr  # the operator's language (i18n): prompts and pose lines, never the engineers' output
 
     def say(self, text: str) -> None:
         self.echo(text)
 
     def show_pose(self, prompt: PosePrompt) -> None:
-        self.echo(f"Pose {prompt.pose.name}: put the board {prompt.words}")
+        self.echo(self.tr("Pose {name}: put the board {words}").format(name=prompt.pose.name, words=prompt.words))
 
     def ask(self, prompt: PosePrompt, live: LiveStatus | None) -> str:
         if live is not None:  # the live reading while the board is placed, before Enter
             self.echo(f"  now {live().line()}")
         with _live_refresh(live):
-            return _prompt("  Enter=accept  r=re-place  s=skip  a=abort", default="", show_default=False)
+            return _prompt("  " + self.tr("Enter=accept  r=re-place  s=skip  a=abort"), default="", show_default=False)
 
     def ask_serial(self, text: str) -> str:
         try:
-            return _prompt(text)
+            return _prompt(self.tr(text))
         except OperatorAbort:
             raise OperatorAbort("operator aborted at the serial-number scan") from None
 

@@ -3,16 +3,28 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from typing import Any
 
 import click
 
 from ..config import event_log
 from ..fileguard.identity import refuse_overwrite
 from ..fixtures.operator_ui import OperatorUI
-from ..station.board import Station
+from ..i18n import Translate, language_of, reason_title, translator
 from ..station.identity import ask_run_identity, check_run_labels
 from ..station.report import RunReport, Timing
 from ..station.settings import StationConfig
+from ..station.shift import (
+    DEVICE_WAIT_S,
+    SERIAL_PROMPT,
+    SERIAL_PROMPT_PAGE,
+    BoardOutcome,
+    OnBoard,
+    board_station,
+    check_shift_config,
+    run_shift,
+    summary_lines,
+)
 from ._common import jsonable
 from ._common import store_file as store_file_of
 from .operator_terminal import TerminalOperator
@@ -35,31 +47,49 @@ from .operator_terminal import TerminalOperator
 @click.option("--ui-host", default="127.0.0.1", show_default=True, help="With --ui web: the address to listen on.")
 @click.option("--ui-port", default=8751, show_default=True, type=click.IntRange(1, 65535),
               help="With --ui web: the port of the operator page.")
+@click.option("--shift", "shift", is_flag=True,
+              help="Board after board in one process: each starts with its scanned serial; end of input "
+                   "at the serial prompt ends the shift with a summary (exit 0).")
+@click.option("--device-wait", "device_wait_s", default=DEVICE_WAIT_S, show_default=True,
+              type=click.FloatRange(0, 86400),
+              help="With --shift: seconds to wait for a device that is gone between boards before the shift "
+                   "ends (exit 3).")
 def command(config_path: str | None, serial: str | None, operator: str | None, lot: str | None,
             store_file: str | None, port: str | None, jig_port: str | None, as_json: bool,
-            ui_kind: str, ui_host: str, ui_port: int) -> None:
+            ui_kind: str, ui_host: str, ui_port: int, shift: bool, device_wait_s: float) -> None:
     """Calibrate one board: identify, present each pose, capture, fit, judge, write NVM, verify, record.
 
     Exit status: 0 PASS, 1 FAIL, 2 bad input or configuration, 3 device error,
-    4 NVM error, 5 operator abort (the same with --ui web).
+    4 NVM error, 5 operator abort (the same with --ui web).  With --shift: 0 at the shift's end
+    (whatever its boards' verdicts), 3 when the device stayed away longer than --device-wait.
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
     operator, lot = check_run_labels(operator, lot, cfg.station_id)  # as serials are: no formula, no control
     _refuse_over_config(cfg)
+    if shift:
+        check_shift_config(cfg, serial)
     event_log.configure(cfg.event_log, avoid=(cfg.path, cfg.store_file))  # logging: (docs/logging.md)
 
     def echo(text: str) -> None:
         click.echo(text, err=as_json)
 
+    tr = translator(language_of(cfg.schema.station))  # the operator's language (docs/language.md)
+    if shift and ui_kind == "terminal":
+        _shift(cfg, operator, lot, as_json, echo, TerminalOperator(echo, tr), device_wait_s, tr=tr)
+        return
     if ui_kind == "web":
-        from ._operator_web import finish_reports, web_operator
+        from ._operator_web import finish_outcome, finish_reports, web_operator
 
-        with web_operator(cfg, echo, ui_host, ui_port) as web:
+        with web_operator(cfg, echo, ui_host, ui_port, shift=shift) as web:
+            if shift:
+                _shift(cfg, operator, lot, as_json, echo, web, device_wait_s, web.start_board,
+                       lambda b, rep: finish_outcome(web, b, rep), web.end_shift, SERIAL_PROMPT_PAGE, tr)
+                return
             _run(cfg, operator, serial, lot, as_json, echo, web, web, lambda reports: finish_reports(web, reports))
         return
     # identity questions and their retries always on stderr (stdout may be the JSON object)
-    _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True)),
-         TerminalOperator(echo), lambda reports: None)
+    _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True), tr),
+         TerminalOperator(echo, tr), lambda reports: None)
 
 
 def _refuse_over_config(cfg: StationConfig) -> None:
@@ -79,13 +109,7 @@ def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str 
     if cfg.is_panel:
         _run_panel(cfg, operator, serial, lot, as_json, echo, ui, on_done)
         return
-    rep: RunReport
-    if cfg.is_thermal:  # ThermalStation refuses one without the other
-        from ..station.thermal import ThermalStation
-
-        rep = ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui).run()
-    else:
-        rep = Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui).run()
+    rep = board_station(cfg, operator, serial, lot, echo, ui).run()
     on_done([rep])
     if as_json:
         click.echo(json.dumps(jsonable(rep.to_dict()), indent=2, allow_nan=False))
@@ -95,8 +119,43 @@ def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str 
         raise click.exceptions.Exit(1)
 
 
+def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: bool, echo: Callable[[str], None],
+           ui: OperatorUI, device_wait_s: float, on_start: Callable[[str], None] | None = None,
+           on_board: OnBoard | None = None, on_end: Callable[[dict[str, Any]], None] | None = None,
+           prompt: str = SERIAL_PROMPT, tr: Translate = str) -> None:
+    """`run --shift`: each board printed as it ends (one JSON line each under --json), then the
+    shift's summary (one JSON line); DeviceGone (exit 3) after the summary when the device stayed away."""
+    echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}; shift started")
+
+    def board(b: BoardOutcome, rep: RunReport | None) -> None:
+        if as_json:
+            click.echo(json.dumps(jsonable({"kind": "board", **(b.to_dict() if rep is None else rep.to_dict()),
+                                            "retest": b.retest}), allow_nan=False))
+        elif rep is not None:
+            _print_board(rep, cfg)
+        else:
+            click.secho(f"{b.verdict} board {b.serial} (run {b.run_id}): " + "; ".join(
+                f"{reason_title(c, tr)} ({m})" for c, m in zip(b.reason_codes, b.messages, strict=True)), fg="yellow")
+        if on_board is not None:
+            on_board(b, rep)
+
+    tally, gone = run_shift(cfg, operator, lot, ui, echo, board, device_wait_s, on_start, tr(prompt), tr)
+    s = tally.summary()
+    if on_end is not None:
+        on_end(s)
+    if as_json:
+        click.echo(json.dumps(jsonable(s), allow_nan=False))
+    else:
+        for line in summary_lines(s, tr):
+            click.secho(line, bold=True)
+    if gone is not None:
+        raise gone
+
+
 def _print_board(rep: RunReport, cfg: StationConfig) -> None:
-    """One board's run for the operator: the fit, the thermal table, the verdict and its reasons, the timing."""
+    """One board's run for the operator: the fit, the thermal table, the verdict and its reasons (in the
+    operator's language), the timing."""
+    tr = translator(language_of(cfg.schema.station))
     t = rep.timing
     f = rep.fit
     if f is not None:
@@ -112,8 +171,8 @@ def _print_board(rep: RunReport, cfg: StationConfig) -> None:
         click.echo(f"verify: max error {rep.verify_error_max_mg:.3f} mg after calibration")
     colour = "green" if rep.verdict == "PASS" else "red"
     click.secho(f"{rep.verdict} board {rep.serial} (run {rep.run_id}, store {rep.store})", fg=colour, bold=True)
-    for r in rep.reasons:
-        click.secho(f"  - {r}", fg=colour)
+    for r in rep.reasons:  # the operator's words for the reason, then its figures
+        click.secho(f"  - {reason_title(r.code, tr)}: {r}", fg=colour)
     if t and "soak_s" in t:
         click.echo(f"time per board: soak {t['soak_s']:.0f} s, sampling floor {t['sampling_floor_s']:.1f} s, "
                    f"rest {t['rest_s']:.1f} s of {t['board_time_s']:.0f} s ({t['clock']} clock)")

@@ -37,6 +37,8 @@ class StationSection(Section):
     id: str = _f("station-1", "station id recorded with every run")
     scan_serial: StrictBool = _f(False, "ask the operator to scan each board's serial")
     require_operator: StrictBool = _f(False, "refuse to run without --operator")
+    language: Literal["en", "de"] = _f("en", "the operator's language: terminal prompts, the operator page and the "
+                                       "verdict reasons shown to operators (--json and logs stay English)")
 
 
 class StoreSection(Section):

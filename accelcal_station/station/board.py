@@ -71,6 +71,7 @@ class Station:
         self.samples_read = 0
         self.samples_used = 0
         self.operator_wait_s = 0.0
+        self.run_id: int | None = None  # the store's run, once started (a shift names an aborted board's run)
         # records each burn step in the store as it happens (set by run(); a panel's boards have none)
         self._burn_log: Callable[[str, dict[str, Any]], None] | None = None
 
@@ -160,7 +161,7 @@ class Station:
                 run_id = store.start_run(device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id,
                                          operator=self.operator, lot=self.lot, config_text=cfg.text,
                                          model=cfg.model, units="counts", counts_per_g=driver.counts_per_g)
-                rep.run_id = run_id
+                rep.run_id = self.run_id = run_id
                 self._burn_log = lambda kind, data, r=run_id: store.record_burn(r, kind, data)
                 records: list[PoseRecord] = []
                 retries: list[int] = []

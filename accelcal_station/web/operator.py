@@ -17,8 +17,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import AccelcalError
+from ..fixtures.base import PoseSpec
 from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import CaptureSink, LiveStatus, PosePrompt, PoseStatus, parse_answer
+from ..i18n import Translate, reason_title
 from .board_picture import level_xy, picture
 
 ANSWER_TEXT = {"accept": "", "replace": "r", "skip": "s", "abort": "a"}
@@ -40,17 +42,26 @@ class Progress:
 class WebOperator:
     """An OperatorUI served to a browser; lines also go to ``echo`` (the terminal log)."""
 
-    def __init__(self, echo: Any, station_id: str, total_poses: int, live_every_s: float = 0.25) -> None:
+    def __init__(self, echo: Any, station_id: str, total_poses: int, live_every_s: float = 0.25,
+                 shift: bool = False, plan: list[tuple[PoseSpec, bool]] | None = None,
+                 tr: Translate = str, language: str = "en") -> None:
         self.echo = echo
+        self.tr = tr  # the operator's language (i18n/): the page's texts and the reasons' words
+        self.language = language
         self._lock = threading.Lock()
         self._answers: queue.Queue[str | None] = queue.Queue()  # None: the operator aborted
         self._live: LiveStatus | None = None
         self._level: tuple[float, dict[str, Any]] | None = None
         self.live_every_s = live_every_s
         self.lines: deque[str] = deque(maxlen=12)
-        self.final_seen = threading.Event()
+        self.final_seen = threading.Event()  # a page has shown the end (the run's verdict, or the shift's summary)
+        self._final_phase = "shift_over" if shift else "done"
+        # the station holds the state; every page (tabs, reloads, a second screen) only shows it
         self.state: dict[str, Any] = {"phase": "starting", "station": station_id, "total": total_poses,
-                                      "seq": 0, "pose": None, "capture": None, "result": None}
+                                      "seq": 0, "pose": None, "capture": None, "result": None,
+                                      "shift": shift, "board": None, "summary": None,
+                                      "plan": [{"name": p.name, "verify": v, "picture": picture(p.reference_g)}
+                                               for p, v in plan or []]}
 
     # -- OperatorUI -----------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -62,10 +73,24 @@ class WebOperator:
     def show_pose(self, prompt: PosePrompt) -> None:
         self.echo(f"Pose {prompt.pose.name}: put the board {prompt.words}")
         p = prompt.pose
+        index = self._plan_index(p.name)
+        verify = bool(self.state["plan"][index]["verify"]) if index is not None else False
         self.set(phase="place", pose={"number": prompt.number, "name": p.name, "words": prompt.words,
+                                      "index": index, "verify": verify,
                                       "pitch_deg": p.pitch_deg, "roll_deg": p.roll_deg,
                                       "expects_g": [float(v) for v in p.reference_g],
                                       "picture": picture(p.reference_g)})
+
+    def _plan_index(self, name: str) -> int | None:
+        """Where this pose is in the plan: the current one again (re-placed), else the next of that name
+        (the verification poses follow the design's, some with the same names)."""
+        plan = self.state["plan"]
+        pose = self.state.get("pose")
+        cur = pose.get("index") if pose else None
+        start = 0 if cur is None else cur
+        if cur is not None and plan[cur]["name"] == name:
+            return int(cur)
+        return next((i for i in range(start, len(plan)) if plan[i]["name"] == name), None)
 
     def ask(self, prompt: PosePrompt, live: LiveStatus | None) -> str:
         with self._lock:
@@ -80,7 +105,7 @@ class WebOperator:
                 self.state["phase"] = "working"
 
     def ask_serial(self, text: str) -> str:
-        self.set(phase="serial", question=text)
+        self.set(phase="serial", question=self.tr(text))
         try:
             return self._wait_answer()
         except OperatorAbort:
@@ -116,8 +141,8 @@ class WebOperator:
         if phase == "serial" and what == "serial" and serial is not None:
             self._answers.put(serial)
             return True
-        if phase == "serial" and what == "abort":
-            self._answers.put(None)  # as end of input at the terminal's scan prompt
+        if phase == "serial" and what in ("abort", "end"):
+            self._answers.put(None)  # as end of input at the terminal's scan prompt (a shift's End shift)
             return True
         if phase == "ask" and what in ANSWER_TEXT and parse_answer(ANSWER_TEXT[what]) is not None:
             self._answers.put(ANSWER_TEXT[what])
@@ -133,7 +158,7 @@ class WebOperator:
                 if self._level is None or now - self._level[0] >= self.live_every_s:
                     self._level = (now, self._level_dict(self._live(), out["pose"]["expects_g"]))
                 out["level"] = self._level[1]
-        if out["phase"] == "done":
+        if out["phase"] == self._final_phase:
             self.final_seen.set()
         return out
 
@@ -144,9 +169,25 @@ class WebOperator:
                 "reads_g": [float(v) for v in st.reading_g], "bubble": [x, y], "ready": st.accepted,
                 "line": st.line()}
 
+    # -- a shift: board after board -------------------------------------------------------
+    def start_board(self, serial: str) -> None:
+        """The next board begins: the last verdict leaves every screen now, not before."""
+        with self._lock:
+            n = 1 + (self.state["board"] or {}).get("number", 0)
+            self.lines.clear()
+            self.state.update(phase="working", pose=None, capture=None, result=None,
+                              board={"serial": serial, "number": n})
+            self.state["seq"] += 1
+
+    def end_shift(self, summary: dict[str, Any]) -> None:
+        """The shift's summary, shown full-screen on every page."""
+        titles = {c: reason_title(c, self.tr) for c in summary.get("reasons_by_code", {})}
+        self.set(phase="shift_over", pose=None, capture=None, summary={**summary, "reason_titles": titles})
+
     # -- the end --------------------------------------------------------------------------
     def finish(self, verdict: str, serial: str | None, run_id: int | None, reasons: list[dict[str, str]],
                figures: dict[str, Any]) -> None:
+        reasons = [{**r, "title": reason_title(r["code"], self.tr)} for r in reasons]  # the operator's words
         self.set(phase="done", pose=None, capture=None,
                  result={"verdict": verdict, "serial": serial, "run_id": run_id, "reasons": reasons,
                          "figures": figures})
@@ -158,4 +199,5 @@ class WebOperator:
             "interrupted (Ctrl-C)" if isinstance(err, KeyboardInterrupt) else f"{type(err).__name__}: {err}")
         self.set(phase="done", pose=None, capture=None,
                  result={"verdict": kind, "serial": None, "run_id": None,
-                         "reasons": [{"code": kind.lower(), "message": text}], "figures": {}})
+                         "reasons": [{"code": kind.lower(), "message": text,
+                                      "title": reason_title(kind.lower(), self.tr)}], "figures": {}})

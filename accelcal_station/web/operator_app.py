@@ -17,10 +17,11 @@ from pydantic import BaseModel, Field
 from . import assets
 from .errors import ApiError, install_errors
 from .operator import WebOperator
+from .operator_text import page_texts_json
 
 
 class AnswerIn(BaseModel):
-    answer: Literal["accept", "replace", "skip", "abort", "serial"]
+    answer: Literal["accept", "replace", "skip", "abort", "serial", "end"]
     serial: str | None = Field(None, max_length=200)
 
 
@@ -37,8 +38,9 @@ def create_operator_app(ui: WebOperator, token: str | None) -> FastAPI:
 
     @app.get("/", response_class=HTMLResponse, include_in_schema=False)
     def page() -> HTMLResponse:
-        return assets.render("operator.html", title=f"Operator · {ui.state['station']}", page="operator",
-                             station=ui.state["station"])
+        return assets.render("operator.html", title=f"{ui.tr('Operator')} · {ui.state['station']}", page="operator",
+                             station=ui.state["station"], _=ui.tr, texts_json=page_texts_json(ui.tr),
+                             lang=ui.language)
 
     @app.get("/operator/state", summary="What the operator page shows now")
     def state() -> JSONResponse:

@@ -22,7 +22,7 @@
         // the server's own template output (autoescaped); parsed inert, then moved in
         var doc = new DOMParser().parseFromString(html, "text/html");
         body.replaceChildren.apply(body, Array.prototype.slice.call(doc.body.childNodes));
-        say("live · updated " + new Date().toLocaleTimeString(), true);
+        say("live · updated " + new Date().toISOString().slice(11, 19) + " UTC", true);
       }).catch(function (e) {
         say("live · refresh failed (" + e.message + "), retrying", false);
       }).finally(function () { pending = false; });
