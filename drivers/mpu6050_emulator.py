@@ -36,13 +36,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..config.checks import load_yaml
 from ..config.parts import Mpu6050SimSection, parse
 from ..errors import ConfigError
 from ..sim.pty_server import PtyServer
 from . import bridge_protocol as bp
-from .emulator_files import board_config_from_file
 from .eeprom import EEPROM24, PowerLossError
+from .emulator_files import board_config_from_file
 from .mpu6050 import (
     ACCEL_CONFIG,
     ACCEL_RATE_HZ,
