@@ -10,8 +10,10 @@ C1: an ESC from an operator name) are written as ``\\xNN`` so no terminal or vie
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
+
+import numpy as np
 
 FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
@@ -23,6 +25,26 @@ def safe_text(text: str) -> str:
     if text.startswith(FORMULA_START) and not _NUMBER.fullmatch(text):
         text = "'" + text
     return _CONTROL.sub(lambda m: f"\\x{ord(m[0]):02x}", text)
+
+
+def safe_texts(values: Sequence[Any] | np.ndarray) -> list[str]:
+    """A column of cells, each as ``safe_text(str(cell))``, with the per-cell Python only for the
+    cells that may need it: control characters are looked for in the joined column (one regex
+    pass), formula starts in the first characters (one numpy comparison)."""
+    cells = values.tolist() if isinstance(values, np.ndarray) else list(values)
+    try:
+        joined = "".join(cells)
+    except TypeError:  # a cell that is not text
+        joined = "\x00"
+    if _CONTROL.search(joined):
+        return [safe_text(str(c)) for c in cells]
+    if not cells:
+        return cells
+    # no control character anywhere, so numpy's text (which drops trailing NULs) holds every cell whole
+    first = np.asarray(cells, dtype=str).astype("U1")
+    for i in np.flatnonzero(np.isin(first, FORMULA_START)).tolist():
+        cells[i] = safe_text(cells[i])
+    return cells
 
 
 def safe_cell(value: Any) -> Any:
