@@ -17,6 +17,7 @@ import numpy as np
 
 FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+_LINE_FORMULA = re.compile(r"^[=+\-@]", re.MULTILINE)  # a formula start (\t and \r are control characters)
 _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|[+-]?(inf|nan)", re.IGNORECASE)
 
 
@@ -29,8 +30,8 @@ def safe_text(text: str) -> str:
 
 def safe_texts(values: Sequence[Any] | np.ndarray) -> list[str]:
     """A column of cells, each as ``safe_text(str(cell))``, with the per-cell Python only for the
-    cells that may need it: control characters are looked for in the joined column (one regex
-    pass), formula starts in the first characters (one numpy comparison)."""
+    cells that need it: control characters are looked for in the joined column, formula starts
+    at the line starts of the column joined by newlines (two regex passes, no per-cell call)."""
     cells = values.tolist() if isinstance(values, np.ndarray) else list(values)
     try:
         joined = "".join(cells)
@@ -38,12 +39,13 @@ def safe_texts(values: Sequence[Any] | np.ndarray) -> list[str]:
         joined = "\x00"
     if _CONTROL.search(joined):
         return [safe_text(str(c)) for c in cells]
-    if not cells:
-        return cells
-    # no control character anywhere, so numpy's text (which drops trailing NULs) holds every cell whole
-    first = np.asarray(cells, dtype=str).astype("U1")
-    for i in np.flatnonzero(np.isin(first, FORMULA_START)).tolist():
-        cells[i] = safe_text(cells[i])
+    # no cell holds a newline (a control character), so line starts are cell starts
+    starts = [m.start() for m in _LINE_FORMULA.finditer("\n".join(cells))]
+    if starts:
+        lens = np.fromiter(map(len, cells), dtype=np.int64, count=len(cells)) + 1
+        offsets = np.cumsum(lens) - lens  # where each cell starts in the joined text
+        for i in np.searchsorted(offsets, starts).tolist():
+            cells[i] = safe_text(cells[i])
     return cells
 
 

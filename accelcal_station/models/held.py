@@ -277,7 +277,8 @@ def _plan_model9(gf: np.ndarray, noise_g: np.ndarray | None, determined: np.ndar
         for i, d in enumerate(rows):
             held[d] = [_held_noise(int(k), float(se), float(together[int(k)][i]))
                        for k, se in zip(order[i], se_at[i], strict=True) if k >= 0]
-    for d in np.flatnonzero((code == 0) & ~usable):  # no noise to judge by: the geometric plan
+    # no noise to judge by: the geometric plan (a board it holds nothing for keeps its empty list)
+    for d in np.flatnonzero((code == 0) & ~usable & (geo[:, 0] >= 0)):
         held[d] = [_held_9(int(k)) for k in geo[d] if k >= 0]
     return HoldPlan(held, refused)
 
