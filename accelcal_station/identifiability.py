@@ -204,7 +204,7 @@ def _rel_sv(X: np.ndarray, first: np.ndarray) -> np.ndarray:
     """Smallest / largest singular value of the column-normalised design over distinct orientations
     (min over the solves), exact where it may fall below REL_SV_MIN; above, possibly a lower
     bound (``_rel_sv_floor``) that already clears it, so a well-posed chunk makes no LAPACK call per board."""
-    Xd = X * first[:, None, :, None]
+    Xd = X if X.flags.c_contiguous and first.all() else X * first[:, None, :, None]  # no revisits: no masked copy
     G = np.matmul(Xd.swapaxes(-1, -2), Xd)  # (D, S, k, k) Gram matrix: one BLAS-sized call, not an SVD per board
     d = np.sqrt(np.diagonal(G, axis1=-2, axis2=-1))  # column norms
     d = np.where(d > 0, d, 1.0)
