@@ -96,13 +96,11 @@ def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG) -> n
     u = x / np.maximum(np.sqrt(np.einsum("...k,...k->...", x, x)), 1e-12)[..., None]
     D, P = u.shape[:2]
     cos = math.cos(math.radians(tol_deg))
-    if P <= SMALL_P:  # whole P x P blocks of boards: a few large numpy calls, not one per row block
-        earlier = np.tri(P, k=-1, dtype=bool)  # [p, q]: q < p
+    if P <= SMALL_P:  # boards last, a block at a time: P - 1 elementwise steps, no matmul per board
         first = np.empty((D, P), dtype=bool)
         nb = max(1, BLOCK_ELEMS // (P * P))
         for a in range(0, D, nb):
-            ub = u[a:a + nb]
-            first[a:a + nb] = ~np.any((ub @ ub.swapaxes(-1, -2) > cos) & earlier, axis=-1)
+            first[a:a + nb] = _first_small(u[a:a + nb], cos)
         return first
     if P >= WINDOWED_FROM:
         return np.stack([_first_windowed(ub, cos, 2 * math.sin(math.radians(tol_deg) / 2)) for ub in u])
@@ -114,6 +112,20 @@ def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG) -> n
         close &= np.arange(b - 1)[None, :] < np.arange(a, b)[:, None]  # only earlier poses count
         first[:, a:b] = ~np.any(close, axis=-1)
     return first
+
+
+def _first_small(u: np.ndarray, cos: float) -> np.ndarray:
+    """``first_of_orientation`` of a block of boards' (D, P, 3) unit directions, P small: pose p
+    against every earlier pose of all D boards at once (u_p . u_q summed over x, y, z)."""
+    ut = np.ascontiguousarray(u.transpose(1, 2, 0))  # (P, 3, D)
+    P = ut.shape[0]
+    first = np.ones((P, ut.shape[2]), dtype=bool)
+    for p in range(1, P):
+        dots = ut[:p, 0] * ut[p, 0]
+        dots += ut[:p, 1] * ut[p, 1]
+        dots += ut[:p, 2] * ut[p, 2]
+        first[p] = ~np.any(dots > cos, axis=0)
+    return first.T
 
 
 def _first_windowed(u: np.ndarray, cos: float, chord: float) -> np.ndarray:
@@ -192,7 +204,7 @@ def _rel_sv(X: np.ndarray, first: np.ndarray) -> np.ndarray:
     """Smallest / largest singular value of the column-normalised design over distinct orientations
     (min over the solves), exact where it may fall below REL_SV_MIN; above, possibly a lower
     bound (``_rel_sv_floor``) that already clears it, so a well-posed chunk makes no LAPACK call per board."""
-    Xd = X * first[:, None, :, None]
+    Xd = X if X.flags.c_contiguous and first.all() else X * first[:, None, :, None]  # no revisits: no masked copy
     G = np.matmul(Xd.swapaxes(-1, -2), Xd)  # (D, S, k, k) Gram matrix: one BLAS-sized call, not an SVD per board
     d = np.sqrt(np.diagonal(G, axis1=-2, axis2=-1))  # column norms
     d = np.where(d > 0, d, 1.0)
@@ -208,15 +220,16 @@ def _rel_sv(X: np.ndarray, first: np.ndarray) -> np.ndarray:
     return np.min(rel.reshape(G.shape[:-2]), axis=-1)
 
 
-def assess_batch(gf: ArrayLike, model: str) -> tuple[np.ndarray, np.ndarray]:
+def assess_batch(gf: ArrayLike, model: str, first: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vectorised check of D boards: (determined (D,) bool, distinct orientations (D,) int).
 
-    gf: (D, P, 3) uncalibrated readings in (about) g.  ``assess`` says why a board fails.
+    gf: (D, P, 3) uncalibrated readings in (about) g; ``first``: their ``first_of_orientation``
+    when the caller has it already.  ``assess`` says why a board fails.
     """
     gf = np.asarray(gf, dtype=float)
     model = str(model)
     k = COEFFS[model]
-    first = first_of_orientation(gf)
+    first = first_of_orientation(gf) if first is None else first
     distinct = first.sum(axis=-1)
     ok = distinct >= k
     X = _design(gf, model)

@@ -18,6 +18,13 @@ from ..errors import DataError
 from ..fileguard.regular import open_regular
 from .lotchunk import COLUMNS, TEXT, LotChunk, arrays_chunk, missing_serial
 
+# CSV bytes parsed at once.  Arrow's streaming reader holds buffers that grow with the block:
+# opening it and reading the first block raised the RSS by 31 MiB at 256 KiB, 56 at 1 MiB and 109
+# at 4 MiB (pyarrow 26, mimalloc pool).  `accelcal batch` keeps 1 MiB (one core, 200,000 boards:
+# 3.0-3.2 CPU-s against 3.4-3.6 with 256 KiB, the per-chunk work of 4x more chunks); `twin fit`,
+# whose memory has a stated bound, reads 256 KiB (100,000 boards: 246 MB peak, 271 with 1 MiB).
+BLOCK_BYTES = 1 << 20
+SMALL_BLOCK_BYTES = 256 << 10
 MAX_ROW_GROUP_BYTES = 1 << 30  # one row group's columns are decoded at once: at most 1 GiB of them
 REQUIRED = ("serial", "pose", "x", "y", "z")
 Where = Callable[[int], str]  # data row n (1-based) -> where it is, for errors: "line 13" or "data row 12"
@@ -232,8 +239,9 @@ def _line_of(path: Path, text: str) -> str:
     return "?"
 
 
-def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int) -> Iterator[LotChunk]:
-    """The CSV body through pyarrow's streaming reader."""
+def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int,
+                   block_bytes: int = BLOCK_BYTES) -> Iterator[LotChunk]:
+    """The CSV body through pyarrow's streaming reader, ``block_bytes`` of CSV parsed at once."""
     import pyarrow as pa
     import pyarrow.csv as pcsv
 
@@ -244,7 +252,7 @@ def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int) 
     with open_regular(path, "a CSV lot file") as f:
         try:
             reader = pcsv.open_csv(f, read_options=pcsv.ReadOptions(skip_rows=skip, column_names=header,
-                                                                    block_size=1 << 20, use_threads=False),
+                                                                    block_size=block_bytes, use_threads=False),
                                    parse_options=pcsv.ParseOptions(ignore_empty_lines=True, invalid_row_handler=check),
                                    convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True))
         except (pa.ArrowException, OSError) as e:

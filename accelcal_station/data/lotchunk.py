@@ -46,8 +46,8 @@ def arrays_chunk(d: dict[str, np.ndarray], row0: int) -> LotChunk:
     cols = {c: np.asarray(d[c], dtype=float) for c in NUMERIC if c in d}
     bad: list[str | None] = [None] * (len(starts) - 1)
     if "_bad" in d:
-        for i in np.flatnonzero(d["_bad"] != 0):
+        for i in np.flatnonzero(d["_bad"].astype(bool)):  # 0 or a reason (a non-empty text) per row
             b = int(np.searchsorted(starts, i, side="right") - 1)
             bad[b] = bad[b] or d["_bad"][i]
-    return LotChunk([str(serial[s]) for s in starts[:-1]], starts, cols, np.asarray(d["pose"]).astype(str),
+    return LotChunk(serial[starts[:-1]].tolist(), starts, cols, np.asarray(d["pose"]).astype(str),
                     bad, row0 + starts[:-1] + 1)

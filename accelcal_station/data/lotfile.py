@@ -30,13 +30,13 @@ import numpy as np
 from ..conventions import an4399_reference, check_units, units_per_g
 from ..errors import DataError, UnitsError
 from ..fileguard.regular import check_regular, open_regular
-from .lotarrow import arrow_available, read_csv_arrow, read_parquet_chunks
+from .lotarrow import BLOCK_BYTES, SMALL_BLOCK_BYTES, arrow_available, read_csv_arrow, read_parquet_chunks
 from .lotchunk import COLUMNS, NUMERIC, LotChunk, missing_serial
 from .posetable import COLUMNS as POSE_COLUMNS
 from .posetable import read_preamble
 from .rawlog import MAX_ABS_READING
 
-__all__ = ["COLUMNS", "LotChunk", "arrow_available", "board_arrays", "lot_scale", "open_lot"]
+__all__ = ["COLUMNS", "SMALL_BLOCK_BYTES", "LotChunk", "arrow_available", "board_arrays", "lot_scale", "open_lot"]
 
 TEMP_TOLERANCE_C = 2.0  # as models.fit_temperature groups poses
 MAX_LINE_CHARS = 1 << 20  # a lot row is under 200 characters; a longer line is not a lot row
@@ -125,8 +125,10 @@ def _csv_rows(f: Iterable[str], path: Path, header: list[str], line0: int) -> It
         raise DataError(f"{path}: line {line0 + reader.line_num}: unreadable ({e})") from None
 
 
-def read_csv_chunks(path: str | Path, chunk_boards: int = 4096) -> tuple[dict[str, str], Iterator[LotChunk]]:
-    """The lot file's ``# key: value`` metadata, and its boards in chunks of about ``chunk_boards``."""
+def read_csv_chunks(path: str | Path, chunk_boards: int = 4096, block_bytes: int = BLOCK_BYTES
+                    ) -> tuple[dict[str, str], Iterator[LotChunk]]:
+    """The lot file's ``# key: value`` metadata, and its boards in chunks of about ``chunk_boards``
+    (through pyarrow: of whole boards in each ``block_bytes`` of the file)."""
     path = Path(path)
     f = io.TextIOWrapper(open_regular(path, "a CSV lot file"), encoding="utf-8-sig", newline="")
     try:
@@ -139,7 +141,7 @@ def read_csv_chunks(path: str | Path, chunk_boards: int = 4096) -> tuple[dict[st
         raise
     if arrow_available():
         f.close()
-        return meta, read_csv_arrow(path, header, line_no, chunk_boards)
+        return meta, read_csv_arrow(path, header, line_no, chunk_boards, block_bytes)
 
     def gen() -> Iterator[LotChunk]:
         rows: list[list[str]] = []
@@ -164,13 +166,14 @@ def read_csv_chunks(path: str | Path, chunk_boards: int = 4096) -> tuple[dict[st
     return meta, gen()
 
 
-def open_lot(path: str | Path, chunk_boards: int = 4096) -> tuple[dict[str, str], Iterator[LotChunk]]:
+def open_lot(path: str | Path, chunk_boards: int = 4096, block_bytes: int = BLOCK_BYTES
+             ) -> tuple[dict[str, str], Iterator[LotChunk]]:
     """Metadata and chunks of a lot file (a regular file), CSV or Parquet by its extension."""
     p = Path(path)
     check_regular(p, "a lot file (CSV or Parquet)")
     if p.suffix.lower() in (".parquet", ".pq"):
         return read_parquet_chunks(p, chunk_boards)
-    return read_csv_chunks(p, chunk_boards)
+    return read_csv_chunks(p, chunk_boards, block_bytes)
 
 
 def lot_scale(meta: dict[str, str], path: str | Path, units: str | None, counts_per_g: float | None,

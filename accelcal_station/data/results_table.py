@@ -31,7 +31,7 @@ import numpy as np
 from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES
 from ..errors import DataError
-from ..fileguard.cells import safe_text
+from ..fileguard.cells import safe_texts
 
 if TYPE_CHECKING:
     from .lotfile import LotChunk
@@ -121,7 +121,7 @@ class ResultsWriter:
         """Append one chunk's rows, flushed (fsynced once, when the table is complete)."""
         cols = _columns(chunk, res, model, units, verdicts, reasons)
         if self.fmt == "csv":  # a spreadsheet opens it: no text cell may be a formula (fileguard/cells.py)
-            cols.update({c: [safe_text(str(v)) for v in cols[c]] for c in TEXT_COLUMNS})
+            cols.update({c: safe_texts(cols[c]) for c in TEXT_COLUMNS})
         if self.fmt == "csv" and self._arrow_csv:
             self._write_arrow_csv(cols)
         elif self.fmt == "csv":

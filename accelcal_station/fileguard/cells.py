@@ -10,11 +10,14 @@ C1: an ESC from an operator name) are written as ``\\xNN`` so no terminal or vie
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
+
+import numpy as np
 
 FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+_LINE_FORMULA = re.compile(r"^[=+\-@]", re.MULTILINE)  # a formula start (\t and \r are control characters)
 _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|[+-]?(inf|nan)", re.IGNORECASE)
 
 
@@ -23,6 +26,27 @@ def safe_text(text: str) -> str:
     if text.startswith(FORMULA_START) and not _NUMBER.fullmatch(text):
         text = "'" + text
     return _CONTROL.sub(lambda m: f"\\x{ord(m[0]):02x}", text)
+
+
+def safe_texts(values: Sequence[Any] | np.ndarray) -> list[str]:
+    """A column of cells, each as ``safe_text(str(cell))``, with the per-cell Python only for the
+    cells that need it: control characters are looked for in the joined column, formula starts
+    at the line starts of the column joined by newlines (two regex passes, no per-cell call)."""
+    cells = values.tolist() if isinstance(values, np.ndarray) else list(values)
+    try:
+        joined = "".join(cells)
+    except TypeError:  # a cell that is not text
+        joined = "\x00"
+    if _CONTROL.search(joined):
+        return [safe_text(str(c)) for c in cells]
+    # no cell holds a newline (a control character), so line starts are cell starts
+    starts = [m.start() for m in _LINE_FORMULA.finditer("\n".join(cells))]
+    if starts:
+        lens = np.fromiter(map(len, cells), dtype=np.int64, count=len(cells)) + 1
+        offsets = np.cumsum(lens) - lens  # where each cell starts in the joined text
+        for i in np.searchsorted(offsets, starts).tolist():
+            cells[i] = safe_text(cells[i])
+    return cells
 
 
 def safe_cell(value: Any) -> Any:

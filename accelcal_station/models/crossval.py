@@ -59,12 +59,15 @@ def _held_out(fit: BatchFit, g: np.ndarray, ref: np.ndarray | None) -> np.ndarra
 
 
 def crossval_by_orientation(gf: np.ndarray, ref: np.ndarray | None, model: str, fold_fit: FoldFit,
-                            loo_rms: np.ndarray, loo_ok: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                            loo_rms: np.ndarray, loo_ok: np.ndarray, first: np.ndarray | None = None
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rms (D,), ok (D,), distinct orientations (D,)) of D boards' readings gf (D, P, 3) in g
-    (module doc); ``ref`` (D, P, 3) the references of models 6/12/15 (None: model 9)."""
+    (module doc); ``ref`` (D, P, 3) the references of models 6/12/15 (None: model 9); ``first``:
+    gf's first_of_orientation when the caller has it."""
     D, P, _ = gf.shape
     rms, ok = np.array(loo_rms, dtype=float, copy=True), np.array(loo_ok, dtype=bool, copy=True)
-    distinct = first_of_orientation(gf).sum(axis=1)  # cheap, blocked: most lots revisit nothing
+    first = first_of_orientation(gf) if first is None else first  # cheap, blocked: most lots revisit nothing
+    distinct = first.sum(axis=1)
     rep = np.flatnonzero(distinct < P)
     if not rep.size:
         return rms, ok, distinct

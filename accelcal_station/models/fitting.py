@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike
 from ..calibration import MODELS, Calibration, TemperatureTable
 from ..conventions import check_units, units_per_g
 from ..errors import DataError, UnderdeterminedError, UnitsError
+from ..identifiability import first_of_orientation
 from ..session import Session
 from .crossval import crossval_by_orientation
 from .gravity_norm import PARAM_NAMES, nominal_scale
@@ -33,7 +34,10 @@ def check_model(model: str | int) -> str:
 
 
 def check_plausible_g(gf: np.ndarray, units: str) -> None:
-    with np.errstate(over="ignore"):  # a 1e308 reading is refused per pose later (models/sanity.py)
+    with np.errstate(over="ignore", invalid="ignore"):  # a 1e308 reading is refused per pose later (models/sanity.py)
+        sq = np.einsum("...k,...k->...", gf, gf)
+        if np.all((sq >= 0.1) & (sq <= 8.9)):  # every norm within 0.31-2.99 g: so is the median
+            return
         norms = np.linalg.norm(gf, axis=-1)
     med = float(np.median(norms))
     if not (0.3 <= med <= 3.0):
@@ -84,7 +88,8 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
         nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]
     # from the distinct orientations, before any solver runs: what each board determines, and
     # the weak terms held at nominal (models/held.py; refused when a gain or an offset is weak)
-    plan = hold_plans(gf, model, nz)
+    first = first_of_orientation(gf)  # once, for the plan and the leave-one-orientation-out folds
+    plan = hold_plans(gf, model, nz, first)
     if len(gf) == 1 and plan.refused[0]:  # one board: its reason, before a solver says less
         raise UnderdeterminedError(plan.refused[0])
     gf_fit = gf
@@ -102,7 +107,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     except np.linalg.LinAlgError:
         raise DataError("the readings cannot be fitted (numerically singular or overflowing: "
                         "a reading far beyond the sensor's range?)") from None
-    _crossval_orient(res, gf_fit, references, x, model, nz, plan)
+    _crossval_orient(res, gf_fit, references, x, model, nz, plan, first if gf_fit is gf else None)
     for d, why in enumerate(plan.refused):
         if why:
             res.ok[d] = False
@@ -140,7 +145,7 @@ def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, mode
 
 
 def _crossval_orient(res: BatchFit, gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, model: str,
-                     nz: np.ndarray | None, plan: HoldPlan) -> None:
+                     nz: np.ndarray | None, plan: HoldPlan, first: np.ndarray | None = None) -> None:
     """Leave every pose of one distinct orientation out at a time (models/crossval.py), each fold
     refitted by the one stacked estimator with the board's held terms."""
     ref = None if model == "9" else np.broadcast_to(_references(references, x, model), gf.shape)
@@ -154,7 +159,7 @@ def _crossval_orient(res: BatchFit, gf: np.ndarray, references: ArrayLike | None
             except (UnderdeterminedError, DataError, np.linalg.LinAlgError):
                 return _failed(len(rows))
 
-    rms, ok, distinct = crossval_by_orientation(gf, ref, model, fold, res.crossval_rms_g, res.crossval_ok)
+    rms, ok, distinct = crossval_by_orientation(gf, ref, model, fold, res.crossval_rms_g, res.crossval_ok, first)
     res.crossval_by_orientation_rms_g, res.crossval_by_orientation_ok, res.distinct_orientations = rms, ok, distinct
 
 

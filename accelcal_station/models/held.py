@@ -277,20 +277,23 @@ def _plan_model9(gf: np.ndarray, noise_g: np.ndarray | None, determined: np.ndar
         for i, d in enumerate(rows):
             held[d] = [_held_noise(int(k), float(se), float(together[int(k)][i]))
                        for k, se in zip(order[i], se_at[i], strict=True) if k >= 0]
-    for d in np.flatnonzero((code == 0) & ~usable):  # no noise to judge by: the geometric plan
+    # no noise to judge by: the geometric plan (a board it holds nothing for keeps its empty list)
+    for d in np.flatnonzero((code == 0) & ~usable & (geo[:, 0] >= 0)):
         held[d] = [_held_9(int(k)) for k in geo[d] if k >= 0]
     return HoldPlan(held, refused)
 
 
-def hold_plans(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None) -> HoldPlan:
+def hold_plans(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None,
+               first: np.ndarray | None = None) -> HoldPlan:
     """The terms of ``model`` to hold at nominal for each of D boards' readings ``gf`` (D, P, 3)
     in about g (module doc), vectorised over boards: the one decision of the one-board fit,
     `accelcal batch` and lot files.  ``noise_g`` (D, P, 3): the standard error of each pose
     mean in g (None: the residual scatter).  A board whose gain or offset is weak, or that
-    holding cannot help, is refused with the identifiability reason."""
+    holding cannot help, is refused with the identifiability reason.  ``first``: the boards'
+    first_of_orientation when the caller has it (the fit's front computes it once)."""
     gf = np.asarray(gf, dtype=float)
     D = len(gf)
-    determined, _ = assess_batch(gf, model)
+    determined, _ = assess_batch(gf, model, first)
     if model == "9":
         nz = None if noise_g is None else np.broadcast_to(np.asarray(noise_g, dtype=float), gf.shape)
         return _plan_model9(gf, nz, determined)

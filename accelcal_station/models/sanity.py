@@ -48,12 +48,14 @@ def distinct_directions_batch(readings_g: np.ndarray, tol_deg: float = DISTINCT_
     u = x / np.where(n > 0, n, 1.0)
     cos = np.cos(np.radians(tol_deg))
     B, P, _ = u.shape
-    is_rep = np.zeros((B, P), bool)
+    ut = np.ascontiguousarray(u.transpose(1, 2, 0))  # (P, 3, B): boards last, each step a few long ufunc calls
+    is_rep = np.zeros((P, B), bool)
     for p in range(P):
-        dots = np.einsum("bqk,bk->bq", u[:, :p], u[:, p])
-        near = np.any(is_rep[:, :p] & (dots >= cos), axis=1)
-        is_rep[:, p] = ~near
-    return is_rep.sum(axis=1)
+        dots = ut[:p, 0] * ut[p, 0]
+        dots += ut[:p, 1] * ut[p, 1]
+        dots += ut[:p, 2] * ut[p, 2]
+        is_rep[p] = ~np.any(is_rep[:p] & (dots >= cos), axis=0)
+    return is_rep.sum(axis=0)
 
 
 def poses_needed(model: str) -> int:

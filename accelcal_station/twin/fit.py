@@ -23,7 +23,7 @@ import numpy as np
 from ..acceptance.rules import Limits
 from ..config.checks import load_yaml
 from ..config.sections import default_config_path
-from ..data.lotfile import lot_scale, open_lot
+from ..data.lotfile import SMALL_BLOCK_BYTES, lot_scale, open_lot
 from ..errors import DataError
 from ..sim.population import Change, Component, Population, Tail, parse_quantity
 from ..sim.sensor_model import PHYSICS, SensorModel
@@ -86,7 +86,7 @@ class Twin:
 def lot_stats(path: str | Path, limits: Limits | None = None, reservoir: int = 50_000, chunk_boards: int = 4096,
               model: str | None = None) -> tuple[LotStats, float | None]:
     """One streaming pass over a lot file; returns the stats and its input units per g."""
-    meta, chunks = open_lot(path, chunk_boards)
+    meta, chunks = open_lot(path, chunk_boards, SMALL_BLOCK_BYTES)  # a CSV lot in small blocks: memory
     first = next(chunks, None)
     if first is None:
         raise DataError(f"{path}: no boards (no rows after the header)")
