@@ -7,11 +7,14 @@ from typing import Any
 
 import numpy as np
 
+from ..identifiability import TermsDescription
 from .evaluation import Evaluation
 from .gap_data import GapData
 from .loading import Simulator
 from .noise_floor import Floor
-from .selection import ALPHA, MIN_GAP_SHRINK
+from .order import OrderConfound
+from .selection import ALPHA, MIN_GAP_SHRINK, Ranked, Step, Tried
+from .where import Where
 
 
 @dataclass
@@ -25,21 +28,21 @@ class Diagnosis:
     floor: Floor
     base: Evaluation
     final: Evaluation
-    ranking: list[dict[str, Any]]
-    steps: list[dict[str, Any]]
+    ranking: list[Ranked]
+    steps: list[Step]
     selected: list[str]
     untestable: dict[str, str]
     static_ok: bool
     static_why: str
-    where: dict[str, Any]
+    where: Where
     alpha: float = ALPHA
     stochastic: dict[str, Any] = field(default_factory=dict)
-    tried: list[dict[str, Any]] = field(default_factory=list)
+    tried: list[Tried] = field(default_factory=list)
     verdict: str = ""
     verdict_text: str = ""
     leftover: dict[str, Any] = field(default_factory=dict)
-    identifiability: dict[str, Any] = field(default_factory=dict)
-    confounded_with: dict[str, dict[str, Any]] = field(default_factory=dict)  # diagnosis/order.py
+    identifiability: TermsDescription | None = None
+    confounded_with: dict[str, OrderConfound] = field(default_factory=dict)  # diagnosis/order.py
 
     @property
     def gap_before(self) -> float:
