@@ -14,6 +14,7 @@ from .loading import Simulator
 from .noise_floor import Floor
 from .order import OrderConfound
 from .selection import ALPHA, MIN_GAP_SHRINK, Ranked, Step, Tried
+from .shape import Leftover
 from .where import Where
 
 
@@ -40,7 +41,7 @@ class Diagnosis:
     tried: list[Tried] = field(default_factory=list)
     verdict: str = ""
     verdict_text: str = ""
-    leftover: dict[str, Any] = field(default_factory=dict)
+    leftover: Leftover = field(default_factory=Leftover)
     identifiability: TermsDescription | None = None
     confounded_with: dict[str, OrderConfound] = field(default_factory=dict)  # diagnosis/order.py
 
