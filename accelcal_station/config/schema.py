@@ -12,9 +12,11 @@ from these models (``python -m accelcal_station.config.docs``).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, Field, StrictBool, ValidationError
+from pydantic_core import ErrorDetails
 
 from ..errors import ConfigError
 from .kinds import (  # noqa: F401 - re-exported: every section model is reachable from the schema
@@ -281,15 +283,15 @@ def _choices(model: type[BaseModel] | None, key: Any) -> str:
     return ", ".join(dict.fromkeys(str(v) for v in vals))
 
 
-def error_line(err: dict[str, Any], root: type[BaseModel], where: str = "") -> str:
+def error_line(err: ErrorDetails, root: type[BaseModel], where: str = "") -> str:
     """One line for a pydantic error: key path, value, what is allowed."""
     full = tuple(p for p in err["loc"] if isinstance(p, int) or p in TAGGED or not _is_tag(p))
     loc = tuple(p for p in full if isinstance(p, int) or p not in TAGGED)
     path, kind, value = _path(where, loc), err["type"], err.get("input")
     if kind.removesuffix("_choice") in CHOICES:  # a union's key (device.driver, jig.type) names no member
-        key = kind.removesuffix("_choice")
-        got = value.get(key) if isinstance(value, dict) else value
-        return f"{_path(where, (*loc, key))}: {got!r}; allowed: {', '.join(CHOICES[key])}"
+        tag = kind.removesuffix("_choice")
+        got = value.get(tag) if isinstance(value, dict) else value
+        return f"{_path(where, (*loc, tag))}: {got!r}; allowed: {', '.join(CHOICES[tag])}"
     # the key the error is about: the last name (a list item's error is about its list's key)
     k = max((i for i, p in enumerate(full) if not isinstance(p, int) and p not in TAGGED), default=None)
     parent = _model_at(root, full[:k]) if k is not None else root
@@ -340,7 +342,7 @@ def validate(data: Any, model: type[BaseModel], where: str = "") -> BaseModel:
         # and a value of the wrong type for one member (a list for a number) says less than the other's
         errs = sorted(e.errors(), key=lambda x: (-len([p for p in x["loc"] if isinstance(p, int) or not _is_tag(p)]),
                                                  x["type"] != "extra_forbidden", x["type"].endswith("_type")))
-        raise ConfigError(error_line(dict(errs[0]), model, where)) from None
+        raise ConfigError(error_line(errs[0], model, where)) from None
 
 
 def given(section: BaseModel) -> dict[str, Any]:
@@ -367,6 +369,6 @@ def validate_jig(section: Any) -> JigSection:
     return validate({"jig": section}, _JigOnly).jig  # type: ignore[attr-defined]
 
 
-def validate_station(raw: dict[str, Any]) -> StationConfigSchema:
+def validate_station(raw: Mapping[str, object]) -> StationConfigSchema:
     """A whole station config against the schema (ConfigError: one line)."""
     return validate(raw, StationConfigSchema)  # type: ignore[return-value]
