@@ -469,7 +469,7 @@ class Store:
             exports.write_export(path, text)
         return text
 
-    def lot_summary(self, **filters: Any) -> dict[str, Any]:
+    def lot_summary(self, **filters: Any) -> exports.LotSummary:
         """Counts, pass rate, failure reasons and parameter distributions of the matching runs
         (exports.summarize)."""
         with self._snapshot():
