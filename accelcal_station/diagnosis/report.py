@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
@@ -68,7 +69,7 @@ def config_hint(effect: str, fitted: dict[str, Any]) -> dict[str, Any] | None:
     return None
 
 
-def _yaml_inline(d: dict[str, Any]) -> str:
+def _yaml_inline(d: Mapping[str, object]) -> str:
     def v(x: Any) -> str:
         if isinstance(x, list):
             return "[" + ", ".join(v(y) for y in x) + "]"
