@@ -22,8 +22,8 @@ class PoseRecord:
     """One static pose.
 
     mean: (3,) averaged reading in the session's units; std: (3,) per-sample std;
-    n: samples averaged; reference_g: (3,) expected output in g (AN4399 convention:
-    positive along gravity), None for reference-free (model 9) data;
+    n: samples averaged; reference_g: (3,) expected output in g (what the chip
+    reads: +1 g on the axis pointing up; AN4399 Eqn 22 of the angles), None for reference-free (model 9) data;
     pitch_deg/roll_deg: the commanded AN4399 angles when known.
     """
 

@@ -43,6 +43,8 @@ def make_driver(config: DeviceSection | dict[str, Any], path: str = "device",
         config = given(config)
     if not isinstance(config, dict):
         raise ConfigError(f"{path}: must be a mapping with a 'driver' key")
+    # device.mount is the station's (how the chip sits on the board: words, jig and fit use it), not the driver's
+    config = {k: v for k, v in config.items() if k != "mount"}
     name = config.get("driver")
     if name not in DRIVERS:
         raise ConfigError(f"{path}.driver: {name!r}; allowed: {', '.join(DRIVERS)}")

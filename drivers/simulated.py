@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike
 from ..calibration import Calibration
 from ..config.checks import load_yaml
 from ..config.parts import SimEepromSection, SimulatedBoardSection, SimulatorFileSection, parse
+from ..conventions import WORLD_UP, attitude_for_up, mount_matrix, pose_attitude
 from ..errors import ConfigError, DeviceError
 from ..sim.population import parse_population
 from ..sim.sensor_model import PHYSICS, SensorModel, get_chip, rotation_matrix
@@ -128,6 +129,15 @@ def draw_board(model: SensorModel, population: Any, seed: int, path: str) -> Sen
     return SensorModel(model.chip, pop.apply(model.effects, x), model.path, model.forward)
 
 
+def pose_placement(pose: Pose) -> np.ndarray:
+    """Board-to-world rotation that places ``pose`` physically: from its AN4399 angles when it has
+    them (the jig's own turn), else the smallest turn putting its expected output up."""
+    pitch, roll = getattr(pose, "pitch_deg", None), getattr(pose, "roll_deg", None)
+    if pitch is not None and roll is not None:
+        return pose_attitude(pitch, roll)
+    return attitude_for_up(pose.reference_g)
+
+
 class SimulatedBoard:
     """A simulated accelerometer board (see module docstring and sensor_model)."""
 
@@ -150,7 +160,11 @@ class SimulatedBoard:
         self._t_power = self.clock.now()
         self.pose: Pose | None = None
         self.true_rotation = np.eye(3)  # R_err of the current pose
-        self._dir = np.array([0.0, 0.0, 1.0])  # true output direction (flat board)
+        # how the board sits in the world (board-to-world rotation; flat, component side up) and how
+        # the chip sits on the board: row i of ``mount`` is the chip axis i in board axes
+        self.attitude = np.eye(3)
+        self.mount = np.eye(3)
+        self._dir = np.array([0.0, 0.0, 1.0])  # true output direction, chip axes (flat board: +z up)
         self._f = model.gravity_g() * self._dir
         self._settle = np.zeros(3)  # settling transient at time _t_settle
         self._t_settle = self._t_power
@@ -189,6 +203,9 @@ class SimulatedBoard:
                           image_path=e.image)
         board = cls(model, seed, None if m.serial is None else str(m.serial), m.realtime, m.ambient_c,
                     m.self_heating_c, eeprom)
+        if m.true_mount is not None:  # the chip sits turned on this board (the station may not know)
+            board.mount = mount_matrix(m.true_mount)
+            board.place(board.attitude)
         board.configure(cfg.get("range_g", spec.default_range_g), cfg.get("odr_hz", spec.default_odr_hz),
                         cfg.get("dlpf"), path)
         return board
@@ -231,7 +248,7 @@ class SimulatedBoard:
     # -- orientation -------------------------------------------------------------------------
     @property
     def true_direction(self) -> np.ndarray:
-        """Unit vector of the true ideal output (positive along gravity)."""
+        """Unit vector of the true ideal output, chip axes: the chip axis pointing up reads +."""
         return self._dir.copy()
 
     def pose_error_rotation(self) -> np.ndarray:
@@ -242,22 +259,45 @@ class SimulatedBoard:
         scatter = self._rng_pose.normal(0.0, p["scatter_deg"], 3) if p["scatter_deg"] > 0 else np.zeros(3)
         return rotation_matrix(p["jig_rotation_deg"]) @ rotation_matrix(scatter)
 
-    def set_pose(self, pose: Pose, rotation: ArrayLike | None = None) -> None:
-        """Bring the board to a commanded PoseSpec; the true output is R_err @ reference_g.
+    def force_direction(self, attitude: ArrayLike) -> np.ndarray:
+        """Unit specific force in chip axes with the board at ``attitude`` (board-to-world):
+        ``mount @ attitude.T @ up``, +1 g on the axis pointing away from the Earth (MMA8451Q
+        data sheet "Product orientation"; MPU-6050 product specification)."""
+        return self.mount @ (np.asarray(attitude, dtype=float).T @ WORLD_UP)
+
+    def place(self, attitude: ArrayLike) -> None:
+        """Hold the board physically at ``attitude`` (board-to-world rotation); starts a settling transient."""
+        R = np.asarray(attitude, dtype=float).reshape(3, 3)
+        if not np.all(np.isfinite(R)) or not np.allclose(R.T @ R, np.eye(3), atol=1e-6):
+            raise DeviceError(f"board attitude {R.tolist()} must be a rotation matrix")
+        self.attitude = R
+        self._set_direction(self.force_direction(R))
+
+    def set_pose(self, pose: Pose, rotation: ArrayLike | None = None, attitude: ArrayLike | None = None) -> None:
+        """Bring the board to a commanded PoseSpec: placed with its expected output pointing up
+        (conventions.pose_attitude), turned by the jig's error, so the true output is R_err @ reference_g.
 
         ``rotation``: an R_err already drawn with :meth:`pose_error_rotation` (a jig
-        that moves there first); by default a fresh one is drawn.
+        that moves there first); by default a fresh one is drawn.  ``attitude``: the nominal
+        board-to-world rotation a machine's own axes reached (the jig emulator's gimbal);
+        by default the pose's placement.
         """
         R = self.pose_error_rotation() if rotation is None else np.asarray(rotation, dtype=float)
         self.pose, self.true_rotation = pose, R
-        self.set_gravity_direction(R @ pose.reference_g)
+        nominal = pose_placement(pose) if attitude is None else np.asarray(attitude, dtype=float)
+        self.place(nominal @ R.T)
 
     def set_gravity_direction(self, direction: ArrayLike) -> None:
-        """Set the true output direction exactly (no pose error); starts a settling transient."""
+        """Place the board so its chip reads along ``direction`` (chip axes; the axis pointing up reads +):
+        the smallest turn from flat that puts that direction up (no pose error)."""
         d = np.asarray(direction, dtype=float).reshape(3)
         n = np.linalg.norm(d)
         if not np.isfinite(n) or n == 0:
             raise DeviceError(f"gravity direction {d.tolist()} must be a finite non-zero vector")
+        self.place(attitude_for_up(self.mount.T @ (d / n)))
+
+    def _set_direction(self, d: np.ndarray) -> None:
+        n = np.linalg.norm(d)
         f_new = self.model.gravity_g() * d / n
         now = self.clock.now()
         self._settle = self._settling_at(np.array([now]))[0] + self._settle_fraction() * (f_new - self._f)

@@ -6,7 +6,7 @@ Then fit it:  accelcal fit examples/poses.csv --model 12   (or 6, 9, 15)
 
 The board: 4096 counts/g, gain errors of a few percent, cross-axis coupling, offsets
 of tens of mg and a small cubic term; 256 samples per pose with 1.5 mg noise.  Poses:
-the six faces plus the eight cube vertices (AN4399 pitch/roll, z down).
+the six faces plus the eight cube vertices (AN4399 pitch/roll).
 """
 from __future__ import annotations
 

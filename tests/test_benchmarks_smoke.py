@@ -188,3 +188,10 @@ def test_twin_scale_prints_time_memory_and_ratio(capsys):
     assert re.search(r"300 boards: twin fit [0-9.]+ s, peak [0-9]+ MB", out)
     m = re.search(r"peak memory ratio 600 / 300 boards: ([0-9.]+)x", out)
     assert m and 0.5 < float(m.group(1)) < 2.0
+
+
+def test_twin_null_prints_the_gap_rate(capsys):
+    out = run(capsys, "twin_null", "--small")
+    m = re.search(r"no material gap: (\d+) of 3 \(gap rate ([0-9.]+);", out)
+    assert m and int(m.group(1)) + round(3 * float(m.group(2))) == 3, out
+    assert "| detectable but immaterial |" in out and re.search(r"noise scale fitted .* median 0\.9", out), out

@@ -241,7 +241,7 @@ def test_a_key_of_another_driver_or_jig_type_is_one_line_naming_this_ones_keys(
      "device.boards[0].driver: 'mpu6050'; allowed: simulated"),
     ("device", {"driver": "mma8451", "bus": "emulated", "simulator": {"chip": "mma8451", "bogus": 1}},
      "device.simulator.bogus: unknown key; allowed: chip, range_g, odr_hz, dlpf, seed, serial, realtime, "
-     "ambient_c, self_heating_c, eeprom, simulator, effects"),
+     "ambient_c, self_heating_c, eeprom, simulator, effects, true_mount"),
 ])
 def test_a_bad_driver_or_jig_type_is_one_line_naming_the_allowed_ones(
         tmp_path: Path, section: str, value: Any, line: str) -> None:

@@ -77,7 +77,7 @@ def test_ranges_scale_one_g(emu, dev, range_g, cpg, afs):
     dev.configure(range_g=range_g)
     assert dev.counts_per_g == cpg and emu.regs[ACCEL_CONFIG] == afs << 3 and emu.board.range_g == range_g
     cap = dev.capture(400)
-    # flat board: z reads +1 g (AN4399 z down); offsets/gain of the ideal default chip are zero
+    # flat board, face up: z reads +1 g (MPU-6050 product specification); the ideal chip has no offset or gain error
     sem = 45.0 * cpg / 16384 / np.sqrt(400)
     assert abs(cap.mean_counts[2] - cpg) < 8 * sem + 2
     assert np.all(np.abs(cap.mean_counts[:2]) < 8 * sem + 2)

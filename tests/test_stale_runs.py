@@ -75,7 +75,7 @@ def test_a_killed_station_reads_stale(tmp_path, monkeypatch):
     from accelcal_station.web.settings import WebSettings
 
     client = TestClient(create_app(WebSettings(store="runs.sqlite")))
-    runs = client.get("/api/v1/runs").json()
+    runs = client.get("/api/v1/runs").json()["runs"]
     assert [r["status"] for r in runs] == ["stale"], runs
     page = client.get("/fragment/line").text
     assert "stale" in page and ">running<" not in page

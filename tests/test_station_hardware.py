@@ -56,7 +56,8 @@ def test_mma8451_emulated_bus_with_operator_jig(tmp_path, monkeypatch):
     r = CliRunner().invoke(cli, ["run", "--config", str(CONFIGS / "mma8451-emulated.yaml"), "--operator", "bo"],
                            input="\n" * 8)
     assert r.exit_code == 0, r.output
-    assert "Pose x+1g: put the board x+ down" in r.output and "PASS board EMU-0001" in r.output
+    assert "Pose x+1g: put the board x+ up: stand it on its -x edge, +x pointing up" in r.output
+    assert "PASS board EMU-0001" in r.output
     db = sqlite3.connect(tmp_path / "accelcal-runs.sqlite")
     assert db.execute("SELECT chip, verdict, nvm_status FROM runs").fetchone() == ("mma8451", "PASS", "written")
 

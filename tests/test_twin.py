@@ -95,15 +95,28 @@ def test_check_before_flags_the_cubic_after_flags_nothing(line: dict[str, Path])
     d = json.loads(r.stdout)
     before = {t["quantity"]: t for t in d["before"]["tests"]}
     # the default config has no cubic boards and implicit physics: the cubic, the residuals the
-    # forward cubic leaves, and the verdicts it moves are all flagged
+    # forward cubic leaves, and the verdicts it moves are all detected
     for q in ("Gamma2", "residual_rms_mg", "crossval_rms_mg", "verdict mix"):
-        assert before[q]["p_value"] < 1e-3 and q in d["before"]["gaps"], (q, before[q]["p_value"])
+        assert before[q]["p_value"] < 1e-3 and q in d["before"]["detected"], (q, before[q]["p_value"])
+    # ... and the cubic matters: no acceptance limit judges it here (sim.yaml has no cubic_max), so
+    # its margin is a tenth of the lot's spread, and the missing 10 % subpopulation is far beyond
+    g = before["Gamma2"]["effect"]
+    assert "Gamma2" in d["before"]["gaps"] and g["wasserstein"] > 0.1 * before["Gamma2"]["real"]["sd"]
+    # the residuals the forward cubic leaves (~0.4 mg on 10 % of the boards) hardly cross the 1 mg
+    # limit (yield change < 0.001), but move the lot's 95th percentile by a third of it: a gap that
+    # matters by the percentile margin (2 % of the limit), not by the yield margin
+    e = before["residual_rms_mg"]["effect"]
+    assert abs(e["yield_change"]) < 0.001 and e["shift_p95"] < -0.2 * e["limit_value"], e
+    assert before["residual_rms_mg"]["gap"]
     assert d["before"]["verdict"] == "gap"
     # a correct twin is flagged with probability <= false_alarm_rate (Bonferroni over the tests)
-    assert d["false_alarm_rate"] == 0.01
-    assert d["verdict"] == "no gap", d["gaps"]
+    assert d["false_alarm_rate"] == 0.01 and isinstance(d["seed"], int)
+    assert d["verdict"] in ("no gap", "detectable but immaterial") and not d["gaps"], d["gaps"]
     after = {t["quantity"]: t for t in d["tests"]}
     assert {"residual_rms_mg", "crossval_rms_mg", "verdict mix", "Gamma2"} <= after.keys()
+    # every check reports an effect in the quantity's own units beside its p-value
+    assert all("material" in t["effect"] for t in d["tests"])
+    assert all("wasserstein" in after[q]["effect"] for q in ("residual_rms_mg", "Gamma2", "W01"))
 
 
 # cubic_max 0.013: the middle of the lot's *fitted* cubic range (forward cubics 0.010-0.020 fit as
@@ -276,3 +289,106 @@ def test_physics_is_chosen_from_the_data_both_ways(tmp_path: Path) -> None:
         # physics' A-D statistics are tens, the right one's a few (fails for a fresh seed < 1e-6)
         assert chosen == ("forward" if forward else "implicit"), cands
         assert max(score.values()) > 5 * min(score.values()), cands
+
+
+# -- issue 38: noise from the lot, what matters, tails per parameter, what-if doubt -------------------
+# Lots from tests/twin_lots.write_own_lot: boards drawn and measured by the test module's own numpy
+# code (no simulator code), stated std 2.9 counts for a true 2.8672.
+
+NULL_TWINS, NULL_BOARDS = 20, 2000
+
+
+def test_null_twins_checked_against_fresh_lots_find_no_material_gap(tmp_path: Path) -> None:
+    """20 twins, each fitted on a structureless lot and checked against the next (fresh) lot of the
+    same population: at most 1 says a gap matters.  A twin is an estimate of its population, not the
+    population, so detection is above its nominal 1 %: 7 of 50 twins in benchmarks/twin_null.py
+    (50 twins of 10,000 boards; none mattered).  False-failure rate of this test for a twin as good
+    as the benchmark's: P(>= 2 gaps of 20) = 1.7 % at a 1 % gap rate; P(>= 9 detections of 20) =
+    0.1 % at a 14 % detection rate.  Seeds fixed, so a run is deterministic.  Cost: ~4 s of CPU per
+    twin (~80 s in all on an idle core)."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from twin_null import run_null
+
+    rows = run_null(NULL_TWINS, NULL_BOARDS, tmp_path, seed0=700)
+    assert sum(r["verdict"] == "gap" for r in rows) <= 1, rows
+    assert sum(bool(r["detected"]) for r in rows) <= 8, rows
+    # the noise came from the residuals, not the stated 2.9: the true 2.8672 is 0.9887 of it; the median
+    # of 20 fitted scales has a sd ~0.1 % (each ~0.4 % at 2,000 boards): 0.5 % is 5 sd
+    scales = sorted(r["noise_scale"] for r in rows)
+    assert abs(scales[len(scales) // 2] - 2.8672 / 2.9) < 0.005, scales
+
+
+def test_one_heavy_tailed_block_gets_t_marginals_not_components(tmp_path: Path) -> None:
+    """Cross-axis terms Student-t with 3 dof, everything else Gaussian: the twin gives those six
+    quantities t marginals (dof near 3) and no other, and needs no extra components for them."""
+    from twin_lots import write_own_lot
+
+    from accelcal_station.twin.fit import fit_twin, lot_stats
+
+    stats, per_g = lot_stats(write_own_lot(tmp_path / "t3.csv", 4000, seed=31, coupling_dof=3.0))
+    tw = fit_twin(stats, per_g)
+    tails = tw.population.tails
+    coupling = {n for n in stats.quantities if n.startswith("cross_axis.")}
+    assert set(tails) == coupling, tw.tails
+    # EM's dof from 4,000 boards at nu = 3: sd ~0.3, so [2, 5] is > 3 sd either side
+    assert all(2.0 < t.dof < 5.0 for t in tails.values()), tails
+    assert tw.mixture.K == 1, tw.criterion
+    assert not any("BIC chose" in w for w in tw.warnings)
+
+
+def test_whole_reading_cubic_lot_fit_warns_and_whatif_doubts(tmp_path: Path) -> None:
+    """A 10 % subpopulation with a cubic on the whole reading, offset included (G = r + c r^3,
+    r = o + K f: neither physics the twin offers).  Either the twin reproduces the residual and
+    leave-one-out distributions (its check finds no gap that matters), or twin fit warns, on
+    stderr and in --json, naming them.  twin whatif at a tight leave-one-out limit either holds the
+    lot's own yield (computed here by the batch path) or warns that it lies outside."""
+    from twin_lots import write_own_lot
+
+    lot = write_own_lot(tmp_path / "cubic.csv", 6000, seed=41, cubic_share=0.10)
+    r = run("twin", "fit", str(lot), "-o", str(tmp_path / "tw.yaml"), "--json")
+    assert r.returncode == 0, r.stdout + r.stderr
+    fit = json.loads(r.stdout)
+    named = [w for w in fit["warnings"] if w.split(":")[0] in ("residual_rms_mg", "crossval_rms_mg")]
+    for w in named:
+        assert f"warning: {w}" in r.stderr and "p95 lot" in w and "Wasserstein" in w
+    detected = [t["quantity"] for t in fit["residual_check"] if t["detected"]]
+    assert sorted(w.split(":")[0] for w in named) == sorted(detected)
+    if not named:
+        c = run("twin", "check", str(lot), "--config", str(tmp_path / "tw.yaml"), "--json", "--seed", "5")
+        assert c.returncode == 0 and not json.loads(c.stdout)["gaps"], c.stdout
+    w = run("twin", "whatif", str(lot), "--config", str(tmp_path / "tw.yaml"), "--limit", "crossval_rms_mg=0.05",
+            "--boards", "4000", "--json")
+    assert w.returncode == 0, w.stdout + w.stderr
+    d = json.loads(w.stdout)
+    base = yaml.safe_load(default_config_path().read_text())["acceptance"]
+    base["crossval_rms_mg"] = 0.05
+    s = recalibrate_lot(lot, tmp_path / "res.csv", "15", limits=Limits.from_config(base))
+    real = s.passed / s.boards
+    assert abs(d["real_yield"] - real) < 1e-9  # the lot's own yield, as the batch path judges it
+    lo, hi = d["first_pass_yield"]["interval"]
+    outside = [x for x in d["warnings"] if "lies outside the prediction" in x]
+    assert (lo <= real <= hi) != bool(outside), (real, lo, hi, d["warnings"])
+    assert d["first_pass_yield"]["parameter_sd"] >= 0 and isinstance(d["seed"], int)
+    f = d["failures"]
+    assert abs(f["noise_like"] + f["systematic"] - (1 - d["first_pass_yield"]["value"])) < 1e-9
+
+
+def test_tails_config_errors_are_one_line() -> None:
+    from accelcal_station.errors import ConfigError
+    from accelcal_station.sim.population import parse_population
+    from accelcal_station.sim.sensor_model import SensorModel
+
+    eff = SensorModel.from_config({}).effects
+    spec = {"quantities": ["offset.offset_mg[0]"], "components": [{"weight": 1.0, "sd": {"offset.offset_mg[0]": 1}}]}
+    for tails, says in (({"gain.gain[0]": {"dof": 3, "loc": 0, "scale": 1}}, "unknown key"),
+                        ({"offset.offset_mg[0]": {"dof": 3, "loc": 0}}, "needs dof, loc, scale"),
+                        ({"offset.offset_mg[0]": {"dof": 0.5, "loc": 0, "scale": 1}}, "dof")):
+        with pytest.raises(ConfigError) as e:
+            parse_population({**spec, "tails": tails}, eff)
+        assert says in str(e.value) and "\n" not in str(e.value)
+    pop = parse_population({**spec, "tails": {"offset.offset_mg[0]": {"dof": 3, "loc": 0, "scale": 1}}}, eff)
+    x = pop.draw(np.arange(200_000), np.random.default_rng(2))[:, 0]
+    # a t with 3 dof and scale 1: P(|x| > 5.841) = 1 % (its table value), a Gaussian's 5e-9
+    assert 0.008 < np.mean(np.abs(x) > 5.841) < 0.012

@@ -250,6 +250,22 @@ def _record(path: Path) -> dict:
             "measured": rec.fit_summary["measured"], "device": rec.device_serial, "chip": rec.chip}
 
 
+def _face_shown(drv) -> str:
+    """The face the page asks for ('x+ up: ...'), checked against its picture: the axis that must
+    read +1 g is drawn pointing up the screen (a chip reads +1 g on the axis pointing away from the
+    Earth), its opposite pointing down (docs/conventions.md)."""
+    def drawn(d) -> tuple[str, float]:
+        face = d.find_element(By.ID, "instruction").text.split("Put the board ", 1)[1][:2]
+        arrow = d.find_element(By.CSS_SELECTOR, f"#board line.arrow.{face[0]}")
+        return face, float(arrow.get_attribute("y1")) - float(arrow.get_attribute("y2"))  # > 0: up the screen
+
+    # the words and the picture arrive in one state update; read them again until they are one pose's
+    WebDriverWait(drv, 5).until(lambda d: drawn(d) == drawn(d))
+    face, dy = drawn(drv)
+    assert (dy > 40) if face[1] == "+" else (dy < -40), (face, dy)
+    return face
+
+
 def test_operator_page_calibrates_the_emulated_board_by_clicks_like_the_terminal(tmp_path):
     # the terminal flow: Enter at each of the 8 prompts (6 poses, 2 verification poses)
     term = _emulated_config(tmp_path, "terminal", "line1-mma8451")
@@ -275,15 +291,21 @@ def test_operator_page_calibrates_the_emulated_board_by_clicks_like_the_terminal
                     time.sleep(0.2)
             clicks = 0
             shot = False
+            faces: set[str] = set()
             while not drv.find_element(By.ID, "result").is_displayed():
                 assert time.monotonic() - t0 < 90, drv.page_source[-2000:]
                 button = drv.find_element(By.ID, "b-accept")
                 if button.is_enabled() and "Put the board" in drv.find_element(By.ID, "instruction").text:
-                    if not shot and drv.find_element(By.ID, "off").text != "–":
+                    if drv.find_element(By.ID, "off").text != "–":
                         # a pose, its picture and the live level once the board has settled
                         WebDriverWait(drv, 5).until(lambda d: "READY" in d.find_element(By.ID, "ready").text)
-                        screenshot(drv, "operator.png")
-                        shot = True
+                        if not shot:
+                            screenshot(drv, "operator.png")
+                            shot = True
+                        face = _face_shown(drv)
+                        if face not in faces:
+                            faces.add(face)
+                            screenshot(drv, f"operator-{face}1g.png")
                     if clicks % 2:  # every other pose by the key instead of the button
                         ActionChains(drv).send_keys(Keys.ENTER).perform()
                     else:
@@ -300,6 +322,7 @@ def test_operator_page_calibrates_the_emulated_board_by_clicks_like_the_terminal
             proc.kill()
     assert proc.returncode == 0, err
     assert clicks == 8 and json.loads(out)["verdict"] == "PASS"
+    assert faces == {"x+", "x-", "y+", "y-", "z+", "z-"}  # a screenshot of each of the six faces
     a, b = _record(tmp_path / "terminal.sqlite"), _record(tmp_path / "web.sqlite")
     for k in ("verdict", "status", "reasons", "nvm_status", "nvm", "events", "poses", "device", "chip"):
         assert a[k] == b[k], k

@@ -61,9 +61,11 @@ UNREADABLE = {
     "column_renamed": (["ALTER TABLE runs RENAME COLUMN operator TO op"], "no such column"),
     "poses_dropped": (["PRAGMA foreign_keys = OFF", "DROP TABLE poses"], "no such table: poses"),
 }
-NEEDS = {"runs_dropped": ("/", "/api/v1/runs", "/api/v1/yield", "/lot?lot=L"),  # pages that read what is gone
-         "column_renamed": ("/", "/api/v1/runs", "/api/v1/yield", "/lot?lot=L"),
-         "poses_dropped": ("/api/v1/runs/2", "/lot?lot=L", "/board?serial=SN1")}
+# pages that read what is gone (the lot page reads its runs' figures and calibrations in SQL, not the
+# operator column or the poses: it still answers those two)
+NEEDS = {"runs_dropped": ("/", "/api/v1/runs", "/api/v1/yield", "/lot?lot=L"),
+         "column_renamed": ("/", "/api/v1/runs", "/api/v1/yield", "/board?serial=SN1"),
+         "poses_dropped": ("/api/v1/runs/2", "/board?serial=SN1")}
 
 
 def _client(path):
@@ -112,7 +114,7 @@ def test_bad_text_and_negative_ids_are_served(tmp_path, statements):
     for url in PAGES:
         r = client.get(url)
         assert r.status_code < 500, (url, r.status_code, r.text[:300])
-    runs = client.get("/api/v1/runs").json()
+    runs = client.get("/api/v1/runs").json()["runs"]
     assert len(runs) == 3
     if "CAST" in statements[0]:
         bad = next(r for r in runs if r["id"] == 2)

@@ -57,3 +57,62 @@ def write_line_lot(path: Path, boards: int, step_at: int | None = 12_000, seed: 
     shape = Population(qs, [Component(1.0, np.zeros(len(qs)), np.zeros(len(qs)), np.eye(len(qs)))])
     return write_population_lot(path, boards, "an4399-8", model, shape, seed=seed, samples=samples, forward=forward,
                                 draw=line_draw(step_at))
+
+
+# -- lots written by this module's own physics (numpy only; no simulator code) -----------------
+# For the issue-38 cases: a structureless lot whose stated per-sample std is rounded to two digits
+# (the true spread is not the stated one), a 10 % subpopulation with a cubic applied to the whole
+# reading *including the offset* (G = r + c r^3, r = o + K f: neither the simulator's implicit nor
+# its forward physics), and cross-axis terms with Student-t (3 dof) tails.
+TRUE_SD_COUNTS = 2.8672  # per-sample noise; the lot states it as 2.9 (two digits)
+COUNTS_PER_G = 4096.0
+OFF = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
+
+
+def own_draw(n: int, rng: np.random.Generator, cubic_share: float = 0.0, coupling_dof: float | None = None
+             ) -> dict[str, np.ndarray]:
+    """Board parameters: offsets mg, gains, coupling (3x3, zero diagonal), cubic per axis 1/g^2."""
+    off = np.array([18.0, -27.0, 41.0]) + 8.0 * rng.standard_normal((n, 3))
+    gain = np.array([1.012, 0.987, 1.021]) + 0.004 * rng.standard_normal((n, 3))
+    z = rng.standard_normal((n, 6))
+    if coupling_dof is not None:  # Student-t with these dof, scale 0.002: a heavy tail in one block only
+        z = z * np.sqrt(coupling_dof / rng.chisquare(coupling_dof, (n, 6)))
+    C = np.zeros((n, 3, 3))
+    for k, (i, j) in enumerate(OFF):
+        C[:, i, j] = 0.004 + 0.002 * z[:, k]
+    cubic = np.zeros((n, 3))
+    sub = rng.random(n) < cubic_share
+    cubic[sub, 2] = rng.uniform(0.010, 0.020, int(sub.sum()))
+    return {"offset_mg": off, "gain": gain, "coupling": C, "cubic": cubic, "sub": sub}
+
+
+def own_readings(p: dict[str, np.ndarray], ref: np.ndarray, samples: int, rng: np.random.Generator) -> np.ndarray:
+    """Pose means (n, P, 3) in counts: r = o + diag(g) (I + C) f, G = r + c r^3 (the whole reading),
+    plus the mean of ``samples`` samples of white noise TRUE_SD_COUNTS."""
+    K = p["gain"][:, :, None] * (np.eye(3) + p["coupling"])
+    r = 1e-3 * p["offset_mg"][:, None, :] + np.einsum("nij,pj->npi", K, ref)
+    G = r + p["cubic"][:, None, :] * r**3
+    return G * COUNTS_PER_G + TRUE_SD_COUNTS / np.sqrt(samples) * rng.standard_normal(G.shape)
+
+
+def write_own_lot(path: Path, boards: int, seed: int, cubic_share: float = 0.0, coupling_dof: float | None = None,
+                  samples: int = 1000, design: str = "an4399-8") -> Path:
+    """A lot file (HEADER's columns) of boards drawn and measured by this module; std written as
+    two significant digits of TRUE_SD_COUNTS (2.9), as a station's log rounds it."""
+    from accelcal_station.fixtures.designs import get_design, references
+
+    poses = get_design(design)
+    ref = references(poses)
+    rng = np.random.default_rng(seed)
+    P = len(poses)
+    x = own_readings(own_draw(boards, rng, cubic_share, coupling_dof), ref, samples, rng).reshape(-1, 3)
+    std = f"{float(f'{TRUE_SD_COUNTS:.2g}'):g}"
+    lines = [f"# units: counts\n# counts_per_g: {COUNTS_PER_G:g}\n# design: {design}\n"
+             "serial,pose,pitch_deg,roll_deg,x,y,z,n,std_x,std_y,std_z"]
+    for b in range(boards):
+        for k, pose in enumerate(poses):
+            r = x[b * P + k]
+            lines.append(f"B{b:08d},{pose.name},{pose.pitch_deg:g},{pose.roll_deg:g},{r[0]:.3f},{r[1]:.3f},"
+                         f"{r[2]:.3f},{samples},{std},{std},{std}")
+    path.write_text("\n".join(lines) + "\n")
+    return path

@@ -35,8 +35,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
                 "path; Ctrl-C stops it."),
     "fit": ("fit:command", "Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."),
     "nvm": ("nvm:command", "Read, back up, restore or erase the calibration NVM of a board (service)."),
-    "poses": ("poses:command", "Show pose design NAME (AN4399 pitch/roll, z down) and its predicted standard "
-              "errors."),
+    "poses": ("poses:command", "Show pose design NAME (AN4399 pitch/roll, where the board goes) and its "
+              "predicted standard errors."),
     "probe": ("probe:command", "Identify the device in --config and print its configuration, temperature and "
               "averaged readings."),
     "report": ("report:command", "List, show, export and summarise recorded runs."),

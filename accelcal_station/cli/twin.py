@@ -81,7 +81,14 @@ def fit_cmd(source: str | None, db: str | None, since: str | None, station: str 
               for c in d["components"]]
     lines += [f"  {ch['kind']} in {ch['quantity']} at board {ch['at_board']} "
               f"({ch['interval'][0]}-{ch['interval'][1]}), size {ch['size']:.4g}" for ch in d["changes"]]
+    n = d["noise"]
+    if n:
+        lines.append("noise per axis from the lot's residual and leave-one-out RMS: "
+                     + ", ".join(f"{v:.4g}" for v in n["fitted_sd_counts"]) + " counts per sample (stated "
+                     + ", ".join(f"{v:.4g}" for v in n["stated_sd_counts"]) + ")")
     lines.append(f"wrote {out}")
+    for w in tw.warnings:  # on stderr whatever the output format; in --json also under warnings
+        click.echo(f"warning: {w}", err=True)
     _emit(as_json, d, lines)
 
 
@@ -90,10 +97,11 @@ def fit_cmd(source: str | None, db: str | None, since: str | None, station: str 
 @click.option("--config", "config", required=True, type=click.Path(dir_okay=False), help="Twin config to check.")
 @click.option("--before", "before", type=click.Path(dir_okay=False), default=None,
               help="Config for the gap before (default: the default simulator config).")
-@click.option("--seed", type=click.IntRange(0, None), default=1, show_default=True)
+@click.option("--seed", type=click.IntRange(0, None), default=None,
+              help="Seed of the simulated lot (default: drawn at random; recorded in the output).")
 @click.option("--json", "as_json", is_flag=True, help="Print every test as JSON.")
 def check_cmd(source: str | None, db: str | None, since: str | None, station: str | None, config: str,
-              before: str | None, seed: int, as_json: bool) -> None:
+              before: str | None, seed: int | None, as_json: bool) -> None:
     """Simulate a lot like SOURCE from --config and test it against SOURCE, quantity by quantity."""
     from ..twin.check import check
     from ..twin.simlot import load_device
@@ -102,11 +110,26 @@ def check_cmd(source: str | None, db: str | None, since: str | None, station: st
     stats, _ = _stats(source, db, since, station, limits)
     source = source or db
     r = check(stats, config, before or str(default_config_path()), seed, limits)
-    lines = [f"{source}: {stats.boards} boards; {r['method']}",
-             f"before ({r['before']['config']}): {r['before']['verdict']}"
-             + (f" in {', '.join(r['before']['gaps'])}" if r["before"]["gaps"] else ""),
-             f"after ({config}): {r['verdict']}" + (f" in {', '.join(r['gaps'])}" if r["gaps"] else "")]
+    lines = [f"{source}: {stats.boards} boards; seed {r['seed']}; {r['method']}",
+             _verdict_line(f"before ({r['before']['config']})", r["before"]), _verdict_line(f"after ({config})", r)]
+    lines += [f"  {_effect_line(t)}" for t in r["tests"] if t["detected"]]
     _emit(as_json, r, lines)
+
+
+def _verdict_line(what: str, r: dict[str, Any]) -> str:
+    quiet = [q for q in r["detected"] if q not in r["gaps"]]
+    return (f"{what}: {r['verdict']}" + (f"; matters in {', '.join(r['gaps'])}" if r["gaps"] else "")
+            + (f"; detectable but immaterial in {', '.join(quiet)}" if quiet else ""))
+
+
+def _effect_line(t: dict[str, Any]) -> str:
+    e = t["effect"]
+    size = (f"Wasserstein {e['wasserstein']:.4g}, p95 shift {e['shift_p95']:.4g}" if "wasserstein" in e
+            else f"largest share change {e['share_change'][e['largest']]:+.4f} ({e['largest']})" if e.get("largest")
+            else f"energy distance {e.get('energy_distance', 0.0):.4g}")
+    lim = f", yield change at {e['limit']} {e['yield_change']:+.4f}" if "limit" in e else ""
+    return (f"{t['quantity']}: p {t['p_value']:.2g}; {size}{lim}; "
+            f"{'matters' if t['gap'] else 'immaterial'} ({e.get('margin', '')})")
 
 
 @command.command("whatif")
@@ -115,21 +138,27 @@ def check_cmd(source: str | None, db: str | None, since: str | None, station: st
 @click.option("--limit", "limits", multiple=True, help="NAME=VALUE: an acceptance limit changed (repeatable).")
 @click.option("--boards", type=click.IntRange(100, 10**6), default=20_000, show_default=True,
               help="Boards to simulate.")
+@click.option("--seed", type=click.IntRange(0, None), default=None,
+              help="Seed of the simulated lot (default: drawn at random; recorded in the output).")
 @click.option("--json", "as_json", is_flag=True, help="Print the prediction as JSON.")
 def whatif_cmd(source: str | None, db: str | None, since: str | None, station: str | None, config: str,
-               limits: tuple[str, ...], boards: int, as_json: bool) -> None:
-    """Predicted yield of a lot like SOURCE under changed acceptance limits, with an interval."""
+               limits: tuple[str, ...], boards: int, seed: int | None, as_json: bool) -> None:
+    """Predicted yield of a lot like SOURCE under changed acceptance limits, with an interval that
+    carries the twin's own doubt; compared with SOURCE's own yield under those limits."""
     from ..twin.simlot import load_device
     from ..twin.whatif import parse_limits, whatif
 
     base: Limits = load_device(config)[3]
     lim = parse_limits(limits, base)
     stats, _ = _stats(source, db, since, station, lim)
-    r = whatif(config, stats, lim, boards)
-    y = r["first_pass_yield"]
-    r["real_yield"] = stats.verdicts.get("PASS", 0) / max(stats.boards, 1)
-    lines = [f"first-pass yield {y['value']:.4f} (interval {y['interval'][0]:.4f}-{y['interval'][1]:.4f}); "
-             f"now {r['yield_now']:.4f}; after one retest {r['yield_after_one_retest']['value']:.4f}",
+    r = whatif(config, stats, lim, boards, seed, real_yield=stats.verdicts.get("PASS", 0) / max(stats.boards, 1))
+    y, f = r["first_pass_yield"], r["failures"]
+    lines = [f"first-pass yield {y['value']:.4f} (interval {y['interval'][0]:.4f}-{y['interval'][1]:.4f}, "
+             f"parameter sd {y['parameter_sd']:.4f}); now {r['yield_now']:.4f}; after one retest "
+             f"{r['yield_after_one_retest']['value']:.4f}; seed {r['seed']}",
+             f"failures: noise-like {f['noise_like']:.4f} (a retest recovers them), systematic {f['systematic']:.4f}",
              f"the real lot under these limits: {r['real_yield']:.4f}"]
     lines += [f"  {g['reason']}: {g['before']:.4f} -> {g['after']:.4f}" for g in r["reasons_grow"]]
+    for w in r["warnings"]:
+        click.echo(f"warning: {w}", err=True)
     _emit(as_json, r, lines)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import Discriminator, Field, StrictBool, Tag
+from pydantic import Discriminator, Field, StrictBool, Tag, field_validator
 
 from .section import MAX_BOARDS, Section, _f
 
@@ -77,6 +77,15 @@ class SpreadSection(Section):
 
 # --- the board: one model per driver (``device.driver`` picks it), each with only its own keys -----------
 
+def _check_mount(v: list[str] | None) -> list[str] | None:
+    """A mounting must be one of the 24 proper rotations (conventions.mount_matrix)."""
+    if v is not None:
+        from ..conventions import mount_label, mount_matrix
+
+        return mount_label(mount_matrix(v))
+    return v
+
+
 class SimEepromSection(Section):
     """A simulated board's EEPROM (``device.eeprom``, driver: simulated)."""
 
@@ -103,6 +112,14 @@ class SimulatedBoardSection(Section):
     eeprom: SimEepromSection | None = _f(None, "the board's calibration EEPROM")
     simulator: dict[str, Any] | str | None = _f(None, "the forward sensor model ({effects: ...}) or a YAML file")
     effects: dict[str, Any] | None = _f(None, "effects (as simulator.effects)")
+    true_mount: list[str] | None = _f(None, "how the chip really sits on the board: the chip axes along the "
+                                      "board's x, y, z, e.g. [y, -x, z] (default [x, y, z]); the station's belief "
+                                      "is device.mount")
+
+    @field_validator("true_mount")
+    @classmethod
+    def _proper_true_mount(cls, v: list[str] | None) -> list[str] | None:
+        return _check_mount(v)
 
 
 class I2cEepromSection(Section):
@@ -150,11 +167,19 @@ class Mpu6050Section(Section):
 
 
 class _SlotKeys(Section):
-    """What a board on a panel adds to its driver's keys: its slot."""
+    """What the station adds to a driver's keys: how the chip sits on the board, and a panel board's slot."""
 
     channel: int | None = _f(None, "panel board: multiplexer channel", ge=0, le=7)
     seated_deg: list[float] | None = _f(None, "simulated panel board: how it really sits in its slot, an [x, y, z] "
                                         "rotation vector in degrees")
+    mount: list[str] | None = _f(None, "how the chip sits on the board (or the board in the jig): the chip axes "
+                                 "along the board's x, y, z, one of the 24 turns, e.g. [y, -x, z] (default [x, y, z]; "
+                                 "docs/conventions.md); the station's, never the driver's")
+
+    @field_validator("mount")
+    @classmethod
+    def _proper_mount(cls, v: list[str] | None) -> list[str] | None:
+        return _check_mount(v)
 
 
 class _PanelKeys(Section):

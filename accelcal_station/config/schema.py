@@ -51,6 +51,7 @@ from .kinds import (  # noqa: F401 - re-exported: every section model is reachab
     SimulatedPanelBoard,
     SimulatorSection,
     SpreadSection,
+    _check_mount,
 )
 from .section import MAX_BOARDS, Section, _f  # noqa: F401
 

@@ -9,9 +9,9 @@
     p1,39,-158,-2434.354,-977.106,-2937.402,,,,25.0,200,3.1,2.9,4.0
 
 Required columns: ``pose, x, y, z`` (the pose mean in the table's units) and, as a
-pair, ``pitch_deg, roll_deg`` (AN4399 angles, z down; may be empty or absent).
-Optional: ``ref_x, ref_y, ref_z`` (expected output in g, positive along gravity;
-they override the angles), ``temp_c``, ``n``, ``std_x, std_y, std_z`` (per-sample
+pair, ``pitch_deg, roll_deg`` (AN4399 angles, expected output by Eqn 22; may be empty
+or absent).  Optional: ``ref_x, ref_y, ref_z`` (expected output in g: what the chip
+reads, +1 g on the axis pointing up; they override the angles), ``temp_c``, ``n``, ``std_x, std_y, std_z`` (per-sample
 std in the table's units).  ``# key: value`` lines before the header carry
 metadata; ``units``, ``counts_per_g``, ``gravity`` (m/s^2) and ``device`` are
 used when the matching argument is not given, other keys are kept as strings in

@@ -116,6 +116,8 @@ def _rules(cur: Evaluation, new: Evaluation, p: float, level: float, effect: str
             shrinks.append(abs(math.log(max(b, 1e-300))) <= (1 - MIN_GAP_SHRINK) * abs(math.log(max(a, 1e-300))))
     if not any(shrinks):
         failed.append(f"gap {cur.gap:.3g} -> {new.gap:.3g}: no view loses {MIN_GAP_SHRINK:.0%} of its log gap")
+    elif new.gap >= cur.gap:  # one view better, the headline worse: it explains nothing overall
+        failed.append(f"held-out gap grew ({cur.gap:.3g} -> {new.gap:.3g} x the floor)")
     if effect == "settling":
         ok, ps = _settling_rule(new, td, alpha)
         if not ok:

@@ -12,6 +12,8 @@ every board shares)::
           correlation: [[1, 0.6, 0], [0.6, 1, 0], [0, 0, 1]]      # in quantities' order (default I)
           dof: 5                        # Student-t degrees of freedom (heavy tails); absent: Gaussian
         - {weight: 0.1, mean: {cubic.cubic_per_g2[2]: 0.015}, sd: {cubic.cubic_per_g2[2]: 0.003}}
+      tails:                            # per-quantity Student-t marginals (a Gaussian copula)
+        cross_axis.coupling[0][1]: {dof: 3.2, loc: 0.004, scale: 0.0019}
       changes:                          # along the lot (board index from 0)
         - {quantity: offset.offset_mg[0], kind: step, at_board: 12000, size: 5.0}
         - {quantity: gain.gain[1], kind: trend, at_board: 0, size: 1.0e-7}   # size per board
@@ -19,8 +21,12 @@ every board shares)::
 A quantity is one scalar parameter of a catalog effect: ``effect.param``, ``effect.param[i]``
 or ``effect.param[i][j]`` (sim/sensor_model.EFFECTS); naming one enables its effect.  Board
 ``k``'s vector is ``x = mu_c + L_c z sqrt(nu / chi2_nu)`` for the component ``c`` drawn by
-weight (``L_c L_c^T = diag(sd) R diag(sd)``; no chi2 factor when Gaussian), plus every change
-active at ``k``, then clipped to the parameter's physical range.  A single fixed board is one
+weight (``L_c L_c^T = diag(sd) R diag(sd)``; no chi2 factor when Gaussian); a quantity with
+``tails`` then has its value ``y`` mapped through its own Student-t marginal,
+``x = loc + scale T_dof^-1(Phi((y - loc) / scale))`` (a Gaussian copula with a t marginal: one
+parameter's heavy tail without making the others heavy or adding components; near ``loc`` the
+map is close to the identity), plus every change active at ``k``, then clipped to the
+parameter's physical range.  A single fixed board is one
 component with zero spread.  Every error is one line naming the key and what is allowed.
 """
 from __future__ import annotations
@@ -35,7 +41,8 @@ from ..config.checks import check_keys, number
 from ..errors import ConfigError
 from .sensor_model import EFFECTS, Param
 
-POPULATION_KEYS = ("quantities", "components", "changes")
+POPULATION_KEYS = ("quantities", "components", "changes", "tails")
+TAIL_KEYS = ("dof", "loc", "scale")
 COMPONENT_KEYS = ("weight", "mean", "sd", "correlation", "dof")
 CHANGE_KEYS = ("quantity", "kind", "at_board", "size")
 CHANGE_KINDS = ("step", "trend")
@@ -108,11 +115,37 @@ class Change:
         return np.where(after, self.size * (boards - self.at_board), 0.0)
 
 
+@dataclass(frozen=True)
+class Tail:
+    """A quantity's Student-t marginal (module docstring): dof, location and scale in its units."""
+
+    dof: float
+    loc: float
+    scale: float
+
+    def to_t(self, y: np.ndarray) -> np.ndarray:
+        """Gaussian-scale values to the t marginal: loc + scale T^-1(Phi((y - loc) / scale))."""
+        from scipy.special import ndtr, stdtrit
+
+        z = (y - self.loc) / self.scale
+        p = ndtr(-np.abs(z))  # the lower tail of |z|: no 1 - tiny rounding to 1
+        return self.loc + self.scale * np.sign(z) * -stdtrit(self.dof, np.clip(p, 1e-300, 0.5))
+
+    def to_gauss(self, x: np.ndarray) -> np.ndarray:
+        """The inverse: loc + scale Phi^-1(T((x - loc) / scale))."""
+        from scipy.special import ndtri, stdtr
+
+        t = (x - self.loc) / self.scale
+        p = stdtr(self.dof, -np.abs(t))
+        return self.loc + self.scale * np.sign(t) * -ndtri(np.clip(p, 1e-300, 0.5))
+
+
 @dataclass
 class Population:
     quantities: list[Quantity]
     components: list[Component]
     changes: list[Change] = field(default_factory=list)
+    tails: dict[str, Tail] = field(default_factory=dict)  # quantity name -> its t marginal
 
     @property
     def names(self) -> list[str]:
@@ -132,6 +165,9 @@ class Population:
             if c.dof is not None:  # multivariate t: a Gaussian scaled by sqrt(nu / chi2_nu)
                 y *= np.sqrt(c.dof / rng.chisquare(c.dof, int(sel.sum())))[:, None]
             x[sel] = c.mean + y
+        for name, tail in self.tails.items():
+            k = self.names.index(name)
+            x[:, k] = tail.to_t(x[:, k])
         for ch in self.changes:
             x[:, self.quantities.index(ch.quantity)] += ch.shift(boards)
         lo = np.array([-np.inf if q.spec.lo is None else q.spec.lo for q in self.quantities])
@@ -161,9 +197,13 @@ class Population:
             if c.dof is not None:
                 d["dof"] = float(c.dof)
             comps.append(d)
-        return {"quantities": names, "components": comps,
-                "changes": [{"quantity": ch.quantity.name, "kind": ch.kind, "at_board": int(ch.at_board),
-                             "size": float(ch.size)} for ch in self.changes]}
+        out = {"quantities": names, "components": comps,
+               "changes": [{"quantity": ch.quantity.name, "kind": ch.kind, "at_board": int(ch.at_board),
+                            "size": float(ch.size)} for ch in self.changes]}
+        if self.tails:
+            out["tails"] = {n: {"dof": float(t.dof), "loc": float(t.loc), "scale": float(t.scale)}
+                            for n, t in self.tails.items()}
+        return out
 
 
 def _defaults(effect: str) -> dict[str, Any]:
@@ -249,4 +289,17 @@ def parse_population(spec: Any, effects: dict[str, dict[str, Any]], path: str = 
     if not isinstance(changes, list):
         raise ConfigError(f"{path}.changes: allowed: a list of {{quantity, kind, at_board, size}}")
     return Population(quantities, components,
-                      [_change(c, names, quantities, f"{path}.changes[{i}]") for i, c in enumerate(changes)])
+                      [_change(c, names, quantities, f"{path}.changes[{i}]") for i, c in enumerate(changes)],
+                      _tails(spec.get("tails"), names, f"{path}.tails"))
+
+
+def _tails(spec: Any, names: list[str], path: str) -> dict[str, Tail]:
+    check_keys(spec, names, path)
+    out = {}
+    for name, t in (spec or {}).items():
+        check_keys(t, TAIL_KEYS, f"{path}.{name}")
+        if not isinstance(t, dict) or not all(k in t for k in TAIL_KEYS):
+            raise ConfigError(f"{path}.{name}: a tail needs {', '.join(TAIL_KEYS)}")
+        out[name] = Tail(number(t, "dof", f"{path}.{name}", lo=1.0, hi=1e6), number(t, "loc", f"{path}.{name}"),
+                         number(t, "scale", f"{path}.{name}", lo=1e-300))
+    return out

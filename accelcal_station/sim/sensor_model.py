@@ -1,7 +1,9 @@
 """The simulated accelerometer: the effects catalog and the forward model to raw counts.
 
-Conventions.  Readings are "output positive along gravity" (AN4399): a flat board
-reads +1 g on z, and a commanded pose's ideal output is ``PoseSpec.reference_g``.
+Conventions.  A chip reads the specific force: +1 g on the axis pointing away from the
+Earth (MMA8451Q data sheet "Product orientation"; MPU-6050 product specification), so a
+flat board, component side up, reads +1 g on z; a commanded pose places the board with its
+``PoseSpec.reference_g`` pointing up, and that is its ideal output (docs/conventions.md).
 Inside the model, specific force is in *standard* g (9.80665 m/s^2), the unit the
 chip's sensitivity is specified in.  A calibration fitted against unit pose
 references targets the *local* 1 g instead; the two differ only when the
@@ -9,8 +11,9 @@ references targets the *local* 1 g instead; the two differ only when the
 
 The sensor chain, in order (each stage only when its effect is enabled):
 
-1. true specific force  ``f = (local_g / 9.80665) * R_err @ reference_g``
-   (``gravity``; ``pose_error`` gives ``R_err``, applied by the board / jig)
+1. true specific force  ``f = (local_g / 9.80665) * mount @ attitude.T @ up``, the board's
+   attitude in the world (``R_err @ reference_g`` for a pose placed with ``reference_g`` up;
+   ``gravity``; ``pose_error`` gives ``R_err``, applied by the board / jig)
 2. linear response      ``u = K(T) f``, ``K = diag(gain(T)) (I + C) R_pkg^T``
    (``gain``, ``cross_axis``: coupling ``C`` and package rotation ``R_pkg``)
 3. nonlinearity         the reading ``G`` solves ``f = K^-1 (G - o(T)) - q G^2 - c G^3``

@@ -17,6 +17,7 @@ import numpy as np
 from ..acceptance.reasons import Reason, codes
 from ..acceptance.rules import judge
 from ..calibration import Calibration
+from ..conventions import fit_mount, mount_hint, mount_matrix, reference_to_angles
 from ..drivers.base import Clock, Driver, Identity
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, UnderdeterminedError
@@ -30,7 +31,7 @@ from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
 from ..store.outbox import open_store
 from ..store.runs import Store
-from .capture import GatedCapture, StillnessGate, WrongPose, gated_capture
+from .capture import GatedCapture, MountMismatch, StillnessGate, WrongPose, gated_capture
 from .recording import record_result, start_args
 from .report import RunReport, Timing, fit_figures
 from .settings import StationConfig, configured_rate
@@ -55,6 +56,9 @@ class Station:
         self.lot = lot
         self.echo = echo
         self.progress = progress
+        # how the chip sits on the board: the jig and the words place the board, the chip reads mount @ r
+        self.mount = mount_matrix(config.device.mount) if config.device.mount else np.eye(3)
+        self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # (pose's r in board axes, mean reading) so far
         self.samples_read = 0
         self.samples_used = 0
         self.operator_wait_s = 0.0
@@ -86,21 +90,51 @@ class Station:
             jig.present(pose, self._live(driver, StillnessGate(s, floor)) if jig.shows_live_reading else None)
             bar = self._capture_sink(f"  capturing {pose.name}")
             try:
-                gc = gated_capture(driver, s, pose.reference_g, floor, progress=bar)
+                gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar)
             except WrongPose as e:
+                e = self._mounting(pose, e)
                 report.events.append(f"{pose.name}: {e}")
-                if not jig.places_again or attempts > s.max_recaptures:
-                    raise
+                if isinstance(e, MountMismatch) or not jig.places_again or attempts > s.max_recaptures:
+                    raise e from None
                 self.echo(f"  refused: {e}")
                 continue
             finally:
                 bar.close()
             self.samples_read += gc.samples_read
             self.samples_used += gc.capture.n
+            self._seen.append((pose.reference_g, gc.capture.mean_counts))
             for ev in gc.events + driver.take_events():
                 report.events.append(f"{pose.name}: {ev}")
                 self.echo(f"  {ev}")
             return gc, attempts - 1
+
+    def _defer(self, jig: Jig, pose: PoseSpec, e: WrongPose, deferred: WrongPose | None) -> WrongPose:
+        """A wrong pose another mounting may explain, on a jig that cannot place again: keep its reading
+        and go on to the next pose, which may single the mounting out (a MountMismatch); else raise."""
+        if e.hint is None or jig.places_again or isinstance(e, MountMismatch):
+            raise e
+        self._seen.append((pose.reference_g, e.measured))
+        self.echo(f"  {e}")
+        return deferred or e
+
+    def _chip_angles(self, pose: PoseSpec) -> tuple[float, float]:
+        """The AN4399 angles of what the chip is expected to read (the pose's own unless device.mount
+        turns it), so that files and the store re-derive the same reference from them."""
+        if np.array_equal(self.mount, np.eye(3)):
+            return pose.pitch_deg, pose.roll_deg
+        pitch, roll = reference_to_angles(self.mount @ pose.reference_g)
+        return round(float(pitch), 9), round(float(roll), 9)
+
+    def _mounting(self, pose: PoseSpec, e: WrongPose) -> WrongPose:
+        """A wrong pose, with the mounting that fits this and the poses captured so far when it
+        is not device.mount: a MountMismatch once the readings single it out."""
+        r = np.array([o[0] for o in self._seen] + [pose.reference_g])
+        m = np.array([o[1] for o in self._seen] + [e.measured])
+        hint = mount_hint(r, m, self.mount, self.cfg.capture.pose_tolerance_deg)
+        if hint is None:
+            return e
+        unique = fit_mount(r, m)[2]
+        return (MountMismatch if unique else WrongPose)(e.expected_g, e.measured, e.angle, hint)
 
     # -- the run ---------------------------------------------------------------------
     def run(self) -> RunReport:
@@ -169,6 +203,7 @@ class Station:
         assert isinstance(records, list), "a station's session is the list its poses are captured into"
         try:
             with make_jig(self.cfg.jig, driver, self.ui) as jig:
+                jig.mount = self.mount
                 try:
                     self._run_poses(driver, jig, design, records, retries, rep)
                     self._fit_judge_write(driver, jig, session, rep)
@@ -216,6 +251,7 @@ class Station:
     def _run_poses(self, driver: Driver, jig: Jig, design: list[PoseSpec], records: list[PoseRecord],
                    retries: list[int], rep: RunReport) -> None:
         floor = None
+        deferred: WrongPose | None = None  # a wrong pose another mounting may explain: read on to tell which
         for i, pose in enumerate(design):
             self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
             try:
@@ -224,10 +260,14 @@ class Station:
                 rep.skipped.append(pose.name)
                 self.echo("  skipped")
                 continue
+            except WrongPose as e:
+                deferred = self._defer(jig, pose, e, deferred)
+                continue
             floor = gc.floor_counts
             c = gc.capture
-            records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, pose.reference_g,
-                                      pose.pitch_deg, pose.roll_deg, c.temp_c, c.dropped, c.t_start, c.t_end))
+            pitch, roll = self._chip_angles(pose)
+            records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, self.mount @ pose.reference_g,
+                                      pitch, roll, c.temp_c, c.dropped, c.t_start, c.t_end))
             retries.append(tries + gc.recaptures)
             sem_mg = c.sem_counts / driver.counts_per_g * 1e3
             rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
@@ -236,6 +276,8 @@ class Station:
             self.echo(f"  n={c.n} sem={np.max(sem_mg):.3f} mg" + ("" if gc.reached_target else " (time limit)"))
             if self.progress:
                 self.progress("poses", (i + 1) / len(design))
+        if deferred is not None:
+            raise deferred
 
     def _fit_judge_write(self, driver: Driver, jig: Jig, session: Session, rep: RunReport) -> None:
         cal = self._fit_judge(driver, session, rep)
@@ -358,7 +400,7 @@ class Station:
         for pose in poses[:n]:
             self.echo(f"verify {pose.name}")
             gc, _ = self._capture_pose(driver, jig, pose, None, rep)
-            out.append((gc.capture.mean_counts, pose.reference_g, gc.capture.temp_c))
+            out.append((gc.capture.mean_counts, self.mount @ pose.reference_g, gc.capture.temp_c))
         return out
 
     def _verify_error(self, cal: Calibration, checks: list[Check]) -> float:

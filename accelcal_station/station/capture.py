@@ -169,12 +169,18 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
 
 
 class WrongPose(DeviceError):
-    """The board is not in the planned pose; names the face it is actually on."""
+    """The board is not in the planned pose; names the face it is actually on (the face whose
+    axis points up: a chip reads +1 g on the axis pointing away from the Earth)."""
 
-    def __init__(self, expected_g: ArrayLike, measured: ArrayLike, angle: float) -> None:
+    def __init__(self, expected_g: ArrayLike, measured: ArrayLike, angle: float, hint: str | None = None) -> None:
         self.expected_g = np.asarray(expected_g, dtype=float)
         self.measured = np.asarray(measured, dtype=float)
         self.angle = angle
+        self.hint = hint
         super().__init__(
             f"board is {angle:.0f} deg from the planned pose: it is on '{nearest_face(measured)}', "
-            f"the plan wants '{nearest_face(expected_g)}'")
+            f"the plan wants '{nearest_face(expected_g)}'" + (f"; {hint}" if hint else ""))
+
+
+class MountMismatch(WrongPose):
+    """The readings of the first poses fit one other mounting of the chip (device.mount) exactly."""

@@ -39,6 +39,12 @@ def panel_sections(device: DeviceSection | dict[str, Any], path: str = "device")
     if not isinstance(device, dict):
         raise ConfigError(f"{path}: must be a mapping with a 'driver' key")
     boards = device.get("boards")
+    mounted = [f"{path}.mount"] if device.get("mount") is not None else []
+    mounted += [f"{path}.boards[{i}].mount" for i, b in enumerate(boards if isinstance(boards, list) else [])
+                if isinstance(b, dict) and b.get("mount") is not None]
+    if mounted:  # said, not ignored: a panel's boards would be fitted against unturned references
+        raise ConfigError(f"{mounted[0]}: a panel does not read device.mount yet; allowed: a one-board run "
+                          "(accelcal run without device.boards), or the boards seated as the jig's axes")
     base = {k: v for k, v in device.items() if k not in ("boards", "spread")}
     if boards is None:
         if "spread" in device:

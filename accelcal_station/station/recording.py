@@ -15,14 +15,15 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import AccelcalError
+from ..nvm.writer import BurnOutcome
 from ..store.outbox import default_outbox
 from ..store.records import StoreError
 from ..store.runs import Store
 
 
-def burned_text(nvm: Any) -> str:
+def burned_text(nvm: BurnOutcome | dict[str, Any] | None) -> str:
     """What the board's NVM holds after the run, from its burn outcome (a BurnOutcome, its dict or None)."""
-    d = nvm.to_dict() if hasattr(nvm, "to_dict") else nvm
+    d = nvm.to_dict() if isinstance(nvm, BurnOutcome) else nvm
     if not isinstance(d, dict):
         return "nothing was written to the board's NVM"
     crc = d.get("crc32")

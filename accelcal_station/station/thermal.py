@@ -37,6 +37,7 @@ from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
 from ..store.runs import Store
 from .board import Station
+from .capture import WrongPose
 from .recording import record_result, start_args
 from .report import RunReport, Timing
 from .settings import StationConfig
@@ -159,6 +160,7 @@ class ThermalStation(Station):
         try:
             with make_chamber(self.chamber_section, board_of(driver)) as chamber, \
                     make_jig(self.cfg.jig, driver, self.ui) as jig:
+                jig.mount = self.mount
                 self._plan(driver, chamber, jig, clock, records, retries, rep)
         except (AccelcalError, KeyboardInterrupt) as e:
             if isinstance(e, ChamberFault):
@@ -275,9 +277,14 @@ class ThermalStation(Station):
         floor: np.ndarray | None = None
         out: list[PoseRecord] = []
         sp = res.set_point_c
+        deferred: WrongPose | None = None  # a wrong pose another mounting may explain: read on (Station._defer)
         for k, pose in enumerate(poses):
             self.echo(f"  [{k + 1}/{len(poses)}] {pose.name}")
-            gc, tries = self._capture_pose(driver, jig, pose, floor, rep)
+            try:
+                gc, tries = self._capture_pose(driver, jig, pose, floor, rep)
+            except WrongPose as e:
+                deferred = self._defer(jig, pose, e, deferred)
+                continue
             st = chamber.status()
             self._check_alarms(st, f"during the capture of {pose.name} at {sp:g} C; the capture is discarded")
             floor, c = gc.floor_counts, gc.capture
@@ -286,8 +293,9 @@ class ThermalStation(Station):
                 raise ChamberFault("temperature moved", f"board temperature {temp:.2f} C during {pose.name} at "
                                    f"{sp:g} C left the band +-{self.plan.capture_band_c:g} C around "
                                    f"{res.board_temp_c:.2f} C")
-            rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, pose.reference_g,
-                             pose.pitch_deg, pose.roll_deg, temp, c.dropped, c.t_start, c.t_end)
+            pitch, roll = self._chip_angles(pose)
+            rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, self.mount @ pose.reference_g,
+                             pitch, roll, temp, c.dropped, c.t_start, c.t_end)
             out.append(rec)
             if sink is not None:
                 sink[0].append(rec)
@@ -296,6 +304,8 @@ class ThermalStation(Station):
                               "sem_mg": (c.sem_counts / driver.counts_per_g * 1e3).tolist(),
                               "retries": tries + gc.recaptures})
             res.poses += 1
+        if deferred is not None:
+            raise deferred
         res.sampling_floor_s = (self.samples_used - used0) / driver.odr_hz
         res.t_end_s = clock.now()
         res.poses_s = res.t_end_s - t0

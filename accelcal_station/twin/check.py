@@ -1,25 +1,39 @@
 """`twin check`: a simulated lot of the same size and design against the real one, quantity by
-quantity (compare.py's tests, Bonferroni over them at compare.FAMILY_ALPHA)."""
+quantity (compare.py's tests, Bonferroni over them at compare.FAMILY_ALPHA), each with its
+effect in the quantity's own units and whether it matters at the acceptance limits.
+
+The simulated lot's seed is drawn at random unless given, and recorded in the output: two
+checks of one twin draw different lots (a fixed seed would make every check of a twin test
+the same simulated lot, and hide how much the verdict owes to that one draw)."""
 from __future__ import annotations
 
+import secrets
 from typing import Any
 
 import numpy as np
 
 from ..acceptance.rules import Limits
-from .compare import FAMILY_ALPHA, counts_test, energy, flag, quantity_test
+from .compare import ENERGY_MARGIN, FAMILY_ALPHA, counts_effect, counts_test, energy, flag, quantity_test, verdict
 from .simlot import load_device, simulate_like
 from .stream import FITTED, MEASURES, LotStats
 
 MAX_SIM_BOARDS = 50_000  # a real lot larger than this is compared through its reservoir sample
 
 
-def _tests(real: LotStats, sim: LotStats, seed: int) -> list[dict[str, Any]]:
-    tests = [quantity_test(q, real.column(q), sim.column(q)) for q in MEASURES]
+def new_seed() -> int:
+    """A fresh random seed (recorded by the caller, so the draw can be repeated)."""
+    return secrets.randbelow(2**31)
+
+
+def compare_stats(real: LotStats, sim: LotStats, seed: int, limits: dict[str, float] | None
+                  ) -> list[dict[str, Any]]:
+    """Every test of a check (module docstring), with effects; ``gap`` and ``detected`` marked."""
+    tests = [quantity_test(q, real.column(q), sim.column(q), limits) for q in MEASURES]
     for name, r, s in (("verdict mix", real.verdicts, sim.verdicts), ("failure reasons", real.reasons, sim.reasons)):
         stat, p = counts_test(dict(r), dict(s))
         tests.append({"quantity": name, "test": "chi2_contingency", "statistic": stat, "p_value": p,
-                      "real": dict(r), "sim": dict(s)})
+                      "real": dict(r), "sim": dict(s), "effect": counts_effect(dict(r), dict(s), real.boards,
+                                                                               sim.boards)})
     cols = [real.columns.index(q) for q in FITTED]
     Xr, Xs = real.rows[:, cols], sim.rows[:, cols]
     Xr, Xs = Xr[np.all(np.isfinite(Xr), axis=1)], Xs[np.all(np.isfinite(Xs), axis=1)]
@@ -27,32 +41,43 @@ def _tests(real: LotStats, sim: LotStats, seed: int) -> list[dict[str, Any]]:
     if len(Xr) > 2 and len(Xs) > 2:
         stat, p = energy(Xr, Xs, np.random.default_rng(seed))
         tests.append({"quantity": "fitted parameters (joint)", "test": "energy distance permutation",
-                      "statistic": stat, "p_value": p, "real": {"n": len(Xr)}, "sim": {"n": len(Xs)}})
+                      "statistic": stat, "p_value": p, "real": {"n": len(Xr)}, "sim": {"n": len(Xs)},
+                      "effect": {"energy_distance": stat, "margin": f"energy distance > {ENERGY_MARGIN:g}",
+                                 "material": bool(stat > ENERGY_MARGIN)}})
+    flag(tests)
     return tests
 
 
-def check_config(real: LotStats, config: str, seed: int = 1, limits: Limits | None = None) -> dict[str, Any]:
-    """One config against the real lot: tests, the flagged ones, and a verdict."""
+def check_config(real: LotStats, config: str, seed: int | None = None, limits: Limits | None = None
+                 ) -> dict[str, Any]:
+    """One config against the real lot: tests, the gaps that matter, the detected ones, a verdict."""
     if limits is None:
         limits = load_device(config)[3]
+    seed = new_seed() if seed is None else seed
     boards = min(real.boards, MAX_SIM_BOARDS)
     sim, what = simulate_like(config, real, boards, seed, limits)
-    tests = _tests(real, sim, seed)
-    gaps = flag(tests)
-    return {**what, "tests": tests, "gaps": [t["quantity"] for t in gaps],
-            "verdict": "gap" if gaps else "no gap", "false_alarm_rate": FAMILY_ALPHA}
+    tests = compare_stats(real, sim, seed, limits.values)
+    return {**what, "seed": seed, "tests": tests, "gaps": [t["quantity"] for t in tests if t["gap"]],
+            "detected": [t["quantity"] for t in tests if t["detected"]],
+            "verdict": verdict(tests), "false_alarm_rate": FAMILY_ALPHA}
 
 
-def check(real: LotStats, config: str, before: str | None, seed: int = 1, limits: Limits | None = None
+METHOD = ("Anderson-Darling k-sample per quantity, chi-square on verdict and reason counts, energy-distance "
+          "permutation test on the joint fitted parameters; Bonferroni: a test detects a gap when p < "
+          f"{FAMILY_ALPHA:g} / (number of tests); a detected gap matters when its effect (Wasserstein distance, "
+          "percentile shift, yield change at the acceptance limits) exceeds the stated margin")
+
+
+def check(real: LotStats, config: str, before: str | None, seed: int | None = None, limits: Limits | None = None
           ) -> dict[str, Any]:
     """The gap before (``before``: e.g. the default config) and after (the twin ``config``)."""
+    seed = new_seed() if seed is None else seed
     out: dict[str, Any] = {"boards": real.boards, "model": real.model, "false_alarm_rate": FAMILY_ALPHA,
-                           "method": "Anderson-Darling k-sample per quantity, chi-square on verdict and reason "
-                                     "counts, energy-distance permutation test on the joint fitted parameters; "
-                                     f"Bonferroni: a test flags when p < {FAMILY_ALPHA:g} / (number of tests)"}
+                           "seed": seed, "method": METHOD}
     after = check_config(real, config, seed, limits)
     if before is not None:
         b = check_config(real, before, seed, limits)
-        out["before"] = {k: b[k] for k in ("config", "gaps", "verdict", "tests")}
-    out.update({"config": config, "tests": after["tests"], "gaps": after["gaps"], "verdict": after["verdict"]})
+        out["before"] = {k: b[k] for k in ("config", "gaps", "detected", "verdict", "tests")}
+    out.update({"config": config, "tests": after["tests"], "gaps": after["gaps"], "detected": after["detected"],
+                "verdict": after["verdict"]})
     return out

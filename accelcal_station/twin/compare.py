@@ -8,9 +8,22 @@
 - joint parameters: the energy distance (Szekely & Rizzo 2004) between standardised
   subsamples, p-value by a permutation test.
 
-A test flags a gap when ``p < FAMILY_ALPHA / m`` (Bonferroni over the m tests of a check):
-with a simulator that is the real line, a check flags anything with probability at most
-FAMILY_ALPHA.
+A test *detects* a gap when ``p < FAMILY_ALPHA / m`` (Bonferroni over the m tests of a check):
+with a simulator that is the real line, a check detects anything with probability at most
+FAMILY_ALPHA.  A detected gap *matters* only when its effect, in the quantity's own units,
+exceeds a margin tied to the acceptance limits (:func:`effect`):
+
+- a quantity an acceptance limit judges (residual and leave-one-out RMS, W_ii against
+  gain_error_max, W_ij against cross_axis_max, V_i against offset_max_mg, Gamma_i against
+  cubic_max): the share of boards beyond the limit differs by more than YIELD_MARGIN (the
+  yield change the gap implies at the current limits), or the 5th, 50th or 95th percentile
+  moves by more than QUANTILE_MARGIN of the limit;
+- a quantity no limit judges: the Wasserstein distance exceeds SPREAD_MARGIN of the real
+  lot's standard deviation;
+- counts (verdict mix, failure reasons): a category's share differs by more than YIELD_MARGIN;
+- the joint parameters: the (standardised) energy distance exceeds ENERGY_MARGIN (in one
+  dimension, about a 0.3 sd shift of the mean: E ~ 0.56 delta^2).
+Below the margin a detected gap is "detectable but immaterial": it moves no verdict that matters.
 """
 from __future__ import annotations
 
@@ -20,6 +33,10 @@ from typing import Any
 import numpy as np
 
 FAMILY_ALPHA = 0.01
+YIELD_MARGIN = 0.005  # half a percentage point of boards beyond a limit (or in a verdict category)
+QUANTILE_MARGIN = 0.02  # a percentile moving by 2 % of the limit that judges it
+SPREAD_MARGIN = 0.1  # Wasserstein distance over the real lot's sd, for a quantity no limit judges
+ENERGY_MARGIN = 0.05
 _SIG = np.array([0.25, 0.1, 0.05, 0.025, 0.01, 0.005, 0.001])
 
 
@@ -92,16 +109,78 @@ def counts_test(real: dict[str, int], sim: dict[str, int]) -> tuple[float, float
 
 
 def flag(tests: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Mark each test's ``gap`` at the Bonferroni level; returns the flagged ones."""
+    """Mark each test's ``detected`` (p below the Bonferroni level) and ``gap`` (detected and
+    material: its effect beyond the margin); returns the gaps that matter."""
     level = FAMILY_ALPHA / max(len(tests), 1)
     for t in tests:
-        t["gap"] = bool(t["p_value"] < level)
+        t["detected"] = bool(t["p_value"] < level)
+        t["gap"] = bool(t["detected"] and t.get("effect", {}).get("material", True))
         t["level"] = level
     return [t for t in tests if t["gap"]]
 
 
-def quantity_test(name: str, real: np.ndarray, sim: np.ndarray) -> dict[str, Any]:
+def verdict(tests: list[dict[str, Any]]) -> str:
+    """gap (a detected gap that matters) | detectable but immaterial | no gap."""
+    if any(t["gap"] for t in tests):
+        return "gap"
+    return "detectable but immaterial" if any(t["detected"] for t in tests) else "no gap"
+
+
+def judged_by(name: str, limits: dict[str, float]) -> tuple[str, float, Any] | None:
+    """The acceptance limit that judges a measured quantity: (limit key, limit, the quantity's
+    value in the limit's units as a function of the quantity), or None."""
+    if name in ("residual_rms_mg", "crossval_rms_mg"):
+        key, fn = name, (lambda v: v)
+    elif len(name) == 3 and name[0] == "W":
+        key, fn = ("gain_error_max", lambda v: np.abs(v - 1.0)) if name[1] == name[2] else ("cross_axis_max", np.abs)
+    elif name[:1] == "V" and name[1:].isdigit():
+        key, fn = "offset_max_mg", (lambda v: 1e3 * np.abs(v))
+    elif name.startswith("Gamma"):
+        key, fn = "cubic_max", np.abs
+    else:
+        return None
+    return (key, float(limits[key]), fn) if key in limits else None
+
+
+def effect(name: str, real: np.ndarray, sim: np.ndarray, limits: dict[str, float] | None) -> dict[str, Any]:
+    """The gap's size in the quantity's own units (module docstring): Wasserstein distance,
+    percentile shifts (sim - real), the yield change at the judging limit, and ``material``."""
+    from scipy.stats import wasserstein_distance  # on first use, as above
+
+    if len(real) < 2 or len(sim) < 2:
+        return {"material": False}
+    qr, qs = np.percentile(real, [5, 50, 95]), np.percentile(sim, [5, 50, 95])
+    out: dict[str, Any] = {"wasserstein": float(wasserstein_distance(real, sim)),
+                           "shift_p05": float(qs[0] - qr[0]), "shift_median": float(qs[1] - qr[1]),
+                           "shift_p95": float(qs[2] - qr[2])}
+    j = judged_by(name, limits or {})
+    if j is not None:
+        key, lim, fn = j
+        beyond_r, beyond_s = float(np.mean(fn(real) > lim)), float(np.mean(fn(sim) > lim))
+        big_shift = float(np.max(np.abs(np.percentile(fn(sim), [5, 50, 95]) - np.percentile(fn(real), [5, 50, 95]))))
+        out.update({"limit": key, "limit_value": lim, "beyond_limit_real": beyond_r, "beyond_limit_sim": beyond_s,
+                    "yield_change": beyond_r - beyond_s,
+                    "margin": f"|yield change| > {YIELD_MARGIN:g} or a percentile shift > {QUANTILE_MARGIN:g} x limit",
+                    "material": bool(abs(beyond_r - beyond_s) > YIELD_MARGIN or big_shift > QUANTILE_MARGIN * lim)})
+    else:
+        sd = float(np.std(real))
+        out.update({"margin": f"wasserstein > {SPREAD_MARGIN:g} x the real sd ({SPREAD_MARGIN * sd:.4g})",
+                    "material": bool(out["wasserstein"] > SPREAD_MARGIN * sd)})
+    return out
+
+
+def counts_effect(real: dict[str, int], sim: dict[str, int], n_real: int, n_sim: int) -> dict[str, Any]:
+    """The largest difference of a category's share of boards (real - sim), against YIELD_MARGIN."""
+    nr, ns = max(n_real, 1), max(n_sim, 1)
+    diff = {k: real.get(k, 0) / nr - sim.get(k, 0) / ns for k in sorted(set(real) | set(sim))}
+    worst = max(diff, key=lambda k: abs(diff[k]), default=None)
+    return {"share_change": diff, "largest": worst, "margin": f"|share change| > {YIELD_MARGIN:g}",
+            "material": bool(worst is not None and abs(diff[worst]) > YIELD_MARGIN)}
+
+
+def quantity_test(name: str, real: np.ndarray, sim: np.ndarray, limits: dict[str, float] | None = None
+                  ) -> dict[str, Any]:
     real, sim = real[np.isfinite(real)], sim[np.isfinite(sim)]
     stat, p = anderson(real, sim) if len(real) > 1 and len(sim) > 1 else (0.0, 1.0)
     return {"quantity": name, "test": "anderson_ksamp", "statistic": stat, "p_value": p,
-            "real": _summary(real), "sim": _summary(sim)}
+            "real": _summary(real), "sim": _summary(sim), "effect": effect(name, real, sim, limits)}

@@ -2,10 +2,14 @@
 
 Steps: one streaming pass (stream.collect); changes of each effect quantity's mean along the
 lot (changes.find_changes) on the block sums; the reservoir's quantities with the changes
-taken out (each board back to the lot's start); a Student-t mixture by EM with the number of
-components chosen by BIC (mixture.fit_mixture); the default simulator config with its
-``population:`` replaced (package rotation folded into the coupling, noise from the lot's
-per-sample std).
+taken out (each board back to the lot's start); per-quantity Student-t marginals where a
+quantity's tail is heavy (tails.fit_tails); a mixture by EM on the quantities at Gaussian
+scale, the number of components chosen by BIC (mixture.fit_mixture: Student-t components when
+no quantity has a t marginal of its own, Gaussian ones when some do); the default simulator config with its
+``population:`` replaced (package rotation folded into the coupling); the noise per axis
+fitted to the lot's residual and leave-one-out distributions (noise.fit_noise: the stated
+per-sample std is the start); the finished twin's residuals checked against the lot's
+(reproduce.residual_check) -- a gap, or BIC stopping at its cap, is a warning.
 """
 from __future__ import annotations
 
@@ -21,13 +25,16 @@ from ..config.checks import load_yaml
 from ..config.sections import default_config_path
 from ..data.lotfile import lot_scale, open_lot
 from ..errors import DataError
-from ..sim.population import Change, Component, Population, parse_quantity
+from ..sim.population import Change, Component, Population, Tail, parse_quantity
 from ..sim.sensor_model import PHYSICS, SensorModel
 from .changes import Found, find_changes
 from .mixture import NU_MAX, Mixture, fit_mixture
+from .noise import fit_noise
 from .physics import CRITERION, board_rows, choose_physics, population_shape
-from .simlot import fixed_board_stats
+from .reproduce import residual_check
+from .simlot import fixed_board_stats, twin_model
 from .stream import LotStats, collect, richest_model
+from .tails import fit_tails, slope_at_centre, to_gauss
 
 MIXTURE_ROWS = 8000  # rows EM fits (mixture.fit_mixture's max_rows)
 DIFFERS_SD = 3.0  # a component carries an effect when a quantity's mean is this many sd from the main one's
@@ -43,6 +50,10 @@ class Twin:
     config: dict[str, Any]
     physics: str = PHYSICS[0]
     physics_candidates: list[dict[str, Any]] = field(default_factory=list)
+    noise: dict[str, Any] = field(default_factory=dict)
+    residual_tests: list[dict[str, Any]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    tails: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         names = self.population.names
@@ -60,7 +71,13 @@ class Twin:
         return {"source_boards": self.stats.boards, "model": self.stats.model, "skipped": self.stats.skipped,
                 "criterion": {"name": "BIC", "candidates": self.criterion},
                 "physics": {"chosen": self.physics, "criterion": CRITERION, "candidates": self.physics_candidates},
-                "components": comps,
+                "components": comps, "noise": self.noise,
+                "tails": {"quantities": self.population.to_config().get("tails", {}), "candidates": self.tails,
+                          "note": "a quantity with a tail: components hold it at Gaussian scale "
+                                  "(sim/population.py)"},
+                "residual_check": [{k: t[k] for k in ("quantity", "p_value", "detected", "real", "sim", "effect")}
+                                   for t in self.residual_tests],
+                "warnings": self.warnings,
                 "changes": [{"quantity": f.quantity, "kind": f.kind, "at_board": f.at_board,
                              "interval": [f.lo_board, f.hi_board], "size": f.size, "p_value": f.p_value}
                             for f in self.changes]}
@@ -94,7 +111,7 @@ def _unshift(rows: np.ndarray, names: list[str], changes: list[Found]) -> np.nda
     return q
 
 
-def _population(names: list[str], mix: Mixture, changes: list[Found]) -> Population:
+def _population(names: list[str], mix: Mixture, changes: list[Found], tails: dict[str, Tail]) -> Population:
     comps = []
     for k in range(mix.K):
         sd = np.sqrt(np.clip(np.diag(mix.covs[k]), 0.0, None))
@@ -112,24 +129,34 @@ def _population(names: list[str], mix: Mixture, changes: list[Found]) -> Populat
     comps = [Component(c.weight / total, c.mean, c.sd, c.correlation, c.dof) for c in comps]
     qs = [parse_quantity(n, "population") for n in names]
     ch = [Change(qs[names.index(f.quantity)], f.kind, f.at_board, f.size) for f in changes]
-    return Population(qs, comps, ch)
+    return Population(qs, comps, ch, dict(tails))
+
+
+def stated_noise(stats: LotStats) -> np.ndarray | None:
+    """Per-axis per-sample sd in counts the lot states (median of its first chunk's std columns)."""
+    if not stats.noise_axes:
+        return None
+    sd = np.asarray(stats.noise_axes[0], dtype=float)
+    return sd if np.all(np.isfinite(sd)) and np.all(sd > 0) else None
 
 
 def twin_config(pop: Population, stats: LotStats, per_g: float | None, base: dict[str, Any] | None = None,
-                physics: str = PHYSICS[0]) -> dict[str, Any]:
-    """The default simulator config with ``population:`` replaced (module docstring)."""
+                physics: str = PHYSICS[0], noise_counts: np.ndarray | None = None) -> dict[str, Any]:
+    """The default simulator config with ``population:`` replaced (module docstring); noise:
+    ``noise_counts`` (per-axis per-sample sd, counts, quantization included), else the stated."""
     cfg = copy.deepcopy(base if base is not None else load_yaml(default_config_path()))
     dev = cfg.setdefault("device", {})
     sim = dev.setdefault("simulator", {})
     eff = sim.setdefault("effects", {})
     if isinstance(eff.get("cross_axis"), dict):
         eff["cross_axis"]["rotation_deg"] = [0.0, 0.0, 0.0]  # K = diag(gain) (I + C): C carries it
-    if stats.noise and per_g:
+    sd = noise_counts if noise_counts is not None else stated_noise(stats)
+    if sd is not None and per_g:
         model = SensorModel.from_config(eff, dev.get("chip", "mma8451"))
         enbw = model.chip.enbw_hz(float(dev.get("odr_hz", model.chip.default_odr_hz)), model.chip.default_dlpf)
         lsb = float(eff.get("quantization", {}).get("lsb_counts", 1)) if "quantization" in eff else 0.0
-        sd_counts = np.sqrt(max(float(np.median(stats.noise)) ** 2 - lsb**2 / 12.0, 0.0))
-        eff["noise"] = {"density_ug_per_rthz": [round(float(sd_counts / per_g / np.sqrt(enbw) * 1e6), 4)] * 3}
+        white = np.sqrt(np.clip(np.asarray(sd, dtype=float) ** 2 - lsb**2 / 12.0, 0.0, None))
+        eff["noise"] = {"density_ug_per_rthz": [round(float(v / per_g / np.sqrt(enbw) * 1e6), 5) for v in white]}
     sim["population"] = pop.to_config()
     sim["physics"] = physics
     return cfg
@@ -151,12 +178,42 @@ def fit_twin(stats: LotStats, per_g: float | None, max_components: int = 4, seed
         if len(X) > MIXTURE_ROWS:  # fit_mixture's own subsample, taken before the (costlier) inversion
             X = X[np.random.default_rng(seed).choice(len(X), MIXTURE_ROWS, replace=False)]
         X = board_rows(twin_config(population_shape(names), stats, per_g, base, physics), physics, stats, X)
-    mix, table = fit_mixture(X, max_components=max_components, seed=seed, max_rows=MIXTURE_ROWS)
-    cfg0 = twin_config(_population(names, mix, changes), stats, per_g, base, physics)
-    noise_cov = _fit_noise_cov(cfg0, mix, stats, seed, physics)
+    tails, tail_report = fit_tails(X, names, seed)
+    mix, table = fit_mixture(to_gauss(X, names, tails), max_components=max_components, seed=seed,
+                             heavy=not tails, max_rows=MIXTURE_ROWS)
+    pop0 = _population(names, mix, changes, tails)
+    sd, noise = _lot_noise(pop0, stats, per_g, base, physics, seed)
+    cfg0 = twin_config(pop0, stats, per_g, base, physics, sd)
+    J = slope_at_centre(names, tails)  # the fit's noise at Gaussian scale, to first order
+    noise_cov = _fit_noise_cov(cfg0, mix, stats, seed, physics) * np.outer(J, J)
     mix.covs = np.array([_nearest_psd(S - noise_cov) for S in mix.covs])
-    pop = _population(names, mix, changes)
-    return Twin(stats, pop, mix, table, changes, twin_config(pop, stats, per_g, base, physics), physics, candidates)
+    pop = _population(names, mix, changes, tails)
+    cfg = twin_config(pop, stats, per_g, base, physics, sd)
+    tests, warnings = ([], []) if stats.refs is None else \
+        residual_check(cfg, stats, seed + 1, Limits.from_config(cfg.get("acceptance")))
+    if len(table) == max_components == mix.K:
+        warnings.append(f"mixture: BIC chose {mix.K} components, its cap (--components {max_components}): more "
+                        "might fit better, or the components stand in for a shape the mixture cannot express "
+                        "(e.g. a heavy tail); BIC per candidate in criterion")
+    return Twin(stats, pop, mix, table, changes, cfg, physics, candidates, noise, tests, warnings, tail_report)
+
+
+def _lot_noise(pop: Population, stats: LotStats, per_g: float | None, base: dict[str, Any] | None, physics: str,
+               seed: int) -> tuple[np.ndarray | None, dict[str, Any]]:
+    """Per-axis noise fitted to the lot's residual and LOO distributions (noise.fit_noise)."""
+    if stats.refs is None or not per_g:
+        return None, {}
+    start = stated_noise(stats)
+    if start is None:  # no std columns: the base config's noise is the start
+        model, _ = twin_model(twin_config(pop, stats, per_g, base, physics))
+        start = np.asarray(model.noise_sigma_g(model.chip.default_odr_hz), dtype=float) * per_g
+        start = np.sqrt(start**2 + 1.0 / 12.0)
+
+    def config_for(sd: np.ndarray) -> dict[str, Any]:
+        return twin_config(pop, stats, per_g, base, physics, sd)
+
+    return fit_noise(config_for, start, stats, seed + 2)
+
 
 
 def _nearest_psd(S: np.ndarray) -> np.ndarray:

@@ -98,3 +98,12 @@ def fixed_board_stats(cfg: dict[str, Any], like: LotStats, x: np.ndarray, boards
     if columns is not None:
         return stats.rows[:, [stats.columns.index(c) for c in columns]]
     return stats.rows[:, 1:1 + len(like.quantities)]
+
+
+def simulate_cfg(cfg: dict[str, Any], like: LotStats, boards: int, seed: int, limits: Limits | None = None
+                 ) -> LotStats:
+    """A simulated lot like ``like`` from a config mapping (its population), fitted and judged."""
+    model, range_g = twin_model(cfg)
+    pop = parse_population(cfg["device"]["simulator"]["population"], model.effects)
+    return collect(sim_chunks(model, pop, boards, like, range_g, seed), like.model, model.chip.counts_per_g(range_g),
+                   "counts", limits, reservoir=boards, seed=seed)

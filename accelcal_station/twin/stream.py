@@ -86,6 +86,7 @@ class LotStats:
     verdicts: Counter[str] = field(default_factory=Counter)
     reasons: Counter[str] = field(default_factory=Counter)
     noise: list[float] = field(default_factory=list)  # per-chunk median per-sample std, input units
+    noise_axes: list[np.ndarray] = field(default_factory=list)  # per-chunk median stated std per axis
     samples: list[float] = field(default_factory=list)
     refs: np.ndarray | None = None  # the first board's pose references (P, 3)
     pose_angles: dict[str, np.ndarray] = field(default_factory=dict)
@@ -132,6 +133,7 @@ class LotStats:
         if {"std_x", "n"} <= c.keys():
             std = np.stack([c["std_x"], c["std_y"], c["std_z"]], axis=1)
             self.noise.append(float(np.nanmedian(std)))
+            self.noise_axes.append(np.nanmedian(std, axis=0))
             self.samples.append(float(np.nanmedian(c["n"])))
 
     def _blocks(self, q: np.ndarray, ok: np.ndarray) -> None:

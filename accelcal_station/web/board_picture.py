@@ -1,10 +1,12 @@
-"""The board drawn in a pose: a box in the board's axes, turned so that the pose's expected
-gravity direction points down the screen, seen from the front, above and to the right.
+"""The board drawn in a pose: a box in the board's axes, placed as a real chip must be to read
+the pose's expected output, seen from the front, above and to the right.
 
-The turn is the smallest rotation taking the pose's expected output direction ``r``
-(AN4399: positive along gravity, so ``r`` is "down" in board axes) onto world down,
-by Rodrigues' formula R = I + [k]x sin t + [k]x^2 (1 - cos t).  Faces are drawn back to
-front (painter's algorithm on a convex box); the axis arrows show where x, y, z point.
+A chip at rest reads +1 g on the axis pointing away from the Earth (docs/conventions.md), so
+the pose's expected output direction ``r`` points *up* the screen: the turn is the smallest
+rotation taking ``r`` onto world up (conventions.attitude_for_up, Rodrigues' formula
+R = I + [k]x sin t + [k]x^2 (1 - cos t)).  Faces are drawn back to front (painter's
+algorithm on a convex box); the axis arrows show where x, y, z point; the gravity arrow
+points down.
 """
 from __future__ import annotations
 
@@ -12,24 +14,17 @@ from typing import Any
 
 import numpy as np
 
+from ..conventions import WORLD_UP, attitude_for_up
+
 HALF_MM = np.array([34.0, 22.0, 3.0])  # board half-sizes along x, y, z
-DOWN = np.array([0.0, 0.0, -1.0])  # world z up
 VIEW_AZ_DEG, VIEW_EL_DEG = 35.0, 22.0
 SCALE = 2.6
 FACES = [("x+", 0, 1), ("x-", 0, -1), ("y+", 1, 1), ("y-", 1, -1), ("z+", 2, 1), ("z-", 2, -1)]
 
 
-def rotation_to_down(ref_g: np.ndarray) -> np.ndarray:
-    """The smallest rotation R with R @ (ref/|ref|) = world down (Rodrigues)."""
-    a = np.asarray(ref_g, dtype=float)
-    a = a / np.linalg.norm(a)
-    k = np.cross(a, DOWN)
-    s, c = float(np.linalg.norm(k)), float(a @ DOWN)
-    if s < 1e-9:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])  # already down, or a half turn about x
-    k = k / s
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + K * s + K @ K * (1 - c)
+def rotation_to_up(ref_g: np.ndarray) -> np.ndarray:
+    """The board's attitude for expected output ``ref_g``: the smallest R with R @ (ref/|ref|) = world up."""
+    return attitude_for_up(ref_g)
 
 
 def _camera() -> np.ndarray:
@@ -49,7 +44,7 @@ def _xy(cam: np.ndarray, p: np.ndarray, cx: float, cy: float) -> tuple[float, fl
 
 def picture(ref_g: np.ndarray, size: float = 320.0) -> dict[str, Any]:
     """Polygons (faces, back to front) and arrows (axes, gravity) in a ``size`` square viewBox."""
-    R, cam = rotation_to_down(ref_g), _camera()
+    R, cam = rotation_to_up(ref_g), _camera()
     cx = cy = size / 2
     faces: list[dict[str, Any]] = []
     lowest = cy
@@ -85,17 +80,22 @@ def picture(ref_g: np.ndarray, size: float = 320.0) -> dict[str, Any]:
 
 
 def level_xy(reading_g: np.ndarray, ref_g: np.ndarray, full_scale_deg: float = 30.0) -> tuple[float, float]:
-    """Where the bubble sits: the reading's tilt from the pose, in a plane across the pose's
-    direction, scaled so ``full_scale_deg`` reaches the rim (clipped to the rim)."""
+    """Where the bubble sits, seen from above as the picture is: a bubble floats to the high side.
+
+    The reading is the board's true up (a chip reads +1 g on the axis pointing up), so its part
+    ``d`` across the pose's ``r`` is the side raised too high; turned into the world with the
+    picture's attitude it points, on the level, towards that side as the picture shows it
+    (x: screen right, y: away from the viewer), scaled so ``full_scale_deg`` reaches the rim.
+    """
     r = np.asarray(ref_g, dtype=float) / np.linalg.norm(ref_g)
     g = np.asarray(reading_g, dtype=float)
     g = g / max(float(np.linalg.norm(g)), 1e-12)
-    u = np.cross(r, [0.0, 0.0, 1.0] if abs(r[2]) < 0.9 else [1.0, 0.0, 0.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(r, u)
     d = g - (g @ r) * r  # the part of the reading across the pose's direction
-    ang = float(np.degrees(np.arctan2(np.linalg.norm(d), g @ r)))
     if np.linalg.norm(d) < 1e-12:
         return 0.0, 0.0
+    ang = float(np.degrees(np.arctan2(np.linalg.norm(d), g @ r)))
+    right = _camera()[0]  # horizontal (camera right is perpendicular to world up)
+    away = np.cross(WORLD_UP, right)
+    w = rotation_to_up(r) @ d
     frac = min(ang / full_scale_deg, 1.0) / float(np.linalg.norm(d))
-    return float(d @ u) * frac, float(d @ v) * frac
+    return float(w @ right) * frac, float(w @ away) * frac

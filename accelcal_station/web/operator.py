@@ -139,7 +139,7 @@ class WebOperator:
 
     @staticmethod
     def _level_dict(st: PoseStatus, expects_g: list[float]) -> dict[str, Any]:
-        x, y = level_xy(st.reading_g, np.asarray(expects_g, dtype=float))
+        x, y = level_xy(st.reading_g if st.board_g is None else st.board_g, np.asarray(expects_g, dtype=float))
         return {"still": st.still, "direction_ok": st.direction_ok, "off_deg": st.off_deg, "face": st.face,
                 "reads_g": [float(v) for v in st.reading_g], "bubble": [x, y], "ready": st.accepted,
                 "line": st.line()}

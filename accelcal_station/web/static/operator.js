@@ -23,7 +23,8 @@
     arrows.forEach(function (a) {
       if (a === "FACES") {
         pic.faces.forEach(function (f) {
-          var kind = f.face === "z-" ? "top" : (f.face === "z+" ? "bottom" : "edge");
+          // the component side is +z: it faces the sky when the board lies flat reading z +1 g
+          var kind = f.face === "z+" ? "top" : (f.face === "z-" ? "bottom" : "edge");
           parts.push(el("polygon", {"class": "face " + kind, points: f.points, "fill-opacity": f.shade}));
         });
         return;
