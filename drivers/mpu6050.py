@@ -161,7 +161,7 @@ class MPU6050Bridge(Driver):
         if not port:
             raise ConfigError(f"{path}.port: {port!r}; allowed: a serial port such as /dev/ttyUSB0, "
                               "or 'emulated'")
-        for k in ("simulator", "seed"):
+        for k in ("simulator", "seed", "emulator"):
             if k in cfg and port != "emulated":
                 raise ConfigError(f"{path}.{k}: only used with port: emulated")
         smplrt_div_for(m.odr_hz, m.dlpf, f"{path}.odr_hz")

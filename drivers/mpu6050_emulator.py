@@ -6,7 +6,7 @@ raw mode, and its path (``os.ttyname``, e.g. /dev/pts/7) is opened by pyserial
 exactly as /dev/ttyUSB0 would be.  Behind the protocol sits an MPU6050 register
 file: WHO_AM_I, PWR_MGMT_1 (asleep after reset: data registers frozen),
 SMPLRT_DIV, CONFIG, ACCEL_CONFIG, the data and TEMP_OUT registers, and
-XA/YA/ZA_OFFS whose change from the factory trim shifts the output (2048 LSB per g).
+XA/YA/ZA_OFFS whose change from the factory trim shifts the output (1/2048 g per LSB, ``offset_step_scale``).
 The NVM is the MCU's 1 KiB EEPROM (an EEPROM24 model with 32-byte pages).
 
 Samples come from ``board.configure()`` / ``board.read()`` on the chip's own clock (the
@@ -36,19 +36,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..config.checks import load_yaml
 from ..config.parts import Mpu6050SimSection, parse
 from ..errors import ConfigError
 from ..sim.pty_server import PtyServer
 from . import bridge_protocol as bp
 from .eeprom import EEPROM24, PowerLossError
+from .emulator_files import board_config_from_file
 from .mpu6050 import (
     ACCEL_CONFIG,
     ACCEL_RATE_HZ,
     ACCEL_XOUT_H,
     CHIP_ID,
     CONFIG,
-    OFFSET_LSB_PER_G,
     PWR_MGMT_1,
     PWR_SLEEP,
     SELF_TEST_X,
@@ -59,6 +58,11 @@ from .mpu6050 import (
     rate_base_hz,
 )
 
+# XA/YA/ZA_OFFS: not in the register map (rev 4.2); InvenSense's "MPU Hardware Offset Registers" application
+# note gives them in the +-16 g format, 2048 LSB per g, bit 0 reserved.  Written here, not taken from the
+# driver, so the emulator is a second reading of the part and not the driver's own assumption; the
+# ``offset_step_scale`` fault models a part whose step differs.
+XA_OFFS_G_PER_LSB = 1.0 / 2048.0
 FIRMWARE = (1, 1)  # as firmware/mpu6050_bridge: 1.1 reads on DATA_RDY and has SELF_TEST
 CHUNK = 32  # samples produced between looks at the input (a STOP is seen within 32 samples)
 EEPROM_WRITE_S_PER_BYTE = 0.0034  # ATmega328P EEPROM programming time per byte
@@ -75,7 +79,7 @@ class MPU6050BridgeEmulator(PtyServer):
                  i2c_present: bool = True, serial: str | None = None, i2c_address: int = 0x68,
                  factory_offsets: ArrayLike | None = None, chip_ppm: float = 0.0,
                  baud: int = bp.DEFAULT_BAUD, self_test_codes: ArrayLike | None = None,
-                 self_test_share: ArrayLike | None = None) -> None:
+                 self_test_share: ArrayLike | None = None, offset_step_scale: float = 1.0) -> None:
         if board is None:
             from .simulated import SimulatedBoard
 
@@ -120,6 +124,10 @@ class MPU6050BridgeEmulator(PtyServer):
                                 else np.asarray(self_test_codes, dtype=np.int64).reshape(3)) & 31
         self.self_test_share = (1.0 + 0.04 * rng.standard_normal(3) if self_test_share is None
                                 else np.asarray(self_test_share, dtype=float).reshape(3))
+        # a fault: this part's XA/YA/ZA_OFFS step differs from the 1/2048 g the driver assumes
+        if not 0.0 < float(offset_step_scale) < 10.0:
+            raise ConfigError(f"offset_step_scale: {offset_step_scale!r}; allowed: 0 < scale < 10")
+        self.offset_step_scale = float(offset_step_scale)
         self._power_on(bp.BOOT_POWER_ON, send=False)
 
     @classmethod
@@ -133,9 +141,14 @@ class MPU6050BridgeEmulator(PtyServer):
             sim, file_seed = board_config_from_file(sim)
         elif sim is not None and not isinstance(sim, dict):
             raise ConfigError(f"{path}.simulator: {sim!r}; allowed: a mapping or the path of a simulator YAML file")
-        seed = parse({"seed": cfg.get("seed")}, Mpu6050SimSection, path).seed
-        seed = file_seed if seed is None else seed
-        return cls(SimulatedBoard.from_config(sim, chip="mpu6050", seed=seed, path=f"{path}.simulator"))
+        m = parse({"seed": cfg.get("seed"), "emulator": cfg.get("emulator")}, Mpu6050SimSection, path)
+        seed = file_seed if m.seed is None else m.seed
+        e = m.emulator
+        board = SimulatedBoard.from_config(sim, chip="mpu6050", seed=seed, path=f"{path}.simulator")
+        if e is None:
+            return cls(board)
+        return cls(board, self_test_codes=e.self_test_codes, self_test_share=e.self_test_share,
+                   offset_step_scale=e.offset_step_scale, chip_ppm=e.chip_ppm)
 
     # --- faults ---------------------------------------------------------------------------
     def corrupt(self, n_bytes: int, after_bytes: int = 0) -> None:
@@ -301,7 +314,7 @@ class MPU6050BridgeEmulator(PtyServer):
             return raw.astype(np.int64), t
         counts, t = self.board.read(k)
         off = ((np.frombuffer(bytes(self.regs[XA_OFFS_H:XA_OFFS_H + 6]), ">i2").astype(np.int64) & ~1)
-               - (self.factory_offsets & ~1)) * self.board.counts_per_g / OFFSET_LSB_PER_G
+               - (self.factory_offsets & ~1)) * self.board.counts_per_g * XA_OFFS_G_PER_LSB * self.offset_step_scale
         st = self._self_test_g() * self.board.counts_per_g
         acc = np.clip(np.round(np.asarray(counts, dtype=float) + off + st), -32768, 32767)
         temp = np.clip(round((self.board.temperature_c - 36.53) * 340.0), -32768, 32767)
@@ -466,25 +479,3 @@ class MPU6050BridgeEmulator(PtyServer):
     def _reset(self, seq: int, p: bytes) -> None:
         self._ack(bp.CMD_RESET, seq)
         self._power_on(bp.BOOT_COMMAND)
-
-
-def board_config_from_file(path: str) -> tuple[dict[str, Any] | None, int | None]:
-    """A simulated board mapping and seed from a YAML file for ``accelcal emulate --config``.
-
-    Accepts a station config whose ``device`` is ``driver: simulated`` (configs/sim.yaml) or
-    ``driver: mpu6050`` (its ``simulator`` and ``seed``), or a bare board mapping.
-    """
-    data = load_yaml(path)
-    dev = data.get("device", data)
-    where = f"{path}: device" if "device" in data else str(path)
-    if not isinstance(dev, dict):
-        raise ConfigError(f"{where}: must be a mapping")
-    driver = dev.get("driver")
-    if driver == "mpu6050":
-        m = parse({k: v for k, v in dev.items() if k in ("simulator", "seed")}, Mpu6050SimSection, where)
-        sim = load_yaml(m.simulator) if isinstance(m.simulator, str) else m.simulator
-        return sim, m.seed
-    if driver not in (None, "simulated"):
-        raise ConfigError(f"{where}.driver: {driver!r}; --config takes a simulated board (driver: simulated, "
-                          "e.g. configs/sim.yaml) or an mpu6050 device with a simulator section")
-    return {k: v for k, v in dev.items() if k != "driver"}, None

@@ -62,7 +62,7 @@ class SimavrBridge:
 
     def __init__(self, board: Any = None, seed: int | None = None, factory_offsets: Sequence[int] = (1001, -2000, 3),
                  who_am_i: int = CHIP_ID, chip_ppm: float = 0.0, self_test_codes: Sequence[int] | None = None,
-                 self_test_share: Sequence[float] | None = None) -> None:
+                 self_test_share: Sequence[float] | None = None, offset_step_scale: float = 1.0) -> None:
         if board is None:
             from .simulated import SimulatedBoard
 
@@ -80,6 +80,10 @@ class SimavrBridge:
                                                            else self_test_codes))
         self.self_test_share = tuple(float(v) for v in (1.0 + 0.04 * rng.standard_normal(3)
                                                         if self_test_share is None else self_test_share))
+        # a fault: the chip model's XA/YA/ZA_OFFS step as a share of 1/2048 g (written in the C model)
+        if not 0.0 < float(offset_step_scale) < 10.0:
+            raise ConfigError(f"offset_step_scale: {offset_step_scale!r}; allowed: 0 < scale < 10")
+        self.offset_step_scale = float(offset_step_scale)
         self.lock = threading.RLock()  # held while a sample is taken: take it to move the board
         self.port: str | None = None
         self.registers: dict[str, int] = {}  # the chip's configuration registers as last written
@@ -101,7 +105,8 @@ class SimavrBridge:
         self._proc = subprocess.Popen([str(HARNESS), str(ELF), "-o", off, "-w", str(self.who_am_i),
                                        "-p", repr(self.chip_ppm),
                                        "-t", ",".join(str(c) for c in self.self_test_codes),
-                                       "-r", ",".join(repr(v) for v in self.self_test_share)],
+                                       "-r", ",".join(repr(v) for v in self.self_test_share),
+                                       "-s", repr(self.offset_step_scale)],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
         ready: queue.Queue[str] = queue.Queue()
         self._thread = threading.Thread(target=self._serve, args=(ready,), name="simavr-bridge", daemon=True)

@@ -16,7 +16,7 @@ A response within noise on every axis is named for what it is: the self-test did
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -37,6 +37,7 @@ class AxisSelfTest:
     value: float  # the judged value, in ``unit``
     ok: bool
     sem_g: float  # standard error of change_g (the two averages' noise)
+    factory_trim_counts: float | None = None  # MPU-6050: FT the change is compared with (counts)
 
     def to_json(self) -> dict[str, object]:
         value = self.value if np.isfinite(self.value) else None  # no factory trim: nothing to compare with
@@ -106,5 +107,31 @@ def judge_against_trim(chip: str, change_counts: np.ndarray, sem_counts: np.ndar
     sem = np.asarray(sem_counts, float) / counts_per_g
     axes = tuple(AxisSelfTest(AXES[i], float(str_[i]), float(str_[i] / counts_per_g), -tolerance, tolerance,
                               "fraction_of_factory_trim", float(frac[i]), bool(abs(frac[i]) <= tolerance),
-                              float(sem[i])) for i in range(3))
+                              float(sem[i]), float(ft[i])) for i in range(3))
     return SelfTestResult(chip, axes, n, range_g, source)
+
+
+def with_limits(result: SelfTestResult, low_g: tuple[float, ...] | None = None,
+                high_g: tuple[float, ...] | None = None, tolerance: float | None = None,
+                source: str = "acceptance") -> SelfTestResult:
+    """``result`` judged again with the limits a station's config overrides (None: the data sheet's kept).
+
+    ``low_g``/``high_g`` apply to limits in g (MMA8451Q), ``tolerance`` to limits relative to the factory
+    trim (MPU-6050); the other kind is ignored.  ``source`` names where the new limits come from."""
+    axes = []
+    changed = False
+    for i, a in enumerate(result.axes):
+        if a.unit == "g" and (low_g is not None or high_g is not None):
+            lo = a.low if low_g is None else float(low_g[i])
+            hi = a.high if high_g is None else float(high_g[i])
+            axes.append(replace(a, low=lo, high=hi, ok=bool(lo <= a.value <= hi)))
+            changed = True
+        elif a.unit == "fraction_of_factory_trim" and tolerance is not None:
+            t = float(tolerance)
+            axes.append(replace(a, low=-t, high=t, ok=bool(abs(a.value) <= t)))
+            changed = True
+        else:
+            axes.append(a)
+    if not changed:
+        return result
+    return replace(result, axes=tuple(axes), source=f"{result.source}; limits overridden by {source}")

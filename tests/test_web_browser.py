@@ -20,6 +20,7 @@ from webtools import chromium, free_port, live_server, no_alert, screenshot
 
 pytest.importorskip("fastapi")
 pytest.importorskip("selenium")
+from selenium.common.exceptions import StaleElementReferenceException
 from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
 from selenium.webdriver.common.keys import Keys
@@ -33,6 +34,13 @@ from accelcal_station.store.runs import Store
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 HOSTILE = "<script>alert(1)</script>"
+
+# the live pages replace their body when a run lands: an element found a moment ago may be gone
+STALE = (StaleElementReferenceException,)
+
+
+def wait(drv, seconds: float) -> WebDriverWait:
+    return WebDriverWait(drv, seconds, ignored_exceptions=STALE)
 
 
 def _station_config(tmp_path: Path, station_id: str, seed: int, **acceptance: float) -> StationConfig:
@@ -53,7 +61,7 @@ def test_line_page_shows_two_stations_runs_within_2_s_of_each_finishing(tmp_path
     finished: dict[int, float] = {}
     with live_server(str(tmp_path / "line.sqlite")) as base, chromium() as drv:
         drv.get(base + "/")
-        WebDriverWait(drv, 10).until(lambda d: "live" in d.find_element(By.ID, "live").text)
+        wait(drv, 10).until(lambda d: "live" in d.find_element(By.ID, "live").text)
 
         def station(cfg: StationConfig, n: int) -> None:
             for k in range(n):
@@ -178,7 +186,7 @@ def test_pages_an_engineer_can_read(tmp_path):
         link = drv.find_element(By.CSS_SELECTOR, "#reasons a")
         n = int(link.find_element(By.XPATH, "../../td[2]").text)
         link.click()
-        WebDriverWait(drv, 5).until(lambda d: d.find_elements(By.ID, "reason-runs"))
+        wait(drv, 5).until(lambda d: d.find_elements(By.ID, "reason-runs"))
         assert len(drv.find_elements(By.CSS_SELECTOR, "#reason-runs tr[data-run]")) == n
         assert drv.execute_script(_MIDWORD, "#reason-runs td") == []
         screenshot(drv, "reason.png")
@@ -187,7 +195,7 @@ def test_pages_an_engineer_can_read(tmp_path):
         drv.execute_script("document.querySelector('form.picker input[type=date]').value = '2023-11-14';")
         drv.find_element(By.CSS_SELECTOR, "form.picker select option[value='C']").click()
         drv.find_element(By.CSS_SELECTOR, "form.picker button").click()
-        WebDriverWait(drv, 5).until(lambda d: "2023-11-14 shift C" in d.find_element(By.ID, "line-body").text)
+        wait(drv, 5).until(lambda d: "2023-11-14 shift C" in d.find_element(By.ID, "line-body").text)
         runs = drv.execute_script("return document.querySelector('.card[data-station=\"st-1\"] dd:nth-of-type(3)')"
                                   ".textContent;")
         assert runs == "10"
@@ -221,7 +229,7 @@ def test_a_hostile_serial_shows_as_text_on_every_page(tmp_path):
     with live_server(str(tmp_path / "h.sqlite")) as base, chromium() as drv:
         for path in ("/", f"/board?serial={quote(HOSTILE)}", f"/lot?lot={quote(HOSTILE)}", "/lot"):
             drv.get(base + path)
-            WebDriverWait(drv, 5).until(lambda d: HOSTILE in d.find_element(By.TAG_NAME, "main").text)
+            wait(drv, 5).until(lambda d: HOSTILE in d.find_element(By.TAG_NAME, "main").text)
             assert no_alert(drv), path
             assert not drv.find_elements(By.XPATH, "//main//script"), path  # never parsed as an element
         time.sleep(1.0)  # the line page's live refresh runs once: still text
@@ -260,10 +268,50 @@ def _face_shown(drv) -> str:
         return face, float(arrow.get_attribute("y1")) - float(arrow.get_attribute("y2"))  # > 0: up the screen
 
     # the words and the picture arrive in one state update; read them again until they are one pose's
-    WebDriverWait(drv, 5).until(lambda d: drawn(d) == drawn(d))
+    wait(drv, 5).until(lambda d: drawn(d) == drawn(d))
     face, dy = drawn(drv)
     assert (dy > 40) if face[1] == "+" else (dy < -40), (face, dy)
     return face
+
+
+def _open_operator_page(drv, port: int) -> float:
+    """Load the operator page once its station answers (within 20 s); the time it started waiting."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 20:
+        try:
+            drv.get(f"http://127.0.0.1:{port}/")
+            break
+        except Exception:
+            time.sleep(0.2)
+    return t0
+
+
+def _click_through_the_poses(drv, port: int) -> tuple[int, set[str]]:
+    """Open the operator page and accept every pose (buttons and Enter in turn) until the result shows;
+    screenshots of the first pose and of each of the six faces: (clicks, faces shown)."""
+    t0 = _open_operator_page(drv, port)
+    clicks, shot, faces = 0, False, set()
+    while not drv.find_element(By.ID, "result").is_displayed():
+        assert time.monotonic() - t0 < 90, drv.page_source[-2000:]
+        button = drv.find_element(By.ID, "b-accept")
+        if button.is_enabled() and "Put the board" in drv.find_element(By.ID, "instruction").text:
+            if drv.find_element(By.ID, "off").text != "–":
+                # a pose, its picture and the live level once the board has settled
+                wait(drv, 5).until(lambda d: "READY" in d.find_element(By.ID, "ready").text)
+                if not shot:
+                    screenshot(drv, "operator.png")
+                    shot = True
+                face = _face_shown(drv)
+                if face not in faces:
+                    faces.add(face)
+                    screenshot(drv, f"operator-{face}1g.png")
+            if clicks % 2:  # every other pose by the key instead of the button
+                ActionChains(drv).send_keys(Keys.ENTER).perform()
+            else:
+                button.click()
+            clicks += 1
+        time.sleep(0.1)
+    return clicks, faces
 
 
 def test_operator_page_calibrates_the_emulated_board_by_clicks_like_the_terminal(tmp_path):
@@ -282,36 +330,7 @@ def test_operator_page_calibrates_the_emulated_board_by_clicks_like_the_terminal
                             text=True)
     try:
         with chromium(1400, 1000) as drv:
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < 20:
-                try:
-                    drv.get(f"http://127.0.0.1:{port}/")
-                    break
-                except Exception:
-                    time.sleep(0.2)
-            clicks = 0
-            shot = False
-            faces: set[str] = set()
-            while not drv.find_element(By.ID, "result").is_displayed():
-                assert time.monotonic() - t0 < 90, drv.page_source[-2000:]
-                button = drv.find_element(By.ID, "b-accept")
-                if button.is_enabled() and "Put the board" in drv.find_element(By.ID, "instruction").text:
-                    if drv.find_element(By.ID, "off").text != "–":
-                        # a pose, its picture and the live level once the board has settled
-                        WebDriverWait(drv, 5).until(lambda d: "READY" in d.find_element(By.ID, "ready").text)
-                        if not shot:
-                            screenshot(drv, "operator.png")
-                            shot = True
-                        face = _face_shown(drv)
-                        if face not in faces:
-                            faces.add(face)
-                            screenshot(drv, f"operator-{face}1g.png")
-                    if clicks % 2:  # every other pose by the key instead of the button
-                        ActionChains(drv).send_keys(Keys.ENTER).perform()
-                    else:
-                        button.click()
-                    clicks += 1
-                time.sleep(0.1)
+            clicks, faces = _click_through_the_poses(drv, port)
             assert drv.find_element(By.ID, "result-verdict").text == "PASS"
             assert "EMU-0001" in drv.find_element(By.ID, "result-board").text
             assert "line1-web" in drv.find_element(By.CLASS_NAME, "station").text and no_alert(drv)
@@ -340,16 +359,10 @@ def test_abort_on_the_operator_page_exits_5_and_records_the_run_interrupted(tmp_
                              "--ui-port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         with chromium() as drv:
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < 20:
-                try:
-                    drv.get(f"http://127.0.0.1:{port}/")
-                    break
-                except Exception:
-                    time.sleep(0.2)
-            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "b-abort").is_enabled())
+            _open_operator_page(drv, port)
+            wait(drv, 30).until(lambda d: d.find_element(By.ID, "b-abort").is_enabled())
             ActionChains(drv).send_keys("a").perform()
-            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "result").is_displayed())
+            wait(drv, 30).until(lambda d: d.find_element(By.ID, "result").is_displayed())
             assert drv.find_element(By.ID, "result-verdict").text == "ABORTED"
             assert "operator aborted at pose" in drv.find_element(By.ID, "result-reasons").text
         _, err = proc.communicate(timeout=60)

@@ -15,8 +15,25 @@ from ..models.result import FitResult
 from ..models.sanity import distinct_directions, distinct_directions_batch, poses_needed
 from .reasons import Reason
 
+# the acceptance keys that are not a limit on a fitted figure: the self-test's and the offset trim's
+# settings (judged by the station: Limits.self_test, Limits.offset_trim_tolerance)
+STEP_KEYS = ("self_test", "self_test_low_g", "self_test_high_g", "self_test_tolerance", "offset_trim_tolerance")
 # each limit's meaning, as the schema declares it (a FAIL reason names it)
-LIMIT_KEYS = {k: f.description or k for k, f in AcceptanceSection.model_fields.items()}
+LIMIT_KEYS = {k: f.description or k for k, f in AcceptanceSection.model_fields.items() if k not in STEP_KEYS}
+
+
+@dataclass(frozen=True)
+class SelfTestLimits:
+    """The self-test step's settings: whether it runs, and limits overriding the data sheet's (None: kept)."""
+
+    run: bool = True
+    low_g: tuple[float, ...] | None = None
+    high_g: tuple[float, ...] | None = None
+    tolerance: float | None = None
+
+    @property
+    def overridden(self) -> bool:
+        return self.low_g is not None or self.high_g is not None or self.tolerance is not None
 
 
 # limits every run is judged on even when a config leaves them out (printed when used):
@@ -28,6 +45,8 @@ DEFAULT_LIMITS = {"crossval_rms_mg": 10.0}
 class Limits:
     values: dict[str, float] = field(default_factory=dict)
     defaulted: list[str] = field(default_factory=list)  # keys filled from DEFAULT_LIMITS
+    self_test: SelfTestLimits = field(default_factory=SelfTestLimits)
+    offset_trim_tolerance: float = 0.25  # fraction of the expected trim change (AcceptanceSection)
 
     @classmethod
     def from_config(cls, d: dict | None, path: str = "acceptance") -> Limits:
@@ -37,10 +56,14 @@ class Limits:
     @classmethod
     def from_section(cls, section: AcceptanceSection | None) -> Limits:
         """From a validated ``acceptance`` section (None: none given): the safe defaults filled in."""
-        checked = (section or AcceptanceSection()).model_dump(exclude_none=True)
-        values = {k: float(v) for k, v in checked.items()}
+        sec = section or AcceptanceSection()
+        checked = sec.model_dump(exclude_none=True)
+        values = {k: float(v) for k, v in checked.items() if k not in STEP_KEYS}
         missing = [k for k in DEFAULT_LIMITS if k not in values]
-        return cls({**values, **{k: DEFAULT_LIMITS[k] for k in missing}}, missing)
+        st = SelfTestLimits(sec.self_test, None if sec.self_test_low_g is None else tuple(sec.self_test_low_g),
+                            None if sec.self_test_high_g is None else tuple(sec.self_test_high_g),
+                            sec.self_test_tolerance)
+        return cls({**values, **{k: DEFAULT_LIMITS[k] for k in missing}}, missing, st, sec.offset_trim_tolerance)
 
     def defaults_line(self) -> str:
         """One line naming the safe defaults in use, or ''."""

@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ..drivers.mpu6050_emulator import MPU6050BridgeEmulator, board_config_from_file
+from ..drivers.emulator_files import board_config_from_file, emulator_options_from_file
+from ..drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from ..drivers.simulated import SimulatedBoard
 from ._common import MAX_SEED, Finite, Whole
 
@@ -30,7 +31,8 @@ KINDS = ("mpu6050-bridge", "motor-jig", "chamber")
 @click.option("--seed", type=Whole(0, MAX_SEED), default=None,
               help="Seed of the simulated board (any seed it prints, which may be 128-bit).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
-              help="Simulated board YAML (e.g. configs/sim.yaml); its chip becomes an MPU6050.")
+              help="Simulated board YAML (e.g. configs/sim.yaml); its chip becomes an MPU6050. An mpu6050 "
+                   "station config's device.emulator sets the chip's faults (self_test_share, offset_step_scale).")
 @click.option("--motor-jig", "with_jig", is_flag=True,
               help="mpu6050-bridge: also start a motorized jig emulator that turns the same board.")
 @click.option("--jig-speed", type=Finite(1.0, 1e5), default=180.0, show_default=True,
@@ -103,11 +105,13 @@ def _bridge(config_path: str | None, seed: int | None,
     board_cfg, cfg_seed = board_config_from_file(config_path) if config_path else (None, None)
     board = SimulatedBoard.from_config(board_cfg, chip="mpu6050", seed=seed if seed is not None else cfg_seed,
                                        path=f"{config_path}: device" if config_path else "simulator")
+    # the chip's faults from the config's device.emulator (self_test_share, offset_step_scale, ...)
+    faults = emulator_options_from_file(config_path) if config_path else {}
     if on_avr:
         from ..drivers.mpu6050_simavr import SimavrBridge
 
-        return board, SimavrBridge(board)
-    return board, MPU6050BridgeEmulator(board)
+        return board, SimavrBridge(board, **faults)
+    return board, MPU6050BridgeEmulator(board, **faults)
 
 
 @contextmanager

@@ -12,7 +12,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Discriminator, Field, StrictBool, Tag, field_validator
 
-from .section import MAX_BOARDS, Section, _f
+from .section import MAX_BOARDS, Section, Triple, _f
 
 
 class HandSection(Section):
@@ -55,8 +55,8 @@ class BusEmulatorSection(Section):
     present: StrictBool = _f(True, "the chip answers on the bus at all")
     bus_hz: float = _f(400_000.0, "I2C clock of the emulated bus, Hz", ge=10_000, le=3_400_000)
     corrupt_reads: CorruptReadsSection | None = _f(None, "a lying bus: reads corrupted at random (tests)")
-    self_test_scale: tuple[float, float, float] = _f(
-        (1.0, 1.0, 1.0), "self-test response per axis as a share of this chip's own (a weak axis: e.g. 0.05)")
+    self_test_scale: Triple = _f(
+        [1.0, 1.0, 1.0], "self-test response per axis as a share of this chip's own (a weak axis: e.g. 0.05)")
     self_test_dead: StrictBool = _f(False, "the self-test bit does nothing (a broken self-test circuit)")
     trim_step_scale: float = _f(1.0, "OFF_X/Y/Z step as a share of the data sheet's 1/512 g (a chip whose "
                                      "trim unit differs from the driver's assumption)", ge=0.5, le=2.0)
@@ -64,6 +64,20 @@ class BusEmulatorSection(Section):
     mux_reset_after: int = _f(0, "panel behind an emulated TCA9548A: the mux resets (no channel selected, as "
                                  "after a brown-out) after this many transactions to this board (0: never)",
                               ge=0, le=10**9)
+
+
+class BridgeEmulatorSection(Section):
+    """mpu6050 ``port: emulated``: the bridge emulator's chip (drivers/mpu6050_emulator.py) and its faults."""
+
+    self_test_share: Triple | None = _f(
+        None, "self-test response per axis as a share of the factory trim FT (default: drawn per chip, 1 +- 4 %; "
+        "a weak axis: e.g. 0.5; 0: a self-test that does nothing)")
+    self_test_codes: Annotated[list[Annotated[int, Field(ge=1, le=31)]], Field(min_length=3, max_length=3)] | None = \
+        _f(None, "factory self-test codes XA/YA/ZA_TEST in SELF_TEST_X/Y/Z/A, 1..31 (default: drawn per chip)")
+    offset_step_scale: float = _f(1.0, "XA/YA/ZA_OFFS step as a share of 1/2048 g (a part whose offset-register "
+                                       "unit differs from the driver's assumption)", ge=0.5, le=2.0)
+    chip_ppm: float = _f(0.0, "the chip's clock against the bridge MCU's, ppm (positive: the chip is fast)",
+                         ge=-1e4, le=1e4)
 
 
 class MuxSection(Section):
@@ -164,6 +178,7 @@ class Mpu6050Section(Section):
     boot_wait_s: float = _f(2.0, "wait for the bridge to boot, s", ge=0, le=30)
     simulator: dict[str, Any] | str | None = _f(None, "port: emulated: the simulated board (a mapping or a file)")
     seed: int | None = _f(None, "port: emulated: random seed", ge=0, le=2**32 - 1)
+    emulator: BridgeEmulatorSection | None = _f(None, "port: emulated: the bridge emulator's chip and faults")
 
 
 class _SlotKeys(Section):

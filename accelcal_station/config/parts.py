@@ -14,6 +14,7 @@ from typing import Any, Literal, TypeVar
 from pydantic import BaseModel
 
 from .schema import (  # noqa: F401 - re-exported: the drivers' and jigs' own models
+    BridgeEmulatorSection,
     I2cEepromSection,
     Mma8451Section,
     MotorizedJigSection,
@@ -44,10 +45,11 @@ class SimulatorFileSection(Section):
 
 
 class Mpu6050SimSection(Section):
-    """The ``simulator`` and ``seed`` of an emulated mpu6050 (other device keys are ignored)."""
+    """The ``simulator``, ``seed`` and ``emulator`` of an emulated mpu6050 (other device keys are ignored)."""
 
     simulator: dict[str, Any] | str | None = None
     seed: int | None = _f(None, "random seed", ge=0, le=2**32 - 1)
+    emulator: BridgeEmulatorSection | None = None
 
 
 class EmulatedSeedSection(Section):

@@ -2,11 +2,14 @@
 ``_f``, the field declaration with a description and a range that docs/config.md shows."""
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
 MAX_BOARDS = 64
+
+# three numbers [x, y, z] (YAML gives a list; a strict tuple would refuse it)
+Triple = Annotated[list[Annotated[float, Field(ge=0, le=1e6)]], Field(min_length=3, max_length=3)]
 
 
 class Section(BaseModel):

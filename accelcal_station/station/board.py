@@ -17,8 +17,8 @@ import numpy as np
 from ..acceptance.reasons import Reason, codes
 from ..acceptance.rules import judge
 from ..calibration import Calibration
-from ..conventions import fit_mount, mount_hint, mount_matrix, reference_to_angles
-from ..drivers.base import Clock, Driver, Identity
+from ..conventions import mount_matrix, reference_to_angles
+from ..drivers.base import Capture, Clock, Driver, Identity
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
@@ -31,9 +31,18 @@ from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
 from ..store.outbox import open_store
 from ..store.runs import Store
-from .capture import GatedCapture, MountMismatch, StillnessGate, WrongPose, gated_capture
+from .capture import (
+    GatedCapture,
+    MountMismatch,
+    StillnessGate,
+    WrongPose,
+    gated_capture,
+    with_mounting,
+)
+from .offset_trim import trim_change, trim_failure, trim_record, trimmed
 from .recording import record_result, start_args
 from .report import RunReport, Timing, fit_figures
+from .self_test_step import self_test_step
 from .settings import StationConfig, configured_rate
 from .verdict import Stage
 
@@ -126,15 +135,8 @@ class Station:
         return round(float(pitch), 9), round(float(roll), 9)
 
     def _mounting(self, pose: PoseSpec, e: WrongPose) -> WrongPose:
-        """A wrong pose, with the mounting that fits this and the poses captured so far when it
-        is not device.mount: a MountMismatch once the readings single it out."""
-        r = np.array([o[0] for o in self._seen] + [pose.reference_g])
-        m = np.array([o[1] for o in self._seen] + [e.measured])
-        hint = mount_hint(r, m, self.mount, self.cfg.capture.pose_tolerance_deg)
-        if hint is None:
-            return e
-        unique = fit_mount(r, m)[2]
-        return (MountMismatch if unique else WrongPose)(e.expected_g, e.measured, e.angle, hint)
+        """A wrong pose, with the mounting that fits it and the poses captured so far (capture.with_mounting)."""
+        return with_mounting(self._seen, pose.reference_g, e, self.mount, self.cfg.capture.pose_tolerance_deg)
 
     # -- the run ---------------------------------------------------------------------
     def run(self) -> RunReport:
@@ -163,7 +165,8 @@ class Station:
                 records: list[PoseRecord] = []
                 retries: list[int] = []
                 session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
-                self._calibrate(store, run_id, driver, clock, session, retries, rep)
+                if self._self_test(store, run_id, driver, rep):
+                    self._calibrate(store, run_id, driver, clock, session, retries, rep)
                 rep.timing = self._timing(driver, clock, clock0, wall0)
                 self._finish(store, run_id, session, retries, rep)
         return rep
@@ -193,6 +196,27 @@ class Station:
             self._record_unreachable(store, e)
             raise
         return ident
+
+    def _self_test(self, store: Store, run_id: int, driver: Driver, rep: RunReport) -> bool:
+        """The self-test step of a run (:meth:`self_test_step`); a device fault ends the run FAIL with its code,
+        any other error or Ctrl-C interrupts it.  True: the poses may follow."""
+        try:
+            return self.self_test_step(driver, rep)
+        except DeviceError as e:
+            rep.record(Stage.FAULT, Reason(e.reason_code, f"during the self-test: {e}"))
+            self.echo(f"FAIL: {e} (self-test)")
+            return False
+        except (AccelcalError, KeyboardInterrupt) as e:
+            why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else f"self-test: {e}"
+            store.interrupt_run(run_id, why, status="interrupted" if isinstance(e, KeyboardInterrupt) else "error")
+            raise
+
+    def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
+        """The chip's built-in self-test once, before the poses (station/self_test_step.py).  True: the
+        poses may follow.  Device errors propagate."""
+        ok, read = self_test_step(driver, self.cfg, rep, self.echo)
+        self.samples_read += read
+        return ok
 
     def _calibrate(self, store: Store, run_id: int, driver: Driver, clock: Clock | None, session: Session,
                    retries: list[int], rep: RunReport) -> None:
@@ -232,7 +256,8 @@ class Station:
                   "fit_summary": {**fit_figures(rep.fit), "reason_codes": codes(rep.reasons),
                                   "measured": rep.measured,
                                   "verify_error_max_mg": rep.verify_error_max_mg,
-                                  "offset_trim_lsb": rep.offset_trim_lsb,
+                                  "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim,
+                                  "self_test": rep.self_test,
                                   "design": cfg.design, "skipped": rep.skipped,
                                   "timing": rep.timing, "nvm_verified": rep.nvm_verified},
                   "model": cfg.model, "retries": retries, "limits": cfg.limits.values}
@@ -304,9 +329,12 @@ class Station:
             rep.record(Stage.ACCEPTANCE, *verdict.reasons)
             self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
             return None
-        cal = fit.calibration
+        cal: Calibration | None = fit.calibration
         if cfg.offset_trim:
-            cal = rep.calibration = self._trim_offsets(driver, cal, rep)
+            last = session.poses[-1].reference_g if session.poses else None
+            cal = self._trim_offsets(driver, fit.calibration, last, rep)
+            if cal is not None:
+                rep.calibration = cal
         return cal
 
     def _judge_verified(self, cal: Calibration, checks: list[Check], rep: RunReport) -> bool:
@@ -368,12 +396,18 @@ class Station:
             return
         self.echo(f"NVM: slot {outcome.slot}, generation {outcome.generation}, {outcome.length} bytes, verified")
 
-    def _trim_offsets(self, driver: Driver, cal: Calibration, rep: RunReport) -> Calibration:
-        """Move the zero-g offset into the chip's offset registers and shift V to match.
+    def _trim_offsets(self, driver: Driver, cal: Calibration, reference_g: np.ndarray | None,
+                      rep: RunReport) -> Calibration | None:
+        """Move the zero-g offset into the chip's offset registers and shift V by the change MEASURED.
 
-        The trimmed output is G_f' = G_f + t, so G = W (G_f' - t) + V: V' = V - W t.
-        The registers are volatile: the trim is reported (and recorded) so the device
-        config's ``offset_trim_lsb`` can restore it at power-up.
+        The trimmed output is G_f' = G_f + t, so G = W (G_f' - t) + V: V' = V - W t, with t the change
+        measured at the board's last pose (a still capture before writing, one after), not the change the
+        driver's trim unit promises.  It must agree with the promised one per axis within
+        ``acceptance.offset_trim_tolerance`` of it or 4 standard errors of the difference, whichever is
+        larger: a trim unit a little off is measured and used; a wrong sign, register or unit
+        (docs/self-test.md) fails ``offset_trim`` and the registers get their old values back.
+        None: FAIL.  The registers are volatile: the trim is reported so ``device.offset_trim_lsb`` can
+        restore it at power-up.
         """
         if not driver.supports_offset_trim:
             raise ConfigError(f"nvm.offset_trim: the {driver.name} driver has no offset-trim registers; "
@@ -382,13 +416,36 @@ class Station:
         lsb_g = driver.offset_trim_lsb_g
         old = np.asarray(driver.get_offset_trim(), dtype=float)
         total = np.clip(np.round(old - offset_g / lsb_g), -128, 127).astype(int)
+        cpg = driver.counts_per_g
+        before = self._still_capture(driver, reference_g, "before the offset trim")
         driver.set_offset_trim(tuple(int(v) for v in total))
-        t = (total - old) * lsb_g
+        after = self._still_capture(driver, reference_g, "after the offset trim")
+        expected_g = (total - old) * lsb_g
+        measured_g, sigma_g, tol_g, ok = trim_change(expected_g, before, after, cpg,
+                                                     self.cfg.limits.offset_trim_tolerance)
         rep.offset_trim_lsb = total.tolist()
-        self.echo(f"offset trim {total.tolist()} LSB ({lsb_g * 1e3:.2f} mg each): "
-                  "add device.offset_trim_lsb to the config to restore it at power-up")
-        return Calibration(cal.model, cal.W, cal.V - cal.W @ t, cal.Gamma, cal.input_units, cal.input_per_g,
-                           cal.temperature, dict(cal.metadata, offset_trim_lsb=total.tolist()))
+        rep.offset_trim = trim_record(total, old, lsb_g, expected_g, measured_g, sigma_g, tol_g, ok)
+        if not ok.all():
+            driver.set_offset_trim(tuple(int(v) for v in old))  # the chip as it was: nothing of this run kept
+            why = trim_failure(lsb_g, expected_g, measured_g, tol_g, ok)
+            rep.record(Stage.OFFSET_TRIM, Reason("offset_trim", why))
+            self.echo(f"FAIL: offset trim: {why}")
+            return None
+        rep.record(Stage.OFFSET_TRIM)
+        self.echo(f"offset trim {total.tolist()} LSB ({lsb_g * 1e3:.2f} mg each), measured change "
+                  f"{np.round(measured_g * 1e3, 2).tolist()} mg: add device.offset_trim_lsb to the config to "
+                  "restore it at power-up")
+        return trimmed(cal, total, old, measured_g)
+
+    def _still_capture(self, driver: Driver, reference_g: np.ndarray | None, label: str) -> Capture:
+        """One gated capture of the board where it stands (its events kept with the run's)."""
+        bar = self._capture_sink(f"  capturing {label}")
+        try:
+            gc = gated_capture(driver, self.cfg.capture, reference_g, None, progress=bar)
+        finally:
+            bar.close()
+        self.samples_read += gc.samples_read
+        return gc.capture
 
     def _verify_captures(self, driver: Driver, jig: Jig, rep: RunReport) -> list[Check]:
         """Fresh captures at the verification poses: (mean counts, expected g, temp)."""

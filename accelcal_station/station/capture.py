@@ -23,7 +23,7 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..conventions import angle_deg, nearest_face
+from ..conventions import angle_deg, fit_mount, mount_hint, nearest_face
 from ..drivers.base import Capture, Driver
 from ..errors import DeviceError
 
@@ -42,6 +42,7 @@ class CaptureSettings:
     settle_timeout_s: float = 30.0
     pose_tolerance_deg: float = 12.0
     max_recaptures: int = 3
+    self_test_samples: int = 64  # averaged in each self-test state (station/board.py _self_test)
 
 
 @dataclass
@@ -168,6 +169,25 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
             return GatedCapture(cap, recaptures, waited, reached, gate.floor.copy(), read, events)
 
 
+def wait_still(driver: Driver, settings: CaptureSettings) -> int:
+    """Read blocks until the board has been still for ``hold_s`` (the capture's stillness gate); the samples
+    read.  A board not still after ``settle_timeout_s`` is a DeviceError naming its noise floor."""
+    s = settings
+    block_n = max(4, int(round(s.block_s * driver.odr_hz)))
+    gate = StillnessGate(s)
+    read = 0
+    t_first = None
+    while True:
+        counts, t, _ = driver.read_samples(block_n)
+        read += len(counts)
+        t_first = float(t[0]) if t_first is None else t_first
+        if gate.update(counts.astype(float), float(t[-1])):
+            return read
+        if float(t[-1]) - t_first > s.settle_timeout_s:
+            raise DeviceError(f"board not still after {s.settle_timeout_s:g} s "
+                              f"(noise floor {np.round(gate.floor, 1).tolist()} counts)")
+
+
 class WrongPose(DeviceError):
     """The board is not in the planned pose; names the face it is actually on (the face whose
     axis points up: a chip reads +1 g on the axis pointing away from the Earth)."""
@@ -184,3 +204,17 @@ class WrongPose(DeviceError):
 
 class MountMismatch(WrongPose):
     """The readings of the first poses fit one other mounting of the chip (device.mount) exactly."""
+
+
+def with_mounting(seen: list[tuple[np.ndarray, np.ndarray]], reference_g: np.ndarray, e: WrongPose,
+                  mount: np.ndarray, tolerance_deg: float) -> WrongPose:
+    """A wrong pose, with the mounting that fits this and the poses captured so far (``seen``: their
+    expected and measured readings) when it is not device.mount: a MountMismatch once the readings
+    single it out."""
+    r = np.array([o[0] for o in seen] + [reference_g])
+    m = np.array([o[1] for o in seen] + [e.measured])
+    hint = mount_hint(r, m, mount, tolerance_deg)
+    if hint is None:
+        return e
+    unique = fit_mount(r, m)[2]
+    return (MountMismatch if unique else WrongPose)(e.expected_g, e.measured, e.angle, hint)

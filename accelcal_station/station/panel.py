@@ -182,6 +182,19 @@ class PanelStation:
             station_id=self.cfg.station_id, operator=self.operator, lot=self.lot, config_text=self.cfg.text,
             model=self.cfg.model, units="counts",
             counts_per_g=b.driver.counts_per_g if b.open_ else None, panel_id=self.panel_id)
+        self._self_test(b)
+
+    def _self_test(self, b: PanelBoard) -> None:
+        """The board's own self-test, before the poses with the panel at rest (board.py self_test_step);
+        a board that fails it, or whose bus fails during it, takes no part in the poses."""
+        if not b.active:
+            return
+        try:
+            if not b.station.self_test_step(b.driver, b.rep):
+                self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
+        except AccelcalError as e:
+            b.fail(Stage.SELF_TEST, Reason(e.reason_code, f"during the self-test: {e}"))
+            self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
 
     # -- capture ------------------------------------------------------------------------
     def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None
@@ -406,7 +419,8 @@ class PanelStation:
         session = _session(b)
         est = self.estimate
         summary = {"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
-                   "offset_trim_lsb": rep.offset_trim_lsb, "design": self.cfg.design, "skipped": rep.skipped,
+                   "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim, "self_test": rep.self_test,
+                   "design": self.cfg.design, "skipped": rep.skipped,
                    "timing": rep.timing, "nvm_verified": rep.nvm_verified, "panel_id": self.panel_id,
                    "jig_pose": None if est is None else {"estimated": est.estimated, "note": est.note,
                                                          "rotvec_deg": est.rotvec_deg.tolist()}}

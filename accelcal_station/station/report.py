@@ -65,6 +65,8 @@ class RunReport:
     nvm: dict[str, Any] | None = None
     nvm_verified: bool = False
     offset_trim_lsb: list[int] | None = None
+    offset_trim: dict[str, Any] | None = None  # the trim written and its measured change (board.py _trim_offsets)
+    self_test: dict[str, Any] | None = None  # the chip's self-test (drivers/self_test.py SelfTestResult.to_json)
     calibration: Calibration | None = None  # what was (or would be) written: the fit's, trim applied
     poses: list[PoseSummary] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
@@ -113,6 +115,7 @@ class RunReport:
             "held": [] if f is None else [h.to_json() for h in f.held],  # terms at nominal (models/held.py)
             "measured": self.measured, "verify_error_max_mg": self.verify_error_max_mg,
             "nvm": self.nvm, "nvm_verified": self.nvm_verified, "offset_trim_lsb": self.offset_trim_lsb,
+            "offset_trim": self.offset_trim, "self_test": self.self_test,
             "poses": self.poses, "skipped": self.skipped,
             "events": self.events, "timing": self.timing, "store": self.store,
         }

@@ -194,7 +194,7 @@ class ThermalStation(Station):
                   "verdict": rep.verdict, "reasons": rep.reasons, "nvm_outcome": rep.nvm,
                   "fit_summary": {"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
                                   "design": self.cfg.design, "timing": rep.timing, "thermal": rep.thermal,
-                                  "nvm_verified": rep.nvm_verified},
+                                  "nvm_verified": rep.nvm_verified, "self_test": rep.self_test},
                   "model": self.cfg.model, "retries": retries,
                   "limits": self.cfg.limits.values}
         record_result(store, run_id, start_args(self.cfg, rep, self.operator, self.lot, session.counts_per_g),

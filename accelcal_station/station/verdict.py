@@ -1,6 +1,6 @@
 """A run's verdict, built in one place: from the typed outcomes of its stages.
 
-Every stage of a board's run that can fail it (opening the device, a capture, the fit, the
+Every stage of a board's run that can fail it (opening the device, the chip's self-test, a capture, the fit, the
 acceptance limits, the verification, the NVM burn, a fault that ends the flow, the chamber,
 recording the result) records an :class:`Outcome` on the run report: its stage and the
 reasons it fails the board.  Judging the board on every limit after its verification
@@ -26,9 +26,11 @@ class Stage(Enum):
     """The stages of a run that decide its verdict."""
 
     DEVICE = "device"  # opened, identified, configured
+    SELF_TEST = "self_test"  # the chip's built-in self-test, before the poses (docs/self-test.md)
     CAPTURE = "capture"  # a pose captured (a panel's board on a wrong face, not still, NACKed)
     FIT = "fit"  # the model could be fitted
     ACCEPTANCE = "acceptance"  # the limits, before and after verification
+    OFFSET_TRIM = "offset_trim"  # the offset trim written, and its change measured (nvm.offset_trim)
     JUDGED = "judged"  # judged on every limit, verification included (passing: the board may PASS)
     NVM = "nvm"  # burned, read back and verified
     FAULT = "fault"  # a device, port or NVM fault that ended the flow

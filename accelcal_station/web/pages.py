@@ -133,6 +133,33 @@ def acceptance_rows(measured: dict[str, Any], limits: dict[str, float],
     return rows
 
 
+def _scaled(d: dict[str, Any], key: str, k: float) -> float | None:
+    """A stored number times k, or None (a damaged or missing value shows as a dash, never breaks the page)."""
+    v = d.get(key)
+    if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v):
+        return float(v) * k
+    return None
+
+
+def self_test_view(fit_summary: Any) -> dict[str, Any] | None:
+    """The board page's self-test table from a run's stored ``fit_summary.self_test`` (None: not run):
+    per axis the output change (mg), the judged value with its limits and unit, and ok."""
+    st = fit_summary.get("self_test") if isinstance(fit_summary, dict) else None
+    if not isinstance(st, dict) or not isinstance(st.get("axes"), list):
+        return None
+    rows = []
+    for a in st["axes"]:
+        if not isinstance(a, dict):
+            continue
+        pct = a.get("unit") == "fraction_of_factory_trim"
+        k = 100.0 if pct else 1e3  # a fraction of the factory trim in %, a change in g as mg
+        rows.append({"axis": str(a.get("axis", "?")), "change_mg": _scaled(a, "change_g", 1e3),
+                     "value": _scaled(a, "value", k), "low": _scaled(a, "low", k), "high": _scaled(a, "high", k),
+                     "unit": "% from factory trim" if pct else "mg", "ok": a.get("ok") is True})
+    return {"chip": str(st.get("chip", "")), "source": str(st.get("source", "")), "ok": st.get("ok") is True,
+            "no_effect": st.get("no_effect") is True, "rows": rows}
+
+
 def board_context(store: Store, serial: str) -> dict[str, Any]:
     """Every run of one board (newest first) with its acceptance table, residual chart and NVM history."""
     recs = store.runs(device=serial)
@@ -142,6 +169,7 @@ def board_context(store: Store, serial: str) -> dict[str, Any]:
         lim = rec.limits if isinstance(rec.limits, dict) else queries.limits_from_text(rec.config_text)
         measured = (rec.fit_summary or {}).get("measured") or {}
         runs.append({"rec": rec, "started": iso(rec.started_at), "chart": _residuals(rec),
+                     "self_test": self_test_view(rec.fit_summary),
                      "reasons": [r.to_dict() for r in rec.reasons],
                      "limits_source": "stored" if isinstance(rec.limits, dict) else ("config" if lim else None),
                      "acceptance": acceptance_rows(measured if isinstance(measured, dict) else {}, lim,

@@ -10,7 +10,9 @@
  *   - the AVR's own 1 KiB EEPROM (simavr's model), the NVM the firmware pages;
  *   - stack painting: free RAM between the static data and the deepest stack.
  *
- * Usage: mpu6050_sim FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ]
+ * Usage: mpu6050_sim FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ] [-s STEP]
+ *   -s: XA/YA/ZA_OFFS step as a share of 1/2048 g (1: the application note's +-16 g format; a fault:
+ *       a part whose offset-register unit differs from what the host driver assumes).
  *   -t: the accelerometer's factory self-test codes XA_TEST..ZA_TEST (5 bits each, in SELF_TEST_X/Y/Z/A);
  *   -r: the chip's self-test response per axis as a share of its factory trim FT (1: exactly FT;
  *       0: a self-test that does nothing).  FT = 4096 * 0.34 * (0.92 / 0.34)^((code - 1) / 30) LSB at
@@ -73,7 +75,8 @@
 #define REG_WHO_AM_I 0x75
 #define PWR_SLEEP 0x40
 #define PWR_DEVICE_RESET 0x80
-#define OFFSET_LSB_PER_G 2048
+#define OFFSET_LSB_PER_G 2048  /* XA/YA/ZA_OFFS: +-16 g format (InvenSense offset-register app note) */
+static double offset_step_scale = 1.0;  /* -s: the part's step as a share of 1/2048 g */
 #define PAINT 0xA5
 #define QUEUE_LEN 4096
 #define OUT_LEN (1 << 20)
@@ -189,7 +192,7 @@ static void mpu_new_sample(unsigned long long made) {
   int afs = (mpu.regs[REG_ACCEL_CONFIG] >> 3) & 3;
   for (int i = 0; i < 3; i++) {
     int d = (get_be16(mpu.regs + REG_XA_OFFS_H + 2 * i) & ~1) - (mpu.factory[i] & ~1);
-    long v = s.v[i] + (long)d * (16384 >> afs) / OFFSET_LSB_PER_G;
+    long v = s.v[i] + lround((double)d * (16384 >> afs) / OFFSET_LSB_PER_G * offset_step_scale);
     if (mpu.regs[REG_ACCEL_CONFIG] & (0x80 >> i)) v += lround(self_test_g(i) * (16384 >> afs));
     v = v < -32768 ? -32768 : v > 32767 ? 32767 : v;
     put_be16(mpu.regs + REG_ACCEL_XOUT_H + 2 * i, (int)v);
@@ -436,20 +439,21 @@ int main(int argc, char **argv) {
   double ppm = 0.0;
   mpu.st_code[0] = 14, mpu.st_code[1] = 15, mpu.st_code[2] = 13;
   mpu.st_share[0] = mpu.st_share[1] = mpu.st_share[2] = 1.0;
-  while ((opt = getopt(argc, argv, "o:w:p:t:r:")) != -1) {
+  while ((opt = getopt(argc, argv, "o:w:p:t:r:s:")) != -1) {
     if (opt == 't' && sscanf(optarg, "%d,%d,%d", &mpu.st_code[0], &mpu.st_code[1], &mpu.st_code[2]) == 3) {
       for (int i = 0; i < 3; i++) mpu.st_code[i] &= 31;
       continue;
     }
     if (opt == 'r' && sscanf(optarg, "%lf,%lf,%lf", &mpu.st_share[0], &mpu.st_share[1], &mpu.st_share[2]) == 3) continue;
+    if (opt == 's' && sscanf(optarg, "%lf", &offset_step_scale) == 1 && offset_step_scale > 0 && offset_step_scale < 10) continue;
     if (opt == 'o' && sscanf(optarg, "%d,%d,%d", &ox, &oy, &oz) == 3) continue;
     if (opt == 'w' && sscanf(optarg, "%i", &who) == 1) continue;
     if (opt == 'p' && sscanf(optarg, "%lf", &ppm) == 1 && ppm > -1e5 && ppm < 1e5) continue;
-    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ]\n", argv[0]);
+    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ] [-s STEP]\n", argv[0]);
     return 2;
   }
   if (optind >= argc) {
-    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ]\n", argv[0]);
+    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ] [-s STEP]\n", argv[0]);
     return 2;
   }
   mpu.ppm = ppm;
