@@ -9,10 +9,10 @@ are interpolated to the temperature of the data.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -31,6 +31,31 @@ MAX_TEMPERATURES = 1000  # calibration temperatures of one table: a chamber visi
 
 
 @dataclass(init=False)
+class TemperatureTableDict(TypedDict):
+    """An AN4399 section 9 table as JSON: every parameter at each temperature."""
+
+    method: str
+    temps_c: list[float]
+    W: list[list[list[float]]]
+    V: list[list[float]]
+    Gamma: list[list[float]]
+
+
+class CalibrationDict(TypedDict):
+    """A calibration file's JSON object (format SCHEMA_VERSION): what ``to_dict`` writes."""
+
+    schema: str
+    version: int
+    model: str
+    input_units: str
+    input_per_g: float
+    W: list[list[float]]
+    V: list[float]
+    Gamma: list[float]
+    temperature: TemperatureTableDict | None
+    metadata: dict[str, Any]  # free-form: who, where, which fit (JSON values)
+
+
 class TemperatureTable:
     """Per-temperature AN4399 coefficients and how to interpolate them (AN4399 Eqns 83-92).
 
@@ -107,7 +132,7 @@ class TemperatureTable:
         W = out[..., :9].reshape(t.shape + (3, 3))
         return W, out[..., 9:12], out[..., 12:15]
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> TemperatureTableDict:
         return {
             "method": self.method,
             "temps_c": self.temps_c.tolist(),
@@ -219,7 +244,7 @@ class Calibration:
         return np.einsum("...ij,...j->...i", W, gf) + V + G * gf**3
 
     # -- versioned JSON (imucal style) -------------------------------------------------
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> CalibrationDict:
         return {
             "schema": SCHEMA,
             "version": SCHEMA_VERSION,
@@ -295,7 +320,7 @@ PARAM_NAMES = ([f"W{i}{j}" for i in range(3) for j in range(3)] + [f"V{i}" for i
                + [f"Gamma{i}" for i in range(3)])
 
 
-def param_vector(cal: dict[str, Any]) -> np.ndarray:
+def param_vector(cal: Mapping[str, object]) -> np.ndarray:
     """W (row major), V, Gamma of a calibration dict as 15 numbers, PARAM_NAMES order."""
     return np.concatenate([np.asarray(cal["W"], float).ravel(), np.asarray(cal["V"], float),
                            np.asarray(cal.get("Gamma", [0, 0, 0]), float)])

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import NotRequired, TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -343,34 +343,48 @@ def worst_parameter(stderr: dict[str, np.ndarray] | None, model: str) -> tuple[s
     return name, text
 
 
-def describe_terms(A: np.ndarray, labels: list[tuple[str, str]], ideal: np.ndarray) -> dict[str, Any]:
+class TermsCounts(TypedDict):
+    """How many distinct orientations, poses and fitted terms a design has."""
+
+    distinct_orientations: int
+    poses: int
+    parameters: int
+
+
+class TermsDescription(TermsCounts):
+    """What ``describe_terms`` finds (diagnose --json ``identifiability``; key order as declared)."""
+
+    relative_singular_values: NotRequired[list[float]]  # absent without fitted terms
+    confounded: NotRequired[list[list[str]]]  # the terms of each undetermined combination
+    text: str
+
+
+def describe_terms(A: np.ndarray, labels: list[tuple[str, str]], ideal: np.ndarray) -> TermsDescription:
     """Distinct orientations of ``ideal`` (P, 3), relative singular values of the column-scaled
     design ``A`` (..., n_terms) whose columns are ``labels`` ((effect, detail) pairs), and which
     terms are confounded; the text says it in words (diagnose's untestable reasons)."""
     n_or = int(first_of_orientation(ideal[None])[0].sum())
-    out: dict[str, Any] = {"distinct_orientations": n_or, "poses": len(ideal), "parameters": len(labels)}
+    counts: TermsCounts = {"distinct_orientations": n_or, "poses": len(ideal), "parameters": len(labels)}
     if not labels:
-        return {**out, "text": f"{n_or} distinct orientations; no fitted terms"}
+        return {**counts, "text": f"{n_or} distinct orientations; no fitted terms"}
     M = A.reshape(-1, A.shape[-1])
     sc = np.linalg.norm(M, axis=0)
     _, s, Vt = np.linalg.svd(M / np.where(sc > 0, sc, 1.0), full_matrices=False)
     rel = s / s[0]
-    out["relative_singular_values"] = rel.tolist()
     bad = np.flatnonzero(rel < TERM_REL_SV_MIN)
     if not bad.size:
-        out["text"] = (f"{n_or} distinct orientations determine all {len(labels)} terms "
-                       f"(smallest relative singular value {rel[-1]:.2g})")
-        return out
+        return {**counts, "relative_singular_values": rel.tolist(),
+                "text": (f"{n_or} distinct orientations determine all {len(labels)} terms "
+                         f"(smallest relative singular value {rel[-1]:.2g})")}
     groups = []
     for k in bad:
         v = np.abs(Vt[k]) / np.max(np.abs(Vt[k]))
         groups.append([f"{e} {d}" for (e, d), x in zip(labels, v, strict=True) if x > 0.2])
-    out["confounded"] = groups
-    out["text"] = (f"{n_or} distinct orientations cannot determine {len(bad)} combination(s) of the "
-                   f"{len(labels)} terms: " + "; ".join(" with ".join(g) for g in groups)
-                   + f" (relative singular value {rel[bad[0]]:.1g})")
-    return out
+    return {**counts, "relative_singular_values": rel.tolist(), "confounded": groups,
+            "text": (f"{n_or} distinct orientations cannot determine {len(bad)} combination(s) of the "
+                     f"{len(labels)} terms: " + "; ".join(" with ".join(g) for g in groups)
+                     + f" (relative singular value {rel[bad[0]]:.1g})")}
 
 
-__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "assess", "assess_batch", "describe_terms", "first_of_orientation",
-           "require", "worst_parameter"]
+__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "TermsCounts", "TermsDescription", "assess", "assess_batch",
+           "describe_terms", "first_of_orientation", "require", "worst_parameter"]

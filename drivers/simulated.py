@@ -306,7 +306,7 @@ class SimulatedBoard:
 
     # -- samples -------------------------------------------------------------------------------
     def _settle_fraction(self) -> float:
-        return self.model.effects["settling"]["fraction"] if self.model.has("settling") else 0.0
+        return float(self.model.effects["settling"]["fraction"]) if self.model.has("settling") else 0.0
 
     def _settling_at(self, t: np.ndarray) -> np.ndarray:
         if not self.model.has("settling"):

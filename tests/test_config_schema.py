@@ -137,18 +137,22 @@ def _one_line(r: Any) -> str:
     return lines[0]
 
 
-SECTIONS = [p for p, _ in section_rows(StationConfigSchema, "") if ".boards" not in p]
+# the sections the default config (sim.yaml: a simulated device, a simulated jig) reaches; the
+# union members of other drivers and jig types are reached in the test below
+SECTIONS = [p for p, _ in section_rows(StationConfigSchema, "")
+            if ".boards" not in p and (" (" not in p or p.endswith(("(driver: simulated)", "(type: simulated)")))]
 
 
 @pytest.mark.parametrize("section", SECTIONS, ids=lambda s: s or "top")
 def test_an_unknown_key_in_any_section_is_one_line_naming_the_allowed_keys(tmp_path: Path, section: str) -> None:
     cfg = yaml.safe_load(default_config_path().read_text())
     cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
-    _put(cfg, section, "bogus_key", 1)
+    path = section.split(" (")[0]  # "device (driver: simulated)": the key path "device"
+    _put(cfg, path, "bogus_key", 1)
     r = CliRunner().invoke(cli, ["run", "--config", _write(tmp_path, cfg)])
     line = _one_line(r)
     model = dict(section_rows(StationConfigSchema, ""))[section]
-    where = f"{section}.bogus_key" if section else "bogus_key"
+    where = f"{path}.bogus_key" if path else "bogus_key"
     assert line.startswith(f"error: {where}: unknown key; allowed: "), line
     assert line.endswith(", ".join(model.model_fields)), line
 
@@ -199,18 +203,20 @@ def test_paths_named_in_the_shipped_configs_exist() -> None:
 
 
 @pytest.mark.parametrize(("section", "patch", "where", "model"), [
-    ("device", {"driver": "simulated", "bus": 1}, "device.bus", "SimulatedBoardSection"),
-    ("device", {"driver": "mma8451", "dlpf": 3}, "device.dlpf", "Mma8451Section"),
+    ("device", {"driver": "simulated", "bus": 1}, "device.bus", "device (driver: simulated)"),
+    ("device", {"driver": "mma8451", "dlpf": 3}, "device.dlpf", "device (driver: mma8451)"),
     ("device", {"driver": "mpu6050", "port": "emulated", "oversampling": "normal"}, "device.oversampling",
-     "Mpu6050Section"),
-    ("jig", {"type": "operator", "port": "/dev/ttyUSB0"}, "jig.port", "OperatorJigSection"),
-    ("jig", {"type": "simulated", "tolerance_deg": 5}, "jig.tolerance_deg", "SimulatedJigSection"),
+     "device (driver: mpu6050)"),
+    ("jig", {"type": "operator", "port": "/dev/ttyUSB0"}, "jig.port", "jig (type: operator)"),
+    ("jig", {"type": "simulated", "tolerance_deg": 5}, "jig.tolerance_deg", "jig (type: simulated)"),
+    ("device", {"driver": "mpu6050", "port": "emulated", "mux": {"address": 0x70}}, "device.mux",
+     "device (driver: mpu6050)"),
 ])
 def test_a_key_of_another_driver_or_jig_type_is_one_line_naming_this_ones_keys(
         tmp_path: Path, section: str, patch: dict, where: str, model: str) -> None:
-    """The per-driver and per-jig-type key sets (config/parts.py) are checked when the config is
-    loaded, before any board or port is opened; docs/config.md lists each of them."""
-    from accelcal_station.config import parts
+    """The per-driver and per-jig-type key sets (the discriminated unions of config/schema.py)
+    are checked in the one validation when the config is loaded, before any board or port is
+    opened; docs/config.md lists each of them."""
     cfg = yaml.safe_load(default_config_path().read_text())
     cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
     cfg[section] = {**({} if section == "jig" else cfg[section]), **patch}
@@ -219,7 +225,29 @@ def test_a_key_of_another_driver_or_jig_type_is_one_line_naming_this_ones_keys(
             if patch["driver"] != "simulated":
                 cfg[section].pop(k, None)
     line = _one_line(CliRunner().invoke(cli, ["run", "--config", _write(tmp_path, cfg)]))
-    allowed = ", ".join(getattr(parts, model).model_fields)
+    fields = dict(section_rows(StationConfigSchema, ""))[model].model_fields
+    allowed = ", ".join(fields)
     assert line == f"error: {where}: unknown key; allowed: {allowed}", line
-    title = {m.__name__: t for t, m in parts.PARTS}.get(model)
-    assert title is not None and f"## `{title}`" in (REPO / "docs" / "config.md").read_text()
+    assert where.split(".")[-1] not in fields  # the key is another driver's or jig type's
+    assert f"## `{model}`" in (REPO / "docs" / "config.md").read_text()
+
+
+@pytest.mark.parametrize(("section", "value", "line"), [
+    ("device", {"driver": "mma8452"}, "device.driver: 'mma8452'; allowed: simulated, mma8451, mpu6050"),
+    ("device", {"driver": 5}, "device.driver: 5; allowed: simulated, mma8451, mpu6050"),
+    ("device", [1, 2], "device: [1, 2]; allowed: a mapping"),
+    ("jig", {"type": "robot"}, "jig.type: 'robot'; allowed: simulated, operator, motorized"),
+    ("device", {"driver": "simulated", "boards": [{"driver": "mpu6050"}]},
+     "device.boards[0].driver: 'mpu6050'; allowed: simulated"),
+    ("device", {"driver": "mma8451", "bus": "emulated", "simulator": {"chip": "mma8451", "bogus": 1}},
+     "device.simulator.bogus: unknown key; allowed: chip, range_g, odr_hz, dlpf, seed, serial, realtime, "
+     "ambient_c, self_heating_c, eeprom, simulator, effects, true_mount"),
+])
+def test_a_bad_driver_or_jig_type_is_one_line_naming_the_allowed_ones(
+        tmp_path: Path, section: str, value: Any, line: str) -> None:
+    """The discriminating key itself (device.driver, jig.type), a panel board of another driver and
+    an emulated board's own keys: each one line from the one validation."""
+    cfg = yaml.safe_load(default_config_path().read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    cfg[section] = value
+    assert _one_line(CliRunner().invoke(cli, ["run", "--config", _write(tmp_path, cfg)])) == f"error: {line}"

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from typing import Any
+from typing import Any, TypedDict
 
 import click
 import numpy as np
@@ -24,6 +24,55 @@ from ._common import check_model_units, force_option, parse_int
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
 from ._text import clean
+
+
+class FaceFitJson(TypedDict):
+    """A hand-placed fit's gain and offset per axis (and, for the norm fit, each pose's misplacement)."""
+
+    gain: np.ndarray
+    offset_g: np.ndarray
+
+
+class NormFitJson(FaceFitJson):
+    misplacement_deg: np.ndarray | None
+
+
+class HandPlacedJson(TypedDict):
+    """``hand_placed`` of fit --json: both fits and their held-out norm errors (None: a face seen once)."""
+
+    opposite_face: FaceFitJson
+    norm: NormFitJson
+    held_out_norm_rms_g: dict[str, float] | None
+    distinct_orientations: int
+    note: str
+
+
+class SegmentJson(TypedDict):
+    """A static interval found in a raw log: its samples, times and mean and spread per axis."""
+
+    pose: str
+    start: int
+    stop: int
+    n: int
+    ranges: list[list[int]]
+    t_start: float
+    t_end: float
+    mean: np.ndarray
+    std: np.ndarray
+
+
+class SegmentationJson(TypedDict):
+    """``segmentation`` of fit --raw --json: the log and the static intervals found in it."""
+
+    samples: int
+    rate_hz: float | None
+    columns: list[str]
+    window_samples: int
+    noise_sigma: np.ndarray
+    threshold: np.ndarray
+    min_samples: int
+    count: int
+    segments: list[SegmentJson]
 
 
 def _load(path: str, raw: bool, model: str | None, units: str | None, cpg: float | None, gravity: float | None,
@@ -99,7 +148,7 @@ def _barely_text(fit: FitResult) -> list[str]:
             "add poses in new orientations"]
 
 
-def _hand_placed(session: Session, fr: FitResult) -> tuple[dict[str, Any], list[str]]:
+def _hand_placed(session: Session, fr: FitResult) -> tuple[HandPlacedJson, list[str]]:
     """The norm fit of hand-placed faces against the opposite-face estimate (handplaced module)."""
     x, ref = fr.readings_g, session.references_g
     if ref is None:  # model 6 was fitted, so references exist; say so plainly if that ever changes
@@ -126,18 +175,18 @@ def _hand_placed(session: Session, fr: FitResult) -> tuple[dict[str, Any], list[
                    f"{'have' if len(once) > 1 else 'has'} one pose (revisit every face to check the fits)"),
              "  misplacement (deg): " + ", ".join(f"{n} {m:.2f}" for n, m in zip(session.names, tilt, strict=True)),
              f"  note: {norm.note}"]
-    js = {"opposite_face": {"gain": classic.gain, "offset_g": classic.offset_g},
+    js: HandPlacedJson = {"opposite_face": {"gain": classic.gain, "offset_g": classic.offset_g},
           "norm": {"gain": norm.gain, "offset_g": norm.offset_g, "misplacement_deg": norm.misplacement_deg},
           "held_out_norm_rms_g": held, "distinct_orientations": norm.distinct, "note": norm.note}
     return js, lines
 
 
-def _segmentation(log: RawLog, det: StaticDetection, names: list[str]) -> tuple[dict[str, Any], list[str]]:
+def _segmentation(log: RawLog, det: StaticDetection, names: list[str]) -> tuple[SegmentationJson, list[str]]:
     rate = f"{log.rate_hz:.6g} Hz" if log.rate_hz else "unknown rate (give --rate HZ for times in seconds)"
     lines = [f"raw log {log.source}: {len(log)} samples at {rate}; noise floor sigma {_vec(det.noise_sigma, '.4g')} "
              f"per sample; found {len(det.segments)} static intervals of {det.min_samples}+ samples "
              f"({int(det.still.sum())} samples used):"]
-    segs = []
+    segs: list[SegmentJson] = []
     for n, s in zip(names, det.segments, strict=True):
         parts = ", ".join(f"{a}-{b - 1}" for a, b in s.ranges)
         span = f", t {log.t[s.start]:.2f}-{log.t[s.stop - 1]:.2f} s" if log.rate_hz else ""
@@ -145,9 +194,10 @@ def _segmentation(log: RawLog, det: StaticDetection, names: list[str]) -> tuple[
         segs.append({"pose": n, "start": s.start, "stop": s.stop, "n": s.n, "ranges": [list(r) for r in s.ranges],
                      "t_start": float(log.t[s.start]), "t_end": float(log.t[s.stop - 1]),
                      "mean": s.mean, "std": s.std})
-    info = {"samples": len(log), "rate_hz": log.rate_hz, "columns": log.columns, "window_samples": det.window,
-            "noise_sigma": det.noise_sigma, "threshold": det.threshold, "min_samples": det.min_samples,
-            "count": len(det.segments), "segments": segs}
+    info: SegmentationJson = {
+        "samples": len(log), "rate_hz": log.rate_hz, "columns": log.columns, "window_samples": det.window,
+        "noise_sigma": det.noise_sigma, "threshold": det.threshold, "min_samples": det.min_samples,
+        "count": len(det.segments), "segments": segs}
     return info, lines
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import click
 
@@ -73,7 +73,7 @@ def _open(db: str | None, config_path: str | None, output: tuple[str, str | None
     return Store(target, create=False, upgrade=upgrade)
 
 
-def _name_damage(damage: list[dict[str, Any]]) -> None:
+def _name_damage(damage: list[dict[str, str]]) -> None:
     """One line on stderr per damaged value read (the output goes on; `report check` lists all)."""
     for d in damage:
         click.echo(clean(f"damaged_row: {d['table']} {d['id']} {d['column']}: {d['problem']}"), err=True)
@@ -95,7 +95,7 @@ class ReportGroup(JsonGroup):
 
     def describe(self, ctx: click.Context) -> list[dict[str, Any]]:
         with _open(ctx.params.get("db"), ctx.params.get("config_path")) as store:
-            return store.list_runs()
+            return cast("list[dict[str, Any]]", store.list_runs())  # JsonGroup's type: RunSummary is a dict
 
 
 @click.group("report", cls=ReportGroup)

@@ -8,6 +8,7 @@ from typing import Any
 import click
 
 from ..config import event_log
+from ..config.schema import SimulatedDevice
 from ..fileguard.identity import refuse_overwrite
 from ..fixtures.operator_ui import OperatorUI
 from ..i18n import Translate, language_of, reason_title, translator
@@ -94,8 +95,8 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
 
 def _refuse_over_config(cfg: StationConfig) -> None:
     """What a run writes (the store, the simulated board's EEPROM image) is never its own config."""
-    eeprom = cfg.device.eeprom
-    image = None if eeprom is None else eeprom.image
+    dev = cfg.device
+    image = dev.eeprom.image if isinstance(dev, SimulatedDevice) and dev.eeprom is not None else None
     refuse_overwrite([("the store", store_file_of(cfg.store_file), "store"), ("device.eeprom.image", image)],
                      [("--config", str(cfg.path))])
 

@@ -4,7 +4,7 @@ The keys themselves are checked by the declared models (schema.py, parts.py); ``
 and ``number`` remain for sim/population.py, whose keys are the quantities a population names."""
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, Literal, overload
 
@@ -59,16 +59,16 @@ def check_keys(d: Any, allowed: Iterable[str], path: str) -> dict[str, Any]:
 
 
 @overload
-def number(d: dict[str, Any], key: str, path: str, default: float | None = None, lo: float | None = None,
+def number(d: Mapping[str, object], key: str, path: str, default: float | None = None, lo: float | None = None,
            hi: float | None = None, integer: Literal[False] = False) -> float: ...
 
 
 @overload
-def number(d: dict[str, Any], key: str, path: str, default: int | None = None, lo: float | None = None,
+def number(d: Mapping[str, object], key: str, path: str, default: int | None = None, lo: float | None = None,
            hi: float | None = None, *, integer: Literal[True]) -> int: ...
 
 
-def number(d: dict[str, Any], key: str, path: str, default: float | None = None, lo: float | None = None,
+def number(d: Mapping[str, object], key: str, path: str, default: float | None = None, lo: float | None = None,
            hi: float | None = None, integer: bool = False) -> float:
     """A number within [lo, hi]; ``default`` when absent (None means required)."""
     if key not in d or d[key] is None:

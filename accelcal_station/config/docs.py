@@ -4,15 +4,14 @@ A test compares the committed file with this output, so the key reference cannot
 from what the station accepts."""
 from __future__ import annotations
 
+import re
 import sys
 from typing import Any
 
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from .parts import PARTS
-from .schema import StationConfigSchema
-from .validation import _models_in, _range
+from .schema import TAGGED, StationConfigSchema, _models_in, _range
 
 HEADER = """# Station configuration keys
 
@@ -27,15 +26,22 @@ once into these models; the station, its factories and flows then read the typed
 never the file's mapping again (docs/architecture.md, "One typed configuration"), and a run
 records the very text that was parsed.
 
-The `device` and `jig` tables list every key of any driver or jig type; the tables
-at the end (`device (driver: mma8451)`, `jig (type: motorized)`, ...) say which keys each
-driver or jig type accepts, with its own defaults and ranges: a key of another driver is
-refused in one line naming that driver's keys.
+`device` and `jig` are discriminated unions: `device.driver` (simulated, mma8451, mpu6050)
+and `jig.type` (simulated, operator, motorized) pick one model, whose table
+(`device (driver: mma8451)`, `jig (type: motorized)`, ...) lists the keys that driver or jig
+type accepts, with its own defaults and ranges: a key of another driver is refused in one
+line naming this driver's keys.
 """
 
 
 def _type(ann: Any) -> str:
-    text = str(ann).replace("typing.", "").replace("accelcal_station.config.schema.", "")
+    tags: dict[type[BaseModel], str] = {m: t for t, m in TAGGED.items()}
+    members = [m for m in _models_in(ann) if m in tags]
+    if members:  # a discriminated union: its members' tables follow ("device (driver: mma8451)")
+        key = tags[members[0]].split("=")[0]
+        opt = " \\| None" if type(None) in getattr(ann, "__args__", ()) else ""
+        return f"one of {len(members)} by `{key}`{opt}"
+    text = re.sub(r"accelcal_station\.config\.\w+\.", "", str(ann).replace("typing.", ""))
     for a, b in (("<class '", ""), ("'>", ""), ("NoneType", "None"), ("Literal[True]", "true")):
         text = text.replace(a, b)
     return text.replace("|", "\\|")
@@ -50,25 +56,30 @@ def _default(field: Any) -> str:
     return f"`{str(d).lower() if isinstance(d, bool) else d}`"
 
 
-def section_rows(model: type[BaseModel], path: str) -> list[tuple[str, type[BaseModel]]]:
-    """(key path, model) of ``model`` and every section nested in it, depth first."""
-    out = [(path, model)]
+def section_rows(model: type[BaseModel], path: str, variant: str = "") -> list[tuple[str, type[BaseModel]]]:
+    """(key path, model) of ``model`` and every section nested in it, depth first; a union's
+    members titled by their tag (``device (driver: mma8451)``, ``device.eeprom (driver: mma8451)``)."""
+    tags: dict[type[BaseModel], str] = {m: t for t, m in TAGGED.items()}
+    out = [(path + variant, model)]
     for name, field in model.model_fields.items():
         for sub in dict.fromkeys(_models_in(field.annotation)):
-            if sub is not model:
-                out += section_rows(sub, f"{path}.{name}" if path else name)
+            if issubclass(model, sub):  # a panel's boards: the panel's own keys again
+                continue
+            sub_variant = " ({}: {})".format(*tags[sub].split("=")) if sub in tags else variant
+            out += section_rows(sub, f"{path}.{name}" if path else name, sub_variant)
     return out
 
 
 def keys(model: type[BaseModel] = StationConfigSchema, path: str = "") -> list[str]:
     """Every key path the schema accepts (``capture.block_s``, ``device.eeprom.size_bytes``, ...)."""
-    return [f"{p}.{k}" if p else k for p, m in section_rows(model, path) for k in m.model_fields]
+    return list(dict.fromkeys(f"{p.split(' (')[0]}.{k}" if p else k
+                              for p, m in section_rows(model, path) for k in m.model_fields))
 
 
 def render() -> str:
     """The whole reference, one table per section."""
     parts = [HEADER]
-    for path, model in section_rows(StationConfigSchema, "") + PARTS:
+    for path, model in section_rows(StationConfigSchema, ""):
         title = path or "top level"
         doc = (model.__doc__ or "").strip().splitlines()[0] if model.__doc__ and path else ""
         parts.append(f"\n## `{title}`\n" + (f"\n{doc}\n" if doc else ""))

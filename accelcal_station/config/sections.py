@@ -6,8 +6,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from .checks import load_yaml
-from .parts import check_kinds
-from .schema import DeviceSection, validate
+from .schema import validate_device
 
 
 def default_config_path() -> Path:
@@ -26,8 +25,7 @@ def device_section(path: str) -> dict:
     if not isinstance(section, dict):
         raise ConfigError(f"{path}: no 'device' section; allowed: a mapping with 'driver: simulated, mma8451 "
                           "or mpu6050'")
-    validate(section, DeviceSection, "device")
-    check_kinds({"device": section})
+    validate_device(section)  # its driver's keys, types and ranges: one validation (config/schema.py)
     return dict(section)
 
 

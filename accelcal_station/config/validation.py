@@ -1,13 +1,16 @@
 """One validation of a mapping against a pydantic model, and the one line it gives on an error:
-the key path, the value, what is allowed (ranges and choices read from the model)."""
+the key path, the value, what is allowed (ranges and choices read from the model; a discriminated
+union's member found by its tag, kinds.TAGGED)."""
 from __future__ import annotations
 
 import math
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
+from pydantic_core import ErrorDetails
 
 from ..errors import ConfigError
+from .kinds import CHOICES, TAGGED
 
 
 def _models_in(ann: Any) -> list[type[BaseModel]]:
@@ -22,6 +25,9 @@ def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] |
     for part in loc:
         if isinstance(part, int):
             continue  # an item of a list of sections
+        if part in TAGGED:  # a union's member, picked by its tag (driver=mma8451)
+            model = TAGGED[part]
+            continue
         if part not in model.model_fields:
             return None
         nested = _models_in(model.model_fields[part].annotation)
@@ -81,14 +87,19 @@ def _choices(model: type[BaseModel] | None, key: Any) -> str:
     return ", ".join(dict.fromkeys(str(v) for v in vals))
 
 
-def error_line(err: dict[str, Any], root: type[BaseModel], where: str = "") -> str:
+def error_line(err: ErrorDetails, root: type[BaseModel], where: str = "") -> str:
     """One line for a pydantic error: key path, value, what is allowed."""
-    loc = tuple(p for p in err["loc"] if isinstance(p, int) or not _is_tag(p))
+    full = tuple(p for p in err["loc"] if isinstance(p, int) or p in TAGGED or not _is_tag(p))
+    loc = tuple(p for p in full if isinstance(p, int) or p not in TAGGED)
     path, kind, value = _path(where, loc), err["type"], err.get("input")
+    if kind.removesuffix("_choice") in CHOICES:  # a union's key (device.driver, jig.type) names no member
+        tag = kind.removesuffix("_choice")
+        got = value.get(tag) if isinstance(value, dict) else value
+        return f"{_path(where, (*loc, tag))}: {got!r}; allowed: {', '.join(CHOICES[tag])}"
     # the key the error is about: the last name (a list item's error is about its list's key)
-    k = max((i for i, p in enumerate(loc) if not isinstance(p, int)), default=None)
-    parent = _model_at(root, loc[:k]) if k is not None else root
-    key = loc[k] if k is not None else None
+    k = max((i for i, p in enumerate(full) if not isinstance(p, int) and p not in TAGGED), default=None)
+    parent = _model_at(root, full[:k]) if k is not None else root
+    key = full[k] if k is not None else None
     if kind == "extra_forbidden":
         allowed = ", ".join(parent.model_fields) if parent is not None else ""
         return f"{path}: unknown key; allowed: {allowed}"
@@ -135,7 +146,7 @@ def validate(data: Any, model: type[BaseModel], where: str = "") -> BaseModel:
         # and a value of the wrong type for one member (a list for a number) says less than the other's
         errs = sorted(e.errors(), key=lambda x: (-len([p for p in x["loc"] if isinstance(p, int) or not _is_tag(p)]),
                                                  x["type"] != "extra_forbidden", x["type"].endswith("_type")))
-        raise ConfigError(error_line(dict(errs[0]), model, where)) from None
+        raise ConfigError(error_line(errs[0], model, where)) from None
 
 
 def given(section: BaseModel) -> dict[str, Any]:

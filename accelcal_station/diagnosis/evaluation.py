@@ -2,9 +2,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeAlias
 
 import numpy as np
 
+# a whole-data fit's parameters: label -> value (g, s, deg; ``sigma_g`` one per axis, ``_settling_a_g``
+# each capture's held-out transient amplitude, (P, 3))
+FitParams: TypeAlias = dict[str, float | list[float] | np.ndarray]
 
 @dataclass
 class Evaluation:

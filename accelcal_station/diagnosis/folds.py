@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
+from .evaluation import FitParams
 from .gap_data import GapData, TimeData
 from .noise_floor import Floor, sigma_from_within
 
@@ -46,7 +46,7 @@ def make_folds(data: GapData) -> Folds:
 
 
 def noise_model(data: GapData, floor: Floor, added: Collection[str], td: TimeData | None, fo: Folds,
-                params: dict[str, Any]) -> NoiseModel:
+                params: FitParams) -> NoiseModel:
     """The floor's sigma and q per fold; ``quantization`` and ``noise`` refit them on the training poses."""
     F, train = fo.F, fo.train
     sigma = np.broadcast_to(floor.sigma_g, (F, 3)).copy()

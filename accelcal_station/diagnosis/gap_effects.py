@@ -59,11 +59,10 @@ views' gaps).  The score of a model is its Gaussian log predictive density per
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from .evaluation import Evaluation
+from .evaluation import Evaluation, FitParams
 from .evaluation import nll as _nll
 from .folds import Folds, NoiseModel, heldout, make_folds, noise_model
 from .gap_data import GapData, TimeData
@@ -110,7 +109,7 @@ def evaluate(data: GapData, floor: Floor, baseline: tuple[str, ...], added: tupl
     E = set(baseline) | set(added)
     P = data.P
     fo = make_folds(data)
-    params: dict[str, Any] = {}
+    params: FitParams = {}
     nm = noise_model(data, floor, added, td, fo, params)
     nll = np.zeros((P, 3))
     sp = _spread_view(data, td, nm, fo)

@@ -59,13 +59,13 @@ class Simulator:
 
     def floor(self, rate_hz: float | None) -> Floor:
         m = self.model
-        q = m.effects["quantization"]["lsb_counts"] / self.counts_per_g if m.has("quantization") else 0.0
+        q = float(m.effects["quantization"]["lsb_counts"]) / self.counts_per_g if m.has("quantization") else 0.0
         s = math.radians(m.effects["pose_error"]["scatter_deg"]) if m.has("pose_error") else 0.0
         return Floor(self.sigma_g(rate_hz), q, s, m.gravity_g())
 
     @property
     def clip_g(self) -> float:
-        frac = self.model.effects["saturation"]["full_scale_fraction"] if self.model.has("saturation") else 1.0
+        frac = float(self.model.effects["saturation"]["full_scale_fraction"]) if self.model.has("saturation") else 1.0
         return self.model.chip.code_limits[1] * frac / self.counts_per_g
 
 

@@ -15,7 +15,7 @@ shuffled order, makes the column rough in order and the R^2 low: only such a des
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Literal, TypedDict
 
 import numpy as np
 
@@ -57,13 +57,18 @@ def order_r2(X: np.ndarray, data: GapData) -> np.ndarray:
     return np.where(tot > 1e-12 * max(float(np.max(tot)), 1e-300), 1.0 - res / np.where(tot > 0, tot, 1.0), 0.0)
 
 
-def confounded_with_order(data: GapData, effects: list[str]) -> dict[str, dict[str, Any]]:
+# an effect whose columns follow acquisition order: the term that does and its R^2 ("with" is a keyword)
+OrderConfound = TypedDict("OrderConfound", {"with": Literal["acquisition order"], "term": str, "r2": float,
+                                            "threshold": float})
+
+
+def confounded_with_order(data: GapData, effects: list[str]) -> dict[str, OrderConfound]:
     """Per selected effect whose columns follow acquisition order (module doc): the term and its R^2."""
     if data.P < 2 * (ORDER_DEGREE + 1):
         return {}
     ideal = data.ref if data.ref is not None else data.g / np.linalg.norm(data.g, axis=1, keepdims=True)
     dT = None if data.temp_c is None else data.temp_c - np.mean(data.temp_c)
-    out: dict[str, dict[str, Any]] = {}
+    out: dict[str, OrderConfound] = {}
     for e in effects:
         A, _, _, labels = static_design({e}, ideal, data.ref, dT, None, data.ref is None, data.n_temps)
         if not labels:
@@ -77,7 +82,7 @@ def confounded_with_order(data: GapData, effects: list[str]) -> dict[str, dict[s
     return out
 
 
-def order_words(c: dict[str, dict[str, Any]]) -> str:
+def order_words(c: dict[str, OrderConfound]) -> str:
     """The confound in words, with what separates the two."""
     parts = [f"{e} ({v['term']}: R^2 {v['r2']:.2f} against a cubic in row number, above {v['threshold']:g})"
              for e, v in c.items()]
@@ -85,4 +90,5 @@ def order_words(c: dict[str, dict[str, Any]]) -> str:
             "same readings; revisit poses later in the run or take them in shuffled order to tell them apart")
 
 
-__all__ = ["ORDER_R2_MAX", "confounded_with_order", "order_basis", "order_position", "order_r2", "order_words"]
+__all__ = ["ORDER_R2_MAX", "OrderConfound", "confounded_with_order", "order_basis", "order_position", "order_r2",
+           "order_words"]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
@@ -18,12 +19,14 @@ from ..atomic import atomic_write
 from ..errors import AccelcalError, DataError
 from .evaluation import Evaluation
 from .gap_data import time_data
-from .result import Diagnosis
+from .result import Diagnosis, DiagnosisJson
 from .selection import MIN_GAP_SHRINK
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
+
+    from .selftest import SelfTestResult  # type only: the self-test's simulation is not imported for a report
 
 FIGURES = {"sphere": "residuals over the sphere of orientations", "level": "residual against input level",
            "temperature": "residual against temperature", "time": "residual against time in capture"}
@@ -66,7 +69,7 @@ def config_hint(effect: str, fitted: dict[str, Any]) -> dict[str, Any] | None:
     return None
 
 
-def _yaml_inline(d: dict[str, Any]) -> str:
+def _yaml_inline(d: Mapping[str, object]) -> str:
     def v(x: Any) -> str:
         if isinstance(x, list):
             return "[" + ", ".join(v(y) for y in x) + "]"
@@ -202,7 +205,7 @@ def _verdict_lines(d: Diagnosis) -> list[str]:
     return out
 
 
-def selftest_lines(r: dict[str, Any]) -> list[str]:
+def selftest_lines(r: SelfTestResult) -> list[str]:
     out = [f"accelcal diagnose --selftest: {r['design']} boards ({r['physics']}), seed {r['seed']}, "
            f"alpha {r['alpha']:g}",
            f"{'case':<19}{'expect':<12}{'named':<26}{'verdict':<19}{'rms mg before':>14}{'after':>8}  result"]
@@ -294,7 +297,7 @@ def _empty(ax: Axes, text: str) -> None:
     ax.set_axis_off()
 
 
-def write_report(d: Diagnosis, out_dir: str | Path, json_obj: dict[str, Any]) -> list[Path]:
+def write_report(d: Diagnosis, out_dir: str | Path, json_obj: DiagnosisJson) -> list[Path]:
     """PNG figures and summary.md (which embeds them) in out_dir; returns the files written.
 
     On any failure the files written so far (and out_dir, if this call created it) are removed.
@@ -315,7 +318,7 @@ def write_report(d: Diagnosis, out_dir: str | Path, json_obj: dict[str, Any]) ->
         raise
 
 
-def _write_report(plt: ModuleType, d: Diagnosis, out: Path, json_obj: dict[str, Any],
+def _write_report(plt: ModuleType, d: Diagnosis, out: Path, json_obj: DiagnosisJson,
                   files: list[Path]) -> list[Path]:
     """Every figure of the report, then summary.md linking them; ``files``: what was written so far."""
     after = " + ".join(d.selected) if d.selected else "no effect added"
@@ -438,7 +441,7 @@ def _plot_allan(plt: ModuleType, d: Diagnosis, after: str, out: Path, files: lis
     _save(fig, files, out / "allan.png")
 
 
-def _write_summary(d: Diagnosis, out: Path, json_obj: dict[str, Any], files: list[Path]) -> None:
+def _write_summary(d: Diagnosis, out: Path, json_obj: DiagnosisJson, files: list[Path]) -> None:
     """summary.md: the text summary, the ranking and every figure written."""
     md = ["# Sim-to-real gap diagnosis", "", "```", *summary_lines(d), "```", ""]
     md += ["| effect | held-out gap | p |", "|---|---|---|"]

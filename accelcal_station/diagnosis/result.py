@@ -3,15 +3,87 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
+from ..identifiability import TermsDescription
 from .evaluation import Evaluation
 from .gap_data import GapData
 from .loading import Simulator
 from .noise_floor import Floor
-from .selection import ALPHA, MIN_GAP_SHRINK
+from .order import OrderConfound
+from .selection import ALPHA, MIN_GAP_SHRINK, Ranked, Step, Tried
+from .shape import Leftover
+from .where import Where
+
+
+class FloorJson(TypedDict):
+    """The floor the gap is measured against: where it came from, per-axis sigma, LSB, pose scatter."""
+
+    source: str
+    sigma_mg: list[float]
+    lsb_mg: float
+    pose_scatter_deg: float
+
+
+class Untestable(TypedDict):
+    effect: str
+    reason: str
+
+
+class TestJson(TypedDict):
+    """What the gap is and how a candidate is judged (words, and the test's alpha and shrink)."""
+
+    gap: str
+    name: str
+    alpha: float
+    min_gap_shrink: float
+
+
+class DataJson(TypedDict):
+    """The data diagnosed: files, poses, what each pose carries."""
+
+    sources: list[str]
+    poses: int
+    references: bool
+    samples_per_pose_known: bool
+    temperatures: int
+    raw_captures: bool
+    rate_hz: float | None
+    counts_per_g: list[float | None]  # per file (None: not counts)
+    static_view: bool
+    static_view_note: str | None
+    notes: list[str]
+
+
+class DiagnosisJson(TypedDict):
+    """`accelcal diagnose --json` (key order is the output's)."""
+
+    verdict: str
+    verdict_text: str
+    confounded: dict[str, OrderConfound]
+    confounded_with: dict[str, OrderConfound]
+    gap_before: float
+    gap_after: float
+    rms_mg_before: float
+    rms_mg_after: float
+    floor_mg: float
+    floor: FloorJson
+    selected: list[str]
+    steps: list[Step]
+    tried: list[Tried]
+    ranking: list[Ranked]
+    stochastic: dict[str, Any]  # each stochastic effect's signature (effects/*.py: its own evidence)
+    left: Leftover
+    identifiability: TermsDescription | None
+    untestable: list[Untestable]
+    baseline: list[str]
+    config: str
+    config_effects: list[str]
+    test: TestJson
+    data: DataJson
+    where: Where
 
 
 @dataclass
@@ -25,21 +97,21 @@ class Diagnosis:
     floor: Floor
     base: Evaluation
     final: Evaluation
-    ranking: list[dict[str, Any]]
-    steps: list[dict[str, Any]]
+    ranking: list[Ranked]
+    steps: list[Step]
     selected: list[str]
     untestable: dict[str, str]
     static_ok: bool
     static_why: str
-    where: dict[str, Any]
+    where: Where
     alpha: float = ALPHA
     stochastic: dict[str, Any] = field(default_factory=dict)
-    tried: list[dict[str, Any]] = field(default_factory=list)
+    tried: list[Tried] = field(default_factory=list)
     verdict: str = ""
     verdict_text: str = ""
-    leftover: dict[str, Any] = field(default_factory=dict)
-    identifiability: dict[str, Any] = field(default_factory=dict)
-    confounded_with: dict[str, dict[str, Any]] = field(default_factory=dict)  # diagnosis/order.py
+    leftover: Leftover = field(default_factory=Leftover)
+    identifiability: TermsDescription | None = None
+    confounded_with: dict[str, OrderConfound] = field(default_factory=dict)  # diagnosis/order.py
 
     @property
     def gap_before(self) -> float:
@@ -49,12 +121,12 @@ class Diagnosis:
     def gap_after(self) -> float:
         return self.final.gap
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> DiagnosisJson:
         """The JSON of `accelcal diagnose --json`."""
         return to_json(self)
 
 
-def to_json(d: Diagnosis) -> dict[str, Any]:
+def to_json(d: Diagnosis) -> DiagnosisJson:
     """The JSON of `accelcal diagnose --json` (key order is the output's)."""
     data, fl = d.data, d.floor
     floor_rms = [float(np.sqrt(np.mean(x))) for x in (d.base.floor_static, d.base.floor_time) if x is not None]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -14,6 +14,39 @@ from .loading import Simulator
 
 ALPHA = 0.01
 MIN_GAP_SHRINK = 0.1  # an added effect must remove this fraction of log(gap) too
+
+
+class Ranked(TypedDict):
+    """A candidate of the first step, in score order (``ranking`` of diagnose --json)."""
+
+    effect: str
+    held_out_gap: float
+    score: float
+    p_value: float
+    params: int
+    rms_mg: float
+
+
+class Tried(TypedDict):
+    """A candidate tried at a step: accepted, or the rules it failed (``tried``)."""
+
+    step: int
+    effect: str
+    accepted: bool
+    failed: list[str]
+
+
+class Step(TypedDict):
+    """An effect added by the selection (``steps``): gap and RMS before and after, its test, its fit."""
+
+    added: str
+    gap_before: float
+    gap_after: float
+    rms_mg_before: float
+    rms_mg_after: float
+    p_value: float
+    level: float
+    fitted: dict[str, Any]  # the effect's own parameters (names and shapes differ per effect)
 
 Evaluator = Callable[[list[str]], Evaluation]  # held-out evaluation of the baseline plus these candidates
 
@@ -109,7 +142,7 @@ def _fitted(e: Evaluation, effect: str, sim: Simulator, data: GapData) -> dict[s
 
 def _step(ev: Evaluator, data: GapData, sim: Simulator, current: Evaluation, remaining: list[str],
           selected: list[str], units: np.ndarray, td: TimeData | None, alpha: float,
-          ) -> tuple[Evaluation | None, dict[str, Any] | None, list[dict[str, Any]], list[dict[str, Any]]]:
+          ) -> tuple[Evaluation | None, Step | None, list[Ranked], list[Tried]]:
     """One greedy step: candidates in score order, the first that passes every rule (or None)."""
     evs = {c: ev(selected + [c]) for c in remaining}
     pv = {c: _p_greater((current.nll_unit - evs[c].nll_unit)[units]) for c in remaining}
@@ -120,14 +153,14 @@ def _step(ev: Evaluator, data: GapData, sim: Simulator, current: Evaluation, rem
     order.remove(choice)
     order.insert(0, choice)
     level = alpha / len(remaining)
-    ranking = [{"effect": c, "held_out_gap": evs[c].gap, "score": evs[c].score, "p_value": pv[c],
+    ranking: list[Ranked] = [{"effect": c, "held_out_gap": evs[c].gap, "score": evs[c].score, "p_value": pv[c],
                 "params": evs[c].n_params, "rms_mg": 1e3 * evs[c].rms_g} for c in order]
-    tried: list[dict[str, Any]] = []
+    tried: list[Tried] = []
     for c in order:
         failed = _rules(current, evs[c], pv[c], level, c, td, alpha)
         tried.append({"step": len(selected) + 1, "effect": c, "accepted": not failed, "failed": failed})
         if not failed:
-            step = {"added": c, "gap_before": current.gap, "gap_after": evs[c].gap,
+            step: Step = {"added": c, "gap_before": current.gap, "gap_after": evs[c].gap,
                     "rms_mg_before": 1e3 * current.rms_g, "rms_mg_after": 1e3 * evs[c].rms_g,
                     "p_value": pv[c], "level": level, "fitted": _fitted(evs[c], c, sim, data)}
             return evs[c], step, ranking, tried
@@ -136,16 +169,16 @@ def _step(ev: Evaluator, data: GapData, sim: Simulator, current: Evaluation, rem
 
 def select(ev: Evaluator, data: GapData, sim: Simulator, base: Evaluation, testable: list[str],
            td: TimeData | None, alpha: float,
-           ) -> tuple[Evaluation, list[str], list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]]:
+           ) -> tuple[Evaluation, list[str], list[Step], list[Ranked], list[Tried]]:
     """Greedy forward selection of deterministic candidates (engine's module doc, step 3):
     (final evaluation, selected, steps, the first step's ranking, every candidate tried)."""
     # a norm-only static view scores one unit per pose: its structural zeros would inflate the test's n
     units = base.nll_unit != 0
     current = base
     selected: list[str] = []
-    steps: list[dict[str, Any]] = []
-    tried: list[dict[str, Any]] = []
-    ranking: list[dict[str, Any]] | None = None
+    steps: list[Step] = []
+    tried: list[Tried] = []
+    ranking: list[Ranked] | None = None
     remaining = list(testable)
     while remaining and not explained(current, alpha):
         new, step, rank, tr = _step(ev, data, sim, current, remaining, selected, units, td, alpha)

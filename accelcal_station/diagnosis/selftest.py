@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 
@@ -61,6 +61,26 @@ FLICKER_MG = 0.6  # RMS of the 1/f noise over the log
 HYSTERESIS_MG = 1.0  # each axis reads +-h by the sign of its last input change
 SELFTEST_DESIGN = "optimal-24"
 SELFTEST_SAMPLES = {"refs": 200, "raw": 1000}
+# one case's outcome ("pass" is a keyword: the functional form)
+CaseResult = TypedDict("CaseResult", {
+    "case": str, "kind": str, "data": str, "named": str | None, "selected": list[str], "verdict": str,
+    "left": str | None, "gap_before": float, "gap_after": float, "rms_mg_before": float, "rms_mg_after": float,
+    "rms_mg_after_named": float, "revealable": bool, "reason": str | None, "pass": bool})
+
+
+class SelfTestResult(TypedDict):
+    """`accelcal diagnose --selftest --json`: every case, the test's settings, and what each data kind reveals."""
+
+    cases: list[CaseResult]
+    alpha: float
+    seed: int
+    design: str
+    samples_per_pose: dict[str, int]
+    physics: str
+    passed: bool
+    coverage: NotRequired[dict[str, dict[str, str]]]  # effect -> data kind -> testable, or why not
+
+
 KINDS = {"refs": "pose table with references, one temperature", "refs-3T": "pose table with references, 0/25/50 C",
          "refs-revisit": "pose table with references, every pose visited twice (second pass reversed)",
          "norm": "pose table without references", "raw": "raw log (no references)"}
@@ -186,7 +206,7 @@ def _cases() -> list[Case]:
     return out
 
 
-def run_case(device: dict[str, Any], base: Effects, case: Case, seed: int) -> dict[str, Any]:
+def run_case(device: dict[str, Any], base: Effects, case: Case, seed: int) -> CaseResult:
     """One self-test case: simulate, diagnose, judge (module doc)."""
     name, kind, withheld, extra, expect = case
     if len(withheld) == 1:
@@ -221,12 +241,12 @@ def run_case(device: dict[str, Any], base: Effects, case: Case, seed: int) -> di
 
 
 def selftest(config: str | Path | None = None, seed: int = 1, only: list[str] | None = None,
-             coverage: bool = True) -> dict[str, Any]:
+             coverage: bool = True) -> SelfTestResult:
     """Every case of the module doc at one seed; ``only``: a subset of case names."""
     sim0 = load_simulator(config)
     base = sim0.model.to_config()
     cases = [run_case(sim0.device, base, c, seed + k) for k, c in enumerate(_cases()) if not only or c[0] in only]
-    out = {"cases": cases, "alpha": ALPHA, "seed": seed, "design": SELFTEST_DESIGN,
+    out: SelfTestResult = {"cases": cases, "alpha": ALPHA, "seed": seed, "design": SELFTEST_DESIGN,
            "samples_per_pose": SELFTEST_SAMPLES, "physics": "forward (reading = S a + c (S a)^3 + b, then quantised)",
            "passed": all(c["pass"] for c in cases)}
     if coverage:

@@ -3,7 +3,7 @@ fixed per orientation, dependent on the approach direction, time-varying, changi
 temperature or with acquisition order on an axis; and where it is."""
 from __future__ import annotations
 
-from typing import Any
+from typing import NotRequired, TypedDict
 
 import numpy as np
 
@@ -11,8 +11,37 @@ from .effects.pose_error import revisits
 from .evaluation import Evaluation
 from .gap_data import GapData, TimeData
 from .order import order_basis
+from .where import PoseGap
 
 SHAPES = ("odd in g", "even in g", "product of axes", "approach direction", "fixed per orientation")
+
+
+class ShapeFit(TypedDict):
+    """The share of the residual's standardised sum of squares a shape explains, and its p-value."""
+
+    share: float
+    p_value: float
+    repeats_on_revisit: NotRequired[bool]  # "fixed per orientation": the revisits agree within their noise
+
+
+class TimeShape(TypedDict):
+    """The time view's residual: RMS ratio to its variance and the chi-square p-value."""
+
+    ratio: float
+    p_value: float
+
+
+# a static shape, an axis-by-axis trend ("by temperature": {x: ShapeFit, ...}) or the time view's
+Shape = ShapeFit | dict[str, ShapeFit] | TimeShape
+
+
+class Leftover(TypedDict, total=False):
+    """What the final model leaves (diagnose --json ``left``): its shapes, worst poses and axis, in words."""
+
+    shapes: dict[str, Shape]
+    worst_poses: list[PoseGap]
+    worst_axis: str
+    summary: str
 
 
 def _bases(data: GapData, c: int) -> dict[str, np.ndarray]:
@@ -42,13 +71,13 @@ def _reduction(r: np.ndarray, w: np.ndarray, X: np.ndarray) -> float:
     return float(rw @ rw - np.sum((rw - Xw[:, keep] @ beta) ** 2))
 
 
-def _static_shapes(data: GapData, r: np.ndarray, v: np.ndarray, alpha: float) -> dict[str, dict[str, Any]]:
+def _static_shapes(data: GapData, r: np.ndarray, v: np.ndarray, alpha: float) -> dict[str, ShapeFit]:
     """Share of the static residuals (P, m) each candidate shape explains, and its p-value."""
     from scipy import stats
 
     chans = range(3) if r.shape[1] == 3 else [int(k) for k in np.unique(np.argmax(np.abs(data.g), 1))]
     total = float(np.sum(r**2 / v))
-    out: dict[str, dict[str, Any]] = {}
+    out: dict[str, ShapeFit] = {}
     for name in SHAPES[:4]:
         red, k = 0.0, 0
         for c in chans:
@@ -94,14 +123,15 @@ def _temperature_phrase(data: GapData, r: np.ndarray, v: np.ndarray) -> str:
     return f"grows as the temperature {'rises' if lo == 0 else 'falls'} (gap {gaps})"
 
 
-def _axis_trends(data: GapData, r: np.ndarray, v: np.ndarray, alpha: float) -> tuple[list[str], dict[str, Any]]:
+def _axis_trends(data: GapData, r: np.ndarray, v: np.ndarray, alpha: float
+                 ) -> tuple[list[str], dict[str, dict[str, ShapeFit]]]:
     """Per axis: does the leftover follow temperature or acquisition order (the where views as shapes)?
     A channel counts when the basis removes over a quarter of its sum of squares at p < alpha / 3."""
     from scipy import stats
 
     views = {"temperature": _temperature_basis(data), "acquisition order": order_basis(data, intercepts=False)}
     words: list[str] = []
-    js: dict[str, Any] = {}
+    js: dict[str, dict[str, ShapeFit]] = {}
     for view, X in views.items():
         if X is None or r.shape[1] != 3:
             continue
@@ -118,16 +148,17 @@ def _axis_trends(data: GapData, r: np.ndarray, v: np.ndarray, alpha: float) -> t
     return words, js
 
 
-def leftover_shape(data: GapData, ev: Evaluation, td: TimeData | None, alpha: float) -> dict[str, Any]:
+def leftover_shape(data: GapData, ev: Evaluation, td: TimeData | None, alpha: float) -> Leftover:
     """Where the final model's held-out residual lies and which shape it has (module doc)."""
     from scipy import stats
 
-    out: dict[str, Any] = {"shapes": {}}
+    out: Leftover = {"shapes": {}}
+    all_shapes: dict[str, Shape] = out["shapes"]
     names = []
     if ev.r_static is not None and ev.v_static is not None:
         r, v = ev.r_static, ev.v_static
         shapes = _static_shapes(data, r, v, alpha)
-        out["shapes"] = shapes
+        all_shapes.update(shapes)
         z = np.sqrt(np.mean(r**2 / v, axis=1))
         out["worst_poses"] = [{"pose": data.names[i], "z_rms": float(z[i]), "residual_mg": (1e3 * r[i]).tolist()}
                               for i in np.argsort(-z)[:3]]
@@ -138,15 +169,16 @@ def leftover_shape(data: GapData, ev: Evaluation, td: TimeData | None, alpha: fl
         if "fixed per orientation" in shapes and not shapes["fixed per orientation"].get("repeats_on_revisit"):
             sig = [(n, s) for n, s in sig if n != "fixed per orientation"]
         trends, tj = _axis_trends(data, r, v, alpha)
-        out["shapes"].update({f"by {k}": x for k, x in tj.items()})
+        all_shapes.update({f"by {k}": x for k, x in tj.items()})
         names += trends + [n for n, _ in sorted(sig, key=lambda x: -x[1]["share"])]
     if ev.r_time is not None and ev.v_time is not None:
         N = ev.r_time.size
         x = float(np.sum(ev.r_time**2 / ev.v_time))
         p = float(stats.chi2.sf(x, N))
-        out["shapes"]["time-varying"] = {"ratio": float(np.sqrt(x / N)), "p_value": p}
+        all_shapes["time-varying"] = TimeShape(ratio=float(np.sqrt(x / N)), p_value=p)
         if p < alpha:
             names.append("time-varying within captures")
-    where = f" (largest on {out['worst_axis']}, pose {out['worst_poses'][0]['pose']})" if "worst_axis" in out else ""
+    where = f" (largest on {out['worst_axis']}, pose {out['worst_poses'][0]['pose']})" \
+        if "worst_axis" in out and "worst_poses" in out else ""
     out["summary"] = (", ".join(names) if names else "no single shape (scattered)") + where
     return out

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -30,7 +29,7 @@ class StaticFit:
     pv: np.ndarray  # the fit's own prediction variance
     nll: np.ndarray  # (P, 3)
     n_params: int
-    params: dict[str, Any]
+    params: dict[str, float]
 
 
 @dataclass
@@ -135,7 +134,7 @@ def static_view(data: GapData, floor: Floor, E: Collection[str], added: Collecti
                                  (F, P, 3))
     base_v = floor_mean + extra  # (F, P, 3)
     shape = _scatter_shape(data.ref)
-    params: dict[str, Any] = {}
+    params: dict[str, float] = {}
     n_iter = 3 if "pose_error" in added and not norm else 1
     for it in range(n_iter):
         v0 = _residual_var(data.g, base_v, s2, shape)

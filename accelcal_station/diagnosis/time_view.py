@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
+from .evaluation import FitParams
 from .evaluation import nll as _nll
 from .folds import Folds, NoiseModel, heldout
 from .gap_data import TAU_DRIFT_S, TAU_SETTLE_S, TimeData
@@ -30,7 +30,7 @@ class TimeFit:
     corr: np.ndarray  # (F, P, 3) settling's transient mean in each pose mean, g
     extra: np.ndarray  # (F, P, 3) variance that removing it adds, g^2
     n_params: int
-    params: dict[str, Any]
+    params: FitParams
 
 
 @dataclass
@@ -42,17 +42,17 @@ class _SettleFit:
     corr: np.ndarray  # (F, P, 3)
     extra: np.ndarray  # (F, P, 3)
     gain: np.ndarray | None  # (F, G) log marginal density gain of every capture-axis
-    params: dict[str, Any]
+    params: FitParams
 
 
-def _drift_time(td: TimeData, target: np.ndarray, wtr: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+def _drift_time(td: TimeData, target: np.ndarray, wtr: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
     """Warm-up and trend per axis on the block rows, tau on a grid per fold: (data minus fit, its prediction
     variance, the whole-data fit's parameters)."""
     F, R = wtr.shape
     y = np.broadcast_to(td.e, (F, R)).copy()
     pv = np.zeros((F, R))
     best_cost = np.full(F, np.inf)
-    params: dict[str, Any] = {}
+    params: dict[str, float] = {}
     for a in range(len(TAU_DRIFT_S)):
         D = np.zeros((R, 6))
         for c in range(3):
@@ -94,7 +94,7 @@ def _settling_time(td: TimeData, y: np.ndarray, v_row: np.ndarray, fo: Folds, P:
     a_hat = post * sfe  # BLUP amplitude at the capture's start, g
     f_rows = td.settle[si]  # (F, R)
     cap = td.cap_settle[si]  # (F, P)
-    params = {"settling_tau_s": float(TAU_SETTLE_S[si[-1]]),
+    params: FitParams = {"settling_tau_s": float(TAU_SETTLE_S[si[-1]]),
               "settling_amplitude_mg_rms": float(1e3 * np.sqrt(p2[-1, 0])),
               "_settling_a_g": heldout(a_hat.reshape(F, P, 3), fo.fold)}  # each capture's, held out
     return _SettleFit(a_hat[:, gkey] * f_rows, post[:, gkey] * f_rows**2, a_hat.reshape(F, P, 3) * cap[:, :, None],
@@ -117,7 +117,7 @@ def time_view(td: TimeData, E: Collection[str], nm: NoiseModel, fo: Folds, P: in
     pv_d = np.zeros((F, R))  # drift's prediction variance
     zero = np.zeros((F, P, 3))
     st = _SettleFit(np.zeros((F, R)), np.zeros((F, R)), zero, zero, None, {})
-    drift_params: dict[str, Any] = {}
+    drift_params: dict[str, float] = {}
     for _ in range(2 if {"drift", "settling"} <= set(E) else 1):
         if "drift" in E:
             y, pv_d, drift_params = _drift_time(td, td.e[None] - st.fit_rows, wtr)

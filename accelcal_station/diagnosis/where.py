@@ -3,7 +3,7 @@ temperature and acquisition order in the static view, by time in capture in the 
 against the simulator's, and the Allan deviation of the longest capture."""
 from __future__ import annotations
 
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -14,6 +14,75 @@ from .noise_floor import Floor, random_var
 from .order import order_position
 
 LEVEL_EDGES_G = np.array([-1.5, -0.6, -0.2, 0.2, 0.6, 1.5])  # input-level bins of the by_level breakdown
+
+
+class PoseGap(TypedDict):
+    pose: str
+    z_rms: float
+    residual_mg: list[float]
+
+
+class LevelBin(TypedDict):
+    axis: str
+    level_g: list[float]
+    poses: int
+    mean_residual_mg: float
+    gap: float | None
+
+
+class OrderBlock(TypedDict):
+    block: int
+    position: list[float]
+    poses: int
+    gap: float | None
+    mean_residual_mg: list[float]
+
+
+class TemperatureGap(TypedDict):
+    temp_c: float
+    gap: float | None
+    mean_residual_mg: list[float]
+
+
+class TimeBlock(TypedDict):
+    t_s: float
+    gap: float | None
+    toward_step_mg: float
+
+
+class NoiseCheck(TypedDict):
+    """The data's per-sample sigma per axis against the simulator's, mg."""
+
+    sigma_mg: list[float]
+    simulator_sigma_mg: list[float]
+    ratio: list[float]
+    rate_hz: float
+
+
+class AllanCheck(TypedDict):
+    """Allan deviation per axis of the longest capture against the white level, mg."""
+
+    tau_s: list[float]
+    adev_mg: list[list[float]]
+    white_mg: list[list[float]]
+    ratio_at_longest_tau: list[float]
+
+
+class Where(TypedDict, total=False):
+    """Where the baseline's held-out gap lies (diagnose --json ``where``): each part present when its
+    view or data is (gaps: held-out ratio to the floor, None where a part has no variance)."""
+
+    views: dict[str, float | None]
+    by_pose: list[PoseGap]
+    by_axis: dict[str, float | None]
+    by_level: list[LevelBin]
+    by_order: list[OrderBlock]
+    by_temperature: list[TemperatureGap]
+    by_time_in_capture: list[TimeBlock]
+    by_axis_time: dict[str, float | None]
+    noise: NoiseCheck
+    allan: AllanCheck
+    max_reading_g: float
 
 
 def _ratio(r: np.ndarray, v: np.ndarray) -> float | None:
@@ -34,10 +103,10 @@ def allan(x: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
     return ms / rate_hz, np.array(out)
 
 
-def _by_level(data: GapData, r: np.ndarray, v: np.ndarray) -> list[dict[str, Any]]:
+def _by_level(data: GapData, r: np.ndarray, v: np.ndarray) -> list[LevelBin]:
     """Mean residual and gap of the poses in each input-level bin, per channel."""
     edges = LEVEL_EDGES_G
-    lv = []
+    lv: list[LevelBin] = []
     for c, a in enumerate("xyz"):
         rc = r[:, c] if not data.norm_only else r[:, 0]
         vc = v[:, c] if not data.norm_only else v[:, 0]
@@ -53,7 +122,7 @@ def _by_level(data: GapData, r: np.ndarray, v: np.ndarray) -> list[dict[str, Any
 ORDER_BLOCKS = 8  # the order view: poses in eight blocks of acquisition order
 
 
-def _by_order(data: GapData, r: np.ndarray, v: np.ndarray) -> list[dict[str, Any]]:
+def _by_order(data: GapData, r: np.ndarray, v: np.ndarray) -> list[OrderBlock]:
     """Gap and mean residual per axis in blocks of acquisition order (row order within each file: a
     pose table's rows are taken in that order, docs/pose-table.md)."""
     s = order_position(data)
@@ -63,9 +132,9 @@ def _by_order(data: GapData, r: np.ndarray, v: np.ndarray) -> list[dict[str, Any
              "mean_residual_mg": (1e3 * r[blk == k].mean(axis=0)).tolist()} for k in np.unique(blk)]
 
 
-def _static_where(data: GapData, r: np.ndarray, v: np.ndarray) -> dict[str, Any]:
+def _static_where(data: GapData, r: np.ndarray, v: np.ndarray) -> Where:
     """The static view's gap by pose (the five worst), axis, input level and temperature."""
-    w: dict[str, Any] = {}
+    w: Where = {}
     z = np.sqrt(np.mean(r**2 / v, axis=1))
     w["by_pose"] = [{"pose": data.names[i], "z_rms": float(z[i]), "residual_mg": (1e3 * r[i]).tolist()}
                     for i in np.argsort(-z)[:5]]
@@ -81,7 +150,7 @@ def _static_where(data: GapData, r: np.ndarray, v: np.ndarray) -> dict[str, Any]
     return w
 
 
-def _time_where(td: TimeData, r: np.ndarray, v: np.ndarray) -> dict[str, Any]:
+def _time_where(td: TimeData, r: np.ndarray, v: np.ndarray) -> Where:
     """The time view's gap by time in capture (eight blocks; the lean toward the last move) and by axis."""
     blk = np.round(td.t_in / max(np.max(td.t_in), 1e-9) * 7).astype(int)
     proj = np.sign(td.step_unit[td.unit, td.axis]) * r
@@ -91,7 +160,7 @@ def _time_where(td: TimeData, r: np.ndarray, v: np.ndarray) -> dict[str, Any]:
             "by_axis_time": {a: _ratio(r[td.axis == c], v[td.axis == c]) for c, a in enumerate("xyz")}}
 
 
-def _noise_where(data: GapData, sim: Simulator, floor: Floor, td: TimeData | None) -> dict[str, Any] | None:
+def _noise_where(data: GapData, sim: Simulator, floor: Floor, td: TimeData | None) -> NoiseCheck | None:
     """The data's per-sample sigma against the simulator's (None without a within-pose spread)."""
     sim_rand = np.sqrt(random_var(floor.simulator_sigma_g, floor.q_g))
     if td is not None:
@@ -104,7 +173,7 @@ def _noise_where(data: GapData, sim: Simulator, floor: Floor, td: TimeData | Non
             "ratio": (meas / np.where(sim_rand > 0, sim_rand, np.nan)).tolist(), "rate_hz": data.rate_hz or sim.odr_hz}
 
 
-def _allan_where(captures: list[Capture], td: TimeData, rate_hz: float) -> dict[str, Any]:
+def _allan_where(captures: list[Capture], td: TimeData, rate_hz: float) -> AllanCheck:
     """Allan deviation of the longest capture against the white level of the within-capture spread."""
     longest = max(captures, key=lambda c: len(c.t))
     x = longest.x / longest.per_g
@@ -115,9 +184,9 @@ def _allan_where(captures: list[Capture], td: TimeData, rate_hz: float) -> dict[
 
 
 def breakdown(data: GapData, sim: Simulator, floor: Floor, base: Evaluation, after: Evaluation,
-              td: TimeData | None) -> dict[str, Any]:
+              td: TimeData | None) -> Where:
     """Where the baseline's held-out gap lies (module doc); ``after``: the final model (not broken down)."""
-    w: dict[str, Any] = {"views": {"static": base.view_gap("static"), "time": base.view_gap("time")}}
+    w: Where = {"views": {"static": base.view_gap("static"), "time": base.view_gap("time")}}
     if base.r_static is not None and base.v_static is not None:
         w.update(_static_where(data, base.r_static, base.v_static))
     if td is not None and base.r_time is not None and base.v_time is not None:

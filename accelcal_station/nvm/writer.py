@@ -20,7 +20,7 @@ import zlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -42,6 +42,21 @@ def _short(v: Any) -> str:
     """A value from a backup file, quoted short (a hostile file's value may be huge)."""
     r = repr(v)
     return r if len(r) <= 40 else r[:40] + "..."
+
+
+class BlobIdentity(TypedDict):
+    """Which calibration a slot holds: slot, generation, CRC-32, serial."""
+
+    slot: str
+    generation: int
+    crc32: int
+    serial: str
+
+
+class NoValidBlob(TypedDict):
+    """No slot holds a valid calibration (``{"slot": None}``)."""
+
+    slot: None
 
 
 @dataclass
@@ -83,13 +98,13 @@ class BurnOutcome:
     serial: str
     station_id: str
     time: int
-    previous: dict[str, Any] | None  # newest valid blob before the burn: slot, generation, CRC-32, serial
+    previous: BlobIdentity | None  # newest valid blob before the burn: slot, generation, CRC-32, serial
     verified: bool = False  # read back byte for byte and decoded as the newest
     backup: str | None = None
     error: str | None = None
     # the newest valid blob after the burn (slot, generation, CRC-32, serial); {"slot": None}: no valid
     # calibration; None: not read (or reads did not settle)
-    nvm_after: dict[str, Any] | None = None
+    nvm_after: BlobIdentity | NoValidBlob | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -108,7 +123,7 @@ def _first_difference(a: bytes, b: bytes) -> int:
     return next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), min(len(a), len(b)))
 
 
-def _identity(slot: str, h: BlobHeader) -> dict[str, Any]:
+def _identity(slot: str, h: BlobHeader) -> BlobIdentity:
     return {"slot": slot, "generation": h.generation, "crc32": h.crc32, "serial": h.serial}
 
 
@@ -117,7 +132,7 @@ def holds_text(outcome: BurnOutcome) -> str:
     after, prev = outcome.nvm_after, outcome.previous
     if after is None:
         return "what the NVM holds now could not be read (reads disagree)"
-    if after.get("slot") is None:
+    if after["slot"] is None:
         return "the NVM holds no valid calibration" + (", as before the burn" if prev is None else
                                                          f" (it held slot {prev['slot']}, generation "
                                                          f"{prev['generation']} before the burn)")
@@ -312,7 +327,7 @@ class CalibrationWriter:
         raise NVMError(f"NVM reads disagree ({tries} reads of {len(out)} bytes, {int((~agreed).sum())} bytes "
                        "never read alike twice): the bus corrupts what it reads")
 
-    def holds(self) -> dict[str, Any] | None:
+    def holds(self) -> BlobIdentity | NoValidBlob | None:
         """What the NVM holds now: the newest valid blob's slot, generation, CRC-32 and serial
         (``{"slot": None}`` when no slot is valid), or None when reads do not settle."""
         try:
@@ -320,7 +335,7 @@ class CalibrationWriter:
         except (AccelcalError, OSError):
             return None
         i = self._newest(scan)
-        return {"slot": None} if i is None else _identity(SLOTS[i], self._valid(scan, i)[1])
+        return NoValidBlob(slot=None) if i is None else _identity(SLOTS[i], self._valid(scan, i)[1])
 
     def revert(self, outcome: BurnOutcome, tries: int = 3) -> None:
         """Invalidate the slot a failed burn wrote (erase its header), so the previous calibration,

@@ -252,6 +252,10 @@ def _param_type(p: Param) -> Any:
 _SHAPE_TEXT = {(): "", (3,): "; a number or [x, y, z]", (3, 3): "; a 3x3 list [[.., .., ..], [..], [..]]"}
 
 
+# one effect's validated parameters: name -> a number, or a numpy array for per-axis and matrix values
+EffectParams = dict[str, np.ndarray | float]
+
+
 @cache
 def effect_model(name: str) -> type[Section]:
     """The declared parameters of one effect of the catalog (config/schema.py's Section: one-line errors)."""
@@ -268,7 +272,7 @@ def effects_model() -> type[Section]:
     return create_model("Effects", __base__=Section, **fields)
 
 
-def parse_effect(name: str, spec: Any, chip: ChipSpec, path: str) -> dict[str, Any] | None:
+def parse_effect(name: str, spec: Any, chip: ChipSpec, path: str) -> EffectParams | None:
     """Validated parameters of one effect (None when ``enabled: false``)."""
     if name not in EFFECTS:
         raise ConfigError(f"{path}: unknown effect; allowed: {', '.join(EFFECT_NAMES)}")
@@ -279,7 +283,7 @@ def parse_effect(name: str, spec: Any, chip: ChipSpec, path: str) -> dict[str, A
         return None
     m = spec if isinstance(spec, Section) else parse(spec, effect_model(name), path)
     enabled = m.enabled  # type: ignore[attr-defined]
-    out: dict[str, Any] = {}
+    out: EffectParams = {}
     for p in eff.params:
         v = getattr(m, p.name)
         if v is None:
@@ -292,7 +296,7 @@ def parse_effect(name: str, spec: Any, chip: ChipSpec, path: str) -> dict[str, A
     return out if enabled else None
 
 
-def parse_effects(effects: Any, chip: ChipSpec, path: str = "simulator.effects") -> dict[str, dict[str, Any]]:
+def parse_effects(effects: Any, chip: ChipSpec, path: str = "simulator.effects") -> dict[str, EffectParams]:
     """The enabled effects of a YAML ``effects:`` mapping, in catalog order.
 
     An effect is enabled by its presence (``name:``, ``name: {}`` or ``name: true``);
@@ -328,7 +332,7 @@ class SensorModel:
     """
 
     chip: ChipSpec
-    effects: dict[str, dict[str, Any]] = field(default_factory=dict)
+    effects: dict[str, EffectParams] = field(default_factory=dict)
     path: str = "simulator.effects"
     # True: the nonlinearity acts forward on the sensor's linear response u = K f, G = o + u + q u^2 + c u^3
     # (a sensor's physics, not the inverse of a calibration model; the diagnosis self-check's boards)
@@ -452,7 +456,7 @@ class SensorModel:
         x = np.asarray(g, dtype=float) * counts_per_g
         lo, hi = -np.inf, np.inf
         if "saturation" in self.effects:
-            frac = self.effects["saturation"]["full_scale_fraction"]
+            frac = float(self.effects["saturation"]["full_scale_fraction"])
             lo, hi = np.ceil(self.chip.code_limits[0] * frac), np.floor(self.chip.code_limits[1] * frac)
             x = np.clip(x, lo, hi)
         if "quantization" in self.effects:

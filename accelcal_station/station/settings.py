@@ -10,7 +10,6 @@ from typing import Any
 
 from ..acceptance.rules import Limits
 from ..config.checks import load_yaml_text
-from ..config.parts import check_kinds
 from ..config.schema import (
     CaptureSection,
     DeviceSection,
@@ -18,6 +17,7 @@ from ..config.schema import (
     LoggingSection,
     NvmSection,
     PlanSection,
+    SimulatedJigConfig,
     StationConfigSchema,
     StationSection,
     VerifySection,
@@ -61,9 +61,9 @@ class StationConfig:
         port (or MMA8451 bus) and the motorized jig's port."""
         p = default_config_path() if path is None else Path(path)
         raw, text = _read_with_ports(p, port, jig_port)
-        # the declared schema (config/schema.py): every key, type, finite number and range
+        # the declared schema (config/schema.py): every key, type, finite number and range, each
+        # driver's and jig type's own keys included (discriminated on device.driver and jig.type)
         sc = validate_station(raw)
-        check_kinds(raw)  # and the keys of its driver and jig type (config/parts.py)
         # then what depends on more than one key, in this order (a config with several errors
         # names the same one first)
         if "device" not in raw:
@@ -100,7 +100,7 @@ class StationConfig:
     @property
     def jig(self) -> JigSection:
         """The ``jig`` section (the simulated jig when the file has none)."""
-        return self.schema.jig or JigSection(type="simulated")
+        return self.schema.jig or SimulatedJigConfig()
 
     @property
     def is_panel(self) -> bool:

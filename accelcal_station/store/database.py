@@ -98,7 +98,7 @@ class Database:
             else:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
                 self._url = "sqlite:///" + str(self.path)
-        args: dict[str, Any] = {"timeout": timeout_s} if self.dialect == "sqlite" else \
+        args: dict[str, object] = {"timeout": timeout_s} if self.dialect == "sqlite" else \
             {"connect_timeout": max(1, int(timeout_s))}
         if read_only and self.dialect == "postgresql":
             args["options"] = "-c default_transaction_read_only=on"

@@ -12,7 +12,7 @@ from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -89,31 +89,50 @@ def csv_table(kind: str) -> Callable[[Sequence[RunRecord]], str]:
     return text
 
 
-def _stats(values: np.ndarray) -> dict[str, Any]:
-    """mean, sample std (ddof=1; 0 for one value), min, max and n over axis 0."""
+class Stats(TypedDict):
+    """A figure over runs: how many, mean, sample std (ddof=1; 0 for one value), min, max."""
+
+    n: int
+    mean: float
+    std: float
+    min: float
+    max: float
+
+
+# ``report summary --json`` ("pass" is a keyword: the functional form)
+LotSummary = TypedDict("LotSummary", {
+    "runs": int, "by_status": dict[str, int], "pass": int, "fail": int, "pass_rate": float | None,
+    "failure_reasons": dict[str, int], "interruptions": dict[str, int], "nvm": dict[str, int], "devices": int,
+    "models": dict[str, int], "first_started": str | None, "last_started": str | None,
+    "parameters": dict[str, Stats] | None, "fit": dict[str, Stats], "damaged_rows": list[dict[str, str]]})
+
+
+def _stats(values: np.ndarray) -> list[Stats]:
+    """Stats of each column of ``values`` (N, m) over axis 0; a 1-D array is one column."""
     v = np.asarray(values, dtype=float)
-    return {"n": int(len(v)), "mean": v.mean(axis=0).tolist(),
-            "std": (v.std(axis=0, ddof=1) if len(v) > 1 else np.zeros(v.shape[1:])).tolist(),
-            "min": v.min(axis=0).tolist(), "max": v.max(axis=0).tolist()}
+    cols = (v.mean(axis=0), v.std(axis=0, ddof=1) if len(v) > 1 else np.zeros(v.shape[1:]), v.min(axis=0),
+            v.max(axis=0))
+    mean, std, lo, hi = (np.atleast_1d(c).tolist() for c in cols)
+    return [{"n": int(len(v)), "mean": a, "std": b, "min": c, "max": d}
+            for a, b, c, d in zip(mean, std, lo, hi, strict=True)]
 
 
-def _distributions(done: Sequence[dict[str, Any]]) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+def _distributions(done: Sequence[dict[str, Any]]) -> tuple[dict[str, Stats] | None, dict[str, Stats]]:
     """Parameter and fit-figure statistics over complete runs (those with a calibration / fit)."""
     cals = [c for c in (r["calibration"] for r in done) if c]
     params = None
     if cals:
-        s = _stats(np.array([param_vector(c) for c in cals]))
-        params = {name: {k: (v if k == "n" else v[i]) for k, v in s.items()} for i, name in enumerate(PARAM_NAMES)}
+        params = dict(zip(PARAM_NAMES, _stats(np.array([param_vector(c) for c in cals])), strict=True))
     fits = [f for f in (r["fit_summary"] for r in done) if isinstance(f, dict)]
     fit_stats = {}
     for k in _FIT_SCALARS:
         vals = [f[k] for f in fits if isinstance(f.get(k), (int, float)) and not isinstance(f.get(k), bool)]
         if vals:
-            fit_stats[k] = _stats(np.array(vals))
+            fit_stats[k] = _stats(np.array(vals))[0]
     return params, fit_stats
 
 
-def summarize(checked: Sequence[tuple[dict[str, Any], list[DamagedRow]]]) -> dict[str, Any]:
+def summarize(checked: Sequence[tuple[dict[str, Any], list[DamagedRow]]]) -> LotSummary:
     """Counts, pass rate, failure reasons and parameter distributions of checked run rows
     (rowcheck.check_row: JSON parsed, damaged values None; ``damaged_rows`` names them).
 

@@ -3,8 +3,8 @@ path or a URL) and a store's identity (what makes two targets the same store).
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 from ..config.parts import parse
 from ..config.schema import StoreSection
@@ -14,7 +14,7 @@ from .database import describe_target, is_url
 DEFAULT_STORE = "accelcal-runs.sqlite"
 
 
-def store_path(config: dict[str, Any] | StoreSection | None, base_dir: str | Path = ".") -> Path | str:
+def store_path(config: Mapping[str, object] | StoreSection | None, base_dir: str | Path = ".") -> Path | str:
     """The store of a station config: ``store: {path: FILE or URL}`` (default DEFAULT_STORE),
     a relative path taken from ``base_dir`` (the config file's folder); a URL
     (``postgresql://...``, ``sqlite:///...``) is returned as it is.  ``config``: a config
@@ -40,7 +40,7 @@ def store_identity(target: str | Path) -> str:
     return str(Path(p).resolve())
 
 
-def outbox_of(config: dict[str, Any] | StoreSection | None, base_dir: str | Path = ".") -> Path | None:
+def outbox_of(config: Mapping[str, object] | StoreSection | None, base_dir: str | Path = ".") -> Path | None:
     """``store: {outbox: FILE}``: where a station keeps results while its line database is
     unreachable (outbox.py; default None: outbox.default_outbox())."""
     p = _store_section(config).outbox
@@ -51,7 +51,7 @@ def outbox_of(config: dict[str, Any] | StoreSection | None, base_dir: str | Path
     return Path(base_dir) / Path(p).expanduser()
 
 
-def _store_section(config: dict[str, Any] | StoreSection | None) -> StoreSection:
+def _store_section(config: Mapping[str, object] | StoreSection | None) -> StoreSection:
     """A validated ``store`` section: as given, or checked from a config mapping."""
     if isinstance(config, StoreSection):
         return config

@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -194,7 +195,7 @@ class LineStore(Store):
         self._journal[handle] = run
         return handle
 
-    def record_burn(self, run_id: int, kind: str, outcome: dict[str, Any], t: float | None = None) -> None:
+    def record_burn(self, run_id: int, kind: str, outcome: Mapping[str, object], t: float | None = None) -> None:
         self._write(run_id, "record_burn", kind, outcome, t=time.time() if t is None else t)
 
     def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None, t: float | None = None) -> None:

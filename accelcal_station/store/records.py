@@ -11,7 +11,7 @@ import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 
@@ -106,6 +106,58 @@ def pose_record(p: Row) -> PoseRecord:
                       vec("ref"), p["pitch_deg"], p["roll_deg"], p["temp_c"], p["dropped"], p["t_start"], p["t_end"])
 
 
+class StoredEvent(TypedDict):
+    """A run's event as stored: when, what kind, its line and its data (a JSON value, or None)."""
+
+    t: float
+    kind: str
+    message: str
+    data: Any  # JSON as logged: a burn's outcome, a capture's numbers, ...
+
+
+class StoredPose(TypedDict):
+    """A pose of a stored run (``RunRecord.to_dict``'s poses): reference and readings per axis."""
+
+    name: str
+    pitch_deg: float | None
+    roll_deg: float | None
+    reference_g: list[float] | None
+    mean: list[float] | None
+    std: list[float] | None
+    n: int | None
+    dropped: int
+    temp_c: float | None
+    t_start: float | None
+    t_end: float | None
+    retries: int
+
+
+class RunSummary(TypedDict):
+    """A run's listing entry (``Store.list_runs``; no poses); ``damaged``/``damage`` when its row is."""
+
+    id: int | None  # a damaged value reads as None (rowcheck), the row still listed
+    started_at: str | None
+    finished_at: str | None
+    status: str | None
+    status_reason: str | None
+    device_serial: str | None
+    chip: str | None
+    station_id: str | None
+    operator: str | None
+    lot: str | None
+    model: str | None
+    verdict: str | None
+    reasons: list[str]
+    reason_codes: list[str]
+    nvm_status: str | None
+    pose_count: int
+    panel_id: str | None
+    limits: dict[str, float] | None
+    residual_rms_g: float | None
+    damaged: NotRequired[list[str]]
+    damage: NotRequired[list[dict[str, str]]]  # DamagedRow.to_dict: code, table, id, column, problem
+
+
 @dataclass
 class RunRecord:
     """One stored run; ``session()`` rebuilds the captured Session."""
@@ -138,7 +190,7 @@ class RunRecord:
     limits: dict[str, float] | None = None  # the acceptance limits the run was judged by (schema 4)
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
-    events: list[dict[str, Any]] = field(default_factory=list)
+    events: list[StoredEvent] = field(default_factory=list)
     damaged: list[str] = field(default_factory=list)  # columns of the run's row that are damaged (shown as None)
     damage: list[DamagedRow] = field(default_factory=list)  # every damaged value of the run, its poses and events
 
@@ -180,23 +232,24 @@ def build_record(run: dict[str, Any], damage: list[DamagedRow], pose_rows: list[
     return rec
 
 
-def run_summary(r: dict[str, Any], damage: list[DamagedRow], pose_count: int) -> dict[str, Any]:
+def run_summary(r: dict[str, Any], damage: list[DamagedRow], pose_count: int) -> RunSummary:
     """The listing entry of a checked ``runs`` row (no poses)."""
     reasons = reasons_of(r["reasons"])
     fit = r["fit_summary"] if isinstance(r["fit_summary"], dict) else {}
     rms = fit.get("residual_rms_g")
-    return {"id": r["id"], "started_at": iso(r["started_at"]), "finished_at": iso(r["finished_at"]),
+    out: RunSummary = {"id": r["id"], "started_at": iso(r["started_at"]), "finished_at": iso(r["finished_at"]),
             "status": r["status"], "status_reason": r["status_reason"], "device_serial": r["device_serial"],
             "chip": r["chip"], "station_id": r["station_id"], "operator": r["operator"], "lot": r["lot"],
             "model": r["model"], "verdict": r["verdict"], "reasons": [str(x) for x in reasons],
             "reason_codes": codes(reasons), "nvm_status": r["nvm_status"], "pose_count": pose_count,
             "panel_id": r["panel_id"], "limits": r.get("limits"),
-            "residual_rms_g": rms if isinstance(rms, (int, float)) and not isinstance(rms, bool) else None,
-            **({"damaged": sorted({d.column for d in damage}), "damage": [d.to_dict() for d in damage]}
-               if damage else {})}
+            "residual_rms_g": rms if isinstance(rms, (int, float)) and not isinstance(rms, bool) else None}
+    if damage:
+        out["damaged"], out["damage"] = sorted({d.column for d in damage}), [d.to_dict() for d in damage]
+    return out
 
 
-def _pose_dict(p: PoseRecord, retries: int) -> dict[str, Any]:
+def _pose_dict(p: PoseRecord, retries: int) -> StoredPose:
     def arr(a: np.ndarray | None) -> list[Any] | None:
         return None if a is None else np.asarray(a).tolist()
 

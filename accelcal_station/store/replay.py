@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import time
-from typing import Any
+from typing import Any, TypedDict
 
 from sqlalchemy import delete, func, insert, select, update
 
@@ -28,16 +28,18 @@ _COPIED = ("started_at", "finished_at", "status", "status_reason", "device_seria
            "nvm_status", "host", "pid", "panel_id")
 
 
-def _run_values(rec: RunRecord) -> dict[str, Any]:
-    values = {c: getattr(rec, c) for c in _COPIED}
+def _run_values(rec: RunRecord) -> dict[str, object]:
+    """The ``runs`` columns of a record as the update writes them: column -> value (JSON as text)."""
+    values: dict[str, object] = {c: getattr(rec, c) for c in _COPIED}
     values.update(reasons=json.dumps([Reason.from_dict(r).to_dict() for r in rec.reasons]),
                   nvm_outcome=to_json(rec.nvm_outcome), calibration=to_json(rec.calibration),
                   fit_summary=to_json(rec.fit_summary), limits=to_json(rec.limits))
     return values
 
 
-def _pose_rows(run_id: int, rec: RunRecord) -> list[dict[str, Any]]:
-    out = []
+def _pose_rows(run_id: int, rec: RunRecord) -> list[dict[str, object]]:
+    """The ``poses`` rows of a record: column -> value."""
+    out: list[dict[str, object]] = []
     for i, (p, retries) in enumerate(zip(rec.poses, rec.retries, strict=True)):
         def v(a: Any) -> list[Any]:
             return [None] * 3 if a is None else [float(x) for x in a]
@@ -48,21 +50,28 @@ def _pose_rows(run_id: int, rec: RunRecord) -> list[dict[str, Any]]:
     return out
 
 
-def _match(db: Database, rec: RunRecord, server_run_id: int | None) -> dict[str, Any] | None:
+class _Found(TypedDict):
+    id: int
+    status: str
+
+
+def _match(db: Database, rec: RunRecord, server_run_id: int | None) -> _Found | None:
+    """The run already written for ``rec`` (the server's id when it still names it, else the first
+    with the same start, host and process): its id and status."""
     same = (runs.c.started_at == rec.started_at) & (runs.c.host == rec.host) & (runs.c.pid == rec.pid)
     if server_run_id is not None:
         got = db.rows(select(runs.c.id, runs.c.status).where((runs.c.id == server_run_id) & same))
         if got:
-            return dict(got[0])
+            return {"id": int(got[0]["id"]), "status": got[0]["status"]}
     got = db.rows(select(runs.c.id, runs.c.status).where(same).order_by(runs.c.id).limit(1))
-    return dict(got[0]) if got else None
+    return {"id": int(got[0]["id"]), "status": got[0]["status"]} if got else None
 
 
 def replay_run(db: Database, rec: RunRecord, server_run_id: int | None, note: str) -> tuple[int, bool]:
     """Inside a write transaction: ``rec`` written into ``db``; (its id there, whether anything was written)."""
     found = _match(db, rec, server_run_id)
     if found is not None:
-        rid = int(found["id"])
+        rid = found["id"]
         n = db.scalar(select(func.count()).select_from(poses).where(poses.c.run_id == rid))
         if found["status"] == rec.status and n == len(rec.poses):
             return rid, False

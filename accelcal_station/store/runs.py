@@ -21,7 +21,7 @@ import logging
 import os
 import socket
 import time as _time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -37,6 +37,7 @@ from .location import store_identity
 from .records import (
     RunNotFound,
     RunRecord,
+    RunSummary,
     StoreError,
     StoreUnreachable,
     build_record,
@@ -245,7 +246,7 @@ class Store:
     def _insert_poses(self, db: Database, run_id: int, session: Session, retries: Sequence[int] | None) -> None:
         if retries is not None and len(retries) != len(session):
             raise DataError(f"retries has {len(retries)} entries for {len(session)} poses")
-        rows: list[dict[str, Any]] = []
+        rows: list[dict[str, object]] = []  # one insert's rows: column -> value
         for i, p in enumerate(session.poses):
             ref = [None] * 3 if p.reference_g is None else [float(v) for v in p.reference_g]
             std = [None] * 3 if p.std is None else [float(v) for v in p.std]
@@ -259,7 +260,8 @@ class Store:
             units=session.units, counts_per_g=opt(session.counts_per_g), gravity_mps2=opt(session.gravity_mps2)))
 
     def finish_run(self, run_id: int, *, session: Session, calibration: Calibration | None, verdict: str | None,
-                   reasons: Iterable[Reason] = (), nvm_outcome: Any = None, fit_summary: dict[str, Any] | None = None,
+                   reasons: Iterable[Reason] = (), nvm_outcome: Any = None,
+                   fit_summary: Mapping[str, object] | None = None,
                    model: str | None = None, retries: Sequence[int] | None = None,
                    finished_at: float | None = None, limits: dict[str, float] | None = None) -> None:
         """Record poses, calibration, verdict and NVM outcome of a run as ``complete``, atomically.
@@ -310,7 +312,7 @@ class Store:
                 status=status, status_reason=str(reason), finished_at=_time.time(), **nvm))
         log.warning("run %d %s: %s", run_id, status, reason)
 
-    def record_burn(self, run_id: int, kind: str, outcome: dict[str, Any], t: float | None = None) -> None:
+    def record_burn(self, run_id: int, kind: str, outcome: Mapping[str, object], t: float | None = None) -> None:
         """A burn as it happens, committed at once: ``nvm_burning`` (slot, generation, blob CRC)
         sets the run's nvm_status to ``burning`` before the first byte; ``nvm_burned`` /
         ``nvm_burn_failed`` to ``burned`` / ``failed`` (finish_run then records the outcome)."""
@@ -387,7 +389,7 @@ class Store:
         out = [(mark_stale(r), damage) for r, damage in checked]  # running, its process gone: stale
         return [x for x in out if x[0]["status"] == wanted] if live else out
 
-    def list_runs(self, limit: int | None = None, **filters: Any) -> list[dict[str, Any]]:
+    def list_runs(self, limit: int | None = None, **filters: Any) -> list[RunSummary]:
         """Run summaries (no poses) matching filters: device, station, lot, operator, since,
         until, verdict, status, model (a value or a list of values), run_ids.  A run whose row
         is damaged has ``damaged`` (its columns) and ``damage`` (typed ``damaged_row`` reasons)."""
@@ -467,7 +469,7 @@ class Store:
             exports.write_export(path, text)
         return text
 
-    def lot_summary(self, **filters: Any) -> dict[str, Any]:
+    def lot_summary(self, **filters: Any) -> exports.LotSummary:
         """Counts, pass rate, failure reasons and parameter distributions of the matching runs
         (exports.summarize)."""
         with self._snapshot():

@@ -6,12 +6,11 @@ Below both the held-out evaluation (static_view) and the fitted jig rotation (ji
 from __future__ import annotations
 
 from collections.abc import Collection
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ...identifiability import describe_terms
+from ...identifiability import TermsDescription, describe_terms
 from ..gap_data import TAU_DRIFT_S, GapData, time_data
 from ..least_squares import norm_resid
 from .catalog import DETERMINISTIC
@@ -44,7 +43,7 @@ def static_design(E: Collection[str], g: np.ndarray, ref: np.ndarray | None, dT:
     return A, b, np.array(view.shifts), view.labels
 
 
-def describe_design(data: GapData, effects: Collection[str]) -> dict[str, Any]:
+def describe_design(data: GapData, effects: Collection[str]) -> TermsDescription:
     """identifiability.describe_terms of the static design of ``effects`` on ideal readings
     (g = ref, or unit readings without references)."""
     ideal = data.ref if data.ref is not None else data.g / np.linalg.norm(data.g, axis=1, keepdims=True)
