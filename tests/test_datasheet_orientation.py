@@ -198,15 +198,11 @@ def test_motorized_jig_angles_place_the_board_as_the_data_sheets_say():
 
 def test_mpu6050_firmware_on_simavr_through_the_driver():
     """The real bridge firmware on a simulated ATmega328P reads the emulated chip over TWI."""
-    import os
+    from test_mpu6050_firmware import require_simavr  # skips with the reason; fails where CI requires it
 
     from accelcal_station.drivers import mpu6050_simavr
 
-    why = mpu6050_simavr.unavailable_reason()
-    if why is not None:
-        if os.environ.get("ACCELCAL_REQUIRE_SIMAVR"):
-            pytest.fail(f"ACCELCAL_REQUIRE_SIMAVR is set but {why}")
-        pytest.skip(why)
+    require_simavr()
     board = SimulatedBoard.from_config(None, chip="mpu6050", seed=6)
     bridge = mpu6050_simavr.SimavrBridge(board)
     bridge.start()
