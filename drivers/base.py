@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import DeviceError
+from ..jsontypes import JsonObject
 from .self_test import SelfTestResult
 
 
@@ -27,8 +28,9 @@ class ReportsEvents(Protocol):
 class Clock(Protocol):
     """What a driver or a part waits on: the wall clock, or a simulated board's virtual one."""
 
-    # True when its time is the wall's (a station's board time then counts no host compute on top)
-    realtime: bool
+    @property
+    def realtime(self) -> bool:
+        """True when its time is the wall's (a station's board time then counts no host compute on top)."""
 
     def now(self) -> float: ...
 
@@ -192,6 +194,10 @@ class Driver(ABC):
     def temperature_c(self) -> float | None:
         """Chip temperature in C, or None when the chip has no sensor."""
         return None
+
+    def settings(self) -> JsonObject:
+        """Chip-specific settings for display (``accelcal probe``); none by default."""
+        return {}
 
     @property
     def nvm(self) -> NVM | None:

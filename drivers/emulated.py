@@ -9,22 +9,27 @@ with the emulator and its simulated board beside them (``board``, declared on Dr
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Unpack
 
+from ..config.kinds import Mma8451Device, Mma8451Section, Mpu6050Section
 from ..errors import ConfigError
-from .mma8451 import MMA8451
+from .base import Clock
+from .mma8451 import MMA8451, Mma8451Settings, settings_of
 from .mma8451_emulator import MMA8451Emulator
-from .mpu6050 import MPU6050Bridge
+from .mpu6050 import MPU6050Bridge, Mpu6050Settings
+from .mpu6050 import settings_of as mpu6050_settings
 from .mpu6050_emulator import MPU6050BridgeEmulator
-from .tca9548a import MuxBus, MuxChannel, mux_settings
+from .tca9548a import MuxBus, MuxBuses, MuxChannel, mux_settings
 from .tca9548a_emulator import TCA9548AEmulator
 
 
 class EmulatedMMA8451(MMA8451):
     """The MMA8451 driver on an emulated bus: the real driver code, the emulator kept beside it."""
 
-    def __init__(self, emulator: MMA8451Emulator, bus: Any = None, **kw: Any) -> None:
-        super().__init__(emulator if bus is None else bus, **kw)
+    def __init__(self, emulator: MMA8451Emulator, settings: Mma8451Settings, bus: Any = None,
+                 clock: Clock | None = None, bus_label: str = "emulated") -> None:
+        super().__init__(emulator if bus is None else bus, clock=clock or emulator.clock, bus_label=bus_label,
+                         **settings)
         self.emulator = emulator
         self.board = emulator.board  # what a simulated jig moves
 
@@ -33,8 +38,8 @@ class EmulatedMPU6050Bridge(MPU6050Bridge):
     """The MPU6050 bridge driver on a pseudo-terminal answered by the bridge emulator, which
     starts when the driver opens and stops when it closes."""
 
-    def __init__(self, emulator: MPU6050BridgeEmulator, **kw: Any) -> None:
-        super().__init__("emulated", **kw)
+    def __init__(self, emulator: MPU6050BridgeEmulator, **settings: Unpack[Mpu6050Settings]) -> None:
+        super().__init__("emulated", **settings)
         self.emulator = emulator
         self.board = emulator.board
 
@@ -49,39 +54,36 @@ class EmulatedMPU6050Bridge(MPU6050Bridge):
         self.emulator.stop()
 
 
-def emulated_mma8451(cfg: dict[str, Any], path: str = "device", bus: Any = None, clock: Any = None,
+def emulated_mma8451(m: Mma8451Section, path: str = "device", bus: Any = None,
                      bus_label: str = "emulated") -> EmulatedMMA8451:
     """An MMA8451 driver on an emulated smbus2 bus fed by a simulated board.
 
     ``bus``: the SMBus-like object the driver talks through (default: the chip's own
-    emulator; a multiplexer channel for a panel); ``clock``: what the driver waits on
-    (default: the emulator's).
+    emulator; a multiplexer channel for a panel); the driver waits on the emulator's clock.
     """
-    _, kw = MMA8451.parse_config(cfg, path)
+    kw = settings_of(m, path)
     eeprom = kw["eeprom"]
-    emu = MMA8451Emulator.from_config(cfg, path, address=kw["address"],
-                                      eeprom_address=eeprom["address"] if eeprom else None)
+    emu = MMA8451Emulator.from_section(m, path, eeprom_address=eeprom.address if eeprom else None)
     if eeprom:  # the emulated EEPROM's geometry is the simulated board's
-        eeprom.update(size=emu.eeprom_size, page_size=emu.eeprom_page_size)
+        kw["eeprom"] = eeprom.model_copy(update={"size": emu.eeprom_size, "page_size": emu.eeprom_page_size})
     kw["serial"] = kw["serial"] or emu.board.serial
-    return EmulatedMMA8451(emu, bus, clock=clock or emu.clock, bus_label=bus_label, **kw)
+    return EmulatedMMA8451(emu, kw, bus, bus_label=bus_label)
 
 
-def emulated_mpu6050(cfg: dict[str, Any], path: str = "device") -> MPU6050Bridge:
+def emulated_mpu6050(m: Mpu6050Section, path: str = "device") -> MPU6050Bridge:
     """An MPU6050 bridge driver whose port is a pseudo-terminal answered by the bridge emulator."""
-    _, kw = MPU6050Bridge.parse_config(cfg, path)
-    return EmulatedMPU6050Bridge(MPU6050BridgeEmulator.from_config(cfg, path), **kw)
+    _, kw = mpu6050_settings(m, path)
+    return EmulatedMPU6050Bridge(MPU6050BridgeEmulator.from_section(m, path), **kw)
 
 
-def emulated_muxed_mma8451(section: dict[str, Any], path: str,
-                           buses: dict[tuple[Any, int], MuxBus]) -> EmulatedMMA8451:
-    """An emulated MMA8451 board behind channel ``section['channel']`` of a TCA9548A emulator.
+def emulated_muxed_mma8451(m: Mma8451Device, path: str, buses: MuxBuses) -> EmulatedMMA8451:
+    """An emulated MMA8451 board behind channel ``m.channel`` of a TCA9548A emulator.
 
     ``buses`` shares one emulated bus (mux emulator, MuxBus) per mux address among a panel's
     boards: the driver talks smbus2 calls through a :class:`MuxChannel`, the mux emulator
     routes them to this board's MMA8451 emulator; the driver waits on that board's clock.
     """
-    address, channel, rest = mux_settings(section, path)
+    address, channel = mux_settings(m, path)
     key = ("emulated", address)
     if key not in buses:
         buses[key] = MuxBus(TCA9548AEmulator(address), address, "emulated")
@@ -89,10 +91,8 @@ def emulated_muxed_mma8451(section: dict[str, Any], path: str,
     if mux.smbus.channels.get(channel) is not None:
         raise ConfigError(f"{path}.channel: {channel} already holds a board on the emulated bus's "
                           f"mux 0x{address:02x}; allowed: one board per channel")
-    drv = emulated_mma8451(rest, path, bus=MuxChannel(mux, channel),
-                           bus_label=f"emulated/mux0x{address:02x}.{channel}")
+    drv = emulated_mma8451(m, path, bus=MuxChannel(mux, channel), bus_label=f"emulated/mux0x{address:02x}.{channel}")
     mux.smbus.attach(channel, drv.emulator)
-    emu = rest.get("emulator")
-    if isinstance(emu, dict) and emu.get("mux_reset_after"):
-        mux.smbus.reset(after_transactions=int(emu["mux_reset_after"]), channel=channel)
+    if m.emulator is not None and m.emulator.mux_reset_after:
+        mux.smbus.reset(after_transactions=m.emulator.mux_reset_after, channel=channel)
     return drv

@@ -23,14 +23,15 @@ import logging
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
-from typing import Any, TypeVar
+from typing import Any, TypedDict, TypeVar
 
 import numpy as np
 import smbus2
 from numpy.typing import ArrayLike
 
-from ..config.parts import I2cEepromSection, Mma8451Section, parse
+from ..config.kinds import I2cEepromSection, Mma8451Section
 from ..errors import ConfigError, DeviceError
+from ..jsontypes import JsonObject
 from .base import NVM, Clock, Driver, Identity, ReportsEvents
 from .i2c_target import I2CEeprom, I2CTarget, _os_reason
 from .self_test import SelfTestResult, judge_in_g
@@ -107,7 +108,60 @@ def odr_index(odr_hz: float, path: str = "odr_hz") -> int:
         for i, f in enumerate(ODR_HZ):
             if abs(float(odr_hz) - f) <= 0.01 * f:
                 return i
+        raise ConfigError(f"{path}: {odr_hz:g} Hz; allowed: {', '.join(f'{f:g}' for f in ODR_HZ)}")
     raise ConfigError(f"{path}: {odr_hz!r} Hz; allowed: {', '.join(f'{f:g}' for f in ODR_HZ)}")
+
+
+class Wanted(TypedDict):
+    """The settings ``open()`` configures the chip with."""
+
+    range_g: int
+    odr_hz: float
+    oversampling: str
+
+
+class Mma8451Settings(TypedDict):
+    """The constructor keywords a ``device:`` section gives (besides its bus): :func:`settings_of`."""
+
+    address: int
+    range_g: int
+    odr_hz: float
+    oversampling: str
+    retries: int
+    timeout_s: float
+    serial: str
+    offset_trim_lsb: list[int] | None
+    eeprom: I2cEepromSection | None
+
+
+def settings_of(m: Mma8451Section, path: str = "device") -> Mma8451Settings:
+    """The driver's keywords from a validated ``device:`` section, after the checks across its keys
+    that the model alone does not make (the bus's form, the emulator's keys only with ``bus: emulated``,
+    the address among the chip's two, the data rate among its eight).
+
+    ``bus: emulated`` is checked here but built by the factory (drivers/emulated.py), which hands the
+    emulated bus in: this module never imports its emulator.
+    """
+    bus = m.bus
+    emulated = bus == "emulated"
+    if not emulated and not (isinstance(bus, int) and bus >= 0) \
+            and not (isinstance(bus, str) and bus.startswith("/dev/")):
+        raise ConfigError(f"{path}.bus: {bus!r}; allowed: a bus number (1 for /dev/i2c-1), "
+                          "a /dev/i2c-N path, or 'emulated'")
+    extra = [k for k, v in (("simulator", m.simulator), ("seed", m.seed), ("emulator", m.emulator)) if v is not None]
+    if extra and not emulated:
+        raise ConfigError(f"{path}.{extra[0]}: only used with bus: emulated")
+    if m.address not in ADDRESSES:
+        raise ConfigError(f"{path}.address: 0x{m.address:02x}; allowed: 0x1c (SA0 low), 0x1d (SA0 high)")
+    trim = m.offset_trim_lsb
+    if trim is not None and (len(trim) != 3 or not all(-128 <= v <= 127 for v in trim)):
+        raise ConfigError(f"{path}.offset_trim_lsb: {trim!r}; allowed: [x, y, z] whole numbers -128..127")
+    odr_index(m.odr_hz, f"{path}.odr_hz")
+    # absent: the default EEPROM; false or null: none
+    eeprom = I2cEepromSection() if "eeprom" not in m.model_fields_set else (m.eeprom or None)
+    return Mma8451Settings(address=m.address, range_g=m.range_g, odr_hz=m.odr_hz, oversampling=m.oversampling,
+                           retries=m.retries, timeout_s=m.timeout_s, serial=str(m.serial or ""),
+                           offset_trim_lsb=trim, eeprom=eeprom)
 
 
 class SystemClock:
@@ -134,7 +188,7 @@ class MMA8451(Driver):
     def __init__(self, bus: int | str | Any = 1, address: int = 0x1D, range_g: int = 2, odr_hz: float = 100.0,
                  oversampling: str = "high_resolution", retries: int = 3, timeout_s: float = 1.0,
                  serial: str = "", offset_trim_lsb: Sequence[int] | None = None,
-                 eeprom: dict[str, Any] | None = None, clock: Clock | None = None,
+                 eeprom: I2cEepromSection | None = None, clock: Clock | None = None,
                  bus_label: str | None = None) -> None:
         if address not in ADDRESSES:
             raise ConfigError(f"address {address!r}; allowed: 0x1c (SA0 low), 0x1d (SA0 high)")
@@ -144,7 +198,7 @@ class MMA8451(Driver):
         self.address = address
         self.clock = clock or SystemClock()
         self.retries, self.timeout_s, self.serial = int(retries), float(timeout_s), serial
-        self._want: dict[str, Any] = {"range_g": range_g, "odr_hz": odr_hz, "oversampling": oversampling}
+        self._want = Wanted(range_g=range_g, odr_hz=odr_hz, oversampling=oversampling)
         self._trim0 = offset_trim_lsb
         self._eeprom_cfg = eeprom
         self._smbus: Any = None if self._owns_bus else bus
@@ -152,50 +206,6 @@ class MMA8451(Driver):
         self._identified = False  # never write to a chip that is not an MMA8451
         self._nvm: I2CEeprom | None = None
         self._range_g, self._odr_hz, self._mods = 2, 800.0, "normal"  # power-on defaults
-
-    # --- construction ---------------------------------------------------------------------
-    CONFIG_KEYS = tuple(Mma8451Section.model_fields)
-
-    @classmethod
-    def parse_config(cls, cfg: dict[str, Any], path: str = "device") -> tuple[Any, dict[str, Any]]:
-        """Check a ``device:`` section (driver key removed): (bus spec, constructor keywords).
-
-        ``bus: emulated`` is checked here but built by the factory (drivers/emulated.py), which
-        hands the emulated bus in: this module never imports its emulator.
-        """
-        m = parse(cfg, Mma8451Section, path)
-        bus = m.bus
-        emulated = bus == "emulated"
-        if not emulated and not (isinstance(bus, int) and bus >= 0) \
-                and not (isinstance(bus, str) and bus.startswith("/dev/")):
-            raise ConfigError(f"{path}.bus: {bus!r}; allowed: a bus number (1 for /dev/i2c-1), "
-                              "a /dev/i2c-N path, or 'emulated'")
-        for k in ("simulator", "seed", "emulator"):
-            if k in cfg and not emulated:
-                raise ConfigError(f"{path}.{k}: only used with bus: emulated")
-        if m.address not in ADDRESSES:
-            raise ConfigError(f"{path}.address: 0x{m.address:02x}; allowed: 0x1c (SA0 low), 0x1d (SA0 high)")
-        trim = m.offset_trim_lsb
-        if trim is not None and (len(trim) != 3 or not all(-128 <= v <= 127 for v in trim)):
-            raise ConfigError(f"{path}.offset_trim_lsb: {trim!r}; allowed: [x, y, z] whole numbers -128..127")
-        # absent: the default EEPROM; false or null: none
-        e = I2cEepromSection() if "eeprom" not in cfg else m.eeprom
-        odr_index(cfg.get("odr_hz", m.odr_hz), f"{path}.odr_hz")  # as written: 3, not 3.0
-        kw = {
-            "address": m.address, "range_g": m.range_g, "odr_hz": m.odr_hz, "oversampling": m.oversampling,
-            "retries": m.retries, "timeout_s": m.timeout_s, "serial": str(m.serial or ""),
-            "offset_trim_lsb": trim, "eeprom": e.model_dump() if e else None,
-        }
-        return bus, kw
-
-    @classmethod
-    def from_config(cls, cfg: dict[str, Any], path: str = "device") -> MMA8451:
-        """Build from a ``device:`` section on a real bus; ``bus: emulated`` goes through the
-        factory (``make_driver``), which builds the emulated bus and hands it in."""
-        bus, kw = cls.parse_config(cfg, path)
-        if bus == "emulated":
-            raise ConfigError(f"{path}.bus: emulated is built by make_driver (drivers/emulated.py)")
-        return cls(bus, **kw)
 
     # --- lifecycle ------------------------------------------------------------------------
     def _open_bus(self) -> Any:
@@ -231,9 +241,9 @@ class MMA8451(Driver):
             raise
         if self._eeprom_cfg:
             e = self._eeprom_cfg
-            self._nvm = I2CEeprom(I2CTarget(self._smbus, self.bus_label, e["address"], self.clock, self.retries,
+            self._nvm = I2CEeprom(I2CTarget(self._smbus, self.bus_label, e.address, self.clock, self.retries,
                                             register_names=REGISTER_NAMES),
-                                  e["size"], e["page_size"], e["write_cycle_ms"] / 1e3)
+                                  e.size, e.page_size, e.write_cycle_ms / 1e3)
 
     def close(self) -> None:
         if self._identified and self._smbus is not None:
@@ -386,9 +396,9 @@ class MMA8451(Driver):
         return Identity(chip="mma8451", chip_id=CHIP_ID, serial=self.serial,
                         interface=f"i2c:{self.bus_label}@0x{self.address:02x}")
 
-    def settings(self) -> dict[str, Any]:
+    def settings(self) -> JsonObject:
         """Chip-specific settings for display (``accelcal probe``)."""
-        s: dict[str, Any] = {"oversampling": self._mods, "offset_trim_lsb": list(self.get_offset_trim())}
+        s: JsonObject = {"oversampling": self._mods, "offset_trim_lsb": list(self.get_offset_trim())}
         if self._nvm is not None:
             s["eeprom"] = (f"24Cxx at 0x{self._nvm.t.address:02x}, {self._nvm.size} bytes, "
                            f"{self._nvm.page_size}-byte pages")

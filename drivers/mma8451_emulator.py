@@ -39,11 +39,10 @@ from typing import Any, Protocol
 import numpy as np
 from smbus2.smbus2 import I2C_M_RD
 
-from ..config.checks import load_yaml
-from ..config.parts import EmulatedSeedSection, parse
-from ..config.schema import BusEmulatorSection
+from ..config.kinds import BusEmulatorSection, Mma8451Section
 from ..errors import ConfigError
 from .eeprom import EEPROM24
+from .emulator_files import emulated_board
 from .mma8451 import (
     CHIP_ID,
     CTRL1_ACTIVE,
@@ -243,27 +242,16 @@ class MMA8451Emulator:
 
     # --- construction from a device config section ----------------------------------------
     @classmethod
-    def from_config(cls, cfg: dict[str, Any], path: str, address: int, eeprom_address: int | None) -> MMA8451Emulator:
+    def from_section(cls, m: Mma8451Section, path: str, eeprom_address: int | None) -> MMA8451Emulator:
         """The emulated bus of a ``bus: emulated`` device section.
 
-        ``simulator``: the simulated board's configuration (drivers/simulated.py), inline or the path of
-        a YAML file; a station config's ``device:`` section (configs/sim.yaml) is taken as it is.
-        Absent: an ideal MMA8451 of its data sheet.  ``emulator``: bus speed and faults.
+        ``simulator``: the simulated board (drivers/simulated.py), inline or the path of a YAML file
+        (a station config's ``device:`` section, configs/sim.yaml, is taken as it is; absent: an ideal
+        MMA8451 of its data sheet).  ``emulator``: bus speed and faults.
         """
-        from .simulated import SimulatedBoard
-
-        sim: Any = cfg.get("simulator")  # a mapping, or a YAML file's path
-        where = f"{path}.simulator"
-        if isinstance(sim, str):
-            sim, where = load_yaml(sim), sim
-            if isinstance(sim.get("device"), dict):
-                sim, where = {k: v for k, v in sim["device"].items() if k != "driver"}, f"{where}: device"
-        elif sim is not None and not isinstance(sim, dict):
-            raise ConfigError(f"{path}.simulator: {sim!r}; allowed: a mapping or the path of a simulator YAML file")
-        seed = parse({"seed": cfg.get("seed")}, EmulatedSeedSection, path).seed
-        board = SimulatedBoard.from_config(sim, chip="mma8451", seed=seed, path=where)
-        e = parse(cfg.get("emulator"), BusEmulatorSection, f"{path}.emulator")
-        emu = cls(board, address=address, eeprom_address=eeprom_address, chip_id=e.chip_id, bus_hz=e.bus_hz,
+        board = emulated_board(m.simulator, "mma8451", m.seed, path)
+        e = m.emulator or BusEmulatorSection()
+        emu = cls(board, address=m.address, eeprom_address=eeprom_address, chip_id=e.chip_id, bus_hz=e.bus_hz,
                   never_ready=e.never_ready, present=e.present)
         emu.nack_every(e.nack_every)
         emu.self_test_faults(e.self_test_scale, e.self_test_dead)

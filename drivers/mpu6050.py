@@ -23,13 +23,14 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, TypeVar
+from typing import Any, TypedDict, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..config.parts import Mpu6050Section, parse
+from ..config.kinds import Mpu6050Section
 from ..errors import ConfigError, DeviceError, NVMError
+from ..jsontypes import JsonObject
 from . import bridge_protocol as bp
 from .base import NVM, Capture, Driver, Identity
 from .bridge_link import BridgeLink, BridgeRefused, BridgeReset, LinkStats
@@ -120,11 +121,39 @@ class BridgeNVM(NVM):
             i += len(chunk)
 
 
+class Mpu6050Settings(TypedDict, total=False):
+    """The constructor keywords a ``device:`` section gives (besides its port): :func:`settings_of`."""
+
+    baud: int
+    range_g: int
+    odr_hz: float
+    dlpf: int
+    timeout_s: float
+    retries: int
+    boot_wait_s: float
+
+
+def settings_of(m: Mpu6050Section, path: str = "device") -> tuple[str, Mpu6050Settings]:
+    """(port, the driver's keywords) from a validated ``device:`` section, after the checks across its
+    keys that the model alone does not make (a port given; the emulator's keys only with ``port:
+    emulated``; a sample-rate divider for the data rate; a link fast enough for it).  ``port: emulated``
+    is built by the factory (``make_driver``, drivers/emulated.py), which hands the emulator in."""
+    port = m.port
+    if not port:
+        raise ConfigError(f"{path}.port: {port!r}; allowed: a serial port such as /dev/ttyUSB0, or 'emulated'")
+    extra = [k for k, v in (("simulator", m.simulator), ("seed", m.seed), ("emulator", m.emulator)) if v is not None]
+    if extra and port != "emulated":
+        raise ConfigError(f"{path}.{extra[0]}: only used with port: emulated")
+    smplrt_div_for(m.odr_hz, m.dlpf, f"{path}.odr_hz")
+    check_link_rate(m.odr_hz, m.baud, f"{path}.odr_hz")
+    return port, Mpu6050Settings(baud=m.baud, range_g=m.range_g, odr_hz=m.odr_hz, dlpf=m.dlpf,
+                                 timeout_s=m.timeout_s, retries=m.retries, boot_wait_s=m.boot_wait_s)
+
+
 class MPU6050Bridge(Driver):
     """MPU6050 through the serial bridge.  ``port``: /dev/ttyUSB0, /dev/ttyACM0, a pty, COM3."""
 
     name = "mpu6050"
-    CONFIG_KEYS = tuple(Mpu6050Section.model_fields)
 
     def __init__(self, port: str, baud: int = bp.DEFAULT_BAUD, range_g: int = 2, odr_hz: float = 100.0,
                  dlpf: int = 3, timeout_s: float = 0.5, retries: int = 3, boot_wait_s: float = 2.0) -> None:
@@ -143,31 +172,6 @@ class MPU6050Bridge(Driver):
         self._bridge: BridgeIdentity | None = None
         self._nvm: BridgeNVM | None = None
         self._stream_temp_c: float | None = None
-
-    @classmethod
-    def from_config(cls, cfg: dict[str, Any], path: str = "device") -> MPU6050Bridge:
-        """From a ``device:`` section (driver key removed) on a real port; ``port: emulated`` is
-        built by the factory (``make_driver``, drivers/emulated.py), which hands the emulator in."""
-        port, kw = cls.parse_config(cfg, path)
-        if port == "emulated":
-            raise ConfigError(f"{path}.port: emulated is built by make_driver (drivers/emulated.py)")
-        return cls(port, **kw)
-
-    @classmethod
-    def parse_config(cls, cfg: dict[str, Any], path: str = "device") -> tuple[str, dict[str, Any]]:
-        """Check a ``device:`` section: (port, constructor keywords)."""
-        m = parse(cfg, Mpu6050Section, path)
-        port = m.port
-        if not port:
-            raise ConfigError(f"{path}.port: {port!r}; allowed: a serial port such as /dev/ttyUSB0, "
-                              "or 'emulated'")
-        for k in ("simulator", "seed", "emulator"):
-            if k in cfg and port != "emulated":
-                raise ConfigError(f"{path}.{k}: only used with port: emulated")
-        smplrt_div_for(m.odr_hz, m.dlpf, f"{path}.odr_hz")
-        check_link_rate(m.odr_hz, m.baud, f"{path}.odr_hz")
-        kw = m.model_dump(include={"baud", "range_g", "odr_hz", "dlpf", "timeout_s", "retries", "boot_wait_s"})
-        return port, kw
 
     # --- lifecycle ------------------------------------------------------------------------
     def open(self) -> None:
@@ -357,7 +361,7 @@ class MPU6050Bridge(Driver):
         return Identity(chip="mpu6050", chip_id=b.who_am_i, serial=b.serial, interface=f"serial:{self.port}",
                         firmware=f"mpu6050-bridge {b.firmware} (protocol {b.protocol})")
 
-    def settings(self) -> dict[str, Any]:
+    def settings(self) -> JsonObject:
         """Chip-specific settings for display (``accelcal probe``)."""
         b = self._bridge
         return {"dlpf": self._dlpf, "accel_bandwidth_hz": DLPF_BANDWIDTH_HZ[self._dlpf],

@@ -36,12 +36,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..config.parts import Mpu6050SimSection, parse
+from ..config.kinds import Mpu6050Section
 from ..errors import ConfigError
 from ..sim.pty_server import PtyServer
 from . import bridge_protocol as bp
 from .eeprom import EEPROM24, PowerLossError
-from .emulator_files import board_config_from_file
+from .emulator_files import bridge_faults, emulated_board
 from .mpu6050 import (
     ACCEL_CONFIG,
     ACCEL_RATE_HZ,
@@ -131,24 +131,10 @@ class MPU6050BridgeEmulator(PtyServer):
         self._power_on(bp.BOOT_POWER_ON, send=False)
 
     @classmethod
-    def from_config(cls, cfg: dict[str, Any], path: str = "device") -> MPU6050BridgeEmulator:
-        """From a device section's ``simulator`` (a board mapping, or a YAML file as ``board_config_from_file``
-        takes) and ``seed``."""
-        from .simulated import SimulatedBoard
-
-        sim, file_seed = cfg.get("simulator"), None
-        if isinstance(sim, str):
-            sim, file_seed = board_config_from_file(sim)
-        elif sim is not None and not isinstance(sim, dict):
-            raise ConfigError(f"{path}.simulator: {sim!r}; allowed: a mapping or the path of a simulator YAML file")
-        m = parse({"seed": cfg.get("seed"), "emulator": cfg.get("emulator")}, Mpu6050SimSection, path)
-        seed = file_seed if m.seed is None else m.seed
-        e = m.emulator
-        board = SimulatedBoard.from_config(sim, chip="mpu6050", seed=seed, path=f"{path}.simulator")
-        if e is None:
-            return cls(board)
-        return cls(board, self_test_codes=e.self_test_codes, self_test_share=e.self_test_share,
-                   offset_step_scale=e.offset_step_scale, chip_ppm=e.chip_ppm)
+    def from_section(cls, m: Mpu6050Section, path: str = "device") -> MPU6050BridgeEmulator:
+        """From a device section's ``simulator`` (a board section, or a YAML file as ``board_config_from_file``
+        takes), ``seed`` and ``emulator`` (the chip's faults)."""
+        return cls(emulated_board(m.simulator, "mpu6050", m.seed, path), **bridge_faults(m.emulator))
 
     # --- faults ---------------------------------------------------------------------------
     def corrupt(self, n_bytes: int, after_bytes: int = 0) -> None:

@@ -29,6 +29,7 @@ with ``driver: simulated``)::
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Protocol, cast
 
@@ -37,17 +38,16 @@ from numpy.typing import ArrayLike
 
 from ..calibration import Calibration
 from ..config.checks import load_yaml
-from ..config.parts import SimEepromSection, SimulatedBoardSection, SimulatorFileSection, parse
+from ..config.kinds import Effects, PopulationSpec, SimEepromSection, SimulatedBoardSection, SimulatorSection
+from ..config.parts import parse
 from ..conventions import WORLD_UP, attitude_for_up, mount_matrix, pose_attitude
 from ..errors import ConfigError, DeviceError
 from ..sim.population import parse_population
-from ..sim.sensor_model import PHYSICS, SensorModel, get_chip, rotation_matrix
+from ..sim.sensor_model import SensorModel, get_chip, rotation_matrix
 from .base import Driver, Identity
 from .eeprom import EEPROM24
 
 POPULATION_STREAM = 0x7091  # the population draw's own random stream (beside noise, drift, pose)
-BOARD_KEYS = tuple(SimulatedBoardSection.model_fields)
-EEPROM_KEYS = tuple(SimEepromSection.model_fields)
 
 
 class Pose(Protocol):
@@ -86,39 +86,33 @@ class VirtualClock:
         self.sleep(t - self.t)
 
 
-def load_sensor_config(cfg: dict[str, Any], path: str) -> tuple[Any, str]:
-    """The ``effects`` mapping named by a board config, and the key path for its errors."""
-    effects, where, _ = load_simulator(cfg, path)
-    return effects, where
-
-
-def load_simulator(cfg: dict[str, Any], path: str) -> tuple[Any, str, Any]:
-    """The ``effects`` mapping, its key path and the ``population`` mapping (or None) of a board config."""
-    if "simulator" in cfg and "effects" in cfg:
-        raise ConfigError(f"{path}: give either simulator or effects, not both")
-    if "effects" in cfg:
-        return cfg["effects"], f"{path}.effects", None
-    sim = cfg.get("simulator")
+def load_simulator(m: SimulatedBoardSection, path: str) -> tuple[Effects | None, str, PopulationSpec | None]:
+    """The ``effects`` mapping, its key path and the ``population`` mapping (or None) of a board
+    section: its own ``effects``, or its ``simulator`` (inline, or a YAML file read and validated here)."""
+    sim = simulator_of(m, path)
+    if m.effects is not None:
+        return m.effects, f"{path}.effects", None
     if sim is None:
         return None, f"{path}.simulator", None
-    where = f"{path}.simulator"
-    if isinstance(sim, str):
-        sim, where = load_yaml(sim), f"{path}.simulator({sim})"
-    m = parse(sim, SimulatorFileSection, where)
-    return m.effects or {}, f"{where}.effects", m.population
+    where = f"{path}.simulator" if not isinstance(m.simulator, str) else f"{path}.simulator({m.simulator})"
+    return sim.effects or {}, f"{where}.effects", sim.population
 
 
-def load_physics(cfg: dict[str, Any], path: str) -> bool:
-    """True when a board config's ``simulator.physics`` is ``forward`` (sensor_model.PHYSICS);
+def simulator_of(m: SimulatedBoardSection, path: str) -> SimulatorSection | None:
+    """A board section's forward sensor model: inline, or the file its ``simulator`` names (read and
+    validated once here: a file is another input)."""
+    if m.simulator is not None and m.effects is not None:
+        raise ConfigError(f"{path}: give either simulator or effects, not both")
+    if isinstance(m.simulator, str):
+        return parse(load_yaml(m.simulator), SimulatorSection, f"{path}.simulator({m.simulator})")
+    return m.simulator
+
+
+def load_physics(m: SimulatedBoardSection, path: str) -> bool:
+    """True when a board section's ``simulator.physics`` is ``forward`` (sensor_model.PHYSICS);
     ``implicit`` (the default, also for ``effects:`` given directly) is False."""
-    sim = cfg.get("simulator")
-    where = f"{path}.simulator"
-    if isinstance(sim, str):
-        sim, where = load_yaml(sim), f"{path}.simulator({sim})"
-    value = sim.get("physics", PHYSICS[0]) if isinstance(sim, dict) else PHYSICS[0]
-    if value not in PHYSICS:
-        raise ConfigError(f"{where}.physics: {value!r}; allowed: {', '.join(PHYSICS)}")
-    return bool(value == "forward")
+    sim = simulator_of(m, path)
+    return sim is not None and sim.physics == "forward"
 
 
 def draw_board(model: SensorModel, population: Any, seed: int, path: str) -> SensorModel:
@@ -175,39 +169,35 @@ class SimulatedBoard:
         self.configure(c.default_range_g, c.default_odr_hz, c.default_dlpf)
 
     @classmethod
-    def from_config(cls, cfg: dict[str, Any] | None = None, chip: str | None = None, seed: int | None = None,
+    def from_config(cls, cfg: Mapping[str, object] | None = None, chip: str | None = None, seed: int | None = None,
                     path: str = "simulator") -> SimulatedBoard:
-        """Build a board from its YAML mapping; ``chip``/``seed`` arguments override it.
+        """A board from a mapping of board keys (a test's, a simulator file's), validated once against
+        SimulatedBoardSection, then built as :meth:`from_section`.
 
         ``cfg=None`` is an ideal chip of its datasheet: noise, quantization and
         saturation only (configs/sim.yaml is the realistic default board).
         """
-        cfg = dict(cfg or {})
-        m = parse(cfg, SimulatedBoardSection, path)
+        return cls.from_section(parse(cfg, SimulatedBoardSection, path), chip, seed, path)
+
+    @classmethod
+    def from_section(cls, m: SimulatedBoardSection, chip: str | None = None, seed: int | None = None,
+                     path: str = "simulator") -> SimulatedBoard:
+        """Build a board from its validated section; ``chip``/``seed`` arguments override it."""
         spec = get_chip(chip or m.chip or "mma8451", f"{path}.chip")
-        effects, epath, population = load_simulator(cfg, path)
-        model = SensorModel.from_config(effects, spec, epath, forward=load_physics(cfg, path))
+        effects, epath, population = load_simulator(m, path)
+        model = SensorModel.from_config(effects, spec, epath, forward=load_physics(m, path))
         if seed is None:
             seed = m.seed
         if population is not None:
             seed = int(cast(int, np.random.SeedSequence(seed).entropy))  # fixed here: the draw depends on it
             model = draw_board(model, population, seed, epath.rsplit(".", 1)[0] + ".population")
-        e, ep = m.eeprom or SimEepromSection(), f"{path}.eeprom"
-        if e.size_bytes % e.page_bytes:
-            raise ConfigError(f"{ep}.size_bytes: {e.size_bytes} must be a multiple of page_bytes ({e.page_bytes})")
-        if e.image is not None and not e.image.strip():
-            raise ConfigError(f"{ep}.image: {e.image!r}; allowed: a file path (relative: the current directory)")
-        if e.image is not None:
-            _check_image_path(e.image, f"{ep}.image")
-        eeprom = EEPROM24(e.size_bytes, e.page_bytes, e.write_cycle_ms / 1000.0, fail_at_write=e.fail_at_write,
-                          image_path=e.image)
         board = cls(model, seed, None if m.serial is None else str(m.serial), m.realtime, m.ambient_c,
-                    m.self_heating_c, eeprom)
+                    m.self_heating_c, sim_eeprom(m.eeprom or SimEepromSection(), f"{path}.eeprom"))
         if m.true_mount is not None:  # the chip sits turned on this board (the station may not know)
             board.mount = mount_matrix(m.true_mount)
             board.place(board.attitude)
-        board.configure(cfg.get("range_g", spec.default_range_g), cfg.get("odr_hz", spec.default_odr_hz),
-                        cfg.get("dlpf"), path)
+        board.configure(spec.default_range_g if m.range_g is None else m.range_g,
+                        spec.default_odr_hz if m.odr_hz is None else m.odr_hz, m.dlpf, path)
         return board
 
     # -- configuration ----------------------------------------------------------------------
@@ -408,10 +398,6 @@ class SimulatedDriver(Driver):
         self.board = board
         self._open = False
 
-    @classmethod
-    def from_config(cls, cfg: dict[str, Any] | None, path: str = "device") -> SimulatedDriver:
-        return cls(SimulatedBoard.from_config(cfg, path=path))
-
     def open(self) -> None:
         self._open = True
 
@@ -458,6 +444,19 @@ class SimulatedDriver(Driver):
     @property
     def nvm(self) -> EEPROM24:
         return self.board.eeprom
+
+
+def sim_eeprom(e: SimEepromSection, ep: str) -> EEPROM24:
+    """A simulated board's EEPROM from its section (its size a whole number of pages, its image file
+    a regular file in an existing folder)."""
+    if e.size_bytes % e.page_bytes:
+        raise ConfigError(f"{ep}.size_bytes: {e.size_bytes} must be a multiple of page_bytes ({e.page_bytes})")
+    if e.image is not None and not e.image.strip():
+        raise ConfigError(f"{ep}.image: {e.image!r}; allowed: a file path (relative: the current directory)")
+    if e.image is not None:
+        _check_image_path(e.image, f"{ep}.image")
+    return EEPROM24(e.size_bytes, e.page_bytes, e.write_cycle_ms / 1000.0, fail_at_write=e.fail_at_write,
+                    image_path=e.image)
 
 
 def _check_image_path(image: str, where: str) -> None:

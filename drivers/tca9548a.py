@@ -15,10 +15,9 @@ from typing import Any
 
 import smbus2
 
-from ..config.parts import MuxChannelSection, parse
-from ..config.schema import MuxSection
+from ..config.kinds import Mma8451Device
 from ..errors import ConfigError, DeviceError
-from .mma8451 import MMA8451
+from .mma8451 import MMA8451, settings_of
 
 ADDRESSES = range(0x70, 0x78)
 CHANNELS = range(8)
@@ -113,20 +112,24 @@ class MuxChannel:
         pass  # the bus belongs to the MuxBus
 
 
-def mux_settings(section: dict[str, Any], path: str) -> tuple[int, int, dict[str, Any]]:
-    """(mux address, channel, the device section without the mux keys) of a board behind a mux."""
-    address = parse(section.get("mux"), MuxSection, f"{path}.mux").address
-    if "channel" not in section:
+MuxBuses = dict[tuple[int | str, int], MuxBus]
+"""One MuxBus per (I2C bus, mux address), shared by the boards of a panel behind it."""
+
+
+def mux_settings(m: Mma8451Device, path: str) -> tuple[int, int]:
+    """(mux address, channel) of a board behind a mux."""
+    if m.mux is None:
+        raise ConfigError(f"{path}.mux: required behind a mux")
+    if m.channel is None:
         raise ConfigError(f"{path}.channel: required behind a mux; allowed: 0..7")
-    channel = parse({"channel": section["channel"]}, MuxChannelSection, path).channel
-    rest = {k: v for k, v in section.items() if k not in ("mux", "channel", "driver")}
-    return address, channel, rest
+    return m.mux.address, m.channel
 
 
-def muxed_mma8451(section: dict[str, Any], path: str, buses: dict[tuple[Any, int], MuxBus]) -> MMA8451:
+def muxed_mma8451(m: Mma8451Device, path: str, buses: MuxBuses) -> MMA8451:
     """An MMA8451 behind a TCA9548A on a real bus; ``buses`` shares one MuxBus per (bus, mux address)."""
-    address, channel, rest = mux_settings(section, path)
-    bus, kw = MMA8451.parse_config(rest, path)
+    address, channel = mux_settings(m, path)
+    kw = settings_of(m, path)
+    bus = m.bus
     key = (bus, address)
     if key not in buses:
         try:

@@ -20,8 +20,10 @@ import numpy as np
 import pytest
 from test_mpu6050_firmware import FACTORY, LINK, frames_until, require_simavr
 
+from accelcal_station.config.schema import validate_device
 from accelcal_station.drivers import bridge_protocol as bp
 from accelcal_station.drivers.bridge_link import BridgeLink
+from accelcal_station.drivers.factory import make_driver
 from accelcal_station.drivers.mpu6050 import MPU6050Bridge
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.mpu6050_simavr import SimavrBridge
@@ -36,7 +38,7 @@ def test_a_rate_the_link_cannot_carry_is_refused_with_the_computed_limit():
     with pytest.raises(ConfigError, match=r"carries at most 480 sample frames/s .* allowed: at most 333\.333 Hz"):
         MPU6050Bridge("/dev/ttyUSB0", odr_hz=500)
     with pytest.raises(ConfigError, match=r"device\.odr_hz: 1000 Hz; .* at most 333\.333 Hz"):
-        MPU6050Bridge.from_config({"port": "/dev/ttyUSB0", "odr_hz": 1000})
+        make_driver(validate_device({"driver": "mpu6050", "port": "/dev/ttyUSB0", "odr_hz": 1000}))
     MPU6050Bridge("/dev/ttyUSB0", odr_hz=1000 / 3)  # 333 Hz: carried
     # twice the baud rate carries 960 frames/s: 500 Hz passes, 1000 Hz still does not
     MPU6050Bridge("/dev/ttyUSB0", odr_hz=500, baud=230400)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from accelcal_station.config.schema import validate_chamber, validate_device
 from accelcal_station.drivers.base import Driver
 from accelcal_station.drivers.factory import make_driver
 from accelcal_station.drivers.mma8451 import MMA8451
@@ -21,6 +22,7 @@ from accelcal_station.fixtures.motorized_jig import MotorizedJig
 from accelcal_station.fixtures.operator_jig import OperatorJig
 from accelcal_station.instruments.chamber import AsciiChamber, ChamberError
 from accelcal_station.instruments.chamber_emulator import ChamberEmulator, ChamberPhysics
+from accelcal_station.instruments.factory import make_chamber
 
 PKG = Path(__file__).resolve().parents[1] / "accelcal_station"
 
@@ -42,7 +44,7 @@ def _probes(path: Path) -> list[str]:
 
 def test_the_station_and_the_jig_factory_ask_declared_capabilities_not_probe(tmp_path: Path) -> None:
     files = [*sorted((PKG / "station").glob("*.py")), PKG / "fixtures" / "factory.py",
-             PKG / "instruments" / "factory.py"]
+             *sorted((PKG / "instruments").glob("*.py")), PKG / "drivers" / "factory.py"]
     found = [p for f in files for p in _probes(f)]
     assert not found, found
     # the scan itself finds probes when there are some
@@ -60,10 +62,10 @@ def test_real_drivers_carry_no_emulator() -> None:
         src = inspect.getsource(cls)
         assert "emulator" not in inspect.signature(cls.__init__).parameters
         assert "self.emulator" not in src, cls.__name__
-    with make_driver({"driver": "mma8451", "bus": "emulated", "seed": 3}) as d:
+    with make_driver(validate_device({"driver": "mma8451", "bus": "emulated", "seed": 3})) as d:
         assert type(d) is not MMA8451 and isinstance(d, MMA8451)  # the real driver code, emulated bus beside it
         assert d.board is not None and board_of(d) is d.board and clock_of(d) is d.board.clock
-    with make_driver({"driver": "mpu6050", "port": "emulated", "seed": 3, "timeout_s": 0.3}) as d:
+    with make_driver(validate_device({"driver": "mpu6050", "port": "emulated", "seed": 3, "timeout_s": 0.3})) as d:
         assert isinstance(d, MPU6050Bridge) and d.board is not None
         assert d.board.chip.name == "mpu6050"
 
@@ -72,7 +74,8 @@ def test_capabilities_are_declared_on_the_base_classes() -> None:
     assert Driver.supports_offset_trim is False and Driver.board is None
     assert MMA8451.supports_offset_trim is True and MMA8451.offset_trim_lsb_g == pytest.approx(1 / 512)
     assert MPU6050Bridge.supports_offset_trim is False
-    with make_driver({"driver": "simulated", "seed": 1}) as sim, pytest.raises(DeviceError, match="no offset-trim"):
+    with make_driver(validate_device({"driver": "simulated", "seed": 1})) as sim, \
+            pytest.raises(DeviceError, match="no offset-trim"):
         sim.set_offset_trim((0, 0, 0))
     assert (Jig.shows_live_reading, Jig.places_again, Jig.wait_s) == (False, False, 0.0)
     assert OperatorJig.shows_live_reading and OperatorJig.places_again
@@ -90,11 +93,14 @@ def test_the_chamber_opens_through_the_visa_backend_its_config_names(tmp_path: P
     emu = ChamberEmulator(ChamberPhysics(clock, start_c=25.0))
     port = emu.start()
     try:
-        with AsciiChamber.from_config({"port": port, "timeout_s": 0.5}) as ch:
+        with make_chamber(validate_chamber({"port": port, "timeout_s": 0.5})) as ch:
+            assert isinstance(ch, AsciiChamber)
             assert ch.visa_library == "@py"
             assert ch.status().air_c == pytest.approx(25.0, abs=0.1)
         missing = tmp_path / "libvendorvisa.so"
-        ch = AsciiChamber.from_config({"port": port, "timeout_s": 0.5, "visa_library": str(missing)})
+        ch = make_chamber(validate_chamber({"type": "visa", "port": port, "timeout_s": 0.5,
+                                            "visa_library": str(missing)}))
+        assert isinstance(ch, AsciiChamber)
         assert ch.visa_library == str(missing)
         with pytest.raises(ChamberError, match="cannot open"):
             ch.open()

@@ -17,6 +17,7 @@ from click.testing import CliRunner
 
 from accelcal_station.calibration import Calibration
 from accelcal_station.cli import cli
+from accelcal_station.config.schema import validate_device
 from accelcal_station.config.sections import device_section
 from accelcal_station.drivers.factory import make_driver
 from accelcal_station.nvm.writer import CalibrationWriter
@@ -160,7 +161,7 @@ def test_damaged_or_foreign_backup_is_refused_with_one_line(board, tmp_path):
 
 def test_image_of_another_board_needs_force(board, tmp_path):
     _, dev = board
-    other = make_driver({"driver": "simulated", "seed": 9, "serial": "OTHER-7"})
+    other = make_driver(validate_device({"driver": "simulated", "seed": 9, "serial": "OTHER-7"}))
     with other:
         CalibrationWriter(other.nvm).burn(cal(4), "OTHER-7", "st9")
     assert nvm("backup", "--out", tmp_path / "other.json", driver=other).exit_code == 0

@@ -16,11 +16,10 @@ from accelcal_station.cli import cli
 from accelcal_station.config.docs import keys, render, section_rows
 from accelcal_station.config.schema import StationConfigSchema, validate_station
 from accelcal_station.config.sections import default_config_path
-from accelcal_station.drivers.mma8451 import MMA8451
-from accelcal_station.drivers.mpu6050 import MPU6050Bridge
-from accelcal_station.drivers.simulated import BOARD_KEYS, EEPROM_KEYS
+from accelcal_station.drivers.mma8451 import Mma8451Settings
+from accelcal_station.drivers.mpu6050 import Mpu6050Settings
 from accelcal_station.fixtures.motorized_jig import MotorizedJig
-from accelcal_station.fixtures.simulated_hand import HAND_KEYS
+from accelcal_station.fixtures.simulated_hand import SimulatedHand
 from accelcal_station.station.capture import CaptureSettings
 from accelcal_station.station.identity import IDENTITY_KEYS
 from accelcal_station.station.thermal_plan import SoakRule, ThermalPlan
@@ -31,6 +30,12 @@ REPO = Path(__file__).resolve().parents[1]
 def test_docs_config_md_is_generated_from_the_schema() -> None:
     assert (REPO / "docs" / "config.md").read_text() == render(), \
         "regenerate: python -m accelcal_station.config.docs > docs/config.md"
+
+
+def _params(init: Any, *skip: str) -> tuple[str, ...]:
+    """A constructor's keyword names (what it takes from its config section)."""
+    import inspect
+    return tuple(n for n in inspect.signature(init).parameters if n not in ("self", *skip))
 
 
 def _sections_read() -> tuple[str, ...]:
@@ -81,9 +86,11 @@ def test_every_key_the_code_reads_is_in_the_schema() -> None:
         "": _sections_read(), "acceptance": tuple(LIMIT_KEYS), "capture": tuple(CaptureSettings.__dataclass_fields__),
         "station": ("id", *IDENTITY_KEYS), "thermal": tuple(ThermalPlan.__dataclass_fields__),
         "thermal.soak": tuple(SoakRule.__dataclass_fields__),
-        "device": BOARD_KEYS + MMA8451.CONFIG_KEYS + MPU6050Bridge.CONFIG_KEYS + ("driver", "boards", "spread", "mux"),
-        "device.eeprom": EEPROM_KEYS, "jig": MotorizedJig.CONFIG_KEYS + ("type", "move_time_s", "hand"),
-        "jig.hand": HAND_KEYS,
+        # the keywords the drivers and jigs take from their typed sections (declared apart from the schema)
+        "device": tuple(Mma8451Settings.__annotations__) + tuple(Mpu6050Settings.__annotations__)
+        + ("driver", "boards", "spread", "mux", "bus", "port"),
+        "jig": _params(MotorizedJig.__init__) + ("type", "move_time_s", "hand"),
+        "jig.hand": _params(SimulatedHand.__init__, "board"),
         "plan": ("design", "model"), "nvm": ("write", "slot_size", "offset_trim"), "verify": ("poses", "design"),
         "store": ("path",),
     }

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from accelcal_station.cli.poses import command as poses_command
+from accelcal_station.config.schema import validate_device
 from accelcal_station.drivers.factory import make_driver
 from accelcal_station.drivers.mpu6050 import MPU6050Bridge
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
@@ -155,7 +156,7 @@ def test_simulated_board_reads_as_the_data_sheets():
 
 
 def test_mma8451_register_emulator_through_the_driver():
-    d = make_driver({"driver": "mma8451", "bus": "emulated", "seed": 5})
+    d = make_driver(validate_device({"driver": "mma8451", "bus": "emulated", "seed": 5}))
     with d:
         check_board(d.board, lambda: mean_g(d), "MMA8451 emulator")
 

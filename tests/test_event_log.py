@@ -15,6 +15,7 @@ from click.testing import CliRunner
 from test_port_faults import rig
 
 from accelcal_station.cli import cli
+from accelcal_station.config.schema import validate_device
 from accelcal_station.drivers.mma8451 import MMA8451, WHO_AM_I
 from accelcal_station.drivers.mma8451_emulator import MMA8451Emulator
 
@@ -124,8 +125,8 @@ def test_the_level_and_keys_are_checked(tmp_path):
 def test_i2c_retries_are_logged_as_the_bus_nacked(caplog):
     """An MMA8451 driver on its register-level emulator (handed in as its SMBus): each NACK the
     emulator records is one INFO line naming bus, address and register, numbered."""
-    emu = MMA8451Emulator.from_config({"driver": "mma8451", "bus": "emulated", "seed": 7}, "device", address=0x1D,
-                                      eeprom_address=None)
+    emu = MMA8451Emulator.from_section(validate_device({"driver": "mma8451", "bus": "emulated", "seed": 7}), "device",
+                                       eeprom_address=None)
     drv = MMA8451(emu, clock=emu.clock, bus_label="emulated")
     emu.nack_next(2, register=WHO_AM_I)  # within the driver's 3 retries
     with caplog.at_level(logging.INFO, logger="accelcal_station"), drv:

@@ -8,6 +8,7 @@ import pytest
 import smbus2
 from smbus2 import i2c_msg
 
+from accelcal_station.config.schema import validate_device
 from accelcal_station.drivers.factory import make_driver
 from accelcal_station.drivers.mma8451 import (
     CTRL_REG1,
@@ -30,7 +31,7 @@ ADDR = 0x1D
 
 
 def emulated(**over) -> MMA8451:
-    return make_driver({"driver": "mma8451", "bus": "emulated", "seed": 7, **over})
+    return make_driver(validate_device({"driver": "mma8451", "bus": "emulated", "seed": 7, **over}))
 
 
 @pytest.fixture
@@ -316,31 +317,31 @@ def test_emulator_fills_real_smbus2_messages():
 
 def test_config_errors():
     with pytest.raises(ConfigError, match=r"device.bus: 'usb'; allowed: a bus number"):
-        make_driver({"driver": "mma8451", "bus": "usb"})
+        make_driver(validate_device({"driver": "mma8451", "bus": "usb"}))
     with pytest.raises(ConfigError, match=r"device.address: 0x1e; allowed: 0x1c \(SA0 low\), 0x1d \(SA0 high\)"):
-        make_driver({"driver": "mma8451", "address": 0x1E})
+        make_driver(validate_device({"driver": "mma8451", "address": 0x1E}))
     with pytest.raises(ConfigError, match="device.odr_hz: 3 Hz; allowed"):
-        make_driver({"driver": "mma8451", "odr_hz": 3})
+        make_driver(validate_device({"driver": "mma8451", "odr_hz": 3}))
     with pytest.raises(ConfigError, match="device.seed: only used with bus: emulated"):
-        make_driver({"driver": "mma8451", "bus": 1, "seed": 1})
+        make_driver(validate_device({"driver": "mma8451", "bus": 1, "seed": 1}))
     with pytest.raises(ConfigError, match="device.emulator.nack: unknown key"):
-        make_driver({"driver": "mma8451", "bus": "emulated", "emulator": {"nack": 1}})
+        make_driver(validate_device({"driver": "mma8451", "bus": "emulated", "emulator": {"nack": 1}}))
     with pytest.raises(ConfigError, match=r"device.simulator.effects.offse: unknown key"):
-        make_driver({"driver": "mma8451", "bus": "emulated", "simulator": {"effects": {"offse": {}}}})
+        make_driver(validate_device({"driver": "mma8451", "bus": "emulated", "simulator": {"effects": {"offse": {}}}}))
     # a 24C16 or smaller takes a 1-byte word address: the driver's 2-byte addresses would write garbage
     with pytest.raises(ConfigError, match=r"device.eeprom.size: 2048 out of range; allowed: 4096 to 65536"):
-        make_driver({"driver": "mma8451", "eeprom": {"size": 2048, "page_size": 16}})
+        make_driver(validate_device({"driver": "mma8451", "eeprom": {"size": 2048, "page_size": 16}}))
 
 
 def test_real_smbus2_missing_bus():
-    d = make_driver({"driver": "mma8451", "bus": 250})
+    d = make_driver(validate_device({"driver": "mma8451", "bus": 250}))
     with pytest.raises(DeviceError, match=r"i2c bus 250: /dev/i2c-250 does not exist; enable I2C"):
         d.open()
 
 
 def test_real_smbus2_on_a_non_i2c_node():
     with pytest.raises(DeviceError, match=r"i2c bus /dev/null: cannot open /dev/null: \[Errno 25\].*not an I2C"):
-        make_driver({"driver": "mma8451", "bus": "/dev/null"}).open()
+        make_driver(validate_device({"driver": "mma8451", "bus": "/dev/null"})).open()
 
 
 def test_permission_denied_mentions_i2c_group(monkeypatch):
@@ -348,7 +349,7 @@ def test_permission_denied_mentions_i2c_group(monkeypatch):
         raise PermissionError(errno.EACCES, "Permission denied", f"/dev/i2c-{bus}")
     monkeypatch.setattr(smbus2, "SMBus", denied)
     with pytest.raises(DeviceError, match=r"permission denied on /dev/i2c-1; add the user to the i2c group"):
-        make_driver({"driver": "mma8451", "bus": 1}).open()
+        make_driver(validate_device({"driver": "mma8451", "bus": 1})).open()
 
 
 def test_simulator_from_a_station_config_file(tmp_path):

@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 import serial
 
+from accelcal_station.config.schema import validate_jig
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.errors import ConfigError, DeviceError
 from accelcal_station.fixtures.base import PoseSpec
 from accelcal_station.fixtures.designs import get_design
+from accelcal_station.fixtures.factory import make_jig
 from accelcal_station.fixtures.jig_emulator import JigEmulator, run_jig_emulator_forever
 from accelcal_station.fixtures.motorized_jig import MotorizedJig, checksum, frame, move_time_s, profile_deg, unframe
 
@@ -381,22 +383,23 @@ def test_run_forever_serves_behind_a_link_until_stopped(tmp_path):
 # -- configuration --------------------------------------------------------------------------
 
 def test_from_config():
-    jig = MotorizedJig.from_config({"port": "/dev/ttyUSB0", "baud": 57600, "speed_deg_s": 40,
-                                    "axis_sign": [1, -1], "axis_offset_deg": [0.5, -1], "home_on_open": False})
+    jig = make_jig(validate_jig({"type": "motorized", "port": "/dev/ttyUSB0", "baud": 57600, "speed_deg_s": 40,
+                                 "axis_sign": [1, -1], "axis_offset_deg": [0.5, -1], "home_on_open": False}), None)
+    assert isinstance(jig, MotorizedJig)
     assert (jig.port, jig.baud, jig.home_on_open, jig._speed_cfg) == ("/dev/ttyUSB0", 57600, False, 40.0)
     assert jig.axis_sign.tolist() == [1, -1] and jig.axis_offset_deg.tolist() == [0.5, -1]
 
 
 @pytest.mark.parametrize("cfg, message", [
-    ({"port": "/dev/x", "sped": 3}, r"^station\.jig\.sped: unknown key; allowed: port, baud"),
-    ({}, r"^station\.jig\.port: required"),
-    ({"port": "/dev/x", "timeout_s": -1}, r"^station\.jig\.timeout_s: -1 out of range"),
-    ({"port": "/dev/x", "home_on_open": "yes"}, r"^station\.jig\.home_on_open: 'yes'; allowed: true, false"),
-    ({"port": "/dev/x", "axis_sign": [1, 2]}, r"^station\.jig\.axis_sign\[1\]: 2; allowed: 1, -1"),
+    ({"port": "/dev/x", "sped": 3}, r"^jig\.sped: unknown key; allowed: type, port, baud"),
+    ({}, r"^jig\.port: required"),
+    ({"port": "/dev/x", "timeout_s": -1}, r"^jig\.timeout_s: -1 out of range"),
+    ({"port": "/dev/x", "home_on_open": "yes"}, r"^jig\.home_on_open: 'yes'; allowed: true, false"),
+    ({"port": "/dev/x", "axis_sign": [1, 2]}, r"^jig\.axis_sign\[1\]: 2; allowed: 1, -1"),
     ({"port": "/dev/x", "axis_offset_deg": 3},
-     r"^station\.jig\.axis_offset_deg: 3; allowed: a list \(zero offset of each axis \[pitch, roll\]"),
-    ({"port": "/dev/x", "speed_deg_s": 0}, r"^station\.jig\.speed_deg_s: 0 out of range"),
+     r"^jig\.axis_offset_deg: 3; allowed: a list \(zero offset of each axis \[pitch, roll\]"),
+    ({"port": "/dev/x", "speed_deg_s": 0}, r"^jig\.speed_deg_s: 0 out of range"),
 ])
 def test_bad_config_names_the_key(cfg, message):
     with pytest.raises(ConfigError, match=message):
-        MotorizedJig.from_config(cfg, path="station.jig")
+        make_jig(validate_jig({"type": "motorized", **cfg}), None)

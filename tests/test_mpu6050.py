@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from accelcal_station.config.schema import validate_device
 from accelcal_station.drivers import bridge_protocol as bp
 from accelcal_station.drivers.bridge_link import _McuClock
 from accelcal_station.drivers.factory import make_driver
@@ -348,26 +349,28 @@ def test_silent_port_is_no_answer_in_bounded_time():
 
 # --- configuration and lifecycle -------------------------------------------------------------------
 def test_from_config_checks_keys():
-    ok = MPU6050Bridge.from_config({"port": "/dev/ttyUSB0", "range_g": 8, "odr_hz": 50, "dlpf": 5})
+    ok = make_driver(validate_device({"driver": "mpu6050", "port": "/dev/ttyUSB0", "range_g": 8, "odr_hz": 50,
+                                      "dlpf": 5}))
+    assert isinstance(ok, MPU6050Bridge)
     assert ok.port == "/dev/ttyUSB0" and ok._want == (8, 50.0, 5)
     bad = [({}, "port"), ({"port": 3}, "port"), ({"port": "/dev/ttyUSB0", "odr_hz": 300}, "odr_hz"),
            ({"port": "/dev/ttyUSB0", "range_g": 3}, "range_g"), ({"port": "/dev/ttyUSB0", "bus": 1}, "bus"),
            ({"port": "/dev/ttyUSB0", "seed": 1}, "seed"), ({"port": "/dev/ttyUSB0", "dlpf": 9}, "dlpf")]
     for cfg, key in bad:
         with pytest.raises(ConfigError) as e:
-            MPU6050Bridge.from_config(cfg, path="device")
+            make_driver(validate_device({"driver": "mpu6050", **cfg}))
         assert f"device.{key}" in one_line(e.value)
 
 
 def test_port_emulated_through_make_driver():
-    with make_driver({"driver": "mpu6050", "port": "emulated", "seed": 3, "timeout_s": 0.3}) as d:
+    with make_driver(validate_device({"driver": "mpu6050", "port": "emulated", "seed": 3, "timeout_s": 0.3})) as d:
         assert d.port.startswith("/dev/") and d.identify().chip_id == 0x68
         assert d.emulator.board.chip.name == "mpu6050"  # the station's simulated jig moves this board
         cap = d.capture(100)
         assert cap.n == 100 and abs(cap.mean_counts[2] - 16384) < 40
     assert no_bridge_threads()
     sim = str(Path(__file__).resolve().parents[1] / "configs" / "sim.yaml")
-    with make_driver({"driver": "mpu6050", "port": "emulated", "simulator": sim, "seed": 3}) as d:
+    with make_driver(validate_device({"driver": "mpu6050", "port": "emulated", "simulator": sim, "seed": 3})) as d:
         # configs/sim.yaml's board: z gain 1.021 and offset +41 mg (SEM 45/sqrt(400) counts, 0.14 mg)
         assert d.capture(400).mean_counts[2] / 16384 == pytest.approx(1.062, abs=0.005)
 

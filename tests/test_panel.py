@@ -10,6 +10,7 @@ import yaml
 from click.testing import CliRunner
 
 from accelcal_station.cli import cli
+from accelcal_station.config.schema import validate_device
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.errors import ConfigError
 from accelcal_station.fixtures.designs import get_design, references
@@ -80,12 +81,12 @@ def test_panel_of_one_is_the_single_board_flow(tmp_path):
                                          ([3], "device.boards[0]"), (65, "device.boards")])
 def test_panel_config_errors_name_the_key(boards, key):
     with pytest.raises(ConfigError, match=key.replace("[", r"\[").replace("]", r"\]")):
-        panel_sections({"driver": "simulated", "boards": boards})
+        panel_sections(validate_device({"driver": "simulated", "boards": boards}))
 
 
 def test_spread_needs_boards():
     with pytest.raises(ConfigError, match="device.spread: only used with device.boards"):
-        panel_sections({"driver": "simulated", "spread": {"offset_mg": 1}})
+        panel_sections(validate_device({"driver": "simulated", "spread": {"offset_mg": 1}}))
 
 
 def _scattered_panel(n: int, scatter_deg: float, seed: int = 3):

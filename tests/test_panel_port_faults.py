@@ -16,6 +16,7 @@ from click.testing import CliRunner
 from test_port_faults import rig
 
 from accelcal_station.cli import cli
+from accelcal_station.config.schema import validate_device
 from accelcal_station.fixtures.jig_emulator import JigEmulator
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -94,7 +95,7 @@ def test_thermal_panel_jig_pty_hangs_up_mid_plan(tmp_path):
     doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
     doc["device"]["boards"] = 1
     (tmp_path / "t.yaml").write_text(yaml.safe_dump(doc))
-    (sec, path), = panel_sections(doc["device"])
+    (sec, path), = panel_sections(validate_device(doc["device"]))
     driver = make_driver(sec, path)
     jig = JigEmulator(board=board_of(driver), speed_deg_s=4000, accel_deg_s2=1e5)
     jig.start()
@@ -130,7 +131,7 @@ def test_nack_storm_on_the_multiplexed_bus_mid_run(tmp_path):
     doc["device"]["boards"] = doc["device"]["boards"][:3]
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(doc))
     buses: dict = {}
-    drivers = [make_driver(sec, path, buses) for sec, path in panel_sections(doc["device"])]
+    drivers = [make_driver(sec, path, buses) for sec, path in panel_sections(validate_device(doc["device"]))]
     for d in drivers:
         d.emulator.nack_next(k=100_000, after=2_000)
     reps = PanelStation(StationConfig.load(tmp_path / "p.yaml"), drivers=drivers, echo=lambda s: None).run()

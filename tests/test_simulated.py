@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 
+from accelcal_station.config.schema import validate_device
 from accelcal_station.drivers.eeprom import EEPROM24, PowerLossError
 from accelcal_station.drivers.factory import make_driver
 from accelcal_station.drivers.simulated import SimulatedBoard, SimulatedDriver, VirtualClock
@@ -311,8 +312,8 @@ def test_settling_follows_motion_as_a_first_order_response():
 # -- driver -----------------------------------------------------------------------------------
 
 def test_make_driver_builds_the_simulated_driver():
-    dev = make_driver({"driver": "simulated", "chip": "mpu6050", "seed": 3, "range_g": 4, "odr_hz": 200,
-                       "dlpf": 2, "ambient_c": 31.0})
+    dev = make_driver(validate_device({"driver": "simulated", "chip": "mpu6050", "seed": 3, "range_g": 4, "odr_hz": 200,
+                       "dlpf": 2, "ambient_c": 31.0}))
     assert isinstance(dev, SimulatedDriver)
     with pytest.raises(DeviceError, match="not open"):
         dev.read_samples(3)
@@ -328,13 +329,13 @@ def test_make_driver_builds_the_simulated_driver():
         assert dev.nvm is dev.board.eeprom
         with pytest.raises(ConfigError, match="unknown option 'oversampling'"):
             dev.configure(oversampling=2)
-    with make_driver({"driver": "simulated"}) as mma:
+    with make_driver(validate_device({"driver": "simulated"})) as mma:
         assert mma.temperature_c() is None  # the MMA8451 has no temperature sensor
 
 
 def test_driver_config_errors_carry_the_section_path():
     with pytest.raises(ConfigError, match=r"^device\.odr_hz: 7; allowed for mma8451"):
-        make_driver({"driver": "simulated", "odr_hz": 7})
+        make_driver(validate_device({"driver": "simulated", "odr_hz": 7}))
 
 
 # -- EEPROM -----------------------------------------------------------------------------------

@@ -287,6 +287,7 @@ def test_trim_check_on_null_data_false_alarms_at_the_stated_rate():
     At 4 sigma (Gaussian, SEM honest) the false-alarm rate is 6.3e-5 per axis: 600 trials expect 0.04, and 3
     or more happen with probability < 1e-5.  A SEM too small by 2 (correlated samples counted as
     independent) would give 4.6 % (~27 alarms): the bound below would catch it."""
+    from accelcal_station.config.schema import validate_device
     from accelcal_station.drivers.factory import make_driver
     from accelcal_station.station.board import trim_change
     from accelcal_station.station.capture import CaptureSettings, gated_capture
@@ -295,7 +296,7 @@ def test_trim_check_on_null_data_false_alarms_at_the_stated_rate():
     doc["seed"] = 42
     settings = CaptureSettings(target_sem_mg=0.1, max_s=20, hold_s=0.0)
     alarms, scores = 0, []
-    with make_driver(doc) as dev:
+    with make_driver(validate_device(doc)) as dev:
         dev.configure(2, 100)
         for _ in range(200):
             a = gated_capture(dev, settings).capture
@@ -360,12 +361,15 @@ def test_emulate_with_the_configs_fault_then_run_fails_self_test(tmp_path, firmw
 
 
 def test_bridge_emulator_keys_only_with_an_emulated_port_and_checked():
+    from accelcal_station.config.schema import validate_device
     from accelcal_station.drivers.factory import make_driver
     from accelcal_station.errors import ConfigError
 
     with pytest.raises(ConfigError, match=r"device\.emulator: only used with port: emulated"):
-        make_driver({"driver": "mpu6050", "port": "/dev/ttyUSB9", "emulator": {"self_test_share": [1, 1, 1]}})
+        make_driver(validate_device({"driver": "mpu6050", "port": "/dev/ttyUSB9",
+                                     "emulator": {"self_test_share": [1, 1, 1]}}))
     with pytest.raises(ConfigError, match=r"device\.emulator\.offset_step_scale"):
-        make_driver({"driver": "mpu6050", "port": "emulated", "emulator": {"offset_step_scale": 5.0}})
+        make_driver(validate_device({"driver": "mpu6050", "port": "emulated", "emulator": {"offset_step_scale": 5.0}}))
     with pytest.raises(ConfigError, match=r"device\.emulator\.self_test_scale"):  # an mma8451 key on the bridge
-        make_driver({"driver": "mpu6050", "port": "emulated", "emulator": {"self_test_scale": [1, 1, 1]}})
+        make_driver(validate_device({"driver": "mpu6050", "port": "emulated",
+                                     "emulator": {"self_test_scale": [1, 1, 1]}}))

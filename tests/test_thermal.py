@@ -15,6 +15,7 @@ from accelcal_station.cli import cli
 from accelcal_station.drivers.simulated import VirtualClock
 from accelcal_station.instruments.chamber import AsciiChamber, ChamberError
 from accelcal_station.instruments.chamber_emulator import ChamberEmulator, ChamberPhysics
+from accelcal_station.instruments.factory import make_chamber
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -303,7 +304,9 @@ def test_the_hardware_thermal_config_is_valid():
     assert cfg.schema.thermal is not None and cfg.schema.chamber is not None
     plan = ThermalPlan.from_section(cfg.schema.thermal, cfg.model)
     assert plan.visits() == [(-20.0, "calibrate"), (25.0, "calibrate"), (45.0, "verify"), (70.0, "calibrate")]
-    AsciiChamber.from_config(cfg.schema.chamber)  # every key known, port and limits accepted
+    ch = make_chamber(cfg.schema.chamber)  # every key known, port and limits accepted: a real chamber
+    assert isinstance(ch, AsciiChamber) and (ch.port, ch.visa_library, ch.min_c, ch.max_c) == (
+        "/dev/ttyUSB2", "@py", -40, 85)
 
 
 

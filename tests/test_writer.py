@@ -254,10 +254,11 @@ def test_power_loss_during_restore_keeps_a_valid_calibration(eeprom, tmp_path, a
 def test_burn_through_a_driver_nvm_survives_power_loss(driver):
     """The board's own NVM path: MMA8451 over smbus2 i2c_rdwr to the emulated 24C32 at 0x50,
     and the simulated board's EEPROM; power is lost in the 4th page write of a burn."""
+    from accelcal_station.config.schema import validate_device
     from accelcal_station.drivers.factory import make_driver
 
     cfg = {"driver": driver, "seed": 3, **({"bus": "emulated"} if driver == "mma8451" else {})}
-    with make_driver(cfg) as dev:
+    with make_driver(validate_device(cfg)) as dev:
         serial = dev.identify().serial
         eeprom = dev.dev.smbus.board.eeprom if driver == "mma8451" else dev.board.eeprom
         w = CalibrationWriter(dev.nvm)

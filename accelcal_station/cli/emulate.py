@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from ..config.kinds import SimulatedBoardSection
 from ..drivers.emulator_files import board_config_from_file, emulator_options_from_file
 from ..drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from ..drivers.simulated import SimulatedBoard
@@ -103,8 +104,9 @@ def _bridge(config_path: str | None, seed: int | None,
             on_avr: bool) -> tuple[SimulatedBoard, SimavrBridge | MPU6050BridgeEmulator]:
     """The simulated board (from --config, --seed) and the bridge serving it: simavr firmware or Python."""
     board_cfg, cfg_seed = board_config_from_file(config_path) if config_path else (None, None)
-    board = SimulatedBoard.from_config(board_cfg, chip="mpu6050", seed=seed if seed is not None else cfg_seed,
-                                       path=f"{config_path}: device" if config_path else "simulator")
+    board = SimulatedBoard.from_section(board_cfg or SimulatedBoardSection(), chip="mpu6050",
+                                        seed=seed if seed is not None else cfg_seed,
+                                        path=f"{config_path}: device" if config_path else "simulator")
     # the chip's faults from the config's device.emulator (self_test_share, offset_step_scale, ...)
     faults = emulator_options_from_file(config_path) if config_path else {}
     if on_avr:

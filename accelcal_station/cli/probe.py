@@ -28,12 +28,12 @@ def command(config_path: str, port: str | None, readings: int, samples: int, as_
     try:
         with make_driver(section) as dev:
             ident = dev.identify()
-            settings = dev.settings() if hasattr(dev, "settings") else {}
+            settings = dev.settings()
             temp = dev.temperature_c()
             caps = [dev.capture(n=samples) for _ in range(readings)]
             cpg, rng, odr = dev.counts_per_g, dev.range_g, dev.odr_hz
     except OSError as e:  # a driver should not let one escape; if it does, still one line
-        raise DeviceError(f"{section.get('driver')}: {e.strerror or e}") from None
+        raise DeviceError(f"{section.driver}: {e.strerror or e}") from None
     result = {
         "chip": ident.chip, "chip_id": ident.chip_id, "interface": ident.interface, "serial": ident.serial,
         "firmware": ident.firmware, "range_g": rng, "odr_hz": odr, "counts_per_g": cpg, "settings": settings,

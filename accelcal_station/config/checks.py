@@ -12,6 +12,7 @@ import yaml
 
 from ..errors import ConfigError
 from ..fileguard.regular import read_bytes
+from ..jsontypes import JsonObject
 from .safe_yaml import MAX_BYTES, HostileYAML, safe_load
 
 
@@ -45,7 +46,7 @@ def load_yaml_text(path: str | Path) -> tuple[dict[str, Any], str]:
     return data, text
 
 
-def check_keys(d: Any, allowed: Iterable[str], path: str) -> dict[str, Any]:
+def check_keys(d: object, allowed: Iterable[str], path: str) -> JsonObject:
     """Refuse unknown keys (typos must not be silently ignored)."""
     if d is None:
         return {}

@@ -8,9 +8,10 @@ back to the member (schema.error_line names the key path and this member's allow
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
-from pydantic import Discriminator, Field, StrictBool, Tag, field_validator
+from pydantic import Discriminator, Field, JsonValue, StrictBool, Tag, field_validator
 
 from .section import MAX_BOARDS, Section, Triple, _f
 
@@ -26,10 +27,19 @@ class HandSection(Section):
     move_time_s: float = _f(2.0, "time the hand takes between poses, s", ge=0, le=60)
 
 
+# an effect's parameters (sim/sensor_model.py parse_effects checks each against its effect) and a
+# population (sim/population.py parse_population): open JSON, validated by the simulator's own parsers
+EffectSpec = dict[str, JsonValue]
+Effects = dict[str, EffectSpec | StrictBool | None]
+PopulationSpec = dict[str, JsonValue]
+
+
 class SimulatorSection(Section):
-    effects: dict[str, dict[str, Any] | None] | None = _f(
+    """A simulated board's forward sensor model (``simulator``: inline, or the file it names)."""
+
+    effects: Effects | None = _f(
         None, "effects of the catalog (sim/sensor_model.py EFFECTS), each with its parameters")
-    population: dict[str, Any] | None = _f(
+    population: PopulationSpec | None = _f(
         None, "the population boards are drawn from: quantities, components, changes "
         "(validated by sim/population.py parse_population, one-line errors)")
     physics: Literal["implicit", "forward"] = _f(
@@ -124,8 +134,9 @@ class SimulatedBoardSection(Section):
     ambient_c: float = _f(25.0, "board temperature, C", ge=-60, le=150)
     self_heating_c: float = _f(0.0, "warm-up of the board, C", ge=0, le=50)
     eeprom: SimEepromSection | None = _f(None, "the board's calibration EEPROM")
-    simulator: dict[str, Any] | str | None = _f(None, "the forward sensor model ({effects: ...}) or a YAML file")
-    effects: dict[str, Any] | None = _f(None, "effects (as simulator.effects)")
+    simulator: SimulatorSection | str | None = _f(
+        None, "the forward sensor model ({effects: ...}) or the path of a simulator YAML file")
+    effects: Effects | None = _f(None, "effects (as simulator.effects)")
     true_mount: list[str] | None = _f(None, "how the chip really sits on the board: the chip axes along the "
                                       "board's x, y, z, e.g. [y, -x, z] (default [x, y, z]); the station's belief "
                                       "is device.mount")
@@ -160,7 +171,8 @@ class Mma8451Section(Section):
     serial: str | int | None = _f(None, "board serial number")
     offset_trim_lsb: list[int] | None = _f(None, "offset registers [x, y, z], whole numbers -128..127")
     eeprom: I2cEepromSection | Literal[False] | None = _f(None, "the board's EEPROM (false: none)")
-    simulator: dict[str, Any] | str | None = _f(None, "bus: emulated: the simulated board (a mapping or a file)")
+    simulator: SimulatedBoardSection | str | None = _f(
+        None, "bus: emulated: the simulated board (a mapping of simulated-board keys, or a file)")
     seed: int | None = _f(None, "bus: emulated: random seed", ge=0, le=2**63 - 1)
     emulator: BusEmulatorSection | None = _f(None, "bus: emulated: the emulator's faults")
 
@@ -176,7 +188,8 @@ class Mpu6050Section(Section):
     timeout_s: float = _f(0.5, "reply timeout, s", ge=0.01, le=60)
     retries: int = _f(3, "retries of a serial transaction", ge=0, le=20)
     boot_wait_s: float = _f(2.0, "wait for the bridge to boot, s", ge=0, le=30)
-    simulator: dict[str, Any] | str | None = _f(None, "port: emulated: the simulated board (a mapping or a file)")
+    simulator: SimulatedBoardSection | str | None = _f(
+        None, "port: emulated: the simulated board (a mapping of simulated-board keys, or a file)")
     seed: int | None = _f(None, "port: emulated: random seed", ge=0, le=2**32 - 1)
     emulator: BridgeEmulatorSection | None = _f(None, "port: emulated: the bridge emulator's chip and faults")
 
@@ -185,8 +198,8 @@ class _SlotKeys(Section):
     """What the station adds to a driver's keys: how the chip sits on the board, and a panel board's slot."""
 
     channel: int | None = _f(None, "panel board: multiplexer channel", ge=0, le=7)
-    seated_deg: list[float] | None = _f(None, "simulated panel board: how it really sits in its slot, an [x, y, z] "
-                                        "rotation vector in degrees")
+    seated_deg: Annotated[list[float], Field(min_length=3, max_length=3)] | None = _f(
+        None, "simulated panel board: how it really sits in its slot, an [x, y, z] rotation vector in degrees")
     mount: list[str] | None = _f(None, "how the chip sits on the board (or the board in the jig): the chip axes "
                                  "along the board's x, y, z, one of the 24 turns, e.g. [y, -x, z] (default [x, y, z]; "
                                  "docs/conventions.md); the station's, never the driver's")
@@ -221,11 +234,6 @@ _BOARDS = f"panel: a count 1..{MAX_BOARDS} or a list of per-board mappings (thes
 class SimulatedPanelBoard(_SlotKeys, SimulatedBoardSection, _SimulatedDriver):
     """A simulated board of a panel (``device.boards[i]``, driver: simulated)."""
 
-    # the file's own section checked in this one validation (the board takes it as a mapping)
-    simulator: SimulatorSection | str | None = _f(  # type: ignore[assignment]
-        None, "the forward sensor model ({effects: ...}) or the path of a simulator YAML file")
-    effects: dict[str, dict[str, Any] | None] | None = _f(None, "effects (as simulator.effects)")
-
 
 class SimulatedDevice(_PanelKeys, SimulatedPanelBoard):
     """``device`` with ``driver: simulated``: a simulated board (or panel of them)."""
@@ -237,8 +245,6 @@ class Mma8451PanelBoard(_SlotKeys, Mma8451Section, _Mma8451Driver):
     """An MMA8451 board of a panel (``device.boards[i]``, driver: mma8451)."""
 
     driver: Literal["mma8451"] = _f("mma8451", "the driver: mma8451")
-    simulator: SimulatedBoardSection | str | None = _f(  # type: ignore[assignment]
-        None, "bus: emulated: the simulated board (a mapping of simulated-board keys, or a file)")
 
 
 class Mma8451Device(_PanelKeys, Mma8451PanelBoard):
@@ -253,8 +259,6 @@ class Mpu6050PanelBoard(_SlotKeys, Mpu6050Section, _Mpu6050Driver):
     """An MPU6050 bridge of a panel (``device.boards[i]``, driver: mpu6050)."""
 
     driver: Literal["mpu6050"] = _f("mpu6050", "the driver: mpu6050")
-    simulator: SimulatedBoardSection | str | None = _f(  # type: ignore[assignment]
-        None, "port: emulated: the simulated board (a mapping of simulated-board keys, or a file)")
 
 
 class Mpu6050Device(_PanelKeys, Mpu6050PanelBoard):
@@ -277,16 +281,20 @@ def _tag(key: str, default: str) -> Any:
     return pick
 
 
-def _discriminator(key: str, default: str, models: dict[str, type[Section]]) -> Discriminator:
+def _discriminator(key: str, default: str, models: dict[str, type[Section]],
+                   pick: Callable[[Any], str] | None = None, union: str | None = None) -> Discriminator:
     """The discriminator of a union of ``models`` on ``key`` (a bad value: one line naming the values
-    allowed); each member is tagged ``key=value`` (TAGGED: error paths find the member by it)."""
+    allowed); each member is tagged ``key=value`` (TAGGED: error paths find the member by it).
+    ``pick``: the tag of a value, when more than ``key`` (or ``default``) decides it; ``union``: the
+    union's name when another union discriminates on the same key (jig.type, chamber.type)."""
     TAGGED.update({f"{key}={tag}": m for tag, m in models.items()})
-    CHOICES[key] = tuple(models)
-    return Discriminator(_tag(key, default), custom_error_type=f"{key}_choice", custom_error_message=f"unknown {key}")
+    CHOICES[union or key] = (key, tuple(models))
+    return Discriminator(pick or _tag(key, default), custom_error_type=f"{union or key}_choice",
+                         custom_error_message=f"unknown {key}")
 
 
 TAGGED: dict[str, type[Section]] = {}  # "driver=mma8451" -> its model
-CHOICES: dict[str, tuple[str, ...]] = {}  # a discriminating key -> the values it may take
+CHOICES: dict[str, tuple[str, tuple[str, ...]]] = {}  # a union -> its discriminating key, the values it may take
 DEVICE_MODELS: dict[str, type[Section]] = {"simulated": SimulatedDevice, "mma8451": Mma8451Device,
                                            "mpu6050": Mpu6050Device}
 Device = Annotated[

@@ -14,8 +14,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, StrictBool
+from pydantic import Field, StrictBool, Tag
 
+from ..errors import ConfigError
 from .kinds import (  # noqa: F401 - re-exported: every section model is reachable from the schema
     CHOICES,
     DEVICE_MODELS,
@@ -50,9 +51,10 @@ from .kinds import (  # noqa: F401 - re-exported: every section model is reachab
     SimulatorSection,
     SpreadSection,
     _check_mount,
+    _discriminator,
 )
 from .section import MAX_BOARDS, Section, Triple, _f  # noqa: F401
-from .validation import _models_in, _range, error_line, given, validate  # noqa: F401 (the schema's public names)
+from .validation import _models_in, _range, error_line, validate  # noqa: F401 (the schema's public names)
 
 
 class StationSection(Section):
@@ -171,18 +173,63 @@ class ChamberEmulatorSection(Section):
     faults: ChamberFaultsSection | None = _f(None, "faults injected into the emulated chamber")
 
 
-class ChamberSection(Section):
+class _ChamberKeys(Section):
+    """What every chamber has: its protocol, patience and the set points it may be sent."""
+
     driver: Literal["ascii"] = _f("ascii", "chamber protocol (docs/chamber-protocol.md)")
-    port: str | None = _f(None, "serial port, or 'emulated'")
-    baud: int = _f(9600, "serial baud rate", ge=300, le=1_000_000)
     timeout_s: float = _f(1.0, "reply timeout, s", ge=0.01, le=60)
     retries: int = _f(2, "retries of a command", ge=0, le=10)
     min_c: float = _f(-70.0, "lowest set point allowed, C", ge=-100, le=200)
     max_c: float = _f(180.0, "highest set point allowed, C", ge=-100, le=300)
-    emulator: ChamberEmulatorSection | None = _f(None, "the emulated chamber's physics and faults")
+
+
+class _VisaType(Section):
+    type: Literal["visa"] = _f("visa", "the chamber type: visa (a real chamber)")
+
+
+class _EmulatedType(Section):
+    # its default: the older spelling (port: emulated without a type) is routed here by _chamber_type
+    type: Literal["emulated"] = _f("emulated", "the chamber type: emulated")
+
+
+class VisaChamberConfig(_ChamberKeys, _VisaType):
+    """``chamber`` with ``type: visa``: a real chamber, opened through a VISA backend."""
+
+    port: str = _f(..., "serial device (/dev/ttyUSB2, COM3), host:port (the chamber's LAN option) or a VISA "
+                   "resource name")
+    baud: int = _f(9600, "serial baud rate", ge=300, le=1_000_000)
     visa_library: str = Field("@py", min_length=1, description=(
         "the VISA backend pyvisa opens the port through: @py (pyvisa-py, the default), @ivi (an "
         "installed IVI VISA such as NI-VISA or Keysight IO), @sim (pyvisa-sim), or a vendor VISA library's path"))
+
+
+class EmulatedChamberConfig(_ChamberKeys, _EmulatedType):
+    """``chamber`` with ``type: emulated``: the chamber emulator on a pseudo-terminal around the simulated
+    boards (their clock; their temperature follows its air), spoken to through pyvisa-py (@py)."""
+
+    emulator: ChamberEmulatorSection | None = _f(None, "the emulated chamber's physics and faults")
+    port: Literal["emulated"] | None = _f(None, "the older spelling of type: emulated (port: emulated, no type); "
+                                          "accepted, nothing else")
+
+
+ChamberSection = VisaChamberConfig | EmulatedChamberConfig
+"""A validated ``chamber`` section: a real chamber's or the emulated one's model."""
+CHAMBER_MODELS: dict[str, type[Section]] = {"visa": VisaChamberConfig, "emulated": EmulatedChamberConfig}
+
+
+def _chamber_type(v: Any) -> str:
+    """``type`` picks the model; without one, the older ``port: emulated`` still means the emulated chamber."""
+    if isinstance(v, dict):
+        got = v.get("type", "emulated" if v.get("port") == "emulated" else "visa")
+    else:
+        got = getattr(v, "type", "visa")
+    return f"type={got}" if isinstance(got, str) else "type=?"
+
+
+Chamber = Annotated[
+    Annotated[VisaChamberConfig, Tag("type=visa")] | Annotated[EmulatedChamberConfig, Tag("type=emulated")],
+    _discriminator("type", "visa", CHAMBER_MODELS, _chamber_type, union="chamber_type")]
+"""The ``chamber`` field: a real chamber (type: visa, the default) or the emulated one (type: emulated)."""
 
 
 class WebSection(Section):
@@ -218,7 +265,7 @@ class StationConfigSchema(Section):
     nvm: NvmSection | None = _f(None, "burning the calibration")
     verify: VerifySection | None = _f(None, "closed-loop verification after the burn")
     thermal: ThermalSection | None = _f(None, "a thermal plan: a calibration at each set point")
-    chamber: ChamberSection | None = _f(None, "the thermal chamber (thermal plans)")
+    chamber: Chamber | None = _f(None, "the thermal chamber (thermal plans; type: visa, emulated)")
     web: WebSection | None = _f(None, "the web pages and API (accelcal serve, accelcal run --ui web)")
     logging: LoggingSection | None = _f(None, "the station's event log: port losses, retries, burns, outbox")
 
@@ -227,18 +274,40 @@ class _DeviceOnly(Section):
     device: Device = _f(..., "a device section on its own (a command's device file)")
 
 
-def validate_device(section: Any) -> DeviceSection:
-    """A ``device`` section on its own against its driver's model (ConfigError: one line)."""
-    return validate({"device": section}, _DeviceOnly).device  # type: ignore[attr-defined]
+def validate_device(section: object, file: str | None = None) -> DeviceSection:
+    """A ``device`` section on its own (a command's device file, a test's mapping) against its driver's
+    model: the one validation of a device section outside a station config (ConfigError: one line,
+    naming ``file`` when given)."""
+    try:
+        only = validate({"device": section}, _DeviceOnly)
+    except ConfigError as e:
+        if file is None:
+            raise
+        raise ConfigError(f"{file}: {e}") from None
+    assert isinstance(only, _DeviceOnly)
+    return only.device
 
 
 class _JigOnly(Section):
     jig: Jig = _f(..., "a jig section on its own (a test's, a tool's)")
 
 
-def validate_jig(section: Any) -> JigSection:
+def validate_jig(section: object) -> JigSection:
     """A ``jig`` section on its own against its type's model (ConfigError: one line)."""
-    return validate({"jig": section}, _JigOnly).jig  # type: ignore[attr-defined]
+    only = validate({"jig": section}, _JigOnly)
+    assert isinstance(only, _JigOnly)
+    return only.jig
+
+
+class _ChamberOnly(Section):
+    chamber: Chamber = _f(..., "a chamber section on its own (a test's, a tool's)")
+
+
+def validate_chamber(section: object) -> ChamberSection:
+    """A ``chamber`` section on its own against its type's model (ConfigError: one line)."""
+    only = validate({"chamber": section}, _ChamberOnly)
+    assert isinstance(only, _ChamberOnly)
+    return only.chamber
 
 
 def validate_station(raw: Mapping[str, object]) -> StationConfigSchema:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from .checks import load_yaml
+from .kinds import DeviceSection, Mma8451Device, SimulatedDevice
 from .schema import validate_device
 
 
@@ -18,23 +19,21 @@ def default_config_path() -> Path:
     return Path(str(files("accelcal_station.configs").joinpath("sim.yaml"))).resolve()
 
 
-def device_section(path: str) -> dict:
-    """The ``device:`` section of a station config, or a file that is only a device section."""
+def device_section(path: str) -> DeviceSection:
+    """The ``device:`` section of a station config, or a file that is only a device section,
+    validated once against its driver's model (config/schema.py)."""
     data = load_yaml(path)
     section = data.get("device", data if "driver" in data else None)
     if not isinstance(section, dict):
         raise ConfigError(f"{path}: no 'device' section; allowed: a mapping with 'driver: simulated, mma8451 "
                           "or mpu6050'")
-    validate_device(section)  # its driver's keys, types and ranges: one validation (config/schema.py)
-    return dict(section)
+    return validate_device(section, path)
 
 
-def with_port(section: dict, port: str) -> dict:
+def with_port(section: DeviceSection, port: str) -> DeviceSection:
     """--port overrides the serial port, or the I2C bus of an MMA8451 (a number or /dev/i2c-N)."""
-    if section.get("driver") == "mma8451":
-        section["bus"] = int(port) if port.isdigit() else port
-    elif section.get("driver") == "simulated":
+    if isinstance(section, Mma8451Device):
+        return section.model_copy(update={"bus": int(port) if port.isdigit() else port})
+    if isinstance(section, SimulatedDevice):
         raise ConfigError(f"--port {port}: the simulated driver has no port")
-    else:
-        section["port"] = port
-    return section
+    return section.model_copy(update={"port": port})

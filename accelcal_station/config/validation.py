@@ -93,9 +93,9 @@ def error_line(err: ErrorDetails, root: type[BaseModel], where: str = "") -> str
     loc = tuple(p for p in full if isinstance(p, int) or p not in TAGGED)
     path, kind, value = _path(where, loc), err["type"], err.get("input")
     if kind.removesuffix("_choice") in CHOICES:  # a union's key (device.driver, jig.type) names no member
-        tag = kind.removesuffix("_choice")
+        tag, values = CHOICES[kind.removesuffix("_choice")]
         got = value.get(tag) if isinstance(value, dict) else value
-        return f"{_path(where, (*loc, tag))}: {got!r}; allowed: {', '.join(CHOICES[tag])}"
+        return f"{_path(where, (*loc, tag))}: {got!r}; allowed: {', '.join(values)}"
     # the key the error is about: the last name (a list item's error is about its list's key)
     k = max((i for i, p in enumerate(full) if not isinstance(p, int) and p not in TAGGED), default=None)
     parent = _model_at(root, full[:k]) if k is not None else root
@@ -130,7 +130,7 @@ def error_line(err: ErrorDetails, root: type[BaseModel], where: str = "") -> str
 
 def _is_tag(part: str) -> bool:
     """pydantic's union-member tags in a location (``int``, ``list[...]``, ``function-...``)."""
-    return part.startswith(("function-", "list[", "dict[", "literal[", "constrained-")) \
+    return part.startswith(("function-", "list[", "dict[", "literal[", "constrained-", "`")) \
         or part in ("int", "str", "float", "bool") \
         or part[:1].isupper()
 
@@ -147,9 +147,3 @@ def validate(data: Any, model: type[BaseModel], where: str = "") -> BaseModel:
         errs = sorted(e.errors(), key=lambda x: (-len([p for p in x["loc"] if isinstance(p, int) or not _is_tag(p)]),
                                                  x["type"] != "extra_forbidden", x["type"].endswith("_type")))
         raise ConfigError(error_line(errs[0], model, where)) from None
-
-
-def given(section: BaseModel) -> dict[str, Any]:
-    """The keys a validated section was given in its file, nested sections too (defaults left
-    out): what a part's own code applies its own defaults to."""
-    return section.model_dump(exclude_unset=True)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config.kinds import SimulatedDevice
 from ..config.sections import default_config_path, device_section
 from ..data.loader import load
 from ..data.rawlog import RawLog
@@ -76,12 +77,12 @@ def load_simulator(path: str | Path | None = None) -> Simulator:
         raise ConfigError(f"{path}: no such simulator configuration (give --config FILE with a device: section, "
                           "driver: simulated)")
     section = device_section(str(path))
-    if section.get("driver") != "simulated":
-        raise ConfigError(f"{path}: device.driver is {section.get('driver')!r}; accelcal diagnose needs the "
+    if not isinstance(section, SimulatedDevice):
+        raise ConfigError(f"{path}: device.driver is {section.driver!r}; accelcal diagnose needs the "
                           "simulated device (driver: simulated) that is supposed to describe the boards")
-    section.pop("driver")
-    board = SimulatedBoard.from_config(section, seed=0, path=f"{path}: device")
-    return Simulator.from_board(board, str(path), section)
+    board = SimulatedBoard.from_section(section, seed=0, path=f"{path}: device")
+    # the self-test draws its boards from the board keys the file gave (diagnosis/selftest.py)
+    return Simulator.from_board(board, str(path), section.model_dump(exclude_unset=True, exclude={"driver"}))
 
 
 # -- data ------------------------------------------------------------------------------------------

@@ -16,8 +16,6 @@ from contextlib import suppress
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
 
-from ..config.parts import parse
-from ..config.schema import ChamberSection
 from ..errors import ConfigError, DeviceError
 
 if TYPE_CHECKING:
@@ -109,7 +107,7 @@ def visa_resource(port: str) -> str:
     if sep and tcp.isdigit():
         return f"TCPIP::{host}::{tcp}::SOCKET"
     raise ConfigError(f"chamber.port: {port!r}; allowed: a serial device path (/dev/ttyUSB2, COM3), "
-                      "host:port, a VISA resource name, or 'emulated'")
+                      "host:port or a VISA resource name (the emulated chamber: chamber.type: emulated)")
 
 
 def require_pyvisa(where: str = "chamber", visa_library: str = "@py") -> None:
@@ -138,16 +136,6 @@ class AsciiChamber(Chamber):
         self.min_c, self.max_c = min_c, max_c
         self._res: MessageBasedResource | None = None
         self._sp: float | None = None
-
-    @classmethod
-    def from_config(cls, cfg: dict[str, Any] | ChamberSection, path: str = "chamber",
-                    port: str | None = None) -> AsciiChamber:
-        """From a ``chamber`` section (validated, or a mapping checked here); ``port``: the emulator's."""
-        m = cfg if isinstance(cfg, ChamberSection) else parse(cfg, ChamberSection, path)
-        port = port or m.port
-        if not isinstance(port, str) or not port:
-            raise ConfigError(f"{path}.port: required (a serial device, host:port, a VISA resource, or emulated)")
-        return cls(port, m.baud, m.timeout_s, m.retries, m.min_c, m.max_c, m.visa_library)
 
     def open(self) -> None:
         import pyvisa  # lazily: only stations with a chamber need it

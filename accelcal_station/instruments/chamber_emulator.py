@@ -26,7 +26,8 @@ import select
 import threading
 from typing import Any
 
-from ..config.schema import ChamberEmulatorSection, ChamberFaultsSection, validate
+from ..config.schema import ChamberEmulatorSection, ChamberFaultsSection
+from ..drivers.base import Clock
 from ..errors import ConfigError
 from ..sim.pty_server import PtyServer
 from .chamber import DOOR_OPEN
@@ -121,9 +122,9 @@ class ChamberEmulator(PtyServer):
         self.port: str | None = None
 
     @classmethod
-    def from_config(cls, cfg: dict[str, Any] | None, clock: Any, path: str = "chamber.emulator") -> ChamberEmulator:
-        c = validate(cfg or {}, ChamberEmulatorSection, path)  # keys, types, ranges: config/schema.py
-        assert isinstance(c, ChamberEmulatorSection)
+    def from_section(cls, c: ChamberEmulatorSection, clock: Clock, path: str = "chamber.emulator") -> ChamberEmulator:
+        """From a validated ``chamber.emulator`` section: the physics, and the faults given (a fault's
+        second key without its time is refused: it would never happen)."""
         emu = cls(ChamberPhysics(clock, c.start_c, c.room_c, c.air_tau_s, c.board_tau_s, c.door_tau_s))
         f, fp = c.faults or ChamberFaultsSection(), f"{path}.faults"
         given = f.model_fields_set

@@ -1,54 +1,53 @@
 """Instruments beside the device and the jig: the thermal chamber.
 
-``make_chamber(config, board)`` builds the chamber named by a station config's ``chamber:``
-section, like ``drivers.make_driver``; ``port: emulated`` starts the chamber emulator on
-a pseudo-terminal around the simulated board (its clock and its temperature) and hands
-the port to the real driver, so the emulated station runs the real protocol code.
+``make_chamber(chamber, board)`` builds the chamber a validated ``chamber:`` section names, like
+``drivers.make_driver``: ``type: visa`` opens a real chamber through the VISA backend its
+``visa_library`` names; ``type: emulated`` starts the chamber emulator on a pseudo-terminal around
+the simulated board (its clock and its temperature) and hands the port to the real driver, so the
+emulated station runs the real protocol code.
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING
 
-from ..config.schema import ChamberSection, given
+from ..config.schema import ChamberEmulatorSection, ChamberSection, VisaChamberConfig
 from ..errors import ConfigError
 from .chamber import AsciiChamber, Chamber, require_pyvisa
 
-DRIVERS = ("ascii",)
-
-
-def make_chamber(config: ChamberSection | dict[str, Any], board: Any = None, path: str = "chamber",
-                 others: Sequence[Any] = ()) -> Chamber:
-    """The configured chamber (a station's validated ``chamber`` section, or a mapping); with
-    ``port: emulated`` the emulator is started (stopped on close) around the simulated ``board``
-    (its clock) and the ``others`` of a panel: every board sits in the same chamber air."""
-    if isinstance(config, ChamberSection):
-        config = given(config)
-    if not isinstance(config, dict):
-        raise ConfigError(f"{path}: must be a mapping (driver, port, ...)")
-    name = config.get("driver", "ascii")
-    if name not in DRIVERS:
-        raise ConfigError(f"{path}.driver: {name!r}; allowed: {', '.join(DRIVERS)}")
-    # an optional extra: say so before an emulator or port is opened
-    require_pyvisa(path, str(config.get("visa_library", "@py")))
-    if config.get("port") != "emulated":
-        if "emulator" in config:
-            raise ConfigError(f"{path}.emulator: only used with port: emulated")
-        return AsciiChamber.from_config(config, path)
-    if board is None:
-        raise ConfigError(f"{path}.port: emulated needs a simulated or emulated device (the board in the chamber)")
+if TYPE_CHECKING:
+    from ..drivers.simulated import SimulatedBoard
     from .chamber_emulator import ChamberEmulator
 
-    emu = ChamberEmulator.from_config(config.get("emulator"), board.clock, f"{path}.emulator")
+EMULATED_VISA = "@py"  # the emulator's pseudo-terminal is a serial port: pyvisa-py opens it
+
+
+def make_chamber(chamber: ChamberSection, board: SimulatedBoard | None = None, path: str = "chamber",
+                 others: Sequence[SimulatedBoard | None] = ()) -> Chamber:
+    """The chamber of a validated ``chamber`` section (a station's; a test's mapping through
+    config/schema.py's ``validate_chamber`` first).  The emulated one starts its emulator (stopped on
+    close) around the simulated ``board`` (its clock) and the ``others`` of a panel: every board sits
+    in the same chamber air."""
+    c = chamber
+    if isinstance(c, VisaChamberConfig):
+        require_pyvisa(path, c.visa_library)  # an optional extra: said before a port is opened
+        return AsciiChamber(c.port, c.baud, c.timeout_s, c.retries, c.min_c, c.max_c, c.visa_library)
+    require_pyvisa(path, EMULATED_VISA)
+    if board is None:
+        raise ConfigError(f"{path}.type: emulated needs a simulated or emulated device (the board in the "
+                          "chamber); allowed with real hardware: type: visa and its port")
+    from .chamber_emulator import ChamberEmulator
+
+    emu = ChamberEmulator.from_section(c.emulator or ChamberEmulatorSection(), board.clock, f"{path}.emulator")
     for b in (board, *others):
         if b is not None:
             couple(b, emu)
-    chamber = AsciiChamber.from_config(config, path, port=emu.start())
-    chamber.on_close.append(emu.stop)
-    return chamber
+    out = AsciiChamber(emu.start(), timeout_s=c.timeout_s, retries=c.retries, min_c=c.min_c, max_c=c.max_c,
+                       visa_library=EMULATED_VISA)
+    out.on_close.append(emu.stop)
+    return out
 
 
-def couple(board: Any, emulator: Any) -> None:
+def couple(board: SimulatedBoard, emulator: ChamberEmulator) -> None:
     """Put the simulated board in the emulated chamber: its temperature follows the chamber's physics."""
     board.environment = emulator.physics
-

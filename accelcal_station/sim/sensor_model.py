@@ -108,7 +108,7 @@ class ChipSpec:
         if self.odr_hz is not None:
             ok = [r for r in self.odr_hz if abs(r - odr_hz) <= 1e-6 * r]
             if not ok:
-                raise ConfigError(f"{path}.odr_hz: {odr_hz!r}; allowed for {self.name}: "
+                raise ConfigError(f"{path}.odr_hz: {odr_hz:g}; allowed for {self.name}: "
                                   f"{', '.join(f'{r:g}' for r in self.odr_hz)}")
             odr_hz = ok[0]
         else:
@@ -117,7 +117,7 @@ class ChipSpec:
             assert base is not None, f"{self.name}: a ChipSpec gives odr_hz or odr_base_hz"
             div = base / odr_hz - 1.0 if odr_hz > 0 else -1.0
             if not (0 <= round(div) <= 255 and abs(div - round(div)) < 1e-6 and odr_hz <= self.odr_max_hz):
-                raise ConfigError(f"{path}.odr_hz: {odr_hz!r}; allowed for {self.name} with dlpf {dlpf}: "
+                raise ConfigError(f"{path}.odr_hz: {odr_hz:g}; allowed for {self.name} with dlpf {dlpf}: "
                                   f"{base:g} / (1 + divider), divider 0..255, at most {self.odr_max_hz:g} "
                                   "(e.g. 1000, 500, 200, 100, 50)")
         return int(range_g), float(odr_hz), dlpf

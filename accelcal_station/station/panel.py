@@ -27,7 +27,7 @@ import numpy as np
 
 from ..acceptance.reasons import Reason
 from ..calibration import Calibration
-from ..config.schema import JigSection
+from ..config.schema import DeviceSection, JigSection
 from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, DeviceError, NVMError
@@ -43,7 +43,7 @@ from ..store.runs import Store
 from .board import Check, Station
 from .capture import GatedCapture, WrongPose, gated_capture
 from .jig_pose import JigPoseEstimate, estimate_jig_poses
-from .panel_config import group_of, panel_sections
+from .panel_config import configured_serial, group_of, panel_sections
 from .recording import record_result, start_args
 from .report import RunReport
 from .settings import StationConfig
@@ -81,7 +81,7 @@ class PanelBoard:
     """One board of the panel and everything the flow keeps for it."""
 
     index: int
-    section: dict[str, Any]
+    section: DeviceSection
     path: str
     group: str  # boards of one group (bus or port) are read in turn by one thread
     station: Station
@@ -161,7 +161,7 @@ class PanelStation:
             driver = self.drivers[i] if self.drivers is not None else make_driver(sec, path, self._buses)
             out.append(PanelBoard(i, sec, path, group_of(sec, i), st, rep, driver, seat=rotation))
             st.driver = driver
-            rep.serial = str(sec.get("serial") or "")
+            rep.serial = configured_serial(sec)
         return out
 
     def _open(self, b: PanelBoard, store: Store) -> None:
@@ -172,13 +172,13 @@ class PanelStation:
             ident = b.driver.identify()
             b.rep.serial = ident.serial or b.rep.serial
             b.rep.chip = ident.chip
-            b.driver.configure(b.section.get("range_g"), b.section.get("odr_hz"))
+            b.driver.configure(b.section.range_g, b.section.odr_hz)
             clock = clock_of(b.driver)
             b.clock0 = clock.now() if clock is not None else None
         except AccelcalError as e:
             b.fail(Stage.DEVICE, Reason("device", str(e)))
         b.rep.run_id = store.start_run(
-            device_serial=b.rep.serial or b.path, chip=b.rep.chip or b.section.get("driver"),
+            device_serial=b.rep.serial or b.path, chip=b.rep.chip or b.section.driver,
             station_id=self.cfg.station_id, operator=self.operator, lot=self.lot, config_text=self.cfg.text,
             model=self.cfg.model, units="counts",
             counts_per_g=b.driver.counts_per_g if b.open_ else None, panel_id=self.panel_id)

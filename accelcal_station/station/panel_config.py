@@ -13,76 +13,93 @@ A ``device:`` section without ``boards`` is a panel of one.  With ``boards``::
 """
 from __future__ import annotations
 
-import copy
-from typing import Any
-
 import numpy as np
 
-from ..config.parts import PanelSeedSection, parse
-from ..config.schema import DeviceSection
-from ..config.schema import given as given_keys
+from ..config.kinds import (
+    DeviceSection,
+    Mma8451PanelBoard,
+    Mpu6050Device,
+    Mpu6050PanelBoard,
+    SimulatedDevice,
+    SimulatedPanelBoard,
+)
 from ..errors import ConfigError
 from ..fixtures.factory import spread_board
 
 MAX_BOARDS = 64
-def _simulated(section: dict[str, Any]) -> bool:
+MAX_PANEL_SEED = 2**32 - 1  # board i draws from seed * 1000 + i: within every driver's seed range
+BoardKeys = SimulatedPanelBoard | Mma8451PanelBoard | Mpu6050PanelBoard
+
+
+def _simulated(section: BoardKeys) -> bool:
     """A simulated board, or a driver on an emulated bus or port (these take a seed)."""
-    return section.get("driver") == "simulated" or "emulated" in (section.get("bus"), section.get("port"))
+    if isinstance(section, Mma8451PanelBoard):
+        return section.bus == "emulated"
+    if isinstance(section, Mpu6050PanelBoard):
+        return section.port == "emulated"
+    return True
 
 
-def panel_sections(device: DeviceSection | dict[str, Any], path: str = "device") -> list[tuple[dict[str, Any], str]]:
-    """Per-board device sections (the keys each board is given: the panel's shared keys under its
-    own) and their key paths; a device without ``boards`` is a panel of one.  ``device``: a
-    station's validated section, or a mapping (tests)."""
-    if isinstance(device, DeviceSection):
-        device = given_keys(device)
-    if not isinstance(device, dict):
-        raise ConfigError(f"{path}: must be a mapping with a 'driver' key")
-    boards = device.get("boards")
-    mounted = [f"{path}.mount"] if device.get("mount") is not None else []
+def panel_sections(device: DeviceSection, path: str = "device") -> list[tuple[DeviceSection, str]]:
+    """Per-board device sections (the panel's shared keys, each board's own over them: typed copies of
+    the validated section, ``boards`` and ``spread`` left out) and their key paths; a device without
+    ``boards`` is a panel of one."""
+    boards = device.boards
+    mounted = [f"{path}.mount"] if device.mount is not None else []
     mounted += [f"{path}.boards[{i}].mount" for i, b in enumerate(boards if isinstance(boards, list) else [])
-                if isinstance(b, dict) and b.get("mount") is not None]
+                if b.mount is not None]
     if mounted:  # said, not ignored: a panel's boards would be fitted against unturned references
         raise ConfigError(f"{mounted[0]}: a panel does not read device.mount yet; allowed: a one-board run "
                           "(accelcal run without device.boards), or the boards seated as the jig's axes")
-    base = {k: v for k, v in device.items() if k not in ("boards", "spread")}
+    shared = device.model_copy(update={"boards": None, "spread": None})
     if boards is None:
-        if "spread" in device:
+        if device.spread is not None:
             raise ConfigError(f"{path}.spread: only used with {path}.boards")
-        return [(base, path)]
-    if isinstance(boards, bool) or not isinstance(boards, (int, list)):
-        raise ConfigError(f"{path}.boards: {boards!r}; allowed: a count 1..{MAX_BOARDS} or a list of mappings")
+        return [(shared, path)]
     n = boards if isinstance(boards, int) else len(boards)
     if not 1 <= n <= MAX_BOARDS:
         raise ConfigError(f"{path}.boards: {n} boards; allowed: 1..{MAX_BOARDS}")
-    given = {"seed": device["seed"]} if device.get("seed") is not None else {}
-    seed = parse(given, PanelSeedSection, path).seed if _simulated(device) else 0
+    seed = _panel_seed(device, path)
     rng = np.random.default_rng(seed)
-    out = []
+    out: list[tuple[DeviceSection, str]] = []
     for i in range(n):
-        where = f"{path}.boards[{i}]"
-        over = boards[i] if isinstance(boards, list) else {}
-        if not isinstance(over, dict):
-            raise ConfigError(f"{where}: {over!r}; allowed: a mapping of device keys")
-        sec = copy.deepcopy(base)
-        if _simulated(device) or _simulated(over):
-            sec["seed"] = seed * 1000 + i  # each board its own draws unless its mapping says otherwise
-        if device.get("driver") == "simulated":
-            sec["serial"] = f"{device.get('serial') or 'PANEL'}-{i + 1:02d}"
-        sec.update(copy.deepcopy(over))
-        if device.get("spread") is not None:
-            sec = spread_board(sec, device["spread"], rng, f"{path}.spread")
-        out.append((sec, where))
+        over = boards[i] if isinstance(boards, list) else None
+        update: dict[str, object] = {}
+        if _simulated(device) or (over is not None and _simulated(over)):
+            update["seed"] = seed * 1000 + i  # each board its own draws unless its mapping says otherwise
+        if isinstance(device, SimulatedDevice):
+            update["serial"] = f"{device.serial or 'PANEL'}-{i + 1:02d}"
+        if over is not None:  # the keys this board's mapping gave, over the panel's
+            update.update({k: v for k, v in over if k in over.model_fields_set})
+        sec = shared.model_copy(update=update, deep=True)
+        if device.spread is not None:
+            sec = spread_board(sec, device.spread, rng, f"{path}.spread")
+        out.append((sec, f"{path}.boards[{i}]"))
     return out
 
 
-def group_of(section: dict[str, Any], index: int) -> str:
+def _panel_seed(device: DeviceSection, path: str) -> int:
+    """A simulated panel's seed (default 1): board i draws from seed * 1000 + i; 0 for real boards."""
+    if not _simulated(device):
+        return 0
+    seed = 1 if device.seed is None else device.seed
+    if seed > MAX_PANEL_SEED:
+        raise ConfigError(f"{path}.seed: {seed} out of range; allowed: 0 to {MAX_PANEL_SEED} (a panel's seed)")
+    return seed
+
+
+def configured_serial(section: DeviceSection) -> str:
+    """The serial a board's section gives ('' when it gives none; an MPU6050 bridge reports its own)."""
+    return "" if isinstance(section, Mpu6050Device) or section.serial is None else str(section.serial)
+
+
+def group_of(section: DeviceSection, index: int) -> str:
     """The thread a board is read by: its serial port, else its own.
 
     Boards behind a multiplexer each have their own thread too: their transactions are
     serialised on the bus (MuxBus.lock), so they are read in turn, transaction by
     transaction, within each sample period rather than one whole capture after another.
     """
-    if section.get("driver") == "mpu6050" and section.get("port") not in (None, "emulated"):
-        return f"serial:{section['port']}"
+    if isinstance(section, Mpu6050Device) and section.port not in (None, "emulated"):
+        return f"serial:{section.port}"
     return f"board:{index}"

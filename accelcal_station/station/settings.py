@@ -15,6 +15,7 @@ from ..config.schema import (
     DeviceSection,
     JigSection,
     LoggingSection,
+    MotorizedJigConfig,
     NvmSection,
     PlanSection,
     SimulatedJigConfig,
@@ -60,10 +61,10 @@ class StationConfig:
         """Read and check a station config; ``port``/``jig_port`` override the device's
         port (or MMA8451 bus) and the motorized jig's port."""
         p = default_config_path() if path is None else Path(path)
-        raw, text = _read_with_ports(p, port, jig_port)
+        raw, text = load_yaml_text(p)
         # the declared schema (config/schema.py): every key, type, finite number and range, each
         # driver's and jig type's own keys included (discriminated on device.driver and jig.type)
-        sc = validate_station(raw)
+        sc = _with_ports(validate_station(raw), port, jig_port)
         # then what depends on more than one key, in this order (a config with several errors
         # names the same one first)
         if "device" not in raw:
@@ -118,17 +119,15 @@ class StationConfig:
         return outbox_of(self.schema.store)
 
 
-def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> tuple[dict[str, Any], str]:
-    """The config file's mapping (with the command line's device and jig ports applied) and its text."""
-    raw, text = load_yaml_text(p)
+def _with_ports(sc: StationConfigSchema, port: str | None, jig_port: str | None) -> StationConfigSchema:
+    """The validated config with the command line's device and jig ports applied."""
     if port is not None:
-        raw["device"] = with_port(dict(raw.get("device") or {}), port)
+        sc = sc.model_copy(update={"device": with_port(sc.device, port)})
     if jig_port is not None:
-        jig = dict(raw.get("jig") or {})
-        if jig.get("type") != "motorized":
+        if not isinstance(sc.jig, MotorizedJigConfig):
             raise ConfigError(f"--jig-port {jig_port}: the config's jig is not motorized (jig.type: motorized)")
-        raw["jig"] = {**jig, "port": jig_port}
-    return raw, text
+        sc = sc.model_copy(update={"jig": sc.jig.model_copy(update={"port": jig_port})})
+    return sc
 
 
 def _plan(plan: PlanSection) -> tuple[str, str]:

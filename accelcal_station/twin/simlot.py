@@ -26,13 +26,13 @@ def load_device(path: str) -> tuple[SensorModel, Population | None, int, Limits]
     dev = cfg.get("device")
     if not isinstance(dev, dict) or dev.get("driver") != "simulated":
         raise ConfigError(f"{path}: device.driver must be simulated (a twin simulates the lot)")
-    effects, epath, pop_spec = load_simulator(dev, f"{path}: device")
-    chip = get_chip(dev.get("chip", "mma8451"), f"{path}: device.chip")
-    model = SensorModel.from_config(effects, chip, epath, forward=load_physics(dev, f"{path}: device"))
+    board = board_section(dev, f"{path}: device")
+    effects, epath, pop_spec = load_simulator(board, f"{path}: device")
+    chip = get_chip(board.chip or "mma8451", f"{path}: device.chip")
+    model = SensorModel.from_config(effects, chip, epath, forward=load_physics(board, f"{path}: device"))
     pop = None if pop_spec is None else parse_population(pop_spec, model.effects, epath.rsplit(".", 1)[0]
                                                          + ".population")
-    range_g = parse({"range_g": dev.get("range_g")}, SimulatedBoardSection, f"{path}: device").range_g \
-        or chip.default_range_g
+    range_g = board.range_g or chip.default_range_g
     return model, pop, range_g, Limits.from_config(cfg.get("acceptance"), f"{path}: acceptance")
 
 
@@ -78,11 +78,17 @@ def simulate_like(config: str, like: LotStats, boards: int, seed: int, limits: L
 
 def twin_model(cfg: dict[str, Any], forward: bool | None = None) -> tuple[SensorModel, int]:
     """The simulated device of a config mapping and its range (``forward``: override its physics)."""
-    dev = cfg["device"]
-    effects, epath, _ = load_simulator(dev, "device")
-    chip = get_chip(dev.get("chip", "mma8451"))
-    fwd = load_physics(dev, "device") if forward is None else forward
-    return SensorModel.from_config(effects, chip, epath, forward=fwd), int(dev.get("range_g", chip.default_range_g))
+    board = board_section(cfg["device"], "device")
+    effects, epath, _ = load_simulator(board, "device")
+    chip = get_chip(board.chip or "mma8451")
+    fwd = load_physics(board, "device") if forward is None else forward
+    return SensorModel.from_config(effects, chip, epath, forward=fwd), board.range_g or chip.default_range_g
+
+
+def board_section(dev: object, where: str) -> SimulatedBoardSection:
+    """A config's simulated device (a YAML mapping) as its board section, validated once (config/kinds.py)."""
+    keys = {k: v for k, v in dev.items() if k != "driver"} if isinstance(dev, dict) else dev
+    return parse(keys, SimulatedBoardSection, where)
 
 
 def fixed_board_stats(cfg: dict[str, Any], like: LotStats, x: np.ndarray, boards: int, seed: int,
