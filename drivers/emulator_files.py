@@ -53,8 +53,8 @@ def board_config_from_file(path: str, nested: bool = False) -> tuple[SimulatedBo
     emulated chip's ``simulator: FILE``).
 
     Accepts a station config whose ``device`` is ``driver: simulated`` (configs/sim.yaml) or
-    ``driver: mpu6050`` / ``mma8451`` (its ``simulator`` and ``seed``; a ``simulator`` file of its
-    own is read once more, not further), or a bare board mapping.
+    ``driver: mpu6050`` (its ``simulator`` and ``seed``; a ``simulator`` file of its own is read
+    once more, not further), or a bare board mapping.
     """
     data = load_yaml(path)
     dev = data.get("device", data)
@@ -66,6 +66,9 @@ def board_config_from_file(path: str, nested: bool = False) -> tuple[SimulatedBo
     m = validate_device(dev, path)
     if isinstance(m, SimulatedBoardSection):
         return m, None
+    if not isinstance(m, Mpu6050Device):
+        raise ConfigError(f"{where}.driver: {m.driver!r}; --config takes a simulated board (driver: simulated, "
+                          "e.g. configs/sim.yaml) or an mpu6050 device with a simulator section")
     if isinstance(m.simulator, str):
         if nested:  # a file naming a file naming a file: refused, not followed (a loop never ends)
             raise ConfigError(f"{where}.simulator: {m.simulator!r}; allowed: a board mapping here (this file is "

@@ -258,3 +258,47 @@ def test_a_bad_driver_or_jig_type_is_one_line_naming_the_allowed_ones(
     cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
     cfg[section] = value
     assert _one_line(CliRunner().invoke(cli, ["run", "--config", _write(tmp_path, cfg)])) == f"error: {line}"
+
+
+@pytest.mark.parametrize(("chamber", "line"), [
+    ({"type": "oven"}, "chamber.type: 'oven'; allowed: visa, emulated"),
+    ({"type": "visa"}, "chamber.port: required"),
+    ({"port": "/dev/ttyUSB2", "emulator": {"start_c": 20}}, "chamber.emulator: unknown key; allowed: type, driver, "
+     "timeout_s, retries, min_c, max_c, port, baud, visa_library"),
+    ({"type": "emulated", "visa_library": "@ivi"}, "chamber.visa_library: unknown key; allowed: type, driver, "
+     "timeout_s, retries, min_c, max_c, emulator, port"),
+    ({"port": "emulated", "baud": 9600}, "chamber.baud: unknown key; allowed: type, driver, timeout_s, retries, "
+     "min_c, max_c, emulator, port"),
+])
+def test_a_bad_chamber_is_one_line_naming_its_types_keys(tmp_path: Path, chamber: dict, line: str) -> None:
+    """chamber.type picks a real chamber (visa: port, baud, VISA backend) or the emulated one (its
+    physics and faults); each type's keys are checked in the one validation when the config loads."""
+    cfg = yaml.safe_load((REPO / "configs" / "thermal-sim.yaml").read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    cfg["chamber"] = chamber
+    assert _one_line(CliRunner().invoke(cli, ["run", "--config", _write(tmp_path, cfg)])) == f"error: {line}"
+
+
+def test_the_older_chamber_spelling_still_means_the_emulated_chamber(tmp_path: Path) -> None:
+    """``port: emulated`` without a type (configs written before chamber.type) is the emulated chamber:
+    it starts around the simulated board and answers; ``type: visa`` with that port is refused in one line
+    whose hint (chamber.type: emulated) is the spelling the shipped configs use."""
+    from accelcal_station.config.schema import EmulatedChamberConfig, validate_chamber, validate_device
+    from accelcal_station.drivers.factory import make_driver
+    from accelcal_station.errors import ConfigError
+    from accelcal_station.fixtures.factory import board_of
+    from accelcal_station.instruments.factory import make_chamber
+
+    old = validate_chamber({"port": "emulated", "emulator": {"start_c": 31.0}})
+    new = validate_chamber({"type": "emulated", "emulator": {"start_c": 31.0}})
+    assert isinstance(old, EmulatedChamberConfig) and isinstance(new, EmulatedChamberConfig)
+    board = board_of(make_driver(validate_device({"driver": "simulated", "seed": 1})))
+    for section in (old, new):
+        with make_chamber(section, board) as ch:
+            assert ch.status().air_c == pytest.approx(31.0, abs=0.1)
+    with pytest.raises(ConfigError) as e:
+        make_chamber(validate_chamber({"type": "visa", "port": "emulated"}))
+    assert str(e.value) == ("chamber.port: 'emulated'; allowed: a serial device path (/dev/ttyUSB2, COM3), "
+                            "host:port or a VISA resource name (the emulated chamber: chamber.type: emulated)")
+    shipped = yaml.safe_load((REPO / "configs" / "thermal-sim.yaml").read_text())["chamber"]
+    assert shipped["type"] == "emulated" and "port" not in shipped

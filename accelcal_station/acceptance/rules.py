@@ -10,7 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config.schema import AcceptanceSection, validate
+from ..config.parts import parse
+from ..config.schema import AcceptanceSection
 from ..models.result import FitResult
 from ..models.sanity import distinct_directions, distinct_directions_batch, poses_needed
 from .reasons import Reason
@@ -49,9 +50,10 @@ class Limits:
     offset_trim_tolerance: float = 0.25  # fraction of the expected trim change (AcceptanceSection)
 
     @classmethod
-    def from_config(cls, d: dict | None, path: str = "acceptance") -> Limits:
-        """From an ``acceptance:`` mapping not yet validated (a batch's or a twin's config)."""
-        return cls.from_section(validate(d or {}, AcceptanceSection, path))  # type: ignore[arg-type]
+    def from_config(cls, d: object, path: str = "acceptance") -> Limits:
+        """From an ``acceptance:`` mapping not yet validated (a batch's or a twin's config): validated
+        once against AcceptanceSection, then :meth:`from_section`."""
+        return cls.from_section(parse(d, AcceptanceSection, path))
 
     @classmethod
     def from_section(cls, section: AcceptanceSection | None) -> Limits:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import re
 import time as _time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
@@ -141,7 +141,7 @@ def _snapshot_text(doc: dict) -> list[str]:
     return lines
 
 
-def _emit(as_json: bool, doc: dict, lines: list[str]) -> None:
+def _emit(as_json: bool, doc: Mapping[str, object], lines: list[str]) -> None:
     if as_json:
         click.echo(json.dumps(_clean(doc), allow_nan=False))
     else:
@@ -185,9 +185,9 @@ def backup_cmd(ctx: click.Context, config_path: str | None, out: str | None, as_
     with _device(ctx, config_path) as (dev, writer):
         path = Path(out) if out else auto_backup_path(Path("."), _serial(dev, None))
         _refuse_over_inputs(ctx, ("--out", out or path))  # as given: Path() would fold a URL's "//"
-        doc = writer.backup(path, chip=dev.identify().chip)
-    doc["path"] = str(path)
-    states = ", ".join(f"slot {s['slot']} {s['state']}" for s in doc["slots"])
+        summary = writer.backup(path, chip=dev.identify().chip)
+    doc = {**summary, "path": str(path)}
+    states = ", ".join(f"slot {s['slot']} {s['state']}" for s in summary["slots"])
     _emit(as_json, doc, [click.style(f"backup written to {path}", fg="green") +
                          f" ({doc['length']} bytes, CRC-32 0x{doc['crc32']:08x}; {states})"])
 

@@ -26,11 +26,13 @@ once into these models; the station, its factories and flows then read the typed
 never the file's mapping again (docs/architecture.md, "One typed configuration"), and a run
 records the very text that was parsed.
 
-`device` and `jig` are discriminated unions: `device.driver` (simulated, mma8451, mpu6050)
-and `jig.type` (simulated, operator, motorized) pick one model, whose table
-(`device (driver: mma8451)`, `jig (type: motorized)`, ...) lists the keys that driver or jig
-type accepts, with its own defaults and ranges: a key of another driver is refused in one
-line naming this driver's keys.
+`device`, `jig` and `chamber` are discriminated unions: `device.driver` (simulated, mma8451,
+mpu6050), `jig.type` (simulated, operator, motorized) and `chamber.type` (visa, emulated) pick
+one model, whose table (`device (driver: mma8451)`, `jig (type: motorized)`,
+`chamber (type: emulated)`, ...) lists the keys that driver or type accepts, with its own
+defaults and ranges: a key of another driver is refused in one line naming this driver's keys.
+A chamber without `type` is a real one (visa), unless it has the older `port: emulated`, which
+still means the emulated chamber.
 """
 
 

@@ -204,8 +204,10 @@ class VisaChamberConfig(_ChamberKeys, _VisaType):
 
 
 class EmulatedChamberConfig(_ChamberKeys, _EmulatedType):
-    """``chamber`` with ``type: emulated``: the chamber emulator on a pseudo-terminal around the simulated
-    boards (their clock; their temperature follows its air), spoken to through pyvisa-py (@py)."""
+    """``chamber`` with ``type: emulated``: the chamber emulator around the simulated boards.
+
+    It answers on a pseudo-terminal, spoken to through pyvisa-py (@py) by the real chamber driver; the
+    boards' clock is its clock and their temperature follows its air."""
 
     emulator: ChamberEmulatorSection | None = _f(None, "the emulated chamber's physics and faults")
     port: Literal["emulated"] | None = _f(None, "the older spelling of type: emulated (port: emulated, no type); "

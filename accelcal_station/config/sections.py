@@ -27,7 +27,7 @@ def device_section(path: str) -> DeviceSection:
     if not isinstance(section, dict):
         raise ConfigError(f"{path}: no 'device' section; allowed: a mapping with 'driver: simulated, mma8451 "
                           "or mpu6050'")
-    return validate_device(section, path)
+    return validate_device(section)
 
 
 def with_port(section: DeviceSection, port: str) -> DeviceSection:

@@ -14,7 +14,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from contextlib import suppress
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, cast
 
 from ..errors import ConfigError, DeviceError
 
@@ -142,11 +142,16 @@ class AsciiChamber(Chamber):
 
         try:
             rm = pyvisa.ResourceManager(self.visa_library)
-            kw: dict[str, Any] = {"baud_rate": self.baud} if self.resource_name.startswith("ASRL") else {}
-            # ASRL INSTR and TCPIP SOCKET resources are message based (query, read/write terminations)
-            self._res = cast("MessageBasedResource", rm.open_resource(
-                self.resource_name, read_termination="\r\n", write_termination="\r\n",
-                timeout=int(self.timeout_s * 1000), **kw))
+            # ASRL INSTR and TCPIP SOCKET resources are message based (query, read/write terminations);
+            # a serial one also takes the baud rate
+            timeout_ms = int(self.timeout_s * 1000)
+            if self.resource_name.startswith("ASRL"):
+                res = rm.open_resource(self.resource_name, read_termination="\r\n", write_termination="\r\n",
+                                       timeout=timeout_ms, baud_rate=self.baud)
+            else:
+                res = rm.open_resource(self.resource_name, read_termination="\r\n", write_termination="\r\n",
+                                       timeout=timeout_ms)
+            self._res = cast("MessageBasedResource", res)
         except (pyvisa.Error, OSError, ValueError) as e:
             raise ChamberError(f"chamber on {self.port}: cannot open ({e})") from None
         self.identify()

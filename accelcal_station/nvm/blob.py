@@ -31,13 +31,13 @@ from __future__ import annotations
 import struct
 import zlib
 from dataclasses import asdict, dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..calibration import Calibration, TemperatureTable
 from ..errors import DataError, NVMError
+from ..jsontypes import JsonObject
 
 MAGIC = b"ACAL"
 FORMAT_VERSION = 1
@@ -75,7 +75,8 @@ class BlobHeader:
     crc32: int
     temperature_points: int
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> JsonObject:
+        """The JSON form (the results store, --json)."""
         return asdict(self)
 
 

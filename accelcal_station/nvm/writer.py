@@ -29,6 +29,7 @@ from ..calibration import Calibration
 from ..drivers.base import NVM
 from ..errors import AccelcalError, NVMError
 from ..fileguard.jsondoc import read_json
+from ..jsontypes import JsonObject
 from .blob import GENERATION_MOD, HEADER_SIZE, BlobError, BlobHeader, blob_length, blob_size, decode, encode, newer
 
 SLOTS = ("A", "B")
@@ -77,8 +78,25 @@ class SlotStatus:
     error: str | None = None
     newest: bool = False
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> JsonObject:
+        """The JSON form (the results store, --json)."""
         return asdict(self)
+
+
+class BackupSummary(TypedDict):
+    """What a backup file holds besides its image (``backup`` returns it; the file adds image_base64)."""
+
+    schema: str
+    version: int
+    created: float  # unix seconds
+    nvm_size: int
+    page_size: int
+    chip: str | None
+    base_addr: int
+    slot_size: int
+    length: int  # image bytes
+    crc32: int
+    slots: list[JsonObject]  # SlotStatus.to_dict() of each slot
 
 
 # what a scan finds in each slot: its status, and the calibration and header of a valid blob
@@ -106,7 +124,8 @@ class BurnOutcome:
     # calibration; None: not read (or reads did not settle)
     nvm_after: BlobIdentity | NoValidBlob | None = None
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> JsonObject:
+        """The JSON form (the results store, --json)."""
         return asdict(self)
 
 
@@ -355,28 +374,25 @@ class CalibrationWriter:
         """Raw bytes of both slots."""
         return bytes(self.nvm.read(self.base_addr, 2 * self.slot_size))
 
-    def backup(self, path: str | Path, overwrite: bool = False, chip: str | None = None) -> dict[str, Any]:
+    def backup(self, path: str | Path, overwrite: bool = False, chip: str | None = None) -> BackupSummary:
         """Save both slots' raw image (read until two reads agree), its CRC-32, slot status and the
         chip it came from to a JSON file (atomically)."""
         path = Path(path)
         if path.exists() and not overwrite:
             raise NVMError(f"{path}: backup file exists; choose another name (backups are never overwritten)")
         img = self.settled_image()
-        doc = {
-            "schema": IMAGE_SCHEMA, "version": IMAGE_VERSION, "created": _time.time(),
-            "nvm_size": int(self.nvm.size), "page_size": self.page_size, "chip": chip,
-            "base_addr": self.base_addr, "slot_size": self.slot_size,
-            "length": len(img), "crc32": zlib.crc32(img),
-            "slots": [st.to_dict() for st, _, _ in self._scan(img)],
-            "image_base64": base64.b64encode(img).decode("ascii"),
-        }
+        summary = BackupSummary(
+            schema=IMAGE_SCHEMA, version=IMAGE_VERSION, created=_time.time(), nvm_size=int(self.nvm.size),
+            page_size=self.page_size, chip=chip, base_addr=self.base_addr, slot_size=self.slot_size,
+            length=len(img), crc32=zlib.crc32(img), slots=[st.to_dict() for st, _, _ in self._scan(img)])
+        doc = {**summary, "image_base64": base64.b64encode(img).decode("ascii")}
         try:
             atomic_write(path, json.dumps(doc, indent=1) + "\n")
         except OSError as e:
             raise NVMError(f"{path}: cannot write the backup ({e.strerror})") from None
-        return {k: v for k, v in doc.items() if k != "image_base64"}
+        return summary
 
-    def load_image(self, path: str | Path) -> tuple[bytes, dict[str, Any]]:
+    def load_image(self, path: str | Path) -> tuple[bytes, JsonObject]:
         """Image bytes and document of a backup file, checked against its CRC and this layout."""
         path = Path(path)
         doc = read_json(path, "an NVM backup", MAX_BACKUP_BYTES,
