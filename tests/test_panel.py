@@ -89,6 +89,30 @@ def test_spread_needs_boards():
         panel_sections(validate_device({"driver": "simulated", "spread": {"offset_mg": 1}}))
 
 
+def test_panel_boards_are_typed_copies_with_their_own_keys_over_the_panels():
+    """Each board's section is the validated device's model with its own given keys over the panel's:
+    seed * 1000 + i and PANEL-0i unless the board says, a board's own ambient_c kept, the spread drawn
+    into each board's own effects (10 mg: three boards never draw the same offsets), the panel's section
+    itself left as it was."""
+    device = validate_device({"driver": "simulated", "seed": 5, "serial": "P", "ambient_c": 20.0,
+                              "simulator": {"effects": {"offset": {"offset_mg": [1.0, 2.0, 3.0]}, "noise": {}}},
+                              "boards": [{}, {"serial": "X", "ambient_c": 30.0}, {"seed": 77}],
+                              "spread": {"offset_mg": 10.0}})
+    before = device.model_dump()
+    secs = panel_sections(device)
+    assert [p for _, p in secs] == ["device.boards[0]", "device.boards[1]", "device.boards[2]"]
+    assert all(type(s) is type(device) and s.boards is None and s.spread is None for s, _ in secs)
+    assert [(s.seed, s.serial, s.ambient_c) for s, _ in secs] == [(5000, "P-01", 20.0), (5001, "X", 30.0),
+                                                                  (77, "P-03", 20.0)]
+    offsets = [s.simulator.effects["offset"]["offset_mg"] for s, _ in secs]
+    assert len({tuple(o) for o in offsets}) == 3 and all(o != [1.0, 2.0, 3.0] for o in offsets)
+    assert all("noise" in s.simulator.effects for s, _ in secs)  # the other effects kept
+    assert device.model_dump() == before
+    # built into boards as they are: the board's serial and ambient temperature
+    board = SimulatedBoard.from_section(secs[1][0])
+    assert (board.serial, board.ambient_c) == ("X", 30.0)
+
+
 def _scattered_panel(n: int, scatter_deg: float, seed: int = 3):
     """n in-class model-12 boards read at an4399-8 poses, all through the same per-pose jig error."""
     rng = np.random.default_rng(seed)
