@@ -302,3 +302,34 @@ def test_the_older_chamber_spelling_still_means_the_emulated_chamber(tmp_path: P
                             "host:port or a VISA resource name (the emulated chamber: chamber.type: emulated)")
     shipped = yaml.safe_load((REPO / "configs" / "thermal-sim.yaml").read_text())["chamber"]
     assert shipped["type"] == "emulated" and "port" not in shipped
+
+
+def test_the_factories_drivers_jigs_and_chamber_validate_nothing_again() -> None:
+    """One validation path: a station config is validated once (config/schema.py), a command's or a test's
+    mapping through validate_device/validate_jig/validate_chamber; the factories, drivers, jigs, chamber and
+    panel merge take the typed models and call no validation of their own.  Only what reads another input
+    validates it: a simulator or board file (drivers/simulated.py, drivers/emulator_files.py) and a board
+    mapping handed to SimulatedBoard.from_config."""
+    import ast
+    names = {"parse", "validate", "validate_device", "validate_jig", "validate_chamber", "model_validate"}
+    allowed = {("simulated.py", "simulator_of"), ("simulated.py", "from_config"),
+               ("emulator_files.py", "emulator_options_from_file"), ("emulator_files.py", "board_config_from_file")}
+    pkg = REPO / "accelcal_station"
+    files = [*(pkg / "drivers").glob("*.py"), *(pkg / "fixtures").glob("*.py"), *(pkg / "instruments").glob("*.py"),
+             pkg / "station" / "panel_config.py"]
+    found = []
+    for f in files:
+        for fn in ast.walk(ast.parse(f.read_text())):
+            if not isinstance(fn, ast.FunctionDef):
+                continue
+            for node in ast.walk(fn):
+                if isinstance(node, ast.Call) and isinstance(node.func, (ast.Name, ast.Attribute)):
+                    # a bare call (parse(...), validate_device(...)) or a model's own (X.model_validate(...));
+                    # JigStatus.parse(line) reads a protocol reply, not a config
+                    name = node.func.id if isinstance(node.func, ast.Name) else node.func.attr
+                    if isinstance(node.func, ast.Attribute) and name != "model_validate":
+                        continue
+                    if name in names and (f.name, fn.name) not in allowed:
+                        found.append(f"{f.name}:{node.lineno} {fn.name}: {name}()")
+    assert not found, found
+    assert len(files) > 20  # the scan reaches the parts
