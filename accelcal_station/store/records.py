@@ -188,6 +188,8 @@ class RunRecord:
     pid: int | None
     panel_id: str | None = None  # the boards calibrated together on one jig
     limits: dict[str, float] | None = None  # the acceptance limits the run was judged by (schema 4)
+    heartbeat_at: float | None = None  # the station's last sign of life, unix s (schema 5; store/heartbeat.py)
+    heartbeat_s: float | None = None  # seconds between its heartbeats
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
     events: list[StoredEvent] = field(default_factory=list)
