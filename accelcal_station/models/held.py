@@ -49,6 +49,7 @@ import numpy as np
 
 from ..errors import UnderdeterminedError
 from ..identifiability import REL_SV_MIN, _centre, _design, assess, assess_batch, first_of_orientation
+from ..jsontypes import JsonObject
 from .gravity_norm import PARAM_NAMES
 from .linear import param_names
 from .result import BatchFit
@@ -71,7 +72,7 @@ class Held:
     def text(self) -> str:
         return f"{self.reason}; {self.hint}"
 
-    def to_json(self) -> dict[str, object]:
+    def to_json(self) -> JsonObject:
         return {"term": self.term, "value": self.value, "reason": self.reason, "hint": self.hint}
 
 
