@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any, TypedDict
+from typing import TypeAlias, TypedDict
 
 import numpy as np
 
@@ -36,6 +36,10 @@ class Tried(TypedDict):
     failed: list[str]
 
 
+# an added effect's fitted parameters, in the configuration's units where there is one
+Fitted: TypeAlias = dict[str, float | list[float]]
+
+
 class Step(TypedDict):
     """An effect added by the selection (``steps``): gap and RMS before and after, its test, its fit."""
 
@@ -46,7 +50,7 @@ class Step(TypedDict):
     rms_mg_after: float
     p_value: float
     level: float
-    fitted: dict[str, Any]  # the effect's own parameters (names and shapes differ per effect)
+    fitted: Fitted  # the effect's own parameters (names and shapes differ per effect)
 
 Evaluator = Callable[[list[str]], Evaluation]  # held-out evaluation of the baseline plus these candidates
 
@@ -125,7 +129,7 @@ def _rules(cur: Evaluation, new: Evaluation, p: float, level: float, effect: str
     return failed
 
 
-def _fitted(e: Evaluation, effect: str, sim: Simulator, data: GapData) -> dict[str, Any]:
+def _fitted(e: Evaluation, effect: str, sim: Simulator, data: GapData) -> Fitted:
     """The fitted values of an added effect, in the configuration's units where there is one."""
     p = e.params
     if effect == "noise":
