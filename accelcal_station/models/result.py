@@ -3,15 +3,29 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NotRequired, TypedDict
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 
 from ..calibration import Calibration
 from ..jsontypes import JsonObject
 
-if TYPE_CHECKING:  # held.py imports this module (BatchFit)
-    from .held import Held
+
+@dataclass(frozen=True)
+class Held:
+    """A term fitted at its nominal value because the poses do not determine it (models/held.py)."""
+
+    term: str  # parameter name, e.g. "M_xy"
+    value: float  # the nominal value it is held at
+    reason: str
+    hint: str
+
+    @property
+    def text(self) -> str:
+        return f"{self.reason}; {self.hint}"
+
+    def to_json(self) -> JsonObject:
+        return {"term": self.term, "value": self.value, "reason": self.reason, "hint": self.hint}
 
 
 class PoseRow(TypedDict):
@@ -201,7 +215,7 @@ class BatchFit:
     input_per_g: np.ndarray | float = 1.0
     nfev: np.ndarray | None = None
     status: list[str] | None = None
-    held: list[list[Any]] = field(default_factory=list)  # (D,) each board's models/held.Held terms
+    held: list[list[Held]] = field(default_factory=list)  # (D,) each board's terms held at nominal
     crossval_by_orientation_rms_g: np.ndarray | None = None  # (D,), NaN where not computable
     crossval_by_orientation_ok: np.ndarray | None = None  # (D,) bool
     distinct_orientations: np.ndarray | None = None  # (D,) int
