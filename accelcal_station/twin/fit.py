@@ -168,9 +168,9 @@ def twin_config(pop: Population, stats: LotStats, per_g: float | None, base: Jso
         model = SensorModel.from_config(eff, text(dev, "chip", "device", "mma8451"))
         odr = dev.get("odr_hz", model.chip.default_odr_hz)
         enbw = model.chip.enbw_hz(scalar(odr, "device.odr_hz"), model.chip.default_dlpf)
-        quant = eff.get("quantization", {})
-        lsb = scalar(quant.get("lsb_counts", 1) if isinstance(quant, dict) else 1, "quantization.lsb_counts") \
-            if "quantization" in eff else 0.0
+        quant = eff.get("quantization", False)  # absent or false: off; true or null: on at 1 LSB
+        lsb = 0.0 if quant is False else \
+            scalar(quant.get("lsb_counts", 1) if isinstance(quant, dict) else 1, "quantization.lsb_counts")
         white = np.sqrt(np.clip(np.asarray(sd, dtype=float) ** 2 - lsb**2 / 12.0, 0.0, None))
         eff["noise"] = {"density_ug_per_rthz": [round(float(v / per_g / np.sqrt(enbw) * 1e6), 5) for v in white]}
     sim["population"] = pop.to_config()
