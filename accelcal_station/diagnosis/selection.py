@@ -134,14 +134,31 @@ def _fitted(e: Evaluation, effect: str, sim: Simulator, data: GapData) -> Fitted
     p = e.params
     if effect == "noise":
         enbw = sim.model.chip.enbw_hz(data.rate_hz or sim.odr_hz, sim.dlpf)
-        return {"density_ug_per_rthz": [1e6 * s / math.sqrt(enbw) for s in p["sigma_g"]]}
+        return {"density_ug_per_rthz": [1e6 * s / math.sqrt(enbw) for s in _per_axis(p["sigma_g"])]}
     if effect == "quantization":
-        return {"lsb_counts": p["lsb_g"] * sim.counts_per_g, "lsb_mg": 1e3 * p["lsb_g"]}
+        lsb = _number(p["lsb_g"])
+        return {"lsb_counts": lsb * sim.counts_per_g, "lsb_mg": 1e3 * lsb}
     if effect == "pose_error":
-        return {"scatter_deg": p["scatter_deg"]}
-    out = {k.split(":", 1)[1]: v for k, v in p.items() if k.startswith(effect + ":")}
-    out.update({k: v for k, v in p.items() if k.startswith(effect)})
+        return {"scatter_deg": _number(p["scatter_deg"])}
+    out = {k.split(":", 1)[1]: _as_json(v) for k, v in p.items() if k.startswith(effect + ":")}
+    out.update({k: _as_json(v) for k, v in p.items() if k.startswith(effect)})
     return out
+
+
+def _number(v: float | list[float] | np.ndarray) -> float:
+    if not isinstance(v, float | int):
+        raise TypeError("a per-axis value where one number is fitted")
+    return v
+
+
+def _per_axis(v: float | list[float] | np.ndarray) -> list[float]:
+    if isinstance(v, float | int):
+        raise TypeError("one number where a per-axis value is fitted")
+    return v if isinstance(v, list) else v.tolist()
+
+
+def _as_json(v: float | list[float] | np.ndarray) -> float | list[float]:
+    return v.tolist() if isinstance(v, np.ndarray) else v
 
 
 def _step(ev: Evaluator, data: GapData, sim: Simulator, current: Evaluation, remaining: list[str],
