@@ -62,7 +62,24 @@ COMMANDS = [
     "fit tt.csv --model 12 --json",
     "fit tt.csv --model 12",
     "fit {D}/nine_position_paper_faces.csv --model 12 --temp-method cubic --json",
+    # the four flows (one board, a panel, a thermal plan, a thermal panel), a panel of one and shifts,
+    # with what they say on stderr and what the store keeps of them (report show)
+    "run --config {C}/thermal-panel-sim.yaml --store flows.sqlite --json",
+    "run --config {C}/panel-mma8451-emulated.yaml --store flows.sqlite --json",
+    "run --config {C}/panel-one.yaml --store flows.sqlite --json",
+    "run --config {C}/sim.yaml --serial SN3 --store flows.sqlite --json",
+    "run --config {C}/thermal-sim.yaml --serial SN4 --store flows.sqlite --json",
+    "run --shift --config {C}/sim.yaml --store flows.sqlite --json",
+    "run --shift --config {C}/thermal-sim.yaml --store flows.sqlite --json",
+    "run --config {C}/sim.yaml --serial SN5 --store flows.sqlite",
+    "run --config {C}/panel-sim.yaml --store flows.sqlite",
+    "run --config {C}/thermal-sim.yaml --serial SN6 --store flows.sqlite",
+    "run --config {C}/thermal-panel-sim.yaml --store flows.sqlite",
+    "run --config {C}/mma8451-emulated.yaml --store flows.sqlite",
+    "report list --db flows.sqlite --json",
+    *[f"report show {n} --db flows.sqlite --json" for n in (1, 16, 17, 24, 25, 26, 27, 28, 29, 30, 31, 32)],
 ]
+SHIFT_INPUT = "SN10\nSN11\n\nSN10\n"  # a blank line (ignored) and a retest; end of input ends the shift
 FILES = ("results12.csv", "results9.csv", "s.csv", "t.json", "r.csv", "rt.json", "tt.csv")
 
 
@@ -70,16 +87,21 @@ def normalise(text: str, repo: Path) -> str:
     """Mask what differs from run to run (times, ids, CRCs over a time stamp) and the checkout's path."""
     text = text.replace(str(repo), "REPO")
     text = re.sub(r'"\d{4}-\d{2}-\d{2}[T ][0-9:.+Z-]+"', '"TIME"', text)
+    text = re.sub(r"\S+-\d{8}T\d{6}-[0-9a-f]{6}", "PANEL_ID", text)
+    text = re.sub(r"(wall|compute|station|board time,) \d+\.\d+ s", r"\1 T s", text)  # host times in text
     return re.sub(r'"(' + "|".join(MASKED) + r')": *[^,}]+', r'"\1": X', text)
 
 
 def run_all(accelcal: str, repo: Path, work: Path, configs: Path, lot: Path) -> list[str]:
-    """Each command's stdout and exit status, run in ``work`` by ``accelcal``."""
+    """Each command's stdout and exit status (and a run's stderr: what the station said), run in
+    ``work`` by ``accelcal``."""
     out = []
     for cmd in COMMANDS:
         args = cmd.format(C=configs, D=repo / "tests" / "data", E=repo / "examples", LOT=lot).split()
-        r = subprocess.run([accelcal, *args], cwd=work, input="\n" * 64, capture_output=True, text=True, timeout=600)
-        out.append(normalise(r.stdout, repo) + f"\nexit {r.returncode}\n")
+        stdin = SHIFT_INPUT if "--shift" in args else "\n" * 64  # Enter at every operator prompt
+        r = subprocess.run([accelcal, *args], cwd=work, input=stdin, capture_output=True, text=True, timeout=600)
+        said = normalise(r.stderr, repo) if args[0] == "run" else ""
+        out.append(normalise(r.stdout, repo) + f"\nexit {r.returncode}\n" + said)
     return out
 
 
@@ -108,6 +130,8 @@ def main() -> int:
         shutil.copytree(ROOT / "configs", configs)
         sim = configs / "sim.yaml"
         sim.write_text(sim.read_text().replace("  # seed: 1 ", "  seed: 1   ", 1))
+        panel = configs / "panel-sim.yaml"  # a panel of one: device.boards 1
+        (configs / "panel-one.yaml").write_text(panel.read_text().replace("  boards: 16 ", "  boards: 1  ", 1))
         lot = tmp / "lot.csv"
         write_lot(lot, 300, design="optimal-12", seed=7)
         sides = {}
