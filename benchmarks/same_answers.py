@@ -142,7 +142,8 @@ def main() -> int:
         sim.write_text(sim.read_text().replace("  # seed: 1 ", "  seed: 1   ", 1))
         for panel in ("panel-sim", "thermal-panel-sim"):  # panels of one: device.boards 1
             text = (configs / f"{panel}.yaml").read_text()
-            (configs / f"{panel.replace('sim', 'one')}.yaml").write_text(text.replace("  boards: 16", "  boards: 1 ", 1))
+            one = text.replace("  boards: 16", "  boards: 1 ", 1)
+            (configs / f"{panel.replace('sim', 'one')}.yaml").write_text(one)
         lot = tmp / "lot.csv"
         write_lot(lot, 300, design="optimal-12", seed=7)
         sides = {}

@@ -110,7 +110,7 @@ def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str 
     if cfg.is_panel:
         _run_panel(cfg, operator, serial, lot, as_json, echo, ui, on_done)
         return
-    rep = board_station(cfg, operator, serial, lot, echo, ui).run()
+    rep = board_station(cfg, operator, serial, lot, echo, ui).run()[0]
     on_done([rep])
     if as_json:
         click.echo(json.dumps(jsonable(rep.to_dict()), indent=2, allow_nan=False))
@@ -208,18 +208,19 @@ def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot
                echo: Callable[[str], None], ui: OperatorUI, on_done: Callable[[list[RunReport]], None]) -> None:
     """A panel: one line per board; exit 1 when any board failed."""
     from ..errors import ConfigError
-    from ..station.panel import PanelStation, panel_dict
+    from ..station.flow import make_flow
+    from ..station.panel import panel_dict
 
     if serial is not None:
         raise ConfigError("--serial: a panel's boards keep their own serials; remove --serial "
                           "(or set device.boards[i].serial)")
-    if cfg.is_thermal:  # a thermal plan over the panel (thermal_panel.py)
-        from ..station.thermal_panel import ThermalPanelStation as PanelStation
-    station = PanelStation(cfg, operator=operator, lot=lot, echo=echo, ui=ui)
+    station = make_flow(cfg, operator=operator, lot=lot, echo=echo, ui=ui)  # a thermal plan's too
     reports = station.run()
     on_done(reports)
+    panel_id = station.panel_id
+    assert panel_id is not None, "a panel's flow carries its id (FlowPolicy.for_config)"
     if as_json:
-        click.echo(json.dumps(jsonable(panel_dict(station.panel_id, reports, station)), indent=2, allow_nan=False))
+        click.echo(json.dumps(jsonable(panel_dict(panel_id, reports, station.panel)), indent=2, allow_nan=False))
     else:
         for i, rep in enumerate(reports):
             colour = "green" if rep.verdict == "PASS" else "red"
@@ -227,7 +228,7 @@ def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot
             click.secho(f"board {i + 1:2d} {rep.serial or '-':<14} {rep.verdict} (run {rep.run_id}){why}", fg=colour)
         t = station.timing
         passed = sum(r.verdict == "PASS" for r in reports)
-        line = f"panel {station.panel_id}: {passed}/{len(reports)} passed, store {cfg.store_file}"
+        line = f"panel {panel_id}: {passed}/{len(reports)} passed, store {cfg.store_file}"
         if "panel_time_s" in t:
             line += f"; {t['panel_time_s']:.1f} s board time, {t['per_board_s']:.2f} s per board"
         click.echo(line)

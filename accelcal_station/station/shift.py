@@ -1,8 +1,8 @@
 """A shift at the station: one process calibrates board after board (`accelcal run --shift`).
 
 Each board starts with its serial (scanned: a barcode reader types it and Enter; blank lines are
-ignored), is calibrated exactly as `accelcal run` calibrates one board (board.Station, or the
-thermal station), and is a normal run in the store.  End of input at the serial prompt (or the
+ignored), is calibrated exactly as `accelcal run` calibrates one board (the one flow:
+flow.make_flow), and is a normal run in the store.  End of input at the serial prompt (or the
 page's End shift) ends the shift with its tally.  A device that is gone between boards is one line
 and a bounded wait for it to come back, never a traceback.
 """
@@ -19,7 +19,7 @@ from ..errors import AccelcalError, ConfigError, DataError, DeviceError, NVMErro
 from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import OperatorUI
 from ..i18n import N_, Translate, reason_title
-from .board import Station
+from .flow import StationFlow, make_flow
 from .identity import check_serial
 from .report import RunReport
 from .settings import StationConfig
@@ -143,14 +143,10 @@ def wait_for_device(cfg: StationConfig, say: Callable[[str], None], wait_s: floa
 
 
 def board_station(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None,
-                  echo: Callable[[str], None], ui: OperatorUI) -> Station:
-    """The station that calibrates one board as `accelcal run` does (thermal when the config plans
-    temperatures)."""
-    if cfg.is_thermal:
-        from .thermal import ThermalStation
-
-        return ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui)
-    return Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui)
+                  echo: Callable[[str], None], ui: OperatorUI) -> StationFlow:
+    """The flow that calibrates one board as `accelcal run` does (at each set point when the config
+    plans temperatures)."""
+    return make_flow(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui)
 
 
 # what the front end does with each board as it ends: its outcome, and its report when it finished
@@ -184,7 +180,7 @@ def run_shift(cfg: StationConfig, operator: str | None, lot: str | None, ui: Ope
             on_start(serial)
         station = board_station(cfg, operator, serial, lot, echo, ui)
         try:
-            rep = station.run()
+            rep = station.run()[0]
         except KeyboardInterrupt:
             on_board(tally.add(serial, station.run_id, "ABORTED", [("aborted", "interrupted (Ctrl-C)")]), None)
             tally.ended_by = "Ctrl-C"
