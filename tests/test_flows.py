@@ -42,7 +42,7 @@ def test_one_flow_class_serves_the_four_cases(config: str, panel: bool, thermal:
     assert p.single_board is (not panel) and (flow.panel_id is None) is (not panel)
     assert (p.device_fault_ends_run, p.wrong_pose_ends_run, p.live_reading, p.burn_steps_recorded) \
         == (not panel,) * 4
-    assert p.says_default_limits is (not panel and not thermal)
+    assert p.says_default_limits is (not panel and not thermal) and p.closes_before_timing is panel
 
 
 def test_no_other_flow_class_is_left_in_the_station_package() -> None:

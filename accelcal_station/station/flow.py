@@ -81,6 +81,8 @@ class StationFlow:
                 self._announce(boards[0].rep)
                 self._open_all(store, boards)
                 self._calibrate(store, boards)
+                if self.policy.closes_before_timing:
+                    self.panel.close(boards)
                 self.conditions.timing(self, boards, wall0)
                 for b in boards:
                     self._record(store, b)

@@ -94,6 +94,7 @@ class PanelBoard:
     clock: Clock | None = None  # the board's clock (conditions.clock) and its time at opening
     clock0: float | None = None
     open_: bool = False
+    closed: bool = False
     seat: np.ndarray = field(default_factory=lambda: np.eye(3))
 
     @property
@@ -246,8 +247,10 @@ class Panel:
                 b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events + b.driver.take_events()]
 
     def close(self, boards: list[PanelBoard]) -> None:
+        """Close every board that was opened (once) and the shared buses."""
         for b in boards:
-            if b.open_:
+            if b.open_ and not b.closed:
+                b.closed = True
                 with contextlib.suppress(AccelcalError, OSError):
                     b.driver.close()
         for bus in self._buses.values():

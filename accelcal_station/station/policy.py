@@ -45,6 +45,9 @@ class FlowPolicy:
     burn_steps_recorded: bool
     # the safe default limits in use are said and kept with the run's events
     says_default_limits: bool
+    # the boards are closed before their time is taken (closing, e.g. a mux's standby writes, is part of
+    # a panel's device time); a single board is closed after its run is recorded
+    closes_before_timing: bool
     # the id every run of a panel carries (start_run, fit_summary, --json); None: a single board
     panel_id: str | None
 
@@ -57,6 +60,7 @@ class FlowPolicy:
         single = not cfg.is_panel
         return cls(device_fault_ends_run=single, wrong_pose_ends_run=single, live_reading=single,
                    burn_steps_recorded=single, says_default_limits=single and not cfg.is_thermal,
+                   closes_before_timing=not single,
                    panel_id=None if single else panel_id or new_panel_id(cfg.station_id))
 
 
