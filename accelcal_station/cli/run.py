@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from typing import Any
 
 import click
 
@@ -21,6 +20,7 @@ from ..station.shift import (
     SERIAL_PROMPT_PAGE,
     BoardOutcome,
     OnBoard,
+    ShiftSummary,
     board_station,
     check_shift_config,
     run_shift,
@@ -84,7 +84,8 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
         with web_operator(cfg, echo, ui_host, ui_port, shift=shift) as web:
             if shift:
                 _shift(cfg, operator, lot, as_json, echo, web, device_wait_s, web.start_board,
-                       lambda b, rep: finish_outcome(web, b, rep), web.end_shift, SERIAL_PROMPT_PAGE, tr)
+                       lambda b, rep: finish_outcome(web, b, rep), lambda s: web.end_shift(dict(s)),
+                       SERIAL_PROMPT_PAGE, tr)
                 return
             _run(cfg, operator, serial, lot, as_json, echo, web, web, lambda reports: finish_reports(web, reports))
         return
@@ -122,7 +123,7 @@ def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str 
 
 def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: bool, echo: Callable[[str], None],
            ui: OperatorUI, device_wait_s: float, on_start: Callable[[str], None] | None = None,
-           on_board: OnBoard | None = None, on_end: Callable[[dict[str, Any]], None] | None = None,
+           on_board: OnBoard | None = None, on_end: Callable[[ShiftSummary], None] | None = None,
            prompt: str = SERIAL_PROMPT, tr: Translate = str) -> None:
     """`run --shift`: each board printed as it ends (one JSON line each under --json), then the
     shift's summary (one JSON line); DeviceGone (exit 3) after the summary when the device stayed away."""

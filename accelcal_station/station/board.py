@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
@@ -25,6 +24,7 @@ from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.operator_jig import PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
+from ..jsontypes import JsonObject
 from ..models.fitting import fit_session
 from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
@@ -45,7 +45,7 @@ from .verdict import Stage
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
 # a burn step as it happens: (event kind, the burn outcome's record)
-BurnLog = Callable[[str, dict[str, Any]], None]
+BurnLog = Callable[[str, JsonObject], None]
 
 
 class BoardSteps:
