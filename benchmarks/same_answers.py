@@ -8,8 +8,11 @@ REV is checked out in a temporary git worktree with a virtual environment of its
 the same extra, since pyarrow, when present, writes the results tables). Every
 command runs in a fresh folder per side, on seeded copies of configs/ (``seed: 1`` in sim.yaml),
 a 300-board lot file written once and read by both, and the data in tests/data and examples/.
-What is masked: ISO times, durations, run and panel ids, and each blob's CRC (it covers the burn
-time). Written files (results tables, pose tables, truths, raw logs) are compared whole.
+What is masked: ISO times, durations, run and panel ids, pids, and each blob's CRC (it covers the burn
+time); a `run`'s stderr (what the station said) is compared too, and the stored runs through
+`report show`.  The 16-board thermal panel has every number masked: its boards' threads share the
+chamber's time, so its figures differ in the last digits from run to run (a thermal panel of one
+is compared whole).  Written files (results tables, pose tables, truths, raw logs) are compared whole.
 Prints one line per command that differs and ``N of N commands identical``; exit 1 on a difference.
 """
 from __future__ import annotations
