@@ -66,9 +66,7 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
     operator, lot = check_run_labels(operator, lot, cfg.station_id)  # as serials are: no formula, no control
-    _refuse_over_config(cfg)
-    if shift:
-        check_shift_config(cfg, serial)
+    _check_run(cfg, serial, shift)
     event_log.configure(cfg.event_log, avoid=(cfg.path, cfg.store_file))  # logging: (docs/logging.md)
 
     def echo(text: str) -> None:
@@ -92,6 +90,13 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     # identity questions and their retries always on stderr (stdout may be the JSON object)
     _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True), tr),
          TerminalOperator(echo, tr), lambda reports: None)
+
+
+def _check_run(cfg: StationConfig, serial: str | None, shift: bool) -> None:
+    """Before anything runs: the config is not what the run writes; a shift's config is one board's."""
+    _refuse_over_config(cfg)
+    if shift:
+        check_shift_config(cfg, serial)
 
 
 def _refuse_over_config(cfg: StationConfig) -> None:
