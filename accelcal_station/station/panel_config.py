@@ -14,7 +14,6 @@ A ``device:`` section without ``boards`` is a panel of one.  With ``boards``::
 from __future__ import annotations
 
 import copy
-from typing import Any
 
 import numpy as np
 
@@ -23,14 +22,15 @@ from ..config.schema import DeviceSection
 from ..config.schema import given as given_keys
 from ..errors import ConfigError
 from ..fixtures.factory import spread_board
+from ..jsontypes import JsonObject
 
 MAX_BOARDS = 64
-def _simulated(section: dict[str, Any]) -> bool:
+def _simulated(section: JsonObject) -> bool:
     """A simulated board, or a driver on an emulated bus or port (these take a seed)."""
     return section.get("driver") == "simulated" or "emulated" in (section.get("bus"), section.get("port"))
 
 
-def panel_sections(device: DeviceSection | dict[str, Any], path: str = "device") -> list[tuple[dict[str, Any], str]]:
+def panel_sections(device: DeviceSection | JsonObject, path: str = "device") -> list[tuple[JsonObject, str]]:
     """Per-board device sections (the keys each board is given: the panel's shared keys under its
     own) and their key paths; a device without ``boards`` is a panel of one.  ``device``: a
     station's validated section, or a mapping (tests)."""
@@ -76,7 +76,7 @@ def panel_sections(device: DeviceSection | dict[str, Any], path: str = "device")
     return out
 
 
-def group_of(section: dict[str, Any], index: int) -> str:
+def group_of(section: JsonObject, index: int) -> str:
     """The thread a board is read by: its serial port, else its own.
 
     Boards behind a multiplexer each have their own thread too: their transactions are

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+
+from pydantic import BaseModel
 
 from ..acceptance.rules import Limits
 from ..config.checks import load_yaml_text
@@ -27,6 +28,7 @@ from ..config.schema import (
 from ..config.sections import default_config_path, with_port
 from ..errors import ConfigError
 from ..fixtures.designs import get_design
+from ..jsontypes import JsonObject
 from ..models.fitting import check_model
 from ..store.heartbeat import HEARTBEAT_S
 from ..store.location import outbox_of, store_path, store_target
@@ -88,7 +90,7 @@ class StationConfig:
                    _web_token(sc.web), sc.logging,
                    _web_token(sc.web, read=True))
 
-    def with_sections(self, **sections: Any) -> StationConfig:
+    def with_sections(self, **sections: BaseModel) -> StationConfig:
         """This configuration with some sections replaced by ones already validated (a benchmark's
         panel of N boards, a jig without moves), each marked as given."""
         return replace(self, schema=self.schema.model_copy(update=sections))
@@ -124,7 +126,7 @@ class StationConfig:
         return outbox_of(self.schema.store)
 
 
-def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> tuple[dict[str, Any], str]:
+def _read_with_ports(p: Path, port: str | None, jig_port: str | None) -> tuple[JsonObject, str]:
     """The config file's mapping (with the command line's device and jig ports applied) and its text."""
     raw, text = load_yaml_text(p)
     if port is not None:
