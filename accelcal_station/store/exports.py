@@ -22,7 +22,7 @@ from ..calibration import PARAM_NAMES, param_vector
 from ..errors import DataError
 from ..fileguard.cells import safe_row
 from .liveness import STALE
-from .records import RunRecord, StoreError, iso, reasons_of
+from .records import RunDocument, RunRecord, RunRow, StoreError, iso, reasons_of
 from .rowcheck import DamagedRow
 from .schema import POSE_COLS, STATUSES
 
@@ -41,7 +41,7 @@ def write_export(path: str | Path, text: str) -> None:
         raise StoreError(f"{path}: cannot write export ({e.strerror})") from None
 
 
-def runs_json(data: list[dict[str, Any]]) -> str:
+def runs_json(data: list[RunDocument]) -> str:
     """The JSON export document of runs given as RunRecord.to_dict()."""
     return json.dumps({"schema": "accelcal.runs", "version": 1, "runs": data}, indent=1) + "\n"
 
@@ -117,7 +117,7 @@ def _stats(values: np.ndarray) -> list[Stats]:
             for a, b, c, d in zip(mean, std, lo, hi, strict=True)]
 
 
-def _distributions(done: Sequence[dict[str, Any]]) -> tuple[dict[str, Stats] | None, dict[str, Stats]]:
+def _distributions(done: Sequence[RunRow]) -> tuple[dict[str, Stats] | None, dict[str, Stats]]:
     """Parameter and fit-figure statistics over complete runs (those with a calibration / fit)."""
     cals = [c for c in (r["calibration"] for r in done) if c]
     params = None
@@ -132,7 +132,7 @@ def _distributions(done: Sequence[dict[str, Any]]) -> tuple[dict[str, Stats] | N
     return params, fit_stats
 
 
-def summarize(checked: Sequence[tuple[dict[str, Any], list[DamagedRow]]]) -> LotSummary:
+def summarize(checked: Sequence[tuple[RunRow, list[DamagedRow]]]) -> LotSummary:
     """Counts, pass rate, failure reasons and parameter distributions of checked run rows
     (rowcheck.check_row: JSON parsed, damaged values None; ``damaged_rows`` names them).
 

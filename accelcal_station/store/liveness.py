@@ -14,7 +14,6 @@ import os
 import socket
 from collections.abc import Mapping
 from functools import cache
-from typing import Any
 
 STALE = "stale"
 PID_START_SLACK_S = 2.0  # /proc start times are whole clock ticks and btime whole seconds
@@ -51,7 +50,7 @@ def process_started_at(pid: int) -> float | None:
         return None
 
 
-def stale_reason(row: Mapping[str, Any], host: str | None = None) -> str | None:
+def stale_reason(row: Mapping[str, object], host: str | None = None) -> str | None:
     """Why the checked ``runs`` row ``row`` (status running) has no live station process; None when it
     may be alive or cannot be judged here (module doc)."""
     pid, started = row.get("pid"), row.get("started_at")
@@ -67,9 +66,8 @@ def stale_reason(row: Mapping[str, Any], host: str | None = None) -> str | None:
     return None
 
 
-def mark_stale(row: dict[str, Any]) -> dict[str, Any]:
-    """``row`` with status ``stale`` and the reason when its station process is gone (stale_reason)."""
+def live_status(row: Mapping[str, object]) -> tuple[str | None, str | None] | None:
+    """The status and reason a checked ``runs`` row reads with: (``stale``, why) when its station process
+    is gone (stale_reason), None when it reads as stored."""
     why = stale_reason(row)
-    if why is not None:
-        row["status"], row["status_reason"] = STALE, why
-    return row
+    return None if why is None else (STALE, why)

@@ -68,7 +68,8 @@ def waiting(local: Store, target_identity: str) -> list[int]:
     for rec in local.runs():
         kinds = {e["kind"] for e in rec.events}
         meta = next((e["data"] for e in rec.events if e["kind"] == "outbox"), None)
-        if isinstance(meta, dict) and meta.get("target") == target_identity and "synced" not in kinds:
+        if isinstance(meta, dict) and meta.get("target") == target_identity and "synced" not in kinds \
+                and rec.id is not None:
             out.append(rec.id)
     return out
 
@@ -84,7 +85,8 @@ def sync(server: Store, local: Store) -> SyncResult:
             res.running.append(rid)
             continue
         meta = next(e["data"] for e in rec.events if e["kind"] == "outbox")
-        sid, wrote = server.replay_run(rec, meta.get("server_run_id"),
+        named = meta.get("server_run_id") if isinstance(meta, dict) else None  # a dict: waiting() read it
+        sid, wrote = server.replay_run(rec, named if isinstance(named, int) and not isinstance(named, bool) else None,
                                        f"kept in the local outbox while the line database was unreachable "
                                        f"(outbox run {rid}); replayed")
         local.log_event(rid, "synced", f"replayed into {ident} as run {sid}", {"target": ident, "run_id": sid})

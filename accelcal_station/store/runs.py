@@ -32,21 +32,24 @@ from ..errors import DataError
 from ..session import Session
 from . import exports, integrity, schema
 from .database import Database, describe_target, is_url
-from .liveness import STALE, mark_stale, stale_reason
+from .liveness import STALE, live_status, stale_reason
 from .location import store_identity
 from .records import (
+    RunDocument,
     RunNotFound,
     RunRecord,
+    RunRow,
     RunSummary,
     StoreError,
     StoreUnreachable,
     build_record,
     opt,
+    run_row,
     run_summary,
     timestamp,
     to_json,
 )
-from .rowcheck import DamagedRow, check_row
+from .rowcheck import DamagedRow
 
 if TYPE_CHECKING:
     from sqlalchemy import ColumnElement, func, insert, select, update
@@ -356,7 +359,7 @@ class Store:
     # -- queries ------------------------------------------------------------------------
     def _where(self, device: Any = None, station: Any = None, lot: Any = None, operator: Any = None,
                since: Any = None, until: Any = None, verdict: Any = None, status: Any = None, model: Any = None,
-               run_ids: Iterable[int] | None = None) -> list[ColumnElement[bool]]:
+               run_ids: object = None) -> list[ColumnElement[bool]]:
         clauses: list[ColumnElement[bool]] = []
         for col, v in ((runs.c.device_serial, device), (runs.c.station_id, station), (runs.c.lot, lot),
                        (runs.c.operator, operator), (runs.c.verdict, verdict), (runs.c.status, status),
@@ -369,10 +372,12 @@ class Store:
             if t is not None:
                 clauses.append(runs.c.started_at >= t if op == ">=" else runs.c.started_at < t)
         if run_ids is not None:
+            if not isinstance(run_ids, Iterable):
+                raise TypeError(f"run_ids {run_ids!r}: allowed a list of run ids")
             clauses.append(runs.c.id.in_([int(i) for i in run_ids]))
         return clauses
 
-    def _runs(self, filters: dict[str, Any], limit: int | None = None) -> list[tuple[dict[str, Any], list[DamagedRow]]]:
+    def _runs(self, filters: Mapping[str, object], limit: int | None = None) -> list[tuple[RunRow, list[DamagedRow]]]:
         """The matching ``runs`` rows, each checked (rowcheck.check_row) with what is damaged in it.
         Status ``running`` or ``stale`` (both stored as running) is told apart as each row is read."""
         wanted = filters.get("status")
@@ -383,10 +388,12 @@ class Store:
         if limit is not None:
             stmt = stmt.limit(int(limit))
         try:
-            checked = [check_row("runs", r) for r in self._db.rows(stmt)]
+            out = [run_row(r) for r in self._db.rows(stmt)]
         except _sqlerror() as e:
             raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
-        out = [(mark_stale(r), damage) for r, damage in checked]  # running, its process gone: stale
+        for r, _ in out:  # running, its process gone: stale
+            if (stale := live_status(r)) is not None:
+                r["status"], r["status_reason"] = stale
         return [x for x in out if x[0]["status"] == wanted] if live else out
 
     def list_runs(self, limit: int | None = None, **filters: Any) -> list[RunSummary]:
@@ -395,11 +402,11 @@ class Store:
         is damaged has ``damaged`` (its columns) and ``damage`` (typed ``damaged_row`` reasons)."""
         with self._snapshot():
             per_run = self._db.rows(select(poses.c.run_id, func.count().label("n")).group_by(poses.c.run_id))
-            counts: dict[Any, int] = {r["run_id"]: r["n"] for r in per_run}
+            counts: dict[object, int] = {r["run_id"]: r["n"] for r in per_run}  # as stored (a damaged id too)
             rows = self._runs(filters, limit)
         return [run_summary(r, damage, counts.get(r["id"], 0)) for r, damage in rows]
 
-    def _record(self, r: dict[str, Any], damage: list[DamagedRow]) -> RunRecord:
+    def _record(self, r: RunRow, damage: list[DamagedRow]) -> RunRecord:
         rid = r["id"]
         pose_rows = self._db.rows(select(poses).where(poses.c.run_id == rid).order_by(poses.c.idx))
         event_rows = self._db.rows(select(events).where(events.c.run_id == rid).order_by(events.c.id))
@@ -451,7 +458,7 @@ class Store:
         return [] if self._server else integrity.file_problems(self._db)
 
     # -- exports and summaries ----------------------------------------------------------
-    def export_json(self, path: str | Path | None = None, **filters: Any) -> list[dict[str, Any]]:
+    def export_json(self, path: str | Path | None = None, **filters: Any) -> list[RunDocument]:
         """Every matching run in full; written atomically to ``path`` when given."""
         data = [rec.to_dict() for rec in self.runs(**filters)]
         if path is not None:
