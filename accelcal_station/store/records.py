@@ -173,7 +173,7 @@ class StoredPose(TypedDict):
     pitch_deg: float | None
     roll_deg: float | None
     reference_g: list[float] | None
-    mean: list[float] | None
+    mean: list[float]
     std: list[float] | None
     n: int | None
     dropped: int
@@ -362,5 +362,5 @@ def _pose_dict(p: PoseRecord, retries: int) -> StoredPose:
         return None if a is None else np.asarray(a).tolist()
 
     return {"name": p.name, "pitch_deg": p.pitch_deg, "roll_deg": p.roll_deg, "reference_g": arr(p.reference_g),
-            "mean": arr(p.mean), "std": arr(p.std), "n": p.n, "dropped": p.dropped, "temp_c": p.temp_c,
-            "t_start": p.t_start, "t_end": p.t_end, "retries": retries}
+            "mean": np.asarray(p.mean).tolist(), "std": arr(p.std), "n": p.n, "dropped": p.dropped,
+            "temp_c": p.temp_c, "t_start": p.t_start, "t_end": p.t_end, "retries": retries}

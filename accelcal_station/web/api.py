@@ -15,21 +15,21 @@ import json
 import math
 import time
 from collections.abc import AsyncIterator
-from typing import TYPE_CHECKING, Annotated, TypedDict
+from typing import TYPE_CHECKING, Annotated, Any, TypedDict
 
 from fastapi import APIRouter, Header, Query
 from fastapi import Path as FPath
 from fastapi.responses import StreamingResponse
-from pydantic import BaseModel, JsonValue, WithJsonSchema
+from pydantic import BaseModel, WithJsonSchema
 
 from ..errors import DataError
 from ..jsontypes import JsonObject
 from ..store.records import RunNotFound, StoredEvent, StoredPose, timestamp
 from ..store.rowcheck import T_MAX_S
 from . import queries
-from .queries import RunView, ShiftYield, StationYield
 from .errors import ERROR_RESPONSES, ApiError
 from .feed import Cursor, Step, advance, head
+from .queries import RunView, ShiftYield, StationYield
 from .settings import open_store
 
 if TYPE_CHECKING:
@@ -39,7 +39,6 @@ if TYPE_CHECKING:
 # the OpenAPI has always documented these as open objects: their values are typed for validation,
 # the schema stays what clients were given
 _OPEN_OBJECT = WithJsonSchema({"additionalProperties": True, "type": "object"})
-JsonDocument = Annotated[dict[str, JsonValue], _OPEN_OBJECT]  # a stored JSON document (fit summary, ...)
 YieldRow = Annotated[dict[str, float | int | str | None], _OPEN_OBJECT]  # queries.StationYield / ShiftYield
 
 
@@ -105,7 +104,7 @@ class RunEvent(BaseModel):
     t: float | None
     kind: str | None
     message: str | None
-    data: Annotated[JsonValue, WithJsonSchema({})] = None  # any JSON, as logged
+    data: Any = None  # any JSON, as logged (StoredEvent.data: a JsonValue)
 
 
 class RunDetail(RunSummary):
@@ -118,9 +117,11 @@ class RunDetail(RunSummary):
     counts_per_g: float | None
     gravity_mps2: float | None
     panel_id: str | None
-    nvm_outcome: JsonDocument | None
-    calibration: JsonDocument | None
-    fit_summary: JsonDocument | None
+    # stored JSON documents: JsonObject where they are built (RunDetailOut); dict[str, Any] here keeps the
+    # OpenAPI's open object (pydantic's own JsonValue would add a schema of its own to the document)
+    nvm_outcome: dict[str, Any] | None
+    calibration: dict[str, Any] | None
+    fit_summary: dict[str, Any] | None
     poses: list[Pose]
     events: list[RunEvent]
 
