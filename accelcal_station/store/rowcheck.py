@@ -3,8 +3,8 @@
 A store can be damaged (a disk error, a hand edit, another program, a fuzzer): an SQLite
 column holds any type whatever its declaration, a PostgreSQL DOUBLE holds NaN and 1e300,
 and a JSON text can be nested deep enough to exhaust the parser's recursion.  ``check_row``
-turns one row into a clean dict (JSON columns parsed; a bad value replaced by None) and
-the list of what is wrong, as typed ``DamagedRow`` reasons (code ``damaged_row``); the
+turns one row into a ``CheckedRow`` (JSON columns parsed; a bad value replaced by None; its
+values read typed, ``text``/``int``/``real``/``json``) and the list of what is wrong, as typed ``DamagedRow`` reasons (code ``damaged_row``); the
 listing shows them and ``accelcal report check`` lists them, never an exception.
 
 Limits: JSON nested at most JSON_MAX_DEPTH (64) levels, measured by a scanner that counts
@@ -124,7 +124,7 @@ def _real(lo: float = -math.inf, hi: float = math.inf) -> Check:
     return check
 
 
-def _time(v: object) -> object:
+def _time(v: object) -> float:
     try:
         return _real(T_MIN_S, T_MAX_S)(v)
     except ValueError as e:

@@ -117,8 +117,8 @@ class RunDetail(RunSummary):
     counts_per_g: float | None
     gravity_mps2: float | None
     panel_id: str | None
-    # stored JSON documents: JsonObject where they are built (RunDetailOut); dict[str, Any] here keeps the
-    # OpenAPI's open object (pydantic's own JsonValue would add a schema of its own to the document)
+    # stored JSON documents: JsonObject where they are built (RunDetailOut, checked by mypy); Any here
+    # keeps the OpenAPI's open object (pydantic's own JsonValue would add a schema of its own to it)
     nvm_outcome: dict[str, Any] | None
     calibration: dict[str, Any] | None
     fit_summary: dict[str, Any] | None
