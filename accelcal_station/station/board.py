@@ -149,7 +149,7 @@ class Station:
         if self.driver is None:
             self.driver = make_driver(cfg.device)
         driver = self.driver
-        with open_store(cfg.store_file, cfg.outbox) as store:
+        with open_store(cfg.store_file, cfg.outbox, cfg.heartbeat_s) as store:
             store.mark_stale_interrupted()
             self._announce(rep)
             with ExitStack() as stack:

@@ -292,7 +292,7 @@ class PanelStation:
         cfg = self.cfg
         wall0 = time.perf_counter()
         boards = self.boards = self._boards()
-        with open_store(cfg.store_file, cfg.outbox) as store:
+        with open_store(cfg.store_file, cfg.outbox, cfg.heartbeat_s) as store:
             store.mark_stale_interrupted()
             try:
                 for b in boards:

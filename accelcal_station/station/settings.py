@@ -28,6 +28,7 @@ from ..config.sections import default_config_path, with_port
 from ..errors import ConfigError
 from ..fixtures.designs import get_design
 from ..models.fitting import check_model
+from ..store.heartbeat import HEARTBEAT_S
 from ..store.location import outbox_of, store_path, store_target
 from .capture import CaptureSettings
 
@@ -111,6 +112,11 @@ class StationConfig:
     def is_thermal(self) -> bool:
         """A thermal plan: ``thermal`` or ``chamber`` given (the flow refuses one without the other)."""
         return self.schema.thermal is not None or self.schema.chamber is not None
+
+    @property
+    def heartbeat_s(self) -> float:
+        """``store.heartbeat_s``: seconds between a running run's heartbeats (store/heartbeat.py)."""
+        return self.schema.store.heartbeat_s if self.schema.store is not None else HEARTBEAT_S
 
     @property
     def outbox(self) -> Path | None:

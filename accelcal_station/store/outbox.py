@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, TypedDict
 
 from .database import describe_target, is_url
+from .heartbeat import HEARTBEAT_S
 from .location import store_identity
 from .records import StoreError, StoreUnreachable
 from .runs import Store
@@ -38,11 +39,13 @@ def default_outbox() -> Path:
     return Path(base) / "accelcal" / "outbox.sqlite"
 
 
-def open_store(target: str | Path, outbox: str | Path | None = None) -> Store:
-    """The store a station records into: a Store for a file, a LineStore for a server URL."""
+def open_store(target: str | Path, outbox: str | Path | None = None, heartbeat_s: float = HEARTBEAT_S) -> Store:
+    """The store a station records into: a Store for a file, a LineStore for a server URL; its
+    running runs beat every ``heartbeat_s`` seconds (store/heartbeat.py)."""
     if is_url(target) and not str(target).startswith("sqlite:///"):
-        return LineStore(str(target), Path(outbox) if outbox is not None else default_outbox())
-    return Store(target)
+        return LineStore(str(target), Path(outbox) if outbox is not None else default_outbox(),
+                         heartbeat_s=heartbeat_s)
+    return Store(target, heartbeat_s=heartbeat_s)
 
 
 class _Start(TypedDict):
@@ -121,16 +124,16 @@ class LineStore(Store):
     finish_run, interrupt_run, mark_stale_interrupted) never fail for that reason.  Reads
     go to the server, or to the outbox while the server is away."""
 
-    def __init__(self, target: str, outbox: Path, timeout_s: float = 10.0):
+    def __init__(self, target: str, outbox: Path, timeout_s: float = 10.0, heartbeat_s: float = HEARTBEAT_S):
         # not Store.__init__: the server may be away
-        self.target, self.outbox_path = target, outbox
+        self.target, self.outbox_path, self.heartbeat_s = target, outbox, float(heartbeat_s)
         self.path = describe_target(target)
         self._primary: Store | None = None
         self._local: Store | None = None
         self._journal: dict[int, _Run] = {}
         self._timeout_s = timeout_s
         try:
-            self._primary = Store(target, timeout_s)
+            self._primary = Store(target, timeout_s, heartbeat_s=heartbeat_s)
             self._db = self._primary._db
         except StoreUnreachable as e:
             self._fail(e)
@@ -151,7 +154,7 @@ class LineStore(Store):
 
     def _outbox(self) -> Store:
         if self._local is None:
-            self._local = Store(self.outbox_path, self._timeout_s)
+            self._local = Store(self.outbox_path, self._timeout_s, heartbeat_s=self.heartbeat_s)
         return self._local
 
     def _fail(self, e: StoreError) -> None:

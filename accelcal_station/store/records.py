@@ -138,6 +138,8 @@ class RunRow(TypedDict):
     pid: int | None
     panel_id: str | None
     limits: dict[str, float] | None
+    heartbeat_at: float | None
+    heartbeat_s: float | None
 
 
 def run_row(raw: Row) -> tuple[RunRow, list[DamagedRow]]:
@@ -152,7 +154,8 @@ def run_row(raw: Row) -> tuple[RunRow, list[DamagedRow]]:
         "counts_per_g": c.real("counts_per_g"), "gravity_mps2": c.real("gravity_mps2"), "verdict": t("verdict"),
         "reasons": c.json_list("reasons"), "nvm_status": t("nvm_status"), "nvm_outcome": c.json_object("nvm_outcome"),
         "calibration": c.json_object("calibration"), "fit_summary": c.json_object("fit_summary"), "host": t("host"),
-        "pid": c.int("pid"), "panel_id": t("panel_id"), "limits": c.numbers("limits")}
+        "pid": c.int("pid"), "panel_id": t("panel_id"), "limits": c.numbers("limits"),
+        "heartbeat_at": c.real("heartbeat_at"), "heartbeat_s": c.real("heartbeat_s")}
     return row, c.damage
 
 
@@ -239,6 +242,8 @@ class RunRecord:
     pid: int | None
     panel_id: str | None = None  # the boards calibrated together on one jig
     limits: dict[str, float] | None = None  # the acceptance limits the run was judged by (schema 4)
+    heartbeat_at: float | None = None  # the station's last sign of life, unix s (schema 5; store/heartbeat.py)
+    heartbeat_s: float | None = None  # seconds between its heartbeats
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
     events: list[StoredEvent] = field(default_factory=list)
@@ -265,6 +270,7 @@ class RunRecord:
             "nvm_outcome": copy.deepcopy(self.nvm_outcome), "calibration": copy.deepcopy(self.calibration),
             "fit_summary": copy.deepcopy(self.fit_summary), "host": self.host, "pid": self.pid,
             "panel_id": self.panel_id, "limits": None if self.limits is None else dict(self.limits),
+            "heartbeat_at": self.heartbeat_at, "heartbeat_s": self.heartbeat_s,
             "poses": [_pose_dict(p, r) for p, r in zip(self.poses, self.retries, strict=True)],
             "retries": list(self.retries), "events": copy.deepcopy(self.events), "damaged": list(self.damaged),
             "damage": [x.to_dict() for x in self.damage], "started_at_iso": iso(self.started_at),
@@ -301,6 +307,8 @@ class RunDocument(TypedDict):
     pid: int | None
     panel_id: str | None
     limits: dict[str, float] | None
+    heartbeat_at: float | None
+    heartbeat_s: float | None
     poses: list[StoredPose]
     retries: list[int]
     events: list[StoredEvent]
@@ -324,7 +332,8 @@ def build_record(run: RunRow, damage: list[DamagedRow], pose_rows: list[Row],
         gravity_mps2=run["gravity_mps2"], verdict=run["verdict"], reasons=reasons_of(run["reasons"]),
         nvm_status=run["nvm_status"], nvm_outcome=run["nvm_outcome"], calibration=run["calibration"],
         fit_summary=run["fit_summary"], host=run["host"], pid=run["pid"], panel_id=run["panel_id"],
-        limits=run["limits"], damaged=sorted({d.column for d in damage}))
+        limits=run["limits"], heartbeat_at=run["heartbeat_at"], heartbeat_s=run["heartbeat_s"],
+        damaged=sorted({d.column for d in damage}))
     for raw in pose_rows:
         p = check_row("poses", raw)
         damage += p.damage

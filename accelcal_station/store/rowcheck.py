@@ -4,8 +4,9 @@ A store can be damaged (a disk error, a hand edit, another program, a fuzzer): a
 column holds any type whatever its declaration, a PostgreSQL DOUBLE holds NaN and 1e300,
 and a JSON text can be nested deep enough to exhaust the parser's recursion.  ``check_row``
 turns one row into a ``CheckedRow`` (JSON columns parsed; a bad value replaced by None; its
-values read typed, ``text``/``int``/``real``/``json``) and the list of what is wrong, as typed ``DamagedRow`` reasons (code ``damaged_row``); the
-listing shows them and ``accelcal report check`` lists them, never an exception.
+values read typed, ``text``/``int``/``real``/``json``) and the list of what is wrong, as typed
+``DamagedRow`` reasons (code ``damaged_row``); the listing shows them and ``accelcal report
+check`` lists them, never an exception.
 
 Limits: JSON nested at most JSON_MAX_DEPTH (64) levels, measured by a scanner that counts
 brackets outside strings before the recursive parser runs (the station's deepest document,
@@ -124,7 +125,7 @@ def _real(lo: float = -math.inf, hi: float = math.inf) -> Check:
     return check
 
 
-def _time(v: object) -> float:
+def _time(v: object) -> object:
     try:
         return _real(T_MIN_S, T_MAX_S)(v)
     except ValueError as e:
@@ -209,7 +210,8 @@ SPECS: dict[str, dict[str, tuple[Check, bool]]] = {
              "verdict": (_choice(VERDICTS), False), "reasons": (_json_of(list, _reasons), False),
              "nvm_outcome": (_json_of(dict), False), "calibration": (_json_of(dict, _calibration), False),
              "fit_summary": (_json_of(dict, _fit_summary), False), "pid": (_int(0, 2**31 - 1), False),
-             "limits": (_json_of(dict, _limits), False)},
+             "limits": (_json_of(dict, _limits), False), "heartbeat_at": (_time, False),
+             "heartbeat_s": (_real(0, 1e6), False)},
     "poses": {"run_id": (_ID, True), "idx": (_COUNT, True), "name": (_text, True),
               **{c: (_real(), True) for c in ("mean_x", "mean_y", "mean_z")},
               **{c: (_real(), False) for c in ("pitch_deg", "roll_deg", "ref_x", "ref_y", "ref_z", "std_x", "std_y",

@@ -32,6 +32,7 @@ from ..errors import DataError
 from ..session import Session
 from . import exports, integrity, schema
 from .database import Database, describe_target, is_url
+from .heartbeat import HEARTBEAT_S, Heartbeat
 from .liveness import STALE, live_status, stale_reason
 from .location import store_identity
 from .records import (
@@ -101,9 +102,14 @@ class Store:
     password (PostgreSQL), as messages name it.
     """
 
+    heartbeat_s: float = HEARTBEAT_S  # seconds between the running runs' heartbeats (store/heartbeat.py)
+    _heart: Heartbeat | None = None  # started by the first start_run
+    _beats = True  # the schema has the heartbeat columns
+
     def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True, upgrade: bool = True,
-                 read_only: bool = False):
+                 read_only: bool = False, heartbeat_s: float = HEARTBEAT_S):
         _load_sql()
+        self.heartbeat_s = float(heartbeat_s)
         SQLError = _sqlerror()
         name = describe_target(path)
         try:
@@ -134,6 +140,8 @@ class Store:
         self.close()
 
     def close(self) -> None:
+        if self._heart is not None:
+            self._heart.close()
         self._db.close()
 
     @property
@@ -198,6 +206,7 @@ class Store:
         if version == 0 and not create:  # a reader never writes a schema into a file it only reads
             raise StoreError(f"{self.path}: not an accelcal results store (no schema); nothing was written")
         target = schema.SCHEMA_VERSION  # read at each open, so a test can stop at an older version
+        self._beats = target >= 5  # runs.heartbeat_at/heartbeat_s exist from schema 5
         if version > target:
             raise StoreError(f"{self.path}: results store schema version {version} is newer than this "
                              f"station's {target}; upgrade accelcal-station")
@@ -227,15 +236,21 @@ class Store:
         """
         if config_hash is None and config_text is not None:
             config_hash = hashlib.sha256(config_text.encode()).hexdigest()
+        now = _time.time()
         with self._tx("start a run") as db:
             cur = db.execute(insert(runs).values(
-                started_at=_time.time() if started_at is None else float(started_at), status="running",
+                started_at=now if started_at is None else float(started_at), status="running",
                 device_serial=device_serial, chip=chip, station_id=station_id, operator=operator, lot=lot,
                 config_hash=config_hash, config_text=config_text, model=opt(model, str), units=units,
                 counts_per_g=opt(counts_per_g), gravity_mps2=opt(gravity_mps2), host=socket.gethostname(),
-                pid=os.getpid(), panel_id=panel_id))
+                pid=os.getpid(), panel_id=panel_id,
+                **({"heartbeat_at": now, "heartbeat_s": self.heartbeat_s} if self._beats else {})))
             key = cur.inserted_primary_key
             assert key is not None  # an INSERT of one row
+        if self._beats:
+            if self._heart is None:
+                self._heart = Heartbeat(self._db.target, self.heartbeat_s)
+            self._heart.add(int(key[0]))
         log.info("run %d started: board %s, station %s, lot %s", key[0], device_serial, station_id, lot)
         return int(key[0])
 
@@ -294,6 +309,7 @@ class Store:
                 verdict=verdict, reasons=texts[0], nvm_status=nvm_status, nvm_outcome=texts[1],
                 calibration=texts[2], fit_summary=texts[3], **({} if texts[4] is None else {"limits": texts[4]}),
                 **({} if model is None else {"model": model})))
+        self._stop_beating(run_id)
         log.info("run %d complete: %s, NVM %s", run_id, verdict or "no verdict", nvm_status)
 
     def interrupt_run(self, run_id: int, reason: str, *, session: Session | None = None,
@@ -313,7 +329,12 @@ class Store:
                 self._insert_poses(db, run_id, session, retries)
             db.execute(update(runs).where(runs.c.id == run_id).values(
                 status=status, status_reason=str(reason), finished_at=_time.time(), **nvm))
+        self._stop_beating(run_id)
         log.warning("run %d %s: %s", run_id, status, reason)
+
+    def _stop_beating(self, run_id: int) -> None:
+        if self._heart is not None:
+            self._heart.discard(run_id)
 
     def record_burn(self, run_id: int, kind: str, outcome: Mapping[str, object], t: float | None = None) -> None:
         """A burn as it happens, committed at once: ``nvm_burning`` (slot, generation, blob CRC)
@@ -345,8 +366,8 @@ class Store:
         now = _time.time()
         stale: list[int] = []
         with self._tx("mark stale runs") as db:
-            for r in db.rows(select(runs.c.id, runs.c.status, runs.c.host, runs.c.pid, runs.c.started_at)
-                             .where(runs.c.status == "running")):
+            for r in db.rows(select(runs.c.id, runs.c.status, runs.c.host, runs.c.pid, runs.c.started_at,
+                                    runs.c.heartbeat_at, runs.c.heartbeat_s).where(runs.c.status == "running")):
                 old = max_age_s is not None and isinstance(r["started_at"], (int, float)) \
                     and now - r["started_at"] > max_age_s
                 if old or stale_reason(r) is not None:

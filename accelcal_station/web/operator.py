@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import AccelcalError
 from ..fixtures.base import PoseSpec
-from ..fixtures.operator_jig import OperatorAbort
+from ..fixtures.operator_jig import OperatorAbort, pose_words
 from ..fixtures.operator_ui import CaptureSink, LiveStatus, PosePrompt, PoseStatus, parse_answer
 from ..i18n import Translate, reason_title
 from ..jsontypes import JsonObject, JsonValue
@@ -169,7 +169,8 @@ class WebOperator:
         p = prompt.pose
         index = self._plan_index(p.name)
         verify = bool(self.state["plan"][index]["verify"]) if index is not None else False
-        self.set(phase="place", pose={"number": prompt.number, "name": p.name, "words": prompt.words,
+        words = pose_words(p, self.tr)  # the operator's language (the echo above is the engineers' English)
+        self.set(phase="place", pose={"number": prompt.number, "name": p.name, "words": words,
                                       "index": index, "verify": verify,
                                       "pitch_deg": p.pitch_deg, "roll_deg": p.roll_deg,
                                       "expects_g": [float(v) for v in p.reference_g],

@@ -27,7 +27,8 @@ SHIFT_S = 8 * 3600.0
 SHIFT0_S = 6 * 3600.0  # shift A starts at 06:00 UTC
 WINDOW_S = 24 * 3600.0  # the line page's yields: the day before the newest run
 SUMMARY_COLS = ("id, started_at, finished_at, status, status_reason, device_serial, chip, station_id, operator, "
-                "lot, model, verdict, reasons, nvm_status, fit_summary, limits, config_hash, host, pid")
+                "lot, model, verdict, reasons, nvm_status, fit_summary, limits, config_hash, host, pid, heartbeat_at, "
+                "heartbeat_s")
 
 
 # runs columns checked on every read as the store's own reads check them (store/rowcheck.py); the
