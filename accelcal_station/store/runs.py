@@ -47,15 +47,15 @@ from .records import (
     opt,
     run_row,
     run_summary,
-    timestamp,
     to_json,
 )
 from .rowcheck import DamagedRow
 
 if TYPE_CHECKING:
-    from sqlalchemy import ColumnElement, func, insert, select, update
+    from sqlalchemy import func, insert, select, update
     from sqlalchemy.exc import SQLAlchemyError
 
+    from . import filters as filters_sql
     from . import migrate, replay
     from .tables import events, poses, runs
 
@@ -65,9 +65,10 @@ log = logging.getLogger(__name__)
 def _load_sql() -> None:
     """SQLAlchemy, the tables, the migrations and replay, imported when a store is first opened,
     not when the CLI starts (importing SQLAlchemy takes about 0.4 s)."""
-    global func, insert, select, update, migrate, replay, events, poses, runs
+    global func, insert, select, update, filters_sql, migrate, replay, events, poses, runs
     from sqlalchemy import func, insert, select, update
 
+    from . import filters as filters_sql
     from . import migrate, replay
     from .tables import events, poses, runs
 
@@ -378,26 +379,6 @@ class Store:
         return stale
 
     # -- queries ------------------------------------------------------------------------
-    def _where(self, device: Any = None, station: Any = None, lot: Any = None, operator: Any = None,
-               since: Any = None, until: Any = None, verdict: Any = None, status: Any = None, model: Any = None,
-               run_ids: object = None) -> list[ColumnElement[bool]]:
-        clauses: list[ColumnElement[bool]] = []
-        for col, v in ((runs.c.device_serial, device), (runs.c.station_id, station), (runs.c.lot, lot),
-                       (runs.c.operator, operator), (runs.c.verdict, verdict), (runs.c.status, status),
-                       (runs.c.model, model)):
-            if v is not None:
-                vals = [v] if isinstance(v, (str, int)) else list(v)
-                clauses.append(col.in_([str(x) for x in vals]))
-        for op, v, what in ((">=", since, "since"), ("<", until, "until")):
-            t = timestamp(v, what)
-            if t is not None:
-                clauses.append(runs.c.started_at >= t if op == ">=" else runs.c.started_at < t)
-        if run_ids is not None:
-            if not isinstance(run_ids, Iterable):
-                raise TypeError(f"run_ids {run_ids!r}: allowed a list of run ids")
-            clauses.append(runs.c.id.in_([int(i) for i in run_ids]))
-        return clauses
-
     def _runs(self, filters: Mapping[str, object], limit: int | None = None) -> list[tuple[RunRow, list[DamagedRow]]]:
         """The matching ``runs`` rows, each checked (rowcheck.check_row) with what is damaged in it.
         Status ``running`` or ``stale`` (both stored as running) is told apart as each row is read."""
@@ -405,7 +386,7 @@ class Store:
         live = wanted in ("running", STALE)
         if live:
             filters = {**filters, "status": "running"}
-        stmt = select(runs).where(*self._where(**filters)).order_by(runs.c.started_at, runs.c.id)
+        stmt = select(runs).where(*filters_sql.where(filters)).order_by(runs.c.started_at, runs.c.id)
         if limit is not None:
             stmt = stmt.limit(int(limit))
         try:

@@ -29,8 +29,8 @@ from ..store.rowcheck import T_MAX_S
 from . import queries
 from .errors import ERROR_RESPONSES, ApiError
 from .feed import Cursor, Step, advance, head
-from .queries import RunView, ShiftYield, StationYield
 from .settings import open_store
+from .views import RunFilters, RunView, ShiftYield, StationYield
 
 if TYPE_CHECKING:
     from .settings import WebSettings
@@ -247,7 +247,7 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
                   cursor: str | None = Query(None, max_length=200, description="next_cursor of the previous page"),
                   limit: int = Query(100, ge=1, le=1000),
                   total: bool = Query(False, description="count the runs matching the filters")) -> RunPageOut:
-        f: queries.RunFilters = {"since": _time(since, "since"), "until": _time(until, "until"),
+        f: RunFilters = {"since": _time(since, "since"), "until": _time(until, "until"),
                                  "station": _text("station", station), "serial": _text("serial", serial),
                                  "verdict": verdict, "lot": _text("lot", lot), "status": status}
         after = None if cursor is None else decode_cursor(cursor, order)

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 from ..errors import DataError
 
 if TYPE_CHECKING:
-    from .queries import FeedRow
+    from .views import FeedRow
 
 GAP_S = 60.0  # a hole in the ids older than this is a rolled-back insert, not a late commit
 MAX_DONE = 100_000  # a cursor naming more delivered ids than this is refused (not ours)

@@ -23,7 +23,7 @@ from ..store.records import RunRecord, iso
 from ..store.runs import Store
 from . import queries
 from .charts import Chart, RunPoint, residual_chart, run_chart
-from .queries import LotCalibration, LotCounts, LotRow, RunView, ShiftYield, StationRow
+from .views import LotCalibration, LotCounts, LotRow, RunView, ShiftYield, StationRow
 
 # the line page's run charts: fit_summary.measured key, title, unit, acceptance limit key
 KEY_PARAMS = [("gain_error_max", "Gain error, max |Wii − 1|", "g/g", "gain_error_max"),

@@ -12,16 +12,31 @@ import math
 from collections import Counter
 from datetime import UTC, datetime
 from decimal import Decimal
-from typing import NotRequired, TypedDict
 
 from ..acceptance.reasons import codes
 from ..acceptance.rules import DEFAULT_LIMITS
 from ..config.safe_yaml import HostileYAML, safe_load
-from ..jsontypes import JsonObject, JsonValue
+from ..jsontypes import JsonValue
 from ..store.liveness import live_status
 from ..store.records import load_or, stored_reasons
 from ..store.rowcheck import JSON_MAX_DEPTH, SPECS, CheckedRow
 from ..store.runs import Store
+from .views import (
+    FeedRow,
+    Judged,
+    LotCalibration,
+    LotCounts,
+    LotRow,
+    Rates,
+    RunFilters,
+    RunHead,
+    RunTail,
+    RunView,
+    SeriesPoint,
+    ShiftYield,
+    StationRow,
+    StationYield,
+)
 
 SHIFT_S = 8 * 3600.0
 SHIFT0_S = 6 * 3600.0  # shift A starts at 06:00 UTC
@@ -129,14 +144,6 @@ def stored_limits(value: object) -> dict[str, float] | None:
     return _finite_numbers(got) if isinstance(got, dict) else None
 
 
-class Judged(TypedDict):
-    """The limits a run was judged by and where they come from: "stored" (schema 4 runs), "config"
-    (an older run: the acceptance section of the config it ran with) or None."""
-
-    limits: dict[str, float] | None
-    source: str | None
-
-
 def fill_limits(store: Store, rows: list[CheckedRow]) -> list[Judged]:
     """Each row's limits (its ``limits`` column parsed, else its config's, read once per config hash)."""
     memo: dict[object, dict[str, float] | None] = {}  # a line's runs share a few limits texts: each parsed once
@@ -163,38 +170,6 @@ def fill_limits(store: Store, rows: list[CheckedRow]) -> list[Judged]:
     return out
 
 
-class _RunHead(TypedDict):
-    id: int | None
-    started_at: float | None
-    finished_at: float | None
-    status: str | None
-    status_reason: str | None
-    device_serial: str | None
-    chip: str | None
-    station_id: str | None
-    operator: str | None
-    lot: str | None
-    model: str | None
-    verdict: str | None
-    nvm_status: str | None
-    limits: dict[str, float] | None
-
-
-class _RunTail(TypedDict):
-    limits_source: str | None
-    reasons: list[dict[str, str]]  # Reason.to_dict: code, message
-    reason_codes: list[str]
-    residual_rms_mg: float | None
-    measured: dict[str, float]
-
-
-class RunView(_RunHead, _RunTail):
-    """A run as the API and pages show it (SUMMARY_COLS read by ``select``): typed reasons, the fit
-    figures, the limits it was judged by; ``damage`` when a value of its row is damaged."""
-
-    damage: NotRequired[list[dict[str, str]]]  # DamagedRow.to_dict
-
-
 def summary(row: CheckedRow, judged: Judged | None = None) -> RunView:
     """A run row (SUMMARY_COLS) with the limits it was judged by (fill_limits; None: what the row
     itself holds) as the API and pages show it."""
@@ -205,12 +180,12 @@ def summary(row: CheckedRow, judged: Judged | None = None) -> RunView:
         judged = {"limits": lim, "source": "stored" if lim is not None else None}
     measured = _finite_numbers(fit.get("measured") if isinstance(fit, dict) else None)
     t = row.text
-    head: _RunHead = {
+    head: RunHead = {
         "id": row.int("id"), "started_at": row.real("started_at"), "finished_at": row.real("finished_at"),
         "status": t("status"), "status_reason": t("status_reason"), "device_serial": t("device_serial"),
         "chip": t("chip"), "station_id": t("station_id"), "operator": t("operator"), "lot": t("lot"),
         "model": t("model"), "verdict": t("verdict"), "nvm_status": t("nvm_status"), "limits": judged["limits"]}
-    tail: _RunTail = {"limits_source": judged["source"], "reasons": [r.to_dict() for r in reasons],
+    tail: RunTail = {"limits_source": judged["source"], "reasons": [r.to_dict() for r in reasons],
                       "reason_codes": codes(reasons), "residual_rms_mg": measured.get("residual_rms_mg"),
                       "measured": measured}
     if row.damage:  # between the row's columns and what is read from them, as the feed's JSON has it
@@ -235,21 +210,6 @@ def newest_start(store: Store) -> float | None:
 def window_start(store: Store) -> float | None:
     t = newest_start(store)
     return None if t is None else t - WINDOW_S
-
-
-# a station's (and shift's) yields; "pass" and "yield" are keywords: the functional form
-Rates = TypedDict("Rates", {"runs": int, "pass": int, "first_runs": int, "yield": float | None,
-                            "first_pass_yield": float | None})
-StationYield = TypedDict("StationYield", {"station_id": str | None, "runs": int, "pass": int, "first_runs": int,
-                                          "yield": float | None, "first_pass_yield": float | None})
-ShiftYield = TypedDict("ShiftYield", {"station_id": str | None, "shift": str, "runs": int, "pass": int,
-                                      "first_runs": int, "yield": float | None, "first_pass_yield": float | None})
-
-
-class StationRow(StationYield):
-    """A station on the line page: its latest run and its yields in the window."""
-
-    latest: RunView
 
 
 def station_rows(store: Store, t0: float, t1: float = T_END) -> list[StationRow]:
@@ -324,15 +284,6 @@ def reason_runs(store: Store, code: str, t0: float, t1: float, station: str | No
     return summaries_of(store, rows)
 
 
-class SeriesPoint(TypedDict):
-    """A run on a station's chart: id, start (unix s), the limits it was judged by, its measured figures."""
-
-    id: int | None
-    t: float
-    limits: dict[str, float]
-    measured: dict[str, float]
-
-
 def station_series(store: Store, station: str | None, t0: float, t1: float, limit: int = 100) -> list[SeriesPoint]:
     """One station's newest complete runs in [t0, t1) (at most ``limit``): id, start, measured figures
     and the limits each was judged by."""
@@ -355,14 +306,6 @@ def newest_config_text(store: Store) -> str | None:
     return rows[0].text("config_text") if rows else None
 
 
-class FeedRow(TypedDict):
-    """A run as the feed sees it: id, status, start (unix s)."""
-
-    id: int
-    status: str | None
-    started_at: float | None
-
-
 def feed_rows(store: Store, low: int, limit: int = 5000) -> list[FeedRow]:
     """(id, status, started_at) of the runs with id >= low, in id order: one statement, one snapshot."""
     rows = select(store, "SELECT id, status, started_at FROM runs WHERE id >= :low ORDER BY id LIMIT :n",
@@ -377,18 +320,6 @@ def summaries(store: Store, ids: list[int]) -> list[RunView]:
     marks = ", ".join(f":i{k}" for k in range(len(ids)))
     return summaries_of(store, select(store, f"SELECT {SUMMARY_COLS} FROM runs WHERE id IN ({marks}) ORDER BY id",
                                       **{f"i{k}": int(v) for k, v in enumerate(ids)}))
-
-
-class RunFilters(TypedDict):
-    """The MES API's filters (None: not filtered); times in unix s."""
-
-    since: float | None
-    until: float | None
-    station: str | None
-    serial: str | None
-    verdict: str | None
-    lot: str | None
-    status: str | None
 
 
 # the MES API's filters: parameter -> (column, operator)
@@ -433,14 +364,6 @@ def serials_like(store: Store, text: str, limit: int = 20) -> list[str]:
     return [s for r in rows if (s := r.text("device_serial")) is not None]
 
 
-class LotRow(TypedDict):
-    """A lot in the lots list: its name, runs and newest start (unix s)."""
-
-    lot: str | None
-    runs: int
-    last: float | None
-
-
 def lots(store: Store, limit: int = 50) -> list[LotRow]:
     rows = select(store, "SELECT lot, count(*) AS runs, max(started_at) AS last FROM runs WHERE lot IS NOT NULL"
                   f" AND {SANE_T} GROUP BY lot ORDER BY max(started_at) DESC LIMIT :n", n=int(limit))
@@ -457,13 +380,6 @@ def head_rows(store: Store) -> tuple[int, list[FeedRow]]:
     running = row.value("r")
     low = _count(running) if running is not None else _count(row.value("m")) + 1
     return low, feed_rows(store, low)
-
-
-# the lot page's counts ("pass" is a keyword: the functional form)
-LotCounts = TypedDict("LotCounts", {
-    "runs": int, "by_status": dict[str, int], "pass": int, "fail": int, "pass_rate": float | None, "devices": int,
-    "first_started": float | None, "last_started": float | None, "nvm": dict[str, int],
-    "interruptions": dict[str, int], "failure_reasons": dict[str, int]})
 
 
 def lot_counts(store: Store, lot: str) -> LotCounts:
@@ -494,16 +410,6 @@ def lot_counts(store: Store, lot: str) -> LotCounts:
             "nvm": {str(r.value("nvm_status") or "none"): _count(r.value("n")) for r in nvm},
             "interruptions": {str(r.value("status_reason") or "unknown"): _count(r.value("n")) for r in stops},
             "failure_reasons": dict(reasons.most_common())}
-
-
-class LotCalibration(TypedDict):
-    """A calibrated run of a lot: id, start (unix s), station, its calibration (parsed) and limits."""
-
-    id: int | None
-    t: float
-    station_id: str | None
-    calibration: JsonObject
-    limits: dict[str, float]
 
 
 def lot_calibrations(store: Store, lot: str) -> list[LotCalibration]:
