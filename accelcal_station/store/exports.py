@@ -12,7 +12,7 @@ from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import TypedDict
 
 import numpy as np
 
@@ -46,7 +46,7 @@ def runs_json(data: list[RunDocument]) -> str:
     return json.dumps({"schema": "accelcal.runs", "version": 1, "runs": data}, indent=1) + "\n"
 
 
-def _run_rows(recs: Sequence[RunRecord]) -> Iterator[list[Any]]:
+def _run_rows(recs: Sequence[RunRecord]) -> Iterator[list[object]]:
     """One row per run, fit figures and calibration parameters flattened."""
     yield [*_RUN_CSV_COLS, *_FIT_SCALARS, *PARAM_NAMES]
     for rec in recs:
@@ -58,9 +58,9 @@ def _run_rows(recs: Sequence[RunRecord]) -> Iterator[list[Any]]:
         yield [*(d[c] for c in _RUN_CSV_COLS), *(fit.get(k) for k in _FIT_SCALARS), *params]
 
 
-def _pose_rows(recs: Sequence[RunRecord]) -> Iterator[list[Any]]:
+def _pose_rows(recs: Sequence[RunRecord]) -> Iterator[list[object]]:
     """One row per pose, with its run's device, lot, verdict and units."""
-    def v(a: np.ndarray | None) -> list[Any]:
+    def v(a: np.ndarray | None) -> list[object]:
         return [None] * 3 if a is None else list(a)
 
     yield ["run_id", "device_serial", "lot", "verdict", "units", *POSE_COLS]
@@ -71,7 +71,7 @@ def _pose_rows(recs: Sequence[RunRecord]) -> Iterator[list[Any]]:
                    p.t_start, p.t_end, retries]
 
 
-_CSV_TABLES: dict[str, Callable[[Sequence[RunRecord]], Iterator[list[Any]]]] = {"runs": _run_rows,
+_CSV_TABLES: dict[str, Callable[[Sequence[RunRecord]], Iterator[list[object]]]] = {"runs": _run_rows,
                                                                                  "poses": _pose_rows}
 
 

@@ -231,7 +231,7 @@ class LineStore(Store):
         at = time.time() if t is None else t
         self._write(run_id, lambda st, rid: st.record_burn(rid, kind, outcome, t=at))
 
-    def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None, t: float | None = None) -> None:
+    def log_event(self, run_id: int, kind: str, message: str = "", data: object = None, t: float | None = None) -> None:
         at = time.time() if t is None else t
         self._write(run_id, lambda st, rid: st.log_event(rid, kind, message, data, t=at))
 

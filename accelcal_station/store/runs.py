@@ -351,7 +351,7 @@ class Store:
             db.execute(update(runs).where(runs.c.id == run_id).values(nvm_status=status,
                                                                       nvm_outcome=to_json(outcome)))
 
-    def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None, t: float | None = None) -> None:
+    def log_event(self, run_id: int, kind: str, message: str = "", data: object = None, t: float | None = None) -> None:
         """Append an event (a rejected capture, an operator prompt, ...), committed at once."""
         with self._tx(f"log an event of run {run_id}") as db:
             db.execute(insert(events).values(run_id=run_id, t=_time.time() if t is None else float(t), kind=kind,
@@ -398,7 +398,7 @@ class Store:
                 r["status"], r["status_reason"] = stale
         return [x for x in out if x[0]["status"] == wanted] if live else out
 
-    def list_runs(self, limit: int | None = None, **filters: Any) -> list[RunSummary]:
+    def list_runs(self, limit: int | None = None, **filters: object) -> list[RunSummary]:
         """Run summaries (no poses) matching filters: device, station, lot, operator, since,
         until, verdict, status, model (a value or a list of values), run_ids.  A run whose row
         is damaged has ``damaged`` (its columns) and ``damage`` (typed ``damaged_row`` reasons)."""
@@ -421,12 +421,12 @@ class Store:
                 raise RunNotFound(f"{self.path}: no run {run_id}")
             return self._record(*rows[0])
 
-    def runs(self, **filters: Any) -> list[RunRecord]:
+    def runs(self, **filters: object) -> list[RunRecord]:
         """Full records (poses, events) of the matching runs."""
         with self._snapshot():
             return [self._record(r, damage) for r, damage in self._runs(filters)]
 
-    def sessions_for_batch(self, skipped: list[tuple[str, str]] | None = None, **filters: Any) -> list[Session]:
+    def sessions_for_batch(self, skipped: list[tuple[str, str]] | None = None, **filters: object) -> list[Session]:
         """Sessions of complete runs with poses (for batch recalibration of a lot).
 
         A matching run with a damaged value is never silently left out: it is appended to
@@ -460,14 +460,14 @@ class Store:
         return [] if self._server else integrity.file_problems(self._db)
 
     # -- exports and summaries ----------------------------------------------------------
-    def export_json(self, path: str | Path | None = None, **filters: Any) -> list[RunDocument]:
+    def export_json(self, path: str | Path | None = None, **filters: object) -> list[RunDocument]:
         """Every matching run in full; written atomically to ``path`` when given."""
         data = [rec.to_dict() for rec in self.runs(**filters)]
         if path is not None:
             exports.write_export(path, exports.runs_json(data))
         return data
 
-    def export_csv(self, path: str | Path | None = None, kind: str = "runs", **filters: Any) -> str:
+    def export_csv(self, path: str | Path | None = None, kind: str = "runs", **filters: object) -> str:
         """CSV of runs (one row per run, calibration flattened) or poses (one row per pose).
 
         Returns the text; written atomically to ``path`` when given.
@@ -478,7 +478,7 @@ class Store:
             exports.write_export(path, text)
         return text
 
-    def lot_summary(self, **filters: Any) -> exports.LotSummary:
+    def lot_summary(self, **filters: object) -> exports.LotSummary:
         """Counts, pass rate, failure reasons and parameter distributions of the matching runs
         (exports.summarize)."""
         with self._snapshot():
