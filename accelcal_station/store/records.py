@@ -156,7 +156,7 @@ def run_row(raw: Row) -> tuple[RunRow, list[DamagedRow]]:
         "calibration": c.json_object("calibration"), "fit_summary": c.json_object("fit_summary"), "host": t("host"),
         "pid": c.int("pid"), "panel_id": t("panel_id"), "limits": c.numbers("limits"),
         "heartbeat_at": c.real("heartbeat_at"), "heartbeat_s": c.real("heartbeat_s")}
-    return row, c.damage
+    return row, list(c.damage)
 
 
 class StoredEvent(TypedDict):

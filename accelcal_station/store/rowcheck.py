@@ -22,7 +22,7 @@ import math
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from types import MappingProxyType
+from functools import cache
 from typing import ClassVar
 
 import numpy as np
@@ -229,18 +229,26 @@ def row_key(table: str, row: Mapping[str, object]) -> str:
     return str(row.get("id"))[:20]
 
 
+_NO_DAMAGE: list[DamagedRow] = []  # never appended to: CheckedRow replaces it at the first damage
+
+
 class CheckedRow:
     """A stored row with every column checked (JSON parsed, a bad value None) and what was wrong
     (``damage``); its values are read typed: ``text``, ``int``, ``real``, ``json``, ...
     ``columns``: check only these (the others kept as read: an aggregate, a JSON text read later)."""
 
+    __slots__ = ("table", "_values", "damage")
+
     def __init__(self, table: str, row: Mapping[str, object], columns: frozenset[str] | None = None) -> None:
         self.table = table
-        self._values: dict[str, object] = dict(row)  # column -> checked value (None when damaged)
-        self.damage: list[DamagedRow] = []
-        for col, (check, required) in SPECS[table].items():
-            if col not in row or (columns is not None and col not in columns):
+        self._values: Mapping[str, object] = row  # column -> checked value (None when damaged); copied on change
+        self.damage: list[DamagedRow] = _NO_DAMAGE  # shared until a value is damaged (a page reads thousands)
+        spec = SPECS[table]
+        checked: dict[str, object] = {}
+        for col in _checked_columns(table, columns):
+            if col not in row:
                 continue
+            check, required = spec[col]
             v = row[col]
             try:
                 if isinstance(v, BadText):
@@ -249,22 +257,26 @@ class CheckedRow:
                     if required:
                         raise ValueError("empty where a value is required")
                     continue
-                self._values[col] = check(v)
+                checked[col] = check(v)
             except (ValueError, TypeError, OverflowError) as e:
-                self._values[col] = None
+                checked[col] = None
+                if self.damage is _NO_DAMAGE:
+                    self.damage = []
                 self.damage.append(DamagedRow(table, row_key(table, row), col, str(e)))
+        if checked:
+            self._values = {**row, **checked}
 
     def __contains__(self, col: str) -> bool:
         return col in self._values
 
     @property
     def values(self) -> Mapping[str, object]:
-        """Column -> checked value, read only."""
-        return MappingProxyType(self._values)
+        """Column -> checked value (read only: ``set`` changes a value)."""
+        return self._values
 
     def set(self, **values: object) -> None:
         """Replace columns' values as a reader sees them (a run whose process is gone reads ``stale``)."""
-        self._values.update(values)
+        self._values = {**self._values, **values}
 
     def value(self, col: str) -> object:
         """A column's checked value as it is (None when missing, empty or damaged)."""
@@ -302,6 +314,12 @@ class CheckedRow:
         if v is None:
             return None
         return {k: x for k, x in v.items() if isinstance(x, (int, float)) and not isinstance(x, bool)}
+
+
+@cache
+def _checked_columns(table: str, only: frozenset[str] | None) -> tuple[str, ...]:
+    """The columns of ``table`` a CheckedRow checks (``only`` those, when given), in the table's order."""
+    return tuple(c for c in SPECS[table] if only is None or c in only)
 
 
 def check_row(table: str, row: Mapping[str, object]) -> CheckedRow:
