@@ -24,7 +24,7 @@ import time as _time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Protocol
 
 from ..acceptance.reasons import Reason
 from ..calibration import Calibration
@@ -87,6 +87,17 @@ def store_error(e: BaseException, message: str, server: bool) -> StoreError:
     lost = isinstance(e, (OperationalError, InterfaceError, PendingRollbackError)) or (
         isinstance(e, DBAPIError) and e.connection_invalidated)
     return StoreUnreachable(message) if lost and server else StoreError(message)
+
+
+class _HasDict(Protocol):
+    def to_dict(self) -> Mapping[str, object]: ...
+
+
+Outcome = _HasDict | Mapping[str, object]  # an NVM burn's outcome: nvm.writer.BurnOutcome or its dict
+
+
+def _outcome(o: Outcome | None) -> Mapping[str, object] | None:
+    return o if o is None or isinstance(o, Mapping) else o.to_dict()
 
 
 def _msg(e: BaseException) -> str:
@@ -279,7 +290,7 @@ class Store:
             units=session.units, counts_per_g=opt(session.counts_per_g), gravity_mps2=opt(session.gravity_mps2)))
 
     def finish_run(self, run_id: int, *, session: Session, calibration: Calibration | None, verdict: str | None,
-                   reasons: Iterable[Reason] = (), nvm_outcome: Any = None,
+                   reasons: Iterable[Reason] = (), nvm_outcome: Outcome | None = None,
                    fit_summary: Mapping[str, object] | None = None,
                    model: str | None = None, retries: Sequence[int] | None = None,
                    finished_at: float | None = None, limits: dict[str, float] | None = None) -> None:
@@ -291,15 +302,14 @@ class Store:
         """
         if verdict is not None and verdict not in schema.VERDICTS:
             raise DataError(f"verdict {verdict!r}; allowed: PASS, FAIL")
-        if nvm_outcome is not None and hasattr(nvm_outcome, "to_dict"):
-            nvm_outcome = nvm_outcome.to_dict()
-        nvm_status = "none" if nvm_outcome is None else ("written" if nvm_outcome.get("ok") else "failed")
+        outcome = _outcome(nvm_outcome)
+        nvm_status = "none" if outcome is None else ("written" if outcome.get("ok") else "failed")
         with self._tx(f"record run {run_id}") as db:
             self._running(db, run_id)
             self._insert_poses(db, run_id, session, retries)
             cal = None if calibration is None else calibration.to_dict()
             try:
-                texts = [to_json([Reason.from_dict(r).to_dict() for r in reasons]), to_json(nvm_outcome),
+                texts = [to_json([Reason.from_dict(r).to_dict() for r in reasons]), to_json(outcome),
                          to_json(cal), to_json(fit_summary),
                          to_json(None if limits is None else {str(k): float(v) for k, v in limits.items()})]
             except (TypeError, ValueError) as e:
@@ -315,15 +325,14 @@ class Store:
 
     def interrupt_run(self, run_id: int, reason: str, *, session: Session | None = None,
                       status: str = "interrupted", retries: Sequence[int] | None = None,
-                      nvm_outcome: Any = None) -> None:
+                      nvm_outcome: Outcome | None = None) -> None:
         """Close a run as ``interrupted`` (or ``error``) with the poses captured so far, atomically."""
         if status not in ("interrupted", "error"):
             raise DataError(f"status {status!r}; allowed: interrupted, error")
-        if nvm_outcome is not None and hasattr(nvm_outcome, "to_dict"):
-            nvm_outcome = nvm_outcome.to_dict()
+        outcome = _outcome(nvm_outcome)
         # no outcome given: keep what record_burn wrote (a burn cut short stays 'burning')
-        nvm = {} if nvm_outcome is None else {"nvm_status": "written" if nvm_outcome.get("ok") else "failed",
-                                              "nvm_outcome": to_json(nvm_outcome)}
+        nvm = {} if outcome is None else {"nvm_status": "written" if outcome.get("ok") else "failed",
+                                          "nvm_outcome": to_json(outcome)}
         with self._tx(f"record run {run_id}") as db:
             self._running(db, run_id)
             if session is not None:
