@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 MASKED = ("started_at", "finished_at", "time", "at", "timestamp", "duration_s", "elapsed_s", "wall_s", "seconds",
           "run_id", "panel_id", "id", "first_run", "last_run", "since", "until", "boards_per_s", "host_compute_s",
-          "operator_wait_s", "board_time_s", "crc32", "panel_time_s", "per_board_s")
+          "operator_wait_s", "board_time_s", "crc32", "panel_time_s", "per_board_s", "pid", "t")
 RAW = "--raw --columns -,-,x,y,z,-,-,- --rate 204.8 {D}/imucal_annotated_session.csv"
 COMMANDS = [
     "run --config {C}/sim.yaml --serial SN1 --store store.sqlite --json",
@@ -62,14 +62,29 @@ COMMANDS = [
     "fit tt.csv --model 12 --json",
     "fit tt.csv --model 12",
     "fit {D}/nine_position_paper_faces.csv --model 12 --temp-method cubic --json",
+    "twin fit {LOT} -o tw.yaml --json",
+    "twin fit {LOT} -o tw2.yaml",
+    "twin check {LOT} --config tw.yaml --seed 1 --json",
+    "twin check {LOT} --config tw.yaml --seed 1",
+    "twin whatif {LOT} --config tw.yaml --seed 1 --boards 2000 --limit offset_max_mg=60 --limit cubic_max=0.01 --json",
+    "twin whatif {LOT} --config tw.yaml --seed 1 --boards 2000 --limit offset_max_mg=60",
+    f"diagnose {RAW}",
+    "diagnose {D}/nine_position_paper_faces.csv --json",
+    "diagnose --selftest --json",
+    "fit s.csv --model 12 -o cal12.json --json",
+    "fit tt.csv --model 12 -o caltt.json",
+    "report show 1 --db store.sqlite --json",
+    "report check --db store.sqlite --json",
 ]
-FILES = ("results12.csv", "results9.csv", "s.csv", "t.json", "r.csv", "rt.json", "tt.csv")
+FILES = ("results12.csv", "results9.csv", "s.csv", "t.json", "r.csv", "rt.json", "tt.csv", "tw.yaml", "tw2.yaml",
+         "cal12.json", "caltt.json")
 
 
 def normalise(text: str, repo: Path) -> str:
     """Mask what differs from run to run (times, ids, CRCs over a time stamp) and the checkout's path."""
     text = text.replace(str(repo), "REPO")
     text = re.sub(r'"\d{4}-\d{2}-\d{2}[T ][0-9:.+Z-]+"', '"TIME"', text)
+    text = re.sub(r"CRC-32 0x[0-9a-f]{8}", "CRC-32 X", text)  # a run's event messages name the blob's CRC
     return re.sub(r'"(' + "|".join(MASKED) + r')": *[^,}]+', r'"\1": X', text)
 
 
