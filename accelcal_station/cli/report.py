@@ -169,8 +169,12 @@ def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool
     if rec["calibration"]:
         c = rec["calibration"]
         click.echo(f"{'W':16} {c['W']}\n{'V (g)':16} {c['V']}\n{'Gamma (1/g^2)':16} {c['Gamma']}")
-        for h in (c.get("metadata") or {}).get("held") or []:  # terms the poses did not determine (models/held.py)
-            click.echo(clean(f"{'held':16} {h.get('term')} = {h.get('value')}: {h.get('reason')}; {h.get('hint')}"))
+        meta = c.get("metadata")
+        held = meta.get("held") if isinstance(meta, dict) else None
+        for h in held if isinstance(held, list) else []:  # terms the poses did not determine (models/held.py)
+            if isinstance(h, dict):
+                click.echo(clean(f"{'held':16} {h.get('term')} = {h.get('value')}: {h.get('reason')}; "
+                                 f"{h.get('hint')}"))
     for line in _fit_lines(rec.get("fit_summary") or {}):
         click.echo(line)
     click.echo(f"{'poses':16} {len(rec['poses'])} ({rec['units']})")

@@ -19,7 +19,7 @@ import socket
 import time
 from collections.abc import Mapping
 from functools import cache
-from typing import Any, TypeGuard
+from typing import TypeGuard
 
 STALE = "stale"
 PID_START_SLACK_S = 2.0  # /proc start times are whole clock ticks and btime whole seconds
@@ -59,7 +59,7 @@ def process_started_at(pid: int) -> float | None:
         return None
 
 
-def _silent(row: Mapping[str, Any], now: float) -> str | None:
+def _silent(row: Mapping[str, object], now: float) -> str | None:
     """Why a run on another host is stale by its heartbeat; None when it beat recently or has none."""
     beat, every = row.get("heartbeat_at"), row.get("heartbeat_s")
     if not _number(beat) or not _number(every) or every <= 0:
@@ -74,7 +74,7 @@ def _number(v: object) -> TypeGuard[float]:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def stale_reason(row: Mapping[str, Any], host: str | None = None, now: float | None = None) -> str | None:
+def stale_reason(row: Mapping[str, object], host: str | None = None, now: float | None = None) -> str | None:
     """Why the checked ``runs`` row ``row`` (status running) has no live station process; None when it
     may be alive or cannot be judged here (module doc)."""
     pid, started = row.get("pid"), row.get("started_at")
@@ -92,9 +92,8 @@ def stale_reason(row: Mapping[str, Any], host: str | None = None, now: float | N
     return None
 
 
-def mark_stale(row: dict[str, Any]) -> dict[str, Any]:
-    """``row`` with status ``stale`` and the reason when its station process is gone (stale_reason)."""
+def live_status(row: Mapping[str, object]) -> tuple[str | None, str | None] | None:
+    """The status and reason a checked ``runs`` row reads with: (``stale``, why) when its station process
+    is gone (stale_reason), None when it reads as stored."""
     why = stale_reason(row)
-    if why is not None:
-        row["status"], row["status_reason"] = STALE, why
-    return row
+    return None if why is None else (STALE, why)
