@@ -82,7 +82,7 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
         with web_operator(cfg, echo, ui_host, ui_port, shift=shift) as web:
             if shift:
                 _shift(cfg, operator, lot, as_json, echo, web, device_wait_s, web.start_board,
-                       lambda b, rep: finish_outcome(web, b, rep), lambda s: web.end_shift(dict(s)),
+                       lambda b, rep: finish_outcome(web, b, rep), web.end_shift,
                        SERIAL_PROMPT_PAGE, tr)
                 return
             _run(cfg, operator, serial, lot, as_json, echo, web, web, lambda reports: finish_reports(web, reports))

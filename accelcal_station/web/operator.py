@@ -22,7 +22,7 @@ from ..fixtures.base import PoseSpec
 from ..fixtures.operator_jig import OperatorAbort, pose_words
 from ..fixtures.operator_ui import CaptureSink, LiveStatus, PosePrompt, PoseStatus, parse_answer
 from ..i18n import Translate, reason_title
-from ..jsontypes import JsonObject, JsonValue
+from ..station.shift import ShiftSummary
 from .board_picture import Picture, level_xy, picture
 
 if TYPE_CHECKING:
@@ -84,6 +84,12 @@ class Level(TypedDict):
     line: str
 
 
+class ShiftView(ShiftSummary):
+    """The shift's end as the page shows it: the summary and each failing reason's operator words."""
+
+    reason_titles: dict[str, str]
+
+
 class OperatorState(TypedDict):
     """What every operator page shows (``/operator/state``); ``seq`` counts the changes."""
 
@@ -96,7 +102,7 @@ class OperatorState(TypedDict):
     result: ResultView | None
     shift: bool
     board: BoardView | None
-    summary: JsonObject | None  # the shift's summary with its reasons' titles
+    summary: ShiftView | None  # the shift's summary with its reasons' titles
     plan: list[PlanItem]
     question: NotRequired[str]
 
@@ -109,7 +115,7 @@ class StateChange(TypedDict, total=False):
     capture: CaptureView | None
     result: ResultView | None
     board: BoardView | None
-    summary: JsonObject | None
+    summary: ShiftView | None
     question: str
 
 
@@ -276,11 +282,10 @@ class WebOperator:
                                "board": {"serial": serial, "number": n}})
             self.state["seq"] += 1
 
-    def end_shift(self, summary: Mapping[str, JsonValue]) -> None:
+    def end_shift(self, summary: ShiftSummary) -> None:
         """The shift's summary (station/shift.py, as its --json line), shown full-screen on every page."""
-        by_code = summary.get("reasons_by_code")
-        titles: JsonObject = {c: reason_title(c, self.tr) for c in (by_code if isinstance(by_code, dict) else {})}
-        self.set(phase="shift_over", pose=None, capture=None, summary={**summary, "reason_titles": titles})
+        titles = {c: reason_title(c, self.tr) for c in summary["reasons_by_code"]}
+        self.set(phase="shift_over", pose=None, capture=None, summary=ShiftView(**summary, reason_titles=titles))
 
     # -- the end --------------------------------------------------------------------------
     def finish(self, verdict: str, serial: str | None, run_id: int | None, reasons: list[dict[str, str]],
