@@ -12,13 +12,14 @@ import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from .conventions import check_units, units_per_g
 from .errors import DataError, TemperatureRangeError, UnitsError
+from .jsontypes import JsonObject, JsonValue
 
 SCHEMA = "accelcal.calibration"
 # The format version this writes. Every version ever shipped keeps a reader in _READERS (as imucal
@@ -53,7 +54,7 @@ class CalibrationDict(TypedDict):
     V: list[float]
     Gamma: list[float]
     temperature: TemperatureTableDict | None
-    metadata: dict[str, Any]  # free-form: who, where, which fit (JSON values)
+    metadata: JsonObject  # free-form: who, where, which fit; keys differ by writer and version
 
 
 class TemperatureTable:
@@ -142,8 +143,10 @@ class TemperatureTable:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> TemperatureTable:
-        return cls(d["temps_c"], d["W"], d["V"], d["Gamma"], d.get("method", "linear"))
+    def from_dict(cls, d: JsonObject | TemperatureTableDict) -> TemperatureTable:
+        """A table from its JSON object (numbers checked by the constructor)."""
+        return cls(_numbers(d["temps_c"]), _numbers(d["W"]), _numbers(d["V"]), _numbers(d["Gamma"]),
+                   _name(d.get("method", "linear"), "temperature method"))
 
 
 def quadratic_coefficients(temps_c: ArrayLike, values: ArrayLike) -> np.ndarray:
@@ -175,7 +178,7 @@ class Calibration:
     input_units: str = "g"
     input_per_g: float = 1.0
     temperature: TemperatureTable | None = None
-    metadata: dict[str, Any] = field(default_factory=dict)
+    metadata: JsonObject = field(default_factory=dict)  # free-form (CalibrationDict)
 
     def __post_init__(self) -> None:
         self.model = str(self.model)
@@ -259,7 +262,7 @@ class Calibration:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any], source: str = "calibration") -> Calibration:
+    def from_dict(cls, d: JsonObject | CalibrationDict, source: str = "calibration") -> Calibration:
         """A calibration from its JSON object, in any format version up to SCHEMA_VERSION."""
         if not isinstance(d, dict) or d.get("schema") != SCHEMA:
             raise DataError(f"{source}: not an accelcal calibration (missing schema {SCHEMA!r})")
@@ -287,7 +290,7 @@ class Calibration:
         return cls.from_dict(d, str(path))
 
 
-def format_version(d: dict[str, Any], source: str = "calibration") -> int:
+def format_version(d: JsonObject | CalibrationDict, source: str = "calibration") -> int:
     """The file's format version, checked: newer than this accelcal reads is one clear line."""
     v = d.get("version")
     if isinstance(v, bool) or not isinstance(v, int):
@@ -300,20 +303,42 @@ def format_version(d: dict[str, Any], source: str = "calibration") -> int:
     return v
 
 
-def _read_v1(d: dict[str, Any]) -> Calibration:
+def _read_v1(d: JsonObject | CalibrationDict) -> Calibration:
     """Format 1: W (3 x 3), V, Gamma (absent: zeros), input units and per-g scale, an optional
     AN4399 section 9 table, metadata."""
     temp = d.get("temperature")
+    if temp is not None and not isinstance(temp, dict):
+        raise TypeError(f"temperature: {type(temp).__name__}; allowed: a table (temps_c, W, V, Gamma) or null")
+    meta = d.get("metadata", {})
+    if not isinstance(meta, dict):
+        raise TypeError(f"metadata: {type(meta).__name__}; allowed: an object")
     return Calibration(
-        model=d["model"], W=d["W"], V=d["V"], Gamma=d.get("Gamma", [0, 0, 0]),
-        input_units=d["input_units"], input_per_g=float(d["input_per_g"]),
+        model=str(d["model"]), W=_numbers(d["W"]), V=_numbers(d["V"]), Gamma=_numbers(d.get("Gamma", [0, 0, 0])),
+        input_units=_name(d["input_units"], "input_units"), input_per_g=_float(d["input_per_g"]),
         temperature=None if temp is None else TemperatureTable.from_dict(temp),
-        metadata=d.get("metadata", {}),
+        metadata=meta,
     )
 
 
+def _numbers(v: JsonValue | list[float] | list[list[float]] | list[list[list[float]]]) -> np.ndarray:
+    """A JSON list of numbers (nested) as floats; ValueError/TypeError otherwise (from_dict's one line)."""
+    return np.asarray(v, dtype=float)
+
+
+def _float(v: JsonValue) -> float:
+    if isinstance(v, str | int | float):  # as float() of the JSON value: "4096" is read as before
+        return float(v)
+    raise TypeError(f"float() argument must be a string or a real number, not '{type(v).__name__}'")
+
+
+def _name(v: JsonValue, what: str) -> str:
+    if not isinstance(v, str):
+        raise TypeError(f"{what}: {v!r}; allowed: a name")
+    return v
+
+
 # one reader per format version ever shipped; a new version adds its reader and keeps the old ones
-_READERS: dict[int, Callable[[dict[str, Any]], Calibration]] = {1: _read_v1}
+_READERS: dict[int, Callable[[JsonObject | CalibrationDict], Calibration]] = {1: _read_v1}
 
 
 PARAM_NAMES = ([f"W{i}{j}" for i in range(3) for j in range(3)] + [f"V{i}" for i in range(3)]

@@ -21,7 +21,7 @@ axes to world axes, and the chip reads ``R.T @ WORLD_UP`` g (:func:`specific_for
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -78,13 +78,26 @@ def units_per_g(units: str, counts_per_g: float | None = None, gravity_mps2: flo
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])  # world frame: z points away from the Earth
 
-FACES = {  # board axis pointing up (it reads +1 g) -> how to place the board, in words
-    (0, 0, 1): "z+ up: lay it flat, component side up",
-    (0, 0, -1): "z- up: lay it flat upside down, component side down",
-    (1, 0, 0): "x+ up: stand it on its -x edge, +x pointing up",
-    (-1, 0, 0): "x- up: stand it on its +x edge, -x pointing up",
-    (0, 1, 0): "y+ up: stand it on its -y edge, +y pointing up",
-    (0, -1, 0): "y- up: stand it on its +y edge, -y pointing up",
+def N_(text: str) -> str:
+    """Marks operator words for the gettext catalog (i18n/); this layer cannot import i18n."""
+    return text
+
+
+def _same(text: str) -> str:
+    return text
+
+
+FACES = {  # board axis pointing up (it reads +1 g) -> how to place the board, in words (English msgids)
+    (0, 0, 1): N_("z+ up: lay it flat, component side up"),
+    (0, 0, -1): N_("z- up: lay it flat upside down, component side down"),
+    (1, 0, 0): N_("x+ up: stand it on its -x edge, +x pointing up"),
+    (-1, 0, 0): N_("x- up: stand it on its +x edge, -x pointing up"),
+    (0, 1, 0): N_("y+ up: stand it on its -y edge, +y pointing up"),
+    (0, -1, 0): N_("y- up: stand it on its +y edge, -y pointing up"),
+}
+TILT_WORDS = {  # how far and which way to tilt from the face, by what the raised part is
+    "corner": N_("{face}, then tilt it {tilt} deg raising its {side} corner"),
+    "side": N_("{face}, then tilt it {tilt} deg raising its {side} side"),
 }
 _FACE_KEYS = np.array(list(FACES), dtype=float)
 
@@ -144,19 +157,21 @@ def nearest_face(direction: ArrayLike) -> str:
     return _face(_FACE_KEYS[int(np.argmax(_FACE_KEYS @ d))])
 
 
-def placement_words(ref_g: ArrayLike) -> str:
+def placement_words(ref_g: ArrayLike, tr: Callable[[str], str] = _same) -> str:
     """How to place the board so a real chip reads ``ref_g``: the face whose axis points up,
-    then the tilt that raises the side ``up`` leans towards (a real chip reads + on a raised axis)."""
+    then the tilt that raises the side ``up`` leans towards (a real chip reads + on a raised axis).
+
+    ``tr``: the operator's language (i18n.translator); the English text is the default."""
     up = up_direction(ref_g)
     key = _FACE_KEYS[int(np.argmax(_FACE_KEYS @ up))]
-    face = _face(key)
+    face = tr(_face(key))
     tilt = angle_deg(up, key)
     if tilt < 3:
         return face
     lean = up - (up @ key) * key
     side = _signed_axes(lean)
     what = "corner" if len(side) > 2 else "side"
-    return f"{face}, then tilt it {tilt:.0f} deg raising its {side} {what}"
+    return tr(TILT_WORDS[what]).format(face=face, tilt=f"{tilt:.0f}", side=side)
 
 
 def angle_deg(a: ArrayLike, b: ArrayLike) -> float:

@@ -39,8 +39,7 @@ from benchlib import table
 from accelcal_station.config.schema import DeviceSection
 from accelcal_station.drivers.factory import make_driver
 from accelcal_station.fixtures.designs import get_design
-from accelcal_station.station.board import Station
-from accelcal_station.station.panel import PanelStation
+from accelcal_station.station.flow import make_flow
 from accelcal_station.station.settings import StationConfig
 
 COMPONENTS = ("floor_fit", "floor_verify", "gating", "moves", "other_device", "host")
@@ -68,10 +67,10 @@ def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, dict]:
     move = cfg.jig.move_time_s
     acc = {k: [] for k in COMPONENTS + ("total", "device")}
     facts = {"verdicts": [], "samples_per_pose": []}
-    Station(cfg, echo=lambda *_: None, driver=make_driver(seeded(cfg, seed - 1))).run()
+    make_flow(cfg, echo=lambda *_: None, driver=make_driver(seeded(cfg, seed - 1))).run()
     for i in range(boards):
         driver = make_driver(seeded(cfg, seed + i))
-        rep = Station(cfg, echo=lambda *_: None, driver=driver).run()
+        rep = make_flow(cfg, echo=lambda *_: None, driver=driver).run()[0]
         t = rep.timing
         odr = t["odr_hz"]
         n_fit = sum(p["n"] for p in rep.poses)
@@ -95,7 +94,7 @@ def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, dict]:
 def run_panel(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, list[str]]:
     """One panel of ``boards`` boards (seeds from ``seed``): the panel's timing and the verdicts."""
     panel_cfg = cfg.with_sections(device=cfg.device.model_copy(update={"boards": boards, "seed": seed}))
-    st = PanelStation(panel_cfg, echo=lambda *_: None)
+    st = make_flow(panel_cfg, echo=lambda *_: None)
     reports = st.run()
     return st.timing, [r.verdict for r in reports]
 

@@ -26,9 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import table
 
 from accelcal_station.drivers.factory import make_driver
+from accelcal_station.station.flow import make_flow
 from accelcal_station.station.settings import StationConfig
-from accelcal_station.station.thermal import ThermalStation
-from accelcal_station.station.thermal_panel import ThermalPanelStation
 
 REPO = Path(__file__).resolve().parents[1]
 PARTS = ("soak_s", "sampling_floor_s", "rest_s", "board_time_s")
@@ -43,7 +42,7 @@ def single_boards(config: str, boards: int, seed: int, store: Path) -> tuple[dic
     cfg = StationConfig.load(config, store_override=store)
     for i in range(boards):
         driver = make_driver(cfg.device.model_copy(update={"seed": seed + i}))
-        rep = ThermalStation(cfg, echo=lambda *_: None, driver=driver).run()
+        rep = make_flow(cfg, echo=lambda *_: None, driver=driver).run()[0]
         verdicts.append(rep.verdict)
         for k in PARTS:
             acc[k].append(rep.timing[k])
@@ -54,7 +53,7 @@ def panel(config: str, boards: int, store: Path) -> tuple[dict[str, float], list
     """The panel's split divided by its boards (s per board)."""
     cfg = StationConfig.load(config, store_override=store)
     cfg = cfg.with_sections(device=cfg.device.model_copy(update={"boards": boards}))
-    station = ThermalPanelStation(cfg, echo=lambda *_: None)
+    station = make_flow(cfg, echo=lambda *_: None)
     reps = station.run()
     return dict(station.timing["per_board"]), [r.verdict for r in reps]
 

@@ -8,8 +8,11 @@ REV is checked out in a temporary git worktree with a virtual environment of its
 the same extra, since pyarrow, when present, writes the results tables). Every
 command runs in a fresh folder per side, on seeded copies of configs/ (``seed: 1`` in sim.yaml),
 a 300-board lot file written once and read by both, and the data in tests/data and examples/.
-What is masked: ISO times, durations, run and panel ids, and each blob's CRC (it covers the burn
-time). Written files (results tables, pose tables, truths, raw logs) are compared whole.
+What is masked: ISO times, durations, run and panel ids, pids, and each blob's CRC (it covers the burn
+time); a `run`'s stderr (what the station said) is compared too, and the stored runs through
+`report show`.  The 16-board thermal panel has every number masked: its boards' threads share the
+chamber's time, so its figures differ in the last digits from run to run (a thermal panel of one
+is compared whole).  Written files (results tables, pose tables, truths, raw logs) are compared whole.
 Prints one line per command that differs and ``N of N commands identical``; exit 1 on a difference.
 """
 from __future__ import annotations
@@ -25,7 +28,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 MASKED = ("started_at", "finished_at", "time", "at", "timestamp", "duration_s", "elapsed_s", "wall_s", "seconds",
           "run_id", "panel_id", "id", "first_run", "last_run", "since", "until", "boards_per_s", "host_compute_s",
-          "operator_wait_s", "board_time_s", "crc32", "panel_time_s", "per_board_s")
+          "operator_wait_s", "board_time_s", "crc32", "panel_time_s", "per_board_s", "pid", "t")
 RAW = "--raw --columns -,-,x,y,z,-,-,- --rate 204.8 {D}/imucal_annotated_session.csv"
 COMMANDS = [
     "run --config {C}/sim.yaml --serial SN1 --store store.sqlite --json",
@@ -62,24 +65,70 @@ COMMANDS = [
     "fit tt.csv --model 12 --json",
     "fit tt.csv --model 12",
     "fit {D}/nine_position_paper_faces.csv --model 12 --temp-method cubic --json",
+    "twin fit {LOT} -o tw.yaml --json",
+    "twin fit {LOT} -o tw2.yaml",
+    "twin check {LOT} --config tw.yaml --seed 1 --json",
+    "twin check {LOT} --config tw.yaml --seed 1",
+    "twin whatif {LOT} --config tw.yaml --seed 1 --boards 2000 --limit offset_max_mg=60 --limit cubic_max=0.01 --json",
+    "twin whatif {LOT} --config tw.yaml --seed 1 --boards 2000 --limit offset_max_mg=60",
+    f"diagnose {RAW}",
+    "diagnose {D}/nine_position_paper_faces.csv --json",
+    "diagnose --selftest --json",
+    "fit s.csv --model 12 -o cal12.json --json",
+    "fit tt.csv --model 12 -o caltt.json",
+    "report show 1 --db store.sqlite --json",
+    "report check --db store.sqlite --json",
+    # the four flows (one board, a panel, a thermal plan, a thermal panel), panels of one and shifts,
+    # with what they say on stderr and what the store keeps of them (report show)
+    "run --config {C}/panel-mma8451-emulated.yaml --store flows.sqlite --json",
+    "run --config {C}/panel-one.yaml --store flows.sqlite --json",
+    "run --config {C}/thermal-panel-one.yaml --store flows.sqlite --json",
+    "run --config {C}/sim.yaml --serial SN3 --store flows.sqlite --json",
+    "run --config {C}/thermal-sim.yaml --serial SN4 --store flows.sqlite --json",
+    "run --shift --config {C}/sim.yaml --store flows.sqlite --json",
+    "run --shift --config {C}/thermal-sim.yaml --store flows.sqlite --json",
+    "run --config {C}/sim.yaml --serial SN5 --store flows.sqlite",
+    "run --config {C}/panel-sim.yaml --store flows.sqlite",
+    "run --config {C}/thermal-sim.yaml --serial SN6 --store flows.sqlite",
+    "run --config {C}/thermal-panel-one.yaml --store flows.sqlite",
+    "run --config {C}/mma8451-emulated.yaml --store flows.sqlite",
+    "report list --db flows.sqlite --json",
+    *[f"report show {n} --db flows.sqlite --json" for n in (1, 8, 9, 10, 11, 12, 13, 16, 19, 20, 35, 36, 37, 38)],
+    # 16 boards in one chamber: their threads share the chamber's time, so the figures vary from run
+    # to run (in the last digits); every number is masked, the rest (keys, verdicts, words) compared
+    "run --config {C}/thermal-panel-sim.yaml --store tp16.sqlite --json",
+    "run --config {C}/thermal-panel-sim.yaml --store tp16.sqlite",
 ]
-FILES = ("results12.csv", "results9.csv", "s.csv", "t.json", "r.csv", "rt.json", "tt.csv")
+NUMBERS_MASKED = ("tp16.sqlite",)
+SHIFT_INPUT = "SN10\nSN11\n\nSN10\n"  # a blank line (ignored) and a retest; end of input ends the shift
+FILES = ("results12.csv", "results9.csv", "s.csv", "t.json", "r.csv", "rt.json", "tt.csv", "tw.yaml", "tw2.yaml",
+         "cal12.json", "caltt.json")
 
 
 def normalise(text: str, repo: Path) -> str:
     """Mask what differs from run to run (times, ids, CRCs over a time stamp) and the checkout's path."""
     text = text.replace(str(repo), "REPO")
     text = re.sub(r'"\d{4}-\d{2}-\d{2}[T ][0-9:.+Z-]+"', '"TIME"', text)
+    text = re.sub(r"\S+-\d{8}T\d{6}-[0-9a-f]{6}", "PANEL_ID", text)
+    text = re.sub(r"CRC-32 0x[0-9a-f]{8}", "CRC-32 X", text)
+    text = re.sub(r"(wall|compute|station) \d+\.\d+ s", r"\1 T s", text)  # host times in text
+    text = re.sub(r"\d+\.\d+ s (board time|per board)", r"T s \1", text)
     return re.sub(r'"(' + "|".join(MASKED) + r')": *[^,}]+', r'"\1": X', text)
 
 
 def run_all(accelcal: str, repo: Path, work: Path, configs: Path, lot: Path) -> list[str]:
-    """Each command's stdout and exit status, run in ``work`` by ``accelcal``."""
+    """Each command's stdout and exit status (and a run's stderr: what the station said), run in
+    ``work`` by ``accelcal``."""
     out = []
     for cmd in COMMANDS:
         args = cmd.format(C=configs, D=repo / "tests" / "data", E=repo / "examples", LOT=lot).split()
-        r = subprocess.run([accelcal, *args], cwd=work, input="\n" * 64, capture_output=True, text=True, timeout=600)
-        out.append(normalise(r.stdout, repo) + f"\nexit {r.returncode}\n")
+        stdin = SHIFT_INPUT if "--shift" in args else "\n" * 64  # Enter at every operator prompt
+        r = subprocess.run([accelcal, *args], cwd=work, input=stdin, capture_output=True, text=True, timeout=600)
+        said = normalise(r.stderr, repo) if args[0] == "run" else ""
+        text = normalise(r.stdout, repo) + f"\nexit {r.returncode}\n" + said
+        if any(m in cmd for m in NUMBERS_MASKED):
+            text = re.sub(r"-?\d+(\.\d+)?(e-?\d+)?", "N", text)
+        out.append(text)
     return out
 
 
@@ -108,12 +157,19 @@ def main() -> int:
         shutil.copytree(ROOT / "configs", configs)
         sim = configs / "sim.yaml"
         sim.write_text(sim.read_text().replace("  # seed: 1 ", "  seed: 1   ", 1))
+        for panel in ("panel-sim", "thermal-panel-sim"):  # panels of one: device.boards 1
+            text = (configs / f"{panel}.yaml").read_text()
+            one = text.replace("  boards: 16", "  boards: 1 ", 1)
+            (configs / f"{panel.replace('sim', 'one')}.yaml").write_text(one)
         lot = tmp / "lot.csv"
         write_lot(lot, 300, design="optimal-12", seed=7)
         sides = {}
         for name, exe, src in (("before", before, repo), ("after", shutil.which("accelcal") or "accelcal", ROOT)):
             (tmp / name).mkdir()
             sides[name] = (run_all(exe, src, tmp / name, configs, lot), tmp / name)
+            if a.keep:  # each command's normalised output, to diff
+                (tmp / name / "outputs.txt").write_text("".join(f"$ {c}\n{o}" for c, o in zip(COMMANDS, sides[name][0],
+                                                                                             strict=True)))
         (b, bdir), (c, cdir) = sides["before"], sides["after"]
         diff = [cmd for cmd, x, y in zip(COMMANDS, b, c, strict=True) if x != y]
         diff += [f for f in FILES if (bdir / f).read_bytes() != (cdir / f).read_bytes()]

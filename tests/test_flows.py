@@ -1,7 +1,10 @@
-"""The station's flows: a run is boards x conditions. Two run skeletons (one board, a panel)
-serve the four cases, the thermal plan's flows supplying only their conditions."""
+"""The station's one flow: a run is boards x conditions.  One class (flow.StationFlow) serves a
+single board, a panel, a thermal plan and a thermal panel; the panel part (panel.Panel) and the
+conditions (room.RoomTemperature, thermal.ThermalConditions) are what it is given, and what a
+single board does differently is its policy (policy.FlowPolicy), chosen from the config."""
 from __future__ import annotations
 
+import inspect
 import json
 import sqlite3
 from pathlib import Path
@@ -10,32 +13,80 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
+import accelcal_station.station as station_pkg
 from accelcal_station.cli import cli
-from accelcal_station.station.board import Station
-from accelcal_station.station.panel import PanelStation
+from accelcal_station.station.flow import StationFlow, make_flow
+from accelcal_station.station.policy import FlowPolicy
+from accelcal_station.station.room import RoomTemperature
 from accelcal_station.station.settings import StationConfig
-from accelcal_station.station.thermal import ThermalStation
-from accelcal_station.station.thermal_panel import ThermalPanelStation
+from accelcal_station.station.thermal import ThermalConditions
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+CASES = [("sim.yaml", False, False), ("panel-sim.yaml", True, False),
+         ("thermal-sim.yaml", False, True), ("thermal-panel-sim.yaml", True, True)]
 
 
-def test_the_thermal_flows_run_the_room_temperature_skeletons() -> None:
-    """ThermalStation and ThermalPanelStation have no run() of their own: they supply the
-    conditions (``_calibrate``), their timing and what ends their flow."""
-    assert ThermalStation.run is Station.run and "run" not in ThermalStation.__dict__
-    assert ThermalPanelStation.run is PanelStation.run and "run" not in ThermalPanelStation.__dict__
-    for cls in (ThermalStation, ThermalPanelStation):
-        assert "_calibrate" in cls.__dict__ and "_timing" in cls.__dict__
-
-
-@pytest.mark.parametrize(("config", "panel", "thermal"), [
-    ("sim.yaml", False, False), ("panel-sim.yaml", True, False),
-    ("thermal-sim.yaml", False, True), ("thermal-panel-sim.yaml", True, True),
-])
+@pytest.mark.parametrize(("config", "panel", "thermal"), CASES)
 def test_the_config_names_its_case(config: str, panel: bool, thermal: bool) -> None:
     cfg = StationConfig.load(CONFIGS / config)
     assert (cfg.is_panel, cfg.is_thermal) == (panel, thermal)
+
+
+@pytest.mark.parametrize(("config", "panel", "thermal"), CASES)
+def test_one_flow_class_serves_the_four_cases(config: str, panel: bool, thermal: bool) -> None:
+    """Every case is a StationFlow itself (no subclass), given its conditions and its policy."""
+    flow = make_flow(StationConfig.load(CONFIGS / config), echo=lambda s: None)
+    assert type(flow) is StationFlow
+    assert type(flow.conditions) is (ThermalConditions if thermal else RoomTemperature)
+    p = flow.policy
+    assert p.single_board is (not panel) and (flow.panel_id is None) is (not panel)
+    assert (p.device_fault_ends_run, p.wrong_pose_ends_run, p.live_reading, p.burn_steps_recorded) \
+        == (not panel,) * 4
+    assert p.says_default_limits is (not panel and not thermal) and p.closes_before_timing is panel
+
+
+def test_no_other_flow_class_is_left_in_the_station_package() -> None:
+    """The four flows of old are gone: no class of the station package has a run() but StationFlow."""
+    import importlib
+    import pkgutil
+
+    runners = set()
+    for m in pkgutil.iter_modules(station_pkg.__path__):
+        mod = importlib.import_module(f"accelcal_station.station.{m.name}")
+        for name, cls in inspect.getmembers(mod, inspect.isclass):
+            if cls.__module__ == mod.__name__ and "run" in cls.__dict__:
+                runners.add(name)
+    assert runners == {"StationFlow"}
+    for gone in ("Station", "PanelStation", "ThermalStation", "ThermalPanelStation"):
+        assert all(not hasattr(importlib.import_module(f"accelcal_station.station.{m.name}"), gone)
+                   for m in pkgutil.iter_modules(station_pkg.__path__)), gone
+
+
+def _store_config(tmp_path: Path, name: str, **device: object) -> Path:
+    doc = yaml.safe_load((CONFIGS / name).read_text())
+    doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    doc["device"].update(device)
+    p = tmp_path / name
+    p.write_text(yaml.safe_dump(doc))
+    return p
+
+
+def test_a_panel_of_one_is_a_panel_and_a_single_board_is_not(tmp_path: Path) -> None:
+    """One board either way, but the policy differs as the config does: a panel of one carries its
+    panel id and leaves no burn steps before its result; a single board's burn steps are recorded
+    as they happen (nvm_burning before the first byte, then nvm_burned)."""
+    single = make_flow(StationConfig.load(_store_config(tmp_path, "sim.yaml", seed=3)), echo=lambda s: None)
+    one = make_flow(StationConfig.load(_store_config(tmp_path, "panel-sim.yaml", boards=1)), echo=lambda s: None)
+    assert FlowPolicy.for_config(one.cfg).panel_id is not None and single.panel_id is None
+    (a,), (b,) = single.run(), one.run()
+    assert a.verdict == b.verdict == "PASS"
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    rows = db.execute("SELECT id, panel_id FROM runs ORDER BY id").fetchall()
+    assert [r[1] for r in rows] == [None, one.panel_id]
+    kinds = {rid: [k for (k,) in db.execute("SELECT kind FROM events WHERE run_id = ? ORDER BY id", (rid,))]
+             for rid, _ in rows}
+    assert kinds[a.run_id][:2] == ["nvm_burning", "nvm_burned"]
+    assert not {"nvm_burning", "nvm_burned"} & set(kinds[b.run_id])
 
 
 def test_a_thermal_plan_on_a_device_that_does_not_answer_leaves_an_error_record(tmp_path: Path) -> None:

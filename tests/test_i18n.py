@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from accelcal_station.i18n import DOMAIN, REASON_TITLES, translations
@@ -22,7 +23,8 @@ LOCALE = PKG / "i18n" / "locale" / "de" / "LC_MESSAGES"
 TEMPLATE = PKG / "web" / "templates" / "operator.html"
 SCRIPT = PKG / "web" / "static" / "operator.js"
 # Python modules whose operator-facing text goes through tr(...) / N_(...)
-PY_SOURCES = ["i18n/__init__.py", "web/operator_text.py", "station/shift.py", "cli/operator_terminal.py",
+PY_SOURCES = ["i18n/__init__.py", "conventions.py", "fixtures/operator_jig.py",
+              "web/operator_text.py", "station/shift.py", "cli/operator_terminal.py",
               "cli/run.py", "web/operator_app.py"]
 SAME_IN_GERMAN = {"OK", "Station"}  # the same word in both languages
 
@@ -124,12 +126,43 @@ def test_a_german_shift_in_the_terminal_and_english_json(tmp_path):
         assert de.gettext(m).split("{")[0] in r.stderr and m.split("{")[0] not in r.stderr, m
     assert "Lage x+1g: Platine so legen" in r.stdout and "Erstdurchlaufquote 100.0 %" in r.stdout
     assert "first-pass yield" not in r.stdout and "Pose x+1g: put the board" not in r.stdout
+    # the pose words themselves in German (the English sentence never shown to this operator)
+    assert "auf die -x-Kante stellen, +x zeigt nach oben" in r.stdout, r.stdout[-3000:]
+    assert "stand it on its" not in r.stdout and "lay it flat" not in r.stdout
     # the engineers' output stays English whatever the operator reads
     j = subprocess.run([sys.executable, "-m", "accelcal_station", "run", "--shift", "--json", "--config", str(cfg)],
                        input=feed, capture_output=True, text=True, timeout=240, cwd=tmp_path)
     assert j.returncode == 0, j.stderr[-2000:]
     shift = json.loads(j.stdout.splitlines()[-1])
     assert shift["ended_by"] == "end of input" and shift["pass"] == 1 and "first_pass_yield" in shift
+
+
+# Data-sheet facts (MMA8451Q "Product orientation", MPU-6000/6050 "Orientation of axes"): a chip
+# at rest reads +1 g on the axis pointing away from the Earth, so for a reading of +1 g on +x the
+# board stands on its -x edge.  Written here in German, independently of the code's catalog.
+GERMAN_FACES = {
+    (1, 0, 0): ("-x-Kante", "+x zeigt nach oben"), (-1, 0, 0): ("+x-Kante", "-x zeigt nach oben"),
+    (0, 1, 0): ("-y-Kante", "+y zeigt nach oben"), (0, -1, 0): ("+y-Kante", "-y zeigt nach oben"),
+    (0, 0, 1): ("Bauteilseite oben",), (0, 0, -1): ("Bauteilseite unten",),
+}
+
+
+def test_the_pose_words_in_german_name_the_same_edges_as_the_data_sheet():
+    from accelcal_station.conventions import placement_words, reference_to_angles
+    from accelcal_station.fixtures.base import PoseSpec
+    from accelcal_station.fixtures.operator_jig import pose_words
+    de = translations("de").gettext
+    for ref, must in GERMAN_FACES.items():
+        words = placement_words(np.array(ref, dtype=float), de)
+        assert all(m in words for m in must) and "edge" not in words and "up:" not in words, (ref, words)
+    # a tilted pose: the face, then the raised part, with the same signed axes as the reading's lean
+    r = np.array([0.3, 0.4, np.sqrt(1 - 0.25)])
+    words = placement_words(r, de)
+    assert words.startswith("z+ oben") and "+x+y-Ecke angehoben" in words and "30 Grad" in words, words
+    pitch, roll = (float(v) for v in reference_to_angles(r))
+    line = pose_words(PoseSpec("t", pitch, roll), de)
+    assert "Nicken" in line and "erwartet x +0.300 y +0.400" in line and "pitch" not in line, line
+    assert pose_words(PoseSpec("t", pitch, roll)).startswith("z+ up: lay it flat")  # English by default
 
 
 def test_a_language_the_station_does_not_ship_is_one_line(tmp_path):

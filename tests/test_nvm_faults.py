@@ -185,7 +185,7 @@ def test_station_run_on_a_lying_bus_keeps_the_previous_calibration_and_records_i
     """A whole station run (emulated MMA8451, simulated jig) whose EEPROM reads are mostly corrupted
     when it burns: the run is FAIL with an nvm reason, the board still holds its previous calibration,
     and the run's NVM outcome names exactly that (slot, generation, CRC-32)."""
-    from accelcal_station.station.board import Station
+    from accelcal_station.station.flow import make_flow
     from accelcal_station.station.settings import StationConfig
 
     doc = yaml.safe_load((REPO / "configs" / "mma8451-emulated.yaml").read_text())
@@ -198,7 +198,7 @@ def test_station_run_on_a_lying_bus_keeps_the_previous_calibration_and_records_i
         before = CalibrationWriter(dev.nvm).burn(cal(1), SERIAL, "old-station")
         emu = dev.dev.smbus
     emu.corrupt_reads(0.9, seed=2)  # nine read messages in ten come back with a flipped bit
-    rep = Station(cfg, driver=dev, echo=lambda s: None).run()
+    rep = make_flow(cfg, driver=dev, echo=lambda s: None).run()[0]
     emu.corrupt_reads(0.0)
     with dev:
         truth = CalibrationWriter(dev.nvm).holds()

@@ -249,7 +249,7 @@ def test_a_crash_during_the_burn_leaves_the_run_burning_with_the_blob_crc(tmp_pa
     station process dies before it can record anything else: the store already says
     `burning`, with the slot, generation and CRC-32 of the blob being written."""
     from accelcal_station.drivers.factory import make_driver
-    from accelcal_station.station.board import Station
+    from accelcal_station.station.flow import make_flow
     from accelcal_station.station.settings import StationConfig
 
     cfg = StationConfig.load(sim_config(tmp_path))
@@ -262,7 +262,7 @@ def test_a_crash_during_the_burn_leaves_the_run_burning_with_the_blob_crc(tmp_pa
         raise Died()
     driver.nvm.write = die  # the process dies at the first byte of the burn
     with pytest.raises(Died):
-        Station(cfg, echo=lambda s: None, driver=driver).run()
+        make_flow(cfg, echo=lambda s: None, driver=driver).run()[0]
     (status, nvm_status, outcome), = db_row(tmp_path, "SELECT status, nvm_status, nvm_outcome FROM runs")
     assert status == "running" and nvm_status == "burning"
     o = json.loads(outcome)

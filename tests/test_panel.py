@@ -15,8 +15,8 @@ from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.errors import ConfigError
 from accelcal_station.fixtures.designs import get_design, references
 from accelcal_station.sim.sensor_model import rotation_matrix
+from accelcal_station.station.flow import make_flow
 from accelcal_station.station.jig_pose import MIN_BOARDS, estimate_jig_poses
-from accelcal_station.station.panel import PanelStation
 from accelcal_station.station.panel_config import panel_sections
 from accelcal_station.station.settings import StationConfig
 
@@ -71,10 +71,10 @@ def test_bad_boards_fail_with_their_own_reason_while_the_others_pass(tmp_path):
 
 def test_panel_of_one_is_the_single_board_flow(tmp_path):
     cfg = StationConfig.load(panel_config(tmp_path, 1))
-    st = PanelStation(cfg, echo=lambda s: None)
+    st = make_flow(cfg, echo=lambda s: None)
     (rep,) = st.run()
     assert rep.verdict == "PASS" and rep.nvm_verified
-    assert not st.estimate.estimated and "too small" in st.estimate.note
+    assert not st.panel.estimate.estimated and "too small" in st.panel.estimate.note
 
 
 @pytest.mark.parametrize("boards, key", [(0, "device.boards"), ("many", "device.boards"),
@@ -159,7 +159,7 @@ def test_a_misplaced_panel_is_named_as_the_panel(tmp_path):
     seated = {"seated_deg": [0.0, 180.0, 0.0]}
     cfg = StationConfig.load(panel_config(tmp_path, [dict(seated) for _ in range(3)]))
     lines: list[str] = []
-    reps = PanelStation(cfg, echo=lines.append).run()
+    reps = make_flow(cfg, echo=lines.append).run()
     assert [r.verdict for r in reps] == ["FAIL"] * 3
     assert any("the panel is not in the planned pose" in ln for ln in lines)
     assert all(len(r.reasons) == 1 and r.reasons[0].startswith("pose p1:") for r in reps)
@@ -174,7 +174,7 @@ def test_a_board_that_is_not_still_is_named_and_the_others_pass(tmp_path):
     for k in range(100):  # shaken through the first pose: 3 deg jolts every 0.5 s for 50 s
         drivers[1].board.disturb(after_s=1.0 + 0.5 * k, duration_s=0.4, amplitude_deg=3.0)
     lines: list[str] = []
-    reps = PanelStation(cfg, echo=lines.append, drivers=drivers).run()
+    reps = make_flow(cfg, echo=lines.append, drivers=drivers).run()
     assert [r.verdict for r in reps] == ["PASS", "FAIL", "PASS"]
     assert reps[1].reasons[0].startswith("device: p1:") and "not still" in reps[1].reasons[0]
     assert any(ln.strip().startswith("board 2 (PNL-02)") for ln in lines)

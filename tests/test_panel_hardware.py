@@ -15,7 +15,7 @@ from accelcal_station.cli import cli
 from accelcal_station.drivers.tca9548a import MuxChannel
 from accelcal_station.errors import ConfigError
 from accelcal_station.nvm.writer import CalibrationWriter
-from accelcal_station.station.panel import PanelStation
+from accelcal_station.station.flow import make_flow
 from accelcal_station.station.settings import StationConfig
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -38,7 +38,7 @@ def test_eight_mma8451_behind_a_tca9548a_with_three_bad_boards(tmp_path):
     boards[6]["simulator"] = {"effects": {"gain": {"gain": [1.09, 1.0, 1.0]}, "noise": {},
                                           "quantization": {}}}  # 9 % gain: beyond gain_error_max
     cfg = StationConfig.load(mux_config(tmp_path, boards))
-    st = PanelStation(cfg, echo=lambda s: None)
+    st = make_flow(cfg, echo=lambda s: None)
     reps = st.run()
     verdicts = [r.verdict for r in reps]
     assert verdicts == ["PASS", "PASS", "FAIL", "PASS", "FAIL", "PASS", "FAIL", "PASS"]
@@ -73,8 +73,8 @@ def test_mux_panel_cli_json_and_exit_status(tmp_path):
 
 def test_two_boards_on_one_channel_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"device.boards\[1\].channel: 0 already holds a board"):
-        PanelStation(StationConfig.load(mux_config(tmp_path, [{"channel": 0}, {"channel": 0}])),
-                     echo=lambda s: None).run()
+        make_flow(StationConfig.load(mux_config(tmp_path, [{"channel": 0}, {"channel": 0}])),
+                  echo=lambda s: None).run()
 
 
 def test_two_mpu6050_bridges_on_two_ptys_with_the_motorized_jig(tmp_path):
@@ -125,7 +125,7 @@ def test_a_mux_that_resets_mid_run_is_reselected_and_recorded(tmp_path):
     boards = [{"channel": ch} for ch in range(4)]
     boards[3]["emulator"] = {"mux_reset_after": 40}
     cfg = StationConfig.load(mux_config(tmp_path, boards))
-    st = PanelStation(cfg, echo=lambda s: None)
+    st = make_flow(cfg, echo=lambda s: None)
     reps = st.run()
     assert [r.verdict for r in reps] == ["PASS"] * 4, [r.reasons for r in reps]
     mux = st.boards[0].driver._bus_spec.mux.smbus

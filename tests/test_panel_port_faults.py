@@ -87,9 +87,9 @@ def test_thermal_panel_jig_pty_hangs_up_mid_plan(tmp_path):
     a real pty that hangs up during the first set point: every board FAIL 'port_lost', its poses kept."""
     from accelcal_station.drivers.factory import make_driver
     from accelcal_station.fixtures.factory import board_of
+    from accelcal_station.station.flow import make_flow
     from accelcal_station.station.panel_config import panel_sections
     from accelcal_station.station.settings import StationConfig
-    from accelcal_station.station.thermal_panel import ThermalPanelStation
 
     doc = yaml.safe_load((CONFIGS / "thermal-panel-sim.yaml").read_text())
     doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
@@ -104,7 +104,7 @@ def test_thermal_panel_jig_pty_hangs_up_mid_plan(tmp_path):
     (tmp_path / "t.yaml").write_text(yaml.safe_dump(doc))
     jig.inject("disconnect", after=40)
     try:
-        reps = ThermalPanelStation(StationConfig.load(tmp_path / "t.yaml"), drivers=[driver],
+        reps = make_flow(StationConfig.load(tmp_path / "t.yaml"), drivers=[driver],
                                    echo=lambda s: None).run()
     finally:
         jig.stop()
@@ -121,7 +121,7 @@ def test_nack_storm_on_the_multiplexed_bus_mid_run(tmp_path):
     emulator NACKs every transaction (the emulator's nack_next fault, armed after 2,000 of its own
     transactions; a whole run is ~5,800): each board FAIL 'device', its poses so far recorded."""
     from accelcal_station.drivers.factory import make_driver
-    from accelcal_station.station.panel import PanelStation
+    from accelcal_station.station.flow import make_flow
     from accelcal_station.station.panel_config import panel_sections
     from accelcal_station.station.settings import StationConfig
 
@@ -134,7 +134,7 @@ def test_nack_storm_on_the_multiplexed_bus_mid_run(tmp_path):
     drivers = [make_driver(sec, path, buses) for sec, path in panel_sections(validate_device(doc["device"]))]
     for d in drivers:
         d.emulator.nack_next(k=100_000, after=2_000)
-    reps = PanelStation(StationConfig.load(tmp_path / "p.yaml"), drivers=drivers, echo=lambda s: None).run()
+    reps = make_flow(StationConfig.load(tmp_path / "p.yaml"), drivers=drivers, echo=lambda s: None).run()
     assert [r.verdict for r in reps] == ["FAIL"] * 3
     assert all(r.reasons[-1].code == "device" for r in reps), [r.reasons for r in reps]
     assert all(d.emulator.nacked >= 3 for d in drivers)  # retried, then gave up

@@ -112,7 +112,7 @@ def test_nack_storm_mid_run_is_a_recorded_fail(tmp_path):
 
     from accelcal_station.config.sections import device_section
     from accelcal_station.drivers.factory import make_driver
-    from accelcal_station.station.board import Station
+    from accelcal_station.station.flow import make_flow
     from accelcal_station.station.settings import StationConfig
 
     doc = yaml.safe_load((CONFIGS / "mma8451-emulated.yaml").read_text())
@@ -123,7 +123,7 @@ def test_nack_storm_mid_run_is_a_recorded_fail(tmp_path):
     with dev:
         emu = dev.dev.smbus
     emu.nack_next(k=100_000, address=emu.address, after=2_000)
-    rep = Station(StationConfig.load(tmp_path / "st.yaml"), driver=dev, echo=lambda s: None).run()
+    rep = make_flow(StationConfig.load(tmp_path / "st.yaml"), driver=dev, echo=lambda s: None).run()[0]
     assert rep.verdict == "FAIL" and rep.reasons[0].code == "device" and emu.nacked >= 3  # retried, then gave up
     (status, verdict, reasons), = sq.connect(tmp_path / "runs.sqlite").execute(
         "SELECT status, verdict, reasons FROM runs").fetchall()

@@ -90,7 +90,61 @@ def test_a_live_run_and_another_hosts_run_stay_running(tmp_path):
     with Store(tmp_path / "s.sqlite") as st:
         assert [r["status"] for r in st.list_runs()] == ["running"]
     row = {"status": "running", "host": "another-host", "pid": 1 << 30, "started_at": time.time()}
-    assert stale_reason(row) is None  # another host's process cannot be judged from here
+    assert stale_reason(row) is None  # no heartbeat (a run recorded before schema 5): not judged from here
+
+
+def test_another_hosts_run_is_judged_by_its_heartbeat():
+    """Schema 5: a run on another host reads stale after STALE_BEATS missed beats, by its own interval."""
+    from accelcal_station.store.liveness import STALE_BEATS
+
+    now = 1_800_000_000.0
+    row = {"status": "running", "host": "line2-pc", "pid": 4242, "started_at": now - 7200.0,
+           "heartbeat_s": 30.0, "heartbeat_at": now - 60.0}
+    assert stale_reason(row, now=now) is None  # two beats ago: alive, however old the run
+    row["heartbeat_at"] = now - STALE_BEATS * 30.0 - 1.0
+    why = stale_reason(row, now=now) or ""
+    assert "no heartbeat from the station on line2-pc for 301 s" in why and "every 30 s" in why, why
+    for bad in (None, float("nan"), "soon", True, -5.0):  # a damaged or missing interval: not judged
+        assert stale_reason({**row, "heartbeat_s": bad}, now=now) is None, bad
+    assert stale_reason({**row, "status": "complete"}, now=now) is None
+
+
+def test_a_station_on_another_host_beats_while_alive_and_reads_stale_once_killed(tmp_path, monkeypatch):
+    """A real `accelcal run` (operator jig: it waits on stdin) beats every 0.2 s; its row, moved to
+    another host's name as a line database holds a remote station's runs, reads running while the
+    process lives, and stale (no heartbeat) shortly after SIGKILL: the pid is never consulted."""
+    monkeypatch.chdir(tmp_path)
+    cfg = yaml.safe_load((REPO / "configs" / "sim.yaml").read_text())
+    cfg["jig"] = {"type": "operator"}
+    cfg["store"] = {"path": "runs.sqlite", "heartbeat_s": 0.2}
+    Path("st.yaml").write_text(yaml.safe_dump(cfg))
+    exe = [sys.executable, "-m", "accelcal_station.cli"] if not (Path(sys.executable).parent / "accelcal").exists() \
+        else [str(Path(sys.executable).parent / "accelcal")]
+    proc = subprocess.Popen([*exe, "run", "--config", "st.yaml", "--serial", "SN1", "--operator", "op"],
+                            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def beat() -> float:
+        with sqlite3.connect("runs.sqlite") as c:
+            return float(c.execute("SELECT heartbeat_at FROM runs WHERE id = ?", (run_id,)).fetchone()[0])
+
+    try:
+        run_id, _ = _running_row(tmp_path / "runs.sqlite")
+        with sqlite3.connect("runs.sqlite") as c:
+            c.execute("UPDATE runs SET host = 'line2-pc' WHERE id = ?", (run_id,))
+        first = beat()
+        time.sleep(3.0)  # 15 beats: the waiting station keeps beating
+        assert beat() > first + 1.0
+        listed = CliRunner().invoke(cli, ["report", "list", "--db", "runs.sqlite", "--json"])
+        assert [r["status"] for r in json.loads(listed.stdout)] == ["running"], listed.output
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    last = beat()
+    time.sleep(3.0)  # > 10 beats of 0.2 s of silence
+    assert beat() == last  # nothing beats for a dead station
+    listed = CliRunner().invoke(cli, ["report", "list", "--db", "runs.sqlite", "--json"])
+    (row,) = json.loads(listed.stdout)
+    assert row["status"] == "stale" and "no heartbeat from the station on line2-pc" in row["status_reason"], row
 
 
 def test_a_reused_pid_is_stale():

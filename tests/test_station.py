@@ -14,7 +14,7 @@ from accelcal_station.cli import cli
 from accelcal_station.config.sections import default_config_path
 from accelcal_station.drivers.factory import make_driver
 from accelcal_station.nvm.writer import CalibrationWriter
-from accelcal_station.station.board import Station
+from accelcal_station.station.flow import make_flow
 from accelcal_station.station.settings import StationConfig
 
 
@@ -49,14 +49,14 @@ def test_default_run_passes_and_leaves_verified_nvm_and_a_record(tmp_path, monke
 
 def test_station_burns_the_fitted_calibration_into_the_board(tmp_path):
     cfg = StationConfig.load(sim_config(tmp_path))
-    st = Station(cfg, echo=lambda s: None)
-    rep = st.run()
+    st = make_flow(cfg, echo=lambda s: None)
+    (rep,) = st.run()
     assert rep.verdict == "PASS"
-    cal, header, slot = CalibrationWriter(st.driver.nvm).read_newest(rep.serial)
+    cal, header, slot = CalibrationWriter(st.boards[0].driver.nvm).read_newest(rep.serial)
     np.testing.assert_array_equal(cal.W, rep.fit.W)
     assert header.station_id == "sim-station-1" and slot == "A"
     # the fit recovers the simulator's truth at mg level (the design's predicted error is ~0.05 mg)
-    truth = st.driver.board.truth()
+    truth = st.boards[0].driver.board.truth()
     g = np.array([[0.3, -0.5, 0.81], [1.0, 0.0, 0.0]]) * 4096
     np.testing.assert_allclose(cal.apply(g, units="counts"), truth.apply(g, units="counts"), atol=1e-3)
 
@@ -67,13 +67,13 @@ def test_board_beyond_limits_fails_with_reasons_and_nvm_untouched(tmp_path):
     cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
     p = tmp_path / "bad.yaml"
     p.write_text(yaml.safe_dump(cfg))
-    st = Station(StationConfig.load(p), echo=lambda s: None)
-    rep = st.run()
+    st = make_flow(StationConfig.load(p), echo=lambda s: None)
+    (rep,) = st.run()
     assert rep.verdict == "FAIL"
     # |V| = 180 mg / gain
     assert any(r.startswith("offset_max_mg 17") and "> limit 120" in r for r in rep.reasons), rep.reasons
     assert rep.nvm is None
-    assert set(st.driver.nvm.read(0, st.driver.nvm.size)) == {0xFF}  # never written
+    assert set(st.boards[0].driver.nvm.read(0, st.boards[0].driver.nvm.size)) == {0xFF}  # never written
     r = CliRunner().invoke(cli, ["run", "--config", str(p)])
     assert r.exit_code == 1 and "FAIL" in r.output and "offset_max_mg" in r.output
 
@@ -81,17 +81,17 @@ def test_board_beyond_limits_fails_with_reasons_and_nvm_untouched(tmp_path):
 def test_power_loss_between_page_writes_keeps_the_previous_calibration(tmp_path):
     cfg = StationConfig.load(sim_config(tmp_path))
     driver = make_driver(cfg.device)
-    first = Station(cfg, echo=lambda s: None, driver=driver).run()
+    first = make_flow(cfg, echo=lambda s: None, driver=driver).run()[0]
     assert first.verdict == "PASS"
     driver.board.eeprom.inject_power_loss(at_write=2, fail_bytes=10)  # dies inside the 2nd page write
-    second = Station(cfg, echo=lambda s: None, driver=driver).run()
+    second = make_flow(cfg, echo=lambda s: None, driver=driver).run()[0]
     assert second.verdict == "FAIL" and second.nvm is not None and not second.nvm["ok"]
     assert any("untouched" in r for r in second.reasons), second.reasons
     cal, header, _ = CalibrationWriter(driver.nvm).read_newest(first.serial)
     assert header.generation == 1
     np.testing.assert_array_equal(cal.W, first.fit.W)
     # a corrupted newest slot is detected by its CRC and ignored
-    third = Station(cfg, echo=lambda s: None, driver=driver).run()
+    third = make_flow(cfg, echo=lambda s: None, driver=driver).run()[0]
     assert third.verdict == "PASS" and third.nvm["generation"] == 2
     w = CalibrationWriter(driver.nvm)
     addr = w.slot_addr(1) + 40

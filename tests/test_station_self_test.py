@@ -289,8 +289,8 @@ def test_trim_check_on_null_data_false_alarms_at_the_stated_rate():
     independent) would give 4.6 % (~27 alarms): the bound below would catch it."""
     from accelcal_station.config.schema import validate_device
     from accelcal_station.drivers.factory import make_driver
-    from accelcal_station.station.board import trim_change
     from accelcal_station.station.capture import CaptureSettings, gated_capture
+    from accelcal_station.station.offset_trim import trim_change
 
     doc = yaml.safe_load((CONFIGS / "mma8451-emulated.yaml").read_text())["device"]
     doc["seed"] = 42
@@ -315,7 +315,7 @@ def test_the_self_test_waits_for_a_still_board(tmp_path):
     is still, then reads the same response as the same chip left alone (within 6 standard errors); a tilt
     of up to 20 deg between the two averages would move the change by up to 340 mg."""
     from accelcal_station.drivers.factory import make_driver
-    from accelcal_station.station.board import Station
+    from accelcal_station.station.flow import make_flow
     from accelcal_station.station.settings import StationConfig
 
     cfg = StationConfig.load(mma_config(tmp_path))
@@ -324,7 +324,7 @@ def test_the_self_test_waits_for_a_still_board(tmp_path):
         driver = make_driver(cfg.device)
         if bump:
             driver.board.disturb(0.0, 3.0, 20.0)
-        rep = Station(cfg, echo=lambda s: None, driver=driver).run()
+        rep = make_flow(cfg, echo=lambda s: None, driver=driver).run()[0]
         assert rep.verdict == "PASS", rep.reasons
         out.append(rep.self_test)
     for quiet, bumped in zip(out[0]["axes"], out[1]["axes"], strict=True):

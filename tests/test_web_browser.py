@@ -28,7 +28,7 @@ from selenium.webdriver.support.ui import WebDriverWait
 
 from accelcal_station.cli import cli
 from accelcal_station.config.sections import default_config_path
-from accelcal_station.station.board import Station
+from accelcal_station.station.flow import make_flow
 from accelcal_station.station.settings import StationConfig
 from accelcal_station.store.runs import Store
 
@@ -65,7 +65,7 @@ def test_line_page_shows_two_stations_runs_within_2_s_of_each_finishing(tmp_path
 
         def station(cfg: StationConfig, n: int) -> None:
             for k in range(n):
-                rep = Station(cfg, serial=f"{cfg.station_id}-{k}", lot="L-7", echo=lambda s: None).run()
+                rep = make_flow(cfg, serial=f"{cfg.station_id}-{k}", lot="L-7", echo=lambda s: None).run()[0]
                 finished[rep.run_id] = time.monotonic()
 
         threads = [threading.Thread(target=station, args=(c, 2)) for c in cfgs]

@@ -289,7 +289,10 @@ def test_the_operator_page_in_german(tmp_path):
             page = drv.find_element(By.TAG_NAME, "body").text
             for german in ("Übernehmen", "Neu auflegen", "Auslassen", "Abbrechen", "Libelle", "Lage 1 von 6", "RUHIG"):
                 assert german in page, german
-            for english in ("Accept", "Re-place", "Skip", "Live level", "pose 1 of 6", "STILL", "READY"):
+            # the first six-face pose, x+1g (data sheets: +1 g on the axis pointing up): on its -x edge
+            assert "auf die -x-Kante stellen, +x zeigt nach oben" in drv.find_element(By.ID, "instruction").text
+            for english in ("Accept", "Re-place", "Skip", "Live level", "pose 1 of 6", "STILL", "READY",
+                            "stand it on its", "pointing up"):
                 assert english not in page, english
             assert drv.find_element(By.TAG_NAME, "html").get_attribute("lang") == "de"
             screenshot(drv, "operator-de.png")

@@ -9,6 +9,7 @@ models, the foundation); only ``accelcal_station.__main__`` imports the CLI.
 from __future__ import annotations
 
 import importlib
+import json
 import os
 import sys
 from typing import Any
@@ -18,7 +19,7 @@ import click
 from .. import __version__
 from ..config import event_log
 from ..errors import AccelcalError
-from ._mes import JsonGroup, emit_error, wants_json
+from ._mes import CommandsDoc, JsonGroup, emit_error, wants_json
 from ._text import clean
 
 # name -> (module:attribute, one-line help as the command's docstring gives it); a test
@@ -89,9 +90,11 @@ class LazyGroup(JsonGroup):
         with formatter.section("Commands"):
             formatter.write_dl([(n, self.listed_help(n, limit)) for n in names])
 
-    def describe(self, ctx: click.Context) -> dict[str, Any] | list[dict[str, Any]]:
-        return {"command": ctx.command_path, "help": (self.help or "").strip().split("\n")[0],
-                "subcommands": [{"name": n, "help": self.listed_help(n, 200)} for n in self.list_commands(ctx)]}
+    def describe(self, ctx: click.Context) -> str:
+        doc: CommandsDoc = {"command": ctx.command_path, "help": (self.help or "").strip().split("\n")[0],
+                            "subcommands": [{"name": n, "help": self.listed_help(n, 200)}
+                                            for n in self.list_commands(ctx)]}
+        return json.dumps(doc)
 
 
 class StationGroup(LazyGroup):

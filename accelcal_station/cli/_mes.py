@@ -5,7 +5,7 @@ from __future__ import annotations
 import functools
 import json
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, TypedDict
 
 import click
 
@@ -32,7 +32,20 @@ def emit_error(ctx: click.Context, message: str, code: int, kind: str) -> None:
         click.secho(f"error: {message}" if kind != "internal" else message, fg="red", err=True)
 
 
-def commands_doc(group: click.Group, ctx: click.Context) -> dict[str, Any]:
+class SubcommandDoc(TypedDict):
+    name: str
+    help: str
+
+
+class CommandsDoc(TypedDict):
+    """A group's subcommands as JSON (a bare group's --json)."""
+
+    command: str
+    help: str
+    subcommands: list[SubcommandDoc]
+
+
+def commands_doc(group: click.Group, ctx: click.Context) -> CommandsDoc:
     """A group's subcommands as JSON: name and one-line help of each."""
     return {"command": ctx.command_path, "help": (group.help or "").strip().split("\n")[0],
             "subcommands": [{"name": n, "help": group.commands[n].get_short_help_str(200)}
@@ -52,12 +65,12 @@ class JsonGroup(click.Group):
         def callback(*args: Any, group_json: bool = False, **kwargs: Any) -> Any:
             ctx = click.get_current_context()
             if ctx.invoked_subcommand is None:  # bare: describe (JSON) or help, nothing else
-                click.echo(json.dumps(self.describe(ctx)) if group_json else ctx.get_help())
+                click.echo(self.describe(ctx) if group_json else ctx.get_help())
                 ctx.exit(0)
             return cb(*args, **kwargs)
 
         self.callback = functools.update_wrapper(callback, cb)
 
-    def describe(self, ctx: click.Context) -> dict[str, Any] | list[dict[str, Any]]:
-        """What the bare group prints under --json (a subclass may list something else)."""
-        return commands_doc(self, ctx)
+    def describe(self, ctx: click.Context) -> str:
+        """What the bare group prints under --json, as JSON text (a subclass may list something else)."""
+        return json.dumps(commands_doc(self, ctx))

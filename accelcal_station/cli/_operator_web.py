@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import click
 
@@ -29,7 +29,7 @@ def finish_reports(ui: WebOperator, reports: list[RunReport]) -> None:
     many = len(reports) > 1
     reasons = [{"code": x.code, "message": (f"board {r.serial}: " if many else "") + str(x)}
                for r in reports for x in r.reasons]
-    figures: dict[str, Any] = {}
+    figures: dict[str, float | str | None] = {}  # the verdict screen's figures (mg; NVM slot)
     if not many and reports:
         r = reports[0]
         if r.fit is not None:

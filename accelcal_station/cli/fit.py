@@ -3,22 +3,24 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from typing import Any, TypedDict
+from typing import TypedDict
 
 import click
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..api import Fit, check_temp_method, fit, hand_placed_fit
+from ..calibration import CalibrationDict
 from ..data.loader import Loaded, load
 from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
 from ..errors import AccelcalError, DataError
 from ..fileguard.identity import refuse_overwrite
 from ..identifiability import assess, worst_parameter
-from ..models.choice import ModelChoice, choose_model, with_face_references
+from ..jsontypes import JsonObject
+from ..models.choice import ModelChoice, ModelChoiceJson, choose_model, with_face_references
 from ..models.handplaced import norm_faces, opposite_face
-from ..models.result import FitResult
+from ..models.result import FitJson, FitResult, PoseRow
 from ..session import Session
 from ._common import check_model_units, force_option, parse_int
 from ._common import jsonable as _clean
@@ -73,6 +75,59 @@ class SegmentationJson(TypedDict):
     min_samples: int
     count: int
     segments: list[SegmentJson]
+
+
+class TemperatureFitJson(FitJson):
+    """One temperature's fit in a table fit's ``temperatures``."""
+
+    temp_c: float | None
+
+
+class FaceJson(TypedDict):
+    """A hand-placed pose and the face it was taken as."""
+
+    pose: str
+    face: str
+    angle_deg: float
+
+
+class FitReport(TypedDict, total=False):
+    """fit --json: what reading inferred, the fit (one temperature: FitJson's keys; several: the
+    table's), where it came from, and what the options added.  Made JSON-safe by ``jsonable``."""
+
+    inferred: dict  # data/loader.Loaded.to_json's own mapping (untyped there)
+    segmentation: SegmentationJson
+    model: str
+    pose_count: int
+    W: list[list[float]]
+    V: list[float]
+    Gamma: list[float]
+    params: dict[str, float]
+    stderr: dict[str, list[float] | list[list[float]]] | None
+    P: list[float]
+    residual_rms_g: float
+    residual_max_g: float
+    crossval_rms_g: float | None
+    crossval_by_orientation_rms_g: float | None
+    distinct_orientations: int | None
+    condition_number: float
+    success: bool
+    status: str
+    message: str
+    nfev: int
+    input_units: str
+    input_per_g: float
+    held: list[JsonObject]
+    temperature_method: str | None
+    calibration: CalibrationDict
+    temperatures: list[TemperatureFitJson]
+    poses: list[PoseRow] | str
+    source: str
+    units: str
+    model_choice: ModelChoiceJson
+    faces: list[FaceJson]
+    hand_placed: HandPlacedJson
+    output: str
 
 
 def _load(path: str, raw: bool, model: str | None, units: str | None, cpg: float | None, gravity: float | None,
@@ -201,21 +256,20 @@ def _segmentation(log: RawLog, det: StaticDetection, names: list[str]) -> tuple[
     return info, lines
 
 
-def _table_report(path: str, session: Session, result: Fit) -> tuple[dict[str, Any], list[str]]:
+def _table_report(path: str, session: Session, result: Fit) -> tuple[FitReport, list[str]]:
     """The JSON and lines of a fit at several temperatures (one table, AN4399 section 9)."""
     fits, subs, cal, model = result.fits, result.sessions, result.calibration, result.model
     allres = np.concatenate([f.residuals_g for _, f in fits])
     cvs = [f.crossval_rms_g for _, f in fits]
     known = [c for c in cvs if c is not None]
-    report: dict[str, Any] = {
-        "model": model, "pose_count": len(session), "W": cal.W, "V": cal.V, "Gamma": cal.Gamma,
-        "P": np.sum([f.P for _, f in fits], axis=0),
+    report: FitReport = {
+        "model": model, "pose_count": len(session), "W": cal.W.tolist(), "V": cal.V.tolist(),
+        "Gamma": cal.Gamma.tolist(), "P": np.sum([f.P for _, f in fits], axis=0).tolist(),
         "residual_rms_g": float(np.sqrt(np.mean(allres**2))), "residual_max_g": float(np.max(np.abs(allres))),
         "crossval_rms_g": None if len(known) < len(cvs) else float(np.sqrt(np.mean(np.square(known)))),
         "temperature_method": result.temp_method, "calibration": cal.to_dict(),
-        "temperatures": [dict(temp_c=t, **f.to_json_dict(s.names)) for (t, f), s in zip(fits, subs, strict=True)],
-        "poses": [dict(temp_c=t, **p) for (t, f), s in zip(fits, subs, strict=True)
-                  for p in f.to_json_dict(s.names)["poses"]],
+        "temperatures": [{"temp_c": t, **f.to_json_dict(s.names)} for (t, f), s in zip(fits, subs, strict=True)],
+        "poses": [PoseRow(temp_c=t, **p) for (t, f), s in zip(fits, subs, strict=True) for p in f.pose_rows(s.names)],
     }
     text = [f"{path}: model {model}, {len(session)} poses at {len(fits)} temperatures "
             f"({', '.join(f'{t:g}' for t, _ in fits)} C), {result.temp_method} interpolation, "
@@ -233,7 +287,7 @@ def _echo_lines(text: list[str]) -> None:
         click.echo("\n".join(clean(t) for t in text[i:i + 1000]))
 
 
-def _report(path: str, loaded: Loaded, result: Fit, as_json: bool = True) -> tuple[dict[str, Any], list[str]]:
+def _report(path: str, loaded: Loaded, result: Fit, as_json: bool = True) -> tuple[FitReport, list[str]]:
     """What `accelcal fit` prints: what reading the file inferred, its static intervals (raw logs), the fit.
     Without ``as_json`` the per-pose JSON rows are not built (a 100,000-pose table: memory)."""
     session = loaded.session
@@ -241,7 +295,7 @@ def _report(path: str, loaded: Loaded, result: Fit, as_json: bool = True) -> tup
     result.calibration.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
     if held:
         result.calibration.metadata["held"] = held
-    report: dict[str, Any] = {"inferred": loaded.to_json()}
+    report: FitReport = {"inferred": loaded.to_json()}
     text = [f"read {path}: " + "; ".join(loaded.inferred)]
     if loaded.log is not None and loaded.detection is not None:
         report["segmentation"], seg_lines = _segmentation(loaded.log, loaded.detection, session.names)
@@ -322,9 +376,9 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         _echo_lines(text)
 
 
-def _choice_json(choice: ModelChoice, names: list[str]) -> dict[str, Any]:
+def _choice_json(choice: ModelChoice, names: list[str]) -> FitReport:
     """The model fit chose, and the face each pose was taken as (hand-placed faces)."""
-    out: dict[str, Any] = {"model_choice": choice.to_json()}
+    out: FitReport = {"model_choice": choice.to_json()}
     if choice.faces is not None:
         out["faces"] = [{"pose": n, "face": f, "angle_deg": float(a)} for n, f, a in
                         zip(names, choice.faces.names, choice.faces.angle_deg, strict=True)]
@@ -337,7 +391,7 @@ _POSES = "\x00accelcal-poses\x00"
 _BLOCK = 2000
 
 
-def _echo_json(report: dict[str, Any], fr: FitResult | None, names: list[str]) -> None:
+def _echo_json(report: FitReport, fr: FitResult | None, names: list[str]) -> None:
     """The report as one JSON line, exactly ``json.dumps(report)`` with the rows in place of _POSES."""
     text = json.dumps(_clean(report), allow_nan=False)
     key = '"poses": ' + json.dumps(_POSES)  # a quote inside a JSON string is escaped: found only as the key

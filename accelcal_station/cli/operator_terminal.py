@@ -12,7 +12,7 @@ from typing import Any
 
 import click
 
-from ..fixtures.operator_jig import OperatorAbort
+from ..fixtures.operator_jig import OperatorAbort, pose_words
 from ..fixtures.operator_ui import CaptureSink, LiveStatus, PosePrompt
 from ..i18n import Translate
 
@@ -66,7 +66,8 @@ class TerminalOperator:
         self.echo(text)
 
     def show_pose(self, prompt: PosePrompt) -> None:
-        self.echo(self.tr("Pose {name}: put the board {words}").format(name=prompt.pose.name, words=prompt.words))
+        words = pose_words(prompt.pose, self.tr)  # the operator's language; prompt.words stays English
+        self.echo(self.tr("Pose {name}: put the board {words}").format(name=prompt.pose.name, words=words))
 
     def ask(self, prompt: PosePrompt, live: LiveStatus | None) -> str:
         if live is not None:  # the live reading while the board is placed, before Enter

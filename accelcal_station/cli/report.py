@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, TypeVar, cast
+from typing import Any, TypedDict, TypeVar
 
 import click
 
@@ -12,6 +12,7 @@ from ..calibration import PARAM_NAMES
 from ..config.checks import load_yaml
 from ..errors import DataError
 from ..fileguard.identity import refuse_overwrite
+from ..jsontypes import JsonValue
 from ..store.liveness import STALE
 from ..store.location import store_path, store_target
 from ..store.runs import Store
@@ -79,8 +80,21 @@ def _name_damage(damage: list[dict[str, str]]) -> None:
         click.echo(clean(f"damaged_row: {d['table']} {d['id']} {d['column']}: {d['problem']}"), err=True)
 
 
+class RunFilters(TypedDict):
+    """The filter options as the store's query keywords (None: not filtered)."""
+
+    device: list[str] | None
+    lot: str | None
+    station: str | None
+    operator: str | None
+    verdict: str | None
+    status: str | None
+    since: str | None
+    until: str | None
+
+
 def _filters(device: tuple[str, ...], lot: str | None, station: str | None, operator: str | None,
-             verdict: str | None, status: str | None, since: str | None, until: str | None) -> dict[str, Any]:
+             verdict: str | None, status: str | None, since: str | None, until: str | None) -> RunFilters:
     """The filter options as keyword arguments of the store's queries; a bad verdict or status refused."""
     if verdict is not None and verdict.upper() not in VERDICTS:
         raise DataError(f"--verdict {verdict!r}; allowed: PASS, FAIL")
@@ -93,9 +107,9 @@ def _filters(device: tuple[str, ...], lot: str | None, station: str | None, oper
 class ReportGroup(JsonGroup):
     """`accelcal report [--db F] --json` lists the runs, as `report list --json` does."""
 
-    def describe(self, ctx: click.Context) -> list[dict[str, Any]]:
+    def describe(self, ctx: click.Context) -> str:
         with _open(ctx.params.get("db"), ctx.params.get("config_path")) as store:
-            return cast("list[dict[str, Any]]", store.list_runs())  # JsonGroup's type: RunSummary is a dict
+            return json.dumps(store.list_runs())
 
 
 @click.group("report", cls=ReportGroup)
@@ -155,8 +169,12 @@ def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool
     if rec["calibration"]:
         c = rec["calibration"]
         click.echo(f"{'W':16} {c['W']}\n{'V (g)':16} {c['V']}\n{'Gamma (1/g^2)':16} {c['Gamma']}")
-        for h in (c.get("metadata") or {}).get("held") or []:  # terms the poses did not determine (models/held.py)
-            click.echo(clean(f"{'held':16} {h.get('term')} = {h.get('value')}: {h.get('reason')}; {h.get('hint')}"))
+        meta = c.get("metadata")
+        held = meta.get("held") if isinstance(meta, dict) else None
+        for h in held if isinstance(held, list) else []:  # terms the poses did not determine (models/held.py)
+            if isinstance(h, dict):
+                click.echo(clean(f"{'held':16} {h.get('term')} = {h.get('value')}: {h.get('reason')}; "
+                                 f"{h.get('hint')}"))
     for line in _fit_lines(rec.get("fit_summary") or {}):
         click.echo(line)
     click.echo(f"{'poses':16} {len(rec['poses'])} ({rec['units']})")
@@ -167,22 +185,24 @@ def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool
         click.echo(f"{'event':16} {clean(e['kind'] or '')}: {clean(e['message'] or '')}")
 
 
-def _fit_lines(fit: dict[str, Any]) -> list[str]:
-    """Residuals, cross-validation, verification error and timing of a recorded run."""
+def _fit_lines(fit: Mapping[str, JsonValue]) -> list[str]:
+    """Residuals, cross-validation, verification error and timing of a recorded run (a stored JSON
+    column read back: every value checked before it is printed)."""
     out = []
     for key, label in (("residual_rms_g", "residual rms"), ("residual_max_g", "residual max"),
                        ("crossval_rms_g", "cross-validated")):
-        if isinstance(fit.get(key), (int, float)):
-            out.append(f"{label:16} {fit[key] * 1e3:.3f} mg")
-    if isinstance(fit.get("condition_number"), (int, float)):
-        out.append(f"{'condition':16} {fit['condition_number']:.3g}")
-    if isinstance(fit.get("verify_error_max_mg"), (int, float)):
-        out.append(f"{'verify error':16} {fit['verify_error_max_mg']:.3f} mg (max, after calibration)")
-    if fit.get("skipped"):
-        out.append(f"{'skipped':16} {', '.join(map(clean, fit['skipped']))}")
+        if isinstance(v := fit.get(key), int | float):
+            out.append(f"{label:16} {v * 1e3:.3f} mg")
+    if isinstance(v := fit.get("condition_number"), int | float):
+        out.append(f"{'condition':16} {v:.3g}")
+    if isinstance(v := fit.get("verify_error_max_mg"), int | float):
+        out.append(f"{'verify error':16} {v:.3f} mg (max, after calibration)")
+    if skipped := fit.get("skipped"):
+        items = skipped if isinstance(skipped, list | dict | str) else [skipped]  # a damaged value: printed
+        out.append(f"{'skipped':16} {', '.join(clean(str(x)) for x in items)}")
     t = fit.get("timing") or {}
-    if t:
-        out.append(f"{'timing':16} " + ", ".join(f"{k} {v:.3g}" for k, v in t.items() if isinstance(v, (int, float))))
+    if t and isinstance(t, dict):
+        out.append(f"{'timing':16} " + ", ".join(f"{k} {v:.3g}" for k, v in t.items() if isinstance(v, int | float)))
     return out
 
 

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from typing import Any
 
 import click
 
@@ -21,6 +20,7 @@ from ..station.shift import (
     SERIAL_PROMPT_PAGE,
     BoardOutcome,
     OnBoard,
+    ShiftSummary,
     board_station,
     check_shift_config,
     run_shift,
@@ -66,9 +66,7 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     """
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
     operator, lot = check_run_labels(operator, lot, cfg.station_id)  # as serials are: no formula, no control
-    _refuse_over_config(cfg)
-    if shift:
-        check_shift_config(cfg, serial)
+    _check_run(cfg, serial, shift)
     event_log.configure(cfg.event_log, avoid=(cfg.path, cfg.store_file))  # logging: (docs/logging.md)
 
     def echo(text: str) -> None:
@@ -84,13 +82,21 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
         with web_operator(cfg, echo, ui_host, ui_port, shift=shift) as web:
             if shift:
                 _shift(cfg, operator, lot, as_json, echo, web, device_wait_s, web.start_board,
-                       lambda b, rep: finish_outcome(web, b, rep), web.end_shift, SERIAL_PROMPT_PAGE, tr)
+                       lambda b, rep: finish_outcome(web, b, rep), web.end_shift,
+                       SERIAL_PROMPT_PAGE, tr)
                 return
             _run(cfg, operator, serial, lot, as_json, echo, web, web, lambda reports: finish_reports(web, reports))
         return
     # identity questions and their retries always on stderr (stdout may be the JSON object)
     _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True), tr),
          TerminalOperator(echo, tr), lambda reports: None)
+
+
+def _check_run(cfg: StationConfig, serial: str | None, shift: bool) -> None:
+    """Before anything runs: the config is not what the run writes; a shift's config is one board's."""
+    _refuse_over_config(cfg)
+    if shift:
+        check_shift_config(cfg, serial)
 
 
 def _refuse_over_config(cfg: StationConfig) -> None:
@@ -110,7 +116,7 @@ def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str 
     if cfg.is_panel:
         _run_panel(cfg, operator, serial, lot, as_json, echo, ui, on_done)
         return
-    rep = board_station(cfg, operator, serial, lot, echo, ui).run()
+    rep = board_station(cfg, operator, serial, lot, echo, ui).run()[0]
     on_done([rep])
     if as_json:
         click.echo(json.dumps(jsonable(rep.to_dict()), indent=2, allow_nan=False))
@@ -122,7 +128,7 @@ def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str 
 
 def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: bool, echo: Callable[[str], None],
            ui: OperatorUI, device_wait_s: float, on_start: Callable[[str], None] | None = None,
-           on_board: OnBoard | None = None, on_end: Callable[[dict[str, Any]], None] | None = None,
+           on_board: OnBoard | None = None, on_end: Callable[[ShiftSummary], None] | None = None,
            prompt: str = SERIAL_PROMPT, tr: Translate = str) -> None:
     """`run --shift`: each board printed as it ends (one JSON line each under --json), then the
     shift's summary (one JSON line); DeviceGone (exit 3) after the summary when the device stayed away."""
@@ -208,18 +214,19 @@ def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot
                echo: Callable[[str], None], ui: OperatorUI, on_done: Callable[[list[RunReport]], None]) -> None:
     """A panel: one line per board; exit 1 when any board failed."""
     from ..errors import ConfigError
-    from ..station.panel import PanelStation, panel_dict
+    from ..station.flow import make_flow
+    from ..station.panel import panel_dict
 
     if serial is not None:
         raise ConfigError("--serial: a panel's boards keep their own serials; remove --serial "
                           "(or set device.boards[i].serial)")
-    if cfg.is_thermal:  # a thermal plan over the panel (thermal_panel.py)
-        from ..station.thermal_panel import ThermalPanelStation as PanelStation
-    station = PanelStation(cfg, operator=operator, lot=lot, echo=echo, ui=ui)
+    station = make_flow(cfg, operator=operator, lot=lot, echo=echo, ui=ui)  # a thermal plan's too
     reports = station.run()
     on_done(reports)
+    panel_id = station.panel_id
+    assert panel_id is not None, "a panel's flow carries its id (FlowPolicy.for_config)"
     if as_json:
-        click.echo(json.dumps(jsonable(panel_dict(station.panel_id, reports, station)), indent=2, allow_nan=False))
+        click.echo(json.dumps(jsonable(panel_dict(panel_id, reports, station.panel)), indent=2, allow_nan=False))
     else:
         for i, rep in enumerate(reports):
             colour = "green" if rep.verdict == "PASS" else "red"
@@ -227,7 +234,7 @@ def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot
             click.secho(f"board {i + 1:2d} {rep.serial or '-':<14} {rep.verdict} (run {rep.run_id}){why}", fg=colour)
         t = station.timing
         passed = sum(r.verdict == "PASS" for r in reports)
-        line = f"panel {station.panel_id}: {passed}/{len(reports)} passed, store {cfg.store_file}"
+        line = f"panel {panel_id}: {passed}/{len(reports)} passed, store {cfg.store_file}"
         if "panel_time_s" in t:
             line += f"; {t['panel_time_s']:.1f} s board time, {t['per_board_s']:.2f} s per board"
         click.echo(line)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TypedDict
 
 import click
 import numpy as np
@@ -67,11 +67,27 @@ class _RawLog:
         self.f.write((row * len(t)) % tuple(np.column_stack(cols).ravel().tolist()))
 
 
-def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> tuple[dict[str, Any], str]:
+class SimulateSummary(TypedDict):
+    """simulate --json: what was written, from which simulated board (its seed) and how long it took."""
+
+    out: str
+    raw: bool
+    poses: int
+    samples_per_pose: int
+    counts_per_g: float
+    seed: int
+    temps_c: list[float]
+    effects: list[str]
+    simulated_s: float
+    truth_out: str | None
+
+
+def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> tuple[SimulateSummary, str]:
     b = run.board
-    summary = {"out": out, "raw": raw, "poses": len(run.session), "samples_per_pose": run.samples_per_pose,
-               "counts_per_g": b.counts_per_g, "seed": b.seed, "temps_c": run.temps_c,
-               "effects": list(b.model.enabled), "simulated_s": b.clock.now(), "truth_out": truth_out}
+    summary: SimulateSummary = {
+        "out": out, "raw": raw, "poses": len(run.session), "samples_per_pose": run.samples_per_pose,
+        "counts_per_g": b.counts_per_g, "seed": b.seed, "temps_c": run.temps_c,
+        "effects": list(b.model.enabled), "simulated_s": b.clock.now(), "truth_out": truth_out}
     what = "raw log" if raw else "pose table"
     line = (f"wrote {what} {out}: {len(run.session)} poses x {run.samples_per_pose} samples of a simulated "
             f"{b.chip.name} ({b.counts_per_g:g} counts/g, seed {b.seed}, {b.clock.now():.1f} s simulated)"

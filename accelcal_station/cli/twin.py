@@ -2,8 +2,9 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TypeVar
 
 import click
 import yaml
@@ -17,8 +18,14 @@ from ._common import force_option, store_file
 from ._mes import JsonGroup
 from ._text import error_text
 
+if TYPE_CHECKING:  # twin/ is imported on first use (scipy): its records for the checker only
+    from ..twin.records import Before, CheckReport, QuantityTest, TwinFitReport, WhatIfReport
+    from ..twin.stream import LotStats
 
-def _emit(as_json: bool, data: dict[str, Any], lines: list[str]) -> None:
+F = TypeVar("F", bound=Callable[..., object])
+
+
+def _emit(as_json: bool, data: TwinFitReport | CheckReport | WhatIfReport, lines: list[str]) -> None:
     click.echo(json.dumps(data, default=float) if as_json else "\n".join(lines))
 
 
@@ -28,7 +35,7 @@ def command() -> None:
 
 
 def _stats(source: str | None, db: str | None, since: str | None, station: str | None,
-           limits: Limits | None) -> tuple[Any, float | None]:
+           limits: Limits | None) -> tuple[LotStats, float | None]:
     """A lot file, or with --db the store's complete runs (--since, --station)."""
     from ..twin.fit import lot_stats  # twin/ on first use: it brings scipy (tens of MB) to every command
     from ..twin.store_source import store_stats
@@ -47,7 +54,7 @@ def _stats(source: str | None, db: str | None, since: str | None, station: str |
     return lot_stats(source, limits)
 
 
-def _source_options(f: Any) -> Any:
+def _source_options(f: F) -> F:
     f = click.option("--station", default=None, help="--db: only runs of this station.")(f)
     f = click.option("--since", default=None, help="--db: only runs started at or after (ISO 8601).")(f)
     f = click.option("--db", "db", default=None, help="A results store (file, sqlite:///FILE, postgresql://...) "
@@ -75,7 +82,7 @@ def fit_cmd(source: str | None, db: str | None, since: str | None, station: str 
     tw = fit_twin(stats, per_g, max_components=components)
     atomic_write(out, "# twin of " + str(source) + " (accelcal twin fit)\n"
                       + yaml.safe_dump(tw.config, sort_keys=False))
-    d = {**tw.to_dict(), "out": out}
+    d: TwinFitReport = {**tw.to_dict(), "out": out}
     lines = [f"{source}: {stats.boards} boards, model {stats.model}; {len(d['components'])} component(s) by BIC"]
     lines += [f"  weight {c['weight']:.4f}" + (f", carries {', '.join(c['carries'])}" if c["carries"] else "")
               for c in d["components"]]
@@ -116,16 +123,17 @@ def check_cmd(source: str | None, db: str | None, since: str | None, station: st
     _emit(as_json, r, lines)
 
 
-def _verdict_line(what: str, r: dict[str, Any]) -> str:
+def _verdict_line(what: str, r: Before | CheckReport) -> str:
     quiet = [q for q in r["detected"] if q not in r["gaps"]]
     return (f"{what}: {r['verdict']}" + (f"; matters in {', '.join(r['gaps'])}" if r["gaps"] else "")
             + (f"; detectable but immaterial in {', '.join(quiet)}" if quiet else ""))
 
 
-def _effect_line(t: dict[str, Any]) -> str:
+def _effect_line(t: QuantityTest) -> str:
     e = t["effect"]
+    largest = e.get("largest")
     size = (f"Wasserstein {e['wasserstein']:.4g}, p95 shift {e['shift_p95']:.4g}" if "wasserstein" in e
-            else f"largest share change {e['share_change'][e['largest']]:+.4f} ({e['largest']})" if e.get("largest")
+            else f"largest share change {e['share_change'][largest]:+.4f} ({largest})" if largest
             else f"energy distance {e.get('energy_distance', 0.0):.4g}")
     lim = f", yield change at {e['limit']} {e['yield_change']:+.4f}" if "limit" in e else ""
     return (f"{t['quantity']}: p {t['p_value']:.2g}; {size}{lim}; "

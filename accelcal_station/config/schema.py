@@ -71,6 +71,8 @@ class StoreSection(Section):
     outbox: str | None = _f(None, "local SQLite file keeping runs while a postgresql:// store is unreachable "
                             "(replayed by the next run or `accelcal report sync`); default "
                             "$XDG_STATE_HOME/accelcal/outbox.sqlite")
+    heartbeat_s: float = _f(30.0, "seconds between a running run's heartbeats; a run silent for 10 of them "
+                            "reads stale on every host (docs/store.md)", ge=0.1, le=3600)
 
 
 class PlanSection(Section):

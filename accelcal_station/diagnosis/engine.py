@@ -34,6 +34,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import ConfigError, UnderdeterminedError
+from ..jsontypes import JsonObject
 from .candidates import candidates
 from .effects.catalog import STOCHASTIC
 from .effects.design import describe_design
@@ -72,9 +73,10 @@ def fixed_floor(data: GapData, sim: Simulator, td: TimeData | None) -> Floor:
 
 
 def _stochastic(data: GapData, floor: Floor, final: Evaluation, td: TimeData | None, why: dict[str, str],
-                alpha: float, ev_pose: Callable[[], Evaluation]) -> tuple[dict[str, dict], list[str]]:
+                alpha: float, ev_pose: Callable[[], Evaluation]) -> tuple[dict[str, JsonObject], list[str]]:
     """Each stochastic effect's own signature (module doc, step 4); those that pass, by evidence."""
-    out: dict[str, dict] = {}
+    out: dict[str, JsonObject] = {}
+    p_named: dict[str, float] = {}  # the signatures that passed, by p-value
     order = ["quantization"] + [n for n in STOCHASTIC if n != "quantization"]
     for name in order:
         eff = STOCHASTIC[name]
@@ -82,8 +84,10 @@ def _stochastic(data: GapData, floor: Floor, final: Evaluation, td: TimeData | N
         if name == "pose_error" and ok and final.r_static is None:
             ok, reason = False, "the static view is unavailable"
         q = out.get("quantization", {})
-        if name == "noise" and q.get("passed") and q["lsb_mg"] > 2e3 * float(np.max(floor.simulator_sigma_g)):
-            ok, reason = False, (f"the samples sit on a {q['lsb_mg']:.3g} mg grid, over twice the simulated noise: "
+        lsb_mg = q.get("lsb_mg")  # quantization's evidence (effects/quantization.py): a number when it passed
+        if name == "noise" and q.get("passed") and isinstance(lsb_mg, float) \
+                and lsb_mg > 2e3 * float(np.max(floor.simulator_sigma_g)):
+            ok, reason = False, (f"the samples sit on a {lsb_mg:.3g} mg grid, over twice the simulated noise: "
                                  "the grid sets the within-pose spread, so the noise cannot be measured")
         if not ok:
             out[name] = {"testable": False, "reason": reason}
@@ -91,8 +95,9 @@ def _stochastic(data: GapData, floor: Floor, final: Evaluation, td: TimeData | N
         sig = eff.signature(data, floor, ev_pose() if name == "pose_error" else final, td, alpha)
         out[name] = {"testable": True, **sig.to_json()}
         why.pop(name, None)
-    passed = sorted((n for n, v in out.items() if v.get("passed")), key=lambda n: out[n]["p_value"])
-    return out, passed
+        if sig.passed:
+            p_named[name] = sig.p_value
+    return out, sorted(p_named, key=lambda n: p_named[n])
 
 
 def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:

@@ -22,7 +22,7 @@ class Evaluation:
     r_time: np.ndarray | None  # (R,) held-out block residuals, g
     v_time: np.ndarray | None
     nll_unit: np.ndarray  # (P, 3) held-out negative log predictive density per pose and axis
-    params: dict  # whole-data fit: label -> value
+    params: FitParams  # whole-data fit: label -> value
     fitted_static: np.ndarray | None = None  # (P, m) in-sample residuals of the whole-data fit
     r_spread: np.ndarray | None = None  # (P, 3) within-pose variance minus predicted, g^2 (scored, not in gap)
     v_spread: np.ndarray | None = None

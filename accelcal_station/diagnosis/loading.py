@@ -15,6 +15,7 @@ from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection, static_session
 from ..drivers.simulated import SimulatedBoard
 from ..errors import AccelcalError, ConfigError, DataError, UnderdeterminedError, UnitsError
+from ..jsontypes import JsonObject
 from ..models.choice import ModelChoice, choose_model
 from ..models.fitting import check_plausible_g
 from ..models.gravity_norm import nominal_scale
@@ -38,11 +39,11 @@ class Simulator:
     odr_hz: float
     dlpf: int | None
     source: str
-    device: dict = field(default_factory=dict)  # the board section (for the self-test)
+    device: JsonObject = field(default_factory=dict)  # the config's device: section, as read (for the self-test)
     exclude: tuple[str, ...] = ()  # effects left out of the baseline: fit's model has no terms for them
 
     @classmethod
-    def from_board(cls, board: SimulatedBoard, source: str, device: dict | None = None) -> Simulator:
+    def from_board(cls, board: SimulatedBoard, source: str, device: JsonObject | None = None) -> Simulator:
         return cls(board.model, board.counts_per_g, board.range_g, board.odr_hz, board.dlpf, source, device or {})
 
     @property

@@ -17,10 +17,11 @@ import numpy as np
 
 from ..atomic import atomic_write
 from ..errors import AccelcalError, DataError
+from ..sim.sensor_model import EffectValue
 from .evaluation import Evaluation
 from .gap_data import time_data
 from .result import Diagnosis, DiagnosisJson
-from .selection import MIN_GAP_SHRINK
+from .selection import MIN_GAP_SHRINK, Fitted
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -38,31 +39,38 @@ def _g(x: float | None) -> str:
     return "n/a" if x is None or not np.isfinite(x) else (f"{x:.3g}" if x < 100 else f"{x:.0f}")
 
 
-def config_hint(effect: str, fitted: dict[str, Any]) -> dict[str, Any] | None:
+def config_hint(effect: str, fitted: Fitted) -> dict[str, EffectValue | None] | None:
     """The fitted effect as simulator-configuration parameters (approximate where W is not I)."""
     f = fitted
+
+    def n(key: str) -> float:  # a fitted number (a per-axis list where one is named is the caller's error)
+        v = f[key]
+        if isinstance(v, list):
+            raise TypeError(f"fitted {key}: a list where a number was fitted")
+        return v
+
     try:
         if effect == "cubic":
-            return {"cubic_per_g2": [-f[f"Gamma_{a}"] for a in "xyz"]}  # AN4399 Eqn 67: Gamma = -c
+            return {"cubic_per_g2": [-n(f"Gamma_{a}") for a in "xyz"]}  # AN4399 Eqn 67: Gamma = -c
         if effect == "quadratic":
-            return {"quadratic_per_g": [-f[f"Q_{a}"] for a in "xyz"]}
+            return {"quadratic_per_g": [-n(f"Q_{a}") for a in "xyz"]}
         if effect == "offset":
-            return {"offset_mg": [-1e3 * f[f"V_{a}"] for a in "xyz"]}
+            return {"offset_mg": [-1e3 * n(f"V_{a}") for a in "xyz"]}
         if effect == "gain":
-            return {"gain": [1.0 / f[f"W_{a}{a}"] for a in "xyz"]}
+            return {"gain": [1.0 / n(f"W_{a}{a}") for a in "xyz"]}
         if effect == "temperature":
-            return {"offset_mg_per_c": [-1e3 * f[f"offset_{a}_per_25C"] / 25.0 for a in "xyz"],
-                    "gain_ppm_per_c": [-1e6 * f[f"gain_{a}_per_25C"] / 25.0 for a in "xyz"]}
+            return {"offset_mg_per_c": [-1e3 * n(f"offset_{a}_per_25C") / 25.0 for a in "xyz"],
+                    "gain_ppm_per_c": [-1e6 * n(f"gain_{a}_per_25C") / 25.0 for a in "xyz"]}
         if effect == "noise":
             return {"density_ug_per_rthz": f["density_ug_per_rthz"]}
         if effect == "quantization":
-            return {"lsb_counts": int(round(f["lsb_counts"]))}
+            return {"lsb_counts": int(round(n("lsb_counts")))}
         if effect == "pose_error":
             return {"scatter_deg": f["scatter_deg"]}
         if effect == "settling":
             return {"tau_s": f["settling_tau_s"]}
         if effect == "drift":
-            return {"warmup_mg": [1e3 * f[f"warmup_{a}"] for a in "xyz"], "warmup_tau_s": f["drift_tau_s"]} \
+            return {"warmup_mg": [1e3 * n(f"warmup_{a}") for a in "xyz"], "warmup_tau_s": f["drift_tau_s"]} \
                 if "drift_tau_s" in f else {"warmup_tau_s": f.get("drift_tau_s_time")}
     except KeyError:
         return None
@@ -182,7 +190,7 @@ def _stochastic_lines(d: Diagnosis) -> list[str]:
         else:
             out.append(f"  {name}: not testable: {st['reason']}")
     jig = d.stochastic.get("pose_error", {}).get("jig_rotation")
-    if jig:
+    if jig and isinstance(jig, dict):  # engine.diagnose: jig_rotation's report under pose_error
         state = ("FITTED" if jig["passed"] else "no") if jig["testable"] else "not testable"
         out.append(f"  jig rotation (deterministic, 3 parameters): {state}: {jig['reason']}")
     out.append("")

@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, TypedDict
+from typing import TypedDict
 
 import numpy as np
 
 from ..identifiability import TermsDescription
+from ..jsontypes import JsonObject
 from .evaluation import Evaluation
 from .gap_data import GapData
 from .loading import Simulator
@@ -74,7 +75,7 @@ class DiagnosisJson(TypedDict):
     steps: list[Step]
     tried: list[Tried]
     ranking: list[Ranked]
-    stochastic: dict[str, Any]  # each stochastic effect's signature (effects/*.py: its own evidence)
+    stochastic: dict[str, JsonObject]  # each stochastic effect's signature (effects/*.py: its own evidence)
     left: Leftover
     identifiability: TermsDescription | None
     untestable: list[Untestable]
@@ -105,7 +106,7 @@ class Diagnosis:
     static_why: str
     where: Where
     alpha: float = ALPHA
-    stochastic: dict[str, Any] = field(default_factory=dict)
+    stochastic: dict[str, JsonObject] = field(default_factory=dict)  # open: each effect's own evidence
     tried: list[Tried] = field(default_factory=list)
     verdict: str = ""
     verdict_text: str = ""

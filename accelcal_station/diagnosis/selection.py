@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any, TypedDict
+from typing import TypeAlias, TypedDict
 
 import numpy as np
 
@@ -36,6 +36,10 @@ class Tried(TypedDict):
     failed: list[str]
 
 
+# an added effect's fitted parameters, in the configuration's units where there is one
+Fitted: TypeAlias = dict[str, float | list[float]]
+
+
 class Step(TypedDict):
     """An effect added by the selection (``steps``): gap and RMS before and after, its test, its fit."""
 
@@ -46,7 +50,7 @@ class Step(TypedDict):
     rms_mg_after: float
     p_value: float
     level: float
-    fitted: dict[str, Any]  # the effect's own parameters (names and shapes differ per effect)
+    fitted: Fitted  # the effect's own parameters (names and shapes differ per effect)
 
 Evaluator = Callable[[list[str]], Evaluation]  # held-out evaluation of the baseline plus these candidates
 
@@ -125,19 +129,36 @@ def _rules(cur: Evaluation, new: Evaluation, p: float, level: float, effect: str
     return failed
 
 
-def _fitted(e: Evaluation, effect: str, sim: Simulator, data: GapData) -> dict[str, Any]:
+def _fitted(e: Evaluation, effect: str, sim: Simulator, data: GapData) -> Fitted:
     """The fitted values of an added effect, in the configuration's units where there is one."""
     p = e.params
     if effect == "noise":
         enbw = sim.model.chip.enbw_hz(data.rate_hz or sim.odr_hz, sim.dlpf)
-        return {"density_ug_per_rthz": [1e6 * s / math.sqrt(enbw) for s in p["sigma_g"]]}
+        return {"density_ug_per_rthz": [1e6 * s / math.sqrt(enbw) for s in _per_axis(p["sigma_g"])]}
     if effect == "quantization":
-        return {"lsb_counts": p["lsb_g"] * sim.counts_per_g, "lsb_mg": 1e3 * p["lsb_g"]}
+        lsb = _number(p["lsb_g"])
+        return {"lsb_counts": lsb * sim.counts_per_g, "lsb_mg": 1e3 * lsb}
     if effect == "pose_error":
-        return {"scatter_deg": p["scatter_deg"]}
-    out = {k.split(":", 1)[1]: v for k, v in p.items() if k.startswith(effect + ":")}
-    out.update({k: v for k, v in p.items() if k.startswith(effect)})
+        return {"scatter_deg": _number(p["scatter_deg"])}
+    out = {k.split(":", 1)[1]: _as_json(v) for k, v in p.items() if k.startswith(effect + ":")}
+    out.update({k: _as_json(v) for k, v in p.items() if k.startswith(effect)})
     return out
+
+
+def _number(v: float | list[float] | np.ndarray) -> float:
+    if not isinstance(v, float | int):
+        raise TypeError("a per-axis value where one number is fitted")
+    return v
+
+
+def _per_axis(v: float | list[float] | np.ndarray) -> list[float]:
+    if isinstance(v, float | int):
+        raise TypeError("one number where a per-axis value is fitted")
+    return v if isinstance(v, list) else v.tolist()
+
+
+def _as_json(v: float | list[float] | np.ndarray) -> float | list[float]:
+    return v.tolist() if isinstance(v, np.ndarray) else v
 
 
 def _step(ev: Evaluator, data: GapData, sim: Simulator, current: Evaluation, remaining: list[str],

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from functools import cache
 from pathlib import Path
-from typing import Any, NotRequired, TypedDict
+from typing import NotRequired, TypedDict
 
 import numpy as np
 
@@ -25,15 +25,16 @@ from ..drivers.simulated import SimulatedBoard
 from ..fixtures.base import PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.simulated_jig import SimulatedJig
+from ..jsontypes import JsonObject
 from ..session import PoseRecord, Session
-from ..sim.sensor_model import EFFECT_NAMES, rotation_matrix
+from ..sim.sensor_model import EFFECT_NAMES, EffectsConfig, rotation_matrix
 from .candidates import candidates
 from .engine import diagnose
 from .gap_data import GapData, time_data
 from .loading import Simulator, gap_data, load_simulator, raw_part
 from .selection import ALPHA
 
-Effects = dict[str, dict[str, Any]]  # effect name -> its parameters (a simulator's effects section)
+Effects = EffectsConfig  # effect name -> its parameters (a simulator's effects section)
 Case = tuple[str, str, tuple[str, ...], str | None, str]  # (case, data kind, withheld, off-catalog term, expect)
 
 SELFTEST_EFFECTS: Effects = {
@@ -101,7 +102,7 @@ def _scenario(effect: str | None, base: Effects) -> tuple[Effects, Effects]:
     return board, {k: v for k, v in base.items() if k != effect}
 
 
-def _board(device: dict[str, Any], effects: Effects, seed: int = 0, forward: bool = False) -> SimulatedBoard:
+def _board(device: JsonObject, effects: Effects, seed: int = 0, forward: bool = False) -> SimulatedBoard:
     """A board of the configuration's chip, range and rate with these effects."""
     cfg = {k: v for k, v in device.items() if k in ("chip", "range_g", "odr_hz", "dlpf")}
     board = SimulatedBoard.from_config({**cfg, "effects": effects}, seed=seed, path="selftest")
@@ -148,7 +149,7 @@ def _poses(kind: str) -> list[PoseSpec]:
     return poses + poses[::-1] if kind == "refs-revisit" else poses
 
 
-def simulate_data(device: dict[str, Any], effects: Effects, kind: str, seed: int,
+def simulate_data(device: JsonObject, effects: Effects, kind: str, seed: int,
                   extra: str | None = None) -> GapData:
     """Data of one kind from a forward-physics board with ``effects`` and an optional off-catalog term."""
     lsb = effects.get("quantization", {}).get("lsb_counts", 1) if "quantization" in effects else None
@@ -206,7 +207,7 @@ def _cases() -> list[Case]:
     return out
 
 
-def run_case(device: dict[str, Any], base: Effects, case: Case, seed: int) -> CaseResult:
+def run_case(device: JsonObject, base: Effects, case: Case, seed: int) -> CaseResult:
     """One self-test case: simulate, diagnose, judge (module doc)."""
     name, kind, withheld, extra, expect = case
     if len(withheld) == 1:
@@ -254,7 +255,7 @@ def selftest(config: str | Path | None = None, seed: int = 1, only: list[str] | 
     return out
 
 
-def _coverage(device: dict[str, Any], base: Effects, seed: int) -> dict[str, dict[str, str]]:
+def _coverage(device: JsonObject, base: Effects, seed: int) -> dict[str, dict[str, str]]:
     """For every effect and data kind: testable, or why not (the same checks the diagnosis makes)."""
     from .effects.catalog import STOCHASTIC
 

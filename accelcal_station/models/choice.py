@@ -15,6 +15,7 @@ or more away from every axis (45 in the nine-position designs), so the two canno
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TypedDict
 
 import numpy as np
 
@@ -26,6 +27,15 @@ from .held import Held, hold_plan
 
 FACE_TOL_DEG = 15.0
 AXES = "xyz"
+
+
+class ModelChoiceJson(TypedDict):
+    """The model fit chose as JSON: how, why, and the terms it holds at nominal."""
+
+    model: str
+    method: str
+    reason: str
+    held: list[str]
 
 
 @dataclass(frozen=True)
@@ -56,7 +66,7 @@ class ModelChoice:
     def method(self) -> str:
         return "hand-placed norm fit" if self.faces is not None else f"model {self.model}"
 
-    def to_json(self) -> dict[str, object]:
+    def to_json(self) -> ModelChoiceJson:
         return {"model": self.model, "method": self.method, "reason": self.reason,
                 "held": [h.term for h in self.held]}
 

@@ -51,28 +51,11 @@ from ..errors import UnderdeterminedError
 from ..identifiability import REL_SV_MIN, _centre, _design, assess, assess_batch, first_of_orientation
 from .gravity_norm import PARAM_NAMES
 from .linear import param_names
-from .result import BatchFit
+from .result import BatchFit, Held  # Held: a fit result's record, re-exported here
 
 AXES = "xyz"
 # parameter index -> (axes in words, the pose that determines it)
 HOLDABLE_9 = {3: ("x", "y"), 4: ("x", "z"), 5: ("y", "z")}
-
-
-@dataclass(frozen=True)
-class Held:
-    """A term fitted at its nominal value because the poses do not determine it."""
-
-    term: str  # parameter name, e.g. "M_xy"
-    value: float  # the nominal value it is held at
-    reason: str
-    hint: str
-
-    @property
-    def text(self) -> str:
-        return f"{self.reason}; {self.hint}"
-
-    def to_json(self) -> dict[str, object]:
-        return {"term": self.term, "value": self.value, "reason": self.reason, "hint": self.hint}
 
 
 PRIOR_SD_NONORTHO = 0.02  # one sigma of a non-orthogonality before the data: data-sheet cross-axis spread

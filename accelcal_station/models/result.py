@@ -3,11 +3,67 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 
 from ..calibration import Calibration
+from ..jsontypes import JsonObject
+
+
+@dataclass(frozen=True)
+class Held:
+    """A term fitted at its nominal value because the poses do not determine it (models/held.py)."""
+
+    term: str  # parameter name, e.g. "M_xy"
+    value: float  # the nominal value it is held at
+    reason: str
+    hint: str
+
+    @property
+    def text(self) -> str:
+        return f"{self.reason}; {self.hint}"
+
+    def to_json(self) -> JsonObject:
+        return {"term": self.term, "value": self.value, "reason": self.reason, "hint": self.hint}
+
+
+class PoseRow(TypedDict):
+    """One pose of a fit as JSON: its reading, residual (reference - calibrated) and norm error, in g
+    (``temp_c``: a fit at several temperatures names each row's, first)."""
+
+    temp_c: NotRequired[float | None]
+    pose: str
+    reading_g: list[float]
+    residual_g: list[float]
+    norm_error_g: float
+
+
+class FitJson(TypedDict):
+    """A fit as JSON (FitResult.to_json_dict); ``poses`` may be a stand-in the caller replaces."""
+
+    model: str
+    pose_count: int
+    W: list[list[float]]
+    V: list[float]
+    Gamma: list[float]
+    params: dict[str, float]
+    stderr: dict[str, list[float] | list[list[float]]] | None
+    P: list[float]
+    residual_rms_g: float
+    residual_max_g: float
+    crossval_rms_g: float | None
+    crossval_by_orientation_rms_g: float | None
+    distinct_orientations: int | None
+    condition_number: float
+    success: bool
+    status: str
+    message: str
+    nfev: int
+    input_units: str
+    input_per_g: float
+    held: list[JsonObject]
+    poses: list[PoseRow] | str
 
 
 @dataclass
@@ -47,7 +103,7 @@ class FitResult:
     status: str = "ok"
     message: str = ""
     nfev: int = 1
-    extra: dict[str, Any] = field(default_factory=dict)
+    held: list[Held] = field(default_factory=list)  # terms held at nominal: the poses do not determine them
     crossval_by_orientation_rms_g: float | None = None
     distinct_orientations: int | None = None
 
@@ -63,11 +119,6 @@ class FitResult:
         return self.crossval_by_orientation_rms_g if self.orientations_repeat else self.crossval_rms_g
 
     @property
-    def held(self) -> list[Any]:
-        """Terms held at nominal because the poses do not determine them (models/held.Held)."""
-        return list(self.extra.get("held", []))
-
-    @property
     def W(self) -> np.ndarray:
         return self.calibration.W
 
@@ -80,7 +131,7 @@ class FitResult:
         return self.calibration.Gamma
 
     def pose_rows(self, pose_names: list[str] | None = None, start: int = 0, stop: int | None = None
-                  ) -> list[dict[str, Any]]:
+                  ) -> list[PoseRow]:
         """The JSON rows of poses ``start:stop`` (a large table is written a block of rows at a time)."""
         names = pose_names or [str(i) for i in range(self.pose_count)]
         r, e, n = self.readings_g[start:stop].tolist(), self.residuals_g[start:stop].tolist(), \
@@ -88,9 +139,9 @@ class FitResult:
         return [{"pose": names[start + i], "reading_g": r[i], "residual_g": e[i], "norm_error_g": n[i]}
                 for i in range(len(n))]
 
-    def to_json_dict(self, pose_names: list[str] | None = None, poses: Any = None) -> dict[str, Any]:
+    def to_json_dict(self, pose_names: list[str] | None = None, poses: str | None = None) -> FitJson:
         """The fit as JSON; ``poses`` given stands for the per-pose rows (``pose_rows``), else they are built."""
-        poses = self.pose_rows(pose_names) if poses is None else poses
+        rows = self.pose_rows(pose_names) if poses is None else poses
         se = None
         if self.stderr is not None:
             se = {k: np.asarray(v).tolist() for k, v in self.stderr.items()}
@@ -116,7 +167,7 @@ class FitResult:
             "input_units": self.calibration.input_units,
             "input_per_g": self.calibration.input_per_g,
             "held": [h.to_json() for h in self.held],
-            "poses": poses,
+            "poses": rows,
         }
 
 
@@ -164,7 +215,7 @@ class BatchFit:
     input_per_g: np.ndarray | float = 1.0
     nfev: np.ndarray | None = None
     status: list[str] | None = None
-    held: list[list[Any]] = field(default_factory=list)  # (D,) each board's models/held.Held terms
+    held: list[list[Held]] = field(default_factory=list)  # (D,) each board's terms held at nominal
     crossval_by_orientation_rms_g: np.ndarray | None = None  # (D,), NaN where not computable
     crossval_by_orientation_ok: np.ndarray | None = None  # (D,) bool
     distinct_orientations: np.ndarray | None = None  # (D,) int
@@ -207,7 +258,7 @@ class BatchFit:
             status=self.status[d] if self.status else ("ok" if self.ok[d] else "failed"),
             message=self.messages[d],
             nfev=int(self.nfev[d]) if self.nfev is not None else 1,
-            extra={"held": list(self.held[d])} if self.held[d] else {},
+            held=list(self.held[d]),
             crossval_by_orientation_rms_g=_orient(self, d),
             distinct_orientations=None if self.distinct_orientations is None else int(self.distinct_orientations[d]),
         )

@@ -33,13 +33,14 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
 from ..config.checks import check_keys, number
 from ..errors import ConfigError
-from .sensor_model import EFFECTS, Param
+from ..jsontypes import JsonObject, JsonValue
+from .sensor_model import EFFECTS, EffectParams, Param
 
 POPULATION_KEYS = ("quantities", "components", "changes", "tails")
 TAIL_KEYS = ("dof", "loc", "scale")
@@ -174,44 +175,57 @@ class Population:
         hi = np.array([np.inf if q.spec.hi is None else q.spec.hi for q in self.quantities])
         return np.clip(x, lo, hi)
 
-    def apply(self, effects: dict[str, dict[str, Any]], x: np.ndarray) -> dict[str, dict[str, Any]]:
+    def apply(self, effects: dict[str, EffectParams], x: np.ndarray) -> dict[str, EffectParams]:
         """The effects (parsed, as SensorModel holds them) of one board with vector ``x`` (Q,)."""
         out = {n: {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in p.items()}
                for n, p in effects.items()}
         for q, v in zip(self.quantities, x, strict=True):
             eff = out.setdefault(q.effect, _defaults(q.effect))
-            if q.index:
-                eff[q.param][q.index] = v
+            vec = eff[q.param]
+            if q.index and isinstance(vec, np.ndarray):  # per-axis and matrix parameters are arrays
+                vec[q.index] = v
             else:
                 eff[q.param] = float(v)
         return out
 
-    def to_config(self) -> dict[str, Any]:
+    def to_config(self) -> JsonObject:
         """The YAML mapping (round-trips through parse_population)."""
         names = self.names
-        comps = []
+        comps: list[JsonValue] = []
         for c in self.components:
-            d: dict[str, Any] = {"weight": float(c.weight), "mean": dict(zip(names, map(float, c.mean), strict=True)),
-                                 "sd": dict(zip(names, map(float, c.sd), strict=True)),
-                                 "correlation": c.correlation.tolist()}
+            d: JsonObject = {"weight": float(c.weight), "mean": dict(zip(names, map(float, c.mean), strict=True)),
+                             "sd": dict(zip(names, map(float, c.sd), strict=True)),
+                             "correlation": c.correlation.tolist()}
             if c.dof is not None:
                 d["dof"] = float(c.dof)
             comps.append(d)
-        out = {"quantities": names, "components": comps,
-               "changes": [{"quantity": ch.quantity.name, "kind": ch.kind, "at_board": int(ch.at_board),
-                            "size": float(ch.size)} for ch in self.changes]}
+        out: JsonObject = {"quantities": [*names], "components": comps,
+                           "changes": [{"quantity": ch.quantity.name, "kind": ch.kind, "at_board": int(ch.at_board),
+                                        "size": float(ch.size)} for ch in self.changes]}
         if self.tails:
-            out["tails"] = {n: {"dof": float(t.dof), "loc": float(t.loc), "scale": float(t.scale)}
-                            for n, t in self.tails.items()}
+            out["tails"] = {n: {"dof": t["dof"], "loc": t["loc"], "scale": t["scale"]}
+                            for n, t in self.tails_config().items()}
         return out
 
+    def tails_config(self) -> dict[str, TailConfig]:
+        """``tails:`` as written (a quantity's Student-t marginal)."""
+        return {n: {"dof": float(t.dof), "loc": float(t.loc), "scale": float(t.scale)} for n, t in self.tails.items()}
 
-def _defaults(effect: str) -> dict[str, Any]:
+
+class TailConfig(TypedDict):
+    """A quantity's Student-t marginal as written under ``population.tails``."""
+
+    dof: float
+    loc: float
+    scale: float
+
+
+def _defaults(effect: str) -> EffectParams:
     return {p.name: (np.array(p.default, dtype=float) if isinstance(p.default, list) else p.default)
             for p in EFFECTS[effect].params}
 
 
-def base_value(effects: dict[str, dict[str, Any]], q: Quantity) -> float:
+def base_value(effects: dict[str, EffectParams], q: Quantity) -> float:
     """The fixed value of a quantity in the parsed ``effects:`` (or the catalog's neutral default)."""
     p = effects.get(q.effect, {}).get(q.param)
     if p is None:
@@ -266,7 +280,7 @@ def _change(d: Any, names: list[str], quantities: list[Quantity], path: str) -> 
                   number(d, "at_board", path, lo=0, integer=True), number(d, "size", path))
 
 
-def parse_population(spec: Any, effects: dict[str, dict[str, Any]], path: str = "simulator.population"
+def parse_population(spec: Any, effects: dict[str, EffectParams], path: str = "simulator.population"
                      ) -> Population:
     """Validate a ``population:`` mapping against the parsed fixed ``effects``."""
     spec = check_keys(spec, POPULATION_KEYS, path)

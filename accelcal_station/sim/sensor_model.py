@@ -39,7 +39,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cache
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -254,6 +254,10 @@ _SHAPE_TEXT = {(): "", (3,): "; a number or [x, y, z]", (3, 3): "; a 3x3 list [[
 
 # one effect's validated parameters: name -> a number, or a numpy array for per-axis and matrix values
 EffectParams = dict[str, np.ndarray | float]
+# a parameter as YAML gives it: a number, [x, y, z], or a 3x3 list of rows
+EffectValue: TypeAlias = float | list[float] | list[list[float]]
+# an ``effects:`` section as YAML gives it: effect -> its parameters (SensorModel.to_config; from_config reads it)
+EffectsConfig: TypeAlias = dict[str, dict[str, EffectValue]]
 
 
 @cache
@@ -346,12 +350,12 @@ class SensorModel:
             effects = {n: {} for n in DEFAULT_EFFECTS}
         return cls(chip, parse_effects(effects, chip, path), path, forward)
 
-    def to_config(self) -> dict[str, dict[str, Any]]:
+    def to_config(self) -> EffectsConfig:
         """The YAML ``effects:`` mapping of this model (round-trips through from_config)."""
         return {n: {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in p.items()}
                 for n, p in self.effects.items()}
 
-    def with_effect(self, name: str, **params: Any) -> SensorModel:
+    def with_effect(self, name: str, **params: EffectValue) -> SensorModel:
         """A copy with ``name`` enabled (parameters as in YAML; missing ones default)."""
         cfg = self.to_config()
         cfg[name] = {**cfg.get(name, {}), **params}

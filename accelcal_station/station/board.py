@@ -1,36 +1,33 @@
-"""The station: calibrate one board end to end (DESIGN.md, "The flow of one board").
+"""The steps of one board's calibration (DESIGN.md, "The flow of one board"); the flow that runs
+them for 1..N boards at 1..K temperatures is flow.StationFlow.
 
-identify -> plan poses -> for each pose: jig.present, gated capture -> fit -> judge ->
-closed-loop verify (fresh captures, calibration applied in software) -> judge again ->
-burn NVM (A/B slot, read-back) -> re-verify through the calibration read back from
-NVM -> record everything in the store.  A board that fails is never written.
+plan poses -> for each pose: jig.present, gated capture -> fit -> judge -> closed-loop verify
+(fresh captures, calibration applied in software) -> judge again -> burn NVM (A/B slot,
+read-back) -> re-verify through the calibration read back from NVM.  A board that fails is
+never written.  Each board of a run has its own BoardSteps (its sample counts, its mounting,
+its operator's waiting); the flow opens it, starts and records its run.
 """
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from contextlib import ExitStack
-from typing import Any
 
 import numpy as np
 
-from ..acceptance.reasons import Reason, codes
+from ..acceptance.reasons import Reason
 from ..acceptance.rules import judge
 from ..calibration import Calibration
 from ..conventions import mount_matrix, reference_to_angles
-from ..drivers.base import Capture, Clock, Driver, Identity
-from ..drivers.factory import make_driver
-from ..errors import AccelcalError, ConfigError, DeviceError, NVMError, UnderdeterminedError
+from ..drivers.base import Capture, Clock, Driver
+from ..errors import ConfigError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
-from ..fixtures.factory import clock_of, make_jig
-from ..fixtures.operator_jig import OperatorAbort, PoseSkipped
+from ..fixtures.operator_jig import PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
+from ..jsontypes import JsonObject
 from ..models.fitting import fit_session
 from ..nvm.writer import BurnError, CalibrationWriter, holds_text
 from ..session import PoseRecord, Session
-from ..store.outbox import open_store
-from ..store.runs import Store
 from .capture import (
     GatedCapture,
     MountMismatch,
@@ -40,40 +37,37 @@ from .capture import (
     with_mounting,
 )
 from .offset_trim import trim_change, trim_failure, trim_record, trimmed
-from .recording import record_result, start_args
-from .report import RunReport, Timing, fit_figures
+from .report import RunReport, Timing
 from .self_test_step import self_test_step
-from .settings import StationConfig, configured_rate
+from .settings import StationConfig
 from .verdict import Stage
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
+# a burn step as it happens: (event kind, the burn outcome's record)
+BurnLog = Callable[[str, JsonObject], None]
 
 
-class Station:
-    """Runs the flow for one board at a time."""
+class BoardSteps:
+    """The steps of one board's run, and what they count (samples, the operator's waiting)."""
 
-    def __init__(self, config: StationConfig, *, operator: str | None = None, serial: str | None = None,
-                 lot: str | None = None, echo: Callable[[str], None] = print,
-                 progress: Callable[[str, float], None] | None = None, driver: Driver | None = None,
-                 ui: OperatorUI | None = None) -> None:
+    def __init__(self, config: StationConfig, *, echo: Callable[[str], None] = print,
+                 progress: Callable[[str, float], None] | None = None, ui: OperatorUI | None = None,
+                 live_reading: bool = True) -> None:
         self.cfg = config
         self.ui = ui  # the operator's front end (terminal or browser), for an operator jig
-        self.driver = driver  # default: built from the config's device section at run()
-        self.operator = operator
-        self.serial_override = serial
-        self.lot = lot
         self.echo = echo
         self.progress = progress
+        self.live_reading = live_reading  # an operator jig may show the live reading (FlowPolicy.live_reading)
         # how the chip sits on the board: the jig and the words place the board, the chip reads mount @ r
+        # (a panel refuses device.mount: panel_config.panel_sections)
         self.mount = mount_matrix(config.device.mount) if config.device.mount else np.eye(3)
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # (pose's r in board axes, mean reading) so far
         self.samples_read = 0
         self.samples_used = 0
         self.operator_wait_s = 0.0
-        self.run_id: int | None = None  # the store's run, once started (a shift names an aborted board's run)
-        # records each burn step in the store as it happens (set by run(); a panel's boards have none)
-        self._burn_log: Callable[[str, dict[str, Any]], None] | None = None
+        # records each burn step in the store as it happens (FlowPolicy.burn_steps_recorded)
+        self.burn_log: BurnLog | None = None
 
     # -- pieces -----------------------------------------------------------------------
     def _capture_sink(self, label: str) -> CaptureSink:
@@ -90,14 +84,15 @@ class Station:
             return counts.mean(axis=0) / driver.counts_per_g, still
         return live
 
-    def _capture_pose(self, driver: Driver, jig: Jig, pose: PoseSpec, floor: np.ndarray | None,
+    def capture_pose(self, driver: Driver, jig: Jig, pose: PoseSpec, floor: np.ndarray | None,
                       report: RunReport) -> tuple[GatedCapture, int]:
         """Present and capture one pose; operator jigs retry a wrong pose, others fail."""
         s = self.cfg.capture
         attempts = 0
         while True:
             attempts += 1
-            jig.present(pose, self._live(driver, StillnessGate(s, floor)) if jig.shows_live_reading else None)
+            live = jig.shows_live_reading and self.live_reading
+            jig.present(pose, self._live(driver, StillnessGate(s, floor)) if live else None)
             bar = self._capture_sink(f"  capturing {pose.name}")
             try:
                 gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar)
@@ -118,7 +113,7 @@ class Station:
                 self.echo(f"  {ev}")
             return gc, attempts - 1
 
-    def _defer(self, jig: Jig, pose: PoseSpec, e: WrongPose, deferred: WrongPose | None) -> WrongPose:
+    def defer(self, jig: Jig, pose: PoseSpec, e: WrongPose, deferred: WrongPose | None) -> WrongPose:
         """A wrong pose another mounting may explain, on a jig that cannot place again: keep its reading
         and go on to the next pose, which may single the mounting out (a MountMismatch); else raise."""
         if e.hint is None or jig.places_again or isinstance(e, MountMismatch):
@@ -127,7 +122,7 @@ class Station:
         self.echo(f"  {e}")
         return deferred or e
 
-    def _chip_angles(self, pose: PoseSpec) -> tuple[float, float]:
+    def chip_angles(self, pose: PoseSpec) -> tuple[float, float]:
         """The AN4399 angles of what the chip is expected to read (the pose's own unless device.mount
         turns it), so that files and the store re-derive the same reference from them."""
         if np.array_equal(self.mount, np.eye(3)):
@@ -139,79 +134,7 @@ class Station:
         """A wrong pose, with the mounting that fits it and the poses captured so far (capture.with_mounting)."""
         return with_mounting(self._seen, pose.reference_g, e, self.mount, self.cfg.capture.pose_tolerance_deg)
 
-    # -- the run ---------------------------------------------------------------------
-    def run(self) -> RunReport:
-        """Open the device and start its run, calibrate it (``_calibrate``: at room temperature
-        here, at each set point of a thermal plan in thermal.py), then time and record the run."""
-        cfg = self.cfg
-        rep = self._new_report()
-        wall0 = time.perf_counter()
-        if self.driver is None:
-            self.driver = make_driver(cfg.device)
-        driver = self.driver
-        with open_store(cfg.store_file, cfg.outbox) as store:
-            store.mark_stale_interrupted()
-            self._announce(rep)
-            with ExitStack() as stack:
-                ident = self._open_device(stack, driver, store)
-                rep.serial = self.serial_override or ident.serial
-                rep.chip = ident.chip
-                clock = self._device_clock(driver)
-                clock0 = clock.now() if clock is not None else None
-                run_id = store.start_run(device_serial=rep.serial, chip=ident.chip, station_id=cfg.station_id,
-                                         operator=self.operator, lot=self.lot, config_text=cfg.text,
-                                         model=cfg.model, units="counts", counts_per_g=driver.counts_per_g)
-                rep.run_id = self.run_id = run_id
-                self._burn_log = lambda kind, data, r=run_id: store.record_burn(r, kind, data)
-                records: list[PoseRecord] = []
-                retries: list[int] = []
-                session = Session(records, units="counts", counts_per_g=driver.counts_per_g, device=rep.serial)
-                if self._self_test(store, run_id, driver, rep):
-                    self._calibrate(store, run_id, driver, clock, session, retries, rep)
-                rep.timing = self._timing(driver, clock, clock0, wall0)
-                self._finish(store, run_id, session, retries, rep)
-        return rep
-
-    def _new_report(self) -> RunReport:
-        cfg = self.cfg
-        return RunReport(station_id=cfg.station_id, model=cfg.model, design=cfg.design, store=str(cfg.store_file))
-
-    def _announce(self, rep: RunReport) -> None:
-        """The safe default limits in use, said and kept with the run's events."""
-        line = self.cfg.limits.defaults_line()
-        if line:
-            self.echo(line)
-            rep.events.append(line)
-
-    def _device_clock(self, driver: Driver) -> Clock | None:
-        """The clock the device runs on (a simulated board's); None: the wall (hardware)."""
-        return clock_of(driver)
-
-    def _open_device(self, stack: ExitStack, driver: Driver, store: Store) -> Identity:
-        """Open, identify and configure the device (closed when ``stack`` is); one that fails is recorded."""
-        try:
-            stack.enter_context(driver)  # opening a port that nobody answers on is recorded too
-            ident = driver.identify()
-            driver.configure(*configured_rate(self.cfg.device))
-        except AccelcalError as e:
-            self._record_unreachable(store, e)
-            raise
-        return ident
-
-    def _self_test(self, store: Store, run_id: int, driver: Driver, rep: RunReport) -> bool:
-        """The self-test step of a run (:meth:`self_test_step`); a device fault ends the run FAIL with its code,
-        any other error or Ctrl-C interrupts it.  True: the poses may follow."""
-        try:
-            return self.self_test_step(driver, rep)
-        except DeviceError as e:
-            rep.record(Stage.FAULT, Reason(e.reason_code, f"during the self-test: {e}"))
-            self.echo(f"FAIL: {e} (self-test)")
-            return False
-        except (AccelcalError, KeyboardInterrupt) as e:
-            why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else f"self-test: {e}"
-            store.interrupt_run(run_id, why, status="interrupted" if isinstance(e, KeyboardInterrupt) else "error")
-            raise
-
+    # -- the steps -------------------------------------------------------------------
     def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
         """The chip's built-in self-test once, before the poses (station/self_test_step.py).  True: the
         poses may follow.  Device errors propagate."""
@@ -219,79 +142,24 @@ class Station:
         self.samples_read += read
         return ok
 
-    def _calibrate(self, store: Store, run_id: int, driver: Driver, clock: Clock | None, session: Session,
-                   retries: list[int], rep: RunReport) -> None:
-        """Poses, fit, verdict, verification and burn with the configured jig; an error or Ctrl-C
-        closes the run (interrupted or error) with the poses captured so far, then propagates."""
-        design = get_design(self.cfg.design)
-        records = session.poses
-        assert isinstance(records, list), "a station's session is the list its poses are captured into"
-        try:
-            with make_jig(self.cfg.jig, driver, self.ui) as jig:
-                jig.mount = self.mount
-                try:
-                    self._run_poses(driver, jig, design, records, retries, rep)
-                    self._fit_judge_write(driver, jig, session, rep)
-                finally:
-                    self.operator_wait_s = jig.wait_s
-        except (DeviceError, NVMError) as e:
-            # a port that closed, a NACK storm, reads that do not settle: the run ends FAIL with the
-            # typed reason and the poses captured so far (recorded by _finish), exit 1, never 'running'
-            code = e.reason_code
-            rep.record(Stage.FAULT, Reason(code, str(e)))
-            rep.events.append(f"run ended by a {code} fault after {len(records)} poses: {e}")
-            self.echo(f"FAIL: {e} ({len(records)} poses captured)")
-        except (AccelcalError, KeyboardInterrupt) as e:
-            why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else str(e)
-            store.interrupt_run(run_id, why, session=session if records else None,
-                                status="interrupted" if isinstance(e, (OperatorAbort, KeyboardInterrupt))
-                                else "error", retries=retries if records else None,
-                                nvm_outcome=rep.nvm)
-            raise
-
-    def _finish(self, store: Store, run_id: int, session: Session, retries: list[int], rep: RunReport) -> None:
-        """Record the finished run: poses, calibration, verdict, NVM outcome and the figures."""
-        cfg = self.cfg
-        finish = {"session": session, "calibration": rep.calibration,
-                  "verdict": rep.verdict, "reasons": rep.reasons, "nvm_outcome": rep.nvm,
-                  "fit_summary": {**fit_figures(rep.fit), "reason_codes": codes(rep.reasons),
-                                  "measured": rep.measured,
-                                  "verify_error_max_mg": rep.verify_error_max_mg,
-                                  "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim,
-                                  "self_test": rep.self_test,
-                                  "design": cfg.design, "skipped": rep.skipped,
-                                  "timing": rep.timing, "nvm_verified": rep.nvm_verified},
-                  "model": cfg.model, "retries": retries, "limits": cfg.limits.values}
-        # a store that fails now: the run closed as error where it can, the result kept in the outbox,
-        # and one error saying what was burned and what was recorded (recording.py)
-        record_result(store, run_id, start_args(cfg, rep, self.operator, self.lot, session.counts_per_g), finish,
-                      cfg.outbox)
-
-    def _record_unreachable(self, store: Store, err: AccelcalError) -> None:
-        """A device that does not answer still leaves a record: status error, with the reason."""
-        cfg = self.cfg
-        rid = store.start_run(device_serial=self.serial_override, station_id=cfg.station_id,
-                              operator=self.operator, lot=self.lot, config_text=cfg.text, model=cfg.model)
-        store.interrupt_run(rid, f"device: {err}", status="error")
-
-    def _run_poses(self, driver: Driver, jig: Jig, design: list[PoseSpec], records: list[PoseRecord],
+    def run_poses(self, driver: Driver, jig: Jig, design: list[PoseSpec], records: list[PoseRecord],
                    retries: list[int], rep: RunReport) -> None:
         floor = None
         deferred: WrongPose | None = None  # a wrong pose another mounting may explain: read on to tell which
         for i, pose in enumerate(design):
             self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
             try:
-                gc, tries = self._capture_pose(driver, jig, pose, floor, rep)
+                gc, tries = self.capture_pose(driver, jig, pose, floor, rep)
             except PoseSkipped:
                 rep.skipped.append(pose.name)
                 self.echo("  skipped")
                 continue
             except WrongPose as e:
-                deferred = self._defer(jig, pose, e, deferred)
+                deferred = self.defer(jig, pose, e, deferred)
                 continue
             floor = gc.floor_counts
             c = gc.capture
-            pitch, roll = self._chip_angles(pose)
+            pitch, roll = self.chip_angles(pose)
             records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, self.mount @ pose.reference_g,
                                       pitch, roll, c.temp_c, c.dropped, c.t_start, c.t_end))
             retries.append(tries + gc.recaptures)
@@ -305,15 +173,15 @@ class Station:
         if deferred is not None:
             raise deferred
 
-    def _fit_judge_write(self, driver: Driver, jig: Jig, session: Session, rep: RunReport) -> None:
-        cal = self._fit_judge(driver, session, rep)
+    def fit_judge_write(self, driver: Driver, jig: Jig, session: Session, rep: RunReport) -> None:
+        cal = self.fit_judge(driver, session, rep)
         if cal is None:
             return
-        checks = self._verify_captures(driver, jig, rep)
-        if self._judge_verified(cal, checks, rep):
-            self._burn(driver, cal, checks, rep)
+        checks = self.verify_captures(driver, jig, rep)
+        if self.judge_verified(cal, checks, rep):
+            self.burn(driver, cal, checks, rep)
 
-    def _fit_judge(self, driver: Driver, session: Session, rep: RunReport) -> Calibration | None:
+    def fit_judge(self, driver: Driver, session: Session, rep: RunReport) -> Calibration | None:
         """Fit and judge before any verification capture; the calibration to verify, or None (FAIL)."""
         cfg = self.cfg
         try:
@@ -338,7 +206,7 @@ class Station:
                 rep.calibration = cal
         return cal
 
-    def _judge_verified(self, cal: Calibration, checks: list[Check], rep: RunReport) -> bool:
+    def judge_verified(self, cal: Calibration, checks: list[Check], rep: RunReport) -> bool:
         """Judge again with the verification captures (when there are any); True: PASS so far."""
         if checks:
             assert rep.fit is not None, "verification captures are judged after the fit"
@@ -352,7 +220,7 @@ class Station:
         rep.record(Stage.JUDGED)
         return True
 
-    def _burn(self, driver: Driver, cal: Calibration, checks: list[Check], rep: RunReport) -> None:
+    def burn(self, driver: Driver, cal: Calibration, checks: list[Check], rep: RunReport) -> None:
         """Burn NVM, read back, and check the calibration read back does what the fitted one did."""
         cfg = self.cfg
         if not cfg.nvm_write:
@@ -362,7 +230,7 @@ class Station:
             rep.record(Stage.NVM, Reason("nvm", "the device has no NVM to write; set nvm.write: false"))
             return
         writer = CalibrationWriter(nvm, cfg.slot_size)
-        log = self._burn_log or (lambda kind, data: None)
+        log = self.burn_log or (lambda kind, data: None)
         try:
             # recorded (committed) before the first byte: a crash mid-burn still says what may be on the board
             outcome = writer.burn(cal, rep.serial, cfg.station_id,
@@ -448,7 +316,7 @@ class Station:
         self.samples_read += gc.samples_read
         return gc.capture
 
-    def _verify_captures(self, driver: Driver, jig: Jig, rep: RunReport) -> list[Check]:
+    def verify_captures(self, driver: Driver, jig: Jig, rep: RunReport) -> list[Check]:
         """Fresh captures at the verification poses: (mean counts, expected g, temp)."""
         n = self.cfg.verify_poses
         if n == 0:
@@ -457,7 +325,7 @@ class Station:
         out = []
         for pose in poses[:n]:
             self.echo(f"verify {pose.name}")
-            gc, _ = self._capture_pose(driver, jig, pose, None, rep)
+            gc, _ = self.capture_pose(driver, jig, pose, None, rep)
             out.append((gc.capture.mean_counts, self.mount @ pose.reference_g, gc.capture.temp_c))
         return out
 
@@ -466,7 +334,7 @@ class Station:
                 for c, ref, t in checks]
         return float(np.max(errs)) * 1e3
 
-    def _timing(self, driver: Driver, clock: Clock | None, clock0: float | None, wall0: float) -> Timing:
+    def timing(self, driver: Driver, clock: Clock | None, clock0: float | None, wall0: float) -> Timing:
         odr = driver.odr_hz
         t: Timing = {
             "odr_hz": odr,

@@ -2,6 +2,8 @@
 trims measured"): what the station's trim step records and how it shifts the calibration."""
 from __future__ import annotations
 
+from typing import TypedDict
+
 import numpy as np
 
 from ..calibration import Calibration
@@ -19,8 +21,22 @@ def trim_change(expected_g: np.ndarray, before: Capture, after: Capture, counts_
     return measured, sigma, allowed, np.abs(measured - expected_g) <= allowed
 
 
+class OffsetTrimRecord(TypedDict):
+    """The trim written to the offset registers (LSB) and before, its unit and the change expected
+    and measured per axis (mg), the tolerance it was held to (mg) and whether each axis agreed."""
+
+    lsb: list[int]
+    previous_lsb: list[int]
+    lsb_mg: float
+    expected_mg: list[float]
+    measured_mg: list[float]
+    sigma_mg: list[float]
+    tolerance_mg: list[float]
+    ok: list[bool]
+
+
 def trim_record(total: np.ndarray, old: np.ndarray, lsb_g: float, expected_g: np.ndarray, measured_g: np.ndarray,
-                sigma_g: np.ndarray, tol_g: np.ndarray, ok: np.ndarray) -> dict[str, object]:
+                sigma_g: np.ndarray, tol_g: np.ndarray, ok: np.ndarray) -> OffsetTrimRecord:
     """The run record's ``offset_trim``: registers written and before, the change expected and measured (mg)."""
     return {"lsb": total.tolist(), "previous_lsb": old.astype(int).tolist(), "lsb_mg": lsb_g * 1e3,
             "expected_mg": (expected_g * 1e3).tolist(), "measured_mg": (measured_g * 1e3).tolist(),

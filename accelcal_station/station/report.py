@@ -4,11 +4,13 @@ outcome and the verdict is made from them in one place (verdict.py ``run_verdict
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal, TypedDict
+from typing import Literal, TypedDict
 
 from ..acceptance.reasons import Reason, codes
 from ..calibration import Calibration
+from ..jsontypes import JsonObject
 from ..models.result import FitResult
+from .offset_trim import OffsetTrimRecord
 from .verdict import Outcome, RunVerdict, Stage, run_verdict
 
 
@@ -48,6 +50,128 @@ class Timing(TypedDict, total=False):
     clock: Literal["real", "virtual"]
 
 
+class FitFigures(TypedDict, total=False):
+    """The fit's scalar figures as the store keeps them, g (report list/export columns)."""
+
+    residual_rms_g: float
+    residual_max_g: float
+    crossval_rms_g: float | None
+    crossval_by_orientation_rms_g: float | None
+    condition_number: float
+
+
+class SetPointRecord(TypedDict):
+    """A set point as the run records it (SetPointResult.to_dict)."""
+
+    set_point_c: float
+    role: str
+    temp_source: str
+    soak_s: float
+    board_temp_c: float | None
+    air_temp_c: float | None
+    sampling_floor_s: float
+    poses_s: float
+    poses: int
+    fit: dict[str, float | list[float]] | None
+    verdict: str | None
+    reasons: list[Reason]
+    verify_error_max_mg: float | None
+    without_table_error_max_mg: float | None
+    t_start_s: float
+    t_soaked_s: float | None
+    t_end_s: float | None
+
+
+class VerifyRow(TypedDict):
+    """The table checked at one verification set point: its largest error, mg, and the error of
+    the single calibration nearest the reference temperature, for comparison."""
+
+    set_point_c: float
+    board_temp_c: float
+    error_max_mg: float
+    without_table_error_max_mg: float
+    without_table_calibration_c: float
+    limit_mg: float | None
+    within_limit: bool
+    without_table_within_limit: bool
+
+
+class TableVerdict(TypedDict):
+    """The temperature table's verdict before writing (every set point's fit and the verification)."""
+
+    verdict: str
+    reasons: list[str]
+
+
+class TableSummary(TypedDict, total=False):
+    """The table written: its temperatures (C), its interpolation and its verdict."""
+
+    temps_c: list[float]
+    method: str
+    verdict: str
+    reasons: list[str]
+
+
+class PanelOfPlan(TypedDict):
+    """The panel a thermal plan's board was calibrated on."""
+
+    panel_id: str | None
+    boards: int
+
+
+class ThermalSummary(TypedDict, total=False):
+    """A thermal plan's summary, as its run report and the store keep it."""
+
+    set_points_c: list[float]
+    verify_set_points_c: list[float]
+    method: str
+    soak: dict[str, float]  # the soak rule (thermal_plan.SoakRule)
+    temp_source: str | None
+    visits: list[SetPointRecord]
+    table: TableSummary | None
+    verify: list[VerifyRow]
+    panel: PanelOfPlan | None
+
+
+class RunReportJson(TypedDict):
+    """A board's run as `accelcal run --json` prints it (RunReport.to_dict): W, V (g) and Gamma of the
+    calibration written, the fit's residuals (mg), what was measured, burned and captured, the timing."""
+
+    run_id: int | None
+    serial: str
+    chip: str
+    station_id: str
+    verdict: str
+    reasons: list[str]
+    reason_codes: list[str]
+    model: str
+    design: str
+    W: list[list[float]] | None
+    V: list[float] | None
+    Gamma: list[float] | None
+    residual_rms_mg: float | None
+    crossval_rms_mg: float | None
+    held: list[JsonObject]  # terms held at nominal (models.held.Held.to_json)
+    measured: dict[str, float]
+    verify_error_max_mg: float | None
+    nvm: JsonObject | None
+    nvm_verified: bool
+    offset_trim_lsb: list[int] | None
+    offset_trim: OffsetTrimRecord | None
+    self_test: dict[str, object] | None  # drivers.self_test.SelfTestResult.to_json
+    poses: list[PoseSummary]
+    skipped: list[str]
+    events: list[str]
+    timing: Timing
+    store: str
+
+
+class ThermalRunReportJson(RunReportJson):
+    """A thermal plan's board: its run and the plan's summary."""
+
+    thermal: ThermalSummary
+
+
 @dataclass
 class RunReport:
     """What one run did; ``to_dict`` is the `accelcal run --json` object."""
@@ -62,11 +186,11 @@ class RunReport:
     fit: FitResult | None = None
     measured: dict[str, float] = field(default_factory=dict)
     verify_error_max_mg: float | None = None
-    nvm: dict[str, Any] | None = None
+    nvm: JsonObject | None = None  # the burn's outcome (nvm.writer.BurnOutcome.to_dict)
     nvm_verified: bool = False
     offset_trim_lsb: list[int] | None = None
-    offset_trim: dict[str, Any] | None = None  # the trim written and its measured change (board.py _trim_offsets)
-    self_test: dict[str, Any] | None = None  # the chip's self-test (drivers/self_test.py SelfTestResult.to_json)
+    offset_trim: OffsetTrimRecord | None = None  # the trim written and its measured change (board.py _trim_offsets)
+    self_test: dict[str, object] | None = None  # the chip's self-test (drivers/self_test.py SelfTestResult.to_json)
     calibration: Calibration | None = None  # what was (or would be) written: the fit's, trim applied
     poses: list[PoseSummary] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
@@ -96,12 +220,12 @@ class RunReport:
     def reasons(self) -> list[Reason]:
         return list(self.final.reasons)
 
-    def plan_summary(self) -> dict[str, Any] | None:
+    def plan_summary(self) -> ThermalSummary | None:
         """The summary of a plan beyond one calibration at room temperature (a thermal plan's table
-        and set points: thermal.py ThermalRunReport), recorded with the run; None here."""
+        and set points: thermal_table.ThermalRunReport), recorded with the run; None here."""
         return None
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> RunReportJson:
         f, c = self.fit, self.calibration
         final = self.final
         return {
@@ -121,7 +245,7 @@ class RunReport:
         }
 
 
-def fit_figures(fit: FitResult | None) -> dict[str, float | None]:
+def fit_figures(fit: FitResult | None) -> FitFigures:
     """The fit's scalar figures as the store keeps them (report list/export columns)."""
     if fit is None:
         return {}

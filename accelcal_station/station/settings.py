@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+
+from pydantic import BaseModel
 
 from ..acceptance.rules import Limits
 from ..config.checks import load_yaml_text
@@ -29,6 +30,7 @@ from ..config.sections import default_config_path, with_port
 from ..errors import ConfigError
 from ..fixtures.designs import get_design
 from ..models.fitting import check_model
+from ..store.heartbeat import HEARTBEAT_S
 from ..store.location import outbox_of, store_path, store_target
 from .capture import CaptureSettings
 
@@ -88,7 +90,7 @@ class StationConfig:
                    _web_token(sc.web), sc.logging,
                    _web_token(sc.web, read=True))
 
-    def with_sections(self, **sections: Any) -> StationConfig:
+    def with_sections(self, **sections: BaseModel) -> StationConfig:
         """This configuration with some sections replaced by ones already validated (a benchmark's
         panel of N boards, a jig without moves), each marked as given."""
         return replace(self, schema=self.schema.model_copy(update=sections))
@@ -112,6 +114,11 @@ class StationConfig:
     def is_thermal(self) -> bool:
         """A thermal plan: ``thermal`` or ``chamber`` given (the flow refuses one without the other)."""
         return self.schema.thermal is not None or self.schema.chamber is not None
+
+    @property
+    def heartbeat_s(self) -> float:
+        """``store.heartbeat_s``: seconds between a running run's heartbeats (store/heartbeat.py)."""
+        return self.schema.store.heartbeat_s if self.schema.store is not None else HEARTBEAT_S
 
     @property
     def outbox(self) -> Path | None:

@@ -1,8 +1,8 @@
 """A shift at the station: one process calibrates board after board (`accelcal run --shift`).
 
 Each board starts with its serial (scanned: a barcode reader types it and Enter; blank lines are
-ignored), is calibrated exactly as `accelcal run` calibrates one board (board.Station, or the
-thermal station), and is a normal run in the store.  End of input at the serial prompt (or the
+ignored), is calibrated exactly as `accelcal run` calibrates one board (the one flow:
+flow.make_flow), and is a normal run in the store.  End of input at the serial prompt (or the
 page's End shift) ends the shift with its tally.  A device that is gone between boards is one line
 and a bounded wait for it to come back, never a traceback.
 """
@@ -12,14 +12,14 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict
 
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, DataError, DeviceError, NVMError
 from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import OperatorUI
 from ..i18n import N_, Translate, reason_title
-from .board import Station
+from .flow import StationFlow, make_flow
 from .identity import check_serial
 from .report import RunReport
 from .settings import StationConfig
@@ -36,6 +36,17 @@ class DeviceGone(DeviceError):
     """The device stayed away longer than the shift waits for it."""
 
 
+class BoardOutcomeJson(TypedDict):
+    """A board of the shift as `run --shift --json` prints one that did not finish, and as the summary lists it."""
+
+    serial: str
+    run_id: int | None
+    verdict: str
+    reason_codes: list[str]
+    reasons: list[str]
+    retest: bool
+
+
 @dataclass(frozen=True)
 class BoardOutcome:
     """One board of the shift: its serial, run, verdict (PASS, FAIL, ABORTED, ERROR) and reason codes."""
@@ -47,9 +58,18 @@ class BoardOutcome:
     messages: tuple[str, ...]
     retest: bool  # this serial was already calibrated earlier in the shift
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> BoardOutcomeJson:
         return {"serial": self.serial, "run_id": self.run_id, "verdict": self.verdict,
                 "reason_codes": list(self.reason_codes), "reasons": list(self.messages), "retest": self.retest}
+
+
+# The shift's end as `run --shift --json` prints it (kind "shift") and the operator page shows it: its
+# boards by verdict (pass, fail, aborted, error), the first-pass yield (0..1), the failing reason codes
+# (functional form: "pass" is a keyword)
+ShiftSummary = TypedDict("ShiftSummary", {
+    "kind": str, "station_id": str | None, "started_utc": str, "ended_utc": str, "ended_by": str, "boards": int,
+    "serials": int, "pass": int, "fail": int, "aborted": int, "error": int, "first_pass_yield": float | None,
+    "reasons_by_code": dict[str, int], "runs": list[BoardOutcomeJson]})
 
 
 @dataclass
@@ -70,7 +90,7 @@ class ShiftTally:
         self.boards.append(b)
         return b
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> ShiftSummary:
         verdicts = Counter(b.verdict for b in self.boards)
         firsts = [b for b in self.boards if not b.retest]
         fpy = None if not firsts else sum(b.verdict == "PASS" for b in firsts) / len(firsts)
@@ -86,7 +106,7 @@ def _utc(t: float) -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
 
 
-def summary_lines(s: dict[str, Any], tr: Translate = str) -> list[str]:
+def summary_lines(s: ShiftSummary, tr: Translate = str) -> list[str]:
     """The shift's end for the operator's terminal, in the operator's language (``tr``)."""
     fpy = "-" if s["first_pass_yield"] is None else f"{100 * s['first_pass_yield']:.1f} %"
     out = [tr("shift {station} {start} to {end} (UTC), ended by {why}").format(
@@ -143,14 +163,10 @@ def wait_for_device(cfg: StationConfig, say: Callable[[str], None], wait_s: floa
 
 
 def board_station(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None,
-                  echo: Callable[[str], None], ui: OperatorUI) -> Station:
-    """The station that calibrates one board as `accelcal run` does (thermal when the config plans
-    temperatures)."""
-    if cfg.is_thermal:
-        from .thermal import ThermalStation
-
-        return ThermalStation(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui)
-    return Station(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui)
+                  echo: Callable[[str], None], ui: OperatorUI) -> StationFlow:
+    """The flow that calibrates one board as `accelcal run` does (at each set point when the config
+    plans temperatures)."""
+    return make_flow(cfg, operator=operator, serial=serial, lot=lot, echo=echo, ui=ui)
 
 
 # what the front end does with each board as it ends: its outcome, and its report when it finished
@@ -184,7 +200,7 @@ def run_shift(cfg: StationConfig, operator: str | None, lot: str | None, ui: Ope
             on_start(serial)
         station = board_station(cfg, operator, serial, lot, echo, ui)
         try:
-            rep = station.run()
+            rep = station.run()[0]
         except KeyboardInterrupt:
             on_board(tally.add(serial, station.run_id, "ABORTED", [("aborted", "interrupted (Ctrl-C)")]), None)
             tally.ended_by = "Ctrl-C"

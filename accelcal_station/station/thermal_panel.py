@@ -1,12 +1,12 @@
 """A thermal plan over a panel: every board of the panel captured at each pose at each set point.
 
-The panel sits in one chamber on one jig (panel.py builds the boards, the jig and captures
-a pose on every board at once; thermal.py gives the plan, the soak rule and each board's
-fit, temperature table, verdicts, burn and read-back).  At each set point the soak holds
-when every board's temperature (its die's; the chamber air for a chip without a sensor)
-is stable (thermal.soak_until); then the pose design runs once for the whole panel.  Each
-board gets its own per-temperature fits and table, verified at the unused set points, its
-own burn with read-back and its own run in the store, all sharing one ``panel_id``.
+The panel sits in one chamber on one jig (panel.Panel captures a pose on every board at once;
+thermal_table.BoardPlan gives each board's fits, temperature table, verdicts, burn and
+read-back).  At each set point the soak holds when every board's temperature (its die's; the
+chamber air for a chip without a sensor) is stable (thermal_plan.soak_until); then the pose
+design runs once for the whole panel.  Each board gets its own per-temperature fits and table,
+verified at the unused set points, its own burn with read-back and its own run in the store,
+all sharing one ``panel_id``.
 
 A board that fails (a NACK, a wrong face, its temperature leaving the capture band, a fit
 beyond its limits) is named with its own reason and dropped; it never stops the others.
@@ -17,104 +17,73 @@ runs on the first board's clock and every clock is brought to the latest after e
 """
 from __future__ import annotations
 
-import contextlib
 import time
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
 from ..acceptance.reasons import Reason
+from ..config.schema import ChamberSection
 from ..drivers.base import Clock
-from ..errors import AccelcalError, NVMError, PortLostError
 from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.factory import board_of, clock_of, sync_clocks
-from ..fixtures.operator_jig import OperatorAbort
 from ..instruments.chamber import Chamber, ChamberStatus
 from ..instruments.factory import make_chamber
-from ..session import PoseRecord, Session
-from ..store.runs import Store
+from ..session import PoseRecord
 from .capture import GatedCapture
-from .panel import PanelBoard, PanelStation, make_panel_jig
-from .settings import StationConfig
-from .thermal import Groups, SetPointResult, ThermalRunReport, ThermalStation
-from .thermal_plan import ChamberFault, WallClock, soak_until
+from .panel import PanelBoard, PanelTiming
+from .policy import FlowView
+from .thermal_plan import ChamberFault, ThermalPlan, WallClock, check_alarms, soak_until, standby
+from .thermal_table import BoardPlan, SetPointResult, poses_for
 from .verdict import Stage
 
 
-class ThermalPanelStation(PanelStation):
-    """Runs a thermal plan for every board of the configured panel (module docstring)."""
+class ThermalPanel:
+    """The panel's part of a thermal plan: its shared soaks and captures, its clock and its time."""
 
-    board_station = ThermalStation
-    board_report = ThermalRunReport
-
-    def __init__(self, config: StationConfig, **kw: Any) -> None:
-        super().__init__(config, **kw)
-        single = ThermalStation(config)  # the same checks as a single board: thermal: and chamber:, no offset trim
-        self.plan, self.chamber_section = single.plan, single.chamber_section
+    def __init__(self, plan: ThermalPlan, chamber_section: ChamberSection, of: Callable[[PanelBoard], BoardPlan],
+                 flow: FlowView) -> None:
+        self.plan, self.chamber_section, self.flow = plan, chamber_section, flow
+        self.of = of  # each board's part of the plan (thermal.ThermalConditions.of)
+        self.echo = flow.echo
         self.soak_s = 0.0
         self.floor_s = 0.0  # the panel's sampling floor: per pose, the longest board's averaged samples / ODR
-        self.groups: dict[int, Groups] = {}
         self.clock: Clock = WallClock()  # the panel's clock and its start, set when the boards are open
         self.t0 = 0.0
 
-    # -- the run (PanelStation.run, with the chamber's set points as the conditions) ---------
-    ending_faults = (PortLostError, NVMError)  # as the thermal station: a lost port or unsettled NVM
-
-    def _calibrate(self, boards: list[PanelBoard]) -> None:
-        for b in boards:
-            self.groups[b.index] = {}
+    def calibrate(self, boards: list[PanelBoard]) -> None:
         live = [b for b in boards if b.active]
-        clock = self.clock = self._clock(live)
+        clock = self.clock = next((c for c in (clock_of(b.driver) for b in live) if c is not None), None) \
+            or WallClock()
         self.t0 = clock.now()
         if live:
             self._in_chamber(live, clock)
-
-    def _timing(self, boards: list[PanelBoard], wall0: float) -> None:
-        self._timing_thermal(boards, self.clock, self.t0, wall0)
 
     def _in_chamber(self, live: list[PanelBoard], clock: Clock) -> None:
         sims = [board_of(b.driver) for b in live]
         # every board of the panel sits in the same chamber air (coupled by the factory)
         with make_chamber(self.chamber_section, sims[0], others=sims[1:]) as chamber, \
-                (self.jig or make_panel_jig(self.cfg.jig, live, self.ui)) as jig:
+                self.flow.panel.make_jig(live) as jig:
             try:
                 self._visit_all(live, chamber, jig, clock)
             except ChamberFault as e:
                 self._chamber_fault(live, chamber, e)
                 return
             except BaseException:
-                _standby(chamber)
+                standby(chamber)
                 raise
         for b in live:
             if b.active:
-                _station(b)._fit_table_burn(b.driver, self.groups[b.index], b.rep)
+                self.of(b).fit_table_burn(b.driver, b.rep)
                 b.cal = b.rep.calibration
 
     def _chamber_fault(self, live: list[PanelBoard], chamber: Chamber, e: ChamberFault) -> None:
-        _standby(chamber)
+        standby(chamber)
         self.echo(f"FAIL: chamber: {e} (every board; nothing burned)")
         for b in live:
             b.rep.record(Stage.CHAMBER, Reason("chamber", str(e)))
 
-    def _interrupted(self, store: Store, boards: list[PanelBoard], e: BaseException) -> None:
-        why = "operator aborted" if isinstance(e, OperatorAbort) else (
-            "interrupted" if isinstance(e, KeyboardInterrupt) else str(e))
-        stopped = isinstance(e, (OperatorAbort, KeyboardInterrupt))
-        for b in boards:
-            if b.rep.run_id is None:
-                continue
-            session = None
-            if b.records:  # the calibration poses it had are kept, as for a single board
-                session = Session(b.records, units="counts", counts_per_g=b.driver.counts_per_g,
-                                  device=b.rep.serial)
-            store.interrupt_run(b.rep.run_id, f"{why} ({_where(b)})", session=session,
-                                status="interrupted" if stopped else "error",
-                                retries=b.retries if b.records else None, nvm_outcome=b.rep.nvm)
-
     # -- set points ------------------------------------------------------------------------
-    def _clock(self, live: list[PanelBoard]) -> Clock:
-        return next((c for c in (clock_of(b.driver) for b in live) if c is not None), None) or WallClock()
-
     def _sync(self, boards: list[PanelBoard]) -> None:
         """Bring every simulated board's clock to the latest: the panel shares one chamber's time."""
         sync_clocks([b.driver for b in boards])
@@ -128,12 +97,11 @@ class ThermalPanelStation(PanelStation):
             self.echo(f"[set point {i + 1}/{len(visits)}] {sp:g} C ({role}), {len(active)} boards")
             res = {b.index: SetPointResult(sp, role, t_start_s=clock.now()) for b in active}
             for b in active:
-                _station(b).results.append(res[b.index])
+                self.of(b).results.append(res[b.index])
             chamber.set_point(sp)
             self._soak(active, chamber, clock, res)
-            poses = _station(active[0])._poses_for(role)
-            self._capture_set_point(active, chamber, jig, clock, poses, res)
-        _standby(chamber)
+            self._capture_set_point(active, chamber, jig, clock, poses_for(self.flow.cfg, role), res)
+        standby(chamber)
 
     def _soak(self, active: list[PanelBoard], chamber: Chamber, clock: Clock,
               res: dict[int, SetPointResult]) -> None:
@@ -147,8 +115,7 @@ class ThermalPanelStation(PanelStation):
 
         sp = next(iter(res.values())).set_point_c
         try:
-            soak_s, temps, air_c, now = soak_until(self.plan.soak, sp, chamber, clock, read,
-                                                   _station(active[0])._check_alarms, self.echo)
+            soak_s, temps, air_c, now = soak_until(self.plan.soak, sp, chamber, clock, read, check_alarms, self.echo)
         except ChamberFault as e:
             self._soaked(active, res, e.soak_s)  # a soak that timed out still counts as soak time
             raise
@@ -161,7 +128,7 @@ class ThermalPanelStation(PanelStation):
         self.soak_s += soak_s
         for k, b in enumerate(active):
             r = res[b.index]
-            _station(b).soak_s += soak_s
+            self.of(b).soak_s += soak_s
             r.soak_s, r.air_temp_c, r.t_soaked_s = soak_s, air_c, now
             r.board_temp_c = None if temps is None else float(temps[k])
         self._sync(active)
@@ -173,11 +140,10 @@ class ThermalPanelStation(PanelStation):
         for k, pose in enumerate(poses):
             self.echo(f"  [{k + 1}/{len(poses)}] {pose.name}")
             todo = [b for b in active if b.active]
-            caps = self._present_and_capture(todo, jig, pose, {b.index: b.floor for b in todo})
+            caps = self.flow.panel.present_and_capture(todo, jig, pose, {b.index: b.floor for b in todo})
             self._sync(todo)
             st = chamber.status()
-            _station(todo[0])._check_alarms(st, f"during the capture of {pose.name} at {sp:g} C; "
-                                            "the capture is discarded")
+            check_alarms(st, f"during the capture of {pose.name} at {sp:g} C; the capture is discarded")
             if caps:
                 self.floor_s += max(gc.capture.n / todo[0].driver.odr_hz for gc in caps.values())
             for b in todo:
@@ -202,60 +168,35 @@ class ThermalPanelStation(PanelStation):
         b.floor = gc.floor_counts
         rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, pose.reference_g,
                          pose.pitch_deg, pose.roll_deg, temp, c.dropped, c.t_start, c.t_end)
-        self.groups[b.index].setdefault(sp, []).append(rec)
+        self.of(b).groups.setdefault(sp, []).append(rec)
         if res.role == "calibrate":  # the run's session: calibration poses, kept if the run is interrupted
             b.records.append(rec)
             b.retries.append(gc.recaptures)
-        b.station.samples_read += gc.samples_read
-        b.station.samples_used += c.n
+        b.steps.samples_read += gc.samples_read
+        b.steps.samples_used += c.n
         b.rep.poses.append({"pose": rec.name, "set_point_c": sp, "role": res.role, "temp_c": temp, "n": c.n,
                             "sem_mg": (c.sem_counts / b.driver.counts_per_g * 1e3).tolist(),
                             "retries": gc.recaptures})
         res.poses += 1
 
     # -- report ----------------------------------------------------------------------------
-    def _timing_thermal(self, boards: list[PanelBoard], clock: Clock, t0: float, wall0: float) -> None:
+    def timing(self, boards: list[PanelBoard], wall0: float) -> None:
         """Each board's split as a single board reports it, and the panel's: the boards share the soak
         and are captured at once, so the per-board figure is the panel's time / boards."""
+        clock, t0 = self.clock, self.t0
         opened = [b for b in boards if b.open_]
         self._sync(opened)  # the burns ran on each board's own clock (own EEPROM): the panel waits for the last
         for b in opened:
-            st, rep = _station(b), _report(b)
-            rep.timing = st._thermal_timing(b.driver, clock, t0, wall0)
-            rep.timing["boards"] = len(boards)
-            rep.thermal = {**st._summary(rep), "panel": {"panel_id": self.panel_id, "boards": len(boards)}}
-            rep.events.extend(st.report_events)
+            b.rep.timing = self.of(b).timing(b.driver, clock, t0, wall0)
+            b.rep.timing["boards"] = len(boards)
         total = clock.now() - t0
         n = len(boards)
         rest = total - self.soak_s - self.floor_s
-        self.timing = {"boards": n, "panel_time_s": total, "soak_s": self.soak_s, "sampling_floor_s": self.floor_s,
-                       "rest_s": rest, "board_time_s": total,
-                       "per_board": {"soak_s": self.soak_s / n, "sampling_floor_s": self.floor_s / n,
-                                     "rest_s": rest / n, "board_time_s": total / n},
-                       "clock": "real" if clock.realtime else "virtual",
-                       "host_compute_s": time.perf_counter() - wall0}
-        self.timing["per_board_s"] = total / n
-
-
-def _standby(chamber: Chamber) -> None:
-    with contextlib.suppress(AccelcalError):
-        chamber.standby()  # leave the chamber safe; the original error is what matters
-
-
-def _station(b: PanelBoard) -> ThermalStation:
-    """A board's own station: a ThermalStation (ThermalPanelStation.board_station)."""
-    assert isinstance(b.station, ThermalStation)
-    return b.station
-
-
-def _report(b: PanelBoard) -> ThermalRunReport:
-    """A board's report: a ThermalRunReport (ThermalPanelStation.board_report)."""
-    assert isinstance(b.rep, ThermalRunReport)
-    return b.rep
-
-
-def _where(b: PanelBoard) -> str:
-    res = _station(b).results
-    if not res:
-        return "before the first set point"
-    return f"at set point {res[-1].set_point_c:g} C, {sum(r.poses for r in res)} poses captured"
+        timing: PanelTiming = {
+            "boards": n, "panel_time_s": total, "soak_s": self.soak_s, "sampling_floor_s": self.floor_s,
+            "rest_s": rest, "board_time_s": total,
+            "per_board": {"soak_s": self.soak_s / n, "sampling_floor_s": self.floor_s / n,
+                          "rest_s": rest / n, "board_time_s": total / n},
+            "clock": "real" if clock.realtime else "virtual", "host_compute_s": time.perf_counter() - wall0}
+        self.flow.panel.timing = timing
+        timing["per_board_s"] = total / n

@@ -7,6 +7,7 @@ MMA8451) has stayed within ``tolerance_c`` (max - min) for ``hold_s``; else ``ti
 """
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -148,3 +149,19 @@ class WallClock:
             time.sleep(dt)
 
 
+
+
+def check_alarms(st: ChamberStatus, context: str) -> None:
+    """ChamberFault when the chamber's door is open, an alarm is up or it left constant mode."""
+    if st.door_open:
+        raise ChamberFault("door open", f"door opened {context} (alarm {st.alarm_text()})")
+    if st.alarms:
+        raise ChamberFault("alarm", f"alarm {st.alarm_text()} {context}")
+    if st.mode != "CONSTANT":
+        raise ChamberFault("stopped", f"the chamber left constant mode ({st.mode}) {context}")
+
+
+def standby(chamber: Chamber) -> None:
+    """Leave the chamber safe; the original error is what matters."""
+    with contextlib.suppress(AccelcalError):
+        chamber.standby()

@@ -12,7 +12,7 @@ from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import TypedDict
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from ..calibration import PARAM_NAMES, param_vector
 from ..errors import DataError
 from ..fileguard.cells import safe_row
 from .liveness import STALE
-from .records import RunRecord, StoreError, iso, reasons_of
+from .records import RunDocument, RunRecord, RunRow, StoreError, iso, reasons_of
 from .rowcheck import DamagedRow
 from .schema import POSE_COLS, STATUSES
 
@@ -41,12 +41,12 @@ def write_export(path: str | Path, text: str) -> None:
         raise StoreError(f"{path}: cannot write export ({e.strerror})") from None
 
 
-def runs_json(data: list[dict[str, Any]]) -> str:
+def runs_json(data: list[RunDocument]) -> str:
     """The JSON export document of runs given as RunRecord.to_dict()."""
     return json.dumps({"schema": "accelcal.runs", "version": 1, "runs": data}, indent=1) + "\n"
 
 
-def _run_rows(recs: Sequence[RunRecord]) -> Iterator[list[Any]]:
+def _run_rows(recs: Sequence[RunRecord]) -> Iterator[list[object]]:
     """One row per run, fit figures and calibration parameters flattened."""
     yield [*_RUN_CSV_COLS, *_FIT_SCALARS, *PARAM_NAMES]
     for rec in recs:
@@ -58,9 +58,9 @@ def _run_rows(recs: Sequence[RunRecord]) -> Iterator[list[Any]]:
         yield [*(d[c] for c in _RUN_CSV_COLS), *(fit.get(k) for k in _FIT_SCALARS), *params]
 
 
-def _pose_rows(recs: Sequence[RunRecord]) -> Iterator[list[Any]]:
+def _pose_rows(recs: Sequence[RunRecord]) -> Iterator[list[object]]:
     """One row per pose, with its run's device, lot, verdict and units."""
-    def v(a: np.ndarray | None) -> list[Any]:
+    def v(a: np.ndarray | None) -> list[object]:
         return [None] * 3 if a is None else list(a)
 
     yield ["run_id", "device_serial", "lot", "verdict", "units", *POSE_COLS]
@@ -71,7 +71,7 @@ def _pose_rows(recs: Sequence[RunRecord]) -> Iterator[list[Any]]:
                    p.t_start, p.t_end, retries]
 
 
-_CSV_TABLES: dict[str, Callable[[Sequence[RunRecord]], Iterator[list[Any]]]] = {"runs": _run_rows,
+_CSV_TABLES: dict[str, Callable[[Sequence[RunRecord]], Iterator[list[object]]]] = {"runs": _run_rows,
                                                                                  "poses": _pose_rows}
 
 
@@ -117,7 +117,7 @@ def _stats(values: np.ndarray) -> list[Stats]:
             for a, b, c, d in zip(mean, std, lo, hi, strict=True)]
 
 
-def _distributions(done: Sequence[dict[str, Any]]) -> tuple[dict[str, Stats] | None, dict[str, Stats]]:
+def _distributions(done: Sequence[RunRow]) -> tuple[dict[str, Stats] | None, dict[str, Stats]]:
     """Parameter and fit-figure statistics over complete runs (those with a calibration / fit)."""
     cals = [c for c in (r["calibration"] for r in done) if c]
     params = None
@@ -132,7 +132,7 @@ def _distributions(done: Sequence[dict[str, Any]]) -> tuple[dict[str, Stats] | N
     return params, fit_stats
 
 
-def summarize(checked: Sequence[tuple[dict[str, Any], list[DamagedRow]]]) -> LotSummary:
+def summarize(checked: Sequence[tuple[RunRow, list[DamagedRow]]]) -> LotSummary:
     """Counts, pass rate, failure reasons and parameter distributions of checked run rows
     (rowcheck.check_row: JSON parsed, damaged values None; ``damaged_rows`` names them).
 

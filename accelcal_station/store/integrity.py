@@ -41,7 +41,7 @@ def check_rows(db: Database, tables: Iterable[Table]) -> list[DamagedRow]:
         try:
             db.begin(write=False)
             for row in db.execute(select(table)).mappings():
-                found += check_row(table.name, dict(row))[1]
+                found += check_row(table.name, dict(row)).damage
                 n += 1
         except SQLAlchemyError as e:
             found.append(DamagedRow(table.name, f"after row {n}", "*", f"cannot read on ({_first_line(e)})"))

@@ -5,19 +5,27 @@ run on that host marks it interrupted (Store.mark_stale_interrupted).
 A run row holds the host name and pid of the process that started it (Store.start_run).  On
 the host that wrote it, the run is stale when that pid does not exist, or when the process that
 has the pid now started after the run did (the pid was reused; Linux: /proc/PID/stat field 22,
-clock ticks after boot, plus /proc/stat btime).  A run started on another host cannot be
-judged from here and keeps its stored status.  Nothing is written: reading never changes the store.
+clock ticks after boot, plus /proc/stat btime).  On any host (schema 5), the run is stale when its
+station's heartbeat (store/heartbeat.py: ``heartbeat_at`` refreshed every ``heartbeat_s``) is more
+than ``STALE_BEATS`` beats old by this host's clock.  A run with no heartbeat (recorded before
+schema 5) started on another host cannot be judged from here and keeps its stored status.
+Nothing is written: reading never changes the store.
 """
 from __future__ import annotations
 
+import math
 import os
 import socket
+import time
 from collections.abc import Mapping
 from functools import cache
-from typing import Any
+from typing import TypeGuard
 
 STALE = "stale"
 PID_START_SLACK_S = 2.0  # /proc start times are whole clock ticks and btime whole seconds
+# beats missed before a run reads stale: a busy server or a long busy-timeout wait delays a beat or
+# two, never ten (at the default 30 s: five minutes of silence)
+STALE_BEATS = 10
 
 
 def pid_alive(pid: int) -> bool:
@@ -51,12 +59,29 @@ def process_started_at(pid: int) -> float | None:
         return None
 
 
-def stale_reason(row: Mapping[str, Any], host: str | None = None) -> str | None:
+def _silent(row: Mapping[str, object], now: float) -> str | None:
+    """Why a run on another host is stale by its heartbeat; None when it beat recently or has none."""
+    beat, every = row.get("heartbeat_at"), row.get("heartbeat_s")
+    if not _number(beat) or not _number(every) or every <= 0:
+        return None
+    if now - beat <= STALE_BEATS * every:
+        return None
+    return (f"no heartbeat from the station on {row.get('host')} for {now - beat:.0f} s "
+            f"(it beats every {every:g} s)")
+
+
+def _number(v: object) -> TypeGuard[float]:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def stale_reason(row: Mapping[str, object], host: str | None = None, now: float | None = None) -> str | None:
     """Why the checked ``runs`` row ``row`` (status running) has no live station process; None when it
     may be alive or cannot be judged here (module doc)."""
     pid, started = row.get("pid"), row.get("started_at")
-    if row.get("status") != "running" or row.get("host") != (host or socket.gethostname()):
+    if row.get("status") != "running":
         return None
+    if row.get("host") != (host or socket.gethostname()):
+        return _silent(row, time.time() if now is None else now)
     if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
         return None
     if not pid_alive(pid):
@@ -67,9 +92,8 @@ def stale_reason(row: Mapping[str, Any], host: str | None = None) -> str | None:
     return None
 
 
-def mark_stale(row: dict[str, Any]) -> dict[str, Any]:
-    """``row`` with status ``stale`` and the reason when its station process is gone (stale_reason)."""
+def live_status(row: Mapping[str, object]) -> tuple[str | None, str | None] | None:
+    """The status and reason a checked ``runs`` row reads with: (``stale``, why) when its station process
+    is gone (stale_reason), None when it reads as stored."""
     why = stale_reason(row)
-    if why is not None:
-        row["status"], row["status_reason"] = STALE, why
-    return row
+    return None if why is None else (STALE, why)

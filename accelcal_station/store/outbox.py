@@ -19,12 +19,13 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from .database import describe_target, is_url
+from .heartbeat import HEARTBEAT_S
 from .location import store_identity
 from .records import StoreError, StoreUnreachable
 from .runs import Store
@@ -38,21 +39,44 @@ def default_outbox() -> Path:
     return Path(base) / "accelcal" / "outbox.sqlite"
 
 
-def open_store(target: str | Path, outbox: str | Path | None = None) -> Store:
-    """The store a station records into: a Store for a file, a LineStore for a server URL."""
+def open_store(target: str | Path, outbox: str | Path | None = None, heartbeat_s: float = HEARTBEAT_S) -> Store:
+    """The store a station records into: a Store for a file, a LineStore for a server URL; its
+    running runs beat every ``heartbeat_s`` seconds (store/heartbeat.py)."""
     if is_url(target) and not str(target).startswith("sqlite:///"):
-        return LineStore(str(target), Path(outbox) if outbox is not None else default_outbox())
-    return Store(target)
+        return LineStore(str(target), Path(outbox) if outbox is not None else default_outbox(),
+                         heartbeat_s=heartbeat_s)
+    return Store(target, heartbeat_s=heartbeat_s)
+
+
+class _Start(TypedDict):
+    """Store.start_run's keywords as a run of this process gave them (its start time fixed)."""
+
+    device_serial: str | None
+    chip: str | None
+    station_id: str | None
+    operator: str | None
+    lot: str | None
+    config_text: str | None
+    config_hash: str | None
+    model: str | None
+    units: str | None
+    counts_per_g: float | None
+    gravity_mps2: float | None
+    started_at: float
+    panel_id: str | None
+
+
+Step = Callable[[Store, int], None]  # one write of a run, made on a store under that store's id of the run
 
 
 @dataclass
 class _Run:
     """What a run of this process wrote, to start it again in the outbox."""
 
-    start: dict[str, Any]
+    start: _Start
     server_id: int | None = None
     local_id: int | None = None
-    steps: list[tuple[str, tuple[Any, ...], dict[str, Any]]] = field(default_factory=list)
+    steps: list[Step] = field(default_factory=list)
 
 
 @dataclass
@@ -68,7 +92,8 @@ def waiting(local: Store, target_identity: str) -> list[int]:
     for rec in local.runs():
         kinds = {e["kind"] for e in rec.events}
         meta = next((e["data"] for e in rec.events if e["kind"] == "outbox"), None)
-        if isinstance(meta, dict) and meta.get("target") == target_identity and "synced" not in kinds:
+        if isinstance(meta, dict) and meta.get("target") == target_identity and "synced" not in kinds \
+                and rec.id is not None:
             out.append(rec.id)
     return out
 
@@ -84,7 +109,8 @@ def sync(server: Store, local: Store) -> SyncResult:
             res.running.append(rid)
             continue
         meta = next(e["data"] for e in rec.events if e["kind"] == "outbox")
-        sid, wrote = server.replay_run(rec, meta.get("server_run_id"),
+        named = meta.get("server_run_id") if isinstance(meta, dict) else None  # a dict: waiting() read it
+        sid, wrote = server.replay_run(rec, named if isinstance(named, int) and not isinstance(named, bool) else None,
                                        f"kept in the local outbox while the line database was unreachable "
                                        f"(outbox run {rid}); replayed")
         local.log_event(rid, "synced", f"replayed into {ident} as run {sid}", {"target": ident, "run_id": sid})
@@ -98,16 +124,16 @@ class LineStore(Store):
     finish_run, interrupt_run, mark_stale_interrupted) never fail for that reason.  Reads
     go to the server, or to the outbox while the server is away."""
 
-    def __init__(self, target: str, outbox: Path, timeout_s: float = 10.0):
+    def __init__(self, target: str, outbox: Path, timeout_s: float = 10.0, heartbeat_s: float = HEARTBEAT_S):
         # not Store.__init__: the server may be away
-        self.target, self.outbox_path = target, outbox
+        self.target, self.outbox_path, self.heartbeat_s = target, outbox, float(heartbeat_s)
         self.path = describe_target(target)
         self._primary: Store | None = None
         self._local: Store | None = None
         self._journal: dict[int, _Run] = {}
         self._timeout_s = timeout_s
         try:
-            self._primary = Store(target, timeout_s)
+            self._primary = Store(target, timeout_s, heartbeat_s=heartbeat_s)
             self._db = self._primary._db
         except StoreUnreachable as e:
             self._fail(e)
@@ -128,7 +154,7 @@ class LineStore(Store):
 
     def _outbox(self) -> Store:
         if self._local is None:
-            self._local = Store(self.outbox_path, self._timeout_s)
+            self._local = Store(self.outbox_path, self._timeout_s, heartbeat_s=self.heartbeat_s)
         return self._local
 
     def _fail(self, e: StoreError) -> None:
@@ -162,31 +188,37 @@ class LineStore(Store):
             run.local_id = local.start_run(**run.start)
             local.log_event(run.local_id, "outbox", f"line database {self.path} unreachable; kept locally",
                             {"target": self.identity, "server_run_id": run.server_id}, t=run.start["started_at"])
-            for op, args, kw in run.steps:
-                getattr(local, op)(run.local_id, *args, **kw)
+            for step in run.steps:
+                step(local, run.local_id)
         return run.local_id
 
-    def _write(self, handle: int, op: str, *args: Any, **kw: Any) -> None:
+    def _write(self, handle: int, step: Step) -> None:
         run = self._journal.get(handle)
         if run is None:
             raise StoreError(f"{self.path}: no run {handle} started by this station")
         if self._primary is not None and run.local_id is None and run.server_id is not None:
             try:
-                getattr(self._primary, op)(run.server_id, *args, **kw)
-                run.steps.append((op, args, kw))
+                step(self._primary, run.server_id)
+                run.steps.append(step)
                 return
             except StoreUnreachable as e:
                 self._fail(e)
-        getattr(self._outbox(), op)(self._to_local(run), *args, **kw)
-        run.steps.append((op, args, kw))
+        step(self._outbox(), self._to_local(run))
+        run.steps.append(step)
 
     # -- the station's writes ------------------------------------------------------------
-    def start_run(self, **kw: Any) -> int:  # Store.start_run's keywords
-        kw["started_at"] = time.time() if kw.get("started_at") is None else float(kw["started_at"])
-        run = _Run(kw)
+    def start_run(self, *, device_serial: str | None, chip: str | None = None, station_id: str | None = None,
+                  operator: str | None = None, lot: str | None = None, config_text: str | None = None,
+                  config_hash: str | None = None, model: str | None = None, units: str | None = None,
+                  counts_per_g: float | None = None, gravity_mps2: float | None = None,
+                  started_at: float | None = None, panel_id: str | None = None) -> int:
+        run = _Run({"device_serial": device_serial, "chip": chip, "station_id": station_id, "operator": operator,
+                    "lot": lot, "config_text": config_text, "config_hash": config_hash, "model": model,
+                    "units": units, "counts_per_g": counts_per_g, "gravity_mps2": gravity_mps2,
+                    "started_at": time.time() if started_at is None else float(started_at), "panel_id": panel_id})
         if self._primary is not None:
             try:
-                run.server_id = self._primary.start_run(**kw)
+                run.server_id = self._primary.start_run(**run.start)
                 self._journal[run.server_id] = run
                 return run.server_id
             except StoreUnreachable as e:
@@ -196,16 +228,18 @@ class LineStore(Store):
         return handle
 
     def record_burn(self, run_id: int, kind: str, outcome: Mapping[str, object], t: float | None = None) -> None:
-        self._write(run_id, "record_burn", kind, outcome, t=time.time() if t is None else t)
+        at = time.time() if t is None else t
+        self._write(run_id, lambda st, rid: st.record_burn(rid, kind, outcome, t=at))
 
-    def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None, t: float | None = None) -> None:
-        self._write(run_id, "log_event", kind, message, data, t=time.time() if t is None else t)
+    def log_event(self, run_id: int, kind: str, message: str = "", data: object = None, t: float | None = None) -> None:
+        at = time.time() if t is None else t
+        self._write(run_id, lambda st, rid: st.log_event(rid, kind, message, data, t=at))
 
     def finish_run(self, run_id: int, **kw: Any) -> None:  # Store.finish_run's keywords
-        self._write(run_id, "finish_run", **kw)
+        self._write(run_id, lambda st, rid: st.finish_run(rid, **kw))
 
-    def interrupt_run(self, run_id: int, reason: str, **kw: Any) -> None:
-        self._write(run_id, "interrupt_run", reason, **kw)
+    def interrupt_run(self, run_id: int, reason: str, **kw: Any) -> None:  # Store.interrupt_run's keywords
+        self._write(run_id, lambda st, rid: st.interrupt_run(rid, reason, **kw))
 
     def mark_stale_interrupted(self, max_age_s: float | None = None) -> list[int]:
         if self._primary is not None:

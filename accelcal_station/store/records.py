@@ -7,9 +7,10 @@ does not parse is damaged: its row is shown as damaged, never fatal.
 """
 from __future__ import annotations
 
+import copy
 import json
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any, NotRequired, TypedDict
 
@@ -18,9 +19,10 @@ import numpy as np
 from ..acceptance.reasons import Reason, codes
 from ..calibration import Calibration
 from ..errors import DataError
+from ..jsontypes import JsonObject, JsonValue
 from ..session import PoseRecord, Session
 from .database import Row
-from .rowcheck import DamagedRow, check_row, parse_json
+from .rowcheck import CheckedRow, DamagedRow, check_row, parse_json
 
 AXES = "xyz"
 
@@ -69,7 +71,7 @@ def is_damaged(text: str | None) -> bool:
     return False
 
 
-def load_or(text: str | None, default: Any) -> Any:
+def load_or(text: str | None, default: JsonValue) -> JsonValue:
     """A JSON column's value, or ``default`` when it is empty or damaged."""
     try:
         return default if text is None else parse_json(text)
@@ -77,7 +79,7 @@ def load_or(text: str | None, default: Any) -> Any:
         return default
 
 
-def to_json(x: Any) -> str | None:
+def to_json(x: object) -> str | None:
     """A JSON column's text (None stays NULL); NaN and infinity are refused."""
     return None if x is None else json.dumps(x, allow_nan=False)
 
@@ -92,27 +94,79 @@ def stored_reasons(text: str | None) -> list[Reason]:
     return reasons_of(load_or(text, []))
 
 
-def reasons_of(value: Any) -> list[Reason]:
+def reasons_of(value: JsonValue) -> list[Reason]:
     """The typed reasons of a checked (parsed) ``reasons`` value ([] when None)."""
     return [Reason.from_dict(x) for x in value] if isinstance(value, list) else []
 
 
-def pose_record(p: Row) -> PoseRecord:
-    """A ``poses`` row as the PoseRecord that was captured."""
+def pose_record(p: CheckedRow) -> PoseRecord:
+    """A checked ``poses`` row with no damage as the PoseRecord that was captured."""
     def vec(c: str) -> np.ndarray | None:
-        return None if p[f"{c}_x"] is None else np.array([p[f"{c}_{a}"] for a in AXES], dtype=float)
+        return None if p.value(f"{c}_x") is None else np.array([p.real(f"{c}_{a}") for a in AXES], dtype=float)
 
-    return PoseRecord(p["name"], np.array([p[f"mean_{a}"] for a in AXES], dtype=float), vec("std"), p["n"],
-                      vec("ref"), p["pitch_deg"], p["roll_deg"], p["temp_c"], p["dropped"], p["t_start"], p["t_end"])
+    return PoseRecord(p.text("name") or "", np.array([p.real(f"mean_{a}") for a in AXES], dtype=float), vec("std"),
+                      p.int("n"), vec("ref"), p.real("pitch_deg"), p.real("roll_deg"), p.real("temp_c"),
+                      p.int("dropped") or 0, p.real("t_start"), p.real("t_end"))
+
+
+class RunRow(TypedDict):
+    """A ``runs`` row checked (rowcheck): JSON columns parsed, a damaged value None (named in its damage)."""
+
+    id: int | None
+    started_at: float | None
+    finished_at: float | None
+    status: str | None
+    status_reason: str | None
+    device_serial: str | None
+    chip: str | None
+    station_id: str | None
+    operator: str | None
+    lot: str | None
+    config_hash: str | None
+    config_text: str | None
+    model: str | None
+    units: str | None
+    counts_per_g: float | None
+    gravity_mps2: float | None
+    verdict: str | None
+    reasons: list[JsonValue] | None
+    nvm_status: str | None
+    nvm_outcome: JsonObject | None
+    calibration: JsonObject | None
+    fit_summary: JsonObject | None
+    host: str | None
+    pid: int | None
+    panel_id: str | None
+    limits: dict[str, float] | None
+    heartbeat_at: float | None
+    heartbeat_s: float | None
+
+
+def run_row(raw: Row) -> tuple[RunRow, list[DamagedRow]]:
+    """A ``runs`` row read back, checked (rowcheck.check_row), and what is damaged in it."""
+    c = check_row("runs", raw)
+    t = c.text
+    row: RunRow = {
+        "id": c.int("id"), "started_at": c.real("started_at"), "finished_at": c.real("finished_at"),
+        "status": t("status"), "status_reason": t("status_reason"), "device_serial": t("device_serial"),
+        "chip": t("chip"), "station_id": t("station_id"), "operator": t("operator"), "lot": t("lot"),
+        "config_hash": t("config_hash"), "config_text": t("config_text"), "model": t("model"), "units": t("units"),
+        "counts_per_g": c.real("counts_per_g"), "gravity_mps2": c.real("gravity_mps2"), "verdict": t("verdict"),
+        "reasons": c.json_list("reasons"), "nvm_status": t("nvm_status"), "nvm_outcome": c.json_object("nvm_outcome"),
+        "calibration": c.json_object("calibration"), "fit_summary": c.json_object("fit_summary"), "host": t("host"),
+        "pid": c.int("pid"), "panel_id": t("panel_id"), "limits": c.numbers("limits"),
+        "heartbeat_at": c.real("heartbeat_at"), "heartbeat_s": c.real("heartbeat_s")}
+    return row, list(c.damage)
 
 
 class StoredEvent(TypedDict):
-    """A run's event as stored: when, what kind, its line and its data (a JSON value, or None)."""
+    """A run's event as stored: when, what kind, its line and its data (a JSON value, or None);
+    a damaged value reads as None."""
 
-    t: float
-    kind: str
-    message: str
-    data: Any  # JSON as logged: a burn's outcome, a capture's numbers, ...
+    t: float | None
+    kind: str | None
+    message: str | None
+    data: JsonValue  # JSON as logged: a burn's outcome, a capture's numbers, ...
 
 
 class StoredPose(TypedDict):
@@ -122,7 +176,7 @@ class StoredPose(TypedDict):
     pitch_deg: float | None
     roll_deg: float | None
     reference_g: list[float] | None
-    mean: list[float] | None
+    mean: list[float]
     std: list[float] | None
     n: int | None
     dropped: int
@@ -162,10 +216,10 @@ class RunSummary(TypedDict):
 class RunRecord:
     """One stored run; ``session()`` rebuilds the captured Session."""
 
-    id: int
-    started_at: float
+    id: int | None  # a damaged value reads as None (rowcheck), named in ``damage``
+    started_at: float | None
     finished_at: float | None
-    status: str
+    status: str | None
     status_reason: str | None
     device_serial: str | None
     chip: str | None
@@ -181,13 +235,15 @@ class RunRecord:
     verdict: str | None
     reasons: list[Reason]
     nvm_status: str | None
-    nvm_outcome: dict[str, Any] | None
-    calibration: dict[str, Any] | None
-    fit_summary: dict[str, Any] | None
+    nvm_outcome: JsonObject | None
+    calibration: JsonObject | None
+    fit_summary: JsonObject | None
     host: str | None
     pid: int | None
     panel_id: str | None = None  # the boards calibrated together on one jig
     limits: dict[str, float] | None = None  # the acceptance limits the run was judged by (schema 4)
+    heartbeat_at: float | None = None  # the station's last sign of life, unix s (schema 5; store/heartbeat.py)
+    heartbeat_s: float | None = None  # seconds between its heartbeats
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
     events: list[StoredEvent] = field(default_factory=list)
@@ -202,37 +258,98 @@ class RunRecord:
     def calibration_object(self) -> Calibration | None:
         return None if self.calibration is None else Calibration.from_dict(self.calibration, f"run {self.id}")
 
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["started_at_iso"], d["finished_at_iso"] = iso(self.started_at), iso(self.finished_at)
-        d["poses"] = [_pose_dict(p, r) for p, r in zip(self.poses, self.retries, strict=True)]
-        d["reasons"], d["reason_codes"] = [str(r) for r in self.reasons], codes(self.reasons)
-        d["damage"] = [x.to_dict() for x in self.damage]
-        return d
+    def to_dict(self) -> RunDocument:
+        """The run as ``report show --json`` and the JSON export give it."""
+        return {
+            "id": self.id, "started_at": self.started_at, "finished_at": self.finished_at, "status": self.status,
+            "status_reason": self.status_reason, "device_serial": self.device_serial, "chip": self.chip,
+            "station_id": self.station_id, "operator": self.operator, "lot": self.lot,
+            "config_hash": self.config_hash, "config_text": self.config_text, "model": self.model,
+            "units": self.units, "counts_per_g": self.counts_per_g, "gravity_mps2": self.gravity_mps2,
+            "verdict": self.verdict, "reasons": [str(r) for r in self.reasons], "nvm_status": self.nvm_status,
+            "nvm_outcome": copy.deepcopy(self.nvm_outcome), "calibration": copy.deepcopy(self.calibration),
+            "fit_summary": copy.deepcopy(self.fit_summary), "host": self.host, "pid": self.pid,
+            "panel_id": self.panel_id, "limits": None if self.limits is None else dict(self.limits),
+            "heartbeat_at": self.heartbeat_at, "heartbeat_s": self.heartbeat_s,
+            "poses": [_pose_dict(p, r) for p, r in zip(self.poses, self.retries, strict=True)],
+            "retries": list(self.retries), "events": copy.deepcopy(self.events), "damaged": list(self.damaged),
+            "damage": [x.to_dict() for x in self.damage], "started_at_iso": iso(self.started_at),
+            "finished_at_iso": iso(self.finished_at), "reason_codes": codes(self.reasons)}
 
 
-def build_record(run: dict[str, Any], damage: list[DamagedRow], pose_rows: list[Row],
+class RunDocument(TypedDict):
+    """A stored run in full (``RunRecord.to_dict``): the record's fields, its poses and events as
+    JSON, its damage, the times also as ISO 8601 and the reasons as text with their codes."""
+
+    id: int | None
+    started_at: float | None
+    finished_at: float | None
+    status: str | None
+    status_reason: str | None
+    device_serial: str | None
+    chip: str | None
+    station_id: str | None
+    operator: str | None
+    lot: str | None
+    config_hash: str | None
+    config_text: str | None
+    model: str | None
+    units: str | None
+    counts_per_g: float | None
+    gravity_mps2: float | None
+    verdict: str | None
+    reasons: list[str]
+    nvm_status: str | None
+    nvm_outcome: JsonObject | None
+    calibration: JsonObject | None
+    fit_summary: JsonObject | None
+    host: str | None
+    pid: int | None
+    panel_id: str | None
+    limits: dict[str, float] | None
+    heartbeat_at: float | None
+    heartbeat_s: float | None
+    poses: list[StoredPose]
+    retries: list[int]
+    events: list[StoredEvent]
+    damaged: list[str]
+    damage: list[dict[str, str]]  # DamagedRow.to_dict
+    started_at_iso: str | None
+    finished_at_iso: str | None
+    reason_codes: list[str]
+
+
+def build_record(run: RunRow, damage: list[DamagedRow], pose_rows: list[Row],
                  event_rows: list[Row]) -> RunRecord:
     """A RunRecord from a checked ``runs`` row and its raw pose and event rows (checked here:
     a damaged pose is left out of the session, a damaged event keeps what is readable)."""
     damage = list(damage)
-    rec = RunRecord(**{k: v for k, v in run.items() if k != "reasons"}, reasons=reasons_of(run["reasons"]),
-                    damaged=sorted({d.column for d in damage}))
+    rec = RunRecord(
+        id=run["id"], started_at=run["started_at"], finished_at=run["finished_at"], status=run["status"],
+        status_reason=run["status_reason"], device_serial=run["device_serial"], chip=run["chip"],
+        station_id=run["station_id"], operator=run["operator"], lot=run["lot"], config_hash=run["config_hash"],
+        config_text=run["config_text"], model=run["model"], units=run["units"], counts_per_g=run["counts_per_g"],
+        gravity_mps2=run["gravity_mps2"], verdict=run["verdict"], reasons=reasons_of(run["reasons"]),
+        nvm_status=run["nvm_status"], nvm_outcome=run["nvm_outcome"], calibration=run["calibration"],
+        fit_summary=run["fit_summary"], host=run["host"], pid=run["pid"], panel_id=run["panel_id"],
+        limits=run["limits"], heartbeat_at=run["heartbeat_at"], heartbeat_s=run["heartbeat_s"],
+        damaged=sorted({d.column for d in damage}))
     for raw in pose_rows:
-        p, bad = check_row("poses", raw)
-        damage += bad
-        if not bad:
+        p = check_row("poses", raw)
+        damage += p.damage
+        if not p.damage:
             rec.poses.append(pose_record(p))
-            rec.retries.append(p["retries"])
+            rec.retries.append(p.int("retries") or 0)
     for raw in event_rows:
-        e, bad = check_row("events", raw)
-        damage += bad
-        rec.events.append({"t": e["t"], "kind": e["kind"], "message": e["message"], "data": e["data"]})
+        e = check_row("events", raw)
+        damage += e.damage
+        rec.events.append({"t": e.real("t"), "kind": e.text("kind"), "message": e.text("message"),
+                           "data": e.json("data")})
     rec.damage = damage
     return rec
 
 
-def run_summary(r: dict[str, Any], damage: list[DamagedRow], pose_count: int) -> RunSummary:
+def run_summary(r: RunRow, damage: list[DamagedRow], pose_count: int) -> RunSummary:
     """The listing entry of a checked ``runs`` row (no poses)."""
     reasons = reasons_of(r["reasons"])
     fit = r["fit_summary"] if isinstance(r["fit_summary"], dict) else {}
@@ -242,7 +359,7 @@ def run_summary(r: dict[str, Any], damage: list[DamagedRow], pose_count: int) ->
             "chip": r["chip"], "station_id": r["station_id"], "operator": r["operator"], "lot": r["lot"],
             "model": r["model"], "verdict": r["verdict"], "reasons": [str(x) for x in reasons],
             "reason_codes": codes(reasons), "nvm_status": r["nvm_status"], "pose_count": pose_count,
-            "panel_id": r["panel_id"], "limits": r.get("limits"),
+            "panel_id": r["panel_id"], "limits": r["limits"],
             "residual_rms_g": rms if isinstance(rms, (int, float)) and not isinstance(rms, bool) else None}
     if damage:
         out["damaged"], out["damage"] = sorted({d.column for d in damage}), [d.to_dict() for d in damage]
@@ -250,9 +367,9 @@ def run_summary(r: dict[str, Any], damage: list[DamagedRow], pose_count: int) ->
 
 
 def _pose_dict(p: PoseRecord, retries: int) -> StoredPose:
-    def arr(a: np.ndarray | None) -> list[Any] | None:
+    def arr(a: np.ndarray | None) -> list[float] | None:
         return None if a is None else np.asarray(a).tolist()
 
     return {"name": p.name, "pitch_deg": p.pitch_deg, "roll_deg": p.roll_deg, "reference_g": arr(p.reference_g),
-            "mean": arr(p.mean), "std": arr(p.std), "n": p.n, "dropped": p.dropped, "temp_c": p.temp_c,
-            "t_start": p.t_start, "t_end": p.t_end, "retries": retries}
+            "mean": np.asarray(p.mean).tolist(), "std": arr(p.std), "n": p.n, "dropped": p.dropped,
+            "temp_c": p.temp_c, "t_start": p.t_start, "t_end": p.t_end, "retries": retries}

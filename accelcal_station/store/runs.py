@@ -24,7 +24,7 @@ import time as _time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Protocol
 
 from ..acceptance.reasons import Reason
 from ..calibration import Calibration
@@ -32,26 +32,30 @@ from ..errors import DataError
 from ..session import Session
 from . import exports, integrity, schema
 from .database import Database, describe_target, is_url
-from .liveness import STALE, mark_stale, stale_reason
+from .heartbeat import HEARTBEAT_S, Heartbeat
+from .liveness import STALE, live_status, stale_reason
 from .location import store_identity
 from .records import (
+    RunDocument,
     RunNotFound,
     RunRecord,
+    RunRow,
     RunSummary,
     StoreError,
     StoreUnreachable,
     build_record,
     opt,
+    run_row,
     run_summary,
-    timestamp,
     to_json,
 )
-from .rowcheck import DamagedRow, check_row
+from .rowcheck import DamagedRow
 
 if TYPE_CHECKING:
-    from sqlalchemy import ColumnElement, func, insert, select, update
+    from sqlalchemy import func, insert, select, update
     from sqlalchemy.exc import SQLAlchemyError
 
+    from . import filters as filters_sql
     from . import migrate, replay
     from .tables import events, poses, runs
 
@@ -61,9 +65,10 @@ log = logging.getLogger(__name__)
 def _load_sql() -> None:
     """SQLAlchemy, the tables, the migrations and replay, imported when a store is first opened,
     not when the CLI starts (importing SQLAlchemy takes about 0.4 s)."""
-    global func, insert, select, update, migrate, replay, events, poses, runs
+    global func, insert, select, update, filters_sql, migrate, replay, events, poses, runs
     from sqlalchemy import func, insert, select, update
 
+    from . import filters as filters_sql
     from . import migrate, replay
     from .tables import events, poses, runs
 
@@ -84,6 +89,17 @@ def store_error(e: BaseException, message: str, server: bool) -> StoreError:
     return StoreUnreachable(message) if lost and server else StoreError(message)
 
 
+class _HasDict(Protocol):
+    def to_dict(self) -> Mapping[str, object]: ...
+
+
+Outcome = _HasDict | Mapping[str, object]  # an NVM burn's outcome: nvm.writer.BurnOutcome or its dict
+
+
+def _outcome(o: Outcome | None) -> Mapping[str, object] | None:
+    return o if o is None or isinstance(o, Mapping) else o.to_dict()
+
+
 def _msg(e: BaseException) -> str:
     """The driver's own first line of a database error (SQLAlchemy wraps it in a long text)."""
     orig = getattr(e, "orig", None)
@@ -98,9 +114,14 @@ class Store:
     password (PostgreSQL), as messages name it.
     """
 
+    heartbeat_s: float = HEARTBEAT_S  # seconds between the running runs' heartbeats (store/heartbeat.py)
+    _heart: Heartbeat | None = None  # started by the first start_run
+    _beats = True  # the schema has the heartbeat columns
+
     def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True, upgrade: bool = True,
-                 read_only: bool = False):
+                 read_only: bool = False, heartbeat_s: float = HEARTBEAT_S):
         _load_sql()
+        self.heartbeat_s = float(heartbeat_s)
         SQLError = _sqlerror()
         name = describe_target(path)
         try:
@@ -131,6 +152,8 @@ class Store:
         self.close()
 
     def close(self) -> None:
+        if self._heart is not None:
+            self._heart.close()
         self._db.close()
 
     @property
@@ -195,6 +218,7 @@ class Store:
         if version == 0 and not create:  # a reader never writes a schema into a file it only reads
             raise StoreError(f"{self.path}: not an accelcal results store (no schema); nothing was written")
         target = schema.SCHEMA_VERSION  # read at each open, so a test can stop at an older version
+        self._beats = target >= 5  # runs.heartbeat_at/heartbeat_s exist from schema 5
         if version > target:
             raise StoreError(f"{self.path}: results store schema version {version} is newer than this "
                              f"station's {target}; upgrade accelcal-station")
@@ -224,15 +248,21 @@ class Store:
         """
         if config_hash is None and config_text is not None:
             config_hash = hashlib.sha256(config_text.encode()).hexdigest()
+        now = _time.time()
         with self._tx("start a run") as db:
             cur = db.execute(insert(runs).values(
-                started_at=_time.time() if started_at is None else float(started_at), status="running",
+                started_at=now if started_at is None else float(started_at), status="running",
                 device_serial=device_serial, chip=chip, station_id=station_id, operator=operator, lot=lot,
                 config_hash=config_hash, config_text=config_text, model=opt(model, str), units=units,
                 counts_per_g=opt(counts_per_g), gravity_mps2=opt(gravity_mps2), host=socket.gethostname(),
-                pid=os.getpid(), panel_id=panel_id))
+                pid=os.getpid(), panel_id=panel_id,
+                **({"heartbeat_at": now, "heartbeat_s": self.heartbeat_s} if self._beats else {})))
             key = cur.inserted_primary_key
             assert key is not None  # an INSERT of one row
+        if self._beats:
+            if self._heart is None:
+                self._heart = Heartbeat(self._db.target, self.heartbeat_s)
+            self._heart.add(int(key[0]))
         log.info("run %d started: board %s, station %s, lot %s", key[0], device_serial, station_id, lot)
         return int(key[0])
 
@@ -260,7 +290,7 @@ class Store:
             units=session.units, counts_per_g=opt(session.counts_per_g), gravity_mps2=opt(session.gravity_mps2)))
 
     def finish_run(self, run_id: int, *, session: Session, calibration: Calibration | None, verdict: str | None,
-                   reasons: Iterable[Reason] = (), nvm_outcome: Any = None,
+                   reasons: Iterable[Reason] = (), nvm_outcome: Outcome | None = None,
                    fit_summary: Mapping[str, object] | None = None,
                    model: str | None = None, retries: Sequence[int] | None = None,
                    finished_at: float | None = None, limits: dict[str, float] | None = None) -> None:
@@ -272,15 +302,14 @@ class Store:
         """
         if verdict is not None and verdict not in schema.VERDICTS:
             raise DataError(f"verdict {verdict!r}; allowed: PASS, FAIL")
-        if nvm_outcome is not None and hasattr(nvm_outcome, "to_dict"):
-            nvm_outcome = nvm_outcome.to_dict()
-        nvm_status = "none" if nvm_outcome is None else ("written" if nvm_outcome.get("ok") else "failed")
+        outcome = _outcome(nvm_outcome)
+        nvm_status = "none" if outcome is None else ("written" if outcome.get("ok") else "failed")
         with self._tx(f"record run {run_id}") as db:
             self._running(db, run_id)
             self._insert_poses(db, run_id, session, retries)
             cal = None if calibration is None else calibration.to_dict()
             try:
-                texts = [to_json([Reason.from_dict(r).to_dict() for r in reasons]), to_json(nvm_outcome),
+                texts = [to_json([Reason.from_dict(r).to_dict() for r in reasons]), to_json(outcome),
                          to_json(cal), to_json(fit_summary),
                          to_json(None if limits is None else {str(k): float(v) for k, v in limits.items()})]
             except (TypeError, ValueError) as e:
@@ -291,26 +320,31 @@ class Store:
                 verdict=verdict, reasons=texts[0], nvm_status=nvm_status, nvm_outcome=texts[1],
                 calibration=texts[2], fit_summary=texts[3], **({} if texts[4] is None else {"limits": texts[4]}),
                 **({} if model is None else {"model": model})))
+        self._stop_beating(run_id)
         log.info("run %d complete: %s, NVM %s", run_id, verdict or "no verdict", nvm_status)
 
     def interrupt_run(self, run_id: int, reason: str, *, session: Session | None = None,
                       status: str = "interrupted", retries: Sequence[int] | None = None,
-                      nvm_outcome: Any = None) -> None:
+                      nvm_outcome: Outcome | None = None) -> None:
         """Close a run as ``interrupted`` (or ``error``) with the poses captured so far, atomically."""
         if status not in ("interrupted", "error"):
             raise DataError(f"status {status!r}; allowed: interrupted, error")
-        if nvm_outcome is not None and hasattr(nvm_outcome, "to_dict"):
-            nvm_outcome = nvm_outcome.to_dict()
+        outcome = _outcome(nvm_outcome)
         # no outcome given: keep what record_burn wrote (a burn cut short stays 'burning')
-        nvm = {} if nvm_outcome is None else {"nvm_status": "written" if nvm_outcome.get("ok") else "failed",
-                                              "nvm_outcome": to_json(nvm_outcome)}
+        nvm = {} if outcome is None else {"nvm_status": "written" if outcome.get("ok") else "failed",
+                                          "nvm_outcome": to_json(outcome)}
         with self._tx(f"record run {run_id}") as db:
             self._running(db, run_id)
             if session is not None:
                 self._insert_poses(db, run_id, session, retries)
             db.execute(update(runs).where(runs.c.id == run_id).values(
                 status=status, status_reason=str(reason), finished_at=_time.time(), **nvm))
+        self._stop_beating(run_id)
         log.warning("run %d %s: %s", run_id, status, reason)
+
+    def _stop_beating(self, run_id: int) -> None:
+        if self._heart is not None:
+            self._heart.discard(run_id)
 
     def record_burn(self, run_id: int, kind: str, outcome: Mapping[str, object], t: float | None = None) -> None:
         """A burn as it happens, committed at once: ``nvm_burning`` (slot, generation, blob CRC)
@@ -326,7 +360,7 @@ class Store:
             db.execute(update(runs).where(runs.c.id == run_id).values(nvm_status=status,
                                                                       nvm_outcome=to_json(outcome)))
 
-    def log_event(self, run_id: int, kind: str, message: str = "", data: Any = None, t: float | None = None) -> None:
+    def log_event(self, run_id: int, kind: str, message: str = "", data: object = None, t: float | None = None) -> None:
         """Append an event (a rejected capture, an operator prompt, ...), committed at once."""
         with self._tx(f"log an event of run {run_id}") as db:
             db.execute(insert(events).values(run_id=run_id, t=_time.time() if t is None else float(t), kind=kind,
@@ -342,8 +376,8 @@ class Store:
         now = _time.time()
         stale: list[int] = []
         with self._tx("mark stale runs") as db:
-            for r in db.rows(select(runs.c.id, runs.c.status, runs.c.host, runs.c.pid, runs.c.started_at)
-                             .where(runs.c.status == "running")):
+            for r in db.rows(select(runs.c.id, runs.c.status, runs.c.host, runs.c.pid, runs.c.started_at,
+                                    runs.c.heartbeat_at, runs.c.heartbeat_s).where(runs.c.status == "running")):
                 old = max_age_s is not None and isinstance(r["started_at"], (int, float)) \
                     and now - r["started_at"] > max_age_s
                 if old or stale_reason(r) is not None:
@@ -354,52 +388,36 @@ class Store:
         return stale
 
     # -- queries ------------------------------------------------------------------------
-    def _where(self, device: Any = None, station: Any = None, lot: Any = None, operator: Any = None,
-               since: Any = None, until: Any = None, verdict: Any = None, status: Any = None, model: Any = None,
-               run_ids: Iterable[int] | None = None) -> list[ColumnElement[bool]]:
-        clauses: list[ColumnElement[bool]] = []
-        for col, v in ((runs.c.device_serial, device), (runs.c.station_id, station), (runs.c.lot, lot),
-                       (runs.c.operator, operator), (runs.c.verdict, verdict), (runs.c.status, status),
-                       (runs.c.model, model)):
-            if v is not None:
-                vals = [v] if isinstance(v, (str, int)) else list(v)
-                clauses.append(col.in_([str(x) for x in vals]))
-        for op, v, what in ((">=", since, "since"), ("<", until, "until")):
-            t = timestamp(v, what)
-            if t is not None:
-                clauses.append(runs.c.started_at >= t if op == ">=" else runs.c.started_at < t)
-        if run_ids is not None:
-            clauses.append(runs.c.id.in_([int(i) for i in run_ids]))
-        return clauses
-
-    def _runs(self, filters: dict[str, Any], limit: int | None = None) -> list[tuple[dict[str, Any], list[DamagedRow]]]:
+    def _runs(self, filters: Mapping[str, object], limit: int | None = None) -> list[tuple[RunRow, list[DamagedRow]]]:
         """The matching ``runs`` rows, each checked (rowcheck.check_row) with what is damaged in it.
         Status ``running`` or ``stale`` (both stored as running) is told apart as each row is read."""
         wanted = filters.get("status")
         live = wanted in ("running", STALE)
         if live:
             filters = {**filters, "status": "running"}
-        stmt = select(runs).where(*self._where(**filters)).order_by(runs.c.started_at, runs.c.id)
+        stmt = select(runs).where(*filters_sql.where(filters)).order_by(runs.c.started_at, runs.c.id)
         if limit is not None:
             stmt = stmt.limit(int(limit))
         try:
-            checked = [check_row("runs", r) for r in self._db.rows(stmt)]
+            out = [run_row(r) for r in self._db.rows(stmt)]
         except _sqlerror() as e:
             raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
-        out = [(mark_stale(r), damage) for r, damage in checked]  # running, its process gone: stale
+        for r, _ in out:  # running, its process gone: stale
+            if (stale := live_status(r)) is not None:
+                r["status"], r["status_reason"] = stale
         return [x for x in out if x[0]["status"] == wanted] if live else out
 
-    def list_runs(self, limit: int | None = None, **filters: Any) -> list[RunSummary]:
+    def list_runs(self, limit: int | None = None, **filters: object) -> list[RunSummary]:
         """Run summaries (no poses) matching filters: device, station, lot, operator, since,
         until, verdict, status, model (a value or a list of values), run_ids.  A run whose row
         is damaged has ``damaged`` (its columns) and ``damage`` (typed ``damaged_row`` reasons)."""
         with self._snapshot():
             per_run = self._db.rows(select(poses.c.run_id, func.count().label("n")).group_by(poses.c.run_id))
-            counts: dict[Any, int] = {r["run_id"]: r["n"] for r in per_run}
+            counts: dict[object, int] = {r["run_id"]: r["n"] for r in per_run}  # as stored (a damaged id too)
             rows = self._runs(filters, limit)
         return [run_summary(r, damage, counts.get(r["id"], 0)) for r, damage in rows]
 
-    def _record(self, r: dict[str, Any], damage: list[DamagedRow]) -> RunRecord:
+    def _record(self, r: RunRow, damage: list[DamagedRow]) -> RunRecord:
         rid = r["id"]
         pose_rows = self._db.rows(select(poses).where(poses.c.run_id == rid).order_by(poses.c.idx))
         event_rows = self._db.rows(select(events).where(events.c.run_id == rid).order_by(events.c.id))
@@ -412,12 +430,12 @@ class Store:
                 raise RunNotFound(f"{self.path}: no run {run_id}")
             return self._record(*rows[0])
 
-    def runs(self, **filters: Any) -> list[RunRecord]:
+    def runs(self, **filters: object) -> list[RunRecord]:
         """Full records (poses, events) of the matching runs."""
         with self._snapshot():
             return [self._record(r, damage) for r, damage in self._runs(filters)]
 
-    def sessions_for_batch(self, skipped: list[tuple[str, str]] | None = None, **filters: Any) -> list[Session]:
+    def sessions_for_batch(self, skipped: list[tuple[str, str]] | None = None, **filters: object) -> list[Session]:
         """Sessions of complete runs with poses (for batch recalibration of a lot).
 
         A matching run with a damaged value is never silently left out: it is appended to
@@ -451,14 +469,14 @@ class Store:
         return [] if self._server else integrity.file_problems(self._db)
 
     # -- exports and summaries ----------------------------------------------------------
-    def export_json(self, path: str | Path | None = None, **filters: Any) -> list[dict[str, Any]]:
+    def export_json(self, path: str | Path | None = None, **filters: object) -> list[RunDocument]:
         """Every matching run in full; written atomically to ``path`` when given."""
         data = [rec.to_dict() for rec in self.runs(**filters)]
         if path is not None:
             exports.write_export(path, exports.runs_json(data))
         return data
 
-    def export_csv(self, path: str | Path | None = None, kind: str = "runs", **filters: Any) -> str:
+    def export_csv(self, path: str | Path | None = None, kind: str = "runs", **filters: object) -> str:
         """CSV of runs (one row per run, calibration flattened) or poses (one row per pose).
 
         Returns the text; written atomically to ``path`` when given.
@@ -469,7 +487,7 @@ class Store:
             exports.write_export(path, text)
         return text
 
-    def lot_summary(self, **filters: Any) -> exports.LotSummary:
+    def lot_summary(self, **filters: object) -> exports.LotSummary:
         """Counts, pass rate, failure reasons and parameter distributions of the matching runs
         (exports.summarize)."""
         with self._snapshot():

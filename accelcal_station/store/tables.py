@@ -66,6 +66,8 @@ runs = Table(
     Column("pid", Integer),
     Column("panel_id", Text),       # the boards calibrated together on one jig
     Column("limits", Text),         # JSON {limit key: number}: the acceptance limits the run was judged by
+    Column("heartbeat_at", real()),  # unix s: the station process's last sign of life (store/heartbeat.py)
+    Column("heartbeat_s", real()),   # s between its heartbeats (readers on any host judge staleness by it)
     CheckConstraint("status IN ('running', 'complete', 'interrupted', 'error')"),
     CheckConstraint("verdict IN ('PASS', 'FAIL')"),
 )

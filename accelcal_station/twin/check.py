@@ -8,12 +8,12 @@ the same simulated lot, and hide how much the verdict owes to that one draw)."""
 from __future__ import annotations
 
 import secrets
-from typing import Any
 
 import numpy as np
 
 from ..acceptance.rules import Limits
 from .compare import ENERGY_MARGIN, FAMILY_ALPHA, counts_effect, counts_test, energy, flag, quantity_test, verdict
+from .records import Before, CheckReport, ConfigCheck, CountsTest, JointTest, QuantityTest
 from .simlot import load_device, simulate_like
 from .stream import FITTED, MEASURES, LotStats
 
@@ -26,30 +26,32 @@ def new_seed() -> int:
 
 
 def compare_stats(real: LotStats, sim: LotStats, seed: int, limits: dict[str, float] | None
-                  ) -> list[dict[str, Any]]:
+                  ) -> list[QuantityTest]:
     """Every test of a check (module docstring), with effects; ``gap`` and ``detected`` marked."""
-    tests = [quantity_test(q, real.column(q), sim.column(q), limits) for q in MEASURES]
+    tests: list[QuantityTest] = [quantity_test(q, real.column(q), sim.column(q), limits) for q in MEASURES]
     for name, r, s in (("verdict mix", real.verdicts, sim.verdicts), ("failure reasons", real.reasons, sim.reasons)):
         stat, p = counts_test(dict(r), dict(s))
-        tests.append({"quantity": name, "test": "chi2_contingency", "statistic": stat, "p_value": p,
-                      "real": dict(r), "sim": dict(s), "effect": counts_effect(dict(r), dict(s), real.boards,
-                                                                               sim.boards)})
+        counts: CountsTest = {"quantity": name, "test": "chi2_contingency", "statistic": stat, "p_value": p,
+                              "real": dict(r), "sim": dict(s),
+                              "effect": counts_effect(dict(r), dict(s), real.boards, sim.boards)}
+        tests.append(counts)
     cols = [real.columns.index(q) for q in FITTED]
     Xr, Xs = real.rows[:, cols], sim.rows[:, cols]
     Xr, Xs = Xr[np.all(np.isfinite(Xr), axis=1)], Xs[np.all(np.isfinite(Xs), axis=1)]
     Xr, Xs = Xr[:, Xr.std(axis=0) + Xs.std(axis=0) > 0], Xs[:, Xr.std(axis=0) + Xs.std(axis=0) > 0]
     if len(Xr) > 2 and len(Xs) > 2:
         stat, p = energy(Xr, Xs, np.random.default_rng(seed))
-        tests.append({"quantity": "fitted parameters (joint)", "test": "energy distance permutation",
-                      "statistic": stat, "p_value": p, "real": {"n": len(Xr)}, "sim": {"n": len(Xs)},
-                      "effect": {"energy_distance": stat, "margin": f"energy distance > {ENERGY_MARGIN:g}",
-                                 "material": bool(stat > ENERGY_MARGIN)}})
+        joint: JointTest = {"quantity": "fitted parameters (joint)", "test": "energy distance permutation",
+                            "statistic": stat, "p_value": p, "real": {"n": len(Xr)}, "sim": {"n": len(Xs)},
+                            "effect": {"energy_distance": stat, "margin": f"energy distance > {ENERGY_MARGIN:g}",
+                                       "material": bool(stat > ENERGY_MARGIN)}}
+        tests.append(joint)
     flag(tests)
     return tests
 
 
 def check_config(real: LotStats, config: str, seed: int | None = None, limits: Limits | None = None
-                 ) -> dict[str, Any]:
+                 ) -> ConfigCheck:
     """One config against the real lot: tests, the gaps that matter, the detected ones, a verdict."""
     if limits is None:
         limits = load_device(config)[3]
@@ -57,8 +59,8 @@ def check_config(real: LotStats, config: str, seed: int | None = None, limits: L
     boards = min(real.boards, MAX_SIM_BOARDS)
     sim, what = simulate_like(config, real, boards, seed, limits)
     tests = compare_stats(real, sim, seed, limits.values)
-    return {**what, "seed": seed, "tests": tests, "gaps": [t["quantity"] for t in tests if t["gap"]],
-            "detected": [t["quantity"] for t in tests if t["detected"]],
+    return {**what, "seed": seed, "tests": tests, "gaps": [t["quantity"] for t in tests if t.get("gap")],
+            "detected": [t["quantity"] for t in tests if t.get("detected")],
             "verdict": verdict(tests), "false_alarm_rate": FAMILY_ALPHA}
 
 
@@ -69,15 +71,17 @@ METHOD = ("Anderson-Darling k-sample per quantity, chi-square on verdict and rea
 
 
 def check(real: LotStats, config: str, before: str | None, seed: int | None = None, limits: Limits | None = None
-          ) -> dict[str, Any]:
+          ) -> CheckReport:
     """The gap before (``before``: e.g. the default config) and after (the twin ``config``)."""
     seed = new_seed() if seed is None else seed
-    out: dict[str, Any] = {"boards": real.boards, "model": real.model, "false_alarm_rate": FAMILY_ALPHA,
-                           "seed": seed, "method": METHOD}
     after = check_config(real, config, seed, limits)
-    if before is not None:
-        b = check_config(real, before, seed, limits)
-        out["before"] = {k: b[k] for k in ("config", "gaps", "detected", "verdict", "tests")}
-    out.update({"config": config, "tests": after["tests"], "gaps": after["gaps"], "detected": after["detected"],
-                "verdict": after["verdict"]})
-    return out
+    if before is None:
+        return {"boards": real.boards, "model": real.model, "false_alarm_rate": FAMILY_ALPHA, "seed": seed,
+                "method": METHOD, "config": config, "tests": after["tests"], "gaps": after["gaps"],
+                "detected": after["detected"], "verdict": after["verdict"]}
+    b = check_config(real, before, seed, limits)
+    gone: Before = {"config": b["config"], "gaps": b["gaps"], "detected": b["detected"], "verdict": b["verdict"],
+                    "tests": b["tests"]}
+    return {"boards": real.boards, "model": real.model, "false_alarm_rate": FAMILY_ALPHA, "seed": seed,
+            "method": METHOD, "before": gone, "config": config, "tests": after["tests"], "gaps": after["gaps"],
+            "detected": after["detected"], "verdict": after["verdict"]}

@@ -28,9 +28,11 @@ Below the margin a detected gap is "detectable but immaterial": it moves no verd
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
+
+from .records import DistributionTest, Effect, QuantityTest, Summary
 
 FAMILY_ALPHA = 0.01
 YIELD_MARGIN = 0.005  # half a percentage point of boards beyond a limit (or in a verdict category)
@@ -40,7 +42,7 @@ ENERGY_MARGIN = 0.05
 _SIG = np.array([0.25, 0.1, 0.05, 0.025, 0.01, 0.005, 0.001])
 
 
-def _summary(x: np.ndarray) -> dict[str, float]:
+def _summary(x: np.ndarray) -> Summary:
     q = np.percentile(x, [5, 50, 95]) if len(x) else [np.nan] * 3
     return {"n": int(len(x)), "mean": float(np.mean(x)) if len(x) else float("nan"),
             "sd": float(np.std(x)) if len(x) else float("nan"), "p05": float(q[0]), "median": float(q[1]),
@@ -108,25 +110,26 @@ def counts_test(real: dict[str, int], sim: dict[str, int]) -> tuple[float, float
     return float(chi2), float(p)
 
 
-def flag(tests: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def flag(tests: list[QuantityTest]) -> list[QuantityTest]:
     """Mark each test's ``detected`` (p below the Bonferroni level) and ``gap`` (detected and
     material: its effect beyond the margin); returns the gaps that matter."""
     level = FAMILY_ALPHA / max(len(tests), 1)
     for t in tests:
         t["detected"] = bool(t["p_value"] < level)
-        t["gap"] = bool(t["detected"] and t.get("effect", {}).get("material", True))
+        t["gap"] = bool(t["detected"] and t["effect"].get("material", True))
         t["level"] = level
     return [t for t in tests if t["gap"]]
 
 
-def verdict(tests: list[dict[str, Any]]) -> str:
+def verdict(tests: list[QuantityTest]) -> str:
     """gap (a detected gap that matters) | detectable but immaterial | no gap."""
-    if any(t["gap"] for t in tests):
+    if any(t.get("gap") for t in tests):
         return "gap"
-    return "detectable but immaterial" if any(t["detected"] for t in tests) else "no gap"
+    return "detectable but immaterial" if any(t.get("detected") for t in tests) else "no gap"
 
 
-def judged_by(name: str, limits: dict[str, float]) -> tuple[str, float, Any] | None:
+def judged_by(name: str, limits: dict[str, float]
+              ) -> tuple[str, float, Callable[[np.ndarray], np.ndarray]] | None:
     """The acceptance limit that judges a measured quantity: (limit key, limit, the quantity's
     value in the limit's units as a function of the quantity), or None."""
     if name in ("residual_rms_mg", "crossval_rms_mg"):
@@ -142,7 +145,7 @@ def judged_by(name: str, limits: dict[str, float]) -> tuple[str, float, Any] | N
     return (key, float(limits[key]), fn) if key in limits else None
 
 
-def effect(name: str, real: np.ndarray, sim: np.ndarray, limits: dict[str, float] | None) -> dict[str, Any]:
+def effect(name: str, real: np.ndarray, sim: np.ndarray, limits: dict[str, float] | None) -> Effect:
     """The gap's size in the quantity's own units (module docstring): Wasserstein distance,
     percentile shifts (sim - real), the yield change at the judging limit, and ``material``."""
     from scipy.stats import wasserstein_distance  # on first use, as above
@@ -150,7 +153,7 @@ def effect(name: str, real: np.ndarray, sim: np.ndarray, limits: dict[str, float
     if len(real) < 2 or len(sim) < 2:
         return {"material": False}
     qr, qs = np.percentile(real, [5, 50, 95]), np.percentile(sim, [5, 50, 95])
-    out: dict[str, Any] = {"wasserstein": float(wasserstein_distance(real, sim)),
+    out: Effect = {"wasserstein": float(wasserstein_distance(real, sim)),
                            "shift_p05": float(qs[0] - qr[0]), "shift_median": float(qs[1] - qr[1]),
                            "shift_p95": float(qs[2] - qr[2])}
     j = judged_by(name, limits or {})
@@ -169,7 +172,7 @@ def effect(name: str, real: np.ndarray, sim: np.ndarray, limits: dict[str, float
     return out
 
 
-def counts_effect(real: dict[str, int], sim: dict[str, int], n_real: int, n_sim: int) -> dict[str, Any]:
+def counts_effect(real: dict[str, int], sim: dict[str, int], n_real: int, n_sim: int) -> Effect:
     """The largest difference of a category's share of boards (real - sim), against YIELD_MARGIN."""
     nr, ns = max(n_real, 1), max(n_sim, 1)
     diff = {k: real.get(k, 0) / nr - sim.get(k, 0) / ns for k in sorted(set(real) | set(sim))}
@@ -179,7 +182,7 @@ def counts_effect(real: dict[str, int], sim: dict[str, int], n_real: int, n_sim:
 
 
 def quantity_test(name: str, real: np.ndarray, sim: np.ndarray, limits: dict[str, float] | None = None
-                  ) -> dict[str, Any]:
+                  ) -> DistributionTest:
     real, sim = real[np.isfinite(real)], sim[np.isfinite(sim)]
     stat, p = anderson(real, sim) if len(real) > 1 and len(sim) > 1 else (0.0, 1.0)
     return {"quantity": name, "test": "anderson_ksamp", "statistic": stat, "p_value": p,

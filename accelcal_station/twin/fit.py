@@ -14,25 +14,35 @@ per-sample std is the start); the finished twin's residuals checked against the 
 from __future__ import annotations
 
 import copy
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from ..acceptance.rules import Limits
 from ..config.checks import load_yaml
 from ..config.sections import default_config_path
-from ..data.lotfile import SMALL_BLOCK_BYTES, lot_scale, open_lot
-from ..errors import DataError
+from ..data.lotfile import SMALL_BLOCK_BYTES, LotChunk, lot_scale, open_lot
+from ..errors import ConfigError, DataError
+from ..jsontypes import JsonObject
 from ..sim.population import Change, Component, Population, Tail, parse_quantity
 from ..sim.sensor_model import PHYSICS, SensorModel
 from .changes import Found, find_changes
 from .mixture import NU_MAX, Mixture, fit_mixture
 from .noise import fit_noise
 from .physics import CRITERION, board_rows, choose_physics, population_shape
+from .records import (
+    ComponentReport,
+    DistributionTest,
+    EffectSpread,
+    NoiseFit,
+    PhysicsCandidate,
+    TailCandidate,
+    TwinReport,
+)
 from .reproduce import residual_check
-from .simlot import fixed_board_stats, twin_model
+from .simlot import fixed_board_stats, scalar, section, text, twin_model
 from .stream import LotStats, collect, richest_model
 from .tails import fit_tails, slope_at_centre, to_gauss
 
@@ -47,23 +57,24 @@ class Twin:
     mixture: Mixture
     criterion: list[dict[str, float]]
     changes: list[Found]
-    config: dict[str, Any]
+    config: JsonObject  # a station config document (YAML), population: replaced
     physics: str = PHYSICS[0]
-    physics_candidates: list[dict[str, Any]] = field(default_factory=list)
-    noise: dict[str, Any] = field(default_factory=dict)
-    residual_tests: list[dict[str, Any]] = field(default_factory=list)
+    physics_candidates: list[PhysicsCandidate] = field(default_factory=list)
+    noise: NoiseFit = field(default_factory=lambda: NoiseFit())
+    residual_tests: list[DistributionTest] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
-    tails: list[dict[str, Any]] = field(default_factory=list)
+    tails: list[TailCandidate] = field(default_factory=list)
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> TwinReport:
         names = self.population.names
         main = self.population.components[0]
-        comps = []
+        comps: list[ComponentReport] = []
         for c in self.population.components:
             # a t component's sd is its scale times sqrt(nu / (nu - 2)); none (null) for nu <= 2
             k = 1.0 if c.dof is None else (float(np.sqrt(c.dof / (c.dof - 2))) if c.dof > 2 else None)
-            eff = {n: {"mean": float(m), "sd": None if k is None else float(s) * k, "scale": float(s)}
-                   for n, m, s in zip(names, c.mean, c.sd, strict=True)}
+            eff: dict[str, EffectSpread] = {
+                n: {"mean": float(m), "sd": None if k is None else float(s) * k, "scale": float(s)}
+                for n, m, s in zip(names, c.mean, c.sd, strict=True)}
             scale = np.maximum(main.sd, 1e-12)
             differs = [n for n, d in zip(names, np.abs(c.mean - main.mean) / scale > DIFFERS_SD, strict=True) if d]
             comps.append({"weight": float(c.weight), "dof": c.dof, "effects": eff,
@@ -72,10 +83,11 @@ class Twin:
                 "criterion": {"name": "BIC", "candidates": self.criterion},
                 "physics": {"chosen": self.physics, "criterion": CRITERION, "candidates": self.physics_candidates},
                 "components": comps, "noise": self.noise,
-                "tails": {"quantities": self.population.to_config().get("tails", {}), "candidates": self.tails,
+                "tails": {"quantities": self.population.tails_config(), "candidates": self.tails,
                           "note": "a quantity with a tail: components hold it at Gaussian scale "
                                   "(sim/population.py)"},
-                "residual_check": [{k: t[k] for k in ("quantity", "p_value", "detected", "real", "sim", "effect")}
+                "residual_check": [{"quantity": t["quantity"], "p_value": t["p_value"], "detected": t["detected"],
+                                    "real": t["real"], "sim": t["sim"], "effect": t["effect"]}
                                    for t in self.residual_tests],
                 "warnings": self.warnings,
                 "changes": [{"quantity": f.quantity, "kind": f.kind, "at_board": f.at_board,
@@ -93,7 +105,7 @@ def lot_stats(path: str | Path, limits: Limits | None = None, reservoir: int = 5
     m = model or richest_model(first)
     units, per_g = lot_scale(meta, path, None, None, None, m)
 
-    def all_chunks() -> Any:
+    def all_chunks() -> Iterator[LotChunk]:
         yield first
         yield from chunks
 
@@ -140,21 +152,25 @@ def stated_noise(stats: LotStats) -> np.ndarray | None:
     return sd if np.all(np.isfinite(sd)) and np.all(sd > 0) else None
 
 
-def twin_config(pop: Population, stats: LotStats, per_g: float | None, base: dict[str, Any] | None = None,
-                physics: str = PHYSICS[0], noise_counts: np.ndarray | None = None) -> dict[str, Any]:
+def twin_config(pop: Population, stats: LotStats, per_g: float | None, base: JsonObject | None = None,
+                physics: str = PHYSICS[0], noise_counts: np.ndarray | None = None) -> JsonObject:
     """The default simulator config with ``population:`` replaced (module docstring); noise:
     ``noise_counts`` (per-axis per-sample sd, counts, quantization included), else the stated."""
-    cfg = copy.deepcopy(base if base is not None else load_yaml(default_config_path()))
-    dev = cfg.setdefault("device", {})
-    sim = dev.setdefault("simulator", {})
-    eff = sim.setdefault("effects", {})
-    if isinstance(eff.get("cross_axis"), dict):
-        eff["cross_axis"]["rotation_deg"] = [0.0, 0.0, 0.0]  # K = diag(gain) (I + C): C carries it
+    cfg: JsonObject = copy.deepcopy(base if base is not None else load_yaml(default_config_path()))
+    dev = section(cfg, "device", "")
+    sim = section(dev, "simulator", "device")
+    eff = section(sim, "effects", "device.simulator")
+    cross = eff.get("cross_axis")
+    if isinstance(cross, dict):
+        cross["rotation_deg"] = [0.0, 0.0, 0.0]  # K = diag(gain) (I + C): C carries it
     sd = noise_counts if noise_counts is not None else stated_noise(stats)
     if sd is not None and per_g:
-        model = SensorModel.from_config(eff, dev.get("chip", "mma8451"))
-        enbw = model.chip.enbw_hz(float(dev.get("odr_hz", model.chip.default_odr_hz)), model.chip.default_dlpf)
-        lsb = float(eff.get("quantization", {}).get("lsb_counts", 1)) if "quantization" in eff else 0.0
+        model = SensorModel.from_config(eff, text(dev, "chip", "device", "mma8451"))
+        odr = dev.get("odr_hz", model.chip.default_odr_hz)
+        enbw = model.chip.enbw_hz(scalar(odr, "device.odr_hz"), model.chip.default_dlpf)
+        quant = eff.get("quantization", False)  # absent or false: off; true or null: on at 1 LSB
+        lsb = 0.0 if quant is False else \
+            scalar(quant.get("lsb_counts", 1) if isinstance(quant, dict) else 1, "quantization.lsb_counts")
         white = np.sqrt(np.clip(np.asarray(sd, dtype=float) ** 2 - lsb**2 / 12.0, 0.0, None))
         eff["noise"] = {"density_ug_per_rthz": [round(float(v / per_g / np.sqrt(enbw) * 1e6), 5) for v in white]}
     sim["population"] = pop.to_config()
@@ -163,7 +179,7 @@ def twin_config(pop: Population, stats: LotStats, per_g: float | None, base: dic
 
 
 def fit_twin(stats: LotStats, per_g: float | None, max_components: int = 4, seed: int = 0,
-             base: dict[str, Any] | None = None) -> Twin:
+             base: JsonObject | None = None) -> Twin:
     """The twin of a streamed lot (module docstring)."""
     names = stats.quantities
     good = np.all(np.isfinite(stats.rows[:, 1:1 + len(names)]), axis=1) if stats.rows.size else np.zeros(0, bool)
@@ -190,7 +206,7 @@ def fit_twin(stats: LotStats, per_g: float | None, max_components: int = 4, seed
     pop = _population(names, mix, changes, tails)
     cfg = twin_config(pop, stats, per_g, base, physics, sd)
     tests, warnings = ([], []) if stats.refs is None else \
-        residual_check(cfg, stats, seed + 1, Limits.from_config(cfg.get("acceptance")))
+        residual_check(cfg, stats, seed + 1, Limits.from_config(_acceptance(cfg)))
     if len(table) == max_components == mix.K:
         warnings.append(f"mixture: BIC chose {mix.K} components, its cap (--components {max_components}): more "
                         "might fit better, or the components stand in for a shape the mixture cannot express "
@@ -198,18 +214,26 @@ def fit_twin(stats: LotStats, per_g: float | None, max_components: int = 4, seed
     return Twin(stats, pop, mix, table, changes, cfg, physics, candidates, noise, tests, warnings, tail_report)
 
 
-def _lot_noise(pop: Population, stats: LotStats, per_g: float | None, base: dict[str, Any] | None, physics: str,
-               seed: int) -> tuple[np.ndarray | None, dict[str, Any]]:
+def _acceptance(cfg: JsonObject) -> JsonObject | None:
+    """The config's ``acceptance:`` mapping (None: absent)."""
+    acc = cfg.get("acceptance")
+    if acc is not None and not isinstance(acc, dict):
+        raise ConfigError(f"acceptance: {type(acc).__name__}; allowed: a mapping of limits")
+    return acc
+
+
+def _lot_noise(pop: Population, stats: LotStats, per_g: float | None, base: JsonObject | None, physics: str,
+               seed: int) -> tuple[np.ndarray | None, NoiseFit]:
     """Per-axis noise fitted to the lot's residual and LOO distributions (noise.fit_noise)."""
     if stats.refs is None or not per_g:
-        return None, {}
+        return None, NoiseFit()
     start = stated_noise(stats)
     if start is None:  # no std columns: the base config's noise is the start
         model, _ = twin_model(twin_config(pop, stats, per_g, base, physics))
         start = np.asarray(model.noise_sigma_g(model.chip.default_odr_hz), dtype=float) * per_g
         start = np.sqrt(start**2 + 1.0 / 12.0)
 
-    def config_for(sd: np.ndarray) -> dict[str, Any]:
+    def config_for(sd: np.ndarray) -> JsonObject:
         return twin_config(pop, stats, per_g, base, physics, sd)
 
     return fit_noise(config_for, start, stats, seed + 2)
@@ -221,7 +245,7 @@ def _nearest_psd(S: np.ndarray) -> np.ndarray:
     return (v * np.clip(w, 0.0, None)) @ v.T
 
 
-def _fit_noise_cov(cfg: dict[str, Any], mix: Mixture, stats: LotStats, seed: int, physics: str,
+def _fit_noise_cov(cfg: JsonObject, mix: Mixture, stats: LotStats, seed: int, physics: str,
                    boards: int = 2000) -> np.ndarray:
     """The covariance the fit's own noise adds to every board's quantities: one fixed board (the
     main component's mean) measured ``boards`` times at the lot's poses and samples, fitted.

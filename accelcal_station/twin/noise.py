@@ -18,10 +18,11 @@ noise).
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
+from ..jsontypes import JsonObject
+from .records import NoiseFit
 from .simlot import simulate_cfg
 from .stream import LotStats
 
@@ -40,8 +41,8 @@ def _quantiles(stats: LotStats) -> np.ndarray:
     return np.concatenate(out)
 
 
-def fit_noise(config_for: Callable[[np.ndarray], dict[str, Any]], start: np.ndarray, like: LotStats, seed: int
-              ) -> tuple[np.ndarray, dict[str, Any]]:
+def fit_noise(config_for: Callable[[np.ndarray], JsonObject], start: np.ndarray, like: LotStats, seed: int
+              ) -> tuple[np.ndarray, NoiseFit]:
     """Per-axis per-sample sd (counts) whose simulated residuals match the lot's (module
     docstring), and a report (start, fitted, scale, the quantiles matched)."""
     real = _quantiles(like)

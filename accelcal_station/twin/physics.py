@@ -18,16 +18,17 @@ noise only, which forward physics cannot reproduce on its cubic boards, and vice
 """
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
+from ..errors import ConfigError
+from ..jsontypes import JsonObject
 from ..lot.streaming import fit_chunk
 from ..sim.lot_physics import board_parameters, enabled_effects, response_g, true_force_g
 from ..sim.population import Component, Population, parse_quantity
 from ..sim.sensor_model import PHYSICS, SensorModel
 from .compare import anderson
-from .simlot import fixed_board_stats, lot_chunk, twin_model
+from .records import PhysicsCandidate
+from .simlot import fixed_board_stats, lot_chunk, mapping, twin_model
 from .stream import LotStats, effect_quantities
 
 PLUGIN_BOARDS = 3000  # boards re-simulated per physics: the wrong one measured at p ~ 1e-32 (10 % cubic boards)
@@ -69,7 +70,7 @@ def invert_forward(model: SensorModel, names: list[str], phi: np.ndarray, like: 
     return theta
 
 
-def board_rows(cfg: dict[str, Any], physics: str, like: LotStats, phi: np.ndarray) -> np.ndarray:
+def board_rows(cfg: JsonObject, physics: str, like: LotStats, phi: np.ndarray) -> np.ndarray:
     """The simulator's board parameters of fitted quantities ``phi`` under ``physics``."""
     if physics == PHYSICS[0]:
         return phi
@@ -77,7 +78,7 @@ def board_rows(cfg: dict[str, Any], physics: str, like: LotStats, phi: np.ndarra
     return invert_forward(model, like.quantities, phi, like, range_g)
 
 
-def choose_physics(cfg: dict[str, Any], like: LotStats, seed: int) -> tuple[str, list[dict[str, Any]]]:
+def choose_physics(cfg: JsonObject, like: LotStats, seed: int) -> tuple[str, list[PhysicsCandidate]]:
     """The physics whose re-simulated boards' residuals are nearest the lot's (module docstring),
     and every candidate's statistics."""
     Q = len(like.quantities)
@@ -87,23 +88,24 @@ def choose_physics(cfg: dict[str, Any], like: LotStats, seed: int) -> tuple[str,
     rng = np.random.default_rng(seed)
     # the plug-in boards only are copied out of the reservoir (50,000 rows), not every finite row first
     rows = like.rows[keep[rng.choice(len(keep), min(PLUGIN_BOARDS, len(keep)), replace=False)]]
-    out: list[dict[str, Any]] = []
+    out: list[PhysicsCandidate] = []
     for physics in PHYSICS:
         theta = board_rows(cfg, physics, like, rows[:, 1:1 + Q])
-        sim = fixed_board_stats({**cfg, "device": _with_physics(cfg["device"], physics)}, like, theta, len(theta),
-                                seed, columns=("residual_rms_mg", "crossval_rms_mg"))
-        tests: dict[str, dict[str, float]] = {}
-        for k, name in enumerate(("residual_rms_mg", "crossval_rms_mg")):
-            stat, p = anderson(like.column(name)[np.isfinite(like.column(name))], sim[np.isfinite(sim[:, k]), k])
-            tests[name] = {"statistic": stat, "p_value": p}
-        out.append({"physics": physics, "score": sum(t["statistic"] for t in tests.values()), **tests})
+        sim = fixed_board_stats({**cfg, "device": _with_physics(mapping(cfg, "device", ""), physics)}, like, theta,
+                                len(theta), seed, columns=("residual_rms_mg", "crossval_rms_mg"))
+        res, loo = (anderson(like.column(name)[np.isfinite(like.column(name))], sim[np.isfinite(sim[:, k]), k])
+                    for k, name in enumerate(("residual_rms_mg", "crossval_rms_mg")))
+        out.append({"physics": physics, "score": res[0] + loo[0],
+                    "residual_rms_mg": {"statistic": res[0], "p_value": res[1]},
+                    "crossval_rms_mg": {"statistic": loo[0], "p_value": loo[1]}})
     return str(min(out, key=lambda c: float(c["score"]))["physics"]), out
 
 
-def _with_physics(dev: dict[str, Any], physics: str) -> dict[str, Any]:
-    sim = dict(dev.get("simulator") or {})
-    sim["physics"] = physics
-    return {**dev, "simulator": sim}
+def _with_physics(dev: JsonObject, physics: str) -> JsonObject:
+    sim = dev.get("simulator") or {}
+    if not isinstance(sim, dict):
+        raise ConfigError(f"device.simulator: {type(sim).__name__}; allowed: a mapping (a twin config's)")
+    return {**dev, "simulator": {**sim, "physics": physics}}
 
 
 CRITERION = ("the lot's own boards (as fitted; forward: their parameters inverted through forward physics) "

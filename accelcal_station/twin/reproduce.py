@@ -18,10 +18,10 @@ per fit; the warning names the gap instead.
 """
 from __future__ import annotations
 
-from typing import Any
-
 from ..acceptance.rules import Limits
+from ..jsontypes import JsonObject
 from .compare import FAMILY_ALPHA, quantity_test
+from .records import DistributionTest
 from .simlot import simulate_cfg
 from .stream import LotStats
 
@@ -29,8 +29,8 @@ COLUMNS = ("residual_rms_mg", "crossval_rms_mg")
 MAX_BOARDS = 20_000
 
 
-def residual_check(cfg: dict[str, Any], like: LotStats, seed: int, limits: Limits
-                   ) -> tuple[list[dict[str, Any]], list[str]]:
+def residual_check(cfg: JsonObject, like: LotStats, seed: int, limits: Limits
+                   ) -> tuple[list[DistributionTest], list[str]]:
     """The two tests (module docstring) and a warning per detected gap."""
     sim = simulate_cfg(cfg, like, min(max(like.boards, 2000), MAX_BOARDS), seed)
     tests = [quantity_test(c, like.column(c), sim.column(c), limits.values) for c in COLUMNS]

@@ -4,7 +4,6 @@ over as lot chunks so the real and the simulated lot go through the same fitting
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any
 
 import numpy as np
 
@@ -14,10 +13,43 @@ from ..config.parts import SimulatedBoardSection, parse
 from ..data.lotfile import LotChunk
 from ..drivers.simulated import load_physics, load_simulator
 from ..errors import ConfigError
+from ..jsontypes import JsonObject, JsonValue
 from ..sim.lot_physics import pose_means
 from ..sim.population import Population, parse_population
 from ..sim.sensor_model import SensorModel, get_chip
+from .records import Simulated
 from .stream import LotStats, collect
+
+
+def section(doc: JsonObject, key: str, path: str) -> JsonObject:
+    """``doc[key]``, a mapping (created empty when absent): a twin config is edited in place."""
+    sub = doc.setdefault(key, {})
+    if not isinstance(sub, dict):
+        raise ConfigError(f"{path}.{key}".lstrip(".") + f": {type(sub).__name__}; allowed: a mapping")
+    return sub
+
+
+def mapping(doc: JsonObject, key: str, path: str) -> JsonObject:
+    """``doc[key]``, which must be a mapping (read only)."""
+    sub = doc.get(key)
+    if not isinstance(sub, dict):
+        raise ConfigError(f"{path}.{key}".lstrip(".") + f": {type(sub).__name__}; allowed: a mapping")
+    return sub
+
+
+def text(doc: JsonObject, key: str, path: str, default: str) -> str:
+    """``doc[key]``, a string (``default`` when absent)."""
+    v = doc.get(key, default)
+    if not isinstance(v, str):
+        raise ConfigError(f"{path}.{key}: {v!r}; allowed: a name")
+    return v
+
+
+def scalar(v: JsonValue, path: str) -> float:
+    """A config number (bool excluded: YAML's true is not 1)."""
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ConfigError(f"{path}: {v!r}; allowed: a number")
+    return float(v)
 
 
 def load_device(path: str) -> tuple[SensorModel, Population | None, int, Limits]:
@@ -66,7 +98,7 @@ def sim_chunks(model: SensorModel, pop: Population | None, boards: int, like: Lo
 
 
 def simulate_like(config: str, like: LotStats, boards: int, seed: int, limits: Limits | None = None
-                  ) -> tuple[LotStats, dict[str, Any]]:
+                  ) -> tuple[LotStats, Simulated]:
     """Fit and judge a simulated lot like ``like`` from a config; its stats and what was simulated."""
     model, pop, range_g, cfg_limits = load_device(config)
     lim = limits if limits is not None else cfg_limits
@@ -76,9 +108,9 @@ def simulate_like(config: str, like: LotStats, boards: int, seed: int, limits: L
     return stats, {"config": config, "boards": boards, "population": pop is not None}
 
 
-def twin_model(cfg: dict[str, Any], forward: bool | None = None) -> tuple[SensorModel, int]:
+def twin_model(cfg: JsonObject, forward: bool | None = None) -> tuple[SensorModel, int]:
     """The simulated device of a config mapping and its range (``forward``: override its physics)."""
-    board = board_section(cfg["device"], "device")
+    board = board_section(cfg.get("device"), "device")
     effects, epath, _ = load_simulator(board, "device")
     chip = get_chip(board.chip or "mma8451")
     fwd = load_physics(board, "device") if forward is None else forward
@@ -91,13 +123,19 @@ def board_section(dev: object, where: str) -> SimulatedBoardSection:
     return parse(keys, SimulatedBoardSection, where)
 
 
-def fixed_board_stats(cfg: dict[str, Any], like: LotStats, x: np.ndarray, boards: int, seed: int,
+def _population(cfg: JsonObject, model: SensorModel) -> Population:
+    """The ``device.simulator.population`` of a twin config mapping, parsed."""
+    sim = mapping(mapping(cfg, "device", ""), "simulator", "device")
+    return parse_population(sim.get("population"), model.effects)
+
+
+def fixed_board_stats(cfg: JsonObject, like: LotStats, x: np.ndarray, boards: int, seed: int,
                       columns: tuple[str, ...] | None = None) -> np.ndarray:
     """Effect quantities (boards, Q) fitted from one board with parameters ``x`` (the population's
     quantities) measured ``boards`` times like ``like``: the fit's own scatter.  ``x`` (boards, Q):
     given boards, each measured once; ``columns``: these stats columns instead."""
     model, range_g = twin_model(cfg)
-    pop = parse_population(cfg["device"]["simulator"]["population"], model.effects)
+    pop = _population(cfg, model)
     xs = np.broadcast_to(x, (boards, x.shape[-1]))
     stats = collect(sim_chunks(model, pop, boards, like, range_g, seed, x=xs), like.model,
                     model.chip.counts_per_g(range_g), "counts", None, reservoir=boards, seed=seed)
@@ -106,10 +144,10 @@ def fixed_board_stats(cfg: dict[str, Any], like: LotStats, x: np.ndarray, boards
     return stats.rows[:, 1:1 + len(like.quantities)]
 
 
-def simulate_cfg(cfg: dict[str, Any], like: LotStats, boards: int, seed: int, limits: Limits | None = None
+def simulate_cfg(cfg: JsonObject, like: LotStats, boards: int, seed: int, limits: Limits | None = None
                  ) -> LotStats:
     """A simulated lot like ``like`` from a config mapping (its population), fitted and judged."""
     model, range_g = twin_model(cfg)
-    pop = parse_population(cfg["device"]["simulator"]["population"], model.effects)
+    pop = _population(cfg, model)
     return collect(sim_chunks(model, pop, boards, like, range_g, seed), like.model, model.chip.counts_per_g(range_g),
                    "counts", limits, reservoir=boards, seed=seed)

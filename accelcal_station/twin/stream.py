@@ -20,7 +20,6 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -196,8 +195,3 @@ def collect(chunks: Iterator[LotChunk], model: str | None, per_g: float | None, 
         stats = LotStats(model or "12", effect_names(model or "12"), reservoir=reservoir, seed=seed)
     stats.finish()
     return stats
-
-
-def summary(stats: LotStats) -> dict[str, Any]:
-    return {"boards": stats.boards, "model": stats.model, "skipped": stats.skipped,
-            "verdicts": dict(stats.verdicts), "reasons": dict(stats.reasons)}

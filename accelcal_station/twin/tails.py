@@ -12,25 +12,24 @@ through the t marginals (sim/population.py: a Gaussian copula with t marginals).
 """
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from ..sim.population import Tail
 from .mixture import fit_mixture
+from .records import TailCandidate
 
 TAIL_BIC = 10.0  # a t marginal must beat a Gaussian and two Gaussians by this much BIC (strong evidence)
 DOF_MAX = 30.0  # above this a t is a Gaussian for a lot's purposes
 ROWS = 4000  # rows per marginal fit (EM's precision on dof ~ 1/sqrt(rows))
 
 
-def fit_tails(X: np.ndarray, names: list[str], seed: int = 0) -> tuple[dict[str, Tail], list[dict[str, Any]]]:
+def fit_tails(X: np.ndarray, names: list[str], seed: int = 0) -> tuple[dict[str, Tail], list[TailCandidate]]:
     """The quantities with a t marginal (module docstring) and every quantity's BICs."""
     rng = np.random.default_rng(seed)
     if len(X) > ROWS:
         X = X[rng.choice(len(X), ROWS, replace=False)]
     tails: dict[str, Tail] = {}
-    report = []
+    report: list[TailCandidate] = []
     for j, name in enumerate(names):
         col = X[:, j:j + 1]
         if len(col) < 30 or not np.std(col) > 0:

@@ -16,8 +16,6 @@ judge).  The seed is drawn at random unless given, and recorded.
 """
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from ..acceptance.rules import LIMIT_KEYS, Limits
@@ -25,6 +23,7 @@ from ..errors import DataError
 from .check import new_seed
 from .doubt import yield_replicates
 from .fit import MIXTURE_ROWS
+from .records import ReasonGrowth, WhatIfReport
 from .simlot import load_device, sim_chunks
 from .stream import LotStats, collect
 
@@ -59,7 +58,7 @@ def _reason_rates(stats: LotStats) -> dict[str, float]:
 
 
 def whatif(config: str, like: LotStats, limits: Limits, boards: int = 20_000, seed: int | None = None,
-           real_yield: float | None = None) -> dict[str, Any]:
+           real_yield: float | None = None) -> WhatIfReport:
     """Predicted first-pass and final yield under ``limits``, the reasons that grow, the failures
     split noise-like / systematic, and (``real_yield``: the lot's own under ``limits``) a warning
     when the lot's yield lies outside the prediction."""
@@ -85,9 +84,9 @@ def whatif(config: str, like: LotStats, limits: Limits, boards: int = 20_000, se
     y, lo, hi = interval(int(ok1.sum()), boards, like.boards, sd1)
     yf, lof, hif = interval(int((ok1 | ok2).sum()), boards, like.boards, sdf)
     now, grow = _reason_rates(base), _reason_rates(first)
-    grows = [{"reason": k, "before": now.get(k, 0.0), "after": v}
+    grows: list[ReasonGrowth] = [{"reason": k, "before": now.get(k, 0.0), "after": v}
              for k, v in sorted(grow.items(), key=lambda kv: now.get(kv[0], 0.0) - kv[1]) if v > now.get(k, 0.0)]
-    out: dict[str, Any] = {
+    out: WhatIfReport = {
         "config": config, "seed": seed, "simulated_boards": boards, "real_boards": like.boards,
         "limits": limits.values,
         "first_pass_yield": {"value": y, "interval": [lo, hi], "parameter_sd": sd1},

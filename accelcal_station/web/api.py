@@ -15,23 +15,31 @@ import json
 import math
 import time
 from collections.abc import AsyncIterator
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any, TypedDict
 
 from fastapi import APIRouter, Header, Query
 from fastapi import Path as FPath
 from fastapi.responses import StreamingResponse
-from pydantic import BaseModel
+from pydantic import BaseModel, WithJsonSchema
 
 from ..errors import DataError
-from ..store.records import RunNotFound, timestamp
+from ..jsontypes import JsonObject
+from ..store.records import RunNotFound, StoredEvent, StoredPose, timestamp
 from ..store.rowcheck import T_MAX_S
 from . import queries
 from .errors import ERROR_RESPONSES, ApiError
 from .feed import Cursor, Step, advance, head
 from .settings import open_store
+from .views import RunFilters, RunView, ShiftYield, StationYield
 
 if TYPE_CHECKING:
     from .settings import WebSettings
+
+
+# the OpenAPI has always documented these as open objects: their values are typed for validation,
+# the schema stays what clients were given
+_OPEN_OBJECT = WithJsonSchema({"additionalProperties": True, "type": "object"})
+YieldRow = Annotated[dict[str, float | int | str | None], _OPEN_OBJECT]  # queries.StationYield / ShiftYield
 
 
 class Reason(BaseModel):
@@ -96,7 +104,7 @@ class RunEvent(BaseModel):
     t: float | None
     kind: str | None
     message: str | None
-    data: Any = None
+    data: Any = None  # any JSON, as logged (StoredEvent.data: a JsonValue)
 
 
 class RunDetail(RunSummary):
@@ -109,6 +117,8 @@ class RunDetail(RunSummary):
     counts_per_g: float | None
     gravity_mps2: float | None
     panel_id: str | None
+    # stored JSON documents: JsonObject where they are built (RunDetailOut, checked by mypy); Any here
+    # keeps the OpenAPI's open object (pydantic's own JsonValue would add a schema of its own to it)
     nvm_outcome: dict[str, Any] | None
     calibration: dict[str, Any] | None
     fit_summary: dict[str, Any] | None
@@ -134,16 +144,55 @@ class EventHead(BaseModel):
 
 class YieldSummary(BaseModel):
     window_from: float | None
-    stations: list[dict[str, Any]]
-    shifts: list[dict[str, Any]]
+    stations: list[YieldRow]
+    shifts: list[YieldRow]
     failure_reasons: dict[str, int]
+
+
+# what the endpoints return, checked by mypy here and by the response models above at run time
+class RunPageOut(TypedDict):
+    runs: list[RunView]
+    order: str
+    next_cursor: str | None
+    total: int | None
+
+
+class RunDetailOut(RunView):
+    config_hash: str | None
+    config_text: str | None
+    units: str | None
+    counts_per_g: float | None
+    gravity_mps2: float | None
+    panel_id: str | None
+    nvm_outcome: JsonObject | None
+    calibration: JsonObject | None
+    fit_summary: JsonObject | None
+    poses: list[StoredPose]
+    events: list[StoredEvent]
+
+
+class YieldOut(TypedDict):
+    window_from: float | None
+    stations: list[StationYield]
+    shifts: list[ShiftYield]
+    failure_reasons: dict[str, int]
+
+
+class EventOut(TypedDict):
+    id: str
+    run: RunView
+
+
+class EventPageOut(TypedDict):
+    events: list[EventOut]
+    next: str
 
 
 ID_MAX = 2**63 - 1  # run ids are BIGINT (int64)
 TEXT_MAX = 200  # a station, serial or lot filter
 
 
-def _feed(settings: WebSettings, cursor: Cursor, limit: int) -> tuple[list[Step], list[dict[str, Any]]]:
+def _feed(settings: WebSettings, cursor: Cursor, limit: int) -> tuple[list[Step], list[RunView]]:
     """The next steps of the feed after ``cursor`` and their runs (one store open, read only)."""
     with open_store(settings) as st:
         steps = advance(cursor, queries.feed_rows(st, cursor.low), time.time(), limit)
@@ -197,37 +246,46 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
                   order: str = Query("desc", pattern="^(asc|desc)$", description="by id: desc newest first"),
                   cursor: str | None = Query(None, max_length=200, description="next_cursor of the previous page"),
                   limit: int = Query(100, ge=1, le=1000),
-                  total: bool = Query(False, description="count the runs matching the filters")) -> dict[str, Any]:
-        f = {"since": _time(since, "since"), "until": _time(until, "until"), "station": _text("station", station),
-             "serial": _text("serial", serial), "verdict": verdict, "lot": _text("lot", lot), "status": status}
+                  total: bool = Query(False, description="count the runs matching the filters")) -> RunPageOut:
+        f: RunFilters = {"since": _time(since, "since"), "until": _time(until, "until"),
+                                 "station": _text("station", station), "serial": _text("serial", serial),
+                                 "verdict": verdict, "lot": _text("lot", lot), "status": status}
         after = None if cursor is None else decode_cursor(cursor, order)
         with open_store(settings) as st:
             runs = queries.run_page(st, f, order, after, limit + 1)
             n = queries.run_count(st, f) if total else None
         more = len(runs) > limit
         runs = runs[:limit]
+        last = runs[-1]["id"] if runs else None
         return {"runs": runs, "order": order, "total": n,
-                "next_cursor": encode_cursor(order, runs[-1]["id"]) if more else None}
+                "next_cursor": encode_cursor(order, last) if more and last is not None else None}
 
     @r.get("/runs/{run_id}", response_model=RunDetail,
            summary="One run with its calibration, reasons, poses and events")
-    def one_run(run_id: int = FPath(ge=1, le=ID_MAX)) -> dict[str, Any]:
+    def one_run(run_id: int = FPath(ge=1, le=ID_MAX)) -> RunDetailOut:
         with open_store(settings) as st:
             try:
                 rec = st.get_run(run_id)
             except RunNotFound:  # a store that cannot be read is 503 (errors.py), not a missing run
                 raise ApiError(404, "not_found", f"no run {run_id}") from None
             one = queries.summaries(st, [run_id])
+        if not one:  # the run read a moment ago is gone
+            raise ApiError(404, "not_found", f"no run {run_id}")
         d = rec.to_dict()
-        return {**d, **(one[0] if one else {}), "events": rec.events}
+        # the summary's own damage (its row's values) when it has any, else every damaged value of the run
+        return {**one[0], "damage": one[0].get("damage", d["damage"]), "config_hash": d["config_hash"],
+                "config_text": d["config_text"], "units": d["units"], "counts_per_g": d["counts_per_g"],
+                "gravity_mps2": d["gravity_mps2"], "panel_id": d["panel_id"], "nvm_outcome": d["nvm_outcome"],
+                "calibration": d["calibration"], "fit_summary": d["fit_summary"], "poses": d["poses"],
+                "events": rec.events}
 
     @r.get("/yield", response_model=YieldSummary, summary="Yield and first-pass yield per station and shift")
-    def yields() -> dict[str, Any]:
+    def yields() -> YieldOut:
         with open_store(settings) as st:
             t0 = queries.window_start(st)
             if t0 is None:
                 return {"window_from": None, "stations": [], "shifts": [], "failure_reasons": {}}
-            stations = [{k: v for k, v in s.items() if k != "latest"} for s in queries.station_rows(st, t0)]
+            stations = queries.station_yields(queries.station_rows(st, t0))
             return {"window_from": t0, "stations": stations, "shifts": queries.shift_rows(st, t0),
                     "failure_reasons": dict(queries.reason_counts(st, t0))}
 
@@ -254,7 +312,7 @@ def _time(v: str | None, what: str) -> float | None:
 def _feed_routes(r: APIRouter, settings: WebSettings) -> None:
     @r.get("/events", response_model=EventPage, summary="Finished runs after a cursor (long poll)")
     async def events(after: str = Query("", max_length=200_000), wait_s: float = Query(0.0, ge=0, le=25),
-                     limit: int = Query(500, ge=1, le=5000)) -> dict[str, Any]:
+                     limit: int = Query(500, ge=1, le=5000)) -> EventPageOut:
         cursor = Cursor.parse(after)
         deadline = time.monotonic() + wait_s
         while True:
@@ -263,7 +321,7 @@ def _feed_routes(r: APIRouter, settings: WebSettings) -> None:
                 break
             await asyncio.sleep(settings.poll_s)
         by_id = {x["id"]: x for x in runs}
-        out = [{"id": s.cursor.text(), "run": by_id[s.run_id]} for s in steps if s.run_id in by_id]
+        out: list[EventOut] = [{"id": s.cursor.text(), "run": by_id[s.run_id]} for s in steps if s.run_id in by_id]
         return {"events": out, "next": steps[-1].cursor.text() if steps else cursor.text()}
 
     @r.get("/events/head", response_model=EventHead,

@@ -18,7 +18,7 @@ import asyncio
 import base64
 import hmac
 from collections.abc import Awaitable, Callable
-from typing import Any
+from typing import TypeVar
 
 from fastapi import FastAPI, Query, Request
 from fastapi.responses import HTMLResponse, Response
@@ -30,6 +30,7 @@ from .errors import error_response, install_errors
 from .settings import WebSettings, open_store
 
 API_VERSION = "v1"
+Ctx = TypeVar("Ctx")  # a page's template context (pages.py)
 
 
 def create_app(settings: WebSettings) -> FastAPI:
@@ -78,11 +79,11 @@ def _pages(app: FastAPI, settings: WebSettings) -> None:
     render = assets.render
     lanes = asyncio.Semaphore(max(1, settings.heavy_lanes))
 
-    async def heavy(fn: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    async def heavy(fn: Callable[[], Ctx]) -> Ctx:
         async with lanes:  # waits on the loop, not in a worker thread
             return await run_in_threadpool(fn)
 
-    def line(day: str, shift: str) -> dict[str, Any]:
+    def line(day: str, shift: str) -> pages.LineContext:
         with open_store(settings) as st:
             return pages.line_context(st, day, shift)
 
@@ -100,23 +101,24 @@ def _pages(app: FastAPI, settings: WebSettings) -> None:
     @app.get("/reason", response_class=HTMLResponse, include_in_schema=False)
     async def reason_page(code: str = Query(..., max_length=64), day: str = day_q, shift: str = shift_q,
                           station: str | None = Query(None, max_length=200)) -> Response:
-        def work() -> dict[str, Any]:
+        def work() -> pages.ReasonContext:
             with open_store(settings) as st:
                 return pages.reason_context(st, code, day, shift, station)
         return render("reason.html", title=f"Reason {code}", page="line", **await heavy(work))
 
     @app.get("/board", response_class=HTMLResponse, include_in_schema=False)
     async def board_page(serial: str = Query("", max_length=64)) -> Response:
-        def work() -> dict[str, Any]:
+        def work() -> pages.BoardContext:
             with open_store(settings) as st:
                 return pages.board_context(st, serial)
-        ctx: dict[str, Any] = await heavy(work) if serial else {"serial": serial, "runs": [], "nvm": [], "similar": []}
+        ctx: pages.BoardContext = await heavy(work) if serial else {"serial": serial, "runs": [], "nvm": [],
+                                                                     "similar": []}
         return render("board.html", title=f"Board {serial}" if serial else "Board", page="board", **ctx)
 
     @app.get("/lot", response_class=HTMLResponse, include_in_schema=False)
     async def lot_page(lot: str = Query("", max_length=64)) -> Response:
-        def work() -> dict[str, Any]:
+        def work() -> pages.LotContext:
             with open_store(settings) as st:
                 return pages.lot_context(st, lot) if lot else {"lot": "", "summary": None, "charts": [],
-                                                               "lots": pages.queries.lots(st)}
+                                                               "parameters": [], "lots": pages.queries.lots(st)}
         return render("lot.html", title=f"Lot {lot}" if lot else "Lots", page="lot", **await heavy(work))

@@ -10,7 +10,7 @@ points down.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -42,11 +42,46 @@ def _xy(cam: np.ndarray, p: np.ndarray, cx: float, cy: float) -> tuple[float, fl
     return cx + SCALE * float(v[0]), cy - SCALE * float(v[1])
 
 
-def picture(ref_g: np.ndarray, size: float = 320.0) -> dict[str, Any]:
+class Face(TypedDict):
+    """A visible face: its name (x+ ...), depth towards the viewer, shade and SVG polygon points."""
+
+    face: str
+    depth: float
+    shade: float
+    points: str
+
+
+class Line(TypedDict):
+    """An arrow from (x1, y1) to (x2, y2) in the viewBox."""
+
+    x1: float
+    y1: float
+    x2: float
+    y2: float
+
+
+class Arrow(Line):
+    """An axis arrow; ``front``: its tip is on the viewer's side."""
+
+    axis: str
+    front: bool
+
+
+class Picture(TypedDict):
+    """The board in a pose as the page draws it (SVG in a ``size`` square viewBox)."""
+
+    size: float
+    faces: list[Face]
+    arrows: list[Arrow]
+    gravity: Line
+    ground_y: float
+
+
+def picture(ref_g: np.ndarray, size: float = 320.0) -> Picture:
     """Polygons (faces, back to front) and arrows (axes, gravity) in a ``size`` square viewBox."""
     R, cam = rotation_to_up(ref_g), _camera()
     cx = cy = size / 2
-    faces: list[dict[str, Any]] = []
+    faces: list[Face] = []
     lowest = cy
     for face, axis, sign in FACES:
         normal = np.zeros(3)
@@ -65,8 +100,8 @@ def picture(ref_g: np.ndarray, size: float = 320.0) -> dict[str, Any]:
             lowest = max(lowest, corners[-1][1])
         faces.append({"face": face, "depth": depth, "shade": round(0.55 + 0.45 * depth, 3),
                       "points": " ".join(f"{x:.1f},{y:.1f}" for x, y in corners)})
-    faces.sort(key=lambda f: float(f["depth"]))
-    arrows: list[dict[str, Any]] = []
+    faces.sort(key=lambda f: f["depth"])
+    arrows: list[Arrow] = []
     for i, name in enumerate("xyz"):
         tip = R @ (np.eye(3)[i] * (HALF_MM[i] + 26.0))
         x1, y1 = _xy(cam, np.zeros(3), cx, cy)

@@ -12,9 +12,12 @@ values are not in commit order), so a run that becomes visible late is still del
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 from ..errors import DataError
+
+if TYPE_CHECKING:
+    from .views import FeedRow
 
 GAP_S = 60.0  # a hole in the ids older than this is a rolled-back insert, not a late commit
 MAX_DONE = 100_000  # a cursor naming more delivered ids than this is refused (not ours)
@@ -56,7 +59,7 @@ class Step:
     cursor: Cursor
 
 
-def advance(cursor: Cursor, rows: list[dict[str, Any]], now_s: float, limit: int = 500) -> list[Step]:
+def advance(cursor: Cursor, rows: list[FeedRow], now_s: float, limit: int = 500) -> list[Step]:
     """The runs to deliver after ``cursor``, given ``rows`` = (id, status, started_at) of every
     visible run with id >= cursor.low in id order (one statement, one snapshot)."""
     running = [r["id"] for r in rows if r["status"] == "running"]
@@ -83,6 +86,6 @@ def advance(cursor: Cursor, rows: list[dict[str, Any]], now_s: float, limit: int
     return steps
 
 
-def head(low: int, rows: list[dict[str, Any]]) -> Cursor:
+def head(low: int, rows: list[FeedRow]) -> Cursor:
     """A cursor at the feed's present end (a page that shows the past already and wants what comes next)."""
     return Cursor(max(1, low), frozenset(r["id"] for r in rows if r["status"] != "running" and r["id"] >= low))

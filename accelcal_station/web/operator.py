@@ -12,18 +12,118 @@ import queue
 import threading
 import time
 from collections import deque
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, NotRequired, TypedDict
 
 import numpy as np
 
 from ..errors import AccelcalError
 from ..fixtures.base import PoseSpec
-from ..fixtures.operator_jig import OperatorAbort
+from ..fixtures.operator_jig import OperatorAbort, pose_words
 from ..fixtures.operator_ui import CaptureSink, LiveStatus, PosePrompt, PoseStatus, parse_answer
 from ..i18n import Translate, reason_title
-from .board_picture import level_xy, picture
+from ..station.shift import ShiftSummary
+from .board_picture import Picture, level_xy, picture
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
 
 ANSWER_TEXT = {"accept": "", "replace": "r", "skip": "s", "abort": "a"}
+
+
+class PoseView(TypedDict):
+    """The pose being placed: its number in the run, name, words, place in the plan and picture."""
+
+    number: int
+    name: str
+    words: str
+    index: int | None
+    verify: bool
+    pitch_deg: float
+    roll_deg: float
+    expects_g: list[float]
+    picture: Picture
+
+
+class PlanItem(TypedDict):
+    name: str
+    verify: bool  # a verification pose (after the fit)
+    picture: Picture
+
+
+class CaptureView(TypedDict):
+    label: str
+    fraction: float
+
+
+class ResultView(TypedDict):
+    """The run's end: verdict (PASS, FAIL, ABORTED, ERROR), board, run, reasons with their titles, figures."""
+
+    verdict: str
+    serial: str | None
+    run_id: int | None
+    reasons: list[dict[str, str]]  # code, message, title
+    figures: Mapping[str, float | str | None]
+
+
+class BoardView(TypedDict):
+    serial: str
+    number: int
+
+
+class Level(TypedDict):
+    """The live level while a pose is asked (PoseStatus as the page shows it)."""
+
+    still: bool
+    direction_ok: bool
+    off_deg: float
+    face: str
+    reads_g: list[float]
+    bubble: list[float]
+    ready: bool
+    line: str
+
+
+class ShiftView(ShiftSummary):
+    """The shift's end as the page shows it: the summary and each failing reason's operator words."""
+
+    reason_titles: dict[str, str]
+
+
+class OperatorState(TypedDict):
+    """What every operator page shows (``/operator/state``); ``seq`` counts the changes."""
+
+    phase: str
+    station: str
+    total: int
+    seq: int
+    pose: PoseView | None
+    capture: CaptureView | None
+    result: ResultView | None
+    shift: bool
+    board: BoardView | None
+    summary: ShiftView | None  # the shift's summary with its reasons' titles
+    plan: list[PlanItem]
+    question: NotRequired[str]
+
+
+class StateChange(TypedDict, total=False):
+    """Some of OperatorState's fields, set at once (WebOperator.set)."""
+
+    phase: str
+    pose: PoseView | None
+    capture: CaptureView | None
+    result: ResultView | None
+    board: BoardView | None
+    summary: ShiftView | None
+    question: str
+
+
+class Snapshot(OperatorState):
+    """The state for the page, with the lines said so far and the live level while a pose is asked."""
+
+    lines: list[str]
+    level: NotRequired[Level]
 
 
 class Progress:
@@ -42,7 +142,7 @@ class Progress:
 class WebOperator:
     """An OperatorUI served to a browser; lines also go to ``echo`` (the terminal log)."""
 
-    def __init__(self, echo: Any, station_id: str, total_poses: int, live_every_s: float = 0.25,
+    def __init__(self, echo: Callable[[str], object], station_id: str, total_poses: int, live_every_s: float = 0.25,
                  shift: bool = False, plan: list[tuple[PoseSpec, bool]] | None = None,
                  tr: Translate = str, language: str = "en") -> None:
         self.echo = echo
@@ -51,13 +151,13 @@ class WebOperator:
         self._lock = threading.Lock()
         self._answers: queue.Queue[str | None] = queue.Queue()  # None: the operator aborted
         self._live: LiveStatus | None = None
-        self._level: tuple[float, dict[str, Any]] | None = None
+        self._level: tuple[float, Level] | None = None
         self.live_every_s = live_every_s
         self.lines: deque[str] = deque(maxlen=12)
         self.final_seen = threading.Event()  # a page has shown the end (the run's verdict, or the shift's summary)
         self._final_phase = "shift_over" if shift else "done"
         # the station holds the state; every page (tabs, reloads, a second screen) only shows it
-        self.state: dict[str, Any] = {"phase": "starting", "station": station_id, "total": total_poses,
+        self.state: OperatorState = {"phase": "starting", "station": station_id, "total": total_poses,
                                       "seq": 0, "pose": None, "capture": None, "result": None,
                                       "shift": shift, "board": None, "summary": None,
                                       "plan": [{"name": p.name, "verify": v, "picture": picture(p.reference_g)}
@@ -75,7 +175,8 @@ class WebOperator:
         p = prompt.pose
         index = self._plan_index(p.name)
         verify = bool(self.state["plan"][index]["verify"]) if index is not None else False
-        self.set(phase="place", pose={"number": prompt.number, "name": p.name, "words": prompt.words,
+        words = pose_words(p, self.tr)  # the operator's language (the echo above is the engineers' English)
+        self.set(phase="place", pose={"number": prompt.number, "name": p.name, "words": words,
                                       "index": index, "verify": verify,
                                       "pitch_deg": p.pitch_deg, "roll_deg": p.roll_deg,
                                       "expects_g": [float(v) for v in p.reference_g],
@@ -95,7 +196,7 @@ class WebOperator:
     def ask(self, prompt: PosePrompt, live: LiveStatus | None) -> str:
         with self._lock:
             self._live, self._level = live, None
-            self.state.update(phase="ask", capture=None)
+            self.state.update({"phase": "ask", "capture": None})
             self.state["seq"] += 1
         try:
             return self._wait_answer()
@@ -129,7 +230,7 @@ class WebOperator:
                 raise OperatorAbort("Abort on the operator page")
             return got
 
-    def set(self, **kw: Any) -> None:
+    def set(self, **kw: Unpack[StateChange]) -> None:
         with self._lock:
             self.state.update(kw)
             self.state["seq"] += 1
@@ -149,21 +250,22 @@ class WebOperator:
             return True
         return False
 
-    def snapshot(self) -> dict[str, Any]:
+    def snapshot(self) -> Snapshot:
         """The state for the page, with a fresh live level while a pose is being asked."""
         with self._lock:
-            out = dict(self.state, lines=list(self.lines))
-            if self._live is not None and out.get("pose"):
+            out: Snapshot = {**self.state, "lines": list(self.lines)}
+            pose = out["pose"]
+            if self._live is not None and pose:
                 now = time.monotonic()
                 if self._level is None or now - self._level[0] >= self.live_every_s:
-                    self._level = (now, self._level_dict(self._live(), out["pose"]["expects_g"]))
+                    self._level = (now, self._level_dict(self._live(), pose["expects_g"]))
                 out["level"] = self._level[1]
         if out["phase"] == self._final_phase:
             self.final_seen.set()
         return out
 
     @staticmethod
-    def _level_dict(st: PoseStatus, expects_g: list[float]) -> dict[str, Any]:
+    def _level_dict(st: PoseStatus, expects_g: list[float]) -> Level:
         x, y = level_xy(st.reading_g if st.board_g is None else st.board_g, np.asarray(expects_g, dtype=float))
         return {"still": st.still, "direction_ok": st.direction_ok, "off_deg": st.off_deg, "face": st.face,
                 "reads_g": [float(v) for v in st.reading_g], "bubble": [x, y], "ready": st.accepted,
@@ -173,20 +275,21 @@ class WebOperator:
     def start_board(self, serial: str) -> None:
         """The next board begins: the last verdict leaves every screen now, not before."""
         with self._lock:
-            n = 1 + (self.state["board"] or {}).get("number", 0)
+            board = self.state["board"]
+            n = 1 + (board["number"] if board else 0)
             self.lines.clear()
-            self.state.update(phase="working", pose=None, capture=None, result=None,
-                              board={"serial": serial, "number": n})
+            self.state.update({"phase": "working", "pose": None, "capture": None, "result": None,
+                               "board": {"serial": serial, "number": n}})
             self.state["seq"] += 1
 
-    def end_shift(self, summary: dict[str, Any]) -> None:
-        """The shift's summary, shown full-screen on every page."""
-        titles = {c: reason_title(c, self.tr) for c in summary.get("reasons_by_code", {})}
-        self.set(phase="shift_over", pose=None, capture=None, summary={**summary, "reason_titles": titles})
+    def end_shift(self, summary: ShiftSummary) -> None:
+        """The shift's summary (station/shift.py, as its --json line), shown full-screen on every page."""
+        titles = {c: reason_title(c, self.tr) for c in summary["reasons_by_code"]}
+        self.set(phase="shift_over", pose=None, capture=None, summary=ShiftView(**summary, reason_titles=titles))
 
     # -- the end --------------------------------------------------------------------------
     def finish(self, verdict: str, serial: str | None, run_id: int | None, reasons: list[dict[str, str]],
-               figures: dict[str, Any]) -> None:
+               figures: Mapping[str, float | str | None]) -> None:
         reasons = [{**r, "title": reason_title(r["code"], self.tr)} for r in reasons]  # the operator's words
         self.set(phase="done", pose=None, capture=None,
                  result={"verdict": verdict, "serial": serial, "run_id": run_id, "reasons": reasons,

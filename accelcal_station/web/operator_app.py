@@ -8,16 +8,19 @@ as a bearer token (refused without one: the API is read-only by default).
 from __future__ import annotations
 
 import hmac
-from typing import Any, Literal
+from typing import Annotated, Literal
 
 from fastapi import FastAPI, Header, Request
 from fastapi.responses import HTMLResponse, JSONResponse
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, WithJsonSchema
 
 from . import assets
 from .errors import ApiError, install_errors
 from .operator import WebOperator
 from .operator_text import page_texts_json
+
+# {"ok": true}; documented as an open object, as the OpenAPI has always had it
+Done = Annotated[dict[str, bool], WithJsonSchema({"additionalProperties": True, "type": "object"})]
 
 
 class AnswerIn(BaseModel):
@@ -47,14 +50,14 @@ def create_operator_app(ui: WebOperator, token: str | None) -> FastAPI:
         return JSONResponse(ui.snapshot(), headers={"Cache-Control": "no-store"})
 
     @app.post("/operator/answer", summary="The operator's answer at the current question")
-    def answer(body: AnswerIn, request: Request) -> dict[str, Any]:
+    def answer(body: AnswerIn, request: Request) -> Done:
         _json_only(request)
         if not ui.answer(body.answer, body.serial):
             raise ApiError(409, "not_asked", f"{body.answer}: nothing is being asked that this answers now")
         return {"ok": True}
 
     @app.post("/api/v1/station/abort", summary="Abort the run at its current question (needs web.token)")
-    def abort(authorization: str | None = Header(None)) -> dict[str, Any]:
+    def abort(authorization: str | None = Header(None)) -> Done:
         if token is None:
             raise ApiError(403, "read_only", "this station has no web.token in its config: the API is read-only")
         given = (authorization or "").removeprefix("Bearer ").strip()

@@ -9,18 +9,21 @@ the lot's runs.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
 from ..acceptance.rules import LIMIT_KEYS
 from ..errors import AccelcalError, DataError
+from ..jsontypes import JsonObject, JsonValue
 from ..store.records import RunRecord, iso
 from ..store.runs import Store
 from . import queries
 from .charts import Chart, RunPoint, residual_chart, run_chart
+from .views import LotCalibration, LotCounts, LotRow, RunView, ShiftYield, StationRow
 
 # the line page's run charts: fit_summary.measured key, title, unit, acceptance limit key
 KEY_PARAMS = [("gain_error_max", "Gain error, max |Wii − 1|", "g/g", "gain_error_max"),
@@ -84,12 +87,28 @@ def station_charts(store: Store, station: str | None, w: Window) -> list[Chart]:
     return charts
 
 
-def line_context(store: Store, day: str = "", shift: str = "") -> dict[str, Any]:
+class LineContext(TypedDict):
+    """The line page (line.html, line_body.html)."""
+
+    empty: bool
+    window: Window | None
+    window_from: str | None
+    window_to: str | None
+    day: str
+    shift: str
+    stations: list[StationRow]
+    shifts: list[ShiftYield]
+    reasons: list[tuple[str, int]]
+    recent: list[RunView]
+    station_charts: list[tuple[str | None, list[Chart]]]
+
+
+def line_context(store: Store, day: str = "", shift: str = "") -> LineContext:
     """Stations, yields per station and shift, reasons and per-station run charts (aggregate queries only)."""
     w = pick_window(store, day, shift)
     if w is None:
-        return {"empty": True, "stations": [], "shifts": [], "reasons": [], "recent": [], "charts": [],
-                "window": None, "day": day, "shift": shift}
+        return {"empty": True, "stations": [], "shifts": [], "reasons": [], "recent": [], "station_charts": [],
+                "window": None, "window_from": None, "window_to": None, "day": day, "shift": shift}
     stations = queries.station_rows(store, w.t0, w.t1)
     return {"empty": False, "window": w, "window_from": iso(w.t0), "window_to": iso(w.t1), "day": w.day,
             "shift": w.shift, "stations": stations, "shifts": queries.shift_rows(store, w.t0, w.t1),
@@ -97,7 +116,20 @@ def line_context(store: Store, day: str = "", shift: str = "") -> dict[str, Any]
             "station_charts": [(s["station_id"], station_charts(store, s["station_id"], w)) for s in stations]}
 
 
-def reason_context(store: Store, code: str, day: str, shift: str, station: str | None) -> dict[str, Any]:
+class ReasonContext(TypedDict):
+    """The FAIL runs of one reason code (reason.html)."""
+
+    code: str
+    window: Window | None
+    runs: list[RunView]
+    station: str | None
+    day: str
+    shift: str
+    window_from: str | None
+    window_to: str | None
+
+
+def reason_context(store: Store, code: str, day: str, shift: str, station: str | None) -> ReasonContext:
     """The FAIL runs of one reason code in the line page's window (the drill-down from a reason)."""
     w = pick_window(store, day, shift)
     runs = [] if w is None else queries.reason_runs(store, code, w.t0, w.t1, station)
@@ -119,21 +151,33 @@ def _residuals(rec: RunRecord) -> Chart | None:
                           [p.name for p in rec.poses], np.asarray(fit.residuals_g) * 1e3)
 
 
-def acceptance_rows(measured: dict[str, Any], limits: dict[str, float],
-                    failed_codes: list[str]) -> list[dict[str, Any]]:
+class AcceptanceRow(TypedDict):
+    """A figure of the board page's acceptance table: its value, limit, unit and whether it failed."""
+
+    key: str
+    what: str
+    value: float | None
+    limit: float | None
+    unit: str
+    failed: bool
+    judged: bool
+
+
+def acceptance_rows(measured: Mapping[str, JsonValue], limits: dict[str, float],
+                    failed_codes: list[str]) -> list[AcceptanceRow]:
     """The board page's acceptance table: each figure with its limit, unit and whether it failed."""
-    rows = []
+    rows: list[AcceptanceRow] = []
     for key in sorted(set(measured) | set(limits)):
-        v, lim = measured.get(key), limits.get(key)
-        num = isinstance(v, (int, float)) and not isinstance(v, bool)
-        failed = key in failed_codes or (num and lim is not None and float(v or 0.0) > lim)
-        rows.append({"key": key, "what": LIMIT_KEYS.get(key, "").split(",")[0], "value": v if num else None,
+        got, lim = measured.get(key), limits.get(key)
+        v = got if isinstance(got, (int, float)) and not isinstance(got, bool) else None
+        failed = key in failed_codes or (v is not None and lim is not None and float(v) > lim)
+        rows.append({"key": key, "what": LIMIT_KEYS.get(key, "").split(",")[0], "value": v,
                      "limit": lim, "unit": limit_unit(key), "failed": failed,
-                     "judged": lim is not None and num})
+                     "judged": lim is not None and v is not None})
     return rows
 
 
-def _scaled(d: dict[str, Any], key: str, k: float) -> float | None:
+def _scaled(d: Mapping[str, JsonValue], key: str, k: float) -> float | None:
     """A stored number times k, or None (a damaged or missing value shows as a dash, never breaks the page)."""
     v = d.get(key)
     if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v):
@@ -141,14 +185,35 @@ def _scaled(d: dict[str, Any], key: str, k: float) -> float | None:
     return None
 
 
-def self_test_view(fit_summary: Any) -> dict[str, Any] | None:
+class SelfTestRow(TypedDict):
+    """One axis of the self-test table: output change (mg), the judged value with its limits and unit, ok."""
+
+    axis: str
+    change_mg: float | None
+    value: float | None
+    low: float | None
+    high: float | None
+    unit: str
+    ok: bool
+
+
+class SelfTestView(TypedDict):
+    chip: str
+    source: str
+    ok: bool
+    no_effect: bool
+    rows: list[SelfTestRow]
+
+
+def self_test_view(fit_summary: JsonObject | None) -> SelfTestView | None:
     """The board page's self-test table from a run's stored ``fit_summary.self_test`` (None: not run):
     per axis the output change (mg), the judged value with its limits and unit, and ok."""
     st = fit_summary.get("self_test") if isinstance(fit_summary, dict) else None
-    if not isinstance(st, dict) or not isinstance(st.get("axes"), list):
+    axes = st.get("axes") if isinstance(st, dict) else None
+    if not isinstance(st, dict) or not isinstance(axes, list):
         return None
-    rows = []
-    for a in st["axes"]:
+    rows: list[SelfTestRow] = []
+    for a in axes:
         if not isinstance(a, dict):
             continue
         pct = a.get("unit") == "fraction_of_factory_trim"
@@ -160,11 +225,41 @@ def self_test_view(fit_summary: Any) -> dict[str, Any] | None:
             "no_effect": st.get("no_effect") is True, "rows": rows}
 
 
-def board_context(store: Store, serial: str) -> dict[str, Any]:
+class BoardRun(TypedDict):
+    """A run on the board page: the record, its start, residual chart, self-test, reasons and acceptance."""
+
+    rec: RunRecord
+    started: str | None
+    chart: Chart | None
+    self_test: SelfTestView | None
+    reasons: list[dict[str, str]]  # Reason.to_dict: code, message
+    limits_source: str | None
+    acceptance: list[AcceptanceRow]
+
+
+class NvmLine(TypedDict):
+    """A line of a board's NVM history: the run, when (ISO 8601), what happened."""
+
+    run: int | None
+    t: str | None
+    kind: str
+    message: str | None
+
+
+class BoardContext(TypedDict):
+    """The board page (board.html)."""
+
+    serial: str
+    runs: list[BoardRun]
+    nvm: list[NvmLine]
+    similar: list[str]
+
+
+def board_context(store: Store, serial: str) -> BoardContext:
     """Every run of one board (newest first) with its acceptance table, residual chart and NVM history."""
     recs = store.runs(device=serial)
-    runs = []
-    nvm: list[dict[str, Any]] = []
+    runs: list[BoardRun] = []
+    nvm: list[NvmLine] = []
     for rec in reversed(recs):
         lim = rec.limits if isinstance(rec.limits, dict) else queries.limits_from_text(rec.config_text)
         measured = (rec.fit_summary or {}).get("measured") or {}
@@ -175,7 +270,7 @@ def board_context(store: Store, serial: str) -> dict[str, Any]:
                      "acceptance": acceptance_rows(measured if isinstance(measured, dict) else {}, lim,
                                                    [r.code for r in rec.reasons])})
         nvm.extend({"run": rec.id, "t": iso(e["t"]), "kind": e["kind"], "message": e["message"]}
-                   for e in rec.events if str(e["kind"]).startswith("nvm_"))
+                   for e in rec.events if e["kind"] is not None and e["kind"].startswith("nvm_"))
         if rec.nvm_status and rec.nvm_status != "none":
             o = rec.nvm_outcome or {}
             nvm.append({"run": rec.id, "t": iso(rec.finished_at), "kind": f"run {rec.nvm_status}",
@@ -184,11 +279,22 @@ def board_context(store: Store, serial: str) -> dict[str, Any]:
             "similar": [] if recs else queries.serials_like(store, serial)}
 
 
-def _param_table(vals: np.ndarray) -> list[dict[str, Any]]:
+class ParamRow(TypedDict):
+    """A parameter over a lot, in its unit: mean, sample std (None for one run), min, max."""
+
+    name: str
+    unit: str
+    mean: float
+    min: float
+    max: float
+    std: float | None
+
+
+def _param_table(vals: np.ndarray) -> list[ParamRow]:
     """Mean, sample std, min, max of every parameter in its unit (W and Γ as fitted, V in mg)."""
     names = ([(f"W{a}{b}", 3 * a + b, 1.0, "g/g") for a in range(3) for b in range(3)]
              + [(f"V{i}", 9 + i, 1e3, "mg") for i in range(3)] + [(f"Γ{i}", 12 + i, 1.0, "1/g²") for i in range(3)])
-    out = []
+    out: list[ParamRow] = []
     for name, idx, scale, unit in names:
         x = vals[:, idx] * scale
         out.append({"name": name, "unit": unit, "mean": float(x.mean()), "min": float(x.min()),
@@ -196,21 +302,47 @@ def _param_table(vals: np.ndarray) -> list[dict[str, Any]]:
     return out
 
 
-def lot_context(store: Store, lot: str) -> dict[str, Any]:
+class LotContext(TypedDict):
+    """The lot page (lot.html): a lot's counts, parameter table and charts; the lots list beside it."""
+
+    lot: str
+    summary: LotCounts | None
+    charts: list[Chart]
+    parameters: list[ParamRow]
+    lots: list[LotRow]
+
+
+def _numbers(x: JsonValue) -> list[float] | None:
+    """A JSON list of numbers as floats; None when it is not one."""
+    if not isinstance(x, list) or not all(isinstance(v, (int, float)) for v in x):
+        return None
+    return [float(v) for v in x if isinstance(v, (int, float))]
+
+
+def param_numbers(cal: JsonObject) -> list[float] | None:
+    """W, V, Gamma of a stored calibration as 15 numbers (calibration.param_vector's order), without a
+    numpy call per run; None when it is damaged (named on the board page and by `report check`)."""
+    w, v, g = cal.get("W"), cal.get("V"), cal.get("Gamma", [0.0, 0.0, 0.0])
+    rows = [_numbers(r) for r in w] if isinstance(w, list) and len(w) == 3 else [None]
+    parts = [*rows, _numbers(v), _numbers(g)]
+    if any(p is None for p in parts):
+        return None
+    vec = [x for p in parts for x in p or ()]
+    return vec if len(vec) == 15 else None
+
+
+def lot_context(store: Store, lot: str) -> LotContext:
     """The lot page: counts grouped in SQL, the parameters' statistics and run charts of the lot's
     calibrations, each run against its own limits."""
     summ = queries.lot_counts(store, lot)
-    charts, table = [], []
+    charts: list[Chart] = []
+    table: list[ParamRow] = []
     cals = queries.lot_calibrations(store, lot) if summ["runs"] else []
-    rows, vecs = [], []
-    for c in cals:  # W, V, Gamma as 15 numbers (calibration.param_vector's order), without a numpy call per run
-        cal = c["calibration"]
-        try:
-            w, v, g = cal["W"], cal["V"], cal.get("Gamma", [0.0, 0.0, 0.0])
-            vec = [float(x) for x in (*w[0], *w[1], *w[2], *v, *g)]
-        except (KeyError, TypeError, ValueError, IndexError, AttributeError):
-            continue  # a damaged calibration is named on the board page and by `report check`
-        if len(vec) == 15:
+    rows: list[LotCalibration] = []
+    vecs: list[list[float]] = []
+    for c in cals:
+        vec = param_numbers(c["calibration"])
+        if vec is not None:
             rows.append(c)
             vecs.append(vec)
     keep = np.isfinite(np.array(vecs, dtype=float).reshape(-1, 15)).all(axis=1)

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
+
+from ...jsontypes import JsonObject
 
 if TYPE_CHECKING:
     from ..evaluation import Evaluation
@@ -29,9 +31,9 @@ class Signature:
     p_value: float
     test: str
     reason: str
-    evidence: dict[str, Any] = field(default_factory=dict)
+    evidence: JsonObject = field(default_factory=dict)  # each effect's own figures (an open JSON object)
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> JsonObject:
         return {"effect": self.effect, "passed": self.passed, "p_value": self.p_value, "test": self.test,
                 "reason": self.reason, **self.evidence}
 

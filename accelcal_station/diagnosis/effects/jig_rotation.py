@@ -9,10 +9,11 @@ W R is another W: the rotation is absorbed and cannot be told from the board's o
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ...jsontypes import JsonObject
 from .design import static_design
 
 if TYPE_CHECKING:
@@ -39,7 +40,7 @@ def _wls_chi2(A: np.ndarray, y: np.ndarray, sw: np.ndarray) -> tuple[np.ndarray,
 
 
 def fit_rotation(data: GapData, floor_v: np.ndarray, baseline: tuple[str, ...], gamma: float,
-                 alpha: float) -> dict[str, Any]:
+                 alpha: float) -> JsonObject:
     """The baseline fitted jointly with a rotation w of the references, in-sample, weighted by the floor.
 
     Residual convention of the static view (design.static_design): gamma ref - b(readings) = A theta; a jig
@@ -84,7 +85,7 @@ def fit_rotation(data: GapData, floor_v: np.ndarray, baseline: tuple[str, ...], 
 
 
 def jig_rotation(data: GapData, base: Evaluation, baseline: tuple[str, ...], gamma: float,
-                 alpha: float) -> dict[str, Any]:
+                 alpha: float) -> JsonObject:
     """The report of a fixed jig rotation: fitted jointly with the baseline (fit_rotation), or why not."""
     if data.norm_only or base.r_static is None or base.floor_static is None or base.r_static.shape[1] != 3:
         return {"testable": False, "reason": "a rotation keeps |f| = 1 g: it needs references (a static view)"}

@@ -1,10 +1,11 @@
 """pose_error: a pose error rotates gravity, so the reading moves across the reference, not along it."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ...jsontypes import JsonObject
 from .base import Signature, StochasticEffect
 
 if TYPE_CHECKING:
@@ -27,7 +28,7 @@ def revisits(ref: np.ndarray) -> list[np.ndarray]:
     return [g for g in groups if len(g) > 1]
 
 
-def _revisit_test(across: np.ndarray, v_across: np.ndarray, groups: list[np.ndarray]) -> tuple[float, dict[str, Any]]:
+def _revisit_test(across: np.ndarray, v_across: np.ndarray, groups: list[np.ndarray]) -> tuple[float, JsonObject]:
     """Whether the across-reference residuals of revisited orientations differ between visits (a random pose
     error) more than the floor allows: (p-value, evidence)."""
     d2, vd, k = 0.0, 0.0, 0
@@ -74,10 +75,10 @@ class PoseError(StochasticEffect):
         P = data.P
         p_along, p_across = _chi2_sf(z_al, P), _chi2_sf(z_ac, 2 * P)
         s2 = max(np.sum(np.sum(across**2, 1) - v_across) / (2 * P), 0.0)
-        ev_json: dict[str, Any] = {"along_ratio": float(np.sqrt(z_al / P)),
-                                   "across_ratio": float(np.sqrt(z_ac / (2 * P))),
-                                   "p_along_excess": p_along, "p_across_excess": p_across,
-                                   "scatter_deg": float(np.degrees(np.sqrt(s2)))}
+        along_ratio, across_ratio = float(np.sqrt(z_al / P)), float(np.sqrt(z_ac / (2 * P)))
+        scatter_deg = float(np.degrees(np.sqrt(s2)))
+        ev_json: JsonObject = {"along_ratio": along_ratio, "across_ratio": across_ratio,
+                               "p_along_excess": p_along, "p_across_excess": p_across, "scatter_deg": scatter_deg}
         rep = ""
         groups = revisits(ref)
         p_rep = 0.0
@@ -88,16 +89,16 @@ class PoseError(StochasticEffect):
                 rep = "; but revisited orientations repeat their tilt exactly (fixed per orientation, not pose error)"
         passed = bool(p_across < alpha / 2 and p_along >= alpha / 2 and p_rep < alpha)
         if passed:
-            reason = (f"the residual across the reference is {ev_json['across_ratio']:.2f} x the floor while along it "
-                      f"stays at {ev_json['along_ratio']:.2f} x: a rotation of gravity, "
-                      f"{ev_json['scatter_deg']:.3f} deg RMS per axis")
+            reason = (f"the residual across the reference is {across_ratio:.2f} x the floor while along it "
+                      f"stays at {along_ratio:.2f} x: a rotation of gravity, "
+                      f"{scatter_deg:.3f} deg RMS per axis")
         elif p_across >= alpha / 2:
-            reason = f"the residual across the reference is at the floor ({ev_json['across_ratio']:.2f} x)"
+            reason = f"the residual across the reference is at the floor ({across_ratio:.2f} x)"
         elif p_along < alpha / 2:
-            reason = (f"the residual along the reference is {ev_json['along_ratio']:.2f} x the floor: a radial part "
+            reason = (f"the residual along the reference is {along_ratio:.2f} x the floor: a radial part "
                       "that no rotation makes")
         else:
-            reason = f"the residual across the reference is {ev_json['across_ratio']:.2f} x the floor" + rep
+            reason = f"the residual across the reference is {across_ratio:.2f} x the floor" + rep
         return Signature(self.name, passed, max(p_across, p_rep) if passed else 1.0,
                          "chi-square: across-reference residual above the floor (alpha/2), along-reference at it "
                          "(alpha/2), revisits differ (alpha)", reason, ev_json)

@@ -1,0 +1,261 @@
+"""The station's one flow: a run is boards x conditions (DESIGN.md "The flow of one board", "Scale").
+
+``StationFlow.run`` builds the boards (``panel.Panel``: 1..N boards on one jig; a single board
+is a panel of one), opens the store, opens each board and starts its run, runs each board's
+self-test, hands the boards still in the flow to its conditions (``room.RoomTemperature``: the
+poses once at room temperature; ``thermal.ThermalConditions``: the chamber's set points and the
+temperature table), then times, records and closes every run.  What a single board's run does
+that a panel's does not is its ``FlowPolicy``, chosen once from the config, never a subclass.
+``make_flow`` builds the flow a config asks for (`accelcal run`, a shift, the benchmarks).
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+from ..acceptance.reasons import Reason
+from ..drivers.base import Driver
+from ..drivers.factory import make_driver
+from ..errors import AccelcalError, DeviceError
+from ..fixtures.base import Jig
+from ..fixtures.operator_ui import OperatorUI
+from ..store.outbox import open_store
+from ..store.runs import Store
+from .board import BoardSteps
+from .panel import Panel, PanelBoard, PanelTiming, board_rate, board_session
+from .policy import Conditions, FlowPolicy
+from .recording import FinishArgs, record_result, start_args
+from .report import RunReport
+from .room import RoomTemperature
+from .settings import StationConfig, configured_rate
+from .thermal import ThermalConditions
+from .verdict import Stage
+
+
+def _quiet(_: str) -> None:
+    """A board of a panel says nothing itself: the panel speaks for its boards."""
+
+
+class StationFlow:
+    """Runs boards x conditions: 1..N boards (``panel``), at room temperature or a thermal plan
+    (``conditions``), a single board's differences in ``policy`` (module docstring)."""
+
+    def __init__(self, config: StationConfig, conditions: Conditions, policy: FlowPolicy, *,
+                 operator: str | None = None, serial: str | None = None, lot: str | None = None,
+                 echo: Callable[[str], None] = print, progress: Callable[[str, float], None] | None = None,
+                 drivers: list[Driver] | None = None, jig: Jig | None = None, ui: OperatorUI | None = None) -> None:
+        self.cfg = config
+        self.conditions = conditions
+        self.policy = policy
+        self.ui = ui  # the operator's front end (terminal or browser), for an operator jig
+        self.operator, self.serial_override, self.lot, self.echo = operator, serial, lot, echo
+        self.progress = progress
+        self.panel = Panel(config, echo, drivers, jig, ui)
+        self.boards: list[PanelBoard] = []
+
+    @property
+    def panel_id(self) -> str | None:
+        return self.policy.panel_id
+
+    @property
+    def run_id(self) -> int | None:
+        """The first board's run, once started (a shift names an aborted board's run)."""
+        return self.boards[0].rep.run_id if self.boards else None
+
+    @property
+    def timing(self) -> PanelTiming:
+        """The panel's time (panel.Panel.timing); empty for a single board."""
+        return self.panel.timing
+
+    # -- the run ---------------------------------------------------------------------
+    def run(self) -> list[RunReport]:
+        """Open every board and start its run, calibrate them (the conditions), then time and record
+        each run; the reports, one per board."""
+        cfg = self.cfg
+        wall0 = time.perf_counter()
+        boards = self.boards = self.panel.build(self._steps, lambda: self.conditions.new_report(cfg),
+                                                single=self.policy.single_board)
+        with open_store(cfg.store_file, cfg.outbox, cfg.heartbeat_s) as store:
+            store.mark_stale_interrupted()
+            try:
+                self._announce(boards[0].rep)
+                self._open_all(store, boards)
+                self._calibrate(store, boards)
+                if self.policy.closes_before_timing:
+                    self.panel.close(boards)
+                self.conditions.timing(self, boards, wall0)
+                for b in boards:
+                    self._record(store, b)
+            finally:
+                self.panel.close(boards)
+        return [b.rep for b in boards]
+
+    def _steps(self) -> BoardSteps:
+        """A board's own steps: a single board speaks and shows its progress, a panel's boards do not."""
+        p = self.policy
+        return BoardSteps(self.cfg, echo=self.echo if p.single_board else _quiet,
+                          progress=self.progress if p.single_board else None,
+                          ui=self.ui if p.single_board else None, live_reading=p.live_reading)
+
+    def _announce(self, rep: RunReport) -> None:
+        """The safe default limits in use, said and kept with the run's events."""
+        line = self.cfg.limits.defaults_line()
+        if line and self.policy.says_default_limits:
+            self.echo(line)
+            rep.events.append(line)
+
+    def _calibrate(self, store: Store, boards: list[PanelBoard]) -> None:
+        """The conditions with the boards; an ending fault fails every board still in the flow, any
+        other error or Ctrl-C closes each run (interrupted or error) with its poses, then propagates."""
+        try:
+            self.conditions.calibrate(self, boards)
+        except self.conditions.ending_faults as e:
+            self._fault(boards, e)
+        except (AccelcalError, KeyboardInterrupt) as e:
+            self._interrupted(store, boards, e)
+            raise
+
+    # -- opening ----------------------------------------------------------------------
+    def _open_all(self, store: Store, boards: list[PanelBoard]) -> None:
+        """Open every board; Ctrl-C closes a panel's runs started so far (a single board's: its self-test)."""
+        try:
+            for b in boards:
+                self._open(b, store)
+        except KeyboardInterrupt as e:
+            if not self.policy.single_board:
+                self._interrupted(store, boards, e)
+            raise
+
+    def _open(self, b: PanelBoard, store: Store) -> None:
+        """Open, identify and configure one board, start its run and run its self-test.  A device
+        fault fails that board (a panel's) or is recorded as an error run and raised (a single board)."""
+        try:
+            b.driver.open()
+            b.open_ = True
+            ident = b.driver.identify()
+            b.rep.serial = (self.serial_override or ident.serial) if self.policy.single_board else (
+                ident.serial or b.rep.serial)
+            b.rep.chip = ident.chip
+            b.driver.configure(*(configured_rate(self.cfg.device) if self.policy.single_board else board_rate(b)))
+            b.clock = self.conditions.clock(b.driver)
+            b.clock0 = b.clock.now() if b.clock is not None else None
+        except AccelcalError as e:
+            if self.policy.device_fault_ends_run:
+                self._record_unreachable(store, e)
+                raise
+            b.fail(Stage.DEVICE, Reason("device", str(e)))
+        self._start_run(b, store)
+        self._self_test(b, store)
+
+    def _start_run(self, b: PanelBoard, store: Store) -> None:
+        cfg, rep = self.cfg, b.rep
+        single = self.policy.single_board
+        rep.run_id = store.start_run(
+            device_serial=rep.serial if single else rep.serial or b.path,
+            chip=rep.chip if single else rep.chip or b.driver_name,
+            station_id=cfg.station_id, operator=self.operator, lot=self.lot, config_text=cfg.text,
+            model=cfg.model, units="counts", counts_per_g=b.driver.counts_per_g if b.open_ else None,
+            panel_id=self.panel_id)
+        if self.policy.burn_steps_recorded:
+            b.steps.burn_log = lambda kind, data, r=rep.run_id: store.record_burn(r, kind, data)
+
+    def _record_unreachable(self, store: Store, err: AccelcalError) -> None:
+        """A device that does not answer still leaves a record: status error, with the reason."""
+        cfg = self.cfg
+        rid = store.start_run(device_serial=self.serial_override, station_id=cfg.station_id,
+                              operator=self.operator, lot=self.lot, config_text=cfg.text, model=cfg.model)
+        store.interrupt_run(rid, f"device: {err}", status="error")
+
+    def _self_test(self, b: PanelBoard, store: Store) -> None:
+        """The board's self-test before the poses (self_test_step.py); a board that fails it takes no
+        part in the poses.  A single board's device fault ends its run FAIL, any other error or Ctrl-C
+        interrupts it; a panel's board that errs fails alone."""
+        if not b.active:
+            return
+        try:
+            if not b.steps.self_test_step(b.driver, b.rep) and not self.policy.single_board:
+                self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
+        except AccelcalError as e:
+            if not self.policy.device_fault_ends_run:
+                b.fail(Stage.SELF_TEST, Reason(e.reason_code, f"during the self-test: {e}"))
+                self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
+            elif isinstance(e, DeviceError):
+                b.rep.record(Stage.FAULT, Reason(e.reason_code, f"during the self-test: {e}"))
+                self.echo(f"FAIL: {e} (self-test)")
+            else:
+                self._interrupt_self_test(store, b, e)
+                raise
+        except KeyboardInterrupt as e:
+            if self.policy.single_board:
+                self._interrupt_self_test(store, b, e)
+            raise
+
+    def _interrupt_self_test(self, store: Store, b: PanelBoard, e: BaseException) -> None:
+        assert b.rep.run_id is not None, "the run is started before its self-test"
+        ki = isinstance(e, KeyboardInterrupt)
+        store.interrupt_run(b.rep.run_id, "interrupted (Ctrl-C)" if ki else f"self-test: {e}",
+                            status="interrupted" if ki else "error")
+
+    def _record(self, store: Store, b: PanelBoard) -> None:
+        """Record one board's finished run (or keep it in the outbox: recording.py); a single board's store
+        that fails ends the command, a panel's fails that board."""
+        cfg, rep = self.cfg, b.rep
+        assert rep.run_id is not None, "every board's run is started when it is opened"
+        summary = self.conditions.finish(self, b)
+        session = board_session(b)
+        single = self.policy.single_board
+        start = start_args(cfg, rep, self.operator, self.lot, session.counts_per_g,
+                           panel_id=self.panel_id, device_serial=rep.serial if single else rep.serial or b.path)
+        finish: FinishArgs = {"session": session, "calibration": rep.calibration, "verdict": rep.verdict,
+                  "reasons": rep.reasons, "nvm_outcome": rep.nvm, "fit_summary": summary, "model": cfg.model,
+                  "retries": b.retries, "limits": cfg.limits.values}
+        try:
+            record_result(store, rep.run_id, start, finish, cfg.outbox)
+        except AccelcalError as e:
+            if single:
+                raise
+            rep.record(Stage.STORE, Reason("store", str(e)))
+
+    # -- ending ------------------------------------------------------------------------
+    def _fault(self, boards: list[PanelBoard], e: AccelcalError) -> None:
+        """A device or port fault that ends the flow: every board still in it fails with the typed reason
+        (``port_lost``, ``device``, ``nvm``); each run is then recorded FAIL with the poses its board
+        captured, so the command exits 1 and no run is left 'running'."""
+        code = e.reason_code
+        single = self.policy.single_board
+        for b in boards:
+            if single or b.active:
+                why, as_event = self.conditions.fault_reason(self, b, e)
+                b.rep.record(Stage.FAULT, Reason(code, why))
+                b.cal = None  # nothing is burned after the fault
+                if as_event:
+                    b.rep.events.append(f"run ended by a {code} fault after {len(b.records)} poses: {e}")
+        if single:
+            self.echo(f"FAIL: {e} ({len(boards[0].records)} poses captured)")
+        else:
+            self.echo(f"FAIL: {e} (every board still in the flow)")
+
+    def _interrupted(self, store: Store, boards: list[PanelBoard], e: BaseException) -> None:
+        """Each run closed with the poses its board captured so far (interrupted, or error)."""
+        for b in boards:
+            if b.rep.run_id is not None:
+                why, status = self.conditions.interruption(self, b, e)
+                store.interrupt_run(b.rep.run_id, why, status=status, nvm_outcome=b.rep.nvm,
+                                    session=board_session(b) if b.records else None,
+                                    retries=b.retries if b.records else None)
+
+
+def make_flow(cfg: StationConfig, *, operator: str | None = None, serial: str | None = None,
+              lot: str | None = None, echo: Callable[[str], None] = print,
+              progress: Callable[[str, float], None] | None = None, drivers: list[Driver] | None = None,
+              driver: Driver | None = None, panel_id: str | None = None, jig: Jig | None = None,
+              ui: OperatorUI | None = None) -> StationFlow:
+    """The flow a config asks for: its boards (``device.boards``: a panel; else one board), its
+    conditions (``thermal:`` and ``chamber:``: a thermal plan; else room temperature) and its policy."""
+    conditions: Conditions = ThermalConditions(cfg) if cfg.is_thermal else RoomTemperature()
+    if driver is not None:
+        drivers = [driver]
+    elif drivers is None and not cfg.is_panel:
+        drivers = [make_driver(cfg.device)]
+    return StationFlow(cfg, conditions, FlowPolicy.for_config(cfg, panel_id), operator=operator, serial=serial,
+                       lot=lot, echo=echo, progress=progress, drivers=drivers, jig=jig, ui=ui)
