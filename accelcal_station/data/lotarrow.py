@@ -102,13 +102,13 @@ def _closing(f: BinaryIO, chunks: Iterator[LotChunk]) -> Iterator[LotChunk]:
 
 
 def _guarded(batches: Iterable[Any], names: list[str], path: Path, what: str,
-             bad_row: list[str] | None = None, where: Where | None = None) -> Iterator[LotChunk]:
+             bad_row: list[str] | None = None, where: Where | None = None, row0: int = 0) -> Iterator[LotChunk]:
     """Chunks of whole boards; an Arrow error while decoding is one DataError (``bad_row``: a CSV row
     of the wrong width, recorded by the reader, named instead)."""
     import pyarrow as pa
 
     try:
-        yield from _arrow_chunks(batches, names, path, where or _data_row)
+        yield from _arrow_chunks(batches, names, path, where or _data_row, row0)
     except (pa.ArrowException, OSError) as e:
         if bad_row:
             raise DataError(bad_row[0]) from None
@@ -119,11 +119,11 @@ def _data_row(n: int) -> str:
     return f"data row {n}"
 
 
-def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: Where) -> Iterator[LotChunk]:
-    """Whole-board chunks from Arrow record batches (a board may span two batches); ``where`` names
-    data row n (1-based) in errors."""
+def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: Where,
+                  row0: int = 0) -> Iterator[LotChunk]:
+    """Whole-board chunks from Arrow record batches (a board may span two batches), the first
+    batch's first row being data row ``row0`` + 1; ``where`` names data row n (1-based) in errors."""
     tail: dict[str, np.ndarray] | None = None
-    row0 = 0
     for batch in batches:
         bad_rows: dict[int, str] = {}
         first = row0 + (len(tail["serial"]) if tail else 0)
@@ -241,11 +241,33 @@ def _line_of(path: Path, text: str) -> str:
 
 def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int,
                    block_bytes: int = BLOCK_BYTES) -> Iterator[LotChunk]:
-    """The CSV body through pyarrow's streaming reader, ``block_bytes`` of CSV parsed at once."""
+    """The CSV body through pyarrow's streaming reader, ``block_bytes`` of CSV parsed at once.
+
+    Numeric columns are parsed as float64 by the reader itself (no text column and cast per
+    block); a cell that is not a number stops that read, and the rest of the file, from the
+    first row not yet given out, is read again as text, where ``_arrow_column`` names the bad
+    cells.  Both give the same numbers for every cell the typed read accepts (Arrow's one float
+    parser; surrounding blanks, which the typed read skips, are trimmed before the text cast)."""
+    done = 0  # data rows given out in chunks so far
+    try:
+        for chunk in _read_csv_arrow(path, header, skip, block_bytes, typed=True):
+            done = chunk.row_end
+            yield chunk
+    except _TypedCellError:
+        yield from _read_csv_arrow(path, header, skip, block_bytes, typed=False, row0=done)
+
+
+class _TypedCellError(Exception):
+    """A numeric cell the typed read could not parse: read the rest as text."""
+
+
+def _read_csv_arrow(path: Path, header: list[str], skip: int, block_bytes: int, typed: bool,
+                    row0: int = 0) -> Iterator[LotChunk]:
+    """One pass of pyarrow's streaming reader from data row ``row0`` on (earlier rows dropped)."""
     import pyarrow as pa
     import pyarrow.csv as pcsv
 
-    types = {c: pa.string() for c in header}
+    types = {c: pa.float64() if typed and c not in TEXT else pa.string() for c in header}
     check = _RowCheck(path)
     # One thread, and the reader closed before the file: a background read-ahead thread of Arrow's
     # reading a Python file object that an abandoned generator has already closed crashes the process.
@@ -255,10 +277,42 @@ def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int,
                                                                     block_size=block_bytes, use_threads=False),
                                    parse_options=pcsv.ParseOptions(ignore_empty_lines=True, invalid_row_handler=check),
                                    convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True))
+        except pa.ArrowInvalid as e:
+            if typed and not check.bad and "conversion error" in str(e).lower():
+                raise _TypedCellError from None
+            raise DataError(check.bad[0] if check.bad else f"{path}: unreadable CSV ({e})") from None
         except (pa.ArrowException, OSError) as e:
             raise DataError(check.bad[0] if check.bad else f"{path}: unreadable CSV ({e})") from None
         try:
-            yield from _guarded(reader, header, path, "CSV", check.bad, lambda n: _data_line(path, skip, n))
+            batches = _typed_batches(reader, check) if typed else _after(reader, row0)
+            yield from _guarded(batches, header, path, "CSV", check.bad, lambda n: _data_line(path, skip, n), row0)
         finally:
             reader.close()
 
+
+def _typed_batches(reader: Iterable[Any], check: _RowCheck) -> Iterator[Any]:
+    """The typed reader's batches; a conversion error (a cell that is not a number) as _TypedCellError."""
+    import pyarrow as pa
+
+    it = iter(reader)
+    while True:
+        try:
+            batch = next(it)
+        except StopIteration:
+            return
+        except pa.ArrowInvalid as e:
+            if not check.bad and "conversion error" in str(e).lower():
+                raise _TypedCellError from None
+            raise
+        yield batch
+
+
+def _after(batches: Iterable[Any], row0: int) -> Iterator[Any]:
+    """The batches without their first ``row0`` rows (given out already by the typed read)."""
+    left = row0
+    for batch in batches:
+        if left >= batch.num_rows:
+            left -= batch.num_rows
+            continue
+        yield batch.slice(left) if left else batch
+        left = 0

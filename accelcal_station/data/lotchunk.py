@@ -30,6 +30,11 @@ class LotChunk:
     bad: list[str | None]
     first_row: np.ndarray
 
+    @property
+    def row_end(self) -> int:
+        """Data rows of the lot up to this chunk's last row (the next chunk's first row - 1)."""
+        return int(self.first_row[0]) - 1 + int(self.starts[-1]) if len(self.first_row) else 0
+
 
 def missing_serial(path: Path, where: str) -> DataError:
     """The refusal of a row without a serial: it belongs to no board, and must not make one."""

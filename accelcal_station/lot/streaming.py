@@ -78,10 +78,14 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
                reasons: list[str | None]) -> None:
     """Fit the boards ``idx`` (all with ``P`` poses) in one stacked fit into ``out``; a board that
     cannot be fitted gets its reason."""
-    rows = starts[idx][:, None] + np.arange(P)
-    xs = x[rows]
-    scale = nominal_scale(xs) if per_g is None else np.full(len(idx), per_g)
-    gf = xs / scale[:, None, None]
+    rows = _BoardRows(idx, P, starts)
+    xs = rows.take(x)
+    if per_g is None:
+        scale = nominal_scale(xs)
+        gf = xs / scale[:, None, None]
+    else:  # one scale for the lot: a scalar division (the same numbers as by a column of it)
+        scale = np.full(len(idx), per_g)
+        gf = xs / per_g
     if model != "9":
         implausible = ~_plausible_g(gf)
         med = np.zeros(len(gf))
@@ -91,15 +95,17 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
             reasons[idx[k]] = (f"readings in {units} have a median norm of {med[k]:.4g} g, expected about 1 g "
                                f"({hint})")
         keep = ~implausible
-        idx, rows, gf, scale = idx[keep], rows[keep], gf[keep], scale[keep]
+        rows.keep(keep)
+        idx, gf, scale = idx[keep], gf[keep], scale[keep]
         if not idx.size:
             return
-    nz = None if noise is None else noise[rows] / scale[:, None, None]
+    nz = None if noise is None else (rows.take(noise) / per_g if per_g is not None
+                                     else rows.take(noise) / scale[:, None, None])
     try:
         # ref is None only when board_arrays gave every board a reason (models 6/12/15 need one)
         # the one front of every path (models.fitting.fit_batch): identifiability, absurd
         # readings and coefficients, then the stacked estimator; readings already in g here
-        b = fit_batch(gf, None if model == "9" or ref is None else ref[rows], model, units="g", noise=nz)
+        b = fit_batch(gf, None if model == "9" or ref is None else rows.take(ref), model, units="g", noise=nz)
     except AccelcalError as e:
         for i in idx:
             reasons[i] = str(e)
@@ -127,6 +133,30 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
     if any(b.held):  # terms held at nominal (models/held.py), as `accelcal fit`
         for k in np.flatnonzero(np.array([bool(h) for h in b.held]) & ok):
             out["held"][idx[k]] = b.held[k]
+
+
+class _BoardRows:
+    """The rows of boards ``idx`` (each of P poses) of a chunk's per-row arrays: gathered by an
+    index (n, P), or, when they are consecutive boards end to end (a clean chunk), as a view."""
+
+    def __init__(self, idx: np.ndarray, P: int, starts: np.ndarray):
+        first = starts[idx]
+        self.index = first[:, None] + np.arange(P)
+        self.P = P
+        n = idx.size
+        self.start: int | None = int(first[0]) if n and starts[idx[-1] + 1] - first[0] == P * n \
+            and idx[-1] - idx[0] == n - 1 else None
+
+    def take(self, a: np.ndarray) -> np.ndarray:
+        """(n, P, 3) of the per-row (rows, 3) array ``a``."""
+        if self.start is None:
+            return a[self.index]
+        return a[self.start:self.start + self.index.size].reshape(-1, self.P, a.shape[-1])
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Only the boards where ``mask``."""
+        if not mask.all():
+            self.index, self.start = self.index[mask], None
 
 
 def _plausible_g(gf: np.ndarray) -> np.ndarray:
