@@ -22,6 +22,7 @@ from ..data.results_table import ResultsWriter
 from ..errors import AccelcalError, DataError
 from ..models.fitting import check_model, fit_batch
 from ..models.gravity_norm import nominal_scale
+from ..identifiability import directions_apart
 from ..models.sanity import distinct_directions_batch
 
 
@@ -129,7 +130,11 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
     out["stderr_V_max"][sel] = np.where(se, np.max(b.stderr_V[ok], axis=1), np.nan)
     out["stderr_W_max"][sel] = np.where(se, np.max(b.stderr_W[ok].reshape(-1, 9), axis=1), np.nan)
     out["input_per_g"][sel] = scale[ok]
-    out["distinct_poses"][sel] = distinct_directions_batch(gf[ok])
+    # the nominal references certify most boards' poses distinct without comparing pairs (exact)
+    every = bool(ok.all())
+    nominal = None if ref is None else rows.take(ref) if every else rows.take(ref)[ok]
+    g_ok = gf if every else gf[ok]
+    out["distinct_poses"][sel] = distinct_directions_batch(g_ok, apart=directions_apart(g_ok, nominal))
     if any(b.held):  # terms held at nominal (models/held.py), as `accelcal fit`
         for k in np.flatnonzero(np.array([bool(h) for h in b.held]) & ok):
             out["held"][idx[k]] = b.held[k]
