@@ -369,7 +369,7 @@ def screen(gf: np.ndarray, ref: np.ndarray | None, model: str, tol_deg: float = 
         centred = ~(np.sqrt((mid * mid).sum(axis=0)) > 0.5)  # _centre gives 0: directions about 0
         along = (g * ru.T[:, :, None]).sum(axis=0)  # (P, D) reading . unit reference
         apart = np.all(along > np.sqrt(sq) * math.cos(delta), axis=0) & centred
-        determined = apart & _design_certified(g, g2, r, model) if P >= COEFFS[model] else none
+        determined = apart & _design_certified(g, g2, r, model) if COEFFS[model] <= P else np.zeros(D, dtype=bool)
         if model == "6":
             determined &= np.all(hi - lo >= SPREAD_MIN_G, axis=0)
     return Screen(apart, determined, sq.T)
@@ -577,5 +577,6 @@ def describe_terms(A: np.ndarray, labels: list[tuple[str, str]], ideal: np.ndarr
                      + f" (relative singular value {rel[bad[0]]:.1g})")}
 
 
-__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "TermsCounts", "TermsDescription", "assess", "assess_batch",
-           "describe_terms", "directions_apart", "first_of_orientation", "Screen", "screen", "require", "worst_parameter"]
+__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "Screen", "TermsCounts", "TermsDescription", "assess",
+           "assess_batch", "describe_terms", "directions_apart", "first_of_orientation", "require", "screen",
+           "worst_parameter"]

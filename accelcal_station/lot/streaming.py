@@ -20,9 +20,9 @@ from ..acceptance.rules import FitFigures, Limits, limit_reasons, measure_all
 from ..data.lotfile import LotChunk, board_arrays, lot_scale, open_lot
 from ..data.results_table import ResultsWriter
 from ..errors import AccelcalError, DataError
+from ..identifiability import directions_apart
 from ..models.fitting import check_model, fit_batch
 from ..models.gravity_norm import nominal_scale
-from ..identifiability import directions_apart
 from ..models.sanity import distinct_directions_batch
 
 
