@@ -24,7 +24,7 @@ import json
 from collections.abc import Sequence
 from contextlib import AbstractContextManager
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
@@ -34,6 +34,7 @@ from ..errors import DataError
 from ..fileguard.cells import safe_texts
 
 if TYPE_CHECKING:
+    from ..models.held import Held
     from .lotfile import LotChunk
 
 FLOAT_COLUMNS = ("input_per_g", *PARAM_NAMES, "residual_rms_mg", "residual_max_mg", "crossval_rms_mg",
@@ -44,7 +45,30 @@ TEXT_COLUMNS = ("serial", "model", "input_units", "held", "verdict", "reasons", 
 FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet", ".jsonl": "jsonl", ".ndjson": "jsonl"}
 
 
-def _columns(chunk: LotChunk, res: dict[str, Any], model: str, units: str, verdicts: Sequence[str],
+class ChunkFit(TypedDict):
+    """A chunk's fit, one entry per board (results_table.RESULT_COLUMNS' sources); NaN, 0 or
+    empty where a board was not fitted (``ok`` False, ``message`` says why)."""
+
+    ok: np.ndarray  # (B,) bool
+    W: np.ndarray  # (B, 3, 3)
+    V: np.ndarray  # (B, 3) g
+    Gamma: np.ndarray  # (B, 3) 1/g^2
+    residual_rms_g: np.ndarray  # (B,)
+    residual_max_g: np.ndarray  # (B,)
+    crossval_rms_g: np.ndarray  # (B,) leave-one-pose-out
+    crossval_by_orientation_rms_g: np.ndarray  # (B,) leave-one-orientation-out
+    distinct_orientations: np.ndarray  # (B,) int
+    condition_number: np.ndarray  # (B,)
+    stderr_V_max: np.ndarray  # (B,) g
+    stderr_W_max: np.ndarray  # (B,)
+    input_per_g: np.ndarray  # (B,) input units per g
+    pose_count: np.ndarray  # (B,) int
+    distinct_poses: np.ndarray  # (B,) int
+    held: list[list[Held]]  # (B,) terms held at nominal (models/held.py)
+    message: list[str]  # (B,) why a board was not fitted, "" where it was
+
+
+def _columns(chunk: LotChunk, res: ChunkFit, model: str, units: str, verdicts: Sequence[str],
              reasons: Sequence[Sequence[str]]) -> dict[str, Any]:
     """The chunk's results as one sequence per RESULT_COLUMNS column."""
     B = len(chunk.serials)
@@ -116,7 +140,7 @@ class ResultsWriter:
             raise DataError(f"--out {self.path}: not open; write chunks inside 'with ResultsWriter(...)'")
         return self._f
 
-    def write_chunk(self, chunk: LotChunk, res: dict[str, Any], model: str, units: str, verdicts: Sequence[str],
+    def write_chunk(self, chunk: LotChunk, res: ChunkFit, model: str, units: str, verdicts: Sequence[str],
                     reasons: Sequence[Sequence[str]]) -> None:
         """Append one chunk's rows, flushed (fsynced once, when the table is complete)."""
         cols = _columns(chunk, res, model, units, verdicts, reasons)
