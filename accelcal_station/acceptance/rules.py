@@ -150,24 +150,24 @@ def measure(fit: FitResult) -> dict[str, float]:
     return {k: float(v[0]) for k, v in measure_all(FitFigures.from_fits([fit])).items() if not np.isnan(v[0])}
 
 
-RuleFailures = tuple[np.ndarray, list["Reason"]]  # the boards a rule fails (indices, ascending) and why, in order
+RuleFailures = tuple[np.ndarray, str, list[str]]  # a rule's failing boards (indices, ascending), its code, the texts
 
 
 def _pose_failures(have: np.ndarray, model: str, planned_poses: int) -> list[RuleFailures]:
     need = poses_needed(model)
     few = np.flatnonzero(have < need)
     skipped = np.flatnonzero((have >= need) & (have < planned_poses))
-    return [(few, [Reason("distinct_poses", f"{have[b]} < {need} needed by model {model} (its unknowns "
-                          "per axis plus one, so cross-validation is measurable)", " ") for b in few]),
-            (skipped, [Reason("distinct_poses", f"{have[b]} < {planned_poses} planned (a pose was skipped or "
-                              "repeated)", " ") for b in skipped])]
+    return [(few, "distinct_poses", [f"distinct_poses {have[b]} < {need} needed by model {model} (its unknowns "
+                                     "per axis plus one, so cross-validation is measurable)" for b in few]),
+            (skipped, "distinct_poses", [f"distinct_poses {have[b]} < {planned_poses} planned (a pose was skipped "
+                                         "or repeated)" for b in skipped])]
 
 
 def limit_failures(m: dict[str, np.ndarray], have: np.ndarray, model: str, limits: Limits,
                    planned_poses: int = 0) -> list[RuleFailures]:
     """Each rule's failing boards among B (``limit_reasons``' order: the distinct-pose rules, then
-    the limits as configured), compared over all boards at once; the words are formatted for the
-    failing boards only, and no per-board list is built."""
+    the limits as configured), compared over all boards at once; the texts (a Reason's whole text)
+    are formatted for the failing boards only, and no per-board list is built."""
     out = _pose_failures(have, model, planned_poses)
     for key, lim in limits.values.items():
         if key not in m:  # verify_error_max_mg before verification
@@ -176,10 +176,10 @@ def limit_failures(m: dict[str, np.ndarray], have: np.ndarray, model: str, limit
         unmeasurable = np.isnan(v)
         if unmeasurable.any():
             idx = np.flatnonzero(unmeasurable)
-            out.append((idx, [Reason(key, f"not measurable for this fit (limit {lim:g})")] * len(idx)))
+            out.append((idx, key, [f"{key}: not measurable for this fit (limit {lim:g})"] * len(idx)))
         idx = np.flatnonzero(~unmeasurable & ~(v <= lim))
         tail = f" > limit {lim:g} ({LIMIT_KEYS[key]})"
-        out.append((idx, [Reason.of(key, f"{key} {x:.4g}{tail}") for x in v[idx].tolist()]))
+        out.append((idx, key, [f"{key} {x:.4g}{tail}" for x in v[idx].tolist()]))
     return out
 
 
@@ -189,9 +189,9 @@ def limit_reasons(m: dict[str, np.ndarray], have: np.ndarray, model: str, limits
     (measure_all) and distinct poses ``have``: the limits compared over all boards at once,
     the words formatted only for the boards that fail."""
     reasons: list[list[Reason]] = [[] for _ in range(len(have))]
-    for idx, words in limit_failures(m, have, model, limits, planned_poses):
-        for b, r in zip(idx.tolist(), words, strict=True):
-            reasons[b].append(r)
+    for idx, code, texts in limit_failures(m, have, model, limits, planned_poses):
+        for b, t in zip(idx.tolist(), texts, strict=True):
+            reasons[b].append(Reason.of(code, t))
     return reasons
 
 

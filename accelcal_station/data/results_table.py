@@ -84,7 +84,7 @@ def _columns(chunk: LotChunk, res: ChunkFit, model: str, units: str, verdicts: S
                 condition_number=res["condition_number"],
                 held=(["; ".join(h.term for h in hs) for hs in res["held"]] if any(res.get("held", ()))
                       else [""] * B),  # a lot where no board holds a term: no per-board join
-                verdict=verdicts, reasons=["; ".join(r) for r in reasons], message=res["message"])
+                verdict=verdicts, reasons=list(map("; ".join, reasons)), message=res["message"])
     return cols
 
 

@@ -11,7 +11,7 @@ import time as _time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypedDict
+from typing import TypedDict, TypeVar
 
 import numpy as np
 
@@ -36,6 +36,9 @@ class SkippedJson(TypedDict):
 LotSummaryJson = TypedDict("LotSummaryJson", {
     "model": str, "boards": int, "fitted": int, "skipped": int, "pass": int, "fail": int, "elapsed_s": float,
     "boards_per_s": float, "skipped_examples": list[SkippedJson]})
+
+
+_R = TypeVar("_R", bound=str)
 
 
 @dataclass
@@ -208,12 +211,19 @@ def judge_chunk(res: ChunkFit, limits: Limits | None, model: str) -> tuple[list[
     needs a verification capture and is not judged here.  A board with no reason shares one empty
     tuple (no list is built per passing board).
     """
+    return _judge(res, limits, model, Reason.of)
+
+
+def _judge(res: ChunkFit, limits: Limits | None, model: str, word: Callable[[str, str], _R]
+           ) -> tuple[list[str], list[Sequence[_R]]]:
+    """``judge_chunk`` with each reason made by ``word(code, text)``: a Reason, or the text alone
+    where only the words are written (the results table)."""
     ok = res["ok"]
     B = len(ok)
-    reasons: list[Sequence[Reason]] = [()] * B
+    reasons: list[Sequence[_R]] = [()] * B
     unfitted = np.flatnonzero(~ok)
     for b in unfitted.tolist():
-        reasons[b] = [Reason("unfitted", res["message"][b])]
+        reasons[b] = [word("unfitted", f"unfitted: {res['message'][b]}")]
     if limits is None:
         verdict = np.where(ok, "", "FAIL")
         return verdict.tolist(), reasons
@@ -233,14 +243,18 @@ def judge_chunk(res: ChunkFit, limits: Limits | None, model: str) -> tuple[list[
         figs = figures(sub, held, model)
         # the verdict's reasons over the whole chunk (limit_failures, as judge_all gives them), with
         # no per-board Verdict or list built: a lot row keeps only the label and the reasons
-        for idx, words in limit_failures(measure_all(figs), np.asarray(figs.distinct_poses, dtype=int), model,
-                                         limits):
+        for idx, code, texts in limit_failures(measure_all(figs), np.asarray(figs.distinct_poses, dtype=int),
+                                               model, limits):
             rows = fitted[idx]
             failing[rows] = True
-            for b, r in zip(rows.tolist(), words, strict=True):
-                have = reasons[b]
-                reasons[b] = [r] if not have else [*have, r]
+            for b, t in zip(rows.tolist(), texts, strict=True):
+                prev: Sequence[_R] = reasons[b]
+                reasons[b] = [*prev, word(code, t)]
     return np.where(failing, "FAIL", "PASS").tolist(), reasons
+
+
+def _text(code: str, text: str) -> str:
+    return text
 
 
 def recalibrate_lot(path: str | Path, out: str | Path, model: str = "12", *, units: str | None = None,
@@ -258,7 +272,7 @@ def recalibrate_lot(path: str | Path, out: str | Path, model: str = "12", *, uni
     with ResultsWriter(out) as w:
         for chunk in chunks:
             res = fit_chunk(chunk, model, per_g, units)
-            verdicts, reasons = judge_chunk(res, limits, model)
+            verdicts, reasons = _judge(res, limits, model, _text)  # the table keeps the words only
             w.write_chunk(chunk, res, model, units, verdicts, reasons)
             n = len(chunk.serials)
             summary.boards += n
