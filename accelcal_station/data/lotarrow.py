@@ -9,6 +9,7 @@ a row without a serial is refused, never made into a board called "None".
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -128,12 +129,13 @@ def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: W
         bad_rows: dict[int, str] = {}
         first = row0 + (len(tail["serial"]) if tail else 0)
         d = {c: _arrow_column(batch.column(c), c, path, first, bad_rows, where) for c in names}
-        d["_bad"] = np.zeros(len(d["serial"]), dtype=object)
+        # a reason per row (0 where none) only where a cell was bad; a clean batch: no object array
+        d["_bad"] = np.zeros(len(d["serial"]), dtype=object if bad_rows else bool)
         for i, msg in bad_rows.items():
             d["_bad"][i] = msg
         if tail is not None:
             d = {c: np.concatenate([tail[c], d[c]]) for c in d}
-        serial = d["serial"].astype(str)
+        serial = d["serial"].astype(str, copy=False)
         change = np.flatnonzero(serial[1:] != serial[:-1]) + 1
         cut = int(change[-1]) if len(change) else 0  # the last board may continue in the next batch
         tail = {c: d[c][cut:] for c in d}
@@ -167,8 +169,9 @@ def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
                 col = pc.cast(pc.utf8_trim_whitespace(col), pa.float64())
             except pa.ArrowInvalid:
                 return _cells(col, name, path, row0, bad_rows)
-    # integers beyond 2**53 and wide decimals lose digits as floats: a calibration number never has them
-    return np.asarray(pc.cast(col, pa.float64(), safe=False).to_numpy(zero_copy_only=False), dtype=float)
+    if col.type != pa.float64():  # integers beyond 2**53 and wide decimals lose digits as floats: a
+        col = pc.cast(col, pa.float64(), safe=False)  # calibration number never has them
+    return np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
 
 
 def _cells(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str]) -> np.ndarray:
@@ -284,10 +287,27 @@ def _read_csv_arrow(path: Path, header: list[str], skip: int, block_bytes: int, 
         except (pa.ArrowException, OSError) as e:
             raise DataError(check.bad[0] if check.bad else f"{path}: unreadable CSV ({e})") from None
         try:
-            batches = _typed_batches(reader, check) if typed else _after(reader, row0)
+            batches = _typed_batches(_ahead(reader), check) if typed else _after(_ahead(reader), row0)
             yield from _guarded(batches, header, path, "CSV", check.bad, lambda n: _data_line(path, skip, n), row0)
         finally:
             reader.close()
+
+
+def _ahead(batches: Iterable[Any]) -> Iterator[Any]:
+    """The batches, the next one parsed by one background thread while the caller works on this
+    one (Arrow's parser runs without the GIL: reading overlaps the fit on a second core).  The
+    thread is done before this generator ends, however it ends, so the reader and its file are
+    never used after they are closed."""
+    it = iter(batches)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="accelcal-csv") as ex:
+        pending = ex.submit(next, it, None)
+        try:
+            while (batch := pending.result()) is not None:
+                pending = ex.submit(next, it, None)
+                yield batch
+        finally:
+            pending.cancel()
+            wait([pending])
 
 
 def _typed_batches(reader: Iterable[Any], check: _RowCheck) -> Iterator[Any]:

@@ -210,7 +210,8 @@ def _arrow_table(cols: dict[str, Any], csv: bool = False) -> Any:
         v = cols[c]
         if c in FLOAT_COLUMNS:
             a = np.asarray(v, float)
-            arrays[c] = pa.array(a, mask=np.isnan(a))
+            nan = np.isnan(a)
+            arrays[c] = pa.array(a, mask=nan) if nan.any() else pa.array(a)
         elif c == "ok":
             arrays[c] = pa.array(np.asarray(v, np.int8 if csv else bool))
         elif c in ("first_row", "pose_count"):
