@@ -140,20 +140,11 @@ def directions_apart(gf: np.ndarray, ref: np.ndarray | None, tol_deg: float = DI
     centre is 0), so the answer is theirs exactly."""
     D, P = gf.shape[:2]
     out = np.zeros(D, dtype=bool)
-    if ref is None or D == 0 or P < 2:
+    shared = _shared_unit(ref, D)
+    if shared is None or len(shared[0]) != P:
         return out
-    r = np.asarray(ref, dtype=float)
-    if r.ndim == 3:
-        if r.strides[0] != 0 and not np.array_equal(r, np.broadcast_to(r[0], r.shape)):
-            return out  # boards of several designs: compared pair by pair
-        r = r[0]
-    rn = np.sqrt(np.einsum("pk,pk->p", r, r))
-    if not np.all(np.isfinite(rn) & (rn > 0)):
-        return out
-    ru = r / rn[:, None]
-    cosines = np.clip(ru @ ru.T, -1.0, 1.0)[np.triu_indices(P, 1)]
-    theta_min = float(np.arccos(np.max(cosines)))
-    delta = 0.5 * (theta_min - math.radians(tol_deg)) - APART_MARGIN_RAD
+    ru = shared[1]
+    delta = 0.5 * (_closest_pair_rad(ru) - math.radians(tol_deg)) - APART_MARGIN_RAD
     if not delta > 0:
         return out
     # cos(angle(x_p, r_p)) > cos(delta), as x_p . u_p > cos(delta) |x_p| (u_p the unit reference)
@@ -335,11 +326,12 @@ class Screen:
     apart (D,): every pose is the first of its orientation (``directions_apart``, and the
     readings' centre is 0, so ``first_of_orientation``'s directions are the readings' own);
     determined (D,): apart, and ``assess_batch`` finds the model determined; sq (D, P): each
-    reading's squared norm, g^2 (for the plausibility and absurd-reading checks)."""
+    reading's squared norm, g^2 (for the plausibility and absurd-reading checks), None where
+    nothing was certified (no boards-last copy made)."""
 
     apart: np.ndarray
     determined: np.ndarray
-    sq: np.ndarray
+    sq: np.ndarray | None
 
 
 def screen(gf: np.ndarray, ref: np.ndarray | None, model: str, tol_deg: float = DISTINCT_TOL_DEG) -> Screen:
@@ -352,14 +344,14 @@ def screen(gf: np.ndarray, ref: np.ndarray | None, model: str, tol_deg: float = 
     inequality: |sigma_i(A) - sigma_i(A_r)| <= ||A - A_r||_F = e, and for unit columns a, b,
     ||a - b||^2 = 2 (1 - a.b); so rel >= (sigma_min(A_r) - e) / (sigma_max(A_r) + e)."""
     D, P, _ = gf.shape
+    none = np.zeros(D, dtype=bool)
+    rn = _shared_unit(ref, D)
+    if rn is None or len(rn[0]) != P:  # nothing to certify: no copy made (a 200,000-pose table)
+        return Screen(none, none, None)
+    r, ru = rn
     g = np.ascontiguousarray(gf.transpose(2, 1, 0))  # (3, P, D): boards last
     g2 = g * g
     sq = g2.sum(axis=0)  # (P, D)
-    none = np.zeros(D, dtype=bool)
-    rn = _shared_unit(ref, D)
-    if rn is None:
-        return Screen(none, none, sq.T)
-    r, ru = rn
     delta = 0.5 * (_closest_pair_rad(ru) - math.radians(tol_deg)) - APART_MARGIN_RAD
     if not delta > 0:
         return Screen(none, none, sq.T)
@@ -385,13 +377,14 @@ def _shared_unit(ref: np.ndarray | None, D: int) -> tuple[np.ndarray, np.ndarray
             return None  # boards of several designs: each is computed
         r = r[0]
     rn = np.sqrt(np.einsum("pk,pk->p", r, r))
-    if len(r) < 2 or not np.all(np.isfinite(rn) & (rn > 0)):
+    # a few poses (a fixture's design) only: the closest pair is found among P x P cosines
+    if not 2 <= len(r) <= SMALL_P or not np.all(np.isfinite(rn) & (rn > 0)):
         return None
     return r, r / rn[:, None]
 
 
 def _closest_pair_rad(ru: np.ndarray) -> float:
-    """The angle (rad) of the closest pair of unit directions ru (P, 3)."""
+    """The angle (rad) of the closest pair of unit directions ru (P, 3), P <= SMALL_P (a P x P matrix)."""
     cosines = np.clip(ru @ ru.T, -1.0, 1.0)[np.triu_indices(len(ru), 1)]
     return float(np.arccos(np.max(cosines)))
 
