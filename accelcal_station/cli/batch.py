@@ -10,31 +10,20 @@ import json
 import sys
 from contextlib import AbstractContextManager
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import click
 
-from ..acceptance.rules import Limits
-from ..config.checks import load_yaml
 from ..errors import DataError
 from ..fileguard.identity import refuse_overwrite
-from ..lot.batch import (
-    BatchReport,
-    Source,
-    expand_paths,
-    recalibrate,
-    record_in_store,
-    sessions_from_files,
-    sessions_from_store,
-    summary_csv,
-    write_calibrations,
-)
-from ..store.location import store_target
-from ..store.runs import Store
 from ._common import check_model_units, force_option, output_kind, parse_int, store_file
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
 from ._text import clean, error_text
+
+if TYPE_CHECKING:  # a lot file's mode (--out) imports neither the pose-table batch nor the store
+    from ..acceptance.rules import Limits
+    from ..lot.batch import BatchReport, Source
 
 PROGRESS_MIN_BOARDS = 10  # below this a progress bar is noise
 
@@ -225,6 +214,8 @@ def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str 
                   out_dir: str | None = None, force: bool = False) -> None:
     """Refuse, before any work, a call with no boards, a --csv file in a folder that does not exist, or
     an output that is one of the inputs (a pose table, the source store)."""
+    from ..lot.batch import expand_paths
+
     if not paths and from_store is None:
         raise DataError("no boards given; pass pose tables, directories or globs, or --from-store FILE")
     inputs = [("input", str(p)) for p in expand_paths(paths)] if paths else []
@@ -239,9 +230,13 @@ def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str 
 
 
 def _limits(config_path: str | None) -> Limits | None:
-    """The acceptance limits of a station config (--config), checked by the schema; None without one."""
+    """The acceptance limits of a station config (--config), checked by the schema; None without one
+    (then the schema, pydantic, is not even imported)."""
     if config_path is None:
         return None
+    from ..acceptance.rules import Limits
+    from ..config.checks import load_yaml
+
     return Limits.from_config(load_yaml(config_path).get("acceptance"))
 
 
@@ -249,6 +244,10 @@ def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: d
                 units: str | None, cpg: float | None, grav: float | None, as_json: bool,
                 limits: Limits | None = None) -> BatchReport:
     """Read the boards (store runs, then pose tables) and fit them all, with progress bars on a big batch."""
+    from ..lot.batch import expand_paths, recalibrate, sessions_from_files, sessions_from_store
+    from ..store.location import store_target
+    from ..store.runs import Store
+
     sources: list[Source] = []
     if from_store is not None:
         with Store(store_target(from_store), create=False) as st:
@@ -268,6 +267,10 @@ def _write_outputs(report: BatchReport, out_dir: str | None, csv_path: str | Non
                    force: bool = False) -> tuple[dict[str, Any], dict[str, Path]]:
     """Write the calibrations, the summary CSV and the store records asked for: (what was written
     where, the calibration file of each board source)."""
+    from ..lot.batch import record_in_store, summary_csv, write_calibrations
+    from ..store.location import store_target
+    from ..store.runs import Store
+
     outputs: dict[str, Any] = {}
     written: dict[str, Path] = {}
     if out_dir is not None:

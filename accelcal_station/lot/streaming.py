@@ -11,12 +11,11 @@ import time as _time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypedDict, TypeVar
+from typing import TYPE_CHECKING, TypedDict, TypeVar
 
 import numpy as np
 
 from ..acceptance.reasons import Reason
-from ..acceptance.rules import FitFigures, Limits, limit_failures, measure_all
 from ..data.lotfile import LotChunk, board_arrays, lot_scale, open_lot
 from ..data.results_table import ChunkFit, ResultsWriter
 from ..errors import AccelcalError, DataError
@@ -37,6 +36,9 @@ LotSummaryJson = TypedDict("LotSummaryJson", {
     "model": str, "boards": int, "fitted": int, "skipped": int, "pass": int, "fail": int, "elapsed_s": float,
     "boards_per_s": float, "skipped_examples": list[SkippedJson]})
 
+
+if TYPE_CHECKING:  # the rules (and the config schema, pydantic, under them) load only when a lot is judged
+    from ..acceptance.rules import FitFigures, Limits
 
 _R = TypeVar("_R", bound=str)
 
@@ -196,6 +198,8 @@ def _plausible_g(gf: np.ndarray) -> np.ndarray:
 def figures(res: Mapping[str, np.ndarray], held: list[list[Held]], model: str) -> FitFigures:
     """The acceptance rules' inputs for a chunk's boards (NaN where a board was not fitted); the
     held-out figure by orientation where a board revisits an orientation (models/crossval.py)."""
+    from ..acceptance.rules import FitFigures
+
     repeat = res["distinct_orientations"] < res["pose_count"]
     cv = np.where(repeat, res["crossval_by_orientation_rms_g"], res["crossval_rms_g"]) if repeat.any() \
         else res["crossval_rms_g"]
@@ -227,6 +231,8 @@ def _judge(res: ChunkFit, limits: Limits | None, model: str, word: Callable[[str
     if limits is None:
         verdict = np.where(ok, "", "FAIL")
         return verdict.tolist(), reasons
+    from ..acceptance.rules import limit_failures, measure_all
+
     fitted = np.flatnonzero(ok)
     failing = ~ok
     if fitted.size:
