@@ -218,9 +218,17 @@ def _design(gf: np.ndarray, model: str) -> np.ndarray:
 def _design_t(gf: np.ndarray, model: str) -> np.ndarray:
     """``_design`` boards last: (S, k, P, D), so the Gram matrix is sums of P contiguous rows."""
     D, P, _ = gf.shape
-    if model == "9":
-        return np.ascontiguousarray(_design(gf, "9").transpose(1, 3, 2, 0))
     g = np.ascontiguousarray(gf.transpose(2, 1, 0))  # (3, P, D)
+    if model == "9":  # _design's norm-model columns, formed boards last (no stack, no transposed copy)
+        mid = 0.5 * (g.max(axis=1) + g.min(axis=1))  # (3, D): _centre, boards last
+        far = np.sqrt((mid * mid).sum(axis=0)) > 0.5
+        x = g - np.where(far, mid, 0.0)[:, None, :]
+        u = x / np.maximum(np.sqrt((x * x).sum(axis=0)), 1e-12)
+        out = np.empty((1, 9, P, D))
+        out[0, :3] = u * u
+        out[0, 3], out[0, 4], out[0, 5] = 2 * u[0] * u[1], 2 * u[0] * u[2], 2 * u[1] * u[2]
+        out[0, 6:] = u
+        return out
     if model == "6":
         out = np.empty((3, 2, P, D))
         out[:, 0] = g

@@ -151,6 +151,8 @@ def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
     import pyarrow as pa
     import pyarrow.compute as pc
 
+    if name in TEXT and pa.types.is_dictionary(col.type) and pa.types.is_string(col.type.value_type):
+        return _dictionary_text(col, name, path, row0, where)
     if name in TEXT:
         text = pc.utf8_trim_whitespace(col.cast(pa.string()))
         empty = pc.fill_null(pc.equal(text, ""), True)
@@ -172,6 +174,23 @@ def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
     if col.type != pa.float64():  # integers beyond 2**53 and wide decimals lose digits as floats: a
         col = pc.cast(col, pa.float64(), safe=False)  # calibration number never has them
     return np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
+
+
+def _dictionary_text(col: Any, name: str, path: Path, row0: int, where: Where) -> np.ndarray:
+    """A text column read as a dictionary (the CSV lot's serial and pose: a value per board or per
+    pose name, not per row) as numpy str: the dictionary's values trimmed (Arrow's
+    utf8_trim_whitespace, as the text path), null or blank rows "" (a blank serial refused)."""
+    import pyarrow.compute as pc
+
+    values = pc.utf8_trim_whitespace(col.dictionary).to_pylist()
+    table = np.array([*values, ""], dtype=str)  # the last entry: a null cell
+    idx = np.asarray(col.indices.fill_null(len(values)).to_numpy(zero_copy_only=False), dtype=np.intp)
+    out = table[idx]
+    if name == "serial":
+        blank = out == ""
+        if blank.any():
+            raise missing_serial(path, where(row0 + int(np.argmax(blank)) + 1))
+    return out
 
 
 def _cells(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str]) -> np.ndarray:
@@ -270,7 +289,9 @@ def _read_csv_arrow(path: Path, header: list[str], skip: int, block_bytes: int, 
     import pyarrow as pa
     import pyarrow.csv as pcsv
 
-    types = {c: pa.float64() if typed and c not in TEXT else pa.string() for c in header}
+    # typed: numbers as float64, the serial and pose names as dictionaries (a few distinct values per block)
+    types = {c: (pa.dictionary(pa.int32(), pa.string()) if c in TEXT else pa.float64()) if typed else pa.string()
+             for c in header}
     check = _RowCheck(path)
     # One thread, and the reader closed before the file: a background read-ahead thread of Arrow's
     # reading a Python file object that an abandoned generator has already closed crashes the process.
