@@ -68,12 +68,16 @@ class ChunkFit(TypedDict):
     message: list[str]  # (B,) why a board was not fitted, "" where it was
 
 
+# a results table's chunk: one column per RESULT_COLUMNS name, numbers as arrays, texts as str sequences
+ResultColumns = dict[str, np.ndarray | Sequence[str]]
+
+
 def _columns(chunk: LotChunk, res: ChunkFit, model: str, units: str, verdicts: Sequence[str],
-             reasons: Sequence[Sequence[str]]) -> dict[str, Any]:
+             reasons: Sequence[Sequence[str]]) -> ResultColumns:
     """The chunk's results as one sequence per RESULT_COLUMNS column."""
     B = len(chunk.serials)
     params = np.concatenate([res["W"].reshape(B, 9), res["V"], res["Gamma"]], axis=1)
-    cols: dict[str, Any] = {
+    cols: ResultColumns = {
         "serial": chunk.serials, "first_row": chunk.first_row, "ok": res["ok"], "model": [model] * B,
         "pose_count": res["pose_count"], "input_units": [units] * B, "input_per_g": res["input_per_g"]}
     for j, name in enumerate(PARAM_NAMES):
@@ -173,7 +177,7 @@ class ResultsWriter:
             self._write_parquet(cols)
         self._out.flush()
 
-    def _write_arrow_csv(self, cols: dict[str, Any]) -> None:
+    def _write_arrow_csv(self, cols: ResultColumns) -> None:
         import pyarrow.csv as pcsv
         table = _arrow_table(cols, csv=True)
         if self._pq is None:
@@ -181,7 +185,7 @@ class ResultsWriter:
                                       write_options=pcsv.WriteOptions(quoting_style="needed", eol="\r\n"))
         self._pq.write_table(table)
 
-    def _write_parquet(self, cols: dict[str, Any]) -> None:
+    def _write_parquet(self, cols: ResultColumns) -> None:
         import pyarrow.parquet as pq
         table = _arrow_table(cols)
         if self._pq is None:
@@ -202,7 +206,7 @@ class ResultsWriter:
             raise DataError(f"--out {self.path}: cannot write ({e.strerror})") from None
 
 
-def _arrow_table(cols: dict[str, Any], csv: bool = False) -> Any:
+def _arrow_table(cols: ResultColumns, csv: bool = False) -> Any:
     """The chunk as an Arrow table (null where a value does not exist); ok as 0/1 in CSV."""
     import pyarrow as pa
     arrays = {}
