@@ -333,3 +333,14 @@ def test_typed_csv_read_falls_back_to_text_from_where_it_stopped(tmp_path, monke
     for k in python[3]:
         np.testing.assert_array_equal(arrow[3][k], python[3][k], err_msg=k)
     assert arrow[3]["x"][10 * P] == 12.5 and arrow[3]["y"][11 * P] == 4000.0
+
+
+def test_dictionary_text_trims_what_arrow_trims():
+    """The typed CSV read trims serials and pose names with str.strip (no pyarrow.compute import);
+    the text read with Arrow's utf8_trim_whitespace: both must remove the same characters, at every
+    Unicode code point (a pyarrow upgrade that changed its set would show here)."""
+    pa = pytest.importorskip("pyarrow")
+    pc = pytest.importorskip("pyarrow.compute")
+    cps = [c for c in range(0x110000) if not 0xD800 <= c <= 0xDFFF]
+    cells = [f"{chr(c)}B1{chr(c)}" for c in cps]
+    assert pc.utf8_trim_whitespace(pa.array(cells)).to_pylist() == [c.strip() for c in cells]

@@ -149,10 +149,13 @@ def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: W
 def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str], where: Where) -> np.ndarray:
     """An Arrow column as numpy: text columns as str (a null serial refused), numeric ones as float (NaN for null)."""
     import pyarrow as pa
-    import pyarrow.compute as pc
 
     if name in TEXT and pa.types.is_dictionary(col.type) and pa.types.is_string(col.type.value_type):
         return _dictionary_text(col, name, path, row0, where)
+    if col.type == pa.float64():  # the typed CSV read's numbers: no cast (and no pyarrow.compute import)
+        return np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
+    import pyarrow.compute as pc
+
     if name in TEXT:
         text = pc.utf8_trim_whitespace(col.cast(pa.string()))
         empty = pc.fill_null(pc.equal(text, ""), True)
@@ -178,11 +181,11 @@ def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
 
 def _dictionary_text(col: Any, name: str, path: Path, row0: int, where: Where) -> np.ndarray:
     """A text column read as a dictionary (the CSV lot's serial and pose: a value per board or per
-    pose name, not per row) as numpy str: the dictionary's values trimmed (Arrow's
-    utf8_trim_whitespace, as the text path), null or blank rows "" (a blank serial refused)."""
-    import pyarrow.compute as pc
-
-    values = pc.utf8_trim_whitespace(col.dictionary).to_pylist()
+    pose name, not per row) as numpy str: the dictionary's values trimmed, null or blank rows ""
+    (a blank serial refused).  str.strip trims exactly what Arrow's utf8_trim_whitespace (the text
+    path's) trims, the Unicode White_Space characters (tests/test_lot.py checks every code point),
+    and needs no pyarrow.compute (its import is a tenth of the command's start)."""
+    values = [v.strip() for v in col.dictionary.to_pylist()]
     table = np.array([*values, ""], dtype=str)  # the last entry: a null cell
     idx = np.asarray(col.indices.fill_null(len(values)).to_numpy(zero_copy_only=False), dtype=np.intp)
     out = table[idx]

@@ -92,6 +92,14 @@ def _columns(chunk: LotChunk, res: ChunkFit, model: str, units: str, verdicts: S
     return cols
 
 
+def _safe_column(cells: np.ndarray | Sequence[str]) -> list[str]:
+    """fileguard.cells.safe_texts of a text column; a column of one repeated value (the model, the
+    units, an empty message) is screened once."""
+    if isinstance(cells, list) and cells and cells.count(cells[0]) == len(cells):
+        return [safe_texts(cells[:1])[0]] * len(cells)
+    return safe_texts(cells)
+
+
 def _text(a: np.ndarray) -> np.ndarray:
     """Floats as the shortest text that reads back exactly; '' for NaN."""
     s = a.astype(str)
@@ -149,7 +157,7 @@ class ResultsWriter:
         """Append one chunk's rows, flushed (fsynced once, when the table is complete)."""
         cols = _columns(chunk, res, model, units, verdicts, reasons)
         if self.fmt == "csv":  # a spreadsheet opens it: no text cell may be a formula (fileguard/cells.py)
-            cols.update({c: safe_texts(cols[c]) for c in TEXT_COLUMNS})
+            cols.update({c: _safe_column(cols[c]) for c in TEXT_COLUMNS})
         if self.fmt == "csv" and self._arrow_csv:
             self._write_arrow_csv(cols)
         elif self.fmt == "csv":
