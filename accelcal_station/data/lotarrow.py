@@ -21,10 +21,13 @@ from .lotchunk import COLUMNS, TEXT, LotChunk, arrays_chunk, missing_serial
 
 # CSV bytes parsed at once.  Arrow's streaming reader holds buffers that grow with the block:
 # opening it and reading the first block raised the RSS by 31 MiB at 256 KiB, 56 at 1 MiB and 109
-# at 4 MiB (pyarrow 26, mimalloc pool).  `accelcal batch` keeps 1 MiB (one core, 200,000 boards:
-# 3.0-3.2 CPU-s against 3.4-3.6 with 256 KiB, the per-chunk work of 4x more chunks); `twin fit`,
+# at 4 MiB (pyarrow 26, mimalloc pool), and its read-ahead holds more of a long file than of a short
+# one at 1 MiB blocks (12 blocks into the 108 MB 200,000-board lot: 108 MB RSS against 99 MB for the
+# 27 MB 50,000-board lot; 103 / 102 MB at 768 KiB, 93 / 93 at 640 KiB).  `accelcal batch` parses
+# 768 KiB blocks: its peak RSS is flat in the lot's size (bench_resources: 125 / 128 MB at 50,000 /
+# 200,000 boards, 1.02; 128 / 144 MB, 1.12, at 1 MiB) for 2-3 % more CPU than 1 MiB; `twin fit`,
 # whose memory has a stated bound, reads 256 KiB (100,000 boards: 246 MB peak, 271 with 1 MiB).
-BLOCK_BYTES = 1 << 20
+BLOCK_BYTES = 768 << 10
 SMALL_BLOCK_BYTES = 256 << 10
 MAX_ROW_GROUP_BYTES = 1 << 30  # one row group's columns are decoded at once: at most 1 GiB of them
 REQUIRED = ("serial", "pose", "x", "y", "z")
