@@ -22,7 +22,7 @@ import glob
 import io
 import re
 import time as _time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NotRequired, TypedDict, cast
@@ -71,7 +71,7 @@ class BoardResultJson(TypedDict):
     temperatures_c: list[float] | None
     input_units: str | None
     input_per_g: float | None
-    held: list[dict[str, object]]  # models/held.Held.to_json
+    held: Sequence[Mapping[str, object]]  # models/held.Held.to_json of each held term
     verdict: str | None
     reasons: list[dict[str, str]] | None  # Reason.to_dict
     file: NotRequired[str | None]  # the calibration file written for it (cli/batch.py adds it)
