@@ -87,11 +87,20 @@ BLOCK_ELEMS = 1 << 19  # pose-pair cosines held at once (4 MB of float64): memor
 WINDOWED_FROM = 2048  # poses per board from which pairs are looked for in a sorted window only
 
 
-def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG) -> np.ndarray:
+def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG, apart: np.ndarray | None = None
+                         ) -> np.ndarray:
     """(D, P) bool: pose p is the first of its orientation (no earlier pose q < p with
     u_p . u_q > cos(tol_deg), u the unit directions).  The P x P cosines are formed a block of
     rows at a time, so memory is O(D P), not O(D P^2) (a 100,000-pose table); a large table
-    compares each pose only with those in neighbouring cubes of the chord 2 sin(tol/2)."""
+    compares each pose only with those in neighbouring cubes of the chord 2 sin(tol/2).
+    ``apart`` (D,): boards known to have every pose a first (``screen``'s certificate); only the
+    other boards' pairs are compared."""
+    if apart is not None and gf.ndim == 3 and np.any(apart):
+        first = np.ones(gf.shape[:2], dtype=bool)
+        rest = np.flatnonzero(~apart)
+        if rest.size:
+            first[rest] = first_of_orientation(gf[rest], tol_deg)
+        return first
     x = gf - _centre(gf)[..., None, :]
     u = x / np.maximum(np.sqrt(np.einsum("...k,...k->...", x, x)), 1e-12)[..., None]
     D, P = u.shape[:2]
@@ -112,6 +121,38 @@ def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG) -> n
         close &= np.arange(b - 1)[None, :] < np.arange(a, b)[:, None]  # only earlier poses count
         first[:, a:b] = ~np.any(close, axis=-1)
     return first
+
+
+APART_MARGIN_RAD = 1e-6  # far above the rounding of a cosine (1e-16), far below any pose's scatter
+
+
+def directions_apart(gf: np.ndarray, ref: np.ndarray | None, tol_deg: float = DISTINCT_TOL_DEG) -> np.ndarray:
+    """(D,) bool: boards whose reading directions (D, P, 3) are, for certain, pairwise more than
+    ``tol_deg`` apart, certified against their references (P, 3) or (D, P, 3) instead of
+    comparing every pair: the sphere's angle is a metric, so when each reading points within
+    delta of its own reference and the references' closest pair is theta_min apart, every two
+    readings are at least theta_min - 2 delta apart.  True only where theta_min - 2 max delta
+    clears ``tol_deg`` by APART_MARGIN_RAD; False where unsure (no references, references that
+    differ between boards, revisits in the design, a reading far off its reference, a zero or
+    non-finite reading): there the pairs are compared (``first_of_orientation``,
+    ``sanity.distinct_directions_batch``).  Every pose of a True board is the first of its
+    orientation by both definitions (``>`` or ``>=`` the cosine, centred or not where the
+    centre is 0), so the answer is theirs exactly."""
+    D, P = gf.shape[:2]
+    out = np.zeros(D, dtype=bool)
+    shared = _shared_unit(ref, D)
+    if shared is None or len(shared[0]) != P:
+        return out
+    ru = shared[1]
+    delta = 0.5 * (_closest_pair_rad(ru) - math.radians(tol_deg)) - APART_MARGIN_RAD
+    if not delta > 0:
+        return out
+    # cos(angle(x_p, r_p)) > cos(delta), as x_p . u_p > cos(delta) |x_p| (u_p the unit reference)
+    with np.errstate(over="ignore", invalid="ignore"):
+        along = np.einsum("dpk,pk->dp", gf, ru)
+        norms = np.sqrt(np.einsum("dpk,dpk->dp", gf, gf))
+        norms *= math.cos(delta)
+        return np.all(along > norms, axis=1)
 
 
 def _first_small(u: np.ndarray, cos: float) -> np.ndarray:
@@ -174,12 +215,41 @@ def _design(gf: np.ndarray, model: str) -> np.ndarray:
     return np.concatenate([np.broadcast_to(base, (D, 3, P, 4)), cubic], axis=-1)
 
 
-def _rel_sv_floor(Gn: np.ndarray) -> np.ndarray:
-    """A lower bound (N,) on sqrt(lambda_min / lambda_max) of N symmetric (k, k) matrices Gn with unit
-    diagonal, elementwise over the boards (no LAPACK call per board): lambda_min >= 1 / tr(Gn^-1),
-    tr(Gn^-1) the squared Frobenius norm of L^-1 (Gn = L L^T, Cholesky by columns), and
-    lambda_max <= the largest absolute row sum (Gershgorin).  0 where Gn is not positive definite."""
-    A = np.ascontiguousarray(Gn.transpose(1, 2, 0))  # (k, k, N): boards last
+def _design_t(gf: np.ndarray, model: str) -> np.ndarray:
+    """``_design`` boards last: (S, k, P, D), so the Gram matrix is sums of P contiguous rows."""
+    D, P, _ = gf.shape
+    g = np.ascontiguousarray(gf.transpose(2, 1, 0))  # (3, P, D)
+    if model == "9":  # _design's norm-model columns, formed boards last (no stack, no transposed copy)
+        mid = 0.5 * (g.max(axis=1) + g.min(axis=1))  # (3, D): _centre, boards last
+        far = np.sqrt((mid * mid).sum(axis=0)) > 0.5
+        x = g - np.where(far, mid, 0.0)[:, None, :]
+        u = x / np.maximum(np.sqrt((x * x).sum(axis=0)), 1e-12)
+        out = np.empty((1, 9, P, D))
+        out[0, :3] = u * u
+        out[0, 3], out[0, 4], out[0, 5] = 2 * u[0] * u[1], 2 * u[0] * u[2], 2 * u[1] * u[2]
+        out[0, 6:] = u
+        return out
+    if model == "6":
+        out = np.empty((3, 2, P, D))
+        out[:, 0] = g
+        out[:, 1] = 1.0
+        return out
+    k = 4 if model == "12" else 5
+    S = 1 if model == "12" else 3
+    out = np.empty((S, k, P, D))
+    out[:, :3] = g
+    out[:, 3] = 1.0
+    if model == "15":
+        out[:, 4] = g**3
+    return out
+
+
+def _rel_sv_floor(A: np.ndarray) -> np.ndarray:
+    """A lower bound (N,) on sqrt(lambda_min / lambda_max) of N symmetric (k, k) matrices with unit
+    diagonal, given boards last as A (k, k, N), elementwise over the boards (no LAPACK call per
+    board): lambda_min >= 1 / tr(Gn^-1), tr(Gn^-1) the squared Frobenius norm of L^-1 (Gn = L L^T,
+    Cholesky by columns), and lambda_max <= the largest absolute row sum (Gershgorin).  0 where
+    Gn is not positive definite."""
     k, N = A.shape[0], A.shape[2]
     L = np.zeros_like(A)
     ok = np.ones(N, dtype=bool)
@@ -200,44 +270,166 @@ def _rel_sv_floor(Gn: np.ndarray) -> np.ndarray:
         return np.where(ok & np.isfinite(tr_inv), np.sqrt(1.0 / (tr_inv * lmax)), 0.0)
 
 
-def _rel_sv(X: np.ndarray, first: np.ndarray) -> np.ndarray:
-    """Smallest / largest singular value of the column-normalised design over distinct orientations
-    (min over the solves), exact where it may fall below REL_SV_MIN; above, possibly a lower
-    bound (``_rel_sv_floor``) that already clears it, so a well-posed chunk makes no LAPACK call per board."""
-    Xd = X if X.flags.c_contiguous and first.all() else X * first[:, None, :, None]  # no revisits: no masked copy
-    G = np.matmul(Xd.swapaxes(-1, -2), Xd)  # (D, S, k, k) Gram matrix: one BLAS-sized call, not an SVD per board
-    d = np.sqrt(np.diagonal(G, axis1=-2, axis2=-1))  # column norms
+def _rel_sv(Xt: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Smallest / largest singular value (D,) of the column-normalised design Xt (S, k, P, D)
+    over distinct orientations (``first`` (D, P)), the min over the S solves; exact where it may
+    fall below REL_SV_MIN; above, possibly a lower bound (``_rel_sv_floor``) that already clears
+    it, so a well-posed chunk makes no LAPACK call per board."""
+    S, k, P, D = Xt.shape
+    if not first.all():  # revisits count once: zeroed rows
+        Xt = Xt * first.T
+    # the Gram matrix (S, k, k, D) as k (k + 1) / 2 products summed over the poses, boards last:
+    # no small matmul per board
+    G = np.empty((S, k, k, D))
+    for i in range(k):
+        for j in range(i, k):
+            G[:, i, j] = (Xt[:, i] * Xt[:, j]).sum(axis=1)
+            G[:, j, i] = G[:, i, j]
+    d = np.sqrt(np.einsum("siid->sid", G))  # column norms
     d = np.where(d > 0, d, 1.0)
-    k = G.shape[-1]
     # the normalised design's singular values squared are the eigenvalues of D^-1 G D^-1; at the
     # REL_SV_MIN threshold their ratio is ~2.5e-3, far above the Gram form's rounding (~1e-16)
-    Gn = (G / (d[..., :, None] * d[..., None, :])).reshape(-1, k, k)
-    rel = _rel_sv_floor(Gn)
-    unsure = rel < REL_SV_MIN
-    if unsure.any():
-        w = np.linalg.eigvalsh(Gn[unsure])  # ascending
+    A = (G / (d[:, :, None] * d[:, None, :])).transpose(1, 2, 0, 3).reshape(k, k, S * D)
+    rel = _rel_sv_floor(A)
+    unsure = np.flatnonzero(rel < REL_SV_MIN)
+    if unsure.size:
+        w = np.linalg.eigvalsh(np.ascontiguousarray(A[:, :, unsure].transpose(2, 0, 1)))  # ascending
         rel[unsure] = np.sqrt(np.maximum(w[:, 0], 0.0) / np.maximum(w[:, -1], 1e-300))
-    return np.min(rel.reshape(G.shape[:-2]), axis=-1)
+    return np.min(rel.reshape(S, D), axis=0)
 
 
-def assess_batch(gf: ArrayLike, model: str, first: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def assess_batch(gf: ArrayLike, model: str, first: np.ndarray | None = None, sure: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Vectorised check of D boards: (determined (D,) bool, distinct orientations (D,) int).
 
     gf: (D, P, 3) uncalibrated readings in (about) g; ``first``: their ``first_of_orientation``
-    when the caller has it already.  ``assess`` says why a board fails.
+    when the caller has it already; ``sure`` (D,): boards already certified determined
+    (``screen``), whose design is not formed.  ``assess`` says why a board fails.
     """
     gf = np.asarray(gf, dtype=float)
     model = str(model)
     k = COEFFS[model]
     first = first_of_orientation(gf) if first is None else first
     distinct = first.sum(axis=-1)
+    if sure is not None and np.any(sure):
+        ok = np.array(sure, dtype=bool, copy=True)
+        rest = np.flatnonzero(~ok)
+        if rest.size:
+            ok[rest] = assess_batch(gf[rest], model, first[rest])[0]
+        return ok, distinct
     ok = distinct >= k
-    X = _design(gf, model)
-    ok &= _rel_sv(X, first) >= REL_SV_MIN
+    ok &= _rel_sv(_design_t(gf, model), first) >= REL_SV_MIN
     if model == "6":
         spread = gf.max(axis=1) - gf.min(axis=1)
         ok &= np.all(spread >= SPREAD_MIN_G, axis=-1)
     return ok, distinct
+
+
+@dataclass(frozen=True)
+class Screen:
+    """What the boards' nominal design (their references) certifies about their readings, with
+    no pose pair compared and no design matrix formed; each True is exact (the answer of
+    ``first_of_orientation`` / ``assess_batch``), a False only means "not certified: compute it".
+
+    apart (D,): every pose is the first of its orientation (``directions_apart``, and the
+    readings' centre is 0, so ``first_of_orientation``'s directions are the readings' own);
+    determined (D,): apart, and ``assess_batch`` finds the model determined; sq (D, P): each
+    reading's squared norm, g^2 (for the plausibility and absurd-reading checks), None where
+    nothing was certified (no boards-last copy made)."""
+
+    apart: np.ndarray
+    determined: np.ndarray
+    sq: np.ndarray | None
+
+
+def screen(gf: np.ndarray, ref: np.ndarray | None, model: str, tol_deg: float = DISTINCT_TOL_DEG) -> Screen:
+    """The ``Screen`` of D boards' readings gf (D, P, 3) in g against references (P, 3) or
+    (D, P, 3) (None, or references that differ between boards: nothing certified), from one
+    boards-last copy of the readings.
+
+    determined: the relative singular value sigma_min / sigma_max of the column-normalised design
+    A (identifiability's test, >= REL_SV_MIN) is bounded from the references' design A_r by Weyl's
+    inequality: |sigma_i(A) - sigma_i(A_r)| <= ||A - A_r||_F = e, and for unit columns a, b,
+    ||a - b||^2 = 2 (1 - a.b); so rel >= (sigma_min(A_r) - e) / (sigma_max(A_r) + e)."""
+    D, P, _ = gf.shape
+    none = np.zeros(D, dtype=bool)
+    rn = _shared_unit(ref, D)
+    if rn is None or len(rn[0]) != P:  # nothing to certify: no copy made (a 200,000-pose table)
+        return Screen(none, none, None)
+    r, ru = rn
+    g = np.ascontiguousarray(gf.transpose(2, 1, 0))  # (3, P, D): boards last
+    g2 = g * g
+    sq = g2.sum(axis=0)  # (P, D)
+    delta = 0.5 * (_closest_pair_rad(ru) - math.radians(tol_deg)) - APART_MARGIN_RAD
+    if not delta > 0:
+        return Screen(none, none, sq.T)
+    with np.errstate(over="ignore", invalid="ignore"):
+        hi, lo = g.max(axis=1), g.min(axis=1)  # (3, D)
+        mid = 0.5 * (hi + lo)
+        centred = ~(np.sqrt((mid * mid).sum(axis=0)) > 0.5)  # _centre gives 0: directions about 0
+        along = (g * ru.T[:, :, None]).sum(axis=0)  # (P, D) reading . unit reference
+        apart = np.all(along > np.sqrt(sq) * math.cos(delta), axis=0) & centred
+        determined = apart & _design_certified(g, g2, r, model) if COEFFS[model] <= P else np.zeros(D, dtype=bool)
+        if model == "6":
+            determined &= np.all(hi - lo >= SPREAD_MIN_G, axis=0)
+    return Screen(apart, determined, sq.T)
+
+
+def _shared_unit(ref: np.ndarray | None, D: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The references (P, 3) shared by all D boards and their unit directions, or None."""
+    if ref is None or D == 0:
+        return None
+    r = np.asarray(ref, dtype=float)
+    if r.ndim == 3:
+        if r.strides[0] != 0 and not np.array_equal(r, np.broadcast_to(r[0], r.shape)):
+            return None  # boards of several designs: each is computed
+        r = r[0]
+    rn = np.sqrt(np.einsum("pk,pk->p", r, r))
+    # a few poses (a fixture's design) only: the closest pair is found among P x P cosines
+    if not 2 <= len(r) <= SMALL_P or not np.all(np.isfinite(rn) & (rn > 0)):
+        return None
+    return r, r / rn[:, None]
+
+
+def _closest_pair_rad(ru: np.ndarray) -> float:
+    """The angle (rad) of the closest pair of unit directions ru (P, 3), P <= SMALL_P (a P x P matrix)."""
+    cosines = np.clip(ru @ ru.T, -1.0, 1.0)[np.triu_indices(len(ru), 1)]
+    return float(np.arccos(np.max(cosines)))
+
+
+def _design_certified(g: np.ndarray, g2: np.ndarray, r: np.ndarray, model: str) -> np.ndarray:
+    """(D,) boards whose design over every pose (g (3, P, D), g2 = g * g) is certified to have a
+    relative singular value >= REL_SV_MIN by the references' design r (P, 3) (``screen``)."""
+    D = g.shape[2]
+    if model not in ("6", "12", "15"):
+        return np.zeros(D, dtype=bool)
+    # per non-constant column (a function of one channel): 1 - cos(board column, reference column)
+    cols = [(g, g2, r.T)]
+    if model == "15":
+        g3 = g2 * g
+        cols.append((g3, g3 * g3, r.T ** 3))
+    gap = []
+    for a, a2, b in cols:  # a (3, P, D), b (3, P)
+        bn = np.sqrt((b * b).sum(axis=1))  # (3,)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cos = (a * b[:, :, None]).sum(axis=1) / (np.sqrt(a2.sum(axis=1)) * bn[:, None])  # (3, D)
+        gap.append(2.0 * (1.0 - cos))
+    # the columns of each solve: 12 one solve of x, y, z, 1; 6 per channel c: c, 1; 15 per channel: x, y, z, 1, c^3
+    if model == "12":
+        e2 = gap[0].sum(axis=0)[None]
+    elif model == "6":
+        e2 = gap[0]
+    else:
+        e2 = gap[0].sum(axis=0)[None] + gap[1]
+    X = _design(r[None], model)[0]  # (S, P, k) the references' design
+    norms = np.linalg.norm(X, axis=1, keepdims=True)
+    if not np.all(norms > 0):
+        return np.zeros(D, dtype=bool)
+    s = np.linalg.svd(X / norms, compute_uv=False)  # (S, k) descending
+    e = np.sqrt(np.maximum(e2, 0.0))  # (S, D); NaN stays NaN (not certified)
+    with np.errstate(invalid="ignore"):
+        bound = (s[:, -1:] - e) / (s[:, :1] + e)
+        return np.all(bound >= REL_SV_MIN * (1.0 + 1e-6), axis=0)
 
 
 def _alignment(gf: np.ndarray) -> str | None:
@@ -386,5 +578,6 @@ def describe_terms(A: np.ndarray, labels: list[tuple[str, str]], ideal: np.ndarr
                      + f" (relative singular value {rel[bad[0]]:.1g})")}
 
 
-__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "TermsCounts", "TermsDescription", "assess", "assess_batch",
-           "describe_terms", "first_of_orientation", "require", "worst_parameter"]
+__all__ = ["DISTINCT_TOL_DEG", "Identifiability", "Screen", "TermsCounts", "TermsDescription", "assess",
+           "assess_batch", "describe_terms", "directions_apart", "first_of_orientation", "require", "screen",
+           "worst_parameter"]

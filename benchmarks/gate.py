@@ -44,21 +44,26 @@ import reference_lot  # the yardstick beside this file
 # per-board np.linalg.cond loop and the per-board reading/coefficient checks put back): the run that
 # shows the gate fails (exit 1; benchmarks/README.md).  Second round (branch h35b, 2026-11-26
 # 11:00-11:11 UTC): five runs at load average 4-10, and main's gate twice in between at the same
-# load.  Each floor is about 60-70 % of the branch's lowest figure (a loaded CI machine moves these
-# ratios by 1.5-2x from run to run) and above the regressed figure.
+# load.  Third round (branch h35, 2026-11-26 12:45-13:20 UTC): runs at load ~12 and ~2-3, main's
+# (5f06785) gate in between, and the branch with the per-board np.linalg.cond loop put back into
+# sanity.absurd_coefficients ("cond back"; with these floors exit 1 twice: batch-6 and batch-12 below
+# both times, lot or batch-15 too).  Each floor is about 60-66 % of the branch's lowest figure (a
+# loaded machine moves these ratios by 1.5-2x from run to run) and above the regressed batch figures.
 FLOORS: dict[str, tuple[float, str]] = {
-    "lot": (0.8, "h35b 1.06 (load 4) / 1.54 / 1.42 / 1.70 / 1.33 (load 7-10); main in the same hour 1.20, 1.26; "
-                 "first round 0.99-1.17; per-board loop back 0.46, 0.70"),
-    "batch-6": (0.33, "h35b 0.89 / 0.50 / 0.60 / 0.77 / 0.52; main 0.49, 0.38; per-board loop back 0.09, 0.11"),
-    "batch-9": (0.33, "h35b 0.49 / 0.59 / 0.76 / 0.63 / 0.59; main 0.51, 0.43; per-board loop back 0.27, 0.24"),
-    "batch-12": (0.18, "h35b 0.42 / 0.49 / 0.40 / 0.29 / 0.36; main 0.28, 0.32; first round 0.20 at load ~3 "
-                       "(fit_stacked's two threads gain more on a quieter machine than fit_batch's one-thread "
-                       "front); per-board loop back 0.046, 0.062"),
-    "batch-15": (0.37, "h35b 0.63 / 0.58 / 0.85 / 0.85 / 0.57; main 0.62, 0.73; per-board loop back 0.23, 0.31"),
-    "cli": (0.45, "h35b 0.86 / 0.88 / 0.82 / 0.67 / 0.74; first round 0.60-0.90; every command imported at start "
-                  "(before issue 35) 0.099"),
-    "fit": (0.3, "h35b 0.68 / 0.55 / 0.51 / 0.59 / 0.38; first round 0.48-0.64 (`accelcal fit` 1.5-2.6x the numpy "
-                 "script's time, both new processes)"),
+    "lot": (1.1, "h35 1.90 (load 12) / 1.90 / 1.81 / 1.79 / 1.88 / 1.97 (load 1.3-2.8); main 1.24, 1.55; cond back "
+                 "1.01, 1.01, 1.19; h35b 1.06-1.70, first round 0.99-1.17; per-board loops (first round) 0.46, 0.70"),
+    "batch-6": (0.5, "h35 1.13 (load 12) / 0.84 / 0.85 / 0.86 / 0.85 / 0.94; main 0.59, 0.50; cond back 0.26, 0.26, "
+                     "0.22; h35b 0.50-0.89"),
+    "batch-9": (0.33, "h35 0.47 (load 12) / 0.51 / 0.66 / 0.61 / 0.61 / 0.54; main 0.45, 0.41; cond back 0.49, 0.63 "
+                      "(model 9 is judged by absurd_norm_model); h35b 0.49-0.76; per-board loop back 0.27, 0.24"),
+    "batch-12": (0.33, "h35 0.87 (load 12) / 0.60 / 0.63 / 0.66 / 0.70 / 0.51; main 0.40, 0.24; cond back 0.11, 0.12, "
+                       "0.17; h35b 0.29-0.49"),
+    "batch-15": (0.6, "h35 1.07 (load 12) / 0.93 / 0.91 / 0.92 / 0.92 / 0.91; main 0.68, 0.64; cond back 0.52, 0.56, "
+                      "0.60; h35b 0.57-0.85"),
+    "cli": (0.45, "h35 0.43 (load 12: below) / 0.83 / 0.83 / 0.84 / 0.83 / 0.62; h35b 0.67-0.88; first round "
+                  "0.60-0.90; every command imported at start (before issue 35) 0.099"),
+    "fit": (0.3, "h35 0.93 (load 12) / 0.60 / 0.57 / 0.56 / 0.79 / 0.71; h35b 0.38-0.68; first round 0.48-0.64 "
+                 "(`accelcal fit` 1.5-2.6x the numpy script's time, both new processes)"),
 }
 
 # the limits the lot gate judges (keys the reference implements); tight enough that some boards FAIL

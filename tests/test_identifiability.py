@@ -119,3 +119,35 @@ def test_least_certain_parameter_tie_is_not_broken_by_float_noise():
     # a real difference still wins: W_zz larger by 5e-4 relative is named
     W = np.diag([2e-3, 2e-3, 2.001e-3]) + 1e-4
     assert worst_parameter({"W": W, "V": np.full(3, 1e-4), "Gamma": np.zeros(3)}, "12")[0] == "W_zz"
+
+
+@pytest.mark.parametrize("design", ["an4399-8", "six-face", "nine-position", "optimal-12"])
+def test_screen_certificates_give_the_pairwise_answers(design):
+    """identifiability.screen certifies boards from their references without comparing poses; where it
+    does, first_of_orientation, assess_batch and sanity.distinct_directions_batch must give exactly
+    what comparing every pair and forming every design gives: boards off their design by small and
+    large gains, offsets far from 0 (a centre), revisits and flattened axes included."""
+    from accelcal_station.fixtures.designs import get_design, references
+    from accelcal_station.identifiability import assess_batch, directions_apart, first_of_orientation, screen
+    from accelcal_station.models.sanity import distinct_directions_batch
+
+    rng = np.random.default_rng(7)
+    ref = np.asarray(references(get_design(design)))
+    D, P = 3000, len(ref)
+    W = np.eye(3) + rng.choice([0.01, 0.2, 0.6], (D, 1, 1)) * rng.standard_normal((D, 3, 3))
+    V = rng.choice([0.02, 0.3, 1.0], (D, 1)) * rng.standard_normal((D, 3))
+    x = np.einsum("dij,dpj->dpi", np.linalg.inv(W), ref - V[:, None, :]) + 1e-3 * rng.standard_normal((D, P, 3))
+    rv = rng.integers(0, D, 150)
+    x[rv, 1] = x[rv, 0] * (1 + 0.01 * rng.standard_normal((150, 1)))  # a revisit
+    fl = rng.integers(0, D, 150)
+    x[fl, :, 2] *= rng.choice([0.0, 0.01, 0.1], (150, 1))  # a flattened axis
+    for model in ("6", "12", "15"):
+        s = screen(x, ref, model)
+        assert 0.05 < s.apart.mean() < 0.95  # both paths are exercised
+        assert s.determined.any() or model == "15"  # six faces cannot determine a cubic: never certified
+        first = first_of_orientation(x)
+        assert np.array_equal(first_of_orientation(x, apart=s.apart), first)
+        want = assess_batch(x, model, first)
+        got = assess_batch(x, model, first, s.determined)
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    assert np.array_equal(distinct_directions_batch(x, apart=directions_apart(x, ref)), distinct_directions_batch(x))

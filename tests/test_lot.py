@@ -283,3 +283,67 @@ def test_model9_ellipsoid_start_is_exact_on_an_exact_ellipsoid():
     np.testing.assert_allclose(p0[:, [3, 4, 5]], M[:, [0, 0, 1], [1, 2, 2]], atol=1e-10)
     np.testing.assert_allclose(p0[:, 6:], B, atol=1e-10)
     assert np.abs(stacked_norm._sphere_start(v)[:, 6:] - B).max() > 1e-4
+
+
+def _chunks_flat(lot, **kw):
+    """Every board's serial, first row, reason and numbers from open_lot's chunks, concatenated."""
+    from accelcal_station.data.lotfile import open_lot
+
+    _, chunks = open_lot(lot, **kw)
+    serials, first, bad, cols = [], [], [], {}
+    for ch in chunks:
+        serials += ch.serials
+        first += ch.first_row.tolist()
+        bad += ch.bad
+        for k, v in ch.cols.items():
+            cols.setdefault(k, []).append(v)
+    return serials, first, bad, {k: np.concatenate(v) for k, v in cols.items()}
+
+
+def test_typed_csv_read_falls_back_to_text_from_where_it_stopped(tmp_path, monkeypatch):
+    """The Arrow reader parses numbers as float64; a cell that is not a number, many blocks into the
+    file, makes it re-read the rest as text from the first row not yet given out: every board, its
+    numbers (padded cells, integers, exponents) and the bad board's reason are the pure-Python
+    reader's, the row is named, and no board is given out twice or lost."""
+    pytest.importorskip("pyarrow.csv", reason="the optional pyarrow is not installed")
+    lot = write_lot(tmp_path / "lot.csv", 3000, seed=6)
+    lines = lot.read_text().splitlines()
+    head, body = lines[:3], lines[3:]
+    cols = head[2].split(",")
+    P = 8
+
+    def put(i, col, value):
+        c = body[i].split(",")
+        c[cols.index(col)] = value
+        body[i] = ",".join(c)
+
+    put(10 * P, "x", " 12.5 ")         # padded: a number in both readers
+    put(11 * P, "y", "4e3")
+    put(12 * P + 1, "z", "-7")
+    bad_row = 2500 * P + 3             # deep in the file: far past the first 64 KiB block
+    put(bad_row, "y", "n/a!")
+    lot.write_text("\n".join(head + body) + "\n")
+    arrow = _chunks_flat(lot, block_bytes=64 << 10)
+    monkeypatch.setattr("accelcal_station.data.lotfile.arrow_available", lambda: False)
+    python = _chunks_flat(lot, chunk_boards=100)
+    assert arrow[0] == python[0] == [f"B{i:08d}" for i in range(3000)]
+    assert arrow[1] == python[1]
+    assert [i for i, b in enumerate(arrow[2]) if b] == [i for i, b in enumerate(python[2]) if b] == [2500]
+    assert f"data row {bad_row + 1}, column y: 'n/a!' is not a number" in arrow[2][2500]
+    for k in python[3]:
+        np.testing.assert_array_equal(arrow[3][k], python[3][k], err_msg=k)
+    assert arrow[3]["x"][10 * P] == 12.5 and arrow[3]["y"][11 * P] == 4000.0
+
+
+def test_dictionary_text_trims_what_arrow_trims():
+    """The typed CSV read trims serials and pose names with numpy's strings.strip; the text read
+    with Arrow's utf8_trim_whitespace: both must remove the same characters (Python's str.strip's),
+    at every Unicode code point (a pyarrow or numpy upgrade that changed its set would show here)."""
+    pa = pytest.importorskip("pyarrow")
+    pc = pytest.importorskip("pyarrow.compute")
+    # NUL left out: numpy's fixed-width str cannot end in one (every text path of the reader shares that)
+    cps = [c for c in range(1, 0x110000) if not 0xD800 <= c <= 0xDFFF]
+    cells = [f"{chr(c)}B1{chr(c)}" for c in cps]
+    arrow = pc.utf8_trim_whitespace(pa.array(cells)).to_pylist()
+    assert arrow == [c.strip() for c in cells] == np.strings.strip(np.array(cells)).tolist()
+    assert sum(c != "B1" for c in arrow) > 1_000_000  # most characters are kept: the check has teeth

@@ -152,15 +152,36 @@ def measure(fit: FitResult) -> dict[str, float]:
     return {k: float(v[0]) for k, v in measure_all(FitFigures.from_fits([fit])).items() if not np.isnan(v[0])}
 
 
-def _pose_reasons(have: np.ndarray, model: str, planned_poses: int) -> list[list[Reason]]:
+RuleFailures = tuple[np.ndarray, str, list[str]]  # a rule's failing boards (indices, ascending), its code, the texts
+
+
+def _pose_failures(have: np.ndarray, model: str, planned_poses: int) -> list[RuleFailures]:
     need = poses_needed(model)
-    out: list[list[Reason]] = [[] for _ in range(len(have))]
-    for b in np.flatnonzero(have < need):
-        out[b].append(Reason("distinct_poses", f"{have[b]} < {need} needed by model {model} (its unknowns "
-                             "per axis plus one, so cross-validation is measurable)", " "))
-    for b in np.flatnonzero((have >= need) & (have < planned_poses)):
-        out[b].append(Reason("distinct_poses", f"{have[b]} < {planned_poses} planned (a pose was skipped or "
-                             "repeated)", " "))
+    few = np.flatnonzero(have < need)
+    skipped = np.flatnonzero((have >= need) & (have < planned_poses))
+    return [(few, "distinct_poses", [f"distinct_poses {have[b]} < {need} needed by model {model} (its unknowns "
+                                     "per axis plus one, so cross-validation is measurable)" for b in few]),
+            (skipped, "distinct_poses", [f"distinct_poses {have[b]} < {planned_poses} planned (a pose was skipped "
+                                         "or repeated)" for b in skipped])]
+
+
+def limit_failures(m: dict[str, np.ndarray], have: np.ndarray, model: str, limits: Limits,
+                   planned_poses: int = 0) -> list[RuleFailures]:
+    """Each rule's failing boards among B (``limit_reasons``' order: the distinct-pose rules, then
+    the limits as configured), compared over all boards at once; the texts (a Reason's whole text)
+    are formatted for the failing boards only, and no per-board list is built."""
+    out = _pose_failures(have, model, planned_poses)
+    for key, lim in limits.values.items():
+        if key not in m:  # verify_error_max_mg before verification
+            continue
+        v = m[key]
+        unmeasurable = np.isnan(v)
+        if unmeasurable.any():
+            idx = np.flatnonzero(unmeasurable)
+            out.append((idx, key, [f"{key}: not measurable for this fit (limit {lim:g})"] * len(idx)))
+        idx = np.flatnonzero(~unmeasurable & ~(v <= lim))
+        tail = f" > limit {lim:g} ({LIMIT_KEYS[key]})"
+        out.append((idx, key, [f"{key} {x:.4g}{tail}" for x in v[idx].tolist()]))
     return out
 
 
@@ -169,16 +190,10 @@ def limit_reasons(m: dict[str, np.ndarray], have: np.ndarray, model: str, limits
     """Why each of B boards fails (``[]`` when it passes), from its measured figures ``m``
     (measure_all) and distinct poses ``have``: the limits compared over all boards at once,
     the words formatted only for the boards that fail."""
-    reasons = _pose_reasons(have, model, planned_poses)
-    for key, lim in limits.values.items():
-        if key not in m:  # verify_error_max_mg before verification
-            continue
-        v = m[key]
-        unmeasurable = np.isnan(v)
-        for b in np.flatnonzero(unmeasurable):
-            reasons[b].append(Reason(key, f"not measurable for this fit (limit {lim:g})"))
-        for b in np.flatnonzero(~unmeasurable & ~(v <= lim)):
-            reasons[b].append(Reason(key, f"{v[b]:.4g} > limit {lim:g} ({LIMIT_KEYS[key]})", " "))
+    reasons: list[list[Reason]] = [[] for _ in range(len(have))]
+    for idx, code, texts in limit_failures(m, have, model, limits, planned_poses):
+        for b, t in zip(idx.tolist(), texts, strict=True):
+            reasons[b].append(Reason.of(code, t))
     return reasons
 
 

@@ -10,31 +10,31 @@ import json
 import sys
 from contextlib import AbstractContextManager
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol, TypedDict
 
 import click
 
-from ..acceptance.rules import Limits
-from ..config.checks import load_yaml
 from ..errors import DataError
 from ..fileguard.identity import refuse_overwrite
-from ..lot.batch import (
-    BatchReport,
-    Source,
-    expand_paths,
-    recalibrate,
-    record_in_store,
-    sessions_from_files,
-    sessions_from_store,
-    summary_csv,
-    write_calibrations,
-)
-from ..store.location import store_target
-from ..store.runs import Store
 from ._common import check_model_units, force_option, output_kind, parse_int, store_file
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
 from ._text import clean, error_text
+
+if TYPE_CHECKING:  # a lot file's mode (--out) imports neither the pose-table batch nor the store
+    from ..acceptance.rules import Limits
+    from ..lot.batch import BatchOutputs, BatchReport, Source
+
+
+class StoreFilters(TypedDict):
+    """--from-store's filters, as sessions_from_store's keyword arguments (None: not filtered)."""
+
+    lot: str | None
+    device: list[str] | None
+    station: str | None
+    since: str | None
+    until: str | None
+    run_ids: list[int] | None
 
 PROGRESS_MIN_BOARDS = 10  # below this a progress bar is noise
 
@@ -69,7 +69,7 @@ def _mg(v: float | None) -> str:
     return "n/a" if v is None else f"{v * 1e3:.3f} mg"
 
 
-def _text(report: BatchReport, outputs: dict[str, Any], list_all: bool) -> list[str]:
+def _text(report: BatchReport, outputs: BatchOutputs, list_all: bool) -> list[str]:
     """The human report: skipped boards (every board with ``list_all``), the tally, the outputs."""
     lines = []
     for r in report.results:
@@ -211,10 +211,11 @@ def _check_chunk_boards(ctx: click.Context, out: str | None, config_path: str | 
 
 
 def _store_filters(from_store: str | None, lot: str | None, device: tuple[str, ...], station: str | None,
-                   since: str | None, until: str | None, run_ids: tuple[str, ...]) -> dict[str, Any]:
+                   since: str | None, until: str | None, run_ids: tuple[str, ...]) -> StoreFilters:
     """The --from-store filters as keyword arguments of sessions_from_store; refused without --from-store."""
-    store_filters = {"lot": lot, "device": list(device) or None, "station": station, "since": since,
-                     "until": until, "run_ids": [parse_int(i, "--run") for i in run_ids] or None}
+    ids = [n for i in run_ids if (n := parse_int(i, "--run")) is not None]
+    store_filters: StoreFilters = {"lot": lot, "device": list(device) or None, "station": station, "since": since,
+                                   "until": until, "run_ids": ids or None}
     if from_store is None and any(v is not None for v in store_filters.values()):
         flag = next(k for k, v in store_filters.items() if v is not None).replace("run_ids", "run").replace("_", "-")
         raise DataError(f"--{flag} filters runs of a results store; add --from-store FILE")
@@ -225,6 +226,8 @@ def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str 
                   out_dir: str | None = None, force: bool = False) -> None:
     """Refuse, before any work, a call with no boards, a --csv file in a folder that does not exist, or
     an output that is one of the inputs (a pose table, the source store)."""
+    from ..lot.batch import expand_paths
+
     if not paths and from_store is None:
         raise DataError("no boards given; pass pose tables, directories or globs, or --from-store FILE")
     inputs = [("input", str(p)) for p in expand_paths(paths)] if paths else []
@@ -239,16 +242,24 @@ def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str 
 
 
 def _limits(config_path: str | None) -> Limits | None:
-    """The acceptance limits of a station config (--config), checked by the schema; None without one."""
+    """The acceptance limits of a station config (--config), checked by the schema; None without one
+    (then the schema, pydantic, is not even imported)."""
     if config_path is None:
         return None
+    from ..acceptance.rules import Limits
+    from ..config.checks import load_yaml
+
     return Limits.from_config(load_yaml(config_path).get("acceptance"))
 
 
-def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: dict[str, Any], model: str,
+def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: StoreFilters, model: str,
                 units: str | None, cpg: float | None, grav: float | None, as_json: bool,
                 limits: Limits | None = None) -> BatchReport:
     """Read the boards (store runs, then pose tables) and fit them all, with progress bars on a big batch."""
+    from ..lot.batch import expand_paths, recalibrate, sessions_from_files, sessions_from_store
+    from ..store.location import store_target
+    from ..store.runs import Store
+
     sources: list[Source] = []
     if from_store is not None:
         with Store(store_target(from_store), create=False) as st:
@@ -265,26 +276,30 @@ def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: d
 
 def _write_outputs(report: BatchReport, out_dir: str | None, csv_path: str | None, to_store: str | None,
                    from_store: str | None, config_path: str | None = None,
-                   force: bool = False) -> tuple[dict[str, Any], dict[str, Path]]:
+                   force: bool = False) -> tuple[BatchOutputs, dict[str, Path]]:
     """Write the calibrations, the summary CSV and the store records asked for: (what was written
     where, the calibration file of each board source)."""
-    outputs: dict[str, Any] = {}
+    from ..lot.batch import record_in_store, summary_csv, write_calibrations
+    from ..store.location import store_target
+    from ..store.runs import Store
+
+    outputs: BatchOutputs = {}
     written: dict[str, Path] = {}
     if out_dir is not None:
         written = write_calibrations(report, out_dir, force)
-        outputs.update(out_dir=str(out_dir), calibrations=len(written))
+        outputs["out_dir"], outputs["calibrations"] = str(out_dir), len(written)
     if csv_path is not None:
         summary_csv(report, csv_path)
         outputs["csv"] = str(csv_path)
     if to_store is not None:
         with Store(store_target(to_store)) as st:
             config_text = None if config_path is None else Path(config_path).read_text(encoding="utf-8")
-            outputs["store"] = {"path": str(to_store), **record_in_store(report, st, source_store=from_store,
-                                                                          config_text=config_text)}
+            counts = record_in_store(report, st, source_store=from_store, config_text=config_text)
+            outputs["store"] = {"path": str(to_store), "events": counts["events"], "runs": counts["runs"]}
     return outputs, written
 
 
-def _print_report(report: BatchReport, outputs: dict[str, Any], written: dict[str, Path], as_json: bool) -> None:
+def _print_report(report: BatchReport, outputs: BatchOutputs, written: dict[str, Path], as_json: bool) -> None:
     """The report on stdout: one JSON object, or the human lines."""
     if as_json:
         doc = report.to_dict()

@@ -9,6 +9,7 @@ a row without a serial is refused, never made into a board called "None".
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -20,10 +21,13 @@ from .lotchunk import COLUMNS, TEXT, LotChunk, arrays_chunk, missing_serial
 
 # CSV bytes parsed at once.  Arrow's streaming reader holds buffers that grow with the block:
 # opening it and reading the first block raised the RSS by 31 MiB at 256 KiB, 56 at 1 MiB and 109
-# at 4 MiB (pyarrow 26, mimalloc pool).  `accelcal batch` keeps 1 MiB (one core, 200,000 boards:
-# 3.0-3.2 CPU-s against 3.4-3.6 with 256 KiB, the per-chunk work of 4x more chunks); `twin fit`,
+# at 4 MiB (pyarrow 26, mimalloc pool), and its read-ahead holds more of a long file than of a short
+# one at 1 MiB blocks (12 blocks into the 108 MB 200,000-board lot: 108 MB RSS against 99 MB for the
+# 27 MB 50,000-board lot; 103 / 102 MB at 768 KiB, 93 / 93 at 640 KiB).  `accelcal batch` parses
+# 768 KiB blocks: its peak RSS is flat in the lot's size (bench_resources: 125 / 128 MB at 50,000 /
+# 200,000 boards, 1.02; 128 / 144 MB, 1.12, at 1 MiB) for 2-3 % more CPU than 1 MiB; `twin fit`,
 # whose memory has a stated bound, reads 256 KiB (100,000 boards: 246 MB peak, 271 with 1 MiB).
-BLOCK_BYTES = 1 << 20
+BLOCK_BYTES = 768 << 10
 SMALL_BLOCK_BYTES = 256 << 10
 MAX_ROW_GROUP_BYTES = 1 << 30  # one row group's columns are decoded at once: at most 1 GiB of them
 REQUIRED = ("serial", "pose", "x", "y", "z")
@@ -102,13 +106,13 @@ def _closing(f: BinaryIO, chunks: Iterator[LotChunk]) -> Iterator[LotChunk]:
 
 
 def _guarded(batches: Iterable[Any], names: list[str], path: Path, what: str,
-             bad_row: list[str] | None = None, where: Where | None = None) -> Iterator[LotChunk]:
+             bad_row: list[str] | None = None, where: Where | None = None, row0: int = 0) -> Iterator[LotChunk]:
     """Chunks of whole boards; an Arrow error while decoding is one DataError (``bad_row``: a CSV row
     of the wrong width, recorded by the reader, named instead)."""
     import pyarrow as pa
 
     try:
-        yield from _arrow_chunks(batches, names, path, where or _data_row)
+        yield from _arrow_chunks(batches, names, path, where or _data_row, row0)
     except (pa.ArrowException, OSError) as e:
         if bad_row:
             raise DataError(bad_row[0]) from None
@@ -119,21 +123,22 @@ def _data_row(n: int) -> str:
     return f"data row {n}"
 
 
-def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: Where) -> Iterator[LotChunk]:
-    """Whole-board chunks from Arrow record batches (a board may span two batches); ``where`` names
-    data row n (1-based) in errors."""
+def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: Where,
+                  row0: int = 0) -> Iterator[LotChunk]:
+    """Whole-board chunks from Arrow record batches (a board may span two batches), the first
+    batch's first row being data row ``row0`` + 1; ``where`` names data row n (1-based) in errors."""
     tail: dict[str, np.ndarray] | None = None
-    row0 = 0
     for batch in batches:
         bad_rows: dict[int, str] = {}
         first = row0 + (len(tail["serial"]) if tail else 0)
         d = {c: _arrow_column(batch.column(c), c, path, first, bad_rows, where) for c in names}
-        d["_bad"] = np.zeros(len(d["serial"]), dtype=object)
+        # a reason per row (0 where none) only where a cell was bad; a clean batch: no object array
+        d["_bad"] = np.zeros(len(d["serial"]), dtype=object if bad_rows else bool)
         for i, msg in bad_rows.items():
             d["_bad"][i] = msg
         if tail is not None:
             d = {c: np.concatenate([tail[c], d[c]]) for c in d}
-        serial = d["serial"].astype(str)
+        serial = d["serial"].astype(str, copy=False)
         change = np.flatnonzero(serial[1:] != serial[:-1]) + 1
         cut = int(change[-1]) if len(change) else 0  # the last board may continue in the next batch
         tail = {c: d[c][cut:] for c in d}
@@ -147,6 +152,11 @@ def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: W
 def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str], where: Where) -> np.ndarray:
     """An Arrow column as numpy: text columns as str (a null serial refused), numeric ones as float (NaN for null)."""
     import pyarrow as pa
+
+    if name in TEXT and pa.types.is_dictionary(col.type) and pa.types.is_string(col.type.value_type):
+        return _dictionary_text(col, name, path, row0, where)
+    if col.type == pa.float64():  # the typed CSV read's numbers: no cast (and no pyarrow.compute import)
+        return np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
     import pyarrow.compute as pc
 
     if name in TEXT:
@@ -167,8 +177,28 @@ def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
                 col = pc.cast(pc.utf8_trim_whitespace(col), pa.float64())
             except pa.ArrowInvalid:
                 return _cells(col, name, path, row0, bad_rows)
-    # integers beyond 2**53 and wide decimals lose digits as floats: a calibration number never has them
-    return np.asarray(pc.cast(col, pa.float64(), safe=False).to_numpy(zero_copy_only=False), dtype=float)
+    if col.type != pa.float64():  # integers beyond 2**53 and wide decimals lose digits as floats: a
+        col = pc.cast(col, pa.float64(), safe=False)  # calibration number never has them
+    return np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
+
+
+def _dictionary_text(col: Any, name: str, path: Path, row0: int, where: Where) -> np.ndarray:
+    """A text column read as a dictionary (the CSV lot's serial and pose: a value per board or per
+    pose name, not per row) as numpy str: the dictionary's values trimmed, null or blank rows ""
+    (a blank serial refused).  numpy's strings.strip trims exactly what Arrow's utf8_trim_whitespace
+    (the text path's) trims, the Unicode White_Space characters (tests/test_lot.py checks every code
+    point), in one call, with no pyarrow.compute."""
+    values = np.strings.strip(np.asarray(col.dictionary.to_numpy(zero_copy_only=False)).astype(str))
+    table = np.append(values, "")  # the last entry: a null cell
+    idx = col.indices.to_numpy(zero_copy_only=False)
+    if col.null_count:  # nulls come out as NaN
+        idx = np.where(np.isnan(idx), len(values), idx)
+    out = table[np.asarray(idx, dtype=np.intp)]
+    if name == "serial":
+        blank = out == ""
+        if blank.any():
+            raise missing_serial(path, where(row0 + int(np.argmax(blank)) + 1))
+    return out
 
 
 def _cells(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str]) -> np.ndarray:
@@ -241,11 +271,35 @@ def _line_of(path: Path, text: str) -> str:
 
 def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int,
                    block_bytes: int = BLOCK_BYTES) -> Iterator[LotChunk]:
-    """The CSV body through pyarrow's streaming reader, ``block_bytes`` of CSV parsed at once."""
+    """The CSV body through pyarrow's streaming reader, ``block_bytes`` of CSV parsed at once.
+
+    Numeric columns are parsed as float64 by the reader itself (no text column and cast per
+    block); a cell that is not a number stops that read, and the rest of the file, from the
+    first row not yet given out, is read again as text, where ``_arrow_column`` names the bad
+    cells.  Both give the same numbers for every cell the typed read accepts (Arrow's one float
+    parser; surrounding blanks, which the typed read skips, are trimmed before the text cast)."""
+    done = 0  # data rows given out in chunks so far
+    try:
+        for chunk in _read_csv_arrow(path, header, skip, block_bytes, typed=True):
+            done = chunk.row_end
+            yield chunk
+    except _TypedCellError:
+        yield from _read_csv_arrow(path, header, skip, block_bytes, typed=False, row0=done)
+
+
+class _TypedCellError(Exception):
+    """A numeric cell the typed read could not parse: read the rest as text."""
+
+
+def _read_csv_arrow(path: Path, header: list[str], skip: int, block_bytes: int, typed: bool,
+                    row0: int = 0) -> Iterator[LotChunk]:
+    """One pass of pyarrow's streaming reader from data row ``row0`` on (earlier rows dropped)."""
     import pyarrow as pa
     import pyarrow.csv as pcsv
 
-    types = {c: pa.string() for c in header}
+    # typed: numbers as float64, the serial and pose names as dictionaries (a few distinct values per block)
+    types = {c: (pa.dictionary(pa.int32(), pa.string()) if c in TEXT else pa.float64()) if typed else pa.string()
+             for c in header}
     check = _RowCheck(path)
     # One thread, and the reader closed before the file: a background read-ahead thread of Arrow's
     # reading a Python file object that an abandoned generator has already closed crashes the process.
@@ -255,10 +309,59 @@ def read_csv_arrow(path: Path, header: list[str], skip: int, chunk_boards: int,
                                                                     block_size=block_bytes, use_threads=False),
                                    parse_options=pcsv.ParseOptions(ignore_empty_lines=True, invalid_row_handler=check),
                                    convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True))
+        except pa.ArrowInvalid as e:
+            if typed and not check.bad and "conversion error" in str(e).lower():
+                raise _TypedCellError from None
+            raise DataError(check.bad[0] if check.bad else f"{path}: unreadable CSV ({e})") from None
         except (pa.ArrowException, OSError) as e:
             raise DataError(check.bad[0] if check.bad else f"{path}: unreadable CSV ({e})") from None
         try:
-            yield from _guarded(reader, header, path, "CSV", check.bad, lambda n: _data_line(path, skip, n))
+            batches = _typed_batches(_ahead(reader), check) if typed else _after(_ahead(reader), row0)
+            yield from _guarded(batches, header, path, "CSV", check.bad, lambda n: _data_line(path, skip, n), row0)
         finally:
             reader.close()
 
+
+def _ahead(batches: Iterable[Any]) -> Iterator[Any]:
+    """The batches, the next one parsed by one background thread while the caller works on this
+    one (Arrow's parser runs without the GIL: reading overlaps the fit on a second core).  The
+    thread is done before this generator ends, however it ends, so the reader and its file are
+    never used after they are closed."""
+    it = iter(batches)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="accelcal-csv") as ex:
+        pending = ex.submit(next, it, None)
+        try:
+            while (batch := pending.result()) is not None:
+                pending = ex.submit(next, it, None)
+                yield batch
+        finally:
+            pending.cancel()
+            wait([pending])
+
+
+def _typed_batches(reader: Iterable[Any], check: _RowCheck) -> Iterator[Any]:
+    """The typed reader's batches; a conversion error (a cell that is not a number) as _TypedCellError."""
+    import pyarrow as pa
+
+    it = iter(reader)
+    while True:
+        try:
+            batch = next(it)
+        except StopIteration:
+            return
+        except pa.ArrowInvalid as e:
+            if not check.bad and "conversion error" in str(e).lower():
+                raise _TypedCellError from None
+            raise
+        yield batch
+
+
+def _after(batches: Iterable[Any], row0: int) -> Iterator[Any]:
+    """The batches without their first ``row0`` rows (given out already by the typed read)."""
+    left = row0
+    for batch in batches:
+        if left >= batch.num_rows:
+            left -= batch.num_rows
+            continue
+        yield batch.slice(left) if left else batch
+        left = 0

@@ -203,7 +203,8 @@ def lot_scale(meta: dict[str, str], path: str | Path, units: str | None, counts_
 
 def _range_checks(c: dict[str, np.ndarray]) -> list[tuple[np.ndarray, str]]:
     """Rows with a value no pose can have (as a pose table refuses them): a reading beyond
-    MAX_ABS_READING, an angle beyond +-360 deg, a reference beyond +-10 g, a negative std, n below 1."""
+    MAX_ABS_READING, an angle beyond +-360 deg, a reference beyond +-10 g, a negative std, n below 1.
+    A group whose every value lies inside its range (most chunks) is cleared by its extremes alone."""
     with np.errstate(invalid="ignore"):
         out = []
         for cols, lo, hi, what in ((("x", "y", "z"), -MAX_ABS_READING, MAX_ABS_READING, "reading"),
@@ -211,10 +212,35 @@ def _range_checks(c: dict[str, np.ndarray]) -> list[tuple[np.ndarray, str]]:
                                    (("ref_x", "ref_y", "ref_z"), -10.0, 10.0, "reference (g)"),
                                    (("std_x", "std_y", "std_z"), 0.0, MAX_ABS_READING, "std"),
                                    (("n",), 1.0, 1e15, "sample count n")):
-            v = np.stack([c[k] for k in cols if k in c], axis=1) if any(k in c for k in cols) else None
-            if v is not None:
-                out.append((np.any((v < lo) | (v > hi), axis=1), f"{what} out of range; allowed {lo:g} to {hi:g}"))
+            have = [c[k] for k in cols if k in c]
+            # fmin/fmax skip NaN, as the comparisons below do (a NaN cell is not out of range)
+            if not have or all(not len(v) or (np.fmin.reduce(v) >= lo and np.fmax.reduce(v) <= hi) for v in have):
+                continue
+            v = np.stack(have, axis=1)
+            out.append((np.any((v < lo) | (v > hi), axis=1), f"{what} out of range; allowed {lo:g} to {hi:g}"))
     return out
+
+
+def design_references(pitch_deg: np.ndarray, roll_deg: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """AN4399 references (rows, 3) of every row's pitch/roll (conventions.an4399_reference), computed
+    once per distinct design: boards of one pose count whose angle rows are equal (a lot's fixture)
+    share one computation, broadcast back (elementwise, so the same numbers as row by row)."""
+    sizes = np.diff(starts)
+    n = len(pitch_deg)
+    if not n or len(sizes) < 2 or np.any(sizes != sizes[0]):
+        return an4399_reference(pitch_deg, roll_deg).reshape(-1, 3)
+    P = int(sizes[0])
+    ang = np.stack([pitch_deg.reshape(-1, P), roll_deg.reshape(-1, P)], axis=1).reshape(-1, 2 * P)
+    bits = ang.view(np.int64)  # designs compared bit for bit: -0.0 and 0.0 (or two NaNs) stay apart
+    if np.array_equal(bits, np.broadcast_to(bits[0], bits.shape)):
+        designs, inverse = ang[:1], np.zeros(len(ang), dtype=np.intp)
+    else:
+        _, first, inverse = np.unique(bits, axis=0, return_index=True, return_inverse=True)
+        if len(first) * 2 > len(ang):  # mostly distinct: no gain in grouping
+            return an4399_reference(pitch_deg, roll_deg).reshape(-1, 3)
+        designs = ang[first]
+    refs = an4399_reference(designs[:, :P], designs[:, P:])  # (U, P, 3)
+    return refs[np.asarray(inverse).reshape(-1)].reshape(-1, 3)
 
 
 def board_arrays(chunk: LotChunk, model: str
@@ -227,7 +253,7 @@ def board_arrays(chunk: LotChunk, model: str
     if {"ref_x", "ref_y", "ref_z"} <= c.keys():
         ref = np.stack([c["ref_x"], c["ref_y"], c["ref_z"]], axis=1)
     if {"pitch_deg", "roll_deg"} <= c.keys():
-        ang = an4399_reference(c["pitch_deg"], c["roll_deg"]).reshape(-1, 3)
+        ang = design_references(c["pitch_deg"], c["roll_deg"], chunk.starts)
         ref = ang if ref is None else np.where(np.isnan(ref), ang, ref)
     noise = None
     if {"std_x", "std_y", "std_z", "n"} <= c.keys():

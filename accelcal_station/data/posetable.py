@@ -29,15 +29,15 @@ import io
 import math
 import os
 import re
-from collections.abc import Generator, Iterable, Iterator
+from collections.abc import Generator, Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from ..atomic import atomic_write
 from ..conventions import an4399_reference, check_units
 from ..errors import DataError, UnitsError
+from ..jsontypes import JsonScalar
 from ..session import PoseColumns, PoseRecord, Session
 
 REQUIRED = ("pose", "x", "y", "z")
@@ -303,14 +303,14 @@ def _fmt(v: float | None) -> str:
     return str(int(f)) if f.is_integer() and abs(f) < 1e15 else repr(f)
 
 
-def write_pose_table(session: Session, path: str | Path, metadata: dict[str, Any] | None = None) -> None:
+def write_pose_table(session: Session, path: str | Path, metadata: Mapping[str, JsonScalar] | None = None) -> None:
     """Write ``session`` so that read_pose_table gives it back exactly; atomic (tmp + rename).
 
     Columns appear when any pose knows them: pitch/roll, ref (whenever references are
     known, so they never depend on re-deriving them from angles), temp_c, n, std.
     """
     path = Path(path)
-    meta: dict[str, Any] = {"units": session.units}
+    meta: dict[str, JsonScalar] = {"units": session.units}  # each written as one '# key: value' line
     if session.counts_per_g is not None:
         meta["counts_per_g"] = _fmt(session.counts_per_g)
     if session.gravity_mps2 is not None:

@@ -24,7 +24,7 @@ import json
 from collections.abc import Sequence
 from contextlib import AbstractContextManager
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
@@ -34,6 +34,7 @@ from ..errors import DataError
 from ..fileguard.cells import safe_texts
 
 if TYPE_CHECKING:
+    from ..models.held import Held
     from .lotfile import LotChunk
 
 FLOAT_COLUMNS = ("input_per_g", *PARAM_NAMES, "residual_rms_mg", "residual_max_mg", "crossval_rms_mg",
@@ -44,12 +45,39 @@ TEXT_COLUMNS = ("serial", "model", "input_units", "held", "verdict", "reasons", 
 FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet", ".jsonl": "jsonl", ".ndjson": "jsonl"}
 
 
-def _columns(chunk: LotChunk, res: dict[str, Any], model: str, units: str, verdicts: Sequence[str],
-             reasons: Sequence[Sequence[str]]) -> dict[str, Any]:
+class ChunkFit(TypedDict):
+    """A chunk's fit, one entry per board (results_table.RESULT_COLUMNS' sources); NaN, 0 or
+    empty where a board was not fitted (``ok`` False, ``message`` says why)."""
+
+    ok: np.ndarray  # (B,) bool
+    W: np.ndarray  # (B, 3, 3)
+    V: np.ndarray  # (B, 3) g
+    Gamma: np.ndarray  # (B, 3) 1/g^2
+    residual_rms_g: np.ndarray  # (B,)
+    residual_max_g: np.ndarray  # (B,)
+    crossval_rms_g: np.ndarray  # (B,) leave-one-pose-out
+    crossval_by_orientation_rms_g: np.ndarray  # (B,) leave-one-orientation-out
+    distinct_orientations: np.ndarray  # (B,) int
+    condition_number: np.ndarray  # (B,)
+    stderr_V_max: np.ndarray  # (B,) g
+    stderr_W_max: np.ndarray  # (B,)
+    input_per_g: np.ndarray  # (B,) input units per g
+    pose_count: np.ndarray  # (B,) int
+    distinct_poses: np.ndarray  # (B,) int
+    held: list[list[Held]]  # (B,) terms held at nominal (models/held.py)
+    message: list[str]  # (B,) why a board was not fitted, "" where it was
+
+
+# a results table's chunk: one column per RESULT_COLUMNS name, numbers as arrays, texts as str sequences
+ResultColumns = dict[str, np.ndarray | Sequence[str]]
+
+
+def _columns(chunk: LotChunk, res: ChunkFit, model: str, units: str, verdicts: Sequence[str],
+             reasons: Sequence[Sequence[str]]) -> ResultColumns:
     """The chunk's results as one sequence per RESULT_COLUMNS column."""
     B = len(chunk.serials)
     params = np.concatenate([res["W"].reshape(B, 9), res["V"], res["Gamma"]], axis=1)
-    cols: dict[str, Any] = {
+    cols: ResultColumns = {
         "serial": chunk.serials, "first_row": chunk.first_row, "ok": res["ok"], "model": [model] * B,
         "pose_count": res["pose_count"], "input_units": [units] * B, "input_per_g": res["input_per_g"]}
     for j, name in enumerate(PARAM_NAMES):
@@ -60,8 +88,16 @@ def _columns(chunk: LotChunk, res: dict[str, Any], model: str, units: str, verdi
                 condition_number=res["condition_number"],
                 held=(["; ".join(h.term for h in hs) for hs in res["held"]] if any(res.get("held", ()))
                       else [""] * B),  # a lot where no board holds a term: no per-board join
-                verdict=verdicts, reasons=["; ".join(r) for r in reasons], message=res["message"])
+                verdict=verdicts, reasons=list(map("; ".join, reasons)), message=res["message"])
     return cols
+
+
+def _safe_column(cells: np.ndarray | Sequence[str]) -> list[str]:
+    """fileguard.cells.safe_texts of a text column; a column of one repeated value (the model, the
+    units, an empty message) is screened once."""
+    if isinstance(cells, list) and cells and cells.count(cells[0]) == len(cells):
+        return [safe_texts(cells[:1])[0]] * len(cells)
+    return safe_texts(cells)
 
 
 def _text(a: np.ndarray) -> np.ndarray:
@@ -116,12 +152,12 @@ class ResultsWriter:
             raise DataError(f"--out {self.path}: not open; write chunks inside 'with ResultsWriter(...)'")
         return self._f
 
-    def write_chunk(self, chunk: LotChunk, res: dict[str, Any], model: str, units: str, verdicts: Sequence[str],
+    def write_chunk(self, chunk: LotChunk, res: ChunkFit, model: str, units: str, verdicts: Sequence[str],
                     reasons: Sequence[Sequence[str]]) -> None:
         """Append one chunk's rows, flushed (fsynced once, when the table is complete)."""
         cols = _columns(chunk, res, model, units, verdicts, reasons)
         if self.fmt == "csv":  # a spreadsheet opens it: no text cell may be a formula (fileguard/cells.py)
-            cols.update({c: safe_texts(cols[c]) for c in TEXT_COLUMNS})
+            cols.update({c: _safe_column(cols[c]) for c in TEXT_COLUMNS})
         if self.fmt == "csv" and self._arrow_csv:
             self._write_arrow_csv(cols)
         elif self.fmt == "csv":
@@ -149,7 +185,7 @@ class ResultsWriter:
             self._write_parquet(cols)
         self._out.flush()
 
-    def _write_arrow_csv(self, cols: dict[str, Any]) -> None:
+    def _write_arrow_csv(self, cols: ResultColumns) -> None:
         import pyarrow.csv as pcsv
         table = _arrow_table(cols, csv=True)
         if self._pq is None:
@@ -157,7 +193,7 @@ class ResultsWriter:
                                       write_options=pcsv.WriteOptions(quoting_style="needed", eol="\r\n"))
         self._pq.write_table(table)
 
-    def _write_parquet(self, cols: dict[str, Any]) -> None:
+    def _write_parquet(self, cols: ResultColumns) -> None:
         import pyarrow.parquet as pq
         table = _arrow_table(cols)
         if self._pq is None:
@@ -178,7 +214,7 @@ class ResultsWriter:
             raise DataError(f"--out {self.path}: cannot write ({e.strerror})") from None
 
 
-def _arrow_table(cols: dict[str, Any], csv: bool = False) -> Any:
+def _arrow_table(cols: ResultColumns, csv: bool = False) -> Any:
     """The chunk as an Arrow table (null where a value does not exist); ok as 0/1 in CSV."""
     import pyarrow as pa
     arrays = {}
@@ -186,7 +222,8 @@ def _arrow_table(cols: dict[str, Any], csv: bool = False) -> Any:
         v = cols[c]
         if c in FLOAT_COLUMNS:
             a = np.asarray(v, float)
-            arrays[c] = pa.array(a, mask=np.isnan(a))
+            nan = np.isnan(a)
+            arrays[c] = pa.array(a, mask=nan) if nan.any() else pa.array(a)
         elif c == "ok":
             arrays[c] = pa.array(np.asarray(v, np.int8 if csv else bool))
         elif c in ("first_row", "pose_count"):

@@ -22,10 +22,10 @@ import glob
 import io
 import re
 import time as _time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, NotRequired, TypedDict, cast
 
 import numpy as np
 
@@ -48,6 +48,81 @@ from ..store.runs import Store
 BATCH_STATION = "accelcal-batch"  # station_id of runs recorded by a batch recalibration
 Source = tuple[str, "Session | AccelcalError"]
 Board = tuple[int, str, Session]  # input position, source, session of a board that passed the screen
+
+
+class BoardResultJson(TypedDict):
+    """``BoardResult.to_dict``: one board of `accelcal batch --json` (key order as written)."""
+
+    source: str
+    serial: str | None
+    run_id: int | None
+    ok: bool
+    message: str
+    model: str
+    pose_count: int
+    W: list[list[float]] | None
+    V: list[float] | None
+    Gamma: list[float] | None
+    residual_rms_g: float | None
+    residual_max_g: float | None
+    crossval_rms_g: float | None
+    crossval_by_orientation_rms_g: float | None
+    condition_number: float | None
+    temperatures_c: list[float] | None
+    input_units: str | None
+    input_per_g: float | None
+    held: Sequence[Mapping[str, object]]  # models/held.Held.to_json of each held term
+    verdict: str | None
+    reasons: list[dict[str, str]] | None  # Reason.to_dict
+    file: NotRequired[str | None]  # the calibration file written for it (cli/batch.py adds it)
+
+
+class FitSummaryJson(TypedDict):
+    """``BoardResult.fit_summary``: the fit figures the results store summarises."""
+
+    model: str
+    pose_count: int
+    residual_rms_g: float | None
+    residual_max_g: float | None
+    crossval_rms_g: float | None
+    crossval_by_orientation_rms_g: float | None
+    condition_number: float | None
+    temperatures_c: list[float] | None
+    source: str
+    recalibrated_by: str
+
+
+class StoreCounts(TypedDict):
+    """What ``record_in_store`` recorded."""
+
+    events: int
+    runs: int
+
+
+class BatchOutputs(TypedDict, total=False):
+    """What `accelcal batch` wrote, where (each key only when that output was asked for)."""
+
+    out_dir: str
+    calibrations: int
+    csv: str
+    store: StoreOutput
+
+
+class StoreOutput(StoreCounts):
+    path: str
+
+
+class BatchReportJson(TypedDict):
+    """``BatchReport.to_dict``: `accelcal batch --json` (pose tables and stores)."""
+
+    model: str
+    boards: int
+    fitted: int
+    skipped: int
+    fit_calls: int
+    elapsed_s: float
+    results: list[BoardResultJson]
+    outputs: NotRequired[BatchOutputs]
 
 
 @dataclass
@@ -80,7 +155,7 @@ class BoardResult:
             raise DataError(f"{self.source}: no calibration ({self.message})")
         return self.calibration
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> BoardResultJson:
         cal = self.calibration
         return {"source": self.source, "serial": self.serial, "run_id": self.run_id, "ok": self.ok,
                 "message": self.message, "model": self.model, "pose_count": self.pose_count,
@@ -96,7 +171,7 @@ class BoardResult:
                 "verdict": None if self.verdict is None else self.verdict.label,
                 "reasons": None if self.verdict is None else [r.to_dict() for r in self.verdict.reasons]}
 
-    def fit_summary(self) -> dict[str, Any]:
+    def fit_summary(self) -> FitSummaryJson:
         """The fit figures the results store summarises (store/exports.py _FIT_SCALARS names)."""
         return {"model": self.model, "pose_count": self.pose_count, "residual_rms_g": self.residual_rms_g,
                 "residual_max_g": self.residual_max_g, "crossval_rms_g": self.crossval_rms_g,
@@ -121,7 +196,7 @@ class BatchReport:
     def skipped(self) -> list[BoardResult]:
         return [r for r in self.results if not r.ok]
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> BatchReportJson:
         return {"model": self.model, "boards": len(self.results), "fitted": len(self.fitted),
                 "skipped": len(self.skipped), "fit_calls": self.fit_calls, "elapsed_s": self.elapsed_s,
                 "results": [r.to_dict() for r in self.results]}
@@ -407,7 +482,7 @@ def summary_csv(report: BatchReport, path: str | Path | None = None) -> str:
 
 
 def record_in_store(report: BatchReport, store: Store, *, source_store: str | Path | None = None,
-                    config_text: str | None = None) -> dict[str, int]:
+                    config_text: str | None = None) -> StoreCounts:
     """Record the batch in ``store``; returns counts of what was recorded.
 
     A board read from this same store gets a ``recalibration`` event on its source run

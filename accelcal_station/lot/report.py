@@ -12,9 +12,10 @@ import base64
 import html
 import io
 from collections import Counter
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +25,7 @@ from ..calibration import param_vector
 from ..config.safe_yaml import HostileYAML, safe_load
 from ..errors import AccelcalError, DataError
 from ..fileguard.cells import safe_text
+from ..jsontypes import JsonValue
 from ..store.records import RunRecord, iso
 
 if TYPE_CHECKING:
@@ -77,7 +79,8 @@ def control_limits(x: np.ndarray) -> tuple[float, float, float]:
     return centre, centre - 3 * sigma, centre + 3 * sigma
 
 
-def _param_figures(plt: ModuleType, cals: list[dict[str, Any]], limits: dict[str, float]) -> list[tuple[str, str]]:
+def _param_figures(plt: ModuleType, cals: Sequence[Mapping[str, JsonValue]], limits: dict[str, float]
+                   ) -> list[tuple[str, str]]:
     """Per shown parameter: its histogram against the limits and its control chart."""
     vals = np.array([param_vector(c) for c in cals])
     out = []

@@ -8,21 +8,39 @@ results file is whole or absent after a crash, never half written.
 from __future__ import annotations
 
 import time as _time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TypedDict, TypeVar
 
 import numpy as np
 
 from ..acceptance.reasons import Reason
-from ..acceptance.rules import FitFigures, Limits, limit_reasons, measure_all
 from ..data.lotfile import LotChunk, board_arrays, lot_scale, open_lot
-from ..data.results_table import ResultsWriter
+from ..data.results_table import ChunkFit, ResultsWriter
 from ..errors import AccelcalError, DataError
+from ..identifiability import directions_apart
 from ..models.fitting import check_model, fit_batch
 from ..models.gravity_norm import nominal_scale
+from ..models.held import Held
 from ..models.sanity import distinct_directions_batch
+
+
+class SkippedJson(TypedDict):
+    serial: str
+    reason: str
+
+
+# ``LotSummary.to_dict``: `accelcal batch LOT --json`'s summary ("pass" is a keyword: the functional form)
+LotSummaryJson = TypedDict("LotSummaryJson", {
+    "model": str, "boards": int, "fitted": int, "skipped": int, "pass": int, "fail": int, "elapsed_s": float,
+    "boards_per_s": float, "skipped_examples": list[SkippedJson]})
+
+
+if TYPE_CHECKING:  # the rules (and the config schema, pydantic, under them) load only when a lot is judged
+    from ..acceptance.rules import FitFigures, Limits
+
+_R = TypeVar("_R", bound=str)
 
 
 @dataclass
@@ -39,26 +57,27 @@ class LotSummary:
     def boards_per_s(self) -> float:
         return self.boards / self.elapsed_s if self.elapsed_s > 0 else float("nan")
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> LotSummaryJson:
         return {"model": self.model, "boards": self.boards, "fitted": self.fitted,
                 "skipped": self.boards - self.fitted, "pass": self.passed, "fail": self.failed,
                 "elapsed_s": self.elapsed_s, "boards_per_s": self.boards_per_s,
                 "skipped_examples": [{"serial": s, "reason": r} for s, r in self.unfitted_examples]}
 
 
-def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> dict[str, Any]:
-    """Fit every board of a chunk; a dict of per-board arrays (results_table.COLUMNS' sources)."""
+def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> ChunkFit:
+    """Fit every board of a chunk: a ChunkFit of per-board arrays."""
     x, ref, noise, reasons = board_arrays(chunk, model)
     starts = chunk.starts
     B = len(starts) - 1
     sizes = np.diff(starts)
-    out: dict[str, Any] = {"ok": np.zeros(B, bool), "W": np.full((B, 3, 3), np.nan), "V": np.full((B, 3), np.nan),
-           "Gamma": np.full((B, 3), np.nan), "residual_rms_g": np.full(B, np.nan),
-           "residual_max_g": np.full(B, np.nan), "crossval_rms_g": np.full(B, np.nan),
-           "crossval_by_orientation_rms_g": np.full(B, np.nan), "distinct_orientations": np.zeros(B, int),
-           "condition_number": np.full(B, np.nan), "stderr_V_max": np.full(B, np.nan),
-           "stderr_W_max": np.full(B, np.nan), "input_per_g": np.full(B, np.nan), "pose_count": sizes,
-           "distinct_poses": np.zeros(B, int), "held": [[]] * B}  # replaced per board, never appended
+    out: ChunkFit = {
+        "ok": np.zeros(B, bool), "W": np.full((B, 3, 3), np.nan), "V": np.full((B, 3), np.nan),
+        "Gamma": np.full((B, 3), np.nan), "residual_rms_g": np.full(B, np.nan), "residual_max_g": np.full(B, np.nan),
+        "crossval_rms_g": np.full(B, np.nan), "crossval_by_orientation_rms_g": np.full(B, np.nan),
+        "distinct_orientations": np.zeros(B, int), "condition_number": np.full(B, np.nan),
+        "stderr_V_max": np.full(B, np.nan), "stderr_W_max": np.full(B, np.nan), "input_per_g": np.full(B, np.nan),
+        "pose_count": sizes, "distinct_poses": np.zeros(B, int), "held": [[]] * B,  # replaced per board
+        "message": []}
     can = np.array([r is None for r in reasons], bool)
     has_noise = np.zeros(B, bool)
     if noise is not None and B:
@@ -74,14 +93,18 @@ def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> d
 
 
 def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, noise: np.ndarray | None,
-               starts: np.ndarray, model: str, per_g: float | None, units: str, out: dict[str, Any],
+               starts: np.ndarray, model: str, per_g: float | None, units: str, out: ChunkFit,
                reasons: list[str | None]) -> None:
     """Fit the boards ``idx`` (all with ``P`` poses) in one stacked fit into ``out``; a board that
     cannot be fitted gets its reason."""
-    rows = starts[idx][:, None] + np.arange(P)
-    xs = x[rows]
-    scale = nominal_scale(xs) if per_g is None else np.full(len(idx), per_g)
-    gf = xs / scale[:, None, None]
+    rows = _BoardRows(idx, P, starts)
+    xs = rows.take(x)
+    if per_g is None:
+        scale = nominal_scale(xs)
+        gf = xs / scale[:, None, None]
+    else:  # one scale for the lot: a scalar division (the same numbers as by a column of it)
+        scale = np.full(len(idx), per_g)
+        gf = xs / per_g
     if model != "9":
         implausible = ~_plausible_g(gf)
         med = np.zeros(len(gf))
@@ -91,15 +114,17 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
             reasons[idx[k]] = (f"readings in {units} have a median norm of {med[k]:.4g} g, expected about 1 g "
                                f"({hint})")
         keep = ~implausible
-        idx, rows, gf, scale = idx[keep], rows[keep], gf[keep], scale[keep]
+        rows.keep(keep)
+        idx, gf, scale = idx[keep], gf[keep], scale[keep]
         if not idx.size:
             return
-    nz = None if noise is None else noise[rows] / scale[:, None, None]
+    nz = None if noise is None else (rows.take(noise) / per_g if per_g is not None
+                                     else rows.take(noise) / scale[:, None, None])
     try:
         # ref is None only when board_arrays gave every board a reason (models 6/12/15 need one)
         # the one front of every path (models.fitting.fit_batch): identifiability, absurd
         # readings and coefficients, then the stacked estimator; readings already in g here
-        b = fit_batch(gf, None if model == "9" or ref is None else ref[rows], model, units="g", noise=nz)
+        b = fit_batch(gf, None if model == "9" or ref is None else rows.take(ref), model, units="g", noise=nz)
     except AccelcalError as e:
         for i in idx:
             reasons[i] = str(e)
@@ -123,10 +148,38 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
     out["stderr_V_max"][sel] = np.where(se, np.max(b.stderr_V[ok], axis=1), np.nan)
     out["stderr_W_max"][sel] = np.where(se, np.max(b.stderr_W[ok].reshape(-1, 9), axis=1), np.nan)
     out["input_per_g"][sel] = scale[ok]
-    out["distinct_poses"][sel] = distinct_directions_batch(gf[ok])
+    # the nominal references certify most boards' poses distinct without comparing pairs (exact)
+    every = bool(ok.all())
+    nominal = None if ref is None else rows.take(ref) if every else rows.take(ref)[ok]
+    g_ok = gf if every else gf[ok]
+    out["distinct_poses"][sel] = distinct_directions_batch(g_ok, apart=directions_apart(g_ok, nominal))
     if any(b.held):  # terms held at nominal (models/held.py), as `accelcal fit`
         for k in np.flatnonzero(np.array([bool(h) for h in b.held]) & ok):
             out["held"][idx[k]] = b.held[k]
+
+
+class _BoardRows:
+    """The rows of boards ``idx`` (each of P poses) of a chunk's per-row arrays: gathered by an
+    index (n, P), or, when they are consecutive boards end to end (a clean chunk), as a view."""
+
+    def __init__(self, idx: np.ndarray, P: int, starts: np.ndarray):
+        first = starts[idx]
+        self.index = first[:, None] + np.arange(P)
+        self.P = P
+        n = idx.size
+        self.start: int | None = int(first[0]) if n and starts[idx[-1] + 1] - first[0] == P * n \
+            and idx[-1] - idx[0] == n - 1 else None
+
+    def take(self, a: np.ndarray) -> np.ndarray:
+        """(n, P, 3) of the per-row (rows, 3) array ``a``."""
+        if self.start is None:
+            return a[self.index]
+        return a[self.start:self.start + self.index.size].reshape(-1, self.P, a.shape[-1])
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Only the boards where ``mask``."""
+        if not mask.all():
+            self.index, self.start = self.index[mask], None
 
 
 def _plausible_g(gf: np.ndarray) -> np.ndarray:
@@ -142,42 +195,72 @@ def _plausible_g(gf: np.ndarray) -> np.ndarray:
     return out
 
 
-def figures(res: dict[str, Any], model: str) -> FitFigures:
+def figures(res: Mapping[str, np.ndarray], held: list[list[Held]], model: str) -> FitFigures:
     """The acceptance rules' inputs for a chunk's boards (NaN where a board was not fitted); the
     held-out figure by orientation where a board revisits an orientation (models/crossval.py)."""
+    from ..acceptance.rules import FitFigures
+
     repeat = res["distinct_orientations"] < res["pose_count"]
-    cv = np.where(repeat, res["crossval_by_orientation_rms_g"], res["crossval_rms_g"])
+    cv = np.where(repeat, res["crossval_by_orientation_rms_g"], res["crossval_rms_g"]) if repeat.any() \
+        else res["crossval_rms_g"]
     return FitFigures(model, res["W"], res["V"], res["Gamma"], res["residual_rms_g"], res["residual_max_g"],
                       cv, res["stderr_V_max"], res["stderr_W_max"], res["distinct_poses"],
-                      [[h.text for h in hs] for hs in res["held"]] if any(res["held"]) else None)
+                      [[h.text for h in hs] for hs in held] if any(held) else None)
 
 
-def judge_chunk(res: dict[str, Any], limits: Limits | None, model: str) -> tuple[list[str], list[list[Reason]]]:
+def judge_chunk(res: ChunkFit, limits: Limits | None, model: str) -> tuple[list[str], list[Sequence[Reason]]]:
     """Verdict and reasons per board by acceptance.judge_all ("" verdict: no limits given).
 
     A board that could not be fitted FAILs with reason ``unfitted: <why>``; verify_error_max_mg
-    needs a verification capture and is not judged here.
+    needs a verification capture and is not judged here.  A board with no reason shares one empty
+    tuple (no list is built per passing board).
     """
+    return _judge(res, limits, model, Reason.of)
+
+
+def _judge(res: ChunkFit, limits: Limits | None, model: str, word: Callable[[str, str], _R]
+           ) -> tuple[list[str], list[Sequence[_R]]]:
+    """``judge_chunk`` with each reason made by ``word(code, text)``: a Reason, or the text alone
+    where only the words are written (the results table)."""
     ok = res["ok"]
     B = len(ok)
-    reasons: list[list[Reason]] = [[] for _ in range(B)]
-    for b in np.flatnonzero(~ok):
-        reasons[b].append(Reason("unfitted", res["message"][b]))
+    reasons: list[Sequence[_R]] = [()] * B
+    unfitted = np.flatnonzero(~ok)
+    for b in unfitted.tolist():
+        reasons[b] = [word("unfitted", f"unfitted: {res['message'][b]}")]
     if limits is None:
-        return ["" if ok[b] else "FAIL" for b in range(B)], reasons
+        verdict = np.where(ok, "", "FAIL")
+        return verdict.tolist(), reasons
+    from ..acceptance.rules import limit_failures, measure_all
+
     fitted = np.flatnonzero(ok)
+    failing = ~ok
     if fitted.size:
-        sub = {k: res[k][fitted] for k in ("W", "V", "Gamma", "residual_rms_g", "residual_max_g",
-                                           "crossval_rms_g", "crossval_by_orientation_rms_g", "distinct_orientations",
-                                           "pose_count", "stderr_V_max", "stderr_W_max", "distinct_poses")}
-        sub["held"] = [res["held"][b] for b in fitted]
-        figs = figures(sub, model)
-        # the verdict's reasons over the whole chunk (limit_reasons, as judge_all gives them),
-        # with no per-board Verdict built: a lot row keeps only the label and the reasons
-        failing = limit_reasons(measure_all(figs), np.asarray(figs.distinct_poses, dtype=int), model, limits)
-        for k in np.flatnonzero([bool(r) for r in failing]):
-            reasons[fitted[k]] = failing[k]
-    return ["FAIL" if r else "PASS" for r in reasons], reasons
+        every = fitted.size == B  # the usual chunk: the figures are the chunk's own arrays
+        pick: Callable[[np.ndarray], np.ndarray] = (lambda a: a) if every else (lambda a: a[fitted])
+        sub = {"W": pick(res["W"]), "V": pick(res["V"]), "Gamma": pick(res["Gamma"]),
+               "residual_rms_g": pick(res["residual_rms_g"]), "residual_max_g": pick(res["residual_max_g"]),
+               "crossval_rms_g": pick(res["crossval_rms_g"]),
+               "crossval_by_orientation_rms_g": pick(res["crossval_by_orientation_rms_g"]),
+               "distinct_orientations": pick(res["distinct_orientations"]), "pose_count": pick(res["pose_count"]),
+               "stderr_V_max": pick(res["stderr_V_max"]), "stderr_W_max": pick(res["stderr_W_max"]),
+               "distinct_poses": pick(res["distinct_poses"])}
+        held = res["held"] if every else [res["held"][b] for b in fitted]
+        figs = figures(sub, held, model)
+        # the verdict's reasons over the whole chunk (limit_failures, as judge_all gives them), with
+        # no per-board Verdict or list built: a lot row keeps only the label and the reasons
+        for idx, code, texts in limit_failures(measure_all(figs), np.asarray(figs.distinct_poses, dtype=int),
+                                               model, limits):
+            rows = fitted[idx]
+            failing[rows] = True
+            for b, t in zip(rows.tolist(), texts, strict=True):
+                prev: Sequence[_R] = reasons[b]
+                reasons[b] = [*prev, word(code, t)]
+    return np.where(failing, "FAIL", "PASS").tolist(), reasons
+
+
+def _text(code: str, text: str) -> str:
+    return text
 
 
 def recalibrate_lot(path: str | Path, out: str | Path, model: str = "12", *, units: str | None = None,
@@ -195,7 +278,7 @@ def recalibrate_lot(path: str | Path, out: str | Path, model: str = "12", *, uni
     with ResultsWriter(out) as w:
         for chunk in chunks:
             res = fit_chunk(chunk, model, per_g, units)
-            verdicts, reasons = judge_chunk(res, limits, model)
+            verdicts, reasons = _judge(res, limits, model, _text)  # the table keeps the words only
             w.write_chunk(chunk, res, model, units, verdicts, reasons)
             n = len(chunk.serials)
             summary.boards += n

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike
 from ..calibration import MODELS, Calibration, TemperatureTable
 from ..conventions import check_units, units_per_g
 from ..errors import DataError, UnderdeterminedError, UnitsError
-from ..identifiability import first_of_orientation
+from ..identifiability import first_of_orientation, screen
 from ..session import Session
 from .crossval import crossval_by_orientation
 from .gravity_norm import PARAM_NAMES, nominal_scale
@@ -33,10 +33,15 @@ def check_model(model: str | int) -> str:
     return m
 
 
-def check_plausible_g(gf: np.ndarray, units: str) -> None:
+def check_plausible_g(gf: np.ndarray, units: str, sq: np.ndarray | None = None) -> None:
+    """Refuse readings whose median norm is not about 1 g (wrong units or scale); ``sq``: the
+    readings' squared norms when the caller has them."""
     with np.errstate(over="ignore", invalid="ignore"):  # a 1e308 reading is refused per pose later (models/sanity.py)
-        sq = np.einsum("...k,...k->...", gf, gf)
+        sq = np.einsum("...k,...k->...", gf, gf) if sq is None else sq
         if np.all((sq >= 0.1) & (sq <= 8.9)):  # every norm within 0.31-2.99 g: so is the median
+            return
+        sq = np.einsum("...k,...k->...", gf, gf)
+        if np.all((sq >= 0.1) & (sq <= 8.9)):
             return
         norms = np.linalg.norm(gf, axis=-1)
     med = float(np.median(norms))
@@ -81,19 +86,23 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
         raise DataError("readings contain NaN or infinity")
     scale = _input_per_g(x, model, units, counts_per_g, gravity_mps2)
     gf = x / scale[:, None, None]
+    # what the references certify without comparing poses (identifiability.screen: exact where
+    # it holds), from one boards-last pass over the readings
+    refs = None if references is None or model == "9" else np.asarray(references, dtype=float)
+    scr = screen(gf, refs if refs is not None and refs.shape[-2:] == gf.shape[-2:] else None, model)
     if model != "9":
-        check_plausible_g(gf, units)
+        check_plausible_g(gf, units, scr.sq)
     nz = None
     if noise is not None:
         nz = np.broadcast_to(np.asarray(noise, dtype=float), x.shape) / scale[:, None, None]
     # from the distinct orientations, before any solver runs: what each board determines, and
     # the weak terms held at nominal (models/held.py; refused when a gain or an offset is weak)
-    first = first_of_orientation(gf)  # once, for the plan and the leave-one-orientation-out folds
-    plan = hold_plans(gf, model, nz, first)
+    first = first_of_orientation(gf, apart=scr.apart)  # once, for the plan and the leave-one-orientation-out folds
+    plan = hold_plans(gf, model, nz, first, scr.determined)
     if len(gf) == 1 and plan.refused[0]:  # one board: its reason, before a solver says less
         raise UnderdeterminedError(plan.refused[0])
     gf_fit = gf
-    bad_readings = absurd_readings(gf) if model != "9" else None  # judged once, used twice
+    bad_readings = absurd_readings(gf, scr.sq) if model != "9" else None  # judged once, used twice
     if bad_readings is not None and references is not None:
         # a board with an absurd reading (1e308) is fitted on its references instead, so it
         # cannot overflow the stack, and is then refused with the reading named
@@ -108,11 +117,12 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
         raise DataError("the readings cannot be fitted (numerically singular or overflowing: "
                         "a reading far beyond the sensor's range?)") from None
     _crossval_orient(res, gf_fit, references, x, model, nz, plan, first if gf_fit is gf else None)
-    for d, why in enumerate(plan.refused):
-        if why:
-            res.ok[d] = False
-            res.messages[d] = why
-            res.held[d] = []
+    if any(plan.refused):
+        for d, why in enumerate(plan.refused):
+            if why:
+                res.ok[d] = False
+                res.messages[d] = why
+                res.held[d] = []
     res.input_units = units
     res.input_per_g = scale
     _refuse_absurd(res, bad_readings)
@@ -124,6 +134,10 @@ def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, mode
     """The one stacked estimator (models/stacked.py) for every board, with each board's held
     terms at nominal: model 9 by the constrained Gauss-Newton (a free mask per board), model
     15 with the cubic held by model 12's fit of those boards, stated as model 15."""
+    if not any(plan.held):  # nothing held on any board (the usual lot): one fit of the stack
+        res = fit_stacked(gf, None if model == "9" else _references(references, x, model), model, nz)
+        res.held = plan.held
+        return res
     held = [bool(h) for h in plan.held]
     if model == "9":
         free = plan.free(PARAM_NAMES) if any(held) else None

@@ -267,16 +267,17 @@ def _plan_model9(gf: np.ndarray, noise_g: np.ndarray | None, determined: np.ndar
 
 
 def hold_plans(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None,
-               first: np.ndarray | None = None) -> HoldPlan:
+               first: np.ndarray | None = None, sure: np.ndarray | None = None) -> HoldPlan:
     """The terms of ``model`` to hold at nominal for each of D boards' readings ``gf`` (D, P, 3)
     in about g (module doc), vectorised over boards: the one decision of the one-board fit,
     `accelcal batch` and lot files.  ``noise_g`` (D, P, 3): the standard error of each pose
     mean in g (None: the residual scatter).  A board whose gain or offset is weak, or that
     holding cannot help, is refused with the identifiability reason.  ``first``: the boards'
-    first_of_orientation when the caller has it (the fit's front computes it once)."""
+    first_of_orientation when the caller has it (the fit's front computes it once); ``sure``: boards
+    already certified determined (identifiability.screen)."""
     gf = np.asarray(gf, dtype=float)
     D = len(gf)
-    determined, _ = assess_batch(gf, model, first)
+    determined, _ = assess_batch(gf, model, first, sure)
     if model == "9":
         nz = None if noise_g is None else np.broadcast_to(np.asarray(noise_g, dtype=float), gf.shape)
         return _plan_model9(gf, nz, determined)

@@ -40,10 +40,19 @@ def distinct_directions(readings_g: np.ndarray, tol_deg: float = DISTINCT_DEG) -
     return k
 
 
-def distinct_directions_batch(readings_g: np.ndarray, tol_deg: float = DISTINCT_DEG) -> np.ndarray:
+def distinct_directions_batch(readings_g: np.ndarray, tol_deg: float = DISTINCT_DEG,
+                              apart: np.ndarray | None = None) -> np.ndarray:
     """``distinct_directions`` of each of B boards' (B, P, 3) readings, the same greedy
-    clustering stepped over the poses for all boards at once; (B,) counts."""
+    clustering stepped over the poses for all boards at once; (B,) counts.  ``apart`` (B,):
+    identifiability.directions_apart of these readings: those boards' P poses are all distinct
+    (no pair is compared), the others are clustered."""
     x = np.asarray(readings_g, dtype=float)
+    if apart is not None and x.ndim == 3 and np.any(apart):
+        out = np.full(len(x), x.shape[1], dtype=np.intp)
+        rest = np.flatnonzero(~apart)
+        if rest.size:
+            out[rest] = distinct_directions_batch(x[rest], tol_deg)
+        return out
     n = np.linalg.norm(x, axis=-1, keepdims=True)
     u = x / np.where(n > 0, n, 1.0)
     cos = np.cos(np.radians(tol_deg))
@@ -84,12 +93,16 @@ class Refusal:
         return out
 
 
-def absurd_readings(gf: np.ndarray) -> Refusal:
+def absurd_readings(gf: np.ndarray, sq: np.ndarray | None = None) -> Refusal:
     """Boards of (D, P, 3) readings in g with a pose whose norm is not a reading of gravity
-    (outside READING_NORM_G), over the whole stack at once."""
-    with np.errstate(over="ignore", invalid="ignore"):  # 1e308 squared is inf: still refused
-        norms = np.sqrt(np.einsum("dpk,dpk->dp", gf, gf))
+    (outside READING_NORM_G), over the whole stack at once; ``sq`` (D, P): the squared norms
+    when the caller has them."""
     lo, hi = READING_NORM_G
+    with np.errstate(over="ignore", invalid="ignore"):  # 1e308 squared is inf: still refused
+        # every norm well inside (the usual chunk; the margin covers the squares' rounding): none refused
+        if sq is not None and np.all((sq >= lo * lo * (1 + 1e-9)) & (sq <= hi * hi * (1 - 1e-9))):
+            return Refusal(np.zeros(len(gf), dtype=bool), str)
+        norms = np.sqrt(np.einsum("dpk,dpk->dp", gf, gf))
     bad = ~((norms >= lo) & (norms <= hi))
     first = np.argmax(bad, axis=1)
 
@@ -134,6 +147,8 @@ def condition_numbers(W: np.ndarray) -> np.ndarray:
 def _first_code(*conds: np.ndarray | np.bool_) -> np.ndarray:
     """(D,) 0 where no condition holds, else 1 + the index of the first that does."""
     stack = np.stack(conds)  # (k, D)
+    if not stack.any():  # the usual chunk: nothing refused
+        return np.zeros(stack.shape[1], dtype=np.intp)
     return np.where(stack.any(axis=0), np.argmax(stack, axis=0) + 1, 0)
 
 
@@ -142,20 +157,27 @@ def absurd_coefficients(W: np.ndarray, V: np.ndarray) -> Refusal:
     a gain outside GAIN_RANGE, a cross-axis term over CROSS_MAX, cond(W) over COND_MAX or an
     offset over OFFSET_MAX_G (the first that applies names the reason)."""
     W, V = np.asarray(W, dtype=float), np.asarray(V, dtype=float)
-    finite = np.isfinite(W).all(axis=(1, 2)) & np.isfinite(V).all(axis=1)
-    Wf, Vf = np.where(finite[:, None, None], W, np.eye(3)), np.where(finite[:, None], V, 0.0)
-    diag = np.diagonal(Wf, axis1=1, axis2=2)
-    cross = np.abs(Wf - diag[:, :, None] * np.eye(3)).max(axis=(1, 2))
+    D = len(W)
+    # boards last (9, D) and (3, D): every step below is a few long rows, no reduction over a short axis
+    Wt, Vt = W.reshape(D, 9).T, V.T
+    finite = np.isfinite(Wt).all(axis=0) & np.isfinite(Vt).all(axis=0)
+    if not finite.all():
+        Wt = np.where(finite, Wt, np.eye(3).reshape(9, 1))
+        Vt = np.where(finite, Vt, 0.0)
+    diag = Wt[[0, 4, 8]]  # (3, D)
+    cross = np.abs(Wt[[1, 2, 3, 5, 6, 7]]).max(axis=0)
     # ||W - I||_F = e bounds every singular value of W within 1 +- e, so cond(W) <= (1 + e) / (1 - e):
     # at most 9 for e <= 0.8 (every real calibration); the condition number is formed for the rest only
-    e = np.sqrt(np.einsum("dij,dij->d", Wf - np.eye(3), Wf - np.eye(3)))
-    cond = np.ones(len(Wf))
+    dd = diag - 1.0
+    e = np.sqrt((dd * dd).sum(axis=0) + (Wt[[1, 2, 3, 5, 6, 7]] ** 2).sum(axis=0))
+    cond = np.ones(D)
     far = np.flatnonzero(~(e <= 0.8))
     if far.size:
-        cond[far] = condition_numbers(Wf[far])
-    offset = np.abs(Vf).max(axis=1)
-    code = _first_code(~finite, ((diag < GAIN_RANGE[0]) | (diag > GAIN_RANGE[1])).any(axis=1),
+        cond[far] = condition_numbers(Wt[:, far].T.reshape(-1, 3, 3))
+    offset = np.abs(Vt).max(axis=0)
+    code = _first_code(~finite, ((diag < GAIN_RANGE[0]) | (diag > GAIN_RANGE[1])).any(axis=0),
                        cross > CROSS_MAX, cond > COND_MAX, offset > OFFSET_MAX_G)
+    diag = diag.T
 
     def words(d: int) -> str:
         return [
