@@ -324,15 +324,40 @@ def test_typed_csv_read_falls_back_to_text_from_where_it_stopped(tmp_path, monke
     put(bad_row, "y", "n/a!")
     lot.write_text("\n".join(head + body) + "\n")
     arrow = _chunks_flat(lot, block_bytes=64 << 10)
+    # chunks of ~300 boards gathered from 64 KiB blocks: some given out before the bad cell, some
+    # gathered and not yet given out when it stops the typed read (read again as text)
+    gathered = _chunks_flat(lot, block_bytes=64 << 10, chunk_boards=300)
     monkeypatch.setattr("accelcal_station.data.lotfile.arrow_available", lambda: False)
     python = _chunks_flat(lot, chunk_boards=100)
-    assert arrow[0] == python[0] == [f"B{i:08d}" for i in range(3000)]
+    assert arrow[0] == gathered[0] == python[0] == [f"B{i:08d}" for i in range(3000)]
+    assert gathered[1] == python[1] and gathered[2] == arrow[2]
+    for k in python[3]:
+        np.testing.assert_array_equal(gathered[3][k], python[3][k], err_msg=k)
     assert arrow[1] == python[1]
     assert [i for i, b in enumerate(arrow[2]) if b] == [i for i, b in enumerate(python[2]) if b] == [2500]
     assert f"data row {bad_row + 1}, column y: 'n/a!' is not a number" in arrow[2][2500]
     for k in python[3]:
         np.testing.assert_array_equal(arrow[3][k], python[3][k], err_msg=k)
     assert arrow[3]["x"][10 * P] == 12.5 and arrow[3]["y"][11 * P] == 4000.0
+
+
+def test_csv_blocks_are_gathered_into_chunks_of_about_chunk_boards(tmp_path):
+    """The CSV reader parses small blocks (its read-ahead stays small) and gathers them into chunks
+    of about ``chunk_boards`` whole boards (the fitters' cost per chunk is partly fixed); with
+    ``gather`` False each block is a chunk.  Every board once, whole, in order."""
+    pytest.importorskip("pyarrow.csv", reason="the optional pyarrow is not installed")
+    from accelcal_station.data.lotfile import open_lot
+
+    lot = write_lot(tmp_path / "lot.csv", 5000, seed=7)
+    for kw, lo, hi in (({"chunk_boards": 1000}, 1000, 1200), ({"chunk_boards": 1000, "gather": False}, 1, 100)):
+        _, chunks = open_lot(lot, block_bytes=32 << 10, **kw)
+        sizes, serials = [], []
+        for ch in chunks:
+            sizes.append(len(ch.serials))
+            serials += ch.serials
+            assert (np.diff(ch.starts) == 8).all(), kw  # whole boards (8 poses each), none split across chunks
+        assert serials == [f"B{i:08d}" for i in range(5000)], kw
+        assert all(lo <= n <= hi for n in sizes[:-1]) and 0 < sizes[-1] <= hi, (kw, sizes)
 
 
 def test_dictionary_text_trims_what_arrow_trims():

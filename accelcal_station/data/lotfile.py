@@ -125,10 +125,10 @@ def _csv_rows(f: Iterable[str], path: Path, header: list[str], line0: int) -> It
         raise DataError(f"{path}: line {line0 + reader.line_num}: unreadable ({e})") from None
 
 
-def read_csv_chunks(path: str | Path, chunk_boards: int = 4096, block_bytes: int = BLOCK_BYTES
-                    ) -> tuple[dict[str, str], Iterator[LotChunk]]:
+def read_csv_chunks(path: str | Path, chunk_boards: int = 4096, block_bytes: int = BLOCK_BYTES,
+                    gather: bool = True) -> tuple[dict[str, str], Iterator[LotChunk]]:
     """The lot file's ``# key: value`` metadata, and its boards in chunks of about ``chunk_boards``
-    (through pyarrow: of whole boards in each ``block_bytes`` of the file)."""
+    (through pyarrow: ``block_bytes`` of the file parsed at once; ``gather`` False: a chunk per block)."""
     path = Path(path)
     f = io.TextIOWrapper(open_regular(path, "a CSV lot file"), encoding="utf-8-sig", newline="")
     try:
@@ -141,7 +141,7 @@ def read_csv_chunks(path: str | Path, chunk_boards: int = 4096, block_bytes: int
         raise
     if arrow_available():
         f.close()
-        return meta, read_csv_arrow(path, header, line_no, chunk_boards, block_bytes)
+        return meta, read_csv_arrow(path, header, line_no, chunk_boards, block_bytes, gather)
 
     def gen() -> Iterator[LotChunk]:
         rows: list[list[str]] = []
@@ -166,14 +166,15 @@ def read_csv_chunks(path: str | Path, chunk_boards: int = 4096, block_bytes: int
     return meta, gen()
 
 
-def open_lot(path: str | Path, chunk_boards: int = 4096, block_bytes: int = BLOCK_BYTES
+def open_lot(path: str | Path, chunk_boards: int = 4096, block_bytes: int = BLOCK_BYTES, gather: bool = True
              ) -> tuple[dict[str, str], Iterator[LotChunk]]:
-    """Metadata and chunks of a lot file (a regular file), CSV or Parquet by its extension."""
+    """Metadata and chunks of a lot file (a regular file), CSV or Parquet by its extension
+    (``gather`` False: a CSV lot in one chunk per ``block_bytes`` block, for the least memory)."""
     p = Path(path)
     check_regular(p, "a lot file (CSV or Parquet)")
     if p.suffix.lower() in (".parquet", ".pq"):
         return read_parquet_chunks(p, chunk_boards)
-    return read_csv_chunks(p, chunk_boards, block_bytes)
+    return read_csv_chunks(p, chunk_boards, block_bytes, gather)
 
 
 def lot_scale(meta: dict[str, str], path: str | Path, units: str | None, counts_per_g: float | None,

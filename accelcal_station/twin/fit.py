@@ -98,7 +98,8 @@ class Twin:
 def lot_stats(path: str | Path, limits: Limits | None = None, reservoir: int = 50_000, chunk_boards: int = 4096,
               model: str | None = None) -> tuple[LotStats, float | None]:
     """One streaming pass over a lot file; returns the stats and its input units per g."""
-    meta, chunks = open_lot(path, chunk_boards, SMALL_BLOCK_BYTES)  # a CSV lot in small blocks: memory
+    # a CSV lot in small blocks, a chunk per block: twin fit's memory has a stated bound
+    meta, chunks = open_lot(path, chunk_boards, SMALL_BLOCK_BYTES, gather=False)
     first = next(chunks, None)
     if first is None:
         raise DataError(f"{path}: no boards (no rows after the header)")
