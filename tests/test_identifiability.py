@@ -123,13 +123,14 @@ def test_least_certain_parameter_tie_is_not_broken_by_float_noise():
 
 @pytest.mark.parametrize("design", ["an4399-8", "six-face", "nine-position", "optimal-12"])
 def test_screen_certificates_give_the_pairwise_answers(design):
-    """identifiability.screen certifies boards from their references without comparing poses; where it
+    """models.screening.screen certifies boards from their references without comparing poses; where it
     does, first_of_orientation, assess_batch and sanity.distinct_directions_batch must give exactly
     what comparing every pair and forming every design gives: boards off their design by small and
     large gains, offsets far from 0 (a centre), revisits and flattened axes included."""
     from accelcal_station.fixtures.designs import get_design, references
-    from accelcal_station.identifiability import assess_batch, directions_apart, first_of_orientation, screen
+    from accelcal_station.identifiability import assess_batch, directions_apart, first_of_orientation
     from accelcal_station.models.sanity import distinct_directions_batch
+    from accelcal_station.models.screening import screen
 
     rng = np.random.default_rng(7)
     ref = np.asarray(references(get_design(design)))

@@ -23,7 +23,8 @@ from ._text import clean, error_text
 
 if TYPE_CHECKING:  # a lot file's mode (--out) imports neither the pose-table batch nor the store
     from ..acceptance.rules import Limits
-    from ..lot.batch import BatchOutputs, BatchReport, Source
+    from ..lot.batch import BatchReport, Source
+    from ..lot.batch_json import BatchOutputs
 
 
 class StoreFilters(TypedDict):

@@ -22,10 +22,10 @@ import glob
 import io
 import re
 import time as _time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NotRequired, TypedDict, cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -44,85 +44,11 @@ from ..session import Session
 from ..store.location import store_identity
 from ..store.records import iso
 from ..store.runs import Store
+from .batch_json import BatchReportJson, BoardResultJson, FitSummaryJson, StoreCounts
 
 BATCH_STATION = "accelcal-batch"  # station_id of runs recorded by a batch recalibration
 Source = tuple[str, "Session | AccelcalError"]
 Board = tuple[int, str, Session]  # input position, source, session of a board that passed the screen
-
-
-class BoardResultJson(TypedDict):
-    """``BoardResult.to_dict``: one board of `accelcal batch --json` (key order as written)."""
-
-    source: str
-    serial: str | None
-    run_id: int | None
-    ok: bool
-    message: str
-    model: str
-    pose_count: int
-    W: list[list[float]] | None
-    V: list[float] | None
-    Gamma: list[float] | None
-    residual_rms_g: float | None
-    residual_max_g: float | None
-    crossval_rms_g: float | None
-    crossval_by_orientation_rms_g: float | None
-    condition_number: float | None
-    temperatures_c: list[float] | None
-    input_units: str | None
-    input_per_g: float | None
-    held: Sequence[Mapping[str, object]]  # models/held.Held.to_json of each held term
-    verdict: str | None
-    reasons: list[dict[str, str]] | None  # Reason.to_dict
-    file: NotRequired[str | None]  # the calibration file written for it (cli/batch.py adds it)
-
-
-class FitSummaryJson(TypedDict):
-    """``BoardResult.fit_summary``: the fit figures the results store summarises."""
-
-    model: str
-    pose_count: int
-    residual_rms_g: float | None
-    residual_max_g: float | None
-    crossval_rms_g: float | None
-    crossval_by_orientation_rms_g: float | None
-    condition_number: float | None
-    temperatures_c: list[float] | None
-    source: str
-    recalibrated_by: str
-
-
-class StoreCounts(TypedDict):
-    """What ``record_in_store`` recorded."""
-
-    events: int
-    runs: int
-
-
-class BatchOutputs(TypedDict, total=False):
-    """What `accelcal batch` wrote, where (each key only when that output was asked for)."""
-
-    out_dir: str
-    calibrations: int
-    csv: str
-    store: StoreOutput
-
-
-class StoreOutput(StoreCounts):
-    path: str
-
-
-class BatchReportJson(TypedDict):
-    """``BatchReport.to_dict``: `accelcal batch --json` (pose tables and stores)."""
-
-    model: str
-    boards: int
-    fitted: int
-    skipped: int
-    fit_calls: int
-    elapsed_s: float
-    results: list[BoardResultJson]
-    outputs: NotRequired[BatchOutputs]
 
 
 @dataclass

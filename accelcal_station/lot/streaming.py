@@ -23,6 +23,7 @@ from ..identifiability import directions_apart
 from ..models.fitting import check_model, fit_batch
 from ..models.gravity_norm import nominal_scale
 from ..models.held import Held
+from ..models.result import BatchFit
 from ..models.sanity import distinct_directions_batch
 
 
@@ -131,31 +132,7 @@ def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, n
         return
     for k in np.flatnonzero(~b.ok):
         reasons[idx[k]] = b.messages[k] or f"model {model} could not be fitted"
-    ok = b.ok
-    sel = idx[ok]
-    out["ok"][sel] = True
-    out["W"][sel], out["V"][sel], out["Gamma"][sel] = b.W[ok], b.V[ok], b.Gamma[ok]
-    out["residual_rms_g"][sel] = b.residual_rms_g[ok]
-    out["residual_max_g"][sel] = np.max(np.abs(b.residuals_g[ok]), axis=(1, 2))
-    out["crossval_rms_g"][sel] = np.where(b.crossval_ok[ok], b.crossval_rms_g[ok], np.nan)
-    if b.crossval_by_orientation_rms_g is not None and b.crossval_by_orientation_ok is not None:
-        out["crossval_by_orientation_rms_g"][sel] = np.where(b.crossval_by_orientation_ok[ok],
-                                                             b.crossval_by_orientation_rms_g[ok], np.nan)
-    if b.distinct_orientations is not None:
-        out["distinct_orientations"][sel] = b.distinct_orientations[ok]
-    out["condition_number"][sel] = b.condition_number[ok]
-    se = b.stderr_ok[ok]
-    out["stderr_V_max"][sel] = np.where(se, np.max(b.stderr_V[ok], axis=1), np.nan)
-    out["stderr_W_max"][sel] = np.where(se, np.max(b.stderr_W[ok].reshape(-1, 9), axis=1), np.nan)
-    out["input_per_g"][sel] = scale[ok]
-    # the nominal references certify most boards' poses distinct without comparing pairs (exact)
-    every = bool(ok.all())
-    nominal = None if ref is None else rows.take(ref) if every else rows.take(ref)[ok]
-    g_ok = gf if every else gf[ok]
-    out["distinct_poses"][sel] = distinct_directions_batch(g_ok, apart=directions_apart(g_ok, nominal))
-    if any(b.held):  # terms held at nominal (models/held.py), as `accelcal fit`
-        for k in np.flatnonzero(np.array([bool(h) for h in b.held]) & ok):
-            out["held"][idx[k]] = b.held[k]
+    _put(out, b, idx, scale, gf, None if ref is None else rows.take(ref))
 
 
 class _BoardRows:
@@ -180,6 +157,37 @@ class _BoardRows:
         """Only the boards where ``mask``."""
         if not mask.all():
             self.index, self.start = self.index[mask], None
+
+
+def _put(out: ChunkFit, b: BatchFit, idx: np.ndarray, scale: np.ndarray, gf: np.ndarray,
+         ref: np.ndarray | None) -> None:
+    """The fitted boards' figures into ``out`` (``idx``: their rows of the chunk's arrays; ``ref``
+    (D, P, 3) their nominal references, or None)."""
+    ok = b.ok
+    sel = idx[ok]
+    out["ok"][sel] = True
+    out["W"][sel], out["V"][sel], out["Gamma"][sel] = b.W[ok], b.V[ok], b.Gamma[ok]
+    out["residual_rms_g"][sel] = b.residual_rms_g[ok]
+    out["residual_max_g"][sel] = np.max(np.abs(b.residuals_g[ok]), axis=(1, 2))
+    out["crossval_rms_g"][sel] = np.where(b.crossval_ok[ok], b.crossval_rms_g[ok], np.nan)
+    if b.crossval_by_orientation_rms_g is not None and b.crossval_by_orientation_ok is not None:
+        out["crossval_by_orientation_rms_g"][sel] = np.where(b.crossval_by_orientation_ok[ok],
+                                                             b.crossval_by_orientation_rms_g[ok], np.nan)
+    if b.distinct_orientations is not None:
+        out["distinct_orientations"][sel] = b.distinct_orientations[ok]
+    out["condition_number"][sel] = b.condition_number[ok]
+    se = b.stderr_ok[ok]
+    out["stderr_V_max"][sel] = np.where(se, np.max(b.stderr_V[ok], axis=1), np.nan)
+    out["stderr_W_max"][sel] = np.where(se, np.max(b.stderr_W[ok].reshape(-1, 9), axis=1), np.nan)
+    out["input_per_g"][sel] = scale[ok]
+    # the nominal references certify most boards' poses distinct without comparing pairs (exact)
+    every = bool(ok.all())
+    nominal = ref if every or ref is None else ref[ok]
+    g_ok = gf if every else gf[ok]
+    out["distinct_poses"][sel] = distinct_directions_batch(g_ok, apart=directions_apart(g_ok, nominal))
+    if any(b.held):  # terms held at nominal (models/held.py), as `accelcal fit`
+        for k in np.flatnonzero(np.array([bool(h) for h in b.held]) & ok):
+            out["held"][idx[k]] = b.held[k]
 
 
 def _plausible_g(gf: np.ndarray) -> np.ndarray:

@@ -16,13 +16,14 @@ from numpy.typing import ArrayLike
 from ..calibration import MODELS, Calibration, TemperatureTable
 from ..conventions import check_units, units_per_g
 from ..errors import DataError, UnderdeterminedError, UnitsError
-from ..identifiability import first_of_orientation, screen
+from ..identifiability import first_of_orientation
 from ..session import Session
 from .crossval import crossval_by_orientation
 from .gravity_norm import PARAM_NAMES, nominal_scale
 from .held import HoldPlan, cubic_held, hold_plans
 from .result import BatchFit, FitResult
 from .sanity import Refusal, absurd_coefficients, absurd_norm_model, absurd_readings
+from .screening import screen
 from .stacked import assemble, fit_stacked
 
 
@@ -86,7 +87,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
         raise DataError("readings contain NaN or infinity")
     scale = _input_per_g(x, model, units, counts_per_g, gravity_mps2)
     gf = x / scale[:, None, None]
-    # what the references certify without comparing poses (identifiability.screen: exact where
+    # what the references certify without comparing poses (models.screening.screen: exact where
     # it holds), from one boards-last pass over the readings
     refs = None if references is None or model == "9" else np.asarray(references, dtype=float)
     scr = screen(gf, refs if refs is not None and refs.shape[-2:] == gf.shape[-2:] else None, model)
@@ -101,15 +102,8 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     plan = hold_plans(gf, model, nz, first, scr.determined)
     if len(gf) == 1 and plan.refused[0]:  # one board: its reason, before a solver says less
         raise UnderdeterminedError(plan.refused[0])
-    gf_fit = gf
     bad_readings = absurd_readings(gf, scr.sq) if model != "9" else None  # judged once, used twice
-    if bad_readings is not None and references is not None:
-        # a board with an absurd reading (1e308) is fitted on its references instead, so it
-        # cannot overflow the stack, and is then refused with the reading named
-        bad = bad_readings.mask
-        if bad.any():
-            ref = np.broadcast_to(np.asarray(references, dtype=float), gf.shape)
-            gf_fit = np.where(bad[:, None, None], ref, gf)
+    gf_fit = _defused(gf, references, bad_readings)
     try:
         with np.errstate(over="ignore", invalid="ignore"):
             res = _fit_stack(gf_fit, references, x, model, nz, plan)
@@ -127,6 +121,15 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     res.input_per_g = scale
     _refuse_absurd(res, bad_readings)
     return res
+
+
+def _defused(gf: np.ndarray, references: ArrayLike | None, bad_readings: Refusal | None) -> np.ndarray:
+    """The readings to fit: a board with an absurd reading (1e308) is fitted on its references
+    instead, so it cannot overflow the stack, and is then refused with the reading named."""
+    if bad_readings is None or references is None or not bad_readings.mask.any():
+        return gf
+    ref = np.broadcast_to(np.asarray(references, dtype=float), gf.shape)
+    return np.where(bad_readings.mask[:, None, None], ref, gf)
 
 
 def _fit_stack(gf: np.ndarray, references: ArrayLike | None, x: np.ndarray, model: str,

@@ -274,7 +274,7 @@ def hold_plans(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None,
     mean in g (None: the residual scatter).  A board whose gain or offset is weak, or that
     holding cannot help, is refused with the identifiability reason.  ``first``: the boards'
     first_of_orientation when the caller has it (the fit's front computes it once); ``sure``: boards
-    already certified determined (identifiability.screen)."""
+    already certified determined (models.screening.screen)."""
     gf = np.asarray(gf, dtype=float)
     D = len(gf)
     determined, _ = assess_batch(gf, model, first, sure)

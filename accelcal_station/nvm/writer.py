@@ -31,6 +31,7 @@ from ..errors import AccelcalError, NVMError
 from ..fileguard.jsondoc import read_json
 from ..jsontypes import JsonObject
 from .blob import GENERATION_MOD, HEADER_SIZE, BlobError, BlobHeader, blob_length, blob_size, decode, encode, newer
+from .outcome import BlobIdentity, BurnError, BurnOutcome, NoValidBlob, holds_text, identity_of
 
 SLOTS = ("A", "B")
 IMAGE_SCHEMA = "accelcal.nvm-image"
@@ -43,21 +44,6 @@ def _short(v: Any) -> str:
     """A value from a backup file, quoted short (a hostile file's value may be huge)."""
     r = repr(v)
     return r if len(r) <= 40 else r[:40] + "..."
-
-
-class BlobIdentity(TypedDict):
-    """Which calibration a slot holds: slot, generation, CRC-32, serial."""
-
-    slot: str
-    generation: int
-    crc32: int
-    serial: str
-
-
-class NoValidBlob(TypedDict):
-    """No slot holds a valid calibration (``{"slot": None}``)."""
-
-    slot: None
 
 
 @dataclass
@@ -103,62 +89,8 @@ class BackupSummary(TypedDict):
 _Scan = list[tuple[SlotStatus, Calibration | None, BlobHeader | None]]
 
 
-@dataclass
-class BurnOutcome:
-    """Result of one burn, for the results store (``to_dict``)."""
-
-    ok: bool
-    slot: str
-    addr: int
-    generation: int
-    length: int
-    crc32: int
-    serial: str
-    station_id: str
-    time: int
-    previous: BlobIdentity | None  # newest valid blob before the burn: slot, generation, CRC-32, serial
-    verified: bool = False  # read back byte for byte and decoded as the newest
-    backup: str | None = None
-    error: str | None = None
-    # the newest valid blob after the burn (slot, generation, CRC-32, serial); {"slot": None}: no valid
-    # calibration; None: not read (or reads did not settle)
-    nvm_after: BlobIdentity | NoValidBlob | None = None
-
-    def to_dict(self) -> JsonObject:
-        """The JSON form (the results store, --json)."""
-        return asdict(self)
-
-
-class BurnError(NVMError):
-    """A burn failed; ``outcome`` says where, and the previous calibration is untouched."""
-
-    def __init__(self, message: str, outcome: BurnOutcome) -> None:
-        super().__init__(message)
-        outcome.ok, outcome.error = False, str(self)
-        self.outcome = outcome
-
-
 def _first_difference(a: bytes, b: bytes) -> int:
     return next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), min(len(a), len(b)))
-
-
-def _identity(slot: str, h: BlobHeader) -> BlobIdentity:
-    return {"slot": slot, "generation": h.generation, "crc32": h.crc32, "serial": h.serial}
-
-
-def holds_text(outcome: BurnOutcome) -> str:
-    """What the NVM holds after a failed burn, against what it held before, in words."""
-    after, prev = outcome.nvm_after, outcome.previous
-    if after is None:
-        return "what the NVM holds now could not be read (reads disagree)"
-    if after["slot"] is None:
-        return "the NVM holds no valid calibration" + (", as before the burn" if prev is None else
-                                                         f" (it held slot {prev['slot']}, generation "
-                                                         f"{prev['generation']} before the burn)")
-    here, crc = f"slot {after['slot']}, generation {after['generation']}", f"CRC-32 0x{after['crc32']:08x}"
-    if prev is not None and (after["slot"], after["crc32"]) == (prev["slot"], prev["crc32"]):
-        return f"previous calibration ({here}) is untouched and is the newest valid one ({crc})"
-    return f"the NVM holds {here} ({crc}) as the newest valid calibration"
 
 
 class CalibrationWriter:
@@ -303,7 +235,7 @@ class CalibrationWriter:
             raise NVMError(f"calibration blob is {len(blob)} bytes; an NVM slot holds {self.slot_size}; "
                            "nothing was written (fewer temperature points or a larger slot)")
         _, h = decode(blob)
-        previous = None if prev is None else _identity(SLOTS[prev], self._valid(scan, prev)[1])
+        previous = None if prev is None else identity_of(SLOTS[prev], self._valid(scan, prev)[1])
         outcome = BurnOutcome(False, SLOTS[target], self.slot_addr(target), gen, len(blob), h.crc32,
                               h.serial, h.station_id, h.time, previous)
         if backup_to is not None:
@@ -354,7 +286,7 @@ class CalibrationWriter:
         except (AccelcalError, OSError):
             return None
         i = self._newest(scan)
-        return NoValidBlob(slot=None) if i is None else _identity(SLOTS[i], self._valid(scan, i)[1])
+        return NoValidBlob(slot=None) if i is None else identity_of(SLOTS[i], self._valid(scan, i)[1])
 
     def revert(self, outcome: BurnOutcome, tries: int = 3) -> None:
         """Invalidate the slot a failed burn wrote (erase its header), so the previous calibration,
@@ -452,7 +384,7 @@ class CalibrationWriter:
             self.backup(backup_to, chip=chip)
         for j, content in self._restore_plan(self.settled_image(), img):
             self._write_verified(self.slot_addr(j), content, f"restore of NVM slot {SLOTS[j]}")
-        want = _identity(SLOTS[i], self._valid(image_scan, i)[1])
+        want = identity_of(SLOTS[i], self._valid(image_scan, i)[1])
         if self.holds() != want:
             raise NVMError(f"restore: the NVM does not read back the backup's newest calibration "
                            f"(slot {want['slot']}, generation {want['generation']})")

@@ -26,7 +26,8 @@ from ..fixtures.operator_jig import PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
 from ..jsontypes import JsonObject
 from ..models.fitting import fit_session
-from ..nvm.writer import BurnError, CalibrationWriter, holds_text
+from ..nvm.outcome import holds_text
+from ..nvm.writer import BurnError, CalibrationWriter
 from ..session import PoseRecord, Session
 from .capture import (
     GatedCapture,

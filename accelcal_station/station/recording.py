@@ -19,7 +19,7 @@ from ..acceptance.reasons import Reason, codes
 from ..calibration import Calibration
 from ..errors import AccelcalError
 from ..jsontypes import JsonObject
-from ..nvm.writer import BurnOutcome
+from ..nvm.outcome import BurnOutcome
 from ..session import Session
 from ..store.outbox import default_outbox
 from ..store.records import StoreError

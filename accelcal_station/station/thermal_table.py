@@ -19,7 +19,8 @@ from ..fixtures.base import PoseSpec
 from ..fixtures.designs import get_design
 from ..models.fitting import fit_session
 from ..models.result import FitResult
-from ..nvm.writer import BurnError, CalibrationWriter, holds_text
+from ..nvm.outcome import holds_text
+from ..nvm.writer import BurnError, CalibrationWriter
 from ..session import PoseRecord, Session
 from .board import BoardSteps
 from .report import (
