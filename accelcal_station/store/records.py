@@ -109,8 +109,8 @@ def pose_record(p: CheckedRow) -> PoseRecord:
                       p.int("dropped") or 0, p.real("t_start"), p.real("t_end"))
 
 
-class RunRow(TypedDict):
-    """A ``runs`` row checked (rowcheck): JSON columns parsed, a damaged value None (named in its damage)."""
+class RunColumns(TypedDict):
+    """The ``runs`` columns every form of a stored run has alike (a damaged value None)."""
 
     id: int | None
     started_at: float | None
@@ -129,7 +129,6 @@ class RunRow(TypedDict):
     counts_per_g: float | None
     gravity_mps2: float | None
     verdict: str | None
-    reasons: list[JsonValue] | None
     nvm_status: str | None
     nvm_outcome: JsonObject | None
     calibration: JsonObject | None
@@ -140,6 +139,12 @@ class RunRow(TypedDict):
     limits: dict[str, float] | None
     heartbeat_at: float | None
     heartbeat_s: float | None
+
+
+class RunRow(RunColumns):
+    """A ``runs`` row checked (rowcheck): JSON columns parsed, a damaged value None (named in its damage)."""
+
+    reasons: list[JsonValue] | None
 
 
 def run_row(raw: Row) -> tuple[RunRow, list[DamagedRow]]:
@@ -277,38 +282,11 @@ class RunRecord:
             "finished_at_iso": iso(self.finished_at), "reason_codes": codes(self.reasons)}
 
 
-class RunDocument(TypedDict):
+class RunDocument(RunColumns):
     """A stored run in full (``RunRecord.to_dict``): the record's fields, its poses and events as
     JSON, its damage, the times also as ISO 8601 and the reasons as text with their codes."""
 
-    id: int | None
-    started_at: float | None
-    finished_at: float | None
-    status: str | None
-    status_reason: str | None
-    device_serial: str | None
-    chip: str | None
-    station_id: str | None
-    operator: str | None
-    lot: str | None
-    config_hash: str | None
-    config_text: str | None
-    model: str | None
-    units: str | None
-    counts_per_g: float | None
-    gravity_mps2: float | None
-    verdict: str | None
     reasons: list[str]
-    nvm_status: str | None
-    nvm_outcome: JsonObject | None
-    calibration: JsonObject | None
-    fit_summary: JsonObject | None
-    host: str | None
-    pid: int | None
-    panel_id: str | None
-    limits: dict[str, float] | None
-    heartbeat_at: float | None
-    heartbeat_s: float | None
     poses: list[StoredPose]
     retries: list[int]
     events: list[StoredEvent]
