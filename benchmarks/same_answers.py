@@ -27,8 +27,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 MASKED = ("started_at", "finished_at", "heartbeat_at", "time", "at", "timestamp", "duration_s", "elapsed_s",
-          "wall_s", "seconds", "run_id", "panel_id", "id", "first_run", "last_run", "since", "until", "boards_per_s", "host_compute_s",
-          "operator_wait_s", "board_time_s", "crc32", "panel_time_s", "per_board_s", "pid", "t")
+          "wall_s", "seconds", "run_id", "panel_id", "id", "first_run", "last_run", "since", "until", "boards_per_s",
+          "host_compute_s", "operator_wait_s", "board_time_s", "crc32", "panel_time_s", "per_board_s", "pid", "t")
 RAW = "--raw --columns -,-,x,y,z,-,-,- --rate 204.8 {D}/imucal_annotated_session.csv"
 COMMANDS = [
     "run --config {C}/sim.yaml --serial SN1 --store store.sqlite --json",
