@@ -313,7 +313,8 @@ def _rel_sv(Xt: np.ndarray, first: np.ndarray) -> np.ndarray:
     # REL_SV_MIN threshold their ratio is ~2.5e-3, far above the Gram form's rounding (~1e-16)
     A = (G / (d[:, :, None] * d[:, None, :])).transpose(1, 2, 0, 3).reshape(k, k, S * D)
     rel = _rel_sv_floor(A)
-    unsure = np.flatnonzero(rel < REL_SV_MIN)
+    # a non-finite design (a reading overflowing, 1e300) is not determined: no LAPACK call on it
+    unsure = np.flatnonzero((rel < REL_SV_MIN) & np.isfinite(A).all(axis=(0, 1)))
     if unsure.size:
         w = np.linalg.eigvalsh(np.ascontiguousarray(A[:, :, unsure].transpose(2, 0, 1)))  # ascending
         rel[unsure] = np.sqrt(np.maximum(w[:, 0], 0.0) / np.maximum(w[:, -1], 1e-300))

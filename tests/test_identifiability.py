@@ -152,3 +152,39 @@ def test_screen_certificates_give_the_pairwise_answers(design):
         got = assess_batch(x, model, first, s.determined)
         assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
     assert np.array_equal(distinct_directions_batch(x, apart=directions_apart(x, ref)), distinct_directions_batch(x))
+
+
+@pytest.mark.parametrize("design", ["nine-position", "an4399-8", "optimal-12"])
+def test_model_9_screen_certifies_from_the_boards_own_consensus(design):
+    """Model 9 has no references: screen certifies boards against the stack's consensus directions
+    (any directions serve: the certificates are the triangle inequality and Weyl's).  Where it does,
+    first_of_orientation and assess_batch must give exactly the pairwise answers: boards of another
+    design in the stack, raw offsets far from 0 (unsigned counts), revisits, flattened axes, a zero
+    reading and odd boards among the first ones (the consensus's sample) included."""
+    from accelcal_station.fixtures.designs import get_design, references
+    from accelcal_station.identifiability import assess_batch, first_of_orientation
+    from accelcal_station.models.screening import screen
+
+    rng = np.random.default_rng(9)
+    ref = np.asarray(references(get_design(design)))
+    D, P = 3000, len(ref)
+    W = np.eye(3) + rng.choice([0.01, 0.2, 0.6], (D, 1, 1)) * rng.standard_normal((D, 3, 3))
+    V = rng.choice([0.02, 0.3, 1.0], (D, 1)) * rng.standard_normal((D, 3))
+    x = np.einsum("dij,dpj->dpi", np.linalg.inv(W), ref - V[:, None, :]) + 1e-3 * rng.standard_normal((D, P, 3))
+    other = rng.integers(0, D, 200)
+    x[other] = x[other][:, rng.permutation(P)]  # the same poses in another order: another design
+    x[rng.integers(0, D, 100)] += 3.0  # unsigned counts: far from 0
+    rv = np.concatenate([np.arange(20), rng.integers(0, D, 150)])  # odd boards among the consensus sample too
+    x[rv, 1] = x[rv, 0] * (1 + 0.01 * rng.standard_normal((len(rv), 1)))  # a revisit
+    fl = rng.integers(0, D, 150)
+    x[fl, :, 2] *= rng.choice([0.0, 0.01, 0.1], (150, 1))  # a flattened axis
+    x[rng.integers(0, D, 5), 3] = 0.0  # a zero reading: no direction
+    s = screen(x, None, "9")
+    assert 0.05 < s.apart.mean() < 0.95  # both paths are exercised
+    assert s.determined.any() or P < 9  # fewer poses than model 9's coefficients: never certified
+    first = first_of_orientation(x)
+    assert np.array_equal(first_of_orientation(x, apart=s.apart), first)
+    want = assess_batch(x, "9", first)
+    got = assess_batch(x, "9", first, s.determined)
+    assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    assert not np.any(s.determined & ~want[0])  # certified only where pose by pose it is determined

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor, wait
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -17,7 +18,8 @@ import numpy as np
 
 from ..errors import DataError
 from ..fileguard.regular import open_regular
-from .lotchunk import COLUMNS, TEXT, LotChunk, arrays_chunk, missing_serial
+from ..models.threads import usable_cpus
+from .lotchunk import COLUMNS, TEXT, Labels, LotChunk, arrays_chunk, missing_serial
 
 # CSV bytes parsed at once.  Arrow's streaming reader holds buffers that grow with the block:
 # opening it and reading the first block raised the RSS by 31 MiB at 256 KiB, 56 at 1 MiB and 109
@@ -123,6 +125,47 @@ def _data_row(n: int) -> str:
     return f"data row {n}"
 
 
+@dataclass
+class _Rows:
+    """Decoded rows of a lot not yet given out: the text columns as Labels, the numbers, and a
+    reason per row (0 where none; a clean block: bool zeros, no object array)."""
+
+    serial: Labels
+    pose: Labels
+    num: dict[str, np.ndarray]
+    bad: np.ndarray
+
+    def __getitem__(self, rows: slice) -> _Rows:
+        return _Rows(self.serial[rows], self.pose[rows], {c: v[rows] for c, v in self.num.items()}, self.bad[rows])
+
+    def carried(self) -> _Rows:
+        """These rows (the start of a board the next block continues) with tables of their own."""
+        return _Rows(self.serial.compact(), self.pose.compact(), self.num, self.bad)
+
+    def chunk(self, row0: int) -> LotChunk:
+        return arrays_chunk(self.serial, self.pose, self.num, self.bad, row0)
+
+    @staticmethod
+    def joined(parts: list[_Rows]) -> _Rows:
+        if len(parts) == 1:
+            return parts[0]
+        # a clean part's bad is bool, a damaged one's object: joined as object when any is
+        return _Rows(Labels.joined([p.serial for p in parts]), Labels.joined([p.pose for p in parts]),
+                     {c: np.concatenate([p.num[c] for p in parts]) for c in parts[0].num},
+                     np.concatenate([p.bad for p in parts]))
+
+
+def _decoded(batch: Any, names: list[str], path: Path, row0: int, where: Where) -> _Rows:
+    """One Arrow record batch as _Rows (its first row being data row ``row0`` + 1)."""
+    bad_rows: dict[int, str] = {}
+    text = {c: _arrow_text(batch.column(c), c, path, row0, where) for c in TEXT}
+    num = {c: _arrow_number(batch.column(c), c, path, row0, bad_rows) for c in names if c not in TEXT}
+    bad = np.zeros(batch.num_rows, dtype=object if bad_rows else bool)
+    for i, msg in bad_rows.items():
+        bad[i] = msg
+    return _Rows(text["serial"], text["pose"], num, bad)
+
+
 def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: Where,
                   row0: int = 0, gather_boards: int = 0) -> Iterator[LotChunk]:
     """Whole-board chunks from Arrow record batches (a board may span two batches), the first
@@ -131,63 +174,60 @@ def _arrow_chunks(batches: Iterable[Any], names: list[str], path: Path, where: W
     Small batches (the CSV reader's blocks are kept small so its read-ahead stays small) are
     gathered to about ``gather_boards`` boards first (rows per board taken from the first batch):
     the fitters' cost per chunk is partly fixed numpy overhead."""
-    pending: list[dict[str, np.ndarray]] = []  # decoded rows not yet given out, from data row row0 + 1
+    pending: list[_Rows] = []  # decoded rows not yet given out, from data row row0 + 1
     rows, gather_rows = 0, 0
     for batch in batches:
-        bad_rows: dict[int, str] = {}
-        d = {c: _arrow_column(batch.column(c), c, path, row0 + rows, bad_rows, where) for c in names}
-        # a reason per row (0 where none) only where a cell was bad; a clean batch: no object array
-        d["_bad"] = np.zeros(len(d["serial"]), dtype=object if bad_rows else bool)
-        for i, msg in bad_rows.items():
-            d["_bad"][i] = msg
-        pending.append(d)
-        rows += len(d["serial"])
+        pending.append(_decoded(batch, names, path, row0 + rows, where))
+        rows += batch.num_rows
         if rows < gather_rows:
             continue
-        d = _joined(pending)
-        serial = d["serial"].astype(str, copy=False)
-        change = np.flatnonzero(serial[1:] != serial[:-1]) + 1
+        d = _Rows.joined(pending)
+        change = d.serial.changes()
         if gather_boards and not gather_rows:  # the first batch: its rows per board size the chunks
             per_board = change[-1] / len(change) if len(change) else rows  # rows of its whole boards
             gather_rows = int(gather_boards * max(1.0, per_board))
             if rows < gather_rows:
                 continue
         cut = int(change[-1]) if len(change) else 0  # the last board may continue in the next batch
-        pending, rows = [{c: d[c][cut:] for c in d}], rows - cut
+        pending, rows = [d[cut:].carried()], rows - cut
         if cut:
-            yield arrays_chunk({c: d[c][:cut] for c in d}, row0)
+            yield d[:cut].chunk(row0)
             row0 += cut
     if rows:
-        yield arrays_chunk(_joined(pending), row0)
+        yield _Rows.joined(pending).chunk(row0)
 
 
-def _joined(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    if len(parts) == 1:
-        return parts[0]
-    # a clean part's _bad is bool, a damaged one's object: joined as object when any is
-    return {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
-
-
-def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str], where: Where) -> np.ndarray:
-    """An Arrow column as numpy: text columns as str (a null serial refused), numeric ones as float (NaN for null)."""
+def _arrow_text(col: Any, name: str, path: Path, row0: int, where: Where) -> Labels:
+    """A text column as Labels: values trimmed, null or blank cells "" (a blank serial refused)."""
     import pyarrow as pa
 
-    if name in TEXT and pa.types.is_dictionary(col.type) and pa.types.is_string(col.type.value_type):
-        return _dictionary_text(col, name, path, row0, where)
+    if pa.types.is_dictionary(col.type) and pa.types.is_string(col.type.value_type):
+        labels = _dictionary_text(col)
+    else:
+        import pyarrow.compute as pc
+
+        # through a dictionary: a Python str per distinct value (a serial per board, a few pose
+        # names), not one per row
+        enc = pc.dictionary_encode(pc.utf8_trim_whitespace(col.cast(pa.string())).fill_null(""))
+        labels = Labels(np.array(enc.dictionary.to_pylist(), dtype=str),
+                        np.asarray(enc.indices.to_numpy(zero_copy_only=False), dtype=np.intp))
+    if name == "serial":
+        blank = np.flatnonzero(labels.table == "")
+        if blank.size:
+            empty = np.isin(labels.codes, blank)
+            if empty.any():
+                raise missing_serial(path, where(row0 + int(np.argmax(empty)) + 1))
+    return labels
+
+
+def _arrow_number(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str]) -> np.ndarray:
+    """A numeric Arrow column as float numpy (NaN for null); cells that are not numbers recorded in ``bad_rows``."""
+    import pyarrow as pa
+
     if col.type == pa.float64():  # the typed CSV read's numbers: no cast (and no pyarrow.compute import)
         return np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
     import pyarrow.compute as pc
 
-    if name in TEXT:
-        text = pc.utf8_trim_whitespace(col.cast(pa.string()))
-        empty = pc.fill_null(pc.equal(text, ""), True)
-        if name == "serial" and pc.any(empty).as_py():
-            raise missing_serial(path, where(row0 + int(np.argmax(empty.to_numpy(zero_copy_only=False))) + 1))
-        # through a dictionary: a Python str per distinct value (a serial per board, a few pose names),
-        # not one per row, then numpy's fixed-width text by indexing
-        enc = pc.dictionary_encode(text.fill_null(""))
-        values = np.array(enc.dictionary.to_pylist(), dtype=str)
-        return values[np.asarray(enc.indices.to_numpy(zero_copy_only=False), dtype=np.intp)]
     if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
         try:  # a clean column casts as it is (no trimmed copy of every cell); else trimmed, else cell by cell
             col = pc.cast(col, pa.float64())
@@ -201,23 +241,17 @@ def _arrow_column(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
     return np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
 
 
-def _dictionary_text(col: Any, name: str, path: Path, row0: int, where: Where) -> np.ndarray:
+def _dictionary_text(col: Any) -> Labels:
     """A text column read as a dictionary (the CSV lot's serial and pose: a value per board or per
-    pose name, not per row) as numpy str: the dictionary's values trimmed, null or blank rows ""
-    (a blank serial refused).  numpy's strings.strip trims exactly what Arrow's utf8_trim_whitespace
-    (the text path's) trims, the Unicode White_Space characters (tests/test_lot.py checks every code
-    point), in one call, with no pyarrow.compute."""
+    pose name, not per row) as Labels: the dictionary's values trimmed, null rows "".  numpy's
+    strings.strip trims exactly what Arrow's utf8_trim_whitespace (the text path's) trims, the
+    Unicode White_Space characters (tests/test_lot.py checks every code point), in one call, with
+    no pyarrow.compute."""
     values = np.strings.strip(np.asarray(col.dictionary.to_numpy(zero_copy_only=False)).astype(str))
-    table = np.append(values, "")  # the last entry: a null cell
     idx = col.indices.to_numpy(zero_copy_only=False)
-    if col.null_count:  # nulls come out as NaN
-        idx = np.where(np.isnan(idx), len(values), idx)
-    out = table[np.asarray(idx, dtype=np.intp)]
-    if name == "serial":
-        blank = out == ""
-        if blank.any():
-            raise missing_serial(path, where(row0 + int(np.argmax(blank)) + 1))
-    return out
+    if col.null_count:  # nulls come out as NaN: the table's last entry, ""
+        return Labels(np.append(values, ""), np.asarray(np.where(np.isnan(idx), len(values), idx), dtype=np.intp))
+    return Labels(values, np.asarray(idx, dtype=np.intp))
 
 
 def _cells(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str]) -> np.ndarray:
@@ -359,8 +393,12 @@ def _ahead(batches: Iterable[Any]) -> Iterator[Any]:
     """The batches, the next one parsed by one background thread while the caller works on this
     one (Arrow's parser runs without the GIL: reading overlaps the fit on a second core).  The
     thread is done before this generator ends, however it ends, so the reader and its file are
-    never used after they are closed."""
+    never used after they are closed.  On one CPU nothing overlaps: no thread (its hand-overs
+    cost `accelcal batch` 3-4 % of its CPU time pinned to one core)."""
     it = iter(batches)
+    if usable_cpus() == 1:
+        yield from it
+        return
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="accelcal-csv") as ex:
         pending = ex.submit(next, it, None)
         try:

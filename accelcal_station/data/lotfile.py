@@ -262,14 +262,13 @@ def board_arrays(chunk: LotChunk, model: str
     starts = chunk.starts
     B = len(starts) - 1
     reasons = list(chunk.bad)
-    row_bad_x = ~np.all(np.isfinite(x), axis=1)
-    checks = [(row_bad_x, "reading is empty, NaN or infinite")] + _range_checks(c)
+    checks = [(nonfinite_rows(x), "reading is empty, NaN or infinite"), *_range_checks(c)]
     if model != "9":
-        no_ref = np.ones(len(x), bool) if ref is None else ~np.all(np.isfinite(ref), axis=1)
+        no_ref = np.ones(len(x), bool) if ref is None else nonfinite_rows(ref)
         checks.append((no_ref, f"has no reference; model {model} needs pitch_deg/roll_deg or ref_x/ref_y/ref_z "
                                "(only model 9 fits without)"))
     for rows_bad, what in checks:
-        if rows_bad.any():
+        if rows_bad is not None and rows_bad.any():
             first = np.flatnonzero(rows_bad)
             boards = np.searchsorted(starts, first, side="right") - 1
             for r, b in zip(first[::-1], boards[::-1], strict=True):  # reversed: the first bad row of a board wins
@@ -292,9 +291,19 @@ def board_arrays(chunk: LotChunk, model: str
         for b in np.flatnonzero(span > TEMP_TOLERANCE_C):
             reasons[b] = reasons[b] or (f"poses span {span[b]:.3g} C of temperature: a temperature table; fit it "
                                         "from the board's pose table with accelcal batch FILE or accelcal fit")
-    if noise is not None:
-        good = np.all(np.isfinite(noise), axis=1)
-        if not good.all():  # a board whose std/n are not all given is fitted without measured noise
-            per_board = np.logical_and.reduceat(good, starts[:-1]) if B else good[:0]
-            noise = np.where(np.repeat(per_board, np.diff(starts))[:, None], noise, np.nan)
+    bad_noise = None if noise is None else nonfinite_rows(noise)
+    if noise is not None and bad_noise is not None and bad_noise.any():
+        # a board whose std/n are not all given is fitted without measured noise
+        per_board = np.logical_and.reduceat(~bad_noise, starts[:-1]) if B else bad_noise[:0]
+        noise = np.where(np.repeat(per_board, np.diff(starts))[:, None], noise, np.nan)
     return x, ref, noise, reasons
+
+
+def nonfinite_rows(a: np.ndarray) -> np.ndarray | None:
+    """(rows,) rows of ``a`` (rows, k) with a NaN or infinite value, or None when there is none:
+    decided for most chunks by one sum (finite only when every value is, or when it overflows
+    to infinity, then checked row by row), without a (rows, k) mask."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(a.sum()):
+            return None
+    return ~np.all(np.isfinite(a), axis=1)

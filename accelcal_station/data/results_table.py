@@ -228,6 +228,8 @@ def _arrow_table(cols: ResultColumns, csv: bool = False) -> Any:
             arrays[c] = pa.array(np.asarray(v, np.int8 if csv else bool))
         elif c in ("first_row", "pose_count"):
             arrays[c] = pa.array(np.asarray(v, np.int64))
+        elif isinstance(v, list) and v and v.count(v[0]) == len(v):  # one value (the model, an empty message)
+            arrays[c] = pa.repeat(pa.scalar(v[0], pa.string()), len(v))
         else:
             arrays[c] = pa.array(list(v), pa.string())
     return pa.table(arrays)

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, TypedDict, TypeVar
 import numpy as np
 
 from ..acceptance.reasons import Reason
-from ..data.lotfile import LotChunk, board_arrays, lot_scale, open_lot
+from ..data.lotfile import LotChunk, board_arrays, lot_scale, nonfinite_rows, open_lot
 from ..data.results_table import ChunkFit, ResultsWriter
 from ..errors import AccelcalError, DataError
 from ..identifiability import directions_apart
@@ -81,9 +81,12 @@ def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> C
         "message": []}
     can = np.array([r is None for r in reasons], bool)
     has_noise = np.zeros(B, bool)
+    bad_noise = None if noise is None or not B else nonfinite_rows(noise)
     if noise is not None and B:
-        has_noise = np.logical_and.reduceat(np.all(np.isfinite(noise), axis=1), starts[:-1])
-    for P in np.unique(sizes[can]):
+        has_noise = np.ones(B, bool) if bad_noise is None else np.logical_and.reduceat(~bad_noise, starts[:-1])
+    fit_sizes = sizes[can]
+    # one pose count (the usual lot) without np.unique, whose first call imports numpy.ma
+    for P in fit_sizes[:1] if len(fit_sizes) and (fit_sizes == fit_sizes[0]).all() else np.unique(fit_sizes):
         for nz_flag in (False, True):
             idx = np.flatnonzero(can & (sizes == P) & (has_noise == nz_flag))
             if idx.size:
@@ -164,30 +167,45 @@ def _put(out: ChunkFit, b: BatchFit, idx: np.ndarray, scale: np.ndarray, gf: np.
     """The fitted boards' figures into ``out`` (``idx``: their rows of the chunk's arrays; ``ref``
     (D, P, 3) their nominal references, or None)."""
     ok = b.ok
-    sel = idx[ok]
-    out["ok"][sel] = True
-    out["W"][sel], out["V"][sel], out["Gamma"][sel] = b.W[ok], b.V[ok], b.Gamma[ok]
-    out["residual_rms_g"][sel] = b.residual_rms_g[ok]
-    out["residual_max_g"][sel] = np.max(np.abs(b.residuals_g[ok]), axis=(1, 2))
-    out["crossval_rms_g"][sel] = np.where(b.crossval_ok[ok], b.crossval_rms_g[ok], np.nan)
-    if b.crossval_by_orientation_rms_g is not None and b.crossval_by_orientation_ok is not None:
-        out["crossval_by_orientation_rms_g"][sel] = np.where(b.crossval_by_orientation_ok[ok],
-                                                             b.crossval_by_orientation_rms_g[ok], np.nan)
-    if b.distinct_orientations is not None:
-        out["distinct_orientations"][sel] = b.distinct_orientations[ok]
-    out["condition_number"][sel] = b.condition_number[ok]
-    se = b.stderr_ok[ok]
-    out["stderr_V_max"][sel] = np.where(se, np.max(b.stderr_V[ok], axis=1), np.nan)
-    out["stderr_W_max"][sel] = np.where(se, np.max(b.stderr_W[ok].reshape(-1, 9), axis=1), np.nan)
-    out["input_per_g"][sel] = scale[ok]
-    # the nominal references certify most boards' poses distinct without comparing pairs (exact)
     every = bool(ok.all())
-    nominal = ref if every or ref is None else ref[ok]
-    g_ok = gf if every else gf[ok]
-    out["distinct_poses"][sel] = distinct_directions_batch(g_ok, apart=directions_apart(g_ok, nominal))
+    pick: Callable[[np.ndarray], np.ndarray] = (lambda a: a) if every else (lambda a: a[ok])
+    rows = idx[ok]
+    # every board of the chunk (the usual group): slices, not index arrays
+    sel: slice | np.ndarray = slice(None) if len(rows) == len(out["ok"]) else rows
+    out["ok"][sel] = True
+    out["W"][sel], out["V"][sel], out["Gamma"][sel] = pick(b.W), pick(b.V), pick(b.Gamma)
+    out["residual_rms_g"][sel] = pick(b.residual_rms_g)
+    out["residual_max_g"][sel] = _abs_max(pick(b.residuals_g))
+    out["crossval_rms_g"][sel] = np.where(pick(b.crossval_ok), pick(b.crossval_rms_g), np.nan)
+    if b.crossval_by_orientation_rms_g is not None and b.crossval_by_orientation_ok is not None:
+        out["crossval_by_orientation_rms_g"][sel] = np.where(pick(b.crossval_by_orientation_ok),
+                                                             pick(b.crossval_by_orientation_rms_g), np.nan)
+    if b.distinct_orientations is not None:
+        out["distinct_orientations"][sel] = pick(b.distinct_orientations)
+    out["condition_number"][sel] = pick(b.condition_number)
+    se = pick(b.stderr_ok)
+    out["stderr_V_max"][sel] = np.where(se, pick(b.stderr_V).max(axis=1), np.nan)
+    out["stderr_W_max"][sel] = np.where(se, pick(b.stderr_W).reshape(-1, 9).max(axis=1), np.nan)
+    out["input_per_g"][sel] = pick(scale)
+    # the nominal references certify most boards' poses distinct without comparing pairs (exact)
+    g_ok = pick(gf)
+    if b.poses_apart is not None:  # certified by fit_batch's screen
+        apart = pick(b.poses_apart)
+    else:
+        apart = directions_apart(g_ok, ref if every or ref is None else ref[ok])
+    out["distinct_poses"][sel] = distinct_directions_batch(g_ok, apart=apart)
     if any(b.held):  # terms held at nominal (models/held.py), as `accelcal fit`
         for k in np.flatnonzero(np.array([bool(h) for h in b.held]) & ok):
             out["held"][idx[k]] = b.held[k]
+
+
+def _abs_max(r: np.ndarray) -> np.ndarray:
+    """(D,) the largest |residual| of each board's (D, P, 3) residuals; the stacked fitters give
+    them as a view of a boards-last (3, P, D) array, reduced as stored (no transposed copy)."""
+    t = r.transpose(2, 1, 0)
+    if t.flags.c_contiguous:
+        return np.maximum(t.max(axis=(0, 1)), -t.min(axis=(0, 1)))
+    return np.max(np.abs(r), axis=(1, 2))
 
 
 def _plausible_g(gf: np.ndarray) -> np.ndarray:

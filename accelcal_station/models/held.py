@@ -231,7 +231,7 @@ def _scatter_sigma(gf: np.ndarray, order: np.ndarray) -> np.ndarray:
 def _plan_model9(gf: np.ndarray, noise_g: np.ndarray | None, determined: np.ndarray) -> HoldPlan:
     """Model 9's plan for D boards: geometric refusals, then the noise rule (module doc)."""
     D = len(gf)
-    held: list[list[Held]] = [[] for _ in range(D)]
+    held: list[list[Held]] = [[]] * D  # shared empty list: a board's terms replace it, never appended
     refused = [""] * D
     geo, code = np.full((D, 2), -1), np.zeros(D, dtype=int)
     und = np.flatnonzero(~determined)

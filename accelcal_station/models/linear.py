@@ -123,7 +123,7 @@ def residual_variance(noise_g: ArrayLike | None, rss: np.ndarray, D: int, P: int
     when known, since a few poses' residuals estimate sigma too poorly; else RSS / (P - k); NaN when neither."""
     if noise_g is not None:
         nz = np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3))
-        return np.mean(nz**2, axis=1)
+        return np.einsum("dpk,dpk->dk", nz, nz) / P  # the mean of nz**2 over poses, with no (D, P, 3) temporary
     return rss / dof if dof > 0 else np.full((D, 3), np.nan)
 
 

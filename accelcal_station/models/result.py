@@ -219,6 +219,8 @@ class BatchFit:
     crossval_by_orientation_rms_g: np.ndarray | None = None  # (D,), NaN where not computable
     crossval_by_orientation_ok: np.ndarray | None = None  # (D,) bool
     distinct_orientations: np.ndarray | None = None  # (D,) int
+    # (D,) bool: every two poses certified more than 5 deg apart (models/screening.py; False: not certified)
+    poses_apart: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not self.held:  # the fitters leave it empty: nothing held on any board

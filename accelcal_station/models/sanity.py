@@ -158,9 +158,12 @@ def absurd_coefficients(W: np.ndarray, V: np.ndarray) -> Refusal:
     offset over OFFSET_MAX_G (the first that applies names the reason)."""
     W, V = np.asarray(W, dtype=float), np.asarray(V, dtype=float)
     D = len(W)
-    # boards last (9, D) and (3, D): every step below is a few long rows, no reduction over a short axis
-    Wt, Vt = W.reshape(D, 9).T, V.T
-    finite = np.isfinite(Wt).all(axis=0) & np.isfinite(Vt).all(axis=0)
+    # boards last (9, D) and (3, D), copied once: every step below is a few long contiguous rows,
+    # no reduction over a short axis and no strided pass
+    Wt, Vt = np.ascontiguousarray(W.reshape(D, 9).T), np.ascontiguousarray(V.T)
+    with np.errstate(over="ignore", invalid="ignore"):  # one sum clears most stacks
+        finite = np.ones(D, dtype=bool) if np.isfinite(Wt.sum() + Vt.sum()) else \
+            np.isfinite(Wt).all(axis=0) & np.isfinite(Vt).all(axis=0)
     if not finite.all():
         Wt = np.where(finite, Wt, np.eye(3).reshape(9, 1))
         Vt = np.where(finite, Vt, 0.0)

@@ -14,11 +14,13 @@ from ..identifiability import (
     COEFFS,
     DISTINCT_TOL_DEG,
     REL_SV_MIN,
+    SMALL_P,
     SPREAD_MIN_G,
     _closest_pair_rad,
     _design,
     _shared_unit,
 )
+from . import boardwise as bw
 
 
 @dataclass(frozen=True)
@@ -36,6 +38,7 @@ class Screen:
     apart: np.ndarray
     determined: np.ndarray
     sq: np.ndarray | None
+    boards_last: np.ndarray | None = None  # the readings as (3, P, D), the copy screen made
 
 
 def screen(gf: np.ndarray, ref: np.ndarray | None, model: str, tol_deg: float = DISTINCT_TOL_DEG) -> Screen:
@@ -49,13 +52,14 @@ def screen(gf: np.ndarray, ref: np.ndarray | None, model: str, tol_deg: float = 
     ||a - b||^2 = 2 (1 - a.b); so rel >= (sigma_min(A_r) - e) / (sigma_max(A_r) + e)."""
     D, P, _ = gf.shape
     none = np.zeros(D, dtype=bool)
+    if model == "9":  # no references: the boards' own consensus directions stand in for them
+        return _screen9(gf, tol_deg) if 2 <= P <= SMALL_P and D else Screen(none, none, None)
     rn = _shared_unit(ref, D)
     if rn is None or len(rn[0]) != P:  # nothing to certify: no copy made (a 200,000-pose table)
         return Screen(none, none, None)
     r, ru = rn
-    g = np.ascontiguousarray(gf.transpose(2, 1, 0))  # (3, P, D): boards last
-    g2 = g * g
-    sq = g2.sum(axis=0)  # (P, D)
+    g = bw.boards_last(gf)  # (3, P, D)
+    sq = np.einsum("kpd,kpd->pd", g, g)  # (P, D) squared norms, one pass and no (3, P, D) temporary
     delta = 0.5 * (_closest_pair_rad(ru) - math.radians(tol_deg)) - APART_MARGIN_RAD
     if not delta > 0:
         return Screen(none, none, sq.T)
@@ -63,30 +67,30 @@ def screen(gf: np.ndarray, ref: np.ndarray | None, model: str, tol_deg: float = 
         hi, lo = g.max(axis=1), g.min(axis=1)  # (3, D)
         mid = 0.5 * (hi + lo)
         centred = ~(np.sqrt((mid * mid).sum(axis=0)) > 0.5)  # _centre gives 0: directions about 0
-        along = (g * ru.T[:, :, None]).sum(axis=0)  # (P, D) reading . unit reference
+        along = np.einsum("kpd,pk->pd", g, ru)  # (P, D) reading . unit reference
         apart = np.all(along > np.sqrt(sq) * math.cos(delta), axis=0) & centred
-        determined = apart & _design_certified(g, g2, r, model) if COEFFS[model] <= P else np.zeros(D, dtype=bool)
+        determined = apart & _design_certified(g, r, model) if COEFFS[model] <= P else np.zeros(D, dtype=bool)
         if model == "6":
             determined &= np.all(hi - lo >= SPREAD_MIN_G, axis=0)
-    return Screen(apart, determined, sq.T)
+    return Screen(apart, determined, sq.T, g)
 
 
-def _design_certified(g: np.ndarray, g2: np.ndarray, r: np.ndarray, model: str) -> np.ndarray:
-    """(D,) boards whose design over every pose (g (3, P, D), g2 = g * g) is certified to have a
-    relative singular value >= REL_SV_MIN by the references' design r (P, 3) (``screen``)."""
+def _design_certified(g: np.ndarray, r: np.ndarray, model: str) -> np.ndarray:
+    """(D,) boards whose design over every pose (g (3, P, D)) is certified to have a relative
+    singular value >= REL_SV_MIN by the references' design r (P, 3) (``screen``)."""
     D = g.shape[2]
     if model not in ("6", "12", "15"):
         return np.zeros(D, dtype=bool)
     # per non-constant column (a function of one channel): 1 - cos(board column, reference column)
-    cols = [(g, g2, r.T)]
+    cols = [(g, r.T)]
     if model == "15":
-        g3 = g2 * g
-        cols.append((g3, g3 * g3, r.T ** 3))
+        cols.append((g * g * g, r.T ** 3))
     gap = []
-    for a, a2, b in cols:  # a (3, P, D), b (3, P)
+    for a, b in cols:  # a (3, P, D), b (3, P)
         bn = np.sqrt((b * b).sum(axis=1))  # (3,)
         with np.errstate(divide="ignore", invalid="ignore"):
-            cos = (a * b[:, :, None]).sum(axis=1) / (np.sqrt(a2.sum(axis=1)) * bn[:, None])  # (3, D)
+            an = np.sqrt(np.einsum("kpd,kpd->kd", a, a))  # (3, D) the board columns' norms
+            cos = np.einsum("kpd,kp->kd", a, b) / (an * bn[:, None])  # (3, D)
         gap.append(2.0 * (1.0 - cos))
     # the columns of each solve: 12 one solve of x, y, z, 1; 6 per channel c: c, 1; 15 per channel: x, y, z, 1, c^3
     if model == "12":
@@ -104,3 +108,65 @@ def _design_certified(g: np.ndarray, g2: np.ndarray, r: np.ndarray, model: str) 
     with np.errstate(invalid="ignore"):
         bound = (s[:, -1:] - e) / (s[:, :1] + e)
         return np.all(bound >= REL_SV_MIN * (1.0 + 1e-6), axis=0)
+
+
+CONSENSUS_BOARDS = 1024  # boards whose mean directions stand in for model 9's references
+
+
+def _screen9(gf: np.ndarray, tol_deg: float) -> Screen:
+    """``screen`` for model 9, which has no references: the certificates hold for any set of
+    reference directions (the triangle inequality on the sphere, Weyl's inequality), so the
+    boards' consensus (each pose's mean unit direction over the stack) stands in for them; a
+    stack whose boards do not share a design certifies nothing and is computed pose by pose.
+
+    determined: the normalised design's columns (u_x^2, u_y^2, u_z^2, 2 u_x u_y, 2 u_x u_z,
+    2 u_y u_z, u_x, u_y, u_z of the unit directions u, identifiability._design) against the
+    consensus design's, as for the linear models."""
+    D, P, _ = gf.shape
+    none = np.zeros(D, dtype=bool)
+    g = bw.boards_last(gf)  # (3, P, D)
+    sq = (g * g).sum(axis=0)  # (P, D)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        hi, lo = g.max(axis=1), g.min(axis=1)
+        mid = 0.5 * (hi + lo)
+        centred = ~(np.sqrt((mid * mid).sum(axis=0)) > 0.5)  # _centre gives 0: directions are the readings'
+        u = g / np.sqrt(sq)
+        # any directions serve: the first CONSENSUS_BOARDS centred boards' mean is enough
+        some = u[:, :, :CONSENSUS_BOARDS]
+        if not (centred[:CONSENSUS_BOARDS].all() and np.isfinite(some).all()):
+            keep = centred & np.isfinite(u).all(axis=(0, 1))
+            some = u[:, :, np.flatnonzero(keep)[:CONSENSUS_BOARDS]]
+        mean = np.median(some, axis=2) if some.shape[2] else np.full((3, P), np.nan)  # an odd board moves it little
+        ru = (mean / np.sqrt((mean * mean).sum(axis=0))).T  # (P, 3) consensus unit directions
+    if not np.all(np.isfinite(ru)):
+        return Screen(none, none, sq.T)
+    delta = 0.5 * (_closest_pair_rad(ru) - math.radians(tol_deg)) - APART_MARGIN_RAD
+    if not delta > 0:
+        return Screen(none, none, sq.T)
+    with np.errstate(over="ignore", invalid="ignore"):
+        along = (g * ru.T[:, :, None]).sum(axis=0)  # (P, D) reading . consensus direction
+        apart = np.all(along > np.sqrt(sq) * math.cos(delta), axis=0) & centred
+    determined = apart & _design9_certified(u, ru) if COEFFS["9"] <= P else none
+    return Screen(apart, determined, sq.T)
+
+
+def _norm_columns(u: np.ndarray) -> list[np.ndarray]:
+    """Model 9's design columns of unit directions u (3, P, ...): identifiability._design's order."""
+    return [u[0] * u[0], u[1] * u[1], u[2] * u[2], 2 * u[0] * u[1], 2 * u[0] * u[2], 2 * u[1] * u[2], u[0], u[1], u[2]]
+
+
+def _design9_certified(u: np.ndarray, ru: np.ndarray) -> np.ndarray:
+    """(D,) boards whose model 9 design (unit directions u (3, P, D)) has a relative singular
+    value >= REL_SV_MIN by the consensus design of ru (P, 3) and Weyl's inequality (``screen``)."""
+    B = np.stack(_norm_columns(ru.T), axis=1)  # (P, 9)
+    bn = np.sqrt((B * B).sum(axis=0))
+    if not np.all(bn > 0):
+        return np.zeros(u.shape[2], dtype=bool)
+    e2 = np.zeros(u.shape[2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for c, a in enumerate(_norm_columns(u)):  # a (P, D): 2 (1 - cos(board column, consensus column))
+            e2 += 2.0 * (1.0 - (B[:, c] @ a) / (np.sqrt(np.einsum("pd,pd->d", a, a)) * bn[c]))
+    s = np.linalg.svd(B / bn, compute_uv=False)
+    e = np.sqrt(np.maximum(e2, 0.0))  # NaN stays NaN (not certified)
+    with np.errstate(invalid="ignore"):
+        return (s[-1] - e) / (s[0] + e) >= REL_SV_MIN * (1.0 + 1e-6)

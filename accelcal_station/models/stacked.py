@@ -29,9 +29,8 @@ lot's arrays as soon as it is done.
 """
 from __future__ import annotations
 
-import os
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
@@ -44,6 +43,7 @@ from .heap import keep_block_memory
 from .linear import COND_LIMIT, diagnose_underdetermined, fit_linear_batch, param_names, residual_variance
 from .result import BatchFit, LazyCovariance
 from .stacked_norm import fit9
+from .threads import usable_cpus
 
 CHECK_COND = 1e5  # above this, extreme eigenvalues are recomputed by LAPACK (rare)
 
@@ -143,14 +143,16 @@ class _ChannelCovariance(LazyCovariance):
         return Ginv[..., None, :, :] * self.s2[d][..., None, None]
 
 
-def _centred(gf: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _centred(gf: np.ndarray, ref: np.ndarray, boards_last: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Readings and references boards last (3, P, D) and centred: xc = g - mean(g),
     yc = y - mean(y) (the centred form of AN4399 Eqn 46).  Returns xc, yc, xbar (3, D),
-    ybar (3, 1 or D) and y (3, P, 1 or D); shared (P, 3) references stay one column."""
+    ybar (3, 1 or D) and y (3, P, 1 or D); shared (P, 3) references stay one column.
+    ``boards_last``: gf already as (3, P, D), when the caller has that copy."""
     P = gf.shape[1]
     shared = ref.ndim == 2
     # (3, P, D): boards last, so sums over poses add P contiguous rows (short-row reductions are slow)
-    g = np.ascontiguousarray(gf.transpose(2, 1, 0))
+    g = bw.boards_last(gf) if boards_last is None else boards_last
     y = ref.T[:, :, None] if shared else np.ascontiguousarray(ref.transpose(2, 1, 0))  # (3, P, 1 or D)
     xbar, ybar = g.sum(axis=1) / P, y.sum(axis=1) / P  # (3, D), (3, 1 or D)
     return g - xbar[:, None, :], y - ybar[:, None, :], xbar, ybar, y
@@ -215,17 +217,19 @@ def _inverse_gram(Sinv: bw.Sym3, Si: np.ndarray, xbar: np.ndarray, P: int) -> np
     return np.stack([*Sinv, u[0], u[1], u[2], 1.0 / P - (u * xbar).sum(axis=0)], axis=1)
 
 
-def fit12(gf: ArrayLike, ref: ArrayLike, noise_g: ArrayLike | None = None) -> BatchFit:
+def fit12(gf: ArrayLike, ref: ArrayLike, noise_g: ArrayLike | None = None,
+          boards_last: np.ndarray | None = None) -> BatchFit:
     """Model 12 for a stack of boards (D, P, 3) in g; same results as fit_linear_batch.
 
     ``ref`` is (D, P, 3), or (P, 3) shared by every board: then its centred form, its norms
-    and the cross products xc^T yc (one BLAS matmul) are computed once for the stack."""
+    and the cross products xc^T yc (one BLAS matmul) are computed once for the stack.
+    ``boards_last``: the same readings as (3, P, D), when the caller has them so."""
     gf = np.asarray(gf, dtype=float)
     D, P, _ = gf.shape
     if P < 4:
         raise UnderdeterminedError(f"model 12 needs at least 4 poses; got {P}")
     ref = np.asarray(ref, dtype=float)
-    xc, yc, xbar, ybar, y = _centred(gf, ref)
+    xc, yc, xbar, ybar, y = _centred(gf, ref, boards_last)
     S, det_safe, ok, Sinv = _scatter_inverse(xc)
     Si, Wt = _slopes(Sinv, xc, yc, shared=ref.ndim == 2)
     W = Wt.transpose(2, 1, 0)  # (D, 3, 3)
@@ -324,7 +328,7 @@ class _Assembler:
         return BatchFit(**self.kw)
 
 
-def assemble(D: int, gf: np.ndarray, parts: list[tuple[np.ndarray, BatchFit]]) -> BatchFit:
+def assemble(D: int, gf: np.ndarray, parts: Sequence[tuple[np.ndarray | slice, BatchFit]]) -> BatchFit:
     """One BatchFit of D boards from fits of board subsets (rows, fit), as fit_stacked's blocks
     are put together; every part must be of one model with the same fields."""
     out = _Assembler(D, gf)
@@ -347,25 +351,23 @@ def _reference_groups(ref: np.ndarray) -> list[tuple[np.ndarray | slice, np.ndar
 def _workers() -> int:
     """Threads for fit_stacked: the CPUs this process may run on (numpy releases the GIL in
     its loops and LAPACK calls, so blocks fit in parallel), at most 8."""
-    try:
-        n = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        n = os.cpu_count() or 1
-    return max(1, min(n, 8))
+    return min(usable_cpus(), 8)
 
 
 Job = tuple[np.ndarray | slice, np.ndarray | None]  # boards of one block, their references
 
 
 def fit_stacked(gf: ArrayLike, ref: ArrayLike | None, model: str, noise_g: ArrayLike | None = None,
-                workers: int | None = None, free: np.ndarray | None = None) -> BatchFit:
+                workers: int | None = None, free: np.ndarray | None = None,
+                boards_last: np.ndarray | None = None) -> BatchFit:
     """The fast fitter of ``model`` on (D, P, 3) readings in g (references in g for 6/12/15),
     in blocks of BLOCK[model] boards, fitted by ``workers`` threads (default: one per CPU);
     model 12 per group of boards sharing their references.  Blocks are independent, so the
     result does not depend on the number of threads.  Sets glibc's heap thresholds for the
     process (heap.keep_block_memory) so each block reuses the previous block's memory.
     ``free`` (D, 9) bool, model 9 only: the parameters fitted; the others are held at nominal
-    (models/held.py, stacked_norm.fit9)."""
+    (models/held.py, stacked_norm.fit9).  ``boards_last``: gf as (3, P, D) (models.screening's
+    copy), so model 12 does not transpose it again."""
     keep_block_memory()
     gf = np.asarray(gf, dtype=float)
     D, P, _ = gf.shape
@@ -389,7 +391,7 @@ def fit_stacked(gf: ArrayLike, ref: ArrayLike | None, model: str, noise_g: Array
             raise DataError(f"model {model} needs pose references (ref_x/ref_y/ref_z or pitch/roll); "
                             "model 9 needs none")
         if model == "12":
-            return sel, fit12(gf[sel], gref, n)
+            return sel, fit12(gf[sel], gref, n, None if boards_last is None else boards_last[:, :, sel])
         return sel, fit_linear_batch(gf[sel], gref[sel], model, n)
 
     out = _Assembler(D, gf)
