@@ -372,3 +372,60 @@ def test_dictionary_text_trims_what_arrow_trims():
     arrow = pc.utf8_trim_whitespace(pa.array(cells)).to_pylist()
     assert arrow == [c.strip() for c in cells] == np.strings.strip(np.array(cells)).tolist()
     assert sum(c != "B1" for c in arrow) > 1_000_000  # most characters are kept: the check has teeth
+
+
+def test_serials_are_compared_as_text_across_blocks(tmp_path):
+    """The CSV reader keeps a block's serials as codes into that block's table of serials, and
+    compares texts where codes change: a serial that comes back later is a new board, a board
+    whose rows span blocks is one board, and cells equal once trimmed are one serial, whichever
+    block each row is parsed in (checked against the rows read one by one)."""
+    pytest.importorskip("pyarrow.csv", reason="the optional pyarrow is not installed")
+    from accelcal_station.data.lotfile import open_lot
+
+    ref = np.asarray(references(get_design("an4399-8")))
+    rows, names = [], ["B1", "B2", "B1", " B3", "B3 ", "B3", "B4"] * 40  # B1 again: a new board
+    for i, s in enumerate(names):
+        for p, r in enumerate(ref):
+            rows.append(f"{s},p{p},{r[0] * 4096 + i:.1f},{r[1] * 4096:.1f},{r[2] * 4096:.1f}")
+    lot = tmp_path / "lot.csv"
+    lot.write_text("# units: counts\n# counts_per_g: 4096\nserial,pose,x,y,z\n" + "\n".join(rows) + "\n")
+    want_serials, want_sizes = [], []  # consecutive rows of one trimmed serial: one board
+    for s in names:
+        for _ in ref:
+            if want_serials and want_serials[-1] == s.strip():
+                want_sizes[-1] += 1
+            else:
+                want_serials.append(s.strip())
+                want_sizes.append(1)
+    assert len(want_serials) < len(names)  # " B3", "B3 ", "B3" are one board: the check has teeth
+    for block in (1 << 10, 4 << 10, 1 << 20):  # rows of a board split across blocks, and none
+        serials, sizes, xs = [], [], []
+        for ch in open_lot(lot, chunk_boards=7, block_bytes=block)[1]:
+            serials += ch.serials
+            sizes += np.diff(ch.starts).tolist()
+            xs.append(ch.cols["x"])
+        assert serials == want_serials and sizes == want_sizes, block
+        assert np.array_equal(np.concatenate(xs), [float(r.split(",")[2]) for r in rows])
+
+
+def test_one_cpu_reads_without_the_read_ahead_thread_to_the_same_results(tmp_path):
+    """On one CPU the CSV reader parses in the calling thread (a read-ahead thread could overlap
+    nothing): `accelcal batch` in a process pinned to one CPU writes the same results table, byte
+    for byte, as this process (a read-ahead thread where it has two CPUs or more)."""
+    pytest.importorskip("pyarrow.csv", reason="the optional pyarrow is not installed")
+    import os
+    import subprocess
+    import sys
+
+    if not hasattr(os, "sched_setaffinity"):
+        pytest.skip("no CPU affinity on this platform (Linux only)")
+    lot = write_lot(tmp_path / "lot.csv", 3000, seed=11)
+    recalibrate_lot(lot, tmp_path / "here.csv", "12", chunk_boards=500)
+    code = ("import os, sys; os.sched_setaffinity(0, {min(os.sched_getaffinity(0))}); "
+            "from accelcal_station.models.threads import usable_cpus; assert usable_cpus() == 1; "
+            "from accelcal_station.cli import main; sys.argv[0] = 'accelcal'; main()")
+    done = subprocess.run([sys.executable, "-c", code, "batch", str(lot), "--model", "12", "--chunk-boards", "500",
+                           "--out", str(tmp_path / "pinned.csv")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "3000 of 3000 boards" in done.stdout
+    assert (tmp_path / "pinned.csv").read_bytes() == (tmp_path / "here.csv").read_bytes()
