@@ -115,19 +115,26 @@ def main(argv: list[str] | None = None) -> int:
             row("twin fit LOT (boards)", n, *measure(["twin", "fit", str(lot), "-o", str(work / "twin.yaml")]),
                 limit=TWIN_LIMIT_MB)
             Path(lot).unlink()
-        peaks = []
-        for n in [int(s) for s in a.lot_boards.split(",") if s.strip()]:
-            from accelcal_station.lot.synthetic import write_lot
+        lot_peaks(work, [int(s) for s in a.lot_boards.split(",") if s.strip()])
+    print(f"load average at end {os.getloadavg()[0]:.1f}")
+    return 0
 
-            lot = write_lot(work / f"lot-{n}.csv", n, "an4399-8", seed=35)
+
+def lot_peaks(work: Path, sizes: list[int]) -> None:
+    """`accelcal batch` on CSV and Parquet lots of each size: its peak RSS must not grow with the lot."""
+    from accelcal_station.data.lotarrow import arrow_available
+    from accelcal_station.lot.synthetic import write_lot
+
+    for kind in ("csv", "parquet") if arrow_available() else ("csv",):
+        peaks = []
+        for n in sizes:
+            lot = write_lot(work / f"lot-{n}.{kind}", n, "an4399-8", seed=35, parquet=kind == "parquet")
             status, dt, mb = measure(["batch", str(lot), "--out", str(work / "r.csv"), "--model", "12"])
-            row("batch LOT --out R.csv (boards)", n, status, dt, mb)
+            row(f"batch LOT.{kind} --out R.csv (boards)", n, status, dt, mb)
             peaks.append(mb)
             lot.unlink()
         if len(peaks) > 1:
-            print(f"batch LOT peak RSS, largest / smallest lot: {max(peaks) / min(peaks):.3f}")
-    print(f"load average at end {os.getloadavg()[0]:.1f}")
-    return 0
+            print(f"batch LOT.{kind} peak RSS, largest / smallest lot: {max(peaks) / min(peaks):.3f}")
 
 
 if __name__ == "__main__":

@@ -82,7 +82,7 @@ def read_parquet_chunks(path: str | Path, chunk_boards: int = 4096) -> tuple[dic
     path = Path(path)
     f = open_regular(path, "a Parquet lot file")
     try:
-        pf = pq.ParquetFile(f)
+        pf = pq.ParquetFile(f, pre_buffer=False)  # pre-buffered column chunks pile up: RSS grew with the lot
         names = check_schema(pf.schema_arrow, path)
         for i in range(pf.metadata.num_row_groups):
             size = pf.metadata.row_group(i).total_byte_size
