@@ -180,7 +180,7 @@ def test_resources_prints_peaks_under_the_limit(capsys):
         "simulate six-face --raw (samples)"] * 2 + ["twin fit LOT (boards)", "batch LOT.csv --out R.csv (boards)"] + (
         ["batch LOT.parquet --out R.csv (boards)"] if arrow_available() else [])  # Parquet: the optional pyarrow
     # every command succeeded and its own peak (a fresh Python with numpy: tens of MB) was measured
-    twin = rows.pop(9)
+    twin = rows.pop(8)
     assert all(r[-1] == "0" and 20 < number(r[2]) < 200 and r[3] == "under 200" for r in rows), rows
     # twin fit against its own stated bound (254 MB at 100,000 boards)
     assert twin[-1] == "0" and 20 < number(twin[2]) < 254 and twin[3] == "under 254", twin
