@@ -309,3 +309,25 @@ def test_fit_batch_does_not_depend_on_its_threads(model):
                      "stderr_W", "crossval_by_orientation_rms_g", "readings_g", "ok", "poses_apart"):
             assert np.array_equal(getattr(other, name), getattr(runs[0], name), equal_nan=name != "ok"), name
         assert other.messages == runs[0].messages and other.held == runs[0].held
+
+
+def test_absurd_coefficients_clears_a_sane_stack_as_board_by_board():
+    """absurd_coefficients clears a whole stack by a few reductions when every W - I entry is
+    within 0.8 / 3 and every offset within its limit; that must be what board-by-board judging
+    says: stacks up to that edge (laid out as the stacked fitters lay out W, boards last, and
+    plainly) are judged both ways (a board past every limit appended forces board by board)."""
+    from accelcal_station.models.sanity import OFFSET_MAX_G, _all_sane, absurd_coefficients
+
+    rng = np.random.default_rng(5)
+    for scale in (0.01, 0.2, 0.8 / 3, 0.3, 0.6):
+        W = np.eye(3) + rng.uniform(-scale, scale, (2000, 3, 3))
+        V = rng.uniform(-OFFSET_MAX_G, OFFSET_MAX_G, (2000, 3)) * min(1.0, scale * 4)
+        for Wl in (W, np.ascontiguousarray(W.transpose(2, 1, 0)).transpose(2, 1, 0)):
+            fast = absurd_coefficients(Wl, V).mask
+            one_by_one = absurd_coefficients(np.concatenate([Wl, [np.full((3, 3), np.nan)]]),
+                                             np.concatenate([V, [[5.0, 0, 0]]])).mask
+            assert one_by_one[-1] and np.array_equal(fast, one_by_one[:-1]), scale
+            if _all_sane(Wl, V):
+                assert scale <= 0.8 / 3 and not fast.any()
+    assert not _all_sane(np.eye(3)[None] * 1.3, np.zeros((1, 3)))
+    assert not _all_sane(np.eye(3)[None], np.ones((1, 3)) * 2)

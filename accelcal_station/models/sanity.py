@@ -158,6 +158,8 @@ def absurd_coefficients(W: np.ndarray, V: np.ndarray) -> Refusal:
     offset over OFFSET_MAX_G (the first that applies names the reason)."""
     W, V = np.asarray(W, dtype=float), np.asarray(V, dtype=float)
     D = len(W)
+    if _all_sane(W, V):  # the usual stack: a few reductions over it clear every board
+        return Refusal(np.zeros(D, dtype=bool), lambda d: "")
     # boards last (9, D) and (3, D), copied once: every step below is a few long contiguous rows,
     # no reduction over a short axis and no strided pass
     Wt, Vt = np.ascontiguousarray(W.reshape(D, 9).T), np.ascontiguousarray(V.T)
@@ -191,6 +193,23 @@ def absurd_coefficients(W: np.ndarray, V: np.ndarray) -> Refusal:
             f"W condition number {cond[d]:.3g} > {COND_MAX:g}: degenerate pose set",
             f"offset {offset[d]:.3g} g > {OFFSET_MAX_G:g} g: absurd calibration"][code[d] - 1]
     return Refusal(code > 0, words)
+
+
+def _all_sane(W: np.ndarray, V: np.ndarray) -> bool:
+    """True when no board of W (D, 3, 3), V (D, 3) can be absurd (absurd_coefficients's tests,
+    over the whole stack at once): every entry of W - I within 0.8 / 3, so every gain within
+    GAIN_RANGE, every cross-axis term under CROSS_MAX and ||W - I||_F <= 0.8, so cond(W) <=
+    (1 + 0.8) / (1 - 0.8) = 9 < COND_MAX; every offset within OFFSET_MAX_G.  A NaN or an
+    infinity fails a comparison: the boards are then judged one by one."""
+    if not len(W):
+        return True
+    d = W - _EYE3  # in W's own memory order (the stacked fitters' W is boards last): no copy, no per-board row
+    with np.errstate(invalid="ignore"):
+        return bool(max(d.max(), -d.min()) <= 0.8 / 3 and max(V.max(), -V.min()) <= OFFSET_MAX_G)
+
+
+_EYE3 = np.eye(3)
+assert GAIN_RANGE[0] <= 1 - 0.8 / 3 and GAIN_RANGE[1] >= 1 + 0.8 / 3 and CROSS_MAX >= 0.8 / 3 and COND_MAX > 9
 
 
 def absurd_norm_model(W: np.ndarray, norm_error_g: np.ndarray) -> Refusal:
