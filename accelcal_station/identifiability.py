@@ -87,6 +87,12 @@ BLOCK_ELEMS = 1 << 19  # pose-pair cosines held at once (4 MB of float64): memor
 WINDOWED_FROM = 2048  # poses per board from which pairs are looked for in a sorted window only
 
 
+def distinct_count(first: np.ndarray) -> np.ndarray:
+    """(D,) distinct orientations of each board from its first_of_orientation (D, P): P for
+    every board when every pose is a first (the usual stack: no per-board sum over a short axis)."""
+    return np.full(first.shape[:-1], first.shape[-1]) if first.all() else first.sum(axis=-1)
+
+
 def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG, apart: np.ndarray | None = None
                          ) -> np.ndarray:
     """(D, P) bool: pose p is the first of its orientation (no earlier pose q < p with
@@ -333,7 +339,7 @@ def assess_batch(gf: ArrayLike, model: str, first: np.ndarray | None = None, sur
     model = str(model)
     k = COEFFS[model]
     first = first_of_orientation(gf) if first is None else first
-    distinct = first.sum(axis=-1)
+    distinct = distinct_count(first)
     if sure is not None and np.any(sure):
         ok = np.array(sure, dtype=bool, copy=True)
         rest = np.flatnonzero(~ok)

@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..identifiability import DISTINCT_TOL_DEG, _centre, first_of_orientation
+from ..identifiability import DISTINCT_TOL_DEG, _centre, distinct_count, first_of_orientation
 from .result import BatchFit
 
 MAX_FOLDS = 256  # refits per board
@@ -67,7 +67,7 @@ def crossval_by_orientation(gf: np.ndarray, ref: np.ndarray | None, model: str, 
     D, P, _ = gf.shape
     rms, ok = np.array(loo_rms, dtype=float, copy=True), np.array(loo_ok, dtype=bool, copy=True)
     first = first_of_orientation(gf) if first is None else first  # cheap, blocked: most lots revisit nothing
-    distinct = first.sum(axis=1)
+    distinct = distinct_count(first)
     rep = np.flatnonzero(distinct < P)
     if not rep.size:
         return rms, ok, distinct

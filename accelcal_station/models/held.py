@@ -48,7 +48,7 @@ from functools import cache
 import numpy as np
 
 from ..errors import UnderdeterminedError
-from ..identifiability import REL_SV_MIN, _centre, _design, assess, assess_batch, first_of_orientation
+from ..identifiability import REL_SV_MIN, _centre, _design, assess, assess_batch, distinct_count, first_of_orientation
 from .gravity_norm import PARAM_NAMES
 from .linear import param_names
 from .result import BatchFit, Held  # Held: a fit result's record, re-exported here
@@ -137,7 +137,7 @@ def _plan9(gf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     first = first_of_orientation(gf)
     X = _design(gf, "9")[:, 0] * first[..., None]  # repeats zeroed: distinct orientations only
     G = np.einsum("dpi,dpj->dij", X, X)
-    distinct = first.sum(axis=1)
+    distinct = distinct_count(first)
     free = np.ones((D, 9))
     order = np.full((D, 2), -1)
     code = (distinct < 9).astype(int)  # fewer distinct orientations than parameters: refused
