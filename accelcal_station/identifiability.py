@@ -129,60 +129,6 @@ def first_of_orientation(gf: np.ndarray, tol_deg: float = DISTINCT_TOL_DEG, apar
     return first
 
 
-APART_MARGIN_RAD = 1e-6  # far above the rounding of a cosine (1e-16), far below any pose's scatter
-
-
-def directions_apart(gf: np.ndarray, ref: np.ndarray | None, tol_deg: float = DISTINCT_TOL_DEG) -> np.ndarray:
-    """(D,) bool: boards whose reading directions (D, P, 3) are, for certain, pairwise more than
-    ``tol_deg`` apart, certified against their references (P, 3) or (D, P, 3) instead of
-    comparing every pair: the sphere's angle is a metric, so when each reading points within
-    delta of its own reference and the references' closest pair is theta_min apart, every two
-    readings are at least theta_min - 2 delta apart.  True only where theta_min - 2 max delta
-    clears ``tol_deg`` by APART_MARGIN_RAD; False where unsure (no references, references that
-    differ between boards, revisits in the design, a reading far off its reference, a zero or
-    non-finite reading): there the pairs are compared (``first_of_orientation``,
-    ``sanity.distinct_directions_batch``).  Every pose of a True board is the first of its
-    orientation by both definitions (``>`` or ``>=`` the cosine, centred or not where the
-    centre is 0), so the answer is theirs exactly."""
-    D, P = gf.shape[:2]
-    out = np.zeros(D, dtype=bool)
-    shared = _shared_unit(ref, D)
-    if shared is None or len(shared[0]) != P:
-        return out
-    ru = shared[1]
-    delta = 0.5 * (_closest_pair_rad(ru) - math.radians(tol_deg)) - APART_MARGIN_RAD
-    if not delta > 0:
-        return out
-    # cos(angle(x_p, r_p)) > cos(delta), as x_p . u_p > cos(delta) |x_p| (u_p the unit reference)
-    with np.errstate(over="ignore", invalid="ignore"):
-        along = np.einsum("dpk,pk->dp", gf, ru)
-        norms = np.sqrt(np.einsum("dpk,dpk->dp", gf, gf))
-        norms *= math.cos(delta)
-        return np.all(along > norms, axis=1)
-
-
-def _shared_unit(ref: np.ndarray | None, D: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """The references (P, 3) shared by all D boards and their unit directions, or None."""
-    if ref is None or D == 0:
-        return None
-    r = np.asarray(ref, dtype=float)
-    if r.ndim == 3:
-        if r.strides[0] != 0 and not np.array_equal(r, np.broadcast_to(r[0], r.shape)):
-            return None  # boards of several designs: each is computed
-        r = r[0]
-    rn = np.sqrt(np.einsum("pk,pk->p", r, r))
-    # a few poses (a fixture's design) only: the closest pair is found among P x P cosines
-    if not 2 <= len(r) <= SMALL_P or not np.all(np.isfinite(rn) & (rn > 0)):
-        return None
-    return r, r / rn[:, None]
-
-
-def _closest_pair_rad(ru: np.ndarray) -> float:
-    """The angle (rad) of the closest pair of unit directions ru (P, 3), P <= SMALL_P (a P x P matrix)."""
-    cosines = np.clip(ru @ ru.T, -1.0, 1.0)[np.triu_indices(len(ru), 1)]
-    return float(np.arccos(np.max(cosines)))
-
-
 def _first_small(u: np.ndarray, cos: float) -> np.ndarray:
     """``first_of_orientation`` of a block of boards' (D, P, 3) unit directions, P small: pose p
     against every earlier pose of all D boards at once (u_p . u_q summed over x, y, z)."""
@@ -501,5 +447,5 @@ def describe_terms(A: np.ndarray, labels: list[tuple[str, str]], ideal: np.ndarr
 
 
 __all__ = ["DISTINCT_TOL_DEG", "Identifiability", "TermsCounts", "TermsDescription", "assess",
-           "assess_batch", "describe_terms", "directions_apart", "first_of_orientation", "require",
+           "assess_batch", "describe_terms", "first_of_orientation", "require",
            "worst_parameter"]

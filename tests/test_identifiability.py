@@ -121,23 +121,31 @@ def test_least_certain_parameter_tie_is_not_broken_by_float_noise():
     assert worst_parameter({"W": W, "V": np.full(3, 1e-4), "Gamma": np.zeros(3)}, "12")[0] == "W_zz"
 
 
+def _off_design(design: str, rng: np.random.Generator, D: int = 3000) -> tuple[np.ndarray, np.ndarray]:
+    """The references (P, 3) of ``design`` and D boards' readings (D, P, 3) in g, off it by small
+    and large gains and offsets (up to 1 g: a centre far from 0)."""
+    from accelcal_station.fixtures.designs import get_design, references
+
+    ref = np.asarray(references(get_design(design)))
+    W = np.eye(3) + rng.choice([0.01, 0.2, 0.6], (D, 1, 1)) * rng.standard_normal((D, 3, 3))
+    V = rng.choice([0.02, 0.3, 1.0], (D, 1)) * rng.standard_normal((D, 3))
+    return ref, np.einsum("dij,dpj->dpi", np.linalg.inv(W), ref - V[:, None, :]) + 1e-3 * rng.standard_normal(
+        (D, len(ref), 3))
+
+
 @pytest.mark.parametrize("design", ["an4399-8", "six-face", "nine-position", "optimal-12"])
 def test_screen_certificates_give_the_pairwise_answers(design):
     """models.screening.screen certifies boards from their references without comparing poses; where it
     does, first_of_orientation, assess_batch and sanity.distinct_directions_batch must give exactly
     what comparing every pair and forming every design gives: boards off their design by small and
     large gains, offsets far from 0 (a centre), revisits and flattened axes included."""
-    from accelcal_station.fixtures.designs import get_design, references
-    from accelcal_station.identifiability import assess_batch, directions_apart, first_of_orientation
+    from accelcal_station.identifiability import assess_batch, first_of_orientation
     from accelcal_station.models.sanity import distinct_directions_batch
-    from accelcal_station.models.screening import screen
+    from accelcal_station.models.screening import directions_apart, screen
 
     rng = np.random.default_rng(7)
-    ref = np.asarray(references(get_design(design)))
-    D, P = 3000, len(ref)
-    W = np.eye(3) + rng.choice([0.01, 0.2, 0.6], (D, 1, 1)) * rng.standard_normal((D, 3, 3))
-    V = rng.choice([0.02, 0.3, 1.0], (D, 1)) * rng.standard_normal((D, 3))
-    x = np.einsum("dij,dpj->dpi", np.linalg.inv(W), ref - V[:, None, :]) + 1e-3 * rng.standard_normal((D, P, 3))
+    ref, x = _off_design(design, rng)
+    D, P = x.shape[:2]
     rv = rng.integers(0, D, 150)
     x[rv, 1] = x[rv, 0] * (1 + 0.01 * rng.standard_normal((150, 1)))  # a revisit
     fl = rng.integers(0, D, 150)
@@ -161,16 +169,12 @@ def test_model_9_screen_certifies_from_the_boards_own_consensus(design):
     first_of_orientation and assess_batch must give exactly the pairwise answers: boards of another
     design in the stack, raw offsets far from 0 (unsigned counts), revisits, flattened axes, a zero
     reading and odd boards among the first ones (the consensus's sample) included."""
-    from accelcal_station.fixtures.designs import get_design, references
     from accelcal_station.identifiability import assess_batch, first_of_orientation
     from accelcal_station.models.screening import screen
 
     rng = np.random.default_rng(9)
-    ref = np.asarray(references(get_design(design)))
-    D, P = 3000, len(ref)
-    W = np.eye(3) + rng.choice([0.01, 0.2, 0.6], (D, 1, 1)) * rng.standard_normal((D, 3, 3))
-    V = rng.choice([0.02, 0.3, 1.0], (D, 1)) * rng.standard_normal((D, 3))
-    x = np.einsum("dij,dpj->dpi", np.linalg.inv(W), ref - V[:, None, :]) + 1e-3 * rng.standard_normal((D, P, 3))
+    ref, x = _off_design(design, rng)
+    D, P = x.shape[:2]
     other = rng.integers(0, D, 200)
     x[other] = x[other][:, rng.permutation(P)]  # the same poses in another order: another design
     x[rng.integers(0, D, 100)] += 3.0  # unsigned counts: far from 0

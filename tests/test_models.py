@@ -331,3 +331,40 @@ def test_absurd_coefficients_clears_a_sane_stack_as_board_by_board():
                 assert scale <= 0.8 / 3 and not fast.any()
     assert not _all_sane(np.eye(3)[None] * 1.3, np.zeros((1, 3)))
     assert not _all_sane(np.eye(3)[None], np.ones((1, 3)) * 2)
+
+
+def test_model_12_fit_beside_its_front_gives_the_same_bits():
+    """With two threads, fit_batch starts model 12's fit beside its front (the fit does not depend
+    on the plan: model 12 holds no term); every figure must be what one thread gives, refused and
+    revisiting boards included, and the fit must have run on its own thread (seen by thread name)."""
+    import threading
+
+    from accelcal_station.fixtures.designs import get_design, references
+    from accelcal_station.models.fitting import OVERLAP_BOARDS
+
+    rng = np.random.default_rng(12)
+    ref = np.asarray(references(get_design("an4399-8")))
+    D = OVERLAP_BOARDS + 777
+    W = np.eye(3) + 0.01 * rng.standard_normal((D, 3, 3))
+    x = np.einsum("dij,dpj->dpi", np.linalg.inv(W), ref - 0.02 * rng.standard_normal((D, 1, 3)))
+    x += 1e-3 * rng.standard_normal(x.shape)
+    x[:20, :, 2] *= 0.01  # refused: a flattened axis
+    x[20:40, 1] = x[20:40, 0]  # a revisit
+    one = fit_batch(x, ref, "12", workers=1)
+    names: set[str] = set()
+
+    def seen(*_: object) -> None:
+        names.add(threading.current_thread().name)
+
+    before = threading.gettrace()
+    threading.settrace(seen)  # called in every thread started from here on
+    try:
+        two = fit_batch(x, ref, "12", workers=2)
+    finally:
+        threading.settrace(before)  # type: ignore[arg-type]
+    assert any(n.startswith("accelcal-fit12") for n in names), names
+    assert not one.ok[:20].any() and one.ok[40:].all()
+    for name in ("W", "V", "residuals_g", "residual_rms_g", "crossval_rms_g", "condition_number", "stderr_W",
+                 "crossval_by_orientation_rms_g", "ok", "poses_apart"):
+        assert np.array_equal(getattr(two, name), getattr(one, name), equal_nan=name != "ok"), name
+    assert two.messages == one.messages and two.held == one.held

@@ -19,12 +19,12 @@ from ..acceptance.reasons import Reason
 from ..data.lotfile import LotChunk, board_arrays, lot_scale, nonfinite_rows, open_lot
 from ..data.results_table import ChunkFit, ResultsWriter
 from ..errors import AccelcalError, DataError
-from ..identifiability import directions_apart
 from ..models.fitting import check_model, fit_batch
 from ..models.gravity_norm import nominal_scale
 from ..models.held import Held
 from ..models.result import BatchFit
 from ..models.sanity import distinct_directions_batch
+from ..models.screening import directions_apart
 
 
 class SkippedJson(TypedDict):

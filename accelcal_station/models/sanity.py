@@ -44,7 +44,7 @@ def distinct_directions_batch(readings_g: np.ndarray, tol_deg: float = DISTINCT_
                               apart: np.ndarray | None = None) -> np.ndarray:
     """``distinct_directions`` of each of B boards' (B, P, 3) readings, the same greedy
     clustering stepped over the poses for all boards at once; (B,) counts.  ``apart`` (B,):
-    identifiability.directions_apart of these readings: those boards' P poses are all distinct
+    models.screening.directions_apart of these readings: those boards' P poses are all distinct
     (no pair is compared), the others are clustered."""
     x = np.asarray(readings_g, dtype=float)
     if apart is not None and x.ndim == 3 and np.any(apart):
