@@ -54,8 +54,8 @@ FLOORS: dict[str, tuple[float, str]] = {
                       "0.59, 0.50"),
     "batch-9": (0.45, "fourth round 0.82 / 0.79 / 0.75 / 0.80 / 0.77 (cond back 0.85: model 9 is judged by "
                       "absurd_norm_model); h35 0.47-0.66; per-board loop back 0.27, 0.24"),
-    "batch-12": (0.4, "fourth round 0.64 / 0.66 / 0.66 / 0.73 / 0.68, cond back 0.10; h35 0.51-0.87; main before "
-                      "h35 0.40, 0.24"),
+    "batch-12": (0.4, "fourth round 0.64 / 0.66 / 0.66 / 0.73 / 0.68, then with the fit beside the front 0.71 / "
+                      "0.74 / 0.73, cond back 0.10; h35 0.51-0.87; main before h35 0.40, 0.24"),
     "batch-15": (0.7, "fourth round 1.20 / 1.18 / 1.21 / 1.18 / 1.25, cond back 0.51; h35 0.91-1.07"),
     "cli": (0.45, "fourth round 0.84 / 0.83 / 0.84; h35 0.43 (load 12: below) / 0.62-0.84; h35b 0.67-0.88; every "
                   "command imported at start (before issue 35) 0.099"),
