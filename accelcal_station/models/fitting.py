@@ -185,9 +185,10 @@ class _Front:
         # be fitted on its references instead (an absurd reading)
         overlap = self.model == "12" and len(gf) >= OVERLAP_BOARDS and rows is None and self.threads > 1 \
             and max(gf.max(), -gf.min()) <= 1e6  # no reading that could overflow the fit (it would be refitted)
+        if not overlap:  # one board, a lot chunk, one CPU: no executor at all
+            return self._front(gf, x, nz, rows, checked, None)
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="accelcal-fit12") as ex:
-            early = ex.submit(_fit12, gf, self._refs(rows), x, nz, self.workers) if overlap else None
-            return self._front(gf, x, nz, rows, checked, early)
+            return self._front(gf, x, nz, rows, checked, ex.submit(_fit12, gf, self._refs(rows), x, nz, self.workers))
 
     def _front(self, gf: np.ndarray, x: np.ndarray, nz: np.ndarray | None, rows: slice | None,
                checked: bool, early: Future[BatchFit] | None) -> BatchFit:
