@@ -156,6 +156,21 @@ def test_bench_lot_prints_every_figure(capsys):
     assert all(float(v.replace(",", "")) >= 0 for h in heap for v in h[1:])
 
 
+@pytest.mark.skipif(not hasattr(__import__("os"), "sched_setaffinity"),
+                    reason="pinning a run to one core needs os.sched_setaffinity (Linux)")
+def test_bench_lot_core_pins_one_core_and_prints_every_rate(capsys):
+    pytest.importorskip("pyarrow", reason="the lot path's Parquet pairs need pyarrow")
+    out = run(capsys, "bench_lot_core", "--boards", "1500", "--repeats", "2", "--formats", "csv:csv,parquet:parquet")
+    assert re.search(r"1,500 boards, model 12, one core \(CPU \d+ of \d+", out), out
+    rows = re.findall(r"^(csv -> csv|parquet -> parquet|numpy reference csv->csv) +(?!against)(.*)$", out, re.M)
+    assert [r[0] for r in rows] == ["csv -> csv", "parquet -> parquet", "numpy reference csv->csv"], out
+    for label, rest in rows:
+        figures = [float(v.replace(",", "")) for v in re.findall(r"[\d,.]+", rest)]
+        assert len(figures) == (4 if label.startswith("numpy") else 7) and all(v > 0 for v in figures), rest
+    assert re.search(r"against the numpy reference, per CPU-second, same core: [\d.]+x", out)
+    assert re.search(r"target 100,000 boards/s per core: median in process [\d,]+ \((met|NOT met)\)", out)
+
+
 def test_thermal_time_split(capsys):
     out = run(capsys, "bench_thermal_time", "--boards", "1", "--panel", "2")
     (rows,) = tables(out)
