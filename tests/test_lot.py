@@ -429,3 +429,4 @@ def test_one_cpu_reads_without_the_read_ahead_thread_to_the_same_results(tmp_pat
     assert done.returncode == 0, done.stderr
     assert "3000 of 3000 boards" in done.stdout
     assert (tmp_path / "pinned.csv").read_bytes() == (tmp_path / "here.csv").read_bytes()
+
