@@ -11,7 +11,8 @@ never stops or taints the others.  With models 6/12/15 and enough boards the jig
 rotation is estimated from all of them (jig_pose.py).  A single board is a panel of one
 (its capture: board.BoardSteps, chosen by flow.FlowPolicy).
 
-The panel's ``device:`` section (``boards``, ``spread``, seats): panel_config.py.
+The panel's ``device:`` section (``boards``, ``spread``, seats): panel_config.py.  How each
+board sits (``device.mount``, a board's own over it) and how a turned board is named: panel_mount.py.
 """
 from __future__ import annotations
 
