@@ -26,11 +26,13 @@ TURNED = ["y", "-x", "z"]
 HINT = re.compile(r"set (device(?:\.boards\[(\d+)\])?\.mount): \[([^\]]*)\]")
 
 
-def _panel(tmp_path: Path, boards: int | list[dict], config: str = "panel-sim.yaml", **device: object) -> dict:
+def _panel(tmp_path: Path, boards: int | list[dict] | None, config: str = "panel-sim.yaml",
+           **device: object) -> dict:
     cfg = yaml.safe_load((CONFIGS / config).read_text())
     cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
     del cfg["device"]["spread"]  # every board the same sensor: one truth for every fit
-    cfg["device"]["boards"] = boards
+    if boards is not None:
+        cfg["device"]["boards"] = boards
     cfg["device"].update(device)
     return cfg
 
@@ -126,3 +128,24 @@ def test_a_thermal_panel_names_a_turned_board_and_passes_with_its_mount(tmp_path
     assert _follow(cfg, text) == ["device.boards[1].mount"]
     text, boards, code = _run(cfg, tmp_path)
     assert code == 0 and {b["verdict"] for b in boards} == {"PASS"}, text
+
+
+def test_an_emulated_mma8451_behind_the_mux_turned_about_its_diagonal_is_singled_out(tmp_path):
+    """The register emulator read through the real driver over the TCA9548A: its chip turned about the
+    board's x+y+z diagonal, which the first cube-vertex pose cannot tell from two other turns; the
+    board is read on until one turn is left, named, and then fitted to the emulated sensor's truth."""
+    cfg = _panel(tmp_path, None, config="panel-mma8451-emulated.yaml")
+    diagonal = ["z", "x", "y"]  # the chip's z along the board's x, its x along y, its y along z
+    cfg["device"]["boards"][3]["simulator"] = {**cfg["device"]["simulator"], "true_mount": diagonal}
+    text, boards, _ = _run(cfg, tmp_path)
+    assert [b["verdict"] for b in boards] == ["PASS"] * 3 + ["FAIL"] + ["PASS"] * 4, text
+    (reason,) = boards[3]["reasons"]
+    assert reason.startswith("pose p1:") and "(the smallest turn that fits)" not in reason
+    assert reason.endswith("set device.boards[3].mount: [z, x, y]"), reason
+    assert _follow(cfg, text) == ["device.boards[3].mount"]
+    text, boards, code = _run(cfg, tmp_path)
+    assert code == 0 and {b["verdict"] for b in boards} == {"PASS"}, text
+    dev = cfg["device"]
+    truth = SimulatedBoard.from_config({"chip": "mma8451", "range_g": dev["range_g"],
+                                        "simulator": dev["simulator"]}).truth()
+    _fits_the_truth(boards[3:4], truth)
