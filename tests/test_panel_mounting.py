@@ -42,7 +42,7 @@ def _run(cfg: dict, tmp_path: Path) -> tuple[str, list[dict], int]:
     p.write_text(yaml.safe_dump(cfg))
     r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"])
     assert "Traceback" not in r.output, r.output
-    return r.stdout, json.loads(r.stdout)["boards"], r.exit_code
+    return r.output, json.loads(r.stdout)["boards"], r.exit_code
 
 
 def _follow(cfg: dict, text: str) -> list[str]:
@@ -89,6 +89,8 @@ def test_every_board_turned_alike_is_named_as_the_panels_device_mount(tmp_path):
     text, boards, _ = _run(cfg, tmp_path)
     assert [b["verdict"] for b in boards] == ["FAIL"] * 4
     assert all(b["reasons"][0].endswith("set device.mount: [y, -x, z]") for b in boards), text
+    # p1 alone could be the panel misplaced; at p2 the readings say every board is turned
+    assert text.count("every board reads a wrong pose at") == 1 and "at p1: the panel is not" in text
     assert _follow(cfg, text) == ["device.mount"]
     text, boards, code = _run(cfg, tmp_path)
     assert code == 0 and {b["verdict"] for b in boards} == {"PASS"}, text

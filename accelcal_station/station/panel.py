@@ -44,7 +44,7 @@ from .board import BoardSteps, Check
 from .capture import GatedCapture, WrongPose, gated_capture
 from .jig_pose import JigPoseEstimate, estimate_jig_poses
 from .panel_config import configured_serial, group_of, own_mount, panel_sections
-from .panel_mount import BoardMount, Failure, end_of_design, sort_wrong_poses
+from .panel_mount import BoardMount, Failure, end_of_design, explained, sort_wrong_poses
 from .report import RunReport, RunReportJson
 from .settings import StationConfig
 from .verdict import Stage
@@ -221,7 +221,8 @@ class Panel:
             jig.present(pose, None)
             caps, errors = self.capture_all(boards, pose, floors)
             misplaced = len(boards) > 1 and not caps and errors and all(
-                isinstance(e, WrongPose) for e in errors.values())
+                isinstance(e, WrongPose) for e in errors.values()) and not explained(
+                self.mounts, pose.reference_g, errors, self.cfg.capture.pose_tolerance_deg)
             if not misplaced:
                 break
             self.echo(f"  every board reads a wrong pose at {pose.name}: the panel is not in the planned pose")

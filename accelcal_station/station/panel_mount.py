@@ -43,6 +43,16 @@ class BoardMount:
         return self.path.split(".boards[")[0] + ".mount"
 
 
+def explained(mounts: dict[int, BoardMount], reference_g: np.ndarray, errors: dict[int, AccelcalError],
+              tolerance_deg: float) -> bool:
+    """Every board's wrong pose is one its readings so far single another mounting out for: the boards
+    are turned, not the panel misplaced (placing it again would not help)."""
+    return bool(errors) and all(
+        isinstance(e, WrongPose)
+        and isinstance(with_mounting(mounts[i].seen, reference_g, e, mounts[i].matrix, tolerance_deg), MountMismatch)
+        for i, e in errors.items())
+
+
 def sort_wrong_poses(mounts: dict[int, BoardMount], everyone: list[BoardMount], pose_name: str,
                      reference_g: np.ndarray, readings: dict[int, np.ndarray], errors: dict[int, AccelcalError],
                      read_on: bool, tolerance_deg: float) -> dict[int, Failure]:
