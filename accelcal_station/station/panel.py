@@ -213,7 +213,8 @@ class Panel:
         """Present ``pose`` and capture the panel; a board that could not be captured fails with its reason.
 
         The panel is placed once: when every board reads a wrong pose it is the panel that is
-        misplaced, and an operator is asked to place it again (up to capture.max_recaptures).
+        misplaced (unless each board's readings single another mounting out: panel_mount.explained),
+        and an operator is asked to place it again (up to capture.max_recaptures).
         ``read_on`` (the design's poses): a board whose wrong pose another mounting may explain is
         read on through the next poses (panel_mount.py; ``end_design`` ends it).
         """
