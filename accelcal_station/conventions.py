@@ -283,10 +283,11 @@ def _axis_name(v: ArrayLike) -> str:
 
 
 def mount_hint(expected_board: ArrayLike, measured: ArrayLike, mount: ArrayLike | None = None,
-               tolerance_deg: float = 15.0) -> str | None:
+               tolerance_deg: float = 15.0, key: str = "device.mount") -> str | None:
     """Name the mounting that fits the readings when it is not ``mount`` (None when ``mount`` fits
     or none of the 24 does): "reads +y where the pose expects +x: the board looks turned 90 deg
-    about z; set device.mount: [y, -x, z]"."""
+    about z; set device.mount: [y, -x, z]" (``key``: the config key that sets it, e.g. a panel
+    board's ``device.boards[2].mount``)."""
     P0 = np.eye(3) if mount is None else np.asarray(mount, dtype=float)
     r = np.asarray(expected_board, dtype=float).reshape(-1, 3)
     m = np.asarray(measured, dtype=float).reshape(-1, 3)
@@ -299,4 +300,4 @@ def mount_hint(expected_board: ArrayLike, measured: ArrayLike, mount: ArrayLike 
     turn = mount_turn_words(P @ P0.T)
     looks = f"the board looks {turn}" if unique else f"the board looks {turn} (the smallest turn that fits)"
     return (f"reads {reads} where the pose{'s' if len(wrong) > 1 else ''} expect{'' if len(wrong) > 1 else 's'} "
-            f"{wants}: {looks}; set device.mount: [{', '.join(mount_label(P))}]")
+            f"{wants}: {looks}; set {key}: [{', '.join(mount_label(P))}]")

@@ -126,11 +126,3 @@ def test_thermal_plan_reads_on_until_the_mounting_is_singled_out(tmp_path):
     cfg["device"]["mount"] = ["z", "x", "y"]
     r = _run(cfg, tmp_path)
     assert r.exit_code == 0 and "PASS board" in r.output, r.output
-
-
-def test_a_panel_says_it_does_not_read_mount_rather_than_ignoring_it(tmp_path):
-    cfg = yaml.safe_load((CONFIGS / "panel-sim.yaml").read_text())
-    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
-    cfg["device"]["mount"] = TURNED
-    r = _run(cfg, tmp_path)
-    assert r.exit_code == 2 and "device.mount: a panel does not read device.mount yet" in r.output, r.output

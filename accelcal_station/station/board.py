@@ -61,7 +61,7 @@ class BoardSteps:
         self.progress = progress
         self.live_reading = live_reading  # an operator jig may show the live reading (FlowPolicy.live_reading)
         # how the chip sits on the board: the jig and the words place the board, the chip reads mount @ r
-        # (a panel refuses device.mount: panel_config.panel_sections)
+        # (a panel's board: its own, set by panel.Panel.build)
         self.mount = mount_matrix(config.device.mount) if config.device.mount else np.eye(3)
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # (pose's r in board axes, mean reading) so far
         self.samples_read = 0

@@ -190,13 +190,16 @@ def wait_still(driver: Driver, settings: CaptureSettings) -> int:
 
 class WrongPose(DeviceError):
     """The board is not in the planned pose; names the face it is actually on (the face whose
-    axis points up: a chip reads +1 g on the axis pointing away from the Earth)."""
+    axis points up: a chip reads +1 g on the axis pointing away from the Earth).  ``mount``: the
+    mounting the hint names (None without one)."""
 
-    def __init__(self, expected_g: ArrayLike, measured: ArrayLike, angle: float, hint: str | None = None) -> None:
+    def __init__(self, expected_g: ArrayLike, measured: ArrayLike, angle: float, hint: str | None = None,
+                 mount: np.ndarray | None = None) -> None:
         self.expected_g = np.asarray(expected_g, dtype=float)
         self.measured = np.asarray(measured, dtype=float)
         self.angle = angle
         self.hint = hint
+        self.mount = mount
         super().__init__(
             f"board is {angle:.0f} deg from the planned pose: it is on '{nearest_face(measured)}', "
             f"the plan wants '{nearest_face(expected_g)}'" + (f"; {hint}" if hint else ""))
@@ -206,15 +209,26 @@ class MountMismatch(WrongPose):
     """The readings of the first poses fit one other mounting of the chip (device.mount) exactly."""
 
 
-def with_mounting(seen: list[tuple[np.ndarray, np.ndarray]], reference_g: np.ndarray, e: WrongPose,
-                  mount: np.ndarray, tolerance_deg: float) -> WrongPose:
+# what a board has read so far: (the pose's expected output in board axes, the mean reading)
+Seen = list[tuple[np.ndarray, np.ndarray]]
+
+
+def with_mounting(seen: Seen, reference_g: np.ndarray, e: WrongPose, mount: np.ndarray, tolerance_deg: float,
+                  key: str = "device.mount") -> WrongPose:
     """A wrong pose, with the mounting that fits this and the poses captured so far (``seen``: their
     expected and measured readings) when it is not device.mount: a MountMismatch once the readings
     single it out."""
-    r = np.array([o[0] for o in seen] + [reference_g])
-    m = np.array([o[1] for o in seen] + [e.measured])
-    hint = mount_hint(r, m, mount, tolerance_deg)
+    return named_mounting([*seen, (reference_g, e.measured)], e, mount, tolerance_deg, key)
+
+
+def named_mounting(seen: Seen, e: WrongPose, mount: np.ndarray, tolerance_deg: float,
+                   key: str = "device.mount") -> WrongPose:
+    """``e`` with the mounting that fits every reading of ``seen`` (``e``'s own among them) when it is
+    not ``mount``, and ``key``, the config line that sets it; ``e`` itself when none of the 24 fits."""
+    r = np.array([o[0] for o in seen])
+    m = np.array([o[1] for o in seen])
+    hint = mount_hint(r, m, mount, tolerance_deg, key)
     if hint is None:
         return e
-    unique = fit_mount(r, m)[2]
-    return (MountMismatch if unique else WrongPose)(e.expected_g, e.measured, e.angle, hint)
+    P, _, unique = fit_mount(r, m)
+    return (MountMismatch if unique else WrongPose)(e.expected_g, e.measured, e.angle, hint, P)

@@ -11,7 +11,8 @@ never stops or taints the others.  With models 6/12/15 and enough boards the jig
 rotation is estimated from all of them (jig_pose.py).  A single board is a panel of one
 (its capture: board.BoardSteps, chosen by flow.FlowPolicy).
 
-The panel's ``device:`` section (``boards``, ``spread``, seats): panel_config.py.
+The panel's ``device:`` section (``boards``, ``spread``, seats): panel_config.py.  How each
+board sits (``device.mount``, a board's own over it) and how a turned board is named: panel_mount.py.
 """
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ import numpy as np
 from ..acceptance.reasons import Reason
 from ..calibration import Calibration
 from ..config.schema import DeviceSection, JigSection
+from ..conventions import mount_matrix
 from ..drivers.base import Clock, Driver
 from ..drivers.factory import make_driver
 from ..drivers.tca9548a import MuxBuses
@@ -41,7 +43,8 @@ from ..session import PoseRecord, Session
 from .board import BoardSteps, Check
 from .capture import GatedCapture, WrongPose, gated_capture
 from .jig_pose import JigPoseEstimate, estimate_jig_poses
-from .panel_config import configured_serial, group_of, panel_sections
+from .panel_config import configured_serial, group_of, own_mount, panel_sections
+from .panel_mount import BoardMount, Failure, end_of_design, explained, sort_wrong_poses
 from .report import RunReport, RunReportJson
 from .settings import StationConfig
 from .verdict import Stage
@@ -94,6 +97,7 @@ class PanelBoard:
     open_: bool = False
     closed: bool = False
     seat: np.ndarray = field(default_factory=lambda: np.eye(3))
+    mount: BoardMount = field(default_factory=lambda: BoardMount(np.eye(3), "device"))
 
     @property
     def active(self) -> bool:
@@ -135,12 +139,14 @@ class Panel:
         self._buses: MuxBuses = {}  # one MuxBus per (I2C bus, mux address), shared by its boards
         self.estimate: JigPoseEstimate | None = None
         self.timing: PanelTiming = {}
+        self.mounts: dict[int, BoardMount] = {}  # every board's mounting (panel_mount.py), by index
 
     # -- building -------------------------------------------------------------------
     def build(self, steps: Callable[[], BoardSteps], report: Callable[[], RunReport], single: bool
               ) -> list[PanelBoard]:
         """The boards, each with its own steps and report; ``single``: the config's one board (its
-        device section as given, device.mount allowed), else device.boards (panel_config.py)."""
+        device section as given), else device.boards (panel_config.py), each board with its own
+        mounting (device.mount, its own device.boards[i].mount over it: panel_mount.py)."""
         cfg = self.cfg
         sections = [(cfg.device, "device")] if single else panel_sections(cfg.device)
         if self.drivers is not None and len(self.drivers) != len(sections):
@@ -150,8 +156,12 @@ class Panel:
             st, rep = steps(), report()
             seat = np.eye(3) if single else board_seat(sec, path)  # takes the seat's keys from the section
             driver = self.drivers[i] if self.drivers is not None else make_driver(sec, path, self._buses)
-            out.append(PanelBoard(i, sec, path, group_of(sec, i), st, rep, driver, seat=seat))
+            if not single:  # the one-board run's steps read device.mount themselves
+                st.mount = mount_matrix(sec.mount) if sec.mount else np.eye(3)
+            mount = BoardMount(st.mount, path, own=not single and own_mount(cfg.device, i))
+            out.append(PanelBoard(i, sec, path, group_of(sec, i), st, rep, driver, seat=seat, mount=mount))
             rep.serial = "" if single else configured_serial(sec)
+        self.mounts = {b.index: b.mount for b in out}
         return out
 
     def make_jig(self, live: list[PanelBoard]) -> Jig:
@@ -162,7 +172,7 @@ class Panel:
     def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None
                      ) -> tuple[GatedCapture | None, AccelcalError | None]:
         try:
-            return gated_capture(b.driver, self.cfg.capture, pose.reference_g, floor), None
+            return gated_capture(b.driver, self.cfg.capture, b.steps.mount @ pose.reference_g, floor), None
         except AccelcalError as e:  # WrongPose, not still, NACK...: this board's, never the panel's
             return None, e
 
@@ -198,42 +208,61 @@ class Panel:
         return caps, errors
 
     def present_and_capture(self, boards: list[PanelBoard], jig: Jig, pose: PoseSpec,
-                             floors: dict[int, np.ndarray | None] | None = None) -> dict[int, GatedCapture]:
+                            floors: dict[int, np.ndarray | None] | None = None, read_on: bool = False
+                            ) -> dict[int, GatedCapture]:
         """Present ``pose`` and capture the panel; a board that could not be captured fails with its reason.
 
         The panel is placed once: when every board reads a wrong pose it is the panel that is
-        misplaced, and an operator is asked to place it again (up to capture.max_recaptures).
+        misplaced (unless each board's readings single another mounting out: panel_mount.explained),
+        and an operator is asked to place it again (up to capture.max_recaptures).
+        ``read_on`` (the design's poses): a board whose wrong pose another mounting may explain is
+        read on through the next poses (panel_mount.py; ``end_design`` ends it).
         """
         for attempt in range(self.cfg.capture.max_recaptures + 1):
             jig.present(pose, None)
             caps, errors = self.capture_all(boards, pose, floors)
             misplaced = len(boards) > 1 and not caps and errors and all(
-                isinstance(e, WrongPose) for e in errors.values())
+                isinstance(e, WrongPose) for e in errors.values()) and not explained(
+                self.mounts, pose.reference_g, errors, self.cfg.capture.pose_tolerance_deg)
             if not misplaced:
                 break
             self.echo(f"  every board reads a wrong pose at {pose.name}: the panel is not in the planned pose")
             if not jig.places_again or attempt == self.cfg.capture.max_recaptures:
                 break
-        for b in boards:
-            if b.index in errors:
-                e = errors[b.index]
-                b.fail(Stage.CAPTURE, Reason("pose", f"{pose.name}: {e}", sep=" ") if isinstance(e, WrongPose)
-                       else Reason(e.reason_code, f"{pose.name}: {e}"))
-                self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
+        readings = {i: gc.capture.mean_counts for i, gc in caps.items()}
+        self._fail(boards, sort_wrong_poses(self.mounts, list(self.mounts.values()), pose.name, pose.reference_g,
+                                            readings, errors, read_on, self.cfg.capture.pose_tolerance_deg))
         return caps
+
+    def end_design(self, boards: list[PanelBoard]) -> None:
+        """The design's poses are done: a board still read on past a wrong pose fails with the mounting
+        that fits what it read (panel_mount.end_of_design)."""
+        live = {b.index: b.mount for b in boards if b.active}
+        self._fail(boards, end_of_design(live, list(self.mounts.values()), self.cfg.capture.pose_tolerance_deg))
+
+    def _fail(self, boards: list[PanelBoard], failures: dict[int, Failure]) -> None:
+        """Each board of ``failures`` fails its capture at the pose named, with its error."""
+        for b in boards:
+            if b.index in failures:
+                name, e = failures[b.index]
+                b.mount.first_wrong = None
+                b.fail(Stage.CAPTURE, Reason("pose", f"{name}: {e}", sep=" ") if isinstance(e, WrongPose)
+                       else Reason(e.reason_code, f"{name}: {e}"))
+                self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
 
     def poses(self, boards: list[PanelBoard], jig: Jig, design: list[PoseSpec]) -> None:
         for i, pose in enumerate(design):
             self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
-            caps = self.present_and_capture(boards, jig, pose, {b.index: b.floor for b in boards})
+            caps = self.present_and_capture(boards, jig, pose, {b.index: b.floor for b in boards}, read_on=True)
             for b in boards:
                 gc = caps.get(b.index)
                 if gc is None:
                     continue
                 b.floor = gc.floor_counts
                 c = gc.capture
-                b.records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, pose.reference_g,
-                                            pose.pitch_deg, pose.roll_deg, c.temp_c, c.dropped, c.t_start, c.t_end))
+                b.records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n,
+                                            b.steps.mount @ pose.reference_g, *b.steps.chip_angles(pose),
+                                            c.temp_c, c.dropped, c.t_start, c.t_end))
                 b.retries.append(gc.recaptures)
                 b.steps.samples_read += gc.samples_read
                 b.steps.samples_used += c.n
@@ -242,6 +271,7 @@ class Panel:
                                     "sem_mg": sem_mg.tolist(), "retries": gc.recaptures,
                                     "reached_target": gc.reached_target})
                 b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events + b.driver.take_events()]
+        self.end_design(boards)
 
     def close(self, boards: list[PanelBoard]) -> None:
         """Close every board that was opened (once) and the shared buses."""
@@ -259,12 +289,15 @@ class Panel:
         design = get_design(self.cfg.design)
         full = [b for b in boards if b.active and len(b.records) == len(design)]
         if full:
-            gf = np.stack([np.stack([r.mean for r in b.records]) / b.driver.counts_per_g for b in full])
+            # in board axes (reading @ P = P^T reading): the jig turns every board alike there, and a
+            # mounting (a signed permutation of the chip's axes) changes no board's fit
+            gf = np.stack([np.stack([r.mean for r in b.records]) / b.driver.counts_per_g @ b.steps.mount
+                           for b in full])
             self.estimate = est = estimate_jig_poses(gf, np.stack([p.reference_g for p in design]), self.cfg.model)
             if est.estimated:
                 self.echo(f"jig pose error estimated from {len(full)} boards: {est.rms_deg:.3f} deg rms per pose")
                 for b, refs in zip(full, est.references_g, strict=True):
-                    for r, ref in zip(b.records, refs, strict=True):
+                    for r, ref in zip(b.records, refs @ b.steps.mount.T, strict=True):
                         r.reference_g = ref
             elif len(boards) > 1 or self.cfg.model in ("6", "12", "15"):
                 self.echo(f"jig pose error not estimated: {est.note}")
@@ -291,7 +324,7 @@ class Panel:
                 if gc is not None:
                     b.steps.samples_read += gc.samples_read
                     b.steps.samples_used += gc.capture.n
-                    b.checks.append((gc.capture.mean_counts, pose.reference_g, gc.capture.temp_c))
+                    b.checks.append((gc.capture.mean_counts, b.steps.mount @ pose.reference_g, gc.capture.temp_c))
         for b in todo:
             if b.active and b.cal is not None and not b.steps.judge_verified(b.cal, b.checks, b.rep):
                 b.cal = None

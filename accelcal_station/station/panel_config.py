@@ -10,6 +10,9 @@ A ``device:`` section without ``boards`` is a panel of one.  With ``boards``::
       boards: 16                 # N boards: seed + i, serial SERIAL-01.., or a list of
                                  # mappings, each merged over the shared keys
       spread: {offset_mg: 20, gain: 0.01}   # simulated boards: each its own offsets/gains
+      mount: [y, -x, z]          # how every chip sits on its board; a board's own mount overrides it
+
+How each board sits (``mount``) and how a board that looks turned is named: panel_mount.py.
 """
 from __future__ import annotations
 
@@ -45,12 +48,6 @@ def panel_sections(device: DeviceSection, path: str = "device") -> list[tuple[De
     the validated section, ``boards`` and ``spread`` left out) and their key paths; a device without
     ``boards`` is a panel of one."""
     boards = device.boards
-    mounted = [f"{path}.mount"] if device.mount is not None else []
-    mounted += [f"{path}.boards[{i}].mount" for i, b in enumerate(boards if isinstance(boards, list) else [])
-                if b.mount is not None]
-    if mounted:  # said, not ignored: a panel's boards would be fitted against unturned references
-        raise ConfigError(f"{mounted[0]}: a panel does not read device.mount yet; allowed: a one-board run "
-                          "(accelcal run without device.boards), or the boards seated as the jig's axes")
     shared = device.model_copy(update={"boards": None, "spread": None})
     if boards is None:
         if device.spread is not None:
@@ -76,6 +73,12 @@ def panel_sections(device: DeviceSection, path: str = "device") -> list[tuple[De
             sec = spread_board(sec, device.spread, rng, f"{path}.spread")
         out.append((sec, f"{path}.boards[{i}]"))
     return out
+
+
+def own_mount(device: DeviceSection, index: int) -> bool:
+    """Board ``index``'s own mapping sets ``mount`` (device.boards[i].mount: device.mount does not reach it)."""
+    boards = device.boards
+    return isinstance(boards, list) and index < len(boards) and "mount" in boards[index].model_fields_set
 
 
 def _panel_seed(device: DeviceSection, path: str) -> int:

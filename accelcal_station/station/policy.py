@@ -37,7 +37,8 @@ class FlowPolicy:
     # the board is captured alone, placed again by a person on a wrong pose (capture.max_recaptures),
     # its mounting (device.mount) checked, a pose may be skipped, and a wrong pose that stays wrong
     # ends the run (recorded as an error).  Otherwise every board is captured at once and a wrong
-    # pose fails that board (``pose``); the panel is placed again when every board reads it wrong
+    # pose fails that board (``pose``; one its own mounting may explain after reading on: panel_mount.py);
+    # the panel is placed again when every board reads it wrong
     wrong_pose_ends_run: bool
     # an operator jig shows the live reading while the board is placed
     live_reading: bool

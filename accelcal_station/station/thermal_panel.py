@@ -6,7 +6,8 @@ read-back).  At each set point the soak holds when every board's temperature (it
 chamber air for a chip without a sensor) is stable (thermal_plan.soak_until); then the pose
 design runs once for the whole panel.  Each board gets its own per-temperature fits and table,
 verified at the unused set points, its own burn with read-back and its own run in the store,
-all sharing one ``panel_id``.
+all sharing one ``panel_id``.  Each board is fitted against references turned by its own
+mounting (device.mount, device.boards[i].mount: panel_mount.py), as at room temperature.
 
 A board that fails (a NACK, a wrong face, its temperature leaving the capture band, a fit
 beyond its limits) is named with its own reason and dropped; it never stops the others.
@@ -140,7 +141,8 @@ class ThermalPanel:
         for k, pose in enumerate(poses):
             self.echo(f"  [{k + 1}/{len(poses)}] {pose.name}")
             todo = [b for b in active if b.active]
-            caps = self.flow.panel.present_and_capture(todo, jig, pose, {b.index: b.floor for b in todo})
+            caps = self.flow.panel.present_and_capture(todo, jig, pose, {b.index: b.floor for b in todo},
+                                                       read_on=True)
             self._sync(todo)
             st = chamber.status()
             check_alarms(st, f"during the capture of {pose.name} at {sp:g} C; the capture is discarded")
@@ -149,6 +151,7 @@ class ThermalPanel:
             for b in todo:
                 if b.index in caps:
                     self._keep(b, pose, caps[b.index], st, res[b.index])
+        self.flow.panel.end_design(active)  # a board read on past a wrong pose: named with its mounting
         for b in active:
             r = res[b.index]
             r.sampling_floor_s = sum(p["n"] for p in b.rep.poses if p["set_point_c"] == sp) / b.driver.odr_hz
@@ -166,8 +169,8 @@ class ThermalPanel:
             self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
             return
         b.floor = gc.floor_counts
-        rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, pose.reference_g,
-                         pose.pitch_deg, pose.roll_deg, temp, c.dropped, c.t_start, c.t_end)
+        rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, b.steps.mount @ pose.reference_g,
+                         *b.steps.chip_angles(pose), temp, c.dropped, c.t_start, c.t_end)
         self.of(b).groups.setdefault(sp, []).append(rec)
         if res.role == "calibrate":  # the run's session: calibration poses, kept if the run is interrupted
             b.records.append(rec)
