@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from typing import TypedDict
+from typing import NotRequired, TypeAlias, TypedDict
 
 import click
 import numpy as np
@@ -17,10 +17,9 @@ from ..data.static_poses import StaticDetection
 from ..errors import AccelcalError, DataError
 from ..fileguard.identity import refuse_overwrite
 from ..identifiability import assess, worst_parameter
-from ..jsontypes import JsonObject
 from ..models.choice import ModelChoice, ModelChoiceJson, choose_model, with_face_references
 from ..models.handplaced import norm_faces, opposite_face
-from ..models.result import FitJson, FitResult, PoseRow
+from ..models.result import FitCore, FitJson, FitResult, PoseRow
 from ..session import Session
 from ._common import check_model_units, force_option, parse_int
 from ._common import jsonable as _clean
@@ -91,43 +90,47 @@ class FaceJson(TypedDict):
     angle_deg: float
 
 
-class FitReport(TypedDict, total=False):
-    """fit --json: what reading inferred, the fit (one temperature: FitJson's keys; several: the
-    table's), where it came from, and what the options added.  Made JSON-safe by ``jsonable``."""
+class TableFitJson(FitCore):
+    """A fit at several temperatures (one table, AN4399 section 9): the fits' figures pooled, the
+    table's calibration and each temperature's own fit."""
 
-    inferred: dict  # data/loader.Loaded.to_json's own mapping (untyped there)
-    segmentation: SegmentationJson
-    model: str
-    pose_count: int
-    W: list[list[float]]
-    V: list[float]
-    Gamma: list[float]
-    params: dict[str, float]
-    stderr: dict[str, list[float] | list[list[float]]] | None
-    P: list[float]
-    residual_rms_g: float
-    residual_max_g: float
-    crossval_rms_g: float | None
-    crossval_by_orientation_rms_g: float | None
-    distinct_orientations: int | None
-    condition_number: float
-    success: bool
-    status: str
-    message: str
-    nfev: int
-    input_units: str
-    input_per_g: float
-    held: list[JsonObject]
     temperature_method: str | None
     calibration: CalibrationDict
     temperatures: list[TemperatureFitJson]
-    poses: list[PoseRow] | str
+
+
+class ReadJson(TypedDict):
+    """What reading the file inferred (and, for a raw log, the static intervals found in it)."""
+
+    inferred: dict  # data/loader.Loaded.to_json's own mapping (untyped there)
+    segmentation: NotRequired[SegmentationJson]
+
+
+class SourceJson(TypedDict):
+    """The file fitted and the units its readings were in."""
+
     source: str
     units: str
+
+
+class OptionsJson(TypedDict, total=False):
+    """What the options add: the model chosen (no --model), --hand-placed, -o."""
+
     model_choice: ModelChoiceJson
     faces: list[FaceJson]
     hand_placed: HandPlacedJson
     output: str
+
+
+class OneFitReport(ReadJson, FitJson, SourceJson, OptionsJson):
+    """fit --json at one temperature.  Made JSON-safe by ``jsonable``."""
+
+
+class TableFitReport(ReadJson, TableFitJson, SourceJson, OptionsJson):
+    """fit --json at several temperatures.  Made JSON-safe by ``jsonable``."""
+
+
+FitReport: TypeAlias = OneFitReport | TableFitReport  # fit --json
 
 
 def _load(path: str, raw: bool, model: str | None, units: str | None, cpg: float | None, gravity: float | None,
@@ -256,13 +259,13 @@ def _segmentation(log: RawLog, det: StaticDetection, names: list[str]) -> tuple[
     return info, lines
 
 
-def _table_report(path: str, session: Session, result: Fit) -> tuple[FitReport, list[str]]:
+def _table_report(path: str, session: Session, result: Fit) -> tuple[TableFitJson, list[str]]:
     """The JSON and lines of a fit at several temperatures (one table, AN4399 section 9)."""
     fits, subs, cal, model = result.fits, result.sessions, result.calibration, result.model
     allres = np.concatenate([f.residuals_g for _, f in fits])
     cvs = [f.crossval_rms_g for _, f in fits]
     known = [c for c in cvs if c is not None]
-    report: FitReport = {
+    report: TableFitJson = {
         "model": model, "pose_count": len(session), "W": cal.W.tolist(), "V": cal.V.tolist(),
         "Gamma": cal.Gamma.tolist(), "P": np.sum([f.P for _, f in fits], axis=0).tolist(),
         "residual_rms_g": float(np.sqrt(np.mean(allres**2))), "residual_max_g": float(np.max(np.abs(allres))),
@@ -287,31 +290,31 @@ def _echo_lines(text: list[str]) -> None:
         click.echo("\n".join(clean(t) for t in text[i:i + 1000]))
 
 
-def _report(path: str, loaded: Loaded, result: Fit, as_json: bool = True) -> tuple[FitReport, list[str]]:
+def _report(path: str, loaded: Loaded, result: Fit) -> tuple[FitReport, list[str]]:
     """What `accelcal fit` prints: what reading the file inferred, its static intervals (raw logs), the fit.
-    Without ``as_json`` the per-pose JSON rows are not built (a 100,000-pose table: memory)."""
+    A single fit's per-pose JSON rows are a stand-in (_POSES) that _echo_json writes a block at a time
+    (a 100,000-pose table: memory)."""
     session = loaded.session
     held = result.calibration.metadata.get("held")
     result.calibration.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
     if held:
         result.calibration.metadata["held"] = held
-    report: FitReport = {"inferred": loaded.to_json()}
+    read: ReadJson = {"inferred": loaded.to_json()}
     text = [f"read {path}: " + "; ".join(loaded.inferred)]
     if loaded.log is not None and loaded.detection is not None:
-        report["segmentation"], seg_lines = _segmentation(loaded.log, loaded.detection, session.names)
+        read["segmentation"], seg_lines = _segmentation(loaded.log, loaded.detection, session.names)
         text += seg_lines
+    source: SourceJson = {"source": str(path), "units": session.units}
+    report: FitReport
     if len(result.fits) == 1:
         fr = result.result
-        if as_json:  # the per-pose rows are written a block at a time by _echo_json
-            report.update(fr.to_json_dict(session.names, poses=_POSES))
+        report = {**read, **fr.to_json_dict(session.names, poses=_POSES), **source}
         text.append(f"{path}: model {result.model}, {len(session)} poses, {_scale_text(session, fr)}")
         text += _fit_text(fr, session.names)
     else:
-        more, lines = _table_report(path, session, result)
-        report.update(more)
+        table, lines = _table_report(path, session, result)
+        report = {**read, **table, **source}
         text += lines
-    report["source"] = str(path)
-    report["units"] = session.units
     return report, text
 
 
@@ -360,7 +363,7 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
             raise DataError("--hand-placed fits model 6 at one temperature; give --model 6")
         hp = _hand_placed(loaded.session, result.result)
         result = hand_placed_fit(result, loaded.session)  # one calibration object: printed is saved
-    report, text = _report(path, loaded, result, as_json)
+    report, text = _report(path, loaded, result)
     if choice is not None:
         report.update(_choice_json(choice, loaded.session.names))
     if hand_placed:
@@ -376,9 +379,9 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         _echo_lines(text)
 
 
-def _choice_json(choice: ModelChoice, names: list[str]) -> FitReport:
+def _choice_json(choice: ModelChoice, names: list[str]) -> OptionsJson:
     """The model fit chose, and the face each pose was taken as (hand-placed faces)."""
-    out: FitReport = {"model_choice": choice.to_json()}
+    out: OptionsJson = {"model_choice": choice.to_json()}
     if choice.faces is not None:
         out["faces"] = [{"pose": n, "face": f, "angle_deg": float(a)} for n, f, a in
                         zip(names, choice.faces.names, choice.faces.angle_deg, strict=True)]

@@ -39,20 +39,27 @@ class PoseRow(TypedDict):
     norm_error_g: float
 
 
-class FitJson(TypedDict):
-    """A fit as JSON (FitResult.to_json_dict); ``poses`` may be a stand-in the caller replaces."""
+class FitCore(TypedDict):
+    """What a fit's JSON gives at one temperature and a table fit's at several alike (FitJson, and
+    cli/fit's TableFitJson); ``poses`` may be a stand-in the caller replaces."""
 
     model: str
     pose_count: int
     W: list[list[float]]
     V: list[float]
     Gamma: list[float]
-    params: dict[str, float]
-    stderr: dict[str, list[float] | list[list[float]]] | None
     P: list[float]
     residual_rms_g: float
     residual_max_g: float
     crossval_rms_g: float | None
+    poses: list[PoseRow] | str
+
+
+class FitJson(FitCore):
+    """A fit as JSON (FitResult.to_json_dict)."""
+
+    params: dict[str, float]
+    stderr: dict[str, list[float] | list[list[float]]] | None
     crossval_by_orientation_rms_g: float | None
     distinct_orientations: int | None
     condition_number: float
@@ -63,7 +70,6 @@ class FitJson(TypedDict):
     input_units: str
     input_per_g: float
     held: list[JsonObject]
-    poses: list[PoseRow] | str
 
 
 @dataclass

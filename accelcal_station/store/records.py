@@ -12,9 +12,10 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from typing import Any, NotRequired, TypedDict
+from typing import Any, NotRequired
 
 import numpy as np
+from typing_extensions import TypedDict  # the web API's response models build on these: pydantic on 3.11 wants this one
 
 from ..acceptance.reasons import Reason, codes
 from ..calibration import Calibration
@@ -109,12 +110,10 @@ def pose_record(p: CheckedRow) -> PoseRecord:
                       p.int("dropped") or 0, p.real("t_start"), p.real("t_end"))
 
 
-class RunColumns(TypedDict):
-    """The ``runs`` columns every form of a stored run has alike (a damaged value None)."""
+class RunLabels(TypedDict):
+    """Who and what a run was and how it ended: the ``runs`` columns every form of a run shows alike
+    (the row, the listing, the web's and the API's run)."""
 
-    id: int | None
-    started_at: float | None
-    finished_at: float | None
     status: str | None
     status_reason: str | None
     device_serial: str | None
@@ -122,20 +121,38 @@ class RunColumns(TypedDict):
     station_id: str | None
     operator: str | None
     lot: str | None
+    model: str | None
+    verdict: str | None
+
+
+class RunTimes(TypedDict):
+    """A run's start and end, unix s (the listing gives them as ISO 8601 instead)."""
+
+    started_at: float | None
+    finished_at: float | None
+
+
+class RunSetup(TypedDict):
+    """How a run was set up: its config, its readings' units and scale, the panel it was on."""
+
     config_hash: str | None
     config_text: str | None
-    model: str | None
     units: str | None
     counts_per_g: float | None
     gravity_mps2: float | None
-    verdict: str | None
+    panel_id: str | None  # the boards calibrated together on one jig
+
+
+class RunColumns(RunLabels, RunTimes, RunSetup):
+    """The ``runs`` columns every form of a stored run has alike (a damaged value None)."""
+
+    id: int | None
     nvm_status: str | None
     nvm_outcome: JsonObject | None
     calibration: JsonObject | None
     fit_summary: JsonObject | None
     host: str | None
     pid: int | None
-    panel_id: str | None
     limits: dict[str, float] | None
     heartbeat_at: float | None
     heartbeat_s: float | None
@@ -191,21 +208,12 @@ class StoredPose(TypedDict):
     retries: int
 
 
-class RunSummary(TypedDict):
+class RunSummary(RunLabels):
     """A run's listing entry (``Store.list_runs``; no poses); ``damaged``/``damage`` when its row is."""
 
     id: int | None  # a damaged value reads as None (rowcheck), the row still listed
-    started_at: str | None
+    started_at: str | None  # ISO 8601 (iso)
     finished_at: str | None
-    status: str | None
-    status_reason: str | None
-    device_serial: str | None
-    chip: str | None
-    station_id: str | None
-    operator: str | None
-    lot: str | None
-    model: str | None
-    verdict: str | None
     reasons: list[str]
     reason_codes: list[str]
     nvm_status: str | None

@@ -15,22 +15,22 @@ import json
 import math
 import time
 from collections.abc import AsyncIterator
-from typing import TYPE_CHECKING, Annotated, Any, TypedDict
+from typing import TYPE_CHECKING, Annotated, Any
 
 from fastapi import APIRouter, Header, Query
 from fastapi import Path as FPath
 from fastapi.responses import StreamingResponse
-from pydantic import BaseModel, WithJsonSchema
+from pydantic import BaseModel, Field, WithJsonSchema
+from typing_extensions import TypedDict  # response models: pydantic on 3.11 wants this one
 
 from ..errors import DataError
-from ..jsontypes import JsonObject
-from ..store.records import RunNotFound, StoredEvent, StoredPose, timestamp
+from ..store.records import RunLabels, RunNotFound, RunSetup, RunTimes, StoredPose, timestamp
 from ..store.rowcheck import T_MAX_S
 from . import queries
 from .errors import ERROR_RESPONSES, ApiError
 from .feed import Cursor, Step, advance, head
 from .settings import open_store
-from .views import RunFilters, RunView, ShiftYield, StationYield
+from .views import RunFigures, RunFilters, RunView, ShiftYield, StationYield
 
 if TYPE_CHECKING:
     from .settings import WebSettings
@@ -42,38 +42,21 @@ _OPEN_OBJECT = WithJsonSchema({"additionalProperties": True, "type": "object"})
 YieldRow = Annotated[dict[str, float | int | str | None], _OPEN_OBJECT]  # queries.StationYield / ShiftYield
 
 
-class Reason(BaseModel):
-    code: str
-    message: str
+class RunId(TypedDict):
+    """A run's id as the API gives it: an integer (the web's RunView reads a damaged id as None)."""
+
+    id: int
 
 
-class RunSummary(BaseModel):
+class RunSummary(RunId, RunTimes, RunLabels, RunFigures):
     """A run without its poses; a damaged stored value reads as null and is named in ``damage``
     (table, id, column, problem: the store's ``damaged_row``).  ``limits``: the acceptance limits
     the run was judged by ({key: number}; keys and units as the config's ``acceptance`` section),
     ``limits_source`` "stored" (recorded with the run), "config" (an older run: its own config's
     acceptance section) or null."""
 
-    id: int
-    started_at: float | None
-    finished_at: float | None
-    status: str | None
-    status_reason: str | None
-    device_serial: str | None
-    chip: str | None
-    station_id: str | None
-    operator: str | None
-    lot: str | None
-    model: str | None
-    verdict: str | None
-    reasons: list[Reason]
-    reason_codes: list[str]
-    nvm_status: str | None
-    residual_rms_mg: float | None
-    measured: dict[str, float]
-    limits: dict[str, float] | None = None
-    limits_source: str | None = None
-    damage: list[dict[str, str]] = []
+    # [] when nothing is damaged: the API always gives the key (the web's RunView only when damaged)
+    damage: Annotated[list[dict[str, str]], Field(default=[])]
 
 
 class RunPage(BaseModel):
@@ -85,45 +68,32 @@ class RunPage(BaseModel):
     total: int | None = None  # the runs matching the filters, when asked for (total=true)
 
 
-class Pose(BaseModel):
-    name: str
-    pitch_deg: float | None
-    roll_deg: float | None
-    reference_g: list[float] | None
-    mean: list[float]
-    std: list[float] | None
-    n: int | None
-    dropped: int
-    temp_c: float | None
-    t_start: float | None
-    t_end: float | None
-    retries: int
+class Pose(StoredPose):
+    pass  # the stored pose under the name the OpenAPI has always given it
 
 
-class RunEvent(BaseModel):
+class RunEvent(TypedDict):
     t: float | None
     kind: str | None
     message: str | None
-    data: Any = None  # any JSON, as logged (StoredEvent.data: a JsonValue)
+    data: Annotated[Any, Field(default=None)]  # any JSON, as logged (StoredEvent.data: a JsonValue)
 
 
-class RunDetail(RunSummary):
-    """One run in full: its poses (session units), events, calibration (AN4399 W, V, Gamma), the fit
-    summary and NVM outcome as recorded."""
+class RunDetailPart(RunSetup):
+    """What a run in full adds to its summary: its setup, the stored JSON documents, poses and events."""
 
-    config_hash: str | None
-    config_text: str | None
-    units: str | None
-    counts_per_g: float | None
-    gravity_mps2: float | None
-    panel_id: str | None
-    # stored JSON documents: JsonObject where they are built (RunDetailOut, checked by mypy); Any here
-    # keeps the OpenAPI's open object (pydantic's own JsonValue would add a schema of its own to it)
+    # stored JSON documents: JsonObject where they are built (checked by mypy); Any here keeps the
+    # OpenAPI's open object (pydantic's own JsonValue would add a schema of its own to it)
     nvm_outcome: dict[str, Any] | None
     calibration: dict[str, Any] | None
     fit_summary: dict[str, Any] | None
     poses: list[Pose]
     events: list[RunEvent]
+
+
+class RunDetail(RunSummary, RunDetailPart):
+    """One run in full: its poses (session units), events, calibration (AN4399 W, V, Gamma), the fit
+    summary and NVM outcome as recorded."""
 
 
 class Event(BaseModel):
@@ -157,18 +127,8 @@ class RunPageOut(TypedDict):
     total: int | None
 
 
-class RunDetailOut(RunView):
-    config_hash: str | None
-    config_text: str | None
-    units: str | None
-    counts_per_g: float | None
-    gravity_mps2: float | None
-    panel_id: str | None
-    nvm_outcome: JsonObject | None
-    calibration: JsonObject | None
-    fit_summary: JsonObject | None
-    poses: list[StoredPose]
-    events: list[StoredEvent]
+class RunDetailOut(RunView, RunDetailPart):
+    """RunDetail as built from the web's RunView (the response model checks the id at run time)."""
 
 
 class YieldOut(TypedDict):

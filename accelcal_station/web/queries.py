@@ -22,6 +22,7 @@ from ..store.records import load_or, stored_reasons
 from ..store.rowcheck import JSON_MAX_DEPTH, SPECS, CheckedRow
 from ..store.runs import Store
 from .views import (
+    Damaged,
     FeedRow,
     Judged,
     LotCalibration,
@@ -29,8 +30,6 @@ from .views import (
     LotRow,
     Rates,
     RunFilters,
-    RunHead,
-    RunTail,
     RunView,
     SeriesPoint,
     ShiftYield,
@@ -180,17 +179,15 @@ def summary(row: CheckedRow, judged: Judged | None = None) -> RunView:
         judged = {"limits": lim, "source": "stored" if lim is not None else None}
     measured = _finite_numbers(fit.get("measured") if isinstance(fit, dict) else None)
     t = row.text
-    head: RunHead = {
-        "id": row.int("id"), "started_at": row.real("started_at"), "finished_at": row.real("finished_at"),
-        "status": t("status"), "status_reason": t("status_reason"), "device_serial": t("device_serial"),
-        "chip": t("chip"), "station_id": t("station_id"), "operator": t("operator"), "lot": t("lot"),
-        "model": t("model"), "verdict": t("verdict"), "nvm_status": t("nvm_status"), "limits": judged["limits"]}
-    tail: RunTail = {"limits_source": judged["source"], "reasons": [r.to_dict() for r in reasons],
-                      "reason_codes": codes(reasons), "residual_rms_mg": measured.get("residual_rms_mg"),
-                      "measured": measured}
-    if row.damage:  # between the row's columns and what is read from them, as the feed's JSON has it
-        return {**head, "damage": _damage(row), **tail}
-    return {**head, **tail}
+    damaged: Damaged = {"damage": _damage(row)} if row.damage else {}
+    # the damage between the row's columns and what is read from them, as the feed's JSON has it
+    return {"id": row.int("id"), "started_at": row.real("started_at"), "finished_at": row.real("finished_at"),
+            "status": t("status"), "status_reason": t("status_reason"), "device_serial": t("device_serial"),
+            "chip": t("chip"), "station_id": t("station_id"), "operator": t("operator"), "lot": t("lot"),
+            "model": t("model"), "verdict": t("verdict"), "nvm_status": t("nvm_status"), "limits": judged["limits"],
+            **damaged, "limits_source": judged["source"],
+            "reasons": [{"code": r.code, "message": str(r)} for r in reasons],  # Reason.to_dict, typed
+            "reason_codes": codes(reasons), "residual_rms_mg": measured.get("residual_rms_mg"), "measured": measured}
 
 
 def summaries_of(store: Store, rows: list[CheckedRow]) -> list[RunView]:

@@ -4,9 +4,13 @@ api.py and pages.py show them).  ``pass`` and ``yield`` are Python keywords: tho
 have the functional form."""
 from __future__ import annotations
 
-from typing import NotRequired, TypedDict
+from typing import Annotated
+
+from pydantic import Field
+from typing_extensions import TypedDict  # the API's response models (api.py) are these: pydantic on 3.11 wants this one
 
 from ..jsontypes import JsonObject
+from ..store.records import RunLabels, RunTimes
 
 
 class Judged(TypedDict):
@@ -17,40 +21,38 @@ class Judged(TypedDict):
     source: str | None
 
 
-class RunHead(TypedDict):
-    """A run's own columns as shown (RunView's first part)."""
+class Reason(TypedDict):
+    """A reason as shown: its code and the whole text (the acceptance Reason's ``to_dict``)."""
 
-    id: int | None
-    started_at: float | None
-    finished_at: float | None
-    status: str | None
-    status_reason: str | None
-    device_serial: str | None
-    chip: str | None
-    station_id: str | None
-    operator: str | None
-    lot: str | None
-    model: str | None
-    verdict: str | None
-    nvm_status: str | None
-    limits: dict[str, float] | None
+    code: str
+    message: str
 
 
-class RunTail(TypedDict):
-    """What is read from a run's columns: its limits' source, reasons and figures (RunView's last part)."""
+class RunFigures(TypedDict):
+    """What is read from a run's columns: its reasons, NVM status, fit figures and the limits it was
+    judged by (in the order the API has always given them)."""
 
-    limits_source: str | None
-    reasons: list[dict[str, str]]  # Reason.to_dict: code, message
+    reasons: list[Reason]
     reason_codes: list[str]
+    nvm_status: str | None
     residual_rms_mg: float | None
     measured: dict[str, float]
+    # optional in the OpenAPI (a default of null), as clients were given it; always set here
+    limits: Annotated[dict[str, float] | None, Field(default=None)]
+    limits_source: Annotated[str | None, Field(default=None)]
 
 
-class RunView(RunHead, RunTail):
+class Damaged(TypedDict, total=False):
+    """What of a run's row is damaged (DamagedRow.to_dict); only there when something is."""
+
+    damage: list[dict[str, str]]
+
+
+class RunView(RunTimes, RunLabels, RunFigures, Damaged):
     """A run as the API and pages show it (queries.summary of its row): typed reasons, the fit
     figures, the limits it was judged by; ``damage`` when a value of its row is damaged."""
 
-    damage: NotRequired[list[dict[str, str]]]  # DamagedRow.to_dict
+    id: int | None  # a damaged value reads as None (rowcheck); the API's RunSummary says int
 
 
 # a station's (and shift's) yields; "pass" and "yield" are keywords: the functional form
