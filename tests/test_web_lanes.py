@@ -2,9 +2,9 @@
 
 The lot, board and reason pages are computed in a worker process once the application has
 started (its lifespan), and give the same bytes as in a thread; the work runs in another
-process; a worker that dies is replaced and its request answered 503, never hanging; an error
-from the worker is answered as in a thread; `accelcal serve` stopped by SIGTERM or SIGINT
-leaves no process behind.
+process, which opens SQLite and PostgreSQL read-only; a worker that dies is replaced and its
+request answered 503, never hanging; an error from the worker is answered as in a thread;
+`accelcal serve` stopped by SIGTERM or SIGINT leaves no process behind.
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from accelcal_station.web import pages  # noqa: E402
 from accelcal_station.web.app import create_app  # noqa: E402
 from accelcal_station.web.errors import WorkerLost  # noqa: E402
 from accelcal_station.web.lanes import HeavyLanes  # noqa: E402
-from accelcal_station.web.settings import WebSettings  # noqa: E402
+from accelcal_station.web.settings import WebSettings, open_store  # noqa: E402
 
 HEAVY = ("/lot?lot=L1", "/lot", "/board?serial=SN0000007", "/board?serial=NOPE", "/reason?code=offset_max_mg",
          "/reason?code=offset_max_mg&shift=B&day=2023-11-13")
@@ -104,6 +104,38 @@ def test_heavy_pages_are_the_same_bytes_from_a_worker_process_as_from_a_thread(s
         while started & workers(os.getpid()) and time.monotonic() < deadline:
             time.sleep(0.05)
         assert not started & workers(os.getpid()), "the worker outlived the application's shutdown"
+
+
+def write_through(settings: WebSettings) -> None:
+    """A write through the store a worker opens (refused: the worker's store is read-only)."""
+    with open_store(settings) as st:
+        st._db.conn.exec_driver_sql("UPDATE runs SET lot = 'x'")
+
+
+def test_the_worker_reads_sqlite_and_postgresql_read_only_and_the_pages_match(store_url):
+    from test_store_damage import _good_store
+
+    _good_store(store_url)
+    settings = WebSettings(store_url)
+    urls = ("/lot?lot=L", "/lot", "/board?serial=SN1", "/reason?code=x")
+    want = {u: TestClient(create_app(settings)).get(u) for u in urls}
+    with TestClient(create_app(settings)) as client:
+        got = {u: client.get(u) for u in urls}
+
+    async def write() -> None:
+        lanes = HeavyLanes(1)
+        lanes.start()
+        try:
+            assert lanes.in_processes
+            await lanes.run(write_through, settings)
+        finally:
+            lanes.close()
+    with pytest.raises(Exception, match="(?i)read-?only"):
+        asyncio.run(write())
+    assert all(r.status_code == 200 for r in got.values()) and "SN1" in got["/board?serial=SN1"].text
+    assert {u: r.content for u, r in got.items()} == {u: r.content for u, r in want.items()}
+    with open_store(settings) as st:
+        assert {r.lot for r in st.runs()} == {"L"}
 
 
 def test_the_work_runs_in_another_process_and_a_dead_worker_is_replaced():
