@@ -9,33 +9,35 @@ broken client holds no lock and no station waits on it.
 Bounded work: the lot, board and reason pages (the ones whose work grows with a lot or a
 board's history) take turns in ``settings.heavy_lanes`` lanes; a request waiting for a lane
 waits on the event loop, holding no worker thread, so the line page and the API are
-answered meanwhile.  With ``settings.read_token`` every request must carry it
-(``Authorization: Bearer TOKEN``; a browser may send it as the password of HTTP Basic).
+answered meanwhile.  Once the application has started (its lifespan), each lane is a worker
+process (lanes.py), so their Python does not share the line page's interpreter.
+
+With ``settings.read_token`` every request must carry it (``Authorization: Bearer TOKEN``; a
+browser may send it as the password of HTTP Basic).
 """
 from __future__ import annotations
 
-import asyncio
 import base64
 import hmac
-from collections.abc import Awaitable, Callable
-from typing import TypeVar
+from collections.abc import AsyncIterator, Awaitable, Callable
+from contextlib import AbstractAsyncContextManager, asynccontextmanager
 
 from fastapi import FastAPI, Query, Request
 from fastapi.responses import HTMLResponse, Response
-from starlette.concurrency import run_in_threadpool
 
 from . import assets, pages
 from .api import api_router
 from .errors import error_response, install_errors
+from .lanes import HeavyLanes
 from .settings import WebSettings, open_store
 
 API_VERSION = "v1"
-Ctx = TypeVar("Ctx")  # a page's template context (pages.py)
 
 
 def create_app(settings: WebSettings) -> FastAPI:
     """The whole application over one store."""
-    app = FastAPI(title="accelcal station line", version=API_VERSION,
+    lanes = HeavyLanes(settings.heavy_lanes)
+    app = FastAPI(title="accelcal station line", version=API_VERSION, lifespan=_lifespan(lanes),
                   description="Runs (paged by cursor), yields and a finished-runs event stream from the results "
                               "store. Every error is JSON {code, message}.",
                   openapi_url="/openapi.json", docs_url=None, redoc_url=None)
@@ -45,8 +47,20 @@ def create_app(settings: WebSettings) -> FastAPI:
         _require_token(app, settings.read_token)
     app.include_router(api_router(settings), prefix=f"/api/{API_VERSION}")
     app.include_router(assets.router)
-    _pages(app, settings)
+    _pages(app, settings, lanes)
     return app
+
+
+def _lifespan(lanes: HeavyLanes) -> Callable[[FastAPI], AbstractAsyncContextManager[None]]:
+    """The heavy pages' worker processes live as long as the server: started with it, stopped with it."""
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        lanes.start()
+        try:
+            yield
+        finally:
+            lanes.close()
+    return lifespan
 
 
 def token_of(header: str) -> str:
@@ -75,13 +89,8 @@ def _require_token(app: FastAPI, token: str) -> None:
                               headers={"WWW-Authenticate": 'Basic realm="accelcal (password: the read token)"'})
 
 
-def _pages(app: FastAPI, settings: WebSettings) -> None:
+def _pages(app: FastAPI, settings: WebSettings, lanes: HeavyLanes) -> None:
     render = assets.render
-    lanes = asyncio.Semaphore(max(1, settings.heavy_lanes))
-
-    async def heavy(fn: Callable[[], Ctx]) -> Ctx:
-        async with lanes:  # waits on the loop, not in a worker thread
-            return await run_in_threadpool(fn)
 
     def line(day: str, shift: str) -> pages.LineContext:
         with open_store(settings) as st:
@@ -101,24 +110,16 @@ def _pages(app: FastAPI, settings: WebSettings) -> None:
     @app.get("/reason", response_class=HTMLResponse, include_in_schema=False)
     async def reason_page(code: str = Query(..., max_length=64), day: str = day_q, shift: str = shift_q,
                           station: str | None = Query(None, max_length=200)) -> Response:
-        def work() -> pages.ReasonContext:
-            with open_store(settings) as st:
-                return pages.reason_context(st, code, day, shift, station)
-        return render("reason.html", title=f"Reason {code}", page="line", **await heavy(work))
+        ctx = await lanes.run(pages.reason_page, settings, code, day, shift, station)
+        return render("reason.html", title=f"Reason {code}", page="line", **ctx)
 
     @app.get("/board", response_class=HTMLResponse, include_in_schema=False)
     async def board_page(serial: str = Query("", max_length=64)) -> Response:
-        def work() -> pages.BoardContext:
-            with open_store(settings) as st:
-                return pages.board_context(st, serial)
-        ctx: pages.BoardContext = await heavy(work) if serial else {"serial": serial, "runs": [], "nvm": [],
-                                                                     "similar": []}
+        ctx: pages.BoardContext = (await lanes.run(pages.board_page, settings, serial) if serial
+                                   else {"serial": serial, "runs": [], "nvm": [], "similar": []})
         return render("board.html", title=f"Board {serial}" if serial else "Board", page="board", **ctx)
 
     @app.get("/lot", response_class=HTMLResponse, include_in_schema=False)
     async def lot_page(lot: str = Query("", max_length=64)) -> Response:
-        def work() -> pages.LotContext:
-            with open_store(settings) as st:
-                return pages.lot_context(st, lot) if lot else {"lot": "", "summary": None, "charts": [],
-                                                               "parameters": [], "lots": pages.queries.lots(st)}
-        return render("lot.html", title=f"Lot {lot}" if lot else "Lots", page="lot", **await heavy(work))
+        ctx = await lanes.run(pages.lot_page, settings, lot)
+        return render("lot.html", title=f"Lot {lot}" if lot else "Lots", page="lot", **ctx)

@@ -3,7 +3,8 @@ declared so in the OpenAPI schema of every endpoint (``ERROR_RESPONSES``).
 
 A store the server cannot read (a table dropped, a column renamed, a damaged page, a schema
 to migrate) is ``503 store_unreadable`` naming the damage: JSON under /api, one short HTML
-page elsewhere; never a 500 with a traceback.
+page elsewhere; never a 500 with a traceback.  A heavy page's worker process that stopped
+(lanes.py) is ``503 worker_lost`` the same way.
 """
 from __future__ import annotations
 
@@ -53,13 +54,22 @@ def _driver_line(e: BaseException) -> str:
     return (str(orig if orig is not None else e).strip().splitlines() or [type(e).__name__])[0]
 
 
+class WorkerLost(Exception):
+    """The worker process computing a heavy page stopped (killed, out of memory); a new one replaces it."""
+
+
+def unavailable(request: Request, code: str, title: str, heading: str, message: str) -> Response:
+    """503: JSON {code, message} for the API, a one-paragraph page for a browser."""
+    if request.url.path.startswith("/api/") or "text/html" not in request.headers.get("accept", "text/html"):
+        return error_response(503, code, message)
+    body = (f"<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{title}</title>"
+            f"</head><body><h1>{heading}</h1><p>{html.escape(message)}</p></body></html>")
+    return HTMLResponse(body, status_code=503)
+
+
 def store_unreadable(request: Request, message: str) -> Response:
     """503 naming why the store cannot be read: JSON for the API, a one-paragraph page for a browser."""
-    if request.url.path.startswith("/api/") or "text/html" not in request.headers.get("accept", "text/html"):
-        return error_response(503, "store_unreadable", message)
-    body = (f"<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>Store unreadable</title>"
-            f"</head><body><h1>The results store cannot be read</h1><p>{html.escape(message)}</p></body></html>")
-    return HTMLResponse(body, status_code=503)
+    return unavailable(request, "store_unreadable", "Store unreadable", "The results store cannot be read", message)
 
 
 def install_errors(app: FastAPI) -> None:
@@ -73,6 +83,10 @@ def install_errors(app: FastAPI) -> None:
         where = f"{store.store}: " if store is not None else ""
         return store_unreadable(r, f"{where}cannot read the results store ({_driver_line(e)}); "
                                    "`accelcal report check` names the damage")
+
+    @app.exception_handler(WorkerLost)
+    async def worker_lost(r: Request, e: WorkerLost) -> Response:
+        return unavailable(r, "worker_lost", "Page interrupted", "This page's worker process stopped", str(e))
 
     @app.exception_handler(ApiError)
     async def api_error(_r: Request, e: ApiError) -> JSONResponse:

@@ -23,6 +23,7 @@ from ..store.records import RunRecord, iso
 from ..store.runs import Store
 from . import queries
 from .charts import Chart, RunPoint, residual_chart, run_chart
+from .settings import WebSettings, open_store
 from .views import LotCalibration, LotCounts, LotRow, RunView, ShiftYield, StationRow
 
 # the line page's run charts: fit_summary.measured key, title, unit, acceptance limit key
@@ -363,3 +364,26 @@ def lot_context(store: Store, lot: str) -> LotContext:
                 ch.note = f"newest {LOT_CHART_RUNS} of {len(rows)} runs drawn; " + ch.note
             charts.append(ch)
     return {"lot": lot, "summary": summ, "charts": charts, "parameters": table, "lots": queries.lots(store)}
+
+
+# The heavy pages' work as the lanes run it (lanes.py): module-level functions of picklable
+# arguments, so a worker process can run them; each opens the store read-only for itself.
+
+def reason_page(settings: WebSettings, code: str, day: str, shift: str, station: str | None) -> ReasonContext:
+    """The reason page's context, read from the store of ``settings``."""
+    with open_store(settings) as st:
+        return reason_context(st, code, day, shift, station)
+
+
+def board_page(settings: WebSettings, serial: str) -> BoardContext:
+    """The board page's context, read from the store of ``settings``."""
+    with open_store(settings) as st:
+        return board_context(st, serial)
+
+
+def lot_page(settings: WebSettings, lot: str) -> LotContext:
+    """The lot page's context (no lot: the lots list only), read from the store of ``settings``."""
+    with open_store(settings) as st:
+        if lot:
+            return lot_context(st, lot)
+        return {"lot": "", "summary": None, "charts": [], "parameters": [], "lots": queries.lots(st)}

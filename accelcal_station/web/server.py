@@ -13,10 +13,11 @@ MAX_REQUEST_HEAD = 2**20  # bytes of request line and headers accepted
 
 def _config(app: Any, host: str, port: int) -> uvicorn.Config:
     # h11 and asyncio only: the same on every machine, no optional C speedups needed
+    # lifespan on: `serve` starts its heavy pages' worker processes at startup and stops them at shutdown
     # a request line or header up to 1 MiB reaches the application (which answers an over-long
     # parameter with a 422 naming it) instead of h11 dropping the connection at 16 KiB
     return uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
-                          http="h11", loop="asyncio", lifespan="off", timeout_graceful_shutdown=2,
+                          http="h11", loop="asyncio", lifespan="on", timeout_graceful_shutdown=2,
                           h11_max_incomplete_event_size=MAX_REQUEST_HEAD)
 
 

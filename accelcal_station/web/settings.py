@@ -18,7 +18,7 @@ class WebSettings:
     token: str | None = None
     poll_s: float = 0.5  # how often the events stream looks for finished runs
     read_token: str | None = None  # web.read_token: every request needs it (Bearer, or Basic with it as password)
-    heavy_lanes: int = 1  # lot and board pages served at once; more wait their turn (the line page never waits)
+    heavy_lanes: int = 1  # lot and board pages served at once, each in a worker process; more wait their turn
 
 
 @contextmanager
