@@ -196,13 +196,11 @@ class ResultsWriter:
             self._out.flush()
 
     def _write_arrow_csv(self, cols: ResultColumns) -> None:
-        import pyarrow as pa
         import pyarrow.csv as pcsv
         table = _arrow_table(cols, csv=True)
         if self._pq is None:
             self._pq = pcsv.CSVWriter(self._out, table.schema,
-                                      write_options=pcsv.WriteOptions(quoting_style="needed", eol="\r\n"),
-                                      memory_pool=pa.system_memory_pool())
+                                      write_options=pcsv.WriteOptions(quoting_style="needed", eol="\r\n"))
         self._behind(self._pq.write_table, table)
 
     def _write_parquet(self, cols: ResultColumns) -> None:
