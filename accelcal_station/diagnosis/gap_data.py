@@ -48,6 +48,8 @@ class GapData:
     fit_model: str | None = None  # the model `accelcal fit` chooses for these data ("6" with fit_faces: hand-placed)
     fit_faces: bool = False  # fit's choice is the hand-placed faces' norm fit (gain and offset per axis)
     exclude: tuple[str, ...] = ()  # baseline effects fit's model has no terms for (loading.fit_ground)
+    drop_terms: frozenset[str] = frozenset()  # "effect:term" columns left out (engine: an effect without its
+    # order-confounded terms, diagnosis/order.py)
     fit_refused: str = ""  # fit's words refusing these poses: no static view (loading.fit_ground)
 
     @property

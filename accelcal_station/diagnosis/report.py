@@ -202,7 +202,7 @@ def _verdict_lines(d: Diagnosis) -> list[str]:
     data = d.data
     out: list[str] = []
     out.append(f"VERDICT: {d.verdict}: {d.verdict_text}")
-    if d.steps:
+    if d.steps and d.verdict in ("explained", "partly explained"):  # only what the selection kept
         out.append("  add to the simulator configuration:")
         for s in d.steps:
             hint = config_hint(s["added"], s["fitted"])
