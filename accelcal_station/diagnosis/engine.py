@@ -45,6 +45,7 @@ from .effects.order_trend import NAME as ORDER_TREND
 from .evaluation import Evaluation
 from .gap_data import GapData, TimeData, time_data
 from .gap_effects import evaluate
+from .headline import headline
 from .loading import Simulator
 from .noise_floor import Floor, sigma_from_within
 from .order import trend_basis
@@ -148,6 +149,7 @@ def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
     d.leftover = leftover_shape(data, final, td, alpha)
     d.confounded_with = confounded
     d.order_trend = order_trend_json(sel.order, why_no_trend, base, alpha)
+    d.headline = headline(data, sim.baseline, base)
     d.verdict, d.verdict_text = verdict(d)
     d.identifiability = describe_design(data, sim.baseline + tuple(selected))
     return d

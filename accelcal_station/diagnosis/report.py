@@ -92,8 +92,10 @@ def _where_lines(d: Diagnosis) -> list[str]:
     w = d.where
     if "by_axis" in w:
         out.append("  by axis: " + ", ".join(f"{a} {_g(v)}" for a, v in w["by_axis"].items()))
-    if w.get("by_pose"):
-        out.append("  worst poses: " + ", ".join(f"{p['pose']} {_g(p['z_rms'])}" for p in w["by_pose"][:4]))
+    if "by_pose" in w:
+        odd = [p for p in w["by_pose"] if p["stands_out"]][:4]
+        out.append("  poses that stand out (standardised held-out residual): "
+                   + (", ".join(f"{p['pose']} {_g(p['z_rms'])}" for p in odd) if odd else "none"))
     if w.get("by_level"):
         rows: dict[str, list[str]] = {}
         for r in w["by_level"]:
@@ -145,11 +147,20 @@ def _gap_lines(d: Diagnosis) -> list[str]:
     if not d.static_ok:
         out.append(f"note: no static view: {d.static_why}")
     out.append("")
-    out.append(f"GAP  held-out residual {1e3 * b.rms_g:.4g} mg RMS over the floor fixed before any candidate: "
-               f"ratio {_g(d.gap_before)} (1.0 = at the floor; only residuals move it)")
-    views = [f"{v} view {_g(b.floor_gap(v))}" for v in ("static", "time") if b.floor_gap(v) is not None]
+    h = d.headline
+    if h is not None and h["held_out_rms_mg"] is not None:
+        out.append(f"GAP  held-out residual {h['held_out_rms_mg']:.4g} mg RMS ({h['source']}): {_g(h['gap'])} x the "
+                   f"floor of a pose mean ({h['floor_mg']:.3g} mg RMS, fixed before any candidate; 1.0 = at the floor)")
+        out.append(f"     at the floor with this design's own fit uncertainty it would be {h['expected_mg']:.4g} mg; "
+                   f"{h['note']}")
+    else:
+        out.append(f"GAP  held-out gap {_g(d.gap_before)} x the floor fixed before any candidate (time view; "
+                   f"held-out residual {1e3 * b.rms_g:.4g} mg RMS)")
+    w = d.where.get("views", {})
+    views = [f"{v} view {_g(g)}" for v, g in w.items() if g is not None]
     if len(views) > 1:
-        out.append("     " + "; ".join(views) + " (the headline is their RMS)")
+        out.append("     selection's held-out gap by view: " + "; ".join(views) + f" (their RMS {_g(d.gap_before)} is "
+                   "the gap the selection below judges)")
     return out
 
 

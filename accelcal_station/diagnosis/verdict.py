@@ -101,7 +101,8 @@ def _verdict(d: Diagnosis) -> tuple[str, str]:
     stoch = [n for n in d.selected if n not in stepped and n in STOCHASTIC]
     shape = d.leftover.get("summary", "")
     if base_ok and not d.selected and not d.confounded_with:
-        return "nothing to explain", "the held-out residuals are at the floor: the simulator describes these data"
+        return "nothing to explain", ("the held-out residuals are at the floor (chi-square test on the floor plus the "
+                                      "fit's own prediction variance): the simulator describes these data")
     verb = "accounts" if len(stoch) == 1 else "account"
     figs = _stochastic_figures(d, stoch)
     spread = (f"; {', '.join(stoch)} {verb} for the spread (a deterministic fix cannot lower it"
