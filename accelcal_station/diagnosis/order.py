@@ -68,15 +68,27 @@ def order_basis(data: GapData, intercepts: bool = True) -> np.ndarray:
 
 def trend_basis(data: GapData, with_offset: bool) -> tuple[np.ndarray, list[str]]:
     """(P, k) and k names: the order trend's columns per channel (module doc), the order basis without the
-    first file's mean when the model has an offset already (that mean is the offset), else with it."""
+    first file's mean when the model has an offset already (that mean is the offset), else with it.
+
+    The polynomial columns are made orthogonal to the ideal readings (the references, or the unit readings
+    without) and the files' means, and dropped where nothing is left: in a design whose references follow
+    row order (u_z linear in row number in order of z) a trend column would otherwise be a noise-free copy
+    of a reference, and a "drift" that reproduces the references predicts held-out poses without reading
+    them.  What is dropped is in the span the baseline's gain and offset fit already.
+    """
     files = np.unique(data.file)
     B = order_basis(data)
     names = [f"P{j}" + (f"@{f}" if len(files) > 1 else "")
              for f in files for j in range(1, file_degree(int(np.sum(data.file == f))) + 1)]
     names += [f"mean@{f}" for f in files]
-    if with_offset:
-        first_mean = B.shape[1] - len(files)
-        B, names = np.delete(B, first_mean, axis=1), names[:first_mean] + names[first_mean + 1:]
+    n_poly = B.shape[1] - len(files)
+    ideal = data.ref if data.ref is not None else data.g / np.linalg.norm(data.g, axis=1, keepdims=True)
+    Q = np.linalg.qr(np.concatenate([ideal, B[:, n_poly:]], axis=1))[0]
+    poly = B[:, :n_poly] - Q @ (Q.T @ B[:, :n_poly])
+    keep = np.linalg.norm(poly, axis=0) > 1e-6 * np.maximum(np.linalg.norm(B[:, :n_poly], axis=0), 1e-300)
+    first = 1 if with_offset else 0  # the first file's mean is the model's offset
+    B = np.concatenate([poly[:, keep], B[:, n_poly + first:]], axis=1)
+    names = [n for n, k in zip(names[:n_poly], keep, strict=True) if k] + names[n_poly + first:]
     return B, names
 
 
