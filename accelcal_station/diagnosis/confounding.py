@@ -53,6 +53,8 @@ def resolve(ev: Evaluator, data: GapData, base: Evaluation, sel: Selection, alph
             continue
         if _rests_on_order(ev, data, selected, e, c, base, alpha):
             c["alone"] = True
+            c["why"] = (f"what it explains rests on {', '.join(t['term'] for t in c['terms'])}, which a change over "
+                        "the session of the same shape would explain as well")
             selected.remove(e)
             steps = [s for s in steps if s["added"] != e]
             final = ev(selected) if selected else base

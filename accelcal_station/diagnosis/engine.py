@@ -160,7 +160,7 @@ def _order_competes(data: GapData, base: tuple[str, ...], static_ok: bool) -> st
     training rows to spare beyond the baseline's and its own coefficients."""
     if not static_ok:
         return "the static view is unavailable"
-    B, _ = trend_basis(data, "offset" in base)
+    B, _ = trend_basis(data)
     if B.shape[1] == 0:
         return "too few poses in each file for a trend (four a coefficient)"
     p_train = data.P - math.ceil(data.P / data.n_folds)

@@ -66,9 +66,10 @@ def order_basis(data: GapData, intercepts: bool = True) -> np.ndarray:
     return np.concatenate(cols, axis=1) if cols else np.zeros((data.P, 0))
 
 
-def trend_basis(data: GapData, with_offset: bool) -> tuple[np.ndarray, list[str]]:
-    """(P, k) and k names: the order trend's columns per channel (module doc), the order basis without the
-    first file's mean when the model has an offset already (that mean is the offset), else with it.
+def trend_basis(data: GapData) -> tuple[np.ndarray, list[str]]:
+    """(P, k) and k names: the order trend's columns per channel (module doc): the order basis without the
+    first file's mean, which is a constant offset, not a change over the session (with it, the trend would
+    contain the offset candidate and no model without an offset could beat it).
 
     The polynomial columns are made orthogonal to the ideal readings (the references, or the unit readings
     without) and the files' means, and dropped where nothing is left: in a design whose references follow
@@ -86,9 +87,8 @@ def trend_basis(data: GapData, with_offset: bool) -> tuple[np.ndarray, list[str]
     Q = np.linalg.qr(np.concatenate([ideal, B[:, n_poly:]], axis=1))[0]
     poly = B[:, :n_poly] - Q @ (Q.T @ B[:, :n_poly])
     keep = np.linalg.norm(poly, axis=0) > 1e-6 * np.maximum(np.linalg.norm(B[:, :n_poly], axis=0), 1e-300)
-    first = 1 if with_offset else 0  # the first file's mean is the model's offset
-    B = np.concatenate([poly[:, keep], B[:, n_poly + first:]], axis=1)
-    names = [n for n, k in zip(names[:n_poly], keep, strict=True) if k] + names[n_poly + first:]
+    B = np.concatenate([poly[:, keep], B[:, n_poly + 1:]], axis=1)
+    names = [n for n, k in zip(names[:n_poly], keep, strict=True) if k] + names[n_poly + 1:]
     return B, names
 
 
@@ -113,8 +113,11 @@ class OrderTerm(TypedDict):
 # an effect whose terms follow acquisition order ("with" is a keyword).  ``alone``: the order trend explains
 # the gap as well as the effect, which is then not selected; else only ``terms`` are in doubt and the effect
 # is kept.  ``term`` and ``r2`` are the first of ``terms`` (the most order-like).
+# ``why`` (alone only): the order trend explains the gap as well, or the effect's evidence rests on its
+# order-like terms (confounding.py)
 OrderConfound = TypedDict("OrderConfound", {"with": Literal["acquisition order"], "term": str, "r2": float,
-                                            "threshold": float, "terms": list[OrderTerm], "alone": bool})
+                                            "threshold": float, "terms": list[OrderTerm], "alone": bool,
+                                            "why": str})
 
 
 def term_r2(data: GapData, effect: str) -> list[OrderTerm]:
@@ -140,7 +143,8 @@ def confounded_terms(data: GapData, effect: str, alone: bool) -> OrderConfound |
         return None
     lead = (top or terms)[0]
     return {"with": "acquisition order", "term": lead["term"], "r2": lead["r2"], "threshold": ORDER_R2_MAX,
-            "terms": top, "alone": alone}
+            "terms": top, "alone": alone,
+            "why": "a smooth change over the session explains the gap as well" if alone else ""}
 
 
 def _terms_text(v: OrderConfound) -> str:
@@ -154,9 +158,9 @@ def order_words(c: dict[str, OrderConfound]) -> str:
     parts = []
     for e, v in c.items():
         if v["alone"]:
-            parts.append(f"{e} is confounded with acquisition order ({_terms_text(v)} against the order basis): a "
-                         "smooth change over the session explains the gap as well, so it is not selected; revisit "
-                         "poses later in the run or take them in shuffled order to tell them apart")
+            parts.append(f"{e} is confounded with acquisition order ({_terms_text(v)} against the order basis): "
+                         f"{v['why']}, so it is not selected; revisit poses later in the run or take them in "
+                         "shuffled order to tell them apart")
         else:
             ch = sorted({ch for t in v["terms"] for ch in t["channel"]})
             parts.append(f"the {', '.join(ch)} part of {e} ({_terms_text(v)} against the order basis) could also "

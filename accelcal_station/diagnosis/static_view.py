@@ -53,7 +53,7 @@ def _static_try(data: GapData, gamma: float, E: Collection[str], g: np.ndarray, 
     """Fit the static view on every fold at once: weighted least squares with references (3 rows a pose),
     Levenberg-Marquardt on the norm without (1 row); v0 (F, P, 3) with references, (F, P) on the norm."""
     ref, F, P = data.ref, train.shape[0], data.P
-    order = trend_basis(data, "offset" in E) if NAME in E else None
+    order = trend_basis(data) if NAME in E else None
     A, b, d, labels = static_design(E, g, ref, dT, dh, ref is None, data.n_temps, data.zero_g, order,
                                     data.drop_terms)
     p = A.shape[-1]
