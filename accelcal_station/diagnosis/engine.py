@@ -9,7 +9,7 @@
    Where it lies: where.breakdown.
 3. Which (deterministic).  Each candidate term (candidates) is added and refitted; the best-scored
    candidate (held-out Gaussian log predictive density with the fixed floor) is taken
-   when it passes a one-sided paired test (selection._p_greater) at ALPHA, Bonferroni over the
+   when it passes a one-sided paired test (selection.p_greater) at ALPHA, Bonferroni over the
    step's candidates, shrinks the held-out residual RMS and at least MIN_GAP_SHRINK of
    the log gap, and passes its own rule (settling: amplitudes follow the step
    direction).  When it fails, the next candidate is tried (a failed best does not end
@@ -20,9 +20,11 @@
 5. Verdict.  explained / partly explained / accounted for / unexplained / nothing to explain
    (verdict: "explained" needs the held-out gap within EXPLAINED_GAP_MAX of the floor), with the
    shape of what is left (shape), read from every view: axis, input level, temperature and
-   acquisition order.  An effect the selection took whose columns follow acquisition order (order:
-   R^2 of its columns on a cubic in row number above 0.8) is confounded with a change over the
-   session: it is moved out of ``selected`` into ``confounded`` (with its R^2) and the verdict says so.
+   acquisition order.  Confounding with acquisition order is judged by competition (order.py): every
+   static candidate must beat the order trend (a change over the session) too; a selected effect's
+   terms that follow order are named in ``confounded`` and it keeps the rest; one the trend explains
+   as well, or whose evidence rests on its order-like terms, is ``confounded`` alone (confounding.py).
+6. Headline.  `accelcal fit`'s held-out RMS for the same file and model terms over the floor (headline.py).
 
 The record and its JSON are in result; the self-check is in selftest; loading in loading.
 """

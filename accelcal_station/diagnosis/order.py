@@ -6,7 +6,8 @@ smooth function of that order.
 The order basis is, per file, Legendre polynomials P1..Pd of the pose's position in the file
 scaled to [-1, 1] (d = 3, a cubic in row number, where the file has 12 poses or more; an
 exponential relaxation over the session is within a few percent of one; d = n // 4 for a file of
-n < 12 poses, so a trend never has fewer than four poses a coefficient), with a mean per file.
+n < 12 poses, so a trend never has fewer than four poses a coefficient), with a mean per file (the
+order trend leaves out the first file's: trend_basis).
 The basis restarts in every file: a file is its own capture (a board mounted, powered and warmed
 up anew), so a trend need not continue across files and each file may have its own offset; where
 the files are one continuous session the restart costs d + 1 coefficients per channel and file but

@@ -171,8 +171,9 @@ def _which_lines(d: Diagnosis) -> list[str]:
                f"       selected while a one-sided paired test (t or Wilcoxon, doubled) on per-pose held-out log "
                "density\n"
                f"       beats alpha = {d.alpha:g} / candidates, the held-out RMS shrinks, some view loses "
-               f"{MIN_GAP_SHRINK:.0%} of its log gap,\n       and the gap is outside its chance range; "
-               "when the best fails a rule the next is tried)")
+               f"{MIN_GAP_SHRINK:.0%} of its log gap,\n       the gap is outside its chance range, and it beats a "
+               "change over the session (the order trend)\n       in the same test; when the best fails a rule the "
+               "next is tried)")
     for i, r in enumerate(d.ranking):
         mark = "  <- selected" if r["effect"] in d.selected else ""
         out.append(f"  {i + 1:2d}. {r['effect']:<13} held-out gap {_g(r['held_out_gap']):>7}   "
@@ -187,6 +188,10 @@ def _which_lines(d: Diagnosis) -> list[str]:
     for s in d.steps:
         txt += f" -> + {s['added']} {_g(s['gap_after'])} ({s['rms_mg_after']:.3g} mg)"
     out.append(txt)
+    ot = d.order_trend
+    if ot is not None:
+        out.append(f"  order trend (a change over the session) on the baseline: {_g(ot['held_out_gap'])} "
+                   f"({_g(ot['rms_mg'])} mg)" if ot["fitted"] else f"  order trend: not fitted ({ot['why_not']})")
     out.append("")
     return out
 

@@ -19,8 +19,11 @@ residuals (8 poses x 3 axes) and less with more.  The chi^2 test (at_floor) is k
 large residuals can fail it while the RMS ratio is small.  A drift fit that takes the gap from 19.75
 to 17.76 is therefore "partly explained", not "explained".
 
-An effect whose columns follow acquisition order (diagnosis/order.py) is not selected: the engine
-moves it to ``confounded`` with its R^2, and the verdict says so.
+Confounding with acquisition order (diagnosis/order.py, confounding.py): the terms of a selected effect a
+change over the session could stand in for are said in words after the verdict; an effect confounded alone
+is not selected, and with nothing else the verdict is "unexplained" naming it as the leading candidate.
+"Accounted for" holds whenever only stochastic effects are named and no residue is left beyond them
+(_excess_beyond); "partly explained" names the rule "explained" failed (the gap, the chi-square test).
 """
 from __future__ import annotations
 
