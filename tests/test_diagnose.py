@@ -19,7 +19,7 @@ from accelcal_station.diagnosis.gap_effects import evaluate
 from accelcal_station.diagnosis.loading import gap_data, load_data, load_simulator
 from accelcal_station.diagnosis.noise_floor import bias_var, mean_var, within_spread
 from accelcal_station.diagnosis.report import summary_lines
-from accelcal_station.diagnosis.selection import _p_greater
+from accelcal_station.diagnosis.selection import p_greater as _p_greater
 from accelcal_station.fixtures.designs import get_design
 from accelcal_station.session import PoseRecord, Session
 from accelcal_station.sim.sensor_model import rotation_matrix

@@ -9,7 +9,7 @@
    Where it lies: where.breakdown.
 3. Which (deterministic).  Each candidate term (candidates) is added and refitted; the best-scored
    candidate (held-out Gaussian log predictive density with the fixed floor) is taken
-   when it passes a one-sided paired test (selection._p_greater) at ALPHA, Bonferroni over the
+   when it passes a one-sided paired test (selection.p_greater) at ALPHA, Bonferroni over the
    step's candidates, shrinks the held-out residual RMS and at least MIN_GAP_SHRINK of
    the log gap, and passes its own rule (settling: amplitudes follow the step
    direction).  When it fails, the next candidate is tried (a failed best does not end
@@ -20,14 +20,17 @@
 5. Verdict.  explained / partly explained / accounted for / unexplained / nothing to explain
    (verdict: "explained" needs the held-out gap within EXPLAINED_GAP_MAX of the floor), with the
    shape of what is left (shape), read from every view: axis, input level, temperature and
-   acquisition order.  An effect the selection took whose columns follow acquisition order (order:
-   R^2 of its columns on a cubic in row number above 0.8) is confounded with a change over the
-   session: it is moved out of ``selected`` into ``confounded`` (with its R^2) and the verdict says so.
+   acquisition order.  Confounding with acquisition order is judged by competition (order.py): every
+   static candidate must beat the order trend (a change over the session) too; a selected effect's
+   terms that follow order are named in ``confounded`` and it keeps the rest; one the trend explains
+   as well, or whose evidence rests on its order-like terms, is ``confounded`` alone (confounding.py).
+6. Headline.  `accelcal fit`'s held-out RMS for the same file and model terms over the floor (headline.py).
 
 The record and its JSON are in result; the self-check is in selftest; loading in loading.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -36,15 +39,19 @@ import numpy as np
 from ..errors import ConfigError, UnderdeterminedError
 from ..jsontypes import JsonObject
 from .candidates import candidates
+from .confounding import resolve
 from .effects.catalog import STOCHASTIC
-from .effects.design import describe_design
+from .effects.design import describe_design, static_design
 from .effects.jig_rotation import jig_rotation
+from .effects.order_trend import NAME as ORDER_TREND
 from .evaluation import Evaluation
 from .gap_data import GapData, TimeData, time_data
 from .gap_effects import evaluate
+from .headline import headline
 from .loading import Simulator
 from .noise_floor import Floor, sigma_from_within
-from .order import confounded_with_order
+from .order import trend_basis
+from .order_trend import order_trend_json
 from .result import Diagnosis
 from .selection import ALPHA, select
 from .shape import leftover_shape
@@ -130,29 +137,41 @@ def diagnose(data: GapData, sim: Simulator, alpha: float = ALPHA) -> Diagnosis:
 
     base = ev([])
     centres.append(_zero_g(base))
-    final, selected, steps, ranking, tried = select(ev, data, sim, base, testable, td, alpha)
-    # drift and settling are functions of time themselves, and temperature is measured per pose (temp_c) and
-    # stepped set point after set point by any thermal plan: only the other static terms can be confounded
-    # with order; a confounded effect is not selected (the held-out test cannot tell it from a change over
-    # the session)
-    confounded = confounded_with_order(data, [s for s in selected if s not in ORDER_EXEMPT])
-    if confounded:
-        selected = [s for s in selected if s not in confounded]
-        final = ev(selected) if selected else base
+    why_no_trend = _order_competes(data, sim.baseline, static_ok)
+    sel = select(ev, data, sim, base, testable, td, alpha, None if why_no_trend else ORDER_TREND)
+    res = resolve(ev, data, base, sel, alpha)  # per-term confounds with acquisition order (confounding.py)
+    final, selected, steps, confounded = res.final, res.selected, res.steps, res.confounded
     stoch, passed = _stochastic(data, floor, final, td, why, alpha, lambda: ev(selected + ["pose_error"]))
     if "pose_error" in stoch:
         stoch["pose_error"]["jig_rotation"] = jig_rotation(data, base, sim.baseline, floor.gamma, alpha)
     where = breakdown(data, sim, floor, base, final, td)
-    d = Diagnosis(data, sim, floor, base, final, ranking, steps, selected + [p for p in passed if p not in selected],
-                  why, static_ok, static_why, where, alpha, stoch, tried)
+    d = Diagnosis(data, sim, floor, base, final, sel.ranking, steps,
+                  selected + [p for p in passed if p not in selected], why, static_ok, static_why, where, alpha, stoch,
+                  sel.tried)
     d.leftover = leftover_shape(data, final, td, alpha)
     d.confounded_with = confounded
+    d.order_trend = order_trend_json(sel.order, why_no_trend, base, alpha)
+    d.headline = headline(data, sim.baseline, base)
     d.verdict, d.verdict_text = verdict(d)
     d.identifiability = describe_design(data, sim.baseline + tuple(selected))
     return d
 
 
-ORDER_EXEMPT = ("drift", "settling", "temperature")  # never moved to ``confounded`` (diagnose's comment)
+def _order_competes(data: GapData, base: tuple[str, ...], static_ok: bool) -> str:
+    """Why the order trend cannot compete on these data ('' when it can): it needs the static view and
+    training rows to spare beyond the baseline's and its own coefficients."""
+    if not static_ok:
+        return "the static view is unavailable"
+    B, _ = trend_basis(data)
+    if B.shape[1] == 0:
+        return "too few poses in each file for a trend (four a coefficient)"
+    p_train = data.P - math.ceil(data.P / data.n_folds)
+    rows = p_train * (1 if data.norm_only else 3)
+    n_base = len(static_design(set(base), data.g, data.ref, None, None, data.norm_only, data.n_temps)[3])
+    if rows <= n_base + 3 * B.shape[1]:
+        return (f"{data.P} poses are too few to fit the baseline and a trend over the session "
+                f"({n_base} + {3 * B.shape[1]} coefficients) with poses held out")
+    return ""
 
 
 def _zero_g(base: Evaluation) -> np.ndarray:

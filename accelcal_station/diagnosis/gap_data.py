@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..session import Session
+
 TAU_DRIFT_S = np.geomspace(10.0, 1000.0, 13)
 TAU_SETTLE_S = np.geomspace(0.02, 3.0, 19)
 MAX_FOLDS = 8
@@ -48,7 +50,9 @@ class GapData:
     fit_model: str | None = None  # the model `accelcal fit` chooses for these data ("6" with fit_faces: hand-placed)
     fit_faces: bool = False  # fit's choice is the hand-placed faces' norm fit (gain and offset per axis)
     exclude: tuple[str, ...] = ()  # baseline effects fit's model has no terms for (loading.fit_ground)
+    drop_terms: frozenset[str] = frozenset()  # "effect:term" columns left out (confounding.py)
     fit_refused: str = ""  # fit's words refusing these poses: no static view (loading.fit_ground)
+    sessions: list[Session] = field(default_factory=list)  # per file, as fit reads it (headline.py)
 
     @property
     def P(self) -> int:

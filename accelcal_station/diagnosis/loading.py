@@ -237,6 +237,7 @@ def load_data(paths: Sequence[str | Path], raw: bool = False, units: str | None 
                         "diagnose logs of one rate together")
     data = gap_data(parts, samples, norm_only, rates.pop() if rates else rate)
     data.fit_refused = refused
+    data.sessions = [s for s, _, _ in parts]
     if choice is not None and not norm_only:
         data.fit_model, data.fit_faces = choice.model, choice.faces is not None
         data.exclude = NOT_IN_MODEL[choice.method if choice.faces is not None else choice.model]

@@ -92,8 +92,10 @@ def _where_lines(d: Diagnosis) -> list[str]:
     w = d.where
     if "by_axis" in w:
         out.append("  by axis: " + ", ".join(f"{a} {_g(v)}" for a, v in w["by_axis"].items()))
-    if w.get("by_pose"):
-        out.append("  worst poses: " + ", ".join(f"{p['pose']} {_g(p['z_rms'])}" for p in w["by_pose"][:4]))
+    if "by_pose" in w:
+        odd = [p for p in w["by_pose"] if p["stands_out"]][:4]
+        out.append("  poses that stand out (standardised held-out residual): "
+                   + (", ".join(f"{p['pose']} {_g(p['z_rms'])}" for p in odd) if odd else "none"))
     if w.get("by_level"):
         rows: dict[str, list[str]] = {}
         for r in w["by_level"]:
@@ -145,11 +147,20 @@ def _gap_lines(d: Diagnosis) -> list[str]:
     if not d.static_ok:
         out.append(f"note: no static view: {d.static_why}")
     out.append("")
-    out.append(f"GAP  held-out residual {1e3 * b.rms_g:.4g} mg RMS over the floor fixed before any candidate: "
-               f"ratio {_g(d.gap_before)} (1.0 = at the floor; only residuals move it)")
-    views = [f"{v} view {_g(b.floor_gap(v))}" for v in ("static", "time") if b.floor_gap(v) is not None]
+    h = d.headline
+    if h is not None and h["held_out_rms_mg"] is not None:
+        out.append(f"GAP  held-out residual {h['held_out_rms_mg']:.4g} mg RMS ({h['source']}): {_g(h['gap'])} x the "
+                   f"floor of a pose mean ({h['floor_mg']:.3g} mg RMS, fixed before any candidate; 1.0 = at the floor)")
+        out.append(f"     at the floor with this design's own fit uncertainty it would be {h['expected_mg']:.4g} mg; "
+                   f"{h['note']}")
+    else:
+        out.append(f"GAP  held-out gap {_g(d.gap_before)} x the floor fixed before any candidate (time view; "
+                   f"held-out residual {1e3 * b.rms_g:.4g} mg RMS)")
+    w = d.where.get("views", {})
+    views = [f"{v} view {_g(g)}" for v, g in w.items() if g is not None]
     if len(views) > 1:
-        out.append("     " + "; ".join(views) + " (the headline is their RMS)")
+        out.append("     selection's held-out gap by view: " + "; ".join(views) + f" (their RMS {_g(d.gap_before)} is "
+                   "the gap the selection below judges)")
     return out
 
 
@@ -160,8 +171,9 @@ def _which_lines(d: Diagnosis) -> list[str]:
                f"       selected while a one-sided paired test (t or Wilcoxon, doubled) on per-pose held-out log "
                "density\n"
                f"       beats alpha = {d.alpha:g} / candidates, the held-out RMS shrinks, some view loses "
-               f"{MIN_GAP_SHRINK:.0%} of its log gap,\n       and the gap is outside its chance range; "
-               "when the best fails a rule the next is tried)")
+               f"{MIN_GAP_SHRINK:.0%} of its log gap,\n       the gap is outside its chance range, and it beats a "
+               "change over the session (the order trend)\n       in the same test; when the best fails a rule the "
+               "next is tried)")
     for i, r in enumerate(d.ranking):
         mark = "  <- selected" if r["effect"] in d.selected else ""
         out.append(f"  {i + 1:2d}. {r['effect']:<13} held-out gap {_g(r['held_out_gap']):>7}   "
@@ -176,6 +188,10 @@ def _which_lines(d: Diagnosis) -> list[str]:
     for s in d.steps:
         txt += f" -> + {s['added']} {_g(s['gap_after'])} ({s['rms_mg_after']:.3g} mg)"
     out.append(txt)
+    ot = d.order_trend
+    if ot is not None:
+        out.append(f"  order trend (a change over the session) on the baseline: {_g(ot['held_out_gap'])} "
+                   f"({_g(ot['rms_mg'])} mg)" if ot["fitted"] else f"  order trend: not fitted ({ot['why_not']})")
     out.append("")
     return out
 
@@ -202,7 +218,7 @@ def _verdict_lines(d: Diagnosis) -> list[str]:
     data = d.data
     out: list[str] = []
     out.append(f"VERDICT: {d.verdict}: {d.verdict_text}")
-    if d.steps:
+    if d.steps and d.verdict in ("explained", "partly explained"):  # only what the selection kept
         out.append("  add to the simulator configuration:")
         for s in d.steps:
             hint = config_hint(s["added"], s["fitted"])

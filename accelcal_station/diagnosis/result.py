@@ -11,9 +11,11 @@ from ..identifiability import TermsDescription
 from ..jsontypes import JsonObject
 from .evaluation import Evaluation
 from .gap_data import GapData
+from .headline import Headline
 from .loading import Simulator
 from .noise_floor import Floor
 from .order import OrderConfound
+from .order_trend import OrderTrendJson
 from .selection import ALPHA, MIN_GAP_SHRINK, Ranked, Step, Tried
 from .shape import Leftover
 from .where import Where
@@ -65,6 +67,8 @@ class DiagnosisJson(TypedDict):
     verdict_text: str
     confounded: dict[str, OrderConfound]
     confounded_with: dict[str, OrderConfound]
+    order_trend: OrderTrendJson | None
+    headline: Headline | None
     gap_before: float
     gap_after: float
     rms_mg_before: float
@@ -113,6 +117,8 @@ class Diagnosis:
     leftover: Leftover = field(default_factory=Leftover)
     identifiability: TermsDescription | None = None
     confounded_with: dict[str, OrderConfound] = field(default_factory=dict)  # diagnosis/order.py
+    order_trend: OrderTrendJson | None = None  # the competitor of every static candidate (order_trend.py)
+    headline: Headline | None = None  # fit's held-out figure over the floor (headline.py)
 
     @property
     def gap_before(self) -> float:
@@ -133,7 +139,8 @@ def to_json(d: Diagnosis) -> DiagnosisJson:
     floor_rms = [float(np.sqrt(np.mean(x))) for x in (d.base.floor_static, d.base.floor_time) if x is not None]
     return {
         "verdict": d.verdict, "verdict_text": d.verdict_text, "confounded": d.confounded_with,
-        "confounded_with": d.confounded_with,
+        "confounded_with": d.confounded_with, "order_trend": d.order_trend,
+        "headline": d.headline,
         "gap_before": d.gap_before, "gap_after": d.gap_after,
         "rms_mg_before": 1e3 * d.base.rms_g, "rms_mg_after": 1e3 * d.final.rms_g,
         "floor_mg": 1e3 * float(np.sqrt(np.mean(np.square(floor_rms)))),

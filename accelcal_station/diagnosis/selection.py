@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import TypeAlias, TypedDict
 
 import numpy as np
@@ -51,11 +52,25 @@ class Step(TypedDict):
     p_value: float
     level: float
     fitted: Fitted  # the effect's own parameters (names and shapes differ per effect)
+    order_trend_gap: float | None  # the competitor's held-out gap at this step (None: no competitor)
+    p_value_vs_order: float | None  # the paired test of the effect against the order trend
+
+
+class OrderLoss(TypedDict):
+    """A candidate that beat the baseline but not the order trend (diagnosis/order.py): its figures and the
+    competitor's at that step."""
+
+    step: int
+    held_out_gap: float
+    rms_mg: float
+    order_trend_gap: float
+    order_trend_rms_mg: float
+    p_value_vs_order: float
 
 Evaluator = Callable[[list[str]], Evaluation]  # held-out evaluation of the baseline plus these candidates
 
 
-def _p_greater(d: np.ndarray) -> float:
+def p_greater(d: np.ndarray) -> float:
     """One-sided paired p-value that per-pose score differences d tend to be > 0.
 
     The smaller of a t-test (power with few poses and a consistent effect) and a Wilcoxon
@@ -161,15 +176,30 @@ def _as_json(v: float | list[float] | np.ndarray) -> float | list[float]:
     return v.tolist() if isinstance(v, np.ndarray) else v
 
 
+@dataclass
+class Competitor:
+    """The order trend (diagnosis/order.py) at one step: its evaluation, and the candidates it explains as well."""
+
+    ev: Evaluation | None
+    lost: dict[str, OrderLoss] = field(default_factory=dict)
+    first: Evaluation | None = None  # the order trend on the baseline alone (the first step's)
+
+
+def _vs_order(comp: Competitor, new: Evaluation, units: np.ndarray, alpha: float) -> float | None:
+    """One-sided paired p-value that ``new`` beats the order trend (None: no competitor).  At alpha, not
+    Bonferroni-divided: one comparison per candidate, and a lower bar here only keeps an effect selected."""
+    return None if comp.ev is None else p_greater((comp.ev.nll_unit - new.nll_unit)[units])
+
+
 def _step(ev: Evaluator, data: GapData, sim: Simulator, current: Evaluation, remaining: list[str],
-          selected: list[str], units: np.ndarray, td: TimeData | None, alpha: float,
+          selected: list[str], units: np.ndarray, td: TimeData | None, alpha: float, comp: Competitor,
           ) -> tuple[Evaluation | None, Step | None, list[Ranked], list[Tried]]:
     """One greedy step: candidates in score order, the first that passes every rule (or None)."""
     evs = {c: ev(selected + [c]) for c in remaining}
-    pv = {c: _p_greater((current.nll_unit - evs[c].nll_unit)[units]) for c in remaining}
+    pv = {c: p_greater((current.nll_unit - evs[c].nll_unit)[units]) for c in remaining}
     order = sorted(remaining, key=lambda c: evs[c].score)
     best = order[0]
-    tied = [c for c in order if c == best or _p_greater((evs[c].nll_unit - evs[best].nll_unit)[units]) >= alpha]
+    tied = [c for c in order if c == best or p_greater((evs[c].nll_unit - evs[best].nll_unit)[units]) >= alpha]
     choice = min(tied, key=lambda c: (evs[c].n_params, evs[c].score))
     order.remove(choice)
     order.insert(0, choice)
@@ -179,20 +209,45 @@ def _step(ev: Evaluator, data: GapData, sim: Simulator, current: Evaluation, rem
     tried: list[Tried] = []
     for c in order:
         failed = _rules(current, evs[c], pv[c], level, c, td, alpha)
+        p_o = None if failed or c in ORDER_EXEMPT else _vs_order(comp, evs[c], units, alpha)
+        if p_o is not None and p_o >= alpha and comp.ev is not None:
+            failed.append(f"a smooth change over the session (order trend) explains the gap as well: held-out gap "
+                          f"{evs[c].gap:.3g} against the order trend's {comp.ev.gap:.3g}, p = {p_o:.3g} >= {alpha:g}")
+            comp.lost[c] = {"step": len(selected) + 1, "held_out_gap": evs[c].gap, "rms_mg": 1e3 * evs[c].rms_g,
+                            "order_trend_gap": comp.ev.gap, "order_trend_rms_mg": 1e3 * comp.ev.rms_g,
+                            "p_value_vs_order": p_o}
         tried.append({"step": len(selected) + 1, "effect": c, "accepted": not failed, "failed": failed})
         if not failed:
             step: Step = {"added": c, "gap_before": current.gap, "gap_after": evs[c].gap,
                     "rms_mg_before": 1e3 * current.rms_g, "rms_mg_after": 1e3 * evs[c].rms_g,
-                    "p_value": pv[c], "level": level, "fitted": _fitted(evs[c], c, sim, data)}
+                    "p_value": pv[c], "level": level, "fitted": _fitted(evs[c], c, sim, data),
+                    "order_trend_gap": None if comp.ev is None else comp.ev.gap, "p_value_vs_order": p_o}
             return evs[c], step, ranking, tried
     return None, None, ranking, tried
 
 
+# time effects are changes over the session themselves, and temperature is measured per pose (temp_c) and
+# stepped set point after set point by any thermal plan: they never compete with the order trend
+ORDER_EXEMPT = ("drift", "settling", "temperature")
+
+
+@dataclass
+class Selection:
+    """What select found: the final evaluation, the selected effects, their steps, the first step's ranking,
+    every candidate tried, and the order trend (its last evaluation, the candidates it explained as well)."""
+
+    final: Evaluation
+    selected: list[str]
+    steps: list[Step]
+    ranking: list[Ranked]
+    tried: list[Tried]
+    order: Competitor
+
+
 def select(ev: Evaluator, data: GapData, sim: Simulator, base: Evaluation, testable: list[str],
-           td: TimeData | None, alpha: float,
-           ) -> tuple[Evaluation, list[str], list[Step], list[Ranked], list[Tried]]:
-    """Greedy forward selection of deterministic candidates (engine's module doc, step 3):
-    (final evaluation, selected, steps, the first step's ranking, every candidate tried)."""
+           td: TimeData | None, alpha: float, order_trend: str | None = None) -> Selection:
+    """Greedy forward selection of deterministic candidates (engine's module doc, step 3); ``order_trend``:
+    the name of the competitor every static candidate must beat too (None: none can be fitted)."""
     # a norm-only static view scores one unit per pose: its structural zeros would inflate the test's n
     units = base.nll_unit != 0
     current = base
@@ -201,8 +256,13 @@ def select(ev: Evaluator, data: GapData, sim: Simulator, base: Evaluation, testa
     tried: list[Tried] = []
     ranking: list[Ranked] | None = None
     remaining = list(testable)
+    comp = Competitor(None)
+    if order_trend is not None and explained(current, alpha):
+        comp.first = ev([order_trend])  # reported even when nothing is left to explain
     while remaining and not explained(current, alpha):
-        new, step, rank, tr = _step(ev, data, sim, current, remaining, selected, units, td, alpha)
+        comp.ev = None if order_trend is None else ev(selected + [order_trend])
+        comp.first = comp.first or comp.ev
+        new, step, rank, tr = _step(ev, data, sim, current, remaining, selected, units, td, alpha, comp)
         ranking = ranking or rank
         tried += tr
         if new is None or step is None:
@@ -211,4 +271,5 @@ def select(ev: Evaluator, data: GapData, sim: Simulator, base: Evaluation, testa
         steps.append(step)
         current = new
         remaining.remove(step["added"])
-    return current, selected, steps, ranking or [], tried
+        comp.lost = {k: v for k, v in comp.lost.items() if k != step["added"]}
+    return Selection(current, selected, steps, ranking or [], tried, comp)

@@ -11,7 +11,7 @@ from .effects.pose_error import revisits
 from .evaluation import Evaluation
 from .gap_data import GapData, TimeData
 from .order import order_basis
-from .where import PoseGap
+from .where import PoseGap, pose_gaps
 
 SHAPES = ("odd in g", "even in g", "product of axes", "approach direction", "fixed per orientation")
 
@@ -159,9 +159,7 @@ def leftover_shape(data: GapData, ev: Evaluation, td: TimeData | None, alpha: fl
         r, v = ev.r_static, ev.v_static
         shapes = _static_shapes(data, r, v, alpha)
         all_shapes.update(shapes)
-        z = np.sqrt(np.mean(r**2 / v, axis=1))
-        out["worst_poses"] = [{"pose": data.names[i], "z_rms": float(z[i]), "residual_mg": (1e3 * r[i]).tolist()}
-                              for i in np.argsort(-z)[:3]]
+        out["worst_poses"] = pose_gaps(data, r, v, 3)
         if r.shape[1] == 3:
             ax = np.sqrt(np.mean(r**2 / v, axis=0))
             out["worst_axis"] = "xyz"[int(np.argmax(ax))]
@@ -178,7 +176,7 @@ def leftover_shape(data: GapData, ev: Evaluation, td: TimeData | None, alpha: fl
         all_shapes["time-varying"] = TimeShape(ratio=float(np.sqrt(x / N)), p_value=p)
         if p < alpha:
             names.append("time-varying within captures")
-    where = f" (largest on {out['worst_axis']}, pose {out['worst_poses'][0]['pose']})" \
-        if "worst_axis" in out and "worst_poses" in out else ""
+    odd = [p["pose"] for p in out.get("worst_poses", []) if p["stands_out"]]  # a pose named only if it stands out
+    where = f" (largest on {out['worst_axis']}{', pose ' + odd[0] if odd else ''})" if "worst_axis" in out else ""
     out["summary"] = (", ".join(names) if names else "no single shape (scattered)") + where
     return out

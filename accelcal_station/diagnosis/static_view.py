@@ -9,11 +9,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .effects.design import static_design
+from .effects.order_trend import NAME
 from .evaluation import nll as _nll
 from .folds import Folds, NoiseModel, heldout
 from .gap_data import TAU_DRIFT_S, GapData, TimeData
 from .least_squares import lm_norm, norm_resid, norm_start, wls
 from .noise_floor import Floor, mean_var
+from .order import trend_basis
 
 _S2_GRID = np.concatenate([[0.0], np.geomspace(1e-12, 1e-2, 121)])  # pose scatter variance, rad^2
 
@@ -51,7 +53,9 @@ def _static_try(data: GapData, gamma: float, E: Collection[str], g: np.ndarray, 
     """Fit the static view on every fold at once: weighted least squares with references (3 rows a pose),
     Levenberg-Marquardt on the norm without (1 row); v0 (F, P, 3) with references, (F, P) on the norm."""
     ref, F, P = data.ref, train.shape[0], data.P
-    A, b, d, labels = static_design(E, g, ref, dT, dh, ref is None, data.n_temps, data.zero_g)
+    order = trend_basis(data) if NAME in E else None
+    A, b, d, labels = static_design(E, g, ref, dT, dh, ref is None, data.n_temps, data.zero_g, order,
+                                    data.drop_terms)
     p = A.shape[-1]
     if ref is None:  # norm only
         w = train / v0

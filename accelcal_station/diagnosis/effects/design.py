@@ -19,12 +19,15 @@ from .columns import StaticView
 
 def static_design(E: Collection[str], g: np.ndarray, ref: np.ndarray | None, dT: np.ndarray | None,
                   drift_h: np.ndarray | None, norm: bool, n_temps: int, g0: ArrayLike | None = None,
+                  order: tuple[np.ndarray, list[str]] | None = None, drop: frozenset[str] = frozenset(),
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[str, str]]]:
     """Design of the static view for effects E.
 
     g: (..., P, 3) readings; ref: (P, 3) or None; dT: (P,) or None; drift_h: (..., P, 2) or None;
     g0: (3,) the zero-g reading: a sensor's nonlinearity acts on its response to force, G - g0
-    (reading = S a + c (S a)^3 + b), so the cubic and square columns are centred there.
+    (reading = S a + c (S a)^3 + b), so the cubic and square columns are centred there;
+    order: the order trend's basis (P, k) and names (order.trend_basis) when E has ``order_trend``;
+    drop: "effect:detail" columns left out.
     Returns A (..., P, 3, p), b (..., P, 3), d (p,) norm-shift flags, labels (p,) of (effect, detail).
     """
     lead = g.shape[:-2]
@@ -33,7 +36,7 @@ def static_design(E: Collection[str], g: np.ndarray, ref: np.ndarray | None, dT:
     g = np.broadcast_to(g, lead + g.shape[-2:])
     P = g.shape[-2]
     z0 = np.zeros(3) if g0 is None else np.asarray(g0, float)
-    view = StaticView(g, ref, dT, drift_h, norm, n_temps, z0, frozenset(E))
+    view = StaticView(g, ref, dT, drift_h, norm, n_temps, z0, frozenset(E), order, drop)
     for name, effect in DETERMINISTIC.items():
         if name in E:
             effect.columns(view)
