@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Discriminator, Field, JsonValue, StrictBool, Tag, field_validator
 
+from ..errors import DataError
 from .section import MAX_BOARDS, Section, Triple, _f
 
 
@@ -110,6 +111,20 @@ def _check_mount(v: list[str] | None) -> list[str] | None:
     return v
 
 
+def _check_board_serial(v: str | int | None) -> str | int | None:
+    """A configured board serial follows the one serial rule (serials.py), checked when the config is read."""
+    if v is None:
+        return v
+    from .serials import BOARD_SERIAL_MAX, check_serial
+
+    try:
+        check_serial(str(v), "serial")
+    except DataError:
+        raise ValueError(f"a serial number: 1-{BOARD_SERIAL_MAX} letters, digits and . _ : / -, starting with a "
+                         "letter or digit") from None
+    return v
+
+
 class SimEepromSection(Section):
     """A simulated board's EEPROM (``device.eeprom``, driver: simulated)."""
 
@@ -129,7 +144,7 @@ class SimulatedBoardSection(Section):
     odr_hz: float | None = _f(None, "output data rate, Hz (one of the chip's rates)", gt=0, le=10_000)
     dlpf: int | None = _f(None, "mpu6050: digital low-pass filter setting", ge=0, le=6)
     seed: int | None = _f(None, "random seed (default: fresh, recorded)", ge=0, le=2**63 - 1)
-    serial: str | int | None = _f(None, "board serial number")
+    serial: str | int | None = _f(None, "board serial number (1-32 letters, digits and . _ : / -)")
     realtime: StrictBool = _f(False, "sleep the wall time as the virtual clock runs")
     ambient_c: float = _f(25.0, "board temperature, C", ge=-60, le=150)
     self_heating_c: float = _f(0.0, "warm-up of the board, C", ge=0, le=50)
@@ -145,6 +160,11 @@ class SimulatedBoardSection(Section):
     @classmethod
     def _proper_true_mount(cls, v: list[str] | None) -> list[str] | None:
         return _check_mount(v)
+
+    @field_validator("serial")
+    @classmethod
+    def _serial_rule(cls, v: str | int | None) -> str | int | None:
+        return _check_board_serial(v)
 
 
 class I2cEepromSection(Section):
@@ -168,13 +188,18 @@ class Mma8451Section(Section):
         "high_resolution", "oversampling mode")
     retries: int = _f(3, "retries of a bus transaction", ge=0, le=20)
     timeout_s: float = _f(1.0, "transaction timeout, s", ge=0.001, le=60)
-    serial: str | int | None = _f(None, "board serial number")
+    serial: str | int | None = _f(None, "board serial number (1-32 letters, digits and . _ : / -)")
     offset_trim_lsb: list[int] | None = _f(None, "offset registers [x, y, z], whole numbers -128..127")
     eeprom: I2cEepromSection | Literal[False] | None = _f(None, "the board's EEPROM (false: none)")
     simulator: SimulatedBoardSection | str | None = _f(
         None, "bus: emulated: the simulated board (a mapping of simulated-board keys, or a file)")
     seed: int | None = _f(None, "bus: emulated: random seed", ge=0, le=2**63 - 1)
     emulator: BusEmulatorSection | None = _f(None, "bus: emulated: the emulator's faults")
+
+    @field_validator("serial")
+    @classmethod
+    def _serial_rule(cls, v: str | int | None) -> str | int | None:
+        return _check_board_serial(v)
 
 
 class Mpu6050Section(Section):

@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable
 
 from ..acceptance.reasons import Reason
+from ..config.serials import check_serial
 from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, DeviceError
@@ -158,6 +159,8 @@ class StationFlow:
             b.driver.open()
             b.open_ = True
             ident = b.driver.identify()
+            if ident.serial:  # the serial the device reports (its EEPROM, the bridge) follows the one rule
+                check_serial(ident.serial, f"the serial the {ident.chip or 'device'} reports")
             b.rep.serial = (self.serial_override or ident.serial) if self.policy.single_board else (
                 ident.serial or b.rep.serial)
             b.rep.chip = ident.chip

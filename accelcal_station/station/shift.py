@@ -14,13 +14,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TypedDict
 
+from ..config.serials import check_serial
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, DataError, DeviceError, NVMError
 from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import OperatorUI
 from ..i18n import N_, Translate, reason_title
 from .flow import StationFlow, make_flow
-from .identity import check_serial
 from .report import RunReport
 from .settings import StationConfig
 

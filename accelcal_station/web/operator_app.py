@@ -16,7 +16,7 @@ import hmac
 from typing import Annotated, Literal
 
 from fastapi import Depends, FastAPI, Header, Request
-from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
+from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 from pydantic import BaseModel, Field, WithJsonSchema
 
 from . import assets
@@ -72,8 +72,8 @@ def create_operator_app(ui: WebOperator, token: str | None, page_token: str | No
     install_errors(app)
     app.include_router(assets.router)
 
-    @app.get("/", response_class=HTMLResponse, include_in_schema=False)
-    def page(request: Request, token: str | None = None) -> HTMLResponse | RedirectResponse:
+    @app.get("/", response_class=HTMLResponse, include_in_schema=False, response_model=None)
+    def page(request: Request, token: str | None = None) -> Response:
         if page_token is not None and token is not None and _same(token, page_token):
             done = RedirectResponse("/", status_code=303)  # the token leaves the address bar and history
             done.set_cookie(PAGE_COOKIE, page_token, httponly=True, samesite="strict")
