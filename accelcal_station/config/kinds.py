@@ -113,7 +113,7 @@ def _check_mount(v: list[str] | None) -> list[str] | None:
 
 def _check_board_serial(v: str | int | None) -> str | int | None:
     """A configured board serial follows the one serial rule (serials.py), checked when the config is read."""
-    if v is None:
+    if v is None or not str(v).strip():  # absent or "": the device's own serial
         return v
     from .serials import BOARD_SERIAL_MAX, check_serial
 

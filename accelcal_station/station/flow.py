@@ -281,11 +281,10 @@ class StationFlow:
         (a board already failed keeps its FAIL); a single board's run is closed at once as ``error`` with
         its poses (a panel's boards are recorded so by ``_record``).  What a board holds after a burn had
         begun is said (the writer's restore path has already run)."""
-        why = station_fault_reason(e)
         single = self.policy.single_board
         for b in boards:
             if single or b.active:
-                b.rep.station_fault = why
+                b.rep.station_fault = station_fault_reason(e, self.conditions.interruption(self, b, e)[0])
                 b.cal = None  # nothing more is burned after the fault
                 b.rep.events.append(f"run ended by a station fault after {len(b.records)} poses: {e}")
         self.echo(station_fault_line(e, before_board=False, poses=len(boards[0].records) if boards else 0))

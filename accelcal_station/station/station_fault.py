@@ -39,9 +39,10 @@ def instrument_of(e: DeviceError) -> str:
     return e.instrument if e.instrument in WHAT_TO_CHECK else "device"
 
 
-def station_fault_reason(e: DeviceError) -> str:
-    """The run's status reason in the store: ``station fault (INSTRUMENT): what happened``."""
-    return f"station fault ({instrument_of(e)}): {e}"
+def station_fault_reason(e: DeviceError, why: str | None = None) -> str:
+    """The run's status reason in the store: ``station fault (INSTRUMENT): what happened`` (``why``: the
+    error in the words of the conditions, e.g. a thermal plan's set point; default the error's own)."""
+    return f"station fault ({instrument_of(e)}): {why or e}"
 
 
 def station_fault_line(e: DeviceError, *, before_board: bool, poses: int = 0) -> str:
