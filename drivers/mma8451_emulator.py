@@ -389,6 +389,10 @@ class MMA8451Emulator:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
+        """SMBus receive byte: one byte from the device's current pointer (what ``i2cdetect -r`` sends)."""
+        return self._transaction([(i2c_addr, True, 1)])[0][0]
+
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         return self._transaction([(i2c_addr, False, [register]), (i2c_addr, True, 1)])[1][0]
 
