@@ -153,3 +153,64 @@ def test_with_a_token_the_page_answers_only_who_has_it(tmp_path):
     assert proc.returncode == 0, err
     assert json.loads(out)["verdict"] == "PASS"
     assert f"?token={token}" in err  # the printed link carries the token
+
+
+def _emulated_mpu(tmp_path: Path, **emulator: object) -> Path:
+    doc = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
+    doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    doc["jig"] = {"type": "simulated", "move_time_s": 0.0}
+    doc["device"].update(port="emulated", emulator=emulator)
+    p = tmp_path / "mpu.yaml"
+    p.write_text(yaml.safe_dump(doc))
+    return p
+
+
+def test_an_emulated_clone_is_refused_in_one_line_naming_it(tmp_path):
+    """A module whose part answers WHO_AM_I 0x98 (as most MPU-6050 clones on the market do): one line that
+    names the value, does not call it an ICM-20689, and gives the config line that accepts it."""
+    r = CliRunner().invoke(cli, ["run", "--config", str(_emulated_mpu(tmp_path, who_am_i=0x98)), "--json"])
+    assert r.exit_code == 3, r.output
+    (line,) = r.stdout.strip().splitlines()
+    err = json.loads(line)["error"]
+    assert "WHO_AM_I (0x75) reads 0x98" in err and "clone" in err and "device.accept_who_am_i: [0x98]" in err
+    assert "ICM-20689)" not in err
+
+
+def test_an_accepted_clone_is_calibrated_with_its_self_test_skipped(tmp_path):
+    doc = yaml.safe_load(_emulated_mpu(tmp_path, who_am_i=0x98).read_text())
+    doc["device"]["accept_who_am_i"] = [0x98]  # the line the refusal gives
+    (tmp_path / "ok.yaml").write_text(yaml.safe_dump(doc))
+    r = CliRunner().invoke(cli, ["run", "--config", str(tmp_path / "ok.yaml"), "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["verdict"] == "PASS" and out["self_test"] is None
+    assert any(e.startswith("self-test skipped") and "0x98" in e for e in out["events"]), out["events"]
+
+
+def _emulated_mma(tmp_path: Path, **emulator: object) -> Path:
+    doc = yaml.safe_load((CONFIGS / "mma8451-emulated.yaml").read_text())
+    doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    doc["jig"] = {"type": "simulated", "move_time_s": 0.0}
+    doc["device"]["emulator"] = emulator
+    p = tmp_path / "mma.yaml"
+    p.write_text(yaml.safe_dump(doc))
+    return p
+
+
+def test_a_held_sda_ends_in_one_line_naming_the_cause(tmp_path):
+    r = CliRunner().invoke(cli, ["run", "--config", str(_emulated_mma(tmp_path, sda_held=True)), "--json"])
+    assert r.exit_code == 3, r.output
+    (line,) = r.stdout.strip().splitlines()
+    err = json.loads(line)["error"]
+    assert "timed out" in err and "SDA or SCL held low" in err and "power-cycle" in err, err
+    assert "Traceback" not in r.output
+
+
+def test_a_nack_storm_ends_in_one_line_naming_the_cause(tmp_path):
+    r = CliRunner().invoke(cli, ["run", "--config", str(_emulated_mma(tmp_path, nack_every=1)), "--json"])
+    assert r.exit_code == 3, r.output
+    (line,) = r.stdout.strip().splitlines()
+    err = json.loads(line)["error"]
+    assert "0x1d" in err and "no ACK" in err and "wiring" in err, err
+    rows = sqlite3.connect(tmp_path / "runs.sqlite").execute("SELECT status, verdict FROM runs").fetchall()
+    assert rows == [("error", None)]  # the station's error, never the board's FAIL

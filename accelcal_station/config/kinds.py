@@ -64,6 +64,7 @@ class BusEmulatorSection(Section):
     nack_every: int = _f(0, "NACK every Nth bus transaction (0: never)", ge=0, le=1000)
     never_ready: StrictBool = _f(False, "the data-ready flag never sets")
     present: StrictBool = _f(True, "the chip answers on the bus at all")
+    sda_held: StrictBool = _f(False, "a chip holds SDA low (left mid-byte by a reset): every transfer times out")
     bus_hz: float = _f(400_000.0, "I2C clock of the emulated bus, Hz", ge=10_000, le=3_400_000)
     corrupt_reads: CorruptReadsSection | None = _f(None, "a lying bus: reads corrupted at random (tests)")
     self_test_scale: Triple = _f(
@@ -89,6 +90,8 @@ class BridgeEmulatorSection(Section):
                                        "unit differs from the driver's assumption)", ge=0.5, le=2.0)
     chip_ppm: float = _f(0.0, "the chip's clock against the bridge MCU's, ppm (positive: the chip is fast)",
                          ge=-1e4, le=1e4)
+    who_am_i: int = _f(0x68, "WHO_AM_I the emulated chip answers (a clone or relative: 0x98, 0x70, 0x72, ...)",
+                       ge=0, le=255)
 
 
 class MuxSection(Section):
@@ -213,6 +216,9 @@ class Mpu6050Section(Section):
     timeout_s: float = _f(0.5, "reply timeout, s", ge=0.01, le=60)
     retries: int = _f(3, "retries of a serial transaction", ge=0, le=20)
     boot_wait_s: float = _f(2.0, "wait for the bridge to boot, s", ge=0, le=30)
+    accept_who_am_i: list[Annotated[int, Field(ge=0, le=255)]] = _f(
+        [], "MPU-6050 compatibles to calibrate too, by WHO_AM_I (clones on modules: 0x98, 0x70, 0x72; "
+        "docs/station.md); their self-test is skipped")
     simulator: SimulatedBoardSection | str | None = _f(
         None, "port: emulated: the simulated board (a mapping of simulated-board keys, or a file)")
     seed: int | None = _f(None, "port: emulated: random seed", ge=0, le=2**32 - 1)
