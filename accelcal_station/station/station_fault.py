@@ -16,17 +16,19 @@ from typing import TypeGuard
 from ..config.kinds import JigSection, MotorizedJigConfig
 from ..errors import DeviceError, JigError
 from ..fixtures.base import Jig
+from ..i18n import N_, Translate
 from ..jsontypes import JsonObject
 from .capture import NotStill, WrongPose
 
-# what the operator checks for each instrument before the board is run again
+# what the operator checks for each instrument before the board is run again (the operator's catalog)
 WHAT_TO_CHECK: dict[str, str] = {
-    "device": "check the board's cable and connector and that the board sits in the jig",
-    "jig": "check the jig's cable, power and emergency stop",
-    "chamber": "check the chamber's cable, power and door",
-    "mux": "check the panel's I2C multiplexer and its cable",
-    "store": "check the results store (disk space, the line database's network)",
+    "device": N_("check the board's cable and connector and that the board sits in the jig"),
+    "jig": N_("check the jig's cable, power and emergency stop"),
+    "chamber": N_("check the chamber's cable, power and door"),
+    "mux": N_("check the panel's I2C multiplexer and its cable"),
+    "store": N_("check the results store (disk space, the line database's network)"),
 }
+FAULT_TITLE = N_("the station faulted: this board is not judged")
 
 
 def is_station_fault(e: BaseException) -> TypeGuard[DeviceError]:
@@ -50,6 +52,13 @@ def station_fault_line(e: DeviceError, *, before_board: bool, poses: int = 0) ->
     where = "before the board's first step" if before_board else f"after {poses} poses"
     return (f"STATION FAULT ({instrument_of(e)}, {where}): {e}; the board is not judged (no PASS, no FAIL); "
             f"{WHAT_TO_CHECK[instrument_of(e)]}, then run the board again")
+
+
+def operator_text(e: DeviceError, tr: Translate) -> str:
+    """The operator's words for a station fault: what to check, in the operator's language, then the
+    instrument's own message (the engineers' English, as the log has it)."""
+    return tr("{check}, then run the board again ({error})").format(check=tr(WHAT_TO_CHECK[instrument_of(e)]),
+                                                                    error=e)
 
 
 def nvm_held_line(nvm: JsonObject | None) -> str:

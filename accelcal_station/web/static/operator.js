@@ -103,7 +103,8 @@
       var li = document.createElement("li"); li.textContent = (titles[c] || c || "–") + ": " + s.reasons_by_code[c]; return li;
     });
     $("result-reasons").replaceChildren.apply($("result-reasons"), items);
-    $("result-figures").textContent = T("{start} to {end} (UTC)", {start: s.started_utc, end: s.ended_utc});
+    $("result-figures").textContent = T("{start} to {end} (UTC)", {start: s.started_utc, end: s.ended_utc}) +
+      " · " + T("ended by: {why}", {why: T(s.ended_by)});
     box.hidden = false;
   }
 
@@ -177,10 +178,12 @@
     } else { form.hidden = true; }
     var log = s.lines.map(function (t) { var li = document.createElement("li"); li.textContent = t; return li; });
     $("log").replaceChildren.apply($("log"), log);
-    // between boards the station's own lines (a refused scan, a device gone and back) are shown over all
-    var note = !s.pose && s.lines.length ? s.lines[s.lines.length - 1].trim() : "";
+    // between boards what the station says to the operator (a refused scan, a device gone and back) is shown
+    // over all; never over a verdict, a fault or the shift's end, which say it themselves
+    var note = !s.pose && phase !== "done" && phase !== "shift_over" && phase !== "station_fault" ? (s.notice || "") : "";
     $("notice").hidden = !note;
     $("notice").textContent = note;
+    $("b-end-fault").hidden = !(phase === "station_fault" && s.shift);
     // the station's verdict stays on every page until the station starts the next board
     if (phase === "shift_over" && s.summary) { showSummary(s.summary); } else if (s.result) { showResult(s.result); }
     else { $("result").hidden = true; }
@@ -218,6 +221,7 @@
     if (v) { send({answer: "serial", serial: v}); }  // a blank scan is ignored, as in the terminal
   });
   $("b-end").addEventListener("click", function () { send({answer: "end"}); });
+  $("b-end-fault").addEventListener("click", function () { send({answer: "end"}); });
   // a page that lost the station keeps asking: it shows the station again as soon as it answers
   (function loop() { if (!done) { poll(); window.setTimeout(loop, 250); } }());
 }());
