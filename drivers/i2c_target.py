@@ -25,8 +25,7 @@ def _os_reason(e: OSError) -> str:
     elif e.errno == errno.ENOTTY:
         text += " (not an I2C adapter)"
     elif e.errno in (errno.EREMOTEIO, errno.ENXIO):
-        text += (" (no ACK: nothing answers at this address, or it stopped answering: check the board's power, "
-                 "SDA/SCL wiring and SA0; NACKs mid-run are a loose contact)")
+        text += " (no ACK: nothing answers at this address, or it stopped answering: a loose contact, no power)"
     elif e.errno in (errno.ETIMEDOUT, errno.EAGAIN):
         text += (" (the bus timed out: SDA or SCL held low; a chip left mid-byte by a reset holds SDA until "
                  "clocked free: Linux recovers the bus only where the adapter driver supports bus recovery, "
