@@ -5,6 +5,7 @@ station says so full-screen."""
 from __future__ import annotations
 
 import json
+import re
 import sqlite3
 import subprocess
 import sys
@@ -291,6 +292,8 @@ def test_the_operator_page_in_german(tmp_path):
                 assert german in page, german
             # the first six-face pose, x+1g (data sheets: +1 g on the axis pointing up): on its -x edge
             assert "auf die -x-Kante stellen, +x zeigt nach oben" in drv.find_element(By.ID, "instruction").text
+            angles = drv.find_element(By.ID, "angles").text  # German numbers: a decimal comma (issue 49)
+            assert "1,000" in angles and not re.search(r"\d\.\d", angles), angles
             for english in ("Accept", "Re-place", "Skip", "Live level", "pose 1 of 6", "STILL", "READY",
                             "stand it on its", "pointing up"):
                 assert english not in page, english
