@@ -41,12 +41,29 @@ class DeviceError(AccelcalError):
 
     exit_code = 3
     reason_code = "device"  # the typed reason a run records when this ends it
+    # the station's instrument that faulted (device, jig, chamber, mux, store): a fault of an
+    # instrument ends a run as the station's error, never as a board's verdict (DESIGN.md)
+    instrument = "device"
+
+
+class JigError(DeviceError):
+    """The jig did not open, answer, move or report as it should: the station's fault."""
+
+    reason_code = "jig"
+    instrument = "jig"
 
 
 class PortLostError(DeviceError):
     """A serial port closed or vanished while in use (the driver boundary maps PORT_FAULTS to it)."""
 
     reason_code = "port_lost"
+
+
+class JigPortLostError(PortLostError, JigError):
+    """The jig's serial port closed or vanished while in use."""
+
+    reason_code = "port_lost"
+    instrument = "jig"
 
 
 # what a lost port raises below the drivers: OSError (pyserial's SerialException is one, as is

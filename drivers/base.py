@@ -206,6 +206,8 @@ class Driver(ABC):
 
     #: whether :meth:`self_test` runs the chip's built-in self-test (declared, not probed)
     supports_self_test: bool = False
+    #: why this part's self-test is not run although the driver has one (an accepted compatible), else None
+    self_test_skipped: str | None = None
 
     def self_test(self, n: int = 64) -> SelfTestResult:
         """The chip's self-test: output change per axis against the data sheet (drivers/self_test.py)."""

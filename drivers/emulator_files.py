@@ -21,6 +21,7 @@ class BridgeFaults(TypedDict, total=False):
     self_test_share: list[float]
     offset_step_scale: float
     chip_ppm: float
+    who_am_i: int
 
 
 def bridge_faults(e: BridgeEmulatorSection | None) -> BridgeFaults:
@@ -34,6 +35,7 @@ def bridge_faults(e: BridgeEmulatorSection | None) -> BridgeFaults:
         out["self_test_share"] = e.self_test_share
     out["offset_step_scale"] = e.offset_step_scale
     out["chip_ppm"] = e.chip_ppm
+    out["who_am_i"] = e.who_am_i
     return out
 
 

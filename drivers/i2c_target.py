@@ -24,6 +24,12 @@ def _os_reason(e: OSError) -> str:
         text += " (a kernel driver owns this address; unbind it, e.g. the mma8452 module)"
     elif e.errno == errno.ENOTTY:
         text += " (not an I2C adapter)"
+    elif e.errno in (errno.EREMOTEIO, errno.ENXIO):
+        text += " (no ACK: nothing answers at this address, or it stopped answering: a loose contact, no power)"
+    elif e.errno in (errno.ETIMEDOUT, errno.EAGAIN):
+        text += (" (the bus timed out: SDA or SCL held low; a chip left mid-byte by a reset holds SDA until "
+                 "clocked free: Linux recovers the bus only where the adapter driver supports bus recovery, "
+                 "otherwise power-cycle the board)")
     return text
 
 

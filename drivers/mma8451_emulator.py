@@ -210,9 +210,13 @@ class MMA8451Emulator:
     """
 
     def __init__(self, board: Any, address: int = 0x1D, eeprom_address: int | None = 0x50, chip_id: int = CHIP_ID,
-                 bus_hz: float = 400_000.0, never_ready: bool = False, present: bool = True) -> None:
+                 bus_hz: float = 400_000.0, never_ready: bool = False, present: bool = True,
+                 sda_held: bool = False) -> None:
         self.board, self.address, self.eeprom_address = board, address, eeprom_address
         self.bus_hz, self.never_ready, self.present = float(bus_hz), never_ready, present
+        # a chip holding SDA low (left mid-byte by a reset): every transfer on the bus times out, as a
+        # Linux adapter reports it (ETIMEDOUT), until the board is powered off
+        self.sda_held = bool(sda_held)
         if board.chip.name != "mma8451":
             raise ConfigError(f"MMA8451 emulator needs a simulated mma8451 board, not {board.chip.name!r}")
         self.clock = _Clock(self)
@@ -252,7 +256,7 @@ class MMA8451Emulator:
         board = emulated_board(m.simulator, "mma8451", m.seed, path)
         e = m.emulator or BusEmulatorSection()
         emu = cls(board, address=m.address, eeprom_address=eeprom_address, chip_id=e.chip_id, bus_hz=e.bus_hz,
-                  never_ready=e.never_ready, present=e.present)
+                  never_ready=e.never_ready, present=e.present, sda_held=e.sda_held)
         emu.nack_every(e.nack_every)
         emu.self_test_faults(e.self_test_scale, e.self_test_dead)
         emu.trim_fault(e.trim_step_scale, e.trim_sign)
@@ -345,6 +349,9 @@ class MMA8451Emulator:
         self._advance(9 * nbytes / self.bus_hz)
         self.transactions += 1
         addr = msgs[0][0]
+        if self.sda_held:
+            self.nack_log.append((addr, None))
+            raise OSError(errno.ETIMEDOUT, f"{os.strerror(errno.ETIMEDOUT)} (emulated: SDA held low)")
         register = msgs[0][2][0] if not msgs[0][1] and len(msgs[0][2]) else None
         if self._injected_nack(addr, register) or (addr == self.address and self.clock.now() < self._boot_until):
             self.nack_log.append((addr, register))
@@ -388,6 +395,10 @@ class MMA8451Emulator:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
+        """SMBus receive byte: one byte from the device's current pointer (what ``i2cdetect -r`` sends)."""
+        return self._transaction([(i2c_addr, True, 1)])[0][0]
 
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         return self._transaction([(i2c_addr, False, [register]), (i2c_addr, True, 1)])[1][0]

@@ -34,6 +34,7 @@ from ..jsontypes import JsonObject
 from . import bridge_protocol as bp
 from .base import NVM, Capture, Driver, Identity
 from .bridge_link import BridgeLink, BridgeRefused, BridgeReset, LinkStats
+from .mpu6050_parts import part_of, refusal
 from .mpu6050_registers import (  # noqa: F401  (re-exported: the driver's public names)
     ACCEL_CONFIG,
     ACCEL_RATE_HZ,
@@ -131,6 +132,7 @@ class Mpu6050Settings(TypedDict, total=False):
     timeout_s: float
     retries: int
     boot_wait_s: float
+    accept_who_am_i: tuple[int, ...]
 
 
 def settings_of(m: Mpu6050Section, path: str = "device") -> tuple[str, Mpu6050Settings]:
@@ -147,7 +149,8 @@ def settings_of(m: Mpu6050Section, path: str = "device") -> tuple[str, Mpu6050Se
     smplrt_div_for(m.odr_hz, m.dlpf, f"{path}.odr_hz")
     check_link_rate(m.odr_hz, m.baud, f"{path}.odr_hz")
     return port, Mpu6050Settings(baud=m.baud, range_g=m.range_g, odr_hz=m.odr_hz, dlpf=m.dlpf,
-                                 timeout_s=m.timeout_s, retries=m.retries, boot_wait_s=m.boot_wait_s)
+                                 timeout_s=m.timeout_s, retries=m.retries, boot_wait_s=m.boot_wait_s,
+                                 accept_who_am_i=tuple(m.accept_who_am_i))
 
 
 class MPU6050Bridge(Driver):
@@ -156,7 +159,8 @@ class MPU6050Bridge(Driver):
     name = "mpu6050"
 
     def __init__(self, port: str, baud: int = bp.DEFAULT_BAUD, range_g: int = 2, odr_hz: float = 100.0,
-                 dlpf: int = 3, timeout_s: float = 0.5, retries: int = 3, boot_wait_s: float = 2.0) -> None:
+                 dlpf: int = 3, timeout_s: float = 0.5, retries: int = 3, boot_wait_s: float = 2.0,
+                 accept_who_am_i: tuple[int, ...] = ()) -> None:
         if range_g not in COUNTS_PER_G:
             raise ConfigError(f"range_g: {range_g!r}; allowed: 2, 4, 8, 16")
         if dlpf not in range(len(DLPF_BANDWIDTH_HZ)):
@@ -168,6 +172,8 @@ class MPU6050Bridge(Driver):
         self.link = BridgeLink(port, int(baud), float(timeout_s), int(retries))
         self._want = (int(range_g), float(odr_hz), int(dlpf))
         self._range_g, self._odr_hz, self._dlpf, self._div = 2, ACCEL_RATE_HZ, 0, 0  # power-on
+        self.accept_who_am_i = tuple(int(v) for v in accept_who_am_i)  # compatibles the config accepts
+        self.part = "MPU-6050"
         self._offsets_set: np.ndarray | None = None
         self._bridge: BridgeIdentity | None = None
         self._nvm: BridgeNVM | None = None
@@ -181,10 +187,9 @@ class MPU6050Bridge(Driver):
             self.link.open()  # inside: a port that fails to open is closed again
             self._bridge = self._hello()
             who = self._read(WHO_AM_I, 1)[0]
-            if who != CHIP_ID:
-                name = KNOWN_CHIP_IDS.get(who, "an unknown part")
-                raise DeviceError(f"wrong chip behind the bridge on {self.port}: WHO_AM_I (0x75) reads 0x{who:02x} "
-                                  f"({name}); expected 0x{CHIP_ID:02x} (MPU6050)")
+            if who != CHIP_ID and who not in self.accept_who_am_i:
+                raise DeviceError(refusal(who, self.port))
+            self._accept_part(who)
             self._nvm = BridgeNVM(self, self._bridge.nvm_size, self._bridge.nvm_page_size)
             self._with_recovery(self._init_chip)
         except BaseException:
@@ -193,6 +198,15 @@ class MPU6050Bridge(Driver):
 
     def close(self) -> None:
         self.link.close()
+
+    def _accept_part(self, who: int) -> None:
+        """A compatible the config accepts (drivers/mpu6050_parts.py): its self-test is not the MPU-6050's."""
+        part = part_of(who)
+        self.part = part.name if part is not None else f"part with WHO_AM_I 0x{who:02x}"
+        genuine = part is not None and part.genuine
+        self.self_test_skipped = None if genuine else (
+            f"self-test skipped: the {self.part} is accepted by device.accept_who_am_i, and its self-test "
+            "response is not the MPU-6050's (product specification 6.1)")
 
     def _hello(self) -> BridgeIdentity:
         """IDENTIFY until answered; an Arduino reboots when the port opens (DTR), so allow boot_wait_s."""

@@ -62,7 +62,8 @@ class SimavrBridge:
 
     def __init__(self, board: Any = None, seed: int | None = None, factory_offsets: Sequence[int] = (1001, -2000, 3),
                  who_am_i: int = CHIP_ID, chip_ppm: float = 0.0, self_test_codes: Sequence[int] | None = None,
-                 self_test_share: Sequence[float] | None = None, offset_step_scale: float = 1.0) -> None:
+                 self_test_share: Sequence[float] | None = None, offset_step_scale: float = 1.0,
+                 sda_held_clocks: int = 0) -> None:
         if board is None:
             from .simulated import SimulatedBoard
 
@@ -84,6 +85,10 @@ class SimavrBridge:
         if not 0.0 < float(offset_step_scale) < 10.0:
             raise ConfigError(f"offset_step_scale: {offset_step_scale!r}; allowed: 0 < scale < 10")
         self.offset_step_scale = float(offset_step_scale)
+        # a fault: at power-on the chip holds SDA low until it has seen this many SCL clocks (0: never held)
+        if not 0 <= int(sda_held_clocks) <= 64:
+            raise ConfigError(f"sda_held_clocks: {sda_held_clocks!r}; allowed: 0..64")
+        self.sda_held_clocks = int(sda_held_clocks)
         self.lock = threading.RLock()  # held while a sample is taken: take it to move the board
         self.port: str | None = None
         self.registers: dict[str, int] = {}  # the chip's configuration registers as last written
@@ -106,7 +111,7 @@ class SimavrBridge:
                                        "-p", repr(self.chip_ppm),
                                        "-t", ",".join(str(c) for c in self.self_test_codes),
                                        "-r", ",".join(repr(v) for v in self.self_test_share),
-                                       "-s", repr(self.offset_step_scale)],
+                                       "-s", repr(self.offset_step_scale), "-H", str(self.sda_held_clocks)],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
         ready: queue.Queue[str] = queue.Queue()
         self._thread = threading.Thread(target=self._serve, args=(ready,), name="simavr-bridge", daemon=True)

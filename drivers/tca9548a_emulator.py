@@ -82,13 +82,13 @@ class TCA9548AEmulator:
 
     def write_byte(self, i2c_addr: int, value: int, force: bool | None = None) -> None:
         if i2c_addr != self.address:
-            raise _nack(i2c_addr)
+            raise _nack(i2c_addr)  # no device modelled here takes a bare byte write
         self.control = value & 0xFF
         self.selects += 1
 
     def read_byte(self, i2c_addr: int, force: bool | None = None) -> int:
-        if i2c_addr != self.address:
-            raise _nack(i2c_addr)
+        if i2c_addr != self.address:  # passed through to the enabled channels, as the part does
+            return int(self._on(i2c_addr, "read_byte"))
         return self.control
 
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:

@@ -1,8 +1,9 @@
-"""Every device and port fault ends in a recorded verdict, for the PANEL stations too (issue 26): the
-motorized jig's pty hangs up mid-run, a board's bridge port is dropped mid-stream (real ptys, pyserial),
-the multiplexed I2C bus NACKs every transaction from mid-run (the emulator's fault option).  Each
-affected board's run is recorded FAIL with the typed reason and the poses it captured, on a real
-SQLite store; the command exits 1 (never 3 or 70) and no run is left 'running'."""
+"""Every device and port fault ends in a recorded run, for the PANEL stations too (issue 26), and it is
+the station's error, never a board's verdict (issue 49): the motorized jig's pty hangs up mid-run, a
+board's bridge port is dropped mid-stream (real ptys, pyserial), the multiplexed I2C bus NACKs every
+transaction from mid-run (the emulator's fault option).  Each affected board's run is recorded
+``error`` with the typed station reason and the poses it captured, no verdict, on a real SQLite store;
+the command exits 3 (never 1 or 70) and no run is left 'running'."""
 from __future__ import annotations
 
 import json
@@ -43,20 +44,20 @@ def runs_of(tmp_path: Path) -> list[sqlite3.Row]:
     return rows
 
 
-def run_panel(tmp_path: Path, bridge, jig, cfg: Path, code: str) -> dict:
+def run_panel(tmp_path: Path, bridge, jig, cfg: Path, instrument: str) -> dict:
     try:
         r = CliRunner().invoke(cli, ["run", "--config", str(cfg), "--json"])
     finally:
         jig.stop()
         bridge.stop()
-    assert r.exit_code == 1, r.output
+    assert r.exit_code == 3, r.output
     assert "Traceback" not in r.output
     board = json.loads(r.stdout)["boards"][0]
-    assert board["verdict"] == "FAIL" and code in board["reasons"][-1], board["reasons"]
+    assert board["verdict"] == "ERROR" and board["reasons"] == [], board
+    assert board["station_fault"].startswith(f"station fault ({instrument}): ") and "lost" in board["station_fault"]
     run, = runs_of(tmp_path)
-    assert (run["status"], run["verdict"]) == ("complete", "FAIL")
-    stored = json.loads(run["reasons"])
-    assert stored[-1]["code"] == code and "lost" in stored[-1]["message"]
+    assert (run["status"], run["verdict"]) == ("error", None)  # counted in no yield
+    assert run["status_reason"] == board["station_fault"]
     assert 1 <= run["n_poses"] < 8 and run["n_poses"] == len(board["poses"])  # captured before the fault, kept
     return board
 
@@ -64,7 +65,7 @@ def run_panel(tmp_path: Path, bridge, jig, cfg: Path, code: str) -> dict:
 def test_panel_jig_pty_hangs_up_mid_run(tmp_path):
     bridge, jig, cfg = panel_rig(tmp_path)
     jig.inject("disconnect", after=40)  # a full run sends ~120 commands: about the third pose
-    run_panel(tmp_path, bridge, jig, cfg, "port_lost")
+    run_panel(tmp_path, bridge, jig, cfg, "jig")
 
 
 def test_panel_bridge_port_dropped_mid_stream(tmp_path):
@@ -78,13 +79,14 @@ def test_panel_bridge_port_dropped_mid_stream(tmp_path):
 
     t = threading.Thread(target=drop_after_three_moves, daemon=True)
     t.start()
-    run_panel(tmp_path, bridge, jig, cfg, "port_lost")
+    run_panel(tmp_path, bridge, jig, cfg, "device")
     t.join(timeout=5)
 
 
 def test_thermal_panel_jig_pty_hangs_up_mid_plan(tmp_path):
     """A thermal plan over a panel (simulated boards in the emulated chamber), moved by a motorized jig on
-    a real pty that hangs up during the first set point: every board FAIL 'port_lost', its poses kept."""
+    a real pty that hangs up during the first set point: every board's run an error with the jig's station
+fault, no verdict, its poses kept."""
     from accelcal_station.drivers.factory import make_driver
     from accelcal_station.fixtures.factory import board_of
     from accelcal_station.station.flow import make_flow
@@ -109,17 +111,18 @@ def test_thermal_panel_jig_pty_hangs_up_mid_plan(tmp_path):
     finally:
         jig.stop()
     rep, = reps
-    assert rep.verdict == "FAIL" and rep.reasons[-1].code == "port_lost", rep.reasons
+    assert rep.verdict == "ERROR" and rep.station_fault.startswith("station fault (jig): "), rep.station_fault
     run, = runs_of(tmp_path)
-    assert (run["status"], run["verdict"]) == ("complete", "FAIL")
-    assert json.loads(run["reasons"])[-1]["code"] == "port_lost"
+    assert (run["status"], run["verdict"]) == ("error", None)
+    assert "lost" in run["status_reason"]
     assert 1 <= run["n_poses"] < 8  # the poses of the first set point captured before the hang-up
 
 
 def test_nack_storm_on_the_multiplexed_bus_mid_run(tmp_path):
     """Three emulated MMA8451 boards behind the emulated TCA9548A; from ~1/3 of the run every board's
     emulator NACKs every transaction (the emulator's nack_next fault, armed after 2,000 of its own
-    transactions; a whole run is ~5,800): each board FAIL 'device', its poses so far recorded."""
+    transactions; a whole run is ~5,800): each board's run an error with the station fault, no verdict, its
+poses so far recorded."""
     from accelcal_station.drivers.factory import make_driver
     from accelcal_station.station.flow import make_flow
     from accelcal_station.station.panel_config import panel_sections
@@ -135,10 +138,10 @@ def test_nack_storm_on_the_multiplexed_bus_mid_run(tmp_path):
     for d in drivers:
         d.emulator.nack_next(k=100_000, after=2_000)
     reps = make_flow(StationConfig.load(tmp_path / "p.yaml"), drivers=drivers, echo=lambda s: None).run()
-    assert [r.verdict for r in reps] == ["FAIL"] * 3
-    assert all(r.reasons[-1].code == "device" for r in reps), [r.reasons for r in reps]
+    assert [r.verdict for r in reps] == ["ERROR"] * 3
+    assert all(r.station_fault.startswith("station fault (device): ") for r in reps), [r.station_fault for r in reps]
     assert all(d.emulator.nacked >= 3 for d in drivers)  # retried, then gave up
     runs = runs_of(tmp_path)
-    assert [(r["status"], r["verdict"]) for r in runs] == [("complete", "FAIL")] * 3
-    assert all(json.loads(r["reasons"])[-1]["code"] == "device" for r in runs)
+    assert [(r["status"], r["verdict"]) for r in runs] == [("error", None)] * 3
+    assert all(r["status_reason"].startswith("station fault (device): ") for r in runs)
     assert all(1 <= r["n_poses"] < 8 for r in runs) and [r["n_poses"] for r in runs] == [len(r.poses) for r in reps]

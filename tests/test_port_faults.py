@@ -1,7 +1,8 @@
-"""Every device and port fault ends in a recorded verdict (issue 26): the motorized jig's pty hangs
-up mid-run, the MPU6050 bridge's port is dropped mid-stream.  Both over real pseudo-terminals with
-pyserial; the run is recorded FAIL with a typed reason and the poses captured so far, exit 1 (never
-70, never left 'running')."""
+"""Every device and port fault ends in a recorded run (issue 26), and it is the station's error, never
+the board's verdict (issue 49): the motorized jig's pty hangs up mid-run, the MPU6050 bridge's port is
+dropped mid-stream, the MMA8451's bus NACKs.  Over real pseudo-terminals with pyserial (and smbus2's
+API against the register emulator); the run is recorded ``error`` with the typed station reason and the
+poses captured so far, no verdict, exit 3 (never 1, never 70, never left 'running')."""
 from __future__ import annotations
 
 import json
@@ -41,31 +42,31 @@ def rig(tmp_path: Path):
     return bridge, port, jig, p
 
 
-def run_and_check(tmp_path: Path, bridge, port, jig, cfg: Path, code: str) -> dict:
+def run_and_check(tmp_path: Path, bridge, port, jig, cfg: Path, instrument: str) -> dict:
     try:
         r = CliRunner().invoke(cli, ["run", "--config", str(cfg), "--port", port, "--jig-port", jig.port, "--json"])
     finally:
         jig.stop()
         bridge.stop()
-    assert r.exit_code == 1, r.output
+    assert r.exit_code == 3, r.output  # the station's error, not a board's FAIL (1)
     assert "Traceback" not in r.output
     out = json.loads(r.stdout)
-    assert out["verdict"] == "FAIL" and code in out["reasons"][0], out["reasons"]
+    assert set(out) >= {"error", "code"} and out["code"] == 3 and "lost" in out["error"], out
+    assert "STATION FAULT" in r.stderr and "not judged" in r.stderr
     db = sqlite3.connect(tmp_path / "runs.sqlite")
     db.row_factory = sqlite3.Row
     run = db.execute("SELECT * FROM runs").fetchone()
-    assert run["status"] != "running" and run["verdict"] == "FAIL"
-    stored = json.loads(run["reasons"])
-    assert stored[0]["code"] == code and "lost" in stored[0]["message"]
+    assert run["status"] == "error" and run["verdict"] is None  # counted in no yield
+    assert run["status_reason"].startswith(f"station fault ({instrument}): ") and "lost" in run["status_reason"]
     poses = db.execute("SELECT COUNT(*) FROM poses WHERE run_id = ?", (run["id"],)).fetchone()[0]
-    assert 1 <= poses < 8 and poses == len(out["poses"])  # what was captured before the fault, kept
+    assert 1 <= poses < 8  # what was captured before the fault, kept
     return out
 
 
 def test_jig_pty_hangs_up_mid_run(tmp_path):
     bridge, port, jig, cfg = rig(tmp_path)
     jig.inject("disconnect", after=40)  # a full run sends ~120 commands: this is about the third pose
-    run_and_check(tmp_path, bridge, port, jig, cfg, "port_lost")
+    run_and_check(tmp_path, bridge, port, jig, cfg, "jig")
     assert not jig.running
 
 
@@ -80,7 +81,7 @@ def test_bridge_port_dropped_mid_stream(tmp_path):
 
     t = threading.Thread(target=drop_after_three_moves, daemon=True)
     t.start()
-    run_and_check(tmp_path, bridge, port, jig, cfg, "port_lost")
+    run_and_check(tmp_path, bridge, port, jig, cfg, "device")
     t.join(timeout=5)
 
 
@@ -105,13 +106,15 @@ def test_lost_ports_are_typed_at_the_driver_boundary():
     link.close()
 
 
-def test_nack_storm_mid_run_is_a_recorded_fail(tmp_path):
+def test_nack_storm_mid_run_is_a_station_error(tmp_path):
     """The emulated MMA8451 NACKs every transaction from ~1/3 of the way through a run (a whole run
-    is ~5,800 transactions): the run is FAIL with reason code 'device', its poses so far recorded."""
+    is ~5,800 transactions): the run ends as the station's error (status error, no verdict), its poses
+    so far recorded, and the error names the NACKs."""
     import sqlite3 as sq
 
     from accelcal_station.config.sections import device_section
     from accelcal_station.drivers.factory import make_driver
+    from accelcal_station.errors import DeviceError
     from accelcal_station.station.flow import make_flow
     from accelcal_station.station.settings import StationConfig
 
@@ -123,10 +126,32 @@ def test_nack_storm_mid_run_is_a_recorded_fail(tmp_path):
     with dev:
         emu = dev.dev.smbus
     emu.nack_next(k=100_000, address=emu.address, after=2_000)
-    rep = make_flow(StationConfig.load(tmp_path / "st.yaml"), driver=dev, echo=lambda s: None).run()[0]
-    assert rep.verdict == "FAIL" and rep.reasons[0].code == "device" and emu.nacked >= 3  # retried, then gave up
-    (status, verdict, reasons), = sq.connect(tmp_path / "runs.sqlite").execute(
-        "SELECT status, verdict, reasons FROM runs").fetchall()
-    assert (status, verdict) == ("complete", "FAIL") and json.loads(reasons)[0]["code"] == "device"
+    said: list[str] = []
+    with pytest.raises(DeviceError) as err:
+        make_flow(StationConfig.load(tmp_path / "st.yaml"), driver=dev, echo=said.append).run()
+    assert err.value.exit_code == 3 and emu.nacked >= 3  # retried, then gave up
+    assert any(s.startswith("STATION FAULT (device") for s in said), said
+    (status, verdict, why), = sq.connect(tmp_path / "runs.sqlite").execute(
+        "SELECT status, verdict, status_reason FROM runs").fetchall()
+    assert (status, verdict) == ("error", None) and why.startswith("station fault (device): ")
     n = sq.connect(tmp_path / "runs.sqlite").execute("SELECT COUNT(*) FROM poses").fetchone()[0]
-    assert 1 <= n < 6 and n == len(rep.poses)
+    assert 1 <= n < 6
+
+
+def test_missing_jig_port_is_a_station_error_before_any_board_step(tmp_path):
+    """`run --jig-port /no/such/port` (issue 49): exit 3 before the board's self-test, an error run
+    with the station reason and no verdict; the board is neither passed nor failed."""
+    cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
+    cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    (tmp_path / "mpu.yaml").write_text(yaml.safe_dump(cfg))
+    r = CliRunner().invoke(cli, ["run", "--config", str(tmp_path / "mpu.yaml"), "--port", "emulated",
+                                 "--jig-port", str(tmp_path / "no-such-port"), "--json"])
+    assert r.exit_code == 3, r.output
+    out = json.loads(r.stdout)
+    assert out["code"] == 3 and "jig on" in out["error"] and "cannot open" in out["error"]
+    assert "self-test" not in r.stderr  # no board step ran
+    assert "check the jig's cable" in r.stderr
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    rows = db.execute("SELECT status, verdict, status_reason FROM runs").fetchall()
+    assert len(rows) == 1 and rows[0][:2] == ("error", None) and rows[0][2].startswith("station fault (jig): ")
+    assert db.execute("SELECT COUNT(*) FROM poses").fetchone()[0] == 0

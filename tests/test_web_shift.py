@@ -5,6 +5,7 @@ station says so full-screen."""
 from __future__ import annotations
 
 import json
+import re
 import sqlite3
 import subprocess
 import sys
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from webtools import chromium, free_port
+from webtools import chromium, free_port, screenshot
 
 pytest.importorskip("fastapi")
 pytest.importorskip("selenium")
@@ -291,6 +292,8 @@ def test_the_operator_page_in_german(tmp_path):
                 assert german in page, german
             # the first six-face pose, x+1g (data sheets: +1 g on the axis pointing up): on its -x edge
             assert "auf die -x-Kante stellen, +x zeigt nach oben" in drv.find_element(By.ID, "instruction").text
+            angles = drv.find_element(By.ID, "angles").text  # German numbers: a decimal comma (issue 49)
+            assert "1,000" in angles and not re.search(r"\d\.\d", angles), angles
             for english in ("Accept", "Re-place", "Skip", "Live level", "pose 1 of 6", "STILL", "READY",
                             "stand it on its", "pointing up"):
                 assert english not in page, english
@@ -337,3 +340,66 @@ def test_a_refused_scan_is_shown_over_the_last_verdict(tmp_path):
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0
+
+
+def _absent_device_config(tmp_path: Path, language: str = "en") -> Path:
+    cfg = yaml.safe_load(_config(tmp_path).read_text())
+    cfg["device"]["emulator"] = {"present": False}  # nothing answers at the chip's address
+    cfg["station"]["language"] = language
+    p = tmp_path / f"absent-{language}.yaml"
+    p.write_text(yaml.safe_dump(cfg, allow_unicode=True))
+    return p
+
+
+def test_a_device_that_is_gone_is_a_full_screen_station_fault_with_end_shift(tmp_path):
+    """Issue 49: while the shift waits for a device that does not answer, the page shows the station's
+    fault full screen (what to check, no verdict) with End shift, never the last board's verdict; End shift
+    ends the shift and SHIFT OVER says why, with no stale notice over it."""
+    cfg = _absent_device_config(tmp_path)
+    port = free_port()
+    proc = _start(cfg, port, "--shift", "--device-wait", "600")
+    try:
+        with chromium(1024, 768) as drv:
+            _open(drv, f"http://127.0.0.1:{port}/")
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "serial-input").is_displayed())
+            drv.switch_to.active_element.send_keys("SN-1" + Keys.ENTER)
+            WebDriverWait(drv, 60).until(lambda d: d.find_element(By.ID, "result-verdict").text == "STATION FAULT")
+            reasons = drv.find_element(By.ID, "result-reasons").text
+            assert "this board is not judged" in reasons and "check the board's cable" in reasons, reasons
+            assert "result station fault" in drv.find_element(By.ID, "result").get_attribute("class")
+            assert not drv.find_element(By.ID, "notice").is_displayed()
+            screenshot(drv, "operator-station-fault.png")
+            end = drv.find_element(By.ID, "b-end-fault")
+            assert end.is_displayed()
+            end.click()
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "result-verdict").text == "SHIFT OVER")
+            assert "ended by: " in drv.find_element(By.ID, "result-figures").text
+            assert not drv.find_element(By.ID, "notice").is_displayed()
+        assert proc.wait(timeout=60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_the_station_fault_and_its_end_in_german(tmp_path):
+    """The same on a German station: the fault's words and what to check from the catalog; the wait runs
+    out (--device-wait 3) and SHIFT OVER says why in German; nothing English in the operator's bar."""
+    cfg = _absent_device_config(tmp_path, "de")
+    port = free_port()
+    proc = _start(cfg, port, "--shift", "--device-wait", "3")
+    try:
+        with chromium(1024, 768) as drv:
+            _open(drv, f"http://127.0.0.1:{port}/")
+            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "serial-input").is_displayed())
+            drv.switch_to.active_element.send_keys("SN-1" + Keys.ENTER)
+            WebDriverWait(drv, 60).until(lambda d: d.find_element(By.ID, "result-verdict").text == "STATIONSSTÖRUNG")
+            reasons = drv.find_element(By.ID, "result-reasons").text
+            assert "nicht bewertet" in reasons and "Kabel und Stecker der Platine" in reasons, reasons
+            WebDriverWait(drv, 60).until(lambda d: d.find_element(By.ID, "result-board").text.startswith("0 "))
+            figures = drv.find_element(By.ID, "result-figures").text
+            assert "beendet durch: Gerät weg" in figures, figures
+            assert not drv.find_element(By.ID, "notice").is_displayed()
+        assert proc.wait(timeout=60) == 3  # the device stayed away: the shift ends with exit 3
+    finally:
+        if proc.poll() is None:
+            proc.kill()

@@ -6,6 +6,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
+from urllib.parse import quote
 
 import click
 
@@ -14,7 +15,7 @@ from ..i18n import language_of, translator
 from ..station.report import RunReport
 from ..station.settings import StationConfig
 from ..station.shift import BoardOutcome
-from .serve import require_web
+from .serve import operator_exposure, require_web
 
 if TYPE_CHECKING:
     from ..web.operator import WebOperator
@@ -58,11 +59,18 @@ def _linger(ui: WebOperator) -> None:
         time.sleep(SEEN_GRACE_S)
 
 
+def _url_host(host: str) -> str:
+    """An IPv6 address in brackets, as a URL needs it."""
+    return f"[{host}]" if ":" in host and not host.startswith("[") else host
+
+
 @contextmanager
 def web_operator(cfg: StationConfig, echo: Callable[[str], None], host: str, port: int,
-                 shift: bool = False) -> Iterator[WebOperator]:
+                 shift: bool = False, public: bool = False) -> Iterator[WebOperator]:
     """Serve the operator page for the length of one run or a whole shift (and until a page has
-    shown its end)."""
+    shown its end); beyond loopback only with a page token or ``public`` (serve.operator_exposure)."""
+    page_token = cfg.operator_page_token
+    who = operator_exposure(host, page_token, public)
     require_web()
     from ..web.operator import WebOperator
     from ..web.operator_app import create_operator_app
@@ -74,13 +82,14 @@ def web_operator(cfg: StationConfig, echo: Callable[[str], None], host: str, por
     language = language_of(cfg.schema.station)
     ui = WebOperator(echo, cfg.station_id, len(plan), shift=shift, plan=plan, tr=translator(language),
                      language=language)
-    server = BackgroundServer(create_operator_app(ui, cfg.web_token), host, port)
+    server = BackgroundServer(create_operator_app(ui, cfg.web_token, page_token), host, port)
     try:
         server.start()
     except OSError as e:
         from ..errors import ConfigError
         raise ConfigError(f"--ui-port {port}: {e}") from None
-    click.echo(f"operator page: http://{host}:{port}/ (open it in a browser)", err=True)
+    link = f"http://{_url_host(host)}:{port}/" + ("" if page_token is None else f"?token={quote(page_token)}")
+    click.echo(f"operator page: {link} (open it in a browser; {who})", err=True)
     try:
         yield ui
     except BaseException as e:

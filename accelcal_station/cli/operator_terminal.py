@@ -81,6 +81,12 @@ class TerminalOperator:
         except OperatorAbort:
             raise OperatorAbort("operator aborted at the serial-number scan") from None
 
+    def station_fault(self, text: str) -> None:
+        self.echo(f"{self.tr('STATION FAULT')}: {text}")
+
+    def end_requested(self) -> bool:
+        return False  # at the terminal a shift ends by end of input or Ctrl-C
+
     def capture(self, label: str) -> CaptureSink:
         return CaptureProgress(label)
 

@@ -19,12 +19,20 @@ from ._common import jsonable
               help="How many averaged readings to take.")
 @click.option("--samples", default=32, show_default=True, type=click.IntRange(1, 100000),
               help="Samples averaged per reading.")
+@click.option("--scan", is_flag=True,
+              help="Bring-up: list what answers on the device's I2C bus (behind each TCA9548A channel too), or "
+                   "which serial ports answer the bridge or jig protocol (sends their identify commands).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def command(config_path: str, port: str | None, readings: int, samples: int, as_json: bool) -> None:
+def command(config_path: str, port: str | None, readings: int, samples: int, scan: bool, as_json: bool) -> None:
     """Identify the device in --config and print its configuration, temperature and averaged readings."""
     section = device_section(config_path)
-    if port is not None:
+    if port is not None and not (scan and section.driver == "mpu6050"):
         section = with_port(section, port)
+    if scan:
+        from ._scan import scan_command
+
+        scan_command(section, port, getattr(section, "baud", 115200), as_json)
+        return
     try:
         with make_driver(section) as dev:
             ident = dev.identify()

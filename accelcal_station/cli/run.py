@@ -48,6 +48,11 @@ from .operator_terminal import TerminalOperator
 @click.option("--ui-host", default="127.0.0.1", show_default=True, help="With --ui web: the address to listen on.")
 @click.option("--ui-port", default=8751, show_default=True, type=click.IntRange(1, 65535),
               help="With --ui web: the port of the operator page.")
+@click.option("--dry-run", "dry_run", is_flag=True,
+              help="Check the station without a board's run: validate the config, open and identify every "
+                   "instrument, read a few samples, move a motorized jig; write nothing (exit 0: all answered).")
+@click.option("--public", is_flag=True,
+              help="With --ui web on an address beyond this machine: serve the operator page without a token.")
 @click.option("--shift", "shift", is_flag=True,
               help="Board after board in one process: each starts with its scanned serial; end of input "
                    "at the serial prompt ends the shift with a summary (exit 0).")
@@ -57,7 +62,8 @@ from .operator_terminal import TerminalOperator
                    "ends (exit 3).")
 def command(config_path: str | None, serial: str | None, operator: str | None, lot: str | None,
             store_file: str | None, port: str | None, jig_port: str | None, as_json: bool,
-            ui_kind: str, ui_host: str, ui_port: int, shift: bool, device_wait_s: float) -> None:
+            ui_kind: str, ui_host: str, ui_port: int, dry_run: bool, public: bool, shift: bool,
+            device_wait_s: float) -> None:
     """Calibrate one board: identify, present each pose, capture, fit, judge, write NVM, verify, record.
 
     Exit status: 0 PASS, 1 FAIL, 2 bad input or configuration, 3 device error,
@@ -67,6 +73,9 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     cfg = StationConfig.load(config_path, store_file, port, jig_port)
     operator, lot = check_run_labels(operator, lot, cfg.station_id)  # as serials are: no formula, no control
     _check_run(cfg, serial, shift)
+    if dry_run:
+        _dry_run(cfg, as_json)
+        return
     event_log.configure(cfg.event_log, avoid=(cfg.path, cfg.store_file))  # logging: (docs/logging.md)
 
     def echo(text: str) -> None:
@@ -79,7 +88,7 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     if ui_kind == "web":
         from ._operator_web import finish_outcome, finish_reports, web_operator
 
-        with web_operator(cfg, echo, ui_host, ui_port, shift=shift) as web:
+        with web_operator(cfg, echo, ui_host, ui_port, shift=shift, public=public) as web:
             if shift:
                 _shift(cfg, operator, lot, as_json, echo, web, device_wait_s, web.start_board,
                        lambda b, rep: finish_outcome(web, b, rep), web.end_shift,
@@ -90,6 +99,23 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
     # identity questions and their retries always on stderr (stdout may be the JSON object)
     _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True), tr),
          TerminalOperator(echo, tr), lambda reports: None)
+
+
+def _dry_run(cfg: StationConfig, as_json: bool) -> None:
+    """`run --dry-run` (station/dry_run.py): one line per instrument; exit 3 when one did not answer right."""
+    from ..station.dry_run import dry_run
+
+    checks = dry_run(cfg)
+    ok = all(c.ok for c in checks)
+    if as_json:
+        click.echo(json.dumps({"dry_run": True, "ok": ok, "checks": [c.to_json() for c in checks]}))
+    else:
+        for c in checks:
+            click.echo(f"{'ok ' if c.ok else 'BAD'} {c.what:12s} {c.detail}")
+        click.echo("dry run: every instrument answered; nothing was written" if ok else
+                   "dry run: the station is not ready (see BAD above); nothing was written")
+    if not ok:
+        raise click.exceptions.Exit(3)
 
 
 def _check_run(cfg: StationConfig, serial: str | None, shift: bool) -> None:
@@ -212,7 +238,8 @@ def timing_lines(t: Timing) -> list[str]:
 
 def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None, as_json: bool,
                echo: Callable[[str], None], ui: OperatorUI, on_done: Callable[[list[RunReport]], None]) -> None:
-    """A panel: one line per board; exit 1 when any board failed."""
+    """A panel: one line per board; exit 3 when the station faulted on a board (not judged), else 1 when
+    any board failed."""
     from ..errors import ConfigError
     from ..station.flow import make_flow
     from ..station.panel import panel_dict
@@ -243,5 +270,7 @@ def _run_panel(cfg: StationConfig, operator: str | None, serial: str | None, lot
             click.echo(f"time per board ({t['boards']} boards): soak {pb['soak_s']:.0f} s, sampling floor "
                        f"{pb['sampling_floor_s']:.1f} s, rest {pb['rest_s']:.1f} s of {pb['board_time_s']:.0f} s "
                        f"({t['clock']} clock)")
+    if any(r.station_fault for r in reports):  # the station's error (exit 3): those boards are not judged
+        raise click.exceptions.Exit(3)
     if any(r.verdict != "PASS" for r in reports):
         raise click.exceptions.Exit(1)

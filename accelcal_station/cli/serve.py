@@ -49,6 +49,20 @@ def exposure(host: str, read_token: str | None, public: bool) -> str:
     return "PUBLIC: anyone who can reach this address reads every run, operator name and config (--public)"
 
 
+def operator_exposure(host: str, page_token: str | None, public: bool) -> str:
+    """Who can answer the operator page (`run --ui web`); ConfigError when a non-loopback address has
+    neither a page token (web.operator_token or web.read_token) nor --public."""
+    if page_token:
+        return "every request needs the page token (open the link above)"
+    if is_loopback(host):
+        return "this machine only"
+    if not public:
+        raise ConfigError(f"--ui-host {host}: the operator page answers the run's questions (abort, skip, "
+                          "serials) for anyone who reaches it; set web.operator_token in the --config, or pass "
+                          "--public to mean it")
+    return "PUBLIC: anyone who can reach this address can answer, skip or abort the run (--public)"
+
+
 @click.command("serve")
 @click.option("--db", "db", default=None, metavar="FILE|URL",
               help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB "

@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Discriminator, Field, JsonValue, StrictBool, Tag, field_validator
 
+from ..errors import DataError
 from .section import MAX_BOARDS, Section, Triple, _f
 
 
@@ -63,6 +64,7 @@ class BusEmulatorSection(Section):
     nack_every: int = _f(0, "NACK every Nth bus transaction (0: never)", ge=0, le=1000)
     never_ready: StrictBool = _f(False, "the data-ready flag never sets")
     present: StrictBool = _f(True, "the chip answers on the bus at all")
+    sda_held: StrictBool = _f(False, "a chip holds SDA low (left mid-byte by a reset): every transfer times out")
     bus_hz: float = _f(400_000.0, "I2C clock of the emulated bus, Hz", ge=10_000, le=3_400_000)
     corrupt_reads: CorruptReadsSection | None = _f(None, "a lying bus: reads corrupted at random (tests)")
     self_test_scale: Triple = _f(
@@ -88,6 +90,8 @@ class BridgeEmulatorSection(Section):
                                        "unit differs from the driver's assumption)", ge=0.5, le=2.0)
     chip_ppm: float = _f(0.0, "the chip's clock against the bridge MCU's, ppm (positive: the chip is fast)",
                          ge=-1e4, le=1e4)
+    who_am_i: int = _f(0x68, "WHO_AM_I the emulated chip answers (a clone or relative: 0x98, 0x70, 0x72, ...)",
+                       ge=0, le=255)
 
 
 class MuxSection(Section):
@@ -110,6 +114,20 @@ def _check_mount(v: list[str] | None) -> list[str] | None:
     return v
 
 
+def _check_board_serial(v: str | int | None) -> str | int | None:
+    """A configured board serial follows the one serial rule (serials.py), checked when the config is read."""
+    if v is None or not str(v).strip():  # absent or "": the device's own serial
+        return v
+    from .serials import BOARD_SERIAL_MAX, check_serial
+
+    try:
+        check_serial(str(v), "serial")
+    except DataError:
+        raise ValueError(f"a serial number: 1-{BOARD_SERIAL_MAX} letters, digits and . _ : / -, starting with a "
+                         "letter or digit") from None
+    return v
+
+
 class SimEepromSection(Section):
     """A simulated board's EEPROM (``device.eeprom``, driver: simulated)."""
 
@@ -129,7 +147,7 @@ class SimulatedBoardSection(Section):
     odr_hz: float | None = _f(None, "output data rate, Hz (one of the chip's rates)", gt=0, le=10_000)
     dlpf: int | None = _f(None, "mpu6050: digital low-pass filter setting", ge=0, le=6)
     seed: int | None = _f(None, "random seed (default: fresh, recorded)", ge=0, le=2**63 - 1)
-    serial: str | int | None = _f(None, "board serial number")
+    serial: str | int | None = _f(None, "board serial number (1-32 letters, digits and . _ : / -)")
     realtime: StrictBool = _f(False, "sleep the wall time as the virtual clock runs")
     ambient_c: float = _f(25.0, "board temperature, C", ge=-60, le=150)
     self_heating_c: float = _f(0.0, "warm-up of the board, C", ge=0, le=50)
@@ -145,6 +163,11 @@ class SimulatedBoardSection(Section):
     @classmethod
     def _proper_true_mount(cls, v: list[str] | None) -> list[str] | None:
         return _check_mount(v)
+
+    @field_validator("serial")
+    @classmethod
+    def _serial_rule(cls, v: str | int | None) -> str | int | None:
+        return _check_board_serial(v)
 
 
 class I2cEepromSection(Section):
@@ -168,13 +191,18 @@ class Mma8451Section(Section):
         "high_resolution", "oversampling mode")
     retries: int = _f(3, "retries of a bus transaction", ge=0, le=20)
     timeout_s: float = _f(1.0, "transaction timeout, s", ge=0.001, le=60)
-    serial: str | int | None = _f(None, "board serial number")
+    serial: str | int | None = _f(None, "board serial number (1-32 letters, digits and . _ : / -)")
     offset_trim_lsb: list[int] | None = _f(None, "offset registers [x, y, z], whole numbers -128..127")
     eeprom: I2cEepromSection | Literal[False] | None = _f(None, "the board's EEPROM (false: none)")
     simulator: SimulatedBoardSection | str | None = _f(
         None, "bus: emulated: the simulated board (a mapping of simulated-board keys, or a file)")
     seed: int | None = _f(None, "bus: emulated: random seed", ge=0, le=2**63 - 1)
     emulator: BusEmulatorSection | None = _f(None, "bus: emulated: the emulator's faults")
+
+    @field_validator("serial")
+    @classmethod
+    def _serial_rule(cls, v: str | int | None) -> str | int | None:
+        return _check_board_serial(v)
 
 
 class Mpu6050Section(Section):
@@ -188,6 +216,9 @@ class Mpu6050Section(Section):
     timeout_s: float = _f(0.5, "reply timeout, s", ge=0.01, le=60)
     retries: int = _f(3, "retries of a serial transaction", ge=0, le=20)
     boot_wait_s: float = _f(2.0, "wait for the bridge to boot, s", ge=0, le=30)
+    accept_who_am_i: list[Annotated[int, Field(ge=0, le=255)]] = _f(
+        [], "MPU-6050 compatibles to calibrate too, by WHO_AM_I (clones on modules: 0x98, 0x70, 0x72; "
+        "docs/station.md); their self-test is skipped")
     simulator: SimulatedBoardSection | str | None = _f(
         None, "port: emulated: the simulated board (a mapping of simulated-board keys, or a file)")
     seed: int | None = _f(None, "port: emulated: random seed", ge=0, le=2**32 - 1)

@@ -244,6 +244,9 @@ class WebSection(Section):
     read_token: str | None = _f(None, "shared secret every read of `accelcal serve` needs (sent as "
                                 "'Authorization: Bearer TOKEN'); required to listen beyond localhost "
                                 "unless --public: 16-200 printable characters, no spaces")
+    operator_token: str | None = _f(None, "shared secret every request of the operator page (`run --ui web`) "
+                                    "needs (default: read_token); required to listen beyond localhost unless "
+                                    "--public: 16-200 printable characters, no spaces")
 
 
 class LoggingSection(Section):

@@ -125,7 +125,8 @@ def error_line(err: ErrorDetails, root: type[BaseModel], where: str = "") -> str
         return f"{path}: {value!r}; allowed: true, false"
     if kind in ("list_type", "too_short", "too_long") and parent is not None and key in parent.model_fields:
         return f"{path}: {value!r}; allowed: a list ({parent.model_fields[key].description})"
-    return f"{path}: {value!r}; allowed: {err['msg'].removeprefix('Input should be ')}" + (f" ({rng})" if rng else "")
+    msg = err["msg"].removeprefix("Input should be ").removeprefix("Value error, ")  # a validator's own words
+    return f"{path}: {value!r}; allowed: {msg}" + (f" ({rng})" if rng else "")
 
 
 def _is_tag(part: str) -> bool:

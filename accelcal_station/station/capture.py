@@ -144,10 +144,10 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
                 log.info("capture retried (%d of %d): %s", recaptures, s.max_recaptures, events[-1])
                 acc, ts, dropped = [], [], 0
                 if recaptures > s.max_recaptures:
-                    raise DeviceError(f"board kept moving: {recaptures} captures discarded (max {s.max_recaptures})")
+                    raise NotStill(f"board kept moving: {recaptures} captures discarded (max {s.max_recaptures})")
             waited = float(t[-1]) - t_first
             if waited > s.settle_timeout_s:
-                raise DeviceError(f"board not still after {s.settle_timeout_s:g} s "
+                raise NotStill(f"board not still after {s.settle_timeout_s:g} s "
                                   f"(noise floor {np.round(gate.floor, 1).tolist()} counts)")
             continue
         acc.append(counts)
@@ -184,8 +184,13 @@ def wait_still(driver: Driver, settings: CaptureSettings) -> int:
         if gate.update(counts.astype(float), float(t[-1])):
             return read
         if float(t[-1]) - t_first > s.settle_timeout_s:
-            raise DeviceError(f"board not still after {s.settle_timeout_s:g} s "
+            raise NotStill(f"board not still after {s.settle_timeout_s:g} s "
                               f"(noise floor {np.round(gate.floor, 1).tolist()} counts)")
+
+
+class NotStill(DeviceError):
+    """The board did not hold still long enough to be captured: judged at the capture (a board, a hand
+    or the room), not an instrument's fault."""
 
 
 class WrongPose(DeviceError):

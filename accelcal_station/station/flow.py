@@ -14,20 +14,23 @@ import time
 from collections.abc import Callable
 
 from ..acceptance.reasons import Reason
+from ..config.serials import check_serial
 from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, DeviceError
 from ..fixtures.base import Jig
+from ..fixtures.factory import make_jig
 from ..fixtures.operator_ui import OperatorUI
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import BoardSteps
-from .panel import Panel, PanelBoard, PanelTiming, board_rate, board_session
+from .panel import Panel, PanelBoard, PanelTiming, board_rate, board_session, make_panel_jig
 from .policy import Conditions, FlowPolicy
 from .recording import FinishArgs, record_result, start_args
 from .report import RunReport
 from .room import RoomTemperature
 from .settings import StationConfig, configured_rate
+from .station_fault import is_station_fault, nvm_held_line, preflight_jig, station_fault_line, station_fault_reason
 from .thermal import ThermalConditions
 from .verdict import Stage
 
@@ -79,6 +82,7 @@ class StationFlow:
             store.mark_stale_interrupted()
             try:
                 self._announce(boards[0].rep)
+                self._preflight(store, boards)
                 self._open_all(store, boards)
                 self._calibrate(store, boards)
                 if self.policy.closes_before_timing:
@@ -105,17 +109,39 @@ class StationFlow:
             rep.events.append(line)
 
     def _calibrate(self, store: Store, boards: list[PanelBoard]) -> None:
-        """The conditions with the boards; an ending fault fails every board still in the flow, any
-        other error or Ctrl-C closes each run (interrupted or error) with its poses, then propagates."""
+        """The conditions with the boards; an instrument's fault is the station's (``_station_fault``), an
+        ending fault fails every board still in the flow, any other error or Ctrl-C closes each run
+        (interrupted or error) with its poses, then propagates."""
         try:
             self.conditions.calibrate(self, boards)
-        except self.conditions.ending_faults as e:
-            self._fault(boards, e)
         except (AccelcalError, KeyboardInterrupt) as e:
-            self._interrupted(store, boards, e)
-            raise
+            if is_station_fault(e):
+                self._station_fault(store, boards, e)
+                if self.policy.single_board:
+                    raise
+                return
+            if not isinstance(e, self.conditions.ending_faults):
+                self._interrupted(store, boards, e)
+                raise
+            self._fault(boards, e)
 
     # -- opening ----------------------------------------------------------------------
+    def _preflight(self, store: Store, boards: list[PanelBoard]) -> None:
+        """Open and identify the instruments the run needs besides the boards before any board's first
+        step: a fault here is the station's (station_fault.py), recorded as an error run, exit 3."""
+        try:
+            self.panel.jig = preflight_jig(self.cfg.jig, self.panel.jig, lambda: self._build_jig(boards))
+        except DeviceError as e:
+            self.echo(station_fault_line(e, before_board=True))
+            self._record_unreachable(store, e, what=station_fault_reason(e))
+            raise
+
+    def _build_jig(self, boards: list[PanelBoard]) -> Jig:
+        """The configured jig: a single board's, or the whole panel's."""
+        if self.policy.single_board:
+            return make_jig(self.cfg.jig, boards[0].driver, self.ui)
+        return make_panel_jig(self.cfg.jig, boards, self.ui)
+
     def _open_all(self, store: Store, boards: list[PanelBoard]) -> None:
         """Open every board; Ctrl-C closes a panel's runs started so far (a single board's: its self-test)."""
         try:
@@ -133,6 +159,8 @@ class StationFlow:
             b.driver.open()
             b.open_ = True
             ident = b.driver.identify()
+            if ident.serial:  # the serial the device reports (its EEPROM, the bridge) follows the one rule
+                check_serial(ident.serial, f"the serial the {ident.chip or 'device'} reports")
             b.rep.serial = (self.serial_override or ident.serial) if self.policy.single_board else (
                 ident.serial or b.rep.serial)
             b.rep.chip = ident.chip
@@ -143,7 +171,10 @@ class StationFlow:
             if self.policy.device_fault_ends_run:
                 self._record_unreachable(store, e)
                 raise
-            b.fail(Stage.DEVICE, Reason("device", str(e)))
+            if is_station_fault(e):
+                b.station_fault(e)
+            else:
+                b.fail(Stage.DEVICE, Reason("device", str(e)))
         self._start_run(b, store)
         self._self_test(b, store)
 
@@ -159,12 +190,13 @@ class StationFlow:
         if self.policy.burn_steps_recorded:
             b.steps.burn_log = lambda kind, data, r=rep.run_id: store.record_burn(r, kind, data)
 
-    def _record_unreachable(self, store: Store, err: AccelcalError) -> None:
-        """A device that does not answer still leaves a record: status error, with the reason."""
+    def _record_unreachable(self, store: Store, err: AccelcalError, what: str | None = None) -> None:
+        """A device (or an instrument) that does not answer still leaves a record: status error, with the
+        reason; no verdict, so the board counts in no yield."""
         cfg = self.cfg
         rid = store.start_run(device_serial=self.serial_override, station_id=cfg.station_id,
                               operator=self.operator, lot=self.lot, config_text=cfg.text, model=cfg.model)
-        store.interrupt_run(rid, f"device: {err}", status="error")
+        store.interrupt_run(rid, what or f"device: {err}", status="error")
 
     def _self_test(self, b: PanelBoard, store: Store) -> None:
         """The board's self-test before the poses (self_test_step.py); a board that fails it takes no
@@ -179,6 +211,9 @@ class StationFlow:
             if not self.policy.device_fault_ends_run:
                 b.fail(Stage.SELF_TEST, Reason(e.reason_code, f"during the self-test: {e}"))
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
+            elif is_station_fault(e):
+                self._station_fault(store, [b], e)
+                raise
             elif isinstance(e, DeviceError):
                 b.rep.record(Stage.FAULT, Reason(e.reason_code, f"during the self-test: {e}"))
                 self.echo(f"FAIL: {e} (self-test)")
@@ -201,6 +236,11 @@ class StationFlow:
         that fails ends the command, a panel's fails that board."""
         cfg, rep = self.cfg, b.rep
         assert rep.run_id is not None, "every board's run is started when it is opened"
+        if rep.station_fault is not None:  # a panel board's instrument faulted: an error run, no verdict
+            store.interrupt_run(rep.run_id, rep.station_fault, status="error", nvm_outcome=rep.nvm,
+                                session=board_session(b) if b.records else None,
+                                retries=b.retries if b.records else None)
+            return
         summary = self.conditions.finish(self, b)
         session = board_session(b)
         single = self.policy.single_board
@@ -234,6 +274,26 @@ class StationFlow:
             self.echo(f"FAIL: {e} ({len(boards[0].records)} poses captured)")
         else:
             self.echo(f"FAIL: {e} (every board still in the flow)")
+
+    def _station_fault(self, store: Store, boards: list[PanelBoard], e: DeviceError) -> None:
+        """An instrument faulted mid-run (a lost port, a jig that stopped answering, a bus that NACKs):
+        the station's error, never a board's verdict.  Every board still in the flow leaves it unjudged
+        (a board already failed keeps its FAIL); a single board's run is closed at once as ``error`` with
+        its poses (a panel's boards are recorded so by ``_record``).  What a board holds after a burn had
+        begun is said (the writer's restore path has already run)."""
+        single = self.policy.single_board
+        for b in boards:
+            if single or b.active:
+                b.rep.station_fault = station_fault_reason(e, self.conditions.interruption(self, b, e)[0])
+                b.cal = None  # nothing more is burned after the fault
+                b.rep.events.append(f"run ended by a station fault after {len(b.records)} poses: {e}")
+        self.echo(station_fault_line(e, before_board=False, poses=len(boards[0].records) if boards else 0))
+        for b in boards:
+            held = nvm_held_line(b.rep.nvm) if b.rep.station_fault else ""
+            if held:
+                self.echo(f"  {b.name}: {held}")
+        if single and boards[0].rep.run_id is not None:
+            self._record(store, boards[0])
 
     def _interrupted(self, store: Store, boards: list[PanelBoard], e: BaseException) -> None:
         """Each run closed with the poses its board captured so far (interrupted, or error)."""

@@ -7,11 +7,11 @@ from pathlib import Path
 from typing import Protocol
 
 from ..config.schema import StationConfigSchema, StationSection
+from ..config.serials import check_label, check_serial
 from ..errors import ConfigError, DataError
 from ..fixtures.operator_ui import OperatorUI
 
 IDENTITY_KEYS = ("scan_serial", "require_operator")
-SERIAL_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._:/-]{0,63}")
 # a person's name: letters of any script, digits, space . ' -; starting with a letter or digit (never
 # =, +, -, @ that a spreadsheet runs, never a control character)
 NAME_RE = re.compile(r"[^\W_][^\W_ .'-]*(?:[ .'-]+[^\W_]+)*[.]?")
@@ -21,14 +21,6 @@ def identity_options(station: StationSection | None) -> dict[str, bool]:
     """station.scan_serial and station.require_operator (both default false)."""
     st = station or StationSection()
     return {k: getattr(st, k) for k in IDENTITY_KEYS}
-
-
-def check_serial(text: str, where: str) -> str:
-    s = text.strip()
-    if not SERIAL_RE.fullmatch(s):
-        raise DataError(f"{where}: {s[:40]!r} is not a serial number; allowed: 1-64 letters, digits and . _ : / -, "
-                        "starting with a letter or digit")
-    return s
 
 
 def check_name(text: str, where: str) -> str:
@@ -46,7 +38,7 @@ def check_run_labels(operator: str | None, lot: str | None, station_id: str | No
     if station_id is not None:
         check_serial(station_id, "station.id")
     return (None if operator is None or not operator.strip() else check_name(operator, "--operator"),
-            None if lot is None or not lot.strip() else check_serial(lot, "--lot"))
+            None if lot is None or not lot.strip() else check_label(lot, "--lot"))
 
 
 class RunConfig(Protocol):

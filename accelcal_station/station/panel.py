@@ -33,7 +33,7 @@ from ..conventions import mount_matrix
 from ..drivers.base import Clock, Driver
 from ..drivers.factory import make_driver
 from ..drivers.tca9548a import MuxBuses
-from ..errors import AccelcalError, ConfigError
+from ..errors import AccelcalError, ConfigError, DeviceError
 from ..fixtures.base import Jig, PoseSpec
 from ..fixtures.designs import get_design
 from ..fixtures.factory import board_seat, clock_of
@@ -47,6 +47,7 @@ from .panel_config import configured_serial, group_of, own_mount, panel_sections
 from .panel_mount import BoardMount, Failure, end_of_design, explained, sort_wrong_poses
 from .report import RunReport, RunReportJson
 from .settings import StationConfig
+from .station_fault import is_station_fault, station_fault_reason
 from .verdict import Stage
 
 
@@ -101,8 +102,13 @@ class PanelBoard:
 
     @property
     def active(self) -> bool:
-        """Still in the flow: opened and not failed yet."""
-        return self.open_ and not self.rep.failed
+        """Still in the flow: opened, not failed and no station fault yet."""
+        return self.open_ and not self.rep.failed and self.rep.station_fault is None
+
+    def station_fault(self, e: DeviceError) -> None:
+        """An instrument of this board (its port, its bus) faulted: it leaves the flow unjudged."""
+        self.rep.station_fault = station_fault_reason(e)
+        self.rep.events.append(self.rep.station_fault)
 
     def fail(self, stage: Stage, reason: Reason) -> None:
         """This board fails at ``stage`` (it takes no further part in the panel's flow)."""
@@ -246,6 +252,10 @@ class Panel:
             if b.index in failures:
                 name, e = failures[b.index]
                 b.mount.first_wrong = None
+                if is_station_fault(e):
+                    b.station_fault(e)
+                    self.echo(f"  {b.name}: STATION FAULT at {name}: {e}; this board is not judged")
+                    continue
                 b.fail(Stage.CAPTURE, Reason("pose", f"{name}: {e}", sep=" ") if isinstance(e, WrongPose)
                        else Reason(e.reason_code, f"{name}: {e}"))
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")

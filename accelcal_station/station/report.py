@@ -144,6 +144,7 @@ class RunReportJson(TypedDict):
     verdict: str
     reasons: list[str]
     reason_codes: list[str]
+    station_fault: str | None
     model: str
     design: str
     W: list[list[float]] | None
@@ -197,6 +198,8 @@ class RunReport:
     events: list[str] = field(default_factory=list)
     timing: Timing = field(default_factory=lambda: Timing())
     store: str = ""
+    # the station's fault that ended this board's run (station_fault.py): the board is not judged
+    station_fault: str | None = None
 
     def record(self, stage: Stage, *reasons: Reason) -> None:
         """What a stage of the run found: the reasons it fails the board (none: it passed)."""
@@ -214,7 +217,8 @@ class RunReport:
 
     @property
     def verdict(self) -> str:
-        return self.final.label
+        """PASS or FAIL; ERROR when a station fault ended the run (no verdict on the board)."""
+        return "ERROR" if self.station_fault else self.final.label
 
     @property
     def reasons(self) -> list[Reason]:
@@ -230,7 +234,8 @@ class RunReport:
         final = self.final
         return {
             "run_id": self.run_id, "serial": self.serial, "chip": self.chip, "station_id": self.station_id,
-            "verdict": final.label, "reasons": [str(r) for r in final.reasons], "reason_codes": codes(final.reasons),
+            "verdict": self.verdict, "reasons": [str(r) for r in final.reasons], "reason_codes": codes(final.reasons),
+            "station_fault": self.station_fault,
             "model": self.model, "design": self.design,
             "W": None if c is None else c.W.tolist(), "V": None if c is None else c.V.tolist(),
             "Gamma": None if c is None else c.Gamma.tolist(),

@@ -54,7 +54,7 @@ class RoomTemperature:
         if not b.active:
             return
         steps = b.steps
-        with make_jig(flow.cfg.jig, b.driver, flow.ui) as jig:
+        with flow.panel.jig or make_jig(flow.cfg.jig, b.driver, flow.ui) as jig:
             jig.mount = steps.mount
             try:
                 steps.run_poses(b.driver, jig, get_design(flow.cfg.design), b.records, b.retries, b.rep)

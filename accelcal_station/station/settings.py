@@ -90,6 +90,12 @@ class StationConfig:
                    _web_token(sc.web), sc.logging,
                    _web_token(sc.web, read=True))
 
+    @property
+    def operator_page_token(self) -> str | None:
+        """What every request of the operator page (`run --ui web`) needs: web.operator_token, else
+        web.read_token (docs/security.md, "The operator page")."""
+        return _web_token(self.schema.web, key="operator_token") or self.web_read_token
+
     def with_sections(self, **sections: BaseModel) -> StationConfig:
         """This configuration with some sections replaced by ones already validated (a benchmark's
         panel of N boards, a jig without moves), each marked as given."""
@@ -160,15 +166,16 @@ def _verify_poses(verify_poses: int, limits: Limits) -> int:
     return verify_poses
 
 
-def _web_token(web: WebSection | None, read: bool = False) -> str | None:
-    """web.token (or web.read_token): a shared secret of 16-200 printable characters (no spaces), or absent."""
-    token = None if web is None else (web.read_token if read else web.token)  # keys and type: the schema's
-    key = "read_token" if read else "token"
+def _web_token(web: WebSection | None, read: bool = False, key: str | None = None) -> str | None:
+    """web.token (web.read_token, or the ``key`` named): a shared secret of 16-200 printable characters
+    (no spaces), or absent."""
+    key = key or ("read_token" if read else "token")
+    token = None if web is None else getattr(web, key)  # keys and type: the schema's
     if token is None:
         return None
     if not 16 <= len(token) <= 200 or not token.isprintable() or " " in token:
         raise ConfigError(f"web.{key}: allowed: a string of 16-200 printable characters without spaces")
-    return token
+    return str(token)
 
 
 def configured_rate(device: DeviceSection) -> tuple[int | None, float | None]:

@@ -14,15 +14,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TypedDict
 
+from ..config.serials import check_serial
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, ConfigError, DataError, DeviceError, NVMError
 from ..fixtures.operator_jig import OperatorAbort
 from ..fixtures.operator_ui import OperatorUI
 from ..i18n import N_, Translate, reason_title
 from .flow import StationFlow, make_flow
-from .identity import check_serial
 from .report import RunReport
 from .settings import StationConfig
+from .station_fault import is_station_fault, operator_text
 
 DEVICE_WAIT_S = 120.0  # how long a shift waits for a device that is gone before it ends
 POLL_S = 1.0
@@ -138,12 +139,16 @@ def ask_serial(ui: OperatorUI, text: str, tr: Translate = str) -> str:
 
 
 def wait_for_device(cfg: StationConfig, say: Callable[[str], None], wait_s: float = DEVICE_WAIT_S,
-                    poll_s: float = POLL_S, sleep: Callable[[float], None] = time.sleep, tr: Translate = str) -> None:
-    """Open and identify the configured device; while it does not answer, say so once and retry
-    every ``poll_s`` for at most ``wait_s`` (DeviceGone after that)."""
+                    poll_s: float = POLL_S, sleep: Callable[[float], None] = time.sleep, tr: Translate = str,
+                    ui: OperatorUI | None = None) -> None:
+    """Open and identify the configured device; while it does not answer, say so once (on ``ui``: as the
+    station's fault, full screen) and retry every ``poll_s`` for at most ``wait_s`` (DeviceGone after
+    that; ShiftEnded when the operator ends the shift meanwhile)."""
     t0 = time.monotonic()
     first: AccelcalError | None = None
     while True:
+        if first is not None and ui is not None and ui.end_requested():
+            raise ShiftEnded()
         try:
             with make_driver(cfg.device) as driver:
                 driver.identify()
@@ -152,6 +157,8 @@ def wait_for_device(cfg: StationConfig, say: Callable[[str], None], wait_s: floa
                 first = e
                 say(tr("device not answering ({error}); waiting up to {s} s for it to come back").format(
                     error=e, s=f"{wait_s:.0f}"))
+                if ui is not None:
+                    ui.station_fault(operator_text(e, tr))
             if time.monotonic() - t0 >= wait_s:
                 raise DeviceGone(f"device still not answering after {wait_s:.0f} s ({e}); "
                                  "connect it and start the shift again") from None
@@ -187,7 +194,7 @@ def run_shift(cfg: StationConfig, operator: str | None, lot: str | None, ui: Ope
     while True:
         try:
             serial = ask_serial(ui, prompt.format(n=len(tally.boards) + 1), tr)
-            wait_for_device(cfg, ui.say, device_wait_s, tr=tr)
+            wait_for_device(cfg, ui.say, device_wait_s, tr=tr, ui=ui)
         except ShiftEnded:
             return tally, None
         except KeyboardInterrupt:
@@ -208,8 +215,10 @@ def run_shift(cfg: StationConfig, operator: str | None, lot: str | None, ui: Ope
         except OperatorAbort as e:
             on_board(tally.add(serial, station.run_id, "ABORTED", [("aborted", str(e))]), None)
             continue
-        except (DeviceError, NVMError) as e:  # at opening (recorded as an error run): the next board waits
+        except (DeviceError, NVMError) as e:  # recorded as an error run: the next board waits for the device
             on_board(tally.add(serial, station.run_id, "ERROR", [(e.reason_code, str(e))]), None)
+            if is_station_fault(e):
+                ui.station_fault(operator_text(e, tr))
             continue
         final = rep.final
         on_board(tally.add(serial, rep.run_id, final.label, [(r.code, str(r)) for r in final.reasons]), rep)

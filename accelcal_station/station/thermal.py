@@ -84,7 +84,7 @@ class ThermalConditions:
             return
         try:
             with make_chamber(self.chamber_section, board_of(b.driver)) as chamber, \
-                    make_jig(self.cfg.jig, b.driver, flow.ui) as jig:
+                    (flow.panel.jig or make_jig(self.cfg.jig, b.driver, flow.ui)) as jig:
                 jig.mount = b.steps.mount
                 try:
                     self._visit_all(flow, b, chamber, jig)

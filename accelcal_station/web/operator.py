@@ -23,6 +23,7 @@ from ..fixtures.operator_jig import OperatorAbort, pose_words
 from ..fixtures.operator_ui import CaptureSink, LiveStatus, PosePrompt, PoseStatus, parse_answer
 from ..i18n import Translate, reason_title
 from ..station.shift import ShiftSummary
+from ..station.station_fault import FAULT_TITLE, is_station_fault, operator_text
 from .board_picture import Picture, level_xy, picture
 
 if TYPE_CHECKING:
@@ -105,6 +106,7 @@ class OperatorState(TypedDict):
     summary: ShiftView | None  # the shift's summary with its reasons' titles
     plan: list[PlanItem]
     question: NotRequired[str]
+    notice: NotRequired[str]  # what the station said to the operator between boards (WebOperator.say)
 
 
 class StateChange(TypedDict, total=False):
@@ -155,6 +157,7 @@ class WebOperator:
         self.live_every_s = live_every_s
         self.lines: deque[str] = deque(maxlen=12)
         self.final_seen = threading.Event()  # a page has shown the end (the run's verdict, or the shift's summary)
+        self._end = threading.Event()  # End shift pressed on a station fault
         self._final_phase = "shift_over" if shift else "done"
         # the station holds the state; every page (tabs, reloads, a second screen) only shows it
         self.state: OperatorState = {"phase": "starting", "station": station_id, "total": total_poses,
@@ -168,6 +171,9 @@ class WebOperator:
         self.echo(text)
         with self._lock:
             self.lines.append(text)
+            # between boards (the serial scan, a device waited for) a line is for the operator: the notice
+            if self.state["phase"] in ("serial", "working", "starting", "station_fault") and not self.state["pose"]:
+                self.state["notice"] = text.strip()
             self.state["seq"] += 1
 
     def show_pose(self, prompt: PosePrompt) -> None:
@@ -217,6 +223,18 @@ class WebOperator:
     def capture(self, label: str) -> CaptureSink:
         return Progress(self, label)
 
+    def station_fault(self, text: str) -> None:
+        """Full screen: the station's fault, what to check, no verdict (and in a shift, End shift)."""
+        self.echo(f"STATION FAULT: {text}")
+        self.set(phase="station_fault", pose=None, capture=None, result=self._fault_result(text))
+
+    def _fault_result(self, text: str) -> ResultView:
+        return {"verdict": "STATION FAULT", "serial": None, "run_id": None, "figures": {},
+                "reasons": [{"code": "station", "message": text, "title": self.tr(FAULT_TITLE)}]}
+
+    def end_requested(self) -> bool:
+        return self._end.is_set()
+
     # -- the page's side --------------------------------------------------------------
     def _wait_answer(self) -> str:
         while True:  # a short timeout keeps Ctrl-C in the terminal working
@@ -244,6 +262,9 @@ class WebOperator:
             return True
         if phase == "serial" and what in ("abort", "end"):
             self._answers.put(None)  # as end of input at the terminal's scan prompt (a shift's End shift)
+            return True
+        if phase == "station_fault" and what == "end" and self.state["shift"]:
+            self._end.set()  # the shift's wait for the instrument ends at its next look
             return True
         if phase == "ask" and what in ANSWER_TEXT and parse_answer(ANSWER_TEXT[what]) is not None:
             self._answers.put(ANSWER_TEXT[what])
@@ -279,7 +300,7 @@ class WebOperator:
             n = 1 + (board["number"] if board else 0)
             self.lines.clear()
             self.state.update({"phase": "working", "pose": None, "capture": None, "result": None,
-                               "board": {"serial": serial, "number": n}})
+                               "board": {"serial": serial, "number": n}, "notice": ""})
             self.state["seq"] += 1
 
     def end_shift(self, summary: ShiftSummary) -> None:
@@ -296,7 +317,10 @@ class WebOperator:
                          "figures": figures})
 
     def fail(self, err: BaseException) -> None:
-        """The run stopped (operator abort, device or config error): shown as such."""
+        """The run stopped (operator abort, a station fault, device or config error): shown as such."""
+        if is_station_fault(err):
+            self.set(phase="done", pose=None, capture=None, result=self._fault_result(operator_text(err, self.tr)))
+            return
         kind = "ABORTED" if isinstance(err, (OperatorAbort, KeyboardInterrupt)) else "ERROR"
         text = str(err) if isinstance(err, AccelcalError) else (
             "interrupted (Ctrl-C)" if isinstance(err, KeyboardInterrupt) else f"{type(err).__name__}: {err}")

@@ -439,6 +439,28 @@ static void stream_step() {
   if (stream_sent >= stream_n) end_stream();
 }
 
+// I2C bus clear before the TWI takes the pins (NXP UM10204 rev. 7, 3.1.16 "Bus clear"): a reset in the
+// middle of a read can leave the MPU-6050 driving SDA low until it has clocked out the rest of its byte;
+// up to nine SCL clocks let it finish and release SDA, then a START and a STOP put every slave back to
+// idle.  Open-drain by the direction register: a line is driven low (DDR 1, PORT 0) or released (DDR 0,
+// PORT 0: no internal pull-up; the module's pull-ups to its 3.3 V supply raise it).  PC4 = SDA (A4),
+// PC5 = SCL (A5) on an ATmega328P.
+static void i2c_bus_clear() {
+  DDRC &= ~(_BV(PC4) | _BV(PC5));
+  PORTC &= ~(_BV(PC4) | _BV(PC5));
+  delayMicroseconds(10);
+  for (uint8_t i = 0; i < 9 && !(PINC & _BV(PC4)); i++) {
+    DDRC |= _BV(PC5);   // SCL low
+    delayMicroseconds(5);
+    DDRC &= ~_BV(PC5);  // SCL released: the slave shifts its next bit
+    delayMicroseconds(5);
+  }
+  DDRC |= _BV(PC4);   // SDA low while SCL is high: START
+  delayMicroseconds(5);
+  DDRC &= ~_BV(PC4);  // SDA released while SCL is high: STOP
+  delayMicroseconds(5);
+}
+
 void setup() {
   uint8_t cause = BOOT_POWER_ON;
   if (mcusr_at_boot & _BV(WDRF)) cause = (reset_magic == RESET_MAGIC) ? BOOT_COMMAND : BOOT_WATCHDOG;
@@ -446,7 +468,11 @@ void setup() {
   reset_magic = 0;
 
   Serial.begin(DEFAULT_BAUD);
+  i2c_bus_clear();
   Wire.begin();
+  // Wire.begin() turns the AVR's internal pull-ups on (to 5 V on a 5 V Uno: above the MPU-6050's 3.3 V
+  // supply and its 3.3 V I/O when the module has no level shifter); the bus is pulled up by the module
+  PORTC &= ~(_BV(PC4) | _BV(PC5));
   Wire.setClock(I2C_CLOCK_HZ);
   Wire.setWireTimeout(I2C_TIMEOUT_US, true);  // a stuck bus fails the transfer instead of hanging
   uint8_t r = PWR_DEVICE_RESET;                // known state: all registers default, chip asleep

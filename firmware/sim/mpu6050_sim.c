@@ -10,7 +10,7 @@
  *   - the AVR's own 1 KiB EEPROM (simavr's model), the NVM the firmware pages;
  *   - stack painting: free RAM between the static data and the deepest stack.
  *
- * Usage: mpu6050_sim FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ] [-s STEP]
+ * Usage: mpu6050_sim FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ] [-s STEP] [-H CLOCKS]
  *   -s: XA/YA/ZA_OFFS step as a share of 1/2048 g (1: the application note's +-16 g format; a fault:
  *       a part whose offset-register unit differs from what the host driver assumes).
  *   -t: the accelerometer's factory self-test codes XA_TEST..ZA_TEST (5 bits each, in SELF_TEST_X/Y/Z/A);
@@ -52,6 +52,7 @@
 #include <unistd.h>
 
 #include "avr_eeprom.h"
+#include "avr_ioport.h"
 #include "avr_twi.h"
 #include "avr_uart.h"
 #include "sim_avr.h"
@@ -273,6 +274,42 @@ static void mpu_attach(void) {
   avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), mpu.irq + TWI_IRQ_OUTPUT);
 }
 
+/* --- the I2C pins before the TWI takes them: a slave holding SDA low (bus clear) ---------
+ * -H N: at power-on the MPU-6050 holds SDA low (left mid-byte by a reset) until it has seen N SCL clocks
+ * (rising edges), then releases it.  The lines are open drain with the bus's pull-ups: a line is low when
+ * the MCU drives it (DDR 1, PORT 0) or the slave holds it.  Counted: SCL clocks, STOPs (SDA rising while
+ * SCL is high), as the STATS line reports them with PORTC's SDA/SCL bits (the internal pull-ups). */
+static int sda_hold_clocks, sda_held, scl_clocks, bus_stops;
+static uint8_t ddrc_last;
+static avr_irq_t *sda_pin, *scl_pin;
+
+static void pins_update(uint8_t ddr) {
+  int scl_low = (ddr >> 5) & 1, sda_low = ((ddr >> 4) & 1) || sda_held;
+  int scl_was_low = (ddrc_last >> 5) & 1, sda_was_low = ((ddrc_last >> 4) & 1) || sda_held;
+  if (scl_was_low && !scl_low) {
+    scl_clocks++;
+    if (sda_held && scl_clocks >= sda_hold_clocks) sda_held = 0, sda_low = (ddr >> 4) & 1;
+  }
+  if (!scl_low && sda_was_low && !sda_low && !scl_was_low) bus_stops++;
+  ddrc_last = ddr;
+  avr_raise_irq(scl_pin, !scl_low);
+  avr_raise_irq(sda_pin, !sda_low);
+}
+
+static void ddrc_hook(avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  (void)param;
+  pins_update((uint8_t)value);
+}
+
+static void pins_attach(void) {
+  sda_pin = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), 4);
+  scl_pin = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), 5);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), IOPORT_IRQ_DIRECTION_ALL), ddrc_hook, NULL);
+  sda_held = sda_hold_clocks > 0;
+  pins_update(0);
+}
+
 /* --- UART0 <-> pseudo-terminal ------------------------------------------------------- */
 static uint8_t out_buf[OUT_LEN];
 static size_t out_len;
@@ -384,10 +421,11 @@ static void side_line(const char *s) {
       unsigned long f = free_now();
       printf("STATS cycles=%llu sim_us=%llu free_ram_now=%lu free_ram_min=%lu static_ram=%u ramend=%u "
              "min_sp_free=%u uart_tx=%lu uart_rx=%lu uart_lost=%lu samples=%lu waits=%lu i2c_bytes=%lu "
-             "chip_samples=%llu data_reads=%lu\n",
+             "chip_samples=%llu data_reads=%lu scl_clocks=%d bus_stops=%d sda_held=%d portc_sda_scl=%d\n",
              (unsigned long long)avr->cycle, (unsigned long long)(avr->cycle / (avr->frequency / 1000000)),
              f, f < min_free ? f : min_free, paint_lo - 0x100, avr->ramend, min_sp + 1 - paint_lo, uart_tx_bytes, uart_rx_bytes,
-             uart_tx_lost, mpu.samples_used, mpu.waits, mpu.i2c_bytes, chip_k(), mpu.data_reads);
+             uart_tx_lost, mpu.samples_used, mpu.waits, mpu.i2c_bytes, chip_k(), mpu.data_reads, scl_clocks, bus_stops,
+             sda_held, (avr->data[0x28] >> 4) & 3);  /* PORTC (data address 0x28): bits 4 SDA, 5 SCL */
       fflush(stdout);
       break;
     }
@@ -439,7 +477,7 @@ int main(int argc, char **argv) {
   double ppm = 0.0;
   mpu.st_code[0] = 14, mpu.st_code[1] = 15, mpu.st_code[2] = 13;
   mpu.st_share[0] = mpu.st_share[1] = mpu.st_share[2] = 1.0;
-  while ((opt = getopt(argc, argv, "o:w:p:t:r:s:")) != -1) {
+  while ((opt = getopt(argc, argv, "o:w:p:t:r:s:H:")) != -1) {
     if (opt == 't' && sscanf(optarg, "%d,%d,%d", &mpu.st_code[0], &mpu.st_code[1], &mpu.st_code[2]) == 3) {
       for (int i = 0; i < 3; i++) mpu.st_code[i] &= 31;
       continue;
@@ -448,12 +486,13 @@ int main(int argc, char **argv) {
     if (opt == 's' && sscanf(optarg, "%lf", &offset_step_scale) == 1 && offset_step_scale > 0 && offset_step_scale < 10) continue;
     if (opt == 'o' && sscanf(optarg, "%d,%d,%d", &ox, &oy, &oz) == 3) continue;
     if (opt == 'w' && sscanf(optarg, "%i", &who) == 1) continue;
+    if (opt == 'H' && sscanf(optarg, "%d", &sda_hold_clocks) == 1 && sda_hold_clocks >= 0 && sda_hold_clocks <= 64) continue;
     if (opt == 'p' && sscanf(optarg, "%lf", &ppm) == 1 && ppm > -1e5 && ppm < 1e5) continue;
-    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ] [-s STEP]\n", argv[0]);
+    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ] [-s STEP] [-H CLOCKS]\n", argv[0]);
     return 2;
   }
   if (optind >= argc) {
-    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ] [-s STEP]\n", argv[0]);
+    fprintf(stderr, "usage: %s FIRMWARE.elf [-o XOFF,YOFF,ZOFF] [-w WHO_AM_I] [-p PPM] [-t XA,YA,ZA] [-r RX,RY,RZ] [-s STEP] [-H CLOCKS]\n", argv[0]);
     return 2;
   }
   mpu.ppm = ppm;
@@ -473,6 +512,7 @@ int main(int argc, char **argv) {
   mpu_power_on_reset();
   mpu_attach();
   uart_attach();
+  pins_attach();
   paint_lo = (uint16_t)(0x100 + fw.datasize + fw.bsssize + 3);  /* + .noinit: mcusr_at_boot, reset_magic */
   paint();
   pty_open();

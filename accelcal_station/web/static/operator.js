@@ -12,6 +12,11 @@
     Object.keys(args || {}).forEach(function (k) { out = out.split("{" + k + "}").join(String(args[k])); });
     return out;
   }
+  // numbers as the operator's language writes them (German: a decimal comma), fixed digits
+  var LANG = document.documentElement.lang || "en";
+  function num(x, digits) {
+    return Number(x).toLocaleString(LANG, {minimumFractionDigits: digits, maximumFractionDigits: digits});
+  }
   var KEYS = {Enter: "accept", r: "replace", R: "replace", s: "skip", S: "skip", a: "abort", A: "abort"};
 
   function el(tag, attrs, text) {
@@ -59,7 +64,7 @@
       $("still").textContent = "–"; $("off").textContent = "–"; $("face").textContent = "–";
       return;
     }
-    $("off").textContent = lv.off_deg.toFixed(1) + "°";
+    $("off").textContent = num(lv.off_deg, 1) + "°";
     $("still").textContent = lv.still ? T("STILL") : T("MOVING");
     $("face").textContent = lv.direction_ok ? T("right face") : T("on {face}", {face: lv.face});
     var b = $("bubble");
@@ -82,9 +87,9 @@
     $("result-reasons").replaceChildren.apply($("result-reasons"), items);
     var f = r.figures || {};
     var bits = [];
-    if (f.residual_rms_mg !== undefined) { bits.push(T("fit residual {mg} mg", {mg: f.residual_rms_mg.toFixed(3)})); }
+    if (f.residual_rms_mg !== undefined) { bits.push(T("fit residual {mg} mg", {mg: num(f.residual_rms_mg, 3)})); }
     if (f.verify_error_max_mg !== undefined && f.verify_error_max_mg !== null) {
-      bits.push(T("check after calibration {mg} mg", {mg: f.verify_error_max_mg.toFixed(3)}));
+      bits.push(T("check after calibration {mg} mg", {mg: num(f.verify_error_max_mg, 3)}));
     }
     if (f.nvm) { bits.push(T("NVM {what}", {what: f.nvm})); }
     $("result-figures").textContent = bits.join(" · ");
@@ -95,7 +100,7 @@
     var box = $("result");
     box.className = "result shift";
     $("result-verdict").textContent = T("SHIFT OVER");
-    var fpy = s.first_pass_yield === null ? "–" : (100 * s.first_pass_yield).toFixed(1) + " %";
+    var fpy = s.first_pass_yield === null ? "–" : num(100 * s.first_pass_yield, 1) + " %";
     $("result-board").textContent = T("{boards} boards · PASS {pass} · FAIL {fail} · aborted {aborted} · error {error} · first-pass yield {fpy}",
       {boards: s.boards, pass: s.pass, fail: s.fail, aborted: s.aborted, error: s.error, fpy: fpy});
     var titles = s.reason_titles || {};
@@ -103,7 +108,8 @@
       var li = document.createElement("li"); li.textContent = (titles[c] || c || "–") + ": " + s.reasons_by_code[c]; return li;
     });
     $("result-reasons").replaceChildren.apply($("result-reasons"), items);
-    $("result-figures").textContent = T("{start} to {end} (UTC)", {start: s.started_utc, end: s.ended_utc});
+    $("result-figures").textContent = T("{start} to {end} (UTC)", {start: s.started_utc, end: s.ended_utc}) +
+      " · " + T("ended by: {why}", {why: T(s.ended_by)});
     box.hidden = false;
   }
 
@@ -153,8 +159,8 @@
       $("instruction").textContent = T("Put the board {words}", {words: s.pose.words.split(" (")[0]});
       var e = s.pose.expects_g;
       $("angles").textContent = T("pitch {pitch}°, roll {roll}° · expects x {x}  y {y}  z {z} g", {
-        pitch: s.pose.pitch_deg.toFixed(1), roll: s.pose.roll_deg.toFixed(1), x: e[0].toFixed(3), y: e[1].toFixed(3),
-        z: e[2].toFixed(3)});
+        pitch: num(s.pose.pitch_deg, 1), roll: num(s.pose.roll_deg, 1), x: num(e[0], 3), y: num(e[1], 3),
+        z: num(e[2], 3)});
       drawBoard(s.pose.picture);
     }
     drawStrip(s);
@@ -177,10 +183,12 @@
     } else { form.hidden = true; }
     var log = s.lines.map(function (t) { var li = document.createElement("li"); li.textContent = t; return li; });
     $("log").replaceChildren.apply($("log"), log);
-    // between boards the station's own lines (a refused scan, a device gone and back) are shown over all
-    var note = !s.pose && s.lines.length ? s.lines[s.lines.length - 1].trim() : "";
+    // between boards what the station says to the operator (a refused scan, a device gone and back) is shown
+    // over all; never over a verdict, a fault or the shift's end, which say it themselves
+    var note = !s.pose && phase !== "done" && phase !== "shift_over" && phase !== "station_fault" ? (s.notice || "") : "";
     $("notice").hidden = !note;
     $("notice").textContent = note;
+    $("b-end-fault").hidden = !(phase === "station_fault" && s.shift);
     // the station's verdict stays on every page until the station starts the next board
     if (phase === "shift_over" && s.summary) { showSummary(s.summary); } else if (s.result) { showResult(s.result); }
     else { $("result").hidden = true; }
@@ -218,6 +226,7 @@
     if (v) { send({answer: "serial", serial: v}); }  // a blank scan is ignored, as in the terminal
   });
   $("b-end").addEventListener("click", function () { send({answer: "end"}); });
+  $("b-end-fault").addEventListener("click", function () { send({answer: "end"}); });
   // a page that lost the station keeps asking: it shows the station again as soon as it answers
   (function loop() { if (!done) { poll(); window.setTimeout(loop, 250); } }());
 }());
