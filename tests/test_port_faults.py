@@ -155,3 +155,36 @@ def test_missing_jig_port_is_a_station_error_before_any_board_step(tmp_path):
     rows = db.execute("SELECT status, verdict, status_reason FROM runs").fetchall()
     assert len(rows) == 1 and rows[0][:2] == ("error", None) and rows[0][2].startswith("station fault (jig): ")
     assert db.execute("SELECT COUNT(*) FROM poses").fetchone()[0] == 0
+
+
+def test_a_lost_cable_is_a_station_error_on_the_line_page_not_a_yield_loss(tmp_path):
+    """Issue 49: one board PASSes, the next loses its jig cable mid-run; on `accelcal serve`'s line
+    page and API the second run is the station's error, named, and the station's yield stays 100 %
+    (a board not judged counts in no yield, first-pass yield or failure reasons)."""
+    pytest.importorskip("fastapi")
+    import httpx
+    from webtools import live_server
+
+    bridge, port, jig, cfg = rig(tmp_path)
+    try:
+        ok = CliRunner().invoke(cli, ["run", "--config", str(cfg), "--port", port, "--jig-port", jig.port,
+                                      "--serial", "SN-GOOD", "--json"])
+        assert ok.exit_code == 0, ok.output
+        jig.inject("disconnect", after=40)
+        lost = CliRunner().invoke(cli, ["run", "--config", str(cfg), "--port", port, "--jig-port", jig.port,
+                                        "--serial", "SN-CABLE", "--json"])
+        assert lost.exit_code == 3, lost.output
+    finally:
+        jig.stop()
+        bridge.stop()
+    with live_server(str(tmp_path / "runs.sqlite")) as base:
+        y = httpx.get(base + "/api/v1/yield").json()
+        (station,) = y["stations"]
+        assert (station["runs"], station["pass"], station["yield"]) == (1, 1, 1.0), station
+        assert not y["failure_reasons"], y
+        runs = httpx.get(base + "/api/v1/runs").json()["runs"]
+        err = next(r for r in runs if r["device_serial"] == "SN-CABLE")
+        assert err["status"] == "error" and err["verdict"] is None
+        assert err["status_reason"].startswith("station fault (jig): ") and "lost" in err["status_reason"]
+        page = httpx.get(base + "/").text
+        assert "SN-CABLE" in page and ">error<" in page
