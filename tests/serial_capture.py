@@ -34,7 +34,7 @@ def capture(seed: int = 1, repeat: int = 1) -> tuple[list[str], object]:
         if len(counts) == MOVE_SAMPLES:  # a move (1.5 s at 100 Hz): the prompt comes first
             pose += 1
             lines.append(f">>> Place accelerometer in pose {pose} of 18, then hold it still <<<")
-        times = rng.integers(repeat - 1, repeat + 1, len(counts)) + (repeat == 1) if repeat > 1 else np.ones(len(counts), int)
+        times = rng.integers(repeat - 1, repeat + 2, len(counts)) if repeat > 1 else np.ones(len(counts), int)
         for row, n in zip(counts, times, strict=True):
             x, y, z = (float(v) * MPS2_PER_LSB for v in row)
             for _ in range(int(n)):

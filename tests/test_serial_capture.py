@@ -71,7 +71,7 @@ def test_a_damaged_data_row_is_still_refused_by_line(capture, tmp_path, bad, mes
     p.write_text("\n".join(lines) + "\n")
     r = _fit(p)
     assert r.exit_code == 2
-    assert f"line 501" in r.output and message in r.output, r.output
+    assert "line 501" in r.output and message in r.output, r.output
 
 
 def test_the_rule_that_tells_prose_from_damaged_data():

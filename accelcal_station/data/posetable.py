@@ -403,4 +403,5 @@ def write_pose_table(session: Session, path: str | Path, metadata: Mapping[str, 
     atomic_write(path, buf.getvalue())
 
 
-__all__ = ["COLUMNS", "META_RE", "is_prose_row", "read_pose_table", "stated_scale", "table_metadata", "write_pose_table"]
+__all__ = ["COLUMNS", "META_RE", "is_prose_row", "read_pose_table", "stated_scale", "table_metadata",
+           "write_pose_table"]

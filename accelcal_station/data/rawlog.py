@@ -246,8 +246,8 @@ def _data_start(rows: Rows, split: Splitter) -> tuple[int, int | None]:
             return j, _header_before(rows, split, j, k)
     data = [i for i, (_, s) in enumerate(rows) if not is_text(split(s), k)]
     for a in range(len(data)):
-        ahead = data[a:a + PREAMBLE_LOOKAHEAD + 1]
-        if all(len(split(rows[i][1])) == k and sum(_is_number(c) for c in split(rows[i][1])) >= 3 for i in ahead):
+        following = data[a:a + PREAMBLE_LOOKAHEAD + 1]
+        if all(len(split(rows[i][1])) == k and sum(_is_number(c) for c in split(rows[i][1])) >= 3 for i in following):
             return data[a], _header_before(rows, split, data[a], k)
     return 0, None
 

@@ -205,7 +205,8 @@ def _with_references(session: Session) -> ModelChoice:
     distinct = int(first_of_orientation(session.readings_g()[None])[0].sum())
     if len(session) > MAX_POSES or distinct > MAX_FOLDS:  # one fit per orientation, the pairs' cosines held at once
         return ModelChoice("15", "references present and they determine the cubic: model 15 (full W, offset, cubic; "
-                                 f"{len(session)} poses in {distinct} orientations: not compared with model 12 held out, "
+                                 f"{len(session)} poses in {distinct} orientations: not compared with model 12 "
+                                 "held out, "
                                  f"which takes at most {MAX_POSES} poses and {MAX_FOLDS} orientations)",
                            judged_on=REFERENCES)
     c = compare_models(session, "12", "15")

@@ -156,7 +156,8 @@ class HeldOutComparison:
         def mg(v: float) -> str:
             return f"{v * 1e3:.3f} mg" if math.isfinite(v) else "n/a (a fold leaves it undetermined)"
 
-        return f"{mg(self.rms_b_g)} against {mg(self.rms_a_g)} left out by orientation ({self.orientations} orientations)"
+        return (f"{mg(self.rms_b_g)} against {mg(self.rms_a_g)} left out by orientation "
+                f"({self.orientations} orientations)")
 
 
 def compare_held_out(sq_a: np.ndarray, sq_b: np.ndarray, components: int) -> HeldOutComparison:
