@@ -39,6 +39,7 @@ from ..conventions import an4399_reference, check_units
 from ..errors import DataError, UnitsError
 from ..jsontypes import JsonScalar
 from ..session import PoseColumns, PoseRecord, Session
+from .prose import is_number
 
 REQUIRED = ("pose", "x", "y", "z")
 GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std_y", "std_z"))
@@ -241,19 +242,11 @@ def _file_lines(path: Path) -> Generator[str, None, None]:
 COLUMNS_FROM_ROWS = 10_000
 
 
-def _numeric(cell: str) -> bool:
-    try:
-        float(cell)
-        return True
-    except ValueError:
-        return False
-
-
 def is_prose_row(cells: list[str]) -> bool:
     """A banner, prompt or note line among a pose table's rows: no cell of it is a number (every pose
     row has its x, y, z readings, so a row with any number is a pose row, and a damaged one is an
     error naming its line)."""
-    return any(c.strip() for c in cells) and not any(_numeric(c) for c in cells)
+    return any(c.strip() for c in cells) and not any(is_number(c) for c in cells)
 
 
 def _banner_line(text: str) -> bool:

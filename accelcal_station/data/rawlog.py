@@ -22,6 +22,8 @@ import numpy as np
 from ..errors import DataError
 from ..fileguard.regular import read_text
 from .posetable import META_RE
+from .prose import is_number as _is_number
+from .prose import is_text
 
 MIN_LOG_SAMPLES = 10
 
@@ -89,24 +91,6 @@ class RawLog:
 
 
 # -- reading ----------------------------------------------------------------------------
-
-def _is_number(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
-
-
-def is_text(cells: list[str], fields: int) -> bool:
-    """A line of prose, not data: a banner, a prompt (``>>> Place accelerometer ...``), a repeated
-    header.  Its fields (split as the data are) hold a cell that is not a number, and fewer numbers
-    than half the data's field count.  A line with half or more of its cells numbers, or with
-    numbers only (``0.12,abc,9.81``, ``0.12,-0.03``, ``nan,1,2``), is data-looking: damaged data,
-    an error naming its line, never skipped."""
-    nums = sum(_is_number(c) for c in cells)
-    return nums < fields / 2 and any(c.strip() and not _is_number(c) for c in cells)
-
 
 def _split_fn(line: str) -> Splitter:
     """How rows split into fields; cells keep their surrounding spaces (float() and numpy ignore them)."""
