@@ -231,7 +231,7 @@ def choose_model(session: Session) -> ModelChoice:
     scale = _scale(session)
     noise = session.noise()
     try:
-        held = hold_plan(session.readings / scale, "9", None if noise is None else noise / scale)
+        held = hold_plan(session.readings / scale, "9", None if noise is None else noise / scale, confirm=True)
     except UnderdeterminedError as e:
         raise UnderdeterminedError(
             f"no model is determined: model 9 (no references): {e}; or place the board on all six faces "

@@ -395,17 +395,18 @@ def hold_plans(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None,
     return HoldPlan(held, refused)
 
 
-def hold_plan(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None) -> list[Held]:
+def hold_plan(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None, confirm: bool = False) -> list[Held]:
     """One board's ``hold_plans``: the terms to hold for readings ``gf`` (P, 3) with standard
     errors ``noise_g`` (P, 3) in g or None; raises UnderdeterminedError with the reason when
-    the board is refused."""
+    the board is refused.  ``confirm``: model 9's holds checked by held-out data as the fit
+    checks them (``confirm_holds``: refits; a refusal does not depend on it)."""
     g = np.asarray(gf, dtype=float)[None]
     nz = None if noise_g is None else np.asarray(noise_g, dtype=float)[None]
     plan = hold_plans(g, model, nz)
-    if model == "9":
-        plan = confirm_holds(g, nz, plan)
     if plan.refused[0]:
         raise UnderdeterminedError(plan.refused[0])
+    if model == "9" and confirm:
+        plan = confirm_holds(g, nz, plan)
     return list(plan.held[0])  # its own list (the plan shares one empty list among boards)
 
 
