@@ -106,12 +106,22 @@ def test_at_the_data_sheet_noise_xy_is_fitted_freely_and_loo_matches_the_free_fi
 
 
 def test_at_twenty_times_the_noise_xy_is_held_and_loo_is_no_worse_than_the_free_fit(fits):
+    """The noise rule proposes holding M_xy on every board; the held-out data confirm the hold on all
+    but seed 8, whose held fit is 3.7 mg left out against the free fit's 0.53 mg (scipy's free fit:
+    the same 0.53 mg), so it is fitted freely and said (issue 50: holds checked by held-out data;
+    before, every board held)."""
     ours, free = [], []
-    for js in fits[20]:
-        assert [h["term"] for h in js["held"]] == ["M_xy"], js["held"]
-        reason = js["held"][0]["reason"]
-        assert "standard error at the data's noise" in reason and "prior +-0.02" in reason
-        assert js["W"][0][1] == 0.0 and js["stderr"]["W"][0][1] == 0.0
+    for s, js in zip(SEEDS, fits[20], strict=True):
+        loo_free = free_loo(np.array([p["reading_g"] for p in js["poses"]]))
+        if s == 8:
+            assert js["held"] == [] and [h["term"] for h in js["freed"]] == ["M_xy"], js["freed"]
+            assert "the noise rule would hold it" in js["freed"][0]["reason"]
+            assert js["crossval_rms_g"] == pytest.approx(loo_free, rel=0.01)
+        else:
+            assert [h["term"] for h in js["held"]] == ["M_xy"], js["held"]
+            reason = js["held"][0]["reason"]
+            assert "standard error at the data's noise" in reason and "prior +-0.02" in reason
+            assert js["W"][0][1] == 0.0 and js["stderr"]["W"][0][1] == 0.0
         ours.append(js["crossval_rms_g"])
-        free.append(free_loo(np.array([p["reading_g"] for p in js["poses"]])))
+        free.append(loo_free)
     assert _pooled(ours) <= _pooled(free), (_pooled(ours), _pooled(free))

@@ -169,6 +169,7 @@ def _fit_text(fit: FitResult, names: list[str]) -> list[str]:
     if fit.message:
         out.append(f"note: {fit.message}")
     out += [f"held: {h.text}" for h in fit.held]
+    out += [f"freed: {h.reason}" for h in fit.freed]
     out += _barely_text(fit) if not fit.held else []
     w = max(4, *(len(n) for n in names))
     out.append(f"{'pose':<{w}}  {'x_g':>9} {'y_g':>9} {'z_g':>9}  {'res_x_mg':>9} {'res_y_mg':>9} "

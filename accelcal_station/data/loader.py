@@ -23,7 +23,10 @@ from ..models.gravity_norm import nominal_scale
 from ..session import PoseColumns, PoseRecord, Session
 from .posetable import read_pose_table, stated_scale, table_metadata
 from .rawlog import MAX_ABS_READING, LogInfo, RawLog, read_raw_log, read_text_file
+from .sample_grid import REPEAT_MIN, repeat_fraction
 from .static_poses import StaticDetection, static_session
+
+MAX_TEXT_NOTED = 50  # prose lines listed by line and text (a count says how many in all)
 
 G_RANGE = (0.5, 2.0)  # median norm of readings in g
 MPS2_RANGE = (5.0, 20.0)  # in m/s^2
@@ -63,14 +66,22 @@ class Loaded:
     log: RawLog | None = None
     detection: StaticDetection | None = None
     inferred: list[str] = field(default_factory=list)
+    table_text_lines: list[tuple[int, str]] = field(default_factory=list)  # prose skipped in a pose table
 
     def to_json(self) -> dict:
         out: dict = {"units": self.units.units, "counts_per_g": self.units.counts_per_g,
                      "offset_counts": self.units.offset_counts, "units_reason": self.units.reason}
+        if self.table_text_lines:
+            out["text_lines_skipped"] = len(self.table_text_lines)
+            out["text_lines"] = [{"line": n, "text": t} for n, t in self.table_text_lines[:MAX_TEXT_NOTED]]
         if self.log is not None:
             i = self.log.info
             out.update({"skipped_rows": i.skipped_rows, "preamble": i.preamble, "rate_hz": self.log.rate_hz,
-                        "rate_source": i.rate_source, "time_unit": i.time_unit, "columns": i.axis_names})
+                        "rate_source": i.rate_source, "time_unit": i.time_unit, "columns": i.axis_names,
+                        "text_lines_skipped": len(i.text_lines),
+                        "text_lines": [{"line": n, "text": t} for n, t in i.text_lines[:MAX_TEXT_NOTED]],
+                        "repeated_fraction": repeat_fraction(self.log.xyz),
+                        "decimals": i.decimals})
         return out
 
 
@@ -153,8 +164,9 @@ def load_pose_table(path: str | Path, units: str | None = None, counts_per_g: fl
                     gravity_mps2: float | None = None, references: bool = False) -> Loaded:
     """A pose table with its units judged as every command judges them."""
     meta = table_metadata(path)
+    notes: list[tuple[int, str]] = []
     session = read_pose_table(path, units or meta.get("units") or "counts", counts_per_g, gravity_mps2,
-                              references=references)
+                              references=references, notes=notes)
     check_pose_count(session, path)
     big = np.argwhere(np.abs(session.readings) > MAX_ABS_READING)
     if big.size:
@@ -168,7 +180,17 @@ def load_pose_table(path: str | Path, units: str | None = None, counts_per_g: fl
         j = judge_units(session.readings, stated, cpg, by)
     except AccelcalError as e:
         raise type(e)(f"{path}: {e}") from None
-    return Loaded(_apply(session, j, gravity_mps2), j, inferred=[f"units: {j.reason}"])
+    said = [_text_note(notes)] if notes else []
+    return Loaded(_apply(session, j, gravity_mps2), j, inferred=[*said, f"units: {j.reason}"],
+                  table_text_lines=notes)
+
+
+def _text_note(lines: list[tuple[int, str]]) -> str:
+    """The prose lines skipped (banner, prompts, repeated header), the first three by line and text."""
+    shown = ", ".join(f"{n} {t[:40]!r}" for n, t in lines[:3])
+    more = f" and {len(lines) - 3} more" if len(lines) > 3 else ""
+    return (f"skipped {len(lines)} text line{'s' if len(lines) != 1 else ''} among the data "
+            f"(banner, prompts, repeated header: line {shown}{more})")
 
 
 def load_raw_log(path: str | Path, units: str | None = None, counts_per_g: float | None = None,
@@ -206,6 +228,12 @@ def _inferred(log: RawLog, j: UnitsJudgement) -> list[str]:
         pre = "; ".join(f"{k}={v}" if v else k for k, v in list(i.preamble.items())[:6])
         out.append(f"skipped {i.skipped_rows} row{'s' if i.skipped_rows != 1 else ''} before the data"
                    + (f" ({pre})" if pre else ""))
+    if i.text_lines:
+        out.append(_text_note(i.text_lines))
+    rep = repeat_fraction(log.xyz)
+    if rep > REPEAT_MIN:
+        out.append(f"{100 * rep:.0f} % of consecutive samples repeat the previous one (the host read faster than "
+                   "the chip updates): each pose's noise is judged on its distinct samples")
     if log.rate_hz:
         out.append(f"rate {log.rate_hz:.6g} Hz from {i.rate_source}"
                    + (f"; time in {i.time_unit}: {i.time_unit_reason}" if log.has_time else ""))

@@ -39,6 +39,7 @@ from ..conventions import an4399_reference, check_units
 from ..errors import DataError, UnitsError
 from ..jsontypes import JsonScalar
 from ..session import PoseColumns, PoseRecord, Session
+from .prose import is_number
 
 REQUIRED = ("pose", "x", "y", "z")
 GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std_y", "std_z"))
@@ -58,7 +59,7 @@ def table_metadata(path: str | Path) -> dict[str, str]:
     lines = _file_lines(Path(path))  # up to the header only: never the whole table in memory
     for raw in lines:
         s = raw.strip()
-        if s and not s.startswith("#"):
+        if s and not s.startswith("#") and not _banner_line(s):
             break
         m = _META_RE.match(s)
         if m:
@@ -241,10 +242,45 @@ def _file_lines(path: Path) -> Generator[str, None, None]:
 COLUMNS_FROM_ROWS = 10_000
 
 
-def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], references: bool
-          ) -> PoseColumns:
-    """The poses of the table body after the header (blank and ``#`` rows skipped), parsed row
-    by row into columns: memory is the poses, not a second copy of the table as lists of strings."""
+def is_prose_row(cells: list[str]) -> bool:
+    """A banner, prompt or note line among a pose table's rows: no cell of it is a number (every pose
+    row has its x, y, z readings, so a row with any number is a pose row, and a damaged one is an
+    error naming its line)."""
+    return any(c.strip() for c in cells) and not any(is_number(c) for c in cells)
+
+
+def _banner_line(text: str) -> bool:
+    """A prose line before the header: no number and no known column name among its cells."""
+    try:
+        cells = [c.strip() for c in next(csv.reader([text]))]
+    except csv.Error:
+        cells = [text]
+    return not any(c in COLUMNS for c in cells) and is_prose_row(cells)
+
+
+def _banner_then_header(lines: Iterator[str], path: Path, notes: list[tuple[int, str]] | None
+                        ) -> tuple[dict[str, str], dict[str, int], int, str]:
+    """read_preamble, with prose lines before the header (a serial monitor's banner: lines with no
+    number and no known column name) skipped into ``notes``."""
+    meta: dict[str, str] = {}
+    meta_line: dict[str, int] = {}
+    offset = 0
+    while True:
+        m, ml, at, text = read_preamble(lines, path, f"{','.join(COLUMNS[:6])} (and optional columns)")
+        meta.update(m)
+        meta_line.update({k: v + offset for k, v in ml.items()})
+        if not _banner_line(text):
+            return meta, meta_line, at + offset, text
+        if notes is not None:
+            notes.append((at + offset + 1, text))
+        offset += at + 1
+
+
+def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], references: bool,
+          notes: list[tuple[int, str]] | None = None) -> PoseColumns:
+    """The poses of the table body after the header (blank, ``#`` and prose rows skipped, prose into
+    ``notes``), parsed row by row into columns: memory is the poses, not a second copy of the table
+    as lists of strings."""
     reader = csv.reader(lines)
     poses = PoseColumns()
     last = 0
@@ -257,6 +293,10 @@ def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], r
                                 "per line, numbers without line breaks")
             last = reader.line_num
             if not cells or all(not c.strip() for c in cells) or cells[0].lstrip().startswith("#"):
+                continue
+            if is_prose_row(cells):
+                if notes is not None:
+                    notes.append((line, ",".join(cells)))
                 continue
             if len(cells) != len(header):
                 raise DataError(f"{path}: line {line}: {len(cells)} fields; the header has {len(header)}")
@@ -271,22 +311,24 @@ def _rows(path: Path, lines: Iterator[str], header_at: int, header: list[str], r
 
 
 def read_pose_table(path: str | Path, units: str | None = None, counts_per_g: float | None = None,
-                    gravity_mps2: float | None = None, *, references: bool = False) -> Session:
+                    gravity_mps2: float | None = None, *, references: bool = False,
+                    notes: list[tuple[int, str]] | None = None) -> Session:
     """Read a pose table into a Session; arguments override the file's metadata.
 
     ``references=True`` makes every row give its expected output (pitch/roll or
-    ref columns), as models 6, 12 and 15 need; errors then name the row.
+    ref columns), as models 6, 12 and 15 need; errors then name the row.  Prose lines
+    (``is_prose_row``: a banner before the header, prompts between the rows) are skipped,
+    each (line, text) appended to ``notes`` when given.
     """
     path = Path(path)
     lines = _file_lines(path)  # read as parsed: neither the whole text nor a list of lines beside the poses
-    meta, meta_line, header_at, header_text = read_preamble(lines, path,
-                                                            f"{','.join(COLUMNS[:6])} (and optional columns)")
+    meta, meta_line, header_at, header_text = _banner_then_header(lines, path, notes)
     hline = header_at + 1
     header = _header(path, header_text, hline)
     stated_units, counts_per_g, gravity_mps2 = stated_scale(path, meta, meta_line, units, counts_per_g,
                                                             gravity_mps2)
     units = stated_units or "counts"
-    poses = _rows(path, lines, header_at, header, references)
+    poses = _rows(path, lines, header_at, header, references, notes)
     if not poses:
         raise DataError(f"{path}: no pose rows after the header (line {hline})")
     extra = {k: v for k, v in meta.items() if k not in META_KEYS}
@@ -354,4 +396,5 @@ def write_pose_table(session: Session, path: str | Path, metadata: Mapping[str, 
     atomic_write(path, buf.getvalue())
 
 
-__all__ = ["COLUMNS", "META_RE", "read_pose_table", "stated_scale", "table_metadata", "write_pose_table"]
+__all__ = ["COLUMNS", "META_RE", "is_prose_row", "read_pose_table", "stated_scale", "table_metadata",
+           "write_pose_table"]

@@ -22,6 +22,8 @@ import numpy as np
 from ..errors import DataError
 from ..fileguard.regular import read_text
 from .posetable import META_RE
+from .prose import is_number as _is_number
+from .prose import is_text
 
 MIN_LOG_SAMPLES = 10
 
@@ -65,6 +67,8 @@ class LogInfo:
     time_unit_judged: bool = False  # the time unit was guessed from the step alone
     stated: dict[str, str] = field(default_factory=dict)  # "# key: value" lines before the data (posetable.META_RE)
     stated_line: dict[str, int] = field(default_factory=dict)  # their 1-based line numbers
+    text_lines: list[tuple[int, str]] = field(default_factory=list)  # prose skipped among the data (is_text)
+    decimals: dict[str, int] = field(default_factory=dict)  # x/y/z -> most decimals printed (value grid's rounding)
 
 
 
@@ -87,14 +91,6 @@ class RawLog:
 
 
 # -- reading ----------------------------------------------------------------------------
-
-def _is_number(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
-
 
 def _split_fn(line: str) -> Splitter:
     """How rows split into fields; cells keep their surrounding spaces (float() and numpy ignore them)."""
@@ -214,8 +210,10 @@ def _preamble(skipped: Rows, info: LogInfo) -> None:
             info.rate_source = f"stated on line {ln} ({_short(body)})"
 
 
-def _data_start(rows: Rows, split: Splitter) -> int:
-    """Index of the header or first data row: the first row from which the data's field count holds."""
+def _data_start(rows: Rows, split: Splitter) -> tuple[int, int | None]:
+    """(index of the header or first data row, index of a header that prose lines stand between
+    it and the data, else None): the first row from which the data's field count holds for
+    PREAMBLE_LOOKAHEAD rows; failing that, the same among the data-looking rows (``is_text``)."""
     tail = [len(split(s)) for _, s in rows[-20:]]
     k = max(set(tail), key=tail.count)
     counts: dict[int, int] = {}  # field counts, computed only as far as the search goes
@@ -229,8 +227,30 @@ def _data_start(rows: Rows, split: Splitter) -> int:
         ahead = range(j, min(j + PREAMBLE_LOOKAHEAD + 1, len(rows)))
         if all(count(i) == k for i in ahead) and \
                 sum(_is_number(c) for c in split(rows[min(j + 1, len(rows) - 1)][1])) >= 3:
-            return j
-    return 0
+            return j, _header_before(rows, split, j, k)
+    data = [i for i, (_, s) in enumerate(rows) if not is_text(split(s), k)]
+    for a in range(len(data)):
+        following = data[a:a + PREAMBLE_LOOKAHEAD + 1]
+        if all(len(split(rows[i][1])) == k and sum(_is_number(c) for c in split(rows[i][1])) >= 3 for i in following):
+            return data[a], _header_before(rows, split, data[a], k)
+    return 0, None
+
+
+def _header_before(rows: Rows, split: Splitter, j: int, k: int) -> int | None:
+    """The header of data starting at row ``j`` when prose lines stand between them (a serial
+    monitor's prompt after the header): the nearest earlier prose row of k fields whose names map
+    to x, y, z; None when row j is a header itself or there is none."""
+    if is_text(split(rows[j][1]), k) or not j:
+        return None
+    for i in range(j - 1, -1, -1):
+        cells = [c.strip() for c in split(rows[i][1])]
+        if len(cells) == k and is_text(cells, k):
+            try:
+                _columns_from_header(Path(), rows[i][0], cells, LogInfo())
+                return i
+            except DataError:
+                continue
+    return None
 
 
 def _judge_time_unit(dt: float, info: LogInfo) -> float:
@@ -283,26 +303,47 @@ def _column(cells: list[list[str]], i: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _parse_rows(path: Path, rows: Rows, split: Splitter, names: list[str], use: list[tuple[int, str]],
-                label: Callable[[int], str]) -> tuple[np.ndarray, np.ndarray]:
-    """The used columns of every data row as floats, and each row's file line; the first bad row (in
-    file order) is named by _check_row.  Vectorised per column: a million rows parse in about a second."""
+                label: Callable[[int], str], info: LogInfo) -> tuple[np.ndarray, np.ndarray]:
+    """The used columns of every data row as floats, and each row's file line; prose lines among them
+    (``is_text``) are dropped into ``info.text_lines``, and the first damaged row (in file order) is
+    named by _check_row.  Vectorised per column: a million rows parse in about a second."""
     lines_arr = np.fromiter((ln for ln, _ in rows), np.int64, len(rows))
     cells = [split(s) for _, s in rows]
     width = np.fromiter(map(len, cells), np.int64, len(cells))
-    wrong = np.flatnonzero(width != len(names))
-    first_bad = int(wrong[0]) if wrong.size else len(rows)
-    good_cells = cells[:first_bad]
-    data = np.empty((len(good_cells), len(use)))
+    wide = np.flatnonzero(width == len(names))
+    whole = len(wide) == len(rows)
+    good_cells = cells if whole else [cells[i] for i in wide]
+    bad = width != len(names)
+    data = np.empty((len(rows), len(use)))
     with np.errstate(invalid="ignore"):
         for j, (i, c) in enumerate(use):
-            v, bad = _column(good_cells, i)
-            bad |= ~np.isfinite(v) | ((np.abs(v) > MAX_ABS_READING) if c != "t" else False)
-            if bad.any():
-                first_bad = min(first_bad, int(np.argmax(bad)))
-            data[:, j] = v
-    if first_bad < len(rows):
-        _check_row(path, int(lines_arr[first_bad]), cells[first_bad], names, use, label)
+            v, b = _column(good_cells, i)
+            b |= ~np.isfinite(v) | ((np.abs(v) > MAX_ABS_READING) if c != "t" else False)
+            bad[wide[b]] = True
+            data[wide, j] = v
+    if bad.any():
+        flagged = np.flatnonzero(bad)
+        text = np.array([is_text(cells[i], len(names)) for i in flagged], dtype=bool)
+        if not text.all():
+            r = int(flagged[np.argmin(text)])
+            _check_row(path, int(lines_arr[r]), cells[r], names, use, label)
+        info.text_lines += [(int(lines_arr[i]), rows[i][1]) for i in flagged]
+        keep = ~bad
+        data, lines_arr = data[keep], lines_arr[keep]
+        good_cells = [cells[i] for i in np.flatnonzero(keep)[:DECIMALS_ROWS]]
+    _decimals(good_cells[:DECIMALS_ROWS], use, info)
     return data, lines_arr
+
+
+DECIMALS_ROWS = 4096  # rows whose printed decimals are counted (a log prints every row alike)
+
+
+def _decimals(cells: list[list[str]], use: list[tuple[int, str]], info: LogInfo) -> None:
+    """The most decimals printed in each of the x, y, z columns (the rounding a value grid must allow)."""
+    for i, c in use:
+        if c in "xyz":
+            info.decimals[c] = max((len(v.strip().split(".")[1]) if "." in v and "e" not in v.lower() else 0
+                                    for v in (r[i] for r in cells)), default=0)
 
 
 def _time_axis(path: Path, t: np.ndarray | None, n: int, rate_hz: float | None, info: LogInfo, lines_arr: np.ndarray,
@@ -356,12 +397,18 @@ def _data_rows(path: Path, text: str, skip_rows: int | None, info: LogInfo) -> t
     rows = [(n, s) for n, s in rows if s and not s.startswith("#")]
     if not rows:
         raise DataError(f"{path}: no data lines" + (f" after skipping {skip_rows} rows" if skip_rows else ""))
-    split = _split_fn(rows[-1][1])
+    split = _split_fn(next((s for _, s in reversed(rows[-50:])
+                            if sum(_is_number(c) for c in _split_fn(s)(s)) >= 3), rows[-1][1]))
     if skip_rows is None:
-        j = _data_start(rows, split)
-        info.skipped_rows = j
-        _preamble(sorted([c for c in comments if c[0] < rows[j][0]] + rows[:j]), info)
-        rows = rows[j:]
+        j, header = _data_start(rows, split)
+        info.skipped_rows = j if header is None else header
+        before = [r for i, r in enumerate(rows[:j]) if i != header]
+        _preamble(sorted([c for c in comments if c[0] < rows[j][0]] + before), info)
+        if header is not None and header < j:
+            info.text_lines += [r for r in before if r[0] > rows[header][0]]
+            rows = [rows[header]] + rows[j:]
+        else:
+            rows = rows[j:]
     else:
         info.skipped_rows = skip_rows
         _preamble([(n, s) for n, s in comments], info)
@@ -438,14 +485,14 @@ def _read_log(path: Path, text: str, columns: str | list[str] | None, skip_rows:
     def label(i: int) -> str:
         return f"column {i + 1} ({first[i] if header else names[i]})"
 
-    data, lines_arr = _parse_rows(path, rows, split, names, use, label)
-    if len(rows) < MIN_LOG_SAMPLES:
-        raise DataError(f"{path}: {len(rows)} samples; a raw log needs at least {MIN_LOG_SAMPLES}")
+    data, lines_arr = _parse_rows(path, rows, split, names, use, label, info)
+    if len(data) < MIN_LOG_SAMPLES:
+        raise DataError(f"{path}: {len(data)} samples; a raw log needs at least {MIN_LOG_SAMPLES}")
     col = {c: j for j, (_, c) in enumerate(use)}
     xyz = data[:, [col["x"], col["y"], col["z"]]]
-    t, rate = _time_axis(path, data[:, col["t"]] if "t" in col else None, len(rows), rate_hz, info, lines_arr,
+    t, rate = _time_axis(path, data[:, col["t"]] if "t" in col else None, len(data), rate_hz, info, lines_arr,
                          label(names.index("t")) if "t" in col else "")
     return RawLog(t, xyz, lines_arr, str(path), names, rate, "t" in col, info)
 
 
-__all__ = ["MAX_ABS_READING", "LogInfo", "RawLog", "check_rate", "read_raw_log", "read_text_file"]
+__all__ = ["MAX_ABS_READING", "LogInfo", "RawLog", "check_rate", "is_text", "read_raw_log", "read_text_file"]

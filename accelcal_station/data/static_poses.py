@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike
 from ..errors import AccelcalError, DataError
 from ..session import PoseRecord, Session
 from .rawlog import RawLog
+from .sample_grid import distinct_samples
 
 STILL_FACTOR = 3.0  # windows whose std exceeds this many noise sigmas are motion
 MERGE_FACTOR = 4.0  # neighbouring still runs closer than this many sigmas are the same pose
@@ -170,9 +171,14 @@ def segment_static(t: ArrayLike | None, xyz: np.ndarray, rate_hz: float | None =
 
 def to_session(log: RawLog, segments: list[Segment], units: str = "counts", counts_per_g: float | None = None,
                gravity_mps2: float | None = None, device: str | None = None) -> Session:
-    """One PoseRecord per static segment (no references: such a session fits model 9)."""
-    poses = [PoseRecord(f"s{i + 1:02d}", s.mean, s.std, s.n, t_start=float(log.t[s.start]),
-                        t_end=float(log.t[s.stop - 1])) for i, s in enumerate(segments)]
+    """One PoseRecord per static segment (no references: such a session fits model 9).  A log that
+    repeats samples (sample_grid.distinct_samples: a host polling faster than the chip updates)
+    gives each pose its distinct samples as ``n``, so std / sqrt(n) is the noise of its mean."""
+    distinct = distinct_samples(log.xyz)
+    repeats = not distinct.all()
+    poses = [PoseRecord(f"s{i + 1:02d}", s.mean, s.std,
+                        sum(int(distinct[a:b].sum()) for a, b in s.ranges) if repeats else s.n,
+                        t_start=float(log.t[s.start]), t_end=float(log.t[s.stop - 1])) for i, s in enumerate(segments)]
     return Session(poses, units, counts_per_g, gravity_mps2, device, {"source": log.source})
 
 

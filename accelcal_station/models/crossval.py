@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -97,4 +98,79 @@ def crossval_by_orientation(gf: np.ndarray, ref: np.ndarray | None, model: str, 
     return rms, ok, distinct
 
 
-__all__ = ["MAX_FOLDS", "MAX_POSES", "crossval_by_orientation", "orientation_labels"]
+def held_out_by_orientation(gf: np.ndarray, ref: np.ndarray | None, fold_fit: FoldFit
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """(sq (D, K), ok (D, K)): each board's squared held-out residual summed over the poses of each
+    of its K distinct orientations, that orientation left out and the rest refitted by ``fold_fit``
+    (the module doc's residuals); the boards share one grouping of poses (a lot's design, or one
+    board), K at most MAX_FOLDS.  ``ok`` False where a fold's fit failed (sq NaN there)."""
+    D = len(gf)
+    pattern = orientation_labels(gf[:1])[0]
+    groups = np.unique(pattern)[:MAX_FOLDS]
+    sq, ok = np.full((D, len(groups)), np.nan), np.zeros((D, len(groups)), dtype=bool)
+    rows = np.arange(D)
+    for k, grp in enumerate(groups):
+        out = pattern == grp
+        fit = fold_fit(rows, ~out)
+        with np.errstate(over="ignore", invalid="ignore"):
+            e = _held_out(fit, gf[:, out], None if ref is None else ref[:, out]).sum(axis=1)
+        ok[:, k] = np.asarray(fit.ok, dtype=bool) & np.isfinite(e)
+        sq[:, k] = np.where(ok[:, k], e, np.nan)
+    return sq, ok
+
+
+SCATTER_Z = 2.5  # one-sided: t with 5 degrees of freedom (six orientations) exceeds 2.5 with probability 2.7 %
+
+
+@dataclass(frozen=True)
+class HeldOutComparison:
+    """Fit b against fit a on the same held-out orientations (``compare_held_out``).
+
+    rms_*_g: the leave-one-orientation-out RMS of each (NaN: a fold not computable); diff_g2: the
+    mean over orientations of b's squared held-out residual minus a's; se_g2: its standard error
+    from the orientations' own scatter, std(d_k) / sqrt(K)."""
+
+    rms_a_g: float
+    rms_b_g: float
+    diff_g2: float
+    se_g2: float
+    orientations: int
+
+    @property
+    def b_worse(self) -> bool:
+        """b is worse beyond the held-out figures' scatter: not computable where a is, or its mean
+        excess squared residual above SCATTER_Z standard errors (a paired test over orientations)."""
+        if not math.isfinite(self.rms_b_g):
+            return math.isfinite(self.rms_a_g)
+        if not math.isfinite(self.rms_a_g) or self.orientations < 3:
+            return False
+        return self.diff_g2 > SCATTER_Z * self.se_g2
+
+    def b_far_worse(self, ratio: float) -> bool:
+        """``b_worse``, or b's held-out RMS above ``ratio`` times a's (a difference carried by one or two
+        orientations has a wide scatter, yet is far worse for the design's own poses)."""
+        return self.b_worse or (math.isfinite(self.rms_b_g) and self.rms_b_g > ratio * self.rms_a_g)
+
+    @property
+    def text(self) -> str:
+        def mg(v: float) -> str:
+            return f"{v * 1e3:.3f} mg" if math.isfinite(v) else "n/a (a fold leaves it undetermined)"
+
+        return (f"{mg(self.rms_b_g)} against {mg(self.rms_a_g)} left out by orientation "
+                f"({self.orientations} orientations)")
+
+
+def compare_held_out(sq_a: np.ndarray, sq_b: np.ndarray, components: int) -> HeldOutComparison:
+    """Compare two fits' per-orientation squared held-out residuals (K,) of one board
+    (``held_out_by_orientation``); ``components`` the residuals averaged (3 P for models
+    6/12/15, P for model 9), as the fits' own cross-validation RMS averages them."""
+    K = len(sq_a)
+    rms = [float(np.sqrt(np.sum(s) / components)) if np.all(np.isfinite(s)) else math.nan for s in (sq_a, sq_b)]
+    d = sq_b - sq_a
+    if not np.all(np.isfinite(d)) or K < 2:
+        return HeldOutComparison(rms[0], rms[1], math.nan, math.nan, K)
+    return HeldOutComparison(rms[0], rms[1], float(np.mean(d)), float(np.std(d, ddof=1) / math.sqrt(K)), K)
+
+
+__all__ = ["MAX_FOLDS", "MAX_POSES", "SCATTER_Z", "HeldOutComparison", "compare_held_out", "crossval_by_orientation",
+           "held_out_by_orientation", "orientation_labels"]

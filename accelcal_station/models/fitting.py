@@ -23,7 +23,7 @@ from ..identifiability import first_of_orientation
 from ..session import Session
 from .crossval import crossval_by_orientation
 from .gravity_norm import PARAM_NAMES, nominal_scale
-from .held import HoldPlan, cubic_held, hold_plans
+from .held import HoldPlan, confirm_holds, cubic_held, hold_plans
 from .result import BatchFit, FitResult
 from .sanity import Refusal, absurd_coefficients, absurd_norm_model, absurd_readings
 from .screening import screen
@@ -204,6 +204,8 @@ class _Front:
         # the weak terms held at nominal (models/held.py; refused when a gain or an offset is weak)
         first = first_of_orientation(gf, apart=scr.apart)  # once, for the plan and the leave-one-orientation-out folds
         plan = hold_plans(gf, model, nz, first, scr.determined)
+        if model == "9":  # each noise-rule hold checked by the held-out data (models/held.py)
+            plan = confirm_holds(gf, nz, plan, workers)
         if len(gf) == 1 and plan.refused[0]:  # one board: its reason, before a solver says less
             raise UnderdeterminedError(plan.refused[0])
         bad_readings = absurd_readings(gf, scr.sq) if model != "9" else None  # judged once, used twice
@@ -228,6 +230,8 @@ class _Front:
                     res.messages[d] = why
                     res.held[d] = []
         res.poses_apart = scr.apart
+        if plan.freed:
+            res.freed = plan.freed
         _refuse_absurd(res, bad_readings)
         return res
 

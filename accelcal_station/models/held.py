@@ -27,6 +27,13 @@ is fitted freely (the posterior of a Gaussian prior with se_k << 0.02 is the fre
 worst term (largest se_k / prior) is held first and the others judged again without it, as
 holding one changes the others' standard errors.
 
+The noise rule is a proposal, checked by held-out data (``confirm_holds``): for a term held by it
+with se_k below CONFIRM_SE_MAX (twice the prior), the fits with the term held and free are each
+left out one distinct orientation at a time (crossval.held_out_by_orientation); where holding is
+worse beyond the orientations' own scatter (crossval.compare_held_out: the mean excess squared
+residual above 2.5 standard errors, every free fold computable) the term is fitted freely and
+reported in ``freed`` with the figures (docs/fit-decisions.md).
+
 Refusals stay geometric: fewer than nine distinct orientations, or a weak direction
 (relative singular value below ``identifiability.REL_SV_MIN`` of the distinct orientations'
 design, unnormalised: normalising would blow a column that is zero but for placement noise up
@@ -42,16 +49,26 @@ stated as model 15 with Gamma = 0 and zero variance).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 
 import numpy as np
 
 from ..errors import UnderdeterminedError
 from ..identifiability import REL_SV_MIN, _centre, _design, assess, assess_batch, distinct_count, first_of_orientation
+from .crossval import (
+    MAX_FOLDS,
+    MAX_POSES,
+    FoldFit,
+    HeldOutComparison,
+    compare_held_out,
+    held_out_by_orientation,
+    orientation_labels,
+)
 from .gravity_norm import PARAM_NAMES
 from .linear import param_names
 from .result import BatchFit, Held  # Held: a fit result's record, re-exported here
+from .stacked import fit_stacked
 
 AXES = "xyz"
 # parameter index -> (axes in words, the pose that determines it)
@@ -107,10 +124,14 @@ def cubic_held(res: BatchFit, held: list[list[Held]]) -> BatchFit:
 
 @dataclass
 class HoldPlan:
-    """The decision for D boards (``hold_plans``): the terms each holds, or why it is refused."""
+    """The decision for D boards (``hold_plans``): the terms each holds, or why it is refused;
+    ``se``: each board's noise-rule standard error of every term it holds by that rule; ``freed``:
+    terms the noise rule proposed to hold that the held-out data overruled (``confirm_holds``)."""
 
     held: list[list[Held]]  # (D,) terms held at nominal ([] when the model is determined as it is)
     refused: list[str]  # (D,) "" or the reason the board cannot be fitted with this model
+    se: list[dict[str, float]] = field(default_factory=list)  # (D,) or [] (no noise-rule hold)
+    freed: list[list[Held]] = field(default_factory=list)  # (D,) or []
 
     def free(self, names: list[str]) -> np.ndarray:
         """(D, k) bool: the parameters fitted (not held) of each board."""
@@ -233,6 +254,7 @@ def _plan_model9(gf: np.ndarray, noise_g: np.ndarray | None, determined: np.ndar
     D = len(gf)
     held: list[list[Held]] = [[]] * D  # shared empty list: a board's terms replace it, never appended
     refused = [""] * D
+    ses: list[dict[str, float]] = []
     geo, code = np.full((D, 2), -1), np.zeros(D, dtype=int)
     und = np.flatnonzero(~determined)
     if und.size:
@@ -257,13 +279,86 @@ def _plan_model9(gf: np.ndarray, noise_g: np.ndarray | None, determined: np.ndar
         u = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
         together = {k: np.max(np.abs(2 * u[..., "xyz".index(a)] * u[..., "xyz".index(b)]), axis=1)
                     for k, (a, b) in HOLDABLE_9.items()}
+        ses = [{} for _ in range(D)]
         for i, d in enumerate(rows):
             held[d] = [_held_noise(int(k), float(se), float(together[int(k)][i]))
                        for k, se in zip(order[i], se_at[i], strict=True) if k >= 0]
+            ses[d] = {PARAM_NAMES[int(k)]: float(se) for k, se in zip(order[i], se_at[i], strict=True) if k >= 0}
     # no noise to judge by: the geometric plan (a board it holds nothing for keeps its empty list)
     for d in np.flatnonzero((code == 0) & ~usable & (geo[:, 0] >= 0)):
         held[d] = [_held_9(int(k)) for k in geo[d] if k >= 0]
-    return HoldPlan(held, refused)
+    return HoldPlan(held, refused, ses)
+
+
+CONFIRM_SE_MAX = 2 * PRIOR_SD_NONORTHO  # terms pinned worse than this are not worth a held-out check (module doc)
+
+
+def _freed(h: Held, se: float, c: HeldOutComparison) -> Held:
+    """A noise-rule hold the held-out data overrule: the term fitted freely, and why."""
+    what = h.reason.split(" held at 0")[0]
+    return Held(h.term, 0.0, f"{what} fitted freely: the noise rule would hold it (standard error +-{se:.2g}, not "
+                             f"below its prior +-{PRIOR_SD_NONORTHO:g}), but held out by orientation the held fit "
+                             f"is {c.rms_b_g * 1e3:.3f} mg against {c.rms_a_g * 1e3:.3f} mg free, worse beyond the "
+                             f"{c.orientations} orientations' scatter", h.hint)
+
+
+def confirm_holds(gf: np.ndarray, noise_g: np.ndarray | None, plan: HoldPlan, workers: int | None = 1) -> HoldPlan:
+    """Model 9's noise-rule holds checked by held-out data (module doc): for each board holding a
+    term by the noise rule with a standard error below CONFIRM_SE_MAX, the fits with those terms
+    held and free are each left out one distinct orientation at a time (crossval.py); where the
+    held fit is worse beyond the orientations' own scatter (compare_held_out), the terms are
+    fitted freely and recorded in ``freed``.  Boards sharing a grouping of poses are refitted
+    together; a board of more than crossval.MAX_POSES poses or MAX_FOLDS orientations keeps its plan."""
+    D, P = gf.shape[:2]
+    if not plan.se or P > MAX_POSES:
+        return plan
+
+    def weak(d: int) -> list[Held]:
+        return [h for h in plan.held[d] if plan.se[d].get(h.term, np.inf) < CONFIRM_SE_MAX]
+
+    rows = np.array([d for d in range(D) if not plan.refused[d] and plan.se[d] and weak(d)], dtype=int)
+    if not rows.size:
+        return plan
+    held, freed = list(plan.held), list(plan.freed) if plan.freed else [[] for _ in range(D)]
+    labels = orientation_labels(gf[rows])
+    patterns, inverse = np.unique(labels, axis=0, return_inverse=True)
+    for k, pattern in enumerate(patterns):
+        rk = rows[np.asarray(inverse).reshape(-1) == k]
+        if not 3 <= len(np.unique(pattern)) <= MAX_FOLDS:
+            continue
+        m_held = HoldPlan([plan.held[d] for d in rk], [""] * len(rk)).free(PARAM_NAMES)
+        m_free = HoldPlan([[h for h in plan.held[d] if h not in weak(d)] for d in rk],
+                          [""] * len(rk)).free(PARAM_NAMES)
+        g, nz = gf[rk], None if noise_g is None else np.broadcast_to(noise_g, gf.shape)[rk]
+        sq_held = held_out_by_orientation(g, None, _fold9(g, nz, m_held, workers))[0]
+        sq_free = held_out_by_orientation(g, None, _fold9(g, nz, m_free, workers))[0]
+        for i, d in enumerate(rk):
+            c = compare_held_out(sq_free[i], sq_held[i], P)
+            if c.b_worse and np.isfinite(c.rms_a_g):
+                terms = weak(int(d))
+                held[d] = [h for h in plan.held[d] if h not in terms]
+                freed[d] = [_freed(h, plan.se[d][h.term], c) for h in terms]
+    return HoldPlan(held, plan.refused, plan.se, freed)
+
+
+def _fold9(gf: np.ndarray, nz: np.ndarray | None, free: np.ndarray, workers: int | None) -> FoldFit:
+    """The fold fitter of model 9 with each board's free mask (the one stacked estimator)."""
+    def fold(rows: np.ndarray, keep: np.ndarray) -> BatchFit:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            try:
+                return fit_stacked(gf[rows][:, keep], None, "9", None if nz is None else nz[rows][:, keep], workers,
+                                   free=free[rows])
+            except (UnderdeterminedError, np.linalg.LinAlgError):
+                return _unfitted(len(rows))
+    return fold
+
+
+def _unfitted(n: int) -> BatchFit:
+    """A fold no fit determines: every board not ok."""
+    z = np.zeros((n, 3))
+    return BatchFit("9", np.zeros((n, 3, 3)), z, z, np.zeros((n, 0, 3)), np.zeros((n, 0)), z, np.zeros(n),
+                    np.zeros(n), np.zeros(n, bool), np.zeros(n), np.zeros((n, 3, 3)), z, z, np.zeros(n, bool),
+                    np.zeros((n, 0, 0)), np.zeros((n, 0)), [], np.zeros(n, bool), [""] * n, np.zeros((n, 0, 3)))
 
 
 def hold_plans(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None,
@@ -300,14 +395,18 @@ def hold_plans(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None,
     return HoldPlan(held, refused)
 
 
-def hold_plan(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None) -> list[Held]:
+def hold_plan(gf: np.ndarray, model: str, noise_g: np.ndarray | None = None, confirm: bool = False) -> list[Held]:
     """One board's ``hold_plans``: the terms to hold for readings ``gf`` (P, 3) with standard
     errors ``noise_g`` (P, 3) in g or None; raises UnderdeterminedError with the reason when
-    the board is refused."""
-    plan = hold_plans(np.asarray(gf, dtype=float)[None], model,
-                      None if noise_g is None else np.asarray(noise_g, dtype=float)[None])
+    the board is refused.  ``confirm``: model 9's holds checked by held-out data as the fit
+    checks them (``confirm_holds``: refits; a refusal does not depend on it)."""
+    g = np.asarray(gf, dtype=float)[None]
+    nz = None if noise_g is None else np.asarray(noise_g, dtype=float)[None]
+    plan = hold_plans(g, model, nz)
     if plan.refused[0]:
         raise UnderdeterminedError(plan.refused[0])
+    if model == "9" and confirm:
+        plan = confirm_holds(g, nz, plan)
     return list(plan.held[0])  # its own list (the plan shares one empty list among boards)
 
 
@@ -317,5 +416,6 @@ def free_mask(held: list[Held], names: list[str]) -> np.ndarray:
     return np.array([n not in terms for n in names])
 
 
-__all__ = ["HOLDABLE_9", "PRIOR_SD_NONORTHO", "Held", "HoldPlan", "cubic_held", "free_mask", "hold_plan", "hold_plans",
+__all__ = ["CONFIRM_SE_MAX", "HOLDABLE_9", "PRIOR_SD_NONORTHO", "Held", "HoldPlan", "confirm_holds", "cubic_held",
+           "free_mask", "hold_plan", "hold_plans",
            "norm_sigma_g"]

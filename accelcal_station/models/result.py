@@ -70,6 +70,7 @@ class FitJson(FitCore):
     input_units: str
     input_per_g: float
     held: list[JsonObject]
+    freed: list[JsonObject]
 
 
 @dataclass
@@ -110,6 +111,7 @@ class FitResult:
     message: str = ""
     nfev: int = 1
     held: list[Held] = field(default_factory=list)  # terms held at nominal: the poses do not determine them
+    freed: list[Held] = field(default_factory=list)  # noise-rule holds the held-out data overruled: fitted
     crossval_by_orientation_rms_g: float | None = None
     distinct_orientations: int | None = None
 
@@ -173,6 +175,7 @@ class FitResult:
             "input_units": self.calibration.input_units,
             "input_per_g": self.calibration.input_per_g,
             "held": [h.to_json() for h in self.held],
+            "freed": [h.to_json() for h in self.freed],
             "poses": rows,
         }
 
@@ -222,6 +225,7 @@ class BatchFit:
     nfev: np.ndarray | None = None
     status: list[str] | None = None
     held: list[list[Held]] = field(default_factory=list)  # (D,) each board's terms held at nominal
+    freed: list[list[Held]] = field(default_factory=list)  # (D,) holds the held-out data overruled (models/held.py)
     crossval_by_orientation_rms_g: np.ndarray | None = None  # (D,), NaN where not computable
     crossval_by_orientation_ok: np.ndarray | None = None  # (D,) bool
     distinct_orientations: np.ndarray | None = None  # (D,) int
@@ -233,6 +237,8 @@ class BatchFit:
             # one shared empty list (a board's terms are replaced, never appended to): no D small
             # objects for the garbage collector to walk on every chunk
             self.held = [[]] * len(self.ok)
+        if not self.freed:
+            self.freed = [[]] * len(self.ok)
 
     def __len__(self) -> int:
         return len(self.ok)
@@ -267,6 +273,7 @@ class BatchFit:
             message=self.messages[d],
             nfev=int(self.nfev[d]) if self.nfev is not None else 1,
             held=list(self.held[d]),
+            freed=list(self.freed[d]),
             crossval_by_orientation_rms_g=_orient(self, d),
             distinct_orientations=None if self.distinct_orientations is None else int(self.distinct_orientations[d]),
         )

@@ -312,7 +312,7 @@ class _Assembler:
             return self.gf
         if name in ("messages", "status"):
             return None if v0 is None else [""] * D
-        if name == "held":  # (D,) lists of models/held.Held
+        if name in ("held", "freed"):  # (D,) lists of models/held.Held
             return [[]] * D  # one shared empty list: a part's terms replace it (BatchFit.held)
         if isinstance(v0, LazyCovariance):
             return type(v0)(*(np.empty((D,) + getattr(v0, f).shape[1:]) for f in v0._fields))
