@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..data.sample_grid import distinct_samples, value_grid
 from ..session import Session
 
 TAU_DRIFT_S = np.geomspace(10.0, 1000.0, 13)
@@ -22,6 +23,7 @@ class Capture:
     t: np.ndarray
     x: np.ndarray
     per_g: float  # data units per nominal g
+    decimals: int | None = None  # most decimals the log printed (the value grid allows their rounding)
 
 
 @dataclass
@@ -76,17 +78,10 @@ class GapData:
         return self.P if self.P <= 12 else MAX_FOLDS
 
 
-def value_step(x: np.ndarray) -> float:
-    """The grid the values sit on (their LSB) in data units, 0 when they are not on one."""
-    v = np.unique(np.asarray(x, float).ravel())
-    if len(v) < 2:
-        return 0.0
-    if np.all(v == np.round(v)):
-        return float(np.gcd.reduce(np.diff(v).astype(np.int64)))
-    d = np.diff(v)
-    step = float(d.min())
-    on_grid = np.abs((v - v[0]) / step - np.round((v - v[0]) / step)) < 1e-6
-    return step if step > 0 and np.all(on_grid) else 0.0
+def value_step(x: np.ndarray, decimals: int | None = None) -> float:
+    """The grid the values sit on (their LSB) in data units, allowing the rounding of ``decimals``
+    printed decimals (data/sample_grid.value_grid); 0 when they are not on one."""
+    return value_grid(x, decimals)
 
 
 # -- time view data --------------------------------------------------------------------------
@@ -144,15 +139,19 @@ def time_data(data: GapData) -> TimeData | None:
     nrm = np.linalg.norm(step, axis=1, keepdims=True)
     step_unit = np.where(nrm > 0, step / np.where(nrm > 0, nrm, 1.0), 0.0)
     for k, c in enumerate(caps):
-        x = c.x / c.per_g
-        t = np.asarray(c.t, float)
+        # judged on distinct samples: a host polling faster than the chip updates repeats samples, and the
+        # repeats would halve the noise of first differences and of block means (data/sample_grid.py)
+        keep = distinct_samples(c.x)
+        raw = c.x[keep]
+        x = raw / c.per_g
+        t = np.asarray(c.t, float)[keep]
         T = max(span[data.file[k]], 1e-9)
         h1 = 1.0 - np.exp(-t[None, :] / TAU_DRIFT_S[:, None])  # (Gw, n)
         h2 = t / T
         hs = np.exp(-(t[None, :] - t[0]) / TAU_SETTLE_S[:, None])  # (Gs, n)
         cap_d1[:, k], cap_d2[k], cap_s[:, k] = h1.mean(1), h2.mean(), hs.mean(1)
         diff_var[k] = 0.5 * np.var(np.diff(x, axis=0), axis=0, ddof=1) if len(x) > 2 else np.nan
-        step_units[k] = value_step(c.x)
+        step_units[k] = value_step(raw, c.decimals)
         n = len(x)
         B = min(8, n // 12)
         if B < 2:

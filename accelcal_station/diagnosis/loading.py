@@ -12,6 +12,7 @@ from ..config.kinds import SimulatedDevice
 from ..config.sections import default_config_path, device_section
 from ..data.loader import load
 from ..data.rawlog import RawLog
+from ..data.sample_grid import distinct_samples
 from ..data.static_poses import StaticDetection, static_session
 from ..drivers.simulated import SimulatedBoard
 from ..errors import AccelcalError, ConfigError, DataError, UnderdeterminedError, UnitsError
@@ -143,7 +144,7 @@ def gap_data(parts: Sequence[Part], samples: int | None = None, norm_only: bool 
         fid += [k] * len(s)
         names += [f"{Path(src).stem}:{p.name}" if len(parts) > 1 else p.name for p in s.poses]
         if cap is not None:
-            caps += [Capture(c.t, c.x, per_g) for c in cap]
+            caps += [Capture(c.t, c.x, per_g, c.decimals) for c in cap]
     g = np.concatenate(gs)
     P = len(g)
     if P < 4:
@@ -176,9 +177,10 @@ def _captures(log: RawLog, session: Session, det: StaticDetection) -> Part:
     caps: list[Capture] | None = None
     if log.rate_hz:
         caps = []
+        decimals = max(log.info.decimals.values()) if log.info.decimals else None
         for s in det.segments:
             idx = np.concatenate([np.arange(a, b) for a, b in s.ranges])
-            caps.append(Capture(log.t[idx] - t0, log.xyz[idx], 1.0))
+            caps.append(Capture(log.t[idx] - t0, log.xyz[idx], 1.0, decimals))
     return session, caps, log.source
 
 
@@ -198,6 +200,23 @@ def fit_ground(parts: Sequence[Part]) -> tuple[ModelChoice | None, str]:
             return None, f"{src}: {e}"
         choice = choice or c
     return choice, ""
+
+
+def chip_rate_hz(log: RawLog, notes: list[str], path: str) -> float:
+    """The rate the chip updated at: the log's, less the repeats of a host polling faster than the chip
+    (data/sample_grid.py), so the simulator's noise floor is taken at the rate the samples really have."""
+    assert log.rate_hz, "a raw log with a sample rate"
+    distinct = distinct_samples(log.xyz)
+    kept = float(np.mean(distinct))
+    span_s = float(log.t[-1] - log.t[0])
+    if kept < 1.0 and span_s > 0:
+        # distinct samples over the log's span: the host's own (printed, rounded) intervals would bias it
+        rate = float(np.sum(distinct) - 1) / span_s
+        notes.append(f"{path}: {1 - kept:.0%} of the samples repeat the one before (the host read faster than the "
+                     f"chip updates): the chip's rate is taken as {rate:.4g} Hz (distinct samples over the log's "
+                     "span), and the noise and the value grid are judged on the distinct samples")
+        return rate
+    return float(log.rate_hz)
 
 
 def load_data(paths: Sequence[str | Path], raw: bool = False, units: str | None = None,
@@ -226,7 +245,7 @@ def load_data(paths: Sequence[str | Path], raw: bool = False, units: str | None 
                             "are analysed; the time view (within captures) needs --rate HZ")
             parts.append((loaded.session, None, str(path)))
             continue
-        rates.add(round(loaded.log.rate_hz, 6))
+        rates.add(round(chip_rate_hz(loaded.log, inferred, str(path)), 6))
         parts.append(_captures(loaded.log, loaded.session, loaded.detection))
     choice, refused = fit_ground(parts)
     if refused and not any(cap is not None for _, cap, _ in parts):
