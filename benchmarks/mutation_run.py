@@ -54,8 +54,8 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
                ["tests/test_verdict_pinned.py", "tests/test_model9_crossval_pinned.py",
                 "tests/test_crossval_orientation.py", "tests/test_models.py"]),
     "conventions": (["accelcal_station/conventions.py"],
-                    ["tests/test_conventions_pinned.py", "tests/test_posetable.py", "tests/test_datasheet_orientation.py",
-                     "tests/test_mounting.py"]),
+                    ["tests/test_conventions_pinned.py", "tests/test_posetable.py",
+                     "tests/test_datasheet_orientation.py", "tests/test_mounting.py"]),
     "rowcheck": (["accelcal_station/store/rowcheck.py"], ["tests/test_rowcheck_pinned.py"]),
 }
 
