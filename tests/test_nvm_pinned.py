@@ -8,6 +8,7 @@ settle.  The expected bytes are the bytes written, taken before the burn."""
 from __future__ import annotations
 
 import base64
+import json
 import struct
 import zlib
 
@@ -16,6 +17,7 @@ import pytest
 
 from accelcal_station.calibration import Calibration, TemperatureTable
 from accelcal_station.drivers.eeprom import EEPROM24
+from accelcal_station.errors import NVMError
 from accelcal_station.nvm.blob import BlobError, decode, encode
 from accelcal_station.nvm.writer import BurnError, CalibrationWriter
 
@@ -195,3 +197,55 @@ def test_a_table_blob_with_an_unknown_flag_is_a_content_error_and_a_corrupt_slot
     _put(nvm, 0, bad)
     st = CalibrationWriter(nvm).status()[0]
     assert (st.state, st.crc_ok) == ("corrupt", True) and "flags" in st.error
+
+
+class LoggingEEPROM(EEPROM24):
+    """A 24C32 that logs the address of every write (the order slots are written in)."""
+
+    def __init__(self) -> None:
+        super().__init__(4096, 32)
+        self.writes: list[int] = []
+
+    def write(self, addr, data):
+        self.writes.append(addr)
+        super().write(addr, data)
+
+
+def test_slot_status_after_burns_and_the_burn_backup(tmp_path):
+    nvm = LoggingEEPROM()
+    w = CalibrationWriter(nvm)
+    assert w.holds() == {"slot": None}
+    assert [s.state for s in w.status()] == ["empty", "empty"]
+    out = w.burn(cal(1), SERIAL, STATION, time=1234)
+    st = w.status()[0]
+    assert (st.state, st.crc_ok, st.generation, st.serial, st.station_id, st.time, st.model, st.length, st.newest) \
+        == ("valid", True, 1, SERIAL, STATION, 1234, "12", 220, True)
+    assert (st.slot, st.addr, st.size) == ("A", 0, SLOT)
+    assert w.holds() == {"slot": "A", "generation": 1, "crc32": out.crc32, "serial": SERIAL}
+    out = w.burn(cal(2), SERIAL, STATION, time=1300, backup_to=tmp_path / "before.json")
+    assert out.backup == str(tmp_path / "before.json") and (tmp_path / "before.json").exists()
+    assert [s.newest for s in w.status()] == [False, True]
+    # erase writes the slot without the newest calibration first (B is newest: A, then B)
+    nvm.writes.clear()
+    assert [s.state for s in w.erase()] == ["empty", "empty"]
+    assert [a // SLOT for a in nvm.writes] == [0, 1]
+    w.burn(cal(3), SERIAL, STATION, time=1400)  # A, generation 1
+    nvm.writes.clear()
+    w.erase()
+    assert [a // SLOT for a in nvm.writes] == [1, 0]
+
+
+def test_a_backup_whose_image_has_another_length_is_refused_and_nothing_written(tmp_path):
+    nvm = EEPROM24(4096, 32)
+    w = CalibrationWriter(nvm)
+    w.burn(cal(1), SERIAL, STATION, time=1)
+    path = tmp_path / "b.json"
+    w.backup(path)
+    doc = json.loads(path.read_text())
+    img = base64.b64decode(doc["image_base64"])[:-32]  # one page short, CRC and length field made to agree
+    doc.update(image_base64=base64.b64encode(img).decode(), crc32=zlib.crc32(img), length=len(img))
+    path.write_text(json.dumps(doc))
+    before = w.image()
+    with pytest.raises(NVMError, match=f"{len(img)} bytes"):  # the image's own length named
+        w.restore(path)
+    assert w.image() == before
