@@ -13,11 +13,13 @@ import pytest
 from accelcal_station.acceptance.reasons import Reason, codes, wrap
 from accelcal_station.acceptance.rules import (
     DEFAULT_LIMITS,
+    MEASURES,
     FitFigures,
     Limits,
     SelfTestLimits,
     judge_all,
     limit_reasons,
+    measure,
     measure_all,
 )
 from accelcal_station.config.schema import AcceptanceSection
@@ -106,3 +108,34 @@ def test_reasons_read_stored_and_read_back():
     w = wrap(lim, "at 70 C: ")
     assert (str(w), w.code) == ("at 70 C: residual_rms_mg 1.2 > limit 1", "residual_rms_mg")
     assert wrap("text", "p: ").code == "" and codes([r, "bare"]) == ["nvm", ""]
+
+
+def test_figures_of_several_boards_are_each_boards_own():
+    """judge_all over B = 2 boards: each board's figures and verdict are its own."""
+    a, b = figures(W, V), figures(np.eye(3) + 0.002 * (1 - np.eye(3)), [0.001, 0.0, -0.002], rms=2e-4)
+    both = FitFigures("12", *(np.concatenate([x, y]) for x, y in zip(
+        (a.W, a.V, a.Gamma, a.residual_rms_g, a.residual_max_g, a.crossval_rms_g, a.stderr_V_max_g, a.stderr_W_max,
+         a.distinct_poses),
+        (b.W, b.V, b.Gamma, b.residual_rms_g, b.residual_max_g, b.crossval_rms_g, b.stderr_V_max_g, b.stderr_W_max,
+         b.distinct_poses), strict=True)))
+    m = measure_all(both)
+    assert m["cross_axis_max"].tolist() == pytest.approx([0.007, 0.002], rel=1e-12)
+    assert m["offset_max_mg"].tolist() == pytest.approx([46.875, 2.0], rel=1e-12)
+    assert m["residual_rms_mg"].tolist() == pytest.approx([0.1, 0.2], rel=1e-12)
+    va, vb = judge_all(both, Limits({"cross_axis_max": 0.005}))
+    assert not va.passed and vb.passed and va.held == [] and vb.measured["cross_axis_max"] == pytest.approx(0.002)
+
+
+def test_measure_of_one_fit_is_the_hand_value():
+    from accelcal_station.models.fitting import fit
+
+    refs = np.array([[s1, s2, s3] for s1 in (1, -1) for s2 in (1, -1) for s3 in (1, -1)]) / np.sqrt(3.0)
+    x = refs @ np.array(W).T + V  # an exact board: no residual, no noise given
+    m = measure(fit(x, refs, "12", units="g"))
+    assert m["residual_rms_mg"] == pytest.approx(0.0, abs=1e-9)
+    # W maps readings to g: the inverse of the board's own matrix, offset -W^-1 V
+    Wi = np.linalg.inv(W)
+    assert m["offset_max_mg"] == pytest.approx(np.max(np.abs(Wi @ V)) * 1e3, rel=1e-9)
+    assert m["gain_error_max"] == pytest.approx(np.max(np.abs(np.diag(Wi) - 1)), rel=1e-9)
+    # no noise given: the residuals' RSS / (P - k) estimates it, and an exact board has none
+    assert m["stderr_offset_max_mg"] == pytest.approx(0.0, abs=1e-9) and set(m) == set(MEASURES)
