@@ -249,3 +249,34 @@ def test_a_backup_whose_image_has_another_length_is_refused_and_nothing_written(
     with pytest.raises(NVMError, match=f"{len(img)} bytes"):  # the image's own length named
         w.restore(path)
     assert w.image() == before
+
+
+def test_a_blob_that_fills_its_slot_exactly_is_burned():
+    from accelcal_station.nvm.blob import blob_size
+
+    nvm = EEPROM24(1024, 1)  # byte pages: a slot of exactly one blob
+    w = CalibrationWriter(nvm, slot_size=blob_size(0))
+    out = w.burn(cal(1), SERIAL, STATION, time=1)
+    assert out.ok and out.length == w.slot_size == 220
+    with pytest.raises(NVMError, match="nothing was written"):
+        CalibrationWriter(nvm, slot_size=blob_size(0)).burn(
+            Calibration("12", np.eye(3), np.zeros(3), input_units="counts", input_per_g=4096.0, temperature=TABLE),
+            SERIAL, STATION, time=2)
+
+
+def test_a_restore_whose_safe_order_is_b_then_a_lands_the_backup_byte_for_byte(tmp_path):
+    """Backup: A generation 1, B generation 2 (newest).  Board now: A generation 5 (newest), B 4.
+    Writing A first would leave B generation 4 newest (neither the board's nor the backup's newest)
+    if power failed after it: the restore writes B, then A, and ends with the backup's image."""
+    nvm = EEPROM24(4096, 32)
+    w = CalibrationWriter(nvm)
+    for t in (1, 2):
+        w.burn(cal(t), SERIAL, STATION, time=t)
+    w.backup(tmp_path / "b.json")
+    saved = w.image()
+    for t in (3, 4, 5):
+        w.burn(cal(t), SERIAL, STATION, time=t)
+    assert [s.generation for s in w.status()] == [5, 4]
+    w.restore(tmp_path / "b.json")
+    assert w.image() == saved
+    assert w.read_newest(SERIAL)[1].generation == 2
