@@ -120,3 +120,57 @@ def test_report_check_names_every_null_in_a_required_column_of_a_real_store(tmp_
     text = CliRunner().invoke(cli, ["report", "check", "--db", str(store)])
     assert text.exit_code == 1 and "4 damaged value(s) in 4 row(s)" in text.output
     assert hashlib.sha256(store.read_bytes()).hexdigest() == before  # a reader reads
+
+
+def test_sizes_and_times_at_their_documented_bounds():
+    """16 Mi characters of text or JSON; times from year 1 to the end of 9999 (unix seconds, written here)."""
+    big = 16 * 2**20
+    assert check_row("runs", {**GOOD["runs"], "operator": "a" * big}).damage == []
+    (d,) = check_row("runs", {**GOOD["runs"], "operator": "a" * (big + 1)}).damage
+    assert d.problem == f"text of {big + 1} characters; allowed at most {big}"
+    (d,) = check_row("events", {**GOOD["events"], "data": '"' + "a" * (big - 1) + '"'}).damage
+    assert d.problem == f"JSON of {big + 1} characters; allowed at most {big}"
+    year1, end9999 = -62135596800.0, 253402300799.0  # 0001-01-01T00:00:00Z, 9999-12-31T23:59:59Z
+    for t, ok in ((year1, True), (end9999, True), (year1 - 1, False), (end9999 + 1, False), (0.0, True)):
+        assert (check_row("events", {**GOOD["events"], "t": t}).damage == []) is ok, t
+    (d,) = check_row("events", {**GOOD["events"], "t": end9999 + 1}).damage
+    assert d.problem.startswith("time ") and d.problem.endswith("allowed years 1..9999 as unix seconds")
+
+
+def test_json_columns_of_the_wrong_kind_and_calibrations():
+    from accelcal_station.calibration import Calibration
+
+    (d,) = check_row("events", {**GOOD["events"], "data": 5}).damage
+    assert d.problem == "int where JSON text belongs"
+    (d,) = check_row("runs", {**GOOD["runs"], "fit_summary": "[1, 2]"}).damage
+    assert d.problem == "JSON list where a JSON dict belongs"
+    (d,) = check_row("runs", {**GOOD["runs"], "fit_summary": '{"skipped": [1]}'}).damage
+    assert d.problem == "fit summary 'skipped' is not a list of pose names"
+    (d,) = check_row("runs", {**GOOD["runs"], "fit_summary": '{"timing": 3}'}).damage
+    assert d.problem == "fit summary 'timing' is not an object"
+    assert check_row("runs", {**GOOD["runs"], "fit_summary": '{"skipped": ["p2"], "timing": {}}'}).damage == []
+    cal = Calibration("12", [[1.01, 0, 0], [0, 0.99, 0.002], [0, 0, 1]], [0.01, 0, -0.02], input_units="counts",
+                      input_per_g=4096.0).to_dict()
+    row = check_row("runs", {**GOOD["runs"], "calibration": json.dumps(cal)})
+    assert row.damage == [] and row.json_object("calibration")["W"][0][0] == 1.01
+    for bad in ('"x"', "[]", json.dumps({**cal, "W": [[1, 0], [0, 1]]})):
+        (d,) = check_row("runs", {**GOOD["runs"], "calibration": bad}).damage
+        assert d.column == "calibration" and ("calibration" in d.problem or "belongs" in d.problem), d.problem
+    assert check_row("runs", {**GOOD["runs"], "heartbeat_s": 0.0}).damage == []
+
+
+def test_checked_values_read_typed_and_only_the_columns_asked():
+    from accelcal_station.store.rowcheck import CheckedRow
+
+    row = check_row("runs", {**GOOD["runs"], "pid": True, "counts_per_g": 4096})
+    assert [d.column for d in row.damage] == ["pid"]
+    assert row.int("id") == 1 and row.int("pid") is None and row.int("status") is None
+    assert row.real("counts_per_g") == 4096.0 and isinstance(row.real("counts_per_g"), float)
+    assert row.real("status") is None and row.text("status") == "complete" and row.text("id") is None
+    assert row.json_list("reasons") == [] and row.json_object("reasons") is None
+    assert row.json_object("limits") == {"residual_rms_mg": 1.0} and row.numbers("limits") == {"residual_rms_mg": 1.0}
+    assert row.numbers("reasons") is None and row.value("missing") is None and "id" in row
+    assert check_row("runs", {**GOOD["runs"], "id": True}).int("id") is None
+    only = CheckedRow("runs", {**GOOD["runs"], "pid": "x", "status": "nope"}, frozenset({"status"}))
+    assert [d.column for d in only.damage] == ["status"] and only.value("pid") == "x"
+    assert check_row("runs", GOOD["runs"]).damage == []  # damage lists are never shared between rows
