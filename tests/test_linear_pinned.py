@@ -1,0 +1,91 @@
+"""Issue 53: the AN4399 linear fits (models/linear.py) and the by-orientation folds
+(models/crossval.py) pinned to values computed here: ``np.linalg.lstsq`` per channel, the standard
+error from RSS / (P - k) when no noise is given (AN4399 Eqn 46 and the usual least-squares
+covariance), the closed forms' refusals at their stated thresholds, and a board with more
+distinct orientations than the fold limit."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from accelcal_station.errors import UnderdeterminedError
+from accelcal_station.models.crossval import MAX_FOLDS
+from accelcal_station.models.fitting import fit
+from accelcal_station.models.linear import fit_linear_batch, six_param_six_face, six_param_two_pose
+
+CUBE = np.array([[s1, s2, s3] for s1 in (1, -1) for s2 in (1, -1) for s3 in (1, -1)]) / np.sqrt(3.0)
+
+
+def board(refs: np.ndarray, seed: int = 4) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    K = np.diag([1.012, 0.987, 1.021]) + 0.004 * rng.standard_normal((3, 3)) * (1 - np.eye(3))
+    return refs @ K.T + [0.018, -0.027, 0.041] + 3e-4 * rng.standard_normal(refs.shape)
+
+
+@pytest.mark.parametrize("model", ["6", "15"])
+def test_stderr_from_the_residuals_when_no_noise_is_given(model):
+    refs = np.vstack([CUBE, np.eye(3), -np.eye(3), CUBE[:4] * [[1, 1, 0.2]] / np.linalg.norm([1, 1, 0.2])])
+    x = board(refs)
+    b = fit_linear_batch(x[None], refs, model)
+    P = len(x)
+    for c in range(3):
+        cols = [x[:, c]] if model == "6" else [x[:, 0], x[:, 1], x[:, 2]]
+        if model == "15":
+            cols.append(np.ones(P))
+            cols.append(x[:, c] ** 3)
+        else:
+            cols.append(np.ones(P))
+        X = np.column_stack(cols)
+        beta, rss, *_ = np.linalg.lstsq(X, refs[:, c], rcond=None)
+        k = X.shape[1]
+        se = np.sqrt(np.diag(rss[0] / (P - k) * np.linalg.inv(X.T @ X)))
+        iv = 1 if model == "6" else 3
+        assert b.V[0, c] == pytest.approx(beta[iv], rel=1e-9, abs=1e-12)
+        assert b.stderr_V[0, c] == pytest.approx(se[iv], rel=1e-6)
+        assert b.stderr_W[0, c, c] == pytest.approx(se[0 if model == "6" else c], rel=1e-6)
+        if model == "15":
+            assert b.Gamma[0, c] == pytest.approx(beta[4], rel=1e-7, abs=1e-12)
+        r = refs[:, c] - X @ beta
+        assert b.P[0, c] == pytest.approx(np.sum(r**2), rel=1e-6)
+        np.testing.assert_allclose(b.residuals_g[0, :, c], r, atol=1e-12)
+    calibrated = refs - b.residuals_g[0]
+    np.testing.assert_allclose(b.norm_error_g[0], np.linalg.norm(calibrated, axis=1) - np.linalg.norm(refs, axis=1),
+                               atol=1e-12)
+    assert b.ok[0] and b.stderr_ok[0] and b.condition_number[0] > 1
+
+
+def test_closed_forms_refuse_at_their_threshold():
+    # AN4399 Eqns 6-17: channels that read the same (within 1e-6 g) on both poses are not opposite
+    up, down = np.array([0.6, 0.55, 0.58]), np.array([-0.56, -0.6, -0.57])
+    w, v = six_param_two_pose(up, down)
+    np.testing.assert_allclose(w, 2 / np.sqrt(3) / (up - down))
+    np.testing.assert_allclose(v, 1 / np.sqrt(3) - w * up)
+    with pytest.raises(UnderdeterminedError, match="must be opposite"):
+        six_param_two_pose(up, up + [0, 0, 7e-7])
+    w, v = six_param_six_face([1.02, 0.99, 1.01], [-0.98, -1.01, -0.97])
+    np.testing.assert_allclose(w, [1.0, 1.0, 2 / 1.98])
+    np.testing.assert_allclose(v, [-0.02, 0.01, -w[2] * 0.02])
+    with pytest.raises(UnderdeterminedError, match="faces must be opposite"):
+        six_param_six_face([1.0, 1.0, 1.0], [-1.0, 1.0 + 7e-7, -1.0])
+
+
+def fibonacci(n: int) -> np.ndarray:
+    """n directions spread over the sphere (golden-angle spiral), ~sqrt(4 pi / n) rad apart."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = np.pi * (1 + 5**0.5) * i
+    rho = np.sqrt(1 - z**2)
+    return np.column_stack([rho * np.cos(phi), rho * np.sin(phi), z])
+
+
+def test_more_orientations_than_the_fold_limit_are_not_cross_validated_by_orientation():
+    refs = fibonacci(MAX_FOLDS + 1)
+    refs = np.vstack([refs, refs[:1]])  # one orientation revisited
+    f = fit(board(refs), refs, "12", units="g")
+    assert f.distinct_orientations == MAX_FOLDS + 1 == 257
+    assert f.crossval_by_orientation_rms_g is None or np.isnan(f.crossval_by_orientation_rms_g)
+    assert f.crossval_rms_g is not None and f.crossval_rms_g > 0
+    few = fibonacci(40)
+    few = np.vstack([few, few[:1]])
+    g = fit(board(few), few, "12", units="g")
+    assert g.distinct_orientations == 40 and g.crossval_by_orientation_rms_g > 0
