@@ -221,6 +221,20 @@ def _warm_up() -> None:
             continue
 
 
+_CHILD = [0]  # the test run in progress (killed with the runner)
+
+
+def _terminate(*_: object) -> None:
+    """kill -TERM: end the test run in progress, then unwind (the temporary copy is removed)."""
+    if _CHILD[0]:
+        try:
+            os.kill(_CHILD[0], signal.SIGKILL)
+            os.waitpid(_CHILD[0], 0)
+        except (ProcessLookupError, ChildProcessError):
+            pass
+    sys.exit(143)
+
+
 def run_tests(copy: Path, tests: list[str], timeout_s: float) -> tuple[str, float]:
     """('passed' | 'failed' | 'timeout', seconds) of the tests against the copy: pytest in a forked
     child of this (warm) process, niced, its package imported from the copy."""
@@ -229,6 +243,7 @@ def run_tests(copy: Path, tests: list[str], timeout_s: float) -> tuple[str, floa
     if pid == 0:  # the child: never returns
         code = 3
         try:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
             os.nice(10)
             os.chdir(copy)
             sys.path.insert(0, str(copy))
@@ -241,6 +256,7 @@ def run_tests(copy: Path, tests: list[str], timeout_s: float) -> tuple[str, floa
             code = int(pytest.main(["-x", "-q", "-p", "no:cacheprovider", *tests]))
         finally:
             os._exit(code)
+    _CHILD[0] = pid
     while True:
         done, status = os.waitpid(pid, os.WNOHANG)
         if done:
@@ -298,8 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # no BLAS threads across fork
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     _warm_up()
-    # kill -TERM: unwind (subprocess.run kills the running tests, the temporary copy is removed)
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    signal.signal(signal.SIGTERM, _terminate)
     groups = ["nvm"] if args.small else (args.group or list(GROUPS))
     n = 2 if args.small else args.per_module
     results = []
