@@ -89,3 +89,25 @@ def test_more_orientations_than_the_fold_limit_are_not_cross_validated_by_orient
     few = np.vstack([few, few[:1]])
     g = fit(board(few), few, "12", units="g")
     assert g.distinct_orientations == 40 and g.crossval_by_orientation_rms_g > 0
+
+
+def test_what_an_underdetermined_design_lacks_is_named():
+    from accelcal_station.models.linear import diagnose_underdetermined
+
+    u, v = np.array([1, -1, 0]) / np.sqrt(2), np.array([1, 1, -2]) / np.sqrt(6)
+    t = np.radians(np.arange(0, 360, 60))
+    plane = np.outer(np.cos(t), u) + np.outer(np.sin(t), v)  # every pose in the plane x + y + z = 0
+    msg = diagnose_underdetermined(plane, "12")
+    assert msg.startswith("the 6 poses lie in a plane (normal ") and "model 12 needs poses out of that plane" in msg
+    normal = np.array([float(x) for x in msg.split("(normal ")[1].split(")")[0].split(",")])
+    np.testing.assert_allclose(np.abs(normal), [0.58, 0.58, 0.58])
+    faces = np.vstack([np.eye(3), -np.eye(3)])
+    assert diagnose_underdetermined(faces, "15").startswith("the 6 poses are 3 opposite pairs: the cubic terms")
+    assert diagnose_underdetermined(faces, "12") == "the poses do not determine model 12 (the design is " \
+        "numerically singular)"
+    # seven poses, one unpaired (x and y at 0.7 g), channel z only near 0 and +-1 g: its cubic is lost in its gain
+    seven = np.vstack([faces, [[np.sqrt(0.5), np.sqrt(0.5), 0]]])
+    assert diagnose_underdetermined(seven, "15").startswith("the cubic term of channel z cannot be told from its gain")
+    assert diagnose_underdetermined(faces[:4], "15") == "model 15 needs at least 5 poses; got 4"
+    assert diagnose_underdetermined(np.array([[1, 0, 0], [0.98, 0.1, 0.1], [1, 0.2, 0.0]]), "6").startswith(
+        "channel x has no spread across the 3 poses (all within 0.020 g)")
