@@ -111,3 +111,26 @@ def test_what_an_underdetermined_design_lacks_is_named():
     assert diagnose_underdetermined(faces[:4], "15") == "model 15 needs at least 5 poses; got 4"
     assert diagnose_underdetermined(np.array([[1, 0, 0], [0.98, 0.1, 0.1], [1, 0.2, 0.0]]), "6").startswith(
         "channel x has no spread across the 3 poses (all within 0.020 g)")
+
+
+def test_the_diagnosis_thresholds_at_their_stated_values():
+    """A plane is named when the smallest centred singular value is below 1e-3 of the largest; a channel's
+    levels are compared at 0.1 g; two directions are a pair when |d_p + d_q| < 0.1."""
+    from accelcal_station.models.linear import diagnose_underdetermined
+
+    u, v = np.array([1, -1, 0]) / np.sqrt(2), np.array([1, 1, -2]) / np.sqrt(6)
+    n = np.ones(3) / np.sqrt(3)
+    t = np.radians(np.arange(0, 360, 60))
+    sign = np.where(np.arange(6) % 2, 1.0, -1.0)[:, None]
+    # singular values sqrt(3), sqrt(3) in the plane and eps sqrt(6) across it: the ratio is eps sqrt(2)
+    for eps, plane in ((0.3e-3, True), (0.6e-3, True), (0.8e-3, False)):  # 4.2e-4, 8.5e-4, 1.13e-3
+        poses = np.outer(np.cos(t), u) + np.outer(np.sin(t), v) + eps * sign * n
+        assert ("lie in a plane" in diagnose_underdetermined(poses, "12")) is plane, eps
+    faces = np.vstack([np.eye(3), -np.eye(3)])
+    # z at 0.96 g rounds to 1.0 g at 0.1 g: channel z is still only near 0 and +-1 g
+    near = np.vstack([faces, [[0.2, 0.2, 0.96]]])
+    assert diagnose_underdetermined(near, "15").startswith("the cubic term of channel z cannot be told")
+    # -z replaced by a direction 30 deg from it: |d_p + d_q| = 0.52 > 0.1, not a pair
+    tilted = faces.copy()
+    tilted[5] = [0.5, 0.0, -np.sqrt(0.75)]
+    assert diagnose_underdetermined(tilted, "15").startswith("the cubic term of channel y cannot be told")
