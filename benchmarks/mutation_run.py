@@ -68,6 +68,8 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
 EQUIVALENT: dict[str, str] = {
     "rules.py:137:75:Number": "reshape(-2, 9) is reshape(-1, 9): numpy takes any negative size as the one "
                               "inferred dimension",
+    "linear.py:111:31:Number": "_all_paired's rows per block, block // max(2, P) instead of max(1, P): only how "
+                               "many rows are compared at once (memory), never the answer",
     "rules.py:219:31:Number": "judge's planned_poses default 0 -> 1: a plan of fewer poses than the model needs "
                               "(>= 3) adds no rule, so 0 and 1 judge alike",
 }
