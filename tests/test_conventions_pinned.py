@@ -149,3 +149,13 @@ def test_fit_mount_and_hint():
     assert hint is not None and "poses expect" in hint and "turned 90 deg about z; set device.boards[2].mount: " \
         "[y, -x, z]" in hint, hint
     assert mount_hint(refs, -refs + [0.5, 0.3, 0.1]) is None  # nothing of the 24 fits within 15 deg
+
+
+def test_directions_of_many_poses_and_the_fifth_of_a_length_rule():
+    from accelcal_station.conventions import _signed_axes
+
+    np.testing.assert_allclose(up_direction([[0, 0, 2.0], [3.0, 0, 4.0]]), [[0, 0, 1], [0.6, 0, 0.8]])
+    y = np.sqrt(1 - 0.04)
+    assert _signed_axes(np.array([0.2, y, 0.0])) == "+y"  # exactly a fifth of its length: not leaning along x
+    assert _signed_axes(np.array([0.21, y, 0.0])) == "+x+y"
+    assert _signed_axes(np.array([-0.5, 0.0, -0.5])) == "-x-z"

@@ -174,3 +174,8 @@ def test_checked_values_read_typed_and_only_the_columns_asked():
     only = CheckedRow("runs", {**GOOD["runs"], "pid": "x", "status": "nope"}, frozenset({"status"}))
     assert [d.column for d in only.damage] == ["status"] and only.value("pid") == "x"
     assert check_row("runs", GOOD["runs"]).damage == []  # damage lists are never shared between rows
+
+
+def test_json_of_exactly_the_largest_size_is_read():
+    big = 16 * 2**20
+    assert check_row("events", {**GOOD["events"], "data": '"' + "a" * (big - 2) + '"'}).damage == []
