@@ -179,3 +179,9 @@ def test_checked_values_read_typed_and_only_the_columns_asked():
 def test_json_of_exactly_the_largest_size_is_read():
     big = 16 * 2**20
     assert check_row("events", {**GOOD["events"], "data": '"' + "a" * (big - 2) + '"'}).damage == []
+
+
+def test_a_damaged_value_reads_as_none():
+    row = check_row("runs", {**GOOD["runs"], "status": "done", "limits": "{bad"})
+    assert row.value("status") is None and row.json("limits") is None and row.numbers("limits") is None
+    assert [d.column for d in row.damage] == ["status", "limits"] and row.value("verdict") == "PASS"
