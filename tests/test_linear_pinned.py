@@ -131,6 +131,10 @@ def test_the_diagnosis_thresholds_at_their_stated_values():
     near = np.vstack([faces, [[0.2, 0.2, 0.96]]])
     assert diagnose_underdetermined(near, "15").startswith("the cubic term of channel z cannot be told")
     # -z replaced by a direction 30 deg from it: |d_p + d_q| = 0.52 > 0.1, not a pair
+    # pairs are judged by direction, whatever the reading's length (a face read at half a g is still -z)
+    short = faces.copy()
+    short[5] *= 0.5
+    assert diagnose_underdetermined(short, "15").startswith("the 6 poses are 3 opposite pairs")
     tilted = faces.copy()
     tilted[5] = [0.5, 0.0, -np.sqrt(0.75)]
     assert diagnose_underdetermined(tilted, "15").startswith("the cubic term of channel y cannot be told")
