@@ -169,19 +169,19 @@ def decode(data: bytes, source: str = "blob") -> tuple[Calibration, BlobHeader]:
     _, version, model, flags, gen, _, units, k, t, per_g, serial, station = _HEAD.unpack_from(data)
     try:
         if flags & ~(_FLAG_TEMP | _FLAG_QUADRATIC | _FLAG_NO_BASE) or bool(flags & _FLAG_TEMP) != (k > 0) \
-                or (flags & _FLAG_NO_BASE and not k):
+                or (flags & (_FLAG_NO_BASE | _FLAG_QUADRATIC) and not k):  # only what encode writes
             raise DataError(f"flags 0x{flags:02x} inconsistent with {k} temperature points")
         if units not in _UNITS_NAME:
             raise DataError(f"input units code {units}; allowed {sorted(_UNITS_NAME)}")
         base = not flags & _FLAG_NO_BASE
         start = HEADER_SIZE + (_COEF.size if base else 0)
-        table = None
-        if k:
-            rows = np.array([_TEMP.unpack_from(data, start + i * _TEMP.size) for i in range(k)])
-            table = TemperatureTable(rows[:, 0], rows[:, 1:10].reshape(k, 3, 3), rows[:, 10:13], rows[:, 13:16],
-                                     "quadratic" if flags & _FLAG_QUADRATIC else "linear")
-        c = np.array(_COEF.unpack_from(data, HEADER_SIZE)) if base else np.concatenate(
-            [rows[0, 1:10], rows[0, 10:13], rows[0, 13:16]])
+        # (k, 16) table rows; with no base coefficients the first row is the base (checked above:
+        # flag bit 2 needs k >= 1), so no flag combination leaves the base undefined
+        rows = np.array([_TEMP.unpack_from(data, start + i * _TEMP.size) for i in range(k)]).reshape(k, 16)
+        table = None if not k else TemperatureTable(
+            rows[:, 0], rows[:, 1:10].reshape(k, 3, 3), rows[:, 10:13], rows[:, 13:16],
+            "quadratic" if flags & _FLAG_QUADRATIC else "linear")
+        c = np.array(_COEF.unpack_from(data, HEADER_SIZE)) if base else rows[0, 1:16]
         cal = Calibration(str(model), c[:9].reshape(3, 3), c[9:12], c[12:15], _UNITS_NAME[units], per_g, table)
         header = BlobHeader(version, str(model), gen, length, serial.rstrip(b"\0").decode("utf-8"),
                             station.rstrip(b"\0").decode("utf-8"), t, crc, k)

@@ -45,6 +45,9 @@ class BurnOutcome:
     # the newest valid blob after the burn (slot, generation, CRC-32, serial); {"slot": None}: no valid
     # calibration; None: not read (or reads did not settle)
     nvm_after: BlobIdentity | NoValidBlob | None = None
+    # what the written slot held before (writer.SlotStatus.to_dict; a corrupt slot adds raw_base64,
+    # the evidence the burn destroys); None: it was erased
+    overwrote: JsonObject | None = None
 
     def to_dict(self) -> JsonObject:
         """The JSON form (the results store, --json)."""

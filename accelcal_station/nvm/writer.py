@@ -6,6 +6,15 @@ and reads it back byte for byte.  Until the new blob is complete its CRC fails, 
 an interrupted or failed write leaves the previous calibration as the newest valid
 one; because slots are page aligned, no page write ever touches both slots.
 
+A safe A/B burn: (1) never writes the slot holding the newest valid blob (the board keeps a
+calibration through a power loss at any byte); (2) with no valid blob, writes an erased slot
+before a corrupt one, so a corrupt slot (evidence of a torn write, a worn cell or tampering) is
+kept on the board; (3) a corrupt slot that must be written (the other slot holds the only valid
+calibration, or both are corrupt) is recorded first: the outcome's ``overwrote`` holds its status
+and raw bytes, and the station records the outcome before the first byte (``before_write``);
+(4) after the write, the new blob must read back as the newest valid one (slot and CRC-32), else
+the new slot is invalidated and the burn fails.
+
 Service functions (``accelcal nvm read|backup|restore|erase``): ``read_newest``,
 ``status``, ``backup`` (raw image of both slots in a JSON file with its CRC-32),
 ``restore`` (checks the image, writes, reads back) and ``erase``.
@@ -221,13 +230,13 @@ class CalibrationWriter:
         the NVM holds afterwards (slot, generation, CRC-32).
         """
         try:
-            scan = self._scan(self.settled_image())
+            before = self.settled_image()
+            scan = self._scan(before)
         except (AccelcalError, OSError) as e:
             raise NVMError(f"reading the NVM before the burn failed ({getattr(e, 'strerror', None) or e}); "
                            "nothing was written") from None
         prev = self._newest(scan)
-        # no valid blob: write over an erased slot rather than a corrupt one (it may be evidence)
-        target = (1 if [st.state for st, _, _ in scan] == ["corrupt", "empty"] else 0) if prev is None else 1 - prev
+        target = self._burn_target(scan, prev)
         gen = 1 if prev is None else (self._valid(scan, prev)[1].generation + 1) % GENERATION_MOD
         now = _time.time() if time is None else time
         blob = encode(calibration, serial, station_id, gen, now)
@@ -237,7 +246,8 @@ class CalibrationWriter:
         _, h = decode(blob)
         previous = None if prev is None else identity_of(SLOTS[prev], self._valid(scan, prev)[1])
         outcome = BurnOutcome(False, SLOTS[target], self.slot_addr(target), gen, len(blob), h.crc32,
-                              h.serial, h.station_id, h.time, previous)
+                              h.serial, h.station_id, h.time, previous,
+                              overwrote=self._evidence(scan[target][0], before, target))
         if backup_to is not None:
             self.backup(backup_to)
             outcome.backup = str(backup_to)
@@ -258,6 +268,27 @@ class CalibrationWriter:
         outcome.ok = outcome.verified = True
         log.info("burned %s: slot %s, generation %d, read back and verified", serial, SLOTS[target], gen)
         return outcome
+
+    @staticmethod
+    def _burn_target(scan: _Scan, prev: int | None) -> int:
+        """The slot a burn writes (module doc, "A safe A/B burn"): never the newest valid one; with
+        no valid blob an erased slot before a corrupt one (A when both are alike)."""
+        if prev is not None:
+            return 1 - prev
+        states = [st.state for st, _, _ in scan]
+        return 1 if states[0] == "corrupt" and states[1] == "empty" else 0
+
+    def _evidence(self, st: SlotStatus, image: bytes, i: int) -> JsonObject | None:
+        """What the slot a burn is about to write held, for the outcome recorded before the first byte:
+        None when erased; its status when valid (an older calibration); its status and raw bytes
+        (base64) when corrupt, the only copy of the evidence left once the slot is overwritten."""
+        if st.state == "empty":
+            return None
+        out: JsonObject = st.to_dict()
+        if st.state == "corrupt":
+            raw = image[i * self.slot_size:(i + 1) * self.slot_size]
+            out["raw_base64"] = base64.b64encode(raw).decode("ascii")
+        return out
 
     def settled_image(self, tries: int = 5) -> bytes:
         """Raw bytes of both slots, every byte read alike at least twice (up to ``tries`` reads).
