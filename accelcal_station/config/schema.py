@@ -54,6 +54,7 @@ from .kinds import (  # noqa: F401 - re-exported: every section model is reachab
     _discriminator,
 )
 from .section import MAX_BOARDS, Section, Triple, _f  # noqa: F401
+from .site import SiteSection
 from .validation import _models_in, _range, error_line, validate  # noqa: F401 (the schema's public names)
 
 
@@ -63,6 +64,8 @@ class StationSection(Section):
     require_operator: StrictBool = _f(False, "refuse to run without --operator")
     language: Literal["en", "de"] = _f("en", "the operator's language: terminal prompts, the operator page and the "
                                        "verdict reasons shown to operators (--json and logs stay English)")
+    site: SiteSection | None = _f(None, "where the station stands: its gravity, measured or WGS84 normal gravity "
+                                  "(docs/uncertainty.md); default: standard gravity 9.80665 m/s^2")
 
 
 class StoreSection(Section):

@@ -8,6 +8,7 @@ from typing import Literal, TypedDict
 
 from ..acceptance.reasons import Reason, codes
 from ..calibration import Calibration
+from ..config.site import SiteJson
 from ..jsontypes import JsonObject
 from ..models.result import FitResult
 from .offset_trim import OffsetTrimRecord
@@ -164,6 +165,9 @@ class RunReportJson(TypedDict):
     events: list[str]
     timing: Timing
     store: str
+    site: SiteJson | None  # the site's gravity the references were scaled to (config/site.py)
+    uncertainty: JsonObject | None  # {k, expanded, budget} (uncertainty/budget.py; docs/uncertainty.md)
+    decision_rule: JsonObject | None  # the acceptance decision rule applied (acceptance/decision.py)
 
 
 class ThermalRunReportJson(RunReportJson):
@@ -197,6 +201,9 @@ class RunReport:
     events: list[str] = field(default_factory=list)
     timing: Timing = field(default_factory=lambda: Timing())
     store: str = ""
+    site: SiteJson | None = None  # station.site as used (config/site.py Site.to_json)
+    uncertainty: JsonObject | None = None  # the board's uncertainty budget (docs/uncertainty.md)
+    decision_rule: JsonObject | None = None  # the decision rule acceptance applied
 
     def record(self, stage: Stage, *reasons: Reason) -> None:
         """What a stage of the run found: the reasons it fails the board (none: it passed)."""
@@ -242,6 +249,7 @@ class RunReport:
             "offset_trim": self.offset_trim, "self_test": self.self_test,
             "poses": self.poses, "skipped": self.skipped,
             "events": self.events, "timing": self.timing, "store": self.store,
+            "site": self.site, "uncertainty": self.uncertainty, "decision_rule": self.decision_rule,
         }
 
 
