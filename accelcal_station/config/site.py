@@ -18,6 +18,7 @@ from typing import Literal, TypedDict
 
 from ..conventions import STANDARD_GRAVITY_MPS2
 from ..errors import ConfigError
+from ..jsontypes import JsonObject
 from .section import Section, _f
 
 # WGS84 normal gravity (NIMA TR8350.2, 3rd ed., eq. 4-1 and table 3.4)
@@ -72,6 +73,10 @@ class Site:
     def relative_u(self) -> float:
         """The site gravity's relative standard uncertainty (a gain's relative uncertainty from it)."""
         return self.gravity_u_mps2 / self.gravity_mps2
+
+    def to_metadata(self) -> JsonObject:
+        """``site`` as a calibration file's metadata keeps it."""
+        return {"gravity_mps2": self.gravity_mps2, "source": self.source, "gravity_u_mps2": self.gravity_u_mps2}
 
     def to_json(self) -> SiteJson:
         """``site`` in run --json, the store and the calibration file."""

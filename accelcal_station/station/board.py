@@ -41,6 +41,7 @@ from .offset_trim import trim_change, trim_failure, trim_record, trimmed
 from .report import RunReport, Timing
 from .self_test_step import self_test_step
 from .settings import StationConfig
+from .uncertainty_step import uncertainty_step
 from .verdict import Stage
 
 # a verification capture: (mean counts, expected output in g, temperature)
@@ -197,15 +198,18 @@ class BoardSteps:
         except UnderdeterminedError as e:
             rep.record(Stage.FIT, Reason("fit", str(e)))
             return None
-        fit.calibration.metadata["site"] = dict(cfg.site.to_json())  # the calibration file says which gravity
+        fit.calibration.metadata["site"] = cfg.site.to_metadata()  # the calibration file says which gravity
         rep.fit = fit
         rep.calibration = fit.calibration
         planned = len(get_design(cfg.design))
         verdict = judge(fit, cfg.limits, planned_poses=planned)
         rep.measured = verdict.measured
-        if not verdict.passed:
-            rep.record(Stage.ACCEPTANCE, *verdict.reasons)
-            self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
+        guarded = uncertainty_step(cfg, session, fit, rep, session.counts_per_g)  # the decision rule's reasons
+        for w in rep.warnings:
+            self.echo(f"warning: {w}")
+        if not verdict.passed or guarded:
+            rep.record(Stage.ACCEPTANCE, *verdict.reasons, *guarded)
+            self.echo("FAIL before writing: " + "; ".join([*verdict.reasons, *guarded]))
             return None
         cal: Calibration | None = fit.calibration
         if cfg.offset_trim:

@@ -90,7 +90,7 @@ class FinishArgs(TypedDict):
     retries: list[int]
     limits: dict[str, float]
     site: SiteJson | None
-    uncertainty: JsonObject | None
+    uncertainty: Mapping[str, object] | None
 
 
 def board_summary(cfg: StationConfig, rep: RunReport) -> RunSummary:
@@ -123,11 +123,12 @@ def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est:
     return out
 
 
-def stored_uncertainty(rep: RunReport) -> JsonObject | None:
+def stored_uncertainty(rep: RunReport) -> dict[str, object] | None:
     """The ``uncertainty`` column: the budget with the decision rule it was judged by (None: no fit)."""
     if rep.uncertainty is None:
         return None
-    return {**rep.uncertainty, "decision_rule": rep.decision_rule}
+    return {**rep.uncertainty, "decision_rule": rep.decision_rule,
+            "warnings": [w.to_dict() for w in rep.warnings]}
 
 
 def burned_text(nvm: BurnOutcome | Mapping[str, object] | None) -> str:
