@@ -138,3 +138,23 @@ def test_far_from_every_limit_no_reason_and_the_budget_in_run_json(tmp_path, mon
     assert {c["type"] for c in u["budget"] if c["source"] == "noise"} == {"A"}
     combined = np.sqrt(sum(np.square(c["u"]["V_mg"]) for c in u["budget"]))
     np.testing.assert_allclose(u["expanded"]["V_mg"], 2 * combined, rtol=1e-12)
+
+
+def test_board_page_shows_each_parameter_with_its_U_and_the_rule(tmp_path, monkeypatch):
+    pytest.importorskip("fastapi", reason="the web extra (pip install 'accelcal-station[web]')")
+    pytest.importorskip("httpx", reason="fastapi's test client needs httpx")
+    from fastapi.testclient import TestClient
+
+    from accelcal_station.web.app import create_app
+    from accelcal_station.web.settings import WebSettings
+
+    dev = _board(seed=7)
+    code, out = _run(tmp_path, monkeypatch, "simple", float(np.max(np.abs(dev.board.truth().V))) * 1e3 + 0.2)
+    assert code == 0
+    html = TestClient(create_app(WebSettings(store=str(tmp_path / "accelcal-runs.sqlite")))).get(
+        f"/board?serial={out['serial']}").text
+    U = out["uncertainty"]["expanded"]
+    assert f'data-param="V_x"><th>V_x</th><td class="n">{out["V"][0] * 1e3:.5g}</td><td class="n">± {U["V_mg"][0]:.2g}' \
+        in html
+    assert 'data-param="W_zy"' in html and "Decision rule: simple (w = 0)" in html
+    assert "within U" in html  # the warning the simple rule kept
