@@ -3,6 +3,7 @@ references scaled to the site so a board at 9.780 m/s^2 is calibrated in standar
 reading the site from --gravity or a file's '# gravity_mps2:' line."""
 from __future__ import annotations
 
+import csv
 import json
 import sqlite3
 
@@ -122,3 +123,22 @@ def test_fit_takes_the_site_from_gravity_or_the_files_gravity_mps2_line(tmp_path
         assert js["site"]["gravity_mps2"] == 9.780
     r = CliRunner().invoke(cli, ["fit", str(plain), "--model", "12", "--json"])  # standard gravity assumed
     assert abs(np.array(json.loads(r.stdout)["W"])[0, 0] / W[0, 0] - STANDARD / 9.780) < 1e-6
+
+
+def test_batch_lot_file_takes_the_site_from_its_gravity_mps2_line(tmp_path):
+    """A lot file (one row per pose, a serial column) in counts with '# gravity_mps2: 9.780': each
+    board's references are scaled to the site, so batch recovers the W and V it was made with."""
+    src = tmp_path / "one.csv"
+    W, V = _pose_table(src, "")
+    rows = [line for line in src.read_text().splitlines()[1:] if line]
+    lot = tmp_path / "lot.csv"
+    lot.write_text("# units: counts\n# counts_per_g: 4096\n# gravity_mps2: 9.780\nserial,pose,x,y,z,ref_x,ref_y,ref_z\n"
+                   + "".join(f"B{b},{r}\n" for b in range(2) for r in rows))
+    out = tmp_path / "results.csv"
+    r = CliRunner().invoke(cli, ["batch", str(lot), "--out", str(out), "--model", "12"])
+    assert r.exit_code == 0, r.output
+    got = list(csv.DictReader(line for line in out.read_text().splitlines() if not line.startswith("#")))
+    assert len(got) == 2
+    for row in got:
+        np.testing.assert_allclose([float(row[f"W{i}{j}"]) for i in range(3) for j in range(3)], W.ravel(), atol=1e-6)
+        np.testing.assert_allclose([float(row[f"V{i}"]) for i in range(3)], V, atol=1e-6)
