@@ -114,13 +114,15 @@ def test_fit_takes_the_site_from_gravity_or_the_files_gravity_mps2_line(tmp_path
     W, V = _pose_table(plain, "# units: counts\n# counts_per_g: 4096\n")
     stated = tmp_path / "stated.csv"
     _pose_table(stated, "# units: counts\n# counts_per_g: 4096\n# gravity_mps2: 9.780\n")
-    for args in ([str(plain), "--gravity", "9.780"], [str(stated)]):
-        r = CliRunner().invoke(cli, ["fit", *args, "--model", "12", "--json"])
+    for i, args in enumerate(([str(plain), "--gravity", "9.780"], [str(stated)])):
+        cal = tmp_path / f"cal{i}.json"
+        r = CliRunner().invoke(cli, ["fit", *args, "--model", "12", "--json", "-o", str(cal)])
         assert r.exit_code == 0, r.output
         js = json.loads(r.stdout)
         np.testing.assert_allclose(js["W"], W, atol=1e-6)
         np.testing.assert_allclose(js["V"], V, atol=1e-6)
         assert js["site"]["gravity_mps2"] == 9.780
+        assert json.loads(cal.read_text())["metadata"]["site"]["gravity_mps2"] == 9.780  # the file says which g
     r = CliRunner().invoke(cli, ["fit", str(plain), "--model", "12", "--json"])  # standard gravity assumed
     assert abs(np.array(json.loads(r.stdout)["W"])[0, 0] / W[0, 0] - STANDARD / 9.780) < 1e-6
 
