@@ -13,7 +13,7 @@ from typing import Any, overload
 
 import numpy as np
 
-from .conventions import check_units, units_per_g
+from .conventions import STANDARD_GRAVITY_MPS2, check_units, units_per_g
 from .errors import DataError
 
 
@@ -106,6 +106,15 @@ class PoseColumns(Sequence[PoseRecord]):
         out._names, out._arr = list(self._names), t
         return out
 
+    def scaled_references(self, factor: float) -> PoseColumns:
+        """These poses with every reference multiplied by ``factor`` (a site's gravity in standard g)."""
+        out = PoseColumns()
+        t = self.table.copy()
+        t[:, 6:9] = t[:, 6:9] * factor
+        t.flags.writeable = False
+        out._names, out._arr = list(self._names), t
+        return out
+
     def __len__(self) -> int:
         return len(self._names)
 
@@ -163,6 +172,14 @@ class Session:
         if isinstance(self.poses, PoseColumns):
             return self.poses.column(0, 3)
         return np.array([p.mean for p in self.poses]).reshape(-1, 3)
+
+    @property
+    def site_gravity_g(self) -> float:
+        """The site's gravity in standard g the references are scaled to (``metadata['site']``, set by
+        the loader from --gravity or a file's ``# gravity_mps2:``; config/site.py); 1 without one."""
+        site = self.metadata.get("site")
+        g = site.get("gravity_mps2") if isinstance(site, dict) else None
+        return float(g) / STANDARD_GRAVITY_MPS2 if isinstance(g, (int, float)) else 1.0
 
     @property
     def input_per_g(self) -> float:

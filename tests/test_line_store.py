@@ -117,7 +117,7 @@ def test_reasons_stored_as_text_are_typed_once_by_the_migration(store_url, monke
                     reasons=text if isinstance(text, str) else json.dumps(text)))
     monkeypatch.undo()
     with Store(store_url) as st:
-        assert st.schema_version == store_mod.SCHEMA_VERSION == 5
+        assert st.schema_version == store_mod.SCHEMA_VERSION == 6
         recs = st.runs(lot="OLD")
         summary = st.lot_summary(lot="OLD")
     assert [(r.code, str(r)) for r in recs[0].reasons] == [

@@ -61,7 +61,7 @@ def db(tmp_path):
 def test_run_round_trip_rebuilds_session(db):
     nvm = EEPROM24()
     with Store(db) as store:
-        assert store.schema_version == SCHEMA_VERSION == 5
+        assert store.schema_version == SCHEMA_VERSION == 6
         s, _, _ = board(1)
         fit = fit_session(s, "12")
         outcome = CalibrationWriter(nvm).burn(fit.calibration, s.device, "st1")

@@ -39,22 +39,23 @@ def test_todays_sqlite_store_is_adopted_with_its_contents_unchanged(tmp_path):
     shutil.copy(DATA / "legacy_store_v3.sqlite", db)
     before = _dump(db)
     with Store(db) as st:
-        assert st.schema_version == SCHEMA_VERSION == 5
+        assert st.schema_version == SCHEMA_VERSION == 6
         rec = st.get_run(1)
         new = st.start_run(device_serial="SN-NEW")
     assert rec.started_at == 1.7e9 + 0.123456789 and len(rec.poses) == 6 and rec.retries == [0, 1, 0, 0, 2, 0]
     assert rec.nvm_outcome == {"ok": True, "slot": 1, "generation": 4, "crc32": 0x1234ABCD}
     assert [e["kind"] for e in rec.events] == ["nvm_burning", "nvm_burned"]
     after = _dump(db)
-    # schema 4 adds runs.limits, schema 5 runs.heartbeat_at and heartbeat_s (NULL on old runs); nothing
-    # else changes; the new run beats
-    assert new == 4 and [r[:-3] for r in after["runs"][:3]] == before["runs"] and after["poses"] == before["poses"]
-    assert [r[-3:] for r in after["runs"][:3]] == [(None, None, None)] * 3
-    assert after["runs"][3][-3] is None and after["runs"][3][-1] == 30.0 and after["runs"][3][-2] > 1.7e9
+    # schema 4 adds runs.limits, schema 5 runs.heartbeat_at and heartbeat_s, schema 6 runs.site and
+    # uncertainty (NULL on old runs); nothing else changes; the new run beats
+    assert new == 4 and [r[:-5] for r in after["runs"][:3]] == before["runs"] and after["poses"] == before["poses"]
+    assert [r[-5:] for r in after["runs"][:3]] == [(None,) * 5] * 3
+    assert after["runs"][3][-5] is None and after["runs"][3][-3] == 30.0 and after["runs"][3][-4] > 1.7e9
+    assert after["runs"][3][-2:] == (None, None)
     assert after["events"] == before["events"]
     with sqlite3.connect(db) as c:
-        assert c.execute("SELECT version_num FROM alembic_version").fetchall() == [("0005",)]
-        assert c.execute("PRAGMA user_version").fetchone() == (5,)  # a station older than schema 5 refuses it
+        assert c.execute("SELECT version_num FROM alembic_version").fetchall() == [("0006",)]
+        assert c.execute("PRAGMA user_version").fetchone() == (6,)  # a station older than schema 6 refuses it
 
 
 def test_schema_2_sqlite_store_is_upgraded_by_alembic(tmp_path):
@@ -77,7 +78,8 @@ def test_schema_2_sqlite_store_is_upgraded_by_alembic(tmp_path):
     Store(fresh).close()
     v3 = _columns(DATA / "legacy_store_v3.sqlite")  # schema 4 adds runs.limits (JSON text) and an index,
     added = [("limits", "TEXT", 0, None, 0), ("heartbeat_at", "REAL", 0, None, 0),  # schema 5 the heartbeat
-             ("heartbeat_s", "REAL", 0, None, 0)]
+             ("heartbeat_s", "REAL", 0, None, 0),
+             ("site", "TEXT", 0, None, 0), ("uncertainty", "TEXT", 0, None, 0)]  # schema 6 site, uncertainty
     assert _columns(db) == _columns(fresh) == {**v3, "runs": [*v3["runs"], *added]}
     assert _objects(db) == _objects(fresh) == _objects(DATA / "legacy_store_v3.sqlite") | {
         ("table", "alembic_version"), ("index", "sqlite_autoindex_alembic_version_1"), ("index", "runs_station")}
@@ -120,8 +122,8 @@ def test_pre_alembic_postgresql_store_is_upgraded_by_alembic(pg_server):
                                                        ("nvm", "nvm: read-back differs")]
     assert new == 2
     with psycopg.connect(host=pg_server.sock, port=5432, user="accelcal", dbname=dbname) as c:
-        assert c.execute("SELECT version_num FROM alembic_version").fetchall() == [("0005",)]
-        assert c.execute("SELECT version FROM accelcal_schema").fetchall() == [(5,)]
+        assert c.execute("SELECT version_num FROM alembic_version").fetchall() == [("0006",)]
+        assert c.execute("SELECT version FROM accelcal_schema").fetchall() == [(6,)]
     _no_drift("postgresql+psycopg://" + url.split("://", 1)[1])
 
 

@@ -18,7 +18,8 @@ from .reasons import Reason
 
 # the acceptance keys that are not a limit on a fitted figure: the self-test's and the offset trim's
 # settings (judged by the station: Limits.self_test, Limits.offset_trim_tolerance)
-STEP_KEYS = ("self_test", "self_test_low_g", "self_test_high_g", "self_test_tolerance", "offset_trim_tolerance")
+STEP_KEYS = ("self_test", "self_test_low_g", "self_test_high_g", "self_test_tolerance", "offset_trim_tolerance",
+             "decision_rule")
 # each limit's meaning, as the schema declares it (a FAIL reason names it)
 LIMIT_KEYS = {k: f.description or k for k, f in AcceptanceSection.model_fields.items() if k not in STEP_KEYS}
 
@@ -48,6 +49,7 @@ class Limits:
     defaulted: list[str] = field(default_factory=list)  # keys filled from DEFAULT_LIMITS
     self_test: SelfTestLimits = field(default_factory=SelfTestLimits)
     offset_trim_tolerance: float = 0.25  # fraction of the expected trim change (AcceptanceSection)
+    decision_rule: str = "guarded"  # simple or guarded acceptance (acceptance/decision.py)
 
     @classmethod
     def from_config(cls, d: object, path: str = "acceptance") -> Limits:
@@ -65,7 +67,8 @@ class Limits:
         st = SelfTestLimits(sec.self_test, None if sec.self_test_low_g is None else tuple(sec.self_test_low_g),
                             None if sec.self_test_high_g is None else tuple(sec.self_test_high_g),
                             sec.self_test_tolerance)
-        return cls({**values, **{k: DEFAULT_LIMITS[k] for k in missing}}, missing, st, sec.offset_trim_tolerance)
+        return cls({**values, **{k: DEFAULT_LIMITS[k] for k in missing}}, missing, st, sec.offset_trim_tolerance,
+                   sec.decision_rule)
 
     def defaults_line(self) -> str:
         """One line naming the safe defaults in use, or ''."""

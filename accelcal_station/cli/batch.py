@@ -170,7 +170,9 @@ def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str
 @click.option("--units", default=None, metavar="counts|g|mps2", help="Pose tables: units (default: each table's).")
 @click.option("--counts-per-g", "counts_per_g", default=None, metavar="N",
               help="Pose tables: counts per g (default: each table's '# counts_per_g:').")
-@click.option("--gravity", default=None, metavar="M_S2", help="Pose tables in mps2: local gravity.")
+@click.option("--gravity", default=None, metavar="M_S2",
+              help="The site's gravity in m/s^2 (default: each file's '# gravity_mps2:' line, else standard): "
+                   "references scaled to it, the calibration maps to standard g.")
 @click.option("--out-dir", default=None, metavar="DIR", help="Write one calibration JSON per fitted board here.")
 @click.option("--csv", "csv_path", default=None, metavar="FILE", help="Write a summary CSV (one row per board).")
 @click.option("--to-store", "to_store", default=None, metavar="FILE|URL",

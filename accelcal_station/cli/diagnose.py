@@ -28,7 +28,9 @@ _REPORT_KIND = {".md": "markdown", ".png": "png"}  # what each report file is (f
 @click.option("--units", default=None, metavar="counts|g|mps2", help="Units of the readings (default: the file's).")
 @click.option("--counts-per-g", "counts_per_g", default=None, metavar="N",
               help="Counts per g of the data (default: the file's, else estimated from the readings' norm).")
-@click.option("--gravity", default=None, metavar="M_S2", help="Local gravity in m/s^2 for --units mps2.")
+@click.option("--gravity", default=None, metavar="M_S2",
+              help="The site's gravity in m/s^2 (default: the file's '# gravity_mps2:' line, else standard): "
+                   "references scaled to it.")
 @click.option("--columns", default=None, metavar="NAMES", help="Raw log columns, e.g. t,x,y,z or -,-,x,y,z.")
 @click.option("--skip-rows", default=None, metavar="N", help="Raw log: lines to skip at the top.")
 @click.option("--rate", default=None, metavar="HZ",

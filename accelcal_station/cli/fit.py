@@ -11,6 +11,7 @@ from numpy.typing import ArrayLike
 
 from ..api import Fit, check_temp_method, fit, hand_placed_fit
 from ..calibration import CalibrationDict
+from ..config.site import SiteJson
 from ..data.loader import Loaded, load
 from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
@@ -111,6 +112,7 @@ class SourceJson(TypedDict):
 
     source: str
     units: str
+    site: SiteJson | None  # the site's gravity the references were scaled to (config/site.py Site.to_json)
 
 
 class OptionsJson(TypedDict, total=False):
@@ -297,7 +299,8 @@ def _report(path: str, loaded: Loaded, result: Fit) -> tuple[FitReport, list[str
     (a 100,000-pose table: memory)."""
     session = loaded.session
     held = result.calibration.metadata.get("held")
-    result.calibration.metadata = {"source": str(path), "pose_count": len(session), "device": session.device}
+    result.calibration.metadata = {"source": str(path), "pose_count": len(session), "device": session.device,
+                                   "site": session.metadata.get("site")}
     if held:
         result.calibration.metadata["held"] = held
     read: ReadJson = {"inferred": loaded.to_json()}
@@ -305,7 +308,7 @@ def _report(path: str, loaded: Loaded, result: Fit) -> tuple[FitReport, list[str
     if loaded.log is not None and loaded.detection is not None:
         read["segmentation"], seg_lines = _segmentation(loaded.log, loaded.detection, session.names)
         text += seg_lines
-    source: SourceJson = {"source": str(path), "units": session.units}
+    source: SourceJson = {"source": str(path), "units": session.units, "site": session.metadata.get("site")}
     report: FitReport
     if len(result.fits) == 1:
         fr = result.result
@@ -329,7 +332,9 @@ def _report(path: str, loaded: Loaded, result: Fit) -> tuple[FitReport, list[str
               help="Units of the readings (default: the table's '# units:' line, else counts).")
 @click.option("--counts-per-g", "counts_per_g", default=None, metavar="N",
               help="Counts per g (needed for counts with models 6, 12, 15; model 9 estimates it).")
-@click.option("--gravity", default=None, metavar="M_S2", help="Local gravity in m/s^2 for --units mps2.")
+@click.option("--gravity", default=None, metavar="M_S2",
+              help="The site's gravity in m/s^2 where the data were taken (default: the file's '# gravity_mps2:' "
+                   "line, else standard 9.80665): references are scaled to it, the calibration maps to standard g.")
 @click.option("--temp-method", default="linear", metavar="linear|quadratic",
               help="Interpolation between calibration temperatures (tables with temp_c at 2+ temperatures).")
 @click.option("--columns", default=None, metavar="NAMES",

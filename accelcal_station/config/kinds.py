@@ -341,12 +341,17 @@ class SimulatedJigSection(Section):
     """A simulated jig's own keys (``jig`` with ``type: simulated``)."""
 
     move_time_s: float = _f(2.0, "time between poses on the virtual clock, s", ge=0, le=120)
+    angle_tolerance_deg: float = _f(0.1, "each pose within +- this of its commanded attitude, deg (the uncertainty "
+                                    "budget's jig_angle, docs/uncertainty.md; a machined fixture's)", ge=0, le=10)
 
 
 class OperatorJigSection(Section):
     """An operator jig's own keys (``jig`` with ``type: operator``)."""
 
     tolerance_deg: float = _f(12.0, "pose tolerance, deg", ge=1, le=45)
+    angle_tolerance_deg: float = _f(0.5, "each pose within +- this of its commanded attitude, deg (the uncertainty "
+                                    "budget's jig_angle, docs/uncertainty.md; a board seated by hand in a "
+                                    "fixture's pocket)", ge=0, le=10)
     hand: HandSection | Literal[True] | None = _f(None, "a simulated hand instead of a person (CI); true for the "
                                                   "default hand")
 
@@ -363,6 +368,9 @@ class MotorizedJigSection(Section):
                                     le=1e6)
     home_on_open: StrictBool = _f(True, "home the axes when the port opens")
     tolerance_deg: float = _f(0.02, "position tolerance, deg", ge=1e-4, le=5)
+    angle_tolerance_deg: float = _f(0.05, "each pose within +- this of its commanded attitude, deg (the "
+                                    "uncertainty budget's jig_angle, docs/uncertainty.md: axes, levelling and "
+                                    "the board's seat)", ge=0, le=10)
     move_margin_s: float = _f(2.0, "extra time allowed for a move, s", ge=0, le=600)
     settle_s: float = _f(0.0, "wait after a move, s", ge=0, le=60)
     poll_s: float = _f(0.01, "status poll interval, s", ge=0.001, le=5)

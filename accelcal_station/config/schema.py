@@ -54,6 +54,7 @@ from .kinds import (  # noqa: F401 - re-exported: every section model is reachab
     _discriminator,
 )
 from .section import MAX_BOARDS, Section, Triple, _f  # noqa: F401
+from .site import SiteSection
 from .validation import _models_in, _range, error_line, validate  # noqa: F401 (the schema's public names)
 
 
@@ -63,6 +64,8 @@ class StationSection(Section):
     require_operator: StrictBool = _f(False, "refuse to run without --operator")
     language: Literal["en", "de"] = _f("en", "the operator's language: terminal prompts, the operator page and the "
                                        "verdict reasons shown to operators (--json and logs stay English)")
+    site: SiteSection | None = _f(None, "where the station stands: its gravity, measured or WGS84 normal gravity "
+                                  "(docs/uncertainty.md); default: standard gravity 9.80665 m/s^2")
 
 
 class StoreSection(Section):
@@ -118,6 +121,10 @@ class AcceptanceSection(Section):
         None, "mma8451: largest self-test output change per axis [x, y, z], g (default: the data sheet's)")
     self_test_tolerance: float | None = _f(
         None, "mpu6050: largest |(STR - FT) / FT|, fraction (default: the data sheet's 0.14)", gt=0, le=10)
+    decision_rule: Literal["simple", "guarded"] = _f(
+        "guarded", "guarded: a limit on V or W holds only inside the limit by the expanded uncertainty U "
+        "(ILAC-G8, ISO 14253-1); simple: up to the limit, a board within U of it passes with a warning "
+        "(docs/uncertainty.md)")
     offset_trim_tolerance: float = _f(
         0.25, "nvm.offset_trim: largest |measured - expected| trim change as a fraction of the expected change "
         "(or 4 standard errors, whichever is larger); beyond it: FAIL offset_trim", gt=0, le=1)

@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..config.site import MEASURED_U_MPS2, STANDARD_SITE, Site
+from ..conventions import units_per_g
 from ..errors import AccelcalError, DataError, UnitsError
 from ..models.gravity_norm import nominal_scale
 from ..session import PoseColumns, PoseRecord, Session
@@ -148,16 +150,24 @@ def judge_units(readings: ArrayLike, units: str | None = None, counts_per_g: flo
 
 
 def _apply(session: Session, j: UnitsJudgement, gravity_mps2: float | None) -> Session:
+    """The session in its judged units, at its site: ``gravity_mps2`` (--gravity, or the file's
+    ``# gravity_mps2:`` line) is the site's gravity, every reference scaled to it (config/site.py), so
+    the fit maps the input to standard g; m/s^2 are then turned into g by standard gravity."""
     poses: Sequence[PoseRecord]
+    grav = session.gravity_mps2 if session.gravity_mps2 is not None else gravity_mps2
+    site = STANDARD_SITE if grav is None else Site(units_per_g("mps2", gravity_mps2=grav), "measured",
+                                                    MEASURED_U_MPS2)
+    k = site.gravity_g
     if isinstance(session.poses, PoseColumns):  # a large table stays columns (session.py)
-        poses = session.poses.shifted(j.offset_counts) if j.offset_counts else session.poses
+        cols = session.poses.shifted(j.offset_counts) if j.offset_counts else session.poses
+        poses = cols.scaled_references(k) if k != 1.0 else cols
     else:
         poses = list([replace(p, mean=p.mean - j.offset_counts) for p in session.poses] if j.offset_counts
                      else session.poses)
-    grav = session.gravity_mps2 if session.gravity_mps2 is not None else gravity_mps2
-    if j.units == "mps2" and grav is None:
-        grav = MPS2_PER_G
-    return Session(poses, j.units, j.counts_per_g, grav, session.device, dict(session.metadata))
+        if k != 1.0:
+            poses = [p if p.reference_g is None else replace(p, reference_g=p.reference_g * k) for p in poses]
+    meta = {**session.metadata, "site": site.to_json()}
+    return Session(poses, j.units, j.counts_per_g, MPS2_PER_G if j.units == "mps2" else None, session.device, meta)
 
 
 def load_pose_table(path: str | Path, units: str | None = None, counts_per_g: float | None = None,

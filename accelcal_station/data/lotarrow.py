@@ -97,7 +97,7 @@ def read_parquet_chunks(path: str | Path, chunk_boards: int = 4096) -> tuple[dic
     except BaseException:
         f.close()
         raise
-    meta = {k: v for k, v in meta.items() if k in ("units", "counts_per_g", "gravity")}
+    meta = {k: v for k, v in meta.items() if k in ("units", "counts_per_g", "gravity", "gravity_mps2")}
     return meta, _closing(f, _guarded(pf.iter_batches(batch_size=chunk_boards * 16, use_threads=False), names, path,
                                               "Parquet data"))
 

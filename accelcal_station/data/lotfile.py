@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..conventions import an4399_reference, check_units, units_per_g
+from ..conventions import STANDARD_GRAVITY_MPS2, an4399_reference, check_units, units_per_g
 from ..errors import DataError, UnitsError
 from ..fileguard.regular import check_regular, open_regular
 from .lotarrow import BLOCK_BYTES, SMALL_BLOCK_BYTES, arrow_available, read_csv_arrow, read_parquet_chunks
@@ -36,7 +36,8 @@ from .posetable import COLUMNS as POSE_COLUMNS
 from .posetable import read_preamble
 from .rawlog import MAX_ABS_READING
 
-__all__ = ["COLUMNS", "SMALL_BLOCK_BYTES", "LotChunk", "arrow_available", "board_arrays", "lot_scale", "open_lot"]
+__all__ = ["COLUMNS", "SMALL_BLOCK_BYTES", "LotChunk", "arrow_available", "board_arrays", "lot_scale", "lot_site_g",
+           "open_lot"]
 
 TEMP_TOLERANCE_C = 2.0  # as models.fit_temperature groups poses
 MAX_LINE_CHARS = 1 << 20  # a lot row is under 200 characters; a longer line is not a lot row
@@ -177,15 +178,33 @@ def open_lot(path: str | Path, chunk_boards: int = 4096, block_bytes: int = BLOC
     return read_csv_chunks(p, chunk_boards, block_bytes, gather)
 
 
+def lot_site_g(meta: dict[str, str], path: str | Path, gravity_mps2: float | None) -> float:
+    """The site's gravity in standard g (--gravity, else the file's ``# gravity_mps2:`` or ``# gravity:``
+    line, else 1): the factor every reference is scaled by (config/site.py)."""
+    for key in ("gravity_mps2", "gravity"):
+        if gravity_mps2 is None and meta.get(key):
+            try:
+                gravity_mps2 = float(meta[key])
+            except ValueError:
+                raise UnitsError(f"{path}: # {key}: {meta[key]!r}; allowed: a number, m/s^2") from None
+    if gravity_mps2 is None:
+        return 1.0
+    try:
+        return units_per_g("mps2", gravity_mps2=gravity_mps2) / STANDARD_GRAVITY_MPS2
+    except UnitsError as e:
+        raise UnitsError(f"{path}: {e}") from None
+
+
 def lot_scale(meta: dict[str, str], path: str | Path, units: str | None, counts_per_g: float | None,
               gravity_mps2: float | None, model: str) -> tuple[str, float | None]:
-    """Units and input units per g (None: model 9 on counts estimates it per board)."""
+    """Units and input units per g (None: model 9 on counts estimates it per board); m/s^2 are standard
+    g by 9.80665 (the site's gravity scales the references instead: ``lot_site_g``)."""
     units = units or meta.get("units", "counts")
     try:
         check_units(units)
     except UnitsError as e:
         raise UnitsError(f"{path}: {e}") from None
-    for key, val in (("counts_per_g", counts_per_g), ("gravity", gravity_mps2)):
+    for key, val in (("counts_per_g", counts_per_g),):  # gravity_mps2: the site's (lot_site_g), not a scale
         if val is None and meta.get(key):
             try:
                 v = float(meta[key])
@@ -193,13 +212,13 @@ def lot_scale(meta: dict[str, str], path: str | Path, units: str | None, counts_
                 v = math.nan
             if not (math.isfinite(v) and v > 0):
                 raise UnitsError(f"{path}: # {key}: {meta[key]!r}; allowed: a positive number")
-            counts_per_g, gravity_mps2 = (v, gravity_mps2) if key == "counts_per_g" else (counts_per_g, v)
+            counts_per_g = v
     if units == "counts" and counts_per_g is None:
         if model == "9":
             return units, None
         raise UnitsError(f"{path}: model {model} on counts needs counts per g: add '# counts_per_g: N' to the "
                          "lot file or pass --counts-per-g N")
-    return units, units_per_g(units, counts_per_g, gravity_mps2)
+    return units, units_per_g(units, counts_per_g)
 
 
 def _range_checks(c: dict[str, np.ndarray]) -> list[tuple[np.ndarray, str]]:

@@ -45,7 +45,7 @@ REQUIRED = ("pose", "x", "y", "z")
 GROUPS = (("pitch_deg", "roll_deg"), ("ref_x", "ref_y", "ref_z"), ("std_x", "std_y", "std_z"))
 COLUMNS = ("pose", "pitch_deg", "roll_deg", "x", "y", "z", "ref_x", "ref_y", "ref_z", "temp_c", "n",
            "std_x", "std_y", "std_z")
-META_KEYS = ("units", "counts_per_g", "gravity", "device")
+META_KEYS = ("units", "counts_per_g", "gravity", "gravity_mps2", "device")
 MAX_POSE_ROWS = 200_000  # fit memory is linear: ~1.8 kB a pose (under 200 MB at 100,000 rows, benchmarks/)
 MAX_TABLE_BYTES = 64 << 20  # MAX_POSE_ROWS rows of every column at full precision (~300 B a row) fit in 64 MiB
 MAX_ABS_STD = 1e9  # as a reading (rawlog.MAX_ABS_READING): beyond any ADC or unit
@@ -100,8 +100,10 @@ def stated_scale(path: str | Path, meta: dict[str, str], meta_line: dict[str, in
             raise UnitsError(f"{path}: {where}{e}") from None
     if counts_per_g is None and meta.get("counts_per_g"):
         counts_per_g = _meta_number(Path(path), meta_line["counts_per_g"], "counts_per_g", meta["counts_per_g"])
-    if gravity_mps2 is None and meta.get("gravity"):
-        gravity_mps2 = _meta_number(Path(path), meta_line["gravity"], "gravity", meta["gravity"])
+    # the site's gravity: "# gravity_mps2:" (or the older "# gravity:"), m/s^2 (config/site.py)
+    for key in ("gravity_mps2", "gravity"):
+        if gravity_mps2 is None and meta.get(key):
+            gravity_mps2 = _meta_number(Path(path), meta_line[key], key, meta[key])
     return units, counts_per_g, gravity_mps2
 
 

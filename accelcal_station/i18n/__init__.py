@@ -58,6 +58,7 @@ REASON_TITLES: dict[str, str] = {
     "temperature": N_("temperature out of range"),
     "chamber": N_("the temperature chamber failed"),
     "store": N_("the result could not be recorded"),
+    "within_uncertainty_of_limit": N_("too close to a limit for the measurement's uncertainty"),
 }
 
 

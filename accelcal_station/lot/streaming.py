@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, TypedDict, TypeVar
 import numpy as np
 
 from ..acceptance.reasons import Reason
-from ..data.lotfile import LotChunk, board_arrays, lot_scale, nonfinite_rows, open_lot
+from ..data.lotfile import LotChunk, board_arrays, lot_scale, lot_site_g, nonfinite_rows, open_lot
 from ..data.results_table import ChunkFit, ResultsWriter
 from ..errors import AccelcalError, DataError
 from ..models.fitting import check_model, fit_batch
@@ -65,9 +65,12 @@ class LotSummary:
                 "skipped_examples": [{"serial": s, "reason": r} for s, r in self.unfitted_examples]}
 
 
-def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str) -> ChunkFit:
-    """Fit every board of a chunk: a ChunkFit of per-board arrays."""
+def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str, site_g: float = 1.0) -> ChunkFit:
+    """Fit every board of a chunk: a ChunkFit of per-board arrays (``site_g``: the site's gravity in
+    standard g, every reference scaled by it: config/site.py)."""
     x, ref, noise, reasons = board_arrays(chunk, model)
+    if ref is not None and site_g != 1.0:
+        ref = ref * site_g
     starts = chunk.starts
     B = len(starts) - 1
     sizes = np.diff(starts)
@@ -299,11 +302,12 @@ def recalibrate_lot(path: str | Path, out: str | Path, model: str = "12", *, uni
         raise DataError(f"--chunk-boards {chunk_boards}; allowed: a whole number >= 1")
     meta, chunks = open_lot(path, chunk_boards)
     units, per_g = lot_scale(meta, path, units, counts_per_g, gravity_mps2, model)
+    site_g = lot_site_g(meta, path, gravity_mps2)
     summary = LotSummary(model)
     t0 = _time.perf_counter()
     with ResultsWriter(out) as w:
         for chunk in chunks:
-            res = fit_chunk(chunk, model, per_g, units)
+            res = fit_chunk(chunk, model, per_g, units, site_g)
             verdicts, reasons = _judge(res, limits, model, _text)  # the table keeps the words only
             w.write_chunk(chunk, res, model, units, verdicts, reasons)
             n = len(chunk.serials)

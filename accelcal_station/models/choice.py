@@ -151,7 +151,8 @@ def axis_faces(session: Session, tol_deg: float = FACE_TOL_DEG) -> Faces | None:
 
 def with_face_references(session: Session, faces: Faces) -> Session:
     """The session with each pose's face as its reference (the hand-placed norm fit's input)."""
-    poses = [replace(p, reference_g=r) for p, r in zip(session.poses, faces.references_g, strict=True)]
+    k = session.site_gravity_g  # the faces are unit vectors: scaled to the site's gravity as every reference
+    poses = [replace(p, reference_g=r * k) for p, r in zip(session.poses, faces.references_g, strict=True)]
     return Session(poses, session.units, session.counts_per_g, session.gravity_mps2, session.device,
                    dict(session.metadata))
 

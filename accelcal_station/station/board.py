@@ -41,6 +41,7 @@ from .offset_trim import trim_change, trim_failure, trim_record, trimmed
 from .report import RunReport, Timing
 from .self_test_step import self_test_step
 from .settings import StationConfig
+from .uncertainty_step import uncertainty_step
 from .verdict import Stage
 
 # a verification capture: (mean counts, expected output in g, temperature)
@@ -63,6 +64,8 @@ class BoardSteps:
         # how the chip sits on the board: the jig and the words place the board, the chip reads mount @ r
         # (a panel's board: its own, set by panel.Panel.build)
         self.mount = mount_matrix(config.device.mount) if config.device.mount else np.eye(3)
+        # the site's gravity in standard g: the force a pose puts on the board (config/site.py)
+        self.g_site = config.site.gravity_g
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # (pose's r in board axes, mean reading) so far
         self.samples_read = 0
         self.samples_used = 0
@@ -123,6 +126,11 @@ class BoardSteps:
         self.echo(f"  {e}")
         return deferred or e
 
+    def expected_g(self, pose: PoseSpec) -> np.ndarray:
+        """What the chip reads at ``pose`` in standard g: its reference turned by the mounting and scaled
+        to the site's gravity, so the fit maps counts to standard g (station.site)."""
+        return np.asarray(self.mount @ pose.reference_g * self.g_site, dtype=float)
+
     def chip_angles(self, pose: PoseSpec) -> tuple[float, float]:
         """The AN4399 angles of what the chip is expected to read (the pose's own unless device.mount
         turns it), so that files and the store re-derive the same reference from them."""
@@ -161,7 +169,7 @@ class BoardSteps:
             floor = gc.floor_counts
             c = gc.capture
             pitch, roll = self.chip_angles(pose)
-            records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, self.mount @ pose.reference_g,
+            records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, self.expected_g(pose),
                                       pitch, roll, c.temp_c, c.dropped, c.t_start, c.t_end))
             retries.append(tries + gc.recaptures)
             sem_mg = c.sem_counts / driver.counts_per_g * 1e3
@@ -190,14 +198,18 @@ class BoardSteps:
         except UnderdeterminedError as e:
             rep.record(Stage.FIT, Reason("fit", str(e)))
             return None
+        fit.calibration.metadata["site"] = cfg.site.to_metadata()  # the calibration file says which gravity
         rep.fit = fit
         rep.calibration = fit.calibration
         planned = len(get_design(cfg.design))
         verdict = judge(fit, cfg.limits, planned_poses=planned)
         rep.measured = verdict.measured
-        if not verdict.passed:
-            rep.record(Stage.ACCEPTANCE, *verdict.reasons)
-            self.echo("FAIL before writing: " + "; ".join(verdict.reasons))
+        guarded = uncertainty_step(cfg, session, fit, rep, session.counts_per_g)  # the decision rule's reasons
+        for w in rep.warnings:
+            self.echo(f"warning: {w}")
+        if not verdict.passed or guarded:
+            rep.record(Stage.ACCEPTANCE, *verdict.reasons, *guarded)
+            self.echo("FAIL before writing: " + "; ".join([*verdict.reasons, *guarded]))
             return None
         cal: Calibration | None = fit.calibration
         if cfg.offset_trim:
@@ -327,7 +339,7 @@ class BoardSteps:
         for pose in poses[:n]:
             self.echo(f"verify {pose.name}")
             gc, _ = self.capture_pose(driver, jig, pose, None, rep)
-            out.append((gc.capture.mean_counts, self.mount @ pose.reference_g, gc.capture.temp_c))
+            out.append((gc.capture.mean_counts, self.expected_g(pose), gc.capture.temp_c))
         return out
 
     def _verify_error(self, cal: Calibration, checks: list[Check]) -> float:

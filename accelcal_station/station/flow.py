@@ -26,7 +26,7 @@ from ..store.runs import Store
 from .board import BoardSteps
 from .panel import Panel, PanelBoard, PanelTiming, board_rate, board_session, make_panel_jig
 from .policy import Conditions, FlowPolicy
-from .recording import FinishArgs, record_result, start_args
+from .recording import FinishArgs, record_result, start_args, stored_uncertainty
 from .report import RunReport
 from .room import RoomTemperature
 from .settings import StationConfig, configured_rate
@@ -181,6 +181,7 @@ class StationFlow:
     def _start_run(self, b: PanelBoard, store: Store) -> None:
         cfg, rep = self.cfg, b.rep
         single = self.policy.single_board
+        rep.site = cfg.site.to_json()
         rep.run_id = store.start_run(
             device_serial=rep.serial if single else rep.serial or b.path,
             chip=rep.chip if single else rep.chip or b.driver_name,
@@ -248,7 +249,8 @@ class StationFlow:
                            panel_id=self.panel_id, device_serial=rep.serial if single else rep.serial or b.path)
         finish: FinishArgs = {"session": session, "calibration": rep.calibration, "verdict": rep.verdict,
                   "reasons": rep.reasons, "nvm_outcome": rep.nvm, "fit_summary": summary, "model": cfg.model,
-                  "retries": b.retries, "limits": cfg.limits.values}
+                  "retries": b.retries, "limits": cfg.limits.values, "site": rep.site,
+                  "uncertainty": stored_uncertainty(rep)}
         try:
             record_result(store, rep.run_id, start, finish, cfg.outbox)
         except AccelcalError as e:

@@ -271,7 +271,7 @@ class Panel:
                 b.floor = gc.floor_counts
                 c = gc.capture
                 b.records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n,
-                                            b.steps.mount @ pose.reference_g, *b.steps.chip_angles(pose),
+                                            b.steps.expected_g(pose), *b.steps.chip_angles(pose),
                                             c.temp_c, c.dropped, c.t_start, c.t_end))
                 b.retries.append(gc.recaptures)
                 b.steps.samples_read += gc.samples_read
@@ -308,7 +308,7 @@ class Panel:
                 self.echo(f"jig pose error estimated from {len(full)} boards: {est.rms_deg:.3f} deg rms per pose")
                 for b, refs in zip(full, est.references_g, strict=True):
                     for r, ref in zip(b.records, refs @ b.steps.mount.T, strict=True):
-                        r.reference_g = ref
+                        r.reference_g = ref * b.steps.g_site  # the site's gravity, as expected_g
             elif len(boards) > 1 or self.cfg.model in ("6", "12", "15"):
                 self.echo(f"jig pose error not estimated: {est.note}")
         for b in boards:
@@ -334,7 +334,7 @@ class Panel:
                 if gc is not None:
                     b.steps.samples_read += gc.samples_read
                     b.steps.samples_used += gc.capture.n
-                    b.checks.append((gc.capture.mean_counts, b.steps.mount @ pose.reference_g, gc.capture.temp_c))
+                    b.checks.append((gc.capture.mean_counts, b.steps.expected_g(pose), gc.capture.temp_c))
         for b in todo:
             if b.active and b.cal is not None and not b.steps.judge_verified(b.cal, b.checks, b.rep):
                 b.cal = None

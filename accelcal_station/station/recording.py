@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, TypedDict
 
 from ..acceptance.reasons import Reason, codes
 from ..calibration import Calibration
+from ..config.site import SiteJson
 from ..errors import AccelcalError
 from ..jsontypes import JsonObject
 from ..nvm.outcome import BurnOutcome
@@ -88,6 +89,8 @@ class FinishArgs(TypedDict):
     model: str
     retries: list[int]
     limits: dict[str, float]
+    site: SiteJson | None
+    uncertainty: Mapping[str, object] | None
 
 
 def board_summary(cfg: StationConfig, rep: RunReport) -> RunSummary:
@@ -118,6 +121,14 @@ def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est:
     if thermal is not None:
         out["thermal"] = thermal
     return out
+
+
+def stored_uncertainty(rep: RunReport) -> dict[str, object] | None:
+    """The ``uncertainty`` column: the budget with the decision rule it was judged by (None: no fit)."""
+    if rep.uncertainty is None:
+        return None
+    return {**rep.uncertainty, "decision_rule": rep.decision_rule,
+            "warnings": [w.to_dict() for w in rep.warnings]}
 
 
 def burned_text(nvm: BurnOutcome | Mapping[str, object] | None) -> str:

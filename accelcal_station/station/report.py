@@ -6,8 +6,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal, TypedDict
 
+from ..acceptance.budget import UncertaintyJson
+from ..acceptance.decision import DecisionRuleJson
 from ..acceptance.reasons import Reason, codes
 from ..calibration import Calibration
+from ..config.site import SiteJson
 from ..jsontypes import JsonObject
 from ..models.result import FitResult
 from .offset_trim import OffsetTrimRecord
@@ -165,6 +168,11 @@ class RunReportJson(TypedDict):
     events: list[str]
     timing: Timing
     store: str
+    site: SiteJson | None  # the site's gravity the references were scaled to (config/site.py)
+    uncertainty: UncertaintyJson | None  # {k, expanded, combined, budget} (acceptance/budget.py)
+    decision_rule: DecisionRuleJson | None  # the acceptance decision rule applied (acceptance/decision.py)
+    warnings: list[str]  # reasons that did not fail the board (within_uncertainty_of_limit, simple rule)
+    warning_codes: list[str]
 
 
 class ThermalRunReportJson(RunReportJson):
@@ -200,6 +208,10 @@ class RunReport:
     store: str = ""
     # the station's fault that ended this board's run (station_fault.py): the board is not judged
     station_fault: str | None = None
+    site: SiteJson | None = None  # station.site as used (config/site.py Site.to_json)
+    uncertainty: UncertaintyJson | None = None  # the board's uncertainty budget (docs/uncertainty.md)
+    decision_rule: DecisionRuleJson | None = None  # the decision rule acceptance applied
+    warnings: list[Reason] = field(default_factory=list)  # reasons that did not fail the board (simple rule)
 
     def record(self, stage: Stage, *reasons: Reason) -> None:
         """What a stage of the run found: the reasons it fails the board (none: it passed)."""
@@ -247,6 +259,8 @@ class RunReport:
             "offset_trim": self.offset_trim, "self_test": self.self_test,
             "poses": self.poses, "skipped": self.skipped,
             "events": self.events, "timing": self.timing, "store": self.store,
+            "site": self.site, "uncertainty": self.uncertainty, "decision_rule": self.decision_rule,
+            "warnings": [str(w) for w in self.warnings], "warning_codes": codes(self.warnings),
         }
 
 

@@ -27,6 +27,7 @@ from ..config.schema import (
     validate_station,
 )
 from ..config.sections import default_config_path, with_port
+from ..config.site import STANDARD_SITE, Site, site_of
 from ..errors import ConfigError
 from ..fixtures.designs import get_design
 from ..models.fitting import check_model
@@ -56,6 +57,7 @@ class StationConfig:
     web_token: str | None = None  # web.token: what starting or aborting a run over the web API needs
     event_log: LoggingSection | None = None  # logging: (config/event_log.py)
     web_read_token: str | None = None  # web.read_token: what every read of `accelcal serve` needs
+    site: Site = STANDARD_SITE  # station.site: the gravity the jig's references are scaled to (config/site.py)
 
     @classmethod
     def load(cls, path: str | Path | None = None, store_override: str | Path | None = None,
@@ -88,7 +90,7 @@ class StationConfig:
         return cls(sc, text, p, (sc.station or StationSection()).id, design, model, settings,
                    limits, nvm.write, nvm.slot_size, nvm.offset_trim, verify_poses, ver.design, store_file,
                    _web_token(sc.web), sc.logging,
-                   _web_token(sc.web, read=True))
+                   _web_token(sc.web, read=True), site_of((sc.station or StationSection()).site))
 
     @property
     def operator_page_token(self) -> str | None:

@@ -160,7 +160,7 @@ class ThermalConditions:
                                    f"{sp:g} C left the band +-{self.plan.capture_band_c:g} C around "
                                    f"{res.board_temp_c:.2f} C")
             pitch, roll = steps.chip_angles(pose)
-            rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, steps.mount @ pose.reference_g,
+            rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, steps.expected_g(pose),
                              pitch, roll, temp, c.dropped, c.t_start, c.t_end)
             out.append(rec)
             if res.role == "calibrate":

@@ -169,7 +169,7 @@ class ThermalPanel:
             self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
             return
         b.floor = gc.floor_counts
-        rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, b.steps.mount @ pose.reference_g,
+        rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, b.steps.expected_g(pose),
                          *b.steps.chip_angles(pose), temp, c.dropped, c.t_start, c.t_end)
         self.of(b).groups.setdefault(sp, []).append(rec)
         if res.role == "calibrate":  # the run's session: calibration poses, kept if the run is interrupted

@@ -162,7 +162,8 @@ class BoardPlan:
         table = TemperatureTable([t for t, _ in fits], [f.W for _, f in fits], [f.V for _, f in fits],
                                  [f.Gamma for _, f in fits], plan.method)
         cal = Calibration(cfg.model, table.W[0], table.V[0], table.Gamma[0], "counts", cpg, temperature=table,
-                          metadata={"thermal": {"set_points_c": list(plan.set_points_c), "method": plan.method}})
+                          metadata={"thermal": {"set_points_c": list(plan.set_points_c), "method": plan.method},
+                                    "site": cfg.site.to_metadata()})
         ref_t, ref_fit = min(fits, key=lambda tf: abs(tf[0] - plan.reference_c))
         rep.calibration, rep.fit = cal, ref_fit
         rep.measured = judge(ref_fit, cfg.limits).measured

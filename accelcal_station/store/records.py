@@ -156,6 +156,8 @@ class RunColumns(RunLabels, RunTimes, RunSetup):
     limits: dict[str, float] | None
     heartbeat_at: float | None
     heartbeat_s: float | None
+    site: JsonObject | None  # the site's gravity (schema 6; config/site.py)
+    uncertainty: JsonObject | None  # the uncertainty budget and decision rule (schema 6; docs/uncertainty.md)
 
 
 class RunRow(RunColumns):
@@ -177,7 +179,8 @@ def run_row(raw: Row) -> tuple[RunRow, list[DamagedRow]]:
         "reasons": c.json_list("reasons"), "nvm_status": t("nvm_status"), "nvm_outcome": c.json_object("nvm_outcome"),
         "calibration": c.json_object("calibration"), "fit_summary": c.json_object("fit_summary"), "host": t("host"),
         "pid": c.int("pid"), "panel_id": t("panel_id"), "limits": c.numbers("limits"),
-        "heartbeat_at": c.real("heartbeat_at"), "heartbeat_s": c.real("heartbeat_s")}
+        "heartbeat_at": c.real("heartbeat_at"), "heartbeat_s": c.real("heartbeat_s"),
+        "site": c.json_object("site"), "uncertainty": c.json_object("uncertainty")}
     return row, list(c.damage)
 
 
@@ -257,6 +260,8 @@ class RunRecord:
     limits: dict[str, float] | None = None  # the acceptance limits the run was judged by (schema 4)
     heartbeat_at: float | None = None  # the station's last sign of life, unix s (schema 5; store/heartbeat.py)
     heartbeat_s: float | None = None  # seconds between its heartbeats
+    site: JsonObject | None = None  # the site's gravity the references were scaled to (schema 6)
+    uncertainty: JsonObject | None = None  # the uncertainty budget and decision rule (schema 6)
     poses: list[PoseRecord] = field(default_factory=list)
     retries: list[int] = field(default_factory=list)
     events: list[StoredEvent] = field(default_factory=list)
@@ -284,6 +289,7 @@ class RunRecord:
             "fit_summary": copy.deepcopy(self.fit_summary), "host": self.host, "pid": self.pid,
             "panel_id": self.panel_id, "limits": None if self.limits is None else dict(self.limits),
             "heartbeat_at": self.heartbeat_at, "heartbeat_s": self.heartbeat_s,
+            "site": copy.deepcopy(self.site), "uncertainty": copy.deepcopy(self.uncertainty),
             "poses": [_pose_dict(p, r) for p, r in zip(self.poses, self.retries, strict=True)],
             "retries": list(self.retries), "events": copy.deepcopy(self.events), "damaged": list(self.damaged),
             "damage": [x.to_dict() for x in self.damage], "started_at_iso": iso(self.started_at),
@@ -319,7 +325,7 @@ def build_record(run: RunRow, damage: list[DamagedRow], pose_rows: list[Row],
         nvm_status=run["nvm_status"], nvm_outcome=run["nvm_outcome"], calibration=run["calibration"],
         fit_summary=run["fit_summary"], host=run["host"], pid=run["pid"], panel_id=run["panel_id"],
         limits=run["limits"], heartbeat_at=run["heartbeat_at"], heartbeat_s=run["heartbeat_s"],
-        damaged=sorted({d.column for d in damage}))
+        site=run["site"], uncertainty=run["uncertainty"], damaged=sorted({d.column for d in damage}))
     for raw in pose_rows:
         p = check_row("poses", raw)
         damage += p.damage

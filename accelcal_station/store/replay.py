@@ -33,7 +33,8 @@ def _run_values(rec: RunRecord) -> dict[str, object]:
     values: dict[str, object] = {c: getattr(rec, c) for c in _COPIED}
     values.update(reasons=json.dumps([Reason.from_dict(r).to_dict() for r in rec.reasons]),
                   nvm_outcome=to_json(rec.nvm_outcome), calibration=to_json(rec.calibration),
-                  fit_summary=to_json(rec.fit_summary), limits=to_json(rec.limits))
+                  fit_summary=to_json(rec.fit_summary), limits=to_json(rec.limits), site=to_json(rec.site),
+                  uncertainty=to_json(rec.uncertainty))
     return values
 
 

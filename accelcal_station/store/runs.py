@@ -293,12 +293,14 @@ class Store:
                    reasons: Iterable[Reason] = (), nvm_outcome: Outcome | None = None,
                    fit_summary: Mapping[str, object] | None = None,
                    model: str | None = None, retries: Sequence[int] | None = None,
-                   finished_at: float | None = None, limits: dict[str, float] | None = None) -> None:
+                   finished_at: float | None = None, limits: dict[str, float] | None = None,
+                   site: Mapping[str, object] | None = None, uncertainty: Mapping[str, object] | None = None) -> None:
         """Record poses, calibration, verdict and NVM outcome of a run as ``complete``, atomically.
 
         ``nvm_outcome``: a writer.BurnOutcome, its dict, or None when nothing was burned;
         ``reasons``: Reason objects (a plain string is kept with code "");
-        ``limits``: the acceptance limits the verdict was judged by ({key: number}).
+        ``limits``: the acceptance limits the verdict was judged by ({key: number}); ``site``: the site's
+        gravity (config/site.py Site.to_json); ``uncertainty``: the budget and decision rule (schema 6).
         """
         if verdict is not None and verdict not in schema.VERDICTS:
             raise DataError(f"verdict {verdict!r}; allowed: PASS, FAIL")
@@ -311,7 +313,9 @@ class Store:
             try:
                 texts = [to_json([Reason.from_dict(r).to_dict() for r in reasons]), to_json(outcome),
                          to_json(cal), to_json(fit_summary),
-                         to_json(None if limits is None else {str(k): float(v) for k, v in limits.items()})]
+                         to_json(None if limits is None else {str(k): float(v) for k, v in limits.items()}),
+                         to_json(None if site is None else dict(site)),
+                         to_json(None if uncertainty is None else dict(uncertainty))]
             except (TypeError, ValueError) as e:
                 raise DataError(f"run {run_id}: result is not JSON-serialisable ({e})") from None
             model = opt(model or (calibration.model if calibration else None), str)
@@ -319,6 +323,7 @@ class Store:
                 status="complete", finished_at=_time.time() if finished_at is None else float(finished_at),
                 verdict=verdict, reasons=texts[0], nvm_status=nvm_status, nvm_outcome=texts[1],
                 calibration=texts[2], fit_summary=texts[3], **({} if texts[4] is None else {"limits": texts[4]}),
+                **{k: v for k, v in (("site", texts[5]), ("uncertainty", texts[6])) if v is not None},
                 **({} if model is None else {"model": model})))
         self._stop_beating(run_id)
         log.info("run %d complete: %s, NVM %s", run_id, verdict or "no verdict", nvm_status)

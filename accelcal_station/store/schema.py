@@ -14,5 +14,6 @@ STATUSES = ("running", "complete", "interrupted", "error")
 VERDICTS = ("PASS", "FAIL")
 POSE_COLS = ("idx", "name", "pitch_deg", "roll_deg", "ref_x", "ref_y", "ref_z", "mean_x", "mean_y", "mean_z",
              "std_x", "std_y", "std_z", "n", "dropped", "temp_c", "t_start", "t_end", "retries")
-SCHEMA_VERSION = 5  # the Alembic revision this station needs: "0005"
-JSON_COLUMNS = ("reasons", "nvm_outcome", "calibration", "fit_summary", "limits")  # text columns holding JSON
+SCHEMA_VERSION = 6  # the Alembic revision this station needs: "0006"
+# text columns holding JSON
+JSON_COLUMNS = ("reasons", "nvm_outcome", "calibration", "fit_summary", "limits", "site", "uncertainty")

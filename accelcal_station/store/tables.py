@@ -68,6 +68,8 @@ runs = Table(
     Column("limits", Text),         # JSON {limit key: number}: the acceptance limits the run was judged by
     Column("heartbeat_at", real()),  # unix s: the station process's last sign of life (store/heartbeat.py)
     Column("heartbeat_s", real()),   # s between its heartbeats (readers on any host judge staleness by it)
+    Column("site", Text),           # JSON {gravity_mps2, source, gravity_u_mps2}: the site's gravity (schema 6)
+    Column("uncertainty", Text),    # JSON {k, expanded, budget, decision_rule}: docs/uncertainty.md (schema 6)
     CheckConstraint("status IN ('running', 'complete', 'interrupted', 'error')"),
     CheckConstraint("verdict IN ('PASS', 'FAIL')"),
 )

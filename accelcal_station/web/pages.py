@@ -226,6 +226,53 @@ def self_test_view(fit_summary: JsonObject | None) -> SelfTestView | None:
             "no_effect": st.get("no_effect") is True, "rows": rows}
 
 
+class UncertaintyRow(TypedDict):
+    """A calibration parameter with its expanded uncertainty (the run's budget, k given)."""
+
+    name: str
+    value: float | None
+    U: float | None
+    unit: str
+
+
+class UncertaintyView(TypedDict):
+    k: float | None
+    rows: list[UncertaintyRow]
+    rule: str | None
+    site: str | None
+    warnings: list[str]
+
+
+def _num(v: object, k: float = 1.0) -> float | None:
+    return float(v) * k if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) else None
+
+
+def uncertainty_view(unc: JsonObject | None, cal: JsonObject | None, site: JsonObject | None) -> UncertaintyView | None:
+    """The board page's uncertainty table from a run's stored ``uncertainty`` (schema 6; None: none
+    recorded): V (mg) and W with their expanded uncertainty U, the decision rule and the site."""
+    exp = unc.get("expanded") if isinstance(unc, dict) else None
+    if not isinstance(unc, dict) or not isinstance(exp, dict):
+        return None
+    uV, uW = exp.get("V_mg"), exp.get("W")
+    V, W = (cal or {}).get("V"), (cal or {}).get("W")
+    def at(v: object, *idx: int) -> object:
+        """v[i][j]... of stored JSON, None where the shape is not there (a damaged row never breaks the page)."""
+        for i in idx:
+            v = v[i] if isinstance(v, list) and len(v) == 3 else None
+        return v
+
+    rows: list[UncertaintyRow] = [{"name": f"V_{a}", "unit": "mg", "value": _num(at(V, i), 1e3), "U": _num(at(uV, i))}
+                                  for i, a in enumerate("xyz")]
+    rows += [{"name": f"W_{a}{b}", "unit": "g/g", "value": _num(at(W, i, j)), "U": _num(at(uW, i, j))}
+             for i, a in enumerate("xyz") for j, b in enumerate("xyz")]
+    rule = unc.get("decision_rule")
+    warn = unc.get("warnings")
+    return {"k": _num(unc.get("k")), "rows": rows,
+            "rule": str(rule.get("rule")) + f" ({rule.get('guard_band')})" if isinstance(rule, dict) else None,
+            "site": (f"{site.get('gravity_mps2')} m/s^2 ({site.get('source')})" if isinstance(site, dict) else None),
+            "warnings": [str(w.get("message")) for w in warn if isinstance(w, dict)] if isinstance(warn, list) else []}
+
+
 class BoardRun(TypedDict):
     """A run on the board page: the record, its start, residual chart, self-test, reasons and acceptance."""
 
@@ -236,6 +283,7 @@ class BoardRun(TypedDict):
     reasons: list[dict[str, str]]  # Reason.to_dict: code, message
     limits_source: str | None
     acceptance: list[AcceptanceRow]
+    uncertainty: UncertaintyView | None
 
 
 class NvmLine(TypedDict):
@@ -269,7 +317,8 @@ def board_context(store: Store, serial: str) -> BoardContext:
                      "reasons": [r.to_dict() for r in rec.reasons],
                      "limits_source": "stored" if isinstance(rec.limits, dict) else ("config" if lim else None),
                      "acceptance": acceptance_rows(measured if isinstance(measured, dict) else {}, lim,
-                                                   [r.code for r in rec.reasons])})
+                                                   [r.code for r in rec.reasons]),
+                     "uncertainty": uncertainty_view(rec.uncertainty, rec.calibration, rec.site)})
         nvm.extend({"run": rec.id, "t": iso(e["t"]), "kind": e["kind"], "message": e["message"]}
                    for e in rec.events if e["kind"] is not None and e["kind"].startswith("nvm_"))
         if rec.nvm_status and rec.nvm_status != "none":
