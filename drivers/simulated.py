@@ -164,6 +164,10 @@ class SimulatedBoard:
         self._t_settle = self._t_power
         self._walk = np.zeros(3)  # drift random-walk state at time _t_walk
         self._t_walk = self._t_power
+        self._noise = np.zeros(3)  # the DLPF's noise state (g) at time _t_noise (None: no sample yet)
+        self._t_noise: float | None = None
+        self._f_prev, self._t_change = self._f.copy(), -np.inf  # the force before the last change (DLPF delay)
+        self.oversampling: str | None = None  # MMA8451 CTRL_REG2 MODS (None: normal)
         self._disturbances: list[tuple[float, float, float, np.ndarray]] = []
         c = self.chip
         self.configure(c.default_range_g, c.default_odr_hz, c.default_dlpf)
@@ -201,10 +205,15 @@ class SimulatedBoard:
         return board
 
     # -- configuration ----------------------------------------------------------------------
-    def configure(self, range_g: int, odr_hz: float, dlpf: int | None = None, path: str = "configure") -> None:
-        """Set full scale (g), output data rate (Hz) and, on the MPU6050, DLPF_CFG."""
+    def configure(self, range_g: int, odr_hz: float, dlpf: int | None = None, path: str = "configure",
+                  oversampling: str | None = None) -> None:
+        """Set full scale (g), output data rate (Hz) and, on the MPU6050, DLPF_CFG; on the MMA8451 the
+        oversampling mode (CTRL_REG2 MODS; None keeps the current one)."""
         range_g, odr_hz, dlpf = self.chip.check(range_g, odr_hz, dlpf, path)
         self.model.check_range(range_g)
+        if oversampling is not None:
+            self.chip.noise_scale(odr_hz, oversampling)  # refuses a mode the chip does not have
+            self.oversampling = oversampling
         self.range_g, self.odr_hz, self.dlpf = range_g, odr_hz, dlpf
         self._grid0 = self.clock.now()  # the ODR grid restarts with the new setting
 
@@ -228,8 +237,18 @@ class SimulatedBoard:
 
     @property
     def noise_sigma_counts(self) -> np.ndarray:
-        """Per-sample white-noise standard deviation in counts at the current setting."""
-        return self.model.noise_sigma_g(self.odr_hz, self.dlpf) * self.counts_per_g
+        """Per-sample noise standard deviation in counts at the current setting."""
+        return self.noise_sigma_g * self.counts_per_g
+
+    @property
+    def noise_sigma_g(self) -> np.ndarray:
+        """Per-sample noise standard deviation in g: density (scaled by the oversampling mode) * sqrt(ENBW)."""
+        return self.model.noise_sigma_g(self.odr_hz, self.dlpf) * self.chip.noise_scale(self.odr_hz, self.oversampling)
+
+    @property
+    def noise_lag1(self) -> float:
+        """Lag-1 autocorrelation of the noise at the current setting (sensor_model stage 7)."""
+        return self.chip.noise_lag1(self.odr_hz, self.dlpf)
 
     def truth(self, temp_c: float | None = None) -> Calibration:
         """The exact AN4399 calibration at temp_c (default: the die temperature now)."""
@@ -290,6 +309,7 @@ class SimulatedBoard:
         n = np.linalg.norm(d)
         f_new = self.model.gravity_g() * d / n
         now = self.clock.now()
+        self._f_prev, self._t_change = self._f.copy(), now
         self._settle = self._settling_at(np.array([now]))[0] + self._settle_fraction() * (f_new - self._f)
         self._t_settle = now
         self._dir, self._f = d / n, f_new
@@ -325,10 +345,26 @@ class SimulatedBoard:
         self.clock.advance_to(float(t[-1]))
         return t
 
+    def _noise_at(self, t: np.ndarray) -> np.ndarray:
+        """Noise (g) at sample times t: stationary AR(1) with rho_1 = a per ODR step (sensor_model
+        stage 7), carried on from the previous sample; white (the same draws) when a = 0."""
+        e = self._rng_noise.standard_normal((len(t), 3)) * self.noise_sigma_g
+        a = self.noise_lag1
+        if a <= 0.0:
+            return e
+        # the state decays over the gap since the last sample: a^m for m ODR steps (exact AR(1))
+        m = np.inf if self._t_noise is None else max((float(t[0]) - self._t_noise) * self.odr_hz, 1.0)
+        am = a**m
+        e[0] = am * self._noise + np.sqrt(1.0 - am * am) * e[0]
+        e[1:] *= np.sqrt(1.0 - a * a)
+        y = ar1(e, a)
+        self._noise, self._t_noise = y[-1].copy(), float(t[-1])
+        return y
+
     def _sample(self, t: np.ndarray, G: np.ndarray, settle: np.ndarray) -> np.ndarray:
         x = G + self._drift(t) + settle
         if self.model.has("noise"):
-            x = x + self._rng_noise.standard_normal((len(t), 3)) * self.model.noise_sigma_g(self.odr_hz, self.dlpf)
+            x = x + self._noise_at(t)
         return self.model.to_counts(x, self.counts_per_g)
 
     def read(self, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -341,6 +377,9 @@ class SimulatedBoard:
         f = self._f[None]
         if self._disturbances:
             f = self._disturbed(t)
+        late = t < self._t_change + self.chip.delay_s(self.dlpf)  # the DLPF's delay: still the old force
+        if late.any():
+            f = np.where(late[:, None], self._f_prev[None], np.broadcast_to(f, (len(t), 3)))
         G = self.model.response_g(f, self.temperature_c)
         return self._sample(t, G, self._settling_at(t)), t
 
@@ -386,6 +425,21 @@ class SimulatedBoard:
             self._settle, self._t_settle = settle[-1].copy(), float(t[-1])
         self._dir, self._f = d[-1].copy(), f[-1].copy()
         return self._sample(t, self.model.response_g(f, self.temperature_c), settle), t
+
+
+def ar1(u: np.ndarray, a: float) -> np.ndarray:
+    """y_k = a y_{k-1} + u_k along axis 0 (y_0 = u_0), vectorised: within blocks short enough that
+    a^-L stays small, y_{s+i} = a^i (y_s + sum_{j<=i} a^-j u_{s+j}); no scipy import in a bridge thread."""
+    y = np.empty_like(u)
+    # a^-L up to 1e260: the early terms a scaled-up cumsum rounds away are below eps of the late ones
+    L = max(1, min(len(u), int(-600.0 / np.log(a)))) if a > 0 else 1
+    prev = np.zeros(u.shape[1:])
+    for s in range(0, len(u), L):
+        blk = u[s:s + L]
+        p = a ** np.arange(len(blk), dtype=float)[:, None]
+        y[s:s + L] = p * (a * prev + np.cumsum(blk / p, axis=0))
+        prev = y[s + len(blk) - 1]
+    return y
 
 
 class SimulatedDriver(Driver):

@@ -25,8 +25,14 @@ The sensor chain, in order (each stage only when its effect is enabled):
    gain linear + quadratic in ``T - t_ref_c``
 5. drift                + offset random walk and exponential warm-up (time since power-up)
 6. settling             + ``fraction * (step of f) * exp(-(t - t_step) / tau_s)`` after each change
-7. noise                + white, ``density * sqrt(ENBW)``; ENBW = ODR/2 (MMA8451) or
-                        min(ODR/2, DLPF bandwidth) (MPU6050); samples are independent
+7. noise                + ``density * sqrt(ENBW)`` per sample; ENBW = ODR/2 (MMA8451) or
+                        min(ODR/2, DLPF bandwidth) (MPU6050).  MPU6050: the DLPF makes the noise
+                        a one-pole low-pass process sampled at the ODR, lag-k autocorrelation
+                        ``exp(-2 pi f_c k / ODR)`` (f_c the DLPF_CFG bandwidth), and the signal
+                        lags by the data sheet's DLPF delay.  MMA8451: the oversampling mode
+                        (CTRL_REG2 MODS) averages OSR conversions per output sample in
+                        non-overlapping blocks: independent samples, density scaled by
+                        sqrt(OSR_normal / OSR_mode) (``ChipSpec.noise_scale``)
 8. counts               ``* counts_per_g`` (the chip's nominal sensitivity at its range)
 9. saturation           clip at the chip's code range (``full_scale_fraction`` of it)
 10. quantization        round to multiples of ``lsb_counts`` (integer counts)
@@ -76,6 +82,9 @@ class ChipSpec:
     odr_base_dlpf0_hz: float | None = None
     odr_max_hz: float = 1000.0
     dlpf_hz: tuple[float, ...] | None = None
+    dlpf_delay_ms: tuple[float, ...] | None = None
+    # MMA8451 CTRL_REG2 MODS: oversampling ratio per mode at each odr_hz (same order)
+    oversampling: dict[str, tuple[int, ...]] | None = None
     default_range_g: int = 2
     default_odr_hz: float = 100.0
     default_dlpf: int | None = None
@@ -129,16 +138,45 @@ class ChipSpec:
             bw = min(bw, self.dlpf_hz[dlpf])
         return bw
 
+    def noise_lag1(self, odr_hz: float, dlpf: int | None = None) -> float:
+        """Lag-1 autocorrelation of the output noise: a one-pole low-pass of bandwidth f_c sampled
+        every 1/ODR has rho_1 = exp(-2 pi f_c / ODR) (the DLPF); 0 without a DLPF."""
+        if self.dlpf_hz is None or dlpf is None:
+            return 0.0
+        return float(np.exp(-2.0 * np.pi * self.dlpf_hz[dlpf] / odr_hz))
+
+    def delay_s(self, dlpf: int | None = None) -> float:
+        """The DLPF's signal delay (MPU-6000/6050 register map, CONFIG table), s; 0 without one."""
+        if self.dlpf_delay_ms is None or dlpf is None:
+            return 0.0
+        return 1e-3 * self.dlpf_delay_ms[dlpf]
+
+    def noise_scale(self, odr_hz: float, mode: str | None) -> float:
+        """Noise density relative to normal mode at this ODR: sqrt(OSR_normal / OSR_mode)
+        (averaging OSR conversions divides the noise variance by OSR); 1 without modes."""
+        if self.oversampling is None or mode is None or self.odr_hz is None:
+            return 1.0
+        if mode not in self.oversampling:
+            raise ConfigError(f"oversampling: {mode!r}; allowed: {', '.join(self.oversampling)}")
+        i = int(np.argmin([abs(r - odr_hz) for r in self.odr_hz]))
+        return float(np.sqrt(self.oversampling["normal"][i] / self.oversampling[mode][i]))
+
 
 CHIPS: dict[str, ChipSpec] = {
     # MMA8451Q datasheet: 14-bit, 4096 counts/g at 2 g, 99 ug/sqrt(Hz), no temperature sensor
     "mma8451": ChipSpec("mma8451", 0x1A, 14, (2, 4, 8), 4096.0, 99.0, False,
                         odr_hz=(800.0, 400.0, 200.0, 100.0, 50.0, 12.5, 6.25, 1.5625),
+                        # data sheet, CTRL_REG2 MODS oversampling ratios per ODR (800 .. 1.56 Hz)
+                        oversampling={"normal": (2, 4, 4, 4, 4, 4, 4, 4),
+                                      "low_noise_low_power": (2, 4, 4, 4, 4, 4, 4, 4),
+                                      "high_resolution": (2, 4, 8, 16, 32, 128, 256, 1024),
+                                      "low_power": (2, 4, 2, 2, 2, 2, 2, 2)},
                         default_odr_hz=100.0),
     # MPU-6050 datasheet: 16-bit, 16384 LSB/g at 2 g, 400 ug/sqrt(Hz), DLPF_CFG 0..6
     "mpu6050": ChipSpec("mpu6050", 0x68, 16, (2, 4, 8, 16), 16384.0, 400.0, True,
                         odr_base_hz=1000.0, odr_base_dlpf0_hz=8000.0,
                         dlpf_hz=(260.0, 184.0, 94.0, 44.0, 21.0, 10.0, 5.0),
+                        dlpf_delay_ms=(0.0, 2.0, 3.0, 4.9, 8.5, 13.8, 19.0),
                         default_odr_hz=100.0, default_dlpf=3),
 }
 

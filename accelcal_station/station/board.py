@@ -162,11 +162,11 @@ class BoardSteps:
             c = gc.capture
             pitch, roll = self.chip_angles(pose)
             records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, self.mount @ pose.reference_g,
-                                      pitch, roll, c.temp_c, c.dropped, c.t_start, c.t_end))
+                                      pitch, roll, c.temp_c, c.dropped, c.t_start, c.t_end, c.n_eff))
             retries.append(tries + gc.recaptures)
             sem_mg = c.sem_counts / driver.counts_per_g * 1e3
             rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
-                              "sem_mg": sem_mg.tolist(), "retries": tries + gc.recaptures,
+                              "sem_mg": sem_mg.tolist(), "n_eff": _n_eff(c), "retries": tries + gc.recaptures,
                               "reached_target": gc.reached_target})
             self.echo(f"  n={c.n} sem={np.max(sem_mg):.3f} mg" + ("" if gc.reached_target else " (time limit)"))
             if self.progress:
@@ -355,3 +355,8 @@ class BoardSteps:
             t["board_time_s"] = t["device_time_s"] + (0.0 if clock.realtime else t["host_compute_s"])
         return t
 
+
+
+def _n_eff(c: Capture) -> list[float]:
+    """A capture's effective sample count per axis for the report (n when it was not measured)."""
+    return [float(c.n)] * 3 if c.n_eff is None else np.round(c.n_eff, 1).tolist()

@@ -9,8 +9,9 @@ the edge of the threshold does not flicker between still and moving:
                 for hold_s seconds (k_enter = 4.5: a still board of 3 axes fails a block ~2e-5 of the time)
   leave still:  either quantity beyond k_leave * (same bound)     (k_leave > k_enter)
 
-Averaging is adaptive: it stops once every axis's standard error of the mean is
-below ``target_sem_mg`` (and at least ``min_samples`` are in), or at ``max_s``.
+Averaging is adaptive: it stops once every axis's standard error of the mean,
+std / sqrt(n_eff) with n_eff = n / tau_int from the samples' own autocorrelation
+(effective_samples.py: Sokal's window, c = 5), is below ``target_sem_mg`` (and at least ``min_samples`` are in), or at ``max_s``.
 Motion while averaging discards the average and starts over (a re-capture).
 """
 from __future__ import annotations
@@ -25,6 +26,7 @@ from numpy.typing import ArrayLike
 
 from ..conventions import angle_deg, fit_mount, mount_hint, nearest_face
 from ..drivers.base import Capture, Driver
+from ..effective_samples import effective_n
 from ..errors import DeviceError
 
 log = logging.getLogger(__name__)
@@ -155,7 +157,7 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
         dropped += d
         n = sum(len(a) for a in acc)
         allc = np.concatenate(acc)
-        sem = allc.std(axis=0, ddof=1) / np.sqrt(n)
+        sem = allc.std(axis=0, ddof=1) / np.sqrt(effective_n(allc))
         elapsed = float(ts[-1][-1] - ts[0][0])
         if progress is not None:
             progress(min(1.0, max(elapsed / s.max_s, float(np.min(target / np.maximum(sem, 1e-12))) ** 2)))

@@ -21,7 +21,8 @@ class PoseSummary(TypedDict, total=False):
     pose: str
     n: int  # samples averaged
     mean_counts: list[float]
-    sem_mg: list[float]  # standard error of the mean per axis, mg
+    sem_mg: list[float]  # standard error of the mean per axis, mg: std / sqrt(n_eff)
+    n_eff: list[float]  # effective sample count per axis, n / tau_int (correlated samples)
     retries: int
     reached_target: bool  # the SEM target was met before capture.max_s
     set_point_c: float
