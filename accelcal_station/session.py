@@ -25,7 +25,7 @@ class PoseRecord:
     n: samples averaged; reference_g: (3,) expected output in g (what the chip
     reads: +1 g on the axis pointing up; AN4399 Eqn 22 of the angles), None for reference-free (model 9) data;
     pitch_deg/roll_deg: the commanded AN4399 angles when known; n_eff: (3,) effective sample count per
-    axis (n / tau_int, correlated samples: effective_samples.py) when the capture measured it, else n is used.
+    axis (n / tau_int, correlated samples: models/effective_samples.py) when the capture measured it, else n is used.
     """
 
     name: str

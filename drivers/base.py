@@ -13,9 +13,9 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..effective_samples import effective_n
 from ..errors import DeviceError
 from ..jsontypes import JsonObject
+from ..models.effective_samples import effective_n
 from .self_test import SelfTestResult
 
 
@@ -57,7 +57,7 @@ class Capture:
     t_start, t_end: timestamps (s) of the first and last sample;
     samples, timestamps: the raw stream when kept;
     n_eff: (3,) effective sample count per axis, n / tau_int from the samples' own autocorrelation
-    (accelcal_station/effective_samples.py); None: taken as n (independent samples).
+    (accelcal_station/models/effective_samples.py); None: taken as n (independent samples).
     """
 
     mean_counts: np.ndarray

@@ -42,6 +42,7 @@ from ..config.kinds import Effects, PopulationSpec, SimEepromSection, SimulatedB
 from ..config.parts import parse
 from ..conventions import WORLD_UP, attitude_for_up, mount_matrix, pose_attitude
 from ..errors import ConfigError, DeviceError
+from ..sim.chip_noise import FilteredNoise
 from ..sim.population import parse_population
 from ..sim.sensor_model import SensorModel, get_chip, rotation_matrix
 from .base import Driver, Identity
@@ -164,8 +165,7 @@ class SimulatedBoard:
         self._t_settle = self._t_power
         self._walk = np.zeros(3)  # drift random-walk state at time _t_walk
         self._t_walk = self._t_power
-        self._noise = np.zeros(3)  # the DLPF's noise state (g) at time _t_noise (None: no sample yet)
-        self._t_noise: float | None = None
+        self._noise = FilteredNoise()  # the DLPF's noise state
         self._f_prev, self._t_change = self._f.copy(), -np.inf  # the force before the last change (DLPF delay)
         self.oversampling: str | None = None  # MMA8451 CTRL_REG2 MODS (None: normal)
         self._disturbances: list[tuple[float, float, float, np.ndarray]] = []
@@ -346,20 +346,9 @@ class SimulatedBoard:
         return t
 
     def _noise_at(self, t: np.ndarray) -> np.ndarray:
-        """Noise (g) at sample times t: stationary AR(1) with rho_1 = a per ODR step (sensor_model
-        stage 7), carried on from the previous sample; white (the same draws) when a = 0."""
+        """Noise (g) at sample times t (sim/chip_noise.py; white, the same draws, without a DLPF)."""
         e = self._rng_noise.standard_normal((len(t), 3)) * self.noise_sigma_g
-        a = self.noise_lag1
-        if a <= 0.0:
-            return e
-        # the state decays over the gap since the last sample: a^m for m ODR steps (exact AR(1))
-        m = np.inf if self._t_noise is None else max((float(t[0]) - self._t_noise) * self.odr_hz, 1.0)
-        am = a**m
-        e[0] = am * self._noise + np.sqrt(1.0 - am * am) * e[0]
-        e[1:] *= np.sqrt(1.0 - a * a)
-        y = ar1(e, a)
-        self._noise, self._t_noise = y[-1].copy(), float(t[-1])
-        return y
+        return self._noise.draw(e, t, self.noise_lag1, self.odr_hz)
 
     def _sample(self, t: np.ndarray, G: np.ndarray, settle: np.ndarray) -> np.ndarray:
         x = G + self._drift(t) + settle
@@ -425,21 +414,6 @@ class SimulatedBoard:
             self._settle, self._t_settle = settle[-1].copy(), float(t[-1])
         self._dir, self._f = d[-1].copy(), f[-1].copy()
         return self._sample(t, self.model.response_g(f, self.temperature_c), settle), t
-
-
-def ar1(u: np.ndarray, a: float) -> np.ndarray:
-    """y_k = a y_{k-1} + u_k along axis 0 (y_0 = u_0), vectorised: within blocks short enough that
-    a^-L stays small, y_{s+i} = a^i (y_s + sum_{j<=i} a^-j u_{s+j}); no scipy import in a bridge thread."""
-    y = np.empty_like(u)
-    # a^-L up to 1e260: the early terms a scaled-up cumsum rounds away are below eps of the late ones
-    L = max(1, min(len(u), int(-600.0 / np.log(a)))) if a > 0 else 1
-    prev = np.zeros(u.shape[1:])
-    for s in range(0, len(u), L):
-        blk = u[s:s + L]
-        p = a ** np.arange(len(blk), dtype=float)[:, None]
-        y[s:s + L] = p * (a * prev + np.cumsum(blk / p, axis=0))
-        prev = y[s + len(blk) - 1]
-    return y
 
 
 class SimulatedDriver(Driver):

@@ -213,11 +213,8 @@ def test_gravity_scales_the_true_force():
 
 # Noise floor: block means of n samples; 800 blocks give the std a relative sd of 2.5 %,
 # so the 12 % tolerance is 4.8 sd (false failure about 2e-6 per check, 3e-5 for all 18).
-# The MPU6050's DLPF makes its noise a one-pole low-pass process (issue 48): lag-k autocorrelation
-# a^k, a = exp(-2 pi f_c / ODR) with the data sheet's bandwidth f_c, so a block mean of n samples has
-# variance sigma^2 / n * (1 + 2 sum_k (1 - k/n) a^k); with a = 0.76 (44 Hz at 1 kHz) single samples
-# are correlated and their std over 800 has a relative sd of sqrt((1 + a^2) / (1 - a^2) / 1600) = 5.3 %:
-# a 25 % tolerance there is 4.7 sd.  (Before issue 48 this test asserted sigma / sqrt(n), independent samples.)
+# MPU6050 DLPF (issue 48): one-pole, rho_k = a^k = exp(-2 pi f_c k / ODR), block-mean variance sigma^2 / n
+# (1 + 2 sum (1 - k/n) a^k); single samples, a = 0.76: std of 800 has relative sd 5.3 %, 25 % is 4.7 sd.
 @pytest.mark.parametrize("chip, odr, dlpf, enbw", [("mma8451", 100, None, 50.0), ("mma8451", 800, None, 400.0),
                                                    ("mpu6050", 1000, 3, 44.0)])
 def test_noise_floor_matches_density_and_bandwidth(chip, odr, dlpf, enbw):
@@ -229,10 +226,9 @@ def test_noise_floor_matches_density_and_bandwidth(chip, odr, dlpf, enbw):
     for n in (1, 16, 256):
         counts, _ = b.read(800 * n)
         means = np.asarray(counts).reshape(800, n, 3).mean(axis=1)
-        k = np.arange(1, n)
-        factor = 1 + 2 * np.sum((1 - k / n) * a**k)
-        rtol = 0.25 if (a and n == 1) else 0.12
-        np.testing.assert_allclose(means.std(axis=0, ddof=1), sigma_counts * np.sqrt(factor / n), rtol=rtol)
+        factor = 1 + 2 * np.sum((1 - np.arange(1, n) / n) * a ** np.arange(1, n))
+        np.testing.assert_allclose(means.std(axis=0, ddof=1), sigma_counts * np.sqrt(factor / n),
+                                   rtol=0.25 if (a and n == 1) else 0.12)
 
 
 def test_quantization_gives_integer_counts_in_lsb_steps():

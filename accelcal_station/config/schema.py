@@ -85,7 +85,8 @@ class CaptureSection(Section):
     k_enter: float = _f(4.5, "still: block std and mean change within k_enter x the noise floor", ge=0, le=1000)
     k_leave: float = _f(7.0, "moving again beyond k_leave x the floor (hysteresis; >= k_enter)", ge=0, le=1000)
     hold_s: float = _f(0.3, "the board must be still this long before averaging starts, s", ge=0, le=600)
-    target_sem_mg: float = _f(0.05, "stop averaging when every axis's standard error is below this, mg",
+    target_sem_mg: float = _f(0.05, "stop averaging when every axis's standard error std / sqrt(n_eff) is "
+                              "below this, mg (n_eff = n / tau_int, docs/correlated-samples.md)",
                               ge=0, le=1000)
     min_samples: int = _f(32, "fewest samples averaged per pose", gt=0, le=10_000_000)
     max_s: float = _f(20.0, "longest averaging per pose, s", gt=0, le=86_400)

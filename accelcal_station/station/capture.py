@@ -5,13 +5,18 @@ smallest per-axis block standard deviation seen so far, seeded from the first
 blocks), with a hold time before averaging starts and hysteresis so a board at
 the edge of the threshold does not flicker between still and moving:
 
-  enter still:  block std <= k_enter * floor  and  |block mean - previous| <= k_enter * floor * sqrt(2 / n_block)
+  enter still:  block std <= k_enter * floor  and  |block mean - previous| <= k_enter * jump_floor
                 for hold_s seconds (k_enter = 4.5: a still board of 3 axes fails a block ~2e-5 of the time)
   leave still:  either quantity beyond k_leave * (same bound)     (k_leave > k_enter)
 
+``jump_floor`` is floor * sqrt(2 / n_block) for independent samples; correlated samples (a chip's
+low-pass filter) scatter block means more than that, so once eight block-mean changes are in it is
+at least their own robust spread (25th percentile of |change| / 0.3186, the half-normal's).
+
 Averaging is adaptive: it stops once every axis's standard error of the mean,
 std / sqrt(n_eff) with n_eff = n / tau_int from the samples' own autocorrelation
-(effective_samples.py: Sokal's window, c = 5), is below ``target_sem_mg`` (and at least ``min_samples`` are in), or at ``max_s``.
+(models/effective_samples.py: Sokal's window, c = 5), is below ``target_sem_mg`` (and at least
+``min_samples`` are in), or at ``max_s``.
 Motion while averaging discards the average and starts over (a re-capture).
 """
 from __future__ import annotations
@@ -26,8 +31,8 @@ from numpy.typing import ArrayLike
 
 from ..conventions import angle_deg, fit_mount, mount_hint, nearest_face
 from ..drivers.base import Capture, Driver
-from ..effective_samples import effective_n
 from ..errors import DeviceError
+from ..models.effective_samples import effective_n
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +65,9 @@ class GatedCapture:
     events: list[str] = field(default_factory=list)
 
 
+HALF_NORMAL_Q25 = 0.31863936396437514  # 25th percentile of |Z|, Z standard normal
+
+
 @lru_cache(maxsize=64)
 def _chi_quartile(n: int) -> float:
     """25th percentile of s / sigma for n samples: chi with n - 1 dof, by the
@@ -84,6 +92,7 @@ class StillnessGate:
         # counts per axis; without a seed it is measured from the first block on (nan until then)
         self.floor: np.ndarray = self.seed if self.seed is not None else np.full(3, np.nan)
         self.history: list[np.ndarray] = []
+        self.jumps: list[np.ndarray] = []  # |change of the block mean| per axis, the last 64 blocks
         self.prev_mean: np.ndarray | None = None
         self.still = False
         self.still_since: float | None = None
@@ -99,9 +108,14 @@ class StillnessGate:
             # quantisation can make a quiet axis read std 0: never let the floor reach zero
             self.floor = np.maximum(est, 0.3)
         jump = np.zeros(3) if self.prev_mean is None else np.abs(mean - self.prev_mean)
+        if self.prev_mean is not None:
+            self.jumps = (self.jumps + [jump])[-64:]
         self.prev_mean = mean
         k = self.s.k_leave if self.still else self.s.k_enter
-        ok = bool(np.all(std <= k * self.floor) and np.all(jump <= k * self.floor * np.sqrt(2.0 / n) + 1.0))
+        jump_floor = self.floor * np.sqrt(2.0 / n)
+        if len(self.jumps) >= 8:  # correlated samples: the block means' own spread
+            jump_floor = np.maximum(jump_floor, np.percentile(np.array(self.jumps), 25, axis=0) / HALF_NORMAL_Q25)
+        ok = bool(np.all(std <= k * self.floor) and np.all(jump <= k * jump_floor + 1.0))
         if ok and not self.still:
             if self.still_since is None:
                 self.still_since = t_end
