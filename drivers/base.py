@@ -202,6 +202,11 @@ class Driver(ABC):
         """Chip temperature in C, or None when the chip has no sensor."""
         return None
 
+    def noise_lag1(self) -> float:
+        """Lag-1 autocorrelation of the output noise its configured filter gives (a one-pole low-pass
+        of the data sheet's bandwidth f_c at the ODR: exp(-2 pi f_c / ODR)); 0: independent samples."""
+        return 0.0
+
     def settings(self) -> JsonObject:
         """Chip-specific settings for display (``accelcal probe``); none by default."""
         return {}

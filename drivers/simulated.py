@@ -245,10 +245,7 @@ class SimulatedBoard:
         """Per-sample noise standard deviation in g: density (scaled by the oversampling mode) * sqrt(ENBW)."""
         return self.model.noise_sigma_g(self.odr_hz, self.dlpf) * self.chip.noise_scale(self.odr_hz, self.oversampling)
 
-    @property
-    def noise_lag1(self) -> float:
-        """Lag-1 autocorrelation of the noise at the current setting (sensor_model stage 7)."""
-        return self.chip.noise_lag1(self.odr_hz, self.dlpf)
+    noise_lag1 = property(lambda self: self.chip.noise_lag1(self.odr_hz, self.dlpf), doc="noise rho_1 (stage 7)")
 
     def truth(self, temp_c: float | None = None) -> Calibration:
         """The exact AN4399 calibration at temp_c (default: the die temperature now)."""
@@ -468,6 +465,9 @@ class SimulatedDriver(Driver):
 
     def temperature_c(self) -> float | None:
         return self.board.temperature_c if self.board.chip.has_temperature else None
+
+    def noise_lag1(self) -> float:
+        return float(self.board.noise_lag1)
 
     @property
     def nvm(self) -> EEPROM24:

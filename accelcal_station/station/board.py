@@ -93,7 +93,7 @@ class BoardSteps:
         while True:
             attempts += 1
             live = jig.shows_live_reading and self.live_reading
-            jig.present(pose, self._live(driver, StillnessGate(s, floor)) if live else None)
+            jig.present(pose, self._live(driver, StillnessGate(s, floor, driver.noise_lag1())) if live else None)
             bar = self._capture_sink(f"  capturing {pose.name}")
             try:
                 gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar)

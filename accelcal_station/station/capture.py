@@ -9,9 +9,12 @@ the edge of the threshold does not flicker between still and moving:
                 for hold_s seconds (k_enter = 4.5: a still board of 3 axes fails a block ~2e-5 of the time)
   leave still:  either quantity beyond k_leave * (same bound)     (k_leave > k_enter)
 
-``jump_floor`` is floor * sqrt(2 / n_block) for independent samples; correlated samples (a chip's
-low-pass filter) scatter block means more than that, so once eight block-mean changes are in it is
-at least their own robust spread (25th percentile of |change| / 0.3186, the half-normal's).
+``jump_floor`` is floor * sqrt(2 / n_block) for independent samples.  A chip's low-pass filter
+(``Driver.noise_lag1``: rho_k = a^k) widens it: a block mean's variance is sigma^2 F / n with
+F = 1 + 2 sum_k (1 - k/n) a^k, and the within-block std reads sigma sqrt((n - F) / (n - 1)), so
+jump_floor = floor sqrt((n - 1) / (n - F)) sqrt(2 F / n) (the positive correlation of adjacent
+block means is left out: the bound errs wide).  From the configured filter, not from the data,
+so steady motion cannot widen it.
 
 Averaging is adaptive: it stops once every axis's standard error of the mean,
 std / sqrt(n_eff) with n_eff = n / tau_int from the samples' own autocorrelation
@@ -65,7 +68,13 @@ class GatedCapture:
     events: list[str] = field(default_factory=list)
 
 
-HALF_NORMAL_Q25 = 0.31863936396437514  # 25th percentile of |Z|, Z standard normal
+def jump_factor(n: int, a: float) -> float:
+    """jump_floor / floor for blocks of n samples with lag-1 correlation a (module docstring)."""
+    if a <= 0.0 or n < 2:
+        return float(np.sqrt(2.0 / max(n, 1)))
+    k = np.arange(1, n)
+    F = 1.0 + 2.0 * float(np.sum((1.0 - k / n) * a**k))
+    return float(np.sqrt((n - 1) / max(n - F, 1.0)) * np.sqrt(2.0 * F / n))
 
 
 @lru_cache(maxsize=64)
@@ -86,13 +95,13 @@ class StillnessGate:
     previous pose is used until eight blocks of this one are in.
     """
 
-    def __init__(self, settings: CaptureSettings, floor_counts: np.ndarray | None = None):
+    def __init__(self, settings: CaptureSettings, floor_counts: np.ndarray | None = None, lag1: float = 0.0):
         self.s = settings
+        self.lag1 = float(lag1)
         self.seed = None if floor_counts is None else np.asarray(floor_counts, dtype=float)
         # counts per axis; without a seed it is measured from the first block on (nan until then)
         self.floor: np.ndarray = self.seed if self.seed is not None else np.full(3, np.nan)
         self.history: list[np.ndarray] = []
-        self.jumps: list[np.ndarray] = []  # |change of the block mean| per axis, the last 64 blocks
         self.prev_mean: np.ndarray | None = None
         self.still = False
         self.still_since: float | None = None
@@ -108,13 +117,9 @@ class StillnessGate:
             # quantisation can make a quiet axis read std 0: never let the floor reach zero
             self.floor = np.maximum(est, 0.3)
         jump = np.zeros(3) if self.prev_mean is None else np.abs(mean - self.prev_mean)
-        if self.prev_mean is not None:
-            self.jumps = (self.jumps + [jump])[-64:]
         self.prev_mean = mean
         k = self.s.k_leave if self.still else self.s.k_enter
-        jump_floor = self.floor * np.sqrt(2.0 / n)
-        if len(self.jumps) >= 8:  # correlated samples: the block means' own spread
-            jump_floor = np.maximum(jump_floor, np.percentile(np.array(self.jumps), 25, axis=0) / HALF_NORMAL_Q25)
+        jump_floor = self.floor * jump_factor(n, self.lag1)
         ok = bool(np.all(std <= k * self.floor) and np.all(jump <= k * jump_floor + 1.0))
         if ok and not self.still:
             if self.still_since is None:
@@ -137,7 +142,7 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
     """
     s = settings
     block_n = max(4, int(round(s.block_s * driver.odr_hz)))
-    gate = StillnessGate(s, floor_counts)
+    gate = StillnessGate(s, floor_counts, driver.noise_lag1())
     target = s.target_sem_mg * 1e-3 * driver.counts_per_g
     events: list[str] = []
     recaptures = 0
@@ -190,7 +195,7 @@ def wait_still(driver: Driver, settings: CaptureSettings) -> int:
     read.  A board not still after ``settle_timeout_s`` is a DeviceError naming its noise floor."""
     s = settings
     block_n = max(4, int(round(s.block_s * driver.odr_hz)))
-    gate = StillnessGate(s)
+    gate = StillnessGate(s, lag1=driver.noise_lag1())
     read = 0
     t_first = None
     while True:
