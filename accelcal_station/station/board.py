@@ -42,6 +42,7 @@ from .report import RunReport, Timing
 from .self_test_step import self_test_step
 from .settings import StationConfig
 from .verdict import Stage
+from .warmup import warmup_step
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
@@ -139,6 +140,7 @@ class BoardSteps:
     def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
         """The chip's built-in self-test once, before the poses (station/self_test_step.py).  True: the
         poses may follow.  Device errors propagate."""
+        self.samples_read += warmup_step(driver, self.cfg, rep, self.echo)  # a settled offset first
         ok, read = self_test_step(driver, self.cfg, rep, self.echo)
         self.samples_read += read
         return ok

@@ -53,6 +53,7 @@ class CaptureSettings:
     pose_tolerance_deg: float = 12.0
     max_recaptures: int = 3
     self_test_samples: int = 64  # averaged in each self-test state (station/board.py _self_test)
+    warmup: dict[str, object] | None = None  # config.schema WarmupSection's fields (station/warmup.py)
 
 
 @dataclass
