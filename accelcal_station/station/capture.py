@@ -69,6 +69,9 @@ class GatedCapture:
     events: list[str] = field(default_factory=list)
 
 
+MIN_TAUS = 50  # samples a capture spans, in integrated autocorrelation times, before it may stop
+
+
 def jump_factor(n: int, a: float) -> float:
     """jump_floor / floor for blocks of n samples with lag-1 correlation a (module docstring)."""
     if a <= 0.0 or n < 2:
@@ -177,11 +180,13 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
         dropped += d
         n = sum(len(a) for a in acc)
         allc = np.concatenate(acc)
-        sem = allc.std(axis=0, ddof=1) / np.sqrt(effective_n(allc))
+        n_eff = effective_n(allc)
+        sem = allc.std(axis=0, ddof=1) / np.sqrt(n_eff)
         elapsed = float(ts[-1][-1] - ts[0][0])
         if progress is not None:
             progress(min(1.0, max(elapsed / s.max_s, float(np.min(target / np.maximum(sem, 1e-12))) ** 2)))
-        reached = bool(np.all(sem <= target)) and n >= s.min_samples
+        # tau_int from a capture of a few tau reads low (Sokal's window bias ~ tau / n): at least MIN_TAUS x tau
+        reached = bool(np.all(sem <= target)) and n >= max(s.min_samples, MIN_TAUS * float(np.max(n / n_eff)))
         if reached or elapsed >= s.max_s:
             cap = Capture.from_samples(allc, np.concatenate(ts), dropped, driver.temperature_c(), keep)
             if expected_g is not None:
