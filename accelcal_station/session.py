@@ -24,7 +24,8 @@ class PoseRecord:
     mean: (3,) averaged reading in the session's units; std: (3,) per-sample std;
     n: samples averaged; reference_g: (3,) expected output in g (what the chip
     reads: +1 g on the axis pointing up; AN4399 Eqn 22 of the angles), None for reference-free (model 9) data;
-    pitch_deg/roll_deg: the commanded AN4399 angles when known.
+    pitch_deg/roll_deg: the commanded AN4399 angles when known; n_eff: (3,) effective sample count per
+    axis (n / tau_int, correlated samples: models/effective_samples.py) when the capture measured it, else n is used.
     """
 
     name: str
@@ -38,6 +39,7 @@ class PoseRecord:
     dropped: int = 0
     t_start: float | None = None
     t_end: float | None = None
+    n_eff: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.mean = _vec3(self.mean)
@@ -214,7 +216,7 @@ class Session:
         for p in self.poses:
             if p.std is None or not p.n:
                 return None
-            se.append(p.std / np.sqrt(p.n))
+            se.append(p.std / np.sqrt(p.n if p.n_eff is None else np.maximum(p.n_eff, 1.0)))
         return np.array(se) if se else None
 
     def noise_g(self) -> np.ndarray | None:

@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import DeviceError
 from ..jsontypes import JsonObject
+from ..models.effective_samples import effective_n
 from .self_test import SelfTestResult
 
 
@@ -54,7 +55,9 @@ class Capture:
     n: samples averaged; dropped: samples the device lost (overrun, sequence gap);
     temp_c: chip temperature (None when the chip has no sensor);
     t_start, t_end: timestamps (s) of the first and last sample;
-    samples, timestamps: the raw stream when kept.
+    samples, timestamps: the raw stream when kept;
+    n_eff: (3,) effective sample count per axis, n / tau_int from the samples' own autocorrelation
+    (accelcal_station/models/effective_samples.py); None: taken as n (independent samples).
     """
 
     mean_counts: np.ndarray
@@ -66,11 +69,14 @@ class Capture:
     t_end: float = 0.0
     samples: np.ndarray | None = field(default=None, repr=False)
     timestamps: np.ndarray | None = field(default=None, repr=False)
+    n_eff: np.ndarray | None = None
 
     @property
     def sem_counts(self) -> np.ndarray:
-        """Standard error of the mean per axis, in counts."""
-        return self.std_counts / np.sqrt(max(self.n, 1))
+        """Standard error of the mean per axis, in counts: std / sqrt(n_eff)."""
+        if self.n_eff is None:
+            return self.std_counts / np.sqrt(max(self.n, 1))
+        return self.std_counts / np.sqrt(np.maximum(self.n_eff, 1.0))
 
     @classmethod
     def from_samples(cls, samples: ArrayLike, timestamps: ArrayLike, dropped: int = 0, temp_c: float | None = None,
@@ -86,6 +92,7 @@ class Capture:
             t_start=float(t[0]), t_end=float(t[-1]),
             samples=np.asarray(samples) if keep else None,
             timestamps=t if keep else None,
+            n_eff=effective_n(s),
         )
 
 
@@ -194,6 +201,11 @@ class Driver(ABC):
     def temperature_c(self) -> float | None:
         """Chip temperature in C, or None when the chip has no sensor."""
         return None
+
+    def noise_lag1(self) -> float:
+        """Lag-1 autocorrelation of the output noise its configured filter gives (a one-pole low-pass
+        of the data sheet's bandwidth f_c at the ODR: exp(-2 pi f_c / ODR)); 0: independent samples."""
+        return 0.0
 
     def settings(self) -> JsonObject:
         """Chip-specific settings for display (``accelcal probe``); none by default."""

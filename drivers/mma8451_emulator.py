@@ -19,8 +19,8 @@ ACTIVE bit, XYZ_DATA_CFG, HP_FILTER_CUTOFF, CTRL_REG2 except RST, OFF_X/Y/Z); ST
 cleared by reading that axis's MSB; 14-bit left-justified output with the OFF_X/Y/Z trim added
 (1/512 g per LSB, the data sheet's "2 mg", written here, not taken from the driver) and clipped to the
 14-bit range; CTRL_REG2 ST adds this chip's self-test response (typical +181/+255/+1680 LSB at 4 g,
-spread 10 % per chip).  MODS (oversampling) is stored but does not
-change the noise, which is the simulator's ``noise`` effect.
+spread 10 % per chip).  MODS (oversampling) sets the board's oversampling mode when the chip goes
+ACTIVE: the noise density scales as sqrt(OSR_normal / OSR_mode) (sim/sensor_model.py stage 7).
 
 Faults for tests: :meth:`nack_next`, :meth:`nack_every`, ``never_ready``, :meth:`force_overrun`,
 :meth:`self_test_faults` (a weak axis, a dead self-test), :meth:`trim_fault` (another trim step or sign),
@@ -48,10 +48,12 @@ from .mma8451 import (
     CTRL1_ACTIVE,
     CTRL1_DR_MASK,
     CTRL1_DR_SHIFT,
+    CTRL2_MODS_MASK,
     CTRL2_RST,
     CTRL_REG1,
     CTRL_REG2,
     FS_MASK,
+    MODS,
     ODR_HZ,
     OFF_X,
     OFF_Z,
@@ -315,7 +317,8 @@ class MMA8451Emulator:
 
     # --- time and samples -----------------------------------------------------------------
     def _start_sampling(self) -> None:
-        self.board.configure(range_g=self.chip.range_g, odr_hz=self.chip.odr_hz)
+        mods = {v: k for k, v in MODS.items()}[self.chip.regs[CTRL_REG2] & CTRL2_MODS_MASK]
+        self.board.configure(range_g=self.chip.range_g, odr_hz=self.chip.odr_hz, oversampling=mods)
         self._grid0 = self.board.clock.now()  # configure() restarts the board's ODR grid now
 
     def _advance(self, dt: float) -> None:

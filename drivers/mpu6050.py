@@ -392,12 +392,24 @@ class MPU6050Bridge(Driver):
         the factory trim FT from SELF_TEST_X/Y/Z/A: (STR - FT) / FT within +-14 % (product spec 6.1)."""
         if not 4 <= int(n) <= bp.SELF_TEST_MAX_N:
             raise ConfigError(f"self-test samples {n!r}; allowed: 4 to {bp.SELF_TEST_MAX_N}")
-        off, var_off, regs = self._self_test_phase(False, int(n))
-        on, var_on, _ = self._self_test_phase(True, int(n))
+        try:  # ACCEL_CONFIG read back afterwards, also on an error
+            (off, var_off, regs), (on, var_on, _) = (self._self_test_phase(v, int(n)) for v in (False, True))
+        finally:
+            self._check_range_restored()
         ft = factory_trim_counts(regs)
         sem = np.sqrt((var_off + var_on) / int(n))
         return judge_against_trim("mpu6050", on - off, sem, COUNTS_PER_G[8], ft, SELF_TEST_TOLERANCE, int(n), 8,
                                   SELF_TEST_SOURCE)
+
+    def noise_lag1(self) -> float:  # the DLPF: a one-pole low-pass of its CONFIG-table bandwidth at the ODR
+        return float(np.exp(-2.0 * np.pi * DLPF_BANDWIDTH_HZ[self._dlpf] / self._odr_hz))
+
+    def _check_range_restored(self) -> None:  # the firmware restores ACCEL_CONFIG: the run's range, no ST bits
+        got = self.read_register(ACCEL_CONFIG)[0]
+        want = AFS_SEL[self._range_g] << 3
+        if got & 0xF8 != want:
+            raise DeviceError(f"MPU6050 bridge on {self.port}: ACCEL_CONFIG 0x{got:02x} after the self-test, "
+                              f"the run's +-{self._range_g} g is 0x{want:02x}")
 
     def _self_test_phase(self, on: bool, n: int) -> tuple[np.ndarray, np.ndarray, bytes]:
         """One SELF_TEST phase: mean and variance per axis (counts at +-8 g), the SELF_TEST registers."""

@@ -42,6 +42,7 @@ from ..config.kinds import Effects, PopulationSpec, SimEepromSection, SimulatedB
 from ..config.parts import parse
 from ..conventions import WORLD_UP, attitude_for_up, mount_matrix, pose_attitude
 from ..errors import ConfigError, DeviceError
+from ..sim.chip_noise import FilteredNoise
 from ..sim.population import parse_population
 from ..sim.sensor_model import SensorModel, get_chip, rotation_matrix
 from .base import Driver, Identity
@@ -164,6 +165,9 @@ class SimulatedBoard:
         self._t_settle = self._t_power
         self._walk = np.zeros(3)  # drift random-walk state at time _t_walk
         self._t_walk = self._t_power
+        self._noise = FilteredNoise()  # the DLPF's noise state
+        self._f_prev, self._t_change = self._f.copy(), -np.inf  # the force before the last change (DLPF delay)
+        self.oversampling: str | None = None  # MMA8451 CTRL_REG2 MODS (None: normal)
         self._disturbances: list[tuple[float, float, float, np.ndarray]] = []
         c = self.chip
         self.configure(c.default_range_g, c.default_odr_hz, c.default_dlpf)
@@ -201,10 +205,15 @@ class SimulatedBoard:
         return board
 
     # -- configuration ----------------------------------------------------------------------
-    def configure(self, range_g: int, odr_hz: float, dlpf: int | None = None, path: str = "configure") -> None:
-        """Set full scale (g), output data rate (Hz) and, on the MPU6050, DLPF_CFG."""
+    def configure(self, range_g: int, odr_hz: float, dlpf: int | None = None, path: str = "configure",
+                  oversampling: str | None = None) -> None:
+        """Set full scale (g), output data rate (Hz) and, on the MPU6050, DLPF_CFG; on the MMA8451 the
+        oversampling mode (CTRL_REG2 MODS; None keeps the current one)."""
         range_g, odr_hz, dlpf = self.chip.check(range_g, odr_hz, dlpf, path)
         self.model.check_range(range_g)
+        if oversampling is not None:
+            self.chip.noise_scale(odr_hz, oversampling)  # refuses a mode the chip does not have
+            self.oversampling = oversampling
         self.range_g, self.odr_hz, self.dlpf = range_g, odr_hz, dlpf
         self._grid0 = self.clock.now()  # the ODR grid restarts with the new setting
 
@@ -228,8 +237,15 @@ class SimulatedBoard:
 
     @property
     def noise_sigma_counts(self) -> np.ndarray:
-        """Per-sample white-noise standard deviation in counts at the current setting."""
-        return self.model.noise_sigma_g(self.odr_hz, self.dlpf) * self.counts_per_g
+        """Per-sample noise standard deviation in counts at the current setting."""
+        return self.noise_sigma_g * self.counts_per_g
+
+    @property
+    def noise_sigma_g(self) -> np.ndarray:
+        """Per-sample noise standard deviation in g: density (scaled by the oversampling mode) * sqrt(ENBW)."""
+        return self.model.noise_sigma_g(self.odr_hz, self.dlpf) * self.chip.noise_scale(self.odr_hz, self.oversampling)
+
+    noise_lag1 = property(lambda self: self.chip.noise_lag1(self.odr_hz, self.dlpf), doc="noise rho_1 (stage 7)")
 
     def truth(self, temp_c: float | None = None) -> Calibration:
         """The exact AN4399 calibration at temp_c (default: the die temperature now)."""
@@ -290,6 +306,7 @@ class SimulatedBoard:
         n = np.linalg.norm(d)
         f_new = self.model.gravity_g() * d / n
         now = self.clock.now()
+        self._f_prev, self._t_change = self._f.copy(), now
         self._settle = self._settling_at(np.array([now]))[0] + self._settle_fraction() * (f_new - self._f)
         self._t_settle = now
         self._dir, self._f = d / n, f_new
@@ -325,10 +342,15 @@ class SimulatedBoard:
         self.clock.advance_to(float(t[-1]))
         return t
 
+    def _noise_at(self, t: np.ndarray) -> np.ndarray:
+        """Noise (g) at sample times t (sim/chip_noise.py; white, the same draws, without a DLPF)."""
+        e = self._rng_noise.standard_normal((len(t), 3)) * self.noise_sigma_g
+        return self._noise.draw(e, t, self.noise_lag1, self.odr_hz)
+
     def _sample(self, t: np.ndarray, G: np.ndarray, settle: np.ndarray) -> np.ndarray:
         x = G + self._drift(t) + settle
         if self.model.has("noise"):
-            x = x + self._rng_noise.standard_normal((len(t), 3)) * self.model.noise_sigma_g(self.odr_hz, self.dlpf)
+            x = x + self._noise_at(t)
         return self.model.to_counts(x, self.counts_per_g)
 
     def read(self, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -341,6 +363,9 @@ class SimulatedBoard:
         f = self._f[None]
         if self._disturbances:
             f = self._disturbed(t)
+        late = t < self._t_change + self.chip.delay_s(self.dlpf)  # the DLPF's delay: still the old force
+        if late.any():
+            f = np.where(late[:, None], self._f_prev[None], np.broadcast_to(f, (len(t), 3)))
         G = self.model.response_g(f, self.temperature_c)
         return self._sample(t, G, self._settling_at(t)), t
 
@@ -440,6 +465,9 @@ class SimulatedDriver(Driver):
 
     def temperature_c(self) -> float | None:
         return self.board.temperature_c if self.board.chip.has_temperature else None
+
+    def noise_lag1(self) -> float:
+        return float(self.board.noise_lag1)
 
     @property
     def nvm(self) -> EEPROM24:

@@ -169,10 +169,24 @@ def test_capture_returns_mean_std_n_dropped_timestamps(dev):
     assert c.t_start == c.timestamps[0] and c.t_end == c.timestamps[-1]
     assert np.all(np.diff(c.timestamps) > 0)
     assert abs(np.median(np.diff(c.timestamps)) - 0.01) < 0.003
-    # noise: 99 ug/sqrt(Hz) * sqrt(50 Hz) = 0.70 mg = 2.87 counts (plus quantization); 200 samples
-    # give the std within +-15 % with probability > 0.999
-    assert np.all(np.abs(c.std_counts / np.hypot(2.87, 0.29) - 1) < 0.15)
+    # noise: 99 ug/sqrt(Hz) * sqrt(50 Hz) = 0.70 mg = 2.87 counts in normal mode (4x oversampling at 100 Hz);
+    # the driver's default high-resolution mode oversamples 16x at 100 Hz (data sheet, CTRL_REG2 MODS
+    # oversampling ratios), a quarter of the variance: 1.43 counts (plus quantization); 200 samples
+    # give the std within +-15 % with probability > 0.999  (before issue 48 the emulator ignored MODS)
+    assert np.all(np.abs(c.std_counts / np.hypot(2.87 / 2, 0.29) - 1) < 0.15)
     assert dev.capture(seconds=0.5).n == 50
+
+
+@pytest.mark.parametrize("mode, osr", [("normal", 4), ("low_noise_low_power", 4), ("high_resolution", 16),
+                                       ("low_power", 2)])
+def test_oversampling_mode_sets_the_noise(mode, osr):
+    # data sheet, CTRL_REG2 MODS oversampling ratios at 100 Hz: normal 4, LNLP 4, high resolution 16,
+    # low power 2; averaging OSR conversions divides the variance by OSR: 2.87 counts * sqrt(4 / OSR).
+    # 2000 samples give the std within 5 % with probability > 0.999 (relative sd 1.6 %)
+    with emulated(oversampling=mode) as d:
+        c = d.capture(n=2000)
+    expected = np.hypot(2.87 * np.sqrt(4 / osr), 0.29)
+    assert np.all(np.abs(c.std_counts / expected - 1) < 0.05)
 
 
 def test_overrun_is_counted_as_dropped(dev):

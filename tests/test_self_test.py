@@ -50,6 +50,32 @@ def test_mma8451_self_test_matches_the_data_sheet_at_every_range(range_g):
     assert [a.axis for a in r.axes] == ["x", "y", "z"] and all(a.unit == "g" for a in r.axes)
 
 
+@pytest.mark.parametrize("range_g", [2, 4, 8])
+def test_mma8451_self_test_runs_at_8g_and_restores_the_run_range(range_g):
+    """Issue 48: at +-2 g the ~1 g z response sits at the rail; the self-test runs on scale at +-8 g and the
+    run's range comes back, read from XYZ_DATA_CFG (0x0E, FS bits 1:0: 0, 1, 2 for 2, 4, 8 g) through smbus2."""
+    dev, emu = mma()
+    with dev:
+        dev.configure(range_g=range_g)
+        r = dev.self_test(128)
+        fs = emu.read_byte_data(0x1D, 0x0E) & 0x03
+        assert dev.range_g == range_g and dev.counts_per_g == {2: 4096, 4: 2048, 8: 1024}[range_g]
+    assert r.range_g == 8 and r.to_json()["range_g"] == 8
+    assert fs == {2: 0, 4: 1, 8: 2}[range_g]
+
+
+@pytest.mark.parametrize("range_g", [2, 4, 8])
+def test_mma8451_too_large_response_fails_at_a_2g_run_range(range_g):
+    # a 3.5 g z response: above NXP's screen of 6000 LSB at +-4 g (2.93 g); at +-2 g it read as the rail
+    dev, emu = mma()
+    emu.self_test_faults(scale=(1.0, 1.0, 3.5 / emu.self_test_g[2]))
+    with dev:
+        dev.configure(range_g=range_g)
+        r = dev.self_test(128)
+    assert not r.ok and [a.axis for a in r.axes if not a.ok] == ["z"]
+    assert r.axes[2].change_g == pytest.approx(3.5, rel=0.01)  # on scale: the whole response is seen
+
+
 def test_mma8451_weak_axis_fails_naming_it():
     dev, _ = mma(scale=(1.0, 1.0, 0.02))  # z responds 2 % of its force: ~16 mg, below 24.4 mg
     with dev:

@@ -83,12 +83,26 @@ class PlanSection(Section):
     model: Literal[6, 9, 12, 15, "6", "9", "12", "15"] = _f(12, "calibration model: 6, 9, 12 or 15 parameters")
 
 
+class WarmupSection(Section):
+    """Hold a freshly powered board until its offset has settled (docs/warm-up.md)."""
+
+    mode: Literal["settled", "time"] = _f("settled", "settled: until the drift over a window is below drift_limit_mg "
+                                          "(at most max_s); time: hold for time_s")
+    time_s: float = _f(120.0, "mode time: how long to hold, s", ge=0, le=86_400)
+    window_s: float = _f(10.0, "mode settled: the window whose mean is compared with the previous one, s",
+                         gt=0, le=3600)
+    drift_limit_mg: float = _f(0.1, "mode settled: largest change of the window mean on any axis, mg", gt=0, le=1000)
+    max_s: float = _f(900.0, "mode settled: the longest hold; a board not settled by then is run anyway "
+                      "(recorded)", gt=0, le=86_400)
+
+
 class CaptureSection(Section):
     block_s: float = _f(0.1, "length of one stillness block, s", gt=0, le=60)
     k_enter: float = _f(4.5, "still: block std and mean change within k_enter x the noise floor", ge=0, le=1000)
     k_leave: float = _f(7.0, "moving again beyond k_leave x the floor (hysteresis; >= k_enter)", ge=0, le=1000)
     hold_s: float = _f(0.3, "the board must be still this long before averaging starts, s", ge=0, le=600)
-    target_sem_mg: float = _f(0.05, "stop averaging when every axis's standard error is below this, mg",
+    target_sem_mg: float = _f(0.05, "stop averaging when every axis's standard error std / sqrt(n_eff) is "
+                              "below this, mg (n_eff = n / tau_int, docs/correlated-samples.md)",
                               ge=0, le=1000)
     min_samples: int = _f(32, "fewest samples averaged per pose", gt=0, le=10_000_000)
     max_s: float = _f(20.0, "longest averaging per pose, s", gt=0, le=86_400)
@@ -96,6 +110,8 @@ class CaptureSection(Section):
     pose_tolerance_deg: float = _f(12.0, "measured gravity direction vs the planned pose, deg", ge=0, le=180)
     max_recaptures: int = _f(3, "captures repeated when the board moved during one", ge=0, le=100)
     self_test_samples: int = _f(64, "samples averaged in each self-test state (self-test off, on)", ge=4, le=1024)
+    warmup: WarmupSection | None = _f(None, "hold the board after power-up until its offset settles "
+                                      "(absent: no hold)")
 
 
 class AcceptanceSection(Section):

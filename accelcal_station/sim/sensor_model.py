@@ -25,8 +25,14 @@ The sensor chain, in order (each stage only when its effect is enabled):
    gain linear + quadratic in ``T - t_ref_c``
 5. drift                + offset random walk and exponential warm-up (time since power-up)
 6. settling             + ``fraction * (step of f) * exp(-(t - t_step) / tau_s)`` after each change
-7. noise                + white, ``density * sqrt(ENBW)``; ENBW = ODR/2 (MMA8451) or
-                        min(ODR/2, DLPF bandwidth) (MPU6050); samples are independent
+7. noise                + ``density * sqrt(ENBW)`` per sample; ENBW = ODR/2 (MMA8451) or
+                        min(ODR/2, DLPF bandwidth) (MPU6050).  MPU6050: the DLPF makes the noise
+                        a one-pole low-pass process sampled at the ODR, lag-k autocorrelation
+                        ``exp(-2 pi f_c k / ODR)`` (f_c the DLPF_CFG bandwidth), and the signal
+                        lags by the data sheet's DLPF delay.  MMA8451: the oversampling mode
+                        (CTRL_REG2 MODS) averages OSR conversions per output sample in
+                        non-overlapping blocks: independent samples, density scaled by
+                        sqrt(OSR_normal / OSR_mode) (``ChipSpec.noise_scale``)
 8. counts               ``* counts_per_g`` (the chip's nominal sensitivity at its range)
 9. saturation           clip at the chip's code range (``full_scale_fraction`` of it)
 10. quantization        round to multiples of ``lsb_counts`` (integer counts)
@@ -50,104 +56,9 @@ from ..config.parts import parse
 from ..config.schema import Section
 from ..conventions import STANDARD_GRAVITY_MPS2
 from ..errors import ConfigError
-
-# -- chips ------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ChipSpec:
-    """Datasheet figures of a real accelerometer chip.
-
-    ``odr_hz``: the discrete output data rates (MMA8451 CTRL_REG1 DR bits); None
-    means ``odr_base_hz / (1 + divider)`` for divider 0..255 (MPU6050 SMPLRT_DIV;
-    ``odr_base_dlpf0_hz`` with DLPF_CFG 0), at most ``odr_max_hz``.
-    ``dlpf_hz``: accelerometer bandwidth per DLPF_CFG setting (MPU6050), or None.
-    """
-
-    name: str
-    chip_id: int  # WHO_AM_I
-    bits: int
-    ranges_g: tuple[int, ...]
-    counts_per_g_at_2g: float
-    noise_ug_per_rthz: float
-    has_temperature: bool
-    odr_hz: tuple[float, ...] | None = None
-    odr_base_hz: float | None = None
-    odr_base_dlpf0_hz: float | None = None
-    odr_max_hz: float = 1000.0
-    dlpf_hz: tuple[float, ...] | None = None
-    default_range_g: int = 2
-    default_odr_hz: float = 100.0
-    default_dlpf: int | None = None
-
-    def counts_per_g(self, range_g: int) -> float:
-        """Nominal sensitivity: the full code range spans +-range_g."""
-        return self.counts_per_g_at_2g * 2.0 / range_g
-
-    @property
-    def code_limits(self) -> tuple[int, int]:
-        """Smallest and largest output code (two's complement, ``bits`` wide)."""
-        return -(2 ** (self.bits - 1)), 2 ** (self.bits - 1) - 1
-
-    def check(self, range_g: int, odr_hz: float, dlpf: int | None, path: str) -> tuple[int, float, int | None]:
-        """Validate a configuration against the datasheet; ConfigError names the key."""
-        if range_g not in self.ranges_g:
-            raise ConfigError(f"{path}.range_g: {range_g!r}; allowed for {self.name}: "
-                              f"{', '.join(map(str, self.ranges_g))}")
-        if isinstance(odr_hz, bool) or not isinstance(odr_hz, (int, float)) or not np.isfinite(odr_hz):
-            raise ConfigError(f"{path}.odr_hz: {odr_hz!r} is not a number")
-        if self.dlpf_hz is None:
-            if dlpf is not None:
-                raise ConfigError(f"{path}.dlpf: {dlpf!r}; {self.name} has no digital low-pass filter; "
-                                  "allowed: none (leave it out)")
-        else:
-            dlpf = self.default_dlpf if dlpf is None else dlpf
-            if isinstance(dlpf, bool) or dlpf not in range(len(self.dlpf_hz)):
-                raise ConfigError(f"{path}.dlpf: {dlpf!r}; allowed for {self.name}: 0..{len(self.dlpf_hz) - 1} "
-                                  f"({', '.join(f'{b:g}' for b in self.dlpf_hz)} Hz)")
-        if self.odr_hz is not None:
-            ok = [r for r in self.odr_hz if abs(r - odr_hz) <= 1e-6 * r]
-            if not ok:
-                raise ConfigError(f"{path}.odr_hz: {odr_hz:g}; allowed for {self.name}: "
-                                  f"{', '.join(f'{r:g}' for r in self.odr_hz)}")
-            odr_hz = ok[0]
-        else:
-            # MPU6050: SMPLRT_DIV divides 8 kHz with DLPF_CFG 0, else 1 kHz; accelerometer data is 1 kHz at most
-            base = self.odr_base_dlpf0_hz if dlpf == 0 and self.odr_base_dlpf0_hz else self.odr_base_hz
-            assert base is not None, f"{self.name}: a ChipSpec gives odr_hz or odr_base_hz"
-            div = base / odr_hz - 1.0 if odr_hz > 0 else -1.0
-            if not (0 <= round(div) <= 255 and abs(div - round(div)) < 1e-6 and odr_hz <= self.odr_max_hz):
-                raise ConfigError(f"{path}.odr_hz: {odr_hz:g}; allowed for {self.name} with dlpf {dlpf}: "
-                                  f"{base:g} / (1 + divider), divider 0..255, at most {self.odr_max_hz:g} "
-                                  "(e.g. 1000, 500, 200, 100, 50)")
-        return int(range_g), float(odr_hz), dlpf
-
-    def enbw_hz(self, odr_hz: float, dlpf: int | None = None) -> float:
-        """Equivalent noise bandwidth: Nyquist, or the DLPF bandwidth when narrower."""
-        bw = odr_hz / 2.0
-        if self.dlpf_hz is not None and dlpf is not None:
-            bw = min(bw, self.dlpf_hz[dlpf])
-        return bw
-
-
-CHIPS: dict[str, ChipSpec] = {
-    # MMA8451Q datasheet: 14-bit, 4096 counts/g at 2 g, 99 ug/sqrt(Hz), no temperature sensor
-    "mma8451": ChipSpec("mma8451", 0x1A, 14, (2, 4, 8), 4096.0, 99.0, False,
-                        odr_hz=(800.0, 400.0, 200.0, 100.0, 50.0, 12.5, 6.25, 1.5625),
-                        default_odr_hz=100.0),
-    # MPU-6050 datasheet: 16-bit, 16384 LSB/g at 2 g, 400 ug/sqrt(Hz), DLPF_CFG 0..6
-    "mpu6050": ChipSpec("mpu6050", 0x68, 16, (2, 4, 8, 16), 16384.0, 400.0, True,
-                        odr_base_hz=1000.0, odr_base_dlpf0_hz=8000.0,
-                        dlpf_hz=(260.0, 184.0, 94.0, 44.0, 21.0, 10.0, 5.0),
-                        default_odr_hz=100.0, default_dlpf=3),
-}
-
-
-def get_chip(name: str, path: str = "chip") -> ChipSpec:
-    if name not in CHIPS:
-        raise ConfigError(f"{path}: {name!r}; allowed: {', '.join(CHIPS)}")
-    return CHIPS[name]
-
+from .chips import CHIPS as CHIPS  # re-exported: the model's callers name the chips through it
+from .chips import ChipSpec as ChipSpec
+from .chips import get_chip as get_chip
 
 # -- the effects catalog -----------------------------------------------------------------
 

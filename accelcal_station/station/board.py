@@ -43,6 +43,7 @@ from .self_test_step import self_test_step
 from .settings import StationConfig
 from .uncertainty_step import uncertainty_step
 from .verdict import Stage
+from .warmup import warmup_step
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
@@ -96,7 +97,7 @@ class BoardSteps:
         while True:
             attempts += 1
             live = jig.shows_live_reading and self.live_reading
-            jig.present(pose, self._live(driver, StillnessGate(s, floor)) if live else None)
+            jig.present(pose, self._live(driver, StillnessGate(s, floor, driver.noise_lag1())) if live else None)
             bar = self._capture_sink(f"  capturing {pose.name}")
             try:
                 gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar)
@@ -147,6 +148,7 @@ class BoardSteps:
     def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
         """The chip's built-in self-test once, before the poses (station/self_test_step.py).  True: the
         poses may follow.  Device errors propagate."""
+        self.samples_read += warmup_step(driver, self.cfg, rep, self.echo)  # a settled offset first
         ok, read = self_test_step(driver, self.cfg, rep, self.echo)
         self.samples_read += read
         return ok
@@ -170,11 +172,11 @@ class BoardSteps:
             c = gc.capture
             pitch, roll = self.chip_angles(pose)
             records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, self.expected_g(pose),
-                                      pitch, roll, c.temp_c, c.dropped, c.t_start, c.t_end))
+                                      pitch, roll, c.temp_c, c.dropped, c.t_start, c.t_end, c.n_eff))
             retries.append(tries + gc.recaptures)
             sem_mg = c.sem_counts / driver.counts_per_g * 1e3
             rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
-                              "sem_mg": sem_mg.tolist(), "retries": tries + gc.recaptures,
+                              "sem_mg": sem_mg.tolist(), "n_eff": _n_eff(c), "retries": tries + gc.recaptures,
                               "reached_target": gc.reached_target})
             self.echo(f"  n={c.n} sem={np.max(sem_mg):.3f} mg" + ("" if gc.reached_target else " (time limit)"))
             if self.progress:
@@ -367,3 +369,8 @@ class BoardSteps:
             t["board_time_s"] = t["device_time_s"] + (0.0 if clock.realtime else t["host_compute_s"])
         return t
 
+
+
+def _n_eff(c: Capture) -> list[float]:
+    """A capture's effective sample count per axis for the report (n when it was not measured)."""
+    return [float(c.n)] * 3 if c.n_eff is None else np.round(c.n_eff, 1).tolist()

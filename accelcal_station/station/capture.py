@@ -5,12 +5,21 @@ smallest per-axis block standard deviation seen so far, seeded from the first
 blocks), with a hold time before averaging starts and hysteresis so a board at
 the edge of the threshold does not flicker between still and moving:
 
-  enter still:  block std <= k_enter * floor  and  |block mean - previous| <= k_enter * floor * sqrt(2 / n_block)
+  enter still:  block std <= k_enter * floor  and  |block mean - previous| <= k_enter * jump_floor
                 for hold_s seconds (k_enter = 4.5: a still board of 3 axes fails a block ~2e-5 of the time)
   leave still:  either quantity beyond k_leave * (same bound)     (k_leave > k_enter)
 
-Averaging is adaptive: it stops once every axis's standard error of the mean is
-below ``target_sem_mg`` (and at least ``min_samples`` are in), or at ``max_s``.
+``jump_floor`` is floor * sqrt(2 / n_block) for independent samples.  A chip's low-pass filter
+(``Driver.noise_lag1``: rho_k = a^k) widens it: a block mean's variance is sigma^2 F / n with
+F = 1 + 2 sum_k (1 - k/n) a^k, and the within-block std reads sigma sqrt((n - F) / (n - 1)), so
+jump_floor = floor sqrt((n - 1) / (n - F)) sqrt(2 F / n) (the positive correlation of adjacent
+block means is left out: the bound errs wide).  From the configured filter, not from the data,
+so steady motion cannot widen it.
+
+Averaging is adaptive: it stops once every axis's standard error of the mean,
+std / sqrt(n_eff) with n_eff = n / tau_int from the samples' own autocorrelation
+(models/effective_samples.py: Sokal's window, c = 5), is below ``target_sem_mg`` (and at least
+``min_samples`` are in), or at ``max_s``.
 Motion while averaging discards the average and starts over (a re-capture).
 """
 from __future__ import annotations
@@ -26,6 +35,7 @@ from numpy.typing import ArrayLike
 from ..conventions import angle_deg, fit_mount, mount_hint, nearest_face
 from ..drivers.base import Capture, Driver
 from ..errors import DeviceError
+from ..models.effective_samples import effective_n
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +53,7 @@ class CaptureSettings:
     pose_tolerance_deg: float = 12.0
     max_recaptures: int = 3
     self_test_samples: int = 64  # averaged in each self-test state (station/board.py _self_test)
+    warmup: dict[str, object] | None = None  # config.schema WarmupSection's fields (station/warmup.py)
 
 
 @dataclass
@@ -56,6 +67,18 @@ class GatedCapture:
     floor_counts: np.ndarray
     samples_read: int = 0
     events: list[str] = field(default_factory=list)
+
+
+MIN_TAUS = 50  # samples a capture spans, in integrated autocorrelation times, before it may stop
+
+
+def jump_factor(n: int, a: float) -> float:
+    """jump_floor / floor for blocks of n samples with lag-1 correlation a (module docstring)."""
+    if a <= 0.0 or n < 2:
+        return float(np.sqrt(2.0 / max(n, 1)))
+    k = np.arange(1, n)
+    F = 1.0 + 2.0 * float(np.sum((1.0 - k / n) * a**k))
+    return float(np.sqrt((n - 1) / max(n - F, 1.0)) * np.sqrt(2.0 * F / n))
 
 
 @lru_cache(maxsize=64)
@@ -76,8 +99,9 @@ class StillnessGate:
     previous pose is used until eight blocks of this one are in.
     """
 
-    def __init__(self, settings: CaptureSettings, floor_counts: np.ndarray | None = None):
+    def __init__(self, settings: CaptureSettings, floor_counts: np.ndarray | None = None, lag1: float = 0.0):
         self.s = settings
+        self.lag1 = float(lag1)
         self.seed = None if floor_counts is None else np.asarray(floor_counts, dtype=float)
         # counts per axis; without a seed it is measured from the first block on (nan until then)
         self.floor: np.ndarray = self.seed if self.seed is not None else np.full(3, np.nan)
@@ -99,7 +123,8 @@ class StillnessGate:
         jump = np.zeros(3) if self.prev_mean is None else np.abs(mean - self.prev_mean)
         self.prev_mean = mean
         k = self.s.k_leave if self.still else self.s.k_enter
-        ok = bool(np.all(std <= k * self.floor) and np.all(jump <= k * self.floor * np.sqrt(2.0 / n) + 1.0))
+        jump_floor = self.floor * jump_factor(n, self.lag1)
+        ok = bool(np.all(std <= k * self.floor) and np.all(jump <= k * jump_floor + 1.0))
         if ok and not self.still:
             if self.still_since is None:
                 self.still_since = t_end
@@ -121,7 +146,7 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
     """
     s = settings
     block_n = max(4, int(round(s.block_s * driver.odr_hz)))
-    gate = StillnessGate(s, floor_counts)
+    gate = StillnessGate(s, floor_counts, driver.noise_lag1())
     target = s.target_sem_mg * 1e-3 * driver.counts_per_g
     events: list[str] = []
     recaptures = 0
@@ -155,11 +180,13 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
         dropped += d
         n = sum(len(a) for a in acc)
         allc = np.concatenate(acc)
-        sem = allc.std(axis=0, ddof=1) / np.sqrt(n)
+        n_eff = effective_n(allc)
+        sem = allc.std(axis=0, ddof=1) / np.sqrt(n_eff)
         elapsed = float(ts[-1][-1] - ts[0][0])
         if progress is not None:
             progress(min(1.0, max(elapsed / s.max_s, float(np.min(target / np.maximum(sem, 1e-12))) ** 2)))
-        reached = bool(np.all(sem <= target)) and n >= s.min_samples
+        # tau_int from a capture of a few tau reads low (Sokal's window bias ~ tau / n): at least MIN_TAUS x tau
+        reached = bool(np.all(sem <= target)) and n >= max(s.min_samples, MIN_TAUS * float(np.max(n / n_eff)))
         if reached or elapsed >= s.max_s:
             cap = Capture.from_samples(allc, np.concatenate(ts), dropped, driver.temperature_c(), keep)
             if expected_g is not None:
@@ -174,7 +201,7 @@ def wait_still(driver: Driver, settings: CaptureSettings) -> int:
     read.  A board not still after ``settle_timeout_s`` is a DeviceError naming its noise floor."""
     s = settings
     block_n = max(4, int(round(s.block_s * driver.odr_hz)))
-    gate = StillnessGate(s)
+    gate = StillnessGate(s, lag1=driver.noise_lag1())
     read = 0
     t_first = None
     while True:

@@ -272,7 +272,7 @@ class Panel:
                 c = gc.capture
                 b.records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n,
                                             b.steps.expected_g(pose), *b.steps.chip_angles(pose),
-                                            c.temp_c, c.dropped, c.t_start, c.t_end))
+                                            c.temp_c, c.dropped, c.t_start, c.t_end, c.n_eff))
                 b.retries.append(gc.recaptures)
                 b.steps.samples_read += gc.samples_read
                 b.steps.samples_used += c.n

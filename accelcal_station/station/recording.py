@@ -27,7 +27,7 @@ from ..store.records import StoreError
 from ..store.runs import Store
 from .jig_pose import JigPoseEstimate
 from .offset_trim import OffsetTrimRecord
-from .report import FitFigures, RunReport, Timing, fit_figures
+from .report import FitFigures, RunReport, Timing, WarmupRecord, fit_figures
 from .settings import StationConfig
 
 if TYPE_CHECKING:
@@ -53,6 +53,7 @@ class RunSummary(FitFigures, total=False):
     offset_trim_lsb: list[int] | None
     offset_trim: OffsetTrimRecord | None
     self_test: dict[str, object] | None  # drivers.self_test.SelfTestResult.to_json
+    warmup: WarmupRecord | None  # station/warmup.py
     design: str
     skipped: list[str]
     timing: Timing
@@ -97,7 +98,7 @@ def board_summary(cfg: StationConfig, rep: RunReport) -> RunSummary:
     """A single board's run at room temperature: its fit's figures, reason codes and what it measured."""
     return {**fit_figures(rep.fit), "reason_codes": codes(rep.reasons), "measured": rep.measured,
             "verify_error_max_mg": rep.verify_error_max_mg, "offset_trim_lsb": rep.offset_trim_lsb,
-            "offset_trim": rep.offset_trim, "self_test": rep.self_test, "design": cfg.design,
+            "offset_trim": rep.offset_trim, "self_test": rep.self_test, "warmup": rep.warmup, "design": cfg.design,
             "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified}
 
 

@@ -17,6 +17,17 @@ from .offset_trim import OffsetTrimRecord
 from .verdict import Outcome, RunVerdict, Stage, run_verdict
 
 
+class WarmupRecord(TypedDict):
+    """``warmup`` in run --json and the store's run summary."""
+
+    mode: str  # settled | time
+    held_s: float  # board time held
+    settled: bool | None  # mode settled: the drift fell below the limit (None: mode time)
+    drift_mg: list[float] | None  # the last window-to-window change of the mean per axis, mg
+    window_s: float | None
+    drift_limit_mg: float | None
+
+
 class PoseSummary(TypedDict, total=False):
     """One captured pose as the run report lists it; a thermal plan's adds its set point (C), its
     role (calibrate or verify) and the board temperature (C) and leaves out the mean counts."""
@@ -24,7 +35,8 @@ class PoseSummary(TypedDict, total=False):
     pose: str
     n: int  # samples averaged
     mean_counts: list[float]
-    sem_mg: list[float]  # standard error of the mean per axis, mg
+    sem_mg: list[float]  # standard error of the mean per axis, mg: std / sqrt(n_eff)
+    n_eff: list[float]  # effective sample count per axis, n / tau_int (correlated samples)
     retries: int
     reached_target: bool  # the SEM target was met before capture.max_s
     set_point_c: float
@@ -163,6 +175,7 @@ class RunReportJson(TypedDict):
     offset_trim_lsb: list[int] | None
     offset_trim: OffsetTrimRecord | None
     self_test: dict[str, object] | None  # drivers.self_test.SelfTestResult.to_json
+    warmup: WarmupRecord | None  # station/warmup.py
     poses: list[PoseSummary]
     skipped: list[str]
     events: list[str]
@@ -200,6 +213,7 @@ class RunReport:
     offset_trim_lsb: list[int] | None = None
     offset_trim: OffsetTrimRecord | None = None  # the trim written and its measured change (board.py _trim_offsets)
     self_test: dict[str, object] | None = None  # the chip's self-test (drivers/self_test.py SelfTestResult.to_json)
+    warmup: WarmupRecord | None = None  # the warm-up hold (station/warmup.py)
     calibration: Calibration | None = None  # what was (or would be) written: the fit's, trim applied
     poses: list[PoseSummary] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
@@ -256,7 +270,7 @@ class RunReport:
             "held": [] if f is None else [h.to_json() for h in f.held],  # terms at nominal (models/held.py)
             "measured": self.measured, "verify_error_max_mg": self.verify_error_max_mg,
             "nvm": self.nvm, "nvm_verified": self.nvm_verified, "offset_trim_lsb": self.offset_trim_lsb,
-            "offset_trim": self.offset_trim, "self_test": self.self_test,
+            "offset_trim": self.offset_trim, "self_test": self.self_test, "warmup": self.warmup,
             "poses": self.poses, "skipped": self.skipped,
             "events": self.events, "timing": self.timing, "store": self.store,
             "site": self.site, "uncertainty": self.uncertainty, "decision_rule": self.decision_rule,

@@ -161,7 +161,7 @@ class ThermalConditions:
                                    f"{res.board_temp_c:.2f} C")
             pitch, roll = steps.chip_angles(pose)
             rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, steps.expected_g(pose),
-                             pitch, roll, temp, c.dropped, c.t_start, c.t_end)
+                             pitch, roll, temp, c.dropped, c.t_start, c.t_end, c.n_eff)
             out.append(rec)
             if res.role == "calibrate":
                 b.records.append(rec)

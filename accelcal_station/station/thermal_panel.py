@@ -170,7 +170,7 @@ class ThermalPanel:
             return
         b.floor = gc.floor_counts
         rec = PoseRecord(f"{pose.name}@{sp:g}C", c.mean_counts, c.std_counts, c.n, b.steps.expected_g(pose),
-                         *b.steps.chip_angles(pose), temp, c.dropped, c.t_start, c.t_end)
+                         *b.steps.chip_angles(pose), temp, c.dropped, c.t_start, c.t_end, c.n_eff)
         self.of(b).groups.setdefault(sp, []).append(rec)
         if res.role == "calibrate":  # the run's session: calibration poses, kept if the run is interrupted
             b.records.append(rec)
