@@ -26,7 +26,7 @@ def _e(text: object) -> str:
     return html.escape(safe_text(str(text)))
 
 
-def _charts(plt: ModuleType, study: Study, name: str, x: np.ndarray) -> str:
+def _charts(plt: ModuleType, study: Study, name: str, unit: str, x: np.ndarray) -> str:
     """Three panels for one parameter: by part, by appraiser, range chart."""
     p, o, r = x.shape
     fig, ax = plt.subplots(1, 3, figsize=(13, 3.2))
@@ -50,6 +50,8 @@ def _charts(plt: ModuleType, study: Study, name: str, x: np.ndarray) -> str:
     ax[2].axhline(r_bar, color="k", lw=1)
     if ucl is not None:
         ax[2].axhline(ucl, color="r", ls="--", lw=1)
+    ax[0].set_ylabel(unit, fontsize=8)
+    ax[2].set_xlabel(f"part x {study.by} cell (the parts, {study.by} by {study.by})", fontsize=8)
     ax[2].set_title(f"range chart (R-bar {r_bar:.3g}" + (f", UCL {ucl:.3g})" if ucl is not None else ")"))
     return _png(fig)
 
@@ -82,7 +84,7 @@ def msa_html(study: Study, results: Sequence[dict[str, JsonValue]], title: str) 
         x = study.values(prm)
         if prm.name in shown and x is not None:
             parts.append(f"<h2>{_e(prm.name)} ({_e(prm.unit)})</h2>"
-                         f"<img src='data:image/png;base64,{_charts(plt, study, prm.name, x)}'>")
+                         f"<img src='data:image/png;base64,{_charts(plt, study, prm.name, prm.unit, x)}'>")
     parts.append("</body></html>\n")
     return "\n".join(parts)
 
