@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import math
 import sqlite3
+import subprocess
+import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -143,12 +145,25 @@ def test_bad_studies_are_refused_with_one_line(study_store: Path, tmp_path: Path
         "one part": (["--device", "SN-1"], "one part (SN-1)"),
         "no repeats": (["--status", "interrupted"], "no serial measured more than once"),
         "bad tolerance": (["--tolerance", "V_x=-1"], "--tolerance"),
+        "unknown parameter": (["--tolerance", "V_q=1"], "PARAM one of V_x"),
+        "one station": (["--by", "station"], "one station (sim-station-1)"),
     }
     for name, (args, words) in cases.items():
         code, out = _msa("--db", str(study_store), "--json", *args)
         assert code == 2, (name, out)
         assert len(out.strip().splitlines()) == 1, (name, out)
         assert words in json.loads(out)["error"], (name, out)
+
+
+def test_html_without_matplotlib_names_the_extra(study_store: Path, tmp_path: Path) -> None:
+    """matplotlib made unimportable in a child process (as tests/test_optional_extras.py does)."""
+    child = ("import sys\nsys.modules['matplotlib'] = None\nsys.modules['matplotlib.pyplot'] = None\n"
+             "sys.argv = ['accelcal'] + sys.argv[1:]\nfrom accelcal_station.cli import main\nmain()\n")
+    page = tmp_path / "msa.html"
+    r = subprocess.run([sys.executable, "-c", child, "report", "msa", "--db", str(study_store), "--html", str(page)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "pip install 'accelcal-station[report]'" in r.stderr and not page.exists()
 
 
 def test_plan_is_random_but_fixed_and_complete(study_store: Path) -> None:

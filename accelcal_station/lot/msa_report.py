@@ -14,12 +14,22 @@ from types import ModuleType
 import numpy as np
 
 from ..atomic import atomic_write
-from ..errors import DataError
+from ..errors import AccelcalError, DataError
 from ..fileguard.cells import safe_text
 from ..jsontypes import JsonValue
 from .msa import range_limits
 from .msa_study import PARAMETERS, Study
 from .report import _png, _pyplot
+
+
+def _plt() -> ModuleType:
+    """pyplot on Agg; without the report extra one line naming it (exit 2)."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise AccelcalError("the Gage R&R report (--html) needs matplotlib: "
+                            "pip install 'accelcal-station[report]'") from None
+    return _pyplot()
 
 
 def _e(text: object) -> str:
@@ -68,7 +78,7 @@ def _row(res: dict[str, JsonValue]) -> str:
 
 def msa_html(study: Study, results: Sequence[dict[str, JsonValue]], title: str) -> str:
     """The whole report as one self-contained page."""
-    plt = _pyplot()
+    plt = _plt()
     head = "".join(f"<th>{h}</th>" for h in ("parameter", "EV", "AV", "interaction", "GRR", "PV", "TV", "%GRR",
                                               "%tolerance", "ndc", "band"))
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{_e(title)}</title></head><body>",
