@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections import Counter
 
 import click
 
@@ -10,11 +11,13 @@ from ..errors import DataError
 from ..fileguard.identity import refuse_overwrite
 from ..jsontypes import JsonValue
 from ..lot.msa_study import PARAMETERS, analyse, build_study, plan, recent
+from ..store.records import RunRecord
 from ..store.runs import Store
 from ._common import Whole, force_option, store_file
 from ._text import clean
 from .report import RunFilters, _filter_options, _filters, _target
 
+CHUNK = 500  # run ids per query
 METHOD = ("ANOVA, two-way crossed random effects with the part x appraiser interaction, pooled into "
           "repeatability when its p-value > 0.25 (AIAG MSA 4th ed.); average and range as a cross-check")
 
@@ -52,6 +55,17 @@ def _print(doc: dict[str, JsonValue], results: list[dict[str, JsonValue]]) -> No
                    f"{_cell(r['interaction'], '10.4g')} {_cell(r['grr'], '10.4g')} {_cell(r['pv'], '10.4g')} "
                    f"{_cell(r['pct_grr'], '7.2f')} {_cell(r['pct_tolerance'], '7.2f')} {_cell(r['ndc'], '4d')}  "
                    f"{r['grr_band'] or '-'}{'' if r['ndc_ok'] in (None, True) else ', ndc < 5'}{pooled}")
+
+
+def _repeated(store: Store, flt: RunFilters) -> tuple[list[RunRecord], int]:
+    """Full records (poses and all) of the runs whose serial is in the listing more than once: the
+    listing first, so a line's store of 100,000 runs does not load every run's poses; in chunks, so
+    no query carries more ids than a database takes."""
+    listing = store.list_runs(**flt)
+    n = Counter(r["device_serial"] for r in listing if r["status"] == "complete")
+    ids = [r["id"] for r in listing if r["id"] is not None and r["device_serial"] and n[r["device_serial"]] > 1]
+    recs = [rec for k in range(0, len(ids), CHUNK) for rec in store.runs(**{**flt, "run_ids": ids[k:k + CHUNK]})]
+    return recs, sum(1 for r in listing if r["status"] == "complete" and n[r["device_serial"]] == 1)
 
 
 def _plan(store: Store, by: str, parts: int, appraisers: int, trials: int, seed: int, as_json: bool,
@@ -102,7 +116,8 @@ def msa_command(db: str | None, config_path: str | None, device: tuple[str, ...]
         if plan_only:
             _plan(store, by, parts, appraisers, trials, seed, as_json, flt)
             return
-        study = build_study(store.runs(**flt), by)
+        recs, once = _repeated(store, flt)
+        study = build_study(recs, by, left_out=once)
     results = analyse(study, tols)
     if html_file is not None:
         from ..lot.msa_report import write_msa_html

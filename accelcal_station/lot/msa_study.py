@@ -92,19 +92,21 @@ def _who(rec: RunRecord, by: str) -> str | None:
     return rec.operator if by == "operator" else rec.station_id
 
 
-def build_study(recs: Sequence[RunRecord], by: str = "operator") -> Study:
+def build_study(recs: Sequence[RunRecord], by: str = "operator", left_out: int = 0) -> Study:
     """The study of the complete calibrated runs in ``recs`` (oldest first); DataError naming what is
-    missing when there are no repeats, fewer than two parts or appraisers, or unequal trials."""
+    missing when there are no repeats, fewer than two parts or appraisers, or unequal trials.
+    ``left_out``: runs of serials listed once, already left out by the caller (counted, said)."""
     usable = [r for r in recs if r.status == "complete" and r.calibration and not r.damaged and r.device_serial]
     excluded = {"not_complete_or_no_calibration": len(recs) - len(usable)}
     who = [r for r in usable if _who(r, by)]
     excluded[f"no_{by}"] = len(usable) - len(who)
     n_serial = Counter(r.device_serial for r in who)
     done = [r for r in who if n_serial[r.device_serial] > 1]
-    excluded["serials_measured_once"] = len(who) - len(done)
+    excluded["serials_measured_once"] = len(who) - len(done) + left_out
     if not done:
-        raise DataError(f"no serial measured more than once among {len(who)} complete calibrated run(s) "
-                        f"with a{'n' if by == 'operator' else ''} {by}: a study needs repeats")
+        raise DataError(f"no serial measured more than once among {len(who) + left_out} run(s) "
+                        f"(complete, calibrated, with a{'n' if by == 'operator' else ''} {by}): "
+                        "a study needs repeats")
     cells: dict[tuple[str, str], list[RunRecord]] = defaultdict(list)
     for r in done:
         cells[(str(r.device_serial), str(_who(r, by)))].append(r)
