@@ -366,3 +366,13 @@ def plot_cmd(run_id: int, db: str | None, config_path: str | None, output: str |
         rec = store.get_run(run_id)
     residual_figure(rec, out)
     click.echo(f"residuals of run {run_id} drawn in {out}")
+
+
+def _register_msa() -> None:
+    """`report msa` lives in cli/msa.py, which takes this module's filter options: imported once they exist."""
+    import importlib
+
+    command.add_command(importlib.import_module(f"{__package__}.msa").msa_command)
+
+
+_register_msa()
