@@ -214,3 +214,22 @@ def test_a_nack_storm_ends_in_one_line_naming_the_cause(tmp_path):
     assert "0x1d" in err and "no ACK" in err and "loose contact" in err, err
     rows = sqlite3.connect(tmp_path / "runs.sqlite").execute("SELECT status, verdict FROM runs").fetchall()
     assert rows == [("error", None)]  # the station's error, never the board's FAIL
+
+
+def test_a_missing_chamber_is_a_station_error_before_any_board_step(tmp_path):
+    """A thermal plan whose chamber port does not exist: exit 3 before the board's self-test, an error run
+    naming the chamber, no verdict (the jig, an emulator on a real pty, answered)."""
+    from accelcal_station.fixtures.jig_emulator import JigEmulator
+
+    pytest.importorskip("pyvisa")
+    doc = yaml.safe_load((CONFIGS / "thermal-mpu6050.yaml").read_text())
+    doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
+    doc["device"]["port"] = "emulated"
+    doc["chamber"]["port"] = str(tmp_path / "no-chamber")
+    (tmp_path / "t.yaml").write_text(yaml.safe_dump(doc))
+    with JigEmulator(speed_deg_s=4000, accel_deg_s2=1e5) as jig:
+        r = CliRunner().invoke(cli, ["run", "--config", str(tmp_path / "t.yaml"), "--jig-port", jig.port, "--json"])
+    assert r.exit_code == 3, r.output
+    assert "self-test" not in r.stderr and "STATION FAULT (chamber" in r.stderr, r.stderr
+    rows = sqlite3.connect(tmp_path / "runs.sqlite").execute("SELECT status, verdict, status_reason FROM runs").fetchall()
+    assert len(rows) == 1 and rows[0][:2] == ("error", None) and rows[0][2].startswith("station fault (chamber): ")

@@ -31,6 +31,8 @@ MODES = ("CONSTANT", "STANDBY", "OFF")
 class ChamberError(DeviceError):
     """The chamber did not answer, answered nonsense, or refused a command."""
 
+    instrument = "chamber"  # a station fault (station/station_fault.py), never a board's verdict
+
 
 @dataclass(frozen=True)
 class ChamberStatus:

@@ -30,7 +30,14 @@ from .recording import FinishArgs, record_result, start_args, stored_uncertainty
 from .report import RunReport
 from .room import RoomTemperature
 from .settings import StationConfig, configured_rate
-from .station_fault import is_station_fault, nvm_held_line, preflight_jig, station_fault_line, station_fault_reason
+from .station_fault import (
+    is_station_fault,
+    nvm_held_line,
+    preflight_chamber,
+    preflight_jig,
+    station_fault_line,
+    station_fault_reason,
+)
 from .thermal import ThermalConditions
 from .verdict import Stage
 
@@ -131,7 +138,10 @@ class StationFlow:
         step: a fault here is the station's (station_fault.py), recorded as an error run, exit 3."""
         try:
             self.panel.jig = preflight_jig(self.cfg.jig, self.panel.jig, lambda: self._build_jig(boards))
+            preflight_chamber(self.cfg.schema.chamber)
         except DeviceError as e:
+            if self.panel.jig is not None:
+                self.panel.jig.close()
             self.echo(station_fault_line(e, before_board=True))
             self._record_unreachable(store, e, what=station_fault_reason(e))
             raise

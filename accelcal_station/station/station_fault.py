@@ -14,9 +14,11 @@ from collections.abc import Callable
 from typing import TypeGuard
 
 from ..config.kinds import JigSection, MotorizedJigConfig
+from ..config.schema import ChamberSection, VisaChamberConfig
 from ..errors import DeviceError, JigError
 from ..fixtures.base import Jig
 from ..i18n import N_, Translate
+from ..instruments.factory import make_chamber
 from ..jsontypes import JsonObject
 from .capture import NotStill, WrongPose
 
@@ -68,6 +70,15 @@ def nvm_held_line(nvm: JsonObject | None) -> str:
     if nvm.get("ok"):
         return f"the board holds the new calibration (slot {nvm.get('slot')}, verified)"
     return "the NVM burn did not complete; the board keeps its previous calibration (the writer restored it)"
+
+
+def preflight_chamber(section: ChamberSection | None) -> None:
+    """Open a real chamber and read its status before any board's first step (ChamberError when it cannot);
+    an emulated chamber is built around the simulated boards' clock by the thermal flow, nothing to check."""
+    if not isinstance(section, VisaChamberConfig):
+        return
+    with make_chamber(section) as chamber:
+        chamber.status()
 
 
 def preflight_jig(section: JigSection, given: Jig | None, build: Callable[[], Jig]) -> Jig | None:
