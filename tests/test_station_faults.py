@@ -231,5 +231,6 @@ def test_a_missing_chamber_is_a_station_error_before_any_board_step(tmp_path):
         r = CliRunner().invoke(cli, ["run", "--config", str(tmp_path / "t.yaml"), "--jig-port", jig.port, "--json"])
     assert r.exit_code == 3, r.output
     assert "self-test" not in r.stderr and "STATION FAULT (chamber" in r.stderr, r.stderr
-    rows = sqlite3.connect(tmp_path / "runs.sqlite").execute("SELECT status, verdict, status_reason FROM runs").fetchall()
+    db = sqlite3.connect(tmp_path / "runs.sqlite")
+    rows = db.execute("SELECT status, verdict, status_reason FROM runs").fetchall()
     assert len(rows) == 1 and rows[0][:2] == ("error", None) and rows[0][2].startswith("station fault (chamber): ")
