@@ -72,8 +72,8 @@ def _parse(value: str, flag: str, integer: bool, positive: bool) -> float:
     return v
 
 
-FORCE_HELP = ("Replace an existing output file of another kind, or an SQLite database that is not the store "
-              "this command reads (never the store or an input it reads).")
+FORCE_HELP = ("Replace an existing output file of another kind, or an SQLite database that is no store this "
+              "command reaches (never its --db, its --config's store, the default store or an input it reads).")
 
 
 def force_option(f: Any) -> Any:

@@ -29,12 +29,12 @@ from ..config.sections import device_section
 from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import DeviceError, NVMError
-from ..fileguard.identity import refuse_overwrite
 from ..nvm.writer import CalibrationWriter, SlotStatus
 from ..store.records import iso
 from ._common import config_store_file
 from ._common import jsonable as _clean
 from ._mes import JsonGroup
+from ._outputs import refuse_output
 
 STATE_COLOUR = {"valid": "green", "empty": "yellow", "corrupt": "red"}
 
@@ -50,7 +50,12 @@ def _device(ctx: click.Context, config_path: str | None) -> Iterator[tuple[Drive
     else:
         from ..config.sections import default_config_path
 
-        dev = make_driver(device_section(config_path or str(default_config_path())))
+        section = device_section(config_path or str(default_config_path()))
+        # the image is written on every page write: never a store the command reaches (checked before
+        # the driver reads it)
+        refuse_output([("device.eeprom.image", getattr(getattr(section, "eeprom", None), "image", None))],
+                      [("--config", config_path)], config=config_path)
+        dev = make_driver(section)
     image = getattr(dev.nvm, "image_path", None)
     ctx.meta["accelcal.nvm_inputs"] = [("--config", config_path), ("the board's EEPROM image", image),
                                        ("the store", config_store_file(config_path))]
@@ -68,7 +73,7 @@ def _refuse_over_inputs(ctx: click.Context, output: tuple[str, str | Path], *inp
     """A backup never replaces the config, the board's EEPROM image, the store, the restored image or an
     SQLite database (exit 2, fileguard.kind); any other existing file is refused by the writer (backups
     are never overwritten)."""
-    refuse_overwrite([output], [*ctx.meta.get("accelcal.nvm_inputs", []), *inputs])
+    refuse_output([output], [*ctx.meta.get("accelcal.nvm_inputs", []), *inputs])
 
 
 def _serial(dev: Driver, given: str | None) -> str | None:

@@ -28,6 +28,7 @@ from ..station.shift import (
 )
 from ._common import jsonable
 from ._common import store_file as store_file_of
+from ._outputs import refuse_output
 from .operator_terminal import TerminalOperator
 
 
@@ -103,8 +104,9 @@ def _refuse_over_config(cfg: StationConfig) -> None:
     """What a run writes (the store, the simulated board's EEPROM image) is never its own config."""
     dev = cfg.device
     image = dev.eeprom.image if isinstance(dev, SimulatedDevice) and dev.eeprom is not None else None
-    refuse_overwrite([("the store", store_file_of(cfg.store_file), "store"), ("device.eeprom.image", image)],
-                     [("--config", str(cfg.path))])
+    refuse_overwrite([("the store", store_file_of(cfg.store_file), "store")], [("--config", str(cfg.path))])
+    refuse_output([("device.eeprom.image", image)], [("--config", str(cfg.path))], has_config=False,
+                  stores=[("the store", cfg.store_file)])
 
 
 def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None, as_json: bool,

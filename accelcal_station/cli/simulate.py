@@ -21,12 +21,12 @@ from ..config.sections import default_config_path
 from ..data.posetable import write_pose_table
 from ..drivers.simulated import SimulatedBoard
 from ..errors import DataError
-from ..fileguard.identity import refuse_overwrite
 from ..fixtures.designs import get_design
 from ..fixtures.simulated_run import SimulatedRun, run_metadata
 from ..lot.synthetic import write_population_lot
 from ..twin.simlot import load_device
-from ._common import MAX_SEED, Finite, Whole, config_store_file, force_option, output_kind
+from ._common import MAX_SEED, Finite, Whole, force_option, output_kind
+from ._outputs import refuse_output
 
 
 def parse_temps(text: str | None) -> list[float] | None:
@@ -122,8 +122,8 @@ def command(config: str | None, design: str, lot: int | None, out: str, raw: boo
             force: bool = False) -> None:
     """Simulate a calibration run and write its pose table (or raw log) and ground truth."""
     table = "parquet" if output_kind(out) == "parquet" else "csv"  # a pose table, raw log or lot
-    refuse_overwrite([("--out", out, table), ("--truth-out", truth_out, "json")],
-                     [("--config", config), ("the store", config_store_file(config) if config else None)], force)
+    refuse_output([("--out", out, table), ("--truth-out", truth_out, "json")], [("--config", config)], force,
+                  config=config)
     get_design(design)
     if lot is not None:
         _write_lot(config, design, lot, out, seed, samples, as_json)

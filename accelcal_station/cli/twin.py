@@ -13,9 +13,9 @@ from ..acceptance.rules import Limits
 from ..atomic import atomic_write
 from ..config.sections import default_config_path
 from ..errors import DataError
-from ..fileguard.identity import refuse_overwrite
-from ._common import force_option, store_file
+from ._common import force_option
 from ._mes import JsonGroup
+from ._outputs import refuse_output
 from ._text import error_text
 
 if TYPE_CHECKING:  # twin/ is imported on first use (scipy): its records for the checker only
@@ -72,7 +72,7 @@ def _source_options(f: F) -> F:
 def fit_cmd(source: str | None, db: str | None, since: str | None, station: str | None, out: str, components: int,
             as_json: bool, force: bool = False) -> None:
     """Fit the population of lot file SOURCE (or --db); write the default config with population: replaced."""
-    refuse_overwrite([("-o", out, "yaml")], [("SOURCE", source), ("--db", store_file(db))], force)
+    refuse_output([("-o", out, "yaml")], [("SOURCE", source)], force, has_config=False, stores=[("--db", db)])
     if not Path(out).resolve().parent.is_dir():
         raise DataError(f"{out}: cannot write (no such directory {Path(out).parent})")
     from ..twin.fit import fit_twin

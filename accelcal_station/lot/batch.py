@@ -36,7 +36,7 @@ from ..calibration import PARAM_NAMES, Calibration, param_vector
 from ..data.loader import load_pose_table
 from ..errors import AccelcalError, DataError
 from ..fileguard.cells import safe_row
-from ..fileguard.identity import refuse_overwrite
+from ..fileguard.identity import Named, refuse_overwrite
 from ..models.fitting import check_model, check_plausible_g, fit_batch, fit_temperature
 from ..models.held import Held
 from ..models.result import FitResult
@@ -346,7 +346,8 @@ def _file_stem(r: BoardResult) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", stem).strip("._") or "board"
 
 
-def write_calibrations(report: BatchReport, out_dir: str | Path, force: bool = False) -> dict[str, Path]:
+def write_calibrations(report: BatchReport, out_dir: str | Path, force: bool = False,
+                       protected: Iterable[Named] = ()) -> dict[str, Path]:
     """One calibration JSON per fitted board in ``out_dir`` (atomic writes); source -> path.
 
     Files are named for the board (pose table name, or ``runN-SERIAL``); a name taken
@@ -371,8 +372,8 @@ def write_calibrations(report: BatchReport, out_dir: str | Path, force: bool = F
         taken.add(stem)
         plan.append((r, d / f"{stem}.json"))
     # a calibration never replaces a board's own input (a pose table named like the JSON it would get)
-    refuse_overwrite([("--out-dir file", p, "json") for _, p in plan], [("input", r.source) for r in report.results],
-                     force)
+    refuse_overwrite([("--out-dir file", p, "json") for _, p in plan],
+                     [*(("input", r.source) for r in report.results), *protected], force)
     out: dict[str, Path] = {}
     for r, path in plan:
         try:
