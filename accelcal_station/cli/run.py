@@ -26,7 +26,7 @@ from ..station.shift import (
     run_shift,
     summary_lines,
 )
-from ._common import jsonable
+from ._common import Finite, Whole, jsonable
 from ._common import store_file as store_file_of
 from ._outputs import refuse_output
 from .operator_terminal import TerminalOperator
@@ -47,13 +47,13 @@ from .operator_terminal import TerminalOperator
 @click.option("--ui", "ui_kind", type=click.Choice(["terminal", "web"]), default="terminal", show_default=True,
               help="The operator's front end: prompts here, or a page in a browser (needs the web extra).")
 @click.option("--ui-host", default="127.0.0.1", show_default=True, help="With --ui web: the address to listen on.")
-@click.option("--ui-port", default=8751, show_default=True, type=click.IntRange(1, 65535),
+@click.option("--ui-port", default=8751, show_default=True, type=Whole(1, 65535),
               help="With --ui web: the port of the operator page.")
 @click.option("--shift", "shift", is_flag=True,
               help="Board after board in one process: each starts with its scanned serial; end of input "
                    "at the serial prompt ends the shift with a summary (exit 0).")
 @click.option("--device-wait", "device_wait_s", default=DEVICE_WAIT_S, show_default=True,
-              type=click.FloatRange(0, 86400),
+              type=Finite(0, 86400),
               help="With --shift: seconds to wait for a device that is gone between boards before the shift "
                    "ends (exit 3).")
 def command(config_path: str | None, serial: str | None, operator: str | None, lot: str | None,
