@@ -34,6 +34,7 @@ from ..store.records import iso
 from ._common import config_store_file
 from ._common import jsonable as _clean
 from ._mes import JsonGroup
+from ._nvm_backup import check_backup_slots, check_new_file
 from ._outputs import refuse_output
 
 STATE_COLOUR = {"valid": "green", "empty": "yellow", "corrupt": "red"}
@@ -190,6 +191,7 @@ def backup_cmd(ctx: click.Context, config_path: str | None, out: str | None, as_
     with _device(ctx, config_path) as (dev, writer):
         path = Path(out) if out else auto_backup_path(Path("."), _serial(dev, None))
         _refuse_over_inputs(ctx, ("--out", out or path))  # as given: Path() would fold a URL's "//"
+        check_new_file("--out", path)
         summary = writer.backup(path, chip=dev.identify().chip)
     doc = {**summary, "path": str(path)}
     states = ", ".join(f"slot {s['slot']} {s['state']}" for s in summary["slots"])
@@ -214,6 +216,8 @@ def restore_cmd(ctx: click.Context, image: str, config_path: str | None, serial:
         sn = _serial(dev, serial)
         backup = Path(backup_to) if backup_to else auto_backup_path(Path(image).resolve().parent, sn)
         _refuse_over_inputs(ctx, ("--backup-to", backup_to or backup), ("IMAGE", image))
+        check_new_file("--backup-to", backup)
+        check_backup_slots(writer, image)  # each slot's own CRC, before anything is written
         writer.restore(image, serial=sn, allow_other_serial=any_serial, backup_to=backup, chip=dev.identify().chip)
         doc = _snapshot(dev, writer, sn)
     doc.update(restored=str(image), backup=str(backup))
@@ -244,8 +248,7 @@ def erase_cmd(ctx: click.Context, config_path: str | None, backup_to: str | None
         sn = _serial(dev, None)
         backup = Path(backup_to) if backup_to else auto_backup_path(Path("."), sn)
         _refuse_over_inputs(ctx, ("--backup-to", backup_to or backup))
-        if backup.exists():
-            raise NVMError(f"{backup}: backup file exists; choose another name (backups are never overwritten)")
+        check_new_file("--backup-to", backup)
         valid = sum(s.state == "valid" for s in writer.status())
         if not yes and not _confirm(ctx, f"Erase both calibration slots of {sn or 'this board'} "
                                          f"({valid} valid calibration(s)); backup to {backup} first?"):
