@@ -23,10 +23,12 @@ def identity_options(station: StationSection | None) -> dict[str, bool]:
     return {k: getattr(st, k) for k in IDENTITY_KEYS}
 
 
-def check_serial(text: str, where: str) -> str:
+def check_serial(text: str, where: str, what: str = "a serial number") -> str:
+    """A serial number (or a lot or station id, ``what``, of the same form): 1-64 letters, digits and
+    . _ : / -, starting with a letter or digit; else one DataError naming what it is not."""
     s = text.strip()
     if not SERIAL_RE.fullmatch(s):
-        raise DataError(f"{where}: {s[:40]!r} is not a serial number; allowed: 1-64 letters, digits and . _ : / -, "
+        raise DataError(f"{where}: {s[:40]!r} is not {what}; allowed: 1-64 letters, digits and . _ : / -, "
                         "starting with a letter or digit")
     return s
 
@@ -44,9 +46,9 @@ def check_name(text: str, where: str) -> str:
 def check_run_labels(operator: str | None, lot: str | None, station_id: str | None) -> tuple[str | None, str | None]:
     """--operator (check_name), --lot and the config's station.id (check_serial) as a run records them."""
     if station_id is not None:
-        check_serial(station_id, "station.id")
+        check_serial(station_id, "station.id", "a station id")
     return (None if operator is None or not operator.strip() else check_name(operator, "--operator"),
-            None if lot is None or not lot.strip() else check_serial(lot, "--lot"))
+            None if lot is None or not lot.strip() else check_serial(lot, "--lot", "a lot name"))
 
 
 class RunConfig(Protocol):
