@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pyarrow.csv as pcsv
 import pyarrow.parquet as pq
 import pytest
@@ -143,4 +144,23 @@ def test_the_csv_module_reader_skips_the_same_boards(tmp_path, monkeypatch, col,
     chunk = next(chunks)
     assert chunk.bad[0] is not None and named in chunk.bad[0], chunk.bad
     assert chunk.bad[1:] == [None, None]
-    assert not (chunk.cols[col][0] == chunk.cols[col][0])  # NaN: nothing downstream computes with it
+    assert np.isnan(chunk.cols[col][0])  # NaN: nothing downstream computes with it
+
+
+@pytest.mark.parametrize(("sql", "said"), [
+    ("UPDATE poses SET n = 0 WHERE run_id = 1 AND idx = 0", "SKIP run 1: pose 'p0': n 0: sample count n out of range"),
+    ("UPDATE poses SET std_x = -1 WHERE run_id = 1 AND idx = 0", "SKIP run 1: pose 'p0': std_x -1: std out of range")])
+def test_a_store_value_no_table_allows_skips_its_run(tmp_path, sql, said):
+    """A store's row checks take n = 0 and a negative std; batch --from-store checks the values as a
+    pose table does, once, and names the run (issue 53)."""
+    import sqlite3
+
+    from test_store_outputs import _store
+
+    db = tmp_path / "s.sqlite"
+    _store(db)
+    with sqlite3.connect(db) as c:
+        c.execute(sql)
+    r = _run("batch", "--from-store", str(db), errors=True)
+    assert r.returncode == 1 and r.stderr == "", r.stderr
+    assert said in r.stdout and "2 of 3 boards recalibrated" in r.stdout, r.stdout
