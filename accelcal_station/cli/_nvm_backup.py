@@ -40,6 +40,8 @@ def check_backup_slots(writer: CalibrationWriter, path: str | Path) -> None:
     except NVMError as e:
         raise NVMError(_length_field(writer, path) or str(e)) from None
     n = writer.slot_size
+    damaged: list[BlobError] = []
+    valid = 0
     for i, name in enumerate(SLOTS):
         raw = img[i * n:(i + 1) * n]
         source = f"slot {name} of the backup"
@@ -48,10 +50,13 @@ def check_backup_slots(writer: CalibrationWriter, path: str | Path) -> None:
             if length > n:
                 raise BlobError(f"{source}: length {length} exceeds the {n}-byte slot", "length")
             decode(raw[:length], source)
+            valid += 1
         except BlobError as e:
             if e.kind != "empty":
-                raise NVMError(f"{path}: {e}; the backup is damaged (its overall CRC-32 matches, a slot's own "
-                               "does not); nothing was written") from None
+                damaged.append(e)
+    if damaged and valid:  # with no valid slot at all, the writer refuses it ("holds no valid calibration")
+        raise NVMError(f"{path}: {damaged[0]}; the backup is damaged (its overall CRC-32 matches, a slot's own "
+                       "does not); nothing was written")
 
 
 def check_new_file(label: str, path: str | Path) -> None:
