@@ -174,5 +174,28 @@ def test_unwritable_output_is_one_line_and_leaves_nothing(tmp_path):
     r = run("simulate", "--poses", "six-face", "--out", str(out), "--truth-out", str(truth))
     assert r.exit_code != 0 and "cannot write" in r.output and "Traceback" not in r.output
     assert not out.exists() and not truth.exists()
-    r = run("simulate", "--poses", "six-face", "--out", str(truth), "--truth-out", str(out))
-    assert r.exit_code != 0 and "cannot write" in r.output and not truth.exists()
+    # the truth's folder missing (the names keep their formats: a .json --out is refused by its suffix)
+    table, lost = tmp_path / "p.csv", tmp_path / "missing" / "t.json"
+    r = run("simulate", "--poses", "six-face", "--out", str(table), "--truth-out", str(lost))
+    assert r.exit_code != 0 and "cannot write" in r.output and not table.exists()
+
+
+@pytest.mark.parametrize(("args", "said"), [
+    (["--lot", "3", "--out", "lot.parquet"], "--out lot.parquet: simulate writes a CSV table there, not a Parquet"),
+    (["--out", "poses.json"], "--out poses.json: simulate writes a CSV table there, not a JSON file"),
+    (["--out", "p.csv", "--truth-out", "truth.csv"], "--truth-out truth.csv: simulate writes a JSON file there"),
+])
+def test_a_suffix_of_another_format_is_refused(tmp_path, monkeypatch, args, said):
+    """Issue 53: `simulate --lot --out x.parquet` wrote CSV text under a Parquet name."""
+    monkeypatch.chdir(tmp_path)
+    r = run("simulate", "--poses", "six-face", *args)
+    assert r.exit_code == 2 and said in r.output and "allowed:" in r.output, r.output
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_bad_lot_is_called_a_lot(tmp_path):
+    """Issue 53: a bad --lot was 'not a serial number'; nothing is recorded."""
+    store = tmp_path / "runs.sqlite"
+    r = run("run", "--lot", "bad lot!", "--serial", "SN1", "--store", str(store))
+    assert r.exit_code == 2 and "--lot: 'bad lot!' is not a lot name; allowed:" in r.output, r.output
+    assert not store.exists()

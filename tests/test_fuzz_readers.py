@@ -29,6 +29,9 @@ from accelcal_station.data.lotfile import board_arrays, open_lot
 from accelcal_station.errors import AccelcalError
 from accelcal_station.nvm.writer import CalibrationWriter
 
+# issue 53: no Python warning reaches the terminal: any warning raised here fails its test (-W error)
+pytestmark = pytest.mark.filterwarnings("error")
+
 pa = pytest.importorskip("pyarrow", reason="the Parquet strategies need the optional pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
 

@@ -17,6 +17,9 @@ from accelcal_station.cli import cli
 from accelcal_station.config.sections import default_config_path
 from accelcal_station.lot.synthetic import write_lot
 
+# issue 53: no Python warning reaches the terminal: any warning raised here fails its test (-W error)
+pytestmark = pytest.mark.filterwarnings("error")
+
 pa = pytest.importorskip("pyarrow", reason="Parquet lots need the optional pyarrow (the parquet extra)")
 pq = pytest.importorskip("pyarrow.parquet")
 

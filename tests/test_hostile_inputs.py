@@ -15,6 +15,9 @@ from click.testing import CliRunner
 from accelcal_station.cli import cli
 from accelcal_station.config.sections import default_config_path
 
+# issue 53: no Python warning reaches the terminal: any warning raised here fails its test (-W error)
+pytestmark = pytest.mark.filterwarnings("error")
+
 
 def one_line_error(r, code=2):
     assert r.exit_code == code, r.output

@@ -3,6 +3,7 @@ registered as a command)."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ import numpy as np
 from ..calibration import MODELS
 from ..conventions import check_units
 from ..errors import AccelcalError, DataError, UnitsError
+from ..fileguard.numbers import ALLOWED, is_decimal
 
 MAX_SEED = 2**128 - 1  # numpy's SeedSequence takes any; the seeds the station prints are at most 128-bit
 MAX_ID = 2**63 - 1  # a run id is a 64-bit integer in every store
@@ -27,15 +29,37 @@ class Finite(click.FloatRange):
         super().__init__(lo, hi)
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and math.isfinite(_loose(value)) and not is_decimal(value):
+            self.fail(f"{value!r}; allowed: {ALLOWED}", param, ctx)
         v = super().convert(value, param, ctx)
         if not math.isfinite(v):
             self.fail(f"{value!r} is not a finite number; allowed: {self.min:g} to {self.max:g}", param, ctx)
         return v
 
 
-def Whole(lo: int, hi: int) -> click.IntRange:
-    """A whole-number option within [lo, hi] (never unbounded: a count becomes an allocation)."""
-    return click.IntRange(lo, hi)
+class Whole(click.IntRange):
+    """A whole-number option within [lo, hi] (never unbounded: a count becomes an allocation), in
+    ASCII digits (int() also takes '4_096' and other scripts' digits)."""
+
+    def __init__(self, lo: int, hi: int | None) -> None:
+        super().__init__(lo, hi)
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and not _WHOLE.fullmatch(value):
+            most = f"{self.min} to {self.max}" if self.max is not None else f"{self.min} or more"
+            self.fail(f"{value!r}; allowed: a whole number in ASCII digits, {most}", param, ctx)
+        return super().convert(value, param, ctx)
+
+
+_WHOLE = re.compile(r"\s*[+-]?\d+\s*", re.ASCII)
+
+
+def _loose(value: str) -> float:
+    """float(value) as Python reads it (NaN when it cannot): what a stricter check then refuses."""
+    try:
+        return float(value)
+    except ValueError:
+        return math.nan
 
 
 def parse_number(value: str | None, flag: str, positive: bool = True) -> float | None:
@@ -61,6 +85,8 @@ OPTION_MAX = {
 
 def _parse(value: str, flag: str, integer: bool, positive: bool) -> float:
     try:
+        if not (_WHOLE.fullmatch(value) if integer else is_decimal(value)):
+            raise ValueError(value)  # '4_096', another script's digits: refused below (fileguard.numbers)
         v = float(int(value)) if integer else float(value)
     except (ValueError, OverflowError):
         v = math.nan
@@ -72,8 +98,8 @@ def _parse(value: str, flag: str, integer: bool, positive: bool) -> float:
     return v
 
 
-FORCE_HELP = ("Replace an existing output file of another kind, or an SQLite database that is not the store "
-              "this command reads (never the store or an input it reads).")
+FORCE_HELP = ("Replace an existing output file of another kind, or an SQLite database that is no store this "
+              "command reaches (never its --db, its --config's store, the default store or an input it reads).")
 
 
 def force_option(f: Any) -> Any:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Sequence
 from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, TypedDict
@@ -15,10 +16,11 @@ from typing import TYPE_CHECKING, Protocol, TypedDict
 import click
 
 from ..errors import DataError
-from ..fileguard.identity import refuse_overwrite
+from ..fileguard.identity import Named, refuse_overwrite
 from ._common import check_model_units, force_option, output_kind, parse_int, store_file
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
+from ._outputs import refuse_output, stores_reached
 from ._text import clean, error_text
 
 if TYPE_CHECKING:  # a lot file's mode (--out) imports neither the pose-table batch nor the store
@@ -133,8 +135,8 @@ def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str
         raise DataError(f"--out writes a lot file's results table; {', '.join(other)} cannot be combined with it")
     if len(paths) != 1:
         raise DataError(f"--out takes one lot file; got {len(paths)} path(s)")
-    refuse_overwrite([("--out", out, output_kind(out))], [("the lot file", paths[0]), ("--config", config_path)],
-                     force)
+    refuse_output([("--out", out, output_kind(out))], [("the lot file", paths[0]), ("--config", config_path)],
+                  force, config=config_path)
     limits = _limits(config_path)
     _arrow_allocator()
     summary = recalibrate_lot(paths[0], out, model, units=units, counts_per_g=cpg, gravity_mps2=grav,
@@ -211,9 +213,9 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
                                   ("--to-store", to_store)) if v is not None])
         return
     store_filters = _store_filters(from_store, lot, device, station, since, until, run_ids)
-    _check_inputs(paths, from_store, csv_path, to_store, out_dir, force)
+    protected = _check_inputs(paths, from_store, csv_path, to_store, out_dir, force, config_path)
     report = _fit_boards(paths, from_store, store_filters, model, units, cpg, grav, as_json, _limits(config_path))
-    outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store, config_path, force)
+    outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store, config_path, force, protected)
     _print_report(report, outputs, written, as_json)
     if report.skipped:
         ctx.exit(1)
@@ -240,22 +242,25 @@ def _store_filters(from_store: str | None, lot: str | None, device: tuple[str, .
 
 
 def _check_inputs(paths: tuple[str, ...], from_store: str | None, csv_path: str | None, to_store: str | None,
-                  out_dir: str | None = None, force: bool = False) -> None:
+                  out_dir: str | None = None, force: bool = False, config_path: str | None = None) -> list[Named]:
     """Refuse, before any work, a call with no boards, a --csv file in a folder that does not exist, or
-    an output that is one of the inputs (a pose table, the source store)."""
+    an output that is one of the inputs (a pose table) or a store the command reaches; returns those
+    stores (_outputs.stores_reached), for the files --out-dir will get."""
     from ..lot.batch import expand_paths
 
     if not paths and from_store is None:
         raise DataError("no boards given; pass pose tables, directories or globs, or --from-store FILE")
     inputs = [("input", str(p)) for p in expand_paths(paths)] if paths else []
-    refuse_overwrite([("--csv", csv_path, "csv")], [*inputs, ("--from-store", store_file(from_store))], force)
+    protected = stores_reached(config_path, own=[("--from-store", from_store)])
+    refuse_overwrite([("--csv", csv_path, "csv")], [*inputs, *protected], force)
     refuse_overwrite([("--to-store", store_file(to_store), "store")],
                      [*inputs, ("--csv", csv_path)], force)  # may be --from-store
     if out_dir is not None:  # the folder itself: never a store or a file (the files in it: write_calibrations)
-        refuse_overwrite([("--out-dir", out_dir, "directory")], [*inputs, ("--from-store", store_file(from_store))])
+        refuse_overwrite([("--out-dir", out_dir, "directory")], [*inputs, *protected])
     for p in (csv_path,):
         if p is not None and not Path(p).resolve().parent.is_dir():
             raise DataError(f"--csv {p}: cannot write (no such directory {Path(p).parent})")
+    return protected
 
 
 def _limits(config_path: str | None) -> Limits | None:
@@ -292,8 +297,8 @@ def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: S
 
 
 def _write_outputs(report: BatchReport, out_dir: str | None, csv_path: str | None, to_store: str | None,
-                   from_store: str | None, config_path: str | None = None,
-                   force: bool = False) -> tuple[BatchOutputs, dict[str, Path]]:
+                   from_store: str | None, config_path: str | None = None, force: bool = False,
+                   protected: Sequence[Named] = ()) -> tuple[BatchOutputs, dict[str, Path]]:
     """Write the calibrations, the summary CSV and the store records asked for: (what was written
     where, the calibration file of each board source)."""
     from ..lot.batch import record_in_store, summary_csv, write_calibrations
@@ -303,7 +308,7 @@ def _write_outputs(report: BatchReport, out_dir: str | None, csv_path: str | Non
     outputs: BatchOutputs = {}
     written: dict[str, Path] = {}
     if out_dir is not None:
-        written = write_calibrations(report, out_dir, force)
+        written = write_calibrations(report, out_dir, force, protected)
         outputs["out_dir"], outputs["calibrations"] = str(out_dir), len(written)
     if csv_path is not None:
         summary_csv(report, csv_path)

@@ -6,14 +6,14 @@ import json
 import click
 
 from ..instruments.chamber import AsciiChamber, require_pyvisa
-from ._common import Finite
+from ._common import Finite, Whole
 
 
 @click.command("chamber")
 @click.argument("action", type=click.Choice(("status", "set", "standby", "clear")))
 @click.option("--temp-c", type=Finite(-100.0, 300.0), default=None, help="set: the set point, C (-100 to 300).")
 @click.option("--port", required=True, help="Serial device, host:port or VISA resource of the chamber.")
-@click.option("--baud", type=click.IntRange(300, 1_000_000), default=9600, show_default=True)
+@click.option("--baud", type=Whole(300, 1_000_000), default=9600, show_default=True)
 @click.option("--timeout-s", type=Finite(0.01, 60), default=1.0, show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def command(action: str, temp_c: float | None, port: str, baud: int, timeout_s: float, as_json: bool) -> None:

@@ -11,10 +11,10 @@ from ..data.rawlog import check_rate
 from ..diagnosis.report import REPORT_FILES, check_report_dir, selftest_lines, summary_lines, write_report
 from ..diagnosis.selftest import selftest as run_selftest
 from ..errors import DataError
-from ..fileguard.identity import refuse_overwrite
 from ._common import MAX_SEED, Whole, parse_int
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
+from ._outputs import refuse_output
 from ._text import clean
 
 _REPORT_KIND = {".md": "markdown", ".png": "png"}  # what each report file is (fileguard.kind)
@@ -63,8 +63,8 @@ def command(ctx: click.Context, files: tuple[str, ...], config: str | None, raw:
         return
     out_dir = check_report_dir(report_dir) if report_dir else None
     if out_dir is not None:
-        refuse_overwrite([("--report file", out_dir / n, _REPORT_KIND[Path(n).suffix]) for n in REPORT_FILES],
-                         [*(("FILE", f) for f in files), ("--config", config)])
+        refuse_output([("--report file", out_dir / n, _REPORT_KIND[Path(n).suffix]) for n in REPORT_FILES],
+                      [*(("FILE", f) for f in files), ("--config", config)], config=config)
     rate_hz = _number(rate, "--rate")
     check_rate(rate_hz)
     d = diagnose(files, config=config, raw=raw, units=units, counts_per_g=_number(counts_per_g, "--counts-per-g"),

@@ -16,7 +16,6 @@ from ..data.loader import Loaded, load
 from ..data.rawlog import RawLog
 from ..data.static_poses import StaticDetection
 from ..errors import AccelcalError, DataError
-from ..fileguard.identity import refuse_overwrite
 from ..identifiability import assess, worst_parameter
 from ..models.choice import ModelChoice, ModelChoiceJson, choose_model, with_face_references
 from ..models.handplaced import norm_faces, opposite_face
@@ -25,6 +24,7 @@ from ..session import Session
 from ._common import check_model_units, force_option, parse_int
 from ._common import jsonable as _clean
 from ._common import parse_number as _number
+from ._outputs import refuse_output
 from ._text import clean
 
 
@@ -352,7 +352,7 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
             gravity: str | None, temp_method: str, columns: str | None, skip_rows: str | None, rate: str | None,
             hand_placed: bool, as_json: bool, output: str | None, force: bool = False) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
-    refuse_overwrite([("-o", output, "json")], [("FILE", path)], force)
+    refuse_output([("-o", output, "json")], [("FILE", path)], force, has_config=False)
     model = "6" if model is None and hand_placed else model
     check_model_units(model or "12", units)  # no --model: the units still checked first
     check_temp_method(temp_method)

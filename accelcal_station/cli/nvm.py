@@ -29,12 +29,13 @@ from ..config.sections import device_section
 from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import DeviceError, NVMError
-from ..fileguard.identity import refuse_overwrite
 from ..nvm.writer import CalibrationWriter, SlotStatus
 from ..store.records import iso
 from ._common import config_store_file
 from ._common import jsonable as _clean
 from ._mes import JsonGroup
+from ._nvm_backup import check_backup_slots, check_new_file
+from ._outputs import refuse_output
 
 STATE_COLOUR = {"valid": "green", "empty": "yellow", "corrupt": "red"}
 
@@ -50,7 +51,12 @@ def _device(ctx: click.Context, config_path: str | None) -> Iterator[tuple[Drive
     else:
         from ..config.sections import default_config_path
 
-        dev = make_driver(device_section(config_path or str(default_config_path())))
+        section = device_section(config_path or str(default_config_path()))
+        # the image is written on every page write: never a store the command reaches (checked before
+        # the driver reads it)
+        refuse_output([("device.eeprom.image", getattr(getattr(section, "eeprom", None), "image", None))],
+                      [("--config", config_path)], config=config_path)
+        dev = make_driver(section)
     image = getattr(dev.nvm, "image_path", None)
     ctx.meta["accelcal.nvm_inputs"] = [("--config", config_path), ("the board's EEPROM image", image),
                                        ("the store", config_store_file(config_path))]
@@ -68,7 +74,7 @@ def _refuse_over_inputs(ctx: click.Context, output: tuple[str, str | Path], *inp
     """A backup never replaces the config, the board's EEPROM image, the store, the restored image or an
     SQLite database (exit 2, fileguard.kind); any other existing file is refused by the writer (backups
     are never overwritten)."""
-    refuse_overwrite([output], [*ctx.meta.get("accelcal.nvm_inputs", []), *inputs])
+    refuse_output([output], [*ctx.meta.get("accelcal.nvm_inputs", []), *inputs])
 
 
 def _serial(dev: Driver, given: str | None) -> str | None:
@@ -185,6 +191,7 @@ def backup_cmd(ctx: click.Context, config_path: str | None, out: str | None, as_
     with _device(ctx, config_path) as (dev, writer):
         path = Path(out) if out else auto_backup_path(Path("."), _serial(dev, None))
         _refuse_over_inputs(ctx, ("--out", out or path))  # as given: Path() would fold a URL's "//"
+        check_new_file("--out", path)
         summary = writer.backup(path, chip=dev.identify().chip)
     doc = {**summary, "path": str(path)}
     states = ", ".join(f"slot {s['slot']} {s['state']}" for s in summary["slots"])
@@ -209,6 +216,8 @@ def restore_cmd(ctx: click.Context, image: str, config_path: str | None, serial:
         sn = _serial(dev, serial)
         backup = Path(backup_to) if backup_to else auto_backup_path(Path(image).resolve().parent, sn)
         _refuse_over_inputs(ctx, ("--backup-to", backup_to or backup), ("IMAGE", image))
+        check_new_file("--backup-to", backup)
+        check_backup_slots(writer, image)  # each slot's own CRC, before anything is written
         writer.restore(image, serial=sn, allow_other_serial=any_serial, backup_to=backup, chip=dev.identify().chip)
         doc = _snapshot(dev, writer, sn)
     doc.update(restored=str(image), backup=str(backup))
@@ -239,8 +248,7 @@ def erase_cmd(ctx: click.Context, config_path: str | None, backup_to: str | None
         sn = _serial(dev, None)
         backup = Path(backup_to) if backup_to else auto_backup_path(Path("."), sn)
         _refuse_over_inputs(ctx, ("--backup-to", backup_to or backup))
-        if backup.exists():
-            raise NVMError(f"{backup}: backup file exists; choose another name (backups are never overwritten)")
+        check_new_file("--backup-to", backup)
         valid = sum(s.state == "valid" for s in writer.status())
         if not yes and not _confirm(ctx, f"Erase both calibration slots of {sn or 'this board'} "
                                          f"({valid} valid calibration(s)); backup to {backup} first?"):

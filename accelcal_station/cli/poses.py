@@ -11,6 +11,7 @@ from ..conventions import up_direction
 from ..errors import DataError
 from ..fixtures.designs import describe, design_model, get_design, min_separation, predict_stderr, references
 from ..fixtures.operator_jig import pose_words
+from ._common import Finite
 
 # Display scale and unit per parameter family: gains and cubic terms are dimensionless
 # (shown in 1e-3), offsets are in g (shown in mg).
@@ -26,7 +27,7 @@ def _clean(v: np.ndarray) -> list[float]:
 @click.argument("name")
 @click.option("--model", type=click.Choice(MODELS), default=None,
               help="Model to predict for (default: the one the design was drawn up for).")
-@click.option("--noise-mg", type=float, default=1.0, show_default=True,
+@click.option("--noise-mg", type=Finite(0.0, 1e6), default=1.0, show_default=True,
               help="Per-axis standard error of each pose's averaged reading, in mg.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def command(name: str, model: str | None, noise_mg: float, as_json: bool) -> None:

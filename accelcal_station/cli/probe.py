@@ -8,16 +8,16 @@ import click
 from ..config.sections import device_section, with_port
 from ..drivers.factory import make_driver
 from ..errors import DeviceError
-from ._common import jsonable
+from ._common import Whole, jsonable
 
 
 @click.command("probe")
 @click.option("--config", "config_path", required=True, type=click.Path(dir_okay=False),
               help="Station YAML with a device: section (e.g. configs/mma8451-emulated.yaml).")
 @click.option("--port", default=None, help="Override the serial port, or the I2C bus number / /dev/i2c-N.")
-@click.option("--readings", default=3, show_default=True, type=click.IntRange(1, 100),
+@click.option("--readings", default=3, show_default=True, type=Whole(1, 100),
               help="How many averaged readings to take.")
-@click.option("--samples", default=32, show_default=True, type=click.IntRange(1, 100000),
+@click.option("--samples", default=32, show_default=True, type=Whole(1, 100000),
               help="Samples averaged per reading.")
 @click.option("--scan", is_flag=True,
               help="Bring-up: list what answers on the device's I2C bus (behind each TCA9548A channel too), or "

@@ -11,14 +11,15 @@ import click
 from ..calibration import PARAM_NAMES
 from ..config.checks import load_yaml
 from ..errors import DataError
-from ..fileguard.identity import refuse_overwrite
 from ..jsontypes import JsonValue
 from ..store.liveness import STALE
 from ..store.location import store_path, store_target
+from ..store.records import RunRecord
 from ..store.runs import Store
 from ..store.schema import STATUSES, VERDICTS
-from ._common import MAX_ID, Whole, force_option, store_file
+from ._common import MAX_ID, Whole, force_option
 from ._mes import JsonGroup
+from ._outputs import refuse_output
 from ._text import clean
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -69,8 +70,12 @@ def _open(db: str | None, config_path: str | None, output: tuple[str, str | None
     """The store to read; ``output`` (its option, its file), when given, is refused first if it is the
     store's own file or the config's (never overwritten, nothing written)."""
     target, cfg = _target(db, config_path)
-    if output is not None:
-        refuse_overwrite([output], [("the store", store_file(target)), ("--config", cfg)], force)
+    if output is not None:  # the store read, and the --config's store even when --db names another
+        ctx = click.get_current_context(silent=True)
+        group = ctx.parent.params if ctx is not None and ctx.parent is not None else {}
+        given = config_path if config_path is not None else group.get("config_path")
+        refuse_output([output], [("--config", cfg or given)], force, config=cfg or given,
+                      stores=[("the store", target)])
     return Store(target, create=False, upgrade=upgrade)
 
 
@@ -78,6 +83,14 @@ def _name_damage(damage: list[dict[str, str]]) -> None:
     """One line on stderr per damaged value read (the output goes on; `report check` lists all)."""
     for d in damage:
         click.echo(clean(f"damaged_row: {d['table']} {d['id']} {d['column']}: {d['problem']}"), err=True)
+
+
+def _name_unread(recs: list[RunRecord]) -> None:
+    """A SKIP line on stderr per complete run whose poses cannot be read (RunRecord.poses_unread): its
+    row is exported, its poses are not, and the export says so."""
+    for rec in recs:
+        if not rec.damage and (why := rec.poses_unread()) is not None:
+            click.echo(clean(f"SKIP run {rec.id}: {why}"), err=True)
 
 
 class RunFilters(TypedDict):
@@ -231,7 +244,9 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
             text = json.dumps({"schema": "accelcal.runs", "version": 1, "runs": data}, indent=1)
         else:
             text = store.export_csv(output, kind="poses" if poses else "runs", **flt)
-        _name_damage([d.to_dict() for rec in store.runs(**flt) for d in rec.damage])  # poses' and events' too
+        recs = store.runs(**flt)
+        _name_damage([d.to_dict() for rec in recs for d in rec.damage])  # poses' and events' too
+        _name_unread(recs)
     if output is None:
         click.echo(text.rstrip("\n"))
     elif as_json:

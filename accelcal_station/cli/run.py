@@ -26,8 +26,9 @@ from ..station.shift import (
     run_shift,
     summary_lines,
 )
-from ._common import jsonable
+from ._common import Finite, Whole, jsonable
 from ._common import store_file as store_file_of
+from ._outputs import refuse_output
 from .operator_terminal import TerminalOperator
 
 
@@ -46,7 +47,7 @@ from .operator_terminal import TerminalOperator
 @click.option("--ui", "ui_kind", type=click.Choice(["terminal", "web"]), default="terminal", show_default=True,
               help="The operator's front end: prompts here, or a page in a browser (needs the web extra).")
 @click.option("--ui-host", default="127.0.0.1", show_default=True, help="With --ui web: the address to listen on.")
-@click.option("--ui-port", default=8751, show_default=True, type=click.IntRange(1, 65535),
+@click.option("--ui-port", default=8751, show_default=True, type=Whole(1, 65535),
               help="With --ui web: the port of the operator page.")
 @click.option("--dry-run", "dry_run", is_flag=True,
               help="Check the station without a board's run: validate the config, open and identify every "
@@ -57,7 +58,7 @@ from .operator_terminal import TerminalOperator
               help="Board after board in one process: each starts with its scanned serial; end of input "
                    "at the serial prompt ends the shift with a summary (exit 0).")
 @click.option("--device-wait", "device_wait_s", default=DEVICE_WAIT_S, show_default=True,
-              type=click.FloatRange(0, 86400),
+              type=Finite(0, 86400),
               help="With --shift: seconds to wait for a device that is gone between boards before the shift "
                    "ends (exit 3).")
 def command(config_path: str | None, serial: str | None, operator: str | None, lot: str | None,
@@ -129,8 +130,9 @@ def _refuse_over_config(cfg: StationConfig) -> None:
     """What a run writes (the store, the simulated board's EEPROM image) is never its own config."""
     dev = cfg.device
     image = dev.eeprom.image if isinstance(dev, SimulatedDevice) and dev.eeprom is not None else None
-    refuse_overwrite([("the store", store_file_of(cfg.store_file), "store"), ("device.eeprom.image", image)],
-                     [("--config", str(cfg.path))])
+    refuse_overwrite([("the store", store_file_of(cfg.store_file), "store")], [("--config", str(cfg.path))])
+    refuse_output([("device.eeprom.image", image)], [("--config", str(cfg.path))], has_config=False,
+                  stores=[("the store", cfg.store_file)])
 
 
 def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None, as_json: bool,

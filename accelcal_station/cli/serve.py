@@ -13,6 +13,7 @@ import click
 from ..errors import ConfigError
 from ..station.settings import StationConfig
 from ..store.location import store_target
+from ._common import Whole
 
 
 def require_web() -> None:
@@ -71,7 +72,7 @@ def operator_exposure(host: str, page_token: str | None, public: bool) -> str:
               help="A station config (repeatable): its store, acceptance limits, web.token and web.read_token.")
 @click.option("--host", default="127.0.0.1", show_default=True,
               help="Address to listen on; anything but localhost needs web.read_token or --public.")
-@click.option("--port", default=8750, show_default=True, type=click.IntRange(1, 65535))
+@click.option("--port", default=8750, show_default=True, type=Whole(1, 65535))
 @click.option("--public", is_flag=True, help="Serve reads to anyone who can reach --host, without a read token.")
 def command(db: str | None, configs: tuple[str, ...], host: str, port: int, public: bool) -> None:
     """Serve the line page (/), board and lot pages and the JSON API (/api/v1, schema at /openapi.json).

@@ -21,12 +21,14 @@ from ..config.sections import default_config_path
 from ..data.posetable import write_pose_table
 from ..drivers.simulated import SimulatedBoard
 from ..errors import DataError
-from ..fileguard.identity import refuse_overwrite
+from ..fileguard.kind import DESCRIBED
+from ..fileguard.numbers import decimal_float
 from ..fixtures.designs import get_design
 from ..fixtures.simulated_run import SimulatedRun, run_metadata
 from ..lot.synthetic import write_population_lot
 from ..twin.simlot import load_device
-from ._common import MAX_SEED, Finite, Whole, config_store_file, force_option, output_kind
+from ._common import MAX_SEED, Finite, Whole, force_option, output_kind
+from ._outputs import refuse_output
 
 
 def parse_temps(text: str | None) -> list[float] | None:
@@ -35,7 +37,7 @@ def parse_temps(text: str | None) -> list[float] | None:
     out = []
     for part in text.split(","):
         try:
-            v = float(part)
+            v = decimal_float(part)
         except ValueError:
             v = float("nan")
         if not np.isfinite(v) or not -60.0 <= v <= 150.0:
@@ -95,13 +97,24 @@ def _summary(run: SimulatedRun, out: str, raw: bool, truth_out: str | None) -> t
     return summary, line
 
 
+def _check_suffixes(out: str, truth_out: str | None) -> None:
+    """--out is CSV text (a pose table, raw log or lot file) and --truth-out JSON: a name that says
+    another format (x.parquet, x.json) is refused, never written in the wrong one."""
+    others = ".parquet, .json, .jsonl, .yaml, .html, .png"
+    for flag, path, kind, allowed in (("--out", out, "csv", f".csv or another text name (not {others})"),
+                                      ("--truth-out", truth_out, "json", ".json or a name without one")):
+        if path is not None and output_kind(path, kind) != kind:
+            raise DataError(f"{flag} {path}: simulate writes {DESCRIBED[kind]} there, not "
+                            f"{DESCRIBED[output_kind(path)]}; allowed: {allowed}")
+
+
 @click.command("simulate")
 @click.option("--config", "config", type=click.Path(dir_okay=False), default=None,
               help="Station YAML whose device: section has driver: simulated (e.g. configs/sim.yaml). "
                    "Default: an ideal MMA8451 (datasheet noise, quantization and saturation only).")
 @click.option("--poses", "--design", "design", required=True,
               help="Pose design: six-face, an4399-8, nine-position, optimal-N, ...")
-@click.option("--lot", "lot", type=click.IntRange(1, 10**8), default=None,
+@click.option("--lot", "lot", type=Whole(1, 10**8), default=None,
               help="Write a lot file of this many boards drawn from the config's population (accelcal batch reads it).")
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="Pose table (or raw log) to write.")
 @click.option("--raw", is_flag=True, help="Write a raw sample log t,x,y,z (counts) with motion between poses.")
@@ -121,9 +134,9 @@ def command(config: str | None, design: str, lot: int | None, out: str, raw: boo
             temps: str | None, samples: int, move_s: float, truth_out: str | None, as_json: bool,
             force: bool = False) -> None:
     """Simulate a calibration run and write its pose table (or raw log) and ground truth."""
-    table = "parquet" if output_kind(out) == "parquet" else "csv"  # a pose table, raw log or lot
-    refuse_overwrite([("--out", out, table), ("--truth-out", truth_out, "json")],
-                     [("--config", config), ("the store", config_store_file(config) if config else None)], force)
+    refuse_output([("--out", out, "csv"), ("--truth-out", truth_out, "json")], [("--config", config)], force,
+                  config=config)
+    _check_suffixes(out, truth_out)
     get_design(design)
     if lot is not None:
         _write_lot(config, design, lot, out, seed, samples, as_json)

@@ -13,9 +13,9 @@ from ..acceptance.rules import Limits
 from ..atomic import atomic_write
 from ..config.sections import default_config_path
 from ..errors import DataError
-from ..fileguard.identity import refuse_overwrite
-from ._common import force_option, store_file
+from ._common import Whole, force_option
 from ._mes import JsonGroup
+from ._outputs import refuse_output
 from ._text import error_text
 
 if TYPE_CHECKING:  # twin/ is imported on first use (scipy): its records for the checker only
@@ -65,14 +65,14 @@ def _source_options(f: F) -> F:
 @command.command("fit")
 @_source_options
 @click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False), help="Twin config YAML to write.")
-@click.option("--components", type=click.IntRange(1, 8), default=4, show_default=True,
+@click.option("--components", type=Whole(1, 8), default=4, show_default=True,
               help="Most mixture components BIC may choose.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was found as JSON.")
 @force_option
 def fit_cmd(source: str | None, db: str | None, since: str | None, station: str | None, out: str, components: int,
             as_json: bool, force: bool = False) -> None:
     """Fit the population of lot file SOURCE (or --db); write the default config with population: replaced."""
-    refuse_overwrite([("-o", out, "yaml")], [("SOURCE", source), ("--db", store_file(db))], force)
+    refuse_output([("-o", out, "yaml")], [("SOURCE", source)], force, has_config=False, stores=[("--db", db)])
     if not Path(out).resolve().parent.is_dir():
         raise DataError(f"{out}: cannot write (no such directory {Path(out).parent})")
     from ..twin.fit import fit_twin
@@ -104,7 +104,7 @@ def fit_cmd(source: str | None, db: str | None, since: str | None, station: str 
 @click.option("--config", "config", required=True, type=click.Path(dir_okay=False), help="Twin config to check.")
 @click.option("--before", "before", type=click.Path(dir_okay=False), default=None,
               help="Config for the gap before (default: the default simulator config).")
-@click.option("--seed", type=click.IntRange(0, None), default=None,
+@click.option("--seed", type=Whole(0, None), default=None,
               help="Seed of the simulated lot (default: drawn at random; recorded in the output).")
 @click.option("--json", "as_json", is_flag=True, help="Print every test as JSON.")
 def check_cmd(source: str | None, db: str | None, since: str | None, station: str | None, config: str,
@@ -144,9 +144,9 @@ def _effect_line(t: QuantityTest) -> str:
 @_source_options
 @click.option("--config", "config", required=True, type=click.Path(dir_okay=False), help="Twin config.")
 @click.option("--limit", "limits", multiple=True, help="NAME=VALUE: an acceptance limit changed (repeatable).")
-@click.option("--boards", type=click.IntRange(100, 10**6), default=20_000, show_default=True,
+@click.option("--boards", type=Whole(100, 10**6), default=20_000, show_default=True,
               help="Boards to simulate.")
-@click.option("--seed", type=click.IntRange(0, None), default=None,
+@click.option("--seed", type=Whole(0, None), default=None,
               help="Seed of the simulated lot (default: drawn at random; recorded in the output).")
 @click.option("--json", "as_json", is_flag=True, help="Print the prediction as JSON.")
 def whatif_cmd(source: str | None, db: str | None, since: str | None, station: str | None, config: str,

@@ -17,21 +17,17 @@ LABEL_MAX = 64  # a lot: recorded, never burned
 _RULE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._:/-]*")
 
 
-def check_serial(text: str, where: str, max_len: int = BOARD_SERIAL_MAX) -> str:
-    """``text`` stripped when it is a serial number (1-``max_len`` ASCII letters, digits and . _ : / -,
-    starting with a letter or digit: no markup, no formula, no control character); else one DataError
-    naming where it came from and what is allowed."""
+def check_serial(text: str, where: str, max_len: int = BOARD_SERIAL_MAX, what: str = "serial number") -> str:
+    """``text`` stripped when it is a serial number (or a lot or station id, ``what``, of the same form):
+    1-``max_len`` ASCII letters, digits and . _ : / -, starting with a letter or digit (no markup, no
+    formula, no control character); else one DataError naming where it came from and what is allowed."""
     s = text.strip()
     if len(s) > max_len or not _RULE.fullmatch(s):
-        raise DataError(f"{where}: {s[:40]!r} is not a serial number; allowed: 1-{max_len} letters, digits and "
+        raise DataError(f"{where}: {s[:40]!r} is not a {what}; allowed: 1-{max_len} letters, digits and "
                         ". _ : / -, starting with a letter or digit")
     return s
 
 
 def check_label(text: str, where: str, what: str = "lot name") -> str:
-    """A lot name: the serial rule's characters with up to LABEL_MAX of them (a lot is never burned)."""
-    s = text.strip()
-    if len(s) > LABEL_MAX or not _RULE.fullmatch(s):
-        raise DataError(f"{where}: {s[:40]!r} is not a {what}; allowed: 1-{LABEL_MAX} letters, digits and "
-                        ". _ : / -, starting with a letter or digit")
-    return s
+    """A lot name: the serial rule with up to LABEL_MAX characters (a lot is never burned)."""
+    return check_serial(text, where, LABEL_MAX, what)

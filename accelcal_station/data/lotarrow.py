@@ -17,6 +17,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from ..errors import DataError
+from ..fileguard.numbers import ALLOWED, is_decimal
 from ..fileguard.regular import open_regular
 from ..models.threads import usable_cpus
 from .lotchunk import COLUMNS, TEXT, Labels, LotChunk, arrays_chunk, missing_serial
@@ -225,7 +226,7 @@ def _arrow_number(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
     import pyarrow as pa
 
     if col.type == pa.float64():  # the typed CSV read's numbers: no cast (and no pyarrow.compute import)
-        return np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
+        return _finite(col, name, path, row0, bad_rows)
     import pyarrow.compute as pc
 
     if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
@@ -238,7 +239,21 @@ def _arrow_number(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
                 return _cells(col, name, path, row0, bad_rows)
     if col.type != pa.float64():  # integers beyond 2**53 and wide decimals lose digits as floats: a
         col = pc.cast(col, pa.float64(), safe=False)  # calibration number never has them
-    return np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
+    return _finite(col, name, path, row0, bad_rows)
+
+
+def _finite(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str]) -> np.ndarray:
+    """A float64 Arrow column as numpy, NaN for null (an empty cell); a NaN or infinite value that is
+    not null (a 'nan' or 'inf' cell, a Parquet NaN) marks its row bad, as a pose table refuses it."""
+    out = np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(out.sum()) or (not np.isinf(out).any() and int(np.isnan(out).sum()) == col.null_count):
+            return out
+    null = np.asarray(col.is_null().to_numpy(zero_copy_only=False), dtype=bool)
+    for i in np.flatnonzero(~np.isfinite(out) & ~null):
+        bad_rows.setdefault(int(i), f"{path}: data row {row0 + i + 1}, column {name}: {out[i]} is not a finite "
+                                    "number; allowed: a finite number (an empty cell for none)")
+    return np.where(null | np.isfinite(out), out, np.nan)
 
 
 def _dictionary_text(col: Any) -> Labels:
@@ -261,19 +276,12 @@ def _cells(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str])
     for i, v in enumerate(col.to_pylist()):
         if v is None or not v.strip():
             continue
-        if _is_float(v):
+        if is_decimal(v):
             out[i] = float(v)
         else:
-            bad_rows.setdefault(i, f"{path}: data row {row0 + i + 1}, column {name}: {v[:40]!r} is not a number")
+            bad_rows.setdefault(i, f"{path}: data row {row0 + i + 1}, column {name}: {v[:40]!r} is not a number; "
+                                   f"allowed: {ALLOWED}")
     return out
-
-
-def _is_float(v: str) -> bool:
-    try:
-        float(v)
-        return True
-    except ValueError:
-        return False
 
 
 class _RowCheck:
@@ -364,7 +372,8 @@ def _read_csv_arrow(path: Path, header: list[str], skip: int, block_bytes: int, 
             reader = pcsv.open_csv(f, read_options=pcsv.ReadOptions(skip_rows=skip, column_names=header,
                                                                     block_size=block_bytes, use_threads=False),
                                    parse_options=pcsv.ParseOptions(ignore_empty_lines=True, invalid_row_handler=check),
-                                   convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True),
+                                   convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True,
+                                                                       null_values=[""]),  # 'nan', 'NA': no
                                    memory_pool=_pool())
         except pa.ArrowInvalid as e:
             if typed and not check.bad and "conversion error" in str(e).lower():

@@ -9,10 +9,21 @@ import numpy as np
 
 from ..errors import DataError
 from .posetable import COLUMNS as POSE_COLUMNS
+from .posetable import MAX_ABS_STD, MAX_SAMPLES
+from .rawlog import MAX_ABS_READING
 
 COLUMNS = ("serial",) + POSE_COLUMNS
 NUMERIC = tuple(c for c in POSE_COLUMNS if c != "pose")
 TEXT = ("serial", "pose")
+# the values a pose can have, as a pose table allows them (posetable._pose): (columns, low, high, what)
+RANGES: tuple[tuple[tuple[str, ...], float, float, str], ...] = (
+    (("x", "y", "z"), -MAX_ABS_READING, MAX_ABS_READING, "reading"),
+    (("pitch_deg", "roll_deg"), -360.0, 360.0, "angle (deg)"),
+    (("ref_x", "ref_y", "ref_z"), -10.0, 10.0, "reference (g)"),
+    (("std_x", "std_y", "std_z"), 0.0, MAX_ABS_STD, "std"),
+    (("n",), 1.0, MAX_SAMPLES, "sample count n"),
+    (("temp_c",), -273.15, 1000.0, "temperature (C)"),
+)
 
 
 @dataclass
@@ -30,10 +41,41 @@ class LotChunk:
     bad: list[str | None]
     first_row: np.ndarray
 
+    def __post_init__(self) -> None:
+        screen(self)
+
     @property
     def row_end(self) -> int:
         """Data rows of the lot up to this chunk's last row (the next chunk's first row - 1)."""
         return int(self.first_row[0]) - 1 + int(self.starts[-1]) if len(self.first_row) else 0
+
+
+def screen(chunk: LotChunk) -> None:
+    """Every lot reader's one check of values, as boards are formed (so no later computation sees
+    them, and no numpy warning is raised): a value outside its RANGES (infinity included) or a
+    sample count that is not whole makes its board bad, naming the pose, column and value of its
+    first such row, and is set to NaN; NaN is an empty cell (the readers refuse a 'nan' cell).
+    A column whose extremes lie inside its range (most chunks) is cleared by two reductions."""
+    c, starts = chunk.cols, chunk.starts
+    first: dict[int, tuple[int, str]] = {}  # board -> (row, reason) of its first bad row
+    with np.errstate(invalid="ignore"):
+        for cols, lo, hi, what in RANGES:
+            for k in (k for k in cols if k in c and len(c[k])):
+                v = c[k]
+                whole = k != "n" or bool(np.all(np.isnan(v) | (v == np.floor(v))))
+                if whole and np.fmin.reduce(v) >= lo and np.fmax.reduce(v) <= hi:
+                    continue
+                out = (v < lo) | (v > hi) | (np.isfinite(v) & (v != np.floor(v)) if k == "n" else False)
+                rows = np.flatnonzero(out)
+                for r, b in zip(rows.tolist(), (np.searchsorted(starts, rows, side="right") - 1).tolist(),
+                                strict=True):
+                    if b not in first or r < first[b][0]:
+                        allowed = f"{lo:g} to {hi:g}" if k != "n" else f"a whole number {lo:g} to {hi:g}"
+                        first[b] = (r, f"pose {str(chunk.names[r])!r}: {k} {v[r]:g}: {what} out of range; "
+                                       f"allowed {allowed}")
+                c[k] = np.where(out, np.nan, v)
+    for b, (_, why) in first.items():
+        chunk.bad[b] = chunk.bad[b] or why
 
 
 def missing_serial(path: Path, where: str) -> DataError:

@@ -29,12 +29,12 @@ import numpy as np
 
 from ..conventions import STANDARD_GRAVITY_MPS2, an4399_reference, check_units, units_per_g
 from ..errors import DataError, UnitsError
+from ..fileguard.numbers import ALLOWED, all_decimal, decimal_float
 from ..fileguard.regular import check_regular, open_regular
 from .lotarrow import BLOCK_BYTES, SMALL_BLOCK_BYTES, arrow_available, read_csv_arrow, read_parquet_chunks
 from .lotchunk import COLUMNS, NUMERIC, LotChunk, missing_serial
 from .posetable import COLUMNS as POSE_COLUMNS
 from .posetable import read_preamble
-from .rawlog import MAX_ABS_READING
 
 __all__ = ["COLUMNS", "SMALL_BLOCK_BYTES", "LotChunk", "arrow_available", "board_arrays", "lot_scale", "lot_site_g",
            "open_lot"]
@@ -73,19 +73,23 @@ def _lines(f: Iterable[str], path: Path) -> Iterator[str]:
 
 
 def _floats(cells: list[str], col: str, lines: np.ndarray, path: Path, bad_rows: dict[int, str]) -> np.ndarray:
-    """A column's cells as floats (NaN where empty); a non-number marks its row bad."""
-    try:
-        return np.array(cells, dtype=float) if "" not in cells else \
-            np.array([float(v) if v else math.nan for v in cells])
-    except ValueError:
-        out = np.empty(len(cells))
-        for i, v in enumerate(cells):
-            try:
-                out[i] = float(v) if v.strip() else math.nan
-            except ValueError:
-                out[i] = math.nan
-                bad_rows.setdefault(i, f"{path}: line {lines[i]}, column {col}: {v[:40]!r} is not a number")
-        return out
+    """A column's cells as floats (NaN where empty); a cell that is not a finite decimal number
+    (fileguard.numbers: no 'nan', '4_096' or other scripts' digits) marks its row bad."""
+    if all_decimal(cells):  # the common case: one conversion, no per-cell look
+        try:
+            return np.array(cells, dtype=float) if "" not in cells else \
+                np.array([float(v) if v else math.nan for v in cells])
+        except ValueError:
+            pass
+    out = np.empty(len(cells))
+    for i, v in enumerate(cells):
+        try:
+            out[i] = decimal_float(v) if v.strip() else math.nan
+        except ValueError:
+            out[i] = math.nan
+            bad_rows.setdefault(i, f"{path}: line {lines[i]}, column {col}: {v[:40]!r} is not a number; "
+                                   f"allowed: {ALLOWED}")
+    return out
 
 
 def _chunk(rows: list[list[str]], lines: list[int], header: list[str], path: Path, row0: int) -> LotChunk:
@@ -207,7 +211,7 @@ def lot_scale(meta: dict[str, str], path: str | Path, units: str | None, counts_
     for key, val in (("counts_per_g", counts_per_g),):  # gravity_mps2: the site's (lot_site_g), not a scale
         if val is None and meta.get(key):
             try:
-                v = float(meta[key])
+                v = decimal_float(meta[key])
             except ValueError:
                 v = math.nan
             if not (math.isfinite(v) and v > 0):
@@ -219,26 +223,6 @@ def lot_scale(meta: dict[str, str], path: str | Path, units: str | None, counts_
         raise UnitsError(f"{path}: model {model} on counts needs counts per g: add '# counts_per_g: N' to the "
                          "lot file or pass --counts-per-g N")
     return units, units_per_g(units, counts_per_g)
-
-
-def _range_checks(c: dict[str, np.ndarray]) -> list[tuple[np.ndarray, str]]:
-    """Rows with a value no pose can have (as a pose table refuses them): a reading beyond
-    MAX_ABS_READING, an angle beyond +-360 deg, a reference beyond +-10 g, a negative std, n below 1.
-    A group whose every value lies inside its range (most chunks) is cleared by its extremes alone."""
-    with np.errstate(invalid="ignore"):
-        out = []
-        for cols, lo, hi, what in ((("x", "y", "z"), -MAX_ABS_READING, MAX_ABS_READING, "reading"),
-                                   (("pitch_deg", "roll_deg"), -360.0, 360.0, "angle (deg)"),
-                                   (("ref_x", "ref_y", "ref_z"), -10.0, 10.0, "reference (g)"),
-                                   (("std_x", "std_y", "std_z"), 0.0, MAX_ABS_READING, "std"),
-                                   (("n",), 1.0, 1e15, "sample count n")):
-            have = [c[k] for k in cols if k in c]
-            # fmin/fmax skip NaN, as the comparisons below do (a NaN cell is not out of range)
-            if not have or all(not len(v) or (np.fmin.reduce(v) >= lo and np.fmax.reduce(v) <= hi) for v in have):
-                continue
-            v = np.stack(have, axis=1)
-            out.append((np.any((v < lo) | (v > hi), axis=1), f"{what} out of range; allowed {lo:g} to {hi:g}"))
-    return out
 
 
 def design_references(pitch_deg: np.ndarray, roll_deg: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -281,7 +265,8 @@ def board_arrays(chunk: LotChunk, model: str
     starts = chunk.starts
     B = len(starts) - 1
     reasons = list(chunk.bad)
-    checks = [(nonfinite_rows(x), "reading is empty, NaN or infinite"), *_range_checks(c)]
+    # values out of range were made NaN, their boards bad, by the reader (lotchunk.screen)
+    checks = [(nonfinite_rows(x), "reading is empty, NaN or infinite")]
     if model != "9":
         no_ref = np.ones(len(x), bool) if ref is None else nonfinite_rows(ref)
         checks.append((no_ref, f"has no reference; model {model} needs pitch_deg/roll_deg or ref_x/ref_y/ref_z "

@@ -37,6 +37,7 @@ import numpy as np
 from ..atomic import atomic_write
 from ..conventions import an4399_reference, check_units
 from ..errors import DataError, UnitsError
+from ..fileguard.numbers import ALLOWED, decimal_float, is_decimal
 from ..jsontypes import JsonScalar
 from ..session import PoseColumns, PoseRecord, Session
 from .prose import is_number
@@ -74,7 +75,7 @@ def _short(s: str, n: int = 40) -> str:
 
 def _meta_number(path: Path, line: int, key: str, value: str) -> float:
     try:
-        v = float(value)
+        v = decimal_float(value)
     except ValueError:
         v = math.nan
     if not (math.isfinite(v) and v > 0):
@@ -129,6 +130,8 @@ class _Row:
             raise DataError(f"{self.where(col)}: {_short(s)} is not a number") from None
         if not math.isfinite(v):
             raise DataError(f"{self.where(col)}: {_short(s)}; allowed: a finite number (no NaN or infinity)")
+        if not is_decimal(s):
+            raise DataError(f"{self.where(col)}: {_short(s)}; allowed: {ALLOWED}")
         if not lo <= v <= hi:
             raise DataError(f"{self.where(col)}: {_short(s)} out of range; allowed {lo:g} to {hi:g}")
         return v

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
+from ..fileguard.numbers import ALLOWED, all_decimal, decimal_float, is_decimal
 from ..fileguard.regular import read_text
 from .posetable import META_RE
 from .prose import is_number as _is_number
@@ -282,6 +283,8 @@ def _check_row(path: Path, ln: int, cells: list[str], names: list[str], use: lis
             raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])} is not a number") from None
         if not math.isfinite(v):
             raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])}; allowed: a finite number")
+        if not is_decimal(cells[i]):
+            raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])}; allowed: {ALLOWED}")
         if c != "t" and abs(v) > MAX_ABS_READING:
             raise DataError(f"{path}: line {ln}, {label(i)}: {_short(cells[i])}; allowed: a reading within "
                             f"+-{MAX_ABS_READING:g}")
@@ -290,16 +293,18 @@ def _check_row(path: Path, ln: int, cells: list[str], names: list[str], use: lis
 def _column(cells: list[list[str]], i: int) -> tuple[np.ndarray, np.ndarray]:
     """Column ``i`` of the rows as floats (numpy parses as float() does) and where a cell is not a number."""
     col = [r[i] for r in cells]
-    try:
-        return np.array(col, dtype=float), np.zeros(len(col), bool)
-    except ValueError:
-        v, bad = np.full(len(col), np.nan), np.zeros(len(col), bool)
-        for k, x in enumerate(col):
-            try:
-                v[k] = float(x)
-            except ValueError:
-                bad[k] = True
-        return v, bad
+    if all_decimal(col):  # else a '4_096' or another script's digits: cell by cell (fileguard.numbers)
+        try:
+            return np.array(col, dtype=float), np.zeros(len(col), bool)
+        except ValueError:
+            pass
+    v, bad = np.full(len(col), np.nan), np.zeros(len(col), bool)
+    for k, x in enumerate(col):
+        try:
+            v[k] = decimal_float(x)
+        except ValueError:
+            bad[k] = True
+    return v, bad
 
 
 def _parse_rows(path: Path, rows: Rows, split: Splitter, names: list[str], use: list[tuple[int, str]],

@@ -34,9 +34,10 @@ from ..acceptance.rules import FitFigures, Limits, Verdict, judge_all
 from ..atomic import atomic_write
 from ..calibration import PARAM_NAMES, Calibration, param_vector
 from ..data.loader import load_pose_table
+from ..data.lotchunk import RANGES
 from ..errors import AccelcalError, DataError
 from ..fileguard.cells import safe_row
-from ..fileguard.identity import refuse_overwrite
+from ..fileguard.identity import Named, refuse_overwrite
 from ..models.fitting import check_model, check_plausible_g, fit_batch, fit_temperature
 from ..models.held import Held
 from ..models.result import FitResult
@@ -175,8 +176,29 @@ def sessions_from_store(store: Store, **filters: Any) -> list[Source]:
     """(``run N``, Session) of the store's complete runs with poses (Store.sessions_for_batch filters);
     a damaged run is (``run N``, DataError naming its damaged_row), skipped and counted by the batch."""
     skipped: list[tuple[str, str]] = []
-    good: list[Source] = [(f"run {s.metadata['run_id']}", s) for s in store.sessions_for_batch(skipped, **filters)]
+    good: list[Source] = []
+    for s in store.sessions_for_batch(skipped, **filters):
+        why = stored_value_problem(s)  # the store's row checks allow n = 0 or a negative std
+        good.append((f"run {s.metadata['run_id']}", s if why is None else DataError(why)))
     return [*good, *((label, DataError(why)) for label, why in skipped)]
+
+
+def stored_value_problem(session: Session) -> str | None:
+    """The first value of a stored run's poses outside what a pose table or lot file allows
+    (data.lotchunk.RANGES: n a whole number >= 1, std >= 0, angles within +-360 deg, ...), or None;
+    checked here, once, so the fit never computes with it."""
+    for p in session.poses:
+        std = (None,) * 3 if p.std is None else tuple(p.std)
+        ref = (None,) * 3 if p.reference_g is None else tuple(p.reference_g)
+        vals = {"x": p.mean[0], "y": p.mean[1], "z": p.mean[2], "pitch_deg": p.pitch_deg, "roll_deg": p.roll_deg,
+                "ref_x": ref[0], "ref_y": ref[1], "ref_z": ref[2], "std_x": std[0], "std_y": std[1],
+                "std_z": std[2], "n": p.n, "temp_c": p.temp_c}
+        for cols, lo, hi, what in RANGES:
+            for k in cols:
+                v = vals[k]
+                if v is not None and v == v and not (lo <= v <= hi and (k != "n" or float(v).is_integer())):
+                    return f"pose {p.name!r}: {k} {float(v):g}: {what} out of range; allowed {lo:g} to {hi:g}"
+    return None
 
 
 def board_serial(session: Session) -> str | None:
@@ -346,7 +368,8 @@ def _file_stem(r: BoardResult) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", stem).strip("._") or "board"
 
 
-def write_calibrations(report: BatchReport, out_dir: str | Path, force: bool = False) -> dict[str, Path]:
+def write_calibrations(report: BatchReport, out_dir: str | Path, force: bool = False,
+                       protected: Iterable[Named] = ()) -> dict[str, Path]:
     """One calibration JSON per fitted board in ``out_dir`` (atomic writes); source -> path.
 
     Files are named for the board (pose table name, or ``runN-SERIAL``); a name taken
@@ -371,8 +394,8 @@ def write_calibrations(report: BatchReport, out_dir: str | Path, force: bool = F
         taken.add(stem)
         plan.append((r, d / f"{stem}.json"))
     # a calibration never replaces a board's own input (a pose table named like the JSON it would get)
-    refuse_overwrite([("--out-dir file", p, "json") for _, p in plan], [("input", r.source) for r in report.results],
-                     force)
+    refuse_overwrite([("--out-dir file", p, "json") for _, p in plan],
+                     [*(("input", r.source) for r in report.results), *protected], force)
     out: dict[str, Path] = {}
     for r, path in plan:
         try:

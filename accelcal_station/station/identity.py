@@ -36,7 +36,7 @@ def check_name(text: str, where: str) -> str:
 def check_run_labels(operator: str | None, lot: str | None, station_id: str | None) -> tuple[str | None, str | None]:
     """--operator (check_name), --lot and the config's station.id (check_serial) as a run records them."""
     if station_id is not None:
-        check_serial(station_id, "station.id")
+        check_serial(station_id, "station.id", what="station id")
     return (None if operator is None or not operator.strip() else check_name(operator, "--operator"),
             None if lot is None or not lot.strip() else check_label(lot, "--lot"))
 

@@ -273,6 +273,23 @@ class RunRecord:
                        self.device_serial, {"run_id": self.id, "station_id": self.station_id, "lot": self.lot,
                                             "chip": self.chip, "started_at": iso(self.started_at)})
 
+    def poses_unread(self) -> str | None:
+        """Why a complete run's poses cannot all be read, None when they can: a complete run was
+        fitted on its poses, so none read (rows deleted, or a ``run_id`` such as 2.5 that names no
+        run: `report check` lists those rows), or fewer than its fit summary's ``pose_count``, leaves
+        it out of any refit unless named."""
+        if self.status != "complete":
+            return None
+        want = (self.fit_summary or {}).get("pose_count")
+        fitted = want if isinstance(want, int) and not isinstance(want, bool) and want > 0 else None
+        used = f"its fit used {fitted}; " if fitted is not None else ""
+        if not self.poses:
+            return f"poses_unreadable: complete, but none of its pose rows can be read ({used}see report check)"
+        if fitted is not None and len(self.poses) < fitted:
+            return (f"poses_unreadable: only {len(self.poses)} of the {fitted} pose rows its fit used can be read "
+                    "(see report check)")
+        return None
+
     def calibration_object(self) -> Calibration | None:
         return None if self.calibration is None else Calibration.from_dict(self.calibration, f"run {self.id}")
 

@@ -445,7 +445,8 @@ class Store:
 
         A matching run with a damaged value is never silently left out: it is appended to
         ``skipped`` as ("run ID", "damaged_row: ...") whatever its status reads (a damaged status
-        included), so the caller can name and count it.
+        included), so the caller can name and count it; so is a complete run whose pose rows
+        cannot all be read ("poses_unreadable: ...", RunRecord.poses_unread).
         """
         status = filters.pop("status", "complete")
         out: list[Session] = []
@@ -455,6 +456,9 @@ class Store:
                     skipped.append((f"run {rec.id if rec.id is not None else '?'}", "damaged_row: "
                                     + "; ".join(str(d) for d in rec.damage[:3])
                                     + (f" (+{len(rec.damage) - 3} more)" if len(rec.damage) > 3 else "")))
+            elif rec.status == status and (why := rec.poses_unread()) is not None:
+                if skipped is not None:  # a complete run whose poses cannot be read: named, never left out
+                    skipped.append((f"run {rec.id}", why))
             elif rec.poses and rec.status == status:
                 out.append(rec.session())
         return out

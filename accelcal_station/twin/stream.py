@@ -44,7 +44,9 @@ def effect_names(model: str) -> list[str]:
 
 def effect_quantities(W: np.ndarray, V: np.ndarray, Gamma: np.ndarray, model: str) -> np.ndarray:
     """(B, Q) effect quantities of fitted calibrations (module docstring); NaN where W is singular."""
-    det = np.linalg.det(W)
+    finite = np.all(np.isfinite(W.reshape(len(W), -1)), axis=1)  # a skipped board's NaN W: no det (no warning)
+    det = np.zeros(len(W))
+    det[finite] = np.linalg.det(W[finite])
     good = np.isfinite(det) & (np.abs(det) > 1e-6)
     K = np.linalg.inv(np.where(good[:, None, None], W, np.eye(3)))
     off_mg = -1e3 * np.einsum("bij,bj->bi", K, V)
@@ -124,8 +126,9 @@ class LotStats:
         self.boards += B
 
     def _keep_design(self, chunk: LotChunk, per_g: float | None) -> None:
-        x, ref, _, _ = board_arrays(chunk, self.model)
-        s = slice(chunk.starts[0], chunk.starts[1])
+        x, ref, _, reasons = board_arrays(chunk, self.model)
+        b = next((i for i, why in enumerate(reasons) if why is None), 0)  # the first board that can be fitted
+        s = slice(chunk.starts[b], chunk.starts[b + 1])
         self.refs = None if ref is None else ref[s].copy()
         self.pose_angles = {k: chunk.cols[k][s].copy() for k in ("pitch_deg", "roll_deg") if k in chunk.cols}
         c = chunk.cols
