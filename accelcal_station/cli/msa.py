@@ -14,8 +14,8 @@ from ..lot.msa_study import PARAMETERS, analyse, build_study, plan, recent
 from ..store.records import RunRecord
 from ..store.runs import Store
 from ._common import Whole, force_option, store_file
+from ._report_filters import RunFilters, filter_options, run_filters, store_target_of
 from ._text import clean
-from .report import RunFilters, _filter_options, _filters, _target
 
 CHUNK = 500  # run ids per query
 METHOD = ("ANOVA, two-way crossed random effects with the part x appraiser interaction, pooled into "
@@ -82,7 +82,7 @@ def _plan(store: Store, by: str, parts: int, appraisers: int, trials: int, seed:
 
 
 @click.command("msa")
-@_filter_options
+@filter_options
 @click.option("--by", type=click.Choice(["operator", "station"]), default="operator", show_default=True,
               help="Appraisers: the runs' operators, or their stations.")
 @click.option("--tolerance", "tolerance", multiple=True, metavar="PARAM=VALUE",
@@ -107,8 +107,8 @@ def msa_command(db: str | None, config_path: str | None, device: tuple[str, ...]
                 force: bool = False) -> None:
     """Gage R&R study (AIAG MSA 4th ed.) of the repeated boards in the store, per calibration parameter."""
     tols = _tolerances(tolerance)
-    flt = _filters(device, lot, station, operator, verdict, status or "complete", since, until)
-    target, cfg = _target(db, config_path)
+    flt = run_filters(device, lot, station, operator, verdict, status or "complete", since, until)
+    target, cfg = store_target_of(db, config_path)
     if html_file is not None:
         refuse_overwrite([("--html", html_file, "html")], [("the store", store_file(target)), ("--config", cfg)],
                          force)

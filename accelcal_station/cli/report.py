@@ -2,9 +2,8 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, TypedDict, TypeVar
 
 import click
 
@@ -12,64 +11,22 @@ from ..calibration import PARAM_NAMES
 from ..config.checks import load_yaml
 from ..errors import DataError
 from ..jsontypes import JsonValue
-from ..store.liveness import STALE
 from ..store.location import store_path, store_target
 from ..store.records import RunRecord
 from ..store.runs import Store
-from ..store.schema import STATUSES, VERDICTS
 from ._common import MAX_ID, Whole, force_option
 from ._mes import JsonGroup
 from ._outputs import refuse_output
+from ._report_filters import filter_options, run_filters, store_target_of
 from ._text import clean
-
-F = TypeVar("F", bound=Callable[..., Any])
-
-
-def _filter_options(f: F) -> F:
-    """The options that choose runs (and the store they are in)."""
-    opts = [
-        click.option("--db", default=None, metavar="FILE|URL",
-                     help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB; default: "
-                          "the store of --config or of the default station."),
-        click.option("--config", "config_path", default=None, metavar="FILE",
-                     help="Station config naming the store (store.path)."),
-        click.option("--device", multiple=True, metavar="SERIAL", help="Only these device serials (repeatable)."),
-        click.option("--lot", default=None, metavar="LOT", help="Only this lot."),
-        click.option("--station", default=None, metavar="ID", help="Only this station."),
-        click.option("--operator", default=None, metavar="NAME", help="Only this operator."),
-        click.option("--verdict", default=None, metavar="PASS|FAIL", help="Only this verdict."),
-        click.option("--status", default=None, metavar="|".join((*STATUSES, STALE)),
-                     help="Only this run status (stale: running, its station process gone)."),
-        click.option("--since", default=None, metavar="TIME", help="Started at or after (ISO 8601; naive = local)."),
-        click.option("--until", default=None, metavar="TIME", help="Started before (ISO 8601; naive = local)."),
-    ]
-    for o in reversed(opts):
-        f = o(f)
-    return f
-
-
-def _target(db: str | None, config_path: str | None) -> tuple[Path | str, str | None]:
-    """--db, else the store of --config, else that of the default station (as `accelcal run`);
-    `accelcal report --db F SUBCOMMAND` gives the subcommand that store too.  Returns the store
-    target and the config file read (None when --db named the store)."""
-    ctx = click.get_current_context(silent=True)
-    group = ctx.parent.params if ctx is not None and ctx.parent is not None else {}
-    db = db if db is not None else group.get("db")
-    config_path = config_path if config_path is not None else group.get("config_path")
-    if db is not None:
-        return store_target(db), None
-    from ..config.sections import default_config_path
-
-    # relative store paths are taken from the current directory, as `accelcal run` does
-    cfg = str(config_path or default_config_path())
-    return store_path(load_yaml(cfg), Path.cwd()), cfg
+from .msa import msa_command
 
 
 def _open(db: str | None, config_path: str | None, output: tuple[str, str | None, str] | None = None,
           upgrade: bool = True, force: bool = False) -> Store:
     """The store to read; ``output`` (its option, its file), when given, is refused first if it is the
     store's own file or the config's (never overwritten, nothing written)."""
-    target, cfg = _target(db, config_path)
+    target, cfg = store_target_of(db, config_path)
     if output is not None:  # the store read, and the --config's store even when --db names another
         ctx = click.get_current_context(silent=True)
         group = ctx.parent.params if ctx is not None and ctx.parent is not None else {}
@@ -93,30 +50,6 @@ def _name_unread(recs: list[RunRecord]) -> None:
             click.echo(clean(f"SKIP run {rec.id}: {why}"), err=True)
 
 
-class RunFilters(TypedDict):
-    """The filter options as the store's query keywords (None: not filtered)."""
-
-    device: list[str] | None
-    lot: str | None
-    station: str | None
-    operator: str | None
-    verdict: str | None
-    status: str | None
-    since: str | None
-    until: str | None
-
-
-def _filters(device: tuple[str, ...], lot: str | None, station: str | None, operator: str | None,
-             verdict: str | None, status: str | None, since: str | None, until: str | None) -> RunFilters:
-    """The filter options as keyword arguments of the store's queries; a bad verdict or status refused."""
-    if verdict is not None and verdict.upper() not in VERDICTS:
-        raise DataError(f"--verdict {verdict!r}; allowed: PASS, FAIL")
-    if status is not None and status not in (*STATUSES, STALE):
-        raise DataError(f"--status {status!r}; allowed: {', '.join((*STATUSES, STALE))}")
-    return {"device": list(device) or None, "lot": lot, "station": station, "operator": operator,
-            "verdict": verdict and verdict.upper(), "status": status, "since": since, "until": until}
-
-
 class ReportGroup(JsonGroup):
     """`accelcal report [--db F] --json` lists the runs, as `report list --json` does."""
 
@@ -133,7 +66,7 @@ def command(db: str | None, config_path: str | None) -> None:
 
 
 @command.command("list")
-@_filter_options
+@filter_options
 @click.option("--limit", default=None, type=Whole(1, 10**9), help="At most this many runs.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None, station: str | None,
@@ -141,7 +74,7 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
              limit: int | None, as_json: bool) -> None:
     """Runs matching the filters, oldest first."""
     with _open(db, config_path) as store:
-        runs = store.list_runs(limit, **_filters(device, lot, station, operator, verdict, status, since, until))
+        runs = store.list_runs(limit, **run_filters(device, lot, station, operator, verdict, status, since, until))
     if as_json:
         click.echo(json.dumps(runs, indent=1))
         return
@@ -220,7 +153,7 @@ def _fit_lines(fit: Mapping[str, JsonValue]) -> list[str]:
 
 
 @command.command("export")
-@_filter_options
+@filter_options
 @click.option("-o", "--output", default=None, metavar="FILE", help="Write here (atomically); default stdout.")
 @click.option("--format", "fmt", default=None, metavar="csv|json",
               help="Output format (default: from the file name, else csv).")
@@ -236,7 +169,7 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
         fmt = "json" if (output and output.lower().endswith(".json")) or (as_json and output is None) else "csv"
     if fmt not in ("csv", "json"):
         raise DataError(f"--format {fmt!r}; allowed: csv, json")
-    flt = _filters(device, lot, station, operator, verdict, status, since, until)
+    flt = run_filters(device, lot, station, operator, verdict, status, since, until)
     with _open(db, config_path, ("-o", output, fmt), force=force) as store:
         n = len(store.list_runs(**flt))
         if fmt == "json":
@@ -256,7 +189,7 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
 
 
 @command.command("summary")
-@_filter_options
+@filter_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @click.option("--html", "html_file", default=None, metavar="FILE",
               help="Also write a lot report (histograms vs limits, pass rate and reasons over time, control "
@@ -267,7 +200,7 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
                 since: str | None, until: str | None, as_json: bool, html_file: str | None,
                 force: bool = False) -> None:
     """Lot summary: counts, pass rate, failure reasons, parameter distributions."""
-    flt = _filters(device, lot, station, operator, verdict, status, since, until)
+    flt = run_filters(device, lot, station, operator, verdict, status, since, until)
     with _open(db, config_path, ("--html", html_file, "html"), force=force) as store:
         s = store.lot_summary(**flt)
         if html_file is not None:
@@ -383,11 +316,4 @@ def plot_cmd(run_id: int, db: str | None, config_path: str | None, output: str |
     click.echo(f"residuals of run {run_id} drawn in {out}")
 
 
-def _register_msa() -> None:
-    """`report msa` lives in cli/msa.py, which takes this module's filter options: imported once they exist."""
-    import importlib
-
-    command.add_command(importlib.import_module(f"{__package__}.msa").msa_command)
-
-
-_register_msa()
+command.add_command(msa_command)  # `report msa` (cli/msa.py)
