@@ -15,6 +15,7 @@ from ..fileguard.identity import refuse_overwrite
 from ..jsontypes import JsonValue
 from ..store.liveness import STALE
 from ..store.location import store_path, store_target
+from ..store.reader import StoreReader
 from ..store.runs import Store
 from ..store.schema import STATUSES, VERDICTS
 from ._common import MAX_ID, Whole, force_option, store_file
@@ -65,13 +66,17 @@ def _target(db: str | None, config_path: str | None) -> tuple[Path | str, str | 
 
 
 def _open(db: str | None, config_path: str | None, output: tuple[str, str | None, str] | None = None,
-          upgrade: bool = True, force: bool = False) -> Store:
-    """The store to read; ``output`` (its option, its file), when given, is refused first if it is the
-    store's own file or the config's (never overwritten, nothing written)."""
+          force: bool = False) -> StoreReader:
+    """The store to read, read-only (never stamped or migrated: `report migrate` does that); a store
+    without its schema revision is named in one line on stderr.  ``output`` (its option, its file),
+    when given, is refused first if it is the store's own file or the config's (nothing written)."""
     target, cfg = _target(db, config_path)
     if output is not None:
         refuse_overwrite([output], [("the store", store_file(target)), ("--config", cfg)], force)
-    return Store(target, create=False, upgrade=upgrade)
+    reader = StoreReader(target)
+    if reader.notice:
+        click.echo(clean(reader.notice), err=True)
+    return reader
 
 
 def _name_damage(damage: list[dict[str, str]]) -> None:
@@ -291,7 +296,7 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
 def check_cmd(ctx: click.Context, db: str | None, config_path: str | None, as_json: bool) -> None:
     """List every damaged row (table, id, column, what is wrong) and what SQLite's integrity check
     finds in the file (pages it cannot read); exit 1 when any. Nothing is modified."""
-    with _open(db, config_path, upgrade=False) as store:
+    with _open(db, config_path) as store:
         found = [d.to_dict() for d in store.check()]
         pages = store.integrity()
         where = str(store.path)
@@ -309,6 +314,26 @@ def check_cmd(ctx: click.Context, db: str | None, config_path: str | None, as_js
             click.echo(f"{len(pages)} integrity problem(s) in the file (PRAGMA integrity_check)")
     if found or pages:
         ctx.exit(1)
+
+
+@command.command("migrate")
+@click.option("--db", default=None, metavar="FILE|URL", help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB.")
+@click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def migrate_cmd(db: str | None, config_path: str | None, as_json: bool) -> None:
+    """Upgrade the store's schema to this station's (Alembic), recording its revision; says what it did.
+    A store without a revision is stamped with the schema its columns have. The only reading-side
+    command that writes a store."""
+    from ..store.schema import SCHEMA_VERSION
+
+    target, _ = _target(db, config_path)
+    with Store(target, create=False) as store:
+        done = store.notice or f"{store.path}: schema {SCHEMA_VERSION} already, revision recorded; nothing written"
+        where = str(store.path)
+    if as_json:
+        click.echo(json.dumps({"store": where, "schema_version": SCHEMA_VERSION, "message": done}))
+    else:
+        click.echo(clean(done))
 
 
 @command.command("sync")

@@ -19,6 +19,7 @@ from sqlalchemy import Column, Integer, MetaData, String, Table, delete, func, i
 
 from .database import Database
 from .records import StoreError
+from .schemacheck import read_schema
 
 if TYPE_CHECKING:
     from alembic.config import Config
@@ -39,7 +40,7 @@ def _tables(db: Database) -> set[str]:
     return set(inspect(db.conn).get_table_names())
 
 
-def _legacy_version(db: Database, tables: set[str]) -> int:
+def legacy_version(db: Database, tables: set[str]) -> int:
     if db.dialect == "sqlite":
         return int(db.conn.exec_driver_sql("PRAGMA user_version").scalar() or 0)
     if "accelcal_schema" not in tables:
@@ -51,7 +52,7 @@ def current_version(db: Database) -> int:
     """Inside a transaction: the store's schema version: its Alembic revision, else its pre-Alembic marker, else 0.
     A revision this station does not know counts as newer than any it does."""
     tables = _tables(db)
-    legacy = _legacy_version(db, tables)
+    legacy = legacy_version(db, tables)
     if "alembic_version" not in tables:
         return legacy
     rev = db.scalar(select(alembic_version.c.version_num))
@@ -101,12 +102,14 @@ def upgrade(db: Database, name: str, target: int) -> None:
     adopted = stamped(db)
     if version >= target and adopted:
         return
+    if not adopted:  # no revision recorded: stamp what its columns say (its marker when they agree)
+        version = read_schema(db).version
     tables = _tables(db)
     if version == 0 and _foreign(db, tables - {"alembic_version", "accelcal_schema"}):
         kind = "an SQLite file" if db.dialect == "sqlite" else "a database with runs/poses/events tables"
         raise StoreError(f"{name}: {kind} that is not an accelcal results store")
     cfg = _config(db)
-    if version > 0 and not adopted:  # a pre-Alembic store: its marker says where it stands
+    if version > 0 and not adopted:
         command.stamp(cfg, revision(version))
     if version < target:
         command.upgrade(cfg, revision(target))

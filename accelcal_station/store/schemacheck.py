@@ -1,0 +1,90 @@
+"""What schema a store really has: its Alembic revision, its pre-Alembic marker and its columns.
+
+A store whose ``alembic_version`` table is missing or empty says nothing reliable about itself
+(a marker can be wrong, a revision deleted); its ``runs`` columns do: ``panel_id`` came with
+schema 2, ``limits`` with 4, ``heartbeat_at`` with 5 (schemas 2 and 3 differ only in the
+reasons' text, so their columns cannot tell them apart).  Readers name such a store in one
+line and never stamp it; only a migrating command records a revision, the one its columns say.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .database import Database
+
+# the runs columns each schema added, newest first: (version, column)
+_ADDED = ((5, "heartbeat_at"), (4, "limits"), (2, "panel_id"), (1, "id"))
+_SAME_COLUMNS = {2: (2, 3)}  # versions whose columns are alike
+
+
+@dataclass(frozen=True)
+class StoreSchema:
+    """``version``: the schema to read the store as (0: none); ``stamped``: an Alembic revision is
+    recorded; ``revision_state``: "recorded", "empty" (the table has no row) or "missing";
+    ``columns_version``: the newest schema whose columns the runs table has; ``marker``: the
+    pre-Alembic marker (PRAGMA user_version / accelcal_schema)."""
+
+    version: int
+    stamped: bool
+    revision_state: str
+    columns_version: int
+    marker: int
+
+    def columns_text(self) -> str:
+        alike = _SAME_COLUMNS.get(self.columns_version)
+        return " or ".join(map(str, alike)) if alike else str(self.columns_version)
+
+
+def columns_version(db: Database) -> int:
+    """The newest schema whose columns the ``runs`` table has (0: no runs table)."""
+    from sqlalchemy import inspect
+
+    insp = inspect(db.conn)
+    if "runs" not in insp.get_table_names():
+        return 0
+    have = {c["name"] for c in insp.get_columns("runs")}
+    return next((v for v, col in _ADDED if col in have), 0)
+
+
+def read_schema(db: Database) -> StoreSchema:
+    """Inside a transaction: the store's schema as its revision, marker and columns say (nothing written).
+    A file with neither a revision table nor a marker is no store of ours (version 0), whatever its tables."""
+    from sqlalchemy import inspect, select
+
+    from .migrate import alembic_version, current_version, legacy_version
+
+    tables = set(inspect(db.conn).get_table_names())
+    marker = legacy_version(db, tables)
+    rev = db.scalar(select(alembic_version.c.version_num)) if "alembic_version" in tables else None
+    state = "recorded" if rev is not None else ("empty" if "alembic_version" in tables else "missing")
+    cols = columns_version(db)
+    if rev is not None:
+        version = current_version(db)
+    elif state == "missing" and marker == 0:
+        version = 0
+    else:  # the marker when the columns agree with it, else what the columns say
+        version = marker if marker in _SAME_COLUMNS.get(cols, (cols,)) else cols
+    return StoreSchema(version, rev is not None, state, cols, marker)
+
+
+def inspect_store(db: Database) -> StoreSchema:
+    """read_schema in a read transaction of its own."""
+    db.begin(write=False)
+    try:
+        return read_schema(db)
+    finally:
+        db.rollback()
+
+
+def unstamped_line(name: str, got: StoreSchema, target: int) -> str | None:
+    """One line naming a store without an Alembic revision (None when it has one): what its columns
+    are and what to do; a reader writes nothing into it."""
+    if got.stamped or got.version == 0:
+        return None
+    table = "no alembic_version table" if got.revision_state == "missing" else "alembic_version is empty"
+    marker = f", its version marker says {got.marker}" if got.marker and got.marker != got.version else ""
+    head = f"{name}: no schema revision recorded ({table}); its columns are schema {got.columns_text()}'s{marker}"
+    if got.columns_version == target:
+        return f"{head}; read as schema {target}, nothing written (`accelcal report migrate --db {name}` records it)"
+    return (f"{head}, this station reads {target}; `accelcal report migrate --db {name}` upgrades it "
+            "(nothing was written)")
