@@ -148,7 +148,7 @@ class EventPageOut(TypedDict):
     next: str
 
 
-ID_MAX = 2**63 - 1  # run ids are BIGINT (int64)
+ID_MIN, ID_MAX = -(2**63), 2**63 - 1  # run ids are BIGINT (int64): negative ones too, as SQLite stores them
 TEXT_MAX = 200  # a station, serial or lot filter
 
 
@@ -176,7 +176,7 @@ def decode_cursor(text: str, order: str) -> int:
     """The last id of a cursor this server sent for ``order``; ApiError 400 otherwise."""
     try:
         d = json.loads(base64.urlsafe_b64decode(text + "=" * (-len(text) % 4)).decode())
-        ok = isinstance(d, dict) and d.get("v") == 1 and isinstance(d.get("id"), int) and 0 <= d["id"] <= ID_MAX
+        ok = isinstance(d, dict) and d.get("v") == 1 and type(d.get("id")) is int and ID_MIN <= d["id"] <= ID_MAX
     except (ValueError, UnicodeDecodeError):
         ok = False
     if not ok:
@@ -222,7 +222,7 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
 
     @r.get("/runs/{run_id}", response_model=RunDetail,
            summary="One run with its calibration, reasons, poses and events")
-    def one_run(run_id: int = FPath(ge=1, le=ID_MAX)) -> RunDetailOut:
+    def one_run(run_id: int = FPath(ge=ID_MIN, le=ID_MAX)) -> RunDetailOut:
         with open_store(settings) as st:
             try:
                 rec = st.get_run(run_id)
