@@ -148,7 +148,7 @@ class StoreReader:
             raise store_error(e, f"{self.path}: cannot read runs ({sql_message(e)})", self._server) from None
 
     @contextmanager
-    def snapshot(self) -> Iterator[None]:
+    def _snapshot(self) -> Iterator[None]:
         """One read transaction, so queries spanning tables see one committed state."""
         if self._db.in_transaction:
             yield
@@ -170,7 +170,7 @@ class StoreReader:
     def schema_version(self) -> int:
         from . import migrate
 
-        with self.snapshot():
+        with self._snapshot():
             return migrate.current_version(self._db)
 
     # -- queries ------------------------------------------------------------------------
@@ -204,7 +204,7 @@ class StoreReader:
         from .records import run_summary
         from .tables import poses
 
-        with self.snapshot():
+        with self._snapshot():
             per_run = self.rows(select(poses.c.run_id, func.count().label("n")).group_by(poses.c.run_id))
             counts: dict[object, int] = {r["run_id"]: r["n"] for r in per_run}  # as stored (a damaged id too)
             rows = self._runs(filters, limit)
@@ -221,7 +221,7 @@ class StoreReader:
         return build_record(r, damage, pose_rows, event_rows)
 
     def get_run(self, run_id: int) -> RunRecord:
-        with self.snapshot():
+        with self._snapshot():
             rows = self._runs({"run_ids": [run_id]})
             if not rows:
                 raise RunNotFound(f"{self.path}: no run {run_id}")
@@ -229,7 +229,7 @@ class StoreReader:
 
     def runs(self, **filters: object) -> list[RunRecord]:
         """Full records (poses, events) of the matching runs."""
-        with self.snapshot():
+        with self._snapshot():
             return [self._record(r, damage) for r, damage in self._runs(filters)]
 
     def sessions_for_batch(self, skipped: list[tuple[str, str]] | None = None, **filters: object) -> list[Session]:
@@ -283,6 +283,6 @@ class StoreReader:
     def lot_summary(self, **filters: object) -> exports.LotSummary:
         """Counts, pass rate, failure reasons and parameter distributions of the matching runs
         (exports.summarize)."""
-        with self.snapshot():
+        with self._snapshot():
             return exports.summarize(self._runs(filters))
 

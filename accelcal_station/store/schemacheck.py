@@ -15,6 +15,7 @@ from .database import Database
 # the runs columns each schema added, newest first: (version, column)
 _ADDED = ((5, "heartbeat_at"), (4, "limits"), (2, "panel_id"), (1, "id"))
 _SAME_COLUMNS = {2: (2, 3)}  # versions whose columns are alike
+PRE_ALEMBIC_MAX = 3  # stores of schema 3 and older were written before Alembic: a marker, no revision table
 
 
 @dataclass(frozen=True)
@@ -76,10 +77,15 @@ def inspect_store(db: Database) -> StoreSchema:
         db.rollback()
 
 
+def pre_alembic(got: StoreSchema) -> bool:
+    """A store written before Alembic (schema 3 at most): no revision table, a marker its columns agree with."""
+    return got.revision_state == "missing" and got.marker == got.version <= PRE_ALEMBIC_MAX
+
+
 def unstamped_line(name: str, got: StoreSchema, target: int) -> str | None:
     """One line naming a store without an Alembic revision (None when it has one): what its columns
     are and what to do; a reader writes nothing into it."""
-    if got.stamped or got.version == 0:
+    if got.stamped or got.version == 0 or pre_alembic(got):
         return None
     table = "no alembic_version table" if got.revision_state == "missing" else "alembic_version is empty"
     marker = f", its version marker says {got.marker}" if got.marker and got.marker != got.version else ""

@@ -49,9 +49,12 @@ class Cursor:
         except ValueError:
             raise DataError(f"event id {text[:40]!r}: not a cursor; allowed: N or N:id,id,... "
                             "as sent in an event's id") from None
-        if not ID_MIN <= low <= ID_MAX + 1 or len(done) > MAX_DONE or any(d < low or d > ID_MAX for d in done):
-            raise DataError(f"event id {text[:40]!r}: not a cursor this server sent")
-        return cls(low, done)
+        if len(done) > MAX_DONE:
+            raise DataError(f"event id {text[:40]!r}: not a cursor this server sent (more than {MAX_DONE} ids)")
+        # held to the ids a store can hold: a low past 2^63-1 is past every run, below -2^63 before every
+        # one; a delivered id below low or outside int64 names no run still to come
+        low = min(max(low, ID_MIN), ID_MAX + 1)
+        return cls(low, frozenset(d for d in done if low <= d <= ID_MAX))
 
 
 @dataclass(frozen=True)
