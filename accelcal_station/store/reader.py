@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..session import Session
-from . import exports, integrity, schema, schemacheck
+from . import exports, integrity, schema
 from .database import Database, Row, describe_target, is_url
 from .liveness import STALE, live_status
 from .location import store_identity
@@ -101,6 +101,8 @@ class StoreReader:
     def _schema(self, create: bool, upgrade: bool) -> None:
         """A reader's schema check: refuse a store at another version or one without its revision
         whose columns are another schema's (schemacheck.py); nothing is written."""
+        from . import schemacheck  # SQLAlchemy, imported when a store is opened
+
         got = schemacheck.inspect_store(self._db)
         target = schema.SCHEMA_VERSION  # read at each open, so a test can stop at an older version
         self._beats = target >= 5  # runs.heartbeat_at/heartbeat_s exist from schema 5
@@ -168,10 +170,10 @@ class StoreReader:
 
     @property
     def schema_version(self) -> int:
-        from . import migrate
+        from . import schemacheck
 
         with self._snapshot():
-            return migrate.current_version(self._db)
+            return schemacheck.current_version(self._db)
 
     # -- queries ------------------------------------------------------------------------
     def _runs(self, filters: Mapping[str, object], limit: int | None = None) -> list[tuple[RunRow, list[DamagedRow]]]:

@@ -16,7 +16,7 @@ from .rowcheck import SPECS, CheckedRow
 from .schema import JSON_COLUMNS
 
 if TYPE_CHECKING:
-    from sqlalchemy import ColumnElement, Select
+    from sqlalchemy import ColumnElement, Executable, Select
 
     from .reader import StoreReader
 
@@ -34,7 +34,7 @@ RUN_FILTERS = {"since": ("started_at", ">="), "until": ("started_at", "<"), "sta
                "status": ("status", "=")}
 
 
-def checked(reader: StoreReader, stmt: Select[tuple[object, ...]]) -> list[CheckedRow]:
+def checked(reader: StoreReader, stmt: Executable) -> list[CheckedRow]:
     """Rows of one SELECT on runs; a damaged scalar (wrong type, time out of range) reads as None,
     named in ``damage``; a run whose station process is gone reads ``stale`` (liveness.py)."""
     out = []
@@ -46,7 +46,7 @@ def checked(reader: StoreReader, stmt: Select[tuple[object, ...]]) -> list[Check
     return out
 
 
-def unchecked(reader: StoreReader, stmt: Select[tuple[object, ...]]) -> list[CheckedRow]:
+def unchecked(reader: StoreReader, stmt: Executable) -> list[CheckedRow]:
     """Rows of a SELECT that itself keeps damaged scalars out (sane_time; the integer key)."""
     return [CheckedRow("runs", raw, frozenset()) for raw in reader.rows(stmt)]
 
@@ -71,7 +71,7 @@ def summary_select() -> Select[tuple[object, ...]]:
     return select(*(runs.c[c] for c in SUMMARY_COLUMNS))
 
 
-def _filters(filters: Mapping[str, float | str | None]) -> list[ColumnElement[bool]]:
+def _filters(filters: Mapping[str, object]) -> list[ColumnElement[bool]]:
     from .tables import runs
 
     where: list[ColumnElement[bool]] = []
@@ -83,7 +83,7 @@ def _filters(filters: Mapping[str, float | str | None]) -> list[ColumnElement[bo
     return where
 
 
-def run_page(reader: StoreReader, filters: Mapping[str, float | str | None], order: str, after_id: int | None,
+def run_page(reader: StoreReader, filters: Mapping[str, object], order: str, after_id: int | None,
              limit: int) -> list[CheckedRow]:
     """One page of runs by keyset on id: ``order`` "asc"/"desc", after ``after_id`` (exclusive)."""
     from .tables import runs
@@ -97,7 +97,7 @@ def run_page(reader: StoreReader, filters: Mapping[str, float | str | None], ord
     return checked(reader, summary_select().where(*where).order_by(way).limit(int(limit)))
 
 
-def run_count(reader: StoreReader, filters: Mapping[str, float | str | None]) -> object:
+def run_count(reader: StoreReader, filters: Mapping[str, object]) -> object:
     """How many runs match ``filters`` (the driver's count: an int, a Decimal from PostgreSQL's sum)."""
     from sqlalchemy import func, select
 

@@ -31,7 +31,7 @@ from ..acceptance.reasons import Reason
 from ..calibration import Calibration
 from ..errors import DataError
 from ..session import Session
-from . import schema, schemacheck
+from . import schema
 from .database import Database
 from .heartbeat import HEARTBEAT_S, Heartbeat
 from .liveness import stale_reason
@@ -119,6 +119,8 @@ class Store(StoreReader):
         if not upgrade:
             super()._schema(create, upgrade)
             return
+        from . import schemacheck  # SQLAlchemy, imported when a store is opened
+
         got = schemacheck.inspect_store(self._db)
         target = schema.SCHEMA_VERSION  # read at each open, so a test can stop at an older version
         self._beats = target >= 5  # runs.heartbeat_at/heartbeat_s exist from schema 5

@@ -10,12 +10,44 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sqlalchemy import Column, Integer, MetaData, String, Table, inspect, select
+
 from .database import Database
 
 # the runs columns each schema added, newest first: (version, column)
 _ADDED = ((5, "heartbeat_at"), (4, "limits"), (2, "panel_id"), (1, "id"))
 _SAME_COLUMNS = {2: (2, 3)}  # versions whose columns are alike
 PRE_ALEMBIC_MAX = 3  # stores of schema 3 and older were written before Alembic: a marker, no revision table
+
+
+_legacy = MetaData()
+accelcal_schema = Table("accelcal_schema", _legacy, Column("version", Integer, nullable=False))
+alembic_version = Table("alembic_version", _legacy, Column("version_num", String(32), nullable=False))
+
+
+def table_names(db: Database) -> set[str]:
+    return set(inspect(db.conn).get_table_names())
+
+
+def legacy_version(db: Database, tables: set[str]) -> int:
+    if db.dialect == "sqlite":
+        return int(db.conn.exec_driver_sql("PRAGMA user_version").scalar() or 0)
+    if "accelcal_schema" not in tables:
+        return 0
+    return int(db.scalar(select(accelcal_schema.c.version)) or 0)
+
+
+def current_version(db: Database) -> int:
+    """Inside a transaction: the store's schema version: its Alembic revision, else its pre-Alembic marker, else 0.
+    A revision this station does not know counts as newer than any it does."""
+    tables = table_names(db)
+    legacy = legacy_version(db, tables)
+    if "alembic_version" not in tables:
+        return legacy
+    rev = db.scalar(select(alembic_version.c.version_num))
+    if rev is None:
+        return legacy
+    return max(int(rev), legacy) if str(rev).isdigit() else 10_000
 
 
 @dataclass(frozen=True)
@@ -38,8 +70,6 @@ class StoreSchema:
 
 def columns_version(db: Database) -> int:
     """The newest schema whose columns the ``runs`` table has (0: no runs table)."""
-    from sqlalchemy import inspect
-
     insp = inspect(db.conn)
     if "runs" not in insp.get_table_names():
         return 0
@@ -50,10 +80,6 @@ def columns_version(db: Database) -> int:
 def read_schema(db: Database) -> StoreSchema:
     """Inside a transaction: the store's schema as its revision, marker and columns say (nothing written).
     A file with neither a revision table nor a marker is no store of ours (version 0), whatever its tables."""
-    from sqlalchemy import inspect, select
-
-    from .migrate import alembic_version, current_version, legacy_version
-
     tables = set(inspect(db.conn).get_table_names())
     marker = legacy_version(db, tables)
     rev = db.scalar(select(alembic_version.c.version_num)) if "alembic_version" in tables else None

@@ -7,7 +7,6 @@ import threading
 import time
 from typing import Any
 
-import h11
 import uvicorn
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
@@ -21,11 +20,9 @@ class JsonErrorH11(H11Protocol):
     def send_400_response(self, msg: str) -> None:
         body = json.dumps({"code": "invalid_request", "message": f"{msg} (a request line and headers "
                            f"are at most {MAX_REQUEST_HEAD} bytes)"}).encode()
-        head = h11.Response(status_code=400, reason=b"Bad Request", headers=[
-            (b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
-            (b"connection", b"close")])
-        for event in (head, h11.Data(data=body), h11.EndOfMessage()):
-            self.transport.write(self.conn.send(event) or b"")
+        head = (b"HTTP/1.1 400 Bad Request\r\ncontent-type: application/json\r\ncontent-length: "
+                + str(len(body)).encode() + b"\r\nconnection: close\r\n\r\n")
+        self.transport.write(head + body)  # the connection closes: no h11 state to keep
         self.transport.close()
 
 
