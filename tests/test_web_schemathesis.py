@@ -30,8 +30,9 @@ def test_schemathesis_finds_nothing_in_the_api(tmp_path):
     with live_server(str(store)) as base:
         # --request-timeout: the long poll of /events waits up to its declared wait_s (25 s)
         r = subprocess.run([_schemathesis(), "run", f"{base}/openapi.json", "--checks", "all", "--max-examples", "5",
-                            "--seed", "7", "--max-time", "25", "--max-response-time", "30", "--request-timeout", "40",
-                            "--no-color", "--include-path-regex", "^/api/"], capture_output=True, text=True, timeout=240)
+                            "--seed", "7", "--max-time", "15", "--max-response-time", "30", "--request-timeout", "40",
+                            "--no-color", "--include-path-regex", "^/api/"],
+                           capture_output=True, text=True, timeout=240)
     tail = "\n".join(r.stdout.splitlines()[-25:])
     assert r.returncode == 0 and "Failures:" not in r.stdout and "Errors:" not in r.stdout, tail
     assert "Tested: 6" in r.stdout, tail  # every API operation was exercised
