@@ -3,9 +3,11 @@ exactly-once delivery (a 200-run burst from 4 concurrent writers, with a resume 
 `/api/v1/runs?since=`, the OpenAPI schema, JSON errors, and the operator API's token."""
 from __future__ import annotations
 
+import http.client
 import json
 import threading
 import time
+from urllib.parse import urlsplit
 
 import numpy as np
 import pytest
@@ -124,8 +126,9 @@ def test_openapi_schema_is_served_and_valid_and_errors_are_json(tmp_path):
         assert {"/api/v1/runs", "/api/v1/runs/{run_id}", "/api/v1/yield", "/api/v1/events",
                 "/api/v1/events/stream"} <= set(spec["paths"])
         for path, status, code in (("/api/v1/runs/999", 404, "not_found"),
-                                   ("/api/v1/events?after=nonsense", 400, "DataError"),
-                                   ("/api/v1/runs?since=yesterday", 400, "DataError"),
+                                   ("/api/v1/events?after=nonsense", 422, "invalid_request"),
+                                   ("/api/v1/runs?since=yesterday", 422, "invalid_request"),
+                                   ("/api/v1/runs?since=2026-02-30", 422, "invalid_request"),
                                    ("/api/v1/runs?verdict=MAYBE", 422, "invalid_request"),
                                    ("/static/..%2f..%2fpyproject.toml", 404, "not_found"),
                                    ("/static/app.py", 404, "not_found")):
@@ -133,6 +136,17 @@ def test_openapi_schema_is_served_and_valid_and_errors_are_json(tmp_path):
             assert r.status_code == status and r.json()["code"] == code and r.json()["message"], (path, r.text)
         # read-only: no method writes
         assert httpx.post(f"{base}/api/v1/runs").status_code == 405
+        trace = httpx.request("TRACE", f"{base}/api/v1/runs")  # RFC 9110: a 405 names the methods allowed
+        assert trace.status_code == 405 and trace.headers["allow"] == "GET" and trace.json()["code"] == "http_error"
+        for size, status in ((1_200_000, (400, 422)), (3_000_000, (400,))):  # 3 MB: past the 1 MiB request head
+            u = urlsplit(base)
+            conn = http.client.HTTPConnection(u.hostname, u.port, timeout=60)
+            conn.request("GET", "/api/v1/runs?lot=" + "x" * size)  # http.client: no client-side URL limit
+            huge = conn.getresponse()
+            body = huge.read()
+            conn.close()
+            assert huge.status in status and huge.getheader("content-type") == "application/json", body[:200]
+            assert json.loads(body)["code"] == "invalid_request"
 
 
 def test_operator_api_abort_needs_the_configured_token():

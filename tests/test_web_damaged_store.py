@@ -158,7 +158,7 @@ def test_serve_reads_a_schema_2_store_without_migrating_it(tmp_path):
     client = _client(path)
     for url in PAGES:
         r = client.get(url)
-        assert r.status_code == 503 and "accelcal report list --db" in r.json()["message"], (url, r.text)
+        assert r.status_code == 503 and "accelcal report migrate --db" in r.json()["message"], (url, r.text)
     r = CliRunner().invoke(cli, ["serve", "--db", str(path), "--port", "8798"])
     assert r.exit_code == 2 and r.output.count("\n") == 1 and "schema version 2" in r.output, r.output
     assert hashlib.sha256(path.read_bytes()).hexdigest() == before

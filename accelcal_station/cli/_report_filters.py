@@ -12,7 +12,10 @@ from ..config.checks import load_yaml
 from ..errors import DataError
 from ..store.liveness import STALE
 from ..store.location import store_path, store_target
+from ..store.reader import StoreReader
 from ..store.schema import STATUSES, VERDICTS
+from ._outputs import refuse_output
+from ._text import clean
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -79,3 +82,22 @@ def run_filters(device: tuple[str, ...], lot: str | None, station: str | None, o
         raise DataError(f"--status {status!r}; allowed: {', '.join((*STATUSES, STALE))}")
     return {"device": list(device) or None, "lot": lot, "station": station, "operator": operator,
             "verdict": verdict and verdict.upper(), "status": status, "since": since, "until": until}
+
+
+def open_reader(db: str | None, config_path: str | None, output: tuple[str, str | None, str] | None = None,
+          force: bool = False) -> StoreReader:
+    """The store to read, read-only (never stamped or migrated: `report migrate` does that); a store
+    without its schema revision is named in one line on stderr.  ``output`` (its option, its file),
+    when given, is refused first if it is the store's own file, the config's or the config's store
+    (nothing written)."""
+    target, cfg = store_target_of(db, config_path)
+    if output is not None:  # the store read, and the --config's store even when --db names another
+        ctx = click.get_current_context(silent=True)
+        group = ctx.parent.params if ctx is not None and ctx.parent is not None else {}
+        given = config_path if config_path is not None else group.get("config_path")
+        refuse_output([output], [("--config", cfg or given)], force, config=cfg or given,
+                      stores=[("the store", target)])
+    reader = StoreReader(target)
+    if reader.notice:
+        click.echo(clean(reader.notice), err=True)
+    return reader

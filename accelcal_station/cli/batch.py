@@ -280,11 +280,13 @@ def _fit_boards(paths: tuple[str, ...], from_store: str | None, store_filters: S
     """Read the boards (store runs, then pose tables) and fit them all, with progress bars on a big batch."""
     from ..lot.batch import expand_paths, recalibrate, sessions_from_files, sessions_from_store
     from ..store.location import store_target
-    from ..store.runs import Store
+    from ..store.reader import StoreReader
 
     sources: list[Source] = []
     if from_store is not None:
-        with Store(store_target(from_store), create=False) as st:
+        with StoreReader(store_target(from_store)) as st:  # read-only: never stamped or migrated
+            if st.notice:
+                click.echo(error_text(st.notice), err=True)
             sources += sessions_from_store(st, **store_filters)
     files = expand_paths(paths)
     show = not as_json and len(files) + len(sources) > PROGRESS_MIN_BOARDS

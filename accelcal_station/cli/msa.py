@@ -8,13 +8,12 @@ from collections import Counter
 import click
 
 from ..errors import DataError
-from ..fileguard.identity import refuse_overwrite
 from ..jsontypes import JsonValue
 from ..lot.msa_study import PARAMETERS, analyse, build_study, plan, recent
+from ..store.reader import StoreReader
 from ..store.records import RunRecord
-from ..store.runs import Store
-from ._common import Whole, force_option, store_file
-from ._report_filters import RunFilters, filter_options, run_filters, store_target_of
+from ._common import Whole, force_option
+from ._report_filters import RunFilters, filter_options, open_reader, run_filters
 from ._text import clean
 
 CHUNK = 500  # run ids per query
@@ -57,7 +56,7 @@ def _print(doc: dict[str, JsonValue], results: list[dict[str, JsonValue]]) -> No
                    f"{r['grr_band'] or '-'}{'' if r['ndc_ok'] in (None, True) else ', ndc < 5'}{pooled}")
 
 
-def _repeated(store: Store, flt: RunFilters) -> tuple[list[RunRecord], int]:
+def _repeated(store: StoreReader, flt: RunFilters) -> tuple[list[RunRecord], int]:
     """Full records (poses and all) of the runs whose serial is in the listing more than once: the
     listing first, so a line's store of 100,000 runs does not load every run's poses; in chunks, so
     no query carries more ids than a database takes."""
@@ -68,7 +67,7 @@ def _repeated(store: Store, flt: RunFilters) -> tuple[list[RunRecord], int]:
     return recs, sum(1 for r in listing if r["status"] == "complete" and n[r["device_serial"]] == 1)
 
 
-def _plan(store: Store, by: str, parts: int, appraisers: int, trials: int, seed: int, as_json: bool,
+def _plan(store: StoreReader, by: str, parts: int, appraisers: int, trials: int, seed: int, as_json: bool,
           flt: RunFilters) -> None:
     serials, who = recent(store.list_runs(**flt), by, parts, appraisers)
     order = plan(serials, who, trials, seed)
@@ -108,11 +107,8 @@ def msa_command(db: str | None, config_path: str | None, device: tuple[str, ...]
     """Gage R&R study (AIAG MSA 4th ed.) of the repeated boards in the store, per calibration parameter."""
     tols = _tolerances(tolerance)
     flt = run_filters(device, lot, station, operator, verdict, status or "complete", since, until)
-    target, cfg = store_target_of(db, config_path)
-    if html_file is not None:
-        refuse_overwrite([("--html", html_file, "html")], [("the store", store_file(target)), ("--config", cfg)],
-                         force)
-    with Store(target, create=False) as store:
+    output = ("--html", html_file, "html") if html_file is not None else None
+    with open_reader(db, config_path, output, force) as store:  # read-only: never stamped or migrated
         if plan_only:
             _plan(store, by, parts, appraisers, trials, seed, as_json, flt)
             return

@@ -16,24 +16,9 @@ from ..store.records import RunRecord
 from ..store.runs import Store
 from ._common import MAX_ID, Whole, force_option
 from ._mes import JsonGroup
-from ._outputs import refuse_output
-from ._report_filters import filter_options, run_filters, store_target_of
+from ._report_filters import filter_options, open_reader, run_filters, store_target_of
 from ._text import clean
 from .msa import msa_command
-
-
-def _open(db: str | None, config_path: str | None, output: tuple[str, str | None, str] | None = None,
-          upgrade: bool = True, force: bool = False) -> Store:
-    """The store to read; ``output`` (its option, its file), when given, is refused first if it is the
-    store's own file or the config's (never overwritten, nothing written)."""
-    target, cfg = store_target_of(db, config_path)
-    if output is not None:  # the store read, and the --config's store even when --db names another
-        ctx = click.get_current_context(silent=True)
-        group = ctx.parent.params if ctx is not None and ctx.parent is not None else {}
-        given = config_path if config_path is not None else group.get("config_path")
-        refuse_output([output], [("--config", cfg or given)], force, config=cfg or given,
-                      stores=[("the store", target)])
-    return Store(target, create=False, upgrade=upgrade)
 
 
 def _name_damage(damage: list[dict[str, str]]) -> None:
@@ -54,7 +39,7 @@ class ReportGroup(JsonGroup):
     """`accelcal report [--db F] --json` lists the runs, as `report list --json` does."""
 
     def describe(self, ctx: click.Context) -> str:
-        with _open(ctx.params.get("db"), ctx.params.get("config_path")) as store:
+        with open_reader(ctx.params.get("db"), ctx.params.get("config_path")) as store:
             return json.dumps(store.list_runs())
 
 
@@ -73,7 +58,7 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
              operator: str | None, verdict: str | None, status: str | None, since: str | None, until: str | None,
              limit: int | None, as_json: bool) -> None:
     """Runs matching the filters, oldest first."""
-    with _open(db, config_path) as store:
+    with open_reader(db, config_path) as store:
         runs = store.list_runs(limit, **run_filters(device, lot, station, operator, verdict, status, since, until))
     if as_json:
         click.echo(json.dumps(runs, indent=1))
@@ -100,7 +85,7 @@ def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], l
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def show_cmd(run_id: int, db: str | None, config_path: str | None, as_json: bool) -> None:
     """Everything recorded for one run."""
-    with _open(db, config_path) as store:
+    with open_reader(db, config_path) as store:
         rec = store.get_run(run_id).to_dict()
     if as_json:
         click.echo(json.dumps(rec, indent=1))
@@ -170,7 +155,7 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
     if fmt not in ("csv", "json"):
         raise DataError(f"--format {fmt!r}; allowed: csv, json")
     flt = run_filters(device, lot, station, operator, verdict, status, since, until)
-    with _open(db, config_path, ("-o", output, fmt), force=force) as store:
+    with open_reader(db, config_path, ("-o", output, fmt), force=force) as store:
         n = len(store.list_runs(**flt))
         if fmt == "json":
             data = store.export_json(output, **flt)
@@ -201,7 +186,7 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
                 force: bool = False) -> None:
     """Lot summary: counts, pass rate, failure reasons, parameter distributions."""
     flt = run_filters(device, lot, station, operator, verdict, status, since, until)
-    with _open(db, config_path, ("--html", html_file, "html"), force=force) as store:
+    with open_reader(db, config_path, ("--html", html_file, "html"), force=force) as store:
         s = store.lot_summary(**flt)
         if html_file is not None:
             from ..lot.report import write_lot_html
@@ -239,7 +224,7 @@ def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...]
 def check_cmd(ctx: click.Context, db: str | None, config_path: str | None, as_json: bool) -> None:
     """List every damaged row (table, id, column, what is wrong) and what SQLite's integrity check
     finds in the file (pages it cannot read); exit 1 when any. Nothing is modified."""
-    with _open(db, config_path, upgrade=False) as store:
+    with open_reader(db, config_path) as store:
         found = [d.to_dict() for d in store.check()]
         pages = store.integrity()
         where = str(store.path)
@@ -257,6 +242,26 @@ def check_cmd(ctx: click.Context, db: str | None, config_path: str | None, as_js
             click.echo(f"{len(pages)} integrity problem(s) in the file (PRAGMA integrity_check)")
     if found or pages:
         ctx.exit(1)
+
+
+@command.command("migrate")
+@click.option("--db", default=None, metavar="FILE|URL", help="Results store: an SQLite file, sqlite:///FILE or postgresql://USER@HOST/DB.")
+@click.option("--config", "config_path", default=None, metavar="FILE", help="Station config (store.path).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def migrate_cmd(db: str | None, config_path: str | None, as_json: bool) -> None:
+    """Upgrade the store's schema to this station's (Alembic), recording its revision; says what it did.
+    A store without a revision is stamped with the schema its columns have. The only reading-side
+    command that writes a store."""
+    from ..store.schema import SCHEMA_VERSION
+
+    target, _ = store_target_of(db, config_path)
+    with Store(target, create=False) as store:
+        done = store.notice or f"{store.path}: schema {SCHEMA_VERSION} already, revision recorded; nothing written"
+        where = str(store.path)
+    if as_json:
+        click.echo(json.dumps({"store": where, "schema_version": SCHEMA_VERSION, "message": done}))
+    else:
+        click.echo(clean(done))
 
 
 @command.command("sync")
@@ -310,7 +315,7 @@ def plot_cmd(run_id: int, db: str | None, config_path: str | None, output: str |
     from ..lot.report import residual_figure
 
     out = output or f"run-{run_id}-residuals.png"
-    with _open(db, config_path, ("-o", out, "png"), force=force) as store:
+    with open_reader(db, config_path, ("-o", out, "png"), force=force) as store:
         rec = store.get_run(run_id)
     residual_figure(rec, out)
     click.echo(f"residuals of run {run_id} drawn in {out}")

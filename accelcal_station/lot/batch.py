@@ -43,6 +43,7 @@ from ..models.held import Held
 from ..models.result import FitResult
 from ..session import Session
 from ..store.location import store_identity
+from ..store.reader import StoreReader
 from ..store.records import iso
 from ..store.runs import Store
 from .batch_json import BatchReportJson, BoardResultJson, FitSummaryJson, StoreCounts
@@ -172,7 +173,7 @@ def sessions_from_files(paths: Sequence[Path], units: str | None = None, counts_
     return out
 
 
-def sessions_from_store(store: Store, **filters: Any) -> list[Source]:
+def sessions_from_store(store: StoreReader, **filters: Any) -> list[Source]:
     """(``run N``, Session) of the store's complete runs with poses (Store.sessions_for_batch filters);
     a damaged run is (``run N``, DataError naming its damaged_row), skipped and counted by the batch."""
     skipped: list[tuple[str, str]] = []

@@ -15,54 +15,25 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sqlalchemy import Column, Integer, MetaData, String, Table, delete, func, insert, inspect, select
+from sqlalchemy import delete, func, insert, select
 
 from .database import Database
 from .records import StoreError
+from .schemacheck import accelcal_schema, alembic_version, current_version, read_schema, table_names
 
 if TYPE_CHECKING:
     from alembic.config import Config
 
 SCRIPTS = Path(__file__).resolve().parent / "migrations"
 _PG_LOCK_KEY = 0x61636361  # advisory lock id of schema migrations ("acca")
-_legacy = MetaData()
-accelcal_schema = Table("accelcal_schema", _legacy, Column("version", Integer, nullable=False))
-alembic_version = Table("alembic_version", _legacy, Column("version_num", String(32), nullable=False))
-
-
 def revision(version: int) -> str:
     """The Alembic revision id of a schema version: 3 -> "0003"."""
     return f"{version:04d}"
 
 
-def _tables(db: Database) -> set[str]:
-    return set(inspect(db.conn).get_table_names())
-
-
-def _legacy_version(db: Database, tables: set[str]) -> int:
-    if db.dialect == "sqlite":
-        return int(db.conn.exec_driver_sql("PRAGMA user_version").scalar() or 0)
-    if "accelcal_schema" not in tables:
-        return 0
-    return int(db.scalar(select(accelcal_schema.c.version)) or 0)
-
-
-def current_version(db: Database) -> int:
-    """Inside a transaction: the store's schema version: its Alembic revision, else its pre-Alembic marker, else 0.
-    A revision this station does not know counts as newer than any it does."""
-    tables = _tables(db)
-    legacy = _legacy_version(db, tables)
-    if "alembic_version" not in tables:
-        return legacy
-    rev = db.scalar(select(alembic_version.c.version_num))
-    if rev is None:
-        return legacy
-    return max(int(rev), legacy) if str(rev).isdigit() else 10_000
-
-
 def stamped(db: Database) -> bool:
     """Inside a transaction: does the store carry an Alembic revision (not only a pre-Alembic marker)?"""
-    return "alembic_version" in _tables(db) and db.scalar(select(alembic_version.c.version_num)) is not None
+    return "alembic_version" in table_names(db) and db.scalar(select(alembic_version.c.version_num)) is not None
 
 
 def _set_legacy_version(db: Database, version: int) -> None:
@@ -101,12 +72,14 @@ def upgrade(db: Database, name: str, target: int) -> None:
     adopted = stamped(db)
     if version >= target and adopted:
         return
-    tables = _tables(db)
+    if not adopted:  # no revision recorded: stamp what its columns say (its marker when they agree)
+        version = read_schema(db).version
+    tables = table_names(db)
     if version == 0 and _foreign(db, tables - {"alembic_version", "accelcal_schema"}):
         kind = "an SQLite file" if db.dialect == "sqlite" else "a database with runs/poses/events tables"
         raise StoreError(f"{name}: {kind} that is not an accelcal results store")
     cfg = _config(db)
-    if version > 0 and not adopted:  # a pre-Alembic store: its marker says where it stands
+    if version > 0 and not adopted:
         command.stamp(cfg, revision(version))
     if version < target:
         command.upgrade(cfg, revision(target))

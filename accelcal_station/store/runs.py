@@ -12,7 +12,8 @@ and a station commits a few times per board, so WAL's writer/reader overlap buys
 nothing; readers wait out a commit through the busy timeout.  synchronous stays
 FULL (the default): a committed run survives power loss.  Foreign keys are on.
 
-Opening a store upgrades its schema (schema.py) under one transaction.
+Opening a store upgrades its schema (schema.py) under one transaction, in one logged line;
+``StoreReader`` (reader.py) is the reading side, which never writes.
 """
 from __future__ import annotations
 
@@ -30,32 +31,16 @@ from ..acceptance.reasons import Reason
 from ..calibration import Calibration
 from ..errors import DataError
 from ..session import Session
-from . import exports, integrity, schema
-from .database import Database, describe_target, is_url
+from . import schema
+from .database import Database
 from .heartbeat import HEARTBEAT_S, Heartbeat
-from .liveness import STALE, live_status, stale_reason
-from .location import store_identity
-from .records import (
-    RunDocument,
-    RunNotFound,
-    RunRecord,
-    RunRow,
-    RunSummary,
-    StoreError,
-    StoreUnreachable,
-    build_record,
-    opt,
-    run_row,
-    run_summary,
-    to_json,
-)
-from .rowcheck import DamagedRow
+from .liveness import stale_reason
+from .reader import StoreReader, sql_message, sqlerror, store_error
+from .records import RunRecord, StoreError, opt, to_json
 
 if TYPE_CHECKING:
-    from sqlalchemy import func, insert, select, update
-    from sqlalchemy.exc import SQLAlchemyError
+    from sqlalchemy import insert, select, update
 
-    from . import filters as filters_sql
     from . import migrate, replay
     from .tables import events, poses, runs
 
@@ -65,28 +50,11 @@ log = logging.getLogger(__name__)
 def _load_sql() -> None:
     """SQLAlchemy, the tables, the migrations and replay, imported when a store is first opened,
     not when the CLI starts (importing SQLAlchemy takes about 0.4 s)."""
-    global func, insert, select, update, filters_sql, migrate, replay, events, poses, runs
-    from sqlalchemy import func, insert, select, update
+    global insert, select, update, migrate, replay, events, poses, runs
+    from sqlalchemy import insert, select, update
 
-    from . import filters as filters_sql
     from . import migrate, replay
     from .tables import events, poses, runs
-
-
-def _sqlerror() -> type[SQLAlchemyError]:
-    """SQLAlchemy's error class, imported when a store is used (not when the CLI starts)."""
-    from sqlalchemy.exc import SQLAlchemyError
-    return SQLAlchemyError
-
-
-def store_error(e: BaseException, message: str, server: bool) -> StoreError:
-    """``message`` as a StoreError; StoreUnreachable when the database server (``server``: not
-    an SQLite file) could not be reached or the connection to it was lost."""
-    from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError, PendingRollbackError
-
-    lost = isinstance(e, (OperationalError, InterfaceError, PendingRollbackError)) or (
-        isinstance(e, DBAPIError) and e.connection_invalidated)
-    return StoreUnreachable(message) if lost and server else StoreError(message)
 
 
 class _HasDict(Protocol):
@@ -100,83 +68,40 @@ def _outcome(o: Outcome | None) -> Mapping[str, object] | None:
     return o if o is None or isinstance(o, Mapping) else o.to_dict()
 
 
-def _msg(e: BaseException) -> str:
-    """The driver's own first line of a database error (SQLAlchemy wraps it in a long text)."""
-    orig = getattr(e, "orig", None)
-    return (str(orig if orig is not None else e).strip().splitlines() or [type(e).__name__])[0]
-
-
-class Store:
-    """The results store at ``path``: a file path or ``sqlite:///PATH`` (an SQLite file, created
-    with its parent folder when missing unless ``create`` is False) or ``postgresql://...``
-    (a server database; the schema is created in it when missing).  Use as a context
-    manager; one Store per thread.  ``path`` is the file (SQLite) or the URL without its
-    password (PostgreSQL), as messages name it.
+class Store(StoreReader):
+    """The results store at ``path`` for writing (and reading: StoreReader): a file path or
+    ``sqlite:///PATH`` (an SQLite file, created with its parent folder when missing unless
+    ``create`` is False) or ``postgresql://...`` (a server database; the schema is created in it
+    when missing, and upgraded when ``upgrade``).  Use as a context manager; one Store per thread.
+    ``path`` is the file (SQLite) or the URL without its password (PostgreSQL), as messages name it.
     """
 
     heartbeat_s: float = HEARTBEAT_S  # seconds between the running runs' heartbeats (store/heartbeat.py)
     _heart: Heartbeat | None = None  # started by the first start_run
-    _beats = True  # the schema has the heartbeat columns
 
     def __init__(self, path: str | Path, timeout_s: float = 10.0, create: bool = True, upgrade: bool = True,
                  read_only: bool = False, heartbeat_s: float = HEARTBEAT_S):
         _load_sql()
         self.heartbeat_s = float(heartbeat_s)
-        SQLError = _sqlerror()
-        name = describe_target(path)
-        try:
-            self._db = Database(str(path) if is_url(path) else Path(path), timeout_s, create and not read_only,
-                                read_only)
-        except FileNotFoundError:
-            raise StoreError(f"{name}: no results store there") from None
-        except ValueError as e:
-            raise StoreError(str(e)) from None
-        except (OSError, SQLError) as e:
-            raise store_error(e, f"{name}: cannot open results store ({_msg(e)})",
-                              is_url(path) and not str(path).startswith("sqlite")) from None
-        db_path = self._db.path  # set for SQLite only
-        self.path: Path | str = db_path if db_path is not None else self._db.name
-        try:
-            self._migrate(create and not read_only, upgrade and not read_only)
-        except SQLError as e:
-            self._db.close()
-            raise store_error(e, f"{self.path}: not a usable results store ({_msg(e)})", self._server) from None
-        except BaseException:
-            self._db.close()
-            raise
+        self._open(path, timeout_s, create and not read_only, read_only)
+        self._settle(create and not read_only, upgrade and not read_only)
 
     def __enter__(self) -> Store:
         return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def close(self) -> None:
         if self._heart is not None:
             self._heart.close()
         self._db.close()
 
-    @property
-    def identity(self) -> str:
-        """What makes two Store objects the same store: the resolved file, or the URL."""
-        return store_identity(self.path)
-
-    @property
-    def dialect(self) -> str:
-        return self._db.dialect
-
-    @property
-    def _server(self) -> bool:
-        return self._db.dialect != "sqlite"
-
     @contextmanager
     def _tx(self, what: str) -> Iterator[Database]:
         """One write transaction (IMMEDIATE on SQLite): all of it is committed or none of it."""
-        SQLError = _sqlerror()
+        SQLError = sqlerror()
         try:
             self._db.begin()
         except SQLError as e:
-            raise store_error(e, f"{self.path}: cannot {what} ({_msg(e)})", self._server) from None
+            raise store_error(e, f"{self.path}: cannot {what} ({sql_message(e)})", self._server) from None
         try:
             yield self._db
             self._db.commit()
@@ -184,56 +109,35 @@ class Store:
             if self._db.in_transaction:
                 self._db.rollback()
             if isinstance(e, SQLError):
-                why = f"{self.path}: cannot {what} ({_msg(e)}); that write was rolled back"
+                why = f"{self.path}: cannot {what} ({sql_message(e)}); that write was rolled back"
                 raise store_error(e, why, self._server) from None
             raise
 
-    @contextmanager
-    def _snapshot(self) -> Iterator[None]:
-        """One read transaction, so queries spanning tables see one committed state."""
-        if self._db.in_transaction:
-            yield
+    def _schema(self, create: bool, upgrade: bool) -> None:
+        """Bring the schema to schema.SCHEMA_VERSION by Alembic (migrate.py), in one transaction, and
+        say so in one logged line; ``upgrade`` False: as a reader (write nothing, refuse another version)."""
+        if not upgrade:
+            super()._schema(create, upgrade)
             return
-        SQLError = _sqlerror()
-        try:
-            self._db.begin(write=False)
-            yield
-        except SQLError as e:
-            raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
-        finally:
-            if self._db.in_transaction:
-                try:
-                    self._db.commit()
-                except SQLError as e:  # a damaged page can surface only here
-                    raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
+        from . import schemacheck  # SQLAlchemy, imported when a store is opened
 
-    def _migrate(self, create: bool = True, upgrade: bool = True) -> None:
-        """Bring the schema to schema.SCHEMA_VERSION by Alembic (migrate.py), in one transaction;
-        ``upgrade`` False: write nothing and refuse a store at another version."""
-        self._db.begin(write=False)
-        try:
-            version, adopted = migrate.current_version(self._db), migrate.stamped(self._db)
-        finally:
-            self._db.rollback()
-        if version == 0 and not create:  # a reader never writes a schema into a file it only reads
-            raise StoreError(f"{self.path}: not an accelcal results store (no schema); nothing was written")
+        got = schemacheck.inspect_store(self._db)
         target = schema.SCHEMA_VERSION  # read at each open, so a test can stop at an older version
         self._beats = target >= 5  # runs.heartbeat_at/heartbeat_s exist from schema 5
-        if version > target:
-            raise StoreError(f"{self.path}: results store schema version {version} is newer than this "
+        if got.version == 0 and not create:  # a reader never writes a schema into a file it only reads
+            raise StoreError(f"{self.path}: not an accelcal results store (no schema); nothing was written")
+        if got.version > target:
+            raise StoreError(f"{self.path}: results store schema version {got.version} is newer than this "
                              f"station's {target}; upgrade accelcal-station")
-        if version == target and (adopted or not upgrade):
+        if got.version == target and got.stamped:
             return
-        if not upgrade:
-            raise StoreError(f"{self.path}: results store schema version {version}, this station reads {target}; "
-                             f"`accelcal report list --db {self.path}` upgrades it (nothing was written)")
         with self._tx("upgrade the schema") as db:
             migrate.upgrade(db, str(self.path), target)
-
-    @property
-    def schema_version(self) -> int:
-        with self._snapshot():
-            return migrate.current_version(self._db)
+        if got.version > 0:  # an existing store changed: said, never silent
+            what = (f"schema {got.version} upgraded to {target}" if got.version != target else
+                    f"schema revision {migrate.revision(target)} recorded (its columns are schema {target}'s)")
+            log.warning("%s: %s", self.path, what)
+            self.notice = f"{self.path}: {what}"
 
     # -- recording ----------------------------------------------------------------------
     def start_run(self, *, device_serial: str | None, chip: str | None = None, station_id: str | None = None,
@@ -392,113 +296,8 @@ class Store:
                     status="interrupted", finished_at=now, status_reason="station stopped during the run"))
         return stale
 
-    # -- queries ------------------------------------------------------------------------
-    def _runs(self, filters: Mapping[str, object], limit: int | None = None) -> list[tuple[RunRow, list[DamagedRow]]]:
-        """The matching ``runs`` rows, each checked (rowcheck.check_row) with what is damaged in it.
-        Status ``running`` or ``stale`` (both stored as running) is told apart as each row is read."""
-        wanted = filters.get("status")
-        live = wanted in ("running", STALE)
-        if live:
-            filters = {**filters, "status": "running"}
-        stmt = select(runs).where(*filters_sql.where(filters)).order_by(runs.c.started_at, runs.c.id)
-        if limit is not None:
-            stmt = stmt.limit(int(limit))
-        try:
-            out = [run_row(r) for r in self._db.rows(stmt)]
-        except _sqlerror() as e:
-            raise store_error(e, f"{self.path}: cannot read runs ({_msg(e)})", self._server) from None
-        for r, _ in out:  # running, its process gone: stale
-            if (stale := live_status(r)) is not None:
-                r["status"], r["status_reason"] = stale
-        return [x for x in out if x[0]["status"] == wanted] if live else out
-
-    def list_runs(self, limit: int | None = None, **filters: object) -> list[RunSummary]:
-        """Run summaries (no poses) matching filters: device, station, lot, operator, since,
-        until, verdict, status, model (a value or a list of values), run_ids.  A run whose row
-        is damaged has ``damaged`` (its columns) and ``damage`` (typed ``damaged_row`` reasons)."""
-        with self._snapshot():
-            per_run = self._db.rows(select(poses.c.run_id, func.count().label("n")).group_by(poses.c.run_id))
-            counts: dict[object, int] = {r["run_id"]: r["n"] for r in per_run}  # as stored (a damaged id too)
-            rows = self._runs(filters, limit)
-        return [run_summary(r, damage, counts.get(r["id"], 0)) for r, damage in rows]
-
-    def _record(self, r: RunRow, damage: list[DamagedRow]) -> RunRecord:
-        rid = r["id"]
-        pose_rows = self._db.rows(select(poses).where(poses.c.run_id == rid).order_by(poses.c.idx))
-        event_rows = self._db.rows(select(events).where(events.c.run_id == rid).order_by(events.c.id))
-        return build_record(r, damage, pose_rows, event_rows)
-
-    def get_run(self, run_id: int) -> RunRecord:
-        with self._snapshot():
-            rows = self._runs({"run_ids": [run_id]})
-            if not rows:
-                raise RunNotFound(f"{self.path}: no run {run_id}")
-            return self._record(*rows[0])
-
-    def runs(self, **filters: object) -> list[RunRecord]:
-        """Full records (poses, events) of the matching runs."""
-        with self._snapshot():
-            return [self._record(r, damage) for r, damage in self._runs(filters)]
-
-    def sessions_for_batch(self, skipped: list[tuple[str, str]] | None = None, **filters: object) -> list[Session]:
-        """Sessions of complete runs with poses (for batch recalibration of a lot).
-
-        A matching run with a damaged value is never silently left out: it is appended to
-        ``skipped`` as ("run ID", "damaged_row: ...") whatever its status reads (a damaged status
-        included), so the caller can name and count it; so is a complete run whose pose rows
-        cannot all be read ("poses_unreadable: ...", RunRecord.poses_unread).
-        """
-        status = filters.pop("status", "complete")
-        out: list[Session] = []
-        for rec in self.runs(**filters):
-            if rec.damage:
-                if skipped is not None:
-                    skipped.append((f"run {rec.id if rec.id is not None else '?'}", "damaged_row: "
-                                    + "; ".join(str(d) for d in rec.damage[:3])
-                                    + (f" (+{len(rec.damage) - 3} more)" if len(rec.damage) > 3 else "")))
-            elif rec.status == status and (why := rec.poses_unread()) is not None:
-                if skipped is not None:  # a complete run whose poses cannot be read: named, never left out
-                    skipped.append((f"run {rec.id}", why))
-            elif rec.poses and rec.status == status:
-                out.append(rec.session())
-        return out
-
     def replay_run(self, rec: RunRecord, server_run_id: int | None = None, note: str = "") -> tuple[int, bool]:
         """Write a run recorded in another store (the outbox) into this one, once (replay.py):
         (its id here, whether anything was written)."""
         with self._tx(f"replay run {rec.id}") as db:
             return replay.replay_run(db, rec, server_run_id, note)
-
-    def check(self) -> list[DamagedRow]:
-        """Every damaged value of every row (runs, poses, events; integrity.check_rows); nothing is written."""
-        return integrity.check_rows(self._db, (runs, poses, events))
-
-    def integrity(self) -> list[str]:
-        """What SQLite's integrity check finds wrong in the file (integrity.file_problems); [] on PostgreSQL."""
-        return [] if self._server else integrity.file_problems(self._db)
-
-    # -- exports and summaries ----------------------------------------------------------
-    def export_json(self, path: str | Path | None = None, **filters: object) -> list[RunDocument]:
-        """Every matching run in full; written atomically to ``path`` when given."""
-        data = [rec.to_dict() for rec in self.runs(**filters)]
-        if path is not None:
-            exports.write_export(path, exports.runs_json(data))
-        return data
-
-    def export_csv(self, path: str | Path | None = None, kind: str = "runs", **filters: object) -> str:
-        """CSV of runs (one row per run, calibration flattened) or poses (one row per pose).
-
-        Returns the text; written atomically to ``path`` when given.
-        """
-        table = exports.csv_table(kind)
-        text = table(self.runs(**filters))
-        if path is not None:
-            exports.write_export(path, text)
-        return text
-
-    def lot_summary(self, **filters: object) -> exports.LotSummary:
-        """Counts, pass rate, failure reasons and parameter distributions of the matching runs
-        (exports.summarize)."""
-        with self._snapshot():
-            return exports.summarize(self._runs(filters))
-

@@ -2,6 +2,7 @@
 (the boards of a line's stations: the same fitting and judging as a lot file's)."""
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -14,8 +15,10 @@ from ..data.lotfile import LotChunk
 from ..errors import DataError
 from ..session import Session
 from ..store.location import store_target
-from ..store.runs import Store
+from ..store.reader import StoreReader
 from .stream import LotStats, collect, richest_model
+
+log = logging.getLogger(__name__)
 
 
 def _chunk(sessions: list[Session]) -> LotChunk:
@@ -41,7 +44,9 @@ def store_stats(db: str, limits: Limits | None, reservoir: int = 50_000, chunk_b
     """One pass over the store's matching runs; returns the stats and the runs' input units per g.
     A damaged run is appended to ``skips`` ("run ID", "damaged_row: ...") and counted in ``skipped``."""
     damaged: list[tuple[str, str]] = []
-    with Store(store_target(Path(db) if "://" not in db else db), create=False) as st:
+    with StoreReader(store_target(Path(db) if "://" not in db else db)) as st:  # read-only: never stamped
+        if st.notice:
+            log.warning(st.notice)
         sessions = st.sessions_for_batch(damaged, **{k: v for k, v in filters.items() if v is not None})
     if skips is not None:
         skips += damaged

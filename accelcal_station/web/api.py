@@ -10,9 +10,6 @@ header).  Read-only: nothing here writes the store.  Errors are JSON ``{code, me
 from __future__ import annotations
 
 import asyncio
-import base64
-import json
-import math
 import time
 from collections.abc import AsyncIterator
 from typing import TYPE_CHECKING, Annotated, Any
@@ -148,8 +145,18 @@ class EventPageOut(TypedDict):
     next: str
 
 
-ID_MAX = 2**63 - 1  # run ids are BIGINT (int64)
+ID_MIN, ID_MAX = -(2**63), 2**63 - 1  # run ids are BIGINT (int64): negative ones too, as SQLite stores them
 TEXT_MAX = 200  # a station, serial or lot filter
+# every parameter's pattern, declared in the OpenAPI, so a request that matches it is answered (issue 53)
+_INT = r"-?[0-9]{1,19}"
+EVENT_ID = rf"^({_INT}(:({_INT}(,{_INT})*)?)?)?$"  # a feed cursor: low[:done,done,...] (feed.Cursor)
+PAGE_CURSOR = r"^[ad](0|-?[1-9][0-9]{0,18})$"  # a page cursor: its order (a/d) and the last id delivered
+NO_CONTROL = r"^[^\x00-\x1f\x7f]*$"  # a text filter: no control characters
+_MD = r"((0[13578]|1[02])-(0[1-9]|[12][0-9]|3[01])|(0[469]|11)-(0[1-9]|[12][0-9]|30)|02-(0[1-9]|1[0-9]|2[0-8]))"
+_LEAP = r"(19(7[26]|8[048]|9[26])|[2-9][0-9](0[48]|[2468][048]|[13579][26])|([2468][048]|[3579][26])00)"
+_CLOCK = r"(T([01][0-9]|2[0-3])(:[0-5][0-9](:[0-5][0-9](\.[0-9]{1,6})?)?)?(Z|[+-]([01][0-9]|2[0-3]):[0-5][0-9])?)?"
+# unix seconds, or an ISO 8601 calendar date (1970-9999, 29 February in leap years only) with an optional time
+TIME = rf"^(-?[0-9]{{1,20}}(\.[0-9]{{1,20}})?|((19[7-9][0-9]|[2-9][0-9]{{3}})-{_MD}|{_LEAP}-02-29){_CLOCK})$"
 
 
 def _feed(settings: WebSettings, cursor: Cursor, limit: int) -> tuple[list[Step], list[RunView]]:
@@ -168,24 +175,14 @@ def api_router(settings: WebSettings) -> APIRouter:
 
 
 def encode_cursor(order: str, last_id: int) -> str:
-    """An opaque page cursor: the order and the last id delivered (base64url of a small JSON)."""
-    return base64.urlsafe_b64encode(json.dumps({"v": 1, "o": order, "id": int(last_id)}).encode()).decode().rstrip("=")
+    """A page cursor: the order ("a" ascending, "d" descending) and the last id delivered."""
+    return f"{'a' if order == 'asc' else 'd'}{int(last_id)}"
 
 
-def decode_cursor(text: str, order: str) -> int:
-    """The last id of a cursor this server sent for ``order``; ApiError 400 otherwise."""
-    try:
-        d = json.loads(base64.urlsafe_b64decode(text + "=" * (-len(text) % 4)).decode())
-        ok = isinstance(d, dict) and d.get("v") == 1 and isinstance(d.get("id"), int) and 0 <= d["id"] <= ID_MAX
-    except (ValueError, UnicodeDecodeError):
-        ok = False
-    if not ok:
-        raise ApiError(400, "invalid_cursor", f"cursor {text[:40]!r}: not a cursor this server sent; "
-                       "allowed: the next_cursor of a previous page")
-    if d.get("o") != order:
-        raise ApiError(400, "invalid_cursor", f"cursor of order={d.get('o')} given with order={order}; "
-                       "a cursor continues the order it was made for")
-    return int(d["id"])
+def decode_cursor(text: str) -> tuple[str, int]:
+    """(order, last id) of a cursor matching PAGE_CURSOR (checked by the route); an id past the
+    int64 range pages on as past every id a store holds."""
+    return ("asc" if text[0] == "a" else "desc"), int(text[1:])
 
 
 def _text(name: str, v: str | None) -> str | None:
@@ -196,21 +193,26 @@ def _text(name: str, v: str | None) -> str | None:
 
 def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
     @r.get("/runs", response_model=RunPage, summary="Runs, a page at a time (keyset on id; newest first by default)")
-    def list_runs(since: str | None = Query(None, max_length=64, description="started at or after (ISO 8601, unix s)"),
-                  until: str | None = Query(None, max_length=64, description="started before (ISO 8601 or unix s)"),
-                  station: str | None = Query(None, max_length=TEXT_MAX),
-                  serial: str | None = Query(None, max_length=TEXT_MAX),
+    def list_runs(since: str | None = Query(None, max_length=64, pattern=TIME,
+                                            description="started at or after (ISO 8601 1970-9999, or unix s)"),
+                  until: str | None = Query(None, max_length=64, pattern=TIME,
+                                            description="started before (ISO 8601 1970-9999, or unix s)"),
+                  station: str | None = Query(None, max_length=TEXT_MAX, pattern=NO_CONTROL),
+                  serial: str | None = Query(None, max_length=TEXT_MAX, pattern=NO_CONTROL),
                   verdict: str | None = Query(None, pattern="^(PASS|FAIL)$"),
-                  lot: str | None = Query(None, max_length=TEXT_MAX),
+                  lot: str | None = Query(None, max_length=TEXT_MAX, pattern=NO_CONTROL),
                   status: str | None = Query(None, pattern="^(running|complete|interrupted|error|stale)$"),
                   order: str = Query("desc", pattern="^(asc|desc)$", description="by id: desc newest first"),
-                  cursor: str | None = Query(None, max_length=200, description="next_cursor of the previous page"),
+                  cursor: str | None = Query(None, max_length=21, pattern=PAGE_CURSOR,
+                                             description="next_cursor of the previous page (it carries its order)"),
                   limit: int = Query(100, ge=1, le=1000),
                   total: bool = Query(False, description="count the runs matching the filters")) -> RunPageOut:
         f: RunFilters = {"since": _time(since, "since"), "until": _time(until, "until"),
                                  "station": _text("station", station), "serial": _text("serial", serial),
                                  "verdict": verdict, "lot": _text("lot", lot), "status": status}
-        after = None if cursor is None else decode_cursor(cursor, order)
+        after = None
+        if cursor is not None:  # a cursor continues the order it was made for
+            order, after = decode_cursor(cursor)
         with open_store(settings) as st:
             runs = queries.run_page(st, f, order, after, limit + 1)
             n = queries.run_count(st, f) if total else None
@@ -222,7 +224,7 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
 
     @r.get("/runs/{run_id}", response_model=RunDetail,
            summary="One run with its calibration, reasons, poses and events")
-    def one_run(run_id: int = FPath(ge=1, le=ID_MAX)) -> RunDetailOut:
+    def one_run(run_id: int = FPath(ge=ID_MIN, le=ID_MAX)) -> RunDetailOut:
         with open_store(settings) as st:
             try:
                 rec = st.get_run(run_id)
@@ -251,29 +253,37 @@ def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
 
 
 def _time(v: str | None, what: str) -> float | None:
-    """Unix seconds from a number or ISO 8601; a time outside years 1970-9999 is refused (400)."""
+    """Unix seconds from a number or an ISO 8601 time (TIME, checked by the route; naive: local time),
+    held to the years 1970-9999 a store's times can have (an earlier bound matches every run)."""
     if v is None:
         return None
     try:
-        t = float(v)
+        t = float(v)  # unix seconds (the pattern's numbers); a date otherwise
     except ValueError:
-        try:
-            t = timestamp(v, what) or math.nan
-        except DataError:
-            raise
-        except (OverflowError, OSError, ValueError):  # a date Python reads but cannot place in time
-            t = math.nan
-    if t is None or not 0.0 <= t <= T_MAX_S:  # NaN fails the comparison too
-        raise ApiError(400, "invalid_request", f"{what} {v[:40]!r}: allowed: unix seconds 0-{T_MAX_S:.0f} or "
-                       "an ISO 8601 time from 1970 to 9999")
-    return t
+        t = None
+    try:
+        t = timestamp(v, what) if t is None else t
+    except (DataError, OverflowError, OSError, ValueError):  # a date the pattern allows that Python cannot place
+        raise ApiError(400, "invalid_request", f"{what} {v[:40]!r}: allowed: unix seconds or an ISO 8601 time "
+                       "from 1970 to 9999") from None
+    return min(max(float(t or 0.0), 0.0), T_MAX_S)
+
+
+def _cursor(text: str) -> Cursor:
+    """A feed cursor (EVENT_ID, checked by the route); one past what a server sends is 400 invalid_cursor."""
+    try:
+        return Cursor.parse(text)
+    except DataError as e:
+        raise ApiError(400, "invalid_cursor", str(e)) from None
 
 
 def _feed_routes(r: APIRouter, settings: WebSettings) -> None:
     @r.get("/events", response_model=EventPage, summary="Finished runs after a cursor (long poll)")
-    async def events(after: str = Query("", max_length=200_000), wait_s: float = Query(0.0, ge=0, le=25),
+    async def events(after: str = Query("", max_length=200_000, pattern=EVENT_ID,
+                                        description="an event id (cursor) as sent; empty: from the start"),
+                     wait_s: float = Query(0.0, ge=0, le=25),
                      limit: int = Query(500, ge=1, le=5000)) -> EventPageOut:
-        cursor = Cursor.parse(after)
+        cursor = _cursor(after)
         deadline = time.monotonic() + wait_s
         while True:
             steps, runs = await asyncio.to_thread(_feed, settings, cursor, limit)
@@ -294,9 +304,9 @@ def _feed_routes(r: APIRouter, settings: WebSettings) -> None:
            response_class=StreamingResponse,
            responses={200: {"content": {"text/event-stream": {}},
                             "description": "`id:` is the cursor; reconnect with Last-Event-ID to resume"}})
-    async def stream(after: str = Query("", max_length=200_000),
-                     last_event_id: str | None = Header(None, max_length=200_000)) -> StreamingResponse:
-        cursor = Cursor.parse(last_event_id or after)
+    async def stream(after: str = Query("", max_length=200_000, pattern=EVENT_ID),
+                     last_event_id: str = Header("", max_length=200_000, pattern=EVENT_ID)) -> StreamingResponse:
+        cursor = _cursor(last_event_id or after)
         return StreamingResponse(_sse(settings, cursor), media_type="text/event-stream",
                                  headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
 

@@ -104,4 +104,6 @@ def install_errors(app: FastAPI) -> None:
 
     @app.exception_handler(HTTPException)
     async def http_error(_r: Request, e: HTTPException) -> JSONResponse:
-        return error_response(e.status_code, "not_found" if e.status_code == 404 else "http_error", str(e.detail))
+        # a 405 keeps Starlette's Allow header (RFC 9110: the methods the resource has)
+        return error_response(e.status_code, "not_found" if e.status_code == 404 else "http_error", str(e.detail),
+                              headers=dict(e.headers) if e.headers else None)

@@ -8,6 +8,9 @@ event id / ``after`` parameter ``"low"`` or ``"low:a,b,c"``; the server keeps no
 client.  The cursor never moves past a running run, nor past a missing id younger than
 ``GAP_S`` (an id allocated by a transaction not yet visible; PostgreSQL's identity
 values are not in commit order), so a run that becomes visible late is still delivered.
+A cursor's ``low`` is any int64 id, or ID_MAX + 1 once the run of id 2^63-1 is delivered (past
+every id a store can hold); the feed starts at run 1, the first id a store hands out (a
+hand-made lower id is reached with ``after=-9223372036854775808``).
 """
 from __future__ import annotations
 
@@ -21,7 +24,7 @@ if TYPE_CHECKING:
 
 GAP_S = 60.0  # a hole in the ids older than this is a rolled-back insert, not a late commit
 MAX_DONE = 100_000  # a cursor naming more delivered ids than this is refused (not ours)
-ID_MAX = 2**63 - 1  # run ids are int64: a larger one is no run of ours
+ID_MIN, ID_MAX = -(2**63), 2**63 - 1  # run ids are int64 (SQLite's rowid, PostgreSQL's BIGINT)
 
 
 @dataclass(frozen=True)
@@ -46,9 +49,12 @@ class Cursor:
         except ValueError:
             raise DataError(f"event id {text[:40]!r}: not a cursor; allowed: N or N:id,id,... "
                             "as sent in an event's id") from None
-        if low < 1 or low > ID_MAX or len(done) > MAX_DONE or any(d < low or d > ID_MAX for d in done):
-            raise DataError(f"event id {text[:40]!r}: not a cursor this server sent")
-        return cls(low, done)
+        if len(done) > MAX_DONE:
+            raise DataError(f"event id {text[:40]!r}: not a cursor this server sent (more than {MAX_DONE} ids)")
+        # held to the ids a store can hold: a low past 2^63-1 is past every run, below -2^63 before every
+        # one; a delivered id below low or outside int64 names no run still to come
+        low = min(max(low, ID_MIN), ID_MAX + 1)
+        return cls(low, frozenset(d for d in done if low <= d <= ID_MAX))
 
 
 @dataclass(frozen=True)

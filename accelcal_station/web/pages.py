@@ -19,8 +19,8 @@ import numpy as np
 from ..acceptance.rules import LIMIT_KEYS
 from ..errors import AccelcalError, DataError
 from ..jsontypes import JsonObject, JsonValue
+from ..store.reader import StoreReader as Store
 from ..store.records import RunRecord, iso
-from ..store.runs import Store
 from . import queries
 from .charts import Chart, RunPoint, residual_chart, run_chart
 from .settings import WebSettings, open_store

@@ -1,8 +1,6 @@
-"""The line page's and the feed's reads: plain aggregate SELECTs on the store's own connection.
-
-The store's public functions (store/runs.py) load whole runs; the line page over a store of
-100,000 runs needs counts grouped in SQL instead, so these few statements live here, small
-and isolated, and read only.  Columns and tables are the store's schema (store/schema.py).
+"""The line page's and the feed's views of the store: the rows the store's query functions
+read (store/runpages.py, store/linequeries.py: SQLAlchemy Core over a read-only StoreReader)
+turned into what the API and pages show (runs judged by their limits, yields, counts).
 Shifts are 8 h from 06:00 UTC (A 06-14, B 14-22, C 22-06).
 """
 from __future__ import annotations
@@ -17,10 +15,12 @@ from ..acceptance.reasons import codes
 from ..acceptance.rules import DEFAULT_LIMITS
 from ..config.safe_yaml import HostileYAML, safe_load
 from ..jsontypes import JsonValue
-from ..store.liveness import live_status
+from ..store import linequeries as lq
+from ..store import runpages as rp
+from ..store.linequeries import SHIFT0_S, SHIFT_S
+from ..store.reader import StoreReader as Store
 from ..store.records import load_or, stored_reasons
-from ..store.rowcheck import JSON_MAX_DEPTH, SPECS, CheckedRow
-from ..store.runs import Store
+from ..store.rowcheck import JSON_MAX_DEPTH, CheckedRow
 from .views import (
     Damaged,
     FeedRow,
@@ -37,56 +37,12 @@ from .views import (
     StationYield,
 )
 
-SHIFT_S = 8 * 3600.0
-SHIFT0_S = 6 * 3600.0  # shift A starts at 06:00 UTC
 WINDOW_S = 24 * 3600.0  # the line page's yields: the day before the newest run
-SUMMARY_COLS = ("id, started_at, finished_at, status, status_reason, device_serial, chip, station_id, operator, "
-                "lot, model, verdict, reasons, nvm_status, fit_summary, limits, config_hash, host, pid, heartbeat_at, "
-                "heartbeat_s")
-
-
-# runs columns checked on every read as the store's own reads check them (store/rowcheck.py); the
-# JSON columns stay text here and go through load_or / stored_reasons, which bound them alike
-_JSON_COLS = ("reasons", "nvm_outcome", "calibration", "fit_summary", "limits")
-_SCALAR_COLS = frozenset(SPECS["runs"]) - set(_JSON_COLS)
-# a stored time a page can show (year 1970 to 9999): a damaged one is left out of the aggregates
-SANE_T = "(started_at BETWEEN 0 AND 253402300799)"
 T_END = 253402300800.0  # an open window's end: after every time a run can have
-
-
-def select_unchecked(store: Store, sql: str, **params: object) -> list[CheckedRow]:
-    """Rows of one read-only statement with no column check: for a statement that itself keeps damaged
-    scalars out (SANE_T; the integer key) and reads JSON columns through quick_json."""
-    from sqlalchemy import text
-
-    conn = store._db.conn  # the one place the web layer touches the store's connection
-    return [CheckedRow("runs", dict(r), frozenset()) for r in conn.execute(text(sql), params).mappings().all()]
-
-
-def select(store: Store, sql: str, **params: object) -> list[CheckedRow]:
-    """Rows of one read-only statement (named ``:params``) on the store's connection; a damaged value of
-    a runs scalar column (wrong type, time out of range) reads as None, named in ``damage`` (as
-    ``report list`` names it), never an exception in a page; a run whose station process is gone reads
-    ``stale`` (store/liveness.py).  JSON columns stay text (quick_json reads them)."""
-    from sqlalchemy import text
-
-    out = []
-    for raw in store._db.conn.execute(text(sql), params).mappings().all():
-        row = CheckedRow("runs", dict(raw), _SCALAR_COLS)
-        if (stale := live_status(row.values)) is not None:
-            row.set(status=stale[0], status_reason=stale[1])
-        out.append(row)
-    return out
 
 
 def _damage(row: CheckedRow) -> list[dict[str, str]]:
     return [d.to_dict() for d in row.damage]
-
-
-def _bucket(store: Store) -> str:
-    """SQL for a run's shift number since the epoch (floor; SQLite's CAST truncates, times are positive)."""
-    expr = f"(started_at - {SHIFT0_S}) / {SHIFT_S}"
-    return f"floor({expr})" if store.dialect == "postgresql" else f"CAST({expr} AS INTEGER)"
 
 
 def shift_label(bucket: int) -> str:
@@ -155,9 +111,7 @@ def fill_limits(store: Store, rows: list[CheckedRow]) -> list[Judged]:
     missing = {str(h) for r, o in zip(rows, own, strict=True) if o is None and (h := r.value("config_hash"))}
     by_hash: dict[str, dict[str, float]] = {}
     if missing:
-        marks = ", ".join(f":h{k}" for k in range(len(missing)))
-        for r in select(store, f"SELECT config_hash, min(config_text) AS t FROM runs WHERE config_hash IN ({marks})"
-                        " GROUP BY config_hash", **{f"h{k}": h for k, h in enumerate(sorted(missing))}):
+        for r in rp.configs_by_hash(store, sorted(missing)):
             got = limits_from_text(r.text("t"))
             if got:
                 by_hash[r.text("config_hash") or ""] = got
@@ -201,7 +155,7 @@ def _count(v: object) -> int:
 
 
 def newest_start(store: Store) -> float | None:
-    return select(store, f"SELECT max(started_at) AS t FROM runs WHERE {SANE_T}")[0].real("t")
+    return lq.newest_start(store).real("t")
 
 
 def window_start(store: Store) -> float | None:
@@ -211,9 +165,8 @@ def window_start(store: Store) -> float | None:
 
 def station_rows(store: Store, t0: float, t1: float = T_END) -> list[StationRow]:
     """Per station: its latest run, and runs, PASS and first-pass yield in [t0, t1)."""
-    latest = select(store, f"SELECT {SUMMARY_COLS} FROM runs WHERE id IN "
-                    "(SELECT max(id) FROM runs GROUP BY station_id) ORDER BY station_id")
-    yields = {r.value("station_id"): _rates(r) for r in _yields(store, t0, t1, by_shift=False)}
+    latest = lq.station_latest(store)
+    yields = {r.value("station_id"): _rates(r) for r in lq.yields(store, t0, t1, by_shift=False)}
     none: Rates = {"runs": 0, "pass": 0, "first_runs": 0, "yield": None, "first_pass_yield": None}
     return [{"station_id": row.text("station_id"), "latest": summary(row),
              **yields.get(row.value("station_id"), none)} for row in latest]
@@ -231,31 +184,14 @@ def _rates(y: CheckedRow) -> Rates:
             "first_pass_yield": (_count(y.value("first_pass")) / first) if first else None}
 
 
-def _yields(store: Store, t0: float, t1: float, by_shift: bool) -> list[CheckedRow]:
-    """Complete runs in [t0, t1) grouped by station (and shift): runs, PASS, first runs of a board
-    (no earlier complete run of the same serial) and those that passed."""
-    first = ("NOT EXISTS (SELECT 1 FROM runs p WHERE p.device_serial = r.device_serial AND p.status = 'complete'"
-             " AND p.started_at < r.started_at)")
-    shift = f", {_bucket(store)} AS shift" if by_shift else ""
-    group = ", shift" if by_shift else ""
-    return select(store, f"SELECT station_id{shift}, count(*) AS n,"
-                  " sum(CASE WHEN verdict = 'PASS' THEN 1 ELSE 0 END) AS pass,"
-                  f" sum(CASE WHEN {first} THEN 1 ELSE 0 END) AS first_n,"
-                  f" sum(CASE WHEN verdict = 'PASS' AND {first} THEN 1 ELSE 0 END) AS first_pass"
-                  f" FROM runs r WHERE status = 'complete' AND started_at >= :t0 AND started_at < :t1 AND {SANE_T}"
-                  f" GROUP BY station_id{group}"
-                  f" ORDER BY station_id{group}", t0=t0, t1=t1)
-
-
 def shift_rows(store: Store, t0: float, t1: float = T_END) -> list[ShiftYield]:
     return [{"station_id": y.text("station_id"), "shift": shift_label(_count(y.value("shift"))), **_rates(y)}
-            for y in _yields(store, t0, t1, by_shift=True)]
+            for y in lq.yields(store, t0, t1, by_shift=True)]
 
 
 def reason_counts(store: Store, t0: float, t1: float = T_END) -> list[tuple[str, int]]:
     """FAIL runs in [t0, t1) per reason code (a run counts once per code)."""
-    rows = select(store, "SELECT reasons FROM runs WHERE status = 'complete' AND verdict = 'FAIL'"
-                  " AND started_at >= :t0 AND started_at < :t1", t0=t0, t1=t1)
+    rows = lq.fail_reasons(store, t0, t1)
     counts: Counter[str] = Counter()
     for r in rows:
         counts.update(set(codes(stored_reasons(r.text("reasons")))))
@@ -264,19 +200,13 @@ def reason_counts(store: Store, t0: float, t1: float = T_END) -> list[tuple[str,
 
 def recent(store: Store, limit: int = 20) -> list[RunView]:
     """The newest runs, running ones included."""
-    return summaries_of(store, select(store, f"SELECT {SUMMARY_COLS} FROM runs ORDER BY id DESC LIMIT :n",
-                                      n=int(limit)))
+    return summaries_of(store, rp.newest_runs(store, limit))
 
 
 def reason_runs(store: Store, code: str, t0: float, t1: float, station: str | None = None,
                 limit: int = 200) -> list[RunView]:
     """The FAIL runs in [t0, t1) (of one station) with reason ``code``, newest first (at most ``limit``)."""
-    where = "status = 'complete' AND verdict = 'FAIL' AND started_at >= :t0 AND started_at < :t1"
-    params: dict[str, float | str] = {"t0": t0, "t1": t1}
-    if station is not None:
-        where += " AND station_id = :s"
-        params["s"] = station
-    rows = [r for r in select(store, f"SELECT {SUMMARY_COLS} FROM runs WHERE {where} ORDER BY id DESC", **params)
+    rows = [r for r in lq.fail_runs(store, t0, t1, station)
             if code in codes(stored_reasons(r.text("reasons")))][:limit]
     return summaries_of(store, rows)
 
@@ -284,10 +214,7 @@ def reason_runs(store: Store, code: str, t0: float, t1: float, station: str | No
 def station_series(store: Store, station: str | None, t0: float, t1: float, limit: int = 100) -> list[SeriesPoint]:
     """One station's newest complete runs in [t0, t1) (at most ``limit``): id, start, measured figures
     and the limits each was judged by."""
-    cond = "station_id IS NULL" if station is None else "station_id = :s"
-    rows = select(store, "SELECT id, started_at, station_id, fit_summary, limits, config_hash FROM runs"
-                  f" WHERE {cond} AND status = 'complete' AND started_at >= :t0 AND started_at < :t1 AND {SANE_T}"
-                  " ORDER BY started_at DESC LIMIT :n", s=station, t0=t0, t1=t1, n=int(limit))
+    rows = lq.station_series(store, station, t0, t1, limit)
     out: list[SeriesPoint] = []
     for r, j in zip(rows, fill_limits(store, rows), strict=True):
         fit = quick_json(r.value("fit_summary"), {})
@@ -299,71 +226,38 @@ def station_series(store: Store, station: str | None, t0: float, t1: float, limi
 
 
 def newest_config_text(store: Store) -> str | None:
-    rows = select(store, "SELECT config_text FROM runs WHERE config_text IS NOT NULL ORDER BY id DESC LIMIT 1")
-    return rows[0].text("config_text") if rows else None
+    row = rp.newest_config_text(store)
+    return row.text("config_text") if row is not None else None
 
 
 def feed_rows(store: Store, low: int, limit: int = 5000) -> list[FeedRow]:
     """(id, status, started_at) of the runs with id >= low, in id order: one statement, one snapshot."""
-    rows = select(store, "SELECT id, status, started_at FROM runs WHERE id >= :low ORDER BY id LIMIT :n",
-                  low=int(low), n=int(limit))
+    rows = rp.feed_rows(store, low, limit)
     return [{"id": rid, "status": r.text("status"), "started_at": r.real("started_at")}
             for r in rows if (rid := r.int("id")) is not None]
 
 
 def summaries(store: Store, ids: list[int]) -> list[RunView]:
-    if not ids:
-        return []
-    marks = ", ".join(f":i{k}" for k in range(len(ids)))
-    return summaries_of(store, select(store, f"SELECT {SUMMARY_COLS} FROM runs WHERE id IN ({marks}) ORDER BY id",
-                                      **{f"i{k}": int(v) for k, v in enumerate(ids)}))
-
-
-# the MES API's filters: parameter -> (column, operator)
-RUN_FILTERS = {"since": ("started_at", ">="), "until": ("started_at", "<"), "station": ("station_id", "="),
-               "serial": ("device_serial", "="), "verdict": ("verdict", "="), "lot": ("lot", "="),
-               "status": ("status", "=")}
-
-
-def _filter_sql(filters: RunFilters) -> tuple[list[str], dict[str, float | str]]:
-    where: list[str] = []
-    params: dict[str, float | str] = {}
-    for k, v in filters.items():
-        if isinstance(v, (float, int, str)):  # None: not filtered
-            col, op = RUN_FILTERS[k]
-            where.append(f"{col} {op} :f_{k}")
-            params[f"f_{k}"] = v
-    return where, params
+    return summaries_of(store, rp.runs_by_id(store, ids))
 
 
 def run_page(store: Store, filters: RunFilters, order: str, after_id: int | None, limit: int) -> list[RunView]:
     """One page of runs by keyset on id: ``order`` "asc"/"desc", after ``after_id`` (exclusive);
     one indexed range scan whatever the page's depth (no OFFSET)."""
-    where, params = _filter_sql(filters)
-    if after_id is not None:
-        where.append("id > :after_id" if order == "asc" else "id < :after_id")
-        params["after_id"] = int(after_id)
-    cond = " AND ".join(where) or "1 = 1"
-    way = "ASC" if order == "asc" else "DESC"
-    return summaries_of(store, select(store, f"SELECT {SUMMARY_COLS} FROM runs WHERE {cond} ORDER BY id {way} "
-                                             "LIMIT :n", n=int(limit), **params))
+    return summaries_of(store, rp.run_page(store, filters, order, after_id, limit))
 
 
 def run_count(store: Store, filters: RunFilters) -> int:
-    where, params = _filter_sql(filters)
-    cond = " AND ".join(where) or "1 = 1"
-    return _count(select(store, f"SELECT count(*) AS n FROM runs WHERE {cond}", **params)[0].value("n"))
+    return _count(rp.run_count(store, filters))
 
 
 def serials_like(store: Store, text: str, limit: int = 20) -> list[str]:
-    rows = select(store, "SELECT DISTINCT device_serial FROM runs WHERE device_serial LIKE :p ORDER BY device_serial"
-                  " LIMIT :n", p=text.replace("%", "").replace("_", "") + "%", n=int(limit))
+    rows = rp.serials_like(store, text, limit)
     return [s for r in rows if (s := r.text("device_serial")) is not None]
 
 
 def lots(store: Store, limit: int = 50) -> list[LotRow]:
-    rows = select(store, "SELECT lot, count(*) AS runs, max(started_at) AS last FROM runs WHERE lot IS NOT NULL"
-                  f" AND {SANE_T} GROUP BY lot ORDER BY max(started_at) DESC LIMIT :n", n=int(limit))
+    rows = lq.lots(store, limit)
     return [{"lot": r.text("lot"), "runs": _count(r.value("runs")), "last": r.real("last")} for r in rows]
 
 
@@ -373,30 +267,22 @@ def dumps(x: object) -> str:
 
 def head_rows(store: Store) -> tuple[int, list[FeedRow]]:
     """Where the feed is now: the lowest running run's id (else the newest id + 1) and the rows from it."""
-    row = select(store, "SELECT min(CASE WHEN status = 'running' THEN id END) AS r, max(id) AS m FROM runs")[0]
+    row = rp.feed_head(store)
     running = row.value("r")
     low = _count(running) if running is not None else _count(row.value("m")) + 1
     return low, feed_rows(store, low)
 
 
 def lot_counts(store: Store, lot: str) -> LotCounts:
-    """The lot page's counts, each one grouped SELECT over the lot's rows (index runs_lot)."""
-    rows = select(store, "SELECT status, verdict, count(*) AS n FROM runs WHERE lot = :lot GROUP BY status, verdict",
-                  lot=lot)
+    """The lot page's counts, read by the store (store.linequeries.lot_counts)."""
+    got = lq.lot_counts(store, lot)
+    rows, span, nvm, stops, fails = got["status"], got["span"][0], got["nvm"], got["stops"], got["fails"]
     by_status: Counter[str] = Counter()
     verdicts: Counter[str] = Counter()
     for r in rows:
         by_status[str(r.value("status"))] += _count(r.value("n"))
         if r.value("status") == "complete" and r.value("verdict"):
             verdicts[str(r.value("verdict"))] += _count(r.value("n"))
-    span = select(store, "SELECT count(*) AS n, count(DISTINCT device_serial) AS boards, min(started_at) AS t0,"
-                  f" max(started_at) AS t1 FROM runs WHERE lot = :lot AND {SANE_T}", lot=lot)[0]
-    nvm = select(store, "SELECT nvm_status, count(*) AS n FROM runs WHERE lot = :lot AND status = 'complete'"
-                 " GROUP BY nvm_status", lot=lot)
-    stops = select(store, "SELECT status_reason, count(*) AS n FROM runs WHERE lot = :lot AND status IN"
-                   " ('interrupted', 'error') GROUP BY status_reason ORDER BY count(*) DESC LIMIT 20", lot=lot)
-    fails = select(store, "SELECT reasons FROM runs WHERE lot = :lot AND status = 'complete' AND verdict = 'FAIL'",
-                   lot=lot)
     reasons: Counter[str] = Counter()
     for r in fails:
         reasons.update(set(codes(stored_reasons(r.text("reasons")))))
@@ -412,11 +298,7 @@ def lot_counts(store: Store, lot: str) -> LotCounts:
 def lot_calibrations(store: Store, lot: str) -> list[LotCalibration]:
     """The lot's complete runs with a calibration, oldest first: id, start, station, calibration (parsed)
     and the limits each was judged by."""
-    # id is the integer key; SANE_T keeps a damaged time out (text, blob, NaN and infinities compare
-    # outside the range on SQLite and PostgreSQL alike); station_id is only shown, escaped
-    rows = select_unchecked(store, "SELECT id, started_at, station_id, calibration, limits, config_hash FROM runs"
-                            f" WHERE lot = :lot AND status = 'complete' AND calibration IS NOT NULL AND {SANE_T}"
-                            " ORDER BY started_at, id", lot=lot)
+    rows = lq.lot_calibrations(store, lot)
     out: list[LotCalibration] = []
     for r, j in zip(rows, fill_limits(store, rows), strict=True):
         cal = quick_json(r.value("calibration"), None)

@@ -2,22 +2,38 @@
 beside a station (`accelcal run --ui web`)."""
 from __future__ import annotations
 
+import json
 import threading
 import time
 from typing import Any
 
 import uvicorn
+from uvicorn.protocols.http.h11_impl import H11Protocol
 
 MAX_REQUEST_HEAD = 2**20  # bytes of request line and headers accepted
+
+
+class JsonErrorH11(H11Protocol):
+    """uvicorn's h11 protocol answering a request it cannot parse (a head over MAX_REQUEST_HEAD, a
+    malformed line) with the API's JSON error {code, message}, not uvicorn's plain text."""
+
+    def send_400_response(self, msg: str) -> None:
+        body = json.dumps({"code": "invalid_request", "message": f"{msg} (a request line and headers "
+                           f"are at most {MAX_REQUEST_HEAD} bytes)"}).encode()
+        head = (b"HTTP/1.1 400 Bad Request\r\ncontent-type: application/json\r\ncontent-length: "
+                + str(len(body)).encode() + b"\r\nconnection: close\r\n\r\n")
+        self.transport.write(head + body)  # the connection closes: no h11 state to keep
+        self.transport.close()
 
 
 def _config(app: Any, host: str, port: int) -> uvicorn.Config:
     # h11 and asyncio only: the same on every machine, no optional C speedups needed
     # lifespan on: `serve` starts its heavy pages' worker processes at startup and stops them at shutdown
     # a request line or header up to 1 MiB reaches the application (which answers an over-long
-    # parameter with a 422 naming it) instead of h11 dropping the connection at 16 KiB
+    # parameter with a 422 naming it) instead of h11 dropping the connection at 16 KiB; a longer
+    # one is a JSON 400 (JsonErrorH11)
     return uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
-                          http="h11", loop="asyncio", lifespan="on", timeout_graceful_shutdown=2,
+                          http=JsonErrorH11, loop="asyncio", lifespan="on", timeout_graceful_shutdown=2,
                           h11_max_incomplete_event_size=MAX_REQUEST_HEAD)
 
 

@@ -5,7 +5,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-from ..store.runs import Store
+from ..store.reader import StoreReader
 
 
 @dataclass
@@ -22,8 +22,8 @@ class WebSettings:
 
 
 @contextmanager
-def open_store(settings: WebSettings) -> Iterator[Store]:
-    """The store for one request, read-only: never created, migrated or written (SQLite opened
+def open_store(settings: WebSettings) -> Iterator[StoreReader]:
+    """The store for one request, a StoreReader: never created, migrated or written (SQLite opened
     ``mode=ro``; a store at another schema version is one error naming the command that upgrades it)."""
-    with Store(settings.store, create=False, upgrade=False, read_only=True) as st:
+    with StoreReader(settings.store) as st:
         yield st
