@@ -15,6 +15,7 @@ from click.testing import CliRunner
 from test_store_damage import _good_store
 
 from accelcal_station.cli import cli
+from accelcal_station.store.schema import SCHEMA_VERSION
 
 DATA = Path(__file__).parent / "data"
 
@@ -29,23 +30,24 @@ def _readers(db: Path, out: Path) -> list[list[str]]:
             ["report", "summary", "--db", str(db)], ["batch", "--from-store", str(db), "--model", "12"]]
 
 
-def _schema5_store(path: Path, how: str) -> None:
+def _current_store(path: Path, how: str) -> None:
     _good_store(path)
     with sqlite3.connect(path) as c:
         c.execute("DELETE FROM alembic_version" if how == "empty" else "DROP TABLE alembic_version")
 
 
 @pytest.mark.parametrize("how", ["empty", "missing"])
-def test_readers_leave_an_unstamped_schema_5_store_byte_identical_and_name_it(tmp_path, how):
+def test_readers_leave_an_unstamped_current_store_byte_identical_and_name_it(tmp_path, how):
     db = tmp_path / "store.sqlite"
-    _schema5_store(db, how)
+    _current_store(db, how)
     before = _sha(db)
     table = "alembic_version is empty" if how == "empty" else "no alembic_version table"
     for args in _readers(db, tmp_path):
         r = CliRunner().invoke(cli, args)
         assert r.exit_code == 0, (args, r.output, r.stderr)
         named = [line for line in r.stderr.splitlines() if "no schema revision recorded" in line]
-        assert len(named) == 1 and table in named[0] and "columns are schema 5's" in named[0], (args, r.stderr)
+        assert len(named) == 1 and table in named[0], (args, r.stderr)
+        assert f"columns are schema {SCHEMA_VERSION}'s" in named[0], (args, r.stderr)
         assert _sha(db) == before, args  # nothing stamped, nothing else written
 
 
@@ -69,11 +71,11 @@ def test_report_migrate_stamps_what_the_columns_say_and_upgrades_saying_so(tmp_p
     with sqlite3.connect(db) as c:
         c.execute("PRAGMA user_version = 5")
     r = CliRunner().invoke(cli, ["report", "migrate", "--db", str(db)])
-    assert r.exit_code == 0 and "upgraded to 5" in r.output, (r.output, r.stderr)
+    assert r.exit_code == 0 and f"upgraded to {SCHEMA_VERSION}" in r.output, (r.output, r.stderr)
     with sqlite3.connect(db) as c:
-        assert c.execute("SELECT version_num FROM alembic_version").fetchall() == [("0005",)]
+        assert c.execute("SELECT version_num FROM alembic_version").fetchall() == [(f"{SCHEMA_VERSION:04d}",)]
         cols = {row[1] for row in c.execute("PRAGMA table_info(runs)")}
-    assert {"limits", "heartbeat_at", "heartbeat_s"} <= cols  # 0004 and 0005 ran: the columns are there
+    assert {"limits", "heartbeat_at", "heartbeat_s", "site", "uncertainty"} <= cols  # 0004-0006 ran
     listed = CliRunner().invoke(cli, ["report", "list", "--db", str(db)])
     assert listed.exit_code == 0 and listed.stderr == "", listed.stderr
     again = CliRunner().invoke(cli, ["report", "migrate", "--db", str(db)])

@@ -2,7 +2,7 @@
 
 A store whose ``alembic_version`` table is missing or empty says nothing reliable about itself
 (a marker can be wrong, a revision deleted); its ``runs`` columns do: ``panel_id`` came with
-schema 2, ``limits`` with 4, ``heartbeat_at`` with 5 (schemas 2 and 3 differ only in the
+schema 2, ``limits`` with 4, ``heartbeat_at`` with 5, ``site`` with 6 (schemas 2 and 3 differ only in the
 reasons' text, so their columns cannot tell them apart).  Readers name such a store in one
 line and never stamp it; only a migrating command records a revision, the one its columns say.
 """
@@ -15,7 +15,7 @@ from sqlalchemy import Column, Integer, MetaData, String, Table, inspect, select
 from .database import Database
 
 # the runs columns each schema added, newest first: (version, column)
-_ADDED = ((5, "heartbeat_at"), (4, "limits"), (2, "panel_id"), (1, "id"))
+_ADDED = ((6, "site"), (5, "heartbeat_at"), (4, "limits"), (2, "panel_id"), (1, "id"))
 _SAME_COLUMNS = {2: (2, 3)}  # versions whose columns are alike
 PRE_ALEMBIC_MAX = 3  # stores of schema 3 and older were written before Alembic: a marker, no revision table
 
