@@ -25,7 +25,7 @@ SCRIPT = PKG / "web" / "static" / "operator.js"
 # Python modules whose operator-facing text goes through tr(...) / N_(...)
 PY_SOURCES = ["i18n/__init__.py", "conventions.py", "fixtures/operator_jig.py",
               "web/operator_text.py", "station/shift.py", "cli/operator_terminal.py",
-              "cli/run.py", "web/operator_app.py", "station/station_fault.py",
+              "cli/run.py", "web/operator_app.py", "station/station_fault.py", "cli/_operator_web.py",
               "station/warmup.py"]
 SAME_IN_GERMAN = {"OK", "Station"}  # the same word in both languages
 

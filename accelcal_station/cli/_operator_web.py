@@ -36,10 +36,11 @@ def finish_reports(ui: WebOperator, reports: list[RunReport]) -> None:
         if r.fit is not None:
             figures["residual_rms_mg"] = r.fit.residual_rms_g * 1e3
         figures["verify_error_max_mg"] = r.verify_error_max_mg
-        if r.nvm:
-            figures["nvm"] = f"slot {r.nvm.get('slot')}, generation {r.nvm.get('generation')}" + (
-                ", verified" if r.nvm_verified else "")
-    serial = reports[0].serial if not many and reports else f"panel of {len(reports)}"
+        if r.nvm:  # in the operator's language (the page's catalog)
+            figures["nvm"] = ui.tr("slot {slot}, generation {generation}").format(
+                slot=r.nvm.get("slot"), generation=r.nvm.get("generation")) + (
+                ui.tr(", verified") if r.nvm_verified else "")
+    serial = reports[0].serial if not many and reports else ui.tr("panel of {n}").format(n=len(reports))
     ui.finish("PASS" if passed else "FAIL", serial, reports[0].run_id if not many and reports else None,
               reasons, figures)
 

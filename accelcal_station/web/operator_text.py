@@ -16,6 +16,7 @@ PAGE_TEXTS: tuple[str, ...] = (
     N_("board {serial}"), N_("run {id}"), N_("fit residual {mg} mg"), N_("check after calibration {mg} mg"),
     N_("NVM {what}"), N_("SHIFT OVER"),
     N_("{boards} boards · PASS {pass} · FAIL {fail} · aborted {aborted} · error {error} · first-pass yield {fpy}"),
+    N_("{boards} board · PASS {pass} · FAIL {fail} · aborted {aborted} · error {error} · first-pass yield {fpy}"),
     N_("{start} to {end} (UTC)"), N_("ended by: {why}"), N_("end of input"), N_("Ctrl-C"), N_("device gone"),
     # what the station sends: verdicts and phases
     N_("PASS"), N_("FAIL"), N_("ABORTED"), N_("ERROR"), N_("STATION FAULT"),
