@@ -20,7 +20,7 @@ import numpy as np
 
 from .calibration import Calibration
 from .data.loader import Loaded, load
-from .data.rawlog import check_rate
+from .data.log_time import check_rate
 from .errors import AccelcalError, DataError, UnderdeterminedError, UnitsError
 from .fixtures.designs import get_design
 from .models.choice import choose_model, with_face_references

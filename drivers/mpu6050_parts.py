@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .mpu6050_registers import CHIP_ID
+from .mpu6050_registers import CHIP_ID, KNOWN_CHIP_IDS
 
 
 @dataclass(frozen=True)
@@ -47,7 +47,7 @@ def part_of(who_am_i: int) -> Part | None:
 def refusal(who_am_i: int, where: str) -> str:
     """The one line for a part the config did not accept: what it is and the line that accepts it."""
     p = part_of(who_am_i)
-    what = f"{p.name}: {p.note}" if p is not None else "an unknown part"
+    what = f"{p.name}: {p.note}" if p is not None else KNOWN_CHIP_IDS.get(who_am_i, "an unknown part")
     how = (f"; to calibrate it as an MPU-6050 compatible (its self-test is skipped), set device.accept_who_am_i: "
            f"[0x{who_am_i:02x}]") if p is not None and not p.genuine else ""
     return (f"wrong chip behind the bridge on {where}: WHO_AM_I (0x75) reads 0x{who_am_i:02x} ({what}); "

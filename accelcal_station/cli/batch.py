@@ -209,16 +209,33 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
     if out is not None:
         _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path,
                   parse_int(chunk_boards, "--chunk-boards") or 0, as_json, force,
-                  [k for k, v in (("--from-store", from_store), ("--out-dir", out_dir), ("--csv", csv_path),
-                                  ("--to-store", to_store)) if v is not None])
+                  _given(("--from-store", from_store), ("--out-dir", out_dir), ("--csv", csv_path),
+                         ("--to-store", to_store)))
         return
-    store_filters = _store_filters(from_store, lot, device, station, since, until, run_ids)
+    filters = _store_filters(from_store, lot, device, station, since, until, run_ids)
+    if _tables_mode(paths, from_store, filters, (model, units, cpg, grav), (out_dir, csv_path, to_store),
+                    config_path, as_json, force):
+        ctx.exit(1)
+
+
+def _tables_mode(paths: tuple[str, ...], from_store: str | None, filters: StoreFilters,
+                 how: tuple[str, str | None, float | None, float | None],
+                 outs: tuple[str | None, str | None, str | None], config_path: str | None, as_json: bool,
+                 force: bool) -> bool:
+    """Pose tables or a store's runs: each board fitted (``how``: model, units, counts per g, gravity), the
+    outputs (``outs``: --out-dir, --csv, --to-store) written and the report printed; True when boards were
+    skipped."""
+    out_dir, csv_path, to_store = outs
     protected = _check_inputs(paths, from_store, csv_path, to_store, out_dir, force, config_path)
-    report = _fit_boards(paths, from_store, store_filters, model, units, cpg, grav, as_json, _limits(config_path))
+    report = _fit_boards(paths, from_store, filters, *how, as_json, _limits(config_path))
     outputs, written = _write_outputs(report, out_dir, csv_path, to_store, from_store, config_path, force, protected)
     _print_report(report, outputs, written, as_json)
-    if report.skipped:
-        ctx.exit(1)
+    return bool(report.skipped)
+
+
+def _given(*options: tuple[str, str | None]) -> list[str]:
+    """The names of the options given (lot file mode refuses them)."""
+    return [k for k, v in options if v is not None]
 
 
 def _check_chunk_boards(ctx: click.Context, out: str | None, config_path: str | None, chunk_boards: str) -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..api import diagnose
-from ..data.rawlog import check_rate
+from ..data.log_time import check_rate
 from ..diagnosis.report import REPORT_FILES, check_report_dir, selftest_lines, summary_lines, write_report
 from ..diagnosis.selftest import selftest as run_selftest
 from ..errors import DataError
@@ -18,6 +18,15 @@ from ._outputs import refuse_output
 from ._text import clean
 
 _REPORT_KIND = {".md": "markdown", ".png": "png"}  # what each report file is (fileguard.kind)
+
+
+def _selftest(files: tuple[str, ...], report_dir: str | None, config: str | None, seed: int, as_json: bool) -> bool:
+    """--selftest: the diagnosis on forward-physics boards it simulates itself; True when it passed."""
+    if files or report_dir:
+        raise DataError("--selftest simulates its own data; give no FILES and no --report with it")
+    result = run_selftest(config, seed)
+    click.echo(json.dumps(_clean(result), allow_nan=False) if as_json else "\n".join(selftest_lines(result)))
+    return bool(result["passed"])
 
 
 @click.command("diagnose")
@@ -54,11 +63,7 @@ def command(ctx: click.Context, files: tuple[str, ...], config: str | None, raw:
             selftest: bool, seed: int) -> None:
     """Diagnose the sim-to-real gap of real data against the simulator configuration."""
     if selftest:
-        if files or report_dir:
-            raise DataError("--selftest simulates its own data; give no FILES and no --report with it")
-        result = run_selftest(config, seed)
-        click.echo(json.dumps(_clean(result), allow_nan=False) if as_json else "\n".join(selftest_lines(result)))
-        if not result["passed"]:
+        if not _selftest(files, report_dir, config, seed, as_json):
             ctx.exit(1)
         return
     out_dir = check_report_dir(report_dir) if report_dir else None

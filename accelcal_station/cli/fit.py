@@ -379,8 +379,13 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         result.calibration.save(output)
         report["output"] = str(output)
         text.append(f"calibration written to {output}")
+    _print(report, text, result, loaded.session.names, as_json)
+
+
+def _print(report: FitReport, text: list[str], result: Fit, names: list[str], as_json: bool) -> None:
+    """The fit's report: one JSON line (--json), or its text lines."""
     if as_json:
-        _echo_json(report, result.result if len(result.fits) == 1 else None, loaded.session.names)
+        _echo_json(report, result.result if len(result.fits) == 1 else None, names)
     else:
         _echo_lines(text)
 

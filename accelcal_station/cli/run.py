@@ -87,19 +87,26 @@ def command(config_path: str | None, serial: str | None, operator: str | None, l
         _shift(cfg, operator, lot, as_json, echo, TerminalOperator(echo, tr), device_wait_s, tr=tr)
         return
     if ui_kind == "web":
-        from ._operator_web import finish_outcome, finish_reports, web_operator
-
-        with web_operator(cfg, echo, ui_host, ui_port, shift=shift, public=public) as web:
-            if shift:
-                _shift(cfg, operator, lot, as_json, echo, web, device_wait_s, web.start_board,
-                       lambda b, rep: finish_outcome(web, b, rep), web.end_shift,
-                       SERIAL_PROMPT_PAGE, tr)
-                return
-            _run(cfg, operator, serial, lot, as_json, echo, web, web, lambda reports: finish_reports(web, reports))
+        _web(cfg, operator, serial, lot, as_json, echo, (ui_host, ui_port, public), shift, device_wait_s, tr)
         return
     # identity questions and their retries always on stderr (stdout may be the JSON object)
     _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True), tr),
          TerminalOperator(echo, tr), lambda reports: None)
+
+
+def _web(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None, as_json: bool,
+         echo: Callable[[str], None], where: tuple[str, int, bool], shift: bool, device_wait_s: float,
+         tr: Translate) -> None:
+    """`--ui web`: the run (or the shift) with the operator page at ``where`` (host, port, --public)."""
+    from ._operator_web import finish_outcome, finish_reports, web_operator
+
+    host, port, public = where
+    with web_operator(cfg, echo, host, port, shift=shift, public=public) as web:
+        if shift:
+            _shift(cfg, operator, lot, as_json, echo, web, device_wait_s, web.start_board,
+                   lambda b, rep: finish_outcome(web, b, rep), web.end_shift, SERIAL_PROMPT_PAGE, tr)
+            return
+        _run(cfg, operator, serial, lot, as_json, echo, web, web, lambda reports: finish_reports(web, reports))
 
 
 def _dry_run(cfg: StationConfig, as_json: bool) -> None:

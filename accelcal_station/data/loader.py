@@ -23,8 +23,9 @@ from ..conventions import units_per_g
 from ..errors import AccelcalError, DataError, UnitsError
 from ..models.gravity_norm import nominal_scale
 from ..session import PoseColumns, PoseRecord, Session
+from .log_info import LogInfo
 from .posetable import read_pose_table, stated_scale, table_metadata
-from .rawlog import MAX_ABS_READING, LogInfo, RawLog, read_raw_log, read_text_file
+from .rawlog import MAX_ABS_READING, RawLog, read_raw_log, read_text_file
 from .sample_grid import REPEAT_MIN, repeat_fraction
 from .static_poses import StaticDetection, static_session
 

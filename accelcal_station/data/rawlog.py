@@ -22,6 +22,8 @@ import numpy as np
 from ..errors import DataError
 from ..fileguard.numbers import ALLOWED, all_decimal, decimal_float, is_decimal
 from ..fileguard.regular import read_text
+from .log_info import LogInfo
+from .log_time import check_rate, time_axis
 from .posetable import META_RE
 from .prose import is_number as _is_number
 from .prose import is_text
@@ -47,31 +49,9 @@ _RATE_KEYS = re.compile(r"^(fs|sps|odr|hz|rate|freq|frequency|samplerate|samplin
 _RATE_TEXT = re.compile(r"(?<![\w.])(\d+(?:\.\d+)?)\s*(k?hz)\b", re.I)
 _NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 MAX_ABS_READING = 1e9  # beyond any ADC or unit: a reading this large is not acceleration data
-RATE_LIMITS_HZ = (1e-3, 1e7)
-JUDGED_RATE_HZ = (1.0, 1e5)  # a time unit guessed from the step must give a logger's rate
 MAX_LOG_BYTES = 32 << 20  # about 1.3 million samples: 7 hours at 50 Hz, 20 minutes at 1 kHz
 LOG_LIMIT_WHY = "a log is parsed in memory at about 30 times its size; split a longer one"
 PREAMBLE_LOOKAHEAD = 5  # rows that must follow the data start with the data's field count
-
-@dataclass
-class LogInfo:
-    """What reading a log inferred, and from where (printed by the commands)."""
-
-    skipped_rows: int = 0
-    preamble: dict[str, str] = field(default_factory=dict)
-    rate_source: str | None = None  # "time column", "--rate", "preamble line 1 ('Fs,100')"
-    time_unit: str | None = None  # s, ms, us
-    time_unit_reason: str = ""
-    axis_names: dict[str, str] = field(default_factory=dict)  # x/y/z/t -> the file's column name
-    units_hint: str | None = None  # units named in the x, y, z column names: g, mg, mps2, counts
-    stated_rate_hz: float | None = None
-    time_unit_judged: bool = False  # the time unit was guessed from the step alone
-    stated: dict[str, str] = field(default_factory=dict)  # "# key: value" lines before the data (posetable.META_RE)
-    stated_line: dict[str, int] = field(default_factory=dict)  # their 1-based line numbers
-    text_lines: list[tuple[int, str]] = field(default_factory=list)  # prose skipped among the data (is_text)
-    decimals: dict[str, int] = field(default_factory=dict)  # x/y/z -> most decimals printed (value grid's rounding)
-
-
 
 @dataclass
 class RawLog:
@@ -254,22 +234,6 @@ def _header_before(rows: Rows, split: Splitter, j: int, k: int) -> int | None:
     return None
 
 
-def _judge_time_unit(dt: float, info: LogInfo) -> float:
-    """Seconds per unit of a time column whose name gives no unit."""
-    scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-    stated = info.stated_rate_hz
-    if info.time_unit is None:
-        if stated:  # the unit that makes the step match the stated rate
-            info.time_unit = min(scale, key=lambda u: abs(math.log(dt * scale[u] * stated)))
-            info.time_unit_judged = False
-            info.time_unit_reason = f"its step {dt:g} matches the stated {info.stated_rate_hz:g} Hz"
-        else:
-            info.time_unit = "s" if dt < 1 else "ms" if dt < 50 else "us"
-            info.time_unit_judged = True
-            info.time_unit_reason = f"judged from its median step {dt:g} (not named in the header)"
-    return scale[info.time_unit]
-
-
 def _check_row(path: Path, ln: int, cells: list[str], names: list[str], use: list[tuple[int, str]],
                label: Callable[[int], str]) -> None:
     """One row's fields: as many as the first line's, each used cell a finite number in range (else one error)."""
@@ -349,46 +313,6 @@ def _decimals(cells: list[list[str]], use: list[tuple[int, str]], info: LogInfo)
         if c in "xyz":
             info.decimals[c] = max((len(v.strip().split(".")[1]) if "." in v and "e" not in v.lower() else 0
                                     for v in (r[i] for r in cells)), default=0)
-
-
-def _time_axis(path: Path, t: np.ndarray | None, n: int, rate_hz: float | None, info: LogInfo, lines_arr: np.ndarray,
-               tlabel: str) -> tuple[np.ndarray, float | None]:
-    """Sample times in seconds and the rate: from the time column, --rate, a stated rate, or sample numbers."""
-    if t is not None:
-        back = np.flatnonzero(np.diff(t) < 0)
-        if back.size:
-            raise DataError(f"{path}: line {lines_arr[back[0] + 1]}, {tlabel}: time goes backwards; "
-                            "allowed: non-decreasing times")
-        dt = float(np.median(np.diff(t)))
-        if not dt > 0:
-            raise DataError(f"{path}: {tlabel}: time does not advance; allowed: times in s, ms or us")
-        per = _judge_time_unit(dt, info)
-        t, rate = t * per, 1.0 / (dt * per)
-        info.rate_source = f"time column {info.axis_names.get('t', 't')!r} in {info.time_unit}"
-    elif rate_hz is not None:
-        t, rate = np.arange(n) / rate_hz, float(rate_hz)
-        info.rate_source = "--rate"
-    elif info.stated_rate_hz is not None:
-        if not RATE_LIMITS_HZ[0] <= info.stated_rate_hz <= RATE_LIMITS_HZ[1]:
-            raise DataError(f"{path}: {info.rate_source}: {info.stated_rate_hz:g} Hz; allowed: {RATE_LIMITS_HZ[0]:g} "
-                            f"to {RATE_LIMITS_HZ[1]:g} Hz (give --rate HZ)")
-        t, rate = np.arange(n) / info.stated_rate_hz, info.stated_rate_hz
-    else:
-        t, rate = np.arange(n, dtype=float), None
-        info.rate_source = None
-    lo, hi = JUDGED_RATE_HZ if info.time_unit_judged else RATE_LIMITS_HZ
-    if rate is not None and not lo <= rate <= hi:
-        how = f"in {info.time_unit}, {info.time_unit_reason}" if info.time_unit else ""
-        raise DataError(f"{path}: the time column ({how}) gives {rate:g} Hz; allowed: {lo:g} to {hi:g} Hz "
-                        "(name its unit in the header: time_s, time_ms, time_us or time_ns)")
-    return t, rate
-
-
-def check_rate(rate_hz: float | None) -> None:
-    """--rate within RATE_LIMITS_HZ (a denormal or huge rate would overflow every time axis)."""
-    if rate_hz is not None and not (math.isfinite(rate_hz) and RATE_LIMITS_HZ[0] <= rate_hz <= RATE_LIMITS_HZ[1]):
-        raise DataError(f"--rate {rate_hz!r}; allowed: a sample rate from {RATE_LIMITS_HZ[0]:g} to "
-                        f"{RATE_LIMITS_HZ[1]:g} Hz")
 
 
 def _data_rows(path: Path, text: str, skip_rows: int | None, info: LogInfo) -> tuple[Rows, Splitter]:
@@ -495,7 +419,7 @@ def _read_log(path: Path, text: str, columns: str | list[str] | None, skip_rows:
         raise DataError(f"{path}: {len(data)} samples; a raw log needs at least {MIN_LOG_SAMPLES}")
     col = {c: j for j, (_, c) in enumerate(use)}
     xyz = data[:, [col["x"], col["y"], col["z"]]]
-    t, rate = _time_axis(path, data[:, col["t"]] if "t" in col else None, len(data), rate_hz, info, lines_arr,
+    t, rate = time_axis(path, data[:, col["t"]] if "t" in col else None, len(data), rate_hz, info, lines_arr,
                          label(names.index("t")) if "t" in col else "")
     return RawLog(t, xyz, lines_arr, str(path), names, rate, "t" in col, info)
 
