@@ -130,7 +130,8 @@ def test_a_clone_without_symlinks_builds_a_wheel_that_runs(tmp_path: Path):
                        text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    r = subprocess.run([str(bin_dir / "accelcal"), "run", "--serial", "CLONE-1", "--store", str(tmp_path / "runs.sqlite")],
-                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    store = tmp_path / "runs.sqlite"
+    r = subprocess.run([str(bin_dir / "accelcal"), "run", "--serial", "CLONE-1", "--store", str(store)], cwd=tmp_path,
+                       env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
     assert "PASS board CLONE-1" in r.stdout, r.stdout[-3000:]

@@ -146,6 +146,11 @@ class SimulatedBoardSection(Section):
     def _proper_true_mount(cls, v: list[str] | None) -> list[str] | None:
         return _check_mount(v)
 
+    @property
+    def emulated(self) -> bool:
+        """A simulated board is not an emulated bus (drivers/registry.py: no ``simulated-emulated``)."""
+        return False
+
 
 class I2cEepromSection(Section):
     """An MMA8451 board's 24Cxx EEPROM (``device.eeprom``, driver: mma8451)."""
@@ -176,6 +181,11 @@ class Mma8451Section(Section):
     seed: int | None = _f(None, "bus: emulated: random seed", ge=0, le=2**63 - 1)
     emulator: BusEmulatorSection | None = _f(None, "bus: emulated: the emulator's faults")
 
+    @property
+    def emulated(self) -> bool:
+        """``bus: emulated``: built by the registry's ``mma8451-emulated`` (drivers/registry.py)."""
+        return self.bus == "emulated"
+
 
 class Mpu6050Section(Section):
     """An MPU6050 bridge's own keys (``device`` with ``driver: mpu6050``)."""
@@ -192,6 +202,11 @@ class Mpu6050Section(Section):
         None, "port: emulated: the simulated board (a mapping of simulated-board keys, or a file)")
     seed: int | None = _f(None, "port: emulated: random seed", ge=0, le=2**32 - 1)
     emulator: BridgeEmulatorSection | None = _f(None, "port: emulated: the bridge emulator's chip and faults")
+
+    @property
+    def emulated(self) -> bool:
+        """``port: emulated``: built by the registry's ``mpu6050-emulated`` (drivers/registry.py)."""
+        return self.port == "emulated"
 
 
 class _SlotKeys(Section):
