@@ -53,13 +53,13 @@ class CorruptReadsSection(Section):
 
     rate: float = _f(0.0, "probability that a read message is corrupted", ge=0, le=1)
     seed: int = _f(0, "seed of the corruption's random draws", ge=0, le=2**63 - 1)
-    address: int = _f(0x50, "I2C address whose reads are corrupted (the EEPROM's)", ge=0, le=0x7F)
+    address: int = _f(0x50, "I2C address whose reads are corrupted (the EEPROM's)", ge=0, le=0x7F, hexadecimal=True)
 
 
 class BusEmulatorSection(Section):
     """mma8451 ``bus: emulated``: the register-level emulator's faults."""
 
-    chip_id: int = _f(0x1A, "WHO_AM_I value the emulated chip answers", ge=0, le=255)
+    chip_id: int = _f(0x1A, "WHO_AM_I value the emulated chip answers", ge=0, le=255, hexadecimal=True)
     nack_every: int = _f(0, "NACK every Nth bus transaction (0: never)", ge=0, le=1000)
     never_ready: StrictBool = _f(False, "the data-ready flag never sets")
     present: StrictBool = _f(True, "the chip answers on the bus at all")
@@ -91,7 +91,7 @@ class BridgeEmulatorSection(Section):
 
 
 class MuxSection(Section):
-    address: int = _f(0x70, "TCA9548A I2C address", ge=0x70, le=0x77)
+    address: int = _f(0x70, "TCA9548A I2C address", ge=0x70, le=0x77, hexadecimal=True)
 
 
 class SpreadSection(Section):
@@ -155,7 +155,7 @@ class SimulatedBoardSection(Section):
 class I2cEepromSection(Section):
     """An MMA8451 board's 24Cxx EEPROM (``device.eeprom``, driver: mma8451)."""
 
-    address: int = _f(0x50, "EEPROM I2C address", ge=0x50, le=0x57)
+    address: int = _f(0x50, "EEPROM I2C address", ge=0x50, le=0x57, hexadecimal=True)
     # 24C32 and up: smaller 24Cxx take a 1-byte word address, which the driver does not send
     size: int = _f(4096, "EEPROM size, bytes", ge=4096, le=65536)
     page_size: int = _f(32, "page size, bytes", ge=8, le=256)
@@ -166,7 +166,7 @@ class Mma8451Section(Section):
     """An MMA8451's own keys (``device`` with ``driver: mma8451``)."""
 
     bus: int | str = _f(1, "I2C bus number, /dev/i2c-N or 'emulated'")
-    address: int = _f(0x1D, "I2C address: 0x1c (SA0 low) or 0x1d (SA0 high)", ge=0, le=0x7F)
+    address: int = _f(0x1D, "I2C address: 0x1c (SA0 low) or 0x1d (SA0 high)", ge=0, le=0x7F, hexadecimal=True)
     range_g: Literal[2, 4, 8] = _f(2, "full scale, g")
     odr_hz: float = _f(100.0, "output data rate, Hz (one of the chip's rates)", gt=0, le=10_000)
     oversampling: Literal["normal", "low_noise_low_power", "high_resolution", "low_power"] = _f(
