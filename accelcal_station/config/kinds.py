@@ -9,11 +9,14 @@ back to the member (schema.error_line names the key path and this member's allow
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Discriminator, Field, JsonValue, StrictBool, Tag, field_validator
 
 from .section import MAX_BOARDS, Section, Triple, _f
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 class HandSection(Section):
@@ -110,6 +113,16 @@ def _check_mount(v: list[str] | None) -> list[str] | None:
     return v
 
 
+def mount_p(v: list[str] | None) -> np.ndarray:
+    """P (chip = P @ board) of a validated mounting, the identity when none is given: the one place a
+    mount's text becomes its matrix (``device.mount``, a panel board's ``mount``, ``true_mount``)."""
+    import numpy
+
+    from ..conventions import mount_matrix
+
+    return mount_matrix(v) if v else numpy.eye(3)
+
+
 class SimEepromSection(Section):
     """A simulated board's EEPROM (``device.eeprom``, driver: simulated)."""
 
@@ -150,6 +163,10 @@ class SimulatedBoardSection(Section):
     def emulated(self) -> bool:
         """A simulated board is not an emulated bus (drivers/registry.py: no ``simulated-emulated``)."""
         return False
+
+    def true_mount_p(self) -> np.ndarray:
+        """P of ``true_mount`` (identity when absent): how the chip really sits (mount_p)."""
+        return mount_p(self.true_mount)
 
 
 class I2cEepromSection(Section):
@@ -223,6 +240,10 @@ class _SlotKeys(Section):
     @classmethod
     def _proper_mount(cls, v: list[str] | None) -> list[str] | None:
         return _check_mount(v)
+
+    def mount_p(self) -> np.ndarray:
+        """P of ``mount`` (identity when absent): how the station believes the chip sits (mount_p)."""
+        return mount_p(self.mount)
 
 
 class _PanelKeys(Section):
