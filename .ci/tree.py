@@ -5,9 +5,10 @@ fixtures/, configs/), i.e. the package as the wheel and the editable install see
 mypy and import-linter walk a package's folder and know nothing of setuptools' mapping (an editable
 install serves the mapped folders through an import-hook finder they cannot follow), so they run in
 this tree: ``python .ci/tree.py mypy`` and ``python .ci/tree.py lint-imports --no-cache`` rebuild it
-and run the command there with the repository's pyproject.toml; ``python .ci/tree.py`` only builds
-it and prints its path. Errors name paths inside the tree (``accelcal_station/drivers/base.py`` is
-``drivers/base.py``). Links where the system has them, copies where it has not.
+and run the command there, where a link to the repository's pyproject.toml gives both their
+configuration; ``python .ci/tree.py`` only builds it and prints its path. Errors name paths inside
+the tree (``accelcal_station/drivers/base.py`` is ``drivers/base.py``). Links where the system has
+them, copies where it has not.
 """
 from __future__ import annotations
 
@@ -20,8 +21,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = "accelcal_station"
-# where each tool takes its configuration from (they run in the tree, not at the repository's root)
-CONFIG_FLAGS = {"mypy": "--config-file", "lint-imports": "--config"}
 
 
 def mapped_folders(root: Path = ROOT) -> dict[str, str]:
@@ -53,6 +52,7 @@ def build(root: Path = ROOT, dest: Path | None = None) -> Path:
             _link(entry.resolve(), pkg / entry.name)
     for sub, folder in mapped.items():
         _link((root / folder).resolve(), pkg / sub)
+    _link((root / "pyproject.toml").resolve(), dest / "pyproject.toml")  # the tools' configuration
     return dest
 
 
@@ -61,12 +61,9 @@ def main(argv: list[str]) -> int:
     if not argv:
         print(tree)
         return 0
-    cmd = [*argv]
-    if argv[0] in CONFIG_FLAGS:
-        cmd[1:1] = [CONFIG_FLAGS[argv[0]], str(ROOT / "pyproject.toml")]
     # the tree first on the path, so the checked package is the tree's, never the editable install's
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tree), *filter(None, [os.environ.get("PYTHONPATH")])])}
-    return subprocess.run(cmd, cwd=tree, env=env).returncode
+    return subprocess.run(argv, cwd=tree, env=env).returncode
 
 
 if __name__ == "__main__":
