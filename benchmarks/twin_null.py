@@ -35,7 +35,7 @@ def run_null(twins: int, boards: int, d: Path, seed0: int = 100, first: int = 0,
 
     from accelcal_station.twin.check import check_config
     from accelcal_station.twin.fit import fit_twin, lot_stats
-    from accelcal_station.twin.simlot import load_device
+    from accelcal_station.twin.simlot import twin_device
 
     rows = []
     cfg = d / "twin.yaml"
@@ -45,9 +45,10 @@ def run_null(twins: int, boards: int, d: Path, seed0: int = 100, first: int = 0,
         stats, per_g = nxt
         tw = fit_twin(stats, per_g, seed=i)
         cfg.write_text(yaml.safe_dump(tw.config, sort_keys=False))
-        limits = load_device(str(cfg))[3]
+        device = twin_device(str(cfg))
+        limits = device.limits
         nxt = lot_stats(write_own_lot(d / "lot.csv", boards, seed0 + i + 1), limits)
-        r = check_config(nxt[0], str(cfg), seed=10_000 + i, limits=limits)
+        r = check_config(nxt[0], device, seed=10_000 + i, limits=limits)
         rows.append({"twin": i, "verdict": r["verdict"], "gaps": r["gaps"], "detected": r["detected"],
                      "noise_scale": tw.noise.get("scale"), "fit_warnings": len(tw.warnings)})
         if log is not None:

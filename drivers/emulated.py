@@ -1,7 +1,8 @@
 """Factories of emulated buses and ports (python-can's ``virtual`` interface in spirit).
 
 A driver never imports its emulator: ``make_driver`` routes ``bus: emulated`` /
-``port: emulated`` here, and this module builds the register-level emulator and hands it
+``port: emulated`` here through the registry's ``NAME-emulated`` entry points
+(drivers/registry.py), and this module builds the register-level emulator and hands it
 to the driver as its SMBus (MMA8451) or starts it on the pseudo-terminal the driver opens
 (MPU6050 bridge).  The import graph is one way: emulated -> driver, emulated -> emulator.
 The real drivers know nothing of emulation: the emulated ones below are the same drivers
@@ -11,9 +12,11 @@ from __future__ import annotations
 
 from typing import Any, Unpack
 
-from ..config.kinds import Mma8451Device, Mma8451Section, Mpu6050Section
+from ..config.kinds import Mma8451Device, Mma8451Section, Mpu6050Device, Mpu6050Section
+from ..config.section import Section
 from ..errors import ConfigError
-from .base import Clock
+from .base import Clock, Driver
+from .builtin import section_as
 from .mma8451 import MMA8451, Mma8451Settings, settings_of
 from .mma8451_emulator import MMA8451Emulator
 from .mpu6050 import MPU6050Bridge, Mpu6050Settings
@@ -96,3 +99,14 @@ def emulated_muxed_mma8451(m: Mma8451Device, path: str, buses: MuxBuses) -> Emul
     if m.emulator is not None and m.emulator.mux_reset_after:
         mux.smbus.reset(after_transactions=m.emulator.mux_reset_after, channel=channel)
     return drv
+
+
+def build_mma8451(device: Section, path: str, buses: MuxBuses) -> Driver:
+    """``mma8451-emulated`` (drivers/registry.py): ``bus: emulated``, alone or behind an emulated TCA9548A."""
+    m = section_as(device, Mma8451Device, "mma8451-emulated")
+    return emulated_mma8451(m, path) if m.mux is None else emulated_muxed_mma8451(m, path, buses)
+
+
+def build_mpu6050(device: Section, path: str, buses: MuxBuses) -> Driver:
+    """``mpu6050-emulated`` (drivers/registry.py): ``port: emulated``, the bridge emulator on a pseudo-terminal."""
+    return emulated_mpu6050(section_as(device, Mpu6050Device, "mpu6050-emulated"), path)

@@ -40,7 +40,7 @@ from ..calibration import Calibration
 from ..config.checks import load_yaml
 from ..config.kinds import Effects, PopulationSpec, SimEepromSection, SimulatedBoardSection, SimulatorSection
 from ..config.parts import parse
-from ..conventions import WORLD_UP, attitude_for_up, mount_matrix, pose_attitude
+from ..conventions import WORLD_UP, attitude_for_up, pose_attitude
 from ..errors import ConfigError, DeviceError
 from ..sim.chip_noise import FilteredNoise
 from ..sim.population import parse_population
@@ -198,7 +198,7 @@ class SimulatedBoard:
         board = cls(model, seed, None if m.serial is None else str(m.serial), m.realtime, m.ambient_c,
                     m.self_heating_c, sim_eeprom(m.eeprom or SimEepromSection(), f"{path}.eeprom"))
         if m.true_mount is not None:  # the chip sits turned on this board (the station may not know)
-            board.mount = mount_matrix(m.true_mount)
+            board.mount = m.true_mount_p()
             board.place(board.attitude)
         board.configure(spec.default_range_g if m.range_g is None else m.range_g,
                         spec.default_odr_hz if m.odr_hz is None else m.odr_hz, m.dlpf, path)

@@ -2,7 +2,7 @@
 
 Deterministic (fixed seed), so the shipped table is exactly what this script writes:
   python examples/make_example.py
-Then fit it:  accelcal fit examples/poses.csv --model 12   (or 6, 9, 15)
+Then fit it:  accelcal fit examples/poses.csv   (fit picks model 15: the board has a cubic term)
 
 The board: 4096 counts/g, gain errors of a few percent, cross-axis coupling, offsets
 of tens of mg and a small cubic term; 256 samples per pose with 1.5 mg noise.  Poses:

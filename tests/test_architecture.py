@@ -9,6 +9,7 @@ from __future__ import annotations
 import ast
 import os
 import re
+import runpy
 import shutil
 import subprocess
 import sys
@@ -21,6 +22,8 @@ PKG = ROOT / "accelcal_station"
 MAX_MODULE_LINES = 500
 MAX_FUNCTION_LINES = 60
 MAX_TOP_LEVEL_MODULES = 10
+# the one tree the static checks read (.ci/tree.py): the package folder plus the folders mapped into it
+TREE = runpy.run_path(str(ROOT / ".ci" / "tree.py"))
 
 
 def _lint_imports(cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -30,15 +33,21 @@ def _lint_imports(cwd: Path, env: dict | None = None) -> subprocess.CompletedPro
     return subprocess.run([exe, "--no-cache"], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
 
-def test_import_contracts_are_kept():
-    r = _lint_imports(ROOT)
+def test_import_contracts_are_kept(tmp_path):
+    """On the tree .ci/tree.py builds (links to the package folder and to drivers/, fixtures/, configs/),
+    as `python .ci/tree.py lint-imports --no-cache` does."""
+    tree = TREE["build"](ROOT, tmp_path / "tree")
+    assert (tree / "accelcal_station" / "drivers" / "mma8451.py").is_file()
+    r = _lint_imports(tree, dict(os.environ, PYTHONPATH=str(tree)))  # its pyproject.toml: a link to ours
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
     assert re.search(r"Contracts: \d+ kept, 0 broken", r.stdout), r.stdout[-2000:]
 
 
 def _copy_with(tmp_path: Path, module: str, line: str) -> Path:
-    """A copy of the package (links resolved) with ``line`` added to ``module`` (path inside the package)."""
-    shutil.copytree(PKG, tmp_path / "accelcal_station", symlinks=False,
+    """A copy of the package as installed (drivers/, fixtures/, configs/ inside it: .ci/tree.py's tree,
+    links resolved) with ``line`` added to ``module`` (path inside the package)."""
+    tree = TREE["build"](ROOT, tmp_path / "tree")
+    shutil.copytree(tree / "accelcal_station", tmp_path / "accelcal_station", symlinks=False,
                     ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
     target = tmp_path / "accelcal_station" / module
@@ -122,12 +131,12 @@ def _layout_block() -> list[str]:
 
 def test_layout_block_names_exactly_the_folders_there_are():
     """docs/architecture.md's layout block: every tracked top-level folder, every subpackage and top-level
-    module of the package, and the links, no more and no fewer."""
+    module of the package, and the folders mapped into it (pyproject.toml), no more and no fewer."""
     lines = _layout_block()
     top = {m.group(1) for ln in lines if (m := re.match(r"^([\w.-]+)/\s", ln))}
     sub = {m.group(1) for ln in lines if (m := re.match(r"^  (\w+)/\s", ln))}
     mods = {m.group(1) for ln in lines if (m := re.match(r"^  (\w+\.py)\s", ln))}
-    links = {m.group(1): m.group(2) for ln in lines for m in re.finditer(r"(\w+) -> \.\./(\w+)", ln)}
+    mapped = {m.group(1): m.group(2) for ln in lines for m in re.finditer(r"\.(\w+) = (\w+)/", ln)}
     tracked = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True)
     if tracked.returncode == 0 and tracked.stdout:
         folders = {p.split("/", 1)[0] for p in tracked.stdout.splitlines() if "/" in p and not p.startswith(".")}
@@ -135,8 +144,7 @@ def test_layout_block_names_exactly_the_folders_there_are():
         folders = {p.name for p in ROOT.iterdir() if p.is_dir() and not p.name.startswith((".", "build"))
                    and not p.name.endswith(".egg-info")}
     assert top == folders, f"docs/architecture.md layout {sorted(top)} vs folders {sorted(folders)}"
-    real = {p.name for p in PKG.iterdir() if p.is_dir() and not p.is_symlink() and (p / "__init__.py").is_file()}
+    real = {p.name for p in PKG.iterdir() if p.is_dir() and (p / "__init__.py").is_file()}
     assert sub == real, f"docs/architecture.md layout {sorted(sub)} vs subpackages {sorted(real)}"
     assert mods == {p.name for p in PKG.glob("*.py")} - {"__init__.py", "__main__.py"}
-    on_disk = {p.name: os.readlink(p).strip("./") for p in PKG.iterdir() if p.is_symlink()}
-    assert links == on_disk, f"docs/architecture.md links {links} vs package links {on_disk}"
+    assert mapped == TREE["mapped_folders"](ROOT), f"docs/architecture.md {mapped} vs pyproject.toml package-dir"

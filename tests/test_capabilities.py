@@ -43,8 +43,9 @@ def _probes(path: Path) -> list[str]:
 
 
 def test_the_station_and_the_jig_factory_ask_declared_capabilities_not_probe(tmp_path: Path) -> None:
-    files = [*sorted((PKG / "station").glob("*.py")), PKG / "fixtures" / "factory.py",
-             *sorted((PKG / "instruments").glob("*.py")), PKG / "drivers" / "factory.py"]
+    # fixtures/ and drivers/ sit at the top of the repository (installed as accelcal_station.fixtures, ...)
+    files = [*sorted((PKG / "station").glob("*.py")), PKG.parent / "fixtures" / "factory.py",
+             *sorted((PKG / "instruments").glob("*.py")), PKG.parent / "drivers" / "factory.py"]
     found = [p for f in files for p in _probes(f)]
     assert not found, found
     # the scan itself finds probes when there are some

@@ -3,6 +3,7 @@ reads declared in it, one line for an unknown key in any section or a number out
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -315,7 +316,8 @@ def test_the_factories_drivers_jigs_and_chamber_validate_nothing_again() -> None
     allowed = {("simulated.py", "simulator_of"), ("simulated.py", "from_config"),
                ("emulator_files.py", "emulator_options_from_file"), ("emulator_files.py", "board_config_from_file")}
     pkg = REPO / "accelcal_station"
-    files = [*(pkg / "drivers").glob("*.py"), *(pkg / "fixtures").glob("*.py"), *(pkg / "instruments").glob("*.py"),
+    # drivers/ and fixtures/ sit at the top of the repository (installed as accelcal_station.drivers, ...)
+    files = [*(REPO / "drivers").glob("*.py"), *(REPO / "fixtures").glob("*.py"), *(pkg / "instruments").glob("*.py"),
              pkg / "station" / "panel_config.py"]
     found = []
     for f in files:
@@ -333,3 +335,22 @@ def test_the_factories_drivers_jigs_and_chamber_validate_nothing_again() -> None
                         found.append(f"{f.name}:{node.lineno} {fn.name}: {name}()")
     assert not found, found
     assert len(files) > 20  # the scan reaches the parts
+
+
+def test_config_docs_read_as_yaml_not_python_reprs() -> None:
+    """docs/config.md's types and defaults in the reader's notation: no pydantic or typing reprs
+    (``FieldInfo(``, ``Annotated[``, ``Optional[``, ``<class``), None written as YAML's null, and
+    I2C addresses in hex as data sheets give them (MMA8451: 0x1d with SA0 high, 0x1c low; 24Cxx
+    EEPROMs 0x50..0x57; TCA9548A 0x70..0x77)."""
+    text = (REPO / "docs" / "config.md").read_text()
+    for repr_text in ("FieldInfo(", "Annotated[", "Optional[", "Union[", "Literal[", "<class", "NoneType", "Strict("):
+        assert repr_text not in text, repr_text
+    rows = {}
+    for title, table in re.findall(r"\n## `([^`]+)`\n(.*?)(?=\n## |\Z)", text, flags=re.S):
+        for row in re.findall(r"^\| `(\w+)` \| (.+?) \| (.+?) \| (.+?) \|", table, flags=re.M):
+            rows[(title, row[0])] = row[1:]
+    assert rows[("device (driver: mma8451)", "address")] == ("int", "`0x1d`", "0x00 to 0x7f")
+    assert rows[("device.eeprom (driver: mma8451)", "address")] == ("int", "`0x50`", "0x50 to 0x57")
+    assert rows[("device.mux (driver: mma8451)", "address")] == ("int", "`0x70`", "0x70 to 0x77")
+    assert rows[("device (driver: mma8451)", "range_g")][0] == "2 / 4 / 8"
+    assert rows[("device (driver: simulated)", "seated_deg")][0] == "list of 3 float \\| null"

@@ -4,6 +4,7 @@ commands there are (each answers --help), the options it shows exist, every opti
 layer list are the ones CI runs and import-linter keeps."""
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -149,3 +150,29 @@ def test_the_get_going_commands_work(tmp_path):
                            capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, f"{c}: {r.stdout[-1500:]}{r.stderr[-1500:]}"
     assert (tmp_path / "accelcal-runs.sqlite").is_file()  # the run recorded where the README says
+
+
+def test_the_readme_fits_the_example_with_the_model_its_data_support():
+    """examples/make_example.py gives its board a cubic term (0.004, -0.006, 0.003 g/g^3), which only
+    model 15 carries: the README's fit command must fit it with model 15 (fit's own choice), not
+    force a model the data reject (model 12 left 0.857 mg RMS against model 15's 0.119 mg)."""
+    assert "cubic * g**3" in (ROOT / "examples" / "make_example.py").read_text()
+    (command,) = [c for b in re.findall(r"```\n(.*?)```", _section("Install and get going"), flags=re.S)
+                  for c in b.strip().splitlines() if c.startswith("accelcal fit")]
+    r = subprocess.run([sys.executable, "-m", "accelcal_station", *command.split()[1:], "--json"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-1500:]
+    assert json.loads(r.stdout)["model"] == "15"
+
+
+def test_every_pose_design_is_listed_in_the_commands_page():
+    """docs/commands.md's design table names each design fixtures/designs.py has, with the model it
+    was drawn up for (the pose names were in --help only)."""
+    from accelcal_station.fixtures.designs import DESIGNS, design_model
+    text = (ROOT / "docs" / "commands.md").read_text()
+    rows = dict(re.findall(r"^\| `([\w-]+)` \| .+? \| (\d+)[^|]*\|$", text, flags=re.M))
+    assert set(DESIGNS) <= set(rows), sorted(set(DESIGNS) - set(rows))
+    for name in DESIGNS:
+        if name != "optimal-N":
+            assert rows[name] == design_model(name), name
+    assert rows["optimal-N"] == design_model("optimal-4") == "12" and design_model("optimal-3") == "6"

@@ -19,7 +19,7 @@ import click
 from .. import __version__
 from ..config import event_log
 from ..errors import AccelcalError
-from ._mes import CommandsDoc, JsonGroup, emit_error, wants_json
+from ._mes import WHOLE, CommandsDoc, JsonGroup, emit_error, wants_json
 from ._text import clean
 
 # name -> (module:attribute, one-line help as the command's docstring gives it); a test
@@ -82,13 +82,12 @@ class LazyGroup(JsonGroup):
         return cmd.get_short_help_str(limit)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
-        """The Commands: section, as click writes it, from the stored help."""
+        """The Commands: section from the stored help, each summary whole and wrapped (JsonGroup's)."""
         names = self.list_commands(ctx)
         if not names:
             return
-        limit = formatter.width - 6 - max(len(n) for n in names)
         with formatter.section("Commands"):
-            formatter.write_dl([(n, self.listed_help(n, limit)) for n in names])
+            formatter.write_dl([(n, self.listed_help(n, WHOLE)) for n in names])
 
     def describe(self, ctx: click.Context) -> str:
         doc: CommandsDoc = {"command": ctx.command_path, "help": (self.help or "").strip().split("\n")[0],

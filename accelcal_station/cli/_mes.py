@@ -52,6 +52,9 @@ def commands_doc(group: click.Group, ctx: click.Context) -> CommandsDoc:
                             for n in group.list_commands(ctx)]}
 
 
+WHOLE = 10**6  # a short-help limit no first sentence reaches: --help lists whole summaries
+
+
 class JsonGroup(click.Group):
     """A group that, called bare with --json, prints its subcommands as one JSON object."""
 
@@ -74,3 +77,12 @@ class JsonGroup(click.Group):
     def describe(self, ctx: click.Context) -> str:
         """What the bare group prints under --json, as JSON text (a subclass may list something else)."""
         return json.dumps(commands_doc(self, ctx))
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The Commands: section with each subcommand's whole first sentence, wrapped (click's own cuts
+        it at the terminal's width, mid-sentence, with '...')."""
+        rows = [(n, cmd.get_short_help_str(WHOLE)) for n in self.list_commands(ctx)
+                if (cmd := self.get_command(ctx, n)) is not None and not cmd.hidden]
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)

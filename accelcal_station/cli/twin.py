@@ -111,12 +111,12 @@ def check_cmd(source: str | None, db: str | None, since: str | None, station: st
               before: str | None, seed: int | None, as_json: bool) -> None:
     """Simulate a lot like SOURCE from --config and test it against SOURCE, quantity by quantity."""
     from ..twin.check import check
-    from ..twin.simlot import load_device
+    from ..twin.simlot import twin_device
 
-    limits = load_device(config)[3]
-    stats, _ = _stats(source, db, since, station, limits)
+    after = twin_device(config)  # each config read once, typed (simlot.TwinDevice)
+    stats, _ = _stats(source, db, since, station, after.limits)
     source = source or db
-    r = check(stats, config, before or str(default_config_path()), seed, limits)
+    r = check(stats, after, twin_device(before or str(default_config_path())), seed, after.limits)
     lines = [f"{source}: {stats.boards} boards; seed {r['seed']}; {r['method']}",
              _verdict_line(f"before ({r['before']['config']})", r["before"]), _verdict_line(f"after ({config})", r)]
     lines += [f"  {_effect_line(t)}" for t in r["tests"] if t["detected"]]

@@ -4,9 +4,9 @@ A test compares the committed file with this output, so the key reference cannot
 from what the station accepts."""
 from __future__ import annotations
 
-import re
 import sys
-from typing import Any
+from types import UnionType
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
@@ -37,16 +37,61 @@ still means the emulated chamber.
 
 
 def _type(ann: Any) -> str:
+    """The type in the YAML reader's words (``float``, ``list of 3 float``, ``'normal' / 'low_power'``,
+    ``section``), never a Python repr; ``|`` escaped for the table."""
     tags: dict[type[BaseModel], str] = {m: t for t, m in TAGGED.items()}
     members = [m for m in _models_in(ann) if m in tags]
     if members:  # a discriminated union: its members' tables follow ("device (driver: mma8451)")
         key = tags[members[0]].split("=")[0]
-        opt = " \\| None" if type(None) in getattr(ann, "__args__", ()) else ""
+        opt = " \\| null" if type(None) in get_args(ann) else ""
         return f"one of {len(members)} by `{key}`{opt}"
-    text = re.sub(r"accelcal_station\.config\.\w+\.", "", str(ann).replace("typing.", ""))
-    for a, b in (("<class '", ""), ("'>", ""), ("NoneType", "None"), ("Literal[True]", "true")):
-        text = text.replace(a, b)
-    return text.replace("|", "\\|")
+    return _name(ann).replace("|", "\\|")
+
+
+def _name(ann: Any) -> str:
+    origin, args = get_origin(ann), get_args(ann)
+    if ann is type(None):
+        return "null"
+    if origin is Annotated:  # constraints: a list's length here; numbers' bounds go to the range column
+        lengths = {getattr(m, k) for m in _metadata(args[1:]) for k in ("min_length", "max_length")
+                   if getattr(m, k, None) is not None}
+        inner = _name(args[0])
+        return f"list of {lengths.pop()} {inner.removeprefix('list of ')}" if len(lengths) == 1 and \
+            inner.startswith("list of ") else inner
+    if origin in (Union, UnionType):
+        return " | ".join(dict.fromkeys(_name(a) for a in args))
+    if origin is Literal:
+        return " / ".join(_literal(a) for a in args)
+    if origin is list:
+        return f"list of {_grouped(_name(args[0]))}"
+    if origin is dict:
+        return f"mapping of {_name(args[0])} to {_grouped(_name(args[1]))}"
+    if isinstance(ann, type) and issubclass(ann, BaseModel):
+        return "section"
+    return _NAMES.get(getattr(ann, "__name__", ""), getattr(ann, "__name__", str(ann)))
+
+
+_NAMES = {"JsonValue": "JSON value", "NoneType": "null"}
+
+
+def _metadata(metas: tuple[Any, ...]) -> list[Any]:
+    """Constraint objects, unwrapped from pydantic's FieldInfo."""
+    return [x for m in metas for x in (m, *getattr(m, "metadata", ()))]
+
+
+def _grouped(name: str) -> str:
+    return f"({name})" if " | " in name or " / " in name else name
+
+
+def _literal(v: object) -> str:
+    if isinstance(v, bool):
+        return str(v).lower()
+    return f"'{v}'" if isinstance(v, str) else str(v)
+
+
+def _hex(field: Any) -> bool:
+    extra = field.json_schema_extra
+    return isinstance(extra, dict) and extra.get("notation") == "hex"
 
 
 def _default(field: Any) -> str:
@@ -55,7 +100,20 @@ def _default(field: Any) -> str:
         return "required"
     if d is None:
         return "-"
+    if _hex(field) and isinstance(d, int):
+        return f"`0x{d:02x}`"
     return f"`{str(d).lower() if isinstance(d, bool) else d}`"
+
+
+def _shown_range(model: type[BaseModel], name: str) -> str:
+    """The allowed range; in hex for a number written in hex (an I2C address: 0x00 to 0x7f)."""
+    field = model.model_fields[name]
+    if _hex(field):
+        bounds = {k: getattr(m, k) for m in _metadata(tuple(field.metadata)) for k in ("ge", "le")
+                  if getattr(m, k, None) is not None}
+        if len(bounds) == 2:
+            return f"0x{bounds['ge']:02x} to 0x{bounds['le']:02x}"
+    return _range(model, name) or "-"
 
 
 def section_rows(model: type[BaseModel], path: str, variant: str = "") -> list[tuple[str, type[BaseModel]]]:
@@ -87,7 +145,7 @@ def render() -> str:
         parts.append(f"\n## `{title}`\n" + (f"\n{doc}\n" if doc else ""))
         parts.append("\n| key | type | default | allowed range | meaning |\n|---|---|---|---|---|")
         for name, field in model.model_fields.items():
-            rng = _range(model, name) or "-"
+            rng = _shown_range(model, name)
             parts.append(f"| `{name}` | {_type(field.annotation)} | {_default(field)} | {rng} | "
                          f"{(field.description or '').replace('|', '/')} |")
     return "\n".join(parts) + "\n"

@@ -9,12 +9,15 @@ back to the member (schema.error_line names the key path and this member's allow
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Discriminator, Field, JsonValue, StrictBool, Tag, field_validator
 
 from ..errors import DataError
 from .section import MAX_BOARDS, Section, Triple, _f
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 class HandSection(Section):
@@ -54,13 +57,13 @@ class CorruptReadsSection(Section):
 
     rate: float = _f(0.0, "probability that a read message is corrupted", ge=0, le=1)
     seed: int = _f(0, "seed of the corruption's random draws", ge=0, le=2**63 - 1)
-    address: int = _f(0x50, "I2C address whose reads are corrupted (the EEPROM's)", ge=0, le=0x7F)
+    address: int = _f(0x50, "I2C address whose reads are corrupted (the EEPROM's)", ge=0, le=0x7F, hexadecimal=True)
 
 
 class BusEmulatorSection(Section):
     """mma8451 ``bus: emulated``: the register-level emulator's faults."""
 
-    chip_id: int = _f(0x1A, "WHO_AM_I value the emulated chip answers", ge=0, le=255)
+    chip_id: int = _f(0x1A, "WHO_AM_I value the emulated chip answers", ge=0, le=255, hexadecimal=True)
     nack_every: int = _f(0, "NACK every Nth bus transaction (0: never)", ge=0, le=1000)
     never_ready: StrictBool = _f(False, "the data-ready flag never sets")
     present: StrictBool = _f(True, "the chip answers on the bus at all")
@@ -95,7 +98,7 @@ class BridgeEmulatorSection(Section):
 
 
 class MuxSection(Section):
-    address: int = _f(0x70, "TCA9548A I2C address", ge=0x70, le=0x77)
+    address: int = _f(0x70, "TCA9548A I2C address", ge=0x70, le=0x77, hexadecimal=True)
 
 
 class SpreadSection(Section):
@@ -126,6 +129,16 @@ def _check_board_serial(v: str | int | None) -> str | int | None:
         raise ValueError(f"a serial number: 1-{BOARD_SERIAL_MAX} letters, digits and . _ : / -, starting with a "
                          "letter or digit") from None
     return v
+
+
+def mount_p(v: list[str] | None) -> np.ndarray:
+    """P (chip = P @ board) of a validated mounting, the identity when none is given: the one place a
+    mount's text becomes its matrix (``device.mount``, a panel board's ``mount``, ``true_mount``)."""
+    import numpy
+
+    from ..conventions import mount_matrix
+
+    return mount_matrix(v) if v else numpy.eye(3)
 
 
 class SimEepromSection(Section):
@@ -169,11 +182,20 @@ class SimulatedBoardSection(Section):
     def _serial_rule(cls, v: str | int | None) -> str | int | None:
         return _check_board_serial(v)
 
+    @property
+    def emulated(self) -> bool:
+        """A simulated board is not an emulated bus (drivers/registry.py: no ``simulated-emulated``)."""
+        return False
+
+    def true_mount_p(self) -> np.ndarray:
+        """P of ``true_mount`` (identity when absent): how the chip really sits (mount_p)."""
+        return mount_p(self.true_mount)
+
 
 class I2cEepromSection(Section):
     """An MMA8451 board's 24Cxx EEPROM (``device.eeprom``, driver: mma8451)."""
 
-    address: int = _f(0x50, "EEPROM I2C address", ge=0x50, le=0x57)
+    address: int = _f(0x50, "EEPROM I2C address", ge=0x50, le=0x57, hexadecimal=True)
     # 24C32 and up: smaller 24Cxx take a 1-byte word address, which the driver does not send
     size: int = _f(4096, "EEPROM size, bytes", ge=4096, le=65536)
     page_size: int = _f(32, "page size, bytes", ge=8, le=256)
@@ -184,7 +206,7 @@ class Mma8451Section(Section):
     """An MMA8451's own keys (``device`` with ``driver: mma8451``)."""
 
     bus: int | str = _f(1, "I2C bus number, /dev/i2c-N or 'emulated'")
-    address: int = _f(0x1D, "I2C address: 0x1c (SA0 low) or 0x1d (SA0 high)", ge=0, le=0x7F)
+    address: int = _f(0x1D, "I2C address: 0x1c (SA0 low) or 0x1d (SA0 high)", ge=0, le=0x7F, hexadecimal=True)
     range_g: Literal[2, 4, 8] = _f(2, "full scale, g")
     odr_hz: float = _f(100.0, "output data rate, Hz (one of the chip's rates)", gt=0, le=10_000)
     oversampling: Literal["normal", "low_noise_low_power", "high_resolution", "low_power"] = _f(
@@ -203,6 +225,11 @@ class Mma8451Section(Section):
     @classmethod
     def _serial_rule(cls, v: str | int | None) -> str | int | None:
         return _check_board_serial(v)
+
+    @property
+    def emulated(self) -> bool:
+        """``bus: emulated``: built by the registry's ``mma8451-emulated`` (drivers/registry.py)."""
+        return self.bus == "emulated"
 
 
 class Mpu6050Section(Section):
@@ -224,6 +251,11 @@ class Mpu6050Section(Section):
     seed: int | None = _f(None, "port: emulated: random seed", ge=0, le=2**32 - 1)
     emulator: BridgeEmulatorSection | None = _f(None, "port: emulated: the bridge emulator's chip and faults")
 
+    @property
+    def emulated(self) -> bool:
+        """``port: emulated``: built by the registry's ``mpu6050-emulated`` (drivers/registry.py)."""
+        return self.port == "emulated"
+
 
 class _SlotKeys(Section):
     """What the station adds to a driver's keys: how the chip sits on the board, and a panel board's slot."""
@@ -239,6 +271,10 @@ class _SlotKeys(Section):
     @classmethod
     def _proper_mount(cls, v: list[str] | None) -> list[str] | None:
         return _check_mount(v)
+
+    def mount_p(self) -> np.ndarray:
+        """P of ``mount`` (identity when absent): how the station believes the chip sits (mount_p)."""
+        return mount_p(self.mount)
 
 
 class _PanelKeys(Section):

@@ -19,5 +19,9 @@ class Section(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
-def _f(default: Any, desc: str, ge: float | None = None, le: float | None = None, gt: float | None = None) -> Any:
-    return Field(default, description=desc, ge=ge, le=le, gt=gt)
+def _f(default: Any, desc: str, ge: float | None = None, le: float | None = None, gt: float | None = None,
+       hexadecimal: bool = False) -> Any:
+    """``hexadecimal``: a number written in hex where it is used (an I2C address, a register value);
+    docs/config.md shows its default and range so (``0x1d``)."""
+    return Field(default, description=desc, ge=ge, le=le, gt=gt,
+                 json_schema_extra={"notation": "hex"} if hexadecimal else None)

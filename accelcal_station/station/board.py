@@ -17,7 +17,7 @@ import numpy as np
 from ..acceptance.reasons import Reason
 from ..acceptance.rules import judge
 from ..calibration import Calibration
-from ..conventions import mount_matrix, reference_to_angles
+from ..conventions import reference_to_angles
 from ..drivers.base import Capture, Clock, Driver
 from ..errors import ConfigError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
@@ -64,7 +64,7 @@ class BoardSteps:
         self.live_reading = live_reading  # an operator jig may show the live reading (FlowPolicy.live_reading)
         # how the chip sits on the board: the jig and the words place the board, the chip reads mount @ r
         # (a panel's board: its own, set by panel.Panel.build)
-        self.mount = mount_matrix(config.device.mount) if config.device.mount else np.eye(3)
+        self.mount = config.device.mount_p()
         # the site's gravity in standard g: the force a pose puts on the board (config/site.py)
         self.g_site = config.site.gravity_g
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []  # (pose's r in board axes, mean reading) so far

@@ -29,7 +29,6 @@ import numpy as np
 from ..acceptance.reasons import Reason
 from ..calibration import Calibration
 from ..config.schema import DeviceSection, JigSection
-from ..conventions import mount_matrix
 from ..drivers.base import Clock, Driver
 from ..drivers.factory import make_driver
 from ..drivers.tca9548a import MuxBuses
@@ -163,7 +162,7 @@ class Panel:
             seat = np.eye(3) if single else board_seat(sec, path)  # takes the seat's keys from the section
             driver = self.drivers[i] if self.drivers is not None else make_driver(sec, path, self._buses)
             if not single:  # the one-board run's steps read device.mount themselves
-                st.mount = mount_matrix(sec.mount) if sec.mount else np.eye(3)
+                st.mount = sec.mount_p()
             mount = BoardMount(st.mount, path, own=not single and own_mount(cfg.device, i))
             out.append(PanelBoard(i, sec, path, group_of(sec, i), st, rep, driver, seat=seat, mount=mount))
             rep.serial = "" if single else configured_serial(sec)

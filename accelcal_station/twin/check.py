@@ -14,7 +14,7 @@ import numpy as np
 from ..acceptance.rules import Limits
 from .compare import ENERGY_MARGIN, FAMILY_ALPHA, counts_effect, counts_test, energy, flag, quantity_test, verdict
 from .records import Before, CheckReport, ConfigCheck, CountsTest, JointTest, QuantityTest
-from .simlot import load_device, simulate_like
+from .simlot import TwinDevice, simulate_like
 from .stream import FITTED, MEASURES, LotStats
 
 MAX_SIM_BOARDS = 50_000  # a real lot larger than this is compared through its reservoir sample
@@ -50,14 +50,14 @@ def compare_stats(real: LotStats, sim: LotStats, seed: int, limits: dict[str, fl
     return tests
 
 
-def check_config(real: LotStats, config: str, seed: int | None = None, limits: Limits | None = None
+def check_config(real: LotStats, device: TwinDevice, seed: int | None = None, limits: Limits | None = None
                  ) -> ConfigCheck:
-    """One config against the real lot: tests, the gaps that matter, the detected ones, a verdict."""
-    if limits is None:
-        limits = load_device(config)[3]
+    """One twin config (read once: simlot.twin_device) against the real lot: tests, the gaps that
+    matter, the detected ones, a verdict; ``limits``: the config's own unless given."""
+    limits = device.limits if limits is None else limits
     seed = new_seed() if seed is None else seed
     boards = min(real.boards, MAX_SIM_BOARDS)
-    sim, what = simulate_like(config, real, boards, seed, limits)
+    sim, what = simulate_like(device, real, boards, seed, limits)
     tests = compare_stats(real, sim, seed, limits.values)
     return {**what, "seed": seed, "tests": tests, "gaps": [t["quantity"] for t in tests if t.get("gap")],
             "detected": [t["quantity"] for t in tests if t.get("detected")],
@@ -70,11 +70,12 @@ METHOD = ("Anderson-Darling k-sample per quantity, chi-square on verdict and rea
           "percentile shift, yield change at the acceptance limits) exceeds the stated margin")
 
 
-def check(real: LotStats, config: str, before: str | None, seed: int | None = None, limits: Limits | None = None
-          ) -> CheckReport:
-    """The gap before (``before``: e.g. the default config) and after (the twin ``config``)."""
+def check(real: LotStats, device: TwinDevice, before: TwinDevice | None, seed: int | None = None,
+          limits: Limits | None = None) -> CheckReport:
+    """The gap before (``before``: e.g. the default config) and after (the twin config ``device``)."""
     seed = new_seed() if seed is None else seed
-    after = check_config(real, config, seed, limits)
+    config = device.path
+    after = check_config(real, device, seed, limits)
     if before is None:
         return {"boards": real.boards, "model": real.model, "false_alarm_rate": FAMILY_ALPHA, "seed": seed,
                 "method": METHOD, "config": config, "tests": after["tests"], "gaps": after["gaps"],

@@ -4,6 +4,7 @@ over as lot chunks so the real and the simulated lot go through the same fitting
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -52,8 +53,26 @@ def scalar(v: JsonValue, path: str) -> float:
     return float(v)
 
 
+@dataclass(frozen=True)
+class TwinDevice:
+    """A twin config read once: its simulated device (fixed effects, the population or None, the
+    range) and its acceptance limits; ``path`` names it in the output."""
+
+    path: str
+    model: SensorModel
+    population: Population | None
+    range_g: int
+    limits: Limits
+
+
 def load_device(path: str) -> tuple[SensorModel, Population | None, int, Limits]:
     """The simulated device (fixed effects, population or None, range) and limits of a config."""
+    d = twin_device(path)
+    return d.model, d.population, d.range_g, d.limits
+
+
+def twin_device(path: str) -> TwinDevice:
+    """The config at ``path`` as a TwinDevice: its YAML read and checked once."""
     cfg = load_yaml(path)
     dev = cfg.get("device")
     if not isinstance(dev, dict) or dev.get("driver") != "simulated":
@@ -65,7 +84,7 @@ def load_device(path: str) -> tuple[SensorModel, Population | None, int, Limits]
     pop = None if pop_spec is None else parse_population(pop_spec, model.effects, epath.rsplit(".", 1)[0]
                                                          + ".population")
     range_g = board.range_g or chip.default_range_g
-    return model, pop, range_g, Limits.from_config(cfg.get("acceptance"), f"{path}: acceptance")
+    return TwinDevice(path, model, pop, range_g, Limits.from_config(cfg.get("acceptance"), f"{path}: acceptance"))
 
 
 def lot_chunk(a: int, mean: np.ndarray, std: np.ndarray, samples: int, like: LotStats) -> LotChunk:
@@ -97,15 +116,14 @@ def sim_chunks(model: SensorModel, pop: Population | None, boards: int, like: Lo
         yield lot_chunk(a, mean, std, samples, like)
 
 
-def simulate_like(config: str, like: LotStats, boards: int, seed: int, limits: Limits | None = None
+def simulate_like(device: TwinDevice, like: LotStats, boards: int, seed: int, limits: Limits | None = None
                   ) -> tuple[LotStats, Simulated]:
-    """Fit and judge a simulated lot like ``like`` from a config; its stats and what was simulated."""
-    model, pop, range_g, cfg_limits = load_device(config)
-    lim = limits if limits is not None else cfg_limits
-    cpg = model.chip.counts_per_g(range_g)
-    stats = collect(sim_chunks(model, pop, boards, like, range_g, seed), like.model, cpg, "counts", lim,
-                    reservoir=like.reservoir, seed=seed)
-    return stats, {"config": config, "boards": boards, "population": pop is not None}
+    """Fit and judge a simulated lot like ``like`` from a twin config; its stats and what was simulated."""
+    lim = limits if limits is not None else device.limits
+    cpg = device.model.chip.counts_per_g(device.range_g)
+    stats = collect(sim_chunks(device.model, device.population, boards, like, device.range_g, seed), like.model,
+                    cpg, "counts", lim, reservoir=like.reservoir, seed=seed)
+    return stats, {"config": device.path, "boards": boards, "population": device.population is not None}
 
 
 def twin_model(cfg: JsonObject, forward: bool | None = None) -> tuple[SensorModel, int]:
