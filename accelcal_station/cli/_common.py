@@ -33,7 +33,10 @@ class Finite(click.FloatRange):
             self.fail(f"{value!r}; allowed: {ALLOWED}", param, ctx)
         v = super().convert(value, param, ctx)
         if not math.isfinite(v):
-            self.fail(f"{value!r} is not a finite number; allowed: {self.min:g} to {self.max:g}", param, ctx)
+            bounded = self.min is not None and self.max is not None and math.isfinite(self.min) and \
+                math.isfinite(self.max)
+            allowed = f"{self.min:g} to {self.max:g}" if bounded else "a finite number"
+            self.fail(f"{value!r} is not a finite number; allowed: {allowed}", param, ctx)
         return v
 
 

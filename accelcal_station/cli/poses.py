@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import click
 import numpy as np
@@ -27,7 +28,7 @@ def _clean(v: np.ndarray) -> list[float]:
 @click.argument("name")
 @click.option("--model", type=click.Choice(MODELS), default=None,
               help="Model to predict for (default: the one the design was drawn up for).")
-@click.option("--noise-mg", type=Finite(0.0, 1e6), default=1.0, show_default=True,
+@click.option("--noise-mg", type=Finite(-math.inf, math.inf), default=1.0, show_default=True,
               help="Per-axis standard error of each pose's averaged reading, in mg.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def command(name: str, model: str | None, noise_mg: float, as_json: bool) -> None:
