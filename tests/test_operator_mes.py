@@ -187,6 +187,7 @@ def test_a_bridge_that_does_not_answer_is_recorded_as_error(tmp_path):
     try:
         cfg["device"].update(port=os.ttyname(slave), timeout_s=0.05, retries=1, boot_wait_s=0.0)
         cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
+        cfg["jig"] = {"type": "operator"}  # the config's motorized jig is opened first (issue 49): the bridge here
         p = tmp_path / "mpu.yaml"
         p.write_text(yaml.safe_dump(cfg))
         r = CliRunner().invoke(cli, ["run", "--config", str(p), "--json"])
