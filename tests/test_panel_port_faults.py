@@ -120,8 +120,8 @@ fault, no verdict, its poses kept."""
 
 def test_nack_storm_on_the_multiplexed_bus_mid_run(tmp_path):
     """Three emulated MMA8451 boards behind the emulated TCA9548A; from ~1/3 of the run every board's
-    emulator NACKs every transaction (the emulator's nack_next fault, armed after 2,000 of its own
-    transactions; a whole run is ~5,800): each board's run an error with the station fault, no verdict, its
+    emulator NACKs every transaction (the emulator's nack_next fault, armed after 3,000 of its own
+    transactions; a whole run is ~7,200): each board's run an error with the station fault, no verdict, its
 poses so far recorded."""
     from accelcal_station.drivers.factory import make_driver
     from accelcal_station.station.flow import make_flow
@@ -136,7 +136,7 @@ poses so far recorded."""
     buses: dict = {}
     drivers = [make_driver(sec, path, buses) for sec, path in panel_sections(validate_device(doc["device"]))]
     for d in drivers:
-        d.emulator.nack_next(k=100_000, after=2_000)
+        d.emulator.nack_next(k=100_000, after=3_000)
     reps = make_flow(StationConfig.load(tmp_path / "p.yaml"), drivers=drivers, echo=lambda s: None).run()
     assert [r.verdict for r in reps] == ["ERROR"] * 3
     assert all(r.station_fault.startswith("station fault (device): ") for r in reps), [r.station_fault for r in reps]

@@ -108,7 +108,7 @@ def test_lost_ports_are_typed_at_the_driver_boundary():
 
 def test_nack_storm_mid_run_is_a_station_error(tmp_path):
     """The emulated MMA8451 NACKs every transaction from ~1/3 of the way through a run (a whole run
-    is ~5,800 transactions): the run ends as the station's error (status error, no verdict), its poses
+    is ~7,200 transactions): the run ends as the station's error (status error, no verdict), its poses
     so far recorded, and the error names the NACKs."""
     import sqlite3 as sq
 
@@ -125,7 +125,7 @@ def test_nack_storm_mid_run_is_a_station_error(tmp_path):
     dev = make_driver(device_section(str(tmp_path / "st.yaml")))
     with dev:
         emu = dev.dev.smbus
-    emu.nack_next(k=100_000, address=emu.address, after=2_000)
+    emu.nack_next(k=100_000, address=emu.address, after=3_000)
     said: list[str] = []
     with pytest.raises(DeviceError) as err:
         make_flow(StationConfig.load(tmp_path / "st.yaml"), driver=dev, echo=said.append).run()

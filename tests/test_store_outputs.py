@@ -128,7 +128,7 @@ def _calibration_json() -> str:
 
 @pytest.mark.parametrize(("make", "args"), [
     ("json", ["batch", "poses.csv", "--csv", "{t}"]),  # a calibration where a CSV goes
-    ("json", ["simulate", "--poses", "six-face", "--out", "{t}"]),
+    ("json_text", ["simulate", "--poses", "six-face", "--out", "{t}"]),  # a .json name is refused by its name
     ("csv", ["fit", "poses.csv", "-o", "{t}"]),  # a pose table where a calibration goes
     ("csv", ["twin", "fit", "lot.csv", "-o", "{t}"]),  # a CSV where a YAML goes
     ("csv", ["report", "export", "--db", "source.sqlite", "--format", "json", "-o", "{t}"]),
@@ -139,6 +139,9 @@ def _calibration_json() -> str:
 def test_a_file_of_another_kind_is_refused_unless_forced(here, make, args):
     Path("table.csv").write_bytes(Path("poses.csv").read_bytes())
     target = _calibration_json() if make == "json" else "table.csv"
+    if make == "json_text":  # a calibration's JSON under a name simulate may write (its content tells its kind)
+        target = "calibration.txt"
+        Path(target).write_bytes(Path(_calibration_json()).read_bytes())
     before = _sha(target)
     argv = [a.format(t=target) for a in args]
     r = CliRunner().invoke(cli, argv)

@@ -102,7 +102,8 @@
     $("result-verdict").textContent = T("SHIFT OVER");
     var fpy = s.first_pass_yield === null ? "–" : num(100 * s.first_pass_yield, 1) + " %";
     var counts = {boards: s.boards, pass: s.pass, fail: s.fail, aborted: s.aborted, error: s.error, fpy: fpy};
-XX
+    // the catalog's singular for one board
+    $("result-board").textContent = s.boards === 1 ?
       T("{boards} board · PASS {pass} · FAIL {fail} · aborted {aborted} · error {error} · first-pass yield {fpy}", counts) :
       T("{boards} boards · PASS {pass} · FAIL {fail} · aborted {aborted} · error {error} · first-pass yield {fpy}", counts);
     var titles = s.reason_titles || {};
