@@ -35,5 +35,9 @@ def refuse_output(outputs: Iterable[Output], inputs: Iterable[Named] = (), force
                   config: str | Path | None = None, has_config: bool = True,
                   stores: Iterable[tuple[str, str | Path | None]] = ()) -> None:
     """fileguard.identity.refuse_overwrite with every store the command reaches among the inputs
-    (one line, exit 2, nothing written; ``--force`` included)."""
+    (one line, exit 2, nothing written; ``--force`` included).  No output given: nothing to check (and
+    no store or config code imported: `fit` without -o starts without them)."""
+    outputs = list(outputs)
+    if all(out[1] is None for out in outputs):
+        return
     refuse_overwrite(outputs, [*inputs, *stores_reached(config, has_config, stores)], force)

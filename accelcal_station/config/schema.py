@@ -54,7 +54,7 @@ from .kinds import (  # noqa: F401 - re-exported: every section model is reachab
     _discriminator,
 )
 from .section import MAX_BOARDS, Section, Triple, _f  # noqa: F401
-from .site import SiteSection
+from .site_section import SiteSection
 from .validation import _models_in, _range, error_line, validate  # noqa: F401 (the schema's public names)
 
 

@@ -27,7 +27,8 @@ from ..config.schema import (
     validate_station,
 )
 from ..config.sections import default_config_path, with_port
-from ..config.site import STANDARD_SITE, Site, site_of
+from ..config.site import STANDARD_SITE, Site
+from ..config.site_section import site_of
 from ..errors import ConfigError
 from ..fixtures.designs import get_design
 from ..models.fitting import check_model
