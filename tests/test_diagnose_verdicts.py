@@ -11,22 +11,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-import yaml
+from diagnose_sphere import config as _config
 
 from accelcal_station.api import diagnose
 from accelcal_station.data.posetable import write_pose_table
 from accelcal_station.diagnosis.verdict import EXPLAINED_GAP_MAX
 from accelcal_station.fixtures.designs import get_design
 from accelcal_station.fixtures.simulated_run import run_poses, simulated_board
-
-REPO = Path(__file__).resolve().parents[1]
-
-
-def _config(d: Path, effects: dict, name: str) -> str:
-    cfg = yaml.safe_load((REPO / "configs" / "sim.yaml").read_text())
-    cfg["device"]["simulator"]["effects"].update(effects)
-    (d / name).write_text(yaml.safe_dump(cfg))
-    return str(d / name)
 
 
 def _raw_log(cfg: str, seed: int, path: Path) -> Path:

@@ -10,6 +10,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -351,55 +352,51 @@ def _absent_device_config(tmp_path: Path, language: str = "en") -> Path:
     return p
 
 
-def test_a_device_that_is_gone_is_a_full_screen_station_fault_with_end_shift(tmp_path):
-    """Issue 49: while the shift waits for a device that does not answer, the page shows the station's
-    fault full screen (what to check, no verdict) with End shift, never the last board's verdict; End shift
-    ends the shift and SHIFT OVER says why, with no stale notice over it."""
-    cfg = _absent_device_config(tmp_path)
+@contextmanager
+def _station_fault_page(tmp_path: Path, language: str, device_wait: str, verdict: str):
+    """A shift waiting for a device that does not answer, its operator page in Chromium: SN-1 scanned and
+    the station fault's full screen (``verdict``) up; yields the browser and the station's process."""
     port = free_port()
-    proc = _start(cfg, port, "--shift", "--device-wait", "600")
+    proc = _start(_absent_device_config(tmp_path, language), port, "--shift", "--device-wait", device_wait)
     try:
         with chromium(1024, 768) as drv:
             _open(drv, f"http://127.0.0.1:{port}/")
             WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "serial-input").is_displayed())
             drv.switch_to.active_element.send_keys("SN-1" + Keys.ENTER)
-            WebDriverWait(drv, 60).until(lambda d: d.find_element(By.ID, "result-verdict").text == "STATION FAULT")
-            reasons = drv.find_element(By.ID, "result-reasons").text
-            assert "this board is not judged" in reasons and "check the board's cable" in reasons, reasons
-            assert "result station fault" in drv.find_element(By.ID, "result").get_attribute("class")
-            assert not drv.find_element(By.ID, "notice").is_displayed()
-            screenshot(drv, "operator-station-fault.png")
-            end = drv.find_element(By.ID, "b-end-fault")
-            assert end.is_displayed()
-            end.click()
-            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "result-verdict").text == "SHIFT OVER")
-            assert "ended by: " in drv.find_element(By.ID, "result-figures").text
-            assert not drv.find_element(By.ID, "notice").is_displayed()
-        assert proc.wait(timeout=60) == 0
+            WebDriverWait(drv, 60).until(lambda d: d.find_element(By.ID, "result-verdict").text == verdict)
+            yield drv, proc
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_a_device_that_is_gone_is_a_full_screen_station_fault_with_end_shift(tmp_path):
+    """Issue 49: while the shift waits for a device that does not answer, the page shows the station's
+    fault full screen (what to check, no verdict) with End shift, never the last board's verdict; End shift
+    ends the shift and SHIFT OVER says why, with no stale notice over it."""
+    with _station_fault_page(tmp_path, "en", "600", "STATION FAULT") as (drv, proc):
+        reasons = drv.find_element(By.ID, "result-reasons").text
+        assert "this board is not judged" in reasons and "check the board's cable" in reasons, reasons
+        assert "result station fault" in drv.find_element(By.ID, "result").get_attribute("class")
+        assert not drv.find_element(By.ID, "notice").is_displayed()
+        screenshot(drv, "operator-station-fault.png")
+        end = drv.find_element(By.ID, "b-end-fault")
+        assert end.is_displayed()
+        end.click()
+        WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "result-verdict").text == "SHIFT OVER")
+        assert "ended by: " in drv.find_element(By.ID, "result-figures").text
+        assert not drv.find_element(By.ID, "notice").is_displayed()
+        assert proc.wait(timeout=60) == 0
 
 
 def test_the_station_fault_and_its_end_in_german(tmp_path):
     """The same on a German station: the fault's words and what to check from the catalog; the wait runs
     out (--device-wait 3) and SHIFT OVER says why in German; nothing English in the operator's bar."""
-    cfg = _absent_device_config(tmp_path, "de")
-    port = free_port()
-    proc = _start(cfg, port, "--shift", "--device-wait", "3")
-    try:
-        with chromium(1024, 768) as drv:
-            _open(drv, f"http://127.0.0.1:{port}/")
-            WebDriverWait(drv, 30).until(lambda d: d.find_element(By.ID, "serial-input").is_displayed())
-            drv.switch_to.active_element.send_keys("SN-1" + Keys.ENTER)
-            WebDriverWait(drv, 60).until(lambda d: d.find_element(By.ID, "result-verdict").text == "STATIONSSTÖRUNG")
-            reasons = drv.find_element(By.ID, "result-reasons").text
-            assert "nicht bewertet" in reasons and "Kabel und Stecker der Platine" in reasons, reasons
-            WebDriverWait(drv, 60).until(lambda d: d.find_element(By.ID, "result-board").text.startswith("0 "))
-            figures = drv.find_element(By.ID, "result-figures").text
-            assert "beendet durch: Gerät weg" in figures, figures
-            assert not drv.find_element(By.ID, "notice").is_displayed()
+    with _station_fault_page(tmp_path, "de", "3", "STATIONSSTÖRUNG") as (drv, proc):
+        reasons = drv.find_element(By.ID, "result-reasons").text
+        assert "nicht bewertet" in reasons and "Kabel und Stecker der Platine" in reasons, reasons
+        WebDriverWait(drv, 60).until(lambda d: d.find_element(By.ID, "result-board").text.startswith("0 "))
+        figures = drv.find_element(By.ID, "result-figures").text
+        assert "beendet durch: Gerät weg" in figures, figures
+        assert not drv.find_element(By.ID, "notice").is_displayed()
         assert proc.wait(timeout=60) == 3  # the device stayed away: the shift ends with exit 3
-    finally:
-        if proc.poll() is None:
-            proc.kill()
