@@ -15,6 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, TypedDict
 
+from .. import __version__
 from ..acceptance.reasons import Reason, codes
 from ..calibration import Calibration
 from ..config.site import SiteJson
@@ -59,6 +60,7 @@ class RunSummary(FitFigures, total=False):
     timing: Timing
     thermal: ThermalSummary | None
     nvm_verified: bool
+    software_version: str  # the accelcal that recorded the run (its certificate names it)
     panel_id: str | None
     jig_pose: JigPoseRecord | None
 
@@ -99,13 +101,15 @@ def board_summary(cfg: StationConfig, rep: RunReport) -> RunSummary:
     return {**fit_figures(rep.fit), "reason_codes": codes(rep.reasons), "measured": rep.measured,
             "verify_error_max_mg": rep.verify_error_max_mg, "offset_trim_lsb": rep.offset_trim_lsb,
             "offset_trim": rep.offset_trim, "self_test": rep.self_test, "warmup": rep.warmup, "design": cfg.design,
-            "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified}
+            "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified,
+            "software_version": __version__}
 
 
 def thermal_summary(cfg: StationConfig, rep: RunReport, thermal: ThermalSummary) -> RunSummary:
     """A single board's thermal plan: what it measured, its timing and the plan's summary."""
     return {"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg, "design": cfg.design,
-            "timing": rep.timing, "thermal": thermal, "nvm_verified": rep.nvm_verified, "self_test": rep.self_test}
+            "timing": rep.timing, "thermal": thermal, "nvm_verified": rep.nvm_verified, "self_test": rep.self_test,
+            "software_version": __version__}
 
 
 def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est: JigPoseEstimate | None,
@@ -117,7 +121,7 @@ def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est:
         "measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
         "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim, "self_test": rep.self_test,
         "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified,
-        "panel_id": panel_id,
+        "panel_id": panel_id, "software_version": __version__,
         "jig_pose": jig}
     if thermal is not None:
         out["thermal"] = thermal
