@@ -119,7 +119,7 @@ def _read(path: str) -> str:
     except FileNotFoundError:
         raise DataError(f"{path}: no such file") from None
     except UnicodeDecodeError:
-        raise DataError(f"{path}: not UTF-8 text; a certificate written by `accelcal report certificate` is")
+        raise DataError(f"{path}: not UTF-8 text; a certificate written by `accelcal report certificate` is") from None
     except OSError as e:
         raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
 

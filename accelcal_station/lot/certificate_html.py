@@ -98,14 +98,16 @@ def _calibration(p: _Page) -> str:
 
 
 def _budget(p: _Page) -> str:
-    head = "".join(f"<th>{escape(h)}</th>" for h in ("source", "type", "input", "distribution", *(h for _, h in BUDGET_U)))
+    names = ("source", "type", "input", "distribution", *(h for _, h in BUDGET_U))
+    head = "".join(f"<th>{escape(h)}</th>" for h in names)
     rows = []
     for i in range(len(p.c["uncertainty"]["budget"])):  # type: ignore[arg-type,call-overload,index]
         b = f"uncertainty.budget[{i}]"
         us = "".join(p.v(f"{b}.u.{n}", "td", "num") for n, _ in BUDGET_U)
         rows.append(f"<tr>{p.v(f'{b}.source', 'td')}{p.v(f'{b}.type', 'td')}{p.v(f'{b}.input', 'td', 'num')}"
                     f"{p.v(f'{b}.distribution', 'td')}{us}</tr>")
-    for key, label in (("combined", "combined standard uncertainty u_c"), ("expanded", "expanded uncertainty U = k u_c")):
+    for key, label in (("combined", "combined standard uncertainty u_c"),
+                       ("expanded", "expanded uncertainty U = k u_c")):
         us = "".join(p.v(f"uncertainty.{key}.{n}", "td", "num") for n, _ in BUDGET_U)
         rows.append(f'<tr class="total"><td colspan="4">{escape(label)}</td>{us}</tr>')
     return ('<h2>Uncertainty budget (GUM; sources uncorrelated, root sum of squares)</h2>'
