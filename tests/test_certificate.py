@@ -77,7 +77,8 @@ def _field(html: str, path: str, run: int | None = None) -> list[str]:
 def _stored(db: Path, run: int) -> dict[str, object]:
     con = sqlite3.connect(db)
     try:
-        row = con.execute("SELECT device_serial, calibration, uncertainty, site FROM runs WHERE id = ?", (run,)).fetchone()
+        row = con.execute("SELECT device_serial, calibration, uncertainty, site FROM runs WHERE id = ?",
+                          (run,)).fetchone()
     finally:
         con.close()
     return {"serial": row[0], "calibration": json.loads(row[1]), "uncertainty": json.loads(row[2]),
