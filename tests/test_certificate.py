@@ -257,3 +257,25 @@ def test_chromium_prints_one_pdf_page_per_board(store: Path, tmp_path: Path) -> 
     assert pages == {"lot": 3, "one": 1}
     assert shot.read_bytes().startswith(b"\x89PNG")
     shutil.copyfile(shot, REPO / "cert-screenshot.png")  # for a reader to look at (not committed)
+
+
+def test_hostile_names_are_text_and_still_verify(tmp_path: Path) -> None:
+    """A serial and operator that are markup (the station refuses such names; a store written by other
+    software may hold them) show as text on the page, cannot end the embedded JSON, and the certificate
+    still verifies."""
+    db, out = tmp_path / "runs.sqlite", tmp_path / "c.html"
+    hostile = "</script><script>alert(1)</script>"
+    r = CliRunner().invoke(cli, ["run", "--config", str(_config(tmp_path, 0)), "--serial", "SN-1",
+                                 "--store", str(db), "--json"])
+    assert r.exit_code == 0, r.output
+    con = sqlite3.connect(db)
+    with con:
+        con.execute("UPDATE runs SET operator = ?, device_serial = ? WHERE id = 1", (hostile, "SN<b>1</b>"))
+    con.close()
+    assert _cli("report", "certificate", "1", "-o", str(out), "--db", str(db))[0] == 0
+    html = out.read_text()
+    assert "<script>alert" not in html and "<b>1</b>" not in html
+    assert _field(html, "operator") == ["&lt;/script&gt;&lt;script&gt;alert(1)&lt;/script&gt;"]
+    assert html.count("</script>") == 1  # the embedded data's own end, nothing from the names
+    code, text = _cli("report", "verify-certificate", str(out), "--db", str(db))
+    assert code == 0, text
