@@ -173,6 +173,14 @@ def test_verify_fails_when_the_store_differs(store: Path, tmp_path: Path) -> Non
     assert _cli("report", "verify-certificate", str(out), "--db", str(store))[0] == 0
     code, text = _cli("report", "verify-certificate", str(out), "--db", str(changed))
     assert code == 1 and "the store differs" in text and "calibration.V_g[1]" in text, text
+    con = sqlite3.connect(changed)
+    with con:
+        con.execute("DELETE FROM poses WHERE run_id = 3")
+        con.execute("DELETE FROM runs WHERE id = 3")
+    con.close()
+    code, text = _cli("report", "verify-certificate", str(out), "--db", str(changed))
+    assert code == 1 and "the store differs: run 3:" in text and "no run 3" in text, text
+    assert len(text.strip().splitlines()) == 1
 
 
 def test_lot_certificate_has_one_page_per_board(store: Path, tmp_path: Path) -> None:

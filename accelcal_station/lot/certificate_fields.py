@@ -42,6 +42,12 @@ def _at(x: JsonValue, *keys: str | int) -> JsonValue:
     return x
 
 
+def count(x: JsonValue, *keys: str | int) -> int:
+    """The length of the list at ``x[k0][k1]...`` (0 when it is not a list)."""
+    found = _at(x, *keys)
+    return len(found) if isinstance(found, list) else 0
+
+
 def _u_columns(u: JsonValue) -> dict[str, str]:
     """A budget row's u as the page shows it: the offsets', W's diagonal and W's largest off-diagonal."""
     out = {f"V_{a}": _num(_at(u, "V_mg", i), ".4f") for i, a in enumerate(AXES)}

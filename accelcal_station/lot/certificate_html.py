@@ -17,7 +17,7 @@ from html.parser import HTMLParser
 
 from ..jsontypes import JsonObject, JsonValue
 from .certificate import SCHEMA, VERSION
-from .certificate_fields import BUDGET_U, FIGURES, fields, figure_keys
+from .certificate_fields import BUDGET_U, FIGURES, count, fields, figure_keys
 from .certificate_style import CSS
 
 AXES = "xyz"
@@ -74,7 +74,7 @@ def _references(p: _Page) -> str:
     poses = "".join(
         f"<tr>{p.v(f'references.poses[{i}].name', 'td')}{p.v(f'references.poses[{i}].pitch_deg', 'td', 'num')}"
         f"{p.v(f'references.poses[{i}].roll_deg', 'td', 'num')}{p.v(f'references.poses[{i}].reference_g', 'td', 'num')}"
-        "</tr>" for i in range(len(p.c["references"]["poses"])))  # type: ignore[arg-type,call-overload,index]
+        "</tr>" for i in range(count(p.c, "references", "poses")))
     return (f'<div class="two"><div><h2>References</h2><table class="kv">{ref}</table></div>'
             f'<div><h2>Poses (reference: expected output, standard g)</h2><table class="poses"><tr><th>pose</th>'
             f'<th>pitch (deg)</th><th>roll (deg)</th><th>reference (g)</th></tr>{poses}</table></div></div>')
@@ -101,7 +101,7 @@ def _budget(p: _Page) -> str:
     names = ("source", "type", "input", "distribution", *(h for _, h in BUDGET_U))
     head = "".join(f"<th>{escape(h)}</th>" for h in names)
     rows = []
-    for i in range(len(p.c["uncertainty"]["budget"])):  # type: ignore[arg-type,call-overload,index]
+    for i in range(count(p.c, "uncertainty", "budget")):
         b = f"uncertainty.budget[{i}]"
         us = "".join(p.v(f"{b}.u.{n}", "td", "num") for n, _ in BUDGET_U)
         rows.append(f"<tr>{p.v(f'{b}.source', 'td')}{p.v(f'{b}.type', 'td')}{p.v(f'{b}.input', 'td', 'num')}"
@@ -213,11 +213,14 @@ def read_page(text: str) -> PageRead:
 
 def embedded_certificates(doc: JsonValue) -> list[Certified] | None:
     """The boards of an embedded document, or None when it is not an accelcal certificate's."""
-    if not isinstance(doc, dict) or doc.get("schema") != SCHEMA or not isinstance(doc.get("certificates"), list):
+    items = doc.get("certificates") if isinstance(doc, dict) and doc.get("schema") == SCHEMA else None
+    if not isinstance(items, list):
         return None
     out = []
-    for c in doc["certificates"]:  # type: ignore[union-attr]
-        if not (isinstance(c, dict) and isinstance(c.get("content"), dict) and isinstance(c.get("sha256"), str)):
+    for c in items:
+        content = c.get("content") if isinstance(c, dict) else None
+        sha = c.get("sha256") if isinstance(c, dict) else None
+        if not (isinstance(content, dict) and isinstance(sha, str)):
             return None
-        out.append(Certified(c["content"], c["sha256"]))  # type: ignore[arg-type]
+        out.append(Certified(content, sha))
     return out

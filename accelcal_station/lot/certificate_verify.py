@@ -39,6 +39,8 @@ class Mismatch:
         if self.kind == "hash":
             return (f"{KINDS['hash']}: run {self.run}'s embedded content no longer has its SHA-256 "
                     f"({self.file_value}); {self.store_value}")
+        if self.kind == "store" and self.field == "run":
+            return f"{KINDS['store']}: run {self.run}: {self.store_value}"
         if self.kind == "missing":
             return f"{KINDS['missing']}: run {self.run}: {self.field} {self.file_value}"
         return f"{KINDS['store']}: run {self.run} {self.field}: certificate {self.file_value}, store {self.store_value}"
