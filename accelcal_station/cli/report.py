@@ -18,6 +18,7 @@ from ._common import MAX_ID, Whole, force_option
 from ._mes import JsonGroup
 from ._report_filters import filter_options, open_reader, run_filters, store_target_of
 from ._text import clean
+from .certificate import certificate_command, verify_certificate_command
 from .msa import msa_command
 
 
@@ -322,3 +323,5 @@ def plot_cmd(run_id: int, db: str | None, config_path: str | None, output: str |
 
 
 command.add_command(msa_command)  # `report msa` (cli/msa.py)
+command.add_command(certificate_command)  # `report certificate` (cli/certificate.py)
+command.add_command(verify_certificate_command)  # `report verify-certificate`

@@ -11,7 +11,9 @@ the store holds for the run and where the result was kept.
 from __future__ import annotations
 
 import contextlib
+import functools
 from collections.abc import Mapping
+from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, TypedDict
 
@@ -59,6 +61,7 @@ class RunSummary(FitFigures, total=False):
     timing: Timing
     thermal: ThermalSummary | None
     nvm_verified: bool
+    software_version: str | None  # the accelcal that recorded the run (its certificate names it)
     panel_id: str | None
     jig_pose: JigPoseRecord | None
 
@@ -94,18 +97,31 @@ class FinishArgs(TypedDict):
     uncertainty: Mapping[str, object] | None
 
 
+@functools.cache
+def software_version() -> str | None:
+    """The installed accelcal-station's version (the package's __version__, which setuptools stamps into
+    the distribution); read from the distribution because the package root imports the library face,
+    a layer above the station.  None when running from a tree that was never installed."""
+    try:
+        return metadata.version("accelcal-station")
+    except metadata.PackageNotFoundError:
+        return None
+
+
 def board_summary(cfg: StationConfig, rep: RunReport) -> RunSummary:
     """A single board's run at room temperature: its fit's figures, reason codes and what it measured."""
     return {**fit_figures(rep.fit), "reason_codes": codes(rep.reasons), "measured": rep.measured,
             "verify_error_max_mg": rep.verify_error_max_mg, "offset_trim_lsb": rep.offset_trim_lsb,
             "offset_trim": rep.offset_trim, "self_test": rep.self_test, "warmup": rep.warmup, "design": cfg.design,
-            "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified}
+            "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified,
+            "software_version": software_version()}
 
 
 def thermal_summary(cfg: StationConfig, rep: RunReport, thermal: ThermalSummary) -> RunSummary:
     """A single board's thermal plan: what it measured, its timing and the plan's summary."""
     return {"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg, "design": cfg.design,
-            "timing": rep.timing, "thermal": thermal, "nvm_verified": rep.nvm_verified, "self_test": rep.self_test}
+            "timing": rep.timing, "thermal": thermal, "nvm_verified": rep.nvm_verified, "self_test": rep.self_test,
+            "software_version": software_version()}
 
 
 def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est: JigPoseEstimate | None,
@@ -117,7 +133,7 @@ def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est:
         "measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
         "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim, "self_test": rep.self_test,
         "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified,
-        "panel_id": panel_id,
+        "panel_id": panel_id, "software_version": software_version(),
         "jig_pose": jig}
     if thermal is not None:
         out["thermal"] = thermal
