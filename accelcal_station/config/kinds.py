@@ -109,11 +109,12 @@ class SpreadSection(Section):
 # --- the board: one model per driver (``device.driver`` picks it), each with only its own keys -----------
 
 def _check_mount(v: list[str] | None) -> list[str] | None:
-    """A mounting must be one of the 24 proper rotations (conventions.mount_matrix)."""
+    """A mounting must be one of the 24 proper rotations: its matrix (mount_p, the one place text becomes
+    a matrix) written back as text (conventions.mount_label, the one place a matrix is written)."""
     if v is not None:
-        from ..conventions import mount_label, mount_matrix
+        from ..conventions import mount_label
 
-        return mount_label(mount_matrix(v))
+        return mount_label(mount_p(v))
     return v
 
 
