@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 from ..config.kinds import Mma8451Device, Mpu6050Device, SimulatedDevice
 from .base import Driver
+from .registry import declares
 
 if TYPE_CHECKING:
     from ..config.section import Section
@@ -25,6 +26,7 @@ def section_as(device: Section, kind: type[S], name: str) -> S:
     return device
 
 
+@declares(SimulatedDevice)
 def build_simulated(device: Section, path: str, buses: MuxBuses) -> Driver:
     """``driver: simulated``: a simulated board (forward physics) behind the Driver interface."""
     from .simulated import SimulatedBoard, SimulatedDriver
@@ -32,6 +34,7 @@ def build_simulated(device: Section, path: str, buses: MuxBuses) -> Driver:
     return SimulatedDriver(SimulatedBoard.from_section(section_as(device, SimulatedDevice, "simulated"), path=path))
 
 
+@declares(Mma8451Device)
 def build_mma8451(device: Section, path: str, buses: MuxBuses) -> Driver:
     """``driver: mma8451``: on /dev/i2c-N, or behind channel ``channel`` of the TCA9548A at ``mux``."""
     m = section_as(device, Mma8451Device, "mma8451")
@@ -44,6 +47,7 @@ def build_mma8451(device: Section, path: str, buses: MuxBuses) -> Driver:
     return MMA8451(m.bus, **settings_of(m, path))
 
 
+@declares(Mpu6050Device)
 def build_mpu6050(device: Section, path: str, buses: MuxBuses) -> Driver:
     """``driver: mpu6050``: the serial bridge on a port."""
     from .mpu6050 import MPU6050Bridge, settings_of

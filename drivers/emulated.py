@@ -22,6 +22,7 @@ from .mma8451_emulator import MMA8451Emulator
 from .mpu6050 import MPU6050Bridge, Mpu6050Settings
 from .mpu6050 import settings_of as mpu6050_settings
 from .mpu6050_emulator import MPU6050BridgeEmulator
+from .registry import declares
 from .tca9548a import MuxBus, MuxBuses, MuxChannel, mux_settings
 from .tca9548a_emulator import TCA9548AEmulator
 
@@ -101,12 +102,14 @@ def emulated_muxed_mma8451(m: Mma8451Device, path: str, buses: MuxBuses) -> Emul
     return drv
 
 
+@declares(Mma8451Device)
 def build_mma8451(device: Section, path: str, buses: MuxBuses) -> Driver:
     """``mma8451-emulated`` (drivers/registry.py): ``bus: emulated``, alone or behind an emulated TCA9548A."""
     m = section_as(device, Mma8451Device, "mma8451-emulated")
     return emulated_mma8451(m, path) if m.mux is None else emulated_muxed_mma8451(m, path, buses)
 
 
+@declares(Mpu6050Device)
 def build_mpu6050(device: Section, path: str, buses: MuxBuses) -> Driver:
     """``mpu6050-emulated`` (drivers/registry.py): ``port: emulated``, the bridge emulator on a pseudo-terminal."""
     return emulated_mpu6050(section_as(device, Mpu6050Device, "mpu6050-emulated"), path)

@@ -354,3 +354,33 @@ def test_config_docs_read_as_yaml_not_python_reprs() -> None:
     assert rows[("device.mux (driver: mma8451)", "address")] == ("int", "`0x70`", "0x70 to 0x77")
     assert rows[("device (driver: mma8451)", "range_g")][0] == "2 / 4 / 8"
     assert rows[("device (driver: simulated)", "seated_deg")][0] == "list of 3 float \\| null"
+
+
+def test_station_config_copies_no_schema_field(tmp_path: Path) -> None:
+    """Issue 52: StationConfig holds the validated schema and derives every value from it (read-only), so
+    a section replaced through with_sections carries its derived values along and a cross-key rule is
+    checked again; nothing can be assigned beside the schema."""
+    import dataclasses
+
+    from accelcal_station.config.schema import CaptureSection, NvmSection, PlanSection
+    from accelcal_station.errors import ConfigError
+    from accelcal_station.station.settings import StationConfig
+
+    cfg = StationConfig.load(default_config_path())
+    assert set(cfg.__dataclass_fields__) == {"schema", "text", "path", "store_override", "workdir"}
+    assert (cfg.design, cfg.model, cfg.nvm_write) == (cfg.schema.plan.design, str(cfg.schema.plan.model),
+                                                      (cfg.schema.nvm or NvmSection()).write)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.model = "6"  # type: ignore[misc]
+    six = cfg.with_sections(plan=PlanSection(design="an4399-6", model=6),
+                            capture=CaptureSection(min_samples=77), nvm=NvmSection(write=False, offset_trim=True))
+    assert (six.design, six.model, six.capture.min_samples, six.nvm_write, six.offset_trim) == \
+        ("an4399-6", "6", 77, False, True)
+    assert (cfg.model, cfg.capture.min_samples) != ("6", 77)  # the original is untouched
+    with pytest.raises(ConfigError, match="nvm.offset_trim: the 15-parameter model"):
+        six.with_sections(plan=PlanSection(model=15))
+    with pytest.raises(ConfigError, match="capture.k_leave must be >= capture.k_enter"):
+        cfg.with_sections(capture=CaptureSection(k_enter=5.0, k_leave=4.0))
+    # --store is the one value the command line adds; a relative store.path is taken from the folder of the load
+    assert StationConfig.load(default_config_path(), store_override=tmp_path / "x.sqlite").store_file == \
+        tmp_path / "x.sqlite"

@@ -126,3 +126,24 @@ def test_thermal_plan_reads_on_until_the_mounting_is_singled_out(tmp_path):
     cfg["device"]["mount"] = ["z", "x", "y"]
     r = _run(cfg, tmp_path)
     assert r.exit_code == 0 and "PASS board" in r.output, r.output
+
+
+def test_one_place_turns_a_mount_into_a_matrix_and_one_writes_it():
+    """Issue 52: ``device.mount`` (a panel board's ``mount``, ``true_mount``) becomes a matrix only in
+    config/kinds.py ``mount_p`` (through conventions.mount_matrix) and is written as text only by
+    conventions.mount_label: no module parses or spells a mounting on its own."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    files = [f for d in ("accelcal_station", "drivers", "fixtures") for f in sorted((root / d).rglob("*.py"))]
+    assert len(files) > 50  # the scan itself sees the package
+    calls = {name: sorted(f"{f.relative_to(root)}" for f in files
+                          if re.search(rf"(?<!def ){name}\(", f.read_text()))
+             for name in ("mount_matrix", "mount_label")}
+    assert calls["mount_matrix"] == ["accelcal_station/config/kinds.py"], calls
+    assert set(calls["mount_label"]) <= {"accelcal_station/config/kinds.py", "accelcal_station/conventions.py"}, calls
+    # the matrix comes from mount_p: no module builds one from the section's list itself
+    direct = [f"{f.relative_to(root)}" for f in files
+              if re.search(r"np\.array\([^)]*\.mount\b|mount_matrix\([^)]*\.mount\b", f.read_text())]
+    assert not direct, direct

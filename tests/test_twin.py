@@ -131,10 +131,11 @@ def test_whatif_predicts_the_real_yield(line: dict[str, Path]) -> None:
     """Five limit settings: the first through the command, the rest through the same functions
     (one read of the real lot); the real lot's own yield comes from the batch path."""
     from accelcal_station.twin.fit import lot_stats
-    from accelcal_station.twin.simlot import load_device
+    from accelcal_station.twin.simlot import twin_device
     from accelcal_station.twin.whatif import parse_limits, whatif
 
-    base_limits = load_device(str(line["twin"]))[3]
+    twin = twin_device(str(line["twin"]))  # the config read once, typed
+    base_limits = twin.limits
     seen = []
     for k, limits in enumerate(WHATIF):
         if k == 0:
@@ -145,7 +146,7 @@ def test_whatif_predicts_the_real_yield(line: dict[str, Path]) -> None:
             d = json.loads(r.stdout)
             stats = lot_stats(line["lot"])[0]
         else:
-            d = whatif(str(line["twin"]), stats, parse_limits(limits, base_limits), 4000)
+            d = whatif(twin, stats, parse_limits(limits, base_limits), 4000)
         base = yaml.safe_load(default_config_path().read_text())["acceptance"]
         base.update({key: float(v) for key, v in (lim.split("=") for lim in limits)})
         s = recalibrate_lot(line["lot"], line["dir"] / "res.csv", "15", limits=Limits.from_config(base))

@@ -153,13 +153,13 @@ def whatif_cmd(source: str | None, db: str | None, since: str | None, station: s
                limits: tuple[str, ...], boards: int, seed: int | None, as_json: bool) -> None:
     """Predicted yield of a lot like SOURCE under changed acceptance limits, with an interval that
     carries the twin's own doubt; compared with SOURCE's own yield under those limits."""
-    from ..twin.simlot import load_device
+    from ..twin.simlot import twin_device
     from ..twin.whatif import parse_limits, whatif
 
-    base: Limits = load_device(config)[3]
-    lim = parse_limits(limits, base)
+    device = twin_device(config)  # read once, typed (simlot.TwinDevice)
+    lim = parse_limits(limits, device.limits)
     stats, _ = _stats(source, db, since, station, lim)
-    r = whatif(config, stats, lim, boards, seed, real_yield=stats.verdicts.get("PASS", 0) / max(stats.boards, 1))
+    r = whatif(device, stats, lim, boards, seed, real_yield=stats.verdicts.get("PASS", 0) / max(stats.boards, 1))
     y, f = r["first_pass_yield"], r["failures"]
     lines = [f"first-pass yield {y['value']:.4f} (interval {y['interval'][0]:.4f}-{y['interval'][1]:.4f}, "
              f"parameter sd {y['parameter_sd']:.4f}); now {r['yield_now']:.4f}; after one retest "

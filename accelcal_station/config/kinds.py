@@ -109,11 +109,12 @@ class SpreadSection(Section):
 # --- the board: one model per driver (``device.driver`` picks it), each with only its own keys -----------
 
 def _check_mount(v: list[str] | None) -> list[str] | None:
-    """A mounting must be one of the 24 proper rotations (conventions.mount_matrix)."""
+    """A mounting must be one of the 24 proper rotations: its matrix (mount_p, the one place text becomes
+    a matrix) written back as text (conventions.mount_label, the one place a matrix is written)."""
     if v is not None:
-        from ..conventions import mount_label, mount_matrix
+        from ..conventions import mount_label
 
-        return mount_label(mount_matrix(v))
+        return mount_label(mount_p(v))
     return v
 
 
@@ -336,7 +337,22 @@ class Mpu6050Device(_PanelKeys, Mpu6050PanelBoard):
 
 
 DeviceSection = SimulatedDevice | Mma8451Device | Mpu6050Device
-"""A validated ``device`` section: one driver's model."""
+"""A validated ``device`` section: one driver's model (the built-in drivers' for typing; the schema's union
+is the registry's, config/driver_models.py)."""
+BUILT_IN_DEVICES: dict[str, type[Section]] = {"simulated": SimulatedDevice, "mma8451": Mma8451Device,
+                                              "mpu6050": Mpu6050Device}
+
+
+class DeviceKeys(_PanelKeys, _SlotKeys):
+    """The base of a new chip's ``device`` model (docs/drivers.md, "Adding a chip"): what the station adds to
+    a driver's own keys (``mount``, a panel's ``spread``, ...). The model declares ``driver:
+    Literal["NAME"]`` (its entry point's name), its own keys and ``boards``; the built-in models carry the
+    same keys through their panel-board bases."""
+
+    @property
+    def emulated(self) -> bool:
+        """An emulated bus or port (the registry's ``NAME-emulated`` entry builds it): none by default."""
+        return False
 
 
 def _tag(key: str, default: str) -> Any:
@@ -362,13 +378,6 @@ def _discriminator(key: str, default: str, models: dict[str, type[Section]],
 
 TAGGED: dict[str, type[Section]] = {}  # "driver=mma8451" -> its model
 CHOICES: dict[str, tuple[str, tuple[str, ...]]] = {}  # a union -> its discriminating key, the values it may take
-DEVICE_MODELS: dict[str, type[Section]] = {"simulated": SimulatedDevice, "mma8451": Mma8451Device,
-                                           "mpu6050": Mpu6050Device}
-Device = Annotated[
-    Annotated[SimulatedDevice, Tag("driver=simulated")] | Annotated[Mma8451Device, Tag("driver=mma8451")]
-    | Annotated[Mpu6050Device, Tag("driver=mpu6050")],
-    _discriminator("driver", "simulated", DEVICE_MODELS)]
-"""The ``device`` field: one validation picks the driver's model and checks its keys."""
 
 
 # --- the jig: one model per type (``jig.type`` picks it) ----------------------------------------------

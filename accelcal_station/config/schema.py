@@ -12,20 +12,21 @@ from these models (``python -m accelcal_station.config.docs``).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
 
 from pydantic import Field, StrictBool, Tag
 
 from ..errors import ConfigError
+from .driver_models import device_models
 from .kinds import (  # noqa: F401 - re-exported: every section model is reachable from the schema
+    BUILT_IN_DEVICES,
     CHOICES,
-    DEVICE_MODELS,
     JIG_MODELS,
     TAGGED,
     BridgeEmulatorSection,
     BusEmulatorSection,
     CorruptReadsSection,
-    Device,
+    DeviceKeys,
     DeviceSection,
     HandSection,
     I2cEepromSection,
@@ -56,6 +57,15 @@ from .kinds import (  # noqa: F401 - re-exported: every section model is reachab
 from .section import MAX_BOARDS, Section, Triple, _f  # noqa: F401
 from .site_section import SiteSection
 from .validation import _models_in, _range, error_line, validate  # noqa: F401 (the schema's public names)
+
+DEVICE_MODELS: dict[str, type[Section]] = device_models()
+"""``device.driver`` -> its model: every ``accelcal.drivers`` entry point's declared model (driver_models.py)."""
+if TYPE_CHECKING:
+    Device = DeviceSection
+else:
+    Device = Annotated[Union[tuple(Annotated[m, Tag(f"driver={n}")] for n, m in DEVICE_MODELS.items())],  # noqa: UP007
+                       _discriminator("driver", "simulated", DEVICE_MODELS)]
+"""The ``device`` field: one validation picks the registered driver's model and checks its keys."""
 
 
 class StationSection(Section):

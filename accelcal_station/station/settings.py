@@ -4,7 +4,8 @@ schema's typed sections (``StationConfig.schema``): the station, its factories a
 those, never the file's mapping again."""
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 
 from pydantic import BaseModel
@@ -27,7 +28,7 @@ from ..config.schema import (
     validate_station,
 )
 from ..config.sections import default_config_path, with_port
-from ..config.site import STANDARD_SITE, Site
+from ..config.site import Site
 from ..config.site_section import site_of
 from ..errors import ConfigError
 from ..fixtures.designs import get_design
@@ -37,28 +38,18 @@ from ..store.location import outbox_of, store_path, store_target
 from .capture import CaptureSettings
 
 
-@dataclass
+@dataclass(frozen=True)
 class StationConfig:
-    """A checked station configuration (every error names its key path)."""
+    """A checked station configuration (every error names its key path).
+
+    It holds the validated schema and what the file and the command line gave besides it; every other
+    value is derived from ``schema`` (computed once, read-only), so none can disagree with it."""
 
     schema: StationConfigSchema  # every section, validated once (config/schema.py)
     text: str  # the text that was parsed, recorded with every run
     path: Path
-    station_id: str
-    design: str
-    model: str
-    capture: CaptureSettings
-    limits: Limits
-    nvm_write: bool
-    slot_size: int | None
-    offset_trim: bool
-    verify_poses: int
-    verify_design: str | None
-    store_file: Path | str  # a file, or a store URL (postgresql://...)
-    web_token: str | None = None  # web.token: what starting or aborting a run over the web API needs
-    event_log: LoggingSection | None = None  # logging: (config/event_log.py)
-    web_read_token: str | None = None  # web.read_token: what every read of `accelcal serve` needs
-    site: Site = STANDARD_SITE  # station.site: the gravity the jig's references are scaled to (config/site.py)
+    store_override: Path | str | None = None  # --store: a file or store URL instead of store.path
+    workdir: Path = field(default_factory=Path.cwd)  # where a relative store.path is taken from (at load)
 
     @classmethod
     def load(cls, path: str | Path | None = None, store_override: str | Path | None = None,
@@ -70,39 +61,121 @@ class StationConfig:
         # the declared schema (config/schema.py): every key, type, finite number and range, each
         # driver's and jig type's own keys included (discriminated on device.driver and jig.type)
         sc = _with_ports(validate_station(raw), port, jig_port)
-        # then what depends on more than one key, in this order (a config with several errors
-        # names the same one first)
         if "device" not in raw:
             raise ConfigError(f"{p}: device: required (a mapping with a 'driver' key)")
-        design, model = _plan(sc.plan or PlanSection())
-        settings = _capture_settings(sc.capture or CaptureSection())
-        nvm = sc.nvm or NvmSection()
-        if nvm.offset_trim and model == "15":
-            raise ConfigError("nvm.offset_trim: the 15-parameter model's cubic term cannot be moved into "
-                              "offset registers; allowed with models 6, 9, 12")
-        ver = sc.verify or VerifySection()
-        if ver.design is not None:
-            get_design(ver.design)
         # a relative store path is taken from the current directory: the station's
         # working folder, never the (possibly installed, read-only) config folder
-        store_file = store_target(store_override) if store_override else store_path(sc.store, Path.cwd())
-        limits = Limits.from_section(sc.acceptance)
-        verify_poses = _verify_poses(ver.poses, limits)
-        return cls(sc, text, p, (sc.station or StationSection()).id, design, model, settings,
-                   limits, nvm.write, nvm.slot_size, nvm.offset_trim, verify_poses, ver.design, store_file,
-                   _web_token(sc.web), sc.logging,
-                   _web_token(sc.web, read=True), site_of((sc.station or StationSection()).site))
+        return cls(sc, text, p, store_target(store_override) if store_override else None)._checked()
+
+    def _checked(self) -> StationConfig:
+        """What depends on more than one key, in this order (a config with several errors names the
+        same one first): each derived value computed now, so a bad one fails at load, not mid-run."""
+        _ = self.design, self.model, self.capture
+        if self.offset_trim and self.model == "15":
+            raise ConfigError("nvm.offset_trim: the 15-parameter model's cubic term cannot be moved into "
+                              "offset registers; allowed with models 6, 9, 12")
+        if self.verify_design is not None:
+            get_design(self.verify_design)
+        _ = self.store_file, self.limits, self.verify_poses, self.web_token, self.web_read_token, self.site
+        return self
+
+    def with_sections(self, **sections: BaseModel) -> StationConfig:
+        """This configuration with some sections replaced by ones already validated (a benchmark's
+        panel of N boards, a jig without moves), each marked as given; the derived values follow."""
+        return replace(self, schema=self.schema.model_copy(update=sections))._checked()
+
+    # --- derived from the schema (read-only; cached where a section is turned into another object) ---
+
+    @property
+    def station_id(self) -> str:
+        """``station.id``: recorded with every run."""
+        return (self.schema.station or StationSection()).id
+
+    @cached_property
+    def _plan(self) -> tuple[str, str]:
+        return _plan(self.schema.plan or PlanSection())
+
+    @property
+    def design(self) -> str:
+        """``plan.design``: the pose design (known: checked at load)."""
+        return self._plan[0]
+
+    @property
+    def model(self) -> str:
+        """``plan.model`` as text ("6", "9", "12", "15")."""
+        return self._plan[1]
+
+    @cached_property
+    def capture(self) -> CaptureSettings:
+        """``capture``: the capture's settings (station/capture.py)."""
+        return _capture_settings(self.schema.capture or CaptureSection())
+
+    @cached_property
+    def limits(self) -> Limits:
+        """``acceptance``: the limits a board is judged by."""
+        return Limits.from_section(self.schema.acceptance)
+
+    @property
+    def _nvm(self) -> NvmSection:
+        return self.schema.nvm or NvmSection()
+
+    @property
+    def nvm_write(self) -> bool:
+        """``nvm.write``: burn the calibration."""
+        return self._nvm.write
+
+    @property
+    def slot_size(self) -> int | None:
+        """``nvm.slot_size``: bytes per slot (None: the blob's size)."""
+        return self._nvm.slot_size
+
+    @property
+    def offset_trim(self) -> bool:
+        """``nvm.offset_trim``: move the offset into the chip's offset registers too."""
+        return self._nvm.offset_trim
+
+    @property
+    def verify_poses(self) -> int:
+        """``verify.poses`` (0 only when no limit needs the verification captures)."""
+        return _verify_poses((self.schema.verify or VerifySection()).poses, self.limits)
+
+    @property
+    def verify_design(self) -> str | None:
+        """``verify.design`` (None: the plan's)."""
+        return (self.schema.verify or VerifySection()).design
+
+    @cached_property
+    def store_file(self) -> Path | str:
+        """A file, or a store URL (postgresql://...): ``--store``, else ``store.path`` from ``workdir``."""
+        if self.store_override is not None:
+            return self.store_override
+        return store_path(self.schema.store, self.workdir)
+
+    @property
+    def web_token(self) -> str | None:
+        """``web.token``: what starting or aborting a run over the web API needs."""
+        return _web_token(self.schema.web)
+
+    @property
+    def web_read_token(self) -> str | None:
+        """``web.read_token``: what every read of `accelcal serve` needs."""
+        return _web_token(self.schema.web, read=True)
+
+    @property
+    def event_log(self) -> LoggingSection | None:
+        """``logging`` (config/event_log.py)."""
+        return self.schema.logging
+
+    @cached_property
+    def site(self) -> Site:
+        """``station.site``: the gravity the jig's references are scaled to (config/site.py)."""
+        return site_of((self.schema.station or StationSection()).site)
 
     @property
     def operator_page_token(self) -> str | None:
         """What every request of the operator page (`run --ui web`) needs: web.operator_token, else
         web.read_token (docs/security.md, "The operator page")."""
         return _web_token(self.schema.web, key="operator_token") or self.web_read_token
-
-    def with_sections(self, **sections: BaseModel) -> StationConfig:
-        """This configuration with some sections replaced by ones already validated (a benchmark's
-        panel of N boards, a jig without moves), each marked as given."""
-        return replace(self, schema=self.schema.model_copy(update=sections))
 
     @property
     def device(self) -> DeviceSection:

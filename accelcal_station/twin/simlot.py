@@ -10,7 +10,9 @@ import numpy as np
 
 from ..acceptance.rules import Limits
 from ..config.checks import load_yaml
+from ..config.kinds import SimulatedDevice
 from ..config.parts import SimulatedBoardSection, parse
+from ..config.schema import StationConfigSchema, validate_station
 from ..data.lotfile import LotChunk
 from ..drivers.simulated import load_physics, load_simulator
 from ..errors import ConfigError
@@ -72,19 +74,27 @@ def load_device(path: str) -> tuple[SensorModel, Population | None, int, Limits]
 
 
 def twin_device(path: str) -> TwinDevice:
-    """The config at ``path`` as a TwinDevice: its YAML read and checked once."""
-    cfg = load_yaml(path)
-    dev = cfg.get("device")
-    if not isinstance(dev, dict) or dev.get("driver") != "simulated":
+    """The config at ``path`` as a TwinDevice: its YAML read once and validated once against the station
+    schema (config/schema.py), then taken from the typed sections."""
+    try:
+        sc = validate_station(load_yaml(path))
+    except ConfigError as e:
+        raise ConfigError(f"{path}: {e}") from None
+    return device_of(sc, path)
+
+
+def device_of(sc: StationConfigSchema, path: str) -> TwinDevice:
+    """A validated station config's simulated device and acceptance limits as a TwinDevice."""
+    board = sc.device
+    if not isinstance(board, SimulatedDevice):
         raise ConfigError(f"{path}: device.driver must be simulated (a twin simulates the lot)")
-    board = board_section(dev, f"{path}: device")
     effects, epath, pop_spec = load_simulator(board, f"{path}: device")
     chip = get_chip(board.chip or "mma8451", f"{path}: device.chip")
     model = SensorModel.from_config(effects, chip, epath, forward=load_physics(board, f"{path}: device"))
     pop = None if pop_spec is None else parse_population(pop_spec, model.effects, epath.rsplit(".", 1)[0]
                                                          + ".population")
     range_g = board.range_g or chip.default_range_g
-    return TwinDevice(path, model, pop, range_g, Limits.from_config(cfg.get("acceptance"), f"{path}: acceptance"))
+    return TwinDevice(path, model, pop, range_g, Limits.from_section(sc.acceptance))
 
 
 def lot_chunk(a: int, mean: np.ndarray, std: np.ndarray, samples: int, like: LotStats) -> LotChunk:

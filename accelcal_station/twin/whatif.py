@@ -24,7 +24,7 @@ from .check import new_seed
 from .doubt import yield_replicates
 from .fit import MIXTURE_ROWS
 from .records import ReasonGrowth, WhatIfReport
-from .simlot import load_device, sim_chunks
+from .simlot import TwinDevice, sim_chunks
 from .stream import LotStats, collect
 
 Z = 3.0
@@ -57,13 +57,13 @@ def _reason_rates(stats: LotStats) -> dict[str, float]:
     return {k: v / max(stats.boards, 1) for k, v in stats.reasons.items()}
 
 
-def whatif(config: str, like: LotStats, limits: Limits, boards: int = 20_000, seed: int | None = None,
+def whatif(device: TwinDevice, like: LotStats, limits: Limits, boards: int = 20_000, seed: int | None = None,
            real_yield: float | None = None) -> WhatIfReport:
     """Predicted first-pass and final yield under ``limits``, the reasons that grow, the failures
     split noise-like / systematic, and (``real_yield``: the lot's own under ``limits``) a warning
     when the lot's yield lies outside the prediction."""
     seed = new_seed() if seed is None else seed
-    model, pop, range_g, base_limits = load_device(config)
+    model, pop, range_g, base_limits = device.model, device.population, device.range_g, device.limits
     cpg = model.chip.counts_per_g(range_g)
     rng = np.random.default_rng(seed)
     idx = np.arange(boards)
@@ -87,7 +87,7 @@ def whatif(config: str, like: LotStats, limits: Limits, boards: int = 20_000, se
     grows: list[ReasonGrowth] = [{"reason": k, "before": now.get(k, 0.0), "after": v}
              for k, v in sorted(grow.items(), key=lambda kv: now.get(kv[0], 0.0) - kv[1]) if v > now.get(k, 0.0)]
     out: WhatIfReport = {
-        "config": config, "seed": seed, "simulated_boards": boards, "real_boards": like.boards,
+        "config": device.path, "seed": seed, "simulated_boards": boards, "real_boards": like.boards,
         "limits": limits.values,
         "first_pass_yield": {"value": y, "interval": [lo, hi], "parameter_sd": sd1},
         "yield_after_one_retest": {"value": yf, "interval": [lof, hif], "parameter_sd": sdf},
