@@ -57,7 +57,7 @@ def station_msa(store: Store, station: str | None) -> MsaBadge:
     try:
         study = build_study(recs, "operator")
     except DataError as e:
-        return _none(str(e).split(":")[0][:80])
+        return _none(str(e)[:160])
     results = [r for r in analyse(study) if str(r["parameter"]).startswith(("V_", "W_"))]
     judged = [r for r in results if isinstance(r["pct_grr"], (int, float))]
     if not judged:

@@ -354,11 +354,14 @@ def lot_runs(store: Store, lot: str, cursor: str, limit: int) -> RunsPage:
 def lot_context(store: Store, lot: str, cursor: str = "", limit: int = PAGE_SIZE) -> LotContext:
     """The lot page: counts grouped in SQL, a page of its runs, and on its first page (no cursor) the
     parameters' statistics and run charts of the lot's calibrations, each run against its own limits."""
-    summ = queries.lot_counts(store, lot)
     charts: list[Chart] = []
     table: list[ParamRow] = []
+    if cursor:  # a later page of runs: the runs only (the summary is the first page's)
+        return {"lot": lot, "summary": None, "charts": [], "parameters": [], "lots": [],
+                "runs_page": lot_runs(store, lot, cursor, limit)}
+    summ = queries.lot_counts(store, lot)
     page = lot_runs(store, lot, cursor, limit) if summ["runs"] else None
-    cals = queries.lot_calibrations(store, lot) if summ["runs"] and not cursor else []
+    cals = queries.lot_calibrations(store, lot) if summ["runs"] else []
     rows: list[LotCalibration] = []
     vecs: list[list[float]] = []
     for c in cals:
