@@ -135,8 +135,7 @@ def test_the_line_page_at_100000_runs_stays_under_its_byte_and_height_budget(big
                                ".map(c => c.textContent);")
     assert len(cards) == 8 and all("Gage R&R: no study" in c for c in cards)
     (t_new,), = _sql(big, "SELECT max(started_at) FROM runs")
-    lots = {lot: n for lot, n in _sql(big, "SELECT lot, count(*) FROM runs WHERE started_at >= ? GROUP BY lot",
-                                      t_new - 86400)}
+    lots = dict(_sql(big, "SELECT lot, count(*) FROM runs WHERE started_at >= ? GROUP BY lot", t_new - 86400))
     shown = drv.execute_script("return Array.from(document.querySelectorAll('#lot-yields tbody tr'))"
                                ".map(r => [r.cells[0].textContent, Number(r.cells[1].textContent)]);")
     assert dict(shown) == lots
@@ -195,9 +194,8 @@ def _study_store(path: Path) -> np.ndarray:
                 cal = _cal(W.tolist(), V)
                 t += 60
                 rows.append((t, f"SN-{k}", "st-msa", op, json.dumps(cal)))
-    for k in range(3):
-        rows.append((t + 60 * (k + 1), f"ONCE-{k}", "st-once", "alice", json.dumps(_cal(np.eye(3).tolist(),
-                                                                                         [0.0, 0.0, 0.0]))))
+    once = json.dumps(_cal(np.eye(3).tolist(), [0.0, 0.0, 0.0]))
+    rows += [(t + 60 * (k + 1), f"ONCE-{k}", "st-once", "alice", once) for k in range(3)]
     with sqlite3.connect(path) as db:
         db.executemany("INSERT INTO runs (started_at, finished_at, status, device_serial, station_id, operator,"
                        " verdict, reasons, calibration, model) VALUES (?, ?+40, 'complete', ?, ?, ?, 'PASS', '[]',"

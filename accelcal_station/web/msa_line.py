@@ -22,10 +22,8 @@ from ..store import linequeries as lq
 from ..store.reader import StoreReader as Store
 
 MAX_PARTS = 50
-MAX_RUNS = 1000
+MAX_RUNS = 400
 _CACHE_MAX = 256
-_cache: dict[tuple[str, str | None], tuple[int | None, "MsaBadge"]] = {}
-_lock = threading.Lock()
 
 
 class MsaBadge(TypedDict):
@@ -39,6 +37,10 @@ class MsaBadge(TypedDict):
     appraisers: int
     trials: int
     why: str
+
+
+_cache: dict[tuple[str, str | None], tuple[int | None, MsaBadge]] = {}  # (store, station): (newest id, badge)
+_lock = threading.Lock()
 
 
 def _none(why: str) -> MsaBadge:
