@@ -203,7 +203,7 @@ def _study_store(path: Path) -> np.ndarray:
     return x
 
 
-def test_each_station_shows_its_gage_rr_beside_its_yield(tmp_path):
+def test_each_station_shows_its_gage_rr_beside_its_yield(tmp_path, site):
     db = tmp_path / "msa.sqlite"
     x = _study_store(db)
     want_pct, want_ndc = _independent_pct_grr_ndc(x)
@@ -216,3 +216,11 @@ def test_each_station_shows_its_gage_rr_beside_its_yield(tmp_path):
     assert got.group(3) == "V_x" and "Yield" in card
     once = re.search(r'data-station="st-once">(.*?)</article>', html, re.S).group(1)
     assert "Gage R&amp;R: no study" in once and "no board measured more than once" in once
+    _, drv = site  # and as Chromium draws it, beside the yield
+    with live_server(str(db)) as base:
+        drv.get(base + "/")
+        WebDriverWait(drv, 60).until(lambda d: "updated" in d.find_element(By.ID, "live").text)
+        text = drv.execute_script("return document.querySelector('.card.station[data-station=\"st-msa\"]')"
+                                  ".innerText;")
+        assert f"{want_pct:.1f} % GRR" in text and f"ndc {want_ndc}" in text and "Yield" in text, text
+        drv.save_screenshot(str(SHOTS / "line-msa.png"))
