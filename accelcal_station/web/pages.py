@@ -1,11 +1,12 @@
-"""What the line, board and lot pages show, as plain values for the templates.
+"""What the board, lot and reason pages show, as plain values for the templates, and the line
+page's window (the line page and a station's charts: linepage.py).
 
 Every chart draws each run against the limits that run was judged by (its stored
 ``limits``; an older run: its own config's acceptance section), never the limits of the
-config ``serve`` was started with.  The line page reads a window (the day before the newest
-run, or a production day / shift picked by the engineer) with grouped SELECTs and at most
-100 runs per station per chart; the lot page groups in SQL and reads one JSON column of
-the lot's runs.
+config ``serve`` was started with.  The window is the day before the newest run, or a
+production day / shift picked by the engineer; the lot page groups in SQL, reads one JSON
+column of the lot's runs for its first page's charts, and shows its runs a page at a time
+(paging.py), as the reason page does.
 """
 from __future__ import annotations
 
