@@ -38,7 +38,7 @@ import numpy as np
 from accelcal_station.acceptance.reasons import Reason
 from accelcal_station.session import PoseRecord, Session
 from accelcal_station.store.runs import Store
-from accelcal_station.web import pages
+from accelcal_station.web import linepage
 from accelcal_station.web.assets import render
 
 STATIONS = [f"line1-st{k}" for k in range(8)]
@@ -86,7 +86,7 @@ def time_line_page(path: Path) -> list[float]:
     for _ in range(7):
         t0 = time.perf_counter()
         with Store(path, create=False) as st:
-            ctx = pages.line_context(st)
+            ctx = linepage.line_context(st)
         render("line.html", title="Line", page="line", **ctx)
         out.append(time.perf_counter() - t0)
     return out

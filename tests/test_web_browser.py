@@ -90,12 +90,13 @@ def test_line_page_shows_two_stations_runs_within_2_s_of_each_finishing(tmp_path
         cards = set(drv.execute_script("return Array.from(document.querySelectorAll('.card.station'))"
                                        ".map(c => c.dataset.station);"))
         assert cards == {"line-A", "line-B"}
-        assert "First pass" in drv.page_source and "Runs against their own limits" in drv.page_source
+        assert "First pass" in drv.page_source and "Charts of its runs" in drv.page_source
         reasons = drv.execute_script("return document.getElementById('reasons').textContent;")
         assert "offset_max_mg" in reasons and "2" in reasons.split("offset_max_mg")[1]
         drv.set_window_size(1400, 1900)
-        assert len(drv.find_elements(By.CSS_SELECTOR, "figure.chart circle.pt")) >= 4 * 4
         screenshot(drv, "line.png")
+        drv.get(base + "/station?station=line-A")  # issue 54: a station's charts are its own page
+        assert len(drv.find_elements(By.CSS_SELECTOR, "figure.chart circle.pt")) >= 4 * 2
         drv.get(base + "/board?serial=line-A-0")
         assert "Run " in drv.page_source and drv.find_elements(By.CSS_SELECTOR, "figure.chart rect.bar")
         assert "nvm_burned" in drv.page_source  # the NVM history
@@ -160,7 +161,7 @@ def test_pages_an_engineer_can_read(tmp_path):
     db = tmp_path / "r.sqlite"
     _readable_store(db)
     with live_server(str(db)) as base, chromium(1400, 1000) as drv:
-        drv.get(base + "/")
+        drv.get(base + "/station?station=st-1")  # issue 54: the charts moved from the line page to the station's
         charts = drv.execute_script("""return Array.from(document.querySelectorAll('figure.chart')).map(f => ({
             pts: f.querySelectorAll('circle.pt').length, xt: f.querySelectorAll('line.xtick').length,
             ys: f.querySelectorAll('text.tick').length,
@@ -174,6 +175,7 @@ def test_pages_an_engineer_can_read(tmp_path):
                                     ".map(t => t.textContent);")
         assert all(re.fullmatch(r"-?\d+(\.\d+)?|\d\d-\d\d \d\d:\d\d|\d\d:\d\d|[a-z/²]+|run start \(UTC\)|"
                                 r"each run's own limit|[xyz]", t) for t in labels), labels
+        drv.get(base + "/")
         card = drv.execute_script("""const c = document.querySelector('.card[data-station="st-2"]');
             const b = c.querySelector('.big'); const cr = c.getBoundingClientRect(), br = b.getBoundingClientRect();
             return [b.textContent, br.left >= cr.left, br.right <= cr.right, b.scrollWidth <= b.clientWidth];""")

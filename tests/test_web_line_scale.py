@@ -151,7 +151,8 @@ ENDPOINTS = {"/api/v1/runs": ["since", "until", "station", "serial", "verdict", 
                               "limit", "total"],
              "/api/v1/events": ["after", "wait_s", "limit"], "/api/v1/events/head": [], "/api/v1/yield": [],
              "/api/v1/events/stream": ["after"], "/": ["day", "shift"], "/fragment/line": ["day", "shift"],
-             "/board": ["serial"], "/lot": ["lot"], "/reason": ["code", "day", "shift", "station"]}
+             "/board": ["serial"], "/lot": ["lot", "cursor", "per"],
+             "/reason": ["code", "day", "shift", "station", "cursor", "per"], "/station": ["station", "day", "shift"]}
 
 
 def _status(base: str, path: str, params: dict | None = None, headers: dict | None = None) -> tuple[int, str, bytes]:

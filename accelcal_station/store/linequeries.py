@@ -84,12 +84,50 @@ def fail_reasons(reader: StoreReader, t0: float, t1: float) -> list[CheckedRow]:
     return checked(reader, select(runs.c.reasons).where(*_fails(t0, t1)))
 
 
-def fail_runs(reader: StoreReader, t0: float, t1: float, station: str | None) -> list[CheckedRow]:
-    """The FAIL runs in [t0, t1) (of one station), newest first."""
+def fail_runs(reader: StoreReader, t0: float, t1: float, station: str | None, order: str = "desc",
+              after_id: int | None = None, limit: int | None = None) -> list[CheckedRow]:
+    """The FAIL runs in [t0, t1) (of one station), newest first (``order`` "asc": oldest first), after
+    ``after_id`` (exclusive; a keyset on id as runpages.run_page, no OFFSET), at most ``limit``."""
+    from .runpages import in_id_range
     from .tables import runs
 
     where = _fails(t0, t1) + ([runs.c.station_id == station] if station is not None else [])
-    return checked(reader, summary_select().where(*where).order_by(runs.c.id.desc()))
+    if after_id is not None:
+        if not in_id_range(after_id):
+            return []
+        where.append(runs.c.id > after_id if order == "asc" else runs.c.id < after_id)
+    stmt = summary_select().where(*where).order_by(runs.c.id.asc() if order == "asc" else runs.c.id.desc())
+    return checked(reader, stmt if limit is None else stmt.limit(int(limit)))
+
+
+def repeated_serials(reader: StoreReader, station: str | None, limit: int) -> list[CheckedRow]:
+    """A station's serials with more than one complete calibrated run (``device_serial``, ``n``, ``last``:
+    the newest id), the ``limit`` most recently measured: the parts of its Gage R&R study."""
+    from sqlalchemy import func, select
+
+    from .tables import runs
+
+    who = runs.c.station_id.is_(None) if station is None else runs.c.station_id == station
+    last = func.max(runs.c.id)
+    return checked(reader, select(runs.c.device_serial, func.count().label("n"), last.label("last"))
+                   .where(who, runs.c.status == "complete", runs.c.calibration.is_not(None),
+                          runs.c.device_serial.is_not(None))
+                   .group_by(runs.c.device_serial).having(func.count() > 1)
+                   .order_by(last.desc()).limit(int(limit)))
+
+
+def lot_yields(reader: StoreReader, t0: float, t1: float, limit: int) -> list[CheckedRow]:
+    """The lots with complete runs in [t0, t1), newest first: ``lot``, ``n`` runs, ``pass``, ``last`` start."""
+    from sqlalchemy import case, func, select
+
+    from .tables import runs
+
+    last = func.max(runs.c.started_at)
+    return checked(reader, select(runs.c.lot, func.count().label("n"),
+                                  func.sum(case((runs.c.verdict == "PASS", 1), else_=0)).label("pass"),
+                                  last.label("last"))
+                   .where(runs.c.status == "complete", runs.c.started_at >= t0, runs.c.started_at < t1, sane_time())
+                   .group_by(runs.c.lot).order_by(last.desc()).limit(int(limit)))
 
 
 def station_series(reader: StoreReader, station: str | None, t0: float, t1: float, limit: int) -> list[CheckedRow]:

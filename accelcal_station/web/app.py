@@ -25,10 +25,11 @@ from contextlib import AbstractAsyncContextManager, asynccontextmanager
 from fastapi import FastAPI, Query, Request
 from fastapi.responses import HTMLResponse, Response
 
-from . import assets, pages
+from . import assets, linepage, pages
 from .api import api_router
 from .errors import error_response, install_errors
 from .lanes import HeavyLanes
+from .paging import PAGE_PARAM, PAGE_SIZE, PAGE_SIZE_MAX
 from .settings import WebSettings, open_store
 
 API_VERSION = "v1"
@@ -92,12 +93,14 @@ def _require_token(app: FastAPI, token: str) -> None:
 def _pages(app: FastAPI, settings: WebSettings, lanes: HeavyLanes) -> None:
     render = assets.render
 
-    def line(day: str, shift: str) -> pages.LineContext:
+    def line(day: str, shift: str) -> linepage.LineContext:
         with open_store(settings) as st:
-            return pages.line_context(st, day, shift)
+            return linepage.line_context(st, day, shift)
 
     day_q = Query("", max_length=10, pattern=r"^(\d{4}-\d{2}-\d{2})?$", description="production day YYYY-MM-DD")
     shift_q = Query("", pattern="^[ABC]?$", description="shift A, B or C of that day")
+    cursor_q = Query("", max_length=21, pattern=PAGE_PARAM, description="a page of runs: an API cursor or 'oldest'")
+    per_q = Query(PAGE_SIZE, ge=1, le=PAGE_SIZE_MAX, description="runs per page")
 
     @app.get("/", response_class=HTMLResponse, include_in_schema=False)
     def line_page(day: str = day_q, shift: str = shift_q) -> Response:
@@ -107,10 +110,17 @@ def _pages(app: FastAPI, settings: WebSettings, lanes: HeavyLanes) -> None:
     def line_fragment(day: str = day_q, shift: str = shift_q) -> Response:
         return render("line_body.html", **line(day, shift))
 
+    @app.get("/station", response_class=HTMLResponse, include_in_schema=False)
+    def station_page(station: str = Query("", max_length=200), day: str = day_q, shift: str = shift_q) -> Response:
+        with open_store(settings) as st:
+            ctx = linepage.station_context(st, station or None, day, shift)
+        return render("station.html", title=f"Station {station}", page="line", **ctx)
+
     @app.get("/reason", response_class=HTMLResponse, include_in_schema=False)
     async def reason_page(code: str = Query(..., max_length=64), day: str = day_q, shift: str = shift_q,
-                          station: str | None = Query(None, max_length=200)) -> Response:
-        ctx = await lanes.run(pages.reason_page, settings, code, day, shift, station)
+                          station: str | None = Query(None, max_length=200), cursor: str = cursor_q,
+                          per: int = per_q) -> Response:
+        ctx = await lanes.run(pages.reason_page, settings, code, day, shift, station, cursor, per)
         return render("reason.html", title=f"Reason {code}", page="line", **ctx)
 
     @app.get("/board", response_class=HTMLResponse, include_in_schema=False)
@@ -120,6 +130,6 @@ def _pages(app: FastAPI, settings: WebSettings, lanes: HeavyLanes) -> None:
         return render("board.html", title=f"Board {serial}" if serial else "Board", page="board", **ctx)
 
     @app.get("/lot", response_class=HTMLResponse, include_in_schema=False)
-    async def lot_page(lot: str = Query("", max_length=64)) -> Response:
-        ctx = await lanes.run(pages.lot_page, settings, lot)
+    async def lot_page(lot: str = Query("", max_length=64), cursor: str = cursor_q, per: int = per_q) -> Response:
+        ctx = await lanes.run(pages.lot_page, settings, lot, cursor, per)
         return render("lot.html", title=f"Lot {lot}" if lot else "Lots", page="lot", **ctx)

@@ -1,11 +1,12 @@
-"""What the line, board and lot pages show, as plain values for the templates.
+"""What the board, lot and reason pages show, as plain values for the templates, and the line
+page's window (the line page and a station's charts: linepage.py).
 
 Every chart draws each run against the limits that run was judged by (its stored
 ``limits``; an older run: its own config's acceptance section), never the limits of the
-config ``serve`` was started with.  The line page reads a window (the day before the newest
-run, or a production day / shift picked by the engineer) with grouped SELECTs and at most
-100 runs per station per chart; the lot page groups in SQL and reads one JSON column of
-the lot's runs.
+config ``serve`` was started with.  The window is the day before the newest run, or a
+production day / shift picked by the engineer; the lot page groups in SQL, reads one JSON
+column of the lot's runs for its first page's charts, and shows its runs a page at a time
+(paging.py), as the reason page does.
 """
 from __future__ import annotations
 
@@ -23,14 +24,10 @@ from ..store.reader import StoreReader as Store
 from ..store.records import RunRecord, iso
 from . import queries
 from .charts import Chart, RunPoint, residual_chart, run_chart
+from .paging import PAGE_SIZE, RunsPage, page_of
 from .settings import WebSettings, open_store
-from .views import LotCalibration, LotCounts, LotRow, RunView, ShiftYield, StationRow
+from .views import LotCalibration, LotCounts, LotRow, RunFilters, RunView
 
-# the line page's run charts: fit_summary.measured key, title, unit, acceptance limit key
-KEY_PARAMS = [("gain_error_max", "Gain error, max |Wii − 1|", "g/g", "gain_error_max"),
-              ("offset_max_mg", "Offset, max |Vi|", "mg", "offset_max_mg"),
-              ("cross_axis_max", "Cross-axis, max |Wij|", "g/g", "cross_axis_max"),
-              ("residual_rms_mg", "Fit residual RMS", "mg", "residual_rms_mg")]
 # the lot page's parameters: name, index in calibration.param_vector, scale to the unit, unit, limit key, centre
 LOT_PARAMS = ([(f"W{i}{i}", 4 * i, 1.0, "g/g", "gain_error_max", 1.0) for i in range(3)]
               + [(f"V{i}", 9 + i, 1e3, "mg", "offset_max_mg", 0.0) for i in range(3)]
@@ -77,52 +74,12 @@ def pick_window(store: Store, day: str, shift: str) -> Window | None:
     return Window(newest - queries.WINDOW_S, newest + 1e-3, "the day before the newest run")
 
 
-def station_charts(store: Store, station: str | None, w: Window) -> list[Chart]:
-    """One station's run charts over the window, each run against its own limits."""
-    series = queries.station_series(store, station, w.t0, w.t1)
-    charts = []
-    for key, title, unit, lkey in KEY_PARAMS:
-        pts = [RunPoint(s["t"], s["measured"][key], s["limits"].get(lkey), None, f"run {s['id']}")
-               for s in series if key in s["measured"]]
-        charts.append(run_chart(title, unit, pts, nonneg=True))
-    return charts
-
-
-class LineContext(TypedDict):
-    """The line page (line.html, line_body.html)."""
-
-    empty: bool
-    window: Window | None
-    window_from: str | None
-    window_to: str | None
-    day: str
-    shift: str
-    stations: list[StationRow]
-    shifts: list[ShiftYield]
-    reasons: list[tuple[str, int]]
-    recent: list[RunView]
-    station_charts: list[tuple[str | None, list[Chart]]]
-
-
-def line_context(store: Store, day: str = "", shift: str = "") -> LineContext:
-    """Stations, yields per station and shift, reasons and per-station run charts (aggregate queries only)."""
-    w = pick_window(store, day, shift)
-    if w is None:
-        return {"empty": True, "stations": [], "shifts": [], "reasons": [], "recent": [], "station_charts": [],
-                "window": None, "window_from": None, "window_to": None, "day": day, "shift": shift}
-    stations = queries.station_rows(store, w.t0, w.t1)
-    return {"empty": False, "window": w, "window_from": iso(w.t0), "window_to": iso(w.t1), "day": w.day,
-            "shift": w.shift, "stations": stations, "shifts": queries.shift_rows(store, w.t0, w.t1),
-            "reasons": queries.reason_counts(store, w.t0, w.t1), "recent": queries.recent(store),
-            "station_charts": [(s["station_id"], station_charts(store, s["station_id"], w)) for s in stations]}
-
-
 class ReasonContext(TypedDict):
-    """The FAIL runs of one reason code (reason.html)."""
+    """The FAIL runs of one reason code (reason.html), a page at a time."""
 
     code: str
     window: Window | None
-    runs: list[RunView]
+    runs_page: RunsPage
     station: str | None
     day: str
     shift: str
@@ -130,12 +87,18 @@ class ReasonContext(TypedDict):
     window_to: str | None
 
 
-def reason_context(store: Store, code: str, day: str, shift: str, station: str | None) -> ReasonContext:
-    """The FAIL runs of one reason code in the line page's window (the drill-down from a reason)."""
+def reason_context(store: Store, code: str, day: str, shift: str, station: str | None, cursor: str = "",
+                   limit: int = PAGE_SIZE) -> ReasonContext:
+    """The FAIL runs of one reason code in the line page's window (the drill-down from a reason), the
+    page ``cursor`` names (paging.py), newest first."""
     w = pick_window(store, day, shift)
-    runs = [] if w is None else queries.reason_runs(store, code, w.t0, w.t1, station)
-    return {"code": code, "window": w, "runs": runs, "station": station, "day": day, "shift": shift,
-            "window_from": None if w is None else iso(w.t0), "window_to": None if w is None else iso(w.t1)}
+
+    def fetch(order: str, after: int | None, n: int) -> list[RunView]:
+        return [] if w is None else queries.reason_runs(store, code, w.t0, w.t1, station, order, after, n)
+
+    return {"code": code, "window": w, "runs_page": page_of(fetch, cursor, limit), "station": station, "day": day,
+            "shift": shift, "window_from": None if w is None else iso(w.t0),
+            "window_to": None if w is None else iso(w.t1)}
 
 
 def _residuals(rec: RunRecord) -> Chart | None:
@@ -360,6 +323,7 @@ class LotContext(TypedDict):
     charts: list[Chart]
     parameters: list[ParamRow]
     lots: list[LotRow]
+    runs_page: RunsPage | None
 
 
 def _numbers(x: JsonValue) -> list[float] | None:
@@ -381,12 +345,23 @@ def param_numbers(cal: JsonObject) -> list[float] | None:
     return vec if len(vec) == 15 else None
 
 
-def lot_context(store: Store, lot: str) -> LotContext:
-    """The lot page: counts grouped in SQL, the parameters' statistics and run charts of the lot's
-    calibrations, each run against its own limits."""
-    summ = queries.lot_counts(store, lot)
+def lot_runs(store: Store, lot: str, cursor: str, limit: int) -> RunsPage:
+    """The lot's runs, the page ``cursor`` names (paging.py: the API's keyset on id), newest first."""
+    f: RunFilters = {"since": None, "until": None, "station": None, "serial": None, "verdict": None, "lot": lot,
+                     "status": None}
+    return page_of(lambda order, after, n: queries.run_page(store, f, order, after, n), cursor, limit)
+
+
+def lot_context(store: Store, lot: str, cursor: str = "", limit: int = PAGE_SIZE) -> LotContext:
+    """The lot page: counts grouped in SQL, a page of its runs, and on its first page (no cursor) the
+    parameters' statistics and run charts of the lot's calibrations, each run against its own limits."""
     charts: list[Chart] = []
     table: list[ParamRow] = []
+    if cursor:  # a later page of runs: the runs only (the summary is the first page's)
+        return {"lot": lot, "summary": None, "charts": [], "parameters": [], "lots": [],
+                "runs_page": lot_runs(store, lot, cursor, limit)}
+    summ = queries.lot_counts(store, lot)
+    page = lot_runs(store, lot, cursor, limit) if summ["runs"] else None
     cals = queries.lot_calibrations(store, lot) if summ["runs"] else []
     rows: list[LotCalibration] = []
     vecs: list[list[float]] = []
@@ -412,16 +387,18 @@ def lot_context(store: Store, lot: str) -> LotContext:
             if len(rows) > LOT_CHART_RUNS:
                 ch.note = f"newest {LOT_CHART_RUNS} of {len(rows)} runs drawn; " + ch.note
             charts.append(ch)
-    return {"lot": lot, "summary": summ, "charts": charts, "parameters": table, "lots": queries.lots(store)}
+    # the lots list shows only without a lot (lot.html): not read here
+    return {"lot": lot, "summary": summ, "charts": charts, "parameters": table, "lots": [], "runs_page": page}
 
 
 # The heavy pages' work as the lanes run it (lanes.py): module-level functions of picklable
 # arguments, so a worker process can run them; each opens the store read-only for itself.
 
-def reason_page(settings: WebSettings, code: str, day: str, shift: str, station: str | None) -> ReasonContext:
+def reason_page(settings: WebSettings, code: str, day: str, shift: str, station: str | None, cursor: str = "",
+                limit: int = PAGE_SIZE) -> ReasonContext:
     """The reason page's context, read from the store of ``settings``."""
     with open_store(settings) as st:
-        return reason_context(st, code, day, shift, station)
+        return reason_context(st, code, day, shift, station, cursor, limit)
 
 
 def board_page(settings: WebSettings, serial: str) -> BoardContext:
@@ -430,9 +407,10 @@ def board_page(settings: WebSettings, serial: str) -> BoardContext:
         return board_context(st, serial)
 
 
-def lot_page(settings: WebSettings, lot: str) -> LotContext:
+def lot_page(settings: WebSettings, lot: str, cursor: str = "", limit: int = PAGE_SIZE) -> LotContext:
     """The lot page's context (no lot: the lots list only), read from the store of ``settings``."""
     with open_store(settings) as st:
         if lot:
-            return lot_context(st, lot)
-        return {"lot": "", "summary": None, "charts": [], "parameters": [], "lots": queries.lots(st)}
+            return lot_context(st, lot, cursor, limit)
+        return {"lot": "", "summary": None, "charts": [], "parameters": [], "lots": queries.lots(st),
+                "runs_page": None}

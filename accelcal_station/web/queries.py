@@ -28,6 +28,7 @@ from .views import (
     LotCalibration,
     LotCounts,
     LotRow,
+    LotYield,
     Rates,
     RunFilters,
     RunView,
@@ -203,12 +204,19 @@ def recent(store: Store, limit: int = 20) -> list[RunView]:
     return summaries_of(store, rp.newest_runs(store, limit))
 
 
-def reason_runs(store: Store, code: str, t0: float, t1: float, station: str | None = None,
-                limit: int = 200) -> list[RunView]:
-    """The FAIL runs in [t0, t1) (of one station) with reason ``code``, newest first (at most ``limit``)."""
-    rows = [r for r in lq.fail_runs(store, t0, t1, station)
-            if code in codes(stored_reasons(r.text("reasons")))][:limit]
-    return summaries_of(store, rows)
+def reason_runs(store: Store, code: str, t0: float, t1: float, station: str | None, order: str,
+                after_id: int | None, n: int, chunk: int = 500) -> list[RunView]:
+    """Up to ``n`` FAIL runs in [t0, t1) (of one station) with reason ``code``, in ``order`` by id after
+    ``after_id`` (a keyset, no OFFSET); the store's rows are read ``chunk`` at a time until ``n`` match."""
+    rows: list[CheckedRow] = []
+    while len(rows) < n:
+        got = lq.fail_runs(store, t0, t1, station, order, after_id, chunk)
+        rows += [r for r in got if code in codes(stored_reasons(r.text("reasons")))]
+        ids = [i for r in got if (i := r.int("id")) is not None]
+        if len(got) < chunk or not ids:
+            break
+        after_id = ids[-1]
+    return summaries_of(store, rows[:n])
 
 
 def station_series(store: Store, station: str | None, t0: float, t1: float, limit: int = 100) -> list[SeriesPoint]:
@@ -254,6 +262,13 @@ def run_count(store: Store, filters: RunFilters) -> int:
 def serials_like(store: Store, text: str, limit: int = 20) -> list[str]:
     rows = rp.serials_like(store, text, limit)
     return [s for r in rows if (s := r.text("device_serial")) is not None]
+
+
+def lot_yields(store: Store, t0: float, t1: float, limit: int = 12) -> list[LotYield]:
+    """The lots with complete runs in [t0, t1), newest first: runs, PASS and yield in the window."""
+    return [{"lot": r.text("lot"), "runs": _count(r.value("n")), "pass": _count(r.value("pass")),
+             "yield": _count(r.value("pass")) / _count(r.value("n")) if _count(r.value("n")) else None}
+            for r in lq.lot_yields(store, t0, t1, limit)]
 
 
 def lots(store: Store, limit: int = 50) -> list[LotRow]:

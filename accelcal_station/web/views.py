@@ -107,6 +107,10 @@ class LotRow(TypedDict):
     last: float | None
 
 
+# a lot's yield in the line page's window ("pass" and "yield" are keywords: the functional form)
+LotYield = TypedDict("LotYield", {"lot": str | None, "runs": int, "pass": int, "yield": float | None})
+
+
 # the lot page's counts ("pass" is a keyword: the functional form)
 LotCounts = TypedDict("LotCounts", {
     "runs": int, "by_status": dict[str, int], "pass": int, "fail": int, "pass_rate": float | None, "devices": int,
