@@ -140,7 +140,8 @@ class BoardPlan:
             sp = res.set_point_c
             temps = np.array([p.temp_c for p in self.groups[sp]], dtype=float)
             try:
-                fit = fit_session(Session(self.groups[sp], "counts", cpg, device=rep.serial), self.cfg.model)
+                fit = fit_session(Session(self.groups[sp], "counts", cpg, device=rep.serial,  # model 9's norm: the site
+                                          metadata={"site": dict(self.cfg.site.to_json())}), self.cfg.model)
             except UnderdeterminedError as e:
                 res.verdict, res.reasons = "FAIL", [Reason("fit", str(e))]
                 reasons.append(wrap(Reason("fit", str(e)), f"at {sp:g} C: "))
