@@ -112,6 +112,10 @@ class CaptureSection(Section):
     self_test_samples: int = _f(64, "samples averaged in each self-test state (self-test off, on)", ge=4, le=1024)
     warmup: WarmupSection | None = _f(None, "hold the board after power-up until its offset settles "
                                       "(absent: no hold)")
+    powered_ahead_s: float = _f(60.0, "how long each board has been powered when it is placed, s: a line powers "
+                                "the next boards while the previous one is measured (docs/warm-up.md); the "
+                                "simulated board's warm-up clock starts this long before its run; 0: powered "
+                                "at placement", ge=0, le=86_400)
 
 
 class AcceptanceSection(Section):

@@ -105,7 +105,8 @@ def board_summary(cfg: StationConfig, rep: RunReport) -> RunSummary:
 def thermal_summary(cfg: StationConfig, rep: RunReport, thermal: ThermalSummary) -> RunSummary:
     """A single board's thermal plan: what it measured, its timing and the plan's summary."""
     return {"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg, "design": cfg.design,
-            "timing": rep.timing, "thermal": thermal, "nvm_verified": rep.nvm_verified, "self_test": rep.self_test}
+            "timing": rep.timing, "thermal": thermal, "nvm_verified": rep.nvm_verified, "self_test": rep.self_test,
+            "warmup": rep.warmup}
 
 
 def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est: JigPoseEstimate | None,
@@ -116,7 +117,7 @@ def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est:
     out: RunSummary = {
         "measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
         "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim, "self_test": rep.self_test,
-        "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified,
+        "warmup": rep.warmup, "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified,
         "panel_id": panel_id,
         "jig_pose": jig}
     if thermal is not None:

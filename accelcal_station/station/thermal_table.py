@@ -250,13 +250,15 @@ class BoardPlan:
 
     # -- report ----------------------------------------------------------------------------
     def timing(self, driver: Driver, clock: Clock, t0: float, wall0: float) -> Timing:
-        """Time per board: soak, the sampling floor (samples averaged / ODR) and the rest (moves, gating, I/O)."""
+        """Time per board: soak, the warm-up hold, the sampling floor (samples averaged / ODR) and the rest
+        (moves, gating, I/O)."""
         total = clock.now() - t0
         used, read = self.steps.samples_used, self.steps.samples_read
         floor = used / driver.odr_hz
+        warm = self.steps.warmup_s
         return {"odr_hz": driver.odr_hz, "samples_averaged": used, "samples_read": read,
-                "board_time_s": total, "soak_s": self.soak_s, "sampling_floor_s": floor,
-                "sampling_s": read / driver.odr_hz, "rest_s": total - self.soak_s - floor,
+                "board_time_s": total, "soak_s": self.soak_s, "warmup_s": warm, "sampling_floor_s": floor,
+                "sampling_s": read / driver.odr_hz, "rest_s": total - self.soak_s - warm - floor,
                 "boards": 1, "per_board_s": total, "clock": "real" if clock.realtime else "virtual",
                 "host_compute_s": time.perf_counter() - wall0}
 
