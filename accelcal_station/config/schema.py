@@ -181,6 +181,9 @@ class ThermalSection(Section):
     capture_band_c: float = _f(1.0, "board temperature during a capture within this of the set point, C",
                                ge=0.01, le=20)
     reference_c: float = _f(25.0, "temperature of the reported single calibration, C", ge=-70, le=180)
+    temperature_u_c: float = _f(0.5, "standard uncertainty of the temperature each set point's fit is assigned (the "
+                                "die sensor's or the chamber air's), C: Type B in each set point's uncertainty "
+                                "budget through the table's slope (docs/uncertainty.md)", ge=0, le=20)
 
 
 class ChamberFaultsSection(Section):

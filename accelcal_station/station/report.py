@@ -97,6 +97,7 @@ class SetPointRecord(TypedDict):
     t_start_s: float
     t_soaked_s: float | None
     t_end_s: float | None
+    uncertainty: UncertaintyJson | None  # a calibration set point's budget (thermal_budget.py)
 
 
 class VerifyRow(TypedDict):
