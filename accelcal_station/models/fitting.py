@@ -23,11 +23,11 @@ from ..identifiability import first_of_orientation
 from ..session import Session
 from .crossval import crossval_by_orientation
 from .gravity_norm import PARAM_NAMES, nominal_scale
-from .site_norm import at_site_norm
 from .held import HoldPlan, confirm_holds, cubic_held, hold_plans
 from .result import BatchFit, FitResult
 from .sanity import Refusal, absurd_coefficients, absurd_norm_model, absurd_readings
 from .screening import screen
+from .site_norm import at_site_norm
 from .stacked import BLOCK, assemble, fit_stacked
 from .threads import usable_cpus
 

@@ -8,10 +8,10 @@ theta^2 / 2, and the off-axis channels, which carry the tilt, are thrown away.
 Here the same six parameters (gain and offset per axis, W diagonal) are fitted to the
 whole reading of every pose by the gravity norm instead, |diag(w) (x - o)| = k, k the site's
 gravity in standard g (the length of the references, scaled to the site by the loader; 1 at
-standard gravity), so the calibration maps the input to standard g (Gauss-Newton from the classical estimate), so the reference direction is not needed
-and each face's misplacement is what the calibrated reading says it is: the angle
-between the calibrated reading and the face's axis.  Six distinct orientations
-determine the six parameters exactly; revisits placed differently add the spare
+standard gravity), so the calibration maps the input to standard g (Gauss-Newton from the
+classical estimate), so the reference direction is not needed and each face's misplacement is
+what the calibrated reading says it is: the angle between the calibrated reading and the face's
+axis.  Six distinct orientations determine the six parameters exactly; revisits placed differently add the spare
 orientations.  Cross-axis coupling moves readings across gravity like a misplacement
 does: with faces alone the two cannot be told apart, and the result says so.
 """
@@ -132,8 +132,9 @@ def norm_fit_result(x_g: ArrayLike, ref: ArrayLike, base: FitResult, noise_g: Ar
     """The hand-placed faces' norm fit as the FitResult `accelcal fit` prints and saves (one object
     from fit to file): W = diag(w), V = -w o; residuals as model 9's (the calibrated reading's
     distance to the unit sphere), norm errors, leave-one-pose-out norm error, and standard errors
-    (J^T J)^-1 s^2 of r_p = |w (x_p - o)| - k (k the site's gravity in standard g; s^2 the mean squared per-pose noise when given, else
-    RSS / (P - 6)).  ``base``: the model-6 fit of the same poses (units, scale, metadata)."""
+    (J^T J)^-1 s^2 of r_p = |w (x_p - o)| - k (k the site's gravity in standard g; s^2 the mean squared
+    per-pose noise when given, else RSS / (P - 6)).  ``base``: the model-6 fit of the same poses (units,
+    scale, metadata)."""
     x, r_ = np.asarray(x_g, dtype=float), np.asarray(ref, dtype=float)
     nf = norm_faces(x, r_)
     W, V = nf.as_an4399()

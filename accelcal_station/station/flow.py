@@ -39,8 +39,8 @@ from .station_fault import (
     station_fault_reason,
 )
 from .thermal import ThermalConditions
-from .warmup import hold_boards, power_ahead
 from .verdict import Stage
+from .warmup import hold_boards, power_ahead
 
 
 def _raiser(e: AccelcalError) -> Callable[[], None]:

@@ -117,7 +117,8 @@ def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est:
     out: RunSummary = {
         "measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
         "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim, "self_test": rep.self_test,
-        "warmup": rep.warmup, "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified,
+        "warmup": rep.warmup, "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing,
+        "nvm_verified": rep.nvm_verified,
         "panel_id": panel_id,
         "jig_pose": jig}
     if thermal is not None:
