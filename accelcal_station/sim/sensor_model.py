@@ -30,8 +30,9 @@ The sensor chain, in order (each stage only when its effect is enabled):
                         MPU6050: the DLPF makes the noise a one-pole low-pass process
                         sampled at the ODR, lag-k autocorrelation ``exp(-2 pi f_c k / ODR)``
                         (f_c the DLPF_CFG bandwidth), and the signal lags by the data
-                        sheet's DLPF delay.  MMA8451: the oversampling mode (CTRL_REG2 MODS) averages OSR conversions per output sample in
-                        non-overlapping blocks: independent samples, density scaled by
+                        sheet's DLPF delay.  MMA8451: the oversampling mode (CTRL_REG2
+                        MODS) averages OSR conversions per output sample in non-overlapping
+                        blocks: independent samples, density scaled by
                         sqrt(OSR_normal / OSR_mode) (``ChipSpec.noise_scale``)
 8. counts               ``* counts_per_g`` (the chip's nominal sensitivity at its range)
 9. saturation           clip at the chip's code range (``full_scale_fraction`` of it)
