@@ -172,6 +172,11 @@ class SimulatedBoard:
         c = self.chip
         self.configure(c.default_range_g, c.default_odr_hz, c.default_dlpf)
 
+    def powered_for(self, seconds: float) -> None:
+        """The board has been powered ``seconds`` already (a line powers boards ahead of placement):
+        the warm-up of the drift effect (stage 5) runs from that earlier power-up."""
+        self._t_power = self.clock.now() - float(seconds)
+
     @classmethod
     def from_config(cls, cfg: Mapping[str, object] | None = None, chip: str | None = None, seed: int | None = None,
                     path: str = "simulator") -> SimulatedBoard:

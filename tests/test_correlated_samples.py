@@ -46,7 +46,8 @@ def test_every_dlpf_setting_sets_its_correlation_and_keeps_the_data_sheet_noise(
     counts, _ = b.read(40000)
     a = lag1(DLPF_BANDWIDTH_HZ[dlpf], odr)
     np.testing.assert_allclose(autocorrelation(counts, 1)[1], a, atol=0.03)  # sd <= 0.005
-    sigma = MPU_DENSITY_UG * 1e-6 * np.sqrt(min(odr / 2, DLPF_BANDWIDTH_HZ[dlpf])) * 16384
+    # a one-pole filter's equivalent noise bandwidth is (pi / 2) f_c (tests/test_mpu6050_bandwidth.py)
+    sigma = MPU_DENSITY_UG * 1e-6 * np.sqrt(np.pi / 2 * DLPF_BANDWIDTH_HZ[dlpf]) * 16384
     # the std of 40000 AR(1) samples: relative sd sqrt((1 + a^2) / (1 - a^2) / 80000) <= 2.2 %; 10 % is 4.5 sd
     np.testing.assert_allclose(counts.std(axis=0), sigma, rtol=0.10)
 
@@ -133,8 +134,8 @@ def test_repeated_runs_scatter_matches_the_reported_offset_stderr(tmp_path):
 
 
 def test_the_shipped_mpu6050_target_is_reached_at_the_data_sheet_noise(tmp_path):
-    # DLPF_CFG 3 (the shipped configs): 400 ug/sqrt(Hz) * sqrt(44 Hz) = 2.65 mg a sample, tau 1.13:
-    # (2.65 / 0.15)^2 * 1.13 = 353 samples, 3.5 s a pose, far inside capture.max_s (20 s)
+    # DLPF_CFG 3 (the shipped configs): 400 ug/sqrt(Hz) * sqrt(pi/2 * 44 Hz) = 3.33 mg a sample, tau 1.13:
+    # (3.33 / 0.15)^2 * 1.13 = 558 samples, 5.6 s a pose, inside capture.max_s (20 s)
     st = make_flow(StationConfig.load(station_config(tmp_path, 3, 3, mpu_target_sem_mg())), echo=lambda s: None)
     (rep,) = st.run()
     assert rep.verdict == "PASS", rep.reasons

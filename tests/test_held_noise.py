@@ -2,7 +2,7 @@
 
 The logs come from the project's forward simulator (sim/sensor_model.py through
 drivers.simulated.SimulatedBoard and the simulated jig), not from the fitted model's terms: an
-MPU-6050 (data-sheet 16384 LSB/g, 400 ug/sqrt(Hz) noise, DLPF 44 Hz) with offsets, gains and a 1 %
+MPU-6050 (data-sheet 16384 LSB/g, 400 ug/sqrt(Hz) noise, DLPF 44 Hz: ENBW pi/2 x 44 Hz) with offsets, gains and a 1 %
 x-y cross-axis coupling, placed by hand on six faces and four tilts in the x-z and y-z planes, a
 few degrees off each (so the tilts lean a little out of their planes, as a real one does:
 the x-y direction is weak in geometry, relative singular value 0.038, below the 0.05 the geometric
@@ -107,13 +107,15 @@ def test_at_the_data_sheet_noise_xy_is_fitted_freely_and_loo_matches_the_free_fi
 
 def test_at_twenty_times_the_noise_xy_is_held_and_loo_is_no_worse_than_the_free_fit(fits):
     """The noise rule proposes holding M_xy on every board; the held-out data confirm the hold on all
-    but seed 8, whose held fit is 3.7 mg left out against the free fit's 0.53 mg (scipy's free fit:
-    the same 0.53 mg), so it is fitted freely and said (issue 50: holds checked by held-out data;
-    before, every board held)."""
+    but at most two (seed 8 alone at the per-sample noise of density x sqrt(44 Hz), before the
+    MPU6050's noise followed the DLPF's equivalent noise bandwidth: its held fit 3.7 mg left out
+    against the free fit's 0.53 mg), whose hold is then fitted freely and said, its held-out figure
+    scipy's free fit's (issue 50: holds checked by held-out data; before, every board held)."""
     ours, free = [], []
-    for s, js in zip(SEEDS, fits[20], strict=True):
+    assert sum(bool(js["freed"]) for js in fits[20]) <= 2
+    for js in fits[20]:
         loo_free = free_loo(np.array([p["reading_g"] for p in js["poses"]]))
-        if s == 8:
+        if js["freed"]:
             assert js["held"] == [] and [h["term"] for h in js["freed"]] == ["M_xy"], js["freed"]
             assert "the noise rule would hold it" in js["freed"][0]["reason"]
             assert js["crossval_rms_g"] == pytest.approx(loo_free, rel=0.01)

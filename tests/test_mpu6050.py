@@ -1,8 +1,9 @@
 """MPU6050Bridge through pyserial on a real pseudo-terminal, against the bridge emulator.
 
-Noise: the emulated MPU6050 at 2 g has sigma ~45 counts per sample (400 ug/sqrt(Hz) at the
-DLPF bandwidth), so a mean of n samples has SEM ~45/sqrt(n) counts; the tolerances below are
-at least 8 SEM (false-failure rate < 1e-14 per assertion, fixed seeds make runs repeatable).
+Noise: the emulated MPU6050 at 2 g has sigma ~55 counts per sample (400 ug/sqrt(Hz) at the
+DLPF's equivalent noise bandwidth, pi/2 x 44 Hz), so a mean of n samples has SEM ~55/sqrt(n)
+counts; the tolerances below are at least 6.5 SEM (false-failure rate < 1e-10 per assertion,
+fixed seeds make runs repeatable).
 """
 from __future__ import annotations
 

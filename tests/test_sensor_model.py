@@ -55,7 +55,9 @@ def test_chip_datasheet_defaults():
     assert max(MMA.odr_hz) == 800 and not MMA.has_temperature and MPU.has_temperature
     assert MMA.noise_ug_per_rthz == 99.0
     assert MMA.enbw_hz(100.0) == 50.0
-    assert MPU.enbw_hz(1000.0, 3) == 44.0 and MPU.enbw_hz(50.0, 0) == 25.0
+    # the DLPF's one-pole equivalent noise bandwidth (pi/2) f_c, whatever the ODR (issue 48's follow-up)
+    assert MPU.enbw_hz(1000.0, 3) == pytest.approx(69.115, abs=1e-3)
+    assert MPU.enbw_hz(50.0, 0) == pytest.approx(408.41, abs=1e-2)
     # noise defaults to the chip's density
     assert np.all(parse_effects({"noise": None}, MPU)["noise"]["density_ug_per_rthz"] == 400.0)
 

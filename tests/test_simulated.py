@@ -215,14 +215,16 @@ def test_gravity_scales_the_true_force():
 # so the 12 % tolerance is 4.8 sd (false failure about 2e-6 per check, 3e-5 for all 18).
 # MPU6050 DLPF (issue 48): one-pole, rho_k = a^k = exp(-2 pi f_c k / ODR), block-mean variance sigma^2 / n
 # (1 + 2 sum (1 - k/n) a^k); single samples, a = 0.76: std of 800 has relative sd 5.3 %, 25 % is 4.7 sd.
-@pytest.mark.parametrize("chip, odr, dlpf, enbw", [("mma8451", 100, None, 50.0), ("mma8451", 800, None, 400.0),
-                                                   ("mpu6050", 1000, 3, 44.0)])
-def test_noise_floor_matches_density_and_bandwidth(chip, odr, dlpf, enbw):
+# The MPU6050's ENBW is the one-pole DLPF's (pi / 2) f_c, f_c = 44 Hz at DLPF_CFG 3; a from f_c.
+@pytest.mark.parametrize("chip, odr, dlpf, enbw, f_c", [("mma8451", 100, None, 50.0, None),
+                                                        ("mma8451", 800, None, 400.0, None),
+                                                        ("mpu6050", 1000, 3, np.pi / 2 * 44.0, 44.0)])
+def test_noise_floor_matches_density_and_bandwidth(chip, odr, dlpf, enbw, f_c):
     b = board({"noise": {}}, chip=chip, seed=11, odr_hz=odr, dlpf=dlpf)
     density = b.chip.noise_ug_per_rthz
     sigma_counts = density * 1e-6 * np.sqrt(enbw) * b.counts_per_g
     np.testing.assert_allclose(b.noise_sigma_counts, sigma_counts)
-    a = np.exp(-2 * np.pi * enbw / odr) if dlpf is not None else 0.0
+    a = np.exp(-2 * np.pi * f_c / odr) if f_c is not None else 0.0
     for n in (1, 16, 256):
         counts, _ = b.read(800 * n)
         means = np.asarray(counts).reshape(800, n, 3).mean(axis=1)

@@ -30,6 +30,7 @@ def config(tmp_path, seed: int, warmup: dict | None, language: str | None = None
     c["store"] = {"path": str(tmp_path / "runs.sqlite")}
     c["device"]["seed"] = seed
     c["device"]["simulator"]["effects"]["drift"] = {"warmup_mg": [2.0, -1.5, 2.5], "warmup_tau_s": TAU_S}
+    c["capture"]["powered_ahead_s"] = 0  # powered at placement: the whole warm-up is the station's
     if warmup is not None:
         c["capture"]["warmup"] = warmup
     if language:

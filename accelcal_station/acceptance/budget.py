@@ -14,6 +14,10 @@ Sources (docs/uncertainty.md):
   temperature coefficients, rectangular (u = tc dT / sqrt(3)).
 - ``quantization`` (Type B): one count's resolution, LSB/sqrt(12) (GUM F.2.2.1) on a pose mean; divided
   by sqrt(n) where the samples' own spread is a count or more (the noise dithers it), else not.
+- ``assigned_temperature`` (Type B, a thermal table's set points only): the standard uncertainty of the
+  temperature a set point's fit is assigned (the die sensor's or the chamber air's) times the table's
+  slope there, d(parameter)/dT from the neighbouring set points' fits (GUM 5.1.3: the parameter the
+  table gives at a temperature is off by the slope times the error in the temperature it was filed at).
 
 The fit's sensitivities to the readings and to the pose references are taken by the fit itself
 (``fit_batch`` on the readings and references each moved by a small step: the models are linear in
@@ -74,6 +78,8 @@ class BudgetInputs:
     site: Site = field(default_factory=Site)
     temp_span_c: float | None = None  # max - min board temperature over the poses
     tempco: Tempco | None = None
+    temp_u_c: float | None = None  # a thermal set point: its assigned temperature's standard uncertainty, C
+    temp_slope: np.ndarray | None = None  # (12,) d(parameter)/dT there: V in mg/K, then W row by row per K
 
 
 class UJson(TypedDict):
@@ -265,8 +271,17 @@ def _quantization(inp: BudgetInputs, J_read: np.ndarray) -> Component:
                      _through(J_read, u), "one count / sqrt(12) per pose mean, / sqrt(n) where the noise dithers it")
 
 
+def _assigned_temperature(u_c: float, slope: np.ndarray) -> Component:
+    return Component("assigned_temperature", "B", u_c, "C", "normal", "the table's slope d(parameter)/dT "
+                     "between the neighbouring set points", np.abs(np.asarray(slope, float)) * u_c,
+                     "the temperature this set point's fit is filed at (die sensor or chamber air)")
+
+
 def budget(inp: BudgetInputs) -> Budget:
     """The board's budget (module docstring)."""
     theta, J_read, J_tilt = sensitivities(inp)
-    return Budget([_noise(inp, J_read), _jig(inp, J_tilt), _gravity(inp, theta), _temperature(inp),
-                   _quantization(inp, J_read)])
+    parts = [_noise(inp, J_read), _jig(inp, J_tilt), _gravity(inp, theta), _temperature(inp),
+             _quantization(inp, J_read)]
+    if inp.temp_u_c is not None and inp.temp_slope is not None:
+        parts.append(_assigned_temperature(inp.temp_u_c, inp.temp_slope))
+    return Budget(parts)

@@ -122,6 +122,10 @@ class CaptureSection(Section):
     self_test_samples: int = _f(64, "samples averaged in each self-test state (self-test off, on)", ge=4, le=1024)
     warmup: WarmupSection | None = _f(None, "hold the board after power-up until its offset settles "
                                       "(absent: no hold)")
+    powered_ahead_s: float = _f(60.0, "how long each board has been powered when it is placed, s: a line powers "
+                                "the next boards while the previous one is measured (docs/warm-up.md); the "
+                                "simulated board's warm-up clock starts this long before its run; 0: powered "
+                                "at placement", ge=0, le=86_400)
 
 
 class AcceptanceSection(Section):
@@ -187,6 +191,9 @@ class ThermalSection(Section):
     capture_band_c: float = _f(1.0, "board temperature during a capture within this of the set point, C",
                                ge=0.01, le=20)
     reference_c: float = _f(25.0, "temperature of the reported single calibration, C", ge=-70, le=180)
+    temperature_u_c: float = _f(0.5, "standard uncertainty of the temperature each set point's fit is assigned (the "
+                                "die sensor's or the chamber air's), C: Type B in each set point's uncertainty "
+                                "budget through the table's slope (docs/uncertainty.md)", ge=0, le=20)
 
 
 class ChamberFaultsSection(Section):

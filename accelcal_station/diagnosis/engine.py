@@ -62,6 +62,8 @@ from .where import breakdown
 def fixed_floor(data: GapData, sim: Simulator, td: TimeData | None) -> Floor:
     """The floor every model is judged against, fixed before any candidate (module doc, step 1)."""
     fl = sim.floor(data.rate_hz)
+    if data.site_g is not None:  # the site the data state is the gravity they are judged against (site.py)
+        fl = replace(fl, gamma=data.site_g)
     n1 = np.maximum(data.n - 1.0, 1.0)
     if td is not None and np.any(np.isfinite(td.diff_var)):
         ok = np.isfinite(td.diff_var)

@@ -55,6 +55,7 @@ class GapData:
     drop_terms: frozenset[str] = frozenset()  # "effect:term" columns left out (confounding.py)
     fit_refused: str = ""  # fit's words refusing these poses: no static view (loading.fit_ground)
     sessions: list[Session] = field(default_factory=list)  # per file, as fit reads it (headline.py)
+    site_g: float | None = None  # the stated site's gravity in standard g (site.py); None: not stated
 
     @property
     def P(self) -> int:

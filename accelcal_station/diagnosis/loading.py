@@ -24,6 +24,7 @@ from ..session import Session
 from ..sim.sensor_model import SensorModel
 from .gap_data import Capture, GapData
 from .noise_floor import Floor
+from .site import stated_site_g
 
 Part = tuple[Session, list[Capture] | None, str]  # one file: its poses, their raw captures (raw logs), its name
 FITTED = ("offset", "gain", "cross_axis", "cubic", "quadratic", "temperature", "drift", "settling")
@@ -257,6 +258,9 @@ def load_data(paths: Sequence[str | Path], raw: bool = False, units: str | None 
     data = gap_data(parts, samples, norm_only, rates.pop() if rates else rate)
     data.fit_refused = refused
     data.sessions = [s for s, _, _ in parts]
+    data.site_g = stated_site_g(data.sessions, [src for _, _, src in parts])
+    if data.site_g is not None and data.ref is not None:  # unit references: gamma carries the site (site.py)
+        data.ref = data.ref / data.site_g
     if choice is not None and not norm_only:
         data.fit_model, data.fit_faces = choice.model, choice.faces is not None
         data.exclude = NOT_IN_MODEL[choice.method if choice.faces is not None else choice.model]

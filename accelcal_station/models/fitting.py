@@ -27,6 +27,7 @@ from .held import HoldPlan, confirm_holds, cubic_held, hold_plans
 from .result import BatchFit, FitResult
 from .sanity import Refusal, absurd_coefficients, absurd_norm_model, absurd_readings
 from .screening import screen
+from .site_norm import at_site_norm
 from .stacked import BLOCK, assemble, fit_stacked
 from .threads import usable_cpus
 
@@ -72,7 +73,7 @@ def _input_per_g(x: np.ndarray, model: str, units: str, counts_per_g: ArrayLike 
 
 def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: str | int = "12", *,
               units: str = "g", counts_per_g: ArrayLike | None = None, gravity_mps2: float | None = None,
-              noise: ArrayLike | None = None, workers: int | None = None) -> BatchFit:
+              noise: ArrayLike | None = None, workers: int | None = None, norm_g: float = 1.0) -> BatchFit:
     """Fit D boards at once with the one estimator per model: the stacked fitters of
     models/stacked.py (closed forms for 6/12/15, batched Gauss-Newton for 9), which lot
     files, pose tables, the store and single boards all go through.
@@ -84,6 +85,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
     ``workers``: threads (default: one per usable CPU, at most 8); a large stack is cut into
     blocks of boards, each screened, planned, fitted and checked on one thread (every step is
     per board, so the result does not depend on the number of threads).
+    ``norm_g``: model 9's calibrated norm, the site's gravity in standard g (models/site_norm.py).
     """
     model = check_model(model)
     check_units(units)
@@ -108,6 +110,7 @@ def fit_batch(readings: ArrayLike, references: ArrayLike | None = None, model: s
         if model != "9":  # the median norm of the whole stack, as one block would judge it
             check_plausible_g(gf, units)
         res = _blocked(front, gf, x, nz, blocks)
+    res = at_site_norm(res, norm_g)
     res.input_units = units
     res.input_per_g = scale
     return res
@@ -344,8 +347,8 @@ def _refuse_absurd(res: BatchFit, bad_readings: Refusal | None) -> None:
 
 def fit(readings: ArrayLike, references: ArrayLike | None = None, model: str | int = "12", *, units: str = "g",
         counts_per_g: ArrayLike | None = None, gravity_mps2: float | None = None,
-        noise: ArrayLike | None = None) -> FitResult:
-    """Fit one board: readings (P, 3) in ``units``; returns a FitResult.
+        noise: ArrayLike | None = None, norm_g: float = 1.0) -> FitResult:
+    """Fit one board: readings (P, 3) in ``units``; returns a FitResult (``norm_g`` as fit_batch's).
 
     Raises UnderdeterminedError, naming what is missing, when the poses cannot
     determine the model; never returns NaN coefficients.
@@ -356,7 +359,7 @@ def fit(readings: ArrayLike, references: ArrayLike | None = None, model: str | i
     ref = None if references is None else np.asarray(references, dtype=float)[None]
     nz = None if noise is None else np.asarray(noise, dtype=float)[None]
     b = fit_batch(x[None], ref, model, units=units, counts_per_g=counts_per_g,
-                  gravity_mps2=gravity_mps2, noise=nz)
+                  gravity_mps2=gravity_mps2, noise=nz, norm_g=norm_g)
     if not b.ok[0]:
         raise UnderdeterminedError(b.messages[0])
     fr = b.result(0)
@@ -366,13 +369,15 @@ def fit(readings: ArrayLike, references: ArrayLike | None = None, model: str | i
 
 
 def fit_session(session: Session, model: str | int = "12") -> FitResult:
-    """Fit a Session (references from the session; std/n give the noise)."""
+    """Fit a Session (references from the session; std/n give the noise).  Model 9's norm is the
+    session's site gravity in standard g (the references of the others are scaled to it already)."""
     if len(session) == 0:
         raise DataError("the session has no poses")
     noise = session.noise()  # input units: works for scale-less counts (model 9) too
-    return fit(session.readings, session.references_g if str(model) != "9" else None, model,
+    nine = str(model) == "9"
+    return fit(session.readings, None if nine else session.references_g, model,
                units=session.units, counts_per_g=session.counts_per_g,
-               gravity_mps2=session.gravity_mps2, noise=noise)
+               gravity_mps2=session.gravity_mps2, noise=noise, norm_g=session.site_gravity_g if nine else 1.0)
 
 
 def fit_temperature(session: Session, model: str | int = "12", method: str = "linear",

@@ -6,11 +6,12 @@ theta reads g cos(theta) on its axis, so hand placement biases the scale low by 
 theta^2 / 2, and the off-axis channels, which carry the tilt, are thrown away.
 
 Here the same six parameters (gain and offset per axis, W diagonal) are fitted to the
-whole reading of every pose by the gravity norm instead, |diag(w) (x - o)| = 1 g
-(Gauss-Newton from the classical estimate), so the reference direction is not needed
-and each face's misplacement is what the calibrated reading says it is: the angle
-between the calibrated reading and the face's axis.  Six distinct orientations
-determine the six parameters exactly; revisits placed differently add the spare
+whole reading of every pose by the gravity norm instead, |diag(w) (x - o)| = k, k the site's
+gravity in standard g (the length of the references, scaled to the site by the loader; 1 at
+standard gravity), so the calibration maps the input to standard g (Gauss-Newton from the
+classical estimate), so the reference direction is not needed and each face's misplacement is
+what the calibrated reading says it is: the angle between the calibrated reading and the face's
+axis.  Six distinct orientations determine the six parameters exactly; revisits placed differently add the spare
 orientations.  Cross-axis coupling moves readings across gravity like a misplacement
 does: with faces alone the two cannot be told apart, and the result says so.
 """
@@ -41,13 +42,14 @@ class FaceFit:
     misplacement_deg: np.ndarray | None  # (P,) angle of each pose's calibrated reading from its face axis
     distinct: int  # distinct orientations used
     note: str
+    norm_g: float = 1.0  # the site's gravity in standard g: the calibrated readings' length
 
     def apply(self, x_g: ArrayLike) -> np.ndarray:
         return self.gain * (np.asarray(x_g, dtype=float) - self.offset_g)
 
     def norm_error_g(self, x_g: ArrayLike) -> np.ndarray:
-        """|calibrated| - 1 g of static readings (P, 3)."""
-        return np.linalg.norm(self.apply(x_g), axis=-1) - 1.0
+        """|calibrated| - the site's gravity (standard g) of static readings (P, 3)."""
+        return np.linalg.norm(self.apply(x_g), axis=-1) - self.norm_g
 
     def as_an4399(self) -> tuple[np.ndarray, np.ndarray]:
         """(W, V) of G = W G_f + V."""
@@ -69,15 +71,22 @@ def _faces(ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ax, sign
 
 
+def site_norm_g(ref: np.ndarray) -> float:
+    """The site's gravity in standard g the references were scaled to (their length; 1 unscaled)."""
+    return float(np.median(np.linalg.norm(ref, axis=1)))
+
+
 def opposite_face(x_g: ArrayLike, ref: ArrayLike) -> FaceFit:
-    """Classical estimate: per axis, offset = mean of its two faces' on-axis means, scale = half the difference."""
+    """Classical estimate: per axis, offset = mean of its two faces' on-axis means, gain = k over half the
+    difference (a face reads o +- k / w, k the site's gravity in standard g)."""
     x, ref = np.asarray(x_g, dtype=float), np.asarray(ref, dtype=float)
     ax, sign = _faces(ref)
+    k = site_norm_g(ref)
     up = np.array([x[(ax == a) & (sign > 0), a].mean() for a in range(3)])
     down = np.array([x[(ax == a) & (sign < 0), a].mean() for a in range(3)])
     scale = (up - down) / 2
-    return FaceFit("opposite-face", 1 / scale, (up + down) / 2, None, int(first_of_orientation(x[None])[0].sum()),
-                   "on-axis channel only")
+    return FaceFit("opposite-face", k / scale, (up + down) / 2, None, int(first_of_orientation(x[None])[0].sum()),
+                   "on-axis channel only", k)
 
 
 def norm_faces(x_g: ArrayLike, ref: ArrayLike) -> FaceFit:
@@ -88,13 +97,13 @@ def norm_faces(x_g: ArrayLike, ref: ArrayLike) -> FaceFit:
     distinct = int(first_of_orientation(x[None])[0].sum())
     if distinct < 6:
         raise UnderdeterminedError(f"{distinct} distinct orientations; gain and offset of three axes need 6")
-    w, o = start.gain.copy(), start.offset_g.copy()
-    for _ in range(GN_ITER):  # Gauss-Newton on r_p = |w (x_p - o)| - 1
+    w, o, k = start.gain.copy(), start.offset_g.copy(), start.norm_g
+    for _ in range(GN_ITER):  # Gauss-Newton on r_p = |w (x_p - o)| - k
         d = x - o
         c = w * d
         n = np.linalg.norm(c, axis=1)
         J = np.concatenate([c * d / n[:, None], -c * w / n[:, None]], axis=1)  # d r / d (w, o)
-        step, *_ = np.linalg.lstsq(J, -(n - 1.0), rcond=None)
+        step, *_ = np.linalg.lstsq(J, -(n - k), rcond=None)
         w, o = w + step[:3], o + step[3:]
         if np.max(np.abs(step)) < 1e-13:
             break
@@ -105,7 +114,7 @@ def norm_faces(x_g: ArrayLike, ref: ArrayLike) -> FaceFit:
             "moves readings the same way, so faces alone cannot tell it from misplacement")
     if distinct == 6:
         note += "; six distinct orientations fit the six parameters exactly (no spare orientation to check them)"
-    return FaceFit("norm", w, o, mis, distinct, note)
+    return FaceFit("norm", w, o, mis, distinct, note, k)
 
 
 def _held_out_rms(x: np.ndarray, ref: np.ndarray) -> float | None:
@@ -123,8 +132,9 @@ def norm_fit_result(x_g: ArrayLike, ref: ArrayLike, base: FitResult, noise_g: Ar
     """The hand-placed faces' norm fit as the FitResult `accelcal fit` prints and saves (one object
     from fit to file): W = diag(w), V = -w o; residuals as model 9's (the calibrated reading's
     distance to the unit sphere), norm errors, leave-one-pose-out norm error, and standard errors
-    (J^T J)^-1 s^2 of r_p = |w (x_p - o)| - 1 (s^2 the mean squared per-pose noise when given, else
-    RSS / (P - 6)).  ``base``: the model-6 fit of the same poses (units, scale, metadata)."""
+    (J^T J)^-1 s^2 of r_p = |w (x_p - o)| - k (k the site's gravity in standard g; s^2 the mean squared
+    per-pose noise when given, else RSS / (P - 6)).  ``base``: the model-6 fit of the same poses (units,
+    scale, metadata)."""
     x, r_ = np.asarray(x_g, dtype=float), np.asarray(ref, dtype=float)
     nf = norm_faces(x, r_)
     W, V = nf.as_an4399()
@@ -132,12 +142,13 @@ def norm_fit_result(x_g: ArrayLike, ref: ArrayLike, base: FitResult, noise_g: Ar
                       metadata={**base.calibration.metadata, "method": "hand-placed norm fit"})
     out = nf.apply(x)
     n = np.linalg.norm(out, axis=1)
-    resid = out / n[:, None] - out
+    k = nf.norm_g
+    resid = out / n[:, None] * k - out  # the calibrated reading's distance to the site's sphere
     d = x - nf.offset_g
     J = np.concatenate([out * d / n[:, None], -out * nf.gain / n[:, None]], axis=1)
     P = len(x)
     s2 = float(np.mean(np.square(noise_g))) if noise_g is not None else \
-        (float(np.sum((n - 1.0) ** 2)) / (P - 6) if P > 6 else None)
+        (float(np.sum((n - k) ** 2)) / (P - 6) if P > 6 else None)
     sv = np.linalg.svd(J, compute_uv=False)
     cov = np.linalg.pinv(J.T @ J) * s2 if s2 is not None else None
     stderr = None
@@ -147,8 +158,8 @@ def norm_fit_result(x_g: ArrayLike, ref: ArrayLike, base: FitResult, noise_g: Ar
         se_v = np.sqrt(np.clip(np.diag(G @ cov @ G.T), 0, None))
         stderr = {"W": np.diag(se_w), "V": se_v, "Gamma": np.zeros(3)}
     return FitResult(model="6", calibration=cal, pose_count=P, readings_g=x, residuals_g=resid,
-                     norm_error_g=n - 1.0, P=np.sum(resid**2, axis=0),
-                     residual_rms_g=float(np.sqrt(np.mean((n - 1) ** 2))),
+                     norm_error_g=n - k, P=np.sum(resid**2, axis=0),
+                     residual_rms_g=float(np.sqrt(np.mean((n - k) ** 2))),
                      residual_max_g=float(np.max(np.abs(resid))), stderr=stderr, covariance=cov,
                      condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
                      crossval_rms_g=_held_out_rms(x, r_), crossval_residuals_g=None,
@@ -159,4 +170,4 @@ def norm_fit_result(x_g: ArrayLike, ref: ArrayLike, base: FitResult, noise_g: Ar
                      distinct_orientations=nf.distinct)
 
 
-__all__ = ["FaceFit", "norm_faces", "norm_fit_result", "opposite_face"]
+__all__ = ["FaceFit", "norm_faces", "norm_fit_result", "opposite_face", "site_norm_g"]

@@ -84,11 +84,14 @@ class ChipSpec:
         return int(range_g), float(odr_hz), dlpf
 
     def enbw_hz(self, odr_hz: float, dlpf: int | None = None) -> float:
-        """Equivalent noise bandwidth: Nyquist, or the DLPF bandwidth when narrower."""
-        bw = odr_hz / 2.0
+        """Equivalent noise bandwidth of one output sample, Hz: Nyquist (ODR / 2) without a DLPF;
+        with the MPU6050's DLPF the one-pole filter's (pi / 2) f_c, f_c the data sheet's DLPF_CFG
+        bandwidth (integral of |H(f)|^2 = 1 / (1 + (f / f_c)^2) over f >= 0).  The filter runs
+        ahead of the output-rate decimation, so the ODR does not narrow it: a sample below
+        2 f_c carries the filter's whole noise (aliased), not Nyquist's."""
         if self.dlpf_hz is not None and dlpf is not None:
-            bw = min(bw, self.dlpf_hz[dlpf])
-        return bw
+            return float(np.pi / 2.0 * self.dlpf_hz[dlpf])
+        return odr_hz / 2.0
 
     def noise_lag1(self, odr_hz: float, dlpf: int | None = None) -> float:
         """Lag-1 autocorrelation of the output noise: a one-pole low-pass of bandwidth f_c sampled

@@ -26,12 +26,13 @@ The sensor chain, in order (each stage only when its effect is enabled):
 5. drift                + offset random walk and exponential warm-up (time since power-up)
 6. settling             + ``fraction * (step of f) * exp(-(t - t_step) / tau_s)`` after each change
 7. noise                + ``density * sqrt(ENBW)`` per sample; ENBW = ODR/2 (MMA8451) or
-                        min(ODR/2, DLPF bandwidth) (MPU6050).  MPU6050: the DLPF makes the noise
-                        a one-pole low-pass process sampled at the ODR, lag-k autocorrelation
-                        ``exp(-2 pi f_c k / ODR)`` (f_c the DLPF_CFG bandwidth), and the signal
-                        lags by the data sheet's DLPF delay.  MMA8451: the oversampling mode
-                        (CTRL_REG2 MODS) averages OSR conversions per output sample in
-                        non-overlapping blocks: independent samples, density scaled by
+                        (pi/2) x the DLPF_CFG bandwidth, the one-pole filter's (MPU6050).
+                        MPU6050: the DLPF makes the noise a one-pole low-pass process
+                        sampled at the ODR, lag-k autocorrelation ``exp(-2 pi f_c k / ODR)``
+                        (f_c the DLPF_CFG bandwidth), and the signal lags by the data
+                        sheet's DLPF delay.  MMA8451: the oversampling mode (CTRL_REG2
+                        MODS) averages OSR conversions per output sample in non-overlapping
+                        blocks: independent samples, density scaled by
                         sqrt(OSR_normal / OSR_mode) (``ChipSpec.noise_scale``)
 8. counts               ``* counts_per_g`` (the chip's nominal sensitivity at its range)
 9. saturation           clip at the chip's code range (``full_scale_fraction`` of it)

@@ -43,7 +43,6 @@ from .self_test_step import self_test_step
 from .settings import StationConfig
 from .uncertainty_step import uncertainty_step
 from .verdict import Stage
-from .warmup import warmup_step
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
@@ -71,6 +70,7 @@ class BoardSteps:
         self.samples_read = 0
         self.samples_used = 0
         self.operator_wait_s = 0.0
+        self.warmup_s = 0.0  # the warm-up hold before the self-test (station/warmup.py, the flow's)
         # records each burn step in the store as it happens (FlowPolicy.burn_steps_recorded)
         self.burn_log: BurnLog | None = None
 
@@ -148,7 +148,6 @@ class BoardSteps:
     def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
         """The chip's built-in self-test once, before the poses (station/self_test_step.py).  True: the
         poses may follow.  Device errors propagate."""
-        self.samples_read += warmup_step(driver, self.cfg, rep, self.echo)  # a settled offset first
         ok, read = self_test_step(driver, self.cfg, rep, self.echo)
         self.samples_read += read
         return ok
@@ -360,6 +359,7 @@ class BoardSteps:
             "wall_s": time.perf_counter() - wall0,
         }
         t["operator_wait_s"] = self.operator_wait_s
+        t["warmup_s"] = self.warmup_s
         # host compute: wall time not spent waiting for the operator (nor, on a real-time
         # board, sleeping through sampling and moves)
         t["host_compute_s"] = max(0.0, t["wall_s"] - self.operator_wait_s)

@@ -54,6 +54,7 @@ class CaptureSettings:
     max_recaptures: int = 3
     self_test_samples: int = 64  # averaged in each self-test state (station/board.py _self_test)
     warmup: dict[str, object] | None = None  # config.schema WarmupSection's fields (station/warmup.py)
+    powered_ahead_s: float = 60.0  # how long a board has been powered when placed (station/warmup.py)
 
 
 @dataclass

@@ -19,7 +19,7 @@ from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, DeviceError
 from ..fixtures.base import Jig
-from ..fixtures.factory import make_jig
+from ..fixtures.factory import make_jig, sync_clocks
 from ..fixtures.operator_ui import OperatorUI
 from ..store.outbox import open_store
 from ..store.runs import Store
@@ -40,6 +40,14 @@ from .station_fault import (
 )
 from .thermal import ThermalConditions
 from .verdict import Stage
+from .warmup import hold_boards, power_ahead
+
+
+def _raiser(e: AccelcalError) -> Callable[[], None]:
+    """A step that raises ``e`` (a board's warm-up error, judged as its other steps' are)."""
+    def step() -> None:
+        raise e
+    return step
 
 
 def _quiet(_: str) -> None:
@@ -157,14 +165,17 @@ class StationFlow:
         try:
             for b in boards:
                 self._open(b, store)
+            self._warm_up(store, boards)
+            for b in boards:
+                self._self_test(b, store)
         except KeyboardInterrupt as e:
             if not self.policy.single_board:
                 self._interrupted(store, boards, e)
             raise
 
     def _open(self, b: PanelBoard, store: Store) -> None:
-        """Open, identify and configure one board, start its run and run its self-test.  A device
-        fault fails that board (a panel's) or is recorded as an error run and raised (a single board)."""
+        """Open, identify and configure one board (powered ahead: warmup.power_ahead) and start its run.
+        A device fault fails that board (a panel's) or is recorded as an error run and raised (a single board)."""
         try:
             b.driver.open()
             b.open_ = True
@@ -177,6 +188,7 @@ class StationFlow:
             b.driver.configure(*(configured_rate(self.cfg.device) if self.policy.single_board else board_rate(b)))
             b.clock = self.conditions.clock(b.driver)
             b.clock0 = b.clock.now() if b.clock is not None else None
+            power_ahead(b.driver, self.cfg.capture.powered_ahead_s)
         except AccelcalError as e:
             if self.policy.device_fault_ends_run:
                 self._record_unreachable(store, e)
@@ -186,7 +198,6 @@ class StationFlow:
             else:
                 b.fail(Stage.DEVICE, Reason("device", str(e)))
         self._start_run(b, store)
-        self._self_test(b, store)
 
     def _start_run(self, b: PanelBoard, store: Store) -> None:
         cfg, rep = self.cfg, b.rep
@@ -209,37 +220,66 @@ class StationFlow:
                               operator=self.operator, lot=self.lot, config_text=cfg.text, model=cfg.model)
         store.interrupt_run(rid, what or f"device: {err}", status="error")
 
+    def _warm_up(self, store: Store, boards: list[PanelBoard]) -> None:
+        """The warm-up hold of every board still in the flow, all at once (station/warmup.py); the
+        panel then waits for its slowest board (virtual clocks brought to the latest).  A board whose
+        device errs is judged as in its self-test."""
+        live = [b for b in boards if b.active]
+        if not live or not self.cfg.capture.warmup:
+            return
+        held = hold_boards([(b.driver, b.rep, self._board_echo(b)) for b in live], self.cfg)
+        for b, h in zip(live, held, strict=True):
+            b.steps.samples_read += h.read
+            b.steps.warmup_s = h.held_s
+        if not self.policy.single_board:
+            sync_clocks([b.driver for b in live])
+        for b, h in zip(live, held, strict=True):
+            if h.error is not None:
+                self._guarded(b, store, "warm-up", _raiser(h.error))
+
+    def _board_echo(self, b: PanelBoard) -> Callable[[str], None]:
+        """What a board says: a single board's own words, a panel's board's prefixed with its name."""
+        return self.echo if self.policy.single_board else (lambda s: self.echo(f"  {b.name}: {s}"))
+
     def _self_test(self, b: PanelBoard, store: Store) -> None:
         """The board's self-test before the poses (self_test_step.py); a board that fails it takes no
-        part in the poses.  A single board's device fault ends its run FAIL, any other error or Ctrl-C
-        interrupts it; a panel's board that errs fails alone."""
+        part in the poses."""
         if not b.active:
             return
-        try:
+
+        def step() -> None:
             if not b.steps.self_test_step(b.driver, b.rep) and not self.policy.single_board:
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
+
+        self._guarded(b, store, "self-test", step)
+
+    def _guarded(self, b: PanelBoard, store: Store, what: str, step: Callable[[], None]) -> None:
+        """A step before the poses (the warm-up, the self-test): a single board's device fault ends its run
+        FAIL, any other error or Ctrl-C interrupts it; a panel's board that errs fails alone."""
+        try:
+            step()
         except AccelcalError as e:
             if not self.policy.device_fault_ends_run:
-                b.fail(Stage.SELF_TEST, Reason(e.reason_code, f"during the self-test: {e}"))
+                b.fail(Stage.SELF_TEST, Reason(e.reason_code, f"during the {what}: {e}"))
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
             elif is_station_fault(e):
                 self._station_fault(store, [b], e)
                 raise
             elif isinstance(e, DeviceError):
-                b.rep.record(Stage.FAULT, Reason(e.reason_code, f"during the self-test: {e}"))
-                self.echo(f"FAIL: {e} (self-test)")
+                b.rep.record(Stage.FAULT, Reason(e.reason_code, f"during the {what}: {e}"))
+                self.echo(f"FAIL: {e} ({what})")
             else:
-                self._interrupt_self_test(store, b, e)
+                self._interrupt_self_test(store, b, e, what)
                 raise
         except KeyboardInterrupt as e:
             if self.policy.single_board:
-                self._interrupt_self_test(store, b, e)
+                self._interrupt_self_test(store, b, e, what)
             raise
 
-    def _interrupt_self_test(self, store: Store, b: PanelBoard, e: BaseException) -> None:
+    def _interrupt_self_test(self, store: Store, b: PanelBoard, e: BaseException, what: str = "self-test") -> None:
         assert b.rep.run_id is not None, "the run is started before its self-test"
         ki = isinstance(e, KeyboardInterrupt)
-        store.interrupt_run(b.rep.run_id, "interrupted (Ctrl-C)" if ki else f"self-test: {e}",
+        store.interrupt_run(b.rep.run_id, "interrupted (Ctrl-C)" if ki else f"{what}: {e}",
                             status="interrupted" if ki else "error")
 
     def _record(self, store: Store, b: PanelBoard) -> None:

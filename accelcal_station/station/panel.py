@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Literal, TypedDict
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 
@@ -313,7 +313,8 @@ class Panel:
         for b in boards:
             if not b.active:
                 continue
-            session = Session(b.records, units="counts", counts_per_g=b.driver.counts_per_g, device=b.rep.serial)
+            session = Session(b.records, units="counts", counts_per_g=b.driver.counts_per_g, device=b.rep.serial,
+                              metadata=site_metadata(b))
             b.cal = b.steps.fit_judge(b.driver, session, b.rep)
 
     def verify_all(self, boards: list[PanelBoard], jig: Jig) -> None:
@@ -364,9 +365,15 @@ def board_rate(b: PanelBoard) -> tuple[int | None, float | None]:
 
 
 def board_session(b: PanelBoard) -> Session:
-    """The poses one board captured, as a Session."""
+    """The poses one board captured, as a Session (at the station's site: model 9's norm)."""
     return Session(b.records, units="counts", counts_per_g=b.driver.counts_per_g if b.open_ else None,
-                   device=b.rep.serial)
+                   device=b.rep.serial, metadata=site_metadata(b))
+
+
+def site_metadata(b: PanelBoard) -> dict[str, Any]:
+    """``site`` of a station session: the gravity the references were scaled to, which model 9's
+    and the hand-placed fit's norm is too (models/site_norm.py)."""
+    return {"site": dict(b.steps.cfg.site.to_json())}
 
 
 class JigPoseJson(TypedDict):

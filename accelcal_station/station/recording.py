@@ -121,7 +121,7 @@ def thermal_summary(cfg: StationConfig, rep: RunReport, thermal: ThermalSummary)
     """A single board's thermal plan: what it measured, its timing and the plan's summary."""
     return {"measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg, "design": cfg.design,
             "timing": rep.timing, "thermal": thermal, "nvm_verified": rep.nvm_verified, "self_test": rep.self_test,
-            "software_version": software_version()}
+            "warmup": rep.warmup, "software_version": software_version()}
 
 
 def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est: JigPoseEstimate | None,
@@ -132,8 +132,8 @@ def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est:
     out: RunSummary = {
         "measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
         "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim, "self_test": rep.self_test,
-        "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified,
-        "panel_id": panel_id, "software_version": software_version(),
+        "warmup": rep.warmup, "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing,
+        "nvm_verified": rep.nvm_verified, "panel_id": panel_id, "software_version": software_version(),
         "jig_pose": jig}
     if thermal is not None:
         out["thermal"] = thermal

@@ -26,6 +26,7 @@ class WarmupRecord(TypedDict):
     drift_mg: list[float] | None  # the last window-to-window change of the mean per axis, mg
     window_s: float | None
     drift_limit_mg: float | None
+    powered_ahead_s: float  # capture.powered_ahead_s: how long the board was powered before it was placed
 
 
 class PoseSummary(TypedDict, total=False):
@@ -58,6 +59,7 @@ class Timing(TypedDict, total=False):
     host_compute_s: float
     device_time_s: float  # on the device's clock: moves, waits, EEPROM cycles, sampling
     board_time_s: float
+    warmup_s: float  # the warm-up hold, board time (station/warmup.py; counted in the time budget)
     soak_s: float
     rest_s: float
     boards: int
@@ -95,6 +97,7 @@ class SetPointRecord(TypedDict):
     t_start_s: float
     t_soaked_s: float | None
     t_end_s: float | None
+    uncertainty: UncertaintyJson | None  # a calibration set point's budget (thermal_budget.py)
 
 
 class VerifyRow(TypedDict):

@@ -51,6 +51,7 @@ class ThermalPlan:
     soak: SoakRule
     capture_band_c: float
     reference_c: float  # the single-temperature calibration "without the table" is the one nearest this
+    temperature_u_c: float = 0.5  # standard uncertainty of a set point's assigned temperature (its budget)
 
     @classmethod
     def from_config(cls, d: Any, model: str, path: str = "thermal") -> ThermalPlan:
@@ -77,7 +78,7 @@ class ThermalPlan:
             raise ConfigError(f"{path}: model 9 has no pose references to verify against; "
                               "allowed plan.model: 6, 12, 15")
         soak = SoakRule(**(t.soak or SoakSection()).model_dump())
-        return cls(tuple(sps), tuple(ver), t.method, soak, t.capture_band_c, t.reference_c)
+        return cls(tuple(sps), tuple(ver), t.method, soak, t.capture_band_c, t.reference_c, t.temperature_u_c)
 
     def visits(self) -> list[tuple[float, str]]:
         """(set point, 'calibrate' | 'verify') in ascending temperature: the chamber travels one way."""

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..acceptance.budget import UncertaintyJson
 from ..acceptance.reasons import Reason, wrap
 from ..acceptance.rules import judge
 from ..calibration import Calibration, TemperatureTable
@@ -34,6 +35,7 @@ from .report import (
     VerifyRow,
 )
 from .settings import StationConfig
+from .thermal_budget import SetPointFit, set_point_budgets
 from .thermal_plan import ThermalPlan
 from .verdict import Stage
 
@@ -62,6 +64,7 @@ class SetPointResult:
     t_start_s: float = 0.0
     t_soaked_s: float | None = None
     t_end_s: float | None = None
+    uncertainty: UncertaintyJson | None = None  # a calibration set point's budget (thermal_budget.py)
 
     def to_dict(self) -> SetPointRecord:
         return SetPointRecord(
@@ -69,7 +72,7 @@ class SetPointResult:
             board_temp_c=self.board_temp_c, air_temp_c=self.air_temp_c, sampling_floor_s=self.sampling_floor_s,
             poses_s=self.poses_s, poses=self.poses, fit=self.fit, verdict=self.verdict, reasons=self.reasons,
             verify_error_max_mg=self.verify_error_max_mg, without_table_error_max_mg=self.without_table_error_max_mg,
-            t_start_s=self.t_start_s, t_soaked_s=self.t_soaked_s, t_end_s=self.t_end_s)
+            t_start_s=self.t_start_s, t_soaked_s=self.t_soaked_s, t_end_s=self.t_end_s, uncertainty=self.uncertainty)
 
     def pose_temp_c(self, capture_temp_c: float | None, air_c: float) -> float:
         """A pose's board temperature: the die's during the capture, else the chamber air's."""
@@ -136,11 +139,14 @@ class BoardPlan:
         """Fit and judge each calibration set point: (mean board temperature, fit) and the reasons."""
         fits: list[tuple[float, FitResult]] = []
         reasons: list[Reason] = []
+        done: list[SetPointFit] = []
         for res in (r for r in self.results if r.role == "calibrate"):
             sp = res.set_point_c
             temps = np.array([p.temp_c for p in self.groups[sp]], dtype=float)
+            session = Session(self.groups[sp], "counts", cpg, device=rep.serial,  # model 9's norm: the site
+                              metadata={"site": dict(self.cfg.site.to_json())})
             try:
-                fit = fit_session(Session(self.groups[sp], "counts", cpg, device=rep.serial), self.cfg.model)
+                fit = fit_session(session, self.cfg.model)
             except UnderdeterminedError as e:
                 res.verdict, res.reasons = "FAIL", [Reason("fit", str(e))]
                 reasons.append(wrap(Reason("fit", str(e)), f"at {sp:g} C: "))
@@ -150,6 +156,10 @@ class BoardPlan:
             res.verdict, res.reasons = v.label, v.reasons
             reasons += [wrap(r, f"at {sp:g} C: ") for r in v.reasons]
             fits.append((float(np.mean(temps)), fit))
+            done.append((sp, float(np.mean(temps)), fit, session))
+        budgets = set_point_budgets(self.cfg, self.plan.temperature_u_c, done, rep, cpg)
+        for res in self.results:
+            res.uncertainty = budgets.get(res.set_point_c) if res.role == "calibrate" else None
         return fits, reasons
 
     def fit_table_burn(self, driver: Driver, rep: RunReport) -> None:
@@ -249,13 +259,15 @@ class BoardPlan:
 
     # -- report ----------------------------------------------------------------------------
     def timing(self, driver: Driver, clock: Clock, t0: float, wall0: float) -> Timing:
-        """Time per board: soak, the sampling floor (samples averaged / ODR) and the rest (moves, gating, I/O)."""
+        """Time per board: soak, the warm-up hold, the sampling floor (samples averaged / ODR) and the rest
+        (moves, gating, I/O)."""
         total = clock.now() - t0
         used, read = self.steps.samples_used, self.steps.samples_read
         floor = used / driver.odr_hz
+        warm = self.steps.warmup_s
         return {"odr_hz": driver.odr_hz, "samples_averaged": used, "samples_read": read,
-                "board_time_s": total, "soak_s": self.soak_s, "sampling_floor_s": floor,
-                "sampling_s": read / driver.odr_hz, "rest_s": total - self.soak_s - floor,
+                "board_time_s": total, "soak_s": self.soak_s, "warmup_s": warm, "sampling_floor_s": floor,
+                "sampling_s": read / driver.odr_hz, "rest_s": total - self.soak_s - warm - floor,
                 "boards": 1, "per_board_s": total, "clock": "real" if clock.realtime else "virtual",
                 "host_compute_s": time.perf_counter() - wall0}
 

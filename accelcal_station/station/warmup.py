@@ -2,78 +2,126 @@
 settles (data sheets: 0.5-0.9 mg/K offset tempco); the station holds it before the self-test and the
 poses, until the mean of one window differs from the previous window's by less than
 ``drift_limit_mg`` on every axis (mode ``settled``, at most ``max_s``), or for ``time_s`` (mode ``time``).
-What it did goes in the run record as ``warmup``."""
+
+A panel (or a thermal plan's boards) is held at once: every board still held reads one window in
+turn, each judged by the same rule on its own windows, until every board has settled or reached
+``max_s``; the panel then waits for its slowest board.  What each board did goes in its run record
+as ``warmup`` and its hold in ``timing.warmup_s``.
+
+A line hides the warm-up by powering boards ahead (``capture.powered_ahead_s``: the next board sits
+powered while the previous one is measured); the simulated station models it by starting each
+simulated board's warm-up clock that long before it is opened (``power_ahead``)."""
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..drivers.base import Driver
+from ..errors import AccelcalError
+from ..fixtures.factory import board_of
 from ..i18n import language_of, translator
 from .report import RunReport, WarmupRecord
 from .settings import StationConfig
 
 
+@dataclass
+class Held:
+    """One board's hold: its driver, its report, and what the hold has seen so far."""
+
+    driver: Driver
+    rep: RunReport
+    echo: Callable[[str], None]
+    read: int = 0
+    t0: float | None = None
+    held_s: float = 0.0
+    prev_mg: np.ndarray | None = None
+    drift_mg: list[float] = field(default_factory=lambda: [float("inf")] * 3)
+    done: bool = False
+    settled: bool = False
+    error: AccelcalError | None = None
+
+
+def power_ahead(driver: Driver, seconds: float) -> None:
+    """A simulated board placed after waiting ``seconds`` powered: its warm-up clock starts that long
+    before now (drivers/simulated.py ``powered_for``).  Real hardware is powered by the line, not here."""
+    board = board_of(driver)
+    if board is not None and seconds > 0:
+        board.powered_for(seconds)
+
+
 def warmup_step(driver: Driver, cfg: StationConfig, rep: RunReport, echo: Callable[[str], None]) -> int:
-    """Hold the board as ``capture.warmup`` says (nothing without it); the samples read."""
+    """Hold one board as ``capture.warmup`` says (nothing without it); the samples read.  Device
+    errors propagate."""
+    (h,) = hold_boards([(driver, rep, echo)], cfg)
+    if h.error is not None:
+        raise h.error
+    return h.read
+
+
+def hold_boards(boards: Sequence[tuple[Driver, RunReport, Callable[[str], None]]], cfg: StationConfig
+                ) -> list[Held]:
+    """Hold every board at once (module doc); a board whose device errs stops being held and keeps
+    its error in ``Held.error`` for the flow to judge.  Each board speaks through its own echo."""
     w = cfg.capture.warmup
+    held = [Held(d, r, e) for d, r, e in boards]
     if not w:
-        return 0
+        return held
     tr = translator(language_of(cfg.schema.station))
-    if w["mode"] == "time":
-        echo(tr("warm-up: holding the board for {s} s").format(s=f"{float(w['time_s']):g}"))  # type: ignore[arg-type]
-        held, read = _hold(driver, float(w["time_s"]))  # type: ignore[arg-type]
-        rep.warmup = WarmupRecord(mode="time", held_s=held, settled=None, drift_mg=None, window_s=None,
-                                  drift_limit_mg=None)
-        return read
-    window, limit, max_s = (float(w[k]) for k in ("window_s", "drift_limit_mg", "max_s"))  # type: ignore[arg-type]
-    echo(tr("warm-up: holding the board until its offset settles (below {limit} mg per {window} s)")
-         .format(limit=f"{limit:g}", window=f"{window:g}"))
-    settled, held, drift, read = _settle(driver, window, limit, max_s)
-    rep.warmup = WarmupRecord(mode="settled", held_s=held, settled=settled, drift_mg=drift, window_s=window,
-                              drift_limit_mg=limit)
-    if settled:
-        echo(tr("warm-up: settled after {s} s").format(s=f"{held:.0f}"))
-    else:
-        echo(tr("warm-up: not settled after {s} s; calibrating anyway").format(s=f"{held:.0f}"))
-        rep.events.append(f"warm-up: offset not settled after {held:.0f} s "
-                          f"(drift {max(drift):.3f} mg per {window:g} s, limit {limit:g})")
-    return read
+    settled_mode = w["mode"] == "settled"
+    window = float(w["window_s"]) if settled_mode else 1.0  # type: ignore[arg-type]
+    limit = float(w["drift_limit_mg"])  # type: ignore[arg-type]
+    max_s = float(w["max_s"] if settled_mode else w["time_s"])  # type: ignore[arg-type]
+    for h in held:
+        h.echo(tr("warm-up: holding the board until its offset settles (below {limit} mg per {window} s)")
+               .format(limit=f"{limit:g}", window=f"{window:g}") if settled_mode else
+               tr("warm-up: holding the board for {s} s").format(s=f"{max_s:g}"))
+    while not all(h.done for h in held):
+        for h in (h for h in held if not h.done):
+            try:
+                _window(h, window, limit if settled_mode else None, max_s)
+            except AccelcalError as e:
+                h.error, h.done = e, True
+    for h in held:
+        if h.error is None:
+            _record(h, cfg, tr, settled_mode, window, limit)
+    return held
 
 
-def _hold(driver: Driver, seconds: float) -> tuple[float, int]:
-    """Read (and drop) samples for ``seconds`` of board time: the board's clock runs on its samples."""
-    n = max(1, int(round(driver.odr_hz)))
-    t0: float | None = None
-    read = 0
-    while True:
-        counts, t, _ = driver.read_samples(n)
-        read += len(counts)
-        t0 = float(t[0]) if t0 is None else t0
-        if float(t[-1]) - t0 >= seconds:
-            return float(t[-1]) - t0, read
+def _window(h: Held, window_s: float, limit_mg: float | None, max_s: float) -> None:
+    """One window of board ``h``: read it, compare its mean with the previous window's (mode settled:
+    ``limit_mg`` given), and say whether the board is done."""
+    n = max(2, int(round(window_s * h.driver.odr_hz)))
+    counts, t, _ = h.driver.read_samples(n)
+    h.read += len(counts)
+    h.t0 = float(t[0]) if h.t0 is None else h.t0
+    h.held_s = float(t[-1]) - h.t0  # board time: its clock runs on its samples
+    mean_mg = counts.mean(axis=0) / h.driver.counts_per_g * 1e3
+    if limit_mg is not None and h.prev_mg is not None:
+        d = np.abs(mean_mg - h.prev_mg)
+        h.drift_mg = [round(float(v), 4) for v in d]
+        if np.all(d <= limit_mg):
+            h.done = h.settled = True
+            return
+    h.prev_mg = mean_mg
+    if h.held_s >= max_s:
+        h.done = True
 
 
-def _settle(driver: Driver, window_s: float, limit_mg: float, max_s: float
-            ) -> tuple[bool, float, list[float], int]:
-    """Window means until two in a row differ by at most limit_mg on every axis, or max_s."""
-    n = max(2, int(round(window_s * driver.odr_hz)))
-    prev: np.ndarray | None = None
-    t0: float | None = None
-    read = 0
-    drift = [float("inf")] * 3
-    while True:
-        counts, t, _ = driver.read_samples(n)
-        read += len(counts)
-        t0 = float(t[0]) if t0 is None else t0
-        mean_mg = counts.mean(axis=0) / driver.counts_per_g * 1e3
-        held = float(t[-1]) - t0
-        if prev is not None:
-            d = np.abs(mean_mg - prev)
-            drift = [round(float(v), 4) for v in d]
-            if np.all(d <= limit_mg):
-                return True, held, drift, read
-        if held >= max_s:
-            return False, held, drift, read
-        prev = mean_mg
+def _record(h: Held, cfg: StationConfig, tr: Callable[[str], str], settled_mode: bool, window: float,
+            limit: float) -> None:
+    """The board's ``warmup`` record and what it says on screen."""
+    ahead = float(cfg.capture.powered_ahead_s)
+    if not settled_mode:
+        h.rep.warmup = WarmupRecord(mode="time", held_s=h.held_s, settled=None, drift_mg=None, window_s=None,
+                                    drift_limit_mg=None, powered_ahead_s=ahead)
+        return
+    h.rep.warmup = WarmupRecord(mode="settled", held_s=h.held_s, settled=h.settled, drift_mg=h.drift_mg,
+                                window_s=window, drift_limit_mg=limit, powered_ahead_s=ahead)
+    if h.settled:
+        h.echo(tr("warm-up: settled after {s} s").format(s=f"{h.held_s:.0f}"))
+        return
+    h.echo(tr("warm-up: not settled after {s} s; calibrating anyway").format(s=f"{h.held_s:.0f}"))
+    h.rep.events.append(f"warm-up: offset not settled after {h.held_s:.0f} s "
+                        f"(drift {max(h.drift_mg):.3f} mg per {window:g} s, limit {limit:g})")

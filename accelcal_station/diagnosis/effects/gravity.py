@@ -1,4 +1,6 @@
-"""gravity: the local |g| differs from 1 g by delta (a shift of the norm, or of every reference)."""
+"""gravity: the gravity the data were taken at differs by delta from the one they are judged against
+(the stated site's, --gravity or '# gravity_mps2:', else the simulator's ``gravity`` effect:
+diagnosis/site.py): a shift of the norm, or of every reference."""
 from __future__ import annotations
 
 from .base import DeterministicEffect
@@ -11,7 +13,8 @@ class Gravity(DeterministicEffect):
     time_columns = False
     degenerate = ("local gravity scales every static reading alike and the fitted gain absorbs it exactly "
                   "(1 g references and the 1 g norm cannot tell gravity from sensitivity); it needs an "
-                  "independent reference such as a known gain or a second acceleration level")
+                  "independent reference such as a known gain or a second acceleration level: a configuration "
+                  "without gain and cross_axis (e.g. calibrated output) and the site stated (--gravity)")
 
     def columns(self, view: StaticView) -> None:
         if view.norm:
