@@ -22,8 +22,10 @@ from ..drivers.base import Capture, Clock, Driver
 from ..errors import ConfigError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
+from ..fixtures.factory import jig_motion
 from ..fixtures.operator_jig import PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
+from ..fixtures.pose_path import shortest_order
 from ..jsontypes import JsonObject
 from ..models.fitting import fit_session
 from ..nvm.outcome import holds_text
@@ -41,6 +43,7 @@ from .offset_trim import trim_change, trim_failure, trim_record, trimmed
 from .report import RunReport, Timing
 from .self_test_step import self_test_step
 from .settings import StationConfig
+from .time_budget import BoardCounts, FloorInputs, TimeBudget, board_budget, finish, floor_parts
 from .uncertainty_step import uncertainty_step
 from .verdict import Stage
 from .warmup import warmup_step
@@ -71,6 +74,13 @@ class BoardSteps:
         self.samples_read = 0
         self.samples_used = 0
         self.operator_wait_s = 0.0
+        # the time budget's counts (time_budget.py): samples by phase, the jig's moves, the fit's wall time
+        self.warmup_read = self.self_test_read = 0
+        self.fit_read: int | None = None  # samples read when the fit poses were done (None: not yet)
+        self.fit_used = 0
+        self.fit_wall_s = 0.0
+        self.first_verify_move_s = 0.0
+        self.jig_moves_s = 0.0
         # records each burn step in the store as it happens (FlowPolicy.burn_steps_recorded)
         self.burn_log: BurnLog | None = None
 
@@ -148,10 +158,16 @@ class BoardSteps:
     def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
         """The chip's built-in self-test once, before the poses (station/self_test_step.py).  True: the
         poses may follow.  Device errors propagate."""
-        self.samples_read += warmup_step(driver, self.cfg, rep, self.echo)  # a settled offset first
+        self.warmup_read = warmup_step(driver, self.cfg, rep, self.echo)  # a settled offset first
+        self.samples_read += self.warmup_read
         ok, read = self_test_step(driver, self.cfg, rep, self.echo)
         self.samples_read += read
+        self.self_test_read = read
         return ok
+
+    def mark_fit_done(self) -> None:
+        """The fit poses are captured: what was read and averaged so far is the fit's (time_budget.py)."""
+        self.fit_read, self.fit_used = self.samples_read, self.samples_used
 
     def run_poses(self, driver: Driver, jig: Jig, design: list[PoseSpec], records: list[PoseRecord],
                    retries: list[int], rep: RunReport) -> None:
@@ -181,6 +197,7 @@ class BoardSteps:
             self.echo(f"  n={c.n} sem={np.max(sem_mg):.3f} mg" + ("" if gc.reached_target else " (time limit)"))
             if self.progress:
                 self.progress("poses", (i + 1) / len(design))
+        self.mark_fit_done()
         if deferred is not None:
             raise deferred
 
@@ -194,6 +211,13 @@ class BoardSteps:
 
     def fit_judge(self, driver: Driver, session: Session, rep: RunReport) -> Calibration | None:
         """Fit and judge before any verification capture; the calibration to verify, or None (FAIL)."""
+        t0 = time.perf_counter()
+        try:
+            return self._fit_judge(driver, session, rep)
+        finally:
+            self.fit_wall_s = time.perf_counter() - t0
+
+    def _fit_judge(self, driver: Driver, session: Session, rep: RunReport) -> Calibration | None:
         cfg = self.cfg
         try:
             fit = fit_session(session, cfg.model)
@@ -338,9 +362,12 @@ class BoardSteps:
             return []
         poses = get_design(self.cfg.verify_design) if self.cfg.verify_design else get_design(self.cfg.design)
         out = []
-        for pose in poses[:n]:
+        for i, pose in enumerate(shortest_order(jig.at, poses[:n])):  # from the last fit pose: maybe no move
             self.echo(f"verify {pose.name}")
+            moved = jig.moves_s
             gc, _ = self.capture_pose(driver, jig, pose, None, rep)
+            if i == 0:
+                self.first_verify_move_s = jig.moves_s - moved
             out.append((gc.capture.mean_counts, self.expected_g(pose), gc.capture.temp_c))
         return out
 
@@ -369,6 +396,23 @@ class BoardSteps:
             t["board_time_s"] = t["device_time_s"] + (0.0 if clock.realtime else t["host_compute_s"])
         return t
 
+    def time_budget(self, driver: Driver, clock: Clock | None, records: list[PoseRecord], t: Timing) -> TimeBudget:
+        """Where this board's time went and its floor (time_budget.py), from its counts and its ``timing``."""
+        real = clock is None or clock.realtime  # the wall holds sampling, moves and compute alike
+        counts = BoardCounts(driver.odr_hz, self.warmup_read, self.self_test_read,
+                             self.samples_read if self.fit_read is None else self.fit_read,
+                             self.samples_used if self.fit_read is None else self.fit_used, self.samples_read,
+                             None if real else t.get("device_time_s"), t["wall_s"], self.operator_wait_s,
+                             self.jig_moves_s, self.fit_wall_s, self.first_verify_move_s)
+        budget = board_budget(counts, 0.0)
+        cfg = self.cfg
+        verify = get_design(cfg.verify_design or cfg.design)[:cfg.verify_poses] if cfg.verify_poses else []
+        inputs = FloorInputs(get_design(cfg.design), verify, jig_motion(cfg.jig), cfg.capture.target_sem_mg,
+                             driver.counts_per_g, driver.odr_hz, records)
+        sampling, jig, eeprom = floor_parts(inputs, budget["eeprom_s"])
+        out = finish(budget, sampling + jig + eeprom)
+        out.update(floor_sampling_s=round(sampling, 6), floor_jig_s=round(jig, 6), floor_eeprom_s=round(eeprom, 6))
+        return out
 
 
 def _n_eff(c: Capture) -> list[float]:

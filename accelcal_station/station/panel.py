@@ -38,6 +38,7 @@ from ..fixtures.designs import get_design
 from ..fixtures.factory import board_seat, clock_of
 from ..fixtures.factory import make_panel_jig as panel_jig
 from ..fixtures.operator_ui import OperatorUI
+from ..fixtures.pose_path import shortest_order
 from ..session import PoseRecord, Session
 from .board import BoardSteps, Check
 from .capture import GatedCapture, WrongPose, gated_capture
@@ -47,6 +48,7 @@ from .panel_mount import BoardMount, Failure, end_of_design, explained, sort_wro
 from .report import RunReport, RunReportJson
 from .settings import StationConfig
 from .station_fault import is_station_fault, station_fault_reason
+from .time_budget import DEFAULT_BUS_HZ, TimeBudget, panel_budget
 from .verdict import Stage
 
 
@@ -66,6 +68,7 @@ class PanelTiming(TypedDict, total=False):
     boards: int
     host_compute_s: float
     device_time_s: float
+    time_budget: TimeBudget  # the panel's (time_budget.panel_budget); each board's rep has its share
     panel_time_s: float
     per_board_s: float
     soak_s: float
@@ -145,6 +148,8 @@ class Panel:
         self.estimate: JigPoseEstimate | None = None
         self.timing: PanelTiming = {}
         self.mounts: dict[int, BoardMount] = {}  # every board's mounting (panel_mount.py), by index
+        self.design_taken: list[PoseSpec] | None = None  # the design's poses in the order taken (poses())
+        self.first_verify_move_s = 0.0  # the move the boards' fits run under (time_budget.py)
 
     # -- building -------------------------------------------------------------------
     def build(self, steps: Callable[[], BoardSteps], report: Callable[[], RunReport], single: bool
@@ -260,6 +265,7 @@ class Panel:
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
 
     def poses(self, boards: list[PanelBoard], jig: Jig, design: list[PoseSpec]) -> None:
+        self.design_taken = design  # the order the poses are taken in (the records' order; fit_all's)
         for i, pose in enumerate(design):
             self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
             caps = self.present_and_capture(boards, jig, pose, {b.index: b.floor for b in boards}, read_on=True)
@@ -280,6 +286,8 @@ class Panel:
                                     "sem_mg": sem_mg.tolist(), "retries": gc.recaptures,
                                     "reached_target": gc.reached_target})
                 b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events + b.driver.take_events()]
+        for b in boards:
+            b.steps.mark_fit_done()
         self.end_design(boards)
 
     def close(self, boards: list[PanelBoard]) -> None:
@@ -295,7 +303,7 @@ class Panel:
 
     def fit_all(self, boards: list[PanelBoard]) -> None:
         """Joint jig-pose estimation over the boards with every pose, then each board's fit and verdict."""
-        design = get_design(self.cfg.design)
+        design = self.design_taken or get_design(self.cfg.design)
         full = [b for b in boards if b.active and len(b.records) == len(design)]
         if full:
             # in board axes (reading @ P = P^T reading): the jig turns every board alike there, and a
@@ -325,9 +333,12 @@ class Panel:
                     b.steps.judge_verified(b.cal, [], b.rep)
             return
         poses = get_design(self.cfg.verify_design or self.cfg.design)[:n]
-        for pose in poses:
+        for i, pose in enumerate(shortest_order(jig.at, poses)):  # from the last fit pose (fixtures/pose_path.py)
             self.echo(f"verify {pose.name}")
+            moved = jig.moves_s
             caps = self.present_and_capture(todo, jig, pose)
+            if i == 0:
+                self.first_verify_move_s = jig.moves_s - moved
             for b in todo:
                 gc = caps.get(b.index)
                 if gc is not None:
@@ -354,6 +365,25 @@ class Panel:
             self.timing["device_time_s"] = max(dev)
             self.timing["panel_time_s"] = max(dev) + host
             self.timing["per_board_s"] = self.timing["panel_time_s"] / len(boards)
+        self._budget(boards, host)
+
+    def _budget(self, boards: list[PanelBoard], host: float) -> None:
+        """The panel's time budget (time_budget.panel_budget), and each board's share of it."""
+        opened = [b for b in boards if b.driver is not None and b.open_ and "wall_s" in b.rep.timing]
+        if not opened:
+            return
+        own = [b.steps.time_budget(b.driver, clock_of(b.driver), b.records, b.rep.timing) for b in opened]
+        fits = sum(b.steps.fit_wall_s for b in opened)
+        emu = getattr(self.cfg.device, "emulator", None)
+        bus_hz = float(getattr(emu, "bus_hz", DEFAULT_BUS_HZ))
+        budget = panel_budget(own, host, min(fits, self.first_verify_move_s),
+                              max(b.steps.samples_read for b in opened), opened[0].driver.odr_hz, bus_hz)
+        self.timing["time_budget"] = budget
+        share: TimeBudget = {k: round(float(v) / len(boards), 6) for k, v in budget.items()  # type: ignore[misc]
+                             if k not in ("ratio_to_floor", "boards", "per_board_s")}
+        share.update(ratio_to_floor=budget["ratio_to_floor"], boards=len(boards))
+        for b in opened:
+            b.rep.time_budget = share
 
 
 

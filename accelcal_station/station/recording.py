@@ -29,6 +29,7 @@ from .jig_pose import JigPoseEstimate
 from .offset_trim import OffsetTrimRecord
 from .report import FitFigures, RunReport, Timing, WarmupRecord, fit_figures
 from .settings import StationConfig
+from .time_budget import TimeBudget
 
 if TYPE_CHECKING:
     from .thermal_table import ThermalSummary
@@ -57,6 +58,7 @@ class RunSummary(FitFigures, total=False):
     design: str
     skipped: list[str]
     timing: Timing
+    time_budget: TimeBudget
     thermal: ThermalSummary | None
     nvm_verified: bool
     panel_id: str | None
@@ -99,7 +101,8 @@ def board_summary(cfg: StationConfig, rep: RunReport) -> RunSummary:
     return {**fit_figures(rep.fit), "reason_codes": codes(rep.reasons), "measured": rep.measured,
             "verify_error_max_mg": rep.verify_error_max_mg, "offset_trim_lsb": rep.offset_trim_lsb,
             "offset_trim": rep.offset_trim, "self_test": rep.self_test, "warmup": rep.warmup, "design": cfg.design,
-            "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified}
+            "skipped": rep.skipped, "timing": rep.timing, "time_budget": rep.time_budget,
+            "nvm_verified": rep.nvm_verified}
 
 
 def thermal_summary(cfg: StationConfig, rep: RunReport, thermal: ThermalSummary) -> RunSummary:
@@ -117,7 +120,7 @@ def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est:
         "measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
         "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim, "self_test": rep.self_test,
         "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified,
-        "panel_id": panel_id,
+        "time_budget": rep.time_budget, "panel_id": panel_id,
         "jig_pose": jig}
     if thermal is not None:
         out["thermal"] = thermal
