@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -32,6 +33,7 @@ from ..nvm.outcome import holds_text
 from ..nvm.writer import BurnError, CalibrationWriter
 from ..session import PoseRecord, Session
 from .capture import (
+    CaptureSettings,
     GatedCapture,
     MountMismatch,
     StillnessGate,
@@ -100,9 +102,9 @@ class BoardSteps:
         return live
 
     def capture_pose(self, driver: Driver, jig: Jig, pose: PoseSpec, floor: np.ndarray | None,
-                      report: RunReport) -> tuple[GatedCapture, int]:
+                      report: RunReport, settings: CaptureSettings | None = None) -> tuple[GatedCapture, int]:
         """Present and capture one pose; operator jigs retry a wrong pose, others fail."""
-        s = self.cfg.capture
+        s = settings or self.cfg.capture
         attempts = 0
         while True:
             attempts += 1
@@ -365,7 +367,7 @@ class BoardSteps:
         for i, pose in enumerate(shortest_order(jig.at, poses[:n])):  # from the last fit pose: maybe no move
             self.echo(f"verify {pose.name}")
             moved = jig.moves_s
-            gc, _ = self.capture_pose(driver, jig, pose, None, rep)
+            gc, _ = self.capture_pose(driver, jig, pose, None, rep, verify_settings(self.cfg))
             if i == 0:
                 self.first_verify_move_s = jig.moves_s - moved
             out.append((gc.capture.mean_counts, self.expected_g(pose), gc.capture.temp_c))
@@ -413,6 +415,12 @@ class BoardSteps:
         out = finish(budget, sampling + jig + eeprom)
         out.update(floor_sampling_s=round(sampling, 6), floor_jig_s=round(jig, 6), floor_eeprom_s=round(eeprom, 6))
         return out
+
+
+def verify_settings(cfg: StationConfig) -> CaptureSettings:
+    """The capture settings of a verification pose: the capture's, averaged to ``verify.target_sem_mg`` when set."""
+    target = cfg.schema.verify.target_sem_mg if cfg.schema.verify is not None else None
+    return cfg.capture if target is None else replace(cfg.capture, target_sem_mg=target)
 
 
 def _n_eff(c: Capture) -> list[float]:

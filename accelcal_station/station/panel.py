@@ -40,8 +40,8 @@ from ..fixtures.factory import make_panel_jig as panel_jig
 from ..fixtures.operator_ui import OperatorUI
 from ..fixtures.pose_path import shortest_order
 from ..session import PoseRecord, Session
-from .board import BoardSteps, Check
-from .capture import GatedCapture, WrongPose, gated_capture
+from .board import BoardSteps, Check, verify_settings
+from .capture import CaptureSettings, GatedCapture, WrongPose, gated_capture
 from .jig_pose import JigPoseEstimate, estimate_jig_poses
 from .panel_config import configured_serial, group_of, own_mount, panel_sections
 from .panel_mount import BoardMount, Failure, end_of_design, explained, sort_wrong_poses
@@ -179,14 +179,16 @@ class Panel:
         return self.jig or make_panel_jig(self.cfg.jig, live, self.ui)
 
     # -- capture ------------------------------------------------------------------------
-    def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None
-                     ) -> tuple[GatedCapture | None, AccelcalError | None]:
+    def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None,
+                     settings: CaptureSettings | None = None) -> tuple[GatedCapture | None, AccelcalError | None]:
         try:
-            return gated_capture(b.driver, self.cfg.capture, b.steps.mount @ pose.reference_g, floor), None
+            return gated_capture(b.driver, settings or self.cfg.capture, b.steps.mount @ pose.reference_g,
+                                 floor), None
         except AccelcalError as e:  # WrongPose, not still, NACK...: this board's, never the panel's
             return None, e
 
-    def capture_all(self, boards: list[PanelBoard], pose: PoseSpec, floors: dict[int, np.ndarray | None] | None = None
+    def capture_all(self, boards: list[PanelBoard], pose: PoseSpec,
+                    floors: dict[int, np.ndarray | None] | None = None, settings: CaptureSettings | None = None
                     ) -> tuple[dict[int, GatedCapture], dict[int, AccelcalError]]:
         """Capture ``pose`` on every active board at once: one thread per group, boards of a group in turn.
 
@@ -202,7 +204,7 @@ class Panel:
 
         def run(members: list[PanelBoard]) -> None:
             for b in members:
-                gc, err = self._capture_one(b, pose, (floors or {}).get(b.index))
+                gc, err = self._capture_one(b, pose, (floors or {}).get(b.index), settings)
                 with lock:
                     if gc is not None:
                         caps[b.index] = gc
@@ -218,8 +220,8 @@ class Panel:
         return caps, errors
 
     def present_and_capture(self, boards: list[PanelBoard], jig: Jig, pose: PoseSpec,
-                            floors: dict[int, np.ndarray | None] | None = None, read_on: bool = False
-                            ) -> dict[int, GatedCapture]:
+                            floors: dict[int, np.ndarray | None] | None = None, read_on: bool = False,
+                            settings: CaptureSettings | None = None) -> dict[int, GatedCapture]:
         """Present ``pose`` and capture the panel; a board that could not be captured fails with its reason.
 
         The panel is placed once: when every board reads a wrong pose it is the panel that is
@@ -230,7 +232,7 @@ class Panel:
         """
         for attempt in range(self.cfg.capture.max_recaptures + 1):
             jig.present(pose, None)
-            caps, errors = self.capture_all(boards, pose, floors)
+            caps, errors = self.capture_all(boards, pose, floors, settings)
             misplaced = len(boards) > 1 and not caps and errors and all(
                 isinstance(e, WrongPose) for e in errors.values()) and not explained(
                 self.mounts, pose.reference_g, errors, self.cfg.capture.pose_tolerance_deg)
@@ -336,7 +338,7 @@ class Panel:
         for i, pose in enumerate(shortest_order(jig.at, poses)):  # from the last fit pose (fixtures/pose_path.py)
             self.echo(f"verify {pose.name}")
             moved = jig.moves_s
-            caps = self.present_and_capture(todo, jig, pose)
+            caps = self.present_and_capture(todo, jig, pose, settings=verify_settings(self.cfg))
             if i == 0:
                 self.first_verify_move_s = jig.moves_s - moved
             for b in todo:
