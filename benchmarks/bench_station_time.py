@@ -118,7 +118,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{cfg.verify_poses} verification poses, model {cfg.model}, capture target "
           f"{cfg.capture.target_sem_mg:g} mg")
     print(f"verdicts: {', '.join(sorted(set(facts['verdicts'])))}; offset standard error max "
-          f"{np.nanmax(facts['stderr_offset_mg']):.4f} mg; verification error max {np.nanmax(facts['verify_mg']):.3f} mg")
+          f"{np.nanmax(facts['stderr_offset_mg']):.4f} mg; verification error max "
+          f"{np.nanmax(facts['verify_mg']):.3f} mg")
     print(table(["seconds per board", "single", "share"], budget_rows(res)))
     if panel is not None:
         t, reports = panel
