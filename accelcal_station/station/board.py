@@ -26,7 +26,7 @@ from ..fixtures.designs import get_design
 from ..fixtures.factory import jig_motion
 from ..fixtures.operator_jig import PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
-from ..fixtures.pose_path import shortest_order
+from ..fixtures.pose_path import visit_order
 from ..jsontypes import JsonObject
 from ..models.fitting import fit_session
 from ..nvm.outcome import holds_text
@@ -81,7 +81,10 @@ class BoardSteps:
         self.fit_read: int | None = None  # samples read when the fit poses were done (None: not yet)
         self.fit_used = 0
         self.fit_wall_s = 0.0
-        self.first_verify_move_s = 0.0
+        self.first_verify_s = 0.0  # the first verification pose's move and capture, device clock
+        # host wall time inside sampling (captures, warm-up, self-test): the host works on the samples as they
+        # arrive, under the device's sampling time (a simulator's draws stand in for the chip's work there)
+        self.sampling_wall_s = 0.0
         self.jig_moves_s = 0.0
         # records each burn step in the store as it happens (FlowPolicy.burn_steps_recorded)
         self.burn_log: BurnLog | None = None
@@ -112,7 +115,11 @@ class BoardSteps:
             jig.present(pose, self._live(driver, StillnessGate(s, floor, driver.noise_lag1())) if live else None)
             bar = self._capture_sink(f"  capturing {pose.name}")
             try:
-                gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar)
+                t0 = time.perf_counter()
+                try:
+                    gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar)
+                finally:
+                    self.sampling_wall_s += time.perf_counter() - t0
             except WrongPose as e:
                 e = self._mounting(pose, e)
                 report.events.append(f"{pose.name}: {e}")
@@ -160,12 +167,16 @@ class BoardSteps:
     def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
         """The chip's built-in self-test once, before the poses (station/self_test_step.py).  True: the
         poses may follow.  Device errors propagate."""
-        self.warmup_read = warmup_step(driver, self.cfg, rep, self.echo)  # a settled offset first
-        self.samples_read += self.warmup_read
-        ok, read = self_test_step(driver, self.cfg, rep, self.echo)
-        self.samples_read += read
-        self.self_test_read = read
-        return ok
+        t0 = time.perf_counter()
+        try:
+            self.warmup_read = warmup_step(driver, self.cfg, rep, self.echo)  # a settled offset first
+            self.samples_read += self.warmup_read
+            ok, read = self_test_step(driver, self.cfg, rep, self.echo)
+            self.samples_read += read
+            self.self_test_read = read
+            return ok
+        finally:
+            self.sampling_wall_s += time.perf_counter() - t0
 
     def mark_fit_done(self) -> None:
         """The fit poses are captured: what was read and averaged so far is the fit's (time_budget.py)."""
@@ -351,7 +362,9 @@ class BoardSteps:
         """One gated capture of the board where it stands (its events kept with the run's)."""
         bar = self._capture_sink(f"  capturing {label}")
         try:
+            t0 = time.perf_counter()
             gc = gated_capture(driver, self.cfg.capture, reference_g, None, progress=bar)
+            self.sampling_wall_s += time.perf_counter() - t0
         finally:
             bar.close()
         self.samples_read += gc.samples_read
@@ -364,12 +377,12 @@ class BoardSteps:
             return []
         poses = get_design(self.cfg.verify_design) if self.cfg.verify_design else get_design(self.cfg.design)
         out = []
-        for i, pose in enumerate(shortest_order(jig.at, poses[:n])):  # from the last fit pose: maybe no move
+        for i, pose in enumerate(visit_order(jig, poses[:n])):  # from the last fit pose: maybe no move
             self.echo(f"verify {pose.name}")
-            moved = jig.moves_s
+            moved, read = jig.moves_s, self.samples_read
             gc, _ = self.capture_pose(driver, jig, pose, None, rep, verify_settings(self.cfg))
             if i == 0:
-                self.first_verify_move_s = jig.moves_s - moved
+                self.first_verify_s = jig.moves_s - moved + (self.samples_read - read) / driver.odr_hz
             out.append((gc.capture.mean_counts, self.expected_g(pose), gc.capture.temp_c))
         return out
 
@@ -405,7 +418,7 @@ class BoardSteps:
                              self.samples_read if self.fit_read is None else self.fit_read,
                              self.samples_used if self.fit_read is None else self.fit_used, self.samples_read,
                              None if real else t.get("device_time_s"), t["wall_s"], self.operator_wait_s,
-                             self.jig_moves_s, self.fit_wall_s, self.first_verify_move_s)
+                             self.jig_moves_s, self.fit_wall_s, self.first_verify_s, self.sampling_wall_s)
         budget = board_budget(counts, 0.0)
         cfg = self.cfg
         verify = get_design(cfg.verify_design or cfg.design)[:cfg.verify_poses] if cfg.verify_poses else []

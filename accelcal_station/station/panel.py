@@ -38,7 +38,7 @@ from ..fixtures.designs import get_design
 from ..fixtures.factory import board_seat, clock_of
 from ..fixtures.factory import make_panel_jig as panel_jig
 from ..fixtures.operator_ui import OperatorUI
-from ..fixtures.pose_path import shortest_order
+from ..fixtures.pose_path import visit_order
 from ..session import PoseRecord, Session
 from .board import BoardSteps, Check, verify_settings
 from .capture import CaptureSettings, GatedCapture, WrongPose, gated_capture
@@ -149,7 +149,8 @@ class Panel:
         self.timing: PanelTiming = {}
         self.mounts: dict[int, BoardMount] = {}  # every board's mounting (panel_mount.py), by index
         self.design_taken: list[PoseSpec] | None = None  # the design's poses in the order taken (poses())
-        self.first_verify_move_s = 0.0  # the move the boards' fits run under (time_budget.py)
+        self.first_verify_s = 0.0  # the first verification step (move, capture): the fits run under it
+        self.capture_wall_s = 0.0  # host wall time inside the panel's captures (time_budget.py)
 
     # -- building -------------------------------------------------------------------
     def build(self, steps: Callable[[], BoardSteps], report: Callable[[], RunReport], single: bool
@@ -232,7 +233,9 @@ class Panel:
         """
         for attempt in range(self.cfg.capture.max_recaptures + 1):
             jig.present(pose, None)
+            t0 = time.perf_counter()
             caps, errors = self.capture_all(boards, pose, floors, settings)
+            self.capture_wall_s += time.perf_counter() - t0
             misplaced = len(boards) > 1 and not caps and errors and all(
                 isinstance(e, WrongPose) for e in errors.values()) and not explained(
                 self.mounts, pose.reference_g, errors, self.cfg.capture.pose_tolerance_deg)
@@ -335,12 +338,12 @@ class Panel:
                     b.steps.judge_verified(b.cal, [], b.rep)
             return
         poses = get_design(self.cfg.verify_design or self.cfg.design)[:n]
-        for i, pose in enumerate(shortest_order(jig.at, poses)):  # from the last fit pose (fixtures/pose_path.py)
+        for i, pose in enumerate(visit_order(jig, poses)):  # from the last fit pose (fixtures/pose_path.py)
             self.echo(f"verify {pose.name}")
-            moved = jig.moves_s
+            moved, t0 = jig.moves_s, self._clock_now(todo)
             caps = self.present_and_capture(todo, jig, pose, settings=verify_settings(self.cfg))
             if i == 0:
-                self.first_verify_move_s = jig.moves_s - moved
+                self.first_verify_s = max(jig.moves_s - moved, self._clock_now(todo) - t0)
             for b in todo:
                 gc = caps.get(b.index)
                 if gc is not None:
@@ -369,6 +372,11 @@ class Panel:
             self.timing["per_board_s"] = self.timing["panel_time_s"] / len(boards)
         self._budget(boards, host)
 
+    @staticmethod
+    def _clock_now(boards: list[PanelBoard]) -> float:
+        """The latest of the boards' device clocks (0 when they run on the wall)."""
+        return max((c.now() for c in (clock_of(b.driver) for b in boards) if c is not None), default=0.0)
+
     def _budget(self, boards: list[PanelBoard], host: float) -> None:
         """The panel's time budget (time_budget.panel_budget), and each board's share of it."""
         opened = [b for b in boards if b.driver is not None and b.open_ and "wall_s" in b.rep.timing]
@@ -376,9 +384,11 @@ class Panel:
             return
         own = [b.steps.time_budget(b.driver, clock_of(b.driver), b.records, b.rep.timing) for b in opened]
         fits = sum(b.steps.fit_wall_s for b in opened)
+        # the host's work inside sampling (every board's self-test, the panel's captures) is under the device's time
+        host = max(0.0, host - self.capture_wall_s - sum(b.steps.sampling_wall_s for b in opened))
         emu = getattr(self.cfg.device, "emulator", None)
         bus_hz = float(getattr(emu, "bus_hz", DEFAULT_BUS_HZ))
-        budget = panel_budget(own, host, min(fits, self.first_verify_move_s),
+        budget = panel_budget(own, host, min(fits, self.first_verify_s),
                               max(b.steps.samples_read for b in opened), opened[0].driver.odr_hz, bus_hz)
         self.timing["time_budget"] = budget
         share: TimeBudget = {k: round(float(v) / len(boards), 6) for k, v in budget.items()  # type: ignore[misc]

@@ -12,7 +12,7 @@ from ..drivers.base import Clock, Driver
 from ..errors import AccelcalError, DeviceError, NVMError
 from ..fixtures.designs import get_design
 from ..fixtures.factory import clock_of, make_jig
-from ..fixtures.pose_path import shortest_order
+from ..fixtures.pose_path import visit_order
 from .panel import PanelBoard, board_session
 from .policy import FlowView, panel_why, stopped_by_operator
 from .recording import RunSummary, board_summary, panel_summary
@@ -43,7 +43,7 @@ class RoomTemperature:
         live = [b for b in boards if b.active]
         if live:
             with panel.make_jig(live) as jig:
-                panel.poses(boards, jig, shortest_order(jig.at, get_design(flow.cfg.design)))
+                panel.poses(boards, jig, visit_order(jig, get_design(flow.cfg.design)))
                 panel.fit_all(boards)
                 panel.verify_all(boards, jig)
             for b in boards:
@@ -62,7 +62,7 @@ class RoomTemperature:
             try:
                 # the design is a set: visited along the shortest path from where the jig stands
                 # (fixtures/pose_path.py); records keep the order taken, which diagnosis/order.py reads
-                steps.run_poses(b.driver, jig, shortest_order(jig.at, get_design(flow.cfg.design)), b.records,
+                steps.run_poses(b.driver, jig, visit_order(jig, get_design(flow.cfg.design)), b.records,
                                 b.retries, b.rep)
                 steps.fit_judge_write(b.driver, jig, board_session(b), b.rep)
             finally:

@@ -10,9 +10,13 @@ for host compute):
 - ``verification_s``: samples read after the fit (verification poses, an offset trim's captures) / ODR
 - ``jig_moves_s``: the jig's moves (settle + angle / rated speed each, fixtures/jig_motion.py)
 - ``eeprom_s``: the rest of the device's clock: EEPROM write cycles and read-back
-- ``host_compute_s``: host wall time (fit, simulator, NVM preparation, store) not hidden under a move:
-  the fit runs while the jig makes the first verification move, so max(fit, move) counts, not the sum
-  (modelled: this process computes, then moves; a real jig's move would run meanwhile)
+- ``host_compute_s``: host wall time (fit, judging, NVM preparation and burn calls) not hidden under the
+  device's time.  Two overlaps, both modelled (this process computes, then moves and samples):
+  the host works on the samples as they arrive, so its wall time inside sampling (captures, warm-up,
+  self-test; on a simulated board the simulator's draws, which stand in for the chip) is not counted;
+  and the fit needs none of the first verification pose's data, so it runs while the jig turns to
+  that pose and the board samples it: max(fit, that step) counts, not the sum.  The store write
+  comes after the board's time is taken (the next board is being placed meanwhile).
 - ``operator_s``: wall time waiting for a person (an operator jig)
 
 ``floor_s``: the least time the configured quality allows: the sampling at each fit and verification
@@ -83,7 +87,8 @@ class BoardCounts:
     operator_s: float
     jig_moves_s: float
     fit_wall_s: float  # the fit and judging, host wall time
-    first_verify_move_s: float  # the move the fit may run under
+    first_verify_s: float  # the first verification pose's move and capture: what the fit runs under
+    sampling_wall_s: float = 0.0  # host wall time inside sampling (captures, warm-up, self-test)
 
 
 def board_budget(c: BoardCounts, floor_s: float) -> TimeBudget:
@@ -106,7 +111,8 @@ def board_budget(c: BoardCounts, floor_s: float) -> TimeBudget:
         b["host_compute_s"] = max(0.0, host - sampled - c.jig_moves_s)
     else:
         b["eeprom_s"] = max(0.0, c.device_s - sampled - c.jig_moves_s)
-        b["host_compute_s"] = host - min(c.fit_wall_s, c.first_verify_move_s, host)
+        rest = max(0.0, host - c.sampling_wall_s)
+        b["host_compute_s"] = rest - min(c.fit_wall_s, c.first_verify_s, rest)
     return finish(b, floor_s)
 
 
