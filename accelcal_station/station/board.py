@@ -81,7 +81,7 @@ class BoardSteps:
         self.fit_read: int | None = None  # samples read when the fit poses were done (None: not yet)
         self.fit_used = 0
         self.fit_wall_s = 0.0
-        self.first_verify_s = 0.0  # the first verification pose's move and capture, device clock
+        self.verify_device_s = 0.0  # the verification poses' moves and captures, device clock
         # host wall time inside sampling (captures, warm-up, self-test): the host works on the samples as they
         # arrive, under the device's sampling time (a simulator's draws stand in for the chip's work there)
         self.sampling_wall_s = 0.0
@@ -377,13 +377,12 @@ class BoardSteps:
             return []
         poses = get_design(self.cfg.verify_design) if self.cfg.verify_design else get_design(self.cfg.design)
         out = []
-        for i, pose in enumerate(visit_order(jig, poses[:n])):  # from the last fit pose: maybe no move
+        moved, read = jig.moves_s, self.samples_read
+        for pose in visit_order(jig, poses[:n]):  # from the last fit pose: maybe no move
             self.echo(f"verify {pose.name}")
-            moved, read = jig.moves_s, self.samples_read
             gc, _ = self.capture_pose(driver, jig, pose, None, rep, verify_settings(self.cfg))
-            if i == 0:
-                self.first_verify_s = jig.moves_s - moved + (self.samples_read - read) / driver.odr_hz
             out.append((gc.capture.mean_counts, self.expected_g(pose), gc.capture.temp_c))
+        self.verify_device_s = jig.moves_s - moved + (self.samples_read - read) / driver.odr_hz
         return out
 
     def _verify_error(self, cal: Calibration, checks: list[Check]) -> float:
@@ -418,7 +417,7 @@ class BoardSteps:
                              self.samples_read if self.fit_read is None else self.fit_read,
                              self.samples_used if self.fit_read is None else self.fit_used, self.samples_read,
                              None if real else t.get("device_time_s"), t["wall_s"], self.operator_wait_s,
-                             self.jig_moves_s, self.fit_wall_s, self.first_verify_s, self.sampling_wall_s)
+                             self.jig_moves_s, self.fit_wall_s, self.verify_device_s, self.sampling_wall_s)
         budget = board_budget(counts, 0.0)
         cfg = self.cfg
         verify = get_design(cfg.verify_design or cfg.design)[:cfg.verify_poses] if cfg.verify_poses else []

@@ -149,7 +149,7 @@ class Panel:
         self.timing: PanelTiming = {}
         self.mounts: dict[int, BoardMount] = {}  # every board's mounting (panel_mount.py), by index
         self.design_taken: list[PoseSpec] | None = None  # the design's poses in the order taken (poses())
-        self.first_verify_s = 0.0  # the first verification step (move, capture): the fits run under it
+        self.verify_device_s = 0.0  # the verification's moves and captures: the fits run under them
         self.capture_wall_s = 0.0  # host wall time inside the panel's captures (time_budget.py)
 
     # -- building -------------------------------------------------------------------
@@ -338,18 +338,17 @@ class Panel:
                     b.steps.judge_verified(b.cal, [], b.rep)
             return
         poses = get_design(self.cfg.verify_design or self.cfg.design)[:n]
-        for i, pose in enumerate(visit_order(jig, poses)):  # from the last fit pose (fixtures/pose_path.py)
+        t0 = self._clock_now(todo)
+        for pose in visit_order(jig, poses):  # from the last fit pose (fixtures/pose_path.py)
             self.echo(f"verify {pose.name}")
-            moved, t0 = jig.moves_s, self._clock_now(todo)
             caps = self.present_and_capture(todo, jig, pose, settings=verify_settings(self.cfg))
-            if i == 0:
-                self.first_verify_s = max(jig.moves_s - moved, self._clock_now(todo) - t0)
             for b in todo:
                 gc = caps.get(b.index)
                 if gc is not None:
                     b.steps.samples_read += gc.samples_read
                     b.steps.samples_used += gc.capture.n
                     b.checks.append((gc.capture.mean_counts, b.steps.expected_g(pose), gc.capture.temp_c))
+        self.verify_device_s = self._clock_now(todo) - t0
         for b in todo:
             if b.active and b.cal is not None and not b.steps.judge_verified(b.cal, b.checks, b.rep):
                 b.cal = None
@@ -385,10 +384,12 @@ class Panel:
         own = [b.steps.time_budget(b.driver, clock_of(b.driver), b.records, b.rep.timing) for b in opened]
         fits = sum(b.steps.fit_wall_s for b in opened)
         # the host's work inside sampling (every board's self-test, the panel's captures) is under the device's time
-        host = max(0.0, host - self.capture_wall_s - sum(b.steps.sampling_wall_s for b in opened))
+        inside = self.capture_wall_s + sum(b.steps.sampling_wall_s for b in opened)
+        sampled = max(b.steps.samples_read for b in opened) / opened[0].driver.odr_hz
+        host = max(0.0, host - min(inside, sampled))  # beyond the sampling time, the host sets the pace
         emu = getattr(self.cfg.device, "emulator", None)
         bus_hz = float(getattr(emu, "bus_hz", DEFAULT_BUS_HZ))
-        budget = panel_budget(own, host, min(fits, self.first_verify_s),
+        budget = panel_budget(own, host, min(fits, self.verify_device_s),
                               max(b.steps.samples_read for b in opened), opened[0].driver.odr_hz, bus_hz)
         self.timing["time_budget"] = budget
         share: TimeBudget = {k: round(float(v) / len(boards), 6) for k, v in budget.items()  # type: ignore[misc]

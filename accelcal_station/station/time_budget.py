@@ -13,9 +13,11 @@ for host compute):
 - ``host_compute_s``: host wall time (fit, judging, NVM preparation and burn calls) not hidden under the
   device's time.  Two overlaps, both modelled (this process computes, then moves and samples):
   the host works on the samples as they arrive, so its wall time inside sampling (captures, warm-up,
-  self-test; on a simulated board the simulator's draws, which stand in for the chip) is not counted;
-  and the fit needs none of the first verification pose's data, so it runs while the jig turns to
-  that pose and the board samples it: max(fit, that step) counts, not the sum.  The store write
+  self-test; on a simulated board the simulator's draws, which stand in for the chip) is not counted
+  up to the sampling time it runs under (beyond that the host, not the chip, sets the pace);
+  and the verification captures are raw counts the calibration is applied to afterwards, so the fit
+  (and its judging) runs while the jig turns to the verification poses and the board samples them:
+  max(fit, verification) counts, not the sum.  The store write
   comes after the board's time is taken (the next board is being placed meanwhile).
 - ``operator_s``: wall time waiting for a person (an operator jig)
 
@@ -87,7 +89,7 @@ class BoardCounts:
     operator_s: float
     jig_moves_s: float
     fit_wall_s: float  # the fit and judging, host wall time
-    first_verify_s: float  # the first verification pose's move and capture: what the fit runs under
+    verify_device_s: float  # the verification poses' moves and captures: what the fit runs under
     sampling_wall_s: float = 0.0  # host wall time inside sampling (captures, warm-up, self-test)
 
 
@@ -111,8 +113,8 @@ def board_budget(c: BoardCounts, floor_s: float) -> TimeBudget:
         b["host_compute_s"] = max(0.0, host - sampled - c.jig_moves_s)
     else:
         b["eeprom_s"] = max(0.0, c.device_s - sampled - c.jig_moves_s)
-        rest = max(0.0, host - c.sampling_wall_s)
-        b["host_compute_s"] = rest - min(c.fit_wall_s, c.first_verify_s, rest)
+        rest = max(0.0, host - min(c.sampling_wall_s, sampled))  # beyond the sampling time it is the host's
+        b["host_compute_s"] = rest - min(c.fit_wall_s, c.verify_device_s, rest)
     return finish(b, floor_s)
 
 
