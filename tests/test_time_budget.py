@@ -53,3 +53,17 @@ def test_panel_bus_time_grows_with_boards():
     assert bus_time_s(100, 16) == pytest.approx(16 * bus_time_s(100, 1))
     assert bus_time_s(100, 8) < bus_time_s(100, 16) < bus_time_s(100, 32)
     assert bus_limit_boards(100.0) == 40  # 400000 / (100 Hz x 99 bits) = 40.4
+
+
+def test_the_board_page_shows_the_budget(run_json):
+    from fastapi.testclient import TestClient
+
+    from accelcal_station.web.app import create_app
+    from accelcal_station.web.settings import WebSettings
+
+    js, store = run_json
+    html = TestClient(create_app(WebSettings(store=str(store)))).get(f"/board?serial={js['serial']}").text
+    b = js["time_budget"]
+    assert f'data-part="jig_moves_s"><th>jig moves</th><td class="n">{b["jig_moves_s"]:.2f}</td>' in html
+    assert f'data-part="total_s"><th>total</th><td class="n">{b["total_s"]:.2f}</td>' in html
+    assert f'<td class="n">{b["floor_s"]:.2f}</td><td class="n">× {b["ratio_to_floor"]:.2f}</td>' in html

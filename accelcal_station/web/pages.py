@@ -24,6 +24,7 @@ from ..store.records import RunRecord, iso
 from . import queries
 from .charts import Chart, RunPoint, residual_chart, run_chart
 from .settings import WebSettings, open_store
+from .time_budget_view import TimeBudgetView, time_budget_view
 from .views import LotCalibration, LotCounts, LotRow, RunView, ShiftYield, StationRow
 
 # the line page's run charts: fit_summary.measured key, title, unit, acceptance limit key
@@ -284,6 +285,7 @@ class BoardRun(TypedDict):
     limits_source: str | None
     acceptance: list[AcceptanceRow]
     uncertainty: UncertaintyView | None
+    time_budget: TimeBudgetView | None  # where the run's time went (time_budget_view.py)
 
 
 class NvmLine(TypedDict):
@@ -318,7 +320,8 @@ def board_context(store: Store, serial: str) -> BoardContext:
                      "limits_source": "stored" if isinstance(rec.limits, dict) else ("config" if lim else None),
                      "acceptance": acceptance_rows(measured if isinstance(measured, dict) else {}, lim,
                                                    [r.code for r in rec.reasons]),
-                     "uncertainty": uncertainty_view(rec.uncertainty, rec.calibration, rec.site)})
+                     "uncertainty": uncertainty_view(rec.uncertainty, rec.calibration, rec.site),
+                     "time_budget": time_budget_view(rec.fit_summary)})
         nvm.extend({"run": rec.id, "t": iso(e["t"]), "kind": e["kind"], "message": e["message"]}
                    for e in rec.events if e["kind"] is not None and e["kind"].startswith("nvm_"))
         if rec.nvm_status and rec.nvm_status != "none":
