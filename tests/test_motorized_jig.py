@@ -16,7 +16,16 @@ from accelcal_station.fixtures.base import PoseSpec
 from accelcal_station.fixtures.designs import get_design
 from accelcal_station.fixtures.factory import make_jig
 from accelcal_station.fixtures.jig_emulator import JigEmulator, run_jig_emulator_forever
-from accelcal_station.fixtures.motorized_jig import MotorizedJig, checksum, frame, move_time_s, profile_deg, unframe
+from accelcal_station.fixtures.motorized_jig import (
+    JigAxes,
+    JigLink,
+    MotorizedJig,
+    checksum,
+    frame,
+    move_time_s,
+    profile_deg,
+    unframe,
+)
 
 # fast motion so the suite stays quick: a 180 degree move takes 0.085 s
 FAST = {"speed_deg_s": 4000.0, "accel_deg_s2": 100000.0}
@@ -39,7 +48,10 @@ def emu():
 
 
 def jig_for(e: JigEmulator, **kw) -> MotorizedJig:
-    return MotorizedJig(e.port, **{"timeout_s": 0.2, "move_margin_s": 0.3, **kw})
+    """The jig on the emulator's port; keywords go to its link (JigLink) or its axes (JigAxes) by name."""
+    kw = {"timeout_s": 0.2, "move_margin_s": 0.3, **kw}
+    link = {k: v for k, v in kw.items() if k in JigLink.__dataclass_fields__}
+    return MotorizedJig(e.port, JigLink(**link), JigAxes(**{k: v for k, v in kw.items() if k not in link}))
 
 
 def raw_session(port: str):
@@ -371,7 +383,7 @@ def test_run_forever_serves_behind_a_link_until_stopped(tmp_path):
             if link.is_symlink():
                 break
             time.sleep(0.01)
-        with MotorizedJig(str(link), timeout_s=0.2) as jig:
+        with MotorizedJig(str(link), JigLink(timeout_s=0.2)) as jig:
             jig.present(PoseSpec("p", -30.0, 60.0))
             assert jig.status().a_deg == -30.0
     finally:

@@ -23,7 +23,7 @@ from ..drivers.base import Capture, Clock, Driver
 from ..errors import ConfigError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
-from ..fixtures.factory import jig_motion
+from ..fixtures.factory import clock_of, jig_motion
 from ..fixtures.operator_jig import PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
 from ..fixtures.pose_path import visit_order
@@ -85,6 +85,7 @@ class BoardSteps:
         # host wall time inside sampling (captures, warm-up, self-test): the host works on the samples as they
         # arrive, under the device's sampling time (a simulator's draws stand in for the chip's work there)
         self.sampling_wall_s = 0.0
+        self.eeprom_device_s = 0.0  # the burn and read-back on the device's clock (None: the wall)
         self.jig_moves_s = 0.0
         # records each burn step in the store as it happens (FlowPolicy.burn_steps_recorded)
         self.burn_log: BurnLog | None = None
@@ -273,7 +274,17 @@ class BoardSteps:
         return True
 
     def burn(self, driver: Driver, cal: Calibration, checks: list[Check], rep: RunReport) -> None:
-        """Burn NVM, read back, and check the calibration read back does what the fitted one did."""
+        """Burn NVM, read back, and check the calibration read back does what the fitted one did (the time it
+        takes on the device's clock is the time budget's eeprom_s)."""
+        clock = clock_of(driver)
+        t0 = None if clock is None or clock.realtime else clock.now()
+        try:
+            self._burn(driver, cal, checks, rep)
+        finally:
+            if clock is not None and t0 is not None:
+                self.eeprom_device_s += clock.now() - t0
+
+    def _burn(self, driver: Driver, cal: Calibration, checks: list[Check], rep: RunReport) -> None:
         cfg = self.cfg
         if not cfg.nvm_write:
             return
@@ -417,7 +428,8 @@ class BoardSteps:
                              self.samples_read if self.fit_read is None else self.fit_read,
                              self.samples_used if self.fit_read is None else self.fit_used, self.samples_read,
                              None if real else t.get("device_time_s"), t["wall_s"], self.operator_wait_s,
-                             self.jig_moves_s, self.fit_wall_s, self.verify_device_s, self.sampling_wall_s)
+                             self.jig_moves_s, self.fit_wall_s, self.verify_device_s, self.sampling_wall_s,
+                             self.eeprom_device_s)
         budget = board_budget(counts, 0.0)
         cfg = self.cfg
         verify = get_design(cfg.verify_design or cfg.design)[:cfg.verify_poses] if cfg.verify_poses else []

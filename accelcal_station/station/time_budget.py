@@ -9,7 +9,7 @@ for host compute):
 - ``stillness_s``: samples read at the fit poses but not averaged (waiting for stillness, the hold) / ODR
 - ``verification_s``: samples read after the fit (verification poses, an offset trim's captures) / ODR
 - ``jig_moves_s``: the jig's moves (settle + angle / rated speed each, fixtures/jig_motion.py)
-- ``eeprom_s``: the rest of the device's clock: EEPROM write cycles and read-back
+- ``eeprom_s``: the NVM burn and read-back on the device's clock (the EEPROM's write cycles, the bus)
 - ``host_compute_s``: host wall time (fit, judging, NVM preparation and burn calls) not hidden under the
   device's time.  Two overlaps, both modelled (this process computes, then moves and samples):
   the host works on the samples as they arrive, so its wall time inside sampling (captures, warm-up,
@@ -91,6 +91,7 @@ class BoardCounts:
     fit_wall_s: float  # the fit and judging, host wall time
     verify_device_s: float  # the verification poses' moves and captures: what the fit runs under
     sampling_wall_s: float = 0.0  # host wall time inside sampling (captures, warm-up, self-test)
+    eeprom_s: float = 0.0  # the burn and read-back on the device's clock
 
 
 def board_budget(c: BoardCounts, floor_s: float) -> TimeBudget:
@@ -112,7 +113,7 @@ def board_budget(c: BoardCounts, floor_s: float) -> TimeBudget:
         b["eeprom_s"] = 0.0
         b["host_compute_s"] = max(0.0, host - sampled - c.jig_moves_s)
     else:
-        b["eeprom_s"] = max(0.0, c.device_s - sampled - c.jig_moves_s)
+        b["eeprom_s"] = c.eeprom_s
         rest = max(0.0, host - min(c.sampling_wall_s, sampled))  # beyond the sampling time it is the host's
         b["host_compute_s"] = rest - min(c.fit_wall_s, c.verify_device_s, rest)
     return finish(b, floor_s)
