@@ -50,4 +50,4 @@ def test_large_designs_use_two_opt_and_keep_every_pose():
 def test_starts_from_where_the_jig_stands():
     poses = get_design("an4399-8")[:3]
     here = poses[1]
-    assert shortest_order(here, poses)[0] is here  # no move at all for the first
+    assert shortest_order(here, poses)[0] == here  # no move at all for the first
