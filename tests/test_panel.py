@@ -21,9 +21,6 @@ from accelcal_station.station.panel_config import panel_sections
 from accelcal_station.station.settings import StationConfig
 
 CONFIGS = __import__("pathlib").Path(__file__).resolve().parents[1] / "configs"
-# the first pose a simulated jig presents: an4399-8 along the shortest path from home (issue 51) is p3
-# (pitch 5, roll 17 deg: 17.7 deg from flat, the nearest of the eight)
-FIRST = "p3"
 
 
 def panel_config(tmp_path, boards, **device) -> str:
@@ -66,7 +63,7 @@ def test_bad_boards_fail_with_their_own_reason_while_the_others_pass(tmp_path):
     assert len(lines) == 4
     assert "PASS" in lines[0] and "PASS" in lines[2]
     assert "FAIL" in lines[1] and "offset_max_mg" in lines[1]
-    assert "FAIL" in lines[3] and "from the planned pose" in lines[3] and f"pose {FIRST}" in lines[3]
+    assert "FAIL" in lines[3] and "from the planned pose" in lines[3] and "pose p1" in lines[3]
     db = sqlite3.connect(tmp_path / "runs.sqlite")
     verdicts = db.execute("SELECT verdict, count(DISTINCT panel_id) FROM runs GROUP BY verdict").fetchall()
     assert sorted(verdicts) == [("FAIL", 1), ("PASS", 1)]
@@ -165,7 +162,7 @@ def test_a_misplaced_panel_is_named_as_the_panel(tmp_path):
     reps = make_flow(cfg, echo=lines.append).run()
     assert [r.verdict for r in reps] == ["FAIL"] * 3
     assert any("the panel is not in the planned pose" in ln for ln in lines)
-    assert all(len(r.reasons) == 1 and r.reasons[0].startswith(f"pose {FIRST}:") for r in reps)
+    assert all(len(r.reasons) == 1 and r.reasons[0].startswith("pose p1:") for r in reps)
 
 
 def test_a_board_that_is_not_still_is_named_and_the_others_pass(tmp_path):
@@ -179,5 +176,5 @@ def test_a_board_that_is_not_still_is_named_and_the_others_pass(tmp_path):
     lines: list[str] = []
     reps = make_flow(cfg, echo=lines.append, drivers=drivers).run()
     assert [r.verdict for r in reps] == ["PASS", "FAIL", "PASS"]
-    assert reps[1].reasons[0].startswith(f"device: {FIRST}:") and "not still" in reps[1].reasons[0]
+    assert reps[1].reasons[0].startswith("device: p1:") and "not still" in reps[1].reasons[0]
     assert any(ln.strip().startswith("board 2 (PNL-02)") for ln in lines)

@@ -392,7 +392,7 @@ class Panel:
         budget = panel_budget(own, host, min(fits, self.verify_device_s),
                               max(b.steps.samples_read for b in opened), opened[0].driver.odr_hz, bus_hz)
         self.timing["time_budget"] = budget
-        share: TimeBudget = {k: round(float(v) / len(boards), 6) for k, v in budget.items()  # type: ignore[misc]
+        share: TimeBudget = {k: round(float(v) / len(boards), 6) for k, v in budget.items()
                              if k not in ("ratio_to_floor", "boards", "per_board_s")}
         share.update(ratio_to_floor=budget["ratio_to_floor"], boards=len(boards))
         for b in opened:

@@ -221,7 +221,7 @@ class RunReport:
     skipped: list[str] = field(default_factory=list)
     events: list[str] = field(default_factory=list)
     timing: Timing = field(default_factory=lambda: Timing())
-    time_budget: TimeBudget = field(default_factory=lambda: TimeBudget())  # station/time_budget.py
+    time_budget: TimeBudget = field(default_factory=dict)  # station/time_budget.py
     store: str = ""
     # the station's fault that ended this board's run (station_fault.py): the board is not judged
     station_fault: str | None = None

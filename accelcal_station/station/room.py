@@ -43,7 +43,7 @@ class RoomTemperature:
         live = [b for b in boards if b.active]
         if live:
             with panel.make_jig(live) as jig:
-                panel.poses(boards, jig, visit_order(jig, get_design(flow.cfg.design)))
+                panel.poses(boards, jig, visit_order(jig, get_design(flow.cfg.design), keep_first=True))
                 panel.fit_all(boards)
                 panel.verify_all(boards, jig)
             for b in boards:
@@ -60,10 +60,10 @@ class RoomTemperature:
         with flow.panel.jig or make_jig(flow.cfg.jig, b.driver, flow.ui) as jig:
             jig.mount = steps.mount
             try:
-                # the design is a set: visited along the shortest path from where the jig stands
-                # (fixtures/pose_path.py); records keep the order taken, which diagnosis/order.py reads
-                steps.run_poses(b.driver, jig, visit_order(jig, get_design(flow.cfg.design)), b.records,
-                                b.retries, b.rep)
+                # the design is a set: its first pose, then the rest along the shortest path (fixtures/
+                # pose_path.py); records keep the order taken, which diagnosis/order.py reads
+                design = visit_order(jig, get_design(flow.cfg.design), keep_first=True)
+                steps.run_poses(b.driver, jig, design, b.records, b.retries, b.rep)
                 steps.fit_judge_write(b.driver, jig, board_session(b), b.rep)
             finally:
                 steps.operator_wait_s = jig.wait_s

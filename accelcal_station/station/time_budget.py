@@ -30,7 +30,6 @@ I2C bus time (``bus_time_s``).  ``ratio_to_floor`` = total_s / floor_s.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TypedDict
 
 import numpy as np
 
@@ -47,27 +46,9 @@ SAMPLE_READ_BYTES = 9
 DEFAULT_BUS_HZ = 400_000.0  # I2C Fast-mode, the clock a panel's bus runs at unless its config says
 
 
-class TimeBudget(TypedDict, total=False):
-    """Where a board's (or a panel's) time went, s (module docstring)."""
-
-    warmup_s: float
-    self_test_s: float
-    sampling_s: float
-    stillness_s: float
-    verification_s: float
-    jig_moves_s: float
-    eeprom_s: float
-    host_compute_s: float
-    operator_s: float
-    total_s: float
-    floor_s: float
-    ratio_to_floor: float
-    floor_sampling_s: float
-    floor_jig_s: float
-    floor_eeprom_s: float
-    bus_time_s: float
-    boards: int
-    per_board_s: float
+# a budget: seconds by part (COMPONENTS), total_s, floor_s and its parts (floor_sampling_s, floor_jig_s,
+# floor_eeprom_s), ratio_to_floor; a panel's also bus_time_s, boards, per_board_s (module docstring)
+TimeBudget = dict[str, float]
 
 
 COMPONENTS = ("warmup_s", "self_test_s", "sampling_s", "stillness_s", "verification_s", "jig_moves_s",
@@ -106,7 +87,7 @@ def board_budget(c: BoardCounts, floor_s: float) -> TimeBudget:
         "jig_moves_s": c.jig_moves_s,
         "operator_s": c.operator_s,
     }
-    sampled = sum(b[k] for k in ("warmup_s", "self_test_s", "sampling_s", "stillness_s",  # type: ignore[misc]
+    sampled = sum(b[k] for k in ("warmup_s", "self_test_s", "sampling_s", "stillness_s",
                                  "verification_s"))
     host = max(0.0, c.wall_s - c.operator_s)
     if c.device_s is None:  # the wall clock holds everything: the host's share is what the rest leaves
@@ -121,8 +102,8 @@ def board_budget(c: BoardCounts, floor_s: float) -> TimeBudget:
 
 def finish(b: TimeBudget, floor_s: float) -> TimeBudget:
     """``total_s`` (the components' sum), ``floor_s`` and their ratio, rounded to the microsecond."""
-    out: TimeBudget = {k: round(float(v), 6) for k, v in b.items()}  # type: ignore[misc]
-    out["total_s"] = round(sum(float(out.get(k, 0.0)) for k in COMPONENTS), 6)  # type: ignore[misc]
+    out: TimeBudget = {k: round(float(v), 6) for k, v in b.items()}
+    out["total_s"] = round(sum(float(out.get(k, 0.0)) for k in COMPONENTS), 6)
     out["floor_s"] = round(floor_s, 6)
     out["ratio_to_floor"] = round(out["total_s"] / floor_s, 4) if floor_s > 0 else 0.0
     return out
@@ -194,7 +175,7 @@ def panel_budget(boards: list[TimeBudget], host_s: float, hidden_s: float, sampl
     is the slowest board's with the I2C bus time to read every board's samples as a lower bound on its
     sampling (max(sampling, bus)).  ``per_board_s`` = total / boards."""
     slow = max(boards, key=lambda b: b.get("total_s", 0.0) - b.get("host_compute_s", 0.0))
-    out: TimeBudget = {k: slow.get(k, 0.0) for k in COMPONENTS}  # type: ignore[misc]
+    out: TimeBudget = {k: slow.get(k, 0.0) for k in COMPONENTS}
     out["host_compute_s"] = max(0.0, host_s - hidden_s)
     bus = bus_time_s(samples_read, len(boards), bus_hz)
     floor_bus = bus_time_s(int(round(slow.get("floor_sampling_s", 0.0) * odr_hz)), len(boards), bus_hz)
