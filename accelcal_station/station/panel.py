@@ -387,10 +387,9 @@ class Panel:
         inside = self.capture_wall_s + sum(b.steps.sampling_wall_s for b in opened)
         sampled = max(b.steps.samples_read for b in opened) / opened[0].driver.odr_hz
         host = max(0.0, host - min(inside, sampled))  # beyond the sampling time, the host sets the pace
-        emu = getattr(self.cfg.device, "emulator", None)
-        bus_hz = float(getattr(emu, "bus_hz", DEFAULT_BUS_HZ))
+        # the bus at I2C Fast-mode: a real bus's clock is the kernel's (device tree), not the station's config
         budget = panel_budget(own, host, min(fits, self.verify_device_s),
-                              max(b.steps.samples_read for b in opened), opened[0].driver.odr_hz, bus_hz)
+                              max(b.steps.samples_read for b in opened), opened[0].driver.odr_hz, DEFAULT_BUS_HZ)
         self.timing["time_budget"] = budget
         share: TimeBudget = {k: round(float(v) / len(boards), 6) for k, v in budget.items()
                              if k not in ("ratio_to_floor", "boards", "per_board_s")}
