@@ -1,28 +1,22 @@
-"""Station time per board against the sampling floor, on the simulated board at its real data rate.
+"""Station time per board against its floor (the time budget, station/time_budget.py), simulated board.
 
     python benchmarks/bench_station_time.py [--boards 10] [--panel 16] [--config configs/sim.yaml] [--small]
 
 Runs ``accelcal run``'s Station on the default simulated configuration (MMA8451
 at 100 Hz, 8 poses an4399-8, model 12, 3 verification poses, NVM burn, SQLite
-store) for ``--boards`` boards (fixed seeds), and again with the jig's
-``move_time_s`` set to 0, which leaves the station's own overhead.  Time is
-*virtual*: the board's clock advances by n / ODR per n samples, by the jig's
-move time per pose and by the EEPROM's write cycles, without waiting; a board's
-time is that device time plus the host's wall-clock compute (RunReport.timing:
-board_time_s = device_time_s + host_compute_s).
-
-Split per board (mean): the sampling floor (samples averaged / ODR, fit and
-verification poses), samples read but not averaged (waiting for stillness and
-the hold time), jig moves (poses presented x move_time_s), other device time
-(EEPROM write cycles and read-back), host compute (fit, simulation, store).
-The floor itself is set by the capture target: averaging to a standard error
-of ``capture.target_sem_mg`` needs (sigma / target)^2 samples per pose.
+store) for ``--boards`` boards (fixed seeds) and prints each board's time budget
+(RunReport.time_budget, station/time_budget.py; mean over the boards): sampling,
+stillness, verification, jig moves (settle + angle / rated speed, along the shortest
+path), EEPROM, host compute not hidden under a move, and the floor for the configured
+quality (sampling to the capture target at the measured noise and n_eff, the jig's
+shortest travel, the EEPROM's write cycles) with the ratio total / floor.  Time is
+*virtual*: the board's clock advances by n / ODR per n samples, by each move and by
+the EEPROM's write cycles, without waiting; host compute is wall time.
 
 Panel (``--panel N``, default 16): the same configuration as a panel of N boards on one
-jig (panel.py): every pose presented once and captured on all boards at once.  Its time
-is the longest board's device time plus the host's wall time for the whole panel (fits,
-simulation and store of all N boards); per board it is that divided by N, printed beside
-(single-board time / N) and their ratio, all measured in this run.
+jig (panel.py): the panel's budget (the slowest board's device parts, the whole panel's
+host compute) with the I2C bus time to read N boards through a TCA9548A, per board
+beside (single-board time / N).
 """
 from __future__ import annotations
 
@@ -38,18 +32,20 @@ from benchlib import table
 
 from accelcal_station.config.schema import DeviceSection
 from accelcal_station.drivers.factory import make_driver
-from accelcal_station.fixtures.designs import get_design
 from accelcal_station.station.flow import make_flow
 from accelcal_station.station.settings import StationConfig
+from accelcal_station.station.time_budget import COMPONENTS, bus_limit_boards
 
-COMPONENTS = ("floor_fit", "floor_verify", "gating", "moves", "other_device", "host")
 LABELS = {
-    "floor_fit": "sampling floor: fit poses (averaged / ODR)",
-    "floor_verify": "sampling floor: verification poses",
-    "gating": "samples read, not averaged (stillness, hold)",
-    "moves": "jig moves (poses presented x move_time_s)",
-    "other_device": "other device time (EEPROM writes, read-back)",
-    "host": "host compute (fit, simulator, store; wall)",
+    "warmup_s": "warm-up (capture.warmup)",
+    "self_test_s": "self-test",
+    "sampling_s": "sampling: fit poses (averaged / ODR)",
+    "stillness_s": "waiting for stillness, the hold",
+    "verification_s": "verification poses",
+    "jig_moves_s": "jig moves (settle + angle / rated speed)",
+    "eeprom_s": "EEPROM write cycles, read-back",
+    "host_compute_s": "host compute not under a move (wall)",
+    "operator_s": "operator",
 }
 
 
@@ -58,54 +54,42 @@ def seeded(cfg: StationConfig, seed: int) -> DeviceSection:
     return cfg.device.model_copy(update={"seed": seed})
 
 
-def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, dict]:
-    """Mean seconds per component over ``boards`` runs, and facts of the runs.
+def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict[str, float], dict]:
+    """Mean time budget (station/time_budget.py) over ``boards`` runs, and facts of the runs.
 
     One extra board runs first and is not counted: it pays the process's one-time
-    imports (scipy.stats for the capture gate), which no later board pays.
+    imports, which no later board pays.
     """
-    move = cfg.jig.move_time_s
-    acc = {k: [] for k in COMPONENTS + ("total", "device")}
-    facts = {"verdicts": [], "samples_per_pose": []}
+    acc: dict[str, list[float]] = {}
+    facts: dict = {"verdicts": [], "stderr_offset_mg": [], "verify_mg": []}
     make_flow(cfg, echo=lambda *_: None, driver=make_driver(seeded(cfg, seed - 1))).run()
     for i in range(boards):
-        driver = make_driver(seeded(cfg, seed + i))
-        rep = make_flow(cfg, echo=lambda *_: None, driver=driver).run()[0]
-        t = rep.timing
-        odr = t["odr_hz"]
-        n_fit = sum(p["n"] for p in rep.poses)
-        n_verify = t["samples_averaged"] - n_fit
-        presented = len(rep.poses) + (cfg.verify_poses if rep.verify_error_max_mg is not None else 0)
-        moves = presented * move
-        acc["floor_fit"].append(n_fit / odr)
-        acc["floor_verify"].append(n_verify / odr)
-        acc["gating"].append((t["samples_read"] - t["samples_averaged"]) / odr)
-        acc["moves"].append(moves)
-        acc["other_device"].append(t["device_time_s"] - t["sampling_s"] - moves)
-        acc["host"].append(t["host_compute_s"])
-        acc["device"].append(t["device_time_s"])
-        acc["total"].append(t["board_time_s"])
+        rep = make_flow(cfg, echo=lambda *_: None, driver=make_driver(seeded(cfg, seed + i))).run()[0]
+        for k, v in rep.time_budget.items():
+            acc.setdefault(k, []).append(float(v))  # type: ignore[arg-type]
         facts["verdicts"].append(rep.verdict)
-        facts["samples_per_pose"] += [p["n"] for p in rep.poses]
-        facts["odr_hz"] = odr
+        facts["stderr_offset_mg"].append(rep.measured.get("stderr_offset_max_mg", float("nan")))
+        facts["verify_mg"].append(rep.verify_error_max_mg or float("nan"))
+        facts["odr_hz"] = rep.timing["odr_hz"]
     return {k: float(np.mean(v)) for k, v in acc.items()}, facts
 
 
-def run_panel(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, list[str]]:
-    """One panel of ``boards`` boards (seeds from ``seed``): the panel's timing and the verdicts."""
+def run_panel(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, list]:
+    """One panel of ``boards`` boards (seeds from ``seed``): the panel's timing and its boards' reports."""
     panel_cfg = cfg.with_sections(device=cfg.device.model_copy(update={"boards": boards, "seed": seed}))
     st = make_flow(panel_cfg, echo=lambda *_: None)
     reports = st.run()
-    return st.timing, [r.verdict for r in reports]
+    return dict(st.timing), reports
 
 
-def needed_samples(cfg: StationConfig) -> float:
-    """(sigma / target)^2: samples one pose needs to reach the capture target, per the
-    simulated chip's noise (white noise and the LSB^2/12 of quantization)."""
-    board = make_driver(seeded(cfg, 0)).board
-    sigma = float(np.max(board.noise_sigma_counts))
-    target = cfg.capture.target_sem_mg * 1e-3 * board.counts_per_g
-    return (sigma**2 + 1.0 / 12.0) / target**2
+def budget_rows(res: dict[str, float]) -> list[list[str]]:
+    """The budget's rows: each component, the total, the floor and the ratio."""
+    rows = [[LABELS[k], f"{res.get(k, 0.0):.2f}", f"{res.get(k, 0.0) / res['total_s']:.0%}"] for k in COMPONENTS]
+    rows.append(["total", f"{res['total_s']:.2f}", "100%"])
+    rows.append([f"floor (sampling {res['floor_sampling_s']:.2f} + jig {res['floor_jig_s']:.2f} + EEPROM "
+                 f"{res['floor_eeprom_s']:.2f})", f"{res['floor_s']:.2f}", ""])
+    rows.append(["ratio: total / floor", f"{res['total_s'] / res['floor_s']:.2f}", ""])
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -127,39 +111,37 @@ def main(argv: list[str] | None = None) -> int:
             print("error: --config: this benchmark needs device.driver: simulated and jig.type: simulated",
                   file=sys.stderr)
             return 2
-        cfg0 = cfg.with_sections(jig=cfg.jig.model_copy(update={"move_time_s": 0.0}))
         res, facts = run_boards(cfg, a.boards, a.seed)
-        res0, _ = run_boards(cfg0, a.boards, a.seed)
         panel = run_panel(cfg, a.panel, a.seed) if a.panel > 0 else None
-    n_need = needed_samples(cfg)
-    poses = len(get_design(cfg.design)) + cfg.verify_poses
-    theory = poses * n_need / facts["odr_hz"]
     print(f"station time per board (virtual time: device clock + host wall compute), mean of {a.boards} simulated "
-          f"boards per column: {cfg.device.chip or 'mma8451'} at {facts['odr_hz']:g} Hz, design "
-          f"{cfg.design} + {cfg.verify_poses} verification poses, model {cfg.model}, capture target "
+          f"boards: {cfg.device.chip or 'mma8451'} at {facts['odr_hz']:g} Hz, design {cfg.design} + "
+          f"{cfg.verify_poses} verification poses, model {cfg.model}, capture target "
           f"{cfg.capture.target_sem_mg:g} mg")
-    print(f"verdicts: {', '.join(sorted(set(facts['verdicts'])))}; samples averaged per pose: mean "
-          f"{np.mean(facts['samples_per_pose']):.0f} (the noise needs {n_need:.0f} for the target)")
-    rows = [[LABELS[k], f"{res[k]:.2f}", f"{res[k] / res['total']:.0%}", f"{res0[k]:.2f}",
-             f"{res0[k] / res0['total']:.0%}"] for k in COMPONENTS]
-    floor, floor0 = res["floor_fit"] + res["floor_verify"], res0["floor_fit"] + res0["floor_verify"]
-    rows.append(["total board time", f"{res['total']:.2f}", "100%", f"{res0['total']:.2f}", "100%"])
-    rows.append(["ratio: total / sampling floor", f"{res['total'] / floor:.2f}", "",
-                 f"{res0['total'] / floor0:.2f}", ""])
-    rows.append(["ratio: total / noise-limited floor", f"{res['total'] / theory:.2f}", "",
-                 f"{res0['total'] / theory:.2f}", ""])
-    print(table(["seconds per board", f"moves {cfg.jig.move_time_s:g} s", "share", "moves 0 s", "share"], rows))
-    print(f"noise-limited floor: {poses} poses x {n_need:.0f} samples / {facts['odr_hz']:g} Hz = {theory:.2f} s")
+    print(f"verdicts: {', '.join(sorted(set(facts['verdicts'])))}; offset standard error max "
+          f"{np.nanmax(facts['stderr_offset_mg']):.4f} mg; verification error max "
+          f"{np.nanmax(facts['verify_mg']):.3f} mg")
+    print(table(["seconds per board", "single", "share"], budget_rows(res)))
     if panel is not None:
-        t, verdicts = panel
-        share = res["total"] / a.panel
-        print(f"panel of {a.panel} boards on one jig (verdicts: {', '.join(sorted(set(verdicts)))}): "
-              f"{t['panel_time_s']:.2f} s (device {t['device_time_s']:.2f} s + host {t['host_compute_s']:.2f} s)")
+        t, reports = panel
+        pb = t["time_budget"]
+        verdicts = sorted({r.verdict for r in reports})
+        se = max(r.measured.get("stderr_offset_max_mg", float("nan")) for r in reports)
+        ve = max(r.verify_error_max_mg or float("nan") for r in reports)
+        print(f"panel of {a.panel} boards on one jig (verdicts: {', '.join(verdicts)}; offset standard error max "
+              f"{se:.4f} mg; verification error max {ve:.3f} mg): {pb['total_s']:.2f} s, "
+              f"{pb['per_board_s']:.2f} s a board")
+        rows = budget_rows(dict(pb))
+        rows.insert(-2, [f"I2C bus time ({a.panel} boards x samples, TCA9548A, 400 kHz)",
+                         f"{pb['bus_time_s']:.2f}", ""])
+        print(table(["seconds per panel", "panel", "share"], rows))
         print(table(["seconds per board", "value"], [
-            ["single board (mean above)", f"{res['total']:.2f}"],
-            [f"single board / {a.panel}", f"{share:.2f}"],
-            [f"panel of {a.panel}, per board", f"{t['per_board_s']:.2f}"],
-            [f"ratio: panel per board / (single / {a.panel}), goal <= 1.2", f"{t['per_board_s'] / share:.2f}"]]))
+            ["single board (mean above)", f"{res['total_s']:.2f}"],
+            [f"single board / {a.panel}", f"{res['total_s'] / a.panel:.2f}"],
+            [f"panel of {a.panel}, per board", f"{pb['per_board_s']:.2f}"],
+            [f"ratio: panel per board / (single / {a.panel}), goal <= 1.2",
+             f"{pb['per_board_s'] / (res['total_s'] / a.panel):.2f}"]]))
+        print(f"the bus sets the pace beyond {bus_limit_boards(facts['odr_hz'])} boards a bus at "
+              f"{facts['odr_hz']:g} Hz (docs/timing.md)")
     return 0
 
 

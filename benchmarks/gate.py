@@ -13,6 +13,8 @@ a 20x regression (a per-board Python loop put back) does.
   cli        `accelcal --version` in a subprocess vs `python -c "import click"`
   fit        `accelcal fit TABLE --model 12 --json` on a 14-pose table vs benchmarks/reference_fit.py
              (the same parse and solve in plain numpy), both in subprocesses, asserted to agree
+  station    a board of configs/sim.yaml on the simulated clock: its time budget's floor / its total
+             (station/time_budget.py; virtual time, deterministic but for host compute), issue 51
 
   python benchmarks/gate.py            # the CI run (~30 s): exit 1 when a ratio is below its floor
   python benchmarks/gate.py --quick    # tiny sizes, one repetition: checks the gate runs and agrees
@@ -61,6 +63,8 @@ FLOORS: dict[str, tuple[float, str]] = {
                   "command imported at start (before issue 35) 0.099"),
     "fit": (0.3, "fourth round 0.56 / 0.59 / 0.57; h35 0.56-0.93; h35b 0.38-0.68; first round 0.48-0.64 "
                  "(`accelcal fit` 1.5-2.6x the numpy script's time, both new processes)"),
+    "station": (0.57, "issue 51 (branch h55jig, 2026-11-29, load 8-14): 0.96 / 0.95 / 0.91 (a board of 30.7-33.6 s "
+                      "against its 32.2-32.9 s floor)"),
 }
 
 # the limits the lot gate judges (keys the reference implements); tight enough that some boards FAIL
@@ -238,6 +242,26 @@ def fit_gate(reps: int, tmp: Path) -> Gate:
                                "W, V, RMS agree")
 
 
+def station_gate(boards: int, tmp: Path) -> Gate:
+    """configs/sim.yaml's boards (fixed seeds) on the simulated clock: mean floor_s against mean total_s of the
+    time budget (project = the station's time, reference = its floor: the ratio must not drop)."""
+    from accelcal_station.station.flow import make_flow
+    from accelcal_station.station.settings import StationConfig
+
+    cfg = StationConfig.load(str(Path(__file__).resolve().parents[1] / "configs" / "sim.yaml"),
+                             store_override=tmp / "station.sqlite")
+    budgets = []
+    for seed in range(51, 52 + boards):  # the first board pays the one-time imports and is not counted
+        rep = make_flow(cfg.with_sections(device=cfg.device.model_copy(update={"seed": seed})),
+                        echo=lambda *_: None).run()[0]
+        assert rep.verdict == "PASS", f"station gate: board {seed}: {rep.verdict} {rep.reasons}"
+        budgets.append(rep.time_budget)
+    total = statistics.mean(b["total_s"] for b in budgets[1:])
+    floor = statistics.mean(b["floor_s"] for b in budgets[1:])
+    return Gate("station", total, floor, f"{boards} boards of configs/sim.yaml: {total:.2f} s a board, floor "
+                                         f"{floor:.2f} s (virtual time + host compute)")
+
+
 def run_gates(quick: bool = False) -> list[Gate]:
     """Every gate; ``quick``: tiny sizes and one repetition (the gate's own test)."""
     with tempfile.TemporaryDirectory(prefix="accelcal-gate-") as tmp:
@@ -245,6 +269,7 @@ def run_gates(quick: bool = False) -> list[Gate]:
         gates += batch_gates(200 if quick else 20_000, 1 if quick else 5)
         gates.append(cli_gate(1 if quick else 9))
         gates.append(fit_gate(1 if quick else 7, Path(tmp)))
+        gates.append(station_gate(1 if quick else 3, Path(tmp)))
     return gates
 
 

@@ -49,7 +49,7 @@ def test_scan_looks_behind_every_mux_channel(tmp_path):
 def test_scan_of_serial_ports_names_the_bridge_and_the_jig():
     from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
     from accelcal_station.drivers.simulated import SimulatedBoard
-    from accelcal_station.fixtures.jig_emulator import JigEmulator
+    from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
 
     bridge = MPU6050BridgeEmulator(SimulatedBoard.from_config(None, chip="mpu6050", seed=4))
     port = bridge.start()
@@ -59,7 +59,7 @@ def test_scan_of_serial_ports_names_the_bridge_and_the_jig():
         assert p["port"] == port and p["answers"].startswith("MPU6050 bridge") and "0x68" in p["answers"]
     finally:
         bridge.stop()
-    with JigEmulator(speed_deg_s=4000, accel_deg_s2=1e5, homed=True) as jig:
+    with JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5, homed=True)) as jig:
         (p,) = _scan(CONFIGS / "mpu6050.yaml", "--port", jig.port)["serial_ports"]
         assert p["answers"].startswith("motorized jig")
         assert not any(c.startswith(("MOVE", "HOME")) for c in jig.received)  # a probe never moves the jig
@@ -80,12 +80,12 @@ def test_dry_run_checks_every_instrument_and_writes_nothing(tmp_path):
 
 
 def test_dry_run_moves_a_motorized_jig_and_names_a_missing_one(tmp_path):
-    from accelcal_station.fixtures.jig_emulator import JigEmulator
+    from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
 
     doc = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
     doc["store"] = {"path": str(tmp_path / "runs.sqlite")}
     (tmp_path / "m.yaml").write_text(yaml.safe_dump(doc))
-    with JigEmulator(speed_deg_s=4000, accel_deg_s2=1e5) as jig:
+    with JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5)) as jig:
         r = CliRunner().invoke(cli, ["run", "--dry-run", "--config", str(tmp_path / "m.yaml"), "--port", "emulated",
                                      "--jig-port", jig.port])
         moved = sum(c.startswith("MOVE") for c in jig.received)

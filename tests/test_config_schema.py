@@ -19,7 +19,7 @@ from accelcal_station.config.schema import StationConfigSchema, validate_station
 from accelcal_station.config.sections import default_config_path
 from accelcal_station.drivers.mma8451 import Mma8451Settings
 from accelcal_station.drivers.mpu6050 import Mpu6050Settings
-from accelcal_station.fixtures.motorized_jig import MotorizedJig
+from accelcal_station.fixtures.motorized_jig import JigAxes, JigLink
 from accelcal_station.fixtures.simulated_hand import SimulatedHand
 from accelcal_station.station.capture import CaptureSettings
 from accelcal_station.station.identity import IDENTITY_KEYS
@@ -90,7 +90,8 @@ def test_every_key_the_code_reads_is_in_the_schema() -> None:
         # the keywords the drivers and jigs take from their typed sections (declared apart from the schema)
         "device": tuple(Mma8451Settings.__annotations__) + tuple(Mpu6050Settings.__annotations__)
         + ("driver", "boards", "spread", "mux", "bus", "port"),
-        "jig": _params(MotorizedJig.__init__) + ("type", "move_time_s", "hand"),
+        "jig": ("port", *JigLink.__dataclass_fields__, *JigAxes.__dataclass_fields__, "type", "move_time_s",
+                "rated_speed_dps", "settle_s", "hand"),
         "jig.hand": _params(SimulatedHand.__init__, "board"),
         "plan": ("design", "model"), "nvm": ("write", "slot_size", "offset_trim"), "verify": ("poses", "design"),
         "store": ("path",),

@@ -23,8 +23,8 @@ from accelcal_station.drivers.mpu6050 import MPU6050Bridge
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.fixtures.designs import DESIGNS, get_design
-from accelcal_station.fixtures.jig_emulator import JigEmulator
-from accelcal_station.fixtures.motorized_jig import MotorizedJig
+from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
+from accelcal_station.fixtures.motorized_jig import JigAxes, JigLink, MotorizedJig
 from accelcal_station.fixtures.simulated_hand import SimulatedHand
 from accelcal_station.web.board_picture import picture
 
@@ -183,8 +183,8 @@ def test_hand_places_each_pose_with_its_reading_axis_up():
 
 def test_motorized_jig_angles_place_the_board_as_the_data_sheets_say():
     board = SimulatedBoard.from_config(None, chip="mpu6050", seed=4)
-    with JigEmulator(board=board, speed_deg_s=4000.0, accel_deg_s2=100000.0) as e, \
-            MotorizedJig(e.port, timeout_s=0.2, move_margin_s=0.3) as jig:
+    with JigEmulator(EmulatedAxes(speed_deg_s=4000.0, accel_deg_s2=100000.0), board=board) as e, \
+            MotorizedJig(e.port, JigLink(timeout_s=0.2), JigAxes(move_margin_s=0.3)) as jig:
         jig.home()  # A = B = 0: flat, component side up: +1 g on z
         np.testing.assert_allclose(board.read(64)[0].mean(axis=0) / board.counts_per_g, (0, 0, 1), atol=0.03)
         np.testing.assert_allclose(e.attitude().T @ SKY, (0, 0, 1), atol=1e-9)

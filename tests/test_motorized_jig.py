@@ -15,8 +15,17 @@ from accelcal_station.errors import ConfigError, DeviceError
 from accelcal_station.fixtures.base import PoseSpec
 from accelcal_station.fixtures.designs import get_design
 from accelcal_station.fixtures.factory import make_jig
-from accelcal_station.fixtures.jig_emulator import JigEmulator, run_jig_emulator_forever
-from accelcal_station.fixtures.motorized_jig import MotorizedJig, checksum, frame, move_time_s, profile_deg, unframe
+from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator, run_jig_emulator_forever
+from accelcal_station.fixtures.motorized_jig import (
+    JigAxes,
+    JigLink,
+    MotorizedJig,
+    checksum,
+    frame,
+    move_time_s,
+    profile_deg,
+    unframe,
+)
 
 # fast motion so the suite stays quick: a 180 degree move takes 0.085 s
 FAST = {"speed_deg_s": 4000.0, "accel_deg_s2": 100000.0}
@@ -32,14 +41,17 @@ class ManualClock:
 
 @pytest.fixture
 def emu():
-    e = JigEmulator(**FAST)
+    e = JigEmulator(EmulatedAxes(**FAST))
     e.start()
     yield e
     e.stop()
 
 
 def jig_for(e: JigEmulator, **kw) -> MotorizedJig:
-    return MotorizedJig(e.port, **{"timeout_s": 0.2, "move_margin_s": 0.3, **kw})
+    """The jig on the emulator's port; keywords go to its link (JigLink) or its axes (JigAxes) by name."""
+    kw = {"timeout_s": 0.2, "move_margin_s": 0.3, **kw}
+    link = {k: v for k, v in kw.items() if k in JigLink.__dataclass_fields__}
+    return MotorizedJig(e.port, JigLink(**link), JigAxes(**{k: v for k, v in kw.items() if k not in link}))
 
 
 def raw_session(port: str):
@@ -103,7 +115,7 @@ def test_controller_replies_identify_limits_and_errors(emu):
 
 def test_motion_follows_the_trapezoid_on_an_injected_clock():
     clock = ManualClock()
-    with JigEmulator(speed_deg_s=30.0, accel_deg_s2=90.0, homed=True, clock=clock) as e, \
+    with JigEmulator(EmulatedAxes(speed_deg_s=30.0, accel_deg_s2=90.0, homed=True), clock=clock) as e, \
             raw_session(e.port) as s:
         assert ask(s, frame("MOVE 90 -20")) == "OK MOVE"
         total = move_time_s(90.0, 30.0, 90.0)
@@ -130,7 +142,7 @@ def test_motion_follows_the_trapezoid_on_an_injected_clock():
 
 def test_controller_fault_latches_until_clear_and_loses_homing():
     clock = ManualClock()
-    with JigEmulator(homed=True, clock=clock) as e, raw_session(e.port) as s:
+    with JigEmulator(EmulatedAxes(homed=True), clock=clock) as e, raw_session(e.port) as s:
         e.inject("fault")
         assert ask(s, frame("MOVE 60 0")) == "OK MOVE"
         clock.t += 60
@@ -144,7 +156,7 @@ def test_controller_fault_latches_until_clear_and_loses_homing():
 # -- the host driver ------------------------------------------------------------------------
 
 def test_open_identifies_and_homes():
-    with JigEmulator(position_deg=(30.0, -40.0), **FAST) as e:
+    with JigEmulator(EmulatedAxes(position_deg=(30.0, -40.0), **FAST)) as e:
         jig = jig_for(e)
         with jig:
             assert jig.identity == "ACCELCAL-JIG2 EMU0001 1.0"
@@ -176,7 +188,7 @@ def test_presents_every_pose_of_a_design(emu, design):
 
 def test_attached_board_is_at_the_pose_when_the_jig_reports_idle():
     board = SimulatedBoard.from_config(None, chip="mma8451", seed=7)  # ideal chip: noise and LSB only
-    with JigEmulator(board=board, position_deg=(40.0, 100.0), **FAST) as e, jig_for(e) as jig:
+    with JigEmulator(EmulatedAxes(position_deg=(40.0, 100.0), **FAST), board=board) as e, jig_for(e) as jig:
         assert board.pose.name == "jig A0.000 B0.000"  # homed on open: the board lies flat
         for pose in get_design("an4399-8"):
             jig.present(pose)
@@ -189,7 +201,7 @@ def test_attached_board_is_at_the_pose_when_the_jig_reports_idle():
 
 def test_axis_mapping_and_equivalent_poses():
     lim = ((-100, 100), (-100, 100))
-    with JigEmulator(limits_deg=lim, axis_sign=(-1, 1), axis_offset_deg=(2.5, 0), **FAST) as e, \
+    with JigEmulator(EmulatedAxes(limits_deg=lim, axis_sign=(-1, 1), axis_offset_deg=(2.5, 0), **FAST)) as e, \
             jig_for(e, axis_sign=(-1, 1), axis_offset_deg=(2.5, 0)) as jig:
         np.testing.assert_allclose(jig.axes_for(PoseSpec("a", 85.0, 0.0)), [-82.5, 0.0])
         # roll 170 is outside B: pitch 180 - 85 with roll 170 + 180 - 360 reads the same
@@ -201,7 +213,7 @@ def test_axis_mapping_and_equivalent_poses():
         with pytest.raises(DeviceError, match=r"pose 'z-1g' .*outside the soft limits A -100..100, B -100..100"):
             jig.present(PoseSpec("z-1g", 0.0, 180.0))
         assert [c for c in e.received if c.startswith("MOVE")] == ["MOVE -92.500 -10.000"]
-    with JigEmulator(axis_sign=(-1, -1), axis_offset_deg=(3.0, -4.0), **FAST) as e, \
+    with JigEmulator(EmulatedAxes(axis_sign=(-1, -1), axis_offset_deg=(3.0, -4.0), **FAST)) as e, \
             jig_for(e, axis_sign=(-1, -1), axis_offset_deg=(3.0, -4.0)) as jig:
         for pose in get_design("an4399-8"):
             jig.present(pose)
@@ -317,7 +329,7 @@ def test_disconnect(emu):
 def test_open_errors_are_one_line(tmp_path):
     with pytest.raises(DeviceError, match=r"^jig on .*nope: cannot open"):
         MotorizedJig(str(tmp_path / "nope")).open()
-    with JigEmulator(**FAST) as e:
+    with JigEmulator(EmulatedAxes(**FAST)) as e:
         e.inject("silent", count=None)
         jig = jig_for(e, retries=0)
         with pytest.raises(DeviceError, match=r"'ID\?': no answer"):
@@ -329,7 +341,7 @@ def test_open_errors_are_one_line(tmp_path):
 
 def test_controller_with_zero_speed_is_refused_at_open():
     # move_time_s() divides by speed and acceleration: a controller reporting 0 must not reach it
-    with JigEmulator(speed_deg_s=0.0, accel_deg_s2=0.0, homed=True) as e:
+    with JigEmulator(EmulatedAxes(speed_deg_s=0.0, accel_deg_s2=0.0, homed=True)) as e:
         jig = jig_for(e, home_on_open=False)
         with pytest.raises(DeviceError, match=r"'SPEED\?': speed 0 deg/s, acceleration 0 deg/s\^2; both must be > 0"):
             jig.open()
@@ -338,7 +350,7 @@ def test_controller_with_zero_speed_is_refused_at_open():
 
 def test_non_finite_status_position_is_malformed():
     # a NaN position would pass the arrival check (NaN > tolerance is False)
-    with JigEmulator(position_deg=(float("nan"), 0.0), homed=True, **FAST) as e:
+    with JigEmulator(EmulatedAxes(position_deg=(float("nan"), 0.0), homed=True, **FAST)) as e:
         jig = jig_for(e, home_on_open=False)
         with pytest.raises(DeviceError, match=r"'STATUS\?': malformed reply 'STATUS IDLE nan 0.000 1 0'"):
             jig.open()  # open() reads STATUS? once
@@ -349,7 +361,7 @@ def test_emulator_shuts_down_cleanly():
     before = set(threading.enumerate())
     fds = len(os.listdir("/proc/self/fd"))
     for _ in range(3):
-        e = JigEmulator(**FAST)
+        e = JigEmulator(EmulatedAxes(**FAST))
         e.start()
         with jig_for(e) as jig:
             jig.present(PoseSpec("p", 5.0, 5.0))
@@ -364,14 +376,15 @@ def test_run_forever_serves_behind_a_link_until_stopped(tmp_path):
     link = tmp_path / "jig0"
     stop, lines = threading.Event(), []
     t = threading.Thread(target=run_jig_emulator_forever,
-                         kwargs=dict(link=str(link), stop=stop, announce=lines.append, homed=True, **FAST))
+                         kwargs={"link": str(link), "stop": stop, "announce": lines.append,
+                                 "axes": EmulatedAxes(homed=True, **FAST)})
     t.start()
     try:
         for _ in range(200):
             if link.is_symlink():
                 break
             time.sleep(0.01)
-        with MotorizedJig(str(link), timeout_s=0.2) as jig:
+        with MotorizedJig(str(link), JigLink(timeout_s=0.2)) as jig:
             jig.present(PoseSpec("p", -30.0, 60.0))
             assert jig.status().a_deg == -30.0
     finally:

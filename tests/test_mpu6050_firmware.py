@@ -38,7 +38,7 @@ from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.mpu6050_simavr import SimavrBridge
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.errors import DeviceError, NVMError
-from accelcal_station.fixtures.jig_emulator import JigEmulator
+from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
 from accelcal_station.nvm.writer import CalibrationWriter
 
 REPO = Path(__file__).resolve().parents[1]
@@ -298,7 +298,7 @@ def test_probe_cli_on_the_port(bridge):
 
 
 def test_whole_run_with_motorized_jig(bridge, tmp_path):
-    jig = JigEmulator(board=bridge.board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock)
+    jig = JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5), board=bridge.board, board_lock=bridge.lock)
     jig.start()
     try:
         cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())

@@ -83,7 +83,7 @@ def test_two_boards_on_one_channel_refused(tmp_path):
 def test_two_mpu6050_bridges_on_two_ptys_with_the_motorized_jig(tmp_path):
     from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
     from accelcal_station.drivers.simulated import SimulatedBoard
-    from accelcal_station.fixtures.jig_emulator import JigEmulator
+    from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
     from accelcal_station.fixtures.simulated_jig import FixtureBoards
 
     sim = yaml.safe_load((CONFIGS / "sim.yaml").read_text())["device"]["simulator"]
@@ -92,8 +92,8 @@ def test_two_mpu6050_bridges_on_two_ptys_with_the_motorized_jig(tmp_path):
     boards[1].model.effects["gain"]["gain"] = np.array([1.09, 0.987, 1.021])
     bridges = [MPU6050BridgeEmulator(b) for b in boards]
     ports = [br.start() for br in bridges]
-    jig = JigEmulator(board=FixtureBoards(boards, [br.lock for br in bridges]), speed_deg_s=4000,
-                      accel_deg_s2=1e5)
+    jig = JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5),
+                      board=FixtureBoards(boards, [br.lock for br in bridges]))
     jig.start()
     try:
         cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())

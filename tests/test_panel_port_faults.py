@@ -18,7 +18,7 @@ from test_port_faults import rig
 
 from accelcal_station.cli import cli
 from accelcal_station.config.schema import validate_device
-from accelcal_station.fixtures.jig_emulator import JigEmulator
+from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -99,7 +99,7 @@ fault, no verdict, its poses kept."""
     (tmp_path / "t.yaml").write_text(yaml.safe_dump(doc))
     (sec, path), = panel_sections(validate_device(doc["device"]))
     driver = make_driver(sec, path)
-    jig = JigEmulator(board=board_of(driver), speed_deg_s=4000, accel_deg_s2=1e5)
+    jig = JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5), board=board_of(driver))
     jig.start()
     doc["jig"] = {"type": "motorized", "port": jig.port, "timeout_s": 0.5, "speed_deg_s": 4000,
                   "accel_deg_s2": 1e5, "settle_s": 0.0}

@@ -20,8 +20,8 @@ from accelcal_station.drivers.bridge_link import BridgeLink
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.errors import PortLostError
-from accelcal_station.fixtures.jig_emulator import JigEmulator
-from accelcal_station.fixtures.motorized_jig import MotorizedJig
+from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
+from accelcal_station.fixtures.motorized_jig import JigAxes, JigLink, MotorizedJig
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -32,7 +32,7 @@ def rig(tmp_path: Path):
     board = SimulatedBoard.from_config(sim, chip="mpu6050", seed=3)
     bridge = MPU6050BridgeEmulator(board)
     port = bridge.start()
-    jig = JigEmulator(board=board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock)
+    jig = JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5), board=board, board_lock=bridge.lock)
     jig.start()
     cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())
     cfg["store"] = {"path": str(tmp_path / "runs.sqlite")}
@@ -87,8 +87,8 @@ def test_bridge_port_dropped_mid_stream(tmp_path):
 
 def test_lost_ports_are_typed_at_the_driver_boundary():
     """A pty that hangs up under pyserial (EIO, termios.error on tcflush) is a PortLostError, not a crash."""
-    with JigEmulator(speed_deg_s=4000, accel_deg_s2=1e5, homed=True) as emu:
-        jig = MotorizedJig(emu.port, timeout_s=0.2, retries=0, home_on_open=False)
+    with JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5, homed=True)) as emu:
+        jig = MotorizedJig(emu.port, JigLink(timeout_s=0.2, retries=0), JigAxes(home_on_open=False))
         jig.open()
         emu.stop()  # both ends of the emulator's pty close
         with pytest.raises(PortLostError, match="connection lost"):

@@ -95,13 +95,13 @@ def _mpu_rig(tmp_path: Path):
     reached through a symlink that stands for the adapter's /dev node."""
     from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
     from accelcal_station.drivers.simulated import SimulatedBoard
-    from accelcal_station.fixtures.jig_emulator import JigEmulator
+    from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
 
     sim = yaml.safe_load((CONFIGS / "sim.yaml").read_text())["device"]["simulator"]
     board = SimulatedBoard.from_config(sim, chip="mpu6050", seed=3)
     bridge = MPU6050BridgeEmulator(board)
     pty = bridge.start()
-    jig = JigEmulator(board=board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock)
+    jig = JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5), board=board, board_lock=bridge.lock)
     jig.start()
     node = tmp_path / "ttyACM0"
     node.symlink_to(pty)

@@ -220,7 +220,7 @@ def test_a_nack_storm_ends_in_one_line_naming_the_cause(tmp_path):
 def test_a_missing_chamber_is_a_station_error_before_any_board_step(tmp_path):
     """A thermal plan whose chamber port does not exist: exit 3 before the board's self-test, an error run
     naming the chamber, no verdict (the jig, an emulator on a real pty, answered)."""
-    from accelcal_station.fixtures.jig_emulator import JigEmulator
+    from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
 
     pytest.importorskip("pyvisa")
     doc = yaml.safe_load((CONFIGS / "thermal-mpu6050.yaml").read_text())
@@ -228,7 +228,7 @@ def test_a_missing_chamber_is_a_station_error_before_any_board_step(tmp_path):
     doc["device"]["port"] = "emulated"
     doc["chamber"]["port"] = str(tmp_path / "no-chamber")
     (tmp_path / "t.yaml").write_text(yaml.safe_dump(doc))
-    with JigEmulator(speed_deg_s=4000, accel_deg_s2=1e5) as jig:
+    with JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5)) as jig:
         r = CliRunner().invoke(cli, ["run", "--config", str(tmp_path / "t.yaml"), "--jig-port", jig.port, "--json"])
     assert r.exit_code == 3, r.output
     assert "self-test" not in r.stderr and "STATION FAULT (chamber" in r.stderr, r.stderr

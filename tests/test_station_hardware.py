@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from accelcal_station.cli import cli
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.simulated import SimulatedBoard
-from accelcal_station.fixtures.jig_emulator import JigEmulator
+from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
 from accelcal_station.nvm.writer import CalibrationWriter
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -26,7 +26,7 @@ def test_mpu6050_bridge_with_motorized_jig_end_to_end(tmp_path):
     board = SimulatedBoard.from_config(sim, chip="mpu6050", seed=3)
     bridge = MPU6050BridgeEmulator(board)
     port = bridge.start()
-    jig = JigEmulator(board=board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock)
+    jig = JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5), board=board, board_lock=bridge.lock)
     jig.start()
     try:
         cfg = yaml.safe_load((CONFIGS / "mpu6050.yaml").read_text())

@@ -27,7 +27,7 @@ from accelcal_station.drivers.mpu6050 import MPU6050Bridge
 from accelcal_station.drivers.mpu6050_emulator import MPU6050BridgeEmulator
 from accelcal_station.drivers.mpu6050_simavr import SimavrBridge
 from accelcal_station.drivers.simulated import SimulatedBoard
-from accelcal_station.fixtures.jig_emulator import JigEmulator
+from accelcal_station.fixtures.jig_emulator import EmulatedAxes, JigEmulator
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 MMA_LOW_G = 50 / 2048
@@ -161,7 +161,7 @@ def test_mpu6050_bridge_firmware_on_simavr_self_test_in_the_run(tmp_path, share,
     bridge = SimavrBridge(SimulatedBoard.from_config(None, chip="mpu6050", seed=7), self_test_codes=(12, 17, 22),
                           self_test_share=share)
     port = bridge.start()
-    jig = JigEmulator(board=bridge.board, speed_deg_s=4000, accel_deg_s2=1e5, board_lock=bridge.lock)
+    jig = JigEmulator(EmulatedAxes(speed_deg_s=4000, accel_deg_s2=1e5), board=bridge.board, board_lock=bridge.lock)
     jig.start()
     try:
         with MPU6050Bridge(port, **LINK["simavr"]) as dev:

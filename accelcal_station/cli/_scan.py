@@ -42,9 +42,9 @@ def probe_port(port: str, baud: int) -> str:
     bridge's binary frames would leave a text protocol's line half-read), the MPU6050 bridge
     (identified), or nothing."""
     from ..drivers.mpu6050 import MPU6050Bridge
-    from ..fixtures.motorized_jig import MotorizedJig
+    from ..fixtures.motorized_jig import JigAxes, JigLink, MotorizedJig
 
-    jig = MotorizedJig(port, baud=baud, timeout_s=0.3, retries=0, home_on_open=False)
+    jig = MotorizedJig(port, JigLink(baud=baud, timeout_s=0.3, retries=0), JigAxes(home_on_open=False))
     try:
         jig.open()
         return f"motorized jig, {jig.identity}"

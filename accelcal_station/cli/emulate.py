@@ -69,12 +69,12 @@ def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool
     if kind == "chamber":
         _chamber(speed, start_c, air_tau_s, min_air_c, alarm_at_s, door_open_at_s, as_json)
         return
-    from ..fixtures.jig_emulator import JigEmulator
+    from ..fixtures.jig_emulator import EmulatedAxes, JigEmulator
 
     board, bridge = _bridge(config_path, seed, on_avr) if kind == "mpu6050-bridge" else (None, None)
     jig: JigEmulator | None = None
     if kind == "motor-jig" or with_jig:
-        jig = JigEmulator(board=board, speed_deg_s=jig_speed, accel_deg_s2=jig_speed * 4,
+        jig = JigEmulator(EmulatedAxes(speed_deg_s=jig_speed, accel_deg_s2=jig_speed * 4), board=board,
                           board_lock=bridge.lock if bridge is not None else None)
     _serve(kind, bridge, jig, None if board is None else board.seed, on_avr, as_json)
 

@@ -385,7 +385,11 @@ CHOICES: dict[str, tuple[str, tuple[str, ...]]] = {}  # a union -> its discrimin
 class SimulatedJigSection(Section):
     """A simulated jig's own keys (``jig`` with ``type: simulated``)."""
 
-    move_time_s: float = _f(2.0, "time between poses on the virtual clock, s", ge=0, le=120)
+    rated_speed_dps: float = _f(100.0, "rated turning speed, deg/s: a move takes settle_s + angle / this "
+                                "(docs/timing.md; 180 deg in 2.0 s with the defaults)", gt=0, le=10000)
+    settle_s: float = _f(0.2, "settle time after each move, s", ge=0, le=60)
+    move_time_s: float | None = _f(None, "a fixed time for every move instead, s (0: moves take no time)",
+                                   ge=0, le=120)
     angle_tolerance_deg: float = _f(0.1, "each pose within +- this of its commanded attitude, deg (the uncertainty "
                                     "budget's jig_angle, docs/uncertainty.md; a machined fixture's)", ge=0, le=10)
 

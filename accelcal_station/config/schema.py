@@ -169,6 +169,8 @@ class NvmSection(Section):
 class VerifySection(Section):
     poses: int = _f(3, "poses re-measured with the calibration applied (0: none)", ge=0, le=64)
     design: str | None = _f(None, "pose design to verify on (default: the plan's)")
+    target_sem_mg: float | None = _f(None, "averaging target of a verification pose, mg (default: capture."
+                                     "target_sem_mg; docs/timing.md)", gt=0, le=100)
 
 
 class SoakSection(Section):

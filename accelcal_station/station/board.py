@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -22,14 +23,17 @@ from ..drivers.base import Capture, Clock, Driver
 from ..errors import ConfigError, NVMError, UnderdeterminedError
 from ..fixtures.base import Jig, LiveReading, PoseSpec
 from ..fixtures.designs import get_design
+from ..fixtures.factory import clock_of, jig_motion
 from ..fixtures.operator_jig import PoseSkipped
 from ..fixtures.operator_ui import CaptureSink, NoCaptureProgress, OperatorUI
+from ..fixtures.pose_path import visit_order
 from ..jsontypes import JsonObject
 from ..models.fitting import fit_session
 from ..nvm.outcome import holds_text
 from ..nvm.writer import BurnError, CalibrationWriter
 from ..session import PoseRecord, Session
 from .capture import (
+    CaptureSettings,
     GatedCapture,
     MountMismatch,
     StillnessGate,
@@ -41,6 +45,7 @@ from .offset_trim import trim_change, trim_failure, trim_record, trimmed
 from .report import RunReport, Timing
 from .self_test_step import self_test_step
 from .settings import StationConfig
+from .time_budget import BoardCounts, FloorInputs, TimeBudget, board_budget, finish, floor_parts
 from .uncertainty_step import uncertainty_step
 from .verdict import Stage
 
@@ -71,6 +76,17 @@ class BoardSteps:
         self.samples_used = 0
         self.operator_wait_s = 0.0
         self.warmup_s = 0.0  # the warm-up hold before the self-test (station/warmup.py, the flow's)
+        # the time budget's counts (time_budget.py): samples by phase, the jig's moves, the fit's wall time
+        self.warmup_read = self.self_test_read = 0  # warmup_read: set by the flow's hold (flow._warm_up)
+        self.fit_read: int | None = None  # samples read when the fit poses were done (None: not yet)
+        self.fit_used = 0
+        self.fit_wall_s = 0.0
+        self.verify_device_s = 0.0  # the verification poses' moves and captures, device clock
+        # host wall time inside sampling (captures, warm-up, self-test): the host works on the samples as they
+        # arrive, under the device's sampling time (a simulator's draws stand in for the chip's work there)
+        self.sampling_wall_s = 0.0
+        self.eeprom_device_s = 0.0  # the burn and read-back on the device's clock (None: the wall)
+        self.jig_moves_s = 0.0
         # records each burn step in the store as it happens (FlowPolicy.burn_steps_recorded)
         self.burn_log: BurnLog | None = None
 
@@ -90,9 +106,9 @@ class BoardSteps:
         return live
 
     def capture_pose(self, driver: Driver, jig: Jig, pose: PoseSpec, floor: np.ndarray | None,
-                      report: RunReport) -> tuple[GatedCapture, int]:
+                      report: RunReport, settings: CaptureSettings | None = None) -> tuple[GatedCapture, int]:
         """Present and capture one pose; operator jigs retry a wrong pose, others fail."""
-        s = self.cfg.capture
+        s = settings or self.cfg.capture
         attempts = 0
         while True:
             attempts += 1
@@ -100,7 +116,11 @@ class BoardSteps:
             jig.present(pose, self._live(driver, StillnessGate(s, floor, driver.noise_lag1())) if live else None)
             bar = self._capture_sink(f"  capturing {pose.name}")
             try:
-                gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar)
+                t0 = time.perf_counter()
+                try:
+                    gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar)
+                finally:
+                    self.sampling_wall_s += time.perf_counter() - t0
             except WrongPose as e:
                 e = self._mounting(pose, e)
                 report.events.append(f"{pose.name}: {e}")
@@ -148,9 +168,18 @@ class BoardSteps:
     def self_test_step(self, driver: Driver, rep: RunReport) -> bool:
         """The chip's built-in self-test once, before the poses (station/self_test_step.py).  True: the
         poses may follow.  Device errors propagate."""
-        ok, read = self_test_step(driver, self.cfg, rep, self.echo)
-        self.samples_read += read
-        return ok
+        t0 = time.perf_counter()
+        try:
+            ok, read = self_test_step(driver, self.cfg, rep, self.echo)
+            self.samples_read += read
+            self.self_test_read = read
+            return ok
+        finally:
+            self.sampling_wall_s += time.perf_counter() - t0
+
+    def mark_fit_done(self) -> None:
+        """The fit poses are captured: what was read and averaged so far is the fit's (time_budget.py)."""
+        self.fit_read, self.fit_used = self.samples_read, self.samples_used
 
     def run_poses(self, driver: Driver, jig: Jig, design: list[PoseSpec], records: list[PoseRecord],
                    retries: list[int], rep: RunReport) -> None:
@@ -180,6 +209,7 @@ class BoardSteps:
             self.echo(f"  n={c.n} sem={np.max(sem_mg):.3f} mg" + ("" if gc.reached_target else " (time limit)"))
             if self.progress:
                 self.progress("poses", (i + 1) / len(design))
+        self.mark_fit_done()
         if deferred is not None:
             raise deferred
 
@@ -193,6 +223,13 @@ class BoardSteps:
 
     def fit_judge(self, driver: Driver, session: Session, rep: RunReport) -> Calibration | None:
         """Fit and judge before any verification capture; the calibration to verify, or None (FAIL)."""
+        t0 = time.perf_counter()
+        try:
+            return self._fit_judge(driver, session, rep)
+        finally:
+            self.fit_wall_s = time.perf_counter() - t0
+
+    def _fit_judge(self, driver: Driver, session: Session, rep: RunReport) -> Calibration | None:
         cfg = self.cfg
         try:
             fit = fit_session(session, cfg.model)
@@ -235,7 +272,17 @@ class BoardSteps:
         return True
 
     def burn(self, driver: Driver, cal: Calibration, checks: list[Check], rep: RunReport) -> None:
-        """Burn NVM, read back, and check the calibration read back does what the fitted one did."""
+        """Burn NVM, read back, and check the calibration read back does what the fitted one did (the time it
+        takes on the device's clock is the time budget's eeprom_s)."""
+        clock = clock_of(driver)
+        t0 = None if clock is None or clock.realtime else clock.now()
+        try:
+            self._burn(driver, cal, checks, rep)
+        finally:
+            if clock is not None and t0 is not None:
+                self.eeprom_device_s += clock.now() - t0
+
+    def _burn(self, driver: Driver, cal: Calibration, checks: list[Check], rep: RunReport) -> None:
         cfg = self.cfg
         if not cfg.nvm_write:
             return
@@ -324,7 +371,9 @@ class BoardSteps:
         """One gated capture of the board where it stands (its events kept with the run's)."""
         bar = self._capture_sink(f"  capturing {label}")
         try:
+            t0 = time.perf_counter()
             gc = gated_capture(driver, self.cfg.capture, reference_g, None, progress=bar)
+            self.sampling_wall_s += time.perf_counter() - t0
         finally:
             bar.close()
         self.samples_read += gc.samples_read
@@ -337,10 +386,12 @@ class BoardSteps:
             return []
         poses = get_design(self.cfg.verify_design) if self.cfg.verify_design else get_design(self.cfg.design)
         out = []
-        for pose in poses[:n]:
+        moved, read = jig.moves_s, self.samples_read
+        for pose in visit_order(jig, poses[:n]):  # from the last fit pose: maybe no move
             self.echo(f"verify {pose.name}")
-            gc, _ = self.capture_pose(driver, jig, pose, None, rep)
+            gc, _ = self.capture_pose(driver, jig, pose, None, rep, verify_settings(self.cfg))
             out.append((gc.capture.mean_counts, self.expected_g(pose), gc.capture.temp_c))
+        self.verify_device_s = jig.moves_s - moved + (self.samples_read - read) / driver.odr_hz
         return out
 
     def _verify_error(self, cal: Calibration, checks: list[Check]) -> float:
@@ -369,6 +420,30 @@ class BoardSteps:
             t["board_time_s"] = t["device_time_s"] + (0.0 if clock.realtime else t["host_compute_s"])
         return t
 
+    def time_budget(self, driver: Driver, clock: Clock | None, records: list[PoseRecord], t: Timing) -> TimeBudget:
+        """Where this board's time went and its floor (time_budget.py), from its counts and its ``timing``."""
+        real = clock is None or clock.realtime  # the wall holds sampling, moves and compute alike
+        counts = BoardCounts(driver.odr_hz, self.warmup_read, self.self_test_read,
+                             self.samples_read if self.fit_read is None else self.fit_read,
+                             self.samples_used if self.fit_read is None else self.fit_used, self.samples_read,
+                             None if real else t.get("device_time_s"), t["wall_s"], self.operator_wait_s,
+                             self.jig_moves_s, self.fit_wall_s, self.verify_device_s, self.sampling_wall_s,
+                             self.eeprom_device_s)
+        budget = board_budget(counts, 0.0)
+        cfg = self.cfg
+        verify = get_design(cfg.verify_design or cfg.design)[:cfg.verify_poses] if cfg.verify_poses else []
+        inputs = FloorInputs(get_design(cfg.design), verify, jig_motion(cfg.jig), cfg.capture.target_sem_mg,
+                             driver.counts_per_g, driver.odr_hz, records)
+        sampling, jig, eeprom = floor_parts(inputs, budget["eeprom_s"])
+        out = finish(budget, sampling + jig + eeprom)
+        out.update(floor_sampling_s=round(sampling, 6), floor_jig_s=round(jig, 6), floor_eeprom_s=round(eeprom, 6))
+        return out
+
+
+def verify_settings(cfg: StationConfig) -> CaptureSettings:
+    """The capture settings of a verification pose: the capture's, averaged to ``verify.target_sem_mg`` when set."""
+    target = cfg.schema.verify.target_sem_mg if cfg.schema.verify is not None else None
+    return cfg.capture if target is None else replace(cfg.capture, target_sem_mg=target)
 
 
 def _n_eff(c: Capture) -> list[float]:

@@ -230,6 +230,7 @@ class StationFlow:
         held = hold_boards([(b.driver, b.rep, self._board_echo(b)) for b in live], self.cfg)
         for b, h in zip(live, held, strict=True):
             b.steps.samples_read += h.read
+            b.steps.warmup_read = h.read  # the time budget's warm-up (time_budget.py)
             b.steps.warmup_s = h.held_s
         if not self.policy.single_board:
             sync_clocks([b.driver for b in live])

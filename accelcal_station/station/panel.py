@@ -38,15 +38,17 @@ from ..fixtures.designs import get_design
 from ..fixtures.factory import board_seat, clock_of
 from ..fixtures.factory import make_panel_jig as panel_jig
 from ..fixtures.operator_ui import OperatorUI
+from ..fixtures.pose_path import visit_order
 from ..session import PoseRecord, Session
-from .board import BoardSteps, Check
-from .capture import GatedCapture, WrongPose, gated_capture
+from .board import BoardSteps, Check, verify_settings
+from .capture import CaptureSettings, GatedCapture, WrongPose, gated_capture
 from .jig_pose import JigPoseEstimate, estimate_jig_poses
 from .panel_config import configured_serial, group_of, own_mount, panel_sections
 from .panel_mount import BoardMount, Failure, end_of_design, explained, sort_wrong_poses
 from .report import RunReport, RunReportJson
 from .settings import StationConfig
 from .station_fault import is_station_fault, station_fault_reason
+from .time_budget import DEFAULT_BUS_HZ, TimeBudget, panel_budget
 from .verdict import Stage
 
 
@@ -66,6 +68,7 @@ class PanelTiming(TypedDict, total=False):
     boards: int
     host_compute_s: float
     device_time_s: float
+    time_budget: TimeBudget  # the panel's (time_budget.panel_budget); each board's rep has its share
     panel_time_s: float
     per_board_s: float
     soak_s: float
@@ -145,6 +148,9 @@ class Panel:
         self.estimate: JigPoseEstimate | None = None
         self.timing: PanelTiming = {}
         self.mounts: dict[int, BoardMount] = {}  # every board's mounting (panel_mount.py), by index
+        self.design_taken: list[PoseSpec] | None = None  # the design's poses in the order taken (poses())
+        self.verify_device_s = 0.0  # the verification's moves and captures: the fits run under them
+        self.capture_wall_s = 0.0  # host wall time inside the panel's captures (time_budget.py)
 
     # -- building -------------------------------------------------------------------
     def build(self, steps: Callable[[], BoardSteps], report: Callable[[], RunReport], single: bool
@@ -174,14 +180,16 @@ class Panel:
         return self.jig or make_panel_jig(self.cfg.jig, live, self.ui)
 
     # -- capture ------------------------------------------------------------------------
-    def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None
-                     ) -> tuple[GatedCapture | None, AccelcalError | None]:
+    def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None,
+                     settings: CaptureSettings | None = None) -> tuple[GatedCapture | None, AccelcalError | None]:
         try:
-            return gated_capture(b.driver, self.cfg.capture, b.steps.mount @ pose.reference_g, floor), None
+            return gated_capture(b.driver, settings or self.cfg.capture, b.steps.mount @ pose.reference_g,
+                                 floor), None
         except AccelcalError as e:  # WrongPose, not still, NACK...: this board's, never the panel's
             return None, e
 
-    def capture_all(self, boards: list[PanelBoard], pose: PoseSpec, floors: dict[int, np.ndarray | None] | None = None
+    def capture_all(self, boards: list[PanelBoard], pose: PoseSpec,
+                    floors: dict[int, np.ndarray | None] | None = None, settings: CaptureSettings | None = None
                     ) -> tuple[dict[int, GatedCapture], dict[int, AccelcalError]]:
         """Capture ``pose`` on every active board at once: one thread per group, boards of a group in turn.
 
@@ -197,7 +205,7 @@ class Panel:
 
         def run(members: list[PanelBoard]) -> None:
             for b in members:
-                gc, err = self._capture_one(b, pose, (floors or {}).get(b.index))
+                gc, err = self._capture_one(b, pose, (floors or {}).get(b.index), settings)
                 with lock:
                     if gc is not None:
                         caps[b.index] = gc
@@ -213,8 +221,8 @@ class Panel:
         return caps, errors
 
     def present_and_capture(self, boards: list[PanelBoard], jig: Jig, pose: PoseSpec,
-                            floors: dict[int, np.ndarray | None] | None = None, read_on: bool = False
-                            ) -> dict[int, GatedCapture]:
+                            floors: dict[int, np.ndarray | None] | None = None, read_on: bool = False,
+                            settings: CaptureSettings | None = None) -> dict[int, GatedCapture]:
         """Present ``pose`` and capture the panel; a board that could not be captured fails with its reason.
 
         The panel is placed once: when every board reads a wrong pose it is the panel that is
@@ -225,7 +233,9 @@ class Panel:
         """
         for attempt in range(self.cfg.capture.max_recaptures + 1):
             jig.present(pose, None)
-            caps, errors = self.capture_all(boards, pose, floors)
+            t0 = time.perf_counter()
+            caps, errors = self.capture_all(boards, pose, floors, settings)
+            self.capture_wall_s += time.perf_counter() - t0
             misplaced = len(boards) > 1 and not caps and errors and all(
                 isinstance(e, WrongPose) for e in errors.values()) and not explained(
                 self.mounts, pose.reference_g, errors, self.cfg.capture.pose_tolerance_deg)
@@ -260,6 +270,7 @@ class Panel:
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
 
     def poses(self, boards: list[PanelBoard], jig: Jig, design: list[PoseSpec]) -> None:
+        self.design_taken = design  # the order the poses are taken in (the records' order; fit_all's)
         for i, pose in enumerate(design):
             self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
             caps = self.present_and_capture(boards, jig, pose, {b.index: b.floor for b in boards}, read_on=True)
@@ -280,6 +291,8 @@ class Panel:
                                     "sem_mg": sem_mg.tolist(), "retries": gc.recaptures,
                                     "reached_target": gc.reached_target})
                 b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events + b.driver.take_events()]
+        for b in boards:
+            b.steps.mark_fit_done()
         self.end_design(boards)
 
     def close(self, boards: list[PanelBoard]) -> None:
@@ -295,7 +308,7 @@ class Panel:
 
     def fit_all(self, boards: list[PanelBoard]) -> None:
         """Joint jig-pose estimation over the boards with every pose, then each board's fit and verdict."""
-        design = get_design(self.cfg.design)
+        design = self.design_taken or get_design(self.cfg.design)
         full = [b for b in boards if b.active and len(b.records) == len(design)]
         if full:
             # in board axes (reading @ P = P^T reading): the jig turns every board alike there, and a
@@ -326,15 +339,17 @@ class Panel:
                     b.steps.judge_verified(b.cal, [], b.rep)
             return
         poses = get_design(self.cfg.verify_design or self.cfg.design)[:n]
-        for pose in poses:
+        t0 = self._clock_now(todo)
+        for pose in visit_order(jig, poses):  # from the last fit pose (fixtures/pose_path.py)
             self.echo(f"verify {pose.name}")
-            caps = self.present_and_capture(todo, jig, pose)
+            caps = self.present_and_capture(todo, jig, pose, settings=verify_settings(self.cfg))
             for b in todo:
                 gc = caps.get(b.index)
                 if gc is not None:
                     b.steps.samples_read += gc.samples_read
                     b.steps.samples_used += gc.capture.n
                     b.checks.append((gc.capture.mean_counts, b.steps.expected_g(pose), gc.capture.temp_c))
+        self.verify_device_s = self._clock_now(todo) - t0
         for b in todo:
             if b.active and b.cal is not None and not b.steps.judge_verified(b.cal, b.checks, b.rep):
                 b.cal = None
@@ -355,6 +370,33 @@ class Panel:
             self.timing["device_time_s"] = max(dev)
             self.timing["panel_time_s"] = max(dev) + host
             self.timing["per_board_s"] = self.timing["panel_time_s"] / len(boards)
+        self._budget(boards, host)
+
+    @staticmethod
+    def _clock_now(boards: list[PanelBoard]) -> float:
+        """The latest of the boards' device clocks (0 when they run on the wall)."""
+        return max((c.now() for c in (clock_of(b.driver) for b in boards) if c is not None), default=0.0)
+
+    def _budget(self, boards: list[PanelBoard], host: float) -> None:
+        """The panel's time budget (time_budget.panel_budget), and each board's share of it."""
+        opened = [b for b in boards if b.driver is not None and b.open_ and "wall_s" in b.rep.timing]
+        if not opened:
+            return
+        own = [b.steps.time_budget(b.driver, clock_of(b.driver), b.records, b.rep.timing) for b in opened]
+        fits = sum(b.steps.fit_wall_s for b in opened)
+        # the host's work inside sampling (every board's self-test, the panel's captures) is under the device's time
+        inside = self.capture_wall_s + sum(b.steps.sampling_wall_s for b in opened)
+        sampled = max(b.steps.samples_read for b in opened) / opened[0].driver.odr_hz
+        host = max(0.0, host - min(inside, sampled))  # beyond the sampling time, the host sets the pace
+        # the bus at I2C Fast-mode: a real bus's clock is the kernel's (device tree), not the station's config
+        budget = panel_budget(own, host, min(fits, self.verify_device_s),
+                              max(b.steps.samples_read for b in opened), opened[0].driver.odr_hz, DEFAULT_BUS_HZ)
+        self.timing["time_budget"] = budget
+        share: TimeBudget = {k: round(float(v) / len(boards), 6) for k, v in budget.items()
+                             if k not in ("ratio_to_floor", "boards", "per_board_s")}
+        share.update(ratio_to_floor=budget["ratio_to_floor"], boards=len(boards))
+        for b in opened:
+            b.rep.time_budget = share
 
 
 

@@ -31,6 +31,7 @@ from .jig_pose import JigPoseEstimate
 from .offset_trim import OffsetTrimRecord
 from .report import FitFigures, RunReport, Timing, WarmupRecord, fit_figures
 from .settings import StationConfig
+from .time_budget import TimeBudget
 
 if TYPE_CHECKING:
     from .thermal_table import ThermalSummary
@@ -59,6 +60,7 @@ class RunSummary(FitFigures, total=False):
     design: str
     skipped: list[str]
     timing: Timing
+    time_budget: TimeBudget
     thermal: ThermalSummary | None
     nvm_verified: bool
     software_version: str | None  # the accelcal that recorded the run (its certificate names it)
@@ -113,8 +115,8 @@ def board_summary(cfg: StationConfig, rep: RunReport) -> RunSummary:
     return {**fit_figures(rep.fit), "reason_codes": codes(rep.reasons), "measured": rep.measured,
             "verify_error_max_mg": rep.verify_error_max_mg, "offset_trim_lsb": rep.offset_trim_lsb,
             "offset_trim": rep.offset_trim, "self_test": rep.self_test, "warmup": rep.warmup, "design": cfg.design,
-            "skipped": rep.skipped, "timing": rep.timing, "nvm_verified": rep.nvm_verified,
-            "software_version": software_version()}
+            "skipped": rep.skipped, "timing": rep.timing, "time_budget": rep.time_budget,
+            "nvm_verified": rep.nvm_verified, "software_version": software_version()}
 
 
 def thermal_summary(cfg: StationConfig, rep: RunReport, thermal: ThermalSummary) -> RunSummary:
@@ -133,7 +135,8 @@ def panel_summary(cfg: StationConfig, rep: RunReport, panel_id: str | None, est:
         "measured": rep.measured, "verify_error_max_mg": rep.verify_error_max_mg,
         "offset_trim_lsb": rep.offset_trim_lsb, "offset_trim": rep.offset_trim, "self_test": rep.self_test,
         "warmup": rep.warmup, "design": cfg.design, "skipped": rep.skipped, "timing": rep.timing,
-        "nvm_verified": rep.nvm_verified, "panel_id": panel_id, "software_version": software_version(),
+        "nvm_verified": rep.nvm_verified, "time_budget": rep.time_budget, "panel_id": panel_id,
+        "software_version": software_version(),
         "jig_pose": jig}
     if thermal is not None:
         out["thermal"] = thermal

@@ -14,6 +14,7 @@ from ..config.site import SiteJson
 from ..jsontypes import JsonObject
 from ..models.result import FitResult
 from .offset_trim import OffsetTrimRecord
+from .time_budget import TimeBudget
 from .verdict import Outcome, RunVerdict, Stage, run_verdict
 
 
@@ -183,6 +184,7 @@ class RunReportJson(TypedDict):
     skipped: list[str]
     events: list[str]
     timing: Timing
+    time_budget: TimeBudget  # where the board's time went and its floor (station/time_budget.py)
     store: str
     site: SiteJson | None  # the site's gravity the references were scaled to (config/site.py)
     uncertainty: UncertaintyJson | None  # {k, expanded, combined, budget} (acceptance/budget.py)
@@ -222,6 +224,7 @@ class RunReport:
     skipped: list[str] = field(default_factory=list)
     events: list[str] = field(default_factory=list)
     timing: Timing = field(default_factory=lambda: Timing())
+    time_budget: TimeBudget = field(default_factory=dict)  # station/time_budget.py
     store: str = ""
     # the station's fault that ended this board's run (station_fault.py): the board is not judged
     station_fault: str | None = None
@@ -275,7 +278,7 @@ class RunReport:
             "nvm": self.nvm, "nvm_verified": self.nvm_verified, "offset_trim_lsb": self.offset_trim_lsb,
             "offset_trim": self.offset_trim, "self_test": self.self_test, "warmup": self.warmup,
             "poses": self.poses, "skipped": self.skipped,
-            "events": self.events, "timing": self.timing, "store": self.store,
+            "events": self.events, "timing": self.timing, "time_budget": self.time_budget, "store": self.store,
             "site": self.site, "uncertainty": self.uncertainty, "decision_rule": self.decision_rule,
             "warnings": [str(w) for w in self.warnings], "warning_codes": codes(self.warnings),
         }

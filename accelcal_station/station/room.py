@@ -12,6 +12,7 @@ from ..drivers.base import Clock, Driver
 from ..errors import AccelcalError, DeviceError, NVMError
 from ..fixtures.designs import get_design
 from ..fixtures.factory import clock_of, make_jig
+from ..fixtures.pose_path import visit_order
 from .panel import PanelBoard, board_session
 from .policy import FlowView, panel_why, stopped_by_operator
 from .recording import RunSummary, board_summary, panel_summary
@@ -42,9 +43,11 @@ class RoomTemperature:
         live = [b for b in boards if b.active]
         if live:
             with panel.make_jig(live) as jig:
-                panel.poses(boards, jig, get_design(flow.cfg.design))
+                panel.poses(boards, jig, visit_order(jig, get_design(flow.cfg.design), keep_first=True))
                 panel.fit_all(boards)
                 panel.verify_all(boards, jig)
+            for b in boards:
+                b.steps.jig_moves_s = jig.moves_s  # the panel's moves are every board's
         for b in boards:
             if b.active and b.cal is not None:
                 b.steps.burn(b.driver, b.cal, b.checks, b.rep)
@@ -57,10 +60,14 @@ class RoomTemperature:
         with flow.panel.jig or make_jig(flow.cfg.jig, b.driver, flow.ui) as jig:
             jig.mount = steps.mount
             try:
-                steps.run_poses(b.driver, jig, get_design(flow.cfg.design), b.records, b.retries, b.rep)
+                # the design is a set: its first pose, then the rest along the shortest path (fixtures/
+                # pose_path.py); records keep the order taken, which diagnosis/order.py reads
+                design = visit_order(jig, get_design(flow.cfg.design), keep_first=True)
+                steps.run_poses(b.driver, jig, design, b.records, b.retries, b.rep)
                 steps.fit_judge_write(b.driver, jig, board_session(b), b.rep)
             finally:
                 steps.operator_wait_s = jig.wait_s
+                steps.jig_moves_s = jig.moves_s
 
     def fault_reason(self, flow: FlowView, b: PanelBoard, e: AccelcalError) -> tuple[str, bool]:
         """The FAULT reason's words, and whether the run's events say it too."""
@@ -81,6 +88,7 @@ class RoomTemperature:
             return
         b = boards[0]
         b.rep.timing = b.steps.timing(b.driver, b.clock, b.clock0, wall0)
+        b.rep.time_budget = b.steps.time_budget(b.driver, b.clock, b.records, b.rep.timing)
 
     def finish(self, flow: FlowView, b: PanelBoard) -> RunSummary:
         """What the store keeps of the run: a single board's fit figures, a panel board's panel and jig pose."""

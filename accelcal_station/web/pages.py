@@ -26,6 +26,7 @@ from . import queries
 from .charts import Chart, RunPoint, residual_chart, run_chart
 from .paging import PAGE_SIZE, RunsPage, page_of
 from .settings import WebSettings, open_store
+from .time_budget_view import TimeBudgetView, time_budget_view
 from .views import LotCalibration, LotCounts, LotRow, RunFilters, RunView
 
 # the lot page's parameters: name, index in calibration.param_vector, scale to the unit, unit, limit key, centre
@@ -247,6 +248,7 @@ class BoardRun(TypedDict):
     limits_source: str | None
     acceptance: list[AcceptanceRow]
     uncertainty: UncertaintyView | None
+    time_budget: TimeBudgetView | None  # where the run's time went (time_budget_view.py)
 
 
 class NvmLine(TypedDict):
@@ -281,7 +283,8 @@ def board_context(store: Store, serial: str) -> BoardContext:
                      "limits_source": "stored" if isinstance(rec.limits, dict) else ("config" if lim else None),
                      "acceptance": acceptance_rows(measured if isinstance(measured, dict) else {}, lim,
                                                    [r.code for r in rec.reasons]),
-                     "uncertainty": uncertainty_view(rec.uncertainty, rec.calibration, rec.site)})
+                     "uncertainty": uncertainty_view(rec.uncertainty, rec.calibration, rec.site),
+                     "time_budget": time_budget_view(rec.fit_summary)})
         nvm.extend({"run": rec.id, "t": iso(e["t"]), "kind": e["kind"], "message": e["message"]}
                    for e in rec.events if e["kind"] is not None and e["kind"].startswith("nvm_"))
         if rec.nvm_status and rec.nvm_status != "none":
