@@ -11,7 +11,8 @@ import click
 
 from ..api import diagnose
 from ..data.log_time import check_rate
-from ..diagnosis.report import REPORT_FILES, check_report_dir, selftest_lines, summary_lines, write_report
+from ..diagnosis.figures import REPORT_FILES, check_report_dir, write_report
+from ..diagnosis.report import selftest_lines, summary_lines
 from ..diagnosis.request import DiagnoseRequest
 from ..diagnosis.selftest import selftest as run_selftest
 from ..errors import DataError

@@ -27,7 +27,7 @@ from ..fileguard.kind import DESCRIBED
 from ..fileguard.numbers import decimal_float
 from ..fixtures.designs import get_design
 from ..fixtures.simulated_run import SimulatedRun, run_metadata
-from ..lot.synthetic import write_population_lot
+from ..lot.synthetic import LotSpec, write_population_lot
 from ..twin.simlot import load_device
 from ._common import MAX_SEED, Finite, Whole, force_option, output_kind
 from ._outputs import refuse_output
@@ -198,7 +198,7 @@ def _write_lot(config: str | None, design: str, boards: int, out: str, seed: int
     cfg = config or str(default_config_path())
     model, pop, range_g, _ = load_device(cfg)
     seed = 0 if seed is None else seed
-    write_population_lot(out, boards, design, model, pop, seed=seed, samples=samples, range_g=range_g)
+    write_population_lot(out, LotSpec(boards, design, seed=seed, samples=samples, range_g=range_g), model, pop)
     summary = {"out": out, "boards": boards, "design": design, "seed": seed, "samples_per_pose": samples,
                "population": pop is not None, "config": cfg}
     click.echo(json.dumps(summary) if as_json else
