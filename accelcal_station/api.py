@@ -14,13 +14,14 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Unpack
 
 import numpy as np
 
 from .calibration import Calibration
 from .data.loader import Loaded, load
 from .data.log_time import check_rate
+from .diagnosis.request import DiagnoseOptions, DiagnoseRequest
 from .errors import AccelcalError, DataError, UnderdeterminedError, UnitsError
 from .fixtures.designs import get_design
 from .models.choice import choose_model, with_face_references
@@ -192,22 +193,26 @@ def simulate(design: str, *, config: str | None = None, seed: int | None = None,
     return run_design(board, design, samples=samples, temps=temps, move_s=move_s, raw=raw, sink=sink)
 
 
-def diagnose(files: Sequence[str | Path], *, config: str | Path | None = None, raw: bool = False,
-             units: str | None = None, counts_per_g: float | None = None, gravity_mps2: float | None = None,
-             columns: str | None = None, skip_rows: int | None = None, rate_hz: float | None = None,
-             samples: int | None = None, norm_only: bool = False) -> Diagnosis:
-    """The sim-to-real gap of ``files`` (pose tables, or raw logs with ``raw``) against the simulated
+def diagnose(files: Sequence[str | Path] | DiagnoseRequest, **options: Unpack[DiagnoseOptions]) -> Diagnosis:
+    """The sim-to-real gap of ``files`` (pose tables, or raw logs with ``raw=True``) against the simulated
     device of ``config`` (default configs/sim.yaml): which catalog effect explains it, judged on
-    held-out residuals (DESIGN.md, the diagnosis). ``.to_json()`` is `accelcal diagnose --json`."""
+    held-out residuals (DESIGN.md, the diagnosis). The options are DiagnoseRequest's fields, as keywords
+    (``config``, ``raw``, ``units``, ``counts_per_g``, ``gravity_mps2``, ``columns``, ``skip_rows``,
+    ``rate_hz``, ``samples``, ``norm_only``), or one DiagnoseRequest in place of ``files``.
+    ``.to_json()`` is `accelcal diagnose --json`."""
     from .diagnosis.engine import diagnose as _diagnose
     from .diagnosis.loading import load_data, load_simulator
 
-    check_rate(rate_hz)
-    sim = load_simulator(config)
-    data = load_data(list(files), raw, units, counts_per_g, gravity_mps2, columns, skip_rows, rate_hz, samples,
-                     norm_only)
-    return _diagnose(data, sim)
+    if isinstance(files, DiagnoseRequest):
+        if options:
+            raise TypeError("diagnose: give a DiagnoseRequest or files with keyword options, not both")
+        request = files
+    else:
+        request = DiagnoseRequest(files=list(files), **options)
+    check_rate(request.rate_hz)
+    sim = load_simulator(request.config)
+    return _diagnose(load_data(request), sim)
 
 
-__all__ = ["Calibration", "Diagnosis", "Fit", "FitResult", "Loaded", "Session", "SimulatedRun", "diagnose", "fit",
-           "hand_placed_fit", "load", "simulate"]
+__all__ = ["Calibration", "DiagnoseRequest", "Diagnosis", "Fit", "FitResult", "Loaded", "Session", "SimulatedRun",
+           "diagnose", "fit", "hand_placed_fit", "load", "simulate"]

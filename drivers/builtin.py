@@ -42,15 +42,17 @@ def build_mma8451(device: Section, path: str, buses: MuxBuses) -> Driver:
         from .tca9548a import muxed_mma8451
 
         return muxed_mma8451(m, path, buses)
-    from .mma8451 import MMA8451, settings_of
+    from .mma8451 import MMA8451
+    from .mma8451_settings import settings_of
 
-    return MMA8451(m.bus, **settings_of(m, path))
+    return MMA8451(m.bus, settings_of(m, path))
 
 
 @declares(Mpu6050Device)
 def build_mpu6050(device: Section, path: str, buses: MuxBuses) -> Driver:
     """``driver: mpu6050``: the serial bridge on a port."""
-    from .mpu6050 import MPU6050Bridge, settings_of
+    from .mpu6050 import MPU6050Bridge
+    from .mpu6050_settings import settings_of
 
     port, kw = settings_of(section_as(device, Mpu6050Device, "mpu6050"), path)
     return MPU6050Bridge(port, **kw)

@@ -10,6 +10,7 @@ with the emulator and its simulated board beside them (``board``, declared on Dr
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Unpack
 
 from ..config.kinds import Mma8451Device, Mma8451Section, Mpu6050Device, Mpu6050Section
@@ -17,11 +18,13 @@ from ..config.section import Section
 from ..errors import ConfigError
 from .base import Clock, Driver
 from .builtin import section_as
-from .mma8451 import MMA8451, Mma8451Settings, settings_of
+from .mma8451 import MMA8451
 from .mma8451_emulator import MMA8451Emulator
-from .mpu6050 import MPU6050Bridge, Mpu6050Settings
-from .mpu6050 import settings_of as mpu6050_settings
+from .mma8451_settings import Mma8451Settings, settings_of
+from .mpu6050 import MPU6050Bridge
 from .mpu6050_emulator import MPU6050BridgeEmulator
+from .mpu6050_settings import Mpu6050Settings
+from .mpu6050_settings import settings_of as mpu6050_settings
 from .registry import declares
 from .tca9548a import MuxBus, MuxBuses, MuxChannel, mux_settings
 from .tca9548a_emulator import TCA9548AEmulator
@@ -32,8 +35,8 @@ class EmulatedMMA8451(MMA8451):
 
     def __init__(self, emulator: MMA8451Emulator, settings: Mma8451Settings, bus: Any = None,
                  clock: Clock | None = None, bus_label: str = "emulated") -> None:
-        super().__init__(emulator if bus is None else bus, clock=clock or emulator.clock, bus_label=bus_label,
-                         **settings)
+        super().__init__(emulator if bus is None else bus, settings, clock=clock or emulator.clock,
+                         bus_label=bus_label)
         self.emulator = emulator
         self.board = emulator.board  # what a simulated jig moves
 
@@ -66,11 +69,11 @@ def emulated_mma8451(m: Mma8451Section, path: str = "device", bus: Any = None,
     emulator; a multiplexer channel for a panel); the driver waits on the emulator's clock.
     """
     kw = settings_of(m, path)
-    eeprom = kw["eeprom"]
+    eeprom = kw.eeprom
     emu = MMA8451Emulator.from_section(m, path, eeprom_address=eeprom.address if eeprom else None)
     if eeprom:  # the emulated EEPROM's geometry is the simulated board's
-        kw["eeprom"] = eeprom.model_copy(update={"size": emu.eeprom_size, "page_size": emu.eeprom_page_size})
-    kw["serial"] = kw["serial"] or emu.board.serial
+        kw = replace(kw, eeprom=eeprom.model_copy(update={"size": emu.eeprom_size, "page_size": emu.eeprom_page_size}))
+    kw = replace(kw, serial=kw.serial or emu.board.serial)
     return EmulatedMMA8451(emu, kw, bus, bus_label=bus_label)
 
 

@@ -4,7 +4,7 @@ multiplexer channel by channel.
 
 Presence is a one-byte read (SMBus "receive byte", as ``i2cdetect -r``: a read never changes an EEPROM
 or a sensor, where a quick write could), through smbus2's ``read_byte`` on any SMBus-like object:
-smbus2's ``SMBus`` on /dev/i2c-N or an emulator.  The WHO_AM_I tables are the drivers' (mma8451.py,
+smbus2's ``SMBus`` on /dev/i2c-N or an emulator.  The WHO_AM_I tables are the drivers' (mma8451_registers.py,
 mpu6050_registers.py).
 """
 from __future__ import annotations
@@ -13,15 +13,15 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from . import mma8451, mpu6050_registers
+from . import mma8451_registers, mpu6050_registers
 
 SCAN_RANGE = range(0x08, 0x78)  # 7-bit addresses outside the reserved 0x00-0x07 and 0x78-0x7F
 MUX_RANGE = range(0x70, 0x78)  # TCA9548A: A2..A0 select 0x70..0x77
 EEPROM_RANGE = range(0x50, 0x58)  # 24Cxx: A2..A0 select 0x50..0x57
 # the accelerometers the station drives: address -> (WHO_AM_I register, the chip it names, known relatives)
 CHIP_AT: dict[int, tuple[int, int, str, dict[int, str]]] = {
-    0x1C: (mma8451.WHO_AM_I, mma8451.CHIP_ID, "MMA8451Q", mma8451.KNOWN_CHIP_IDS),
-    0x1D: (mma8451.WHO_AM_I, mma8451.CHIP_ID, "MMA8451Q", mma8451.KNOWN_CHIP_IDS),
+    0x1C: (mma8451_registers.WHO_AM_I, mma8451_registers.CHIP_ID, "MMA8451Q", mma8451_registers.KNOWN_CHIP_IDS),
+    0x1D: (mma8451_registers.WHO_AM_I, mma8451_registers.CHIP_ID, "MMA8451Q", mma8451_registers.KNOWN_CHIP_IDS),
     0x68: (mpu6050_registers.WHO_AM_I, mpu6050_registers.CHIP_ID, "MPU-6050", mpu6050_registers.KNOWN_CHIP_IDS),
     0x69: (mpu6050_registers.WHO_AM_I, mpu6050_registers.CHIP_ID, "MPU-6050", mpu6050_registers.KNOWN_CHIP_IDS),
 }

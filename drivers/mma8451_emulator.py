@@ -43,7 +43,7 @@ from ..config.kinds import BusEmulatorSection, Mma8451Section
 from ..errors import ConfigError
 from .eeprom import EEPROM24
 from .emulator_files import emulated_board
-from .mma8451 import (
+from .mma8451_registers import (
     CHIP_ID,
     CTRL1_ACTIVE,
     CTRL1_DR_MASK,

@@ -23,18 +23,18 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, TypedDict, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..config.kinds import Mpu6050Section
 from ..errors import ConfigError, DeviceError
 from ..jsontypes import JsonObject
 from . import bridge_protocol as bp
 from .base import NVM, Capture, Driver, Identity
 from .bridge_link import BridgeLink, BridgeRefused, BridgeReset, LinkStats
 from .bridge_nvm import BridgeNVM
+from .bridge_stream import Received, stream_once
 from .mpu6050_parts import part_of, refusal
 from .mpu6050_registers import (  # noqa: F401  (re-exported: the driver's public names)
     ACCEL_CONFIG,
@@ -80,37 +80,6 @@ class BridgeIdentity:
     nvm_size: int
     nvm_page_size: int
     serial: str
-
-
-class Mpu6050Settings(TypedDict, total=False):
-    """The constructor keywords a ``device:`` section gives (besides its port): :func:`settings_of`."""
-
-    baud: int
-    range_g: int
-    odr_hz: float
-    dlpf: int
-    timeout_s: float
-    retries: int
-    boot_wait_s: float
-    accept_who_am_i: tuple[int, ...]
-
-
-def settings_of(m: Mpu6050Section, path: str = "device") -> tuple[str, Mpu6050Settings]:
-    """(port, the driver's keywords) from a validated ``device:`` section, after the checks across its
-    keys that the model alone does not make (a port given; the emulator's keys only with ``port:
-    emulated``; a sample-rate divider for the data rate; a link fast enough for it).  ``port: emulated``
-    is built by the factory (``make_driver``, drivers/emulated.py), which hands the emulator in."""
-    port = m.port
-    if not port:
-        raise ConfigError(f"{path}.port: {port!r}; allowed: a serial port such as /dev/ttyUSB0, or 'emulated'")
-    extra = [k for k, v in (("simulator", m.simulator), ("seed", m.seed), ("emulator", m.emulator)) if v is not None]
-    if extra and port != "emulated":
-        raise ConfigError(f"{path}.{extra[0]}: only used with port: emulated")
-    smplrt_div_for(m.odr_hz, m.dlpf, f"{path}.odr_hz")
-    check_link_rate(m.odr_hz, m.baud, f"{path}.odr_hz")
-    return port, Mpu6050Settings(baud=m.baud, range_g=m.range_g, odr_hz=m.odr_hz, dlpf=m.dlpf,
-                                 timeout_s=m.timeout_s, retries=m.retries, boot_wait_s=m.boot_wait_s,
-                                 accept_who_am_i=tuple(m.accept_who_am_i))
 
 
 class MPU6050Bridge(Driver):
@@ -449,26 +418,4 @@ class MPU6050Bridge(Driver):
 
     def _stream(self, m: int, raw: bytearray, times: list[float], dropped: list[int]) -> str:
         """One STREAM of m samples into raw/times: "done", "short" (STREAM_END before m) or "stalled"."""
-        self.link.command(bp.CMD_STREAM, bp.STREAM.pack(m))
-        expected = 0
-        wait = self._inactivity_s()
-        while (got := self.link.next_frame(time.monotonic() + wait)) is not None:
-            f, t = got
-            if f.type == bp.RSP_BOOT:
-                raise BridgeReset(self.port, f)
-            if f.type == bp.RSP_SAMPLE and len(f.payload) == 4 + bp.SAMPLE_BYTES:
-                i = bp.SAMPLE_INDEX.unpack_from(f.payload)[0]
-                if i < expected or i >= m:
-                    continue
-                dropped[0] += i - expected
-                expected = i + 1
-                raw += f.payload[4:]
-                times.append(t)
-                if expected == m:
-                    return "done"  # STREAM_END follows; the next command skips it
-            elif f.type == bp.RSP_STREAM_END and len(f.payload) == bp.STREAM_END.size:
-                sent = min(bp.STREAM_END.unpack(f.payload)[0], m)
-                dropped[0] += max(0, sent - expected)
-                return "done" if sent >= m else "short"
-        self.link.stats.timeouts += 1
-        return "stalled"
+        return stream_once(self.link, self.port, m, Received(raw, times, dropped), self._inactivity_s())

@@ -17,7 +17,8 @@ import smbus2
 
 from ..config.kinds import Mma8451Device
 from ..errors import ConfigError, DeviceError
-from .mma8451 import MMA8451, settings_of
+from .mma8451 import MMA8451
+from .mma8451_settings import settings_of
 
 ADDRESSES = range(0x70, 0x78)
 CHANNELS = range(8)
@@ -136,4 +137,4 @@ def muxed_mma8451(m: Mma8451Device, path: str, buses: MuxBuses) -> MMA8451:
             buses[key] = MuxBus(smbus2.SMBus(bus), address, str(bus))
         except OSError as e:
             raise DeviceError(f"i2c bus {bus}: cannot open: {e.strerror or e}") from None
-    return MMA8451(MuxChannel(buses[key], channel), bus_label=f"{bus}/mux0x{address:02x}.{channel}", **kw)
+    return MMA8451(MuxChannel(buses[key], channel), kw, bus_label=f"{bus}/mux0x{address:02x}.{channel}")

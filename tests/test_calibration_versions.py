@@ -124,7 +124,7 @@ def test_an_nvm_backup_from_a_newer_accelcal_is_one_clear_line(tmp_path):
     from click.testing import CliRunner
 
     from accelcal_station.cli import cli
-    from accelcal_station.nvm.writer import IMAGE_VERSION
+    from accelcal_station.nvm.image_file import IMAGE_VERSION
 
     backup = tmp_path / "b.json"
     r = CliRunner().invoke(cli, ["nvm", "backup", "--out", str(backup)])

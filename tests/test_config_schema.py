@@ -17,8 +17,8 @@ from accelcal_station.cli import cli
 from accelcal_station.config.docs import keys, render, section_rows
 from accelcal_station.config.schema import StationConfigSchema, validate_station
 from accelcal_station.config.sections import default_config_path
-from accelcal_station.drivers.mma8451 import Mma8451Settings
-from accelcal_station.drivers.mpu6050 import Mpu6050Settings
+from accelcal_station.drivers.mma8451_settings import Mma8451Settings
+from accelcal_station.drivers.mpu6050_settings import Mpu6050Settings
 from accelcal_station.fixtures.motorized_jig import JigAxes, JigLink
 from accelcal_station.fixtures.simulated_hand import SimulatedHand
 from accelcal_station.station.capture import CaptureSettings

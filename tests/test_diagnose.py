@@ -19,6 +19,7 @@ from accelcal_station.diagnosis.gap_effects import evaluate
 from accelcal_station.diagnosis.loading import gap_data, load_data, load_simulator
 from accelcal_station.diagnosis.noise_floor import bias_var, mean_var, within_spread
 from accelcal_station.diagnosis.report import summary_lines
+from accelcal_station.diagnosis.request import DiagnoseRequest
 from accelcal_station.diagnosis.selection import p_greater as _p_greater
 from accelcal_station.fixtures.designs import get_design
 from accelcal_station.session import PoseRecord, Session
@@ -193,7 +194,7 @@ def test_norm_only_paired_test_counts_one_unit_per_pose(cubic_table, tmp_path):
     path.write_text("# units: counts\n# counts_per_g: 4096\npose,x,y,z\n"
                     + "".join(f"{r['pose']},{r['x']},{r['y']},{r['z']}\n" for r in rows))
     sim = load_simulator()
-    data = load_data([path], samples=200)
+    data = load_data(DiagnoseRequest(files=[path], samples=200))
     d = diagnose(data, sim)
     assert d.selected == ["cubic"]
     cubic = evaluate(data, d.floor, sim.baseline, ("cubic",), None, True)

@@ -16,8 +16,9 @@ from test_port_faults import rig
 
 from accelcal_station.cli import cli
 from accelcal_station.config.schema import validate_device
-from accelcal_station.drivers.mma8451 import MMA8451, WHO_AM_I
+from accelcal_station.drivers.mma8451 import MMA8451
 from accelcal_station.drivers.mma8451_emulator import MMA8451Emulator
+from accelcal_station.drivers.mma8451_registers import WHO_AM_I
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 LINE = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} (DEBUG|INFO|WARNING|ERROR) (accelcal_station[\w.]*): (.*)$")

@@ -15,7 +15,7 @@ from accelcal_station.cli import cli as main
 from accelcal_station.conventions import an4399_reference
 from accelcal_station.fixtures.designs import get_design, references
 from accelcal_station.lot.streaming import recalibrate_lot
-from accelcal_station.lot.synthetic import write_lot
+from accelcal_station.lot.synthetic import SimpleBoards, write_lot
 from accelcal_station.models.fitting import fit
 from accelcal_station.models.gravity_norm import fit_norm_batch
 from accelcal_station.models.linear import fit_linear_batch
@@ -184,7 +184,7 @@ def test_lot_csv_to_results_every_board_reported(tmp_path, monkeypatch, reader):
 
 
 def test_lot_verdicts_follow_acceptance_judge(tmp_path):
-    lot = write_lot(tmp_path / "lot.csv", 200, seed=6, offset_sigma_g=0.08)
+    lot = write_lot(tmp_path / "lot.csv", 200, seed=6, spread=SimpleBoards(offset_sigma_g=0.08))
     cfg = tmp_path / "station.yaml"
     cfg.write_text("acceptance:\n  offset_max_mg: 100\n  residual_rms_mg: 1.5\n  crossval_rms_mg: 2.0\n")
     out = tmp_path / "r.jsonl"

@@ -10,10 +10,11 @@ from smbus2 import i2c_msg
 
 from accelcal_station.config.schema import validate_device
 from accelcal_station.drivers.factory import make_driver
-from accelcal_station.drivers.mma8451 import (
+from accelcal_station.drivers.mma8451 import MMA8451
+from accelcal_station.drivers.mma8451_emulator import STANDBY_ONLY, MMA8451Emulator
+from accelcal_station.drivers.mma8451_registers import (
     CTRL_REG1,
     CTRL_REG2,
-    MMA8451,
     OFF_X,
     OUT_X_MSB,
     STATUS,
@@ -23,7 +24,6 @@ from accelcal_station.drivers.mma8451 import (
     XYZ_DATA_CFG,
     decode_counts,
 )
-from accelcal_station.drivers.mma8451_emulator import STANDBY_ONLY, MMA8451Emulator
 from accelcal_station.drivers.simulated import SimulatedBoard
 from accelcal_station.errors import ConfigError, DeviceError, NVMError
 

@@ -247,7 +247,7 @@ def test_trend_is_told_from_a_step(tmp_path: Path) -> None:
     twin's stream and CUSUM): found as a trend, its slope within 30 %."""
     from twin_lots import default_model
 
-    from accelcal_station.lot.synthetic import write_population_lot
+    from accelcal_station.lot.synthetic import LotSpec, write_population_lot
     from accelcal_station.sim.population import parse_population
     from accelcal_station.twin.changes import find_changes
     from accelcal_station.twin.fit import lot_stats
@@ -259,7 +259,7 @@ def test_trend_is_told_from_a_step(tmp_path: Path) -> None:
                                             "sd": {"gain.gain[1]": 0.002}}],
                             "changes": [{"quantity": "gain.gain[1]", "kind": "trend", "at_board": 0,
                                          "size": slope}]}, model.effects)
-    lot = write_population_lot(tmp_path / "t.csv", 3000, "an4399-8", model, pop, seed=4)
+    lot = write_population_lot(tmp_path / "t.csv", LotSpec(3000, "an4399-8", seed=4), model, pop)
     stats, _ = lot_stats(lot)
     found = [f for f in find_changes(stats.block_stats(), stats.quantities, stats.block)
              if f.quantity == "gain.gain[1]"]

@@ -17,7 +17,8 @@ import numpy as np
 
 from accelcal_station.config.checks import load_yaml
 from accelcal_station.config.sections import default_config_path
-from accelcal_station.lot.synthetic import write_population_lot
+from accelcal_station.lot.synthetic import LotSpec, write_population_lot
+from accelcal_station.sim.lot_physics import Conditions
 from accelcal_station.sim.population import Component, Population, parse_quantity
 from accelcal_station.sim.sensor_model import SensorModel
 
@@ -55,8 +56,8 @@ def write_line_lot(path: Path, boards: int, step_at: int | None = 12_000, seed: 
     model = default_model()
     qs = [parse_quantity(n, "test") for n in NAMES]
     shape = Population(qs, [Component(1.0, np.zeros(len(qs)), np.zeros(len(qs)), np.eye(len(qs)))])
-    return write_population_lot(path, boards, "an4399-8", model, shape, seed=seed, samples=samples, forward=forward,
-                                draw=line_draw(step_at))
+    lot = LotSpec(boards, "an4399-8", seed=seed, samples=samples, conditions=Conditions(forward=forward))
+    return write_population_lot(path, lot, model, shape, draw=line_draw(step_at))
 
 
 # -- lots written by this module's own physics (numpy only; no simulator code) -----------------

@@ -16,7 +16,8 @@ from pathlib import Path
 from ..errors import DataError, NVMError
 from ..fileguard.jsondoc import read_json
 from ..nvm.blob import HEADER_SIZE, BlobError, blob_length, decode
-from ..nvm.writer import IMAGE_SCHEMA, MAX_BACKUP_BYTES, SLOTS, CalibrationWriter
+from ..nvm.image_file import IMAGE_SCHEMA, MAX_BACKUP_BYTES
+from ..nvm.writer import SLOTS, CalibrationWriter
 
 
 def _length_field(writer: CalibrationWriter, path: str | Path) -> str | None:

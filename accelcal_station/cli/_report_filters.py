@@ -2,7 +2,8 @@
 `report msa`: the filters, the store they read (--db, else --config's, else the default station's)."""
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypedDict, TypeVar
 
@@ -82,6 +83,34 @@ def run_filters(device: tuple[str, ...], lot: str | None, station: str | None, o
         raise DataError(f"--status {status!r}; allowed: {', '.join((*STATUSES, STALE))}")
     return {"device": list(device) or None, "lot": lot, "station": station, "operator": operator,
             "verdict": verdict and verdict.upper(), "status": status, "since": since, "until": until}
+
+
+@dataclass(frozen=True)
+class RunSelection:
+    """The options ``filter_options`` adds, as given: the store (``db``, else ``config_path``'s) and the
+    filters that choose its runs."""
+
+    db: str | None
+    config_path: str | None
+    device: tuple[str, ...]
+    lot: str | None
+    station: str | None
+    operator: str | None
+    verdict: str | None
+    status: str | None
+    since: str | None
+    until: str | None
+
+    @classmethod
+    def from_click(cls, o: Mapping[str, Any]) -> RunSelection:
+        return cls(db=o["db"], config_path=o["config_path"], device=o["device"], lot=o["lot"], station=o["station"],
+                   operator=o["operator"], verdict=o["verdict"], status=o["status"], since=o["since"],
+                   until=o["until"])
+
+    def filters(self, status: str | None = None) -> RunFilters:
+        """The store's query keywords (``status``: the default when --status is not given)."""
+        return run_filters(self.device, self.lot, self.station, self.operator, self.verdict, self.status or status,
+                           self.since, self.until)
 
 
 def open_reader(db: str | None, config_path: str | None, output: tuple[str, str | None, str] | None = None,

@@ -2,13 +2,18 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import click
 
 from ..api import diagnose
 from ..data.log_time import check_rate
-from ..diagnosis.report import REPORT_FILES, check_report_dir, selftest_lines, summary_lines, write_report
+from ..diagnosis.figures import REPORT_FILES, check_report_dir, write_report
+from ..diagnosis.report import selftest_lines, summary_lines
+from ..diagnosis.request import DiagnoseRequest
 from ..diagnosis.selftest import selftest as run_selftest
 from ..errors import DataError
 from ._common import MAX_SEED, Whole, parse_int
@@ -57,33 +62,68 @@ def _selftest(files: tuple[str, ...], report_dir: str | None, config: str | None
                    "(exit 1 if a case fails).")
 @click.option("--seed", type=Whole(0, MAX_SEED), default=1, show_default=True, help="Self-test seed.")
 @click.pass_context
-def command(ctx: click.Context, files: tuple[str, ...], config: str | None, raw: bool, units: str | None,
-            counts_per_g: str | None, gravity: str | None, columns: str | None, skip_rows: str | None,
-            rate: str | None, samples: str | None, norm_only: bool, as_json: bool, report_dir: str | None,
-            selftest: bool, seed: int) -> None:
+def command(ctx: click.Context, **opts: Any) -> None:
     """Diagnose the sim-to-real gap of real data against the simulator configuration."""
-    if selftest:
-        if not _selftest(files, report_dir, config, seed, as_json):
-            ctx.exit(1)
-        return
-    out_dir = check_report_dir(report_dir) if report_dir else None
+    if not _diagnose_cmd(DiagnoseCommand.from_click(opts)):
+        ctx.exit(1)
+
+
+@dataclass(frozen=True)
+class DiagnoseCommand:
+    """`accelcal diagnose`'s options as typed: the numbers still as given (parsed by ``request``)."""
+
+    files: tuple[str, ...]
+    config: str | None
+    raw: bool
+    units: str | None
+    counts_per_g: str | None
+    gravity: str | None
+    columns: str | None
+    skip_rows: str | None
+    rate: str | None
+    samples: str | None
+    norm_only: bool
+    as_json: bool
+    report_dir: str | None
+    selftest: bool
+    seed: int
+
+    @classmethod
+    def from_click(cls, o: Mapping[str, Any]) -> DiagnoseCommand:
+        return cls(files=o["files"], config=o["config"], raw=o["raw"], units=o["units"],
+                   counts_per_g=o["counts_per_g"], gravity=o["gravity"], columns=o["columns"],
+                   skip_rows=o["skip_rows"], rate=o["rate"], samples=o["samples"], norm_only=o["norm_only"],
+                   as_json=o["as_json"], report_dir=o["report_dir"], selftest=o["selftest"], seed=o["seed"])
+
+    def request(self) -> DiagnoseRequest:
+        """The library's request; a bad number refused naming its option."""
+        rate_hz = _number(self.rate, "--rate")
+        check_rate(rate_hz)
+        return DiagnoseRequest(
+            files=self.files, config=self.config, raw=self.raw, units=self.units,
+            counts_per_g=_number(self.counts_per_g, "--counts-per-g"), gravity_mps2=_number(self.gravity, "--gravity"),
+            columns=self.columns, skip_rows=parse_int(self.skip_rows, "--skip-rows", positive=False),
+            rate_hz=rate_hz, samples=parse_int(self.samples, "--samples"), norm_only=self.norm_only)
+
+
+def _diagnose_cmd(o: DiagnoseCommand) -> bool:
+    """The command; False when the self-test failed (exit 1)."""
+    if o.selftest:
+        return _selftest(o.files, o.report_dir, o.config, o.seed, o.as_json)
+    out_dir = check_report_dir(o.report_dir) if o.report_dir else None
     if out_dir is not None:
         refuse_output([("--report file", out_dir / n, _REPORT_KIND[Path(n).suffix]) for n in REPORT_FILES],
-                      [*(("FILE", f) for f in files), ("--config", config)], config=config)
-    rate_hz = _number(rate, "--rate")
-    check_rate(rate_hz)
-    d = diagnose(files, config=config, raw=raw, units=units, counts_per_g=_number(counts_per_g, "--counts-per-g"),
-                 gravity_mps2=_number(gravity, "--gravity"), columns=columns,
-                 skip_rows=parse_int(skip_rows, "--skip-rows", positive=False), rate_hz=rate_hz,
-                 samples=parse_int(samples, "--samples"), norm_only=norm_only)
+                      [*(("FILE", f) for f in o.files), ("--config", o.config)], config=o.config)
+    d = diagnose(o.request())
     js = _clean(d.to_json())
     if out_dir is not None:
         written = write_report(d, out_dir, js)
         js["report"] = [str(p) for p in written]
-    if as_json:
+    if o.as_json:
         click.echo(json.dumps(js, allow_nan=False))
     else:
         lines = summary_lines(d)
         if out_dir is not None:
             lines.append(f"report: {out_dir}/summary.md and {len(js['report']) - 1} figures")
         click.echo("\n".join(clean(ln) for ln in "\n".join(lines).split("\n")))  # pose names from files
+    return True

@@ -8,9 +8,10 @@ from __future__ import annotations
 import json
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -54,9 +55,7 @@ KINDS = ("mpu6050-bridge", "motor-jig", "chamber")
 @click.option("--door-open-at-s", type=Finite(0, 1e9), default=None,
               help="chamber fault: the door opens at this chamber-clock time for 60 s.")
 @click.option("--json", "as_json", is_flag=True, help="Print the port(s) as one JSON object.")
-def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool, jig_speed: float,
-            on_avr: bool, speed: float, start_c: float, air_tau_s: float, min_air_c: float | None,
-            alarm_at_s: float | None, door_open_at_s: float | None, as_json: bool) -> None:
+def command(**opts: Any) -> None:
     """Start an emulated device (or jig) on a new pseudo-terminal and print its path; Ctrl-C stops it.
 
     \b
@@ -66,17 +65,52 @@ def command(kind: str, seed: int | None, config_path: str | None, with_jig: bool
     motor-jig                   a motorized two-axis jig alone (docs/jig-protocol.md)
     chamber                     a thermal chamber (docs/chamber-protocol.md) on an accelerated clock
     """
-    if kind == "chamber":
-        _chamber(speed, start_c, air_tau_s, min_air_c, alarm_at_s, door_open_at_s, as_json)
+    o = EmulateCommand.from_click(opts)
+    if o.kind == "chamber":
+        _chamber(o.chamber, o.as_json)
         return
     from ..fixtures.jig_emulator import EmulatedAxes, JigEmulator
 
-    board, bridge = _bridge(config_path, seed, on_avr) if kind == "mpu6050-bridge" else (None, None)
+    board, bridge = _bridge(o.config_path, o.seed, o.on_avr) if o.kind == "mpu6050-bridge" else (None, None)
     jig: JigEmulator | None = None
-    if kind == "motor-jig" or with_jig:
-        jig = JigEmulator(EmulatedAxes(speed_deg_s=jig_speed, accel_deg_s2=jig_speed * 4), board=board,
+    if o.kind == "motor-jig" or o.with_jig:
+        jig = JigEmulator(EmulatedAxes(speed_deg_s=o.jig_speed, accel_deg_s2=o.jig_speed * 4), board=board,
                           board_lock=bridge.lock if bridge is not None else None)
-    _serve(kind, bridge, jig, None if board is None else board.seed, on_avr, as_json)
+    _serve(o.kind, bridge, jig, None if board is None else board.seed, o.on_avr, o.as_json)
+
+
+@dataclass(frozen=True)
+class ChamberScenario:
+    """The chamber emulator's clock, air and the faults it is to show (chamber clock seconds, C)."""
+
+    speed: float
+    start_c: float
+    air_tau_s: float
+    min_air_c: float | None
+    alarm_at_s: float | None
+    door_open_at_s: float | None
+
+
+@dataclass(frozen=True)
+class EmulateCommand:
+    """`accelcal emulate`'s options: which emulator, its board (config, seed; simavr), the jig, the chamber."""
+
+    kind: str
+    seed: int | None
+    config_path: str | None
+    with_jig: bool
+    jig_speed: float
+    on_avr: bool
+    chamber: ChamberScenario
+    as_json: bool
+
+    @classmethod
+    def from_click(cls, o: Mapping[str, Any]) -> EmulateCommand:
+        chamber = ChamberScenario(speed=o["speed"], start_c=o["start_c"], air_tau_s=o["air_tau_s"],
+                                  min_air_c=o["min_air_c"], alarm_at_s=o["alarm_at_s"],
+                                  door_open_at_s=o["door_open_at_s"])
+        return cls(kind=o["kind"], seed=o["seed"], config_path=o["config_path"], with_jig=o["with_jig"],
+                   jig_speed=o["jig_speed"], on_avr=o["on_avr"], chamber=chamber, as_json=o["as_json"])
 
 
 def _serve(kind: str, bridge: SimavrBridge | MPU6050BridgeEmulator | None, jig: JigEmulator | None,
@@ -145,18 +179,18 @@ def _announce(kind: str, ports: dict[str, str], seed: int | None, on_avr: bool, 
         click.echo(f"try: accelcal probe --config configs/mpu6050.yaml --port {ports['port']}")
 
 
-def _chamber(speed: float, start_c: float, air_tau_s: float, min_air_c: float | None, alarm_at_s: float | None,
-             door_open_at_s: float | None, as_json: bool) -> None:
+def _chamber(c: ChamberScenario, as_json: bool) -> None:
     """The chamber emulator, with the faults asked for, until Ctrl-C or SIGTERM."""
     from ..instruments.chamber_emulator import AcceleratedClock, ChamberEmulator, ChamberPhysics
 
-    emu = ChamberEmulator(ChamberPhysics(AcceleratedClock(speed), start_c, air_tau_s=air_tau_s))
-    if min_air_c is not None:
-        emu.limit_air(min_air_c=min_air_c)
-    if alarm_at_s is not None:
-        emu.alarm_at(alarm_at_s, 3)
-    if door_open_at_s is not None:
-        emu.open_door(door_open_at_s, 60.0)
+    speed = c.speed
+    emu = ChamberEmulator(ChamberPhysics(AcceleratedClock(speed), c.start_c, air_tau_s=c.air_tau_s))
+    if c.min_air_c is not None:
+        emu.limit_air(min_air_c=c.min_air_c)
+    if c.alarm_at_s is not None:
+        emu.alarm_at(c.alarm_at_s, 3)
+    if c.door_open_at_s is not None:
+        emu.open_door(c.door_open_at_s, 60.0)
     with _stop_signals() as done:
         try:
             port = emu.start()

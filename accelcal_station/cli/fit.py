@@ -2,8 +2,9 @@
 from __future__ import annotations
 
 import json
-from dataclasses import replace
-from typing import NotRequired, TypeAlias, TypedDict
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any, NotRequired, TypeAlias, TypedDict
 
 import click
 import numpy as np
@@ -348,17 +349,48 @@ def _report(path: str, loaded: Loaded, result: Fit) -> tuple[FitReport, list[str
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the summary.")
 @click.option("-o", "--output", default=None, metavar="FILE", help="Write the calibration JSON here (atomically).")
 @force_option
-def command(path: str, raw: bool, model: str | None, units: str | None, counts_per_g: str | None,
-            gravity: str | None, temp_method: str, columns: str | None, skip_rows: str | None, rate: str | None,
-            hand_placed: bool, as_json: bool, output: str | None, force: bool = False) -> None:
+def command(**opts: Any) -> None:
     """Fit a calibration to a pose table (CSV) or, with --raw, a raw sample log."""
+    _fit_cmd(FitCommand.from_click(opts))
+
+
+@dataclass(frozen=True)
+class FitCommand:
+    """`accelcal fit`'s options as typed: the numbers still as given (parsed with their option's name)."""
+
+    path: str
+    raw: bool
+    model: str | None
+    units: str | None
+    counts_per_g: str | None
+    gravity: str | None
+    temp_method: str
+    columns: str | None
+    skip_rows: str | None
+    rate: str | None
+    hand_placed: bool
+    as_json: bool
+    output: str | None
+    force: bool
+
+    @classmethod
+    def from_click(cls, o: Mapping[str, Any]) -> FitCommand:
+        return cls(path=o["path"], raw=o["raw"], model=o["model"], units=o["units"], counts_per_g=o["counts_per_g"],
+                   gravity=o["gravity"], temp_method=o["temp_method"], columns=o["columns"], skip_rows=o["skip_rows"],
+                   rate=o["rate"], hand_placed=o["hand_placed"], as_json=o["as_json"], output=o["output"],
+                   force=o["force"])
+
+
+def _fit_cmd(o: FitCommand) -> None:
+    path, raw, model, units, output, hand_placed = o.path, o.raw, o.model, o.units, o.output, o.hand_placed
+    temp_method, counts_per_g, gravity, force = o.temp_method, o.counts_per_g, o.gravity, o.force
     refuse_output([("-o", output, "json")], [("FILE", path)], force, has_config=False)
     model = "6" if model is None and hand_placed else model
     check_model_units(model or "12", units)  # no --model: the units still checked first
     check_temp_method(temp_method)
     cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
-    loaded = _load(path, raw, model, units, cpg, grav, columns,
-                   parse_int(skip_rows, "--skip-rows", positive=False), _number(rate, "--rate"))
+    loaded = _load(path, raw, model, units, cpg, grav, o.columns,
+                   parse_int(o.skip_rows, "--skip-rows", positive=False), _number(o.rate, "--rate"))
     choice = None
     if model is None:
         loaded, choice = _choose(path, loaded)
@@ -379,7 +411,7 @@ def command(path: str, raw: bool, model: str | None, units: str | None, counts_p
         result.calibration.save(output)
         report["output"] = str(output)
         text.append(f"calibration written to {output}")
-    _print(report, text, result, loaded.session.names, as_json)
+    _print(report, text, result, loaded.session.names, o.as_json)
 
 
 def _print(report: FitReport, text: list[str], result: Fit, names: list[str], as_json: bool) -> None:

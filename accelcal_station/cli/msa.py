@@ -4,6 +4,9 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
 
 import click
 
@@ -13,7 +16,7 @@ from ..lot.msa_study import PARAMETERS, analyse, build_study, plan, recent
 from ..store.reader import StoreReader
 from ..store.records import RunRecord
 from ._common import Whole, force_option
-from ._report_filters import RunFilters, filter_options, open_reader, run_filters
+from ._report_filters import RunFilters, RunSelection, filter_options, open_reader
 from ._text import clean
 
 CHUNK = 500  # run ids per query
@@ -67,9 +70,9 @@ def _repeated(store: StoreReader, flt: RunFilters) -> tuple[list[RunRecord], int
     return recs, sum(1 for r in listing if r["status"] == "complete" and n[r["device_serial"]] == 1)
 
 
-def _plan(store: StoreReader, by: str, parts: int, appraisers: int, trials: int, seed: int, as_json: bool,
-          flt: RunFilters) -> None:
-    serials, who = recent(store.list_runs(**flt), by, parts, appraisers)
+def _plan(store: StoreReader, by: str, p: StudyPlan, as_json: bool, flt: RunFilters) -> None:
+    trials, seed = p.trials, p.seed
+    serials, who = recent(store.list_runs(**flt), by, p.parts, p.appraisers)
     order = plan(serials, who, trials, seed)
     if as_json:
         click.echo(json.dumps({"parts": serials, "appraisers": who, "trials": trials, "seed": seed, "by": by,
@@ -99,18 +102,49 @@ def _plan(store: StoreReader, by: str, parts: int, appraisers: int, trials: int,
 @click.option("--seed", default=1, show_default=True, type=Whole(0, 2**31 - 1), help="With --plan: the "
               "random order's seed.")
 @force_option
-def msa_command(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None,
-                station: str | None, operator: str | None, verdict: str | None, status: str | None,
-                since: str | None, until: str | None, by: str, tolerance: tuple[str, ...], as_json: bool,
-                html_file: str | None, plan_only: bool, parts: int, appraisers: int, trials: int, seed: int,
-                force: bool = False) -> None:
+def msa_command(**opts: Any) -> None:
     """Gage R&R study (AIAG MSA 4th ed.) of the repeated boards in the store, per calibration parameter."""
-    tols = _tolerances(tolerance)
-    flt = run_filters(device, lot, station, operator, verdict, status or "complete", since, until)
+    _msa(MsaOptions.from_click(opts))
+
+
+@dataclass(frozen=True)
+class StudyPlan:
+    """--plan: the study's size and the seed of its random order."""
+
+    parts: int
+    appraisers: int
+    trials: int
+    seed: int
+
+
+@dataclass(frozen=True)
+class MsaOptions:
+    """`report msa`'s options: the runs, the appraisers (``by``), the tolerances, the outputs, the plan."""
+
+    selection: RunSelection
+    by: str
+    tolerance: tuple[str, ...]
+    as_json: bool
+    html_file: str | None
+    plan_only: bool
+    plan: StudyPlan
+    force: bool
+
+    @classmethod
+    def from_click(cls, o: Mapping[str, Any]) -> MsaOptions:
+        return cls(selection=RunSelection.from_click(o), by=o["by"], tolerance=o["tolerance"], as_json=o["as_json"],
+                   html_file=o["html_file"], plan_only=o["plan_only"], force=o["force"],
+                   plan=StudyPlan(parts=o["parts"], appraisers=o["appraisers"], trials=o["trials"], seed=o["seed"]))
+
+
+def _msa(o: MsaOptions) -> None:
+    by, as_json, html_file = o.by, o.as_json, o.html_file
+    tols = _tolerances(o.tolerance)
+    flt = o.selection.filters(status="complete")
     output = ("--html", html_file, "html") if html_file is not None else None
-    with open_reader(db, config_path, output, force) as store:  # read-only: never stamped or migrated
-        if plan_only:
-            _plan(store, by, parts, appraisers, trials, seed, as_json, flt)
+    with open_reader(o.selection.db, o.selection.config_path, output, o.force) as store:  # read-only
+        if o.plan_only:
+            _plan(store, by, o.plan, as_json, flt)
             return
         recs, once = _repeated(store, flt)
         study = build_study(recs, by, left_out=once)

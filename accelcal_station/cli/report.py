@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -16,7 +18,7 @@ from ..store.records import RunRecord
 from ..store.runs import Store
 from ._common import MAX_ID, Whole, force_option
 from ._mes import JsonGroup
-from ._report_filters import filter_options, open_reader, run_filters, store_target_of
+from ._report_filters import RunSelection, filter_options, open_reader, store_target_of
 from ._text import clean
 from .certificate import certificate_command, verify_certificate_command
 from .msa import msa_command
@@ -55,12 +57,14 @@ def command(db: str | None, config_path: str | None) -> None:
 @filter_options
 @click.option("--limit", default=None, type=Whole(1, 10**9), help="At most this many runs.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-def list_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None, station: str | None,
-             operator: str | None, verdict: str | None, status: str | None, since: str | None, until: str | None,
-             limit: int | None, as_json: bool) -> None:
+def list_cmd(**opts: Any) -> None:
     """Runs matching the filters, oldest first."""
-    with open_reader(db, config_path) as store:
-        runs = store.list_runs(limit, **run_filters(device, lot, station, operator, verdict, status, since, until))
+    _list(RunSelection.from_click(opts), opts["limit"], opts["as_json"])
+
+
+def _list(sel: RunSelection, limit: int | None, as_json: bool) -> None:
+    with open_reader(sel.db, sel.config_path) as store:
+        runs = store.list_runs(limit, **sel.filters())
     if as_json:
         click.echo(json.dumps(runs, indent=1))
         return
@@ -146,17 +150,37 @@ def _fit_lines(fit: Mapping[str, JsonValue]) -> list[str]:
 @click.option("--poses", is_flag=True, help="CSV: one row per pose instead of one per run.")
 @click.option("--json", "as_json", is_flag=True, help="With -o, print a JSON line saying what was written.")
 @force_option
-def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None,
-               station: str | None, operator: str | None, verdict: str | None, status: str | None,
-               since: str | None, until: str | None, output: str | None, fmt: str | None, poses: bool,
-               as_json: bool, force: bool = False) -> None:
+def export_cmd(**opts: Any) -> None:
     """Export runs as CSV (one row per run, calibration flattened; or per pose) or JSON (everything)."""
+    _export(ExportOptions.from_click(opts))
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """`report export`'s options: the runs, where and how they are written."""
+
+    selection: RunSelection
+    output: str | None
+    fmt: str | None
+    poses: bool
+    as_json: bool
+    force: bool
+
+    @classmethod
+    def from_click(cls, o: Mapping[str, Any]) -> ExportOptions:
+        return cls(selection=RunSelection.from_click(o), output=o["output"], fmt=o["fmt"], poses=o["poses"],
+                   as_json=o["as_json"], force=o["force"])
+
+
+def _export(o: ExportOptions) -> None:
+    output, poses, as_json = o.output, o.poses, o.as_json
+    fmt = o.fmt
     if fmt is None:  # --json without -o means JSON on stdout
         fmt = "json" if (output and output.lower().endswith(".json")) or (as_json and output is None) else "csv"
     if fmt not in ("csv", "json"):
         raise DataError(f"--format {fmt!r}; allowed: csv, json")
-    flt = run_filters(device, lot, station, operator, verdict, status, since, until)
-    with open_reader(db, config_path, ("-o", output, fmt), force=force) as store:
+    flt = o.selection.filters()
+    with open_reader(o.selection.db, o.selection.config_path, ("-o", output, fmt), force=o.force) as store:
         n = len(store.list_runs(**flt))
         if fmt == "json":
             data = store.export_json(output, **flt)
@@ -181,13 +205,14 @@ def export_cmd(db: str | None, config_path: str | None, device: tuple[str, ...],
               help="Also write a lot report (histograms vs limits, pass rate and reasons over time, control "
                    "charts) as one HTML file with embedded PNGs.")
 @force_option
-def summary_cmd(db: str | None, config_path: str | None, device: tuple[str, ...], lot: str | None,
-                station: str | None, operator: str | None, verdict: str | None, status: str | None,
-                since: str | None, until: str | None, as_json: bool, html_file: str | None,
-                force: bool = False) -> None:
+def summary_cmd(**opts: Any) -> None:
     """Lot summary: counts, pass rate, failure reasons, parameter distributions."""
-    flt = run_filters(device, lot, station, operator, verdict, status, since, until)
-    with open_reader(db, config_path, ("--html", html_file, "html"), force=force) as store:
+    _summary(RunSelection.from_click(opts), opts["as_json"], opts["html_file"], opts["force"])
+
+
+def _summary(sel: RunSelection, as_json: bool, html_file: str | None, force: bool) -> None:
+    flt, lot = sel.filters(), sel.lot
+    with open_reader(sel.db, sel.config_path, ("--html", html_file, "html"), force=force) as store:
         s = store.lot_summary(**flt)
         if html_file is not None:
             from ..lot.report import write_lot_html

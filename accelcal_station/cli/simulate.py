@@ -9,8 +9,10 @@ ground truth as a calibration JSON (``W``, ``V``, ``Gamma`` at the top level, as
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, TypedDict
+from typing import IO, Any, TypedDict
 
 import click
 import numpy as np
@@ -25,7 +27,7 @@ from ..fileguard.kind import DESCRIBED
 from ..fileguard.numbers import decimal_float
 from ..fixtures.designs import get_design
 from ..fixtures.simulated_run import SimulatedRun, run_metadata
-from ..lot.synthetic import write_population_lot
+from ..lot.synthetic import LotSpec, write_population_lot
 from ..twin.simlot import load_device
 from ._common import MAX_SEED, Finite, Whole, force_option, output_kind
 from ._outputs import refuse_output
@@ -130,22 +132,51 @@ def _check_suffixes(out: str, truth_out: str | None) -> None:
               help="Write the simulator's ground-truth calibration (W, V, Gamma) as JSON.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary.")
 @force_option
-def command(config: str | None, design: str, lot: int | None, out: str, raw: bool, seed: int | None,
-            temps: str | None, samples: int, move_s: float, truth_out: str | None, as_json: bool,
-            force: bool = False) -> None:
+def command(**opts: Any) -> None:
     """Simulate a calibration run and write its pose table (or raw log) and ground truth."""
-    refuse_output([("--out", out, "csv"), ("--truth-out", truth_out, "json")], [("--config", config)], force,
+    _simulate(SimulateCommand.from_click(opts))
+
+
+@dataclass(frozen=True)
+class SimulateCommand:
+    """`accelcal simulate`'s options: the board (config, seed), the design and how it is run (temperatures,
+    samples, move time), what is written (a pose table, a raw log, a lot file; the truth)."""
+
+    config: str | None
+    design: str
+    lot: int | None
+    out: str
+    raw: bool
+    seed: int | None
+    temps: str | None
+    samples: int
+    move_s: float
+    truth_out: str | None
+    as_json: bool
+    force: bool
+
+    @classmethod
+    def from_click(cls, o: Mapping[str, Any]) -> SimulateCommand:
+        return cls(config=o["config"], design=o["design"], lot=o["lot"], out=o["out"], raw=o["raw"], seed=o["seed"],
+                   temps=o["temps"], samples=o["samples"], move_s=o["move_s"], truth_out=o["truth_out"],
+                   as_json=o["as_json"], force=o["force"])
+
+
+def _simulate(o: SimulateCommand) -> None:
+    config, design, lot, out, seed, samples = o.config, o.design, o.lot, o.out, o.seed, o.samples
+    truth_out, as_json, move_s = o.truth_out, o.as_json, o.move_s
+    refuse_output([("--out", out, "csv"), ("--truth-out", truth_out, "json")], [("--config", config)], o.force,
                   config=config)
     _check_suffixes(out, truth_out)
     get_design(design)
     if lot is not None:
         _write_lot(config, design, lot, out, seed, samples, as_json)
         return
-    temp_list = parse_temps(temps)
+    temp_list = parse_temps(o.temps)
     for path in (out, truth_out):  # refuse before writing anything, so no file is left alone
         if path is not None and not Path(path).resolve().parent.is_dir():
             raise DataError(f"{path}: cannot write (no such directory {Path(path).parent})")
-    if raw:
+    if o.raw:
         with atomic_write(out) as f:
             log = _RawLog(f, design, temp_list is not None and len(temp_list) > 1)
             run = simulate(design, config=config, seed=seed, samples=samples, temps_c=temp_list, move_s=move_s,
@@ -155,7 +186,7 @@ def command(config: str | None, design: str, lot: int | None, out: str, raw: boo
         write_pose_table(run.session, out, run.metadata)
     if truth_out is not None:
         atomic_write(truth_out, json.dumps(run.truth().to_dict(), indent=2) + "\n")
-    summary, line = _summary(run, out, raw, truth_out)
+    summary, line = _summary(run, out, o.raw, truth_out)
     click.echo(json.dumps(summary) if as_json else line)
 
 
@@ -167,7 +198,7 @@ def _write_lot(config: str | None, design: str, boards: int, out: str, seed: int
     cfg = config or str(default_config_path())
     model, pop, range_g, _ = load_device(cfg)
     seed = 0 if seed is None else seed
-    write_population_lot(out, boards, design, model, pop, seed=seed, samples=samples, range_g=range_g)
+    write_population_lot(out, LotSpec(boards, design, seed=seed, samples=samples, range_g=range_g), model, pop)
     summary = {"out": out, "boards": boards, "design": design, "seed": seed, "samples_per_pose": samples,
                "population": pop is not None, "config": cfg}
     click.echo(json.dumps(summary) if as_json else

@@ -7,7 +7,8 @@ Holds ``loading`` (the simulator and the data as GapData), ``gap_data``, ``noise
 over ``folds``, ``least_squares``, ``static_view``, ``time_view``, giving an ``evaluation``),
 ``engine`` (diagnose: floor, gap, stochastic signatures) with ``candidates``, ``selection``,
 ``where``, ``verdict`` and ``result`` (the Diagnosis and its JSON), ``shape`` (what is left),
-``report`` (words, figures) and ``selftest`` (forward-physics boards).  May import ``data``,
-``sim``, ``drivers`` (the simulated board), ``fixtures`` (designs, the simulated jig),
-``models``, ``config`` and the foundation; never the station, the lot flows or the CLI.
+``report`` (words), ``figures`` (--report's files), ``request`` (what to diagnose) and
+``selftest`` (forward-physics boards).  May import ``data``, ``sim``, ``drivers`` (the simulated
+board), ``fixtures`` (designs, the simulated jig), ``models``, ``config`` and the
+foundation; never the station, the lot flows or the CLI.
 """

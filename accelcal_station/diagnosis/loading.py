@@ -24,6 +24,7 @@ from ..session import Session
 from ..sim.sensor_model import SensorModel
 from .gap_data import Capture, GapData
 from .noise_floor import Floor
+from .request import DiagnoseRequest
 from .site import stated_site_g
 
 Part = tuple[Session, list[Capture] | None, str]  # one file: its poses, their raw captures (raw logs), its name
@@ -220,22 +221,22 @@ def chip_rate_hz(log: RawLog, notes: list[str], path: str) -> float:
     return float(log.rate_hz)
 
 
-def load_data(paths: Sequence[str | Path], raw: bool = False, units: str | None = None,
-              counts_per_g: float | None = None, gravity: float | None = None, columns: str | None = None,
-              skip_rows: int | None = None, rate: float | None = None, samples: int | None = None,
-              norm_only: bool = False) -> GapData:
-    """Read pose tables (or, with ``raw``, raw logs) with the loader `accelcal fit` uses (loader.load).
+def load_data(request: DiagnoseRequest) -> GapData:
+    """Read pose tables (or, with ``request.raw``, raw logs) with the loader `accelcal fit` uses (loader.load).
 
-    ``rate`` is the raw log's sample rate, or for pose tables the rate of the samples behind their std.
+    ``request.rate_hz`` is the raw log's sample rate, or for pose tables the rate of the samples behind
+    their std.
     """
+    paths, raw, rate = request.files, request.raw, request.rate_hz
     if not paths:
         raise DataError("no data files given; allowed: pose tables, or raw logs with --raw (or use --selftest)")
     parts: list[Part] = []
     rates: set[float] = set()
     inferred: list[str] = []
     for path in paths:
-        loaded = load(str(path), raw, units=units, counts_per_g=counts_per_g, gravity_mps2=gravity,
-                      columns=columns, skip_rows=skip_rows, rate_hz=rate if raw else None, references=False)
+        loaded = load(str(path), raw, units=request.units, counts_per_g=request.counts_per_g,
+                      gravity_mps2=request.gravity_mps2, columns=request.columns, skip_rows=request.skip_rows,
+                      rate_hz=rate if raw else None, references=False)
         inferred.append(f"{path}: " + "; ".join(loaded.inferred))
         if loaded.log is None:
             parts.append((loaded.session, None, str(path)))
@@ -255,13 +256,13 @@ def load_data(paths: Sequence[str | Path], raw: bool = False, units: str | None 
     if len(rates) > 1:
         raise DataError(f"raw logs at different rates ({', '.join(f'{r:g}' for r in sorted(rates))} Hz); "
                         "diagnose logs of one rate together")
-    data = gap_data(parts, samples, norm_only, rates.pop() if rates else rate)
+    data = gap_data(parts, request.samples, request.norm_only, rates.pop() if rates else rate)
     data.fit_refused = refused
     data.sessions = [s for s, _, _ in parts]
     data.site_g = stated_site_g(data.sessions, [src for _, _, src in parts])
     if data.site_g is not None and data.ref is not None:  # unit references: gamma carries the site (site.py)
         data.ref = data.ref / data.site_g
-    if choice is not None and not norm_only:
+    if choice is not None and not request.norm_only:
         data.fit_model, data.fit_faces = choice.model, choice.faces is not None
         data.exclude = NOT_IN_MODEL[choice.method if choice.faces is not None else choice.model]
         data.notes.append(f"baseline on fit's ground: {choice.method} as `accelcal fit` chooses it ({choice.reason})"

@@ -191,10 +191,25 @@ def _vs_order(comp: Competitor, new: Evaluation, units: np.ndarray, alpha: float
     return None if comp.ev is None else p_greater((comp.ev.nll_unit - new.nll_unit)[units])
 
 
-def _step(ev: Evaluator, data: GapData, sim: Simulator, current: Evaluation, remaining: list[str],
-          selected: list[str], units: np.ndarray, td: TimeData | None, alpha: float, comp: Competitor,
+@dataclass(frozen=True)
+class _Search:
+    """What every greedy step works with: the evaluator, the data and the simulator, the units the paired
+    test counts (``units``), the time view, the level and the order-trend competitor (updated per step)."""
+
+    ev: Evaluator
+    data: GapData
+    sim: Simulator
+    units: np.ndarray
+    td: TimeData | None
+    alpha: float
+    comp: Competitor
+
+
+def _step(search: _Search, current: Evaluation, remaining: list[str], selected: list[str],
           ) -> tuple[Evaluation | None, Step | None, list[Ranked], list[Tried]]:
     """One greedy step: candidates in score order, the first that passes every rule (or None)."""
+    ev, data, sim, units, td, alpha, comp = (search.ev, search.data, search.sim, search.units, search.td,
+                                             search.alpha, search.comp)
     evs = {c: ev(selected + [c]) for c in remaining}
     pv = {c: p_greater((current.nll_unit - evs[c].nll_unit)[units]) for c in remaining}
     order = sorted(remaining, key=lambda c: evs[c].score)
@@ -257,12 +272,13 @@ def select(ev: Evaluator, data: GapData, sim: Simulator, base: Evaluation, testa
     ranking: list[Ranked] | None = None
     remaining = list(testable)
     comp = Competitor(None)
+    search = _Search(ev, data, sim, units, td, alpha, comp)
     if order_trend is not None and explained(current, alpha):
         comp.first = ev([order_trend])  # reported even when nothing is left to explain
     while remaining and not explained(current, alpha):
         comp.ev = None if order_trend is None else ev(selected + [order_trend])
         comp.first = comp.first or comp.ev
-        new, step, rank, tr = _step(ev, data, sim, current, remaining, selected, units, td, alpha, comp)
+        new, step, rank, tr = _step(search, current, remaining, selected)
         ranking = ranking or rank
         tried += tr
         if new is None or step is None:

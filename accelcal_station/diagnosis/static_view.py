@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .effects.design import static_design
+from .effects.design import ColumnChoice, static_design
 from .effects.order_trend import NAME
 from .evaluation import nll as _nll
 from .folds import Folds, NoiseModel, heldout
@@ -54,8 +54,8 @@ def _static_try(data: GapData, gamma: float, E: Collection[str], g: np.ndarray, 
     Levenberg-Marquardt on the norm without (1 row); v0 (F, P, 3) with references, (F, P) on the norm."""
     ref, F, P = data.ref, train.shape[0], data.P
     order = trend_basis(data) if NAME in E else None
-    A, b, d, labels = static_design(E, g, ref, dT, dh, ref is None, data.n_temps, data.zero_g, order,
-                                    data.drop_terms)
+    A, b, d, labels = static_design(E, g, ref, dT, dh, ref is None, data.n_temps,
+                                    ColumnChoice(data.zero_g, order, data.drop_terms))
     p = A.shape[-1]
     if ref is None:  # norm only
         w = train / v0

@@ -16,43 +16,31 @@ and raw bytes, and the station records the outcome before the first byte (``befo
 the new slot is invalidated and the burn fails.
 
 Service functions (``accelcal nvm read|backup|restore|erase``): ``read_newest``,
-``status``, ``backup`` (raw image of both slots in a JSON file with its CRC-32),
+``status``, ``backup`` (raw image of both slots in a JSON file with its CRC-32: image_file.py),
 ``restore`` (checks the image, writes, reads back) and ``erase``.
 """
 from __future__ import annotations
 
 import base64
-import json
 import logging
 import time as _time
 import zlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, TypedDict
 
 import numpy as np
 
-from ..atomic import atomic_write
 from ..calibration import Calibration
 from ..drivers.base import NVM
 from ..errors import AccelcalError, NVMError
-from ..fileguard.jsondoc import read_json
 from ..jsontypes import JsonObject
 from .blob import GENERATION_MOD, HEADER_SIZE, BlobError, BlobHeader, blob_length, blob_size, decode, encode, newer
+from .image_file import IMAGE_SCHEMA, IMAGE_VERSION, BackupSummary, read_image, save_image
 from .outcome import BlobIdentity, BurnError, BurnOutcome, NoValidBlob, holds_text, identity_of
 
 SLOTS = ("A", "B")
-IMAGE_SCHEMA = "accelcal.nvm-image"
-IMAGE_VERSION = 1
-MAX_BACKUP_BYTES = 1 << 20  # two slots of a 64 KiB EEPROM in base64 are 90 kB
 log = logging.getLogger(__name__)
-
-
-def _short(v: Any) -> str:
-    """A value from a backup file, quoted short (a hostile file's value may be huge)."""
-    r = repr(v)
-    return r if len(r) <= 40 else r[:40] + "..."
 
 
 @dataclass
@@ -76,22 +64,6 @@ class SlotStatus:
     def to_dict(self) -> JsonObject:
         """The JSON form (the results store, --json)."""
         return asdict(self)
-
-
-class BackupSummary(TypedDict):
-    """What a backup file holds besides its image (``backup`` returns it; the file adds image_base64)."""
-
-    schema: str
-    version: int
-    created: float  # unix seconds
-    nvm_size: int
-    page_size: int
-    chip: str | None
-    base_addr: int
-    slot_size: int
-    length: int  # image bytes
-    crc32: int
-    slots: list[JsonObject]  # SlotStatus.to_dict() of each slot
 
 
 # what a scan finds in each slot: its status, and the calibration and header of a valid blob
@@ -348,40 +320,12 @@ class CalibrationWriter:
             schema=IMAGE_SCHEMA, version=IMAGE_VERSION, created=_time.time(), nvm_size=int(self.nvm.size),
             page_size=self.page_size, chip=chip, base_addr=self.base_addr, slot_size=self.slot_size,
             length=len(img), crc32=zlib.crc32(img), slots=[st.to_dict() for st, _, _ in self._scan(img)])
-        doc = {**summary, "image_base64": base64.b64encode(img).decode("ascii")}
-        try:
-            atomic_write(path, json.dumps(doc, indent=1) + "\n")
-        except OSError as e:
-            raise NVMError(f"{path}: cannot write the backup ({e.strerror})") from None
+        save_image(path, summary, img)
         return summary
 
     def load_image(self, path: str | Path) -> tuple[bytes, JsonObject]:
         """Image bytes and document of a backup file, checked against its CRC and this layout."""
-        path = Path(path)
-        doc = read_json(path, "an NVM backup", MAX_BACKUP_BYTES,
-                        "a backup holds two slots of a small EEPROM, base64", NVMError)
-        if not isinstance(doc, dict) or doc.get("schema") != IMAGE_SCHEMA:
-            raise NVMError(f"{path}: not an NVM backup (missing schema {IMAGE_SCHEMA!r})")
-        v = doc.get("version")
-        if type(v) is int and v > IMAGE_VERSION:  # the one line a calibration file from a newer accelcal gets
-            raise NVMError(f"{path}: written by a newer accelcal (NVM backup format version {v}); this accelcal "
-                           f"reads up to version {IMAGE_VERSION}: restore it with a newer accelcal-station")
-        if v != IMAGE_VERSION:
-            raise NVMError(f"{path}: backup version {_short(v)}; this station reads {IMAGE_VERSION}")
-        if (doc.get("base_addr"), doc.get("slot_size")) != (self.base_addr, self.slot_size):
-            raise NVMError(f"{path}: image is for slots of {_short(doc.get('slot_size'))} bytes at "
-                           f"{_short(doc.get('base_addr'))}; this NVM has slots of {self.slot_size} bytes "
-                           f"at {self.base_addr}")
-        try:
-            img = base64.b64decode(doc["image_base64"], validate=True)
-        except (KeyError, TypeError, ValueError):
-            raise NVMError(f"{path}: image_base64 missing or not base64") from None
-        if len(img) != 2 * self.slot_size or len(img) != doc.get("length"):
-            raise NVMError(f"{path}: image is {len(img)} bytes; expected {2 * self.slot_size}")
-        if zlib.crc32(img) != doc.get("crc32"):
-            raise NVMError(f"{path}: image CRC-32 0x{zlib.crc32(img):08x} does not match the recorded "
-                           f"{_short(doc.get('crc32'))}; the backup is damaged")
-        return img, doc
+        return read_image(path, self.base_addr, self.slot_size)
 
     def restore(self, path: str | Path, *, serial: str | None = None, allow_other_serial: bool = False,
                 backup_to: str | Path | None = None, chip: str | None = None) -> list[SlotStatus]:

@@ -10,6 +10,8 @@ variance: the mean of many integer samples is not an integer), clipped at the co
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..errors import ConfigError
@@ -102,13 +104,24 @@ def response_g(prm: dict[str, dict[str, np.ndarray]], on: set[str], f: np.ndarra
     return G
 
 
+@dataclass(frozen=True)
+class Conditions:
+    """How the boards are measured, beyond the samples and range: the output data rate (None: the chip's
+    default), the temperature in C, and the nonlinearity's physics (``forward``; None: the model's,
+    ``simulator.physics``)."""
+
+    odr_hz: float | None = None
+    temp_c: float = 25.0
+    forward: bool | None = None
+
+
 def pose_means(model: SensorModel, pop: Population | None, boards: np.ndarray, ref: np.ndarray, samples: int,
-               rng: np.random.Generator, *, range_g: int = 2, odr_hz: float | None = None, temp_c: float = 25.0,
-               forward: bool | None = None, x: np.ndarray | None = None
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               rng: np.random.Generator, *, range_g: int = 2, x: np.ndarray | None = None,
+               conditions: Conditions = Conditions()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pose means (D, P, 3) and per-sample std (D, P, 3) in counts of the boards with these lot
-    indices, and their parameter vectors (D, Q) (drawn from ``pop`` unless ``x`` is given).
-    ``forward``: the nonlinearity's physics (response_g); None = the model's (simulator.physics)."""
+    indices, and their parameter vectors (D, Q) (drawn from ``pop`` unless ``x`` is given), measured
+    under ``conditions``."""
+    odr_hz, temp_c, forward = conditions.odr_hz, conditions.temp_c, conditions.forward
     D = len(boards)
     on = enabled_effects(model, pop)
     if pop is not None and x is None:

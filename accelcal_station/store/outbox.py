@@ -22,12 +22,13 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import Any, Unpack
 
 from .database import describe_target, is_url
 from .heartbeat import HEARTBEAT_S
 from .location import store_identity
 from .records import StoreError, StoreUnreachable
+from .run_args import RunResult, RunResultFields, RunStart, RunStartFields, one_of
 from .runs import Store
 
 log = logging.getLogger(__name__)
@@ -48,24 +49,6 @@ def open_store(target: str | Path, outbox: str | Path | None = None, heartbeat_s
     return Store(target, heartbeat_s=heartbeat_s)
 
 
-class _Start(TypedDict):
-    """Store.start_run's keywords as a run of this process gave them (its start time fixed)."""
-
-    device_serial: str | None
-    chip: str | None
-    station_id: str | None
-    operator: str | None
-    lot: str | None
-    config_text: str | None
-    config_hash: str | None
-    model: str | None
-    units: str | None
-    counts_per_g: float | None
-    gravity_mps2: float | None
-    started_at: float
-    panel_id: str | None
-
-
 Step = Callable[[Store, int], None]  # one write of a run, made on a store under that store's id of the run
 
 
@@ -73,7 +56,7 @@ Step = Callable[[Store, int], None]  # one write of a run, made on a store under
 class _Run:
     """What a run of this process wrote, to start it again in the outbox."""
 
-    start: _Start
+    start: RunStart  # its start time fixed
     server_id: int | None = None
     local_id: int | None = None
     steps: list[Step] = field(default_factory=list)
@@ -185,9 +168,9 @@ class LineStore(Store):
         """The run in the outbox (started there with its start and steps so far, once)."""
         local = self._outbox()
         if run.local_id is None:
-            run.local_id = local.start_run(**run.start)
+            run.local_id = local.start_run(run.start)
             local.log_event(run.local_id, "outbox", f"line database {self.path} unreachable; kept locally",
-                            {"target": self.identity, "server_run_id": run.server_id}, t=run.start["started_at"])
+                            {"target": self.identity, "server_run_id": run.server_id}, t=run.start.started_at)
             for step in run.steps:
                 step(local, run.local_id)
         return run.local_id
@@ -207,18 +190,12 @@ class LineStore(Store):
         run.steps.append(step)
 
     # -- the station's writes ------------------------------------------------------------
-    def start_run(self, *, device_serial: str | None, chip: str | None = None, station_id: str | None = None,
-                  operator: str | None = None, lot: str | None = None, config_text: str | None = None,
-                  config_hash: str | None = None, model: str | None = None, units: str | None = None,
-                  counts_per_g: float | None = None, gravity_mps2: float | None = None,
-                  started_at: float | None = None, panel_id: str | None = None) -> int:
-        run = _Run({"device_serial": device_serial, "chip": chip, "station_id": station_id, "operator": operator,
-                    "lot": lot, "config_text": config_text, "config_hash": config_hash, "model": model,
-                    "units": units, "counts_per_g": counts_per_g, "gravity_mps2": gravity_mps2,
-                    "started_at": time.time() if started_at is None else float(started_at), "panel_id": panel_id})
+    def start_run(self, start: RunStart | None = None, /, **fields: Unpack[RunStartFields]) -> int:
+        """Store.start_run: on the server while it answers, else in the outbox (module doc)."""
+        run = _Run(one_of(start, fields, RunStart).stamped())
         if self._primary is not None:
             try:
-                run.server_id = self._primary.start_run(**run.start)
+                run.server_id = self._primary.start_run(run.start)
                 self._journal[run.server_id] = run
                 return run.server_id
             except StoreUnreachable as e:
@@ -235,8 +212,10 @@ class LineStore(Store):
         at = time.time() if t is None else t
         self._write(run_id, lambda st, rid: st.log_event(rid, kind, message, data, t=at))
 
-    def finish_run(self, run_id: int, **kw: Any) -> None:  # Store.finish_run's keywords
-        self._write(run_id, lambda st, rid: st.finish_run(rid, **kw))
+    def finish_run(self, run_id: int, result: RunResult | None = None, /,
+                   **fields: Unpack[RunResultFields]) -> None:
+        r = one_of(result, fields, RunResult)
+        self._write(run_id, lambda st, rid: st.finish_run(rid, r))
 
     def interrupt_run(self, run_id: int, reason: str, **kw: Any) -> None:  # Store.interrupt_run's keywords
         self._write(run_id, lambda st, rid: st.interrupt_run(rid, reason, **kw))

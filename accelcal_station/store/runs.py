@@ -17,18 +17,16 @@ Opening a store upgrades its schema (schema.py) under one transaction, in one lo
 """
 from __future__ import annotations
 
-import hashlib
 import logging
 import os
 import socket
 import time as _time
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Unpack
 
 from ..acceptance.reasons import Reason
-from ..calibration import Calibration
 from ..errors import DataError
 from ..session import Session
 from . import schema
@@ -37,6 +35,7 @@ from .heartbeat import HEARTBEAT_S, Heartbeat
 from .liveness import stale_reason
 from .reader import StoreReader, sql_message, sqlerror, store_error
 from .records import RunRecord, StoreError, opt, to_json
+from .run_args import Outcome, RunResult, RunResultFields, RunStart, RunStartFields, one_of
 
 if TYPE_CHECKING:
     from sqlalchemy import insert, select, update
@@ -55,13 +54,6 @@ def _load_sql() -> None:
 
     from . import migrate, replay
     from .tables import events, poses, runs
-
-
-class _HasDict(Protocol):
-    def to_dict(self) -> Mapping[str, object]: ...
-
-
-Outcome = _HasDict | Mapping[str, object]  # an NVM burn's outcome: nvm.writer.BurnOutcome or its dict
 
 
 def _outcome(o: Outcome | None) -> Mapping[str, object] | None:
@@ -140,26 +132,18 @@ class Store(StoreReader):
             self.notice = f"{self.path}: {what}"
 
     # -- recording ----------------------------------------------------------------------
-    def start_run(self, *, device_serial: str | None, chip: str | None = None, station_id: str | None = None,
-                  operator: str | None = None, lot: str | None = None, config_text: str | None = None,
-                  config_hash: str | None = None, model: str | None = None, units: str | None = None,
-                  counts_per_g: float | None = None, gravity_mps2: float | None = None,
-                  started_at: float | None = None, panel_id: str | None = None) -> int:
-        """Commit a ``running`` row now (a crash leaves it recorded) and return its id.
-
-        ``config_hash`` defaults to the SHA-256 of ``config_text``; ``panel_id`` ties the runs
-        of the boards calibrated together on one jig.
-        """
-        if config_hash is None and config_text is not None:
-            config_hash = hashlib.sha256(config_text.encode()).hexdigest()
+    def start_run(self, run: RunStart | None = None, /, **fields: Unpack[RunStartFields]) -> int:
+        """Commit a ``running`` row now (a crash leaves it recorded) and return its id: ``run``, or its
+        fields as keywords (RunStart)."""
+        r = one_of(run, fields, RunStart)
         now = _time.time()
         with self._tx("start a run") as db:
             cur = db.execute(insert(runs).values(
-                started_at=now if started_at is None else float(started_at), status="running",
-                device_serial=device_serial, chip=chip, station_id=station_id, operator=operator, lot=lot,
-                config_hash=config_hash, config_text=config_text, model=opt(model, str), units=units,
-                counts_per_g=opt(counts_per_g), gravity_mps2=opt(gravity_mps2), host=socket.gethostname(),
-                pid=os.getpid(), panel_id=panel_id,
+                started_at=now if r.started_at is None else float(r.started_at), status="running",
+                device_serial=r.device_serial, chip=r.chip, station_id=r.station_id, operator=r.operator,
+                lot=r.lot, config_hash=r.config_hash, config_text=r.config_text, model=opt(r.model, str),
+                units=r.units, counts_per_g=opt(r.counts_per_g), gravity_mps2=opt(r.gravity_mps2),
+                host=socket.gethostname(), pid=os.getpid(), panel_id=r.panel_id,
                 **({"heartbeat_at": now, "heartbeat_s": self.heartbeat_s} if self._beats else {})))
             key = cur.inserted_primary_key
             assert key is not None  # an INSERT of one row
@@ -167,7 +151,7 @@ class Store(StoreReader):
             if self._heart is None:
                 self._heart = Heartbeat(self._db.target, self.heartbeat_s)
             self._heart.add(int(key[0]))
-        log.info("run %d started: board %s, station %s, lot %s", key[0], device_serial, station_id, lot)
+        log.info("run %d started: board %s, station %s, lot %s", key[0], r.device_serial, r.station_id, r.lot)
         return int(key[0])
 
     def _running(self, db: Database, run_id: int) -> None:
@@ -193,44 +177,35 @@ class Store(StoreReader):
         db.execute(update(runs).where(runs.c.id == run_id).values(
             units=session.units, counts_per_g=opt(session.counts_per_g), gravity_mps2=opt(session.gravity_mps2)))
 
-    def finish_run(self, run_id: int, *, session: Session, calibration: Calibration | None, verdict: str | None,
-                   reasons: Iterable[Reason] = (), nvm_outcome: Outcome | None = None,
-                   fit_summary: Mapping[str, object] | None = None,
-                   model: str | None = None, retries: Sequence[int] | None = None,
-                   finished_at: float | None = None, limits: dict[str, float] | None = None,
-                   site: Mapping[str, object] | None = None, uncertainty: Mapping[str, object] | None = None) -> None:
-        """Record poses, calibration, verdict and NVM outcome of a run as ``complete``, atomically.
-
-        ``nvm_outcome``: a writer.BurnOutcome, its dict, or None when nothing was burned;
-        ``reasons``: Reason objects (a plain string is kept with code "");
-        ``limits``: the acceptance limits the verdict was judged by ({key: number}); ``site``: the site's
-        gravity (config/site.py Site.to_json); ``uncertainty``: the budget and decision rule (schema 6).
-        """
-        if verdict is not None and verdict not in schema.VERDICTS:
-            raise DataError(f"verdict {verdict!r}; allowed: PASS, FAIL")
-        outcome = _outcome(nvm_outcome)
+    def finish_run(self, run_id: int, result: RunResult | None = None, /, **fields: Unpack[RunResultFields]) -> None:
+        """Record poses, calibration, verdict and NVM outcome of a run as ``complete``, atomically:
+        ``result``, or its fields as keywords (RunResult)."""
+        r = one_of(result, fields, RunResult)
+        if r.verdict is not None and r.verdict not in schema.VERDICTS:
+            raise DataError(f"verdict {r.verdict!r}; allowed: PASS, FAIL")
+        outcome = _outcome(r.nvm_outcome)
         nvm_status = "none" if outcome is None else ("written" if outcome.get("ok") else "failed")
         with self._tx(f"record run {run_id}") as db:
             self._running(db, run_id)
-            self._insert_poses(db, run_id, session, retries)
-            cal = None if calibration is None else calibration.to_dict()
+            self._insert_poses(db, run_id, r.session, r.retries)
+            cal = None if r.calibration is None else r.calibration.to_dict()
             try:
-                texts = [to_json([Reason.from_dict(r).to_dict() for r in reasons]), to_json(outcome),
-                         to_json(cal), to_json(fit_summary),
-                         to_json(None if limits is None else {str(k): float(v) for k, v in limits.items()}),
-                         to_json(None if site is None else dict(site)),
-                         to_json(None if uncertainty is None else dict(uncertainty))]
+                texts = [to_json([Reason.from_dict(x).to_dict() for x in r.reasons]), to_json(outcome),
+                         to_json(cal), to_json(r.fit_summary),
+                         to_json(None if r.limits is None else {str(k): float(v) for k, v in r.limits.items()}),
+                         to_json(None if r.site is None else dict(r.site)),
+                         to_json(None if r.uncertainty is None else dict(r.uncertainty))]
             except (TypeError, ValueError) as e:
                 raise DataError(f"run {run_id}: result is not JSON-serialisable ({e})") from None
-            model = opt(model or (calibration.model if calibration else None), str)
+            model = opt(r.model or (r.calibration.model if r.calibration else None), str)
             db.execute(update(runs).where(runs.c.id == run_id).values(
-                status="complete", finished_at=_time.time() if finished_at is None else float(finished_at),
-                verdict=verdict, reasons=texts[0], nvm_status=nvm_status, nvm_outcome=texts[1],
+                status="complete", finished_at=_time.time() if r.finished_at is None else float(r.finished_at),
+                verdict=r.verdict, reasons=texts[0], nvm_status=nvm_status, nvm_outcome=texts[1],
                 calibration=texts[2], fit_summary=texts[3], **({} if texts[4] is None else {"limits": texts[4]}),
                 **{k: v for k, v in (("site", texts[5]), ("uncertainty", texts[6])) if v is not None},
                 **({} if model is None else {"model": model})))
         self._stop_beating(run_id)
-        log.info("run %d complete: %s, NVM %s", run_id, verdict or "no verdict", nvm_status)
+        log.info("run %d complete: %s, NVM %s", run_id, r.verdict or "no verdict", nvm_status)
 
     def interrupt_run(self, run_id: int, reason: str, *, session: Session | None = None,
                       status: str = "interrupted", retries: Sequence[int] | None = None,

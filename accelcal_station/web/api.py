@@ -12,9 +12,10 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import AsyncIterator
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any
 
-from fastapi import APIRouter, Header, Query
+from fastapi import APIRouter, Depends, Header, Query
 from fastapi import Path as FPath
 from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field, WithJsonSchema
@@ -191,25 +192,33 @@ def _text(name: str, v: str | None) -> str | None:
     return v
 
 
+@dataclass(frozen=True)
+class RunPageQuery:
+    """GET /runs' query: the filters, the order by id, the page (cursor, limit) and whether to count."""
+
+    since: str | None = Query(None, max_length=64, pattern=TIME,
+                              description="started at or after (ISO 8601 1970-9999, or unix s)")
+    until: str | None = Query(None, max_length=64, pattern=TIME,
+                              description="started before (ISO 8601 1970-9999, or unix s)")
+    station: str | None = Query(None, max_length=TEXT_MAX, pattern=NO_CONTROL)
+    serial: str | None = Query(None, max_length=TEXT_MAX, pattern=NO_CONTROL)
+    verdict: str | None = Query(None, pattern="^(PASS|FAIL)$")
+    lot: str | None = Query(None, max_length=TEXT_MAX, pattern=NO_CONTROL)
+    status: str | None = Query(None, pattern="^(running|complete|interrupted|error|stale)$")
+    order: str = Query("desc", pattern="^(asc|desc)$", description="by id: desc newest first")
+    cursor: str | None = Query(None, max_length=21, pattern=PAGE_CURSOR,
+                               description="next_cursor of the previous page (it carries its order)")
+    limit: int = Query(100, ge=1, le=1000)
+    total: bool = Query(False, description="count the runs matching the filters")
+
+
 def _runs_routes(r: APIRouter, settings: WebSettings) -> None:
     @r.get("/runs", response_model=RunPage, summary="Runs, a page at a time (keyset on id; newest first by default)")
-    def list_runs(since: str | None = Query(None, max_length=64, pattern=TIME,
-                                            description="started at or after (ISO 8601 1970-9999, or unix s)"),
-                  until: str | None = Query(None, max_length=64, pattern=TIME,
-                                            description="started before (ISO 8601 1970-9999, or unix s)"),
-                  station: str | None = Query(None, max_length=TEXT_MAX, pattern=NO_CONTROL),
-                  serial: str | None = Query(None, max_length=TEXT_MAX, pattern=NO_CONTROL),
-                  verdict: str | None = Query(None, pattern="^(PASS|FAIL)$"),
-                  lot: str | None = Query(None, max_length=TEXT_MAX, pattern=NO_CONTROL),
-                  status: str | None = Query(None, pattern="^(running|complete|interrupted|error|stale)$"),
-                  order: str = Query("desc", pattern="^(asc|desc)$", description="by id: desc newest first"),
-                  cursor: str | None = Query(None, max_length=21, pattern=PAGE_CURSOR,
-                                             description="next_cursor of the previous page (it carries its order)"),
-                  limit: int = Query(100, ge=1, le=1000),
-                  total: bool = Query(False, description="count the runs matching the filters")) -> RunPageOut:
-        f: RunFilters = {"since": _time(since, "since"), "until": _time(until, "until"),
-                                 "station": _text("station", station), "serial": _text("serial", serial),
-                                 "verdict": verdict, "lot": _text("lot", lot), "status": status}
+    def list_runs(q: Annotated[RunPageQuery, Depends()]) -> RunPageOut:
+        f: RunFilters = {"since": _time(q.since, "since"), "until": _time(q.until, "until"),
+                         "station": _text("station", q.station), "serial": _text("serial", q.serial),
+                         "verdict": q.verdict, "lot": _text("lot", q.lot), "status": q.status}
+        order, cursor, limit, total = q.order, q.cursor, q.limit, q.total
         after = None
         if cursor is not None:  # a cursor continues the order it was made for
             order, after = decode_cursor(cursor)

@@ -6,6 +6,7 @@ Below both the held-out evaluation (static_view) and the fitted jig rotation (ji
 from __future__ import annotations
 
 from collections.abc import Collection
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -17,19 +18,28 @@ from .catalog import DETERMINISTIC
 from .columns import StaticView
 
 
+@dataclass(frozen=True)
+class ColumnChoice:
+    """How the static view's columns are built beyond the effects: ``g0`` (3,) the zero-g reading the
+    nonlinear columns are centred on (None: zero), ``order`` the order trend's basis (P, k) and names
+    (order.trend_basis) when the effects have ``order_trend``, ``drop`` the "effect:detail" columns left out."""
+
+    g0: ArrayLike | None = None
+    order: tuple[np.ndarray, list[str]] | None = None
+    drop: frozenset[str] = frozenset()
+
+
 def static_design(E: Collection[str], g: np.ndarray, ref: np.ndarray | None, dT: np.ndarray | None,
-                  drift_h: np.ndarray | None, norm: bool, n_temps: int, g0: ArrayLike | None = None,
-                  order: tuple[np.ndarray, list[str]] | None = None, drop: frozenset[str] = frozenset(),
+                  drift_h: np.ndarray | None, norm: bool, n_temps: int, columns: ColumnChoice = ColumnChoice(),
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[str, str]]]:
     """Design of the static view for effects E.
 
     g: (..., P, 3) readings; ref: (P, 3) or None; dT: (P,) or None; drift_h: (..., P, 2) or None;
-    g0: (3,) the zero-g reading: a sensor's nonlinearity acts on its response to force, G - g0
-    (reading = S a + c (S a)^3 + b), so the cubic and square columns are centred there;
-    order: the order trend's basis (P, k) and names (order.trend_basis) when E has ``order_trend``;
-    drop: "effect:detail" columns left out.
+    columns.g0: a sensor's nonlinearity acts on its response to force, G - g0 (reading = S a + c (S a)^3 + b),
+    so the cubic and square columns are centred there (ColumnChoice).
     Returns A (..., P, 3, p), b (..., P, 3), d (p,) norm-shift flags, labels (p,) of (effect, detail).
     """
+    g0, order, drop = columns.g0, columns.order, columns.drop
     lead = g.shape[:-2]
     if drift_h is not None:
         lead = np.broadcast_shapes(lead, drift_h.shape[:-2])
