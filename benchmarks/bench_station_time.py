@@ -15,8 +15,10 @@ Split per board (mean): the sampling floor (samples averaged / ODR, fit and
 verification poses), samples read but not averaged (waiting for stillness and
 the hold time), jig moves (poses presented x move_time_s), other device time
 (EEPROM write cycles and read-back), host compute (fit, simulation, store).
-The floor itself is set by the capture target: averaging to a standard error
-of ``capture.target_sem_mg`` needs (sigma / target)^2 samples per pose.
+The floor itself is set by the capture targets: with parameter targets (sequential capture,
+station/sequential_capture.py) the fit poses need the samples models/allocation.py allocates at
+the chip's known noise (tau_int = 1); a per-pose target ``capture.target_sem_mg`` (the compat rule,
+and every verification capture: 0.05 mg when unset) needs (sigma / target)^2 samples per pose.
 
 Panel (``--panel N``, default 16): the same configuration as a panel of N boards on one
 jig (panel.py): every pose presented once and captured on all boards at once.  Its time
@@ -39,7 +41,10 @@ from benchlib import table
 from accelcal_station.config.schema import DeviceSection
 from accelcal_station.drivers.factory import make_driver
 from accelcal_station.fixtures.designs import get_design
+from accelcal_station.models.allocation import allocate, block_variance
+from accelcal_station.station.capture import DEFAULT_SEM_MG
 from accelcal_station.station.flow import make_flow
+from accelcal_station.station.sequential_capture import plan_for
 from accelcal_station.station.settings import StationConfig
 
 COMPONENTS = ("floor_fit", "floor_verify", "gating", "moves", "other_device", "host")
@@ -66,7 +71,7 @@ def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, dict]:
     """
     move = cfg.jig.move_time_s
     acc = {k: [] for k in COMPONENTS + ("total", "device")}
-    facts = {"verdicts": [], "samples_per_pose": []}
+    facts = {"verdicts": [], "samples_per_pose": [], "stderr_offset_mg": []}
     make_flow(cfg, echo=lambda *_: None, driver=make_driver(seeded(cfg, seed - 1))).run()
     for i in range(boards):
         driver = make_driver(seeded(cfg, seed + i))
@@ -75,7 +80,8 @@ def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, dict]:
         odr = t["odr_hz"]
         n_fit = sum(p["n"] for p in rep.poses)
         n_verify = t["samples_averaged"] - n_fit
-        presented = len(rep.poses) + (cfg.verify_poses if rep.verify_error_max_mg is not None else 0)
+        reused = 1 if rep.verify_mode == "fit-poses" else 0  # the first fit-pose verification needs no move
+        presented = len(rep.poses) + (cfg.verify_poses - reused if rep.verify_error_max_mg is not None else 0)
         moves = presented * move
         acc["floor_fit"].append(n_fit / odr)
         acc["floor_verify"].append(n_verify / odr)
@@ -87,6 +93,7 @@ def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, dict]:
         acc["total"].append(t["board_time_s"])
         facts["verdicts"].append(rep.verdict)
         facts["samples_per_pose"] += [p["n"] for p in rep.poses]
+        facts["stderr_offset_mg"].append(rep.measured.get("stderr_offset_max_mg", float("nan")))
         facts["odr_hz"] = odr
     return {k: float(np.mean(v)) for k, v in acc.items()}, facts
 
@@ -99,13 +106,24 @@ def run_panel(cfg: StationConfig, boards: int, seed: int) -> tuple[dict, list[st
     return st.timing, [r.verdict for r in reports]
 
 
-def needed_samples(cfg: StationConfig) -> float:
-    """(sigma / target)^2: samples one pose needs to reach the capture target, per the
-    simulated chip's noise (white noise and the LSB^2/12 of quantization)."""
+def needed_samples(cfg: StationConfig) -> tuple[float, float]:
+    """Samples the fit poses need in all and one verification pose needs, per the simulated chip's
+    noise (white noise and the LSB^2/12 of quantization, tau_int = 1): the sequential plan's allocation
+    with parameter targets, else (sigma / target_sem)^2 per pose."""
     board = make_driver(seeded(cfg, 0)).board
-    sigma = float(np.max(board.noise_sigma_counts))
-    target = cfg.capture.target_sem_mg * 1e-3 * board.counts_per_g
-    return (sigma**2 + 1.0 / 12.0) / target**2
+    var = (np.asarray(board.noise_sigma_counts, dtype=float) ** 2 + 1.0 / 12.0) / board.counts_per_g**2  # g^2
+    sem = cfg.capture.target_sem_mg or DEFAULT_SEM_MG
+    per_pose = float(np.max(var)) / (sem * 1e-3) ** 2
+    design = get_design(cfg.design)
+    plan = plan_for(cfg.model, cfg.capture, [p.reference_g for p in design], board.counts_per_g, 1e9)
+    if plan is None:
+        return per_pose * len(design), per_pose
+    alloc = allocate(plan.rows, np.zeros(plan.rows.A.shape[:2]), block_variance(plan.rows, var),
+                     np.ones(len(design), dtype=bool), plan.target_var, 1, 10**9)
+    fit = float(np.sum(alloc.n))
+    if cfg.capture.target_sem_mg is not None:  # a floor every pose reaches as well
+        fit = float(np.sum(np.maximum(alloc.n, per_pose)))
+    return fit, per_pose
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -131,15 +149,19 @@ def main(argv: list[str] | None = None) -> int:
         res, facts = run_boards(cfg, a.boards, a.seed)
         res0, _ = run_boards(cfg0, a.boards, a.seed)
         panel = run_panel(cfg, a.panel, a.seed) if a.panel > 0 else None
-    n_need = needed_samples(cfg)
+    n_fit, n_verify = needed_samples(cfg)
     poses = len(get_design(cfg.design)) + cfg.verify_poses
+    n_need = (n_fit + cfg.verify_poses * n_verify) / poses
     theory = poses * n_need / facts["odr_hz"]
     print(f"station time per board (virtual time: device clock + host wall compute), mean of {a.boards} simulated "
           f"boards per column: {cfg.device.chip or 'mma8451'} at {facts['odr_hz']:g} Hz, design "
-          f"{cfg.design} + {cfg.verify_poses} verification poses, model {cfg.model}, capture target "
-          f"{cfg.capture.target_sem_mg:g} mg")
+          f"{cfg.design} + {cfg.verify_poses} verification poses, model {cfg.model}, capture targets "
+          f"offset u {cfg.capture.target_offset_u_mg} mg, gain u {cfg.capture.target_gain_u}, per-pose SEM "
+          f"{cfg.capture.target_sem_mg} mg")
+    print(f"fitted offset standard error, largest axis: mean {np.mean(facts['stderr_offset_mg']):.4f} mg, "
+          f"max {np.max(facts['stderr_offset_mg']):.4f} mg")
     print(f"verdicts: {', '.join(sorted(set(facts['verdicts'])))}; samples averaged per pose: mean "
-          f"{np.mean(facts['samples_per_pose']):.0f} (the noise needs {n_need:.0f} for the target)")
+          f"{np.mean(facts['samples_per_pose']):.0f} (the noise needs {n_need:.0f} a pose for the targets)")
     rows = [[LABELS[k], f"{res[k]:.2f}", f"{res[k] / res['total']:.0%}", f"{res0[k]:.2f}",
              f"{res0[k] / res0['total']:.0%}"] for k in COMPONENTS]
     floor, floor0 = res["floor_fit"] + res["floor_verify"], res0["floor_fit"] + res0["floor_verify"]

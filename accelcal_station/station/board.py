@@ -40,9 +40,11 @@ from .capture import (
 from .offset_trim import trim_change, trim_failure, trim_record, trimmed
 from .report import RunReport, Timing
 from .self_test_step import self_test_step
+from .sequential_capture import Needed, SequentialPlan, needed_at, plan_for, plan_record
 from .settings import StationConfig
 from .uncertainty_step import uncertainty_step
 from .verdict import Stage
+from .verification import verification_poses
 from .warmup import warmup_step
 
 # a verification capture: (mean counts, expected output in g, temperature)
@@ -73,6 +75,7 @@ class BoardSteps:
         self.operator_wait_s = 0.0
         # records each burn step in the store as it happens (FlowPolicy.burn_steps_recorded)
         self.burn_log: BurnLog | None = None
+        self.presented: list[PoseSpec] = []  # the design's poses captured, in the order the jig presented them
 
     # -- pieces -----------------------------------------------------------------------
     def _capture_sink(self, label: str) -> CaptureSink:
@@ -90,17 +93,19 @@ class BoardSteps:
         return live
 
     def capture_pose(self, driver: Driver, jig: Jig, pose: PoseSpec, floor: np.ndarray | None,
-                      report: RunReport) -> tuple[GatedCapture, int]:
-        """Present and capture one pose; operator jigs retry a wrong pose, others fail."""
+                      report: RunReport, needed: Needed | None = None, move: bool = True) -> tuple[GatedCapture, int]:
+        """Present and capture one pose; operator jigs retry a wrong pose, others fail.  ``needed``: the
+        sequential plan's count for it; ``move`` False: the jig already holds the pose (a reused fit pose)."""
         s = self.cfg.capture
         attempts = 0
         while True:
             attempts += 1
             live = jig.shows_live_reading and self.live_reading
-            jig.present(pose, self._live(driver, StillnessGate(s, floor, driver.noise_lag1())) if live else None)
+            if move or attempts > 1:
+                jig.present(pose, self._live(driver, StillnessGate(s, floor, driver.noise_lag1())) if live else None)
             bar = self._capture_sink(f"  capturing {pose.name}")
             try:
-                gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar)
+                gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar, needed=needed)
             except WrongPose as e:
                 e = self._mounting(pose, e)
                 report.events.append(f"{pose.name}: {e}")
@@ -153,14 +158,22 @@ class BoardSteps:
         self.samples_read += read
         return ok
 
+    def sequential_plan(self, driver: Driver, design: list[PoseSpec]) -> SequentialPlan | None:
+        """This board's sequential plan for ``design`` (None: the per-pose SEM rule alone)."""
+        return plan_for(self.cfg.model, self.cfg.capture, [self.expected_g(p) for p in design],
+                        driver.counts_per_g, driver.odr_hz)
+
     def run_poses(self, driver: Driver, jig: Jig, design: list[PoseSpec], records: list[PoseRecord],
                    retries: list[int], rep: RunReport) -> None:
         floor = None
         deferred: WrongPose | None = None  # a wrong pose another mounting may explain: read on to tell which
+        plan = self.sequential_plan(driver, design)
+        self.presented = []
         for i, pose in enumerate(design):
             self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
             try:
-                gc, tries = self.capture_pose(driver, jig, pose, floor, rep)
+                gc, tries = self.capture_pose(driver, jig, pose, floor, rep, needed=needed_at(plan, i))
+                self.presented.append(pose)
             except PoseSkipped:
                 rep.skipped.append(pose.name)
                 self.echo("  skipped")
@@ -170,6 +183,7 @@ class BoardSteps:
                 continue
             floor = gc.floor_counts
             c = gc.capture
+            pose_record = plan_record(plan, i, c)
             pitch, roll = self.chip_angles(pose)
             records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, self.expected_g(pose),
                                       pitch, roll, c.temp_c, c.dropped, c.t_start, c.t_end, c.n_eff))
@@ -177,7 +191,7 @@ class BoardSteps:
             sem_mg = c.sem_counts / driver.counts_per_g * 1e3
             rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
                               "sem_mg": sem_mg.tolist(), "n_eff": _n_eff(c), "retries": tries + gc.recaptures,
-                              "reached_target": gc.reached_target})
+                              "reached_target": gc.reached_target, **pose_record})
             self.echo(f"  n={c.n} sem={np.max(sem_mg):.3f} mg" + ("" if gc.reached_target else " (time limit)"))
             if self.progress:
                 self.progress("poses", (i + 1) / len(design))
@@ -332,15 +346,16 @@ class BoardSteps:
         return gc.capture
 
     def verify_captures(self, driver: Driver, jig: Jig, rep: RunReport) -> list[Check]:
-        """Fresh captures at the verification poses: (mean counts, expected g, temp)."""
-        n = self.cfg.verify_poses
-        if n == 0:
+        """Fresh captures at the verification poses (verification.py: the last fit poses, the first
+        without a move, or independent ones): (mean counts, expected g, temp)."""
+        vp = verification_poses(self.cfg, self.presented)
+        if not vp.poses:
             return []
-        poses = get_design(self.cfg.verify_design) if self.cfg.verify_design else get_design(self.cfg.design)
+        rep.verify_mode = vp.mode
         out = []
-        for pose in poses[:n]:
-            self.echo(f"verify {pose.name}")
-            gc, _ = self.capture_pose(driver, jig, pose, None, rep)
+        for k, pose in enumerate(vp.poses):
+            self.echo(f"verify {pose.name}" + (" (where the jig stands)" if k == 0 and not vp.first_moves else ""))
+            gc, _ = self.capture_pose(driver, jig, pose, None, rep, move=k > 0 or vp.first_moves)
             out.append((gc.capture.mean_counts, self.expected_g(pose), gc.capture.temp_c))
         return out
 

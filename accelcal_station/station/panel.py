@@ -45,9 +45,11 @@ from .jig_pose import JigPoseEstimate, estimate_jig_poses
 from .panel_config import configured_serial, group_of, own_mount, panel_sections
 from .panel_mount import BoardMount, Failure, end_of_design, explained, sort_wrong_poses
 from .report import RunReport, RunReportJson
+from .sequential_capture import Needed, needed_at, plan_record
 from .settings import StationConfig
 from .station_fault import is_station_fault, station_fault_reason
 from .verdict import Stage
+from .verification import verification_poses
 
 
 class PerBoardSplit(TypedDict):
@@ -145,6 +147,7 @@ class Panel:
         self.estimate: JigPoseEstimate | None = None
         self.timing: PanelTiming = {}
         self.mounts: dict[int, BoardMount] = {}  # every board's mounting (panel_mount.py), by index
+        self.presented: list[PoseSpec] = []  # the design's poses the jig presented, in order
 
     # -- building -------------------------------------------------------------------
     def build(self, steps: Callable[[], BoardSteps], report: Callable[[], RunReport], single: bool
@@ -174,16 +177,19 @@ class Panel:
         return self.jig or make_panel_jig(self.cfg.jig, live, self.ui)
 
     # -- capture ------------------------------------------------------------------------
-    def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None
+    def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None, needed: Needed | None = None
                      ) -> tuple[GatedCapture | None, AccelcalError | None]:
         try:
-            return gated_capture(b.driver, self.cfg.capture, b.steps.mount @ pose.reference_g, floor), None
+            return gated_capture(b.driver, self.cfg.capture, b.steps.mount @ pose.reference_g, floor,
+                                 needed=needed), None
         except AccelcalError as e:  # WrongPose, not still, NACK...: this board's, never the panel's
             return None, e
 
-    def capture_all(self, boards: list[PanelBoard], pose: PoseSpec, floors: dict[int, np.ndarray | None] | None = None
+    def capture_all(self, boards: list[PanelBoard], pose: PoseSpec, floors: dict[int, np.ndarray | None] | None = None,
+                    needed: dict[int, Needed | None] | None = None
                     ) -> tuple[dict[int, GatedCapture], dict[int, AccelcalError]]:
-        """Capture ``pose`` on every active board at once: one thread per group, boards of a group in turn.
+        """Capture ``pose`` on every active board at once: one thread per group, boards of a group in turn;
+        ``needed``: each board's sequential plan's count for it.
 
         Returns the captures and the errors, by board index; nothing is marked failed here.
         """
@@ -197,7 +203,7 @@ class Panel:
 
         def run(members: list[PanelBoard]) -> None:
             for b in members:
-                gc, err = self._capture_one(b, pose, (floors or {}).get(b.index))
+                gc, err = self._capture_one(b, pose, (floors or {}).get(b.index), (needed or {}).get(b.index))
                 with lock:
                     if gc is not None:
                         caps[b.index] = gc
@@ -213,7 +219,8 @@ class Panel:
         return caps, errors
 
     def present_and_capture(self, boards: list[PanelBoard], jig: Jig, pose: PoseSpec,
-                            floors: dict[int, np.ndarray | None] | None = None, read_on: bool = False
+                            floors: dict[int, np.ndarray | None] | None = None, read_on: bool = False,
+                            needed: dict[int, Needed | None] | None = None, move: bool = True
                             ) -> dict[int, GatedCapture]:
         """Present ``pose`` and capture the panel; a board that could not be captured fails with its reason.
 
@@ -221,11 +228,13 @@ class Panel:
         misplaced (unless each board's readings single another mounting out: panel_mount.explained),
         and an operator is asked to place it again (up to capture.max_recaptures).
         ``read_on`` (the design's poses): a board whose wrong pose another mounting may explain is
-        read on through the next poses (panel_mount.py; ``end_design`` ends it).
+        read on through the next poses (panel_mount.py; ``end_design`` ends it).  ``move`` False: the
+        jig already holds ``pose`` (verification at the last fit pose).
         """
         for attempt in range(self.cfg.capture.max_recaptures + 1):
-            jig.present(pose, None)
-            caps, errors = self.capture_all(boards, pose, floors)
+            if move or attempt > 0:
+                jig.present(pose, None)
+            caps, errors = self.capture_all(boards, pose, floors, needed)
             misplaced = len(boards) > 1 and not caps and errors and all(
                 isinstance(e, WrongPose) for e in errors.values()) and not explained(
                 self.mounts, pose.reference_g, errors, self.cfg.capture.pose_tolerance_deg)
@@ -260,15 +269,21 @@ class Panel:
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
 
     def poses(self, boards: list[PanelBoard], jig: Jig, design: list[PoseSpec]) -> None:
+        """Every pose of ``design`` on every board still in the flow, each board to its own sequential plan."""
+        plans = {b.index: b.steps.sequential_plan(b.driver, design) for b in boards if b.active}
+        self.presented = []
         for i, pose in enumerate(design):
             self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
-            caps = self.present_and_capture(boards, jig, pose, {b.index: b.floor for b in boards}, read_on=True)
+            caps = self.present_and_capture(boards, jig, pose, {b.index: b.floor for b in boards}, read_on=True,
+                                            needed={k: needed_at(p, i) for k, p in plans.items()})
+            self.presented.append(pose)
             for b in boards:
                 gc = caps.get(b.index)
                 if gc is None:
                     continue
                 b.floor = gc.floor_counts
                 c = gc.capture
+                pose_record = plan_record(plans.get(b.index), i, c)
                 b.records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n,
                                             b.steps.expected_g(pose), *b.steps.chip_angles(pose),
                                             c.temp_c, c.dropped, c.t_start, c.t_end, c.n_eff))
@@ -278,7 +293,7 @@ class Panel:
                 sem_mg = c.sem_counts / b.driver.counts_per_g * 1e3
                 b.rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
                                     "sem_mg": sem_mg.tolist(), "retries": gc.recaptures,
-                                    "reached_target": gc.reached_target})
+                                    "reached_target": gc.reached_target, **pose_record})
                 b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events + b.driver.take_events()]
         self.end_design(boards)
 
@@ -324,11 +339,12 @@ class Panel:
                 if b.cal is not None:
                     b.steps.judge_verified(b.cal, [], b.rep)
             return
-        poses = get_design(self.cfg.verify_design or self.cfg.design)[:n]
-        for pose in poses:
-            self.echo(f"verify {pose.name}")
-            caps = self.present_and_capture(todo, jig, pose)
+        vp = verification_poses(self.cfg, self.presented)
+        for k, pose in enumerate(vp.poses):
+            self.echo(f"verify {pose.name}" + (" (where the jig stands)" if k == 0 and not vp.first_moves else ""))
+            caps = self.present_and_capture(todo, jig, pose, move=k > 0 or vp.first_moves)
             for b in todo:
+                b.rep.verify_mode = vp.mode
                 gc = caps.get(b.index)
                 if gc is not None:
                     b.steps.samples_read += gc.samples_read

@@ -35,6 +35,7 @@ from ..models.fitting import check_model
 from ..store.heartbeat import HEARTBEAT_S
 from ..store.location import outbox_of, store_path, store_target
 from .capture import CaptureSettings
+from .verification import verify_mode
 
 
 @dataclass
@@ -83,6 +84,7 @@ class StationConfig:
         ver = sc.verify or VerifySection()
         if ver.design is not None:
             get_design(ver.design)
+        verify_mode(ver)  # verify.mode against verify.design (station/verification.py)
         # a relative store path is taken from the current directory: the station's
         # working folder, never the (possibly installed, read-only) config folder
         store_file = store_target(store_override) if store_override else store_path(sc.store, Path.cwd())
@@ -153,8 +155,12 @@ def _plan(plan: PlanSection) -> tuple[str, str]:
 
 
 def _capture_settings(cap: CaptureSection) -> CaptureSettings:
-    """capture: (ranges from the schema; its defaults are CaptureSettings', a test keeps them equal)."""
+    """capture: (ranges from the schema; its defaults are CaptureSettings', a test keeps them equal).
+    Precedence: parameter targets (sequential capture) unless the file gives target_sem_mg alone."""
     settings = CaptureSettings(**cap.model_dump())
+    if "target_sem_mg" in cap.model_fields_set and not {"target_offset_u_mg", "target_gain_u"} & cap.model_fields_set:
+        # a config that names only the per-pose SEM keeps the per-pose rule (docs/capture.md, precedence)
+        settings.target_offset_u_mg = settings.target_gain_u = None
     if settings.k_leave < settings.k_enter:
         raise ConfigError("capture.k_leave must be >= capture.k_enter (hysteresis)")
     return settings
