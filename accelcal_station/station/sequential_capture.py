@@ -108,8 +108,28 @@ def plan_for(model: str, settings: CaptureSettings, expected_g: list[np.ndarray]
     targets = targets_of(settings.target_offset_u_mg, settings.target_gain_u)
     if targets is None:
         return None
-    return SequentialPlan.for_design(str(model), np.array(expected_g, dtype=float), targets, counts_per_g,
-                                     settings.min_samples, max(settings.min_samples, int(settings.max_s * odr_hz)))
+    r = np.array(expected_g, dtype=float)
+    model = str(model)
+    if model == "15" and not determined(model, r):
+        model = "12"  # the fit holds the cubic at 0 where the design cannot tell it from the gain (models/held.py)
+    if not determined(model, r):
+        return None  # the fit will refuse the design; the per-pose SEM rule captures it meanwhile
+    return SequentialPlan.for_design(model, r, targets, counts_per_g, settings.min_samples,
+                                     max(settings.min_samples, int(settings.max_s * odr_hz)))
+
+
+WEAK_COND = 1e3  # a design this ill-conditioned (columns scaled to unit norm) leaves a term to the fit's hold rule
+
+
+def determined(model: str, expected_g: np.ndarray) -> bool:
+    """Whether the poses pin every parameter of ``model`` well (each block's unit-norm columns with condition
+    number below WEAK_COND): where they do not (the cubic on cube vertices or faces, a weak model-9 term) the
+    fit holds terms (models/held.py) and this plan, made for the free fit, would not predict it."""
+    A = design_rows(model, expected_g).A
+    if A.shape[1] < A.shape[2]:
+        return False
+    norms = np.linalg.norm(A, axis=1, keepdims=True)
+    return bool(np.all(np.linalg.cond(A / np.where(norms > 0, norms, 1.0)) < WEAK_COND))
 
 
 def needed_at(plan: SequentialPlan | None, pose: int) -> Needed | None:
