@@ -92,7 +92,8 @@ def test_every_key_the_code_reads_is_in_the_schema() -> None:
         + ("driver", "boards", "spread", "mux", "bus", "port"),
         "jig": _params(MotorizedJig.__init__) + ("type", "move_time_s", "hand"),
         "jig.hand": _params(SimulatedHand.__init__, "board"),
-        "plan": ("design", "model"), "nvm": ("write", "slot_size", "offset_trim"), "verify": ("poses", "design", "mode"),
+        "plan": ("design", "model"), "nvm": ("write", "slot_size", "offset_trim"),
+        "verify": ("poses", "design", "mode"),
         "store": ("path",),
     }
     declared = set(keys())

@@ -79,7 +79,8 @@ def web_operator(cfg: StationConfig, echo: Callable[[str], None], host: str, por
     from ..web.server import BackgroundServer
 
     design = get_design(cfg.design)
-    verify = verification_poses(cfg, design).poses  # as BoardSteps.verify_captures (station/verification.py)
+    # as BoardSteps.verify_captures (station/verification.py)
+    verify = verification_poses(cfg.verify_poses, cfg.schema.verify, cfg.design, design).poses
     plan = [(p, False) for p in design] + [(p, True) for p in verify]
     language = language_of(cfg.schema.station)
     ui = WebOperator(echo, cfg.station_id, len(plan), shift=shift, plan=plan, tr=translator(language),

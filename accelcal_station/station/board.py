@@ -348,7 +348,7 @@ class BoardSteps:
     def verify_captures(self, driver: Driver, jig: Jig, rep: RunReport) -> list[Check]:
         """Fresh captures at the verification poses (verification.py: the last fit poses, the first
         without a move, or independent ones): (mean counts, expected g, temp)."""
-        vp = verification_poses(self.cfg, self.presented)
+        vp = verification_poses(self.cfg.verify_poses, self.cfg.schema.verify, self.cfg.design, self.presented)
         if not vp.poses:
             return []
         rep.verify_mode = vp.mode

@@ -339,7 +339,7 @@ class Panel:
                 if b.cal is not None:
                     b.steps.judge_verified(b.cal, [], b.rep)
             return
-        vp = verification_poses(self.cfg, self.presented)
+        vp = verification_poses(self.cfg.verify_poses, self.cfg.schema.verify, self.cfg.design, self.presented)
         for k, pose in enumerate(vp.poses):
             self.echo(f"verify {pose.name}" + (" (where the jig stands)" if k == 0 and not vp.first_moves else ""))
             caps = self.present_and_capture(todo, jig, pose, move=k > 0 or vp.first_moves)

@@ -19,15 +19,11 @@ throughput default.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from ..config.schema import VerifySection
 from ..errors import ConfigError
 from ..fixtures.base import PoseSpec
 from ..fixtures.designs import get_design
-
-if TYPE_CHECKING:  # settings checks verify.mode at load through verify_mode: no import at run time
-    from .settings import StationConfig
 
 
 @dataclass(frozen=True)
@@ -50,12 +46,14 @@ def verify_mode(section: VerifySection | None) -> str:
     return ver.mode
 
 
-def verification_poses(cfg: StationConfig, presented: list[PoseSpec]) -> VerificationPoses:
-    """The verification poses for a board whose fit poses the jig presented in order ``presented``."""
-    n = cfg.verify_poses
-    mode = verify_mode(cfg.schema.verify)
+def verification_poses(n: int, section: VerifySection | None, design: str, presented: list[PoseSpec]
+                       ) -> VerificationPoses:
+    """The ``n`` verification poses (StationConfig.verify_poses) for a board of plan design ``design`` whose
+    fit poses the jig presented in order ``presented``; ``section``: the config's verify section."""
+    mode = verify_mode(section)
     if n == 0:
         return VerificationPoses(mode, [], False)
     if mode == "fit-poses" and presented:
         return VerificationPoses(mode, list(reversed(presented))[:n], False)
-    return VerificationPoses("independent", get_design(cfg.verify_design or cfg.design)[:n], True)
+    own = section.design if section is not None else None
+    return VerificationPoses("independent", get_design(own or design)[:n], True)
