@@ -1,8 +1,9 @@
 """Sequential capture against the parameters' targets (docs/capture.md, "Sequential capture").
 
 One plan per board and design: before each pose stops, the station re-estimates the chip's noise
-from the samples so far (per axis: the sample variance pooled over the poses captured and this
-one's samples, and tau_int, the mean of the poses' own estimates: models/effective_samples.py), then
+from the samples so far (per axis, for the poses to come: the sample variance pooled over the poses
+captured and this one's samples, and tau_int, the mean of the poses' own estimates:
+models/effective_samples.py; for this pose: its own so far), then
 allocates the samples still to take across this pose and the ones after it by their leverage
 (models/allocation.py), the captured poses entering with their own measured standard errors.
 The pose stops when it holds its allocated count (re-estimated each time the count is reached, so
@@ -67,14 +68,21 @@ class SequentialPlan:
         c = np.asarray(counts, dtype=float) / self.counts_per_g
         done = self.n > 0
         dof = np.concatenate([self.n[done] - 1.0, [len(c) - 1.0]])
-        var = np.vstack([self.var_g2[done], c.var(axis=0, ddof=1)])
-        taus = np.vstack([self.tau[done], tau_int(c)])
-        q = (dof @ var) / max(float(dof.sum()), 1.0) * taus.mean(axis=0)  # sigma^2 tau per axis, g^2
+        own_var, own_tau = c.var(axis=0, ddof=1), tau_int(c)
+        var = np.vstack([self.var_g2[done], own_var])
+        taus = np.vstack([self.tau[done], own_tau])
+        q = np.tile((dof @ var) / max(float(dof.sum()), 1.0) * taus.mean(axis=0), (self.rows.poses, 1))
         remaining = ~done
         remaining[:pose] = False  # a skipped pose is not captured later
         fixed = block_variance(self.rows, self.sem2_g2)
         self.last = allocate(self.rows, fixed, block_variance(self.rows, q), remaining, self.target_var,
                              self.min_samples, self.max_samples)
+        if len(c) >= self.last.n[pose]:
+            # an ask that would end the pose: with its own sigma^2 tau (all its samples in) the prediction is
+            # what the fit will report from its std and n_eff (the pooled figure steadies the earlier asks)
+            q[pose] = own_var * own_tau
+            self.last = allocate(self.rows, fixed, block_variance(self.rows, q), remaining, self.target_var,
+                                 self.min_samples, self.max_samples)
         return int(self.last.n[pose])
 
     def record(self, pose: int, capture: Capture) -> None:
