@@ -148,7 +148,7 @@ def _yaml(rng: np.random.Generator) -> str:
     text = default_config_path().read_text()
     bad = str(rng.choice(["1:0:0:0:0:0:0:0:0:0:0:0", "!!int 1:0", "2024-02-30", "9" * 400, "1.0e+300", ".nan",
                           "[" * 100, "!!binary xx", "'\x1b[2J'", "&a [*a]", "0x" + "f" * 400, "18446744073709551616"]))
-    key = str(rng.choice(["max_s: 20", "target_sem_mg: 0.05", "odr_hz: 100", "hold_s: 0.3", "poses: 3"]))
+    key = str(rng.choice(["max_s: 20", "pose_tolerance_deg: 12", "odr_hz: 100", "hold_s: 0.3", "poses: 1"]))
     return text.replace(key, f"{key.split(':')[0]}: {bad}")
 
 

@@ -93,7 +93,8 @@ def test_every_key_the_code_reads_is_in_the_schema() -> None:
         "jig": ("port", *JigLink.__dataclass_fields__, *JigAxes.__dataclass_fields__, "type", "move_time_s",
                 "rated_speed_dps", "settle_s", "hand"),
         "jig.hand": _params(SimulatedHand.__init__, "board"),
-        "plan": ("design", "model"), "nvm": ("write", "slot_size", "offset_trim"), "verify": ("poses", "design"),
+        "plan": ("design", "model"), "nvm": ("write", "slot_size", "offset_trim"),
+        "verify": ("poses", "design", "mode"),
         "store": ("path",),
     }
     declared = set(keys())

@@ -31,6 +31,9 @@ def config(tmp_path, seed: int, warmup: dict | None, language: str | None = None
     c["device"]["seed"] = seed
     c["device"]["simulator"]["effects"]["drift"] = {"warmup_mg": [2.0, -1.5, 2.5], "warmup_tau_s": TAU_S}
     c["capture"]["powered_ahead_s"] = 0  # powered at placement: the whole warm-up is the station's
+    # poses away from the last fit pose, captured after the moves back: the drift the cold fit absorbed shows
+    # there (a verification at the last fit pose sees only the drift since it: docs/capture.md)
+    c["verify"] = {"mode": "independent", "poses": 3}
     if warmup is not None:
         c["capture"]["warmup"] = warmup
     if language:

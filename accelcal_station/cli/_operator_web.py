@@ -15,6 +15,7 @@ from ..i18n import language_of, translator
 from ..station.report import RunReport
 from ..station.settings import StationConfig
 from ..station.shift import BoardOutcome
+from ..station.verification import verification_poses
 from .serve import operator_exposure, require_web
 
 if TYPE_CHECKING:
@@ -78,7 +79,8 @@ def web_operator(cfg: StationConfig, echo: Callable[[str], None], host: str, por
     from ..web.server import BackgroundServer
 
     design = get_design(cfg.design)
-    verify = get_design(cfg.verify_design or cfg.design)[:cfg.verify_poses]  # as Station._verify_captures
+    # as BoardSteps.verify_captures (station/verification.py)
+    verify = verification_poses(cfg.verify_poses, cfg.schema.verify, cfg.design, design).poses
     plan = [(p, False) for p in design] + [(p, True) for p in verify]
     language = language_of(cfg.schema.station)
     ui = WebOperator(echo, cfg.station_id, len(plan), shift=shift, plan=plan, tr=translator(language),

@@ -111,9 +111,14 @@ class CaptureSection(Section):
     k_enter: float = _f(4.5, "still: block std and mean change within k_enter x the noise floor", ge=0, le=1000)
     k_leave: float = _f(7.0, "moving again beyond k_leave x the floor (hysteresis; >= k_enter)", ge=0, le=1000)
     hold_s: float = _f(0.3, "the board must be still this long before averaging starts, s", ge=0, le=600)
-    target_sem_mg: float = _f(0.05, "stop averaging when every axis's standard error std / sqrt(n_eff) is "
-                              "below this, mg (n_eff = n / tau_int, docs/correlated-samples.md)",
-                              ge=0, le=1000)
+    target_sem_mg: float | None = _f(None, "per-pose standard error std / sqrt(n_eff) per axis, mg (n_eff = n / "
+                                     "tau_int): alone without parameter targets (compat), else a floor every "
+                                     "pose must also reach; captures outside the design use it (0.05 if unset)",
+                                     ge=0, le=1000)
+    target_offset_u_mg: float | None = _f(0.018, "sequential capture: standard uncertainty the fitted offsets "
+                                          "must reach, mg (docs/capture.md)", gt=0, le=1000)
+    target_gain_u: float | None = _f(1e-4, "sequential capture: standard uncertainty the fitted gains must "
+                                     "reach, a fraction (1e-4 = 100 ppm)", gt=0, le=1)
     min_samples: int = _f(32, "fewest samples averaged per pose", gt=0, le=10_000_000)
     max_s: float = _f(20.0, "longest averaging per pose, s", gt=0, le=86_400)
     settle_timeout_s: float = _f(30.0, "longest wait for the board to be still, s", gt=0, le=86_400)
@@ -168,6 +173,9 @@ class NvmSection(Section):
 
 class VerifySection(Section):
     poses: int = _f(3, "poses re-measured with the calibration applied (0: none)", ge=0, le=64)
+    mode: Literal["fit-poses", "independent"] = _f(
+        "fit-poses", "fit-poses: fresh captures at the last fit poses, the first where the jig stands (no move); "
+        "independent: the design's (or verify.design's) own poses, each presented (docs/capture.md)")
     design: str | None = _f(None, "pose design to verify on (default: the plan's)")
     target_sem_mg: float | None = _f(None, "averaging target of a verification pose, mg (default: capture."
                                      "target_sem_mg; docs/timing.md)", gt=0, le=100)

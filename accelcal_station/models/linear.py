@@ -160,6 +160,17 @@ def _leave_one_out(Xs: np.ndarray, Ginv_s: np.ndarray, r: np.ndarray, ok: np.nda
     return np.where(cv_ok, np.sqrt(np.mean(loo**2, axis=(1, 2))), np.nan), cv_ok
 
 
+def _sandwich(Xs: np.ndarray, cov_unit: np.ndarray, noise_g: ArrayLike, D: int, P: int) -> np.ndarray:
+    """cov = G X^T diag(v) X G per board and channel (D, 3, k, k), G = (X^T X)^-1, v the poses' own
+    squared standard errors: the OLS estimator's covariance with each pose's measured variance (GUM eq. 13);
+    equal to mean(v) G when the poses' variances are equal, right when a sequential capture gave the poses
+    unequal counts (models/allocation.py)."""
+    v = np.broadcast_to(np.asarray(noise_g, dtype=float), (D, P, 3)).transpose(0, 2, 1) ** 2  # (D, 3, P)
+    meat = np.einsum("dcpk,dcp,dcpl->dckl", Xs, v, Xs) if Xs.shape[1] == 3 else np.einsum(
+        "dpk,dcp,dpl->dckl", Xs[:, 0], v, Xs[:, 0])
+    return cov_unit @ meat @ cov_unit
+
+
 def fit_linear_batch(gf: ArrayLike, ref: ArrayLike, model: str, noise_g: ArrayLike | None = None) -> BatchFit:
     """Least-squares fit of model 6, 12 or 15 for a stack of boards (AN4399 Eqn 46).
 
@@ -184,7 +195,10 @@ def fit_linear_batch(gf: ArrayLike, ref: ArrayLike, model: str, noise_g: ArrayLi
     cov_unit = np.broadcast_to(Ginv_s, (D, 3, k, k))  # (X^T X)^-1
     s2 = residual_variance(noise_g, rss, D, P, P - k)
     se_ok = np.all(np.isfinite(s2), axis=1) & ok
-    cov = cov_unit * np.where(np.isfinite(s2), s2, 0.0)[..., None, None]  # (D, 3, k, k)
+    if noise_g is None:
+        cov = cov_unit * np.where(np.isfinite(s2), s2, 0.0)[..., None, None]  # (D, 3, k, k)
+    else:
+        cov = _sandwich(Xs, cov_unit, noise_g, D, P)
     se = np.sqrt(np.clip(np.diagonal(cov, axis1=2, axis2=3), 0.0, None))  # (D, 3, k)
     W, V, G = coefficients_to_an4399(beta, model)
     sW, sV, sG = coefficients_to_an4399(se, model)

@@ -33,6 +33,7 @@ from ..nvm.outcome import holds_text
 from ..nvm.writer import BurnError, CalibrationWriter
 from ..session import PoseRecord, Session
 from .capture import (
+    DEFAULT_SEM_MG,
     CaptureSettings,
     GatedCapture,
     MountMismatch,
@@ -44,10 +45,12 @@ from .capture import (
 from .offset_trim import trim_change, trim_failure, trim_record, trimmed
 from .report import RunReport, Timing
 from .self_test_step import self_test_step
+from .sequential_capture import Needed, SequentialPlan, needed_at, plan_for, plan_record
 from .settings import StationConfig
 from .time_budget import BoardCounts, FloorInputs, TimeBudget, board_budget, finish, floor_parts
 from .uncertainty_step import uncertainty_step
 from .verdict import Stage
+from .verification import verification_poses
 
 # a verification capture: (mean counts, expected output in g, temperature)
 Check = tuple[np.ndarray, np.ndarray, float | None]
@@ -89,6 +92,9 @@ class BoardSteps:
         self.jig_moves_s = 0.0
         # records each burn step in the store as it happens (FlowPolicy.burn_steps_recorded)
         self.burn_log: BurnLog | None = None
+        self.presented: list[PoseSpec] = []  # the design's poses captured, in the order the jig presented them
+        self.plan: SequentialPlan | None = None  # the sequential plan of the fit poses (sequential_plan)
+        self.verify_taken: list[PoseSpec] = []  # the verification poses, as verification.py chose them
 
     # -- pieces -----------------------------------------------------------------------
     def _capture_sink(self, label: str) -> CaptureSink:
@@ -106,19 +112,22 @@ class BoardSteps:
         return live
 
     def capture_pose(self, driver: Driver, jig: Jig, pose: PoseSpec, floor: np.ndarray | None,
-                      report: RunReport, settings: CaptureSettings | None = None) -> tuple[GatedCapture, int]:
-        """Present and capture one pose; operator jigs retry a wrong pose, others fail."""
+                      report: RunReport, settings: CaptureSettings | None = None, needed: Needed | None = None,
+                      move: bool = True) -> tuple[GatedCapture, int]:
+        """Present and capture one pose; operator jigs retry a wrong pose, others fail.  ``needed``: the
+        sequential plan's count for it; ``move`` False: the jig already holds the pose (a reused fit pose)."""
         s = settings or self.cfg.capture
         attempts = 0
         while True:
             attempts += 1
             live = jig.shows_live_reading and self.live_reading
-            jig.present(pose, self._live(driver, StillnessGate(s, floor, driver.noise_lag1())) if live else None)
+            if move or attempts > 1:
+                jig.present(pose, self._live(driver, StillnessGate(s, floor, driver.noise_lag1())) if live else None)
             bar = self._capture_sink(f"  capturing {pose.name}")
             try:
                 t0 = time.perf_counter()
                 try:
-                    gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar)
+                    gc = gated_capture(driver, s, self.mount @ pose.reference_g, floor, progress=bar, needed=needed)
                 finally:
                     self.sampling_wall_s += time.perf_counter() - t0
             except WrongPose as e:
@@ -181,14 +190,23 @@ class BoardSteps:
         """The fit poses are captured: what was read and averaged so far is the fit's (time_budget.py)."""
         self.fit_read, self.fit_used = self.samples_read, self.samples_used
 
+    def sequential_plan(self, driver: Driver, design: list[PoseSpec]) -> SequentialPlan | None:
+        """This board's sequential plan for ``design`` (None: the per-pose SEM rule alone)."""
+        self.plan = plan_for(self.cfg.model, self.cfg.capture, [self.expected_g(p) for p in design],
+                             driver.counts_per_g, driver.odr_hz)
+        return self.plan
+
     def run_poses(self, driver: Driver, jig: Jig, design: list[PoseSpec], records: list[PoseRecord],
                    retries: list[int], rep: RunReport) -> None:
         floor = None
         deferred: WrongPose | None = None  # a wrong pose another mounting may explain: read on to tell which
+        plan = self.sequential_plan(driver, design)
+        self.presented = []
         for i, pose in enumerate(design):
             self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
             try:
-                gc, tries = self.capture_pose(driver, jig, pose, floor, rep)
+                gc, tries = self.capture_pose(driver, jig, pose, floor, rep, needed=needed_at(plan, i))
+                self.presented.append(pose)
             except PoseSkipped:
                 rep.skipped.append(pose.name)
                 self.echo("  skipped")
@@ -198,6 +216,7 @@ class BoardSteps:
                 continue
             floor = gc.floor_counts
             c = gc.capture
+            pose_record = plan_record(plan, i, c)
             pitch, roll = self.chip_angles(pose)
             records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n, self.expected_g(pose),
                                       pitch, roll, c.temp_c, c.dropped, c.t_start, c.t_end, c.n_eff))
@@ -205,7 +224,7 @@ class BoardSteps:
             sem_mg = c.sem_counts / driver.counts_per_g * 1e3
             rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
                               "sem_mg": sem_mg.tolist(), "n_eff": _n_eff(c), "retries": tries + gc.recaptures,
-                              "reached_target": gc.reached_target})
+                              "reached_target": gc.reached_target, **pose_record})
             self.echo(f"  n={c.n} sem={np.max(sem_mg):.3f} mg" + ("" if gc.reached_target else " (time limit)"))
             if self.progress:
                 self.progress("poses", (i + 1) / len(design))
@@ -380,16 +399,21 @@ class BoardSteps:
         return gc.capture
 
     def verify_captures(self, driver: Driver, jig: Jig, rep: RunReport) -> list[Check]:
-        """Fresh captures at the verification poses: (mean counts, expected g, temp)."""
-        n = self.cfg.verify_poses
-        if n == 0:
+        """Fresh captures at the verification poses (verification.py: the last fit poses, the first
+        without a move, or independent ones): (mean counts, expected g, temp)."""
+        vp = verification_poses(self.cfg.verify_poses, self.cfg.schema.verify, self.cfg.design, self.presented)
+        if not vp.poses:
             return []
-        poses = get_design(self.cfg.verify_design) if self.cfg.verify_design else get_design(self.cfg.design)
+        rep.verify_mode = vp.mode
+        self.verify_taken = vp.poses
         out = []
         moved, read = jig.moves_s, self.samples_read
-        for pose in visit_order(jig, poses[:n]):  # from the last fit pose: maybe no move
-            self.echo(f"verify {pose.name}")
-            gc, _ = self.capture_pose(driver, jig, pose, None, rep, verify_settings(self.cfg))
+        # fit-poses: back along the path the jig took; independent poses: the shortest path from the last fit pose
+        poses = visit_order(jig, vp.poses) if vp.first_moves else vp.poses
+        for k, pose in enumerate(poses):
+            self.echo(f"verify {pose.name}" + (" (where the jig stands)" if k == 0 and not vp.first_moves else ""))
+            gc, _ = self.capture_pose(driver, jig, pose, None, rep, verify_settings(self.cfg),
+                                      move=k > 0 or vp.first_moves)
             out.append((gc.capture.mean_counts, self.expected_g(pose), gc.capture.temp_c))
         self.verify_device_s = jig.moves_s - moved + (self.samples_read - read) / driver.odr_hz
         return out
@@ -431,9 +455,13 @@ class BoardSteps:
                              self.eeprom_device_s)
         budget = board_budget(counts, 0.0)
         cfg = self.cfg
-        verify = get_design(cfg.verify_design or cfg.design)[:cfg.verify_poses] if cfg.verify_poses else []
-        inputs = FloorInputs(get_design(cfg.design), verify, jig_motion(cfg.jig), cfg.capture.target_sem_mg,
-                             driver.counts_per_g, driver.odr_hz, records)
+        verify = self.verify_taken or (verification_poses(cfg.verify_poses, cfg.schema.verify, cfg.design,
+                                                          self.presented).poses if cfg.verify_poses else [])
+        sem = cfg.capture.target_sem_mg
+        fit_n = None if self.plan is None else self.plan.floor_samples()
+        inputs = FloorInputs(get_design(cfg.design), verify, jig_motion(cfg.jig),
+                             DEFAULT_SEM_MG if sem is None else sem, driver.counts_per_g, driver.odr_hz, records,
+                             verify_settings(cfg).target_sem_mg, fit_n)
         sampling, jig, eeprom = floor_parts(inputs, budget["eeprom_s"])
         out = finish(budget, sampling + jig + eeprom)
         out.update(floor_sampling_s=round(sampling, 6), floor_jig_s=round(jig, 6), floor_eeprom_s=round(eeprom, 6))

@@ -16,10 +16,14 @@ jump_floor = floor sqrt((n - 1) / (n - F)) sqrt(2 F / n) (the positive correlati
 block means is left out: the bound errs wide).  From the configured filter, not from the data,
 so steady motion cannot widen it.
 
-Averaging is adaptive: it stops once every axis's standard error of the mean,
-std / sqrt(n_eff) with n_eff = n / tau_int from the samples' own autocorrelation
-(models/effective_samples.py: Sokal's window, c = 5), is below ``target_sem_mg`` (and at least
-``min_samples`` are in), or at ``max_s``.
+Averaging is adaptive.  A pose of the design with parameter targets (``target_offset_u_mg``,
+``target_gain_u``) stops when it holds the samples the board's sequential plan allocates it
+(station/sequential_capture.py: re-asked each time the count is reached) and, when
+``target_sem_mg`` is set, also every axis's standard error is below it (a floor).  Any other
+capture (or every one when no parameter target is set) stops once every axis's standard error of
+the mean, std / sqrt(n_eff) with n_eff = n / tau_int from the samples' own autocorrelation
+(models/effective_samples.py: Sokal's window, c = 5), is below ``target_sem_mg`` (0.05 mg when
+unset); both rules need at least ``min_samples``, or stop at ``max_s``.
 Motion while averaging discards the average and starts over (a re-capture).
 """
 from __future__ import annotations
@@ -46,7 +50,9 @@ class CaptureSettings:
     k_enter: float = 4.5
     k_leave: float = 7.0
     hold_s: float = 0.3
-    target_sem_mg: float = 0.05
+    target_sem_mg: float | None = None  # per-pose SEM, mg: the compat rule, else a floor (module docstring)
+    target_offset_u_mg: float | None = 0.018  # the fitted offsets' standard uncertainty target, mg
+    target_gain_u: float | None = 1e-4  # the fitted gains' standard uncertainty target, fraction (100 ppm)
     min_samples: int = 32
     max_s: float = 20.0
     settle_timeout_s: float = 30.0
@@ -70,6 +76,7 @@ class GatedCapture:
     events: list[str] = field(default_factory=list)
 
 
+DEFAULT_SEM_MG = 0.05  # a capture's per-axis SEM target when capture.target_sem_mg is unset
 MIN_TAUS = 50  # samples a capture spans, in integrated autocorrelation times, before it may stop
 
 
@@ -139,16 +146,20 @@ class StillnessGate:
 
 def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndarray | None = None,
                   floor_counts: np.ndarray | None = None, keep: bool = False,
-                  progress: Callable[[float], None] | None = None) -> GatedCapture:
+                  progress: Callable[[float], None] | None = None,
+                  needed: Callable[[np.ndarray], int] | None = None) -> GatedCapture:
     """Capture one pose: wait for stillness, average adaptively, re-capture on motion.
 
     expected_g: the planned pose's expected output; a measured direction further than
     ``pose_tolerance_deg`` from it is refused, naming the face the board is actually on.
+    needed: the samples this pose needs given its samples so far (a sequential plan); None: the SEM rule.
     """
     s = settings
     block_n = max(4, int(round(s.block_s * driver.odr_hz)))
     gate = StillnessGate(s, floor_counts, driver.noise_lag1())
-    target = s.target_sem_mg * 1e-3 * driver.counts_per_g
+    sem_rule = needed is None or s.target_sem_mg is not None  # the SEM rule alone, or a plan's floor
+    target = (DEFAULT_SEM_MG if s.target_sem_mg is None else s.target_sem_mg) * 1e-3 * driver.counts_per_g
+    want = s.min_samples  # the plan is first asked once this many samples are in
     events: list[str] = []
     recaptures = 0
     waited = 0.0
@@ -184,10 +195,14 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
         n_eff = effective_n(allc)
         sem = allc.std(axis=0, ddof=1) / np.sqrt(n_eff)
         elapsed = float(ts[-1][-1] - ts[0][0])
+        if needed is not None and n >= want:
+            want = max(s.min_samples, needed(allc))
+        sem_ok = not sem_rule or bool(np.all(sem <= target))
         if progress is not None:
-            progress(min(1.0, max(elapsed / s.max_s, float(np.min(target / np.maximum(sem, 1e-12))) ** 2)))
+            done = n / want if needed is not None else float(np.min(target / np.maximum(sem, 1e-12))) ** 2
+            progress(min(1.0, max(elapsed / s.max_s, done)))
         # tau_int from a capture of a few tau reads low (Sokal's window bias ~ tau / n): at least MIN_TAUS x tau
-        reached = bool(np.all(sem <= target)) and n >= max(s.min_samples, MIN_TAUS * float(np.max(n / n_eff)))
+        reached = sem_ok and n >= max(want, MIN_TAUS * float(np.max(n / n_eff)))
         if reached or elapsed >= s.max_s:
             cap = Capture.from_samples(allc, np.concatenate(ts), dropped, driver.temperature_c(), keep)
             if expected_g is not None:

@@ -46,10 +46,12 @@ from .jig_pose import JigPoseEstimate, estimate_jig_poses
 from .panel_config import configured_serial, group_of, own_mount, panel_sections
 from .panel_mount import BoardMount, Failure, end_of_design, explained, sort_wrong_poses
 from .report import RunReport, RunReportJson
+from .sequential_capture import Needed, needed_at, plan_record
 from .settings import StationConfig
 from .station_fault import is_station_fault, station_fault_reason
 from .time_budget import DEFAULT_BUS_HZ, TimeBudget, panel_budget
 from .verdict import Stage
+from .verification import verification_poses
 
 
 class PerBoardSplit(TypedDict):
@@ -151,6 +153,7 @@ class Panel:
         self.design_taken: list[PoseSpec] | None = None  # the design's poses in the order taken (poses())
         self.verify_device_s = 0.0  # the verification's moves and captures: the fits run under them
         self.capture_wall_s = 0.0  # host wall time inside the panel's captures (time_budget.py)
+        self.presented: list[PoseSpec] = []  # the design's poses the jig presented, in order
 
     # -- building -------------------------------------------------------------------
     def build(self, steps: Callable[[], BoardSteps], report: Callable[[], RunReport], single: bool
@@ -181,17 +184,20 @@ class Panel:
 
     # -- capture ------------------------------------------------------------------------
     def _capture_one(self, b: PanelBoard, pose: PoseSpec, floor: np.ndarray | None,
-                     settings: CaptureSettings | None = None) -> tuple[GatedCapture | None, AccelcalError | None]:
+                     settings: CaptureSettings | None = None, needed: Needed | None = None
+                     ) -> tuple[GatedCapture | None, AccelcalError | None]:
         try:
             return gated_capture(b.driver, settings or self.cfg.capture, b.steps.mount @ pose.reference_g,
-                                 floor), None
+                                 floor, needed=needed), None
         except AccelcalError as e:  # WrongPose, not still, NACK...: this board's, never the panel's
             return None, e
 
     def capture_all(self, boards: list[PanelBoard], pose: PoseSpec,
-                    floors: dict[int, np.ndarray | None] | None = None, settings: CaptureSettings | None = None
+                    floors: dict[int, np.ndarray | None] | None = None, settings: CaptureSettings | None = None,
+                    needed: dict[int, Needed | None] | None = None
                     ) -> tuple[dict[int, GatedCapture], dict[int, AccelcalError]]:
-        """Capture ``pose`` on every active board at once: one thread per group, boards of a group in turn.
+        """Capture ``pose`` on every active board at once: one thread per group, boards of a group in turn;
+        ``needed``: each board's sequential plan's count for it.
 
         Returns the captures and the errors, by board index; nothing is marked failed here.
         """
@@ -205,7 +211,8 @@ class Panel:
 
         def run(members: list[PanelBoard]) -> None:
             for b in members:
-                gc, err = self._capture_one(b, pose, (floors or {}).get(b.index), settings)
+                gc, err = self._capture_one(b, pose, (floors or {}).get(b.index), settings,
+                                            (needed or {}).get(b.index))
                 with lock:
                     if gc is not None:
                         caps[b.index] = gc
@@ -222,19 +229,22 @@ class Panel:
 
     def present_and_capture(self, boards: list[PanelBoard], jig: Jig, pose: PoseSpec,
                             floors: dict[int, np.ndarray | None] | None = None, read_on: bool = False,
-                            settings: CaptureSettings | None = None) -> dict[int, GatedCapture]:
+                            settings: CaptureSettings | None = None, needed: dict[int, Needed | None] | None = None,
+                            move: bool = True) -> dict[int, GatedCapture]:
         """Present ``pose`` and capture the panel; a board that could not be captured fails with its reason.
 
         The panel is placed once: when every board reads a wrong pose it is the panel that is
         misplaced (unless each board's readings single another mounting out: panel_mount.explained),
         and an operator is asked to place it again (up to capture.max_recaptures).
         ``read_on`` (the design's poses): a board whose wrong pose another mounting may explain is
-        read on through the next poses (panel_mount.py; ``end_design`` ends it).
+        read on through the next poses (panel_mount.py; ``end_design`` ends it).  ``move`` False: the
+        jig already holds ``pose`` (verification at the last fit pose).
         """
         for attempt in range(self.cfg.capture.max_recaptures + 1):
-            jig.present(pose, None)
+            if move or attempt > 0:
+                jig.present(pose, None)
             t0 = time.perf_counter()
-            caps, errors = self.capture_all(boards, pose, floors, settings)
+            caps, errors = self.capture_all(boards, pose, floors, settings, needed)
             self.capture_wall_s += time.perf_counter() - t0
             misplaced = len(boards) > 1 and not caps and errors and all(
                 isinstance(e, WrongPose) for e in errors.values()) and not explained(
@@ -270,16 +280,22 @@ class Panel:
                 self.echo(f"  {b.name}: {b.rep.reasons[-1]}")
 
     def poses(self, boards: list[PanelBoard], jig: Jig, design: list[PoseSpec]) -> None:
+        """Every pose of ``design`` on every board still in the flow, each board to its own sequential plan."""
         self.design_taken = design  # the order the poses are taken in (the records' order; fit_all's)
+        plans = {b.index: b.steps.sequential_plan(b.driver, design) for b in boards if b.active}
+        self.presented = []
         for i, pose in enumerate(design):
             self.echo(f"[{i + 1}/{len(design)}] {pose.name}")
-            caps = self.present_and_capture(boards, jig, pose, {b.index: b.floor for b in boards}, read_on=True)
+            caps = self.present_and_capture(boards, jig, pose, {b.index: b.floor for b in boards}, read_on=True,
+                                            needed={k: needed_at(p, i) for k, p in plans.items()})
+            self.presented.append(pose)
             for b in boards:
                 gc = caps.get(b.index)
                 if gc is None:
                     continue
                 b.floor = gc.floor_counts
                 c = gc.capture
+                pose_record = plan_record(plans.get(b.index), i, c)
                 b.records.append(PoseRecord(pose.name, c.mean_counts, c.std_counts, c.n,
                                             b.steps.expected_g(pose), *b.steps.chip_angles(pose),
                                             c.temp_c, c.dropped, c.t_start, c.t_end, c.n_eff))
@@ -289,7 +305,7 @@ class Panel:
                 sem_mg = c.sem_counts / b.driver.counts_per_g * 1e3
                 b.rep.poses.append({"pose": pose.name, "n": c.n, "mean_counts": c.mean_counts.tolist(),
                                     "sem_mg": sem_mg.tolist(), "retries": gc.recaptures,
-                                    "reached_target": gc.reached_target})
+                                    "reached_target": gc.reached_target, **pose_record})
                 b.rep.events += [f"{pose.name}: {ev}" for ev in gc.events + b.driver.take_events()]
         for b in boards:
             b.steps.mark_fit_done()
@@ -338,12 +354,15 @@ class Panel:
                 if b.cal is not None:
                     b.steps.judge_verified(b.cal, [], b.rep)
             return
-        poses = get_design(self.cfg.verify_design or self.cfg.design)[:n]
+        vp = verification_poses(self.cfg.verify_poses, self.cfg.schema.verify, self.cfg.design, self.presented)
         t0 = self._clock_now(todo)
-        for pose in visit_order(jig, poses):  # from the last fit pose (fixtures/pose_path.py)
-            self.echo(f"verify {pose.name}")
-            caps = self.present_and_capture(todo, jig, pose, settings=verify_settings(self.cfg))
+        # fit-poses: back along the path the jig took; independent poses: the shortest path from the last fit pose
+        for k, pose in enumerate(visit_order(jig, vp.poses) if vp.first_moves else vp.poses):
+            self.echo(f"verify {pose.name}" + (" (where the jig stands)" if k == 0 and not vp.first_moves else ""))
+            caps = self.present_and_capture(todo, jig, pose, settings=verify_settings(self.cfg),
+                                            move=k > 0 or vp.first_moves)
             for b in todo:
+                b.rep.verify_mode = vp.mode
                 gc = caps.get(b.index)
                 if gc is not None:
                     b.steps.samples_read += gc.samples_read

@@ -40,7 +40,9 @@ class PoseSummary(TypedDict, total=False):
     sem_mg: list[float]  # standard error of the mean per axis, mg: std / sqrt(n_eff)
     n_eff: list[float]  # effective sample count per axis, n / tau_int (correlated samples)
     retries: int
-    reached_target: bool  # the SEM target was met before capture.max_s
+    reached_target: bool  # the pose's stopping rule (its planned count, or the SEM target) was met before capture.max_s
+    planned_n: int  # the samples the sequential plan allocated this pose (station/sequential_capture.py)
+    predicted_offset_u_mg: float  # the plan's predicted largest offset standard uncertainty once this pose was in
     set_point_c: float
     role: str
     temp_c: float | None
@@ -174,6 +176,7 @@ class RunReportJson(TypedDict):
     held: list[JsonObject]  # terms held at nominal (models.held.Held.to_json)
     measured: dict[str, float]
     verify_error_max_mg: float | None
+    verify_mode: str | None  # "fit-poses" or "independent" (station/verification.py); None: no verification
     nvm: JsonObject | None
     nvm_verified: bool
     offset_trim_lsb: list[int] | None
@@ -213,6 +216,7 @@ class RunReport:
     fit: FitResult | None = None
     measured: dict[str, float] = field(default_factory=dict)
     verify_error_max_mg: float | None = None
+    verify_mode: str | None = None  # how the verification poses were chosen (station/verification.py)
     nvm: JsonObject | None = None  # the burn's outcome (nvm.writer.BurnOutcome.to_dict)
     nvm_verified: bool = False
     offset_trim_lsb: list[int] | None = None
@@ -275,6 +279,7 @@ class RunReport:
             "crossval_rms_mg": None if f is None or f.crossval_rms_g is None else f.crossval_rms_g * 1e3,
             "held": [] if f is None else [h.to_json() for h in f.held],  # terms at nominal (models/held.py)
             "measured": self.measured, "verify_error_max_mg": self.verify_error_max_mg,
+            "verify_mode": self.verify_mode,
             "nvm": self.nvm, "nvm_verified": self.nvm_verified, "offset_trim_lsb": self.offset_trim_lsb,
             "offset_trim": self.offset_trim, "self_test": self.self_test, "warmup": self.warmup,
             "poses": self.poses, "skipped": self.skipped,

@@ -36,6 +36,7 @@ from ..models.fitting import check_model
 from ..store.heartbeat import HEARTBEAT_S
 from ..store.location import outbox_of, store_path, store_target
 from .capture import CaptureSettings
+from .verification import verify_mode
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,7 @@ class StationConfig:
                               "offset registers; allowed with models 6, 9, 12")
         if self.verify_design is not None:
             get_design(self.verify_design)
+        verify_mode(self.schema.verify)  # verify.mode against verify.design (station/verification.py)
         _ = self.store_file, self.limits, self.verify_poses, self.web_token, self.web_read_token, self.site
         return self
 
@@ -226,8 +228,12 @@ def _plan(plan: PlanSection) -> tuple[str, str]:
 
 
 def _capture_settings(cap: CaptureSection) -> CaptureSettings:
-    """capture: (ranges from the schema; its defaults are CaptureSettings', a test keeps them equal)."""
+    """capture: (ranges from the schema; its defaults are CaptureSettings', a test keeps them equal).
+    Precedence: parameter targets (sequential capture) unless the file gives target_sem_mg alone."""
     settings = CaptureSettings(**cap.model_dump())
+    if "target_sem_mg" in cap.model_fields_set and not {"target_offset_u_mg", "target_gain_u"} & cap.model_fields_set:
+        # a config that names only the per-pose SEM keeps the per-pose rule (docs/capture.md, precedence)
+        settings.target_offset_u_mg = settings.target_gain_u = None
     if settings.k_leave < settings.k_enter:
         raise ConfigError("capture.k_leave must be >= capture.k_enter (hysteresis)")
     return settings

@@ -140,10 +140,12 @@ class FloorInputs:
     fit_poses: list[PoseSpec]
     verify_poses: list[PoseSpec]
     motion: JigMotion | None
-    target_sem_mg: float
+    target_sem_mg: float  # the per-pose target (capture.target_sem_mg, else capture.DEFAULT_SEM_MG)
     counts_per_g: float
     odr_hz: float
     records: list[PoseRecord]
+    verify_target_sem_mg: float | None = None  # a verification pose's target (verify.target_sem_mg); None: the same
+    fit_samples: int | None = None  # sequential capture: the fewest fit samples meeting the parameter targets
 
 
 def samples_needed(records: list[PoseRecord], target_counts: float) -> float:
@@ -162,9 +164,13 @@ def samples_needed(records: list[PoseRecord], target_counts: float) -> float:
 def floor_parts(f: FloorInputs, eeprom_s: float) -> tuple[float, float, float]:
     """(sampling, jig, EEPROM) parts of the floor, s: every fit and verification pose averaged to the target
     at the measured noise, the shortest jig path through them, and the EEPROM's write cycles as measured."""
-    target = f.target_sem_mg * 1e-3 * f.counts_per_g
-    per_pose = samples_needed(f.records, target) if target > 0 else 0.0
-    sampling = (len(f.fit_poses) + len(f.verify_poses)) * per_pose / f.odr_hz
+    def per_pose(target_mg: float) -> float:
+        target = target_mg * 1e-3 * f.counts_per_g
+        return samples_needed(f.records, target) if target > 0 else 0.0
+
+    fit_n = len(f.fit_poses) * per_pose(f.target_sem_mg) if f.fit_samples is None else float(f.fit_samples)
+    verify_n = len(f.verify_poses) * per_pose(f.verify_target_sem_mg or f.target_sem_mg)
+    sampling = (fit_n + verify_n) / f.odr_hz
     return sampling, jig_floor_s(f.motion, f.fit_poses, f.verify_poses), eeprom_s
 
 
