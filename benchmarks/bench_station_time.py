@@ -30,8 +30,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import table
 
-from accelcal_station.config.schema import DeviceSection
+from accelcal_station.config.schema import DeviceSection, VerifySection
 from accelcal_station.drivers.factory import make_driver
+from accelcal_station.station.capture import DEFAULT_SEM_MG
 from accelcal_station.station.flow import make_flow
 from accelcal_station.station.settings import StationConfig
 from accelcal_station.station.time_budget import COMPONENTS, bus_limit_boards
@@ -52,6 +53,16 @@ LABELS = {
 def seeded(cfg: StationConfig, seed: int) -> DeviceSection:
     """The config's device section with its seed set."""
     return cfg.device.model_copy(update={"seed": seed})
+
+
+def capture_target(cfg: StationConfig) -> str:
+    """The capture's stopping rule in words: the parameter targets (sequential capture) or the per-pose SEM."""
+    c = cfg.capture
+    if c.target_offset_u_mg is None and c.target_gain_u is None:
+        return f"target {c.target_sem_mg or DEFAULT_SEM_MG:g} mg a pose"
+    parts = [f"offset u {c.target_offset_u_mg:g} mg" if c.target_offset_u_mg is not None else "",
+             f"gain u {c.target_gain_u:g}" if c.target_gain_u is not None else ""]
+    return "to parameter targets: " + ", ".join(p for p in parts if p)
 
 
 def run_boards(cfg: StationConfig, boards: int, seed: int) -> tuple[dict[str, float], dict]:
@@ -115,8 +126,8 @@ def main(argv: list[str] | None = None) -> int:
         panel = run_panel(cfg, a.panel, a.seed) if a.panel > 0 else None
     print(f"station time per board (virtual time: device clock + host wall compute), mean of {a.boards} simulated "
           f"boards: {cfg.device.chip or 'mma8451'} at {facts['odr_hz']:g} Hz, design {cfg.design} + "
-          f"{cfg.verify_poses} verification poses, model {cfg.model}, capture target "
-          f"{cfg.capture.target_sem_mg:g} mg")
+          f"{cfg.verify_poses} verification poses ({(cfg.schema.verify or VerifySection()).mode}), model {cfg.model}, "
+          f"capture {capture_target(cfg)}")
     print(f"verdicts: {', '.join(sorted(set(facts['verdicts'])))}; offset standard error max "
           f"{np.nanmax(facts['stderr_offset_mg']):.4f} mg; verification error max "
           f"{np.nanmax(facts['verify_mg']):.3f} mg")

@@ -363,6 +363,7 @@ class Panel:
                                             move=k > 0 or vp.first_moves)
             for b in todo:
                 b.rep.verify_mode = vp.mode
+                b.steps.presented, b.steps.verify_taken = self.presented, vp.poses  # the board's floor (time_budget)
                 gc = caps.get(b.index)
                 if gc is not None:
                     b.steps.samples_read += gc.samples_read
