@@ -26,10 +26,11 @@ print(json.dumps({"code": code, "loaded": sorted(m for m in ("pandas", "pydantic
 """
 
 
-def test_a_lot_file_batch_imports_no_schema_store_or_pandas(tmp_path) -> None:
+@pytest.mark.parametrize("kind", ["csv", "parquet"])
+def test_a_lot_file_batch_imports_no_schema_store_or_pandas(tmp_path, kind) -> None:
     from accelcal_station.lot.synthetic import write_lot
 
-    lot = write_lot(tmp_path / "lot.csv", 40, "an4399-8", seed=51)
+    lot = write_lot(tmp_path / f"lot.{kind}", 40, "an4399-8", seed=51, parquet=kind == "parquet")
     out = subprocess.run([sys.executable, "-c", PROBE, str(lot), str(tmp_path / "r.csv")], capture_output=True,
                          text=True, check=True, cwd=tmp_path).stdout.strip().splitlines()[-1]
     doc = json.loads(out)

@@ -20,7 +20,7 @@ from ..errors import DataError
 from ..fileguard.numbers import ALLOWED, is_decimal
 from ..fileguard.regular import open_regular
 from ..models.threads import usable_cpus
-from .arrow_arrays import to_numpy
+from .arrow_arrays import strings, to_numpy
 from .lotchunk import COLUMNS, TEXT, Labels, LotChunk, arrays_chunk, missing_serial
 
 # CSV bytes parsed at once.  Arrow's streaming reader holds buffers that grow with the block:
@@ -209,8 +209,9 @@ def _arrow_text(col: Any, name: str, path: Path, row0: int, where: Where) -> Lab
         import pyarrow.compute as pc
 
         # through a dictionary: a Python str per distinct value (a serial per board, a few pose
-        # names), not one per row
-        enc = pc.dictionary_encode(pc.utf8_trim_whitespace(col.cast(pa.string())).fill_null(""))
+        # names), not one per row; "" as an Arrow scalar (a Python one goes through pa.scalar: pandas)
+        blank = strings([""])[0]
+        enc = pc.dictionary_encode(pc.utf8_trim_whitespace(col.cast(pa.string())).fill_null(blank))
         labels = Labels(np.array(enc.dictionary.to_pylist(), dtype=str),
                         np.asarray(_numpy(enc.indices), dtype=np.intp))
     if name == "serial":
