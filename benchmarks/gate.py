@@ -15,6 +15,10 @@ a 20x regression (a per-board Python loop put back) does.
              (the same parse and solve in plain numpy), both in subprocesses, asserted to agree
   station    a board of configs/sim.yaml on the simulated clock: its time budget's floor / its total
              (station/time_budget.py; virtual time, deterministic but for host compute), issue 51
+  small-lot  `accelcal batch LOT.csv --model 12 --out R.csv` on a 50,000-board lot vs
+             benchmarks/reference_batch_small.py (pandas read_csv in chunks, normal equations, residual
+             and leave-one-out RMS, one results CSV), whole processes (start-up included), asserted to
+             agree (issue 51: >= 2x)
 
   python benchmarks/gate.py            # the CI run (~30 s): exit 1 when a ratio is below its floor
   python benchmarks/gate.py --quick    # tiny sizes, one repetition: checks the gate runs and agrees
@@ -65,6 +69,9 @@ FLOORS: dict[str, tuple[float, str]] = {
                  "(`accelcal fit` 1.5-2.6x the numpy script's time, both new processes)"),
     "station": (0.57, "issue 51 (branch h55jig, 2026-11-29, load 8-14): 0.96 / 0.95 / 0.91 (a board of 30.7-33.6 s "
                       "against its 32.2-32.9 s floor)"),
+    "small-lot": (1.3, "issue 51 (2026-11-29, 50,000 boards, 5 runs each): 2.22 at load 8; side by side with main "
+                       "(5b8728a) at load 12-14, main 1.61 wall / 1.64 CPU, trimmed 2.61 / 2.29 (main imported "
+                       "pandas through pyarrow and the config schema to name the default store)"),
 }
 
 # the limits the lot gate judges (keys the reference implements); tight enough that some boards FAIL
@@ -260,6 +267,31 @@ def station_gate(boards: int, tmp: Path) -> Gate:
     floor = statistics.mean(b["floor_s"] for b in budgets[1:])
     return Gate("station", total, floor, f"{boards} boards of configs/sim.yaml: {total:.2f} s a board, floor "
                                          f"{floor:.2f} s (virtual time + host compute)")
+def _results_numbers(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(serials, W V residual-RMS leave-one-out-RMS columns) of a results CSV, by header name."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    keys = [*(f"W{i}{j}" for i in range(3) for j in range(3)), "V0", "V1", "V2", "residual_rms_mg", "crossval_rms_mg"]
+    return np.array([r["serial"] for r in rows]), np.array([[float(r[k]) for k in keys] for r in rows])
+
+
+def small_lot_gate(boards: int, reps: int, tmp: Path) -> Gate:
+    """`accelcal batch` on a small lot against the plain pandas + numpy script, whole processes."""
+    from accelcal_station.lot.synthetic import write_lot
+
+    lot = write_lot(tmp / "small-lot.csv", boards, "an4399-8", seed=51)
+    out_p, out_r = tmp / "small-project.csv", tmp / "small-reference.csv"
+    project = [*_accelcal(), "batch", str(lot), "--model", "12", "--out", str(out_p), "--force"]
+    reference = [sys.executable, str(Path(__file__).resolve().parent / "reference_batch_small.py"), str(lot),
+                 str(out_r)]
+    run = lambda cmd: subprocess.run(cmd, stdout=subprocess.DEVNULL, check=True)  # noqa: E731
+    tp, tr = interleaved(lambda: run(project), lambda: run(reference), reps)
+    (sp, p), (sr, r) = _results_numbers(out_p), _results_numbers(out_r)
+    assert np.array_equal(sp, sr), "small lot: boards differ"
+    gap = float(np.max(np.abs(p - r) / np.maximum(np.abs(r), 1e-3)))
+    assert gap < 1e-9, f"small lot: accelcal batch and the pandas script differ by {gap:.3g} (relative)"
+    return Gate("small-lot", tp, tr, f"{boards} boards model 12, whole processes: accelcal batch {tp:.2f} s, "
+                                     f"pandas + numpy script {tr:.2f} s; W, V, RMS, leave-one-out agree")
 
 
 def run_gates(quick: bool = False) -> list[Gate]:
@@ -270,6 +302,7 @@ def run_gates(quick: bool = False) -> list[Gate]:
         gates.append(cli_gate(1 if quick else 9))
         gates.append(fit_gate(1 if quick else 7, Path(tmp)))
         gates.append(station_gate(1 if quick else 3, Path(tmp)))
+        gates.append(small_lot_gate(300 if quick else 50_000, 1 if quick else 5, Path(tmp)))
     return gates
 
 

@@ -133,11 +133,18 @@ def config_store_file(config_path: str | Path | None) -> Path | None:
     """The SQLite store file a station config (default: the default station's) records into, so that
     no output replaces it; None when the config cannot say (reading it reports why, later)."""
     from ..config.checks import load_yaml
-    from ..config.sections import default_config_path
-    from ..store.location import store_path
+    from ..config.default_config import default_config_path
 
     try:
-        return store_file(store_path(load_yaml(config_path or default_config_path()), Path.cwd()))
+        config = load_yaml(config_path or default_config_path())
+        section = config.get("store")
+        if isinstance(section, dict) and set(section) == {"path"} and isinstance(section["path"], str) \
+                and section["path"].strip():  # a bare path (sim.yaml's): the schema would take it as it is
+            path = section["path"]
+            return store_file(path if "://" in path else Path.cwd() / Path(path).expanduser())
+        from ..store.location import store_path  # through the schema (pydantic: ~0.3 s to import)
+
+        return store_file(store_path(config, Path.cwd()))
     except AccelcalError:
         return None
 

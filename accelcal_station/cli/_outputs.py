@@ -25,7 +25,7 @@ def stores_reached(config: str | Path | None = None, has_config: bool = True,
     if has_config:
         label = f"the store of --config {config}" if config else "the default station's store"
         found.append((label, config_store_file(config)))
-    from ..store.location import DEFAULT_STORE  # here: --help imports no store code
+    from ..store.database import DEFAULT_STORE  # here: --help imports no store code
 
     found.append(("the default store", Path.cwd() / DEFAULT_STORE))
     return found

@@ -10,6 +10,7 @@ import json
 import sys
 from collections.abc import Sequence
 from contextlib import AbstractContextManager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, TypedDict
 
@@ -125,22 +126,39 @@ def _arrow_allocator() -> None:
         pass
 
 
-def _lot_mode(ctx: click.Context, paths: tuple[str, ...], model: str, units: str | None, cpg: float | None,
-              grav: float | None, out: str, config_path: str | None, chunk_boards: int, as_json: bool,
-              force: bool, other: list[str]) -> None:
-    """accelcal batch LOT --out RESULTS: stream a lot file into one results table."""
+@dataclass(frozen=True)
+class LotRequest:
+    """`accelcal batch LOT --out RESULTS`, as given: the lot file(s) named, how to fit them (model, units,
+    counts per g, site gravity), the results table, the config whose limits judge, the chunk size."""
+
+    paths: tuple[str, ...]
+    model: str
+    units: str | None
+    counts_per_g: float | None
+    gravity_mps2: float | None
+    out: str
+    config_path: str | None
+    chunk_boards: int
+    as_json: bool
+    force: bool
+
+
+def _lot_mode(ctx: click.Context, req: LotRequest, other: list[str]) -> None:
+    """accelcal batch LOT --out RESULTS: stream a lot file into one results table (``other``: the
+    options of the other modes given, refused)."""
     from ..lot.streaming import recalibrate_lot
 
+    paths, out, model, config_path, as_json = req.paths, req.out, req.model, req.config_path, req.as_json
     if other:
         raise DataError(f"--out writes a lot file's results table; {', '.join(other)} cannot be combined with it")
     if len(paths) != 1:
         raise DataError(f"--out takes one lot file; got {len(paths)} path(s)")
     refuse_output([("--out", out, output_kind(out))], [("the lot file", paths[0]), ("--config", config_path)],
-                  force, config=config_path)
+                  req.force, config=config_path)
     limits = _limits(config_path)
     _arrow_allocator()
-    summary = recalibrate_lot(paths[0], out, model, units=units, counts_per_g=cpg, gravity_mps2=grav,
-                              limits=limits, chunk_boards=chunk_boards)
+    summary = recalibrate_lot(paths[0], out, model, units=req.units, counts_per_g=req.counts_per_g,
+                              gravity_mps2=req.gravity_mps2, limits=limits, chunk_boards=req.chunk_boards)
     if as_json:
         click.echo(json.dumps(_clean({**summary.to_dict(), "out": str(out)}), allow_nan=False))
     else:
@@ -207,8 +225,8 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
     cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
     _check_chunk_boards(ctx, out, config_path, chunk_boards)
     if out is not None:
-        _lot_mode(ctx, paths, model, units, cpg, grav, out, config_path,
-                  parse_int(chunk_boards, "--chunk-boards") or 0, as_json, force,
+        _lot_mode(ctx, LotRequest(paths, model, units, cpg, grav, out, config_path,
+                                  parse_int(chunk_boards, "--chunk-boards") or 0, as_json, force),
                   _given(("--from-store", from_store), ("--out-dir", out_dir), ("--csv", csv_path),
                          ("--to-store", to_store)))
         return

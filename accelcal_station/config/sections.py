@@ -1,22 +1,11 @@
 """Station-config sections that the data commands read (the measurements themselves: loader.py)."""
 from __future__ import annotations
 
-from importlib.resources import files
-from pathlib import Path
-
 from ..errors import ConfigError
 from .checks import load_yaml
+from .default_config import default_config_path as default_config_path  # its home before issue 51
 from .kinds import DeviceSection, Mma8451Device, SimulatedDevice
 from .schema import validate_device
-
-
-def default_config_path() -> Path:
-    """configs/sim.yaml, wherever the package is installed (an editable checkout or site-packages).
-
-    Resolved, so a checkout names the file where it lies (``configs/sim.yaml``), not through the
-    package's link to that folder.
-    """
-    return Path(str(files("accelcal_station.configs").joinpath("sim.yaml"))).resolve()
 
 
 def device_section(path: str) -> DeviceSection:

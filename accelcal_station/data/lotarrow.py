@@ -20,6 +20,7 @@ from ..errors import DataError
 from ..fileguard.numbers import ALLOWED, is_decimal
 from ..fileguard.regular import open_regular
 from ..models.threads import usable_cpus
+from .arrow_arrays import strings, to_numpy
 from .lotchunk import COLUMNS, TEXT, Labels, LotChunk, arrays_chunk, missing_serial
 
 # CSV bytes parsed at once.  Arrow's streaming reader holds buffers that grow with the block:
@@ -208,10 +209,11 @@ def _arrow_text(col: Any, name: str, path: Path, row0: int, where: Where) -> Lab
         import pyarrow.compute as pc
 
         # through a dictionary: a Python str per distinct value (a serial per board, a few pose
-        # names), not one per row
-        enc = pc.dictionary_encode(pc.utf8_trim_whitespace(col.cast(pa.string())).fill_null(""))
+        # names), not one per row; "" as an Arrow scalar (a Python one goes through pa.scalar: pandas)
+        blank = strings([""])[0]
+        enc = pc.dictionary_encode(pc.utf8_trim_whitespace(col.cast(pa.string())).fill_null(blank))
         labels = Labels(np.array(enc.dictionary.to_pylist(), dtype=str),
-                        np.asarray(enc.indices.to_numpy(zero_copy_only=False), dtype=np.intp))
+                        np.asarray(_numpy(enc.indices), dtype=np.intp))
     if name == "serial":
         blank = np.flatnonzero(labels.table == "")
         if blank.size:
@@ -245,7 +247,7 @@ def _arrow_number(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int
 def _finite(col: Any, name: str, path: Path, row0: int, bad_rows: dict[int, str]) -> np.ndarray:
     """A float64 Arrow column as numpy, NaN for null (an empty cell); a NaN or infinite value that is
     not null (a 'nan' or 'inf' cell, a Parquet NaN) marks its row bad, as a pose table refuses it."""
-    out = np.asarray(col.to_numpy(zero_copy_only=False), dtype=float)
+    out = np.asarray(_numpy(col), dtype=float)
     with np.errstate(over="ignore", invalid="ignore"):
         if np.isfinite(out.sum()) or (not np.isinf(out).any() and int(np.isnan(out).sum()) == col.null_count):
             return out
@@ -262,8 +264,10 @@ def _dictionary_text(col: Any) -> Labels:
     strings.strip trims exactly what Arrow's utf8_trim_whitespace (the text path's) trims, the
     Unicode White_Space characters (tests/test_lot.py checks every code point), in one call, with
     no pyarrow.compute."""
-    values = np.strings.strip(np.asarray(col.dictionary.to_numpy(zero_copy_only=False)).astype(str))
-    idx = col.indices.to_numpy(zero_copy_only=False)
+    # to_pylist, not to_numpy: Arrow turns a string array into numpy through pandas where pandas is
+    # installed (0.5 s of imports at start-up, issue 51); the dictionary is a few thousand values a chunk
+    values = np.strings.strip(np.array(col.dictionary.to_pylist(), dtype=str))
+    idx = _numpy(col.indices)
     if col.null_count:  # nulls come out as NaN: the table's last entry, ""
         return Labels(np.append(values, ""), np.asarray(np.where(np.isnan(idx), len(values), idx), dtype=np.intp))
     return Labels(values, np.asarray(idx, dtype=np.intp))
@@ -445,3 +449,10 @@ def _after(batches: Iterable[Any], row0: int) -> Iterator[Any]:
             continue
         yield batch.slice(left) if left else batch
         left = 0
+
+
+def _numpy(col: Any) -> np.ndarray:
+    """An Arrow array as numpy: through its buffers when it can (arrow_arrays: no pandas imported),
+    else Arrow's own conversion (nulls: NaN in a float copy)."""
+    out = to_numpy(col)
+    return col.to_numpy(zero_copy_only=False) if out is None else out

@@ -255,19 +255,18 @@ class ResultsWriter:
 def _arrow_table(cols: ResultColumns, csv: bool = False) -> Any:
     """The chunk as an Arrow table (null where a value does not exist); ok as 0/1 in CSV."""
     import pyarrow as pa
-    arrays = {}
+
+    from .arrow_arrays import booleans, numbers, strings  # not pa.array: no pandas imported (issue 51)
+    arrays = []
     for c in RESULT_COLUMNS:
         v = cols[c]
         if c in FLOAT_COLUMNS:
             a = np.asarray(v, float)
-            nan = np.isnan(a)
-            arrays[c] = pa.array(a, mask=nan) if nan.any() else pa.array(a)
+            arrays.append(numbers(a, mask=np.isnan(a)))
         elif c == "ok":
-            arrays[c] = pa.array(np.asarray(v, np.int8 if csv else bool))
+            arrays.append(numbers(np.asarray(v, np.int8)) if csv else booleans(np.asarray(v, bool)))
         elif c in ("first_row", "pose_count"):
-            arrays[c] = pa.array(np.asarray(v, np.int64))
-        elif isinstance(v, list) and v and v.count(v[0]) == len(v):  # one value (the model, an empty message)
-            arrays[c] = pa.repeat(pa.scalar(v[0], pa.string()), len(v))
+            arrays.append(numbers(np.asarray(v, np.int64)))
         else:
-            arrays[c] = pa.array(list(v), pa.string())
-    return pa.table(arrays)
+            arrays.append(strings(list(v)))
+    return pa.Table.from_arrays(arrays, names=list(RESULT_COLUMNS))

@@ -93,18 +93,40 @@ def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str, site
         for nz_flag in (False, True):
             idx = np.flatnonzero(can & (sizes == P) & (has_noise == nz_flag))
             if idx.size:
-                _fit_group(idx, int(P), x, ref, noise if nz_flag else None, starts, model, per_g, units,
-                           out, reasons)
+                _fit_group(idx, int(P), ChunkReadings(x, ref, noise if nz_flag else None, starts),
+                           LotScale(model, per_g, units), out, reasons)
     out["message"] = ["" if r is None else r for r in reasons]
     return out
 
 
-def _fit_group(idx: np.ndarray, P: int, x: np.ndarray, ref: np.ndarray | None, noise: np.ndarray | None,
-               starts: np.ndarray, model: str, per_g: float | None, units: str, out: ChunkFit,
+@dataclass(frozen=True)
+class ChunkReadings:
+    """A chunk's pose rows as data.lotfile.board_arrays gives them (readings, references in g, stated
+    per-sample std; None where the lot has none) and the row where each board starts (B + 1)."""
+
+    x: np.ndarray
+    ref: np.ndarray | None
+    noise: np.ndarray | None
+    starts: np.ndarray
+
+
+@dataclass(frozen=True)
+class LotScale:
+    """How a lot's readings are fitted: the model, the input units per g (None: each board's nominal
+    scale) and the units' name (for the messages)."""
+
+    model: str
+    per_g: float | None
+    units: str
+
+
+def _fit_group(idx: np.ndarray, P: int, readings: ChunkReadings, how: LotScale, out: ChunkFit,
                reasons: list[str | None]) -> None:
     """Fit the boards ``idx`` (all with ``P`` poses) in one stacked fit into ``out``; a board that
     cannot be fitted gets its reason."""
-    rows = _BoardRows(idx, P, starts)
+    x, ref, noise = readings.x, readings.ref, readings.noise
+    model, per_g, units = how.model, how.per_g, how.units
+    rows = _BoardRows(idx, P, readings.starts)
     xs = rows.take(x)
     if per_g is None:
         scale = nominal_scale(xs)

@@ -26,6 +26,11 @@ if TYPE_CHECKING:
 Row = Mapping[str, Any]  # a result row by column name (SQLAlchemy's RowMapping, or a checked dict)
 
 
+# the store a station config names when it names none (config/schema.py StoreSection.path); here, not in
+# location.py, so that naming it imports no config schema (issue 51: `accelcal batch LOT --out` start-up)
+DEFAULT_STORE = "accelcal-runs.sqlite"
+
+
 def is_url(target: object) -> TypeGuard[str]:
     return isinstance(target, str) and "://" in target
 

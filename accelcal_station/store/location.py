@@ -9,9 +9,8 @@ from pathlib import Path
 from ..config.parts import parse
 from ..config.schema import StoreSection
 from ..errors import ConfigError
+from .database import DEFAULT_STORE as DEFAULT_STORE  # its home before issue 51; callers import it here
 from .database import describe_target, is_url
-
-DEFAULT_STORE = "accelcal-runs.sqlite"
 
 
 def store_path(config: Mapping[str, object] | StoreSection | None, base_dir: str | Path = ".") -> Path | str:
