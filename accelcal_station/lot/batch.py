@@ -240,7 +240,7 @@ def _screen(session: Session, model: str) -> str | None:
 
 def _group_key(s: Session) -> tuple[Any, ...]:
     return (len(s), s.units, s.counts_per_g is None, s.gravity_mps2 if s.units == "mps2" else None,
-            s.noise() is not None)
+            s.noise() is not None, s.site_gravity_g)  # model 9's norm is the site's (models/site_norm.py)
 
 
 def _fit_stack(members: list[tuple[str, Session]], model: str) -> list[BoardResult]:
@@ -253,7 +253,8 @@ def _fit_stack(members: list[tuple[str, Session]], model: str) -> list[BoardResu
     noise = np.stack(cast("list[np.ndarray]", [s.noise() for s in ss])) if s0.noise() is not None else None
     cpg = None if s0.counts_per_g is None else np.array([s.counts_per_g for s in ss])
     try:
-        b = fit_batch(x, ref, model, units=s0.units, counts_per_g=cpg, gravity_mps2=s0.gravity_mps2, noise=noise)
+        b = fit_batch(x, ref, model, units=s0.units, counts_per_g=cpg, gravity_mps2=s0.gravity_mps2, noise=noise,
+                      norm_g=s0.site_gravity_g if model == "9" else 1.0)
     except AccelcalError as e:
         if len(members) == 1:
             return [_skip(members[0][0], s0, model, str(e))]

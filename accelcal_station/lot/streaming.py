@@ -94,7 +94,7 @@ def fit_chunk(chunk: LotChunk, model: str, per_g: float | None, units: str, site
             idx = np.flatnonzero(can & (sizes == P) & (has_noise == nz_flag))
             if idx.size:
                 _fit_group(idx, int(P), ChunkReadings(x, ref, noise if nz_flag else None, starts),
-                           LotScale(model, per_g, units), out, reasons)
+                           LotScale(model, per_g, units, site_g), out, reasons)
     out["message"] = ["" if r is None else r for r in reasons]
     return out
 
@@ -118,6 +118,7 @@ class LotScale:
     model: str
     per_g: float | None
     units: str
+    site_g: float = 1.0  # the site's gravity in standard g: model 9's calibrated norm (models/site_norm.py)
 
 
 def _fit_group(idx: np.ndarray, P: int, readings: ChunkReadings, how: LotScale, out: ChunkFit,
@@ -153,7 +154,8 @@ def _fit_group(idx: np.ndarray, P: int, readings: ChunkReadings, how: LotScale, 
         # ref is None only when board_arrays gave every board a reason (models 6/12/15 need one)
         # the one front of every path (models.fitting.fit_batch): identifiability, absurd
         # readings and coefficients, then the stacked estimator; readings already in g here
-        b = fit_batch(gf, None if model == "9" or ref is None else rows.take(ref), model, units="g", noise=nz)
+        b = fit_batch(gf, None if model == "9" or ref is None else rows.take(ref), model, units="g", noise=nz,
+                      norm_g=how.site_g if model == "9" else 1.0)
     except AccelcalError as e:
         for i in idx:
             reasons[i] = str(e)
