@@ -111,3 +111,18 @@ def test_batch_model9_takes_the_site_gravity(tmp_path):
         errs[label] = float(np.max(np.abs(np.diag(np.array(cal["W"])) - np.diag(M_truth))))
     assert errs["site"] < 5e-4, errs
     assert abs(errs["standard"] - GAP) < 5e-4, errs
+
+
+def test_batch_from_store_refits_model9_at_the_runs_site(tmp_path):
+    """A model-9 run at a 9.780 m/s^2 site, refitted from the store with `batch --from-store --model 9`:
+    the same poses, the same model and the stored run's site give the run's own gains (a refit at
+    standard gravity would be 2.7e-3 off)."""
+    st = make_flow(StationConfig.load(_station(tmp_path, {"gravity_mps2": LOCAL}, "run")), echo=lambda s: None)
+    (rep,) = st.run()
+    assert rep.fit is not None, rep.reasons
+    out = tmp_path / "refit"
+    r = CliRunner().invoke(cli, ["batch", "--from-store", str(tmp_path / "run.sqlite"), "--model", "9",
+                                 "--out-dir", str(out)])
+    assert r.exit_code == 0, r.output
+    (cal,) = [json.loads(p.read_text()) for p in out.glob("*.json")]
+    assert np.max(np.abs(np.diag(np.array(cal["W"])) - np.diag(rep.fit.W))) < 1e-6

@@ -269,9 +269,12 @@ class RunRecord:
     damage: list[DamagedRow] = field(default_factory=list)  # every damaged value of the run, its poses and events
 
     def session(self) -> Session:
+        meta: dict[str, Any] = {"run_id": self.id, "station_id": self.station_id, "lot": self.lot, "chip": self.chip,
+                                "started_at": iso(self.started_at)}
+        if self.site is not None and isinstance(self.site.get("gravity_mps2"), (int, float)):
+            meta["site"] = dict(self.site)  # the stored references are the site's; model 9's norm is too
         return Session(list(self.poses), self.units or "counts", self.counts_per_g, self.gravity_mps2,
-                       self.device_serial, {"run_id": self.id, "station_id": self.station_id, "lot": self.lot,
-                                            "chip": self.chip, "started_at": iso(self.started_at)})
+                       self.device_serial, meta)
 
     def poses_unread(self) -> str | None:
         """Why a complete run's poses cannot all be read, None when they can: a complete run was
