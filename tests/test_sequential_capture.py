@@ -193,7 +193,8 @@ def test_one_board_repeated_scatter_matches_the_reported_offset_stderr(tmp_path:
 @pytest.mark.parametrize("mode, moves", [("fit-poses", 8), ("independent", 9)])
 def test_verification_at_the_last_fit_pose_needs_no_move(tmp_path: Path, mode: str, moves: int) -> None:
     """fit-poses: the one verification capture is taken where the last fit pose left the board (8 jig
-    moves for 8 poses); independent: the design's first pose presented again (9).  Both verify on fresh
+    moves for 8 poses, in the jig's shortest-path order); independent: the design's first pose presented
+    again (9).  Both verify on fresh
     samples (averaged beyond the fit's) and the NVM round trip."""
     cfg = _config(tmp_path, verify={"mode": mode, "poses": 1})
     driver = make_driver(cfg.device.model_copy(update={"seed": 3}))
@@ -204,7 +205,8 @@ def test_verification_at_the_last_fit_pose_needs_no_move(tmp_path: Path, mode: s
     assert rep.verify_mode == mode
     assert len(jig.motion) == moves
     verified = [s for s in lines if s.startswith("verify ")]
-    assert verified == (["verify p8 (where the jig stands)"] if mode == "fit-poses" else ["verify p1"])
+    last = rep.poses[-1]["pose"]  # the last pose the jig presented (its shortest path: fixtures/pose_path.py)
+    assert verified == ([f"verify {last} (where the jig stands)"] if mode == "fit-poses" else ["verify p1"])
     assert rep.timing["samples_averaged"] > sum(p["n"] for p in rep.poses)  # fresh samples, after the fit
     assert rep.nvm_verified
 
@@ -213,7 +215,8 @@ def test_three_fit_pose_verifications_walk_back_along_the_path(tmp_path: Path) -
     cfg = _config(tmp_path, verify={"mode": "fit-poses", "poses": 3}, nvm={"write": False})
     lines: list[str] = []
     (rep,) = make_flow(cfg, echo=lines.append, driver=make_driver(cfg.device.model_copy(update={"seed": 4}))).run()
-    assert [s.split()[1] for s in lines if s.startswith("verify ")] == ["p8", "p7", "p6"]
+    # back along the path the jig took: the last three poses presented, newest first
+    assert [s.split()[1] for s in lines if s.startswith("verify ")] == [p["pose"] for p in rep.poses][::-1][:3]
     assert rep.verdict == "PASS", rep.reasons
 
 
