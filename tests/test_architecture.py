@@ -158,14 +158,10 @@ PARAMETER_ALLOW_LIST = {
     "accelcal_station/cli/run.py:_web": "run's web front end; cli/run.py's parameter object (issue 52)",
     "accelcal_station/cli/run.py:_shift": "run --shift; cli/run.py's parameter object (issue 52)",
     "accelcal_station/cli/batch.py:command": "batch's click options; cli/batch.py's parameter object (issue 52/51)",
-    "accelcal_station/cli/batch.py:_lot_mode": "batch's lot mode; cli/batch.py's parameter object (issue 52/51)",
-    "accelcal_station/lot/streaming.py:_fit_group": "streamed lot fit; lot/ batch work of issue 51",
     "accelcal_station/station/flow.py:__init__": "the station flow; station/ is the config work of issue 52",
     "accelcal_station/station/flow.py:make_flow": "the flow factory; station/ is the config work of issue 52",
     "accelcal_station/station/shift.py:run_shift": "the shift loop; station/ is the config work of issue 52",
     "drivers/mpu6050_emulator.py:__init__": "the register-level emulator's physics knobs (issue 48's work)",
-    "fixtures/jig_emulator.py:__init__": "the motor-jig emulator's timing knobs (issue 51's jig work)",
-    "fixtures/motorized_jig.py:__init__": "the motorized jig's port and timing (issue 51's jig work)",
 }
 
 
