@@ -311,11 +311,11 @@ def test_the_factories_drivers_jigs_and_chamber_validate_nothing_again() -> None
     """One validation path: a station config is validated once (config/schema.py), a command's or a test's
     mapping through validate_device/validate_jig/validate_chamber; the factories, drivers, jigs, chamber and
     panel merge take the typed models and call no validation of their own.  Only what reads another input
-    validates it: a simulator or board file (drivers/simulated.py, drivers/emulator_files.py) and a board
+    validates it: a simulator or board file (drivers/simulated_section.py, drivers/emulator_files.py) and a board
     mapping handed to SimulatedBoard.from_config."""
     import ast
     names = {"parse", "validate", "validate_device", "validate_jig", "validate_chamber", "model_validate"}
-    allowed = {("simulated.py", "simulator_of"), ("simulated.py", "from_config"),
+    allowed = {("simulated_section.py", "simulator_of"), ("simulated.py", "from_config"),
                ("emulator_files.py", "emulator_options_from_file"), ("emulator_files.py", "board_config_from_file")}
     pkg = REPO / "accelcal_station"
     # drivers/ and fixtures/ sit at the top of the repository (installed as accelcal_station.drivers, ...)

@@ -176,12 +176,8 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
         still = gate.update(counts.astype(float), float(t[-1]))
         if not still:
             if acc:
-                recaptures += 1
-                events.append(f"moved during capture at t={t[-1] - t_first:.2f} s: average discarded")
-                log.info("capture retried (%d of %d): %s", recaptures, s.max_recaptures, events[-1])
+                recaptures = _discarded(s, events, recaptures + 1, float(t[-1]) - t_first)
                 acc, ts, dropped = [], [], 0
-                if recaptures > s.max_recaptures:
-                    raise NotStill(f"board kept moving: {recaptures} captures discarded (max {s.max_recaptures})")
             waited = float(t[-1]) - t_first
             if waited > s.settle_timeout_s:
                 raise NotStill(f"board not still after {s.settle_timeout_s:g} s "
@@ -204,12 +200,29 @@ def gated_capture(driver: Driver, settings: CaptureSettings, expected_g: np.ndar
         # tau_int from a capture of a few tau reads low (Sokal's window bias ~ tau / n): at least MIN_TAUS x tau
         reached = sem_ok and n >= max(want, MIN_TAUS * float(np.max(n / n_eff)))
         if reached or elapsed >= s.max_s:
-            cap = Capture.from_samples(allc, np.concatenate(ts), dropped, driver.temperature_c(), keep)
-            if expected_g is not None:
-                ang = angle_deg(cap.mean_counts, expected_g)
-                if ang > s.pose_tolerance_deg:
-                    raise WrongPose(expected_g, cap.mean_counts, ang)
+            cap = _on_pose(Capture.from_samples(allc, np.concatenate(ts), dropped, driver.temperature_c(), keep),
+                           expected_g, s.pose_tolerance_deg)
             return GatedCapture(cap, recaptures, waited, reached, gate.floor.copy(), read, events)
+
+
+def _discarded(s: CaptureSettings, events: list[str], recaptures: int, at_s: float) -> int:
+    """The board moved during a capture: its average is discarded (``recaptures`` so far, this one
+    included); NotStill once more than ``capture.max_recaptures`` were."""
+    events.append(f"moved during capture at t={at_s:.2f} s: average discarded")
+    log.info("capture retried (%d of %d): %s", recaptures, s.max_recaptures, events[-1])
+    if recaptures > s.max_recaptures:
+        raise NotStill(f"board kept moving: {recaptures} captures discarded (max {s.max_recaptures})")
+    return recaptures
+
+
+def _on_pose(cap: Capture, expected_g: np.ndarray | None, tolerance_deg: float) -> Capture:
+    """The capture, unless its measured direction is further than ``tolerance_deg`` from the planned
+    pose's (WrongPose names the face the board is actually on)."""
+    if expected_g is not None:
+        ang = angle_deg(cap.mean_counts, expected_g)
+        if ang > tolerance_deg:
+            raise WrongPose(expected_g, cap.mean_counts, ang)
+    return cap
 
 
 def wait_still(driver: Driver, settings: CaptureSettings) -> int:
