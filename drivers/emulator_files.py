@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from typing import TypedDict
 
+from numpy.typing import ArrayLike
+
 from ..config.checks import load_yaml
 from ..config.kinds import BridgeEmulatorSection, Mpu6050Device, SimulatedBoardSection
 from ..config.parts import parse
@@ -22,6 +24,18 @@ class BridgeFaults(TypedDict, total=False):
     offset_step_scale: float
     chip_ppm: float
     who_am_i: int
+
+
+class BridgeChip(BridgeFaults, total=False):
+    """MPU6050BridgeEmulator's keywords (PEP 692): the chip's faults (``BridgeFaults``) and the part
+    as wired: a chip on the bus at all, the bridge's serial (8 bytes), the chip's I2C address, its
+    factory trim (XA/YA/ZA_OFFS; unset: a draw) and the UART's baud rate."""
+
+    i2c_present: bool
+    serial: str | None
+    i2c_address: int
+    factory_offsets: ArrayLike | None
+    baud: int
 
 
 def bridge_faults(e: BridgeEmulatorSection | None) -> BridgeFaults:

@@ -31,17 +31,16 @@ import select
 import threading
 import time
 from collections import deque
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from ..config.kinds import Mpu6050Section
 from ..errors import ConfigError
 from ..sim.pty_server import PtyServer
 from . import bridge_protocol as bp
 from .eeprom import EEPROM24, PowerLossError
-from .emulator_files import bridge_faults, emulated_board
+from .emulator_files import BridgeChip, bridge_faults, emulated_board
 from .mpu6050 import (
     ACCEL_CONFIG,
     ACCEL_RATE_HZ,
@@ -75,31 +74,31 @@ class MPU6050BridgeEmulator(PtyServer):
     thread_name = "mpu6050-bridge"
     master_nonblocking = True  # _run polls the master between samples
 
-    def __init__(self, board: Any = None, seed: int | None = None, who_am_i: int = CHIP_ID,
-                 i2c_present: bool = True, serial: str | None = None, i2c_address: int = 0x68,
-                 factory_offsets: ArrayLike | None = None, chip_ppm: float = 0.0,
-                 baud: int = bp.DEFAULT_BAUD, self_test_codes: ArrayLike | None = None,
-                 self_test_share: ArrayLike | None = None, offset_step_scale: float = 1.0) -> None:
+    def __init__(self, board: Any = None, seed: int | None = None, **chip: Unpack[BridgeChip]) -> None:
         if board is None:
             from .simulated import SimulatedBoard
 
             board = SimulatedBoard.from_config(None, chip="mpu6050", seed=seed)
         self.board = board
-        self.who_am_i, self.i2c_present = who_am_i, i2c_present
+        self.who_am_i, self.i2c_present = chip.get("who_am_i", CHIP_ID), chip.get("i2c_present", True)
+        chip_ppm = chip.get("chip_ppm", 0.0)
         if not -1e5 < float(chip_ppm) < 1e5:
             raise ConfigError(f"chip_ppm: {chip_ppm!r}; allowed: -100000 < ppm < 100000")
         # the board's clock is the chip's; the MCU's runs chip_ppm slower when the chip is fast
         self.chip_ppm = float(chip_ppm)
         # one SAMPLE frame on the UART: 24 bytes of 10 bits (8N1); the firmware drops a sample
         # (a gap in the index) when the UART has no room for it, and never waits
-        self.uart_bytes_per_s = float(baud) / 10.0
+        self.uart_bytes_per_s = float(chip.get("baud", bp.DEFAULT_BAUD)) / 10.0
         self._tx_level, self._tx_t = 0.0, 0.0  # bytes in the UART's transmit buffer, and when
+        serial = chip.get("serial")
         serial = str(getattr(board, "serial", "EMUB0001"))[-8:] if serial is None else serial
-        self.serial, self.i2c_address = serial.encode("ascii", "replace")[:8].ljust(8, b"\0"), i2c_address
+        self.serial = serial.encode("ascii", "replace")[:8].ljust(8, b"\0")
+        self.i2c_address = chip.get("i2c_address", 0x68)
         self.nvm = EEPROM24(bp.NVM_SIZE, bp.NVM_PAGE_SIZE, EEPROM_WRITE_S_PER_BYTE * bp.NVM_PAGE_SIZE,
                             clock=board.clock)
         rng = np.random.default_rng(getattr(board, "seed", seed))
         # each chip has its own factory trim in XA/YA/ZA_OFFS, bit 0 included
+        factory_offsets = chip.get("factory_offsets")
         self.factory_offsets = (rng.integers(-4000, 4000, 3) if factory_offsets is None
                                 else np.asarray(factory_offsets, dtype=np.int64).reshape(3))
         self.lock = threading.RLock()  # held while the thread touches the board: take it to move the board
@@ -120,11 +119,13 @@ class MPU6050BridgeEmulator(PtyServer):
         self._rng = np.random.default_rng(rng.integers(2**32))
         # the accelerometer's factory self-test codes (SELF_TEST_X/Y/Z/A) and this chip's response as a
         # share of its factory trim (a draw per part; faults: a weak axis, 0: a self-test that does nothing)
-        self.self_test_codes = (rng.integers(8, 24, 3) if self_test_codes is None
-                                else np.asarray(self_test_codes, dtype=np.int64).reshape(3)) & 31
-        self.self_test_share = (1.0 + 0.04 * rng.standard_normal(3) if self_test_share is None
-                                else np.asarray(self_test_share, dtype=float).reshape(3))
+        codes, share = chip.get("self_test_codes"), chip.get("self_test_share")
+        self.self_test_codes = (rng.integers(8, 24, 3) if codes is None
+                                else np.asarray(codes, dtype=np.int64).reshape(3)) & 31
+        self.self_test_share = (1.0 + 0.04 * rng.standard_normal(3) if share is None
+                                else np.asarray(share, dtype=float).reshape(3))
         # a fault: this part's XA/YA/ZA_OFFS step differs from the 1/2048 g the driver assumes
+        offset_step_scale = chip.get("offset_step_scale", 1.0)
         if not 0.0 < float(offset_step_scale) < 10.0:
             raise ConfigError(f"offset_step_scale: {offset_step_scale!r}; allowed: 0 < scale < 10")
         self.offset_step_scale = float(offset_step_scale)

@@ -158,10 +158,6 @@ PARAMETER_ALLOW_LIST = {
     "accelcal_station/cli/run.py:_web": "run's web front end; cli/run.py's parameter object (issue 52)",
     "accelcal_station/cli/run.py:_shift": "run --shift; cli/run.py's parameter object (issue 52)",
     "accelcal_station/cli/batch.py:command": "batch's click options; cli/batch.py's parameter object (issue 52/51)",
-    "accelcal_station/station/flow.py:__init__": "the station flow; station/ is the config work of issue 52",
-    "accelcal_station/station/flow.py:make_flow": "the flow factory; station/ is the config work of issue 52",
-    "accelcal_station/station/shift.py:run_shift": "the shift loop; station/ is the config work of issue 52",
-    "drivers/mpu6050_emulator.py:__init__": "the register-level emulator's physics knobs (issue 48's work)",
 }
 
 

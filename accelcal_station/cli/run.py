@@ -20,6 +20,7 @@ from ..station.shift import (
     SERIAL_PROMPT_PAGE,
     BoardOutcome,
     OnBoard,
+    ShiftFrontEnd,
     ShiftSummary,
     board_station,
     check_shift_config,
@@ -181,7 +182,7 @@ def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: b
         if on_board is not None:
             on_board(b, rep)
 
-    tally, gone = run_shift(cfg, operator, lot, ui, echo, board, device_wait_s, on_start, tr(prompt), tr)
+    tally, gone = run_shift(cfg, operator, lot, ShiftFrontEnd(ui, echo, tr(prompt), tr), board, device_wait_s, on_start)
     s = tally.summary()
     if on_end is not None:
         on_end(s)

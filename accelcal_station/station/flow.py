@@ -12,18 +12,19 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
+from typing import Unpack
 
 from ..acceptance.reasons import Reason
 from ..config.serials import check_serial
-from ..drivers.base import Driver
 from ..drivers.factory import make_driver
 from ..errors import AccelcalError, DeviceError
 from ..fixtures.base import Jig
 from ..fixtures.factory import make_jig, sync_clocks
-from ..fixtures.operator_ui import OperatorUI
 from ..store.outbox import open_store
 from ..store.runs import Store
 from .board import BoardSteps
+from .flow_options import FlowOptions, FlowSetup
 from .panel import Panel, PanelBoard, PanelTiming, board_rate, board_session, make_panel_jig
 from .policy import Conditions, FlowPolicy
 from .recording import FinishArgs, record_result, start_args, stored_uncertainty
@@ -58,17 +59,15 @@ class StationFlow:
     """Runs boards x conditions: 1..N boards (``panel``), at room temperature or a thermal plan
     (``conditions``), a single board's differences in ``policy`` (module docstring)."""
 
-    def __init__(self, config: StationConfig, conditions: Conditions, policy: FlowPolicy, *,
-                 operator: str | None = None, serial: str | None = None, lot: str | None = None,
-                 echo: Callable[[str], None] = print, progress: Callable[[str, float], None] | None = None,
-                 drivers: list[Driver] | None = None, jig: Jig | None = None, ui: OperatorUI | None = None) -> None:
+    def __init__(self, config: StationConfig, conditions: Conditions, policy: FlowPolicy,
+                 setup: FlowSetup) -> None:
         self.cfg = config
         self.conditions = conditions
         self.policy = policy
-        self.ui = ui  # the operator's front end (terminal or browser), for an operator jig
-        self.operator, self.serial_override, self.lot, self.echo = operator, serial, lot, echo
-        self.progress = progress
-        self.panel = Panel(config, echo, drivers, jig, ui)
+        self.ui = setup.ui  # the operator's front end (terminal or browser), for an operator jig
+        self.operator, self.serial_override, self.lot, self.echo = setup.operator, setup.serial, setup.lot, setup.echo
+        self.progress = setup.progress
+        self.panel = Panel(config, setup.echo, setup.drivers, setup.jig, setup.ui)
         self.boards: list[PanelBoard] = []
 
     @property
@@ -358,17 +357,15 @@ class StationFlow:
                                     retries=b.retries if b.records else None)
 
 
-def make_flow(cfg: StationConfig, *, operator: str | None = None, serial: str | None = None,
-              lot: str | None = None, echo: Callable[[str], None] = print,
-              progress: Callable[[str, float], None] | None = None, drivers: list[Driver] | None = None,
-              driver: Driver | None = None, panel_id: str | None = None, jig: Jig | None = None,
-              ui: OperatorUI | None = None) -> StationFlow:
+def make_flow(cfg: StationConfig, **options: Unpack[FlowOptions]) -> StationFlow:
     """The flow a config asks for: its boards (``device.boards``: a panel; else one board), its
-    conditions (``thermal:`` and ``chamber:``: a thermal plan; else room temperature) and its policy."""
+    conditions (``thermal:`` and ``chamber:``: a thermal plan; else room temperature) and its policy;
+    ``options`` as flow_options.FlowSetup says."""
+    setup = FlowSetup(**options)
     conditions: Conditions = ThermalConditions(cfg) if cfg.is_thermal else RoomTemperature()
-    if driver is not None:
-        drivers = [driver]
+    drivers = setup.drivers
+    if setup.driver is not None:
+        drivers = [setup.driver]
     elif drivers is None and not cfg.is_panel:
         drivers = [make_driver(cfg.device)]
-    return StationFlow(cfg, conditions, FlowPolicy.for_config(cfg, panel_id), operator=operator, serial=serial,
-                       lot=lot, echo=echo, progress=progress, drivers=drivers, jig=jig, ui=ui)
+    return StationFlow(cfg, conditions, FlowPolicy.for_config(cfg, setup.panel_id), replace(setup, drivers=drivers))

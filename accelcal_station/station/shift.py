@@ -183,13 +183,25 @@ SERIAL_PROMPT_PAGE = N_("Board {n}: scan the serial number")
 ENDED_BY = (N_("end of input"), N_("Ctrl-C"), N_("device gone"))  # ShiftTally.ended_by, English in --json
 
 
-def run_shift(cfg: StationConfig, operator: str | None, lot: str | None, ui: OperatorUI,
-              echo: Callable[[str], None], on_board: OnBoard, device_wait_s: float = DEVICE_WAIT_S,
-              on_start: Callable[[str], None] | None = None,
-              prompt: str = SERIAL_PROMPT, tr: Translate = str) -> tuple[ShiftTally, DeviceGone | None]:
+@dataclass(frozen=True)
+class ShiftFrontEnd:
+    """How a shift speaks with its operator: the front end that asks for serials (terminal or
+    browser), where the boards' lines go, the serial prompt (``{n}``: the board's number) and the
+    translation of what the operator reads."""
+
+    ui: OperatorUI
+    echo: Callable[[str], None]
+    prompt: str = SERIAL_PROMPT
+    tr: Translate = str
+
+
+def run_shift(cfg: StationConfig, operator: str | None, lot: str | None, front: ShiftFrontEnd,
+              on_board: OnBoard, device_wait_s: float = DEVICE_WAIT_S,
+              on_start: Callable[[str], None] | None = None) -> tuple[ShiftTally, DeviceGone | None]:
     """Board after board until the operator ends the shift; returns the tally, and the DeviceGone
     that ended it early if the device never came back.  Ctrl-C ends the shift too (the board it
     interrupts is recorded interrupted, counted aborted)."""
+    ui, echo, prompt, tr = front.ui, front.echo, front.prompt, front.tr
     tally = ShiftTally(cfg.station_id)
     while True:
         try:
