@@ -154,10 +154,6 @@ MAX_PARAMETERS = 9  # positional + keyword-only, without self/cls; *args/**kwarg
 # Functions over MAX_PARAMETERS today, owned by other work in progress (issue 52): each with why it
 # is still here.  The list only shrinks: an entry that no longer exceeds the limit fails the test.
 PARAMETER_ALLOW_LIST = {
-    "accelcal_station/cli/run.py:command": "run's click options; its parameter object is issue 52's cli/run.py work",
-    "accelcal_station/cli/run.py:_web": "run's web front end; cli/run.py's parameter object (issue 52)",
-    "accelcal_station/cli/run.py:_shift": "run --shift; cli/run.py's parameter object (issue 52)",
-    "accelcal_station/cli/batch.py:command": "batch's click options; cli/batch.py's parameter object (issue 52/51)",
     "accelcal_station/station/flow.py:__init__": "the station flow; station/ is the config work of issue 52",
     "accelcal_station/station/flow.py:make_flow": "the flow factory; station/ is the config work of issue 52",
     "accelcal_station/station/shift.py:run_shift": "the shift loop; station/ is the config work of issue 52",
