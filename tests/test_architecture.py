@@ -151,14 +151,9 @@ def test_layout_block_names_exactly_the_folders_there_are():
 
 
 MAX_PARAMETERS = 9  # positional + keyword-only, without self/cls; *args/**kwargs not counted
-# Functions over MAX_PARAMETERS today, owned by other work in progress (issue 52): each with why it
-# is still here.  The list only shrinks: an entry that no longer exceeds the limit fails the test.
-PARAMETER_ALLOW_LIST = {
-    "accelcal_station/cli/run.py:command": "run's click options; its parameter object is issue 52's cli/run.py work",
-    "accelcal_station/cli/run.py:_web": "run's web front end; cli/run.py's parameter object (issue 52)",
-    "accelcal_station/cli/run.py:_shift": "run --shift; cli/run.py's parameter object (issue 52)",
-    "accelcal_station/cli/batch.py:command": "batch's click options; cli/batch.py's parameter object (issue 52/51)",
-}
+# Functions allowed over MAX_PARAMETERS, each with why (none since issue 52's parameter objects).  The
+# list only shrinks: an entry that no longer exceeds the limit fails the test.
+PARAMETER_ALLOW_LIST: dict[str, str] = {}
 
 
 def _parameter_count(node: ast.FunctionDef | ast.AsyncFunctionDef) -> int:

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from contextlib import AbstractContextManager
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, TypedDict
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict
 
 import click
 
@@ -208,11 +208,7 @@ def _lot_mode(ctx: click.Context, req: LotRequest, other: list[str]) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @force_option
 @click.pass_context
-def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, lot: str | None,
-            device: tuple[str, ...], station: str | None, since: str | None, until: str | None,
-            run_ids: tuple[str, ...], model: str, units: str | None, counts_per_g: str | None, gravity: str | None,
-            out_dir: str | None, csv_path: str | None, to_store: str | None, out: str | None,
-            config_path: str | None, chunk_boards: str, as_json: bool, force: bool = False) -> None:
+def command(ctx: click.Context, **opts: Any) -> None:
     """Recalibrate many boards with one model (vectorised); unfittable boards are reported and skipped.
 
     A lot file (one CSV or Parquet table of every pose, with a serial column) is
@@ -221,19 +217,51 @@ def command(ctx: click.Context, paths: tuple[str, ...], from_store: str | None, 
 
     Exit status 0: all boards fitted; 1: some skipped; 2: bad input.
     """
-    check_model_units(model, units)
-    cpg, grav = _number(counts_per_g, "--counts-per-g"), _number(gravity, "--gravity")
-    _check_chunk_boards(ctx, out, config_path, chunk_boards)
-    if out is not None:
-        _lot_mode(ctx, LotRequest(paths, model, units, cpg, grav, out, config_path,
-                                  parse_int(chunk_boards, "--chunk-boards") or 0, as_json, force),
-                  _given(("--from-store", from_store), ("--out-dir", out_dir), ("--csv", csv_path),
-                         ("--to-store", to_store)))
+    o = BatchCommand.from_click(opts)
+    check_model_units(o.model, o.units)
+    cpg, grav = _number(o.counts_per_g, "--counts-per-g"), _number(o.gravity, "--gravity")
+    _check_chunk_boards(ctx, o.out, o.config_path, o.chunk_boards)
+    if o.out is not None:
+        _lot_mode(ctx, LotRequest(o.paths, o.model, o.units, cpg, grav, o.out, o.config_path,
+                                  parse_int(o.chunk_boards, "--chunk-boards") or 0, o.as_json, o.force),
+                  _given(("--from-store", o.from_store), ("--out-dir", o.out_dir), ("--csv", o.csv_path),
+                         ("--to-store", o.to_store)))
         return
-    filters = _store_filters(from_store, lot, device, station, since, until, run_ids)
-    if _tables_mode(paths, from_store, filters, (model, units, cpg, grav), (out_dir, csv_path, to_store),
-                    config_path, as_json, force):
+    filters = _store_filters(o.from_store, o.lot, o.device, o.station, o.since, o.until, o.run_ids)
+    if _tables_mode(o.paths, o.from_store, filters, (o.model, o.units, cpg, grav), (o.out_dir, o.csv_path, o.to_store),
+                    o.config_path, o.as_json, o.force):
         ctx.exit(1)
+
+
+@dataclass(frozen=True)
+class BatchCommand:
+    """`accelcal batch`'s options as given (numbers still text: parsed, with their option's name, in
+    ``command``): the boards (paths, --from-store and its filters), the fit, the outputs, the mode."""
+
+    paths: tuple[str, ...]
+    from_store: str | None
+    lot: str | None
+    device: tuple[str, ...]
+    station: str | None
+    since: str | None
+    until: str | None
+    run_ids: tuple[str, ...]
+    model: str
+    units: str | None
+    counts_per_g: str | None
+    gravity: str | None
+    out_dir: str | None
+    csv_path: str | None
+    to_store: str | None
+    out: str | None
+    config_path: str | None
+    chunk_boards: str
+    as_json: bool
+    force: bool
+
+    @classmethod
+    def from_click(cls, o: Mapping[str, Any]) -> BatchCommand:
+        return cls(**{f.name: o[f.name] for f in fields(cls)})
 
 
 def _tables_mode(paths: tuple[str, ...], from_store: str | None, filters: StoreFilters,

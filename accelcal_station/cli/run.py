@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
 
 import click
 
@@ -62,52 +64,109 @@ from .operator_terminal import TerminalOperator
               type=Finite(0, 86400),
               help="With --shift: seconds to wait for a device that is gone between boards before the shift "
                    "ends (exit 3).")
-def command(config_path: str | None, serial: str | None, operator: str | None, lot: str | None,
-            store_file: str | None, port: str | None, jig_port: str | None, as_json: bool,
-            ui_kind: str, ui_host: str, ui_port: int, dry_run: bool, public: bool, shift: bool,
-            device_wait_s: float) -> None:
+def command(**opts: Any) -> None:
     """Calibrate one board: identify, present each pose, capture, fit, judge, write NVM, verify, record.
 
     Exit status: 0 PASS, 1 FAIL, 2 bad input or configuration, 3 device error,
     4 NVM error, 5 operator abort (the same with --ui web).  With --shift: 0 at the shift's end
     (whatever its boards' verdicts), 3 when the device stayed away longer than --device-wait.
     """
-    cfg = StationConfig.load(config_path, store_file, port, jig_port)
-    operator, lot = check_run_labels(operator, lot, cfg.station_id)  # as serials are: no formula, no control
-    _check_run(cfg, serial, shift)
-    if dry_run:
-        _dry_run(cfg, as_json)
+    o = RunCommand.from_click(opts)
+    cfg = StationConfig.load(o.config_path, o.store_file, o.port, o.jig_port)
+    operator, lot = check_run_labels(o.operator, o.lot, cfg.station_id)  # as serials are: no formula, no control
+    _check_run(cfg, o.serial, o.shift)
+    if o.dry_run:
+        _dry_run(cfg, o.as_json)
         return
     event_log.configure(cfg.event_log, avoid=(cfg.path, cfg.store_file))  # logging: (docs/logging.md)
+    as_json = o.as_json
 
     def echo(text: str) -> None:
         click.echo(text, err=as_json)
 
     tr = translator(language_of(cfg.schema.station))  # the operator's language (docs/language.md)
-    if shift and ui_kind == "terminal":
-        _shift(cfg, operator, lot, as_json, echo, TerminalOperator(echo, tr), device_wait_s, tr=tr)
+    run = RunOutput(cfg, operator, lot, as_json, echo, tr)
+    if o.shift and o.ui_kind == "terminal":
+        _shift(run, TerminalOperator(echo, tr), o.device_wait_s)
         return
-    if ui_kind == "web":
-        _web(cfg, operator, serial, lot, as_json, echo, (ui_host, ui_port, public), shift, device_wait_s, tr)
+    if o.ui_kind == "web":
+        _web(run, o.serial, o.page, o.shift, o.device_wait_s)
         return
     # identity questions and their retries always on stderr (stdout may be the JSON object)
-    _run(cfg, operator, serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True), tr),
+    _run(cfg, operator, o.serial, lot, as_json, echo, TerminalOperator(lambda t: click.echo(t, err=True), tr),
          TerminalOperator(echo, tr), lambda reports: None)
 
 
-def _web(cfg: StationConfig, operator: str | None, serial: str | None, lot: str | None, as_json: bool,
-         echo: Callable[[str], None], where: tuple[str, int, bool], shift: bool, device_wait_s: float,
-         tr: Translate) -> None:
-    """`--ui web`: the run (or the shift) with the operator page at ``where`` (host, port, --public)."""
+@dataclass(frozen=True)
+class OperatorPage:
+    """`--ui web`'s operator page: the address and port it listens on, and --public (no token)."""
+
+    host: str
+    port: int
+    public: bool
+
+
+@dataclass(frozen=True)
+class RunCommand:
+    """`accelcal run`'s options: the config and its overrides, the run's labels, the front end, the mode."""
+
+    config_path: str | None
+    serial: str | None
+    operator: str | None
+    lot: str | None
+    store_file: str | None
+    port: str | None
+    jig_port: str | None
+    as_json: bool
+    ui_kind: str
+    page: OperatorPage
+    dry_run: bool
+    shift: bool
+    device_wait_s: float
+
+    @classmethod
+    def from_click(cls, o: Mapping[str, Any]) -> RunCommand:
+        return cls(config_path=o["config_path"], serial=o["serial"], operator=o["operator"], lot=o["lot"],
+                   store_file=o["store_file"], port=o["port"], jig_port=o["jig_port"], as_json=o["as_json"],
+                   ui_kind=o["ui_kind"], page=OperatorPage(o["ui_host"], o["ui_port"], o["public"]),
+                   dry_run=o["dry_run"], shift=o["shift"], device_wait_s=o["device_wait_s"])
+
+
+@dataclass(frozen=True)
+class RunOutput:
+    """A run's (or a shift's) station, the labels it records (checked) and how it speaks: --json (stdout
+    is the JSON), ``echo`` (the human lines), ``tr`` (the operator's language)."""
+
+    cfg: StationConfig
+    operator: str | None
+    lot: str | None
+    as_json: bool
+    echo: Callable[[str], None]
+    tr: Translate
+
+
+@dataclass(frozen=True)
+class ShiftHooks:
+    """What a front end adds to a shift: a board started (its serial), a board ended, the shift's
+    summary, and the serial prompt it shows."""
+
+    on_start: Callable[[str], None] | None = None
+    on_board: OnBoard | None = None
+    on_end: Callable[[ShiftSummary], None] | None = None
+    prompt: str = SERIAL_PROMPT
+
+
+def _web(run: RunOutput, serial: str | None, page: OperatorPage, shift: bool, device_wait_s: float) -> None:
+    """`--ui web`: the run (or the shift) with the operator page at ``page``."""
     from ._operator_web import finish_outcome, finish_reports, web_operator
 
-    host, port, public = where
-    with web_operator(cfg, echo, host, port, shift=shift, public=public) as web:
+    with web_operator(run.cfg, run.echo, page.host, page.port, shift=shift, public=page.public) as web:
         if shift:
-            _shift(cfg, operator, lot, as_json, echo, web, device_wait_s, web.start_board,
-                   lambda b, rep: finish_outcome(web, b, rep), web.end_shift, SERIAL_PROMPT_PAGE, tr)
+            _shift(run, web, device_wait_s, ShiftHooks(web.start_board, lambda b, rep: finish_outcome(web, b, rep),
+                                                       web.end_shift, SERIAL_PROMPT_PAGE))
             return
-        _run(cfg, operator, serial, lot, as_json, echo, web, web, lambda reports: finish_reports(web, reports))
+        _run(run.cfg, run.operator, serial, run.lot, run.as_json, run.echo, web, web,
+             lambda reports: finish_reports(web, reports))
 
 
 def _dry_run(cfg: StationConfig, as_json: bool) -> None:
@@ -162,12 +221,11 @@ def _run(cfg: StationConfig, operator: str | None, serial: str | None, lot: str 
         raise click.exceptions.Exit(1)
 
 
-def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: bool, echo: Callable[[str], None],
-           ui: OperatorUI, device_wait_s: float, on_start: Callable[[str], None] | None = None,
-           on_board: OnBoard | None = None, on_end: Callable[[ShiftSummary], None] | None = None,
-           prompt: str = SERIAL_PROMPT, tr: Translate = str) -> None:
+def _shift(run: RunOutput, ui: OperatorUI, device_wait_s: float, hooks: ShiftHooks | None = None) -> None:
     """`run --shift`: each board printed as it ends (one JSON line each under --json), then the
     shift's summary (one JSON line); DeviceGone (exit 3) after the summary when the device stayed away."""
+    cfg, as_json, echo, tr = run.cfg, run.as_json, run.echo, run.tr
+    h = hooks if hooks is not None else ShiftHooks()
     echo(f"station {cfg.station_id}: design {cfg.design}, model {cfg.model}, config {cfg.path}; shift started")
 
     def board(b: BoardOutcome, rep: RunReport | None) -> None:
@@ -179,13 +237,14 @@ def _shift(cfg: StationConfig, operator: str | None, lot: str | None, as_json: b
         else:
             click.secho(f"{b.verdict} board {b.serial} (run {b.run_id}): " + "; ".join(
                 f"{reason_title(c, tr)} ({m})" for c, m in zip(b.reason_codes, b.messages, strict=True)), fg="yellow")
-        if on_board is not None:
-            on_board(b, rep)
+        if h.on_board is not None:
+            h.on_board(b, rep)
 
-    tally, gone = run_shift(cfg, operator, lot, ShiftFrontEnd(ui, echo, tr(prompt), tr), board, device_wait_s, on_start)
+    tally, gone = run_shift(cfg, run.operator, run.lot, ShiftFrontEnd(ui, echo, tr(h.prompt), tr), board, device_wait_s,
+                            h.on_start)
     s = tally.summary()
-    if on_end is not None:
-        on_end(s)
+    if h.on_end is not None:
+        h.on_end(s)
     if as_json:
         click.echo(json.dumps(jsonable(s), allow_nan=False))
     else:
