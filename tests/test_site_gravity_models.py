@@ -57,20 +57,27 @@ def test_model9_at_a_9_780_site_recovers_the_gains_in_standard_g(tmp_path):
     assert abs(err_standard - GAP) < 5e-4, err_standard
 
 
-def _simulate_faces(tmp_path):
-    """Six faces placed by hand (2 deg rms scatter) on a board with gain and offset only, at 9.780."""
+def _simulate(tmp_path, poses: str, seed: int, scatter_deg: float = 0.0, cross_axis: bool = True):
+    """A pose table of ``poses`` simulated at 9.780 m/s^2 (4000 samples a pose) and the truth's W."""
     cfg = yaml.safe_load(default_config_path().read_text())
     eff = cfg["device"]["simulator"]["effects"]
-    eff.pop("cross_axis")
+    if not cross_axis:
+        eff.pop("cross_axis")
     eff["gravity"] = {"local_mps2": LOCAL}
-    eff["pose_error"] = {"scatter_deg": 2.0}
-    conf = tmp_path / "faces.yaml"
+    if scatter_deg:
+        eff["pose_error"] = {"scatter_deg": scatter_deg}
+    conf = tmp_path / f"{poses}.yaml"
     conf.write_text(yaml.safe_dump(cfg))
-    table, truth = tmp_path / "faces.csv", tmp_path / "truth.json"
-    r = CliRunner().invoke(cli, ["simulate", "--config", str(conf), "--poses", "six-face", "--out", str(table),
-                                 "--truth-out", str(truth), "--seed", "4", "--samples", "4000"])
+    table, truth = tmp_path / f"{poses}.csv", tmp_path / f"{poses}-truth.json"
+    r = CliRunner().invoke(cli, ["simulate", "--config", str(conf), "--poses", poses, "--out", str(table),
+                                 "--truth-out", str(truth), "--seed", str(seed), "--samples", "4000"])
     assert r.exit_code == 0, r.output
     return table, np.array(json.loads(truth.read_text())["W"])
+
+
+def _simulate_faces(tmp_path):
+    """Six faces placed by hand (2 deg rms scatter) on a board with gain and offset only, at 9.780."""
+    return _simulate(tmp_path, "six-face", 4, scatter_deg=2.0, cross_axis=False)
 
 
 def test_hand_placed_fit_at_a_9_780_site_recovers_the_gains_in_standard_g(tmp_path):
@@ -92,15 +99,7 @@ def test_batch_model9_takes_the_site_gravity(tmp_path):
     """`accelcal batch --model 9 --gravity 9.780` on nine-position tables simulated at 9.780 m/s^2: the
     calibrations' gains in standard g (within 5e-4 of sqrt(W^T W)); without the site they are 2.7e-3 low,
     as every gain of a station that assumes standard gravity."""
-    cfg = yaml.safe_load(default_config_path().read_text())
-    cfg["device"]["simulator"]["effects"]["gravity"] = {"local_mps2": LOCAL}
-    conf = tmp_path / "nine.yaml"
-    conf.write_text(yaml.safe_dump(cfg))
-    table, truth = tmp_path / "nine.csv", tmp_path / "truth.json"
-    r = CliRunner().invoke(cli, ["simulate", "--config", str(conf), "--poses", "nine-position", "--out", str(table),
-                                 "--truth-out", str(truth), "--seed", "5", "--samples", "4000"])
-    assert r.exit_code == 0, r.output
-    W = np.array(json.loads(truth.read_text())["W"])
+    table, W = _simulate(tmp_path, "nine-position", 5)
     M_truth = np.real(sqrtm(W.T @ W))
     errs = {}
     for label, extra in (("site", ["--gravity", str(LOCAL)]), ("standard", [])):
